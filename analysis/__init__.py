@@ -1,0 +1,1 @@
+"""Signals, estimators, statistics, essential parameters and diagnostics."""

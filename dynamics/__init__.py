@@ -1,0 +1,1 @@
+"""Robot models, kinematics, the inverse-dynamics regressor and base parameters."""

@@ -1,0 +1,40 @@
+"""Errors dynid raises for bad input.
+
+Every message names the file, column or row at fault and says what to do,
+so the command-line front end can print it as is, without a traceback.
+"""
+
+
+class DynidError(Exception):
+    """Base class of every error dynid raises on purpose."""
+
+    exit_code = 1
+
+
+class InputError(DynidError, ValueError):
+    """The user's data or robot description cannot be used as given.
+
+    The CLI maps it to exit code 2 ("bad input").
+    """
+
+    exit_code = 2
+
+
+class RobotFileError(InputError):
+    """A robot description (TOML or URDF) is unreadable or inconsistent."""
+
+
+class DataError(InputError):
+    """An experiment file is unreadable or inconsistent."""
+
+
+class IdentificationError(DynidError):
+    """The data cannot identify the model (rank deficiency, too few samples...)."""
+
+    exit_code = 2
+
+
+class ConvergenceError(DynidError):
+    """An iterative method did not converge."""
+
+    exit_code = 3

@@ -1,0 +1,1 @@
+"""Tables, figures, HTML reports and the ``dynid`` command line."""
