@@ -1,0 +1,228 @@
+"""The standard inverse-dynamics regressor IDM_st(q, qd, qdd) of eq. (2).
+
+``tau = IDM_st(q, qd, qdd) chi_st`` with chi_st the standard parameters of
+eq. (3) (plus coupling parameters). The columns are built by the Newton-Euler
+algorithm written linearly in the parameters (Khalil & Dombre 2002, §12.4),
+for all samples at once: no Python loop runs over samples.
+
+How: the forward recursion gives each link's ``w, dw, dv`` in its own frame;
+the wrench of link ``j`` about its origin is linear in its ten inertial
+parameters, ``f = M dv + (dw x + w x w x) MS``,
+``n = I dw + w x (I w) + MS x dv``. The torque that this wrench loads joint
+``i <= j`` with is ``u_ij . n + v_ij . f``, where ``u_ij`` is joint ``i``'s
+axis and ``v_ij = z_i x (O_j - O_i)``, both expressed in frame ``j`` (for a
+prismatic joint ``i`` only ``z_i . f`` counts). That projection costs far less
+than propagating full wrenches back link by link.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from . import _kernels
+from .kinematics import _cross, forward_kinematics, newton_euler_forward
+from .robot import PER_JOINT
+
+N_PER_JOINT = len(PER_JOINT)
+DEFAULT_CHUNK = 10_000
+
+# symmetric basis matrices of the inertia tensor, order XX XY XZ YY YZ ZZ
+_I_BASIS = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)]
+
+
+def _as_samples(robot, q, qd, qdd):
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    qd = np.atleast_2d(np.asarray(qd, dtype=float))
+    qdd = np.atleast_2d(np.asarray(qdd, dtype=float))
+    n = robot.n_joints
+    for name, a in (("q", q), ("qd", qd), ("qdd", qdd)):
+        if a.ndim != 2 or a.shape[1] != n:
+            raise ValueError(f"{name} must have shape (N, {n}) for robot '{robot.name}', got {a.shape}")
+    if not (q.shape == qd.shape == qdd.shape):
+        raise ValueError(f"q, qd, qdd shapes differ: {q.shape}, {qd.shape}, {qdd.shape}")
+    return q, qd, qdd
+
+
+def _link_wrench_columns(w, dw, dv):
+    """Force and moment columns (N, 3, 10) of one link's wrench about its origin."""
+    N = w.shape[0]
+    f = np.zeros((N, 3, 10))
+    m = np.zeros((N, 3, 10))
+    # inertia tensor entries: n = D dw + w x (D w), D the symmetric basis matrix
+    for k, (a, b) in enumerate(_I_BASIS):
+        Ddw = np.zeros((N, 3))
+        Dw = np.zeros((N, 3))
+        Ddw[:, a] += dw[:, b]
+        Dw[:, a] += w[:, b]
+        if a != b:
+            Ddw[:, b] += dw[:, a]
+            Dw[:, b] += w[:, a]
+        m[:, :, k] = Ddw + _cross(w, Dw)
+    # first moments: f = dw x e + w x (w x e), n = e x dv
+    eye = np.eye(3)
+    for k in range(3):
+        e = np.broadcast_to(eye[k], (N, 3))
+        f[:, :, 6 + k] = _cross(dw, e) + _cross(w, _cross(w, e))
+        m[:, :, 6 + k] = _cross(e, dv)
+    # mass
+    f[:, :, 9] = dv
+    return f, m
+
+
+def _robot_arrays(robot):
+    """Placements as contiguous arrays for the compiled kernel."""
+    Rp = np.ascontiguousarray([j.R for j in robot.joints], dtype=float)
+    pp = np.ascontiguousarray([j.p for j in robot.joints], dtype=float)
+    return Rp, pp, np.ascontiguousarray(robot.sigma, dtype=np.int64)
+
+
+def _fill_chunk(robot, q, qd, qdd, out, gravity=None, backend="numba"):
+    """Write IDM_st for one chunk of samples into ``out`` (N, n, Ns), zeroed."""
+    N, n = q.shape
+    if backend == "numba" and _kernels.HAVE_NUMBA:
+        g = robot.gravity if gravity is None else np.asarray(gravity, dtype=float)
+        Rp, pp, sigma = _robot_arrays(robot)
+        _kernels.inertial_columns(Rp, pp, sigma, np.asarray(g, dtype=float),
+                                  np.ascontiguousarray(q), np.ascontiguousarray(qd),
+                                  np.ascontiguousarray(qdd), out)
+    else:
+        _inertial_columns_numpy(robot, q, qd, qdd, out, gravity)
+    _actuator_columns(robot, qd, qdd, out)
+    return out
+
+
+def _inertial_columns_numpy(robot, q, qd, qdd, out, gravity=None):
+    """Vectorised NumPy version of the inertial columns (reference backend)."""
+    N, n = q.shape
+    links, Rs, Ps = newton_euler_forward(robot, q, qd, qdd, gravity)
+    Rw, pw = forward_kinematics(robot, q, (Rs, Ps))
+    Z = np.stack([R[:, :, 2] for R in Rw], axis=1)          # joint axes, base frame
+    O = np.stack(pw, axis=1)                                 # joint origins, base frame
+    prismatic = np.array([jt.sigma == 1 for jt in robot.joints])
+    for j in range(n):
+        w, dw, dv = links[j]
+        f, m = _link_wrench_columns(w, dw, dv)
+        MF = np.concatenate([m, f], axis=1)                  # (N, 6, 10)
+        zi = Z[:, :j + 1]
+        v = np.cross(zi, O[:, j:j + 1] - O[:, :j + 1])       # z_i x (O_j - O_i)
+        # (R_j^T x)^T = x^T R_j: both projections expressed in frame j at once
+        uv = np.concatenate([zi @ Rw[j], v @ Rw[j]], axis=2)  # (N, j+1, 6)
+        if prismatic[:j + 1].any():
+            pi = np.flatnonzero(prismatic[:j + 1])
+            uv[:, pi, 3:] = uv[:, pi, :3]                    # force along z_i only
+            uv[:, pi, :3] = 0.0
+        c0 = N_PER_JOINT * j
+        out[:, :j + 1, c0:c0 + 10] = uv @ MF
+
+
+def _actuator_columns(robot, qd, qdd, out):
+    """Ia, Fv, Fc, Off (diagonal) and coupling columns."""
+    n = qd.shape[1]
+    rows = np.arange(n)
+    base = N_PER_JOINT * rows
+    out[:, rows, base + 10] = qdd
+    out[:, rows, base + 11] = qd
+    out[:, rows, base + 12] = np.sign(qd)
+    out[:, rows, base + 13] = 1.0
+    # couplings (section 4 of the DIDIM paper, eq. (33))
+    col = N_PER_JOINT * n
+    for c in robot.couplings:
+        idx = np.asarray(c.joints) - 1
+        coef = np.asarray(c.coefficients, dtype=float)
+        cm = coef[list(c.joints).index(c.motor)] if c.motor in c.joints else 1.0
+        ia_col = N_PER_JOINT * (c.motor - 1) + 10
+        for a, ka in zip(idx, coef):
+            for b, kb in zip(idx, coef):
+                if a != b:
+                    out[:, a, ia_col] += ka * kb / cm ** 2 * qdd[:, b]
+        if c.friction:
+            wm = qd[:, idx] @ coef
+            for a, ka in zip(idx, coef):
+                out[:, a, col] += ka * wm
+                out[:, a, col + 1] += ka * np.sign(wm)
+            col += 2
+
+
+def regressor(robot, q, qd, qdd, *, columns=None, chunk=DEFAULT_CHUNK, gravity=None,
+              backend="numba"):
+    """IDM_st(q, qd, qdd) of eq. (2): array (N, n, Ns), or (N, n, len(columns)).
+
+    ``columns`` selects standard-parameter columns (indices), e.g. the
+    independent ones of the base parameters, so only those are kept in memory.
+    Samples are processed ``chunk`` at a time to bound temporary memory.
+    ``backend`` is ``"numba"`` (compiled, default) or ``"numpy"`` (vectorised
+    reference implementation).
+    """
+    q, qd, qdd = _as_samples(robot, q, qd, qdd)
+    N, n = q.shape
+    ns = robot.n_standard
+    width = ns if columns is None else len(columns)
+    W = np.empty((N, n, width))
+    if columns is None:
+        W[...] = 0.0
+    for start in range(0, N, chunk):
+        sl = slice(start, min(N, start + chunk))
+        if columns is None:
+            _fill_chunk(robot, q[sl], qd[sl], qdd[sl], W[sl], gravity, backend)
+        else:
+            block = np.zeros((sl.stop - sl.start, n, ns))
+            _fill_chunk(robot, q[sl], qd[sl], qdd[sl], block, gravity, backend)
+            W[sl] = block[:, :, columns]
+    return W
+
+
+def regressor_chunks(robot, q, qd, qdd, *, columns=None, chunk=DEFAULT_CHUNK):
+    """Yield ``(slice, W_chunk)`` over the recording, for bounded memory."""
+    q, qd, qdd = _as_samples(robot, q, qd, qdd)
+    for start in range(0, q.shape[0], chunk):
+        sl = slice(start, min(q.shape[0], start + chunk))
+        yield sl, regressor(robot, q[sl], qd[sl], qdd[sl], columns=columns, chunk=chunk)
+
+
+def inverse_dynamics(robot, chi, q, qd, qdd, *, chunk=DEFAULT_CHUNK):
+    """tau = IDM_st(q, qd, qdd) chi, shape (N, n), eq. (2)."""
+    chi = np.asarray(chi, dtype=float)
+    q, qd, qdd = _as_samples(robot, q, qd, qdd)
+    tau = np.empty(q.shape)
+    for sl, W in regressor_chunks(robot, q, qd, qdd, chunk=chunk):
+        tau[sl] = W @ chi
+    return tau
+
+
+def mass_matrix(robot, chi, q):
+    """Inertia matrix M(q) of eq. (1), (N, n, n), from the standard parameters chi.
+
+    Column k is the inertial torque of a unit acceleration of joint k with the
+    robot at rest and no gravity (the numerical route of section 4 of the paper).
+    """
+    chi = _inertia_only(robot, chi)
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    N, n = q.shape
+    zeros = np.zeros_like(q)
+    M = np.empty((N, n, n))
+    for k in range(n):
+        qdd = np.zeros_like(q)
+        qdd[:, k] = 1.0
+        M[:, :, k] = regressor(robot, q, zeros, qdd, gravity=np.zeros(3)) @ chi
+    return M
+
+
+def bias_torque(robot, chi, q, qd):
+    """N(q, qd) of eq. (1): Coriolis, centrifugal, gravity, friction and offset torques."""
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    return inverse_dynamics(robot, chi, q, qd, np.zeros_like(q))
+
+
+def gravity_torque(robot, chi, q):
+    """Gravity torque G(q): the bias at rest without friction and offsets."""
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    z = np.zeros_like(q)
+    return regressor(robot, q, z, z) @ _inertia_only(robot, chi)
+
+
+def _inertia_only(robot, chi):
+    """chi with friction and offset parameters zeroed (they are not inertia/gravity)."""
+    chi = np.array(chi, dtype=float)
+    for k, name in enumerate(robot.standard_names):
+        if name.startswith(("Fv", "Fc", "Off")):
+            chi[k] = 0.0
+    return chi
