@@ -1,0 +1,34 @@
+"""A minimal progress bar on stderr (no dependency): shown only on a terminal,
+only for work that lasts more than a second, silent with --quiet."""
+from __future__ import annotations
+
+import sys
+import time
+
+
+class Progress:
+    def __init__(self, label, quiet=False, stream=None, delay=1.0):
+        self.label = label
+        self.stream = stream or sys.stderr
+        self.enabled = not quiet and hasattr(self.stream, "isatty") and self.stream.isatty()
+        self.start = time.monotonic()
+        self.delay = delay
+        self.shown = False
+
+    def update(self, fraction):
+        if not self.enabled or time.monotonic() - self.start < self.delay:
+            return
+        fraction = min(max(float(fraction), 0.0), 1.0)
+        filled = int(30 * fraction)
+        self.stream.write(f"\r{self.label}: [{'#' * filled}{'.' * (30 - filled)}] {100 * fraction:5.1f}%")
+        self.stream.flush()
+        self.shown = True
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        if self.shown:
+            self.stream.write("\n")
+            self.stream.flush()
+        return False
