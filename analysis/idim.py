@@ -34,6 +34,7 @@ class IDIMResult:
     notices: list = field(default_factory=list)
     data_hash: str = ""
     source: str = ""
+    truth: dict = None           # true base-parameter values, for simulated data
 
     @property
     def model(self):
@@ -101,6 +102,7 @@ class IDIMResult:
             "versions": versions(),
             "data_hash": self.data_hash,
             "notices": self.notices,
+            "true_values": self.truth,
         })
 
     def to_json(self, path):

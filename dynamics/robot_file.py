@@ -87,14 +87,18 @@ def load_robot(spec):
         raise RobotFileError(f"robot file '{spec}': unknown extension '{path.suffix}'; use .toml or .urdf")
     if spec in bundled_robots():
         return read_toml(bundled_path(spec))
-    raise RobotFileError(f"unknown robot '{spec}': not a file and not a bundled robot "
-                         f"({', '.join(bundled_robots())})")
+    raise RobotFileError(f"unknown robot '{spec}': not a file and not a bundled robot; give a path "
+                         f"to a .toml or .urdf file or one of: {', '.join(bundled_robots())}")
 
 
 def _num(value, where, path, *, positive=False, allow_inf=False):
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise RobotFileError(f"{path}: {where} must be a number, got {value!r}")
-    v = float(value)
+    try:
+        v = float(value)
+    except OverflowError:   # fix: a huge integer crashed with OverflowError
+        raise RobotFileError(f"{path}: {where} must be a finite number, got an integer too large "
+                             f"for a float") from None
     if math.isnan(v) or (math.isinf(v) and not allow_inf):
         raise RobotFileError(f"{path}: {where} must be a finite number, got {value!r}")
     if positive and v <= 0:
@@ -116,13 +120,18 @@ def read_toml(path):
     try:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
-        raise RobotFileError(f"cannot read robot file '{path}': {exc.strerror}") from None
+        raise RobotFileError(f"cannot read robot file '{path}': {exc.strerror}; check the path and "
+                             f"that it is a readable file") from None
     except UnicodeDecodeError:
         raise RobotFileError(f"robot file '{path}' is not UTF-8 text; save it as UTF-8 TOML") from None
+    except ValueError:      # fix: a path with a NUL byte raised ValueError
+        raise RobotFileError(f"cannot read robot file {str(path)!r}: the path is not valid; "
+                             f"check the path") from None
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise RobotFileError(f"robot file '{path}' is not valid TOML: {exc}") from None
+        raise RobotFileError(f"robot file '{path}' is not valid TOML: {exc}; fix the syntax "
+                             f"there (see dynamics/robots/tx40.toml for an example)") from None
     return robot_from_dict(doc, path)
 
 
@@ -142,10 +151,17 @@ def robot_from_dict(doc, path="<robot>"):
 
     if "urdf" in doc:
         from .urdf import read_urdf
-        urdf_path = Path(path).parent / str(doc["urdf"])
+        # fix: a non-string 'urdf' was turned into a path, non-list/non-table
+        # [[joints]] overrides crashed with TypeError
+        if not isinstance(doc["urdf"], str) or not doc["urdf"].strip():
+            raise RobotFileError(f"{path}: 'urdf' must be the path of a URDF file (a string), "
+                                 f"got {doc['urdf']!r}")
+        urdf_path = Path(path).parent / doc["urdf"]
         base = read_urdf(urdf_path)
         joints = base.joints
         overrides = doc.get("joints", [])
+        if not isinstance(overrides, list) or not all(isinstance(t, dict) for t in overrides):
+            raise RobotFileError(f"{path}: 'joints' must be a list of [[joints]] tables")
         if overrides and len(overrides) != len(joints):
             raise RobotFileError(f"{path}: {len(overrides)} [[joints]] tables but the URDF "
                                  f"'{urdf_path.name}' has {len(joints)} moving joints")
@@ -169,12 +185,20 @@ def robot_from_dict(doc, path="<robot>"):
     names = [j.name for j in joints]
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
-        raise RobotFileError(f"{path}: duplicated joint name(s) {', '.join(dup)}")
+        raise RobotFileError(f"{path}: duplicated joint name(s) {', '.join(dup)}; give every "
+                             f"joint a unique name")
     n = len(joints)
 
     couplings = []
-    for k, tab in enumerate(doc.get("couplings", []) or []):
+    tabs = doc.get("couplings", [])
+    if not isinstance(tabs, list):      # fix: a non-list crashed with TypeError
+        raise RobotFileError(f"{path}: 'couplings' must be a list of [[couplings]] tables")
+    for k, tab in enumerate(tabs):
         couplings.append(_coupling(tab, k, n, path))
+    motors = [c.motor for c in couplings]
+    if len(set(motors)) != len(motors):  # fix: duplicated parameter names Fvm<j>, Fcm<j>
+        raise RobotFileError(f"{path}: two [[couplings]] have the same motor; give each motor "
+                             f"one coupling table")
 
     controller = _controller(doc["controller"], n, path) if "controller" in doc else None
 
@@ -201,7 +225,7 @@ def robot_from_dict(doc, path="<robot>"):
     bad = [k for k in apriori if k not in standard and not _looks_like_base(k)]
     if bad:
         raise RobotFileError(f"{path}: apriori value(s) for unknown parameter(s) {', '.join(sorted(bad))}; "
-                             f"names are e.g. ZZ1, MX2, Ia3, Fv4 or base names with R (ZZ1R)")
+                             f"use standard names such as ZZ1, MX2, Ia3, Fv4 or base names with R (ZZ1R)")
     robot.apriori = apriori
     return robot
 
@@ -261,16 +285,23 @@ def _coupling(tab, k, n, path):
             raise RobotFileError(f"{path}: {where} needs '{key}'")
     joints = tab["joints"]
     coef = tab["coefficients"]
-    if not isinstance(joints, list) or not all(isinstance(j, int) and 1 <= j <= n for j in joints):
-        raise RobotFileError(f"{path}: {where}.joints must be a list of joint numbers 1..{n}, got {joints!r}")
+    # fix: booleans passed as joint numbers and repeated joints were accepted
+    if (not isinstance(joints, list) or len(set(map(repr, joints))) != len(joints)
+            or not all(isinstance(j, int) and not isinstance(j, bool) and 1 <= j <= n for j in joints)):
+        raise RobotFileError(f"{path}: {where}.joints must be a list of distinct joint numbers "
+                             f"1..{n}, got {joints!r}")
     if not isinstance(coef, list) or len(coef) != len(joints):
         raise RobotFileError(f"{path}: {where}.coefficients must have one number per joint in 'joints'")
     coef = [_num(c, f"{where}.coefficients", path) for c in coef]
     motor = tab["motor"]
-    if not isinstance(motor, int) or motor not in joints:
+    if not isinstance(motor, int) or isinstance(motor, bool) or motor not in joints:
         raise RobotFileError(f"{path}: {where}.motor must be one of its joints {joints}, got {motor!r}")
-    return Coupling(motor=motor, joints=tuple(joints), coefficients=tuple(coef),
-                    friction=bool(tab.get("friction", True)))
+    if coef[joints.index(motor)] == 0.0:   # fix: divided by zero in the regressor (NaN columns)
+        raise RobotFileError(f"{path}: {where}.coefficients: the motor joint's coefficient must not be 0")
+    friction = tab.get("friction", True)
+    if not isinstance(friction, bool):     # fix: any value was taken as a truth value
+        raise RobotFileError(f"{path}: {where}.friction must be true or false, got {friction!r}")
+    return Coupling(motor=motor, joints=tuple(joints), coefficients=tuple(coef), friction=friction)
 
 
 def _controller(tab, n, path):

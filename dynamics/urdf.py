@@ -34,6 +34,7 @@ def rpy_matrix(r, p, y):
 def align_z(axis):
     """A rotation A with A @ [0, 0, 1] = axis (unit), deterministic."""
     a = np.asarray(axis, dtype=float)
+    a = a / np.abs(a).max()     # fix: the norm of a huge axis (1e300) overflowed to a NaN rotation
     a = a / np.linalg.norm(a)
     z = np.array([0.0, 0.0, 1.0])
     c = float(z @ a)
@@ -119,9 +120,12 @@ def read_urdf(path):
     try:
         root = ET.parse(path).getroot()
     except OSError as exc:
-        raise RobotFileError(f"cannot read URDF '{path}': {exc.strerror}") from None
+        raise RobotFileError(f"cannot read URDF '{path}': {exc.strerror}; check the path and that "
+                             f"it is a readable file") from None
+    except ValueError:      # fix: a path with a NUL byte raised ValueError
+        raise RobotFileError(f"cannot read URDF {str(path)!r}: the path is not valid; check the path") from None
     except ET.ParseError as exc:
-        raise RobotFileError(f"URDF '{path}' is not well-formed XML: {exc}") from None
+        raise RobotFileError(f"URDF '{path}' is not well-formed XML: {exc}; fix the XML there") from None
     if root.tag != "robot":
         raise RobotFileError(f"URDF '{path}': root element must be <robot>, got <{root.tag}>")
     links = {}
@@ -136,16 +140,19 @@ def read_urdf(path):
         parent, child = j.find("parent"), j.find("child")
         if parent is None or child is None or not parent.get("link") or not child.get("link"):
             raise RobotFileError(f"{path}: joint '{name}' needs <parent link=...> and <child link=...>")
-        if parent.get("link") not in links or child.get("link") not in links:
-            raise RobotFileError(f"{path}: joint '{name}' refers to a link that does not exist")
+        missing = [l for l in (parent.get("link"), child.get("link")) if l not in links]
+        if missing:
+            raise RobotFileError(f"{path}: joint '{name}' refers to link '{missing[0]}' that does not "
+                                 f"exist; add <link name=\"{missing[0]}\"> or fix the name")
         if j.get("type") not in _MOVING and j.get("type") != "fixed":
             raise RobotFileError(f"{path}: joint '{name}' has type '{j.get('type')}'; dynid reads "
-                                 f"revolute, continuous, prismatic and fixed joints")
+                                 f"revolute, continuous, prismatic and fixed joints: use one of these")
         children.setdefault(parent.get("link"), []).append(j)
     child_links = {j.find("child").get("link") for j in joints}
     roots = [l for l in links if l not in child_links]
     if len(roots) != 1:
-        raise RobotFileError(f"{path}: expected one root link, found {len(roots)} ({', '.join(roots)})")
+        raise RobotFileError(f"{path}: expected one root link, found {len(roots)} ({', '.join(roots)}); "
+                             f"connect every link to the chain with a joint, or remove the stray ones")
 
     robot_joints, inertias, apriori = [], [], {}
     # pending fixed transform (rotation, translation) from the last moving frame
@@ -172,13 +179,29 @@ def read_urdf(path):
         if len(kids) > 1:
             if len(moving_kids) > 1:
                 raise RobotFileError(f"{path}: link '{link}' has {len(moving_kids)} moving child joints; "
-                                     f"dynid reads serial chains only")
+                                     f"dynid reads serial chains only: make the side branches fixed "
+                                     f"joints or remove them")
+            # fix: the chain goes on through the moving child or through the one fixed
+            # child with moving joints below it. Before, with no moving child, the
+            # first fixed child was merged as a side branch AND followed (its inertia
+            # counted twice), and a fixed joint continuing the chain beside a fixed
+            # side branch was rejected as "moves on a side branch".
+            if moving_kids:
+                leads = moving_kids
+            else:
+                leads = [k for k in kids if _subtree_moves(k.find("child").get("link"), children, set())]
+                if len(leads) > 1:
+                    raise RobotFileError(f"{path}: link '{link}' has {len(leads)} fixed child joints "
+                                         f"with moving joints below them; dynid reads serial chains "
+                                         f"only: remove the extra branches")
             # fixed side branches (sensors, tool frames) carry their inertia to this link
             for k in kids:
-                if k.get("type") == "fixed" and k is not (moving_kids[0] if moving_kids else None):
+                if not leads or k is not leads[0]:
                     _merge_fixed_branch(k, links, children, path, T_R, T_p, cur_inertia_target,
-                                        robot_joints, inertias)
-            kids = moving_kids if moving_kids else kids[:1]
+                                        robot_joints, inertias, set())
+            if not leads:
+                break
+            kids = leads
         j = kids[0]
         name = j.get("name")
         R_o, p_o = _origin(j, f"joint '{name}'", path)
@@ -197,6 +220,8 @@ def read_urdf(path):
             p = A_prev.T @ (T_R @ p_o + T_p)
             R[np.abs(R) < 1e-15] = 0.0
             p[np.abs(p) < 1e-15] = 0.0
+            if not name:    # fix: a moving joint without a name became Joint(name=None)
+                raise RobotFileError(f"{path}: a {j.get('type')} joint has no name; give it name=\"...\"")
             joint = Joint(name=name, sigma=_MOVING[j.get("type")], R=R, p=p)
             joint._align = A
             lim = j.find("limit")
@@ -227,6 +252,18 @@ def read_urdf(path):
 
     if not robot_joints:
         raise RobotFileError(f"{path}: no revolute or prismatic joint found")
+    # fix: duplicated joint names and numbers that overflow (e.g. xyz="1e300 ...") gave
+    # robots with clashing names or infinite/NaN placements and parameters
+    names = [jt.name for jt in robot_joints]
+    dup = sorted({nm for nm in names if names.count(nm) > 1})
+    if dup:
+        raise RobotFileError(f"{path}: duplicated joint name(s) {', '.join(dup)}; give every joint a "
+                             f"unique name")
+    for jt, inertia in zip(robot_joints, inertias):
+        vals = [jt.R, jt.p] + ([] if inertia is None else [inertia[0], inertia[1], inertia[2]])
+        if not all(np.isfinite(v).all() for v in vals):
+            raise RobotFileError(f"{path}: joint '{jt.name}' or its link has origins or inertials too "
+                                 f"large to compute with; check the numbers (metres, kg, kg m^2)")
     for k, inertia in enumerate(inertias, start=1):
         if inertia is None:
             continue
@@ -244,7 +281,16 @@ def read_urdf(path):
     return robot
 
 
-def _merge_fixed_branch(joint, links, children, path, T_R, T_p, target, robot_joints, inertias):
+def _subtree_moves(link, children, seen):
+    """Whether a moving joint hangs anywhere below ``link`` (cycle-safe)."""
+    if link in seen:
+        return False
+    seen.add(link)
+    return any(k.get("type") in _MOVING or _subtree_moves(k.find("child").get("link"), children, seen)
+               for k in children.get(link, []))
+
+
+def _merge_fixed_branch(joint, links, children, path, T_R, T_p, target, robot_joints, inertias, seen):
     """Add the inertia of a fixed side branch to the moving link it hangs from."""
     if target is None:
         return
@@ -252,6 +298,10 @@ def _merge_fixed_branch(joint, links, children, path, T_R, T_p, target, robot_jo
     R = T_R @ R_o
     p = T_R @ p_o + T_p
     child = joint.find("child").get("link")
+    if child in seen:   # fix: a cycle of fixed joints recursed until RecursionError
+        raise RobotFileError(f"{path}: the fixed joints below joint '{joint.get('name')}' form a loop "
+                             f"at link '{child}'; remove the joint that closes it")
+    seen.add(child)
     inertia = _spatial_inertia(links[child], path)
     if inertia is not None:
         A = robot_joints[target]._align
@@ -260,4 +310,4 @@ def _merge_fixed_branch(joint, links, children, path, T_R, T_p, target, robot_jo
         if k.get("type") != "fixed":
             raise RobotFileError(f"{path}: joint '{k.get('name')}' moves on a side branch; "
                                  f"dynid reads serial chains only")
-        _merge_fixed_branch(k, links, children, path, R, p, target, robot_joints, inertias)
+        _merge_fixed_branch(k, links, children, path, R, p, target, robot_joints, inertias, seen)

@@ -140,7 +140,7 @@ def build_parser():
     p.add_argument("--report", metavar="PATH", default="dynid-demo.html",
                    help="HTML report path (default dynid-demo.html)")
     p.add_argument("--json", metavar="PATH", help="write the results as JSON here")
-    p.add_argument("--seed", type=int, default=0, help="random seed of the noise and trajectories")
+    p.add_argument("--seed", type=int, default=1, help="random seed of the noise and trajectories (default 1)")
     p.add_argument("--duration", type=float, default=20.0, metavar="SECONDS",
                    help="length of the identification recording (default 20 s)")
     return parser

@@ -121,8 +121,9 @@ def test_summary_and_json(tmp_path):
     assert (tmp_path / "a.json").read_bytes() == (tmp_path / "b.json").read_bytes()
 
 
-def test_tx40_sized_problem_is_fast():
+def test_tx40_sized_problem_finds_the_useful_parameters():
     # b = 60 base parameters, 6 joints, 5000 rows per joint; 35 useless ones.
+    # (Its speed is measured by benchmarks/idim.py, not asserted here.)
     rng = np.random.default_rng(5)
     Nt, nt, bt = 5000, 6, 60
     W3 = rng.standard_normal((Nt, nt, bt))
@@ -132,8 +133,5 @@ def test_tx40_sized_problem_is_fast():
     tau = W3 @ chi + 0.1 * rng.standard_normal((Nt, nt))
     names = [f"p{i}" for i in range(bt)]
     for estimator in (ols, wls):
-        t0 = time.perf_counter()
         ess = essential_parameters(W3, tau, names, estimator)
-        elapsed = time.perf_counter() - t0
         assert len(ess.removed) == 35 and ess.essential == names[:25]
-        assert elapsed < 1.0, f"{estimator.__name__}: {elapsed:.2f} s"

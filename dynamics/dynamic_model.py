@@ -1,0 +1,505 @@
+"""Per-sample rigid-body dynamics from a standard-parameter vector, compiled with numba.
+
+The inverse dynamic model of eq. (1) of Gautier, Janot, Vandanjon 2010,
+``tau = M(q) qdd + N(q, qd)``, and the direct dynamic model of eq. (17),
+``qdd = M(q)^-1 (tau - N(q, qd))``, evaluated from the standard parameters
+``chi_st`` (``robot.standard_names``) rather than through the regressor, so the
+closed-loop simulator (:mod:`dynamics.simulation`) can call them millions of
+times without Python in the loop.
+
+Algorithms
+----------
+* **RNEA** (recursive Newton-Euler, Khalil & Dombre 2002, §9.5): forward
+  recursion of ``w, dw, dv`` in the link frames, link wrench about the link
+  origin from the ten inertial parameters ``XX XY XZ YY YZ ZZ MX MY MZ M``
+  (``F = M dv + dw x MS + w x (w x MS)``, ``N = I dw + w x (I w) + MS x dv``),
+  backward recursion of the wrenches, projection on the joint axes.
+* **Mass matrix**: ``n`` RNEA passes with ``qd = 0``, ``g = 0`` and
+  ``qdd = e_k`` (column ``k``), sharing the link transforms computed once per
+  configuration; the pass for column ``k`` starts its forward recursion at link
+  ``k`` (the links before it are at rest). This is the "numerical" route of
+  section 4 of the paper ("M and N are numerically calculated using the IDM for
+  special values of q, qd, qdd"); it costs O(n^2) per configuration, like the
+  CRBA, and is exactly symmetric (the upper triangle is mirrored). A CRBA was
+  not needed: a 6-dof M takes well under a microsecond.
+* **Actuator terms**: the armature matrix ``A`` (``diag(Ia)`` plus the coupling
+  off-diagonals ``A[k, l] += c_k c_l / c_m^2 Ia_motor``, ``k != l``, eq. (33)),
+  viscous ``Fv qd``, Coulomb ``Fc s(qd)``, offset ``Off``, and the coupling
+  friction ``tau_k += c_k (Fvm w + Fcm s(w))``, ``w = sum_k c_k qd_k``.
+* **Direct dynamics**: Cholesky factorisation of ``M + A`` (it must be positive
+  definite; an error tells the caller when the parameters make it indefinite).
+
+Coulomb friction and the smooth sign
+------------------------------------
+``s(x) = tanh(x / v_s)`` when ``v_s > 0``, the exact ``sign(x)`` (with
+``sign(0) = 0``) when ``v_s = 0``. The inverse-dynamics wrappers default to
+``v_s = 0`` (they then equal :func:`dynamics.regressor.inverse_dynamics`); the
+simulator defaults to ``v_s = DEFAULT_V_S = 0.01`` rad/s (m/s for a prismatic
+joint), so an explicit integrator is not facing a discontinuous right-hand
+side. Near ``qd = 0`` the smooth sign adds the viscous slope ``Fc / v_s``;
+see :mod:`dynamics.simulation` for what that means for the step size.
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from .errors import InputError
+from .robot import PER_JOINT
+
+N_PER_JOINT = len(PER_JOINT)          # 14
+DEFAULT_V_S = 0.01                    # rad/s, smooth-sign width of the simulator
+
+# status codes of the compiled kernels
+OK = 0
+NOT_POSITIVE_DEFINITE = 1
+NOT_FINITE = 2
+
+
+class ModelArrays(NamedTuple):
+    """Everything the compiled kernels need, as contiguous float64/int64 arrays.
+
+    Rp (n,3,3), pp (n,3): joint placements; sigma (n,): 0 revolute, 1 prismatic;
+    gravity (3,); inertial (n,10): XX XY XZ YY YZ ZZ MX MY MZ M of each link
+    (about its joint frame origin, in its frame); A (n,n): armature matrix
+    (diag(Ia) + coupling off-diagonals); Ia, Fv, Fc, Off (n,); C (nc,n): the
+    coupling coefficient rows (rotor velocity ``w = C qd``); Fvm, Fcm (nc,):
+    coupling friction (0 for a coupling declared without friction).
+    """
+
+    Rp: np.ndarray
+    pp: np.ndarray
+    sigma: np.ndarray
+    gravity: np.ndarray
+    inertial: np.ndarray
+    A: np.ndarray
+    Ia: np.ndarray
+    Fv: np.ndarray
+    Fc: np.ndarray
+    Off: np.ndarray
+    C: np.ndarray
+    Fvm: np.ndarray
+    Fcm: np.ndarray
+
+    @property
+    def n(self) -> int:
+        return self.sigma.shape[0]
+
+    def kernel_args(self):
+        """The tuple the kernels unpack (Ia is folded into A)."""
+        return (self.Rp, self.pp, self.sigma, self.gravity, self.inertial, self.A,
+                self.Fv, self.Fc, self.Off, self.C, self.Fvm, self.Fcm)
+
+
+def check_parameters(robot, chi_st) -> np.ndarray:
+    """chi_st as a finite float vector of length ``robot.n_standard``, else InputError."""
+    try:
+        chi = np.asarray(chi_st, dtype=float)
+    except (TypeError, ValueError):
+        raise InputError(f"chi_st must be a vector of {robot.n_standard} numbers "
+                         f"(robot.standard_names of '{robot.name}')") from None
+    if chi.ndim != 1 or chi.size != robot.n_standard:
+        raise InputError(f"chi_st has shape {chi.shape}; robot '{robot.name}' has "
+                         f"{robot.n_standard} standard parameters ({robot.standard_names[0]} … "
+                         f"{robot.standard_names[-1]}), give a vector of that length")
+    if not np.all(np.isfinite(chi)):
+        bad = [robot.standard_names[k] for k in np.flatnonzero(~np.isfinite(chi))]
+        raise InputError(f"chi_st holds non-finite value(s) for {', '.join(bad[:8])}")
+    return chi
+
+
+def model_arrays(robot, chi_st) -> ModelArrays:
+    """Pack the robot's placements and the parameters ``chi_st`` for the kernels."""
+    chi = check_parameters(robot, chi_st)
+    n = robot.n_joints
+    Rp = np.ascontiguousarray([j.R for j in robot.joints], dtype=float).reshape(n, 3, 3)
+    pp = np.ascontiguousarray([j.p for j in robot.joints], dtype=float).reshape(n, 3)
+    sigma = np.ascontiguousarray(robot.sigma, dtype=np.int64)
+    gravity = np.ascontiguousarray(robot.gravity, dtype=float).reshape(3)
+    blocks = chi[:N_PER_JOINT * n].reshape(n, N_PER_JOINT)
+    inertial = np.ascontiguousarray(blocks[:, :10])
+    Ia = blocks[:, 10].copy()
+    Fv = blocks[:, 11].copy()
+    Fc = blocks[:, 12].copy()
+    Off = blocks[:, 13].copy()
+    A = np.diag(Ia)
+    nc = len(robot.couplings)
+    C = np.zeros((nc, n))
+    Fvm = np.zeros(nc)
+    Fcm = np.zeros(nc)
+    col = N_PER_JOINT * n
+    for r, c in enumerate(robot.couplings):
+        idx = [j - 1 for j in c.joints]
+        coef = np.asarray(c.coefficients, dtype=float)
+        cm = coef[list(c.joints).index(c.motor)] if c.motor in c.joints else 1.0
+        ia_m = Ia[c.motor - 1]
+        for a, ka in zip(idx, coef):
+            for b, kb in zip(idx, coef):
+                if a != b:
+                    A[a, b] += ka * kb / cm ** 2 * ia_m
+        C[r, idx] = coef
+        if c.friction:
+            Fvm[r] = chi[col]
+            Fcm[r] = chi[col + 1]
+            col += 2
+    return ModelArrays(Rp, pp, sigma, gravity, inertial, np.ascontiguousarray(A), Ia, Fv, Fc,
+                       Off, C, Fvm, Fcm)
+
+
+# ----------------------------------------------------------------------------- kernels
+
+@njit(cache=True, nogil=True)
+def _workspace(n):
+    """Scratch arrays of one dynamics evaluation: R, P, W, DW, DV, F, NM, M, h, col."""
+    return (np.empty((n, 3, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)),
+            np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, n)),
+            np.empty(n), np.empty(n))
+
+
+@njit(cache=True, nogil=True)
+def _transforms(Rp, pp, sigma, q, R, P):
+    """Frame j in frame j-1: ``R[j] = Rp[j] Rot(z, q_j)`` or ``P[j] = pp[j] + q_j Rp[j] z``."""
+    n = q.shape[0]
+    for j in range(n):
+        if sigma[j] == 0:
+            c = np.cos(q[j])
+            s = np.sin(q[j])
+            for a in range(3):
+                R[j, a, 0] = Rp[j, a, 0] * c + Rp[j, a, 1] * s
+                R[j, a, 1] = -Rp[j, a, 0] * s + Rp[j, a, 1] * c
+                R[j, a, 2] = Rp[j, a, 2]
+                P[j, a] = pp[j, a]
+        else:
+            for a in range(3):
+                for b in range(3):
+                    R[j, a, b] = Rp[j, a, b]
+                P[j, a] = pp[j, a] + q[j] * Rp[j, a, 2]
+
+
+@njit(cache=True, nogil=True)
+def _rnea_pass(R, P, sigma, inertial, gx, gy, gz, qd, qdd, unit, W, DW, DV, F, NM, tau):
+    """Rigid-body RNEA torques into ``tau`` for the transforms R, P.
+
+    ``unit < 0``: velocities ``qd``, accelerations ``qdd``, gravity ``g``.
+    ``unit = k >= 0``: ``qd = 0``, ``qdd = e_k`` (``qd``, ``qdd`` are not read), and
+    the caller passes ``g = 0``; the forward recursion starts at link ``k``.
+    """
+    n = R.shape[0]
+    start = 0 if unit < 0 else unit
+    # state of the parent of link `start`, in its frame
+    wx = 0.0; wy = 0.0; wz = 0.0
+    ax = 0.0; ay = 0.0; az = 0.0
+    vx = -gx; vy = -gy; vz = -gz
+    for j in range(start):
+        F[j, 0] = 0.0; F[j, 1] = 0.0; F[j, 2] = 0.0
+        NM[j, 0] = 0.0; NM[j, 1] = 0.0; NM[j, 2] = 0.0
+    for j in range(start, n):
+        px = P[j, 0]; py = P[j, 1]; pz = P[j, 2]
+        # acceleration of origin j in frame j-1: dv + dw x P + w x (w x P)
+        cx = wy * pz - wz * py
+        cy = wz * px - wx * pz
+        cz = wx * py - wy * px
+        tx = vx + (ay * pz - az * py) + (wy * cz - wz * cy)
+        ty = vy + (az * px - ax * pz) + (wz * cx - wx * cz)
+        tz = vz + (ax * py - ay * px) + (wx * cy - wy * cx)
+        # into frame j: R^T x
+        nwx = R[j, 0, 0] * wx + R[j, 1, 0] * wy + R[j, 2, 0] * wz
+        nwy = R[j, 0, 1] * wx + R[j, 1, 1] * wy + R[j, 2, 1] * wz
+        nwz = R[j, 0, 2] * wx + R[j, 1, 2] * wy + R[j, 2, 2] * wz
+        nax = R[j, 0, 0] * ax + R[j, 1, 0] * ay + R[j, 2, 0] * az
+        nay = R[j, 0, 1] * ax + R[j, 1, 1] * ay + R[j, 2, 1] * az
+        naz = R[j, 0, 2] * ax + R[j, 1, 2] * ay + R[j, 2, 2] * az
+        nvx = R[j, 0, 0] * tx + R[j, 1, 0] * ty + R[j, 2, 0] * tz
+        nvy = R[j, 0, 1] * tx + R[j, 1, 1] * ty + R[j, 2, 1] * tz
+        nvz = R[j, 0, 2] * tx + R[j, 1, 2] * ty + R[j, 2, 2] * tz
+        if unit < 0:
+            qdj = qd[j]
+            qddj = qdd[j]
+        else:
+            qdj = 0.0
+            qddj = 1.0 if j == unit else 0.0
+        if sigma[j] == 0:
+            nax += nwy * qdj
+            nay -= nwx * qdj
+            naz += qddj
+            nwz += qdj
+        else:
+            nvx += 2.0 * nwy * qdj
+            nvy -= 2.0 * nwx * qdj
+            nvz += qddj
+        wx = nwx; wy = nwy; wz = nwz
+        ax = nax; ay = nay; az = naz
+        vx = nvx; vy = nvy; vz = nvz
+        # link wrench about origin j, frame j
+        XX = inertial[j, 0]; XY = inertial[j, 1]; XZ = inertial[j, 2]
+        YY = inertial[j, 3]; YZ = inertial[j, 4]; ZZ = inertial[j, 5]
+        mx = inertial[j, 6]; my = inertial[j, 7]; mz = inertial[j, 8]; m = inertial[j, 9]
+        # w x MS
+        sx = wy * mz - wz * my
+        sy = wz * mx - wx * mz
+        sz = wx * my - wy * mx
+        F[j, 0] = m * vx + (ay * mz - az * my) + (wy * sz - wz * sy)
+        F[j, 1] = m * vy + (az * mx - ax * mz) + (wz * sx - wx * sz)
+        F[j, 2] = m * vz + (ax * my - ay * mx) + (wx * sy - wy * sx)
+        Iwx = XX * wx + XY * wy + XZ * wz
+        Iwy = XY * wx + YY * wy + YZ * wz
+        Iwz = XZ * wx + YZ * wy + ZZ * wz
+        NM[j, 0] = (XX * ax + XY * ay + XZ * az) + (wy * Iwz - wz * Iwy) + (my * vz - mz * vy)
+        NM[j, 1] = (XY * ax + YY * ay + YZ * az) + (wz * Iwx - wx * Iwz) + (mz * vx - mx * vz)
+        NM[j, 2] = (XZ * ax + YZ * ay + ZZ * az) + (wx * Iwy - wy * Iwx) + (mx * vy - my * vx)
+    # backward recursion: f_j = F_j + R_{j+1} f_{j+1}, n_j = N_j + R_{j+1} n_{j+1} + P_{j+1} x (R_{j+1} f_{j+1})
+    fx = 0.0; fy = 0.0; fz = 0.0
+    mmx = 0.0; mmy = 0.0; mmz = 0.0
+    for j in range(n - 1, -1, -1):
+        if j < n - 1:
+            k = j + 1
+            rfx = R[k, 0, 0] * fx + R[k, 0, 1] * fy + R[k, 0, 2] * fz
+            rfy = R[k, 1, 0] * fx + R[k, 1, 1] * fy + R[k, 1, 2] * fz
+            rfz = R[k, 2, 0] * fx + R[k, 2, 1] * fy + R[k, 2, 2] * fz
+            rnx = R[k, 0, 0] * mmx + R[k, 0, 1] * mmy + R[k, 0, 2] * mmz
+            rny = R[k, 1, 0] * mmx + R[k, 1, 1] * mmy + R[k, 1, 2] * mmz
+            rnz = R[k, 2, 0] * mmx + R[k, 2, 1] * mmy + R[k, 2, 2] * mmz
+            px = P[k, 0]; py = P[k, 1]; pz = P[k, 2]
+            fx = F[j, 0] + rfx
+            fy = F[j, 1] + rfy
+            fz = F[j, 2] + rfz
+            mmx = NM[j, 0] + rnx + (py * rfz - pz * rfy)
+            mmy = NM[j, 1] + rny + (pz * rfx - px * rfz)
+            mmz = NM[j, 2] + rnz + (px * rfy - py * rfx)
+        else:
+            fx = F[j, 0]; fy = F[j, 1]; fz = F[j, 2]
+            mmx = NM[j, 0]; mmy = NM[j, 1]; mmz = NM[j, 2]
+        tau[j] = mmz if sigma[j] == 0 else fz
+
+
+@njit(cache=True, nogil=True)
+def _ssign(x, v_s):
+    """Smooth sign ``tanh(x / v_s)``; the exact sign when ``v_s <= 0``."""
+    if v_s > 0.0:
+        return np.tanh(x / v_s)
+    if x > 0.0:
+        return 1.0
+    if x < 0.0:
+        return -1.0
+    return 0.0
+
+
+@njit(cache=True, nogil=True)
+def _mass(model, ws, q, with_transforms):
+    """M(q) + A into ws[7] (transforms recomputed when ``with_transforms``)."""
+    Rp, pp, sigma, g, inertial, A, Fv, Fc, Off, C, Fvm, Fcm = model
+    R, P, W, DW, DV, F, NM, M, h, col = ws
+    n = q.shape[0]
+    if with_transforms:
+        _transforms(Rp, pp, sigma, q, R, P)
+    for k in range(n):
+        _rnea_pass(R, P, sigma, inertial, 0.0, 0.0, 0.0, q, q, k, W, DW, DV, F, NM, col)
+        for i in range(k + 1):
+            M[i, k] = col[i] + A[i, k]
+            M[k, i] = M[i, k]
+
+
+@njit(cache=True, nogil=True)
+def _add_friction(model, qd, v_s, out):
+    """out += Fv qd + Fc s(qd) + Off + sum over couplings of c (Fvm w + Fcm s(w))."""
+    Rp, pp, sigma, g, inertial, A, Fv, Fc, Off, C, Fvm, Fcm = model
+    n = qd.shape[0]
+    for j in range(n):
+        out[j] += Fv[j] * qd[j] + Fc[j] * _ssign(qd[j], v_s) + Off[j]
+    for r in range(C.shape[0]):
+        w = 0.0
+        for j in range(n):
+            w += C[r, j] * qd[j]
+        fr = Fvm[r] * w + Fcm[r] * _ssign(w, v_s)
+        for j in range(n):
+            out[j] += C[r, j] * fr
+
+
+@njit(cache=True, nogil=True)
+def _bias(model, ws, q, qd, v_s, with_transforms, out):
+    """N(q, qd): Coriolis, centrifugal, gravity, friction (smooth sign) and offsets."""
+    Rp, pp, sigma, g, inertial, A, Fv, Fc, Off, C, Fvm, Fcm = model
+    R, P, W, DW, DV, F, NM, M, h, col = ws
+    n = q.shape[0]
+    if with_transforms:
+        _transforms(Rp, pp, sigma, q, R, P)
+    for j in range(n):
+        col[j] = 0.0                                   # qdd = 0
+    _rnea_pass(R, P, sigma, inertial, g[0], g[1], g[2], qd, col, -1, W, DW, DV, F, NM, out)
+    _add_friction(model, qd, v_s, out)
+
+
+@njit(cache=True, nogil=True)
+def _qdd(model, ws, q, qd, tau, v_s, out):
+    """Direct dynamics, eq. (17): solve (M + A) qdd = tau - N by Cholesky. Returns a status."""
+    R, P, W, DW, DV, F, NM, M, h, col = ws
+    n = q.shape[0]
+    _transforms(model[0], model[1], model[2], q, R, P)
+    _bias(model, ws, q, qd, v_s, False, h)
+    _mass(model, ws, q, False)
+    # Cholesky M = L L^T in place (lower triangle)
+    for j in range(n):
+        d = M[j, j]
+        for k in range(j):
+            d -= M[j, k] * M[j, k]
+        if not d > 0.0:
+            return NOT_POSITIVE_DEFINITE
+        d = np.sqrt(d)
+        M[j, j] = d
+        for i in range(j + 1, n):
+            s = M[i, j]
+            for k in range(j):
+                s -= M[i, k] * M[j, k]
+            M[i, j] = s / d
+    for i in range(n):
+        s = tau[i] - h[i]
+        for k in range(i):
+            s -= M[i, k] * out[k]
+        out[i] = s / M[i, i]
+    for i in range(n - 1, -1, -1):
+        s = out[i]
+        for k in range(i + 1, n):
+            s -= M[k, i] * out[k]
+        out[i] = s / M[i, i]
+    return OK
+
+
+@njit(cache=True, nogil=True)
+def _inverse_dynamics_batch(model, Q, QD, QDD, v_s, out):
+    N, n = Q.shape
+    R, P, W, DW, DV, F, NM, M, h, col = _workspace(n)
+    Rp, pp, sigma, g, inertial, A, Fv, Fc, Off, C, Fvm, Fcm = model
+    for s in range(N):
+        _transforms(Rp, pp, sigma, Q[s], R, P)
+        _rnea_pass(R, P, sigma, inertial, g[0], g[1], g[2], QD[s], QDD[s], -1,
+                   W, DW, DV, F, NM, out[s])
+        for j in range(n):
+            acc = 0.0
+            for k in range(n):
+                acc += A[j, k] * QDD[s, k]
+            out[s, j] += acc
+        _add_friction(model, QD[s], v_s, out[s])
+
+
+@njit(cache=True, nogil=True)
+def _mass_batch(model, Q, out):
+    N, n = Q.shape
+    ws = _workspace(n)
+    M = ws[7]
+    for s in range(N):
+        _mass(model, ws, Q[s], True)
+        for i in range(n):
+            for k in range(n):
+                out[s, i, k] = M[i, k]
+
+
+@njit(cache=True, nogil=True)
+def _bias_batch(model, Q, QD, v_s, out):
+    N, n = Q.shape
+    ws = _workspace(n)
+    for s in range(N):
+        _bias(model, ws, Q[s], QD[s], v_s, True, out[s])
+
+
+@njit(cache=True, nogil=True)
+def _forward_dynamics_batch(model, Q, QD, TAU, v_s, out):
+    N, n = Q.shape
+    ws = _workspace(n)
+    for s in range(N):
+        st = _qdd(model, ws, Q[s], QD[s], TAU[s], v_s, out[s])
+        if st != OK:
+            return st, s
+    return OK, -1
+
+
+# ----------------------------------------------------------------------------- wrappers
+
+def _samples(robot, **arrays):
+    """Validate (n,) or (N, n) arrays of equal shape; return 2-D copies and whether 1-D."""
+    n = robot.n_joints
+    out = []
+    single = None
+    shape = None
+    for name, a in arrays.items():
+        try:
+            a = np.asarray(a, dtype=float)
+        except (TypeError, ValueError):
+            raise InputError(f"{name} must be an array of numbers with {n} columns "
+                             f"(one per joint of '{robot.name}')") from None
+        if a.ndim == 1:
+            a = a[None, :]
+            s1 = True
+        elif a.ndim == 2:
+            s1 = False
+        else:
+            raise InputError(f"{name} has shape {a.shape}; give (n,) for one sample or (N, n) "
+                             f"with n = {n} joints of '{robot.name}'")
+        if a.shape[1] != n:
+            raise InputError(f"{name} has {a.shape[1]} columns but robot '{robot.name}' has "
+                             f"{n} joints; give one column per joint")
+        if shape is not None and a.shape != shape:
+            raise InputError(f"{name} has shape {a.shape} but {list(arrays)[0]} has {shape}; "
+                             "give the same number of samples for every signal")
+        if not np.all(np.isfinite(a)):
+            raise InputError(f"{name} holds non-finite values (NaN or inf)")
+        shape = a.shape
+        single = s1 if single is None else (single and s1)
+        out.append(np.ascontiguousarray(a))
+    return out, bool(single)
+
+
+def _v_s(v_s):
+    v = float(v_s)
+    if not np.isfinite(v) or v < 0:
+        raise InputError(f"v_s (the smooth-sign velocity of Coulomb friction) must be >= 0, got {v_s!r}")
+    return v
+
+
+def inverse_dynamics(robot, chi_st, q, qd, qdd, *, v_s=0.0):
+    """tau = (M(q) + A) qdd + N(q, qd) of eq. (1), from chi_st; (n,) or (N, n).
+
+    With ``v_s = 0`` (default) Coulomb friction uses the exact sign and the result
+    equals ``dynamics.regressor.inverse_dynamics(robot, chi_st, q, qd, qdd)``.
+    """
+    ma = model_arrays(robot, chi_st)
+    (q, qd, qdd), single = _samples(robot, q=q, qd=qd, qdd=qdd)
+    out = np.empty_like(q)
+    _inverse_dynamics_batch(ma.kernel_args(), q, qd, qdd, _v_s(v_s), out)
+    return out[0] if single else out
+
+
+def mass_matrix(robot, chi_st, q):
+    """M(q) including the actuator inertias (diag Ia and coupling terms); (n,n) or (N,n,n)."""
+    ma = model_arrays(robot, chi_st)
+    (q,), single = _samples(robot, q=q)
+    out = np.empty((q.shape[0], ma.n, ma.n))
+    _mass_batch(ma.kernel_args(), q, out)
+    return out[0] if single else out
+
+
+def bias_torque(robot, chi_st, q, qd, *, v_s=0.0):
+    """N(q, qd) of eq. (1): Coriolis, centrifugal, gravity, friction, offsets."""
+    ma = model_arrays(robot, chi_st)
+    (q, qd), single = _samples(robot, q=q, qd=qd)
+    out = np.empty_like(q)
+    _bias_batch(ma.kernel_args(), q, qd, _v_s(v_s), out)
+    return out[0] if single else out
+
+
+def forward_dynamics(robot, chi_st, q, qd, tau, *, v_s=0.0):
+    """qdd = M(q)^-1 (tau - N(q, qd)), eq. (17); (n,) or (N, n).
+
+    Raises InputError when M(q) (with the actuator inertias) is not positive
+    definite at a sample: the parameters are not physically consistent there.
+    """
+    ma = model_arrays(robot, chi_st)
+    (q, qd, tau), single = _samples(robot, q=q, qd=qd, tau=tau)
+    out = np.empty_like(q)
+    status, s = _forward_dynamics_batch(ma.kernel_args(), q, qd, tau, _v_s(v_s), out)
+    if status != OK:
+        raise InputError(f"the mass matrix M(q) of these parameters is not positive definite at "
+                         f"sample {s} (q = {np.array2string(q[s], precision=4)}); chi_st is not "
+                         "physically consistent (check masses, inertias and Ia)")
+    return out[0] if single else out

@@ -1,0 +1,376 @@
+"""Figures of the HTML reports, as inline SVG (or base64 PNG for dense plots).
+
+Every figure is drawn on a :class:`matplotlib.figure.Figure` of its own (no
+pyplot, no global figure registry) under a fixed style, and serialised to a
+string the report embeds directly:
+
+* SVG by default, with a fixed ``svg.hashsalt`` and no date so that the same
+  input gives byte-identical output; the XML prologue, metadata, comments and
+  namespace declarations are dropped (inline SVG in HTML needs none of them),
+  and element ids are prefixed with the figure's key so that several figures
+  in one page never share an id;
+* PNG (Agg, base64 ``data:`` URI) when a plot has too many points for a
+  compact SVG.
+
+Time series with more than :data:`MAX_POINTS` samples are decimated for
+plotting only (every k-th sample); the caption says so.
+"""
+from __future__ import annotations
+
+import base64
+import io
+import math
+import re
+from dataclasses import dataclass
+
+import matplotlib
+import numpy as np
+from markupsafe import Markup, escape
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.backends.backend_svg import FigureCanvasSVG
+from matplotlib.figure import Figure
+from matplotlib.ticker import LogLocator, NullFormatter
+
+__all__ = [
+    "FigureMarkup", "MAX_POINTS", "SVG_MAX_VERTICES", "RED", "BLUE",
+    "decimate_for_plot", "joint_label", "render_figure",
+    "torque_figure", "residual_pdf_figure", "essential_path_figure", "rel_std_bar_figure",
+]
+
+#: Samples per line above which a series is decimated for plotting.
+MAX_POINTS = 5000
+#: Total line vertices above which a figure is written as PNG rather than SVG.
+SVG_MAX_VERTICES = 20000
+RED, BLUE, GREY, GREEN = "#d62728", "#1f4fb4", "#777777", "#2ca02c"
+PAPER_COLOR = "#e0a030"
+
+STYLE = {
+    "svg.hashsalt": "dynid-report",
+    "svg.fonttype": "none",            # text as <text>: small files, selectable labels
+    "font.family": "DejaVu Sans",
+    "font.size": 8.0,
+    "axes.titlesize": 8.5,
+    "axes.labelsize": 8.0,
+    "xtick.labelsize": 7.0,
+    "ytick.labelsize": 7.0,
+    "legend.fontsize": 7.0,
+    "axes.linewidth": 0.6,
+    "lines.linewidth": 0.9,
+    "grid.linewidth": 0.4,
+    "grid.color": "#dddddd",
+    "axes.grid": True,
+    "axes.axisbelow": True,
+    "axes.spines.top": False,
+    "axes.spines.right": False,
+    "figure.dpi": 100,
+    "savefig.dpi": 110,
+    "path.simplify": True,
+    "path.simplify_threshold": 0.5,
+}
+
+
+@dataclass
+class FigureMarkup:
+    """A rendered figure: ``markup`` is trusted HTML (SVG element or <img>)."""
+
+    key: str
+    caption: str
+    markup: Markup
+    kind: str            # "svg" or "png"
+
+    @property
+    def n_bytes(self) -> int:
+        return len(self.markup.encode("utf-8"))
+
+    def __html__(self):
+        return self.markup
+
+
+# ------------------------------------------------------------------ helpers
+def joint_label(j: int, name: str) -> str:
+    """``joint 3`` for default names (``j3``, ``joint3``, ``3``), else ``joint 3 (name)``."""
+    name = str(name)
+    if name.lower().replace("_", "").replace(" ", "") in (f"j{j + 1}", f"joint{j + 1}", f"{j + 1}", ""):
+        return f"joint {j + 1}"
+    return f"joint {j + 1} ({name})"
+
+
+def _plain(text) -> str:
+    """User text for matplotlib: no mathtext (``$`` escaped)."""
+    return str(text).replace("$", r"\$")
+
+
+def decimate_for_plot(n: int, max_points: int = MAX_POINTS):
+    """``(index, step)``: every ``step``-th of ``n`` samples, at most ``max_points`` of them."""
+    step = max(1, math.ceil(n / max_points)) if max_points else 1
+    return np.arange(0, n, step), step
+
+
+def _new_figure(width, height):
+    fig = Figure(figsize=(width, height), layout="constrained")
+    return fig
+
+
+_ID = re.compile(r'\bid="([^"]+)"')
+
+
+def _clean_svg(text: str, key: str) -> str:
+    """Strip the prologue, metadata, comments, style and namespaces; prefix the ids."""
+    text = re.sub(r"<\?xml[^>]*\?>\s*", "", text)
+    text = re.sub(r"<!DOCTYPE[^>]*>\s*", "", text)
+    text = re.sub(r"<!--.*?-->\s*", "", text, flags=re.S)
+    text = re.sub(r"<metadata>.*?</metadata>\s*", "", text, flags=re.S)
+    text = re.sub(r"<defs>\s*<style[^>]*>.*?</style>\s*</defs>\s*", "", text, flags=re.S)
+    text = re.sub(r"<style[^>]*>.*?</style>\s*", "", text, flags=re.S)
+    text = re.sub(r'\s+xmlns(:\w+)?="[^"]*"', "", text)
+    text = re.sub(r'\s+version="1\.1"', "", text, count=1)
+    text = text.replace("xlink:href=", "href=")
+    # keep only the ids something refers to, prefixed with the figure's key
+    referenced = set(re.findall(r"url\(#([^)]+)\)", text)) | set(re.findall(r'href="#([^"]+)"', text))
+    ids = set(_ID.findall(text)) & referenced
+    text = _ID.sub(lambda m: m.group(0) if m.group(1) in ids else "", text)
+    text = re.sub(r"<g\s*>", "<g>", text)
+    if ids:
+        prefix = f"{key}-"
+        text = _ID.sub(lambda m: f'id="{prefix}{m.group(1)}"', text)
+        text = re.sub(r"url\(#([^)]+)\)",
+                      lambda m: f"url(#{prefix}{m.group(1)})" if m.group(1) in ids else m.group(0), text)
+        text = re.sub(r'href="#([^"]+)"',
+                      lambda m: f'href="#{prefix}{m.group(1)}"' if m.group(1) in ids else m.group(0), text)
+    # compact: 2 decimals in path data, no indentation or line breaks
+    text = re.sub(r'\bd="([^"]*)"', lambda m: 'd="' + _short_path(m.group(1)) + '"', text)
+    text = re.sub(r">\s+<", "><", text)
+    # width="460.8pt" -> px, so that CSS max-width:100% scales it on small screens
+    def px(m):
+        return f'{m.group(1)}="{float(m.group(2)) * 96 / 72:.0f}"'
+    text = re.sub(r'\b(width|height)="([0-9.]+)pt"', px, text, count=2)
+    # one font declaration on the root (with fallbacks where DejaVu Sans is not installed)
+    text = re.sub(r";?\s*font-family: 'DejaVu Sans'", "", text)
+    text = text.replace("<svg ", "<svg style=\"font-family: 'DejaVu Sans', Verdana, Arial, "
+                        "sans-serif\" ", 1)
+    text = re.sub(r' transform="rotate\(-?0 [^"]*\)"', "", text)
+    text = re.sub(r'\b(x|y)="(-?\d+\.\d+)"', lambda m: f'{m.group(1)}="{float(m.group(2)):.2f}"', text)
+    text = text.replace('style=""', "")
+    return text.strip()
+
+
+_NUM = re.compile(r"-?\d+\.\d+")
+
+
+def _short_path(d: str) -> str:
+    def fix(m):
+        v = f"{float(m.group(0)):.2f}".rstrip("0").rstrip(".")
+        return "0" if v in ("-0", "") else v
+    return re.sub(r"\s+", " ", _NUM.sub(fix, d)).strip()
+
+
+def _count_vertices(fig) -> int:
+    total = 0
+    for ax in fig.axes:
+        for line in ax.get_lines():
+            total += len(line.get_xdata())
+    return total
+
+
+def render_figure(fig, key: str, caption: str, *, fmt: str = "auto") -> FigureMarkup:
+    """Serialise ``fig`` to a :class:`FigureMarkup` (SVG, or PNG when dense / asked)."""
+    if fmt == "auto":
+        fmt = "png" if _count_vertices(fig) > SVG_MAX_VERTICES else "svg"
+    label = escape(caption)
+    with matplotlib.rc_context(STYLE):
+        buf = io.BytesIO()
+        if fmt == "svg":
+            FigureCanvasSVG(fig)
+            fig.savefig(buf, format="svg", metadata={"Date": None, "Creator": None})
+            text = _clean_svg(buf.getvalue().decode("utf-8"), key)
+            text = text.replace("<svg ", f'<svg role="img" aria-label="{label}" ', 1)
+            markup = Markup(text)
+        elif fmt == "png":
+            FigureCanvasAgg(fig)
+            fig.savefig(buf, format="png", metadata={"Software": None})
+            data = base64.b64encode(buf.getvalue()).decode("ascii")
+            markup = Markup('<img alt="{}" src="data:image/png;base64,{}">').format(caption, data)
+        else:
+            raise ValueError(f"fmt must be 'auto', 'svg' or 'png', not {fmt!r}")
+    return FigureMarkup(key=key, caption=caption, markup=markup, kind=fmt)
+
+
+def _grid_shape(n: int, max_cols: int = 3):
+    cols = min(n, max_cols) if n > 1 else 1
+    rows = math.ceil(n / cols)
+    return rows, cols
+
+
+# ------------------------------------------------------------------ figures
+def torque_figure(t, measured, estimated, joint_names, *, key="fig-torque", caption=None,
+                  fmt="auto", ylabel="torque [N m]", labels=("measured", "estimated")):
+    """Measured (red) vs estimated (blue) torque, one small subplot per joint (Fig. 6)."""
+    t = np.asarray(t, dtype=float)
+    measured = np.asarray(measured, dtype=float)
+    estimated = np.asarray(estimated, dtype=float)
+    n = measured.shape[1]
+    idx, step = decimate_for_plot(t.size)
+    with matplotlib.rc_context(STYLE):
+        rows, cols = _grid_shape(n)
+        fig = _new_figure(3.3 * cols, 1.9 * rows + 0.3)
+        axes = fig.subplots(rows, cols, squeeze=False, sharex=True)
+        for j in range(rows * cols):
+            ax = axes.flat[j]
+            if j >= n:
+                ax.set_visible(False)
+                continue
+            ax.plot(t[idx], measured[idx, j], color=RED, lw=0.9, label=labels[0])
+            ax.plot(t[idx], estimated[idx, j], color=BLUE, lw=0.8, label=labels[1])
+            ax.set_title(_plain(joint_label(j, joint_names[j])), loc="left")
+            if j % cols == 0:
+                ax.set_ylabel(ylabel)
+            if j >= n - cols:
+                ax.set_xlabel("time [s]")
+                ax.tick_params(labelbottom=True)
+        handles, texts = axes.flat[0].get_legend_handles_labels()
+        fig.legend(handles, texts, loc="outside upper right", ncols=2, frameon=False)
+    if caption is None:
+        caption = "Measured torque (red) and torque estimated by the identified model (blue), per joint"
+    if step > 1:
+        caption += f" (every {step}th of {t.size} samples plotted)"
+    return render_figure(fig, key, caption, fmt=fmt)
+
+
+def residual_pdf_figure(residual, joint_names, jarque_bera_p=None, *, key="fig-residual-pdf",
+                        caption=None, fmt="auto"):
+    """Per joint: histogram of the residual, fitted normal density and KDE; JB p in the title."""
+    from scipy import stats
+
+    residual = np.asarray(residual, dtype=float)
+    n = residual.shape[1]
+    with matplotlib.rc_context(STYLE):
+        rows, cols = _grid_shape(n)
+        fig = _new_figure(3.3 * cols, 1.9 * rows + 0.3)
+        axes = fig.subplots(rows, cols, squeeze=False)
+        for j in range(rows * cols):
+            ax = axes.flat[j]
+            if j >= n:
+                ax.set_visible(False)
+                continue
+            e = residual[:, j]
+            e = e[np.isfinite(e)]
+            title = joint_label(j, joint_names[j])
+            if jarque_bera_p is not None:
+                title += f": JB p = {format_p(jarque_bera_p[j])}"
+            ax.set_title(_plain(title), loc="left")
+            if e.size < 3:
+                ax.text(0.5, 0.5, "too few samples", ha="center", va="center", transform=ax.transAxes)
+                continue
+            mu, sd = float(e.mean()), float(e.std(ddof=1))
+            bins = int(np.clip(np.ceil(np.sqrt(e.size)), 8, 40))
+            ax.hist(e, bins=bins, density=True, color="#c8d3e8", edgecolor="#8fa3c8", linewidth=0.4,
+                    label="histogram")
+            lo, hi = float(e.min()), float(e.max())
+            pad = 0.1 * (hi - lo) if hi > lo else 1.0
+            x = np.linspace(lo - pad, hi + pad, 200)
+            if sd > 0:
+                ax.plot(x, stats.norm.pdf(x, mu, sd), color=RED, lw=1.0, label="normal fit")
+                try:
+                    ax.plot(x, stats.gaussian_kde(e)(x), color=BLUE, lw=1.0, ls="--", label="KDE")
+                except (np.linalg.LinAlgError, ValueError):
+                    pass
+            ax.set_yticks([])
+            ax.grid(False)
+            if j >= n - cols:
+                ax.set_xlabel("residual [N m]")
+        handles, texts = axes.flat[0].get_legend_handles_labels()
+        fig.legend(handles, texts, loc="outside upper right", ncols=3, frameon=False)
+    if caption is None:
+        caption = ("Residual PDF per joint: histogram, fitted normal density (red), kernel "
+                   "density estimate (blue, dashed); Jarque-Bera p-value in the title")
+    return render_figure(fig, key, caption, fmt=fmt)
+
+
+def format_p(p) -> str:
+    p = float(p)
+    if not math.isfinite(p):
+        return "\u2014"
+    if p < 1e-4:
+        return f"{p:.1e}"
+    return f"{p:.3g}"
+
+
+def essential_path_figure(path, *, base_rel_error, base_max_rel_std=None, error_limit=None,
+                          key="fig-essential-path", caption=None, fmt="auto"):
+    """Relative error and max %σ of the remaining set vs elimination step; stop step marked.
+
+    ``path`` is :attr:`EssentialResult.path`; step 0 is the full base model.
+    """
+    steps = np.concatenate([[0], np.asarray(path["step"], dtype=float)])
+    err = np.concatenate([[base_rel_error], np.asarray(path["rel_error"], dtype=float)])
+    mx = np.concatenate([[np.nan if base_max_rel_std is None else base_max_rel_std],
+                         np.asarray(path["max_rel_std_remaining"], dtype=float)])
+    mx = np.where(np.isfinite(mx) & (mx > 0), mx, np.nan)
+    stop = int(steps[-1])
+    with matplotlib.rc_context(STYLE):
+        fig = _new_figure(7.6, 3.9)
+        ax1, ax2 = fig.subplots(2, 1, sharex=True)
+        ax1.plot(steps, 100 * err, color=BLUE, marker="o", ms=2.5, lw=1.0, label="relative error")
+        if error_limit is not None and math.isfinite(error_limit):
+            ax1.axhline(100 * error_limit, color=GREY, ls=":", lw=0.8, label="error limit")
+        ax1.set_ylabel("relative error [%]")
+        ax2.plot(steps, mx, color=RED, marker="o", ms=2.5, lw=1.0, label="max %\u03c3 remaining")
+        if np.any(np.isfinite(mx)):
+            ax2.set_yscale("log")
+            ax2.yaxis.set_minor_locator(LogLocator(subs="auto"))
+            ax2.yaxis.set_minor_formatter(NullFormatter())
+        ax2.set_ylabel("max %\u03c3 remaining")
+        ax2.set_xlabel("elimination step (0 = all base parameters)")
+        for ax in (ax1, ax2):
+            ax.axvline(stop, color=GREEN, ls="--", lw=1.0)
+        ax1.annotate(f"stop: step {stop}", xy=(stop, 1.0), xycoords=("data", "axes fraction"),
+                     xytext=(-4, -2), textcoords="offset points", ha="right", va="top",
+                     color=GREEN, fontsize=7)
+        ax1.legend(loc="upper left", frameon=False)
+        ax2.legend(loc="upper right", frameon=False)
+    if caption is None:
+        caption = ("Essential-parameter elimination path: relative error norm (top) and largest "
+                   "%\u03c3 of the remaining parameters (bottom, log scale) after each removal; "
+                   "the dashed green line marks the last accepted step")
+    return render_figure(fig, key, caption, fmt=fmt)
+
+
+def rel_std_bar_figure(names, rel_sigma, reference=None, *, key="fig-rel-std",
+                       caption=None, fmt="auto", ours_label="dynid"):
+    """Bars of the %σ of the essential parameters, beside the paper's %σ where names match.
+
+    ``reference``: ``{name: %σ}`` of the paper (or ``None``).
+    """
+    names = [str(n) for n in names]
+    rs = np.asarray(rel_sigma, dtype=float)
+    ref = dict(reference or {})
+    x = np.arange(len(names))
+    has_ref = any(n in ref for n in names)
+    width = 0.4 if has_ref else 0.7
+    finite = rs[np.isfinite(rs) & (rs > 0)]
+    pv = np.array([ref.get(n, np.nan) for n in names], dtype=float)
+    allv = np.concatenate([finite, pv[np.isfinite(pv) & (pv > 0)]])
+    logy = allv.size > 0 and allv.max() / max(allv.min(), 1e-12) > 30
+    with matplotlib.rc_context(STYLE):
+        fig = _new_figure(min(10.5, max(4.0, 0.26 * len(names) + 1.2)), 3.0)
+        ax = fig.subplots()
+        shown = np.where(np.isfinite(rs), rs, np.nan)
+        off = -width / 2 if has_ref else 0.0
+        ax.bar(x + off, shown, width=width, color=BLUE, label=f"{ours_label} %\u03c3")
+        if has_ref:
+            ax.bar(x + width / 2, pv, width=width, color=PAPER_COLOR, label="paper %\u03c3 (Table 2)")
+        if logy:
+            ax.set_yscale("log")
+            ax.yaxis.set_minor_formatter(NullFormatter())
+        ax.set_xticks(x, [_plain(n) for n in names], rotation=90)
+        ax.set_xlim(-0.6, len(names) - 0.4)
+        ax.set_ylabel("%\u03c3")
+        ax.grid(axis="x", visible=False)
+        ax.legend(loc="upper left", frameon=False, ncols=2)
+    if caption is None:
+        caption = "Relative standard deviation %\u03c3 of the essential parameters"
+        if has_ref:
+            caption += ", beside the paper's %\u03c3 (Table 2) where the parameter is in both"
+        if logy:
+            caption += " (log scale)"
+    return render_figure(fig, key, caption, fmt=fmt)

@@ -1,0 +1,485 @@
+"""Self-contained HTML reports.
+
+A report is a list of :class:`Section` rendered by ``templates/report.html.j2``
+into ONE HTML file: inline CSS, inline SVG (or base64 PNG) figures, every
+table downloadable as CSV through a ``data:`` URI, no external fonts, scripts
+or URLs, a print stylesheet. Identical inputs give byte-identical files (no
+timestamps; deterministic figures).
+
+Escaping: the Jinja2 environment autoescapes everything. Trusted markup is
+marked by its *type*: :class:`markupsafe.Markup` (figures we drew, bodies
+built with :func:`para`, :func:`kv_list`, :func:`bullets`, which escape their
+arguments). A plain ``str`` anywhere — a file name, a robot or joint name, a
+column label, even a section's ``html_body`` — is escaped. The template never
+uses ``|safe``.
+
+Extending: later analyses (DIDIM convergence, Bona tables, posterior,
+diagnosis) build their own ``Section`` objects and pass them as
+``extra_sections`` to :func:`render_idim_report`, or call
+:func:`render_sections` with a list of their own.
+"""
+from __future__ import annotations
+
+import functools
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import jinja2
+import numpy as np
+import pandas as pd
+from markupsafe import Markup, escape
+
+import reports
+from analysis.provenance import atomic_write_text, versions
+from reports import figures as F
+from reports import tables as T
+from reports.paper import reference_for
+
+__all__ = [
+    "Section", "para", "kv_list", "bullets", "join", "render_sections", "idim_sections",
+    "render_idim_report", "write_report", "environment", "template_dirs", "SECTION_IDS",
+]
+
+TEMPLATE = "report.html.j2"
+_ID_RE = re.compile(r"^[a-z][a-z0-9-]*$")
+
+#: Ids of the sections of an IDIM report, in order (``validation`` only with validation data).
+SECTION_IDS = ("run", "model", "base-parameters", "table2", "essential-path", "torques",
+               "validation")
+
+
+@dataclass
+class Section:
+    """One section of a report: ``<section id=…><h2>title</h2>`` body, figures, tables.
+
+    ``html_body`` is escaped unless it is :class:`markupsafe.Markup` (build it
+    with :func:`para`, :func:`kv_list`, :func:`bullets`, :func:`join`).
+    ``figures`` are :class:`reports.figures.FigureMarkup`, ``tables``
+    :class:`reports.tables.Table`. With ``tables_first`` the tables come
+    before the figures.
+    """
+
+    id: str
+    title: str
+    html_body: object = ""
+    figures: list = field(default_factory=list)
+    tables: list = field(default_factory=list)
+    tables_first: bool = False
+
+
+# ------------------------------------------------------------------ body helpers
+def para(*parts, cls: str = "") -> Markup:
+    """``<p>`` of the concatenated parts (each escaped unless Markup)."""
+    inner = Markup("").join(escape(p) for p in parts)
+    if cls:
+        return Markup('<p class="{}">{}</p>').format(cls, inner)
+    return Markup("<p>{}</p>").format(inner)
+
+
+def code(text) -> Markup:
+    return Markup("<code>{}</code>").format(text)
+
+
+def kv_list(pairs, cls: str = "kv") -> Markup:
+    """A ``<dl>`` of (label, value) pairs; values may be Markup (e.g. :func:`code`)."""
+    items = Markup("").join(Markup("<dt>{}</dt><dd>{}</dd>").format(k, v) for k, v in pairs)
+    return Markup('<dl class="{}">{}</dl>').format(cls, items)
+
+
+def bullets(items, cls: str = "") -> Markup:
+    """A ``<ul>`` of the items (escaped unless Markup)."""
+    lis = Markup("").join(Markup("<li>{}</li>").format(i) for i in items)
+    if cls:
+        return Markup('<ul class="{}">{}</ul>').format(cls, lis)
+    return Markup("<ul>{}</ul>").format(lis)
+
+
+def join(*parts) -> Markup:
+    return Markup("").join(escape(p) for p in parts if p is not None and p != "")
+
+
+# ------------------------------------------------------------------ rendering
+def template_dirs() -> list:
+    """Where the templates are: installed (``reports/templates``) first, then the repo's ``templates/``."""
+    pkg = Path(reports.__file__).resolve().parent
+    return [str(pkg / "templates"), str(pkg.parent / "templates")]
+
+
+@functools.lru_cache(maxsize=1)
+def environment() -> jinja2.Environment:
+    """The Jinja2 environment of the reports (autoescape on, strict undefined)."""
+    return jinja2.Environment(
+        loader=jinja2.FileSystemLoader(template_dirs()),
+        autoescape=True,
+        undefined=jinja2.StrictUndefined,
+        trim_blocks=True,
+        lstrip_blocks=True,
+        keep_trailing_newline=True,
+    )
+
+
+def _check_sections(sections):
+    seen = set()
+    for s in sections:
+        if not isinstance(s, Section):
+            raise TypeError(f"report sections must be reports.html.Section, got {type(s).__name__}")
+        if not _ID_RE.match(s.id):
+            raise ValueError(f"section id {s.id!r} must match [a-z][a-z0-9-]*")
+        if s.id in seen:
+            raise ValueError(f"two report sections have the id {s.id!r}")
+        seen.add(s.id)
+        keys = [f.key for f in s.figures] + [t.key for t in s.tables]
+        for k in keys:
+            if k in seen:
+                raise ValueError(f"the id {k!r} is used twice in the report")
+            seen.add(k)
+
+
+def render_sections(sections, *, title, subtitle="", highlights=(), footer=()) -> str:
+    """The HTML page of ``sections`` (a list of :class:`Section`).
+
+    ``highlights``: (label, value) pairs shown under the title; ``footer``:
+    lines of text at the bottom.
+    """
+    sections = list(sections)
+    _check_sections(sections)
+    html = environment().get_template(TEMPLATE).render(
+        title=title, subtitle=subtitle, sections=sections, highlights=list(highlights),
+        footer=list(footer), generator=f"dynid {versions().get('dynid', '?')}",
+    )
+    return html
+
+
+def write_report(path, html: str) -> None:
+    """Write ``html`` to ``path`` atomically (all or nothing, never half a file)."""
+    atomic_write_text(path, html)
+
+
+# ------------------------------------------------------------------ IDIM sections
+def _pct(x, digits=2) -> str:
+    x = float(x)
+    return T.MISSING if not math.isfinite(x) else f"{100 * x:.{digits}f}\u00a0%"
+
+
+def _joint_names(robot, n):
+    names = list(getattr(robot, "joint_names", []) or [])
+    return names + [f"j{k + 1}" for k in range(len(names), n)]
+
+
+def _max_finite(a):
+    a = np.asarray(a, dtype=float)
+    if a.size == 0:
+        return None
+    a = np.where(np.isnan(a), np.inf, a)
+    m = float(a.max())
+    return m if math.isfinite(m) else None
+
+
+def _setting_value(key, value, joint_names):
+    if isinstance(value, (list, tuple, np.ndarray)):
+        vals = list(value)
+        if len(vals) == len(joint_names):
+            return ", ".join(f"{n} {T.format_number(v, 3)}" for n, v in zip(joint_names, vals))
+        return ", ".join(T.format_number(v, 4) if isinstance(v, (int, float)) else str(v) for v in vals)
+    if isinstance(value, bool) or value is None:
+        return str(value)
+    if isinstance(value, (int, np.integer)):
+        return str(int(value))
+    if isinstance(value, (float, np.floating)):
+        return T.format_number(value)
+    return str(value)
+
+
+def _run_section(res, robot, experiment, reference):
+    from analysis.observation import SETTINGS_HELP
+
+    obs = res.observation
+    names = _joint_names(robot, obs.tau.shape[1])
+    pairs = [("Robot", f"{robot.name}" + (f" \u2014 {robot.description}" if getattr(robot, "description", "") else ""))]
+    if getattr(robot, "source", ""):
+        pairs.append(("Robot file", code(robot.source)))
+    pairs.append(("Data source", code(res.source)))
+    if experiment is not None:
+        label = getattr(experiment, "name", "") or ""
+        pairs.append(("Experiment", f"{label + ': ' if label else ''}{experiment.n_samples} samples at "
+                                    f"{T.format_number(experiment.fs)} Hz, "
+                                    f"{T.format_number(experiment.duration)} s"))
+    used = int(np.asarray(obs.row_mask).sum())
+    pairs.append(("Identification data", f"{obs.n_raw} raw samples \u2192 {obs.n_samples} decimated "
+                                         f"samples \u00d7 {obs.tau.shape[1]} joints; {used} equations used"))
+    pairs.append(("Data hash (SHA-256)", code(res.data_hash or "\u2014")))
+    body = kv_list(pairs)
+    if res.notices:
+        body = join(body, Markup("<h3>Notices</h3>"), bullets(res.notices, cls="notices"))
+
+    # processing settings
+    order = ["fs", "fc_position", "order", "nd", "f_decimation_cutoff", "edge", "bandwidth", "qd_threshold"]
+    meaning = dict(SETTINGS_HELP, fs="sampling rate of the recording, Hz")
+    keys = [k for k in order if k in res.settings] + [k for k in res.settings if k not in order]
+    paper = reference.settings if reference is not None else {}
+    rows = []
+    for k in keys:
+        row = {"setting": k, "value": _setting_value(k, res.settings[k], names),
+               "meaning": meaning.get(k, "")}
+        if paper:
+            row["paper"] = _setting_value(k, paper[k], names) if k in paper else ""
+        rows.append(row)
+    settings_df = pd.DataFrame(rows).set_index("setting")
+    labels = {"paper": "paper (section 5)"}
+    t_settings = T.make_table(settings_df, "tab-settings", "Processing settings",
+                              formats={"value": "text", "meaning": "text", "paper": "text"},
+                              labels=labels)
+    vers = versions()
+    vdf = pd.DataFrame({"package": list(vers), "version": list(vers.values())}).set_index("package")
+    t_versions = T.make_table(vdf, "tab-versions", "dynid and dependency versions",
+                              formats={"version": "code"})
+    return Section("run", "Run and data", body, tables=[t_settings, t_versions])
+
+
+def _model_section(robot, res):
+    n = robot.n_joints
+    names = _joint_names(robot, n)
+    desc = []
+    if getattr(robot, "description", ""):
+        desc.append(para(robot.description))
+    desc.append(para(f"{n} joints ({', '.join(names)}); {robot.n_standard} standard parameters, "
+                     f"{res.base.n_base} base parameters."))
+    couplings = []
+    for c in getattr(robot, "couplings", []) or []:
+        joints = ", ".join(str(j) for j in c.joints)
+        coefs = ", ".join(T.format_number(x) for x in c.coefficients)
+        text = f"motor {c.motor} turns with joints {joints} (coefficients {coefs})"
+        if c.parameter_names:
+            text += f"; friction parameters {', '.join(c.parameter_names)}"
+        couplings.append(text)
+    desc.append(Markup("<h3>Couplings</h3>"))
+    desc.append(bullets(couplings) if couplings else para("none"))
+    tables = []
+    dh = robot.dh_table()
+    if dh:
+        df = pd.DataFrame([{"j": r[0], "joint": nm, "sigma": int(r[1]), "alpha": r[2], "d": r[3],
+                            "theta": r[4], "r": r[5]} for r, nm in zip(dh, names)]).set_index("j")
+        tables.append(T.make_table(df, "tab-dh", "Modified Denavit-Hartenberg parameters "
+                                   "(Khalil-Kleinfinger; angles in rad, lengths in m)",
+                                   formats={"alpha": "angle", "theta": "angle", "d": "num", "r": "num",
+                                            "joint": "text"},
+                                   labels={"alpha": "\u03b1", "theta": "\u03b8", "sigma": "\u03c3"}))
+    else:
+        desc.append(para("No DH table: the joints' placements come from a URDF."))
+    jrows = []
+    for k, j in enumerate(robot.joints):
+        jrows.append({"j": k + 1, "joint": j.name, "type": "prismatic" if j.sigma == 1 else "revolute",
+                      "q_min": float(j.q_limits[0]), "q_max": float(j.q_limits[1]),
+                      "qd_max": float(j.qd_max), "tau_max": float(j.tau_max),
+                      "drive_gain": float(j.drive_gain)})
+    jdf = pd.DataFrame(jrows).set_index("j")
+    tables.append(T.make_table(jdf, "tab-joints", "Joints and limits",
+                               formats={"joint": "text", "type": "text"},
+                               labels={"q_min": "q min", "q_max": "q max", "qd_max": "qd max",
+                                       "tau_max": "\u03c4 max", "drive_gain": "drive gain"}))
+    prov = dict(getattr(robot, "provenance", {}) or {})
+    if prov:
+        pdf = pd.DataFrame({"what": list(prov), "source": [str(v) for v in prov.values()]}).set_index("what")
+        tables.append(T.make_table(pdf, "tab-provenance", "Provenance of the robot's numbers"))
+    return Section("model", "Model", join(*desc), tables=tables)
+
+
+def _base_section(res):
+    table = res.parameter_table()
+    shown = pd.DataFrame({
+        "relation": [r.split(" = ", 1)[1] if " = " in r else r for r in table["relation"]],
+        "ols": table["ols"], "ols_rel_std": table["ols_rel_std"],
+        "wls": table["wls"], "wls_rel_std": table["wls_rel_std"],
+        "essential": table["essential"].astype(bool),
+    }, index=table.index)
+    labels = {"name": "Parameter", "relation": "Relation (= regrouped standard parameters)",
+              "ols": "OLS \u03c7\u0302", "ols_rel_std": "OLS %\u03c3",
+              "wls": "WLS \u03c7\u0302", "wls_rel_std": "WLS %\u03c3", "essential": "essential"}
+    csv_frame = table
+    if getattr(res, "truth", None):
+        shown.insert(0, "true", [res.truth.get(n, np.nan) for n in table.index])
+        labels["true"] = "true value"
+        csv_frame = table.assign(true=[res.truth.get(n, np.nan) for n in table.index])
+    tab = T.make_table(shown, "tab-base", "Base parameters: OLS and per-joint WLS estimates",
+                       formats={"relation": "code", "essential": "bool"}, labels=labels,
+                       csv_frame=csv_frame, cls="base")
+    body = join(
+        para(f"{res.base.n_base} base parameters (eq. (4)), {len(res.model.names)} essential. "
+             f"Relative error norm \u2016Y \u2212 W\u03c7\u0302\u2016/\u2016Y\u2016: OLS {_pct(res.ols.rel_error)}, "
+             f"WLS {_pct(res.wls.rel_error)}, essential model {_pct(res.model.rel_error)}. "
+             f"cond(W): OLS {T.format_number(res.ols.cond)}, WLS {T.format_number(res.wls.cond)} "
+             f"(unit columns: {T.format_number(res.wls.cond_scaled)})."),
+        para("%\u03c3 = 100 \u03c3/|\u03c7\u0302| (eq. (15)); the WLS weights each joint's equations "
+             "by 1/\u03c3\u2c7c of its OLS residual (eq. (16)).", cls="hint"),
+    )
+    return Section("base-parameters", "Base parameters", body, tables=[tab])
+
+
+def _table2_section(res, reference):
+    m = res.model
+    tab = T.table2_layout(m.names, m.chi, m.rel_sigma, reference, res.base.names, key="tab-table2",
+                          caption="Essential parameters (WLS) in the layout of Table 2",
+                          ours_label="dynid WLS")
+    ref_map = reference.rel_std_map() if reference is not None else None
+    fig = F.rel_std_bar_figure(m.names, m.rel_sigma, ref_map, key="fig-rel-std",
+                               ours_label="dynid WLS")
+    if reference is not None:
+        common = [n for n in m.names if n in reference]
+        body = join(
+            para(f"The {len(m.names)} essential parameters identified by WLS, beside the published "
+                 f"values of {reference.title} ({reference.method}); {len(common)} of the paper's "
+                 f"{len(reference)} parameters are in dynid's essential set."),
+            para(reference.citation, ". ", reference.note, cls="hint"),
+        )
+    else:
+        body = para(f"The {len(m.names)} essential parameters identified by WLS. No published "
+                    f"reference is known for robot {res.robot_name!r}.")
+    return Section("table2", "Essential parameters (Table 2)", body, figures=[fig],
+                   tables=[tab], tables_first=True)
+
+
+def _path_section(res):
+    ess = res.essential
+    crit = ", ".join(f"{k} = {T.format_number(v) if isinstance(v, (int, float)) else v}"
+                     for k, v in ess.criteria.items() if v is not None) or "none"
+    body = join(
+        para(f"Backward elimination (Pham & Gautier 1991) from the {len(ess.essential) + len(ess.removed)} "
+             f"WLS base parameters: the parameter with the largest %\u03c3 is removed and the model "
+             f"re-estimated, while the relative error norm stays within the criterion. "
+             f"{len(ess.removed)} removed, {len(ess.essential)} essential."),
+        kv_list([("Criteria", crit), ("Stop rule", ess.stop_rule), ("Stop reason", ess.stop_reason)]),
+    )
+    g = ess.criteria.get("max_error_growth")
+    limit = ess.base.rel_error * (1 + g) if g is not None else None
+    fig = F.essential_path_figure(ess.path, base_rel_error=ess.base.rel_error,
+                                  base_max_rel_std=_max_finite(ess.base.rel_sigma),
+                                  error_limit=limit, key="fig-essential-path")
+    path = ess.path.set_index("step")
+    tab = T.make_table(path, "tab-essential-path", "Elimination path",
+                       formats={"removed": "text", "rel_std_removed": "pct",
+                                "max_rel_std_remaining": "pct", "rel_error": "num",
+                                "n_remaining": "int"},
+                       labels={"rel_std_removed": "%\u03c3 of the removed", "max_rel_std_remaining":
+                               "max %\u03c3 remaining", "rel_error": "relative error",
+                               "n_remaining": "remaining"})
+    return Section("essential-path", "Elimination path", body, figures=[fig], tables=[tab])
+
+
+def _joint_error_table(key, caption, names, rms, rel, sigma=None):
+    df = pd.DataFrame({"joint": names, "rms": np.asarray(rms, dtype=float),
+                       "rel_error_percent": 100 * np.asarray(rel, dtype=float)},
+                      index=pd.Index(np.arange(1, len(names) + 1), name="j"))
+    labels = {"rms": "RMS residual [N m]", "rel_error_percent": "relative error [%]"}
+    if sigma is not None:
+        df["wls_sigma"] = np.asarray(sigma, dtype=float)
+        labels["wls_sigma"] = "\u03c3\u2c7c (WLS weight 1/\u03c3\u2c7c)"
+    return T.make_table(df, key, caption, formats={"joint": "text", "rel_error_percent": "num"},
+                        labels=labels)
+
+
+def _torque_section(res, robot, reference):
+    obs = res.observation
+    names = _joint_names(robot, obs.tau.shape[1])
+    est = res.predict(obs.W)
+    fig = F.torque_figure(obs.t, obs.tau, est, names, key="fig-torque",
+                          caption="Identification data: measured torque Y(\u03c4) (red) and torque "
+                                  "estimated by the essential WLS model W\u03c7\u0302 (blue), per joint, "
+                                  "at the decimated rate (layout of Fig. 6 of the paper)")
+    m = res.model
+    tab = _joint_error_table("tab-torque-errors", "Per-joint residual of the essential model "
+                             "(identification data, equations used)", names, m.rms,
+                             m.joint_rel_error, m.joint_sigma)
+    text = (f"Relative error norm \u2016Y \u2212 W\u03c7\u0302\u2016/\u2016Y\u2016 of the essential model on "
+            f"the identification data: {_pct(m.rel_error)}.")
+    if reference is not None and "rel_error_below" in reference.settings:
+        text += f" The paper reports below {_pct(reference.settings['rel_error_below'], 0)} for IDIM-LS and DIDIM."
+    return Section("torques", "Measured vs estimated torque", para(text), figures=[fig], tables=[tab])
+
+
+def _validation_section(res, robot, validation):
+    n = validation.tau.shape[1]
+    names = _joint_names(robot, n)
+    pairs = [("Validation data", code(validation.source)),
+             ("Samples", f"{len(validation.t)} decimated samples"),
+             ("Relative error \u2016\u03c4 \u2212 \u03c4\u0302\u2016/\u2016\u03c4\u2016", _pct(validation.rel_error))]
+    body = kv_list(pairs)
+    if validation.notices:
+        body = join(body, Markup("<h3>Notices</h3>"), bullets(validation.notices, cls="notices"))
+    body = join(body, para("The essential model predicts torques of data it was not fitted to, "
+                           "processed with the same filter and decimation. A Gaussian residual "
+                           "(Jarque-Bera and Shapiro-Wilk p not small) supports the least-squares "
+                           "assumptions behind %\u03c3.", cls="hint"))
+    fig_t = F.torque_figure(validation.t, validation.tau, validation.tau_hat, names,
+                            key="fig-validation-torque",
+                            caption="Validation data: measured torque (red) and torque predicted by "
+                                    "the essential model (blue), per joint")
+    fig_p = F.residual_pdf_figure(validation.residual, names,
+                                  np.asarray(validation.noise["jarque_bera_p"], dtype=float),
+                                  key="fig-residual-pdf")
+    tab_e = _joint_error_table("tab-validation-errors", "Per-joint prediction error (validation data)",
+                               names, validation.rms, validation.joint_rel_error)
+    noise = validation.noise.copy()
+    noise.insert(0, "name", names[:len(noise)])
+    noise.index.name = "j"
+    tab_n = T.make_table(noise, "tab-normality", "Residual noise-PDF checks per joint",
+                         formats={"name": "text"},
+                         labels={"name": "joint", "jarque_bera": "Jarque-Bera",
+                                 "jarque_bera_p": "JB p", "shapiro": "Shapiro-Wilk W",
+                                 "shapiro_p": "SW p"})
+    return Section("validation", "Validation", body, figures=[fig_t, fig_p], tables=[tab_e, tab_n])
+
+
+def idim_sections(idim_result, robot, experiment=None, validation=None, *, reference="auto"):
+    """The sections of an IDIM report (ids :data:`SECTION_IDS`; ``validation`` only if given).
+
+    ``reference``: a :class:`reports.paper.ReferenceTable`, ``None``, or
+    ``"auto"`` (the published table for this robot, if any).
+    """
+    if isinstance(reference, str) and reference == "auto":
+        reference = reference_for(robot)
+    sections = [
+        _run_section(idim_result, robot, experiment, reference),
+        _model_section(robot, idim_result),
+        _base_section(idim_result),
+        _table2_section(idim_result, reference),
+        _path_section(idim_result),
+        _torque_section(idim_result, robot, reference),
+    ]
+    if validation is not None:
+        sections.append(_validation_section(idim_result, robot, validation))
+    return sections
+
+
+def render_idim_report(idim_result, robot, experiment=None, validation=None, *, title=None,
+                       extra_sections=None, reference="auto") -> str:
+    """One self-contained HTML page reporting an IDIM identification.
+
+    ``extra_sections`` (list of :class:`Section`) are appended after the
+    standard ones. Returns the HTML text; write it with :func:`write_report`.
+    """
+    if isinstance(reference, str) and reference == "auto":
+        reference = reference_for(robot)
+    sections = idim_sections(idim_result, robot, experiment, validation, reference=reference)
+    sections += list(extra_sections or [])
+    m = idim_result.model
+    highlights = [
+        ("robot", idim_result.robot_name),
+        ("base parameters", str(idim_result.base.n_base)),
+        ("essential", str(len(m.names))),
+        ("relative error (identification)", _pct(m.rel_error)),
+    ]
+    if validation is not None:
+        highlights.append(("relative error (validation)", _pct(validation.rel_error)))
+    footer = ["Method: IDIM with OLS, per-joint WLS and essential parameters, after section 2 of "
+              "Gautier, Janot, Vandanjon (2010)."]
+    if reference is not None:
+        footer.append(f"Reference values: {reference.citation}, {reference.title}.")
+    return render_sections(
+        sections,
+        title=title or f"IDIM identification of {idim_result.robot_name}",
+        subtitle=str(idim_result.source),
+        highlights=highlights,
+        footer=footer,
+    )
