@@ -56,7 +56,8 @@ def simulate_experiment(robot, chi_st, trajectory, duration, *, rng, tau_noise, 
     tau_sensor = sim.tau.copy()
     tau_sensor[1:] = 0.5 * (sim.tau[1:] + sim.tau[:-1])
     tau = tau_sensor + rng.normal(size=sim.tau.shape) * tau_noise
-    notices = [f"simulated: closed loop at {fs:g} Hz, noise q {list(np.round(q_noise, 8))} rad, "
-               f"tau {list(np.round(tau_noise, 6))} N m"]
+    notices = [f"simulated: closed loop at {fs:g} Hz, white noise of standard deviation "
+               f"q [{', '.join(f'{v:.3g}' for v in q_noise)}] rad, "
+               f"tau [{', '.join(f'{v:.3g}' for v in tau_noise)}] N m"]
     return Experiment(t=t, q=q, qr=qr, tau=tau, fs=fs, source=name, name=name, notices=notices,
                       meta={"true_q": sim.q, "true_tau": tau_sensor})
