@@ -128,17 +128,8 @@ def observe(experiment, robot, bp, settings=None, *, progress=None, reference=Fa
         parts = []
         for start in range(0, n_kept, CHUNK):
             sl = slice(start, min(n_kept, start + CHUNK))
-            W = base_regressor(robot, bp, qf[sl], qd[sl], qdd[sl])
-            tau_c = tau[sl]
-            if dead is not None:
-                # zeroing both sides keeps Y = W chi exact row by row, so the
-                # parallel decimation stays consistent while the samples where
-                # the friction model is wrong drop out entirely
-                keep_rows = ~dead[sl]
-                W = W * keep_rows[:, :, None]
-                tau_c = tau_c * keep_rows
-            kept = np.ones(tau_c.shape) if dead is None else (~dead[sl]).astype(float)
-            parts.append(dec.push(W, tau_c, qf[sl], qd[sl], qdd[sl], kept))
+            parts.append(push_chunk(dec, robot, bp, qf[sl], qd[sl], qdd[sl], tau[sl],
+                                    None if dead is None else dead[sl]))
             if progress is not None:
                 progress(sl.stop / n_kept)
         dec.finish()
@@ -158,6 +149,20 @@ def observe(experiment, robot, bp, settings=None, *, progress=None, reference=Fa
 
 # low_velocity_mask is the per-sample version, re-exported for users
 __all__ = ["Observation", "observe", "resolve_settings", "low_velocity_mask", "SETTINGS_HELP"]
+
+
+def push_chunk(dec, robot, bp, qf, qd, qdd, tau, dead):
+    """Build the base regressor of one chunk and push it with tau through the decimator."""
+    W = base_regressor(robot, bp, qf, qd, qdd)
+    if dead is not None:
+        # zeroing both sides keeps Y = W chi exact row by row, so the parallel
+        # decimation stays consistent while the samples where the friction
+        # model is wrong drop out entirely
+        keep_rows = ~dead
+        W = W * keep_rows[:, :, None]
+        tau = tau * keep_rows
+    kept = np.ones(tau.shape) if dead is None else (~dead).astype(float)
+    return dec.push(W, tau, qf, qd, qdd, kept)
 
 
 def _dead_zone(s, qd, robot, guard=0):
