@@ -276,10 +276,18 @@ def _apply_joint_options(joint, tab, k, path, *, kinematics):
         joint.friction = tab["friction"]
 
 
+def _no_unknown_keys(tab, allowed, where, path):
+    unknown = sorted(set(tab) - set(allowed))
+    if unknown:
+        raise RobotFileError(f"{path}: {where} has unknown key(s) {', '.join(map(str, unknown))}; "
+                             f"allowed: {', '.join(sorted(allowed))}. Check the spelling.")
+
+
 def _coupling(tab, k, n, path):
     where = f"couplings[{k + 1}]"
     if not isinstance(tab, dict):
         raise RobotFileError(f"{path}: {where} must be a table")
+    _no_unknown_keys(tab, ("motor", "joints", "coefficients", "friction"), where, path)
     for key in ("motor", "joints", "coefficients"):
         if key not in tab:
             raise RobotFileError(f"{path}: {where} needs '{key}'")
@@ -307,6 +315,7 @@ def _coupling(tab, k, n, path):
 def _controller(tab, n, path):
     if not isinstance(tab, dict):
         raise RobotFileError(f"{path}: [controller] must be a table")
+    _no_unknown_keys(tab, ("kind", "rate", "wn", "zeta", "J_ap", "g_ap", "ki"), "[controller]", path)
     kind = tab.get("kind", "pd")
     if kind not in ("pd", "pid"):
         raise RobotFileError(f"{path}: controller.kind must be 'pd' or 'pid', got {kind!r}")

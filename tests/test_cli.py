@@ -1,0 +1,82 @@
+"""The dynid command line: every subcommand's help, the robot command, exit codes."""
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from reports.cli import COMMANDS, build_parser, main
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.parametrize("command", sorted(COMMANDS))
+def test_every_subcommand_help_runs_and_shows_examples(command, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main([command, "--help"])
+    assert exc.value.code == 0
+    out = capsys.readouterr().out
+    assert "usage: dynid " + command in out
+    assert "examples:" in out
+
+
+def test_top_level_help_lists_commands_and_exit_codes(capsys):
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    out = capsys.readouterr().out
+    for command in COMMANDS:
+        assert command in out
+    assert "exit codes" in out
+
+
+def test_robot_tx40_prints_dh_and_base_parameters(capsys, tmp_path):
+    out_json = tmp_path / "tx40.json"
+    assert main(["robot", "tx40", "--json", str(out_json)]) == 0
+    out = capsys.readouterr().out
+    assert "modified DH" in out and "86 standard parameters" in out and "60 base parameters" in out
+    assert "ZZ1R = ZZ1 + Ia1 + YY2 + YY3" in out
+    doc = json.loads(out_json.read_text())
+    assert len(doc["standard"]) == 86 and len(doc["base"]) == 60
+    assert {"name", "relation"} <= set(doc["base"][0])
+    assert doc["base"][0]["relation"].startswith("ZZ1R = ZZ1 + Ia1")
+
+
+def test_robot_from_urdf_and_toml_files(capsys):
+    assert main(["robot", str(ROOT / "dynamics" / "robots" / "kuka_lwr4.urdf")]) == 0
+    assert "base parameters" in capsys.readouterr().out
+    assert main(["robot", str(ROOT / "dynamics" / "robots" / "planar2.toml")]) == 0
+    out = capsys.readouterr().out
+    assert "13 base parameters" in out and "ZZ1R = ZZ1 + Ia1 + M2" in out
+
+
+def test_unknown_robot_is_bad_input(capsys):
+    assert main(["robot", "no_such_robot"]) == 2
+    err = capsys.readouterr().err
+    assert "no_such_robot" in err and "tx40" in err and "Traceback" not in err
+
+
+def test_robot_file_typo_in_controller_is_named(tmp_path, capsys):
+    text = (ROOT / "dynamics" / "robots" / "planar2.toml").read_text().replace("zeta =", "zetta =")
+    f = tmp_path / "arm.toml"
+    f.write_text(text)
+    assert main(["robot", str(f)]) == 2
+    err = capsys.readouterr().err
+    assert "arm.toml" in err and "zetta" in err
+
+
+def test_missing_command_prints_help_and_exits_2(capsys):
+    assert main([]) == 2
+
+
+def test_console_script_module_runs():
+    out = subprocess.run([sys.executable, "-m", "reports.cli", "robot", "--list"], cwd=ROOT,
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0 and "tx40" in out.stdout
+
+
+def test_parser_is_consistent():
+    parser = build_parser()
+    for command in COMMANDS:
+        args = parser.parse_args([command] + (["x", "--robot", "tx40"] if command == "identify" else []))
+        assert args.command == command and hasattr(args, "quiet")
