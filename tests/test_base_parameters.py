@@ -11,7 +11,8 @@ from dynamics.regressor import regressor
 from dynamics.robot_file import load_robot
 from tests.oracles import random_standard_parameters, rel_err
 
-FIGAROH_BP = Path("/work/shared/data/staubli-tx40-figaroh/reference_results/TX40_bp_5.csv")
+from conftest import TX40_EXAMPLE
+FIGAROH_BP = TX40_EXAMPLE / "reference_results" / "TX40_bp_5.csv"
 
 
 def fresh_samples(n, N, seed):

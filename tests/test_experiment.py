@@ -19,8 +19,9 @@ from analysis import transmission as tr
 from analysis.experiment import Experiment, estimate_shift, load_experiment
 from dynamics.errors import DataError, InputError
 
-TX40_DIR = Path("/work/shared/data/staubli-tx40-figaroh")
-KUKA_DIR = Path("/work/shared/data/kuka-lwr4-flobaroid")
+from conftest import SHARED_DATA
+TX40_DIR = SHARED_DATA / "staubli-tx40-figaroh"
+KUKA_DIR = SHARED_DATA / "kuka-lwr4-flobaroid"
 FIXTURES = Path(__file__).parent / "data"
 
 

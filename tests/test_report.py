@@ -30,7 +30,8 @@ from reports.paper import DIDIM_TX40_TABLE2, reference_for
 EVIL_ROBOT = "<script>alert(1)</script>"
 EVIL_JOINT = '"><img src=x onerror=alert(1)>'
 EVIL_SOURCE = "runs/<b>bold</b> & 'quoted'.csv"
-TX40_DATA = Path("/work/shared/data/staubli-tx40-figaroh")
+from conftest import SHARED_DATA
+TX40_DATA = SHARED_DATA / "staubli-tx40-figaroh"
 
 TITLES = {"run": "Run and data", "model": "Model", "base-parameters": "Base parameters",
           "table2": "Essential parameters (Table 2)", "essential-path": "Elimination path",
