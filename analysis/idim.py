@@ -15,8 +15,8 @@ import pandas as pd
 
 from analysis import least_squares as ls
 from analysis.essential import essential_parameters
-from analysis.observation import Observation, observe
-from analysis.provenance import atomic_write_text, dumps_json, json_safe, versions
+from analysis.observation import Observation, concatenate, observe
+from analysis.provenance import atomic_write_text, data_hash, dumps_json, json_safe, versions
 from dynamics.base_parameters import base_parameters
 
 
@@ -111,19 +111,28 @@ class IDIMResult:
 
 def identify_idim(experiment, robot, *, settings=None, bp=None, max_error_growth=0.02,
                   progress=None):
-    """Identify the base and essential parameters of ``robot`` from ``experiment`` (IDIM-LS/WLS)."""
+    """Identify the base and essential parameters of ``robot`` from ``experiment`` (IDIM-LS/WLS).
+
+    ``experiment`` may be a list of recordings: their observation systems are
+    stacked (processed with the settings derived from the first one).
+    """
     bp = base_parameters(robot) if bp is None else bp
-    obs = observe(experiment, robot, bp, settings, progress=progress)
+    experiments = list(experiment) if isinstance(experiment, (list, tuple)) else [experiment]
+    # settings derived from the first recording apply to all, so every row of the
+    # stacked system is processed alike
+    first = observe(experiments[0], robot, bp, settings, progress=progress)
+    obs = concatenate([first] + [observe(e, robot, bp, first.settings) for e in experiments[1:]])
     names = list(bp.names)
     info = {k: v for k, v in obs.settings.items()}
     r_ols = ls.ols(obs.W, obs.tau, names, row_mask=obs.row_mask, settings=info)
     r_wls = ls.wls(obs.W, obs.tau, names, row_mask=obs.row_mask, settings=info)
     ess = essential_parameters(obs.W, obs.tau, names, ls.wls, max_error_growth=max_error_growth,
                                row_mask=obs.row_mask, settings=info)
-    h = experiment.data_hash()
+    h = (experiments[0].data_hash() if len(experiments) == 1 else
+         data_hash(*[np.frombuffer(e.data_hash().encode(), dtype=np.uint8) for e in experiments]))
     for r in (r_ols, r_wls, ess.result, ess.base):
         r.data_hash = h
-    notices = list(getattr(experiment, "notices", [])) + obs.notices
+    notices = [n for e in experiments for n in getattr(e, "notices", [])] + obs.notices
     return IDIMResult(robot_name=robot.name, base=bp, ols=r_ols, wls=r_wls, essential=ess,
                       observation=obs, settings=obs.settings, notices=notices, data_hash=h,
-                      source=str(experiment.source))
+                      source=" + ".join(str(e.source) for e in experiments))

@@ -190,3 +190,16 @@ def _dead_zone(s, qd, robot, guard=0):
     if guard > 0:
         dead = ndimage.binary_dilation(dead, structure=np.ones((2 * guard + 1, 1), dtype=bool))
     return dict(s, qd_threshold=[float(v) for v in thr_arr]), dead
+
+
+def concatenate(observations):
+    """One observation system from several recordings (rows stacked, same settings)."""
+    obs = list(observations)
+    if len(obs) == 1:
+        return obs[0]
+    first = obs[0]
+    cat = lambda attr: np.concatenate([getattr(o, attr) for o in obs], axis=0)
+    notices = [f"recording {k + 1}: {n}" for k, o in enumerate(obs) for n in o.notices]
+    return Observation(W=cat("W"), tau=cat("tau"), t=cat("t"), q=cat("q"), qd=cat("qd"),
+                       qdd=cat("qdd"), row_mask=cat("row_mask"), names=first.names,
+                       settings=first.settings, notices=notices, n_raw=sum(o.n_raw for o in obs))

@@ -27,6 +27,7 @@ EPILOG_IDENTIFY = """examples:
   dynid identify run.csv --robot arm.toml --holdout 3      validate on the last 3 s
   dynid identify run.csv --robot tx40 --validation run2.csv --fc 50 --nd 100
   dynid identify tx40.toml --robot tx40   a TOML experiment file (motor-side logs)
+  dynid identify rec2.toml rec3.toml --robot kuka_lwr4 --validation rec1.toml
 """
 EPILOG_DEMO = """examples:
   dynid demo                             simulated TX40 -> identification -> dynid-demo.html
@@ -120,7 +121,8 @@ def build_parser():
                                    "recording of q and tau (IDIM: OLS, per-joint WLS, essential "
                                    "parameters), validate, and report.",
                        epilog=EPILOG_IDENTIFY, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("data", help="experiment file (.csv, .parquet, .npz, .mat, or .toml description)")
+    p.add_argument("data", nargs="+", help="experiment file(s) (.csv, .parquet, .npz, .mat, or .toml "
+                                          "description); several recordings are identified together")
     p.add_argument("--robot", required=True, help="bundled robot name or .toml/.urdf file")
     p.add_argument("--method", choices=["idim"], default="idim", help="identification method")
     p.add_argument("--validation", metavar="DATA", help="a second recording to validate on")
@@ -216,19 +218,25 @@ def cmd_identify(args, say):
     from dynamics.robot_file import load_robot
     robot = load_robot(args.robot)
     say(f"robot '{robot.name}' ({robot.n_joints} joints)")
-    experiment = load_experiment(args.data, robot)
-    say(f"loaded {args.data}: {experiment.n_samples} samples at {experiment.fs:g} Hz")
+    experiments = []
+    for path in args.data:
+        experiments.append(load_experiment(path, robot))
+        say(f"loaded {path}: {experiments[-1].n_samples} samples at {experiments[-1].fs:g} Hz")
     if args.validation and args.holdout:
         raise InputError("give either --validation or --holdout, not both")
-    ident, valid = experiment, None
+    valid = None
     if args.validation:
         valid = load_experiment(args.validation, robot)
     elif args.holdout:
+        if len(experiments) > 1:
+            raise InputError("--holdout splits one recording; with several, use --validation")
+        experiment = experiments[0]
         t_split = experiment.t[-1] - args.holdout
         if not experiment.t[0] < t_split:
             raise InputError(f"--holdout {args.holdout} s is longer than the recording "
                              f"({experiment.duration:.3g} s)")
-        ident, valid = experiment.segment(None, t_split), experiment.segment(t_split, None)
+        experiments, valid = [experiment.segment(None, t_split)], experiment.segment(t_split, None)
+    ident = experiments if len(experiments) > 1 else experiments[0]
     with say.progress("regressor and decimation") as bar:
         result = identify_idim(ident, robot, settings=_processing_settings(args),
                                max_error_growth=args.max_error_growth, progress=bar.update)
@@ -238,7 +246,7 @@ def cmd_identify(args, say):
         if validation is not None:
             print()
             print(validation.summary())
-    _write_outputs(args, say, result, robot, ident, validation)
+    _write_outputs(args, say, result, robot, experiments[0], validation)
     return EXIT_OK
 
 
