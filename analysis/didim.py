@@ -99,3 +99,629 @@ from dynamics.errors import DataError, DynidError, IdentificationError, InputErr
 
 __all__ = ["identify_didim", "DIDIMResult", "initial_parameters", "DIDIM_SETTINGS_HELP",
            "resolve_didim_settings"]
+
+#: DIDIM's processing settings users may override, with their meaning.
+DIDIM_SETTINGS_HELP = {
+    "nd": "decimation factor n_d (1 = no decimation); default derived from the reference as for IDIM",
+    "f_decimation_cutoff": "cut-off of the decimation low-pass, Hz (paper: 0.8 fs / (2 nd))",
+    "bandwidth": "motion bandwidth, Hz (estimated from qr if not given)",
+    "qd_threshold": ("velocity dead zone on the simulated velocities, rad/s, one value or one per "
+                     "joint; 'auto' = 1 % of each joint's peak reference speed; 0 = keep all rows"),
+    "dead_zone_guard": "the dead zone is widened by this many seconds on each side",
+    "transient": "seconds dropped at the start (closed-loop transient; default 5 / min(wn))",
+    "v_s": "smooth-sign velocity of the simulated Coulomb friction, rad/s",
+    "substeps": "RK4 steps per controller period, or 'auto' (h * lambda_friction <= 1.5)",
+    "feedforward": "the controller adds the reference velocity (kv qdr) to the PD",
+    "saturate": "clip the simulated torque at the joints' tau_max",
+    "rate": "controller rate of the simulation, Hz (default: the robot's controller rate)",
+    "j_rate": "rate (Hz) of the configurations J_j = max_q M_jj(q) is taken over (eq. (27))",
+}
+#: IDIM's position-filter settings: accepted, ignored (the simulated derivatives are exact).
+IGNORED_SETTINGS = ("fc_position", "order", "edge")
+
+DEFAULT_TOL = 1e-3
+DEFAULT_MAX_ITER = 10
+DEFAULT_V_S = 0.05
+DEFAULT_GUARD = 0.005
+DEFAULT_J_RATE = 1000.0
+STIFFNESS_TARGET = 1.5      # h * lambda of the friction, per RK4 substep
+WELL_IDENTIFIED = 10.0      # %sigma below which a parameter's relative change is tracked
+CHUNK = 10_000
+_STATE_COLUMNS = ("iteration", "rho_norm", "rel_change", "output_error", "rel_error",
+                  "max_rel_param_change", "max_change_sigma", "substeps")
+
+
+# ----------------------------------------------------------------------------- result
+
+@dataclass(eq=False)
+class DIDIMResult:
+    """Everything a DIDIM identification produced.
+
+    ``result`` is the per-joint WLS of the last Gauss-Newton step on all base
+    parameters (the DIDIM estimate); ``essential`` the essential parameters
+    found from it (or None). ``history`` has one row per step (see
+    :func:`identify_didim`). Full-rate arrays of the last simulation (for
+    Fig. 7): ``t``, ``q_sim``, ``qr``, ``tau`` (measured), ``tau_sim`` (=
+    IDM(q_sim, qd_sim, qdd_sim) chi_hat, the final model on the simulated
+    motion) and ``tau_ddm`` (the torque the simulated controller applied). The
+    decimated system of the last step (for Fig. 6): ``t_dec``, ``tau_dec`` (Y),
+    ``tau_est_dec`` (W_delta chi_hat), ``W_dec``, ``row_mask``.
+    """
+
+    robot_name: str
+    base: object                      # BaseParameters
+    result: object                    # IdentificationResult, last step's WLS
+    essential: object                 # EssentialResult or None
+    history: pd.DataFrame
+    converged: bool
+    stop_reason: str
+    settings: dict
+    initial: np.ndarray               # chi^0 (base parameters)
+    kd_scale: np.ndarray              # derivative-gain factors of the last simulation
+    t: np.ndarray
+    q_sim: np.ndarray
+    qr: np.ndarray
+    tau: np.ndarray
+    tau_sim: np.ndarray
+    tau_ddm: np.ndarray
+    t_dec: np.ndarray
+    tau_dec: np.ndarray
+    tau_est_dec: np.ndarray
+    W_dec: np.ndarray
+    row_mask: np.ndarray
+    transient_samples: int = 0
+    notices: list = field(default_factory=list)
+    data_hash: str = ""
+    source: str = ""
+    truth: dict = None                # true base-parameter values, for simulated data
+    timings: list = field(default_factory=list)   # seconds per step (not in to_dict)
+
+    # ---------------------------------------------------------------- access
+    @property
+    def iterations(self) -> int:
+        """Number of Gauss-Newton steps (least-squares solves) done."""
+        return int(len(self.history))
+
+    @property
+    def chi(self) -> np.ndarray:
+        """The final DIDIM estimate of the base parameters."""
+        return self.result.chi
+
+    @property
+    def model(self):
+        """The model users predict with: the essential WLS estimate if computed, else the base one."""
+        return self.essential.result if self.essential is not None else self.result
+
+    def columns(self, names=None):
+        """Indices of ``names`` (default: the model's) among the base parameters."""
+        names = self.model.names if names is None else names
+        index = {n: k for k, n in enumerate(self.base.names)}
+        return [index[n] for n in names]
+
+    def predict(self, W_base):
+        """Torques (N, n) of :attr:`model` from a base regressor (N, n, b)."""
+        return np.asarray(W_base)[:, :, self.columns()] @ self.model.chi
+
+    @property
+    def tracking_rms(self) -> np.ndarray:
+        """RMS of qr - q_sim per joint over the identification samples of the last simulation."""
+        e = (self.qr - self.q_sim)[self.transient_samples:]
+        return np.sqrt(np.mean(e ** 2, axis=0))
+
+    def parameter_table(self):
+        """One row per base parameter: relation, initial value, DIDIM value, std, %σ, essential."""
+        rows = []
+        ess = {}
+        if self.essential is not None:
+            m = self.essential.result
+            ess = dict(zip(m.names, zip(m.chi, m.sigma, m.rel_sigma)))
+        rel = self.base.relations
+        for k, name in enumerate(self.base.names):
+            row = {"name": name, "relation": rel[k], "initial": self.initial[k],
+                   "value": self.result.chi[k], "std": self.result.sigma[k],
+                   "rel_std_percent": self.result.rel_sigma[k]}
+            if self.essential is not None:
+                e = ess.get(name)
+                row.update({"essential": e is not None,
+                            "essential_value": e[0] if e else np.nan,
+                            "essential_std": e[1] if e else np.nan,
+                            "essential_rel_std_percent": e[2] if e else np.nan})
+            if self.truth:
+                row["true"] = self.truth.get(name, np.nan)
+            rows.append(row)
+        return pd.DataFrame(rows).set_index("name")
+
+    # ---------------------------------------------------------------- presentation
+    def summary(self) -> str:
+        h = self.history
+        state = "converged" if self.converged else "DID NOT CONVERGE"
+        lines = [f"DIDIM identification of robot '{self.robot_name}' from {self.source}",
+                 f"  {state} after {self.iterations} Gauss-Newton step(s): {self.stop_reason}",
+                 f"  samples: {self.t.size} at {self.settings['fs']:g} Hz, first "
+                 f"{self.transient_samples} dropped (closed-loop transient); {self.t_dec.size} "
+                 f"decimated (nd = {self.settings['nd']}, low-pass "
+                 f"{self.settings['f_decimation_cutoff']:.3g} Hz)",
+                 f"  base parameters: {self.base.n_base}"
+                 + (f", essential: {len(self.essential.result.names)}" if self.essential else ""),
+                 f"  relative error ||Y - W chi|| / ||Y||: {self.result.rel_error:.4f}"
+                 + (f" (essential model {self.essential.result.rel_error:.4f})"
+                    if self.essential else ""),
+                 "  tracking RMS of the last simulation (qr - q_sim), rad: "
+                 + ", ".join(f"{v:.3g}" for v in self.tracking_rms),
+                 "", "Gauss-Newton steps:"]
+        cols = [c for c in ("iteration", "rho_norm", "rel_change", "output_error", "rel_error",
+                            "max_rel_param_change", "max_change_sigma") if c in h]
+        lines.append(h[cols].to_string(index=False, float_format=lambda x: f"{x:.5g}"))
+        lines.append("")
+        lines.append((self.essential.result if self.essential is not None else self.result).summary())
+        if self.notices:
+            lines += ["", "Notices:"] + [f"  - {n}" for n in self.notices]
+        return "\n".join(lines)
+
+    def __str__(self) -> str:
+        return self.summary()
+
+    def to_dict(self) -> dict:
+        """JSON-safe, deterministic dict (no timings)."""
+        def params(res):
+            return [{"name": n, "value": v, "std": s, "rel_std_percent": r}
+                    for n, v, s, r in zip(res.names, res.chi, res.sigma, res.rel_sigma)]
+        r = self.result
+        return json_safe({
+            "method": "DIDIM",
+            "robot": self.robot_name,
+            "source": self.source,
+            "converged": bool(self.converged),
+            "iterations": self.iterations,
+            "stop_reason": self.stop_reason,
+            "settings": self.settings,
+            "base_parameters": self.base.table(),
+            "initial_parameters": {n: v for n, v in zip(self.base.names, self.initial) if v != 0.0},
+            "parameters": params(r),
+            "rel_error": r.rel_error,
+            "rms_per_joint": list(r.rms),
+            "joint_sigma": None if r.joint_sigma is None else list(r.joint_sigma),
+            "cond": r.cond,
+            "essential": None if self.essential is None else self.essential.to_dict(),
+            "history": self.history.to_dict(orient="records"),
+            "kd_scale": list(self.kd_scale),
+            "tracking_rms": list(self.tracking_rms),
+            "versions": versions(),
+            "data_hash": self.data_hash,
+            "notices": self.notices,
+            "true_values": self.truth,
+        })
+
+    def to_json(self, path) -> None:
+        atomic_write_text(path, dumps_json(self.to_dict()))
+
+
+# ----------------------------------------------------------------------------- settings
+
+def _bool(value, name):
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    raise InputError(f"DIDIM setting {name} must be true or false, got {value!r}")
+
+
+def _positive(value, name, allow_zero=False):
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise InputError(f"DIDIM setting {name} must be a number, got {value!r}") from None
+    if not math.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
+        raise InputError(f"DIDIM setting {name} must be a {'non-negative' if allow_zero else 'positive'} "
+                         f"number, got {value!r}")
+    return v
+
+
+def resolve_didim_settings(experiment, robot, controller, qr, overrides=None):
+    """DIDIM's settings for this recording (data-derived defaults, then ``overrides``).
+
+    Returns ``(settings, notices)``; ``qd_threshold`` is still ``"auto"`` or the
+    user's value here (it becomes numbers in :func:`identify_didim`).
+    """
+    overrides = dict(overrides or {})
+    notices = []
+    ignored = sorted(k for k in overrides if k in IGNORED_SETTINGS)
+    if ignored:
+        notices.append(f"setting(s) {', '.join(ignored)} ignored: DIDIM builds the regressor from the "
+                       "simulated states, whose derivatives are exact (no position filter)")
+        for k in ignored:
+            overrides.pop(k)
+    overrides.pop("fs", None)
+    unknown = sorted(set(overrides) - set(DIDIM_SETTINGS_HELP))
+    if unknown:
+        raise DataError(f"unknown DIDIM setting(s) {', '.join(unknown)}; known: "
+                        + ", ".join(f"{k} ({v})" for k, v in DIDIM_SETTINGS_HELP.items()))
+    fs = float(experiment.fs)
+    wn = np.broadcast_to(np.asarray(controller.wn, dtype=float), (robot.n_joints,))
+    transient = overrides.pop("transient", None)
+    transient = 5.0 / float(np.min(wn)) if transient is None else _positive(transient, "transient",
+                                                                               allow_zero=True)
+    n_transient = int(math.ceil(transient * fs - 1e-9))
+    if qr.shape[0] - n_transient < 10:
+        raise DataError(f"{experiment.source}: {qr.shape[0]} samples; DIDIM drops the first "
+                        f"{n_transient} ({transient:.3g} s, the closed-loop transient) and needs more")
+    dec_keys = {k: overrides.pop(k) for k in ("nd", "f_decimation_cutoff", "bandwidth")
+                if overrides.get(k) is not None}
+    for k in ("nd", "f_decimation_cutoff", "bandwidth"):
+        overrides.pop(k, None)
+    proposed = default_settings(fs, qr[n_transient:], edge=0, **dec_keys)
+    rate = overrides.pop("rate", None)
+    rate = float(controller.rate) if rate is None else _positive(rate, "rate")
+    substeps = overrides.pop("substeps", "auto")
+    if substeps != "auto" and (isinstance(substeps, bool) or not isinstance(substeps, (int, np.integer))
+                               or substeps < 1):
+        raise InputError(f"DIDIM setting substeps must be 'auto' or a positive integer, got {substeps!r}")
+    s = {
+        "fs": fs,
+        "rate": rate,
+        "nd": int(proposed["nd"]),
+        "f_decimation_cutoff": float(proposed["f_decimation_cutoff"]),
+        "bandwidth": float(proposed["bandwidth"]),
+        "qd_threshold": overrides.pop("qd_threshold", "auto"),
+        "dead_zone_guard": _positive(overrides.pop("dead_zone_guard", DEFAULT_GUARD),
+                                     "dead_zone_guard", allow_zero=True),
+        "transient": float(transient),
+        "v_s": _positive(overrides.pop("v_s", DEFAULT_V_S), "v_s", allow_zero=True),
+        "substeps": substeps if substeps == "auto" else int(substeps),
+        "feedforward": _bool(overrides.pop("feedforward", True), "feedforward"),
+        "saturate": _bool(overrides.pop("saturate", False), "saturate"),
+        "j_rate": _positive(overrides.pop("j_rate", DEFAULT_J_RATE), "j_rate"),
+    }
+    return s, notices
+
+
+# ----------------------------------------------------------------------------- initialisation
+
+def initial_standard(robot) -> np.ndarray:
+    """chi^0 of eq. (31) as standard parameters: 0 except ``Ia_j = 1``, plus the coupled
+    rotors' diagonal share ``(c_k / c_m)^2`` on the other joints ``k`` of a coupling with
+    motor ``m`` (the TX40's ``Ia5 = 2``; see the module docstring)."""
+    n = robot.n_joints
+    chi = np.zeros(robot.n_standard)
+    ia = np.ones(n)
+    for c in robot.couplings:
+        coef = np.asarray(c.coefficients, dtype=float)
+        joints = list(c.joints)
+        cm = coef[joints.index(c.motor)] if c.motor in joints else 1.0
+        for jk, ck in zip(joints, coef):
+            if jk != c.motor:
+                ia[jk - 1] += (ck / cm) ** 2 * 1.0
+    for j in range(n):
+        chi[14 * j + 10] = ia[j]
+    return chi
+
+
+def initial_parameters(robot, bp) -> np.ndarray:
+    """chi^0 of eq. (31) as base parameters (``bp.from_standard(initial_standard(robot))``)."""
+    return bp.from_standard(initial_standard(robot))
+
+
+def _initial_beta(robot, bp, chi0):
+    if chi0 is None:
+        return initial_parameters(robot, bp), "eq. (31): 0 except Ia_j = 1 (coupled joints 1 + (c_k/c_m)^2)"
+    if isinstance(chi0, dict):
+        unknown = sorted(set(chi0) - set(bp.names) - set(robot.standard_names))
+        if unknown:
+            raise InputError(f"chi0 names {', '.join(unknown)} are neither base nor standard "
+                             f"parameters of '{robot.name}'")
+        if set(chi0) <= set(bp.names):
+            return np.array([float(chi0.get(n, 0.0)) for n in bp.names]), "given (base parameters)"
+        if set(chi0) <= set(robot.standard_names):
+            return bp.from_standard(robot.standard_vector(chi0)), "given (standard parameters)"
+        raise InputError("chi0 mixes base and standard parameter names; give one kind")
+    try:
+        v = np.asarray(chi0, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        raise InputError("chi0 must be a vector of base or standard parameters, or a dict") from None
+    if not np.all(np.isfinite(v)):
+        raise InputError("chi0 holds non-finite values")
+    if v.size == bp.n_base:
+        return v.copy(), "given (base parameters)"
+    if v.size == robot.n_standard:
+        return bp.from_standard(v), "given (standard parameters)"
+    raise InputError(f"chi0 has {v.size} values; robot '{robot.name}' has {bp.n_base} base and "
+                     f"{robot.n_standard} standard parameters")
+
+
+# ----------------------------------------------------------------------------- one step
+
+def _j_hat(robot, chi_st, q_configs):
+    """J_j = max over the configurations of M_jj(q, chi) (eq. (27))."""
+    M = mass_matrix(robot, chi_st, q_configs)
+    J = np.max(np.diagonal(M, axis1=1, axis2=2), axis=0)
+    return J
+
+
+def _simulate(robot, bp, beta, ctrl, t, qr, qdr, s, kd_scale):
+    """Closed-loop simulation with chi = beta; states at the samples t."""
+    chi = bp.to_standard(beta, "zero")
+    rate = s["rate"]
+    substeps = s["substeps"]
+    if substeps == "auto":
+        x = friction_stiffness(robot, chi, qr[0], 1.0 / rate, s["v_s"])
+        substeps = max(1, int(math.ceil(x / STIFFNESS_TARGET))) if math.isfinite(x) else 1
+    sim = simulate_closed_loop(robot, chi, t, qr, qdr, q0=qr[0], qd0=qdr[0], controller=ctrl,
+                               kd_scale=kd_scale, substeps=substeps, v_s=s["v_s"],
+                               feedforward=s["feedforward"], rate=rate, saturate=s["saturate"])
+    if sim.t.size == t.size and np.allclose(sim.t, t, rtol=0, atol=1e-9 / rate):
+        return sim.q, sim.qd, sim.qdd, sim.tau, substeps, sim
+    # controller grid differs from the sampling grid: states at the samples by interpolation
+    def at(a):
+        return np.column_stack([np.interp(t, sim.t, a[:, j]) for j in range(a.shape[1])])
+    return at(sim.q), at(sim.qd), at(sim.qdd), at(sim.tau), substeps, sim
+
+
+def _build_chunk(robot, bp, q, qd, qdd, tau, dead):
+    W = base_regressor(robot, bp, q, qd, qdd)
+    if dead is None:
+        return W, tau, np.ones(tau.shape)
+    # as analysis.observation.push_chunk: zero both sides of the rows in the dead zone
+    keep = ~dead
+    W *= keep[:, :, None]
+    return W, tau * keep, keep.astype(float)
+
+
+def _decimated_system(robot, bp, q, qd, qdd, tau, dead, s, workers, progress=None):
+    """Base regressor of the simulated states, decimated in parallel with tau (eq. (24)).
+
+    The regressor chunks are built by ``workers`` threads (the compiled kernel
+    releases the GIL) and pushed through the decimator in order.
+    """
+    n_kept = q.shape[0]
+    nd = s["nd"]
+    slices = [slice(a, min(n_kept, a + CHUNK)) for a in range(0, n_kept, CHUNK)]
+
+    def build(sl):
+        return _build_chunk(robot, bp, q[sl], qd[sl], qdd[sl], tau[sl],
+                            None if dead is None else dead[sl])
+
+    if nd <= 1:
+        W, y, kept = build(slice(0, n_kept))
+        return W, y, kept >= 0.5, np.arange(n_kept)
+    dec = ParallelDecimator(nd, n_samples_total=n_kept, fs=s["fs"], cutoff=s["f_decimation_cutoff"])
+    parts = []
+
+    def push(res, sl):
+        parts.append(dec.push(*res))
+        if progress is not None:
+            progress(sl.stop / n_kept)
+
+    if workers <= 1 or len(slices) == 1:
+        for sl in slices:
+            push(build(sl), sl)
+    else:
+        with ThreadPoolExecutor(max_workers=workers) as ex:
+            pending = []
+            nxt = 0
+            while nxt < len(slices) and len(pending) < workers + 1:
+                pending.append((slices[nxt], ex.submit(build, slices[nxt])))
+                nxt += 1
+            while pending:
+                sl, fut = pending.pop(0)
+                res = fut.result()
+                if nxt < len(slices):
+                    pending.append((slices[nxt], ex.submit(build, slices[nxt])))
+                    nxt += 1
+                push(res, sl)
+    dec.finish()
+    Wd, taud, kept = (np.concatenate([p[k] for p in parts], axis=0) for k in range(3))
+    # a decimated row made mostly of zeroed samples is dropped, as in analysis.observation
+    return Wd, taud, kept >= 0.5, dec.indices
+
+
+def _masked_norm(r, mask):
+    return float(np.sqrt(np.sum(np.where(mask, r, 0.0) ** 2)))
+
+
+# ----------------------------------------------------------------------------- DIDIM
+
+def identify_didim(experiment, robot, *, settings=None, chi0=None, tol=DEFAULT_TOL,
+                   max_iter=DEFAULT_MAX_ITER, update_gains=True, essential=True, progress=None,
+                   bp=None, controller=None, reference="qr", max_error_growth=0.02,
+                   workers=None) -> DIDIMResult:
+    """Identify the base (and essential) parameters of ``robot`` by DIDIM (section 3).
+
+    Parameters
+    ----------
+    experiment : :class:`analysis.experiment.Experiment` with ``t``, ``qr`` (the
+        reference the actual robot tracked) and ``tau``. Measured ``q`` is not used.
+    robot : the robot, with its controller (``robot.controller`` or ``controller=``).
+    settings : overrides of :data:`DIDIM_SETTINGS_HELP` (see the module docstring).
+    chi0 : initial parameters: None (eq. (31)), a base or standard vector, or a dict of
+        base or standard names.
+    tol : tol_I, the relative change of ||rho|| between two steps that stops the
+        iteration (default 1e-3: a change the %σ of the well identified parameters,
+        ~1 %, dwarfs).
+    max_iter : most Gauss-Newton steps (least-squares solves).
+    update_gains : multiply the simulated derivative gains by J_j / J_ap_j (section 3.2).
+    essential : also compute the essential parameters from the last step.
+    progress : callable(fraction in [0, 1]) called while the steps run.
+    bp : base parameters of the robot (computed if None).
+    reference : ``"qr"`` (default) or ``"q"``: track the measured positions instead
+        (only when the reference was not logged; a notice says so).
+    max_error_growth : criterion of the essential-parameter search.
+    workers : threads building the regressor (default: up to 2 CPUs).
+
+    Returns a :class:`DIDIMResult`; ``converged`` is False when ``max_iter`` steps
+    did not meet the criterion or a simulation failed (``stop_reason`` says which).
+    """
+    bp = base_parameters(robot) if bp is None else bp
+    ctrl = controller if controller is not None else robot.controller
+    if ctrl is None:
+        raise InputError(f"DIDIM needs the controller of robot '{robot.name}': add a [controller] "
+                         "table (kind, rate, wn, zeta, J_ap, g_ap) to its description or pass "
+                         "controller=Controller(...)")
+    try:
+        tol = float(tol)
+    except (TypeError, ValueError):
+        raise InputError(f"tol must be a number, got {tol!r}") from None
+    if not (math.isfinite(tol) and tol > 0):
+        raise InputError(f"tol must be a positive number, got {tol!r}")
+    if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
+        raise InputError(f"max_iter must be a positive integer, got {max_iter!r}")
+    max_iter = int(max_iter)
+    notices = list(getattr(experiment, "notices", []) or [])
+    if reference not in ("qr", "q"):
+        raise InputError(f"reference must be 'qr' or 'q', got {reference!r}")
+    qr = experiment.qr if reference == "qr" else experiment.q
+    if qr is None:
+        raise DataError(f"{experiment.source}: DIDIM needs the reference positions qr1..qrn (and "
+                        "the torques); the data have none"
+                        + (" (pass reference='q' to track the measured positions instead)"
+                           if experiment.q is not None and reference == "qr" else ""))
+    if reference == "q":
+        notices.append("the measured positions q are used as the reference qr (the logged reference "
+                       "is not available): the simulated robot tracks the actual motion")
+    qr = np.ascontiguousarray(qr, dtype=float)
+    if qr.shape[1] != robot.n_joints:
+        raise DataError(f"{experiment.source}: robot '{robot.name}' has {robot.n_joints} joints "
+                        f"but the reference has {qr.shape[1]}")
+    tau = np.ascontiguousarray(experiment.tau, dtype=float)
+    t = np.asarray(experiment.t, dtype=float)
+    s, more = resolve_didim_settings(experiment, robot, ctrl, qr, settings)
+    notices += more
+    s["update_gains"] = bool(update_gains)
+    s["tol"] = tol
+    s["max_iter"] = max_iter
+    beta0, init_note = _initial_beta(robot, bp, chi0)
+    s["initialisation"] = init_note
+    workers = min(2, os.cpu_count() or 1) if workers is None else max(1, int(workers))
+
+    fs = s["fs"]
+    n0 = int(math.ceil(s["transient"] * fs - 1e-9))
+    qdr = np.gradient(qr, t, axis=0, edge_order=2)
+    thr = s["qd_threshold"]
+    if isinstance(thr, str):
+        if thr != "auto":
+            raise DataError(f"qd_threshold must be a number, a list of numbers or 'auto', got {thr!r}")
+        from analysis.observation import AUTO_DEAD_ZONE
+        thr = AUTO_DEAD_ZONE * np.abs(qdr[n0:]).max(axis=0)
+    thr = np.broadcast_to(np.asarray(thr, dtype=float), (robot.n_joints,)).copy()
+    if not np.all(np.isfinite(thr)) or np.any(thr < 0):
+        raise DataError(f"qd_threshold must be finite and >= 0, got {s['qd_threshold']!r}")
+    s["qd_threshold"] = [float(v) for v in thr]
+    guard = int(round(s["dead_zone_guard"] * fs))
+    j_stride = max(1, int(round(fs / s["j_rate"])))
+    J_ap = np.broadcast_to(np.asarray(ctrl.J_ap, dtype=float), (robot.n_joints,))
+    notices.append(f"DIDIM: closed-loop simulation at {s['rate']:g} Hz from (qr(0), qdr(0)); first "
+                   f"{n0} samples ({s['transient']:.3g} s) dropped as the closed-loop transient; "
+                   f"parallel decimation by nd = {s['nd']} (low-pass {s['f_decimation_cutoff']:.3g} Hz)"
+                   + ("; derivative gains updated with J_j / J_ap_j (eq. (27))" if update_gains
+                      else "; derivative gains NOT updated (kd_scale = 1)"))
+
+    names = list(bp.names)
+    info = {k: v for k, v in s.items()}
+    tau_k = tau[n0:]
+    history, timings = [], []
+    beta_prev = beta0
+    configs = qr[::j_stride]
+    rho_prev = None
+    converged = False
+    stop_reason = ""
+    last = None
+    kd = np.ones(robot.n_joints)
+    for k in range(1, max_iter + 1):
+        t_start = time.perf_counter()
+        chi_prev = bp.to_standard(beta_prev, "zero")
+        if update_gains:
+            J = _j_hat(robot, chi_prev, configs)
+            if not np.all(J > 0):
+                bad = [robot.joints[j].name for j in np.flatnonzero(~(J > 0))]
+                msg = (f"step {k}: the estimate gives M_jj <= 0 for joint(s) {', '.join(bad)}; "
+                       "it cannot be simulated")
+                if k == 1:
+                    raise InputError(f"DIDIM: chi0 {msg[8:]}")
+                stop_reason = msg
+                break
+            kd = J / J_ap
+        else:
+            kd = np.ones(robot.n_joints)
+        try:
+            q_s, qd_s, qdd_s, tau_ddm, substeps, sim = _simulate(robot, bp, beta_prev, ctrl, t, qr,
+                                                                 qdr, s, kd)
+        except DynidError as exc:
+            if k == 1:
+                raise
+            stop_reason = (f"step {k}: the closed-loop simulation with the estimate of step {k - 1} "
+                           f"failed: {exc}")
+            break
+        for note in sim.notes:
+            if note not in notices:
+                notices.append(note)
+        t_sim = time.perf_counter() - t_start
+        configs = q_s[::j_stride]
+        sl = slice(n0, None)
+        dead = None
+        s_dz = dict(s, qd_threshold=list(thr))
+        if np.any(thr > 0):
+            _, dead = _dead_zone(s_dz, qd_s[sl], robot, guard=guard)
+
+        def inner(f, k=k):
+            if progress is not None:
+                progress(min(1.0, (k - 1 + f) / max_iter))
+
+        Wd, taud, mask, idx = _decimated_system(robot, bp, q_s[sl], qd_s[sl], qdd_s[sl], tau_k,
+                                                dead, s, workers, inner)
+        res = ls.wls(Wd, taud, names, row_mask=mask, settings=info)
+        rho = _masked_norm(res.residual, mask)
+        out_err = _masked_norm(taud - Wd @ beta_prev, mask)
+        rel_change = abs(rho - rho_prev) / rho_prev if rho_prev is not None and rho_prev > 0 else np.nan
+        d = res.chi - beta_prev
+        with np.errstate(divide="ignore", invalid="ignore"):
+            good = res.rel_sigma <= WELL_IDENTIFIED
+            max_rel = float(np.max(np.abs(d[good]) / np.abs(res.chi[good]))) if good.any() else np.nan
+            max_sig = float(np.max(np.abs(d) / res.sigma))
+        track = np.sqrt(np.mean((qr[sl] - q_s[sl]) ** 2, axis=0))
+        row = {"iteration": k, "rho_norm": rho, "rel_change": rel_change, "output_error": out_err,
+               "rel_error": res.rel_error, "max_rel_param_change": max_rel,
+               "max_change_sigma": max_sig, "substeps": int(substeps)}
+        for j in range(robot.n_joints):
+            row[f"track_rms_{j + 1}"] = float(track[j])
+        for j in range(robot.n_joints):
+            row[f"kd_scale_{j + 1}"] = float(kd[j])
+        history.append(row)
+        timings.append({"iteration": k, "simulation_s": t_sim,
+                        "total_s": time.perf_counter() - t_start})
+        last = dict(res=res, Wd=Wd, taud=taud, mask=mask, idx=idx, q=q_s, qd=qd_s, qdd=qdd_s,
+                    tau_ddm=tau_ddm, kd=kd.copy())
+        beta_prev = res.chi
+        if progress is not None:
+            progress(min(1.0, k / max_iter))
+        if rho_prev is not None and rel_change <= tol:
+            converged = True
+            stop_reason = (f"|(||rho_{k}|| - ||rho_{k - 1}||)| / ||rho_{k - 1}|| = {rel_change:.3g} "
+                           f"<= tol_I = {tol:g}")
+            break
+        rho_prev = rho
+    else:
+        stop_reason = (f"max_iter = {max_iter} steps without meeting the criterion: last relative "
+                       f"change of ||rho|| {history[-1]['rel_change']:.3g} > tol_I = {tol:g}"
+                       if max_iter > 1 else
+                       f"max_iter = 1: one step cannot test the criterion (it compares two steps)")
+    if not converged:
+        notices.append(f"DIDIM did not converge: {stop_reason}")
+
+    res = last["res"]
+    h = experiment.data_hash() if hasattr(experiment, "data_hash") else ""
+    res.data_hash = h
+    ess = None
+    if essential:
+        ess = essential_parameters(last["Wd"], last["taud"], names, ls.wls,
+                                   max_error_growth=max_error_growth, row_mask=last["mask"],
+                                   settings=info)
+        for r in (ess.result, ess.base):
+            r.data_hash = h
+    chi_final = bp.to_standard(res.chi, "zero")
+    tau_sim = inverse_dynamics(robot, chi_final, last["q"], last["qd"], last["qdd"])
+    hist = pd.DataFrame(history)
+    return DIDIMResult(
+        robot_name=robot.name, base=bp, result=res, essential=ess, history=hist,
+        converged=converged, stop_reason=stop_reason, settings=s, initial=np.asarray(beta0),
+        kd_scale=last["kd"], t=t, q_sim=last["q"], qr=qr, tau=tau, tau_sim=tau_sim,
+        tau_ddm=last["tau_ddm"], t_dec=t[n0:][last["idx"]], tau_dec=last["taud"],
+        tau_est_dec=last["Wd"] @ res.chi, W_dec=last["Wd"], row_mask=last["mask"],
+        transient_samples=n0, notices=notices, data_hash=h, source=str(experiment.source),
+        timings=timings)

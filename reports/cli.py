@@ -8,7 +8,7 @@ Exit codes: 0 ok; 1 internal error (a bug: please report it); 2 bad input
 from __future__ import annotations
 
 import argparse
-import json
+import os
 import signal
 import sys
 import textwrap
@@ -193,21 +193,43 @@ def cmd_robot(args, say):
 
 
 def _write_outputs(args, say, result, robot, experiment, validation):
-    from analysis.provenance import atomic_write_text, dumps_json
+    """Render every requested output in memory, then write them all or none.
+
+    Each file is written atomically (temp file + rename); if the run is
+    interrupted between two files, the ones already written are removed, so a
+    report never sits next to a JSON of another run or without its JSON.
+    """
+    from analysis.provenance import dumps_json
+    outputs = []
     if args.json:
         doc = result.to_dict()
         if validation is not None:
             doc["validation"] = validation.to_dict()
-        atomic_write_text(args.json, dumps_json(doc))
-        say(f"wrote {args.json}")
+        outputs.append((args.json, dumps_json(doc)))
     if getattr(args, "csv", None):
-        atomic_write_text(args.csv, result.model.to_frame().to_csv())
-        say(f"wrote {args.csv}")
+        outputs.append((args.csv, result.model.to_frame().to_csv()))
     if args.report:
-        from reports.html import render_idim_report, write_report
-        html = render_idim_report(result, robot, experiment, validation)
-        write_report(args.report, html)
-        say(f"wrote {args.report}")
+        from reports.html import render_idim_report
+        outputs.append((args.report, render_idim_report(result, robot, experiment, validation)))
+    commit_outputs(outputs, say)
+
+
+def commit_outputs(outputs, say):
+    from analysis.provenance import atomic_write_text
+    written = []
+    try:
+        for path, text in outputs:
+            atomic_write_text(path, text)
+            written.append(path)
+    except BaseException:
+        for path in written:
+            try:
+                os.remove(path)
+            except OSError:
+                pass
+        raise
+    for path in written:
+        say(f"wrote {path}")
 
 
 def cmd_identify(args, say):

@@ -254,3 +254,29 @@ def pin_closed_loop(robot, chi_st, t, qr, qdr, q0, qd0, *, kd_scale=None, subste
             q = q + h / 6 * (qd + 2 * v2 + 2 * v3 + v4)
             qd = qd + h / 6 * (a1 + 2 * a2 + 2 * a3 + a4)
     return Q, QD, QDD, TAU
+
+
+# ----------------------------------------------------------------------------- base-parameter data
+
+def pin_compatible_parameters(robot, bp, beta, mass=1.0):
+    """A standard-parameter vector with base parameters ``beta`` that Pinocchio can hold.
+
+    Base-parameter values written as standard parameters with the regrouped ones at
+    zero (``bp.to_standard(beta, 'zero')``) have zero link masses but non-zero first
+    moments (MX2R of the TX40), which Pinocchio's Inertia (mass, centre of mass)
+    cannot represent. This moves along the null space of the regrouping: the
+    smallest change of that vector that sets every link mass to ``mass`` while
+    keeping ``P chi = beta`` exactly, so the dynamics are unchanged.
+    """
+    P = bp.matrix
+    chi0 = bp.to_standard(beta, "zero")
+    rows = [14 * j + 9 for j in range(robot.n_joints)]        # M_j
+    E = np.zeros((len(rows), P.shape[1]))
+    E[np.arange(len(rows)), rows] = 1.0
+    A = np.vstack([P, E])
+    b = np.concatenate([np.asarray(beta, dtype=float), np.full(len(rows), float(mass))])
+    delta = np.linalg.lstsq(A, b - A @ chi0, rcond=None)[0]
+    chi = chi0 + delta
+    if not np.allclose(P @ chi, beta, rtol=0, atol=1e-9 * max(1.0, np.abs(beta).max())):
+        raise RuntimeError("pin_compatible_parameters: link masses are not free for this robot")
+    return chi
