@@ -362,3 +362,385 @@ class _Problem:
             QDD.append(qdd + e)
         return np.vstack(Q), np.vstack(QD), np.vstack(QDD), d
 
+    def _partials(self, F, G, d):
+        """Split stacked values F ((1 + 5n) G, n, ...) into F0 and dF/dq_j, dF/dqd_j, dF/dqdd_j."""
+        n = self.n
+        F = F.reshape((1 + 5 * n, G) + F.shape[1:])
+        F0 = F[0]
+        extra = (None,) * (F.ndim - 2)
+        dq = [(F[1 + 2 * j] - F[2 + 2 * j]) / (2.0 * _H_Q) for j in range(n)]
+        o = 1 + 2 * n
+        dqd = [(F[o + 2 * j + 1] - F[o + 2 * j]) / (d[(slice(None), j) + extra] * _H_QD)
+               for j in range(n)]
+        o2 = 1 + 4 * n
+        dqdd = [F[o2 + j] - F0 for j in range(n)]
+        return F0, dq, dqd, dqdd
+
+    def _chain(self, gq, gqd, gqdd, B):
+        """Gradient w.r.t. x from per-sample sensitivities g (G, n, ...) to q_j, qd_j, qdd_j."""
+        Bq, Bqd, Bqdd = B
+        return (np.einsum("sm,js...->...jm", Bq, gq) + np.einsum("sm,js...->...jm", Bqd, gqd)
+                + np.einsum("sm,js...->...jm", Bqdd, gqdd))
+
+    # --- objective
+    def objective_terms(self, W):
+        """(f, H) with f the criterion of the stacked regressor W (G, n, b) and H = df/dW."""
+        b = self.bp.n_base
+        W2 = W.reshape(-1, b)
+        if self.scaling == "columns":
+            norms = np.linalg.norm(W2, axis=0)
+            norms = np.where(norms > 0, norms, 1.0)
+            Ws = W2 / norms
+        else:
+            Ws = W2 / self.opt_scales
+        U, s, Vt = np.linalg.svd(Ws, full_matrices=False)
+        if s[-1] <= 0 or not np.isfinite(s).all():
+            return math.inf, np.zeros_like(W)
+        if self.criterion == "cond":
+            f = math.log(s[0] / s[-1])
+            Gm = np.outer(U[:, 0], Vt[0]) / s[0] - np.outer(U[:, -1], Vt[-1]) / s[-1]
+        else:  # logdet: minimise -log det(Ws^T Ws / G) / b
+            f = -2.0 * float(np.sum(np.log(s / math.sqrt(self.G)))) / b
+            Gm = -(2.0 / b) * (U / s) @ Vt
+        if self.scaling == "columns":
+            H = (Gm - Ws * np.sum(Ws * Gm, axis=0)) / norms
+        else:
+            H = Gm / self.opt_scales
+        return f, H.reshape(W.shape)
+
+    def _evaluate(self, z):
+        key = z.tobytes()
+        if key == self._cache_key:
+            return self._cache
+        x = z * self.xs
+        q, qd, qdd = self.kinematics(x)
+        Q, QD, QDD, d = self._stack(q, qd, qdd)
+        Wst = base_regressor(self.robot, self.bp, Q, QD, QDD)
+        W0, dq, dqd, dqdd = self._partials(Wst, self.G, d)
+        f, H = self.objective_terms(W0)
+        g = lambda dW: np.einsum("sic,sic->s", dW, H)           # noqa: E731
+        gq = np.stack([g(D) for D in dq])                        # (n, G)
+        gqd = np.stack([g(D) for D in dqd])
+        gqdd = np.stack([g(D) for D in dqdd])
+        grad = self._chain(gq, gqd, gqdd, self.B).ravel() * self.xs
+        self._cache_key, self._cache = key, (f, grad)
+        return f, grad
+
+    def fun(self, z):
+        return self._evaluate(z)[0]
+
+    def jac(self, z):
+        return self._evaluate(z)[1]
+
+    # --- torque constraint
+    def torque(self, x, B=None):
+        q, qd, qdd = self.kinematics(x, self.Bc if B is None else B)
+        return inverse_dynamics(self.robot, self.chi, q, qd, qdd)
+
+    def _torque_eval(self, z):
+        key = z.tobytes()
+        if key == getattr(self, "_tcache_key", None):
+            return self._tcache
+        x = z * self.xs
+        q, qd, qdd = self.kinematics(x, self.Bc)
+        Q, QD, QDD, d = self._stack(q, qd, qdd)
+        tst = inverse_dynamics(self.robot, self.chi, Q, QD, QDD)
+        tau, dq, dqd, dqdd = self._partials(tst, self.Gc, d)
+        # J[s, i, j, m] = dtau_i(s)/dx_jm
+        Bq, Bqd, Bqdd = self.Bc
+        J = (np.einsum("sm,jsi->sijm", Bq, np.stack(dq)) + np.einsum("sm,jsi->sijm", Bqd, np.stack(dqd))
+             + np.einsum("sm,jsi->sijm", Bqdd, np.stack(dqdd)))
+        J = J.reshape(self.Gc, self.n, -1) * self.xs
+        lim = self.margin * self.tau_max
+        keep = np.isfinite(lim)
+        r = tau[:, keep] / lim[keep]
+        Jr = J[:, keep] / lim[keep][None, :, None]
+        c = np.concatenate([(1.0 - r).ravel(), (1.0 + r).ravel()])
+        Jc = np.concatenate([-Jr.reshape(-1, J.shape[-1]), Jr.reshape(-1, J.shape[-1])])
+        self._tcache_key, self._tcache = key, (c, Jc)
+        return c, Jc
+
+    def constraints(self):
+        cons = []
+        if self.A.shape[0]:
+            A, u = self.A, self.u
+            cons.append({"type": "ineq", "fun": lambda z: u - A @ z, "jac": lambda z: -A})
+        if self.torque_limited:
+            cons.append({"type": "ineq", "fun": lambda z: self._torque_eval(z)[0],
+                         "jac": lambda z: self._torque_eval(z)[1]})
+        return cons
+
+    def to_x(self, traj):
+        return np.hstack([traj.a, traj.b, traj.q0[:, None]]).ravel()
+
+    def to_traj(self, x):
+        X = x.reshape(self.n, self.m)
+        N = self.N
+        return FourierTrajectory(self.f0, X[:, :N], X[:, N:2 * N], X[:, 2 * N])
+
+
+def _rng(rng):
+    if isinstance(rng, np.random.Generator):
+        return rng
+    if rng is None or isinstance(rng, (int, np.integer)):
+        return np.random.default_rng(rng)
+    raise InputError(f"rng must be a numpy Generator, an integer seed or None, got {rng!r}")
+
+
+def _shrink_to_torque(prob, traj, n_grid=2000):
+    """Scale a start's oscillation about q0 until |tau| <= margin tau_max (bisection)."""
+    if not prob.torque_limited:
+        return traj, 1.0
+    t = np.arange(n_grid) * (traj.period / n_grid)
+    lim = prob.margin * prob.tau_max
+
+    def ok(scale):
+        tr = FourierTrajectory(traj.f0, traj.a * scale, traj.b * scale, traj.q0)
+        q, qd, qdd = tr.evaluate(t)
+        tau = inverse_dynamics(prob.robot, prob.chi, q, qd, qdd)
+        return bool(np.all(np.abs(tau) <= lim))
+
+    if ok(1.0):
+        return traj, 1.0
+    if not ok(0.0):
+        raise InputError(f"the gravity torque at the centre of the joint ranges of '{prob.robot.name}' "
+                         f"exceeds margin * tau_max: no random start is feasible; raise tau_max or "
+                         f"lower margin")
+    lo, hi = 0.0, 1.0
+    for _ in range(30):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if ok(mid) else (lo, mid)
+    return FourierTrajectory(traj.f0, traj.a * lo, traj.b * lo, traj.q0), lo
+
+
+def _feasible(margins, tol=0.0):
+    cols = [c for c in ("q_low", "q_high", "qd", "qdd", "tau") if c in margins]
+    v = margins[cols].to_numpy(dtype=float)
+    return bool(np.all(np.where(np.isnan(v), np.inf, v) >= -tol))
+
+
+# ----------------------------------------------------------------------------- result
+@dataclass
+class ExcitationResult:
+    """An optimised excitation trajectory and the evidence that it is one.
+
+    ``cond_result`` / ``cond_start``: the reported condition number (see
+    ``cond_name``: ``cond`` = envelope-scaled W unless ``scaling`` says otherwise)
+    of the result and of the best random start (the lowest of ``cond_starts``).
+    ``conditioning`` / ``start_conditioning``: all the variants (raw, scaled,
+    unit columns, log det) for the result and that best start. ``margins``:
+    :func:`limit_margins` of the result on the dense grid; ``spectrum``:
+    :func:`spectrum_check`. ``runs``: one dict per start (start and final cond,
+    iterations, time, optimiser message, feasible).
+    """
+
+    trajectory: FourierTrajectory
+    robot_name: str
+    joint_names: list
+    criterion: str
+    scaling: str
+    margin: float
+    cond_name: str
+    cond_result: float
+    cond_start: float
+    cond_starts: list
+    conditioning: dict
+    start_conditioning: dict
+    start_trajectory: FourierTrajectory
+    margins: object                      # pandas DataFrame
+    start_margins: object
+    spectrum: dict
+    runs: list
+    n_samples: int
+    n_check: int
+    torque_parameters: str
+    elapsed: float
+    notices: list = field(default_factory=list)
+
+    @property
+    def f0(self):
+        return self.trajectory.f0
+
+    @property
+    def harmonics(self):
+        return self.trajectory.harmonics
+
+    @property
+    def improvement(self):
+        """cond_start / cond_result (> 1 when the optimisation helped)."""
+        return self.cond_start / self.cond_result
+
+    @property
+    def feasible(self):
+        return _feasible(self.margins)
+
+    def to_frame(self, fs, n_periods=1):
+        """Reference ``t, qr1..n, qdr1..n, qddr1..n`` at the controller rate ``fs`` (Hz).
+
+        ``n_periods`` whole periods, ``round(n_periods fs / f0)`` samples from t = 0
+        (the end point, equal to the start, is not repeated).
+        """
+        fs = float(fs)
+        if not np.isfinite(fs) or fs <= 0:
+            raise InputError(f"fs must be a positive sampling rate in Hz, got {fs!r}")
+        m = int(round(n_periods * fs * self.trajectory.period))
+        t = np.arange(m) / fs
+        return self.trajectory.to_frame(t)
+
+    def to_csv(self, path, fs, n_periods=1):
+        """Write :meth:`to_frame` to ``path`` atomically (full precision)."""
+        from analysis.provenance import atomic_write_text
+
+        atomic_write_text(path, self.to_frame(fs, n_periods).to_csv(index=False, lineterminator="\n",
+                                                                    float_format="%.17g"))
+
+    def to_dict(self):
+        from analysis.provenance import json_safe
+
+        tr = self.trajectory
+        return json_safe({
+            "robot": self.robot_name, "f0": tr.f0, "harmonics": tr.harmonics,
+            "period": tr.period, "bandwidth": tr.bandwidth,
+            "a": tr.a, "b": tr.b, "q0": tr.q0,
+            "criterion": self.criterion, "scaling": self.scaling, "margin": self.margin,
+            "cond_name": self.cond_name, "cond_result": self.cond_result,
+            "cond_start": self.cond_start, "cond_starts": list(self.cond_starts),
+            "improvement": self.improvement,
+            "conditioning": self.conditioning, "start_conditioning": self.start_conditioning,
+            "margins": {str(k): v for k, v in self.margins.to_dict(orient="index").items()},
+            "feasible": self.feasible,
+            "spectrum": {"lines_hz": self.spectrum["lines"], "off_grid": self.spectrum["off_grid"],
+                         "bandwidth_hz": self.spectrum["bandwidth"], "ok": self.spectrum["ok"]},
+            "runs": self.runs, "n_samples": self.n_samples, "n_check": self.n_check,
+            "torque_parameters": self.torque_parameters, "elapsed_s": self.elapsed,
+            "notices": self.notices,
+        })
+
+    def summary(self):
+        tr = self.trajectory
+        c, cs = self.conditioning, self.start_conditioning
+        lines = [
+            f"Excitation of {self.robot_name}: f0 = {tr.f0:g} Hz, {tr.harmonics} harmonics "
+            f"(period {tr.period:g} s, bandwidth {tr.bandwidth:g} Hz), criterion {self.criterion}, "
+            f"scaling {self.scaling}, margin {self.margin:g}",
+            f"  {self.cond_name}: {self.cond_result:.4g} (best of {len(self.cond_starts)} random "
+            f"starts {self.cond_start:.4g}; x{self.improvement:.2f} lower)",
+            f"  cond envelope-scaled {c['cond']:.4g} (start {cs['cond']:.4g}), raw SI {c['cond_raw']:.4g} "
+            f"(start {cs['cond_raw']:.4g}), unit columns {c['cond_unit']:.4g} (start {cs['cond_unit']:.4g}); "
+            f"{self.n_samples} samples per period",
+            f"  limits on {self.n_check} points per period: {'all respected' if self.feasible else 'VIOLATED'}"
+            f" (torque with {self.torque_parameters})",
+            "  joint   q_low  q_high     qd    qdd    tau   (relative margin to each limit)",
+        ]
+        for name, row in self.margins.iterrows():
+            vals = [row.get(k, np.nan) for k in ("q_low", "q_high", "qd", "qdd", "tau")]
+            lines.append(f"  {name:>5} " + " ".join(f"{v:6.3f}" if np.isfinite(v) else "     -"
+                                                     for v in vals))
+        sp = self.spectrum
+        lines.append(f"  spectrum: lines at {', '.join(f'{f:g}' for f in sp['lines'])} Hz; "
+                     f"off-grid {sp['off_grid']:.2e}; {'ok' if sp['ok'] else 'NOT band-limited'}")
+        lines.append(f"  {self.elapsed:.1f} s")
+        lines += [f"  note: {m}" for m in self.notices]
+        return "\n".join(lines)
+
+
+# ----------------------------------------------------------------------------- design
+def design_excitation(robot, f0, n_harmonics, *, n_starts=4, criterion="cond", chi=None, rng=None,
+                      max_iter=150, margin=0.95, scaling="envelope",
+                      samples_per_harmonic=DEFAULT_SAMPLES_PER_HARMONIC, n_constraint=None,
+                      n_check=DEFAULT_N_CHECK, bp=None, ftol=1e-7) -> ExcitationResult:
+    """Optimise a Fourier excitation (eq. (20)) of ``robot``; see the module docstring.
+
+    ``chi``: standard parameters for the torque limits (default
+    :func:`apriori_parameters`); ``chi=False`` ignores the torque limits.
+    ``rng``: Generator or seed of the random starts. ``max_iter``: SLSQP
+    iterations per start.
+    """
+    t_start = time.perf_counter()
+    try:
+        N = int(n_harmonics)
+    except (TypeError, ValueError):
+        raise InputError(f"n_harmonics must be a positive integer, got {n_harmonics!r}") from None
+    if N < 1 or N != n_harmonics:
+        raise InputError(f"n_harmonics must be a positive integer, got {n_harmonics!r}")
+    if criterion not in CRITERIA:
+        raise InputError(f"criterion must be one of {', '.join(CRITERIA)}, got {criterion!r}")
+    if scaling not in SCALINGS:
+        raise InputError(f"scaling must be one of {', '.join(SCALINGS)}, got {scaling!r}")
+    margin = float(margin)
+    if not 0 < margin <= 1:
+        raise InputError(f"margin must be in (0, 1], got {margin!r}")
+    n_starts = int(n_starts)
+    if n_starts < 1:
+        raise InputError(f"n_starts must be at least 1, got {n_starts!r}")
+    rng = _rng(rng)
+    bp = base_parameters(robot) if bp is None else bp
+    notices = []
+    if chi is None:
+        chi_st, _, missing = apriori_parameters(robot, bp)
+        torque_src = "the robot's a-priori values"
+        if missing:
+            torque_src += f" ({len(missing)} of {bp.n_base} base parameters without one, taken as 0)"
+    elif chi is False:
+        chi_st, torque_src = None, "no torque limits"
+        notices.append("torque limits ignored (chi=False)")
+    else:
+        chi_st = np.asarray(chi, dtype=float)
+        if chi_st.shape == (bp.n_base,):
+            chi_st = bp.to_standard(chi_st)
+        if chi_st.shape != (robot.n_standard,):
+            raise InputError(f"chi must hold {robot.n_standard} standard or {bp.n_base} base "
+                             f"parameters of '{robot.name}', got shape {chi_st.shape}")
+        torque_src = "the given parameters"
+    if n_constraint is None:
+        n_constraint = max(200, 40 * N)
+    prob = _Problem(robot, bp, f0, N, chi_st, criterion, scaling, margin, samples_per_harmonic,
+                    n_constraint)
+    cond_key = {"envelope": "cond", "none": "cond_raw", "columns": "cond_unit"}[scaling]
+    cond_name = {"cond": "cond(W S^-1), envelope column scales",
+                 "cond_raw": "cond(W), SI units", "cond_unit": "cond(W), unit-norm columns"}[cond_key]
+
+    def conditioning(tr):
+        return regressor_conditioning(robot, bp, tr, samples_per_harmonic=samples_per_harmonic,
+                                      scales=prob.scales)
+
+    runs, candidates, starts = [], [], []
+    cons = prob.constraints()
+    for k in range(n_starts):
+        t0 = time.perf_counter()
+        start = random_fourier_trajectory(robot, f0, N, rng, margin=margin)
+        start, shrink = _shrink_to_torque(prob, start)
+        c_start = conditioning(start)
+        starts.append((c_start[cond_key], start, c_start))
+        z0 = prob.to_x(start) / prob.xs
+        res = scipy.optimize.minimize(prob.fun, z0, jac=prob.jac, method="SLSQP", constraints=cons,
+                                      options={"maxiter": int(max_iter), "ftol": ftol})
+        tr = prob.to_traj(res.x * prob.xs)
+        c_end = conditioning(tr)
+        marg = limit_margins(robot, tr, chi_st, n_check=n_check)
+        ok = _feasible(marg)
+        runs.append({"start": k, "cond_start": c_start[cond_key], "cond_result": c_end[cond_key],
+                     "criterion_value": float(res.fun), "iterations": int(res.nit),
+                     "evaluations": int(res.nfev), "message": str(res.message),
+                     "start_shrink": shrink, "feasible": ok,
+                     "seconds": time.perf_counter() - t0})
+        if ok:
+            key = c_end[cond_key] if criterion == "cond" else float(res.fun)
+            candidates.append((key, tr, c_end, marg))
+    best_start = min(starts, key=lambda s: s[0])
+    if candidates:
+        _, traj, c_res, marg = min(candidates, key=lambda c: c[0])
+    else:
+        notices.append("no optimised trajectory passed the dense limit check; the best random "
+                       "start is returned")
+        traj, c_res = best_start[1], best_start[2]
+        marg = limit_margins(robot, traj, chi_st, n_check=n_check)
+    return ExcitationResult(
+        trajectory=traj, robot_name=robot.name, joint_names=list(robot.joint_names),
+        criterion=criterion, scaling=scaling, margin=margin, cond_name=cond_name,
+        cond_result=c_res[cond_key], cond_start=best_start[0],
+        cond_starts=[s[0] for s in starts], conditioning=c_res, start_conditioning=best_start[2],
+        start_trajectory=best_start[1], margins=marg,
+        start_margins=limit_margins(robot, best_start[1], chi_st, n_check=n_check),
+        spectrum=spectrum_check(traj), runs=runs, n_samples=prob.G, n_check=int(n_check),
+        torque_parameters=torque_src, elapsed=time.perf_counter() - t_start, notices=notices)

@@ -1,0 +1,107 @@
+"""The HTML report in a real browser (headless Chromium driven by Playwright).
+
+Skipped where Chromium or Playwright is missing, except under CI (CI=true),
+where .ci/run installs Chromium and a missing browser is a failure.
+"""
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+OUT = ROOT / "out"                     # ignored by git; CI keeps it as an artifact folder
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+
+try:
+    from playwright.sync_api import sync_playwright
+except ImportError:                    # pragma: no cover
+    sync_playwright = None
+
+if not (CHROMIUM and sync_playwright):
+    if os.environ.get("CI"):
+        pytest.fail("CI must run the browser tests: install Debian's chromium and playwright", pytrace=False)
+    pytest.skip("headless Chromium or playwright not available", allow_module_level=True)
+
+ARGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "--disable-background-networking",
+        "--disable-component-update", "--disable-sync"]
+
+
+def open_page(html_path, screenshot=None):
+    """Load a file in Chromium; return what a reviewer would look for."""
+    events = {"console_errors": [], "requests": [], "dialogs": [], "page_errors": []}
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=ARGS)
+        page = browser.new_page(viewport={"width": 1280, "height": 900})
+        page.on("console", lambda m: m.type == "error" and events["console_errors"].append(m.text))
+        page.on("pageerror", lambda e: events["page_errors"].append(str(e)))
+        page.on("request", lambda r: events["requests"].append(r.url))
+        page.on("dialog", lambda d: (events["dialogs"].append(d.message), d.dismiss()))
+        page.goto(html_path.resolve().as_uri())
+        page.wait_for_load_state("load")
+        events["sections"] = page.eval_on_selector_all(
+            "section[id]", "els => els.map(s => ({id: s.id, h2: (s.querySelector('h2')||{}).textContent,"
+            " figures: s.querySelectorAll('svg, img').length}))")
+        events["nav"] = page.eval_on_selector_all("nav a[href^='#']", "els => els.map(a => a.getAttribute('href'))")
+        events["imgs_x"] = page.eval_on_selector_all("img[src='x']", "els => els.length")
+        events["body_text"] = page.inner_text("body")
+        if screenshot:
+            page.screenshot(path=str(screenshot), full_page=True)
+        browser.close()
+    return events
+
+
+def test_demo_report_in_chromium(tmp_path):
+    from reports.cli import main
+    report = tmp_path / "demo.html"
+    assert main(["demo", "--duration", "8", "--report", str(report), "--quiet"]) == 0
+    OUT.mkdir(exist_ok=True)
+    shot = OUT / "demo-report.png"
+    ev = open_page(report, screenshot=shot)
+    assert ev["console_errors"] == [] and ev["page_errors"] == []
+    external = [u for u in ev["requests"] if not u.startswith(("file://", "data:"))]
+    assert external == [], external
+    assert shot.stat().st_size > 10_000
+    ids = [s["id"] for s in ev["sections"]]
+    for expected in ("run", "model", "base-parameters", "table2", "essential-path", "torques", "validation"):
+        assert expected in ids
+        assert "#" + expected in ev["nav"]
+    for s in ev["sections"]:
+        assert s["h2"] and s["h2"].strip(), s
+    # every section that shows results has its figure
+    figured = {s["id"]: s["figures"] for s in ev["sections"]}
+    for sid in ("essential-path", "torques", "validation"):
+        assert figured[sid] >= 1, sid
+
+
+def test_hostile_names_do_not_execute(tmp_path):
+    from analysis.idim import identify_idim
+    from analysis.synthetic import simulate_experiment
+    from dynamics.base_parameters import base_parameters
+    from dynamics.robot_file import load_robot
+    from dynamics.trajectories import random_fourier_trajectory
+    from reports.html import render_idim_report, write_report
+
+    text = (ROOT / "dynamics" / "robots" / "planar2.toml").read_text()
+    text = text.replace('name = "planar2"', 'name = "<script>alert(1)</script>"')
+    text = text.replace('name = "shoulder"', 'name = "\\"><img src=x onerror=alert(1)>"')
+    robot_file = tmp_path / "hostile.toml"
+    robot_file.write_text(text)
+    robot = load_robot(robot_file)
+    assert robot.name == "<script>alert(1)</script>"
+    bp = base_parameters(robot)
+    chi = bp.to_standard(bp.from_standard(robot.standard_vector(
+        {k: v for k, v in robot.apriori.items() if k in robot.standard_names})))
+    rng = np.random.default_rng(0)
+    traj = random_fourier_trajectory(robot, 0.2, 5, rng)
+    exp = simulate_experiment(robot, chi, traj, 10.0, rng=rng, q_noise=1e-5, tau_noise=0.05,
+                              name='"><img src=x onerror=alert(1)>.csv')
+    res = identify_idim(exp, robot, bp=bp)
+    report = tmp_path / "hostile.html"
+    write_report(report, render_idim_report(res, robot, exp))
+    ev = open_page(report)
+    assert ev["dialogs"] == []                       # no alert() ran
+    assert ev["imgs_x"] == 0                         # the <img> was not created
+    assert ev["console_errors"] == [] and ev["page_errors"] == []
+    assert "<script>alert(1)</script>" in ev["body_text"]    # shown as text
