@@ -1,0 +1,41 @@
+"""The README's first command (the main job), run as written in a fresh virtual
+environment. The second command (the tests) is what CI runs as .ci/run.
+
+It installs dynid and its dependencies, so it runs under CI or with
+DYNID_SLOW_TESTS=1, and is skipped otherwise.
+"""
+import os
+import re
+import subprocess
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+pytestmark = pytest.mark.skipif(not (os.environ.get("CI") or os.environ.get("DYNID_SLOW_TESTS")),
+                                reason="installs dynid in a fresh venv: set DYNID_SLOW_TESTS=1 (CI does)")
+
+
+def readme_commands():
+    text = (ROOT / "README.md").read_text()
+    return re.findall(r"```sh\n(.*?)\n```", text, flags=re.S)[:2]
+
+
+def test_readme_has_the_two_commands_on_its_first_screen():
+    head = "\n".join((ROOT / "README.md").read_text().splitlines()[:25])
+    demo, tests = readme_commands()
+    assert demo in head and tests in head
+    assert "dynid demo" in demo and "pytest" in tests
+    assert (ROOT / ".ci" / "run").read_text().strip().endswith(tests.strip())
+
+
+def test_readme_main_command_in_fresh_venv(tmp_path):
+    demo, _ = readme_commands()
+    venv = tmp_path / "venv"
+    report = tmp_path / "dynid-demo.html"
+    cmd = demo.replace(".venv", str(venv)).replace("dynid-demo.html", str(report))
+    proc = subprocess.run(["bash", "-c", cmd], cwd=ROOT, capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    html = report.read_text()
+    assert "IDIM identification of tx40" in html and 'id="table2"' in html
