@@ -28,6 +28,31 @@ def tx40_true_parameters(robot, bp):
     return beta, bp.to_standard(beta)
 
 
+def apriori_parameters(robot, bp):
+    """Standard parameters from the robot file's a-priori values (standard or base names).
+
+    Base values (``ZZ1R``...) become a standard set through ``bp.to_standard``;
+    standard values (``ZZ1``...) are taken as they are. Missing ones are zero.
+    """
+    from dynamics.errors import InputError
+    values = dict(robot.apriori)
+    if robot.name == "tx40":
+        values.update(TX40_EXTRA)
+    std = {k: v for k, v in values.items() if k in robot.standard_names}
+    base = {k: v for k, v in values.items() if k in bp.names and k not in std}
+    if not values:
+        raise InputError(f"robot '{robot.name}' ({robot.source}) has no a-priori parameter values to "
+                         f"simulate with; add an [apriori] table to its TOML file")
+    chi = robot.standard_vector(std)
+    if base:
+        beta = bp.from_standard(chi)
+        for k, name in enumerate(bp.names):
+            if name in base:
+                beta[k] = base[name]
+        chi = bp.to_standard(beta)
+    return chi
+
+
 def simulate_experiment(robot, chi_st, trajectory, duration, *, rng, tau_noise, q_noise,
                         fs=None, name="simulated", v_s=0.01, substeps=4, feedforward=True):
     """Closed-loop run of ``trajectory`` for ``duration`` s, as a noisy Experiment.

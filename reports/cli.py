@@ -29,6 +29,11 @@ EPILOG_IDENTIFY = """examples:
   dynid identify tx40.toml --robot tx40   a TOML experiment file (motor-side logs)
   dynid identify rec2.toml rec3.toml --robot kuka_lwr4 --validation rec1.toml
 """
+EPILOG_SIMULATE = """examples:
+  dynid simulate --robot tx40 --out run.csv                    20 s of a random Fourier reference
+  dynid simulate --robot planar2 --f0 0.2 --harmonics 5 --duration 30 --seed 4 --out run.csv
+  dynid simulate --robot tx40 --noise-q 0 --noise-tau 0 --out clean.csv
+"""
 EPILOG_DEMO = """examples:
   dynid demo                             simulated TX40 -> identification -> dynid-demo.html
   dynid demo --report demo.html --json demo.json --seed 7
@@ -96,6 +101,7 @@ def build_parser():
         epilog=textwrap.dedent("""\
             commands:
               robot     show a robot's kinematics, standard and base parameters
+              simulate  simulate a robot in closed loop and write a recording (CSV)
               identify  IDIM identification (OLS, WLS, essential parameters) of a recording
               demo      simulate the TX40, identify it and write an HTML report
 
@@ -132,6 +138,20 @@ def build_parser():
     p.add_argument("--json", metavar="PATH", help="write the results as JSON here")
     p.add_argument("--csv", metavar="PATH", help="write the essential parameters as CSV here")
     _add_processing_options(p)
+
+    p = sub.add_parser("simulate", parents=[common], help="simulate a robot in closed loop to a CSV",
+                       description="Simulate the robot (a-priori parameters of its robot file) tracking a "
+                                   "random Fourier-series reference under its controller, add sensor "
+                                   "noise, and write a dynid CSV (t, q*, qr*, tau*).",
+                       epilog=EPILOG_SIMULATE, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--robot", required=True, help="bundled robot name or .toml/.urdf file")
+    p.add_argument("--out", required=True, metavar="CSV", help="where to write the recording")
+    p.add_argument("--duration", type=float, default=20.0, metavar="SECONDS")
+    p.add_argument("--f0", type=float, default=0.1, metavar="HZ", help="fundamental of the reference")
+    p.add_argument("--harmonics", type=int, default=10, metavar="N")
+    p.add_argument("--noise-q", type=float, default=4e-5, metavar="RAD", help="position noise std")
+    p.add_argument("--noise-tau", type=float, default=0.5, metavar="NM", help="torque noise std")
+    p.add_argument("--seed", type=int, default=1, help="random seed (default 1)")
 
     p = sub.add_parser("demo", parents=[common], help="simulated TX40 -> identification -> report",
                        description="Simulate the Staubli TX40 in closed loop with the parameters of "
@@ -272,6 +292,27 @@ def cmd_identify(args, say):
     return EXIT_OK
 
 
+def cmd_simulate(args, say):
+    import numpy as np
+    from analysis.synthetic import apriori_parameters, simulate_experiment
+    from dynamics.base_parameters import base_parameters
+    from dynamics.errors import InputError
+    from dynamics.robot_file import load_robot
+    from dynamics.trajectories import random_fourier_trajectory
+    robot = load_robot(args.robot)
+    if robot.controller is None:
+        raise InputError(f"robot '{robot.name}' ({robot.source}) has no [controller]; add one to simulate")
+    if args.duration <= 0 or args.f0 <= 0 or args.harmonics < 1:
+        raise InputError("--duration and --f0 must be positive and --harmonics at least 1")
+    chi = apriori_parameters(robot, base_parameters(robot))
+    rng = np.random.default_rng(args.seed)
+    traj = random_fourier_trajectory(robot, args.f0, args.harmonics, rng)
+    exp = simulate_experiment(robot, chi, traj, args.duration, rng=rng, q_noise=args.noise_q,
+                              tau_noise=args.noise_tau, name=f"simulated {robot.name} (seed {args.seed})")
+    commit_outputs([(args.out, exp.to_frame().to_csv(index=False, float_format="%.10g"))], say)
+    return EXIT_OK
+
+
 def cmd_demo(args, say):
     from analysis.demo import run_demo
     result, robot, experiment, validation = run_demo(seed=args.seed, duration=args.duration,
@@ -284,7 +325,7 @@ def cmd_demo(args, say):
     return EXIT_OK
 
 
-COMMANDS = {"robot": cmd_robot, "identify": cmd_identify, "demo": cmd_demo}
+COMMANDS = {"robot": cmd_robot, "simulate": cmd_simulate, "identify": cmd_identify, "demo": cmd_demo}
 
 
 def _terminate(signum, frame):

@@ -80,3 +80,26 @@ def test_parser_is_consistent():
     for command in COMMANDS:
         args = parser.parse_args([command] + (["x", "--robot", "tx40"] if command == "identify" else []))
         assert args.command == command and hasattr(args, "quiet")
+
+
+def test_simulate_then_identify_recovers_the_robot_file_values(tmp_path):
+    csv, js = tmp_path / "run.csv", tmp_path / "id.json"
+    assert main(["simulate", "--robot", "planar2", "--duration", "10", "--out", str(csv), "--quiet"]) == 0
+    header = csv.read_text().splitlines()[0].split(",")
+    assert header == ["t", "q1", "q2", "qr1", "qr2", "tau1", "tau2"]
+    assert main(["identify", str(csv), "--robot", "planar2", "--json", str(js), "--quiet"]) == 0
+    est = {p["name"]: p for p in json.loads(js.read_text())["parameters"]}
+    # planar2.toml a-priori values, regrouped (closed form): ZZ1R = ZZ1 + Ia1 + d2^2 M2
+    expected = {"ZZ1R": 0.6667 + 0.05 + 2.0, "MX1R": 1.0 + 2.0, "ZZ2": 0.6667, "MX2": 1.0, "Ia2": 0.05}
+    for name, value in expected.items():
+        assert est[name]["value"] == pytest.approx(value, rel=0.02), name
+
+
+def test_simulate_needs_a_controller(tmp_path, capsys):
+    text = (ROOT / "dynamics" / "robots" / "planar2.toml").read_text()
+    text = text[:text.index("[controller]")] + text[text.index("[apriori]"):]
+    f = tmp_path / "noctl.toml"
+    f.write_text(text)
+    assert main(["simulate", "--robot", str(f), "--out", str(tmp_path / "x.csv")]) == 2
+    assert "controller" in capsys.readouterr().err
+    assert not (tmp_path / "x.csv").exists()
