@@ -78,7 +78,8 @@ def test_console_script_module_runs():
 def test_parser_is_consistent():
     parser = build_parser()
     for command in COMMANDS:
-        args = parser.parse_args([command] + (["x", "--robot", "tx40"] if command == "identify" else []))
+        extra = {"identify": ["x", "--robot", "tx40"], "simulate": ["--robot", "tx40", "--out", "x.csv"]}
+        args = parser.parse_args([command] + extra.get(command, []))
         assert args.command == command and hasattr(args, "quiet")
 
 
@@ -92,7 +93,7 @@ def test_simulate_then_identify_recovers_the_robot_file_values(tmp_path):
     # planar2.toml a-priori values, regrouped (closed form): ZZ1R = ZZ1 + Ia1 + d2^2 M2
     expected = {"ZZ1R": 0.6667 + 0.05 + 2.0, "MX1R": 1.0 + 2.0, "ZZ2": 0.6667, "MX2": 1.0, "Ia2": 0.05}
     for name, value in expected.items():
-        assert est[name]["value"] == pytest.approx(value, rel=0.02), name
+        assert abs(est[name]["value"] - value) <= 3 * est[name]["std"] + 1e-3 * abs(value), name
 
 
 def test_simulate_needs_a_controller(tmp_path, capsys):
