@@ -1,0 +1,158 @@
+"""Benchmark of the Bayesian posterior (analysis.bayes).
+
+1. The simulated TX40 of the demo (analysis.demo.demo_data(1, 20 s)), identified
+   by IDIM; emcee on its essential parameters plus one noise level per joint
+   (6), 64 walkers, run until the chain after burn-in is >= 50 integrated
+   autocorrelation times long for every parameter (analysis.convergence).
+   Target: under 30 s for the sampling.
+2. Cost does not grow with the number of samples: a 6-joint, 25-parameter
+   system with 1 k and 1 M rows (equations). Time to compute the sufficient
+   statistics once (one pass over the rows), and time per vectorised
+   log-probability evaluation of 64 walkers from those statistics (must be
+   the same for both), against a naive evaluation that recomputes the
+   residuals over every row.
+
+Times are also printed as ratios to a reference workload run in the same
+process (a fixed 1500x1500 matrix product), since the machines are noisy.
+The last line is a JSON object with the headline figures.
+Run from the repository root: python benchmarks/bayes.py [--seed S] [--rows-large N]
+"""
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import numpy as np  # noqa: E402
+
+
+def reference_seconds():
+    a = np.random.default_rng(0).standard_normal((1500, 1500))
+    t0 = time.perf_counter()
+    for _ in range(3):
+        a @ a
+    return (time.perf_counter() - t0) / 3
+
+
+def best_of(fn, repeat=5, number=1):
+    best = np.inf
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        for _ in range(number):
+            fn()
+        best = min(best, (time.perf_counter() - t0) / number)
+    return best
+
+
+def tx40(seed):
+    from analysis import bayes
+    from analysis.demo import demo_data
+    from analysis.idim import identify_idim
+
+    t0 = time.perf_counter()
+    robot, bp, beta, ident, valid = demo_data(1, 20.0)
+    res = identify_idim(ident, robot, bp=bp)
+    prep = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    post = bayes.sample_idim(res, seed=seed, n_walkers=64)
+    sampling = time.perf_counter() - t0
+    return prep, sampling, post
+
+
+def scaling_setup(n_rows, n_joints=6, b=25, walkers=64, seed=0):
+    """A system of n_rows equations (n_rows / n_joints samples); (stats_s, model, X, naive_s)."""
+    from analysis import bayes
+
+    rng = np.random.default_rng(seed)
+    N = n_rows // n_joints
+    W3 = rng.standard_normal((N, n_joints, b))
+    chi = rng.standard_normal(b)
+    tau = W3 @ chi + 0.1 * rng.standard_normal((N, n_joints))
+    names = [f"p{i}" for i in range(b)]
+    t_stats = best_of(lambda: bayes.sufficient_statistics(W3, tau, names, ref=chi), repeat=3 if N > 1e4 else 7)
+    st = bayes.sufficient_statistics(W3, tau, names, ref=chi)
+    model = bayes.LinearPosterior(st)
+    X = np.hstack([chi + 0.01 * rng.standard_normal((walkers, b)),
+                   np.log(0.1) + 0.01 * rng.standard_normal((walkers, n_joints))])
+
+    def naive():                               # residuals of every row, every walker
+        u = X[:, b:]
+        out = np.zeros(walkers)
+        for j in range(n_joints):
+            R = tau[:, j][None, :] - X[:, :b] @ W3[:, j, :].T   # (walkers, N)
+            out += -N * u[:, j] - 0.5 * np.einsum("kn,kn->k", R, R) * np.exp(-2 * u[:, j])
+        return out
+
+    t_naive = best_of(naive, repeat=3 if N > 1e4 else 7)
+    np.testing.assert_allclose(naive(), model.log_prob(X), rtol=1e-7)
+    return t_stats, model, X, t_naive
+
+
+def logprob_times(models, rounds=25, number=200):
+    """Best time per log_prob call of each (model, X), measured alternately (fair under load)."""
+    best = [np.inf] * len(models)
+    for _ in range(rounds):
+        for i, (model, X) in enumerate(models):
+            t0 = time.perf_counter()
+            for _ in range(number):
+                model.log_prob(X)
+            best[i] = min(best[i], (time.perf_counter() - t0) / number)
+    return best
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--rows-large", type=int, default=1_000_000)
+    args = ap.parse_args()
+    ref = reference_seconds()
+    print(f"reference workload (1500x1500 matmul): {ref * 1e3:.1f} ms")
+
+    prep, sampling, post = tx40(args.seed)
+    dg = post.diagnostics
+    print(f"TX40 demo (20 s at 5 kHz): simulation + IDIM {prep:.1f} s (not counted)")
+    print(f"emcee on {len(post.names) - 6} essential parameters + 6 noise levels = {len(post.names)} "
+          f"dimensions, {dg.n_walkers} walkers: {sampling:.2f} s (target 30 s; {sampling / ref:.0f} x "
+          f"reference), {dg.n_steps} steps, {1e6 * dg.elapsed / dg.n_steps:.0f} us/step")
+    print(f"  converged: {post.converged} - {dg.reason}")
+    print(f"  max tau {dg.tau_max:.1f} steps, chain after burn-in / max tau = {dg.chain_over_tau:.1f}, "
+          f"max split R-hat {dg.rhat_max:.4f}, acceptance {dg.acceptance_mean:.3f}, "
+          f"{post.n_samples} kept draws (burn-in {dg.burn_in}, thin {dg.thin}), "
+          f"tau history {[(int(n), round(t, 1)) for n, t in dg.history]}")
+    worst = int(np.nanargmax(np.abs(post.mean - post.ls_value)[:len(post.names) - 6] /
+                             post.std[:len(post.names) - 6]))
+    print(f"  largest |posterior mean - WLS| / posterior std: {post.names[worst]} "
+          f"{abs(post.mean[worst] - post.ls_value[worst]) / post.std[worst]:.3f}")
+
+    rows = [1000, args.rows_large]
+    setups = {r: scaling_setup(r) for r in rows}
+    lp = logprob_times([(setups[r][1], setups[r][2]) for r in rows])
+    res = {r: (setups[r][0], lp[i], setups[r][3]) for i, r in enumerate(rows)}
+    for r in rows:
+        s, t, nv = res[r]
+        print(f"{r:>9,} rows (6 joints x {r // 6:,} samples, 25 parameters): sufficient statistics once "
+              f"{s * 1e3:8.2f} ms; log-prob of 64 walkers from them {t * 1e6:6.1f} us; "
+              f"naive log-prob over the rows {nv * 1e3:8.2f} ms")
+    small, large = res[rows[0]], res[rows[1]]
+    ratio = large[1] / small[1]
+    print(f"log-prob time ratio {rows[1]:,} / {rows[0]:,} rows: {ratio:.2f} (same code on statistics of "
+          f"identical shape: (6, 25, 25) + (6, 25) + (6,)); statistics pass ratio "
+          f"{large[0] / small[0]:.0f} (linear in the rows, paid once)")
+    print(json.dumps({
+        "tx40_dims": len(post.names), "tx40_walkers": dg.n_walkers, "tx40_sampling_s": round(sampling, 2),
+        "tx40_ratio_to_reference": round(sampling / ref, 1), "tx40_steps": dg.n_steps,
+        "tx40_us_per_step": round(1e6 * dg.elapsed / dg.n_steps), "tx40_converged": post.converged,
+        "tx40_tau_max": round(dg.tau_max, 1), "tx40_chain_over_tau": round(dg.chain_over_tau, 1),
+        "tx40_rhat_max": round(dg.rhat_max, 4), "tx40_acceptance": round(dg.acceptance_mean, 3),
+        "logprob_us_1k_rows": round(small[1] * 1e6, 1), "logprob_us_large_rows": round(large[1] * 1e6, 1),
+        "large_rows": rows[1], "logprob_ratio_large_to_1k": round(ratio, 2),
+        "stats_ms_1k_rows": round(small[0] * 1e3, 3), "stats_ms_large_rows": round(large[0] * 1e3, 1),
+        "naive_logprob_ms_large_rows": round(large[2] * 1e3, 1), "reference_s": round(ref, 4),
+    }))
+
+
+if __name__ == "__main__":
+    main()
