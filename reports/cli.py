@@ -34,6 +34,11 @@ EPILOG_SIMULATE = """examples:
   dynid simulate --robot planar2 --f0 0.2 --harmonics 5 --duration 30 --seed 4 --out run.csv
   dynid simulate --robot tx40 --noise-q 0 --noise-tau 0 --out clean.csv
 """
+EPILOG_SAMPLE = """examples:
+  dynid sample run.csv --robot tx40 --report post.html --json post.json
+  dynid sample examples/staubli_tx40/experiment.toml --robot tx40 --which base --seed 3
+  dynid sample run.csv --robot tx40 --csv samples.csv --max-seconds 60
+"""
 EPILOG_DEMO = """examples:
   dynid demo                             simulated TX40 -> identification -> dynid-demo.html
   dynid demo --report demo.html --json demo.json --seed 7
@@ -103,6 +108,7 @@ def build_parser():
               robot     show a robot's kinematics, standard and base parameters
               simulate  simulate a robot in closed loop and write a recording (CSV)
               identify  IDIM identification (OLS, WLS, essential parameters) of a recording
+              sample    Bayesian posterior of the identified parameters (emcee)
               demo      simulate the TX40, identify it and write an HTML report
 
             exit codes: 0 ok, 1 internal error, 2 bad input, 3 did not converge, 130 interrupted
@@ -152,6 +158,26 @@ def build_parser():
     p.add_argument("--noise-q", type=float, default=4e-5, metavar="RAD", help="position noise std")
     p.add_argument("--noise-tau", type=float, default=0.5, metavar="NM", help="torque noise std")
     p.add_argument("--seed", type=int, default=1, help="random seed (default 1)")
+
+    p = sub.add_parser("sample", parents=[common], help="Bayesian posterior of the parameters (emcee)",
+                       description="Identify like 'identify', then sample the posterior of the essential "
+                                   "(or base) parameters and one noise level per joint with emcee, until "
+                                   "the chains are 50 autocorrelation times long. Exit code 3 if they are not.",
+                       epilog=EPILOG_SAMPLE, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("data", nargs="+", help="experiment file(s), as for 'identify'")
+    p.add_argument("--robot", required=True, help="bundled robot name or .toml/.urdf file")
+    p.add_argument("--which", choices=["essential", "base"], default="essential")
+    p.add_argument("--seed", type=int, default=1, help="random seed of the sampler (default 1)")
+    p.add_argument("--walkers", type=int, default=None,
+                   help="emcee walkers (default: max(64, 2 x dimensions + 2))")
+    p.add_argument("--max-steps", type=int, default=200_000)
+    p.add_argument("--max-seconds", type=float, default=300.0)
+    p.add_argument("--report", metavar="PATH", help="write the HTML report here")
+    p.add_argument("--json", metavar="PATH", help="write the posterior summary as JSON here")
+    p.add_argument("--csv", metavar="PATH", help="write the posterior samples as CSV here")
+    p.add_argument("--allow-unconverged", action="store_true",
+                   help="exit 0 even if the chains did not converge (the outputs still say so)")
+    _add_processing_options(p)
 
     p = sub.add_parser("demo", parents=[common], help="simulated TX40 -> identification -> report",
                        description="Simulate the Staubli TX40 in closed loop with the parameters of "
@@ -313,6 +339,40 @@ def cmd_simulate(args, say):
     return EXIT_OK
 
 
+def cmd_sample(args, say):
+    from analysis.bayes import sample_idim
+    from analysis.experiment import load_experiment
+    from analysis.idim import identify_idim
+    from analysis.provenance import dumps_json
+    from dynamics.robot_file import load_robot
+    robot = load_robot(args.robot)
+    experiments = [load_experiment(p, robot) for p in args.data]
+    result = identify_idim(experiments if len(experiments) > 1 else experiments[0], robot,
+                           settings=_processing_settings(args), max_error_growth=args.max_error_growth)
+    say(f"sampling the posterior of the {args.which} parameters")
+    post = sample_idim(result, which=args.which, seed=args.seed, n_walkers=args.walkers,
+                       max_steps=args.max_steps, max_seconds=args.max_seconds)
+    if not args.quiet:
+        print(post.summary())
+    outputs = []
+    if args.json:
+        outputs.append((args.json, dumps_json(post.to_dict())))
+    if args.csv:
+        outputs.append((args.csv, post.samples_frame().to_csv(index=False, lineterminator="\n",
+                                                              float_format="%.17g")))
+    if args.report:
+        from reports.bayes_section import bayes_sections
+        from reports.html import render_idim_report
+        outputs.append((args.report, render_idim_report(result, robot, experiments[0],
+                                                        extra_sections=bayes_sections(post))))
+    commit_outputs(outputs, say)
+    if not post.converged and not args.allow_unconverged:
+        print(f"dynid sample: the chains did not converge ({post.reason}); the outputs say so",
+              file=sys.stderr)
+        return EXIT_NOT_CONVERGED
+    return EXIT_OK
+
+
 def cmd_demo(args, say):
     from analysis.demo import run_demo
     result, robot, experiment, validation = run_demo(seed=args.seed, duration=args.duration,
@@ -325,7 +385,8 @@ def cmd_demo(args, say):
     return EXIT_OK
 
 
-COMMANDS = {"robot": cmd_robot, "simulate": cmd_simulate, "identify": cmd_identify, "demo": cmd_demo}
+COMMANDS = {"robot": cmd_robot, "simulate": cmd_simulate, "identify": cmd_identify, "sample": cmd_sample,
+            "demo": cmd_demo}
 
 
 def _terminate(signum, frame):

@@ -104,3 +104,22 @@ def test_simulate_needs_a_controller(tmp_path, capsys):
     assert main(["simulate", "--robot", str(f), "--out", str(tmp_path / "x.csv")]) == 2
     assert "controller" in capsys.readouterr().err
     assert not (tmp_path / "x.csv").exists()
+
+
+def test_sample_on_real_tx40_converges_and_writes_outputs(tmp_path):
+    js, csv, html = tmp_path / "p.json", tmp_path / "p.csv", tmp_path / "p.html"
+    code = main(["sample", str(ROOT / "examples" / "staubli_tx40" / "experiment.toml"), "--robot", "tx40",
+                 "--json", str(js), "--csv", str(csv), "--report", str(html), "--quiet"])
+    doc = json.loads(js.read_text())
+    assert code == (0 if doc["converged"] else 3)
+    assert doc["converged"], doc.get("reason")
+    assert csv.read_text().count("\n") > 1000
+    assert "posterior" in html.read_text().lower()
+
+
+def test_sample_reports_non_convergence_with_exit_3(tmp_path):
+    js = tmp_path / "p.json"
+    code = main(["sample", str(ROOT / "examples" / "staubli_tx40" / "experiment.toml"), "--robot", "tx40",
+                 "--max-steps", "50", "--json", str(js), "--quiet"])
+    assert code == 3
+    assert json.loads(js.read_text())["converged"] is False
