@@ -40,13 +40,39 @@ Documented choices (all in ``DIDIMResult.settings``, all overridable through
   wrist block would be ``[[1, 1], [1, 1]]``, singular. For the TX40
   (``c = (1, 1)``, motor 6) this gives the paper's ``Ia5 = 2`` and the wrist
   block ``[[2, 1], [1, 1]]`` (eigenvalues 0.38 and 2.62); all other joints see
-  ``M = I``.
-* **Gain update** (section 3.2): before simulating with chi^{k-1}, ``kd_scale_j
-  = J_j / J_ap_j`` with ``J_j = max_q M_jj(q, chi^{k-1})`` (eq. (27) with dynid's
-  M, which already contains ``ZZ_j + Ia_j``), the maximum taken over the
-  configurations of the previous simulation (of the reference ``qr`` for the
-  first one), sampled every ``1 / j_rate`` s. ``update_gains=False`` keeps
-  ``kd_scale = 1`` (the actual controller's gains, unchanged).
+  ``M = I``. (The per-joint gain update sees only the diagonal, 2 and 1, so the
+  two wrist modes of the first simulation run at 0.59 and 3.4 times the
+  designed loop gain: fine at 5 kHz, unstable at 1 kHz with wn = 400 rad/s.)
+* **Gain update** (section 3.2, ``update_gains``): before simulating with
+  chi^{k-1}, ``kd_scale_j = J_j / J_ap_j`` with ``J_j = max_q M_jj(q,
+  chi^{k-1})`` (eq. (27): dynid's M already contains ``ZZ_j + Ia_j``, so J_j is
+  the largest diagonal inertia), the maximum taken over the configurations of
+  the previous simulation (of the reference ``qr`` for the first one), sampled
+  every ``1 / j_rate`` s (1 ms). ``True`` (the paper, default): at every step.
+  ``False``: never (``kd_scale = 1``, the controller as described).
+  ``"initial"``: only for the simulation of chi^0.
+
+  What the update does: the simulated loop becomes the *designed* one
+  (``wn``, ``zeta`` of the normalised double integrator) whatever chi^k is;
+  that equals the actual loop when the actual controller's a-priori J_ap is
+  right (J_ap = max_q M_jj of the real robot). Measured on Pinocchio data of
+  the TX40 (tests/test_didim.py): with the actual loop as designed, the update
+  makes DIDIM independent of a wrong J_ap in the robot file (J_ap x 2 gives
+  the same estimate to 1e-6; without the update Ia6 comes out 6 % low, Ia5
+  1.5 % low). When instead the *actual* controller runs with
+  a wrong J_ap, the update makes the simulated loop differ from the actual one
+  at every step and biases the estimate (Ia6 +20 % on the TX40 at wn = 200
+  rad/s); ``"initial"`` or ``False`` are then exact, since at convergence the
+  simulated robot with the actual gains is the actual robot. With a soft loop
+  (wn = 60 rad/s, the assumed gains of ``tx40.toml``) the update also slows the
+  iteration down (it makes the simulated tracking error depend on the ratio
+  of the estimated friction to the estimated inertia).
+* **Step safeguard**: an estimate whose ``M(q)`` is not positive definite at
+  the previous simulation's configurations, or whose simulation fails, is
+  moved back towards the last simulated estimate by halving its step (at most
+  ``max_step_halvings`` times; history column ``step_length``). The paper's
+  iteration would stop there; a damped step is simulated instead, and
+  convergence is only declared after a full step.
 * **Initial state and transient**: the simulation starts at ``(qr(0),
   qdr(0))``; the first ``transient`` seconds (default ``5 / min(wn)``, the
   text after eq. (32)) are dropped from the identification data.
@@ -89,16 +115,16 @@ import pandas as pd
 from analysis import least_squares as ls
 from analysis.decimation import ParallelDecimator
 from analysis.essential import essential_parameters
-from analysis.observation import _dead_zone
+from analysis.observation import AUTO_DEAD_ZONE, _dead_zone
 from analysis.provenance import atomic_write_text, dumps_json, json_safe, versions
 from analysis.signals import default_settings
 from dynamics.base_parameters import base_parameters, base_regressor
 from dynamics.dynamic_model import inverse_dynamics, mass_matrix
 from dynamics.simulation import friction_stiffness, simulate_closed_loop
-from dynamics.errors import DataError, DynidError, IdentificationError, InputError
+from dynamics.errors import DataError, DynidError, InputError
 
-__all__ = ["identify_didim", "DIDIMResult", "initial_parameters", "DIDIM_SETTINGS_HELP",
-           "resolve_didim_settings"]
+__all__ = ["identify_didim", "DIDIMResult", "initial_parameters", "initial_standard",
+           "DIDIM_SETTINGS_HELP", "resolve_didim_settings"]
 
 #: DIDIM's processing settings users may override, with their meaning.
 DIDIM_SETTINGS_HELP = {
@@ -115,6 +141,9 @@ DIDIM_SETTINGS_HELP = {
     "saturate": "clip the simulated torque at the joints' tau_max",
     "rate": "controller rate of the simulation, Hz (default: the robot's controller rate)",
     "j_rate": "rate (Hz) of the configurations J_j = max_q M_jj(q) is taken over (eq. (27))",
+    "max_step_halvings": ("when an estimate cannot be simulated (M(q) not positive definite, "
+                          "diverging simulation), simulate it moved back towards the previous one "
+                          "by halving its step at most this many times (0 = stop at once)"),
 }
 #: IDIM's position-filter settings: accepted, ignored (the simulated derivatives are exact).
 IGNORED_SETTINGS = ("fc_position", "order", "edge")
@@ -124,11 +153,12 @@ DEFAULT_MAX_ITER = 10
 DEFAULT_V_S = 0.05
 DEFAULT_GUARD = 0.005
 DEFAULT_J_RATE = 1000.0
+DEFAULT_HALVINGS = 6
+MOVING_SIGMA = 3.0          # a last step larger than this many sigma is reported
+PD_MARGIN = 1e-9            # smallest accepted eigenvalue of M(q), relative to the largest
 STIFFNESS_TARGET = 1.5      # h * lambda of the friction, per RK4 substep
 WELL_IDENTIFIED = 10.0      # %sigma below which a parameter's relative change is tracked
 CHUNK = 10_000
-_STATE_COLUMNS = ("iteration", "rho_norm", "rel_change", "output_error", "rel_error",
-                  "max_rel_param_change", "max_change_sigma", "substeps")
 
 
 # ----------------------------------------------------------------------------- result
@@ -174,6 +204,7 @@ class DIDIMResult:
     data_hash: str = ""
     source: str = ""
     truth: dict = None                # true base-parameter values, for simulated data
+    joint_names: list = None
     timings: list = field(default_factory=list)   # seconds per step (not in to_dict)
 
     # ---------------------------------------------------------------- access
@@ -262,11 +293,18 @@ class DIDIMResult:
         return self.summary()
 
     def to_dict(self) -> dict:
-        """JSON-safe, deterministic dict (no timings)."""
+        """JSON-safe, deterministic dict (no timings).
+
+        Laid out like :meth:`analysis.idim.IDIMResult.to_dict`: ``parameters``,
+        ``rel_error`` and ``rms_per_joint`` are those of :attr:`model` (the essential
+        parameters when they were computed, ``model`` says which); ``wls`` holds the
+        last step's WLS on all base parameters (the DIDIM estimate).
+        """
         def params(res):
             return [{"name": n, "value": v, "std": s, "rel_std_percent": r}
                     for n, v, s, r in zip(res.names, res.chi, res.sigma, res.rel_sigma)]
         r = self.result
+        m = self.model
         return json_safe({
             "method": "DIDIM",
             "robot": self.robot_name,
@@ -277,11 +315,13 @@ class DIDIMResult:
             "settings": self.settings,
             "base_parameters": self.base.table(),
             "initial_parameters": {n: v for n, v in zip(self.base.names, self.initial) if v != 0.0},
-            "parameters": params(r),
-            "rel_error": r.rel_error,
-            "rms_per_joint": list(r.rms),
-            "joint_sigma": None if r.joint_sigma is None else list(r.joint_sigma),
-            "cond": r.cond,
+            "model": "essential" if self.essential is not None else "base",
+            "parameters": params(m),
+            "rel_error": m.rel_error,
+            "rms_per_joint": list(m.rms),
+            "wls": {"parameters": params(r), "rel_error": r.rel_error, "rms_per_joint": list(r.rms),
+                    "joint_sigma": None if r.joint_sigma is None else list(r.joint_sigma),
+                    "cond": r.cond},
             "essential": None if self.essential is None else self.essential.to_dict(),
             "history": self.history.to_dict(orient="records"),
             "kd_scale": list(self.kd_scale),
@@ -313,6 +353,12 @@ def _positive(value, name, allow_zero=False):
         raise InputError(f"DIDIM setting {name} must be a {'non-negative' if allow_zero else 'positive'} "
                          f"number, got {value!r}")
     return v
+
+
+def _count(value, name):
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
+        raise InputError(f"DIDIM setting {name} must be an integer >= 0, got {value!r}")
+    return int(value)
 
 
 def resolve_didim_settings(experiment, robot, controller, qr, overrides=None):
@@ -369,6 +415,8 @@ def resolve_didim_settings(experiment, robot, controller, qr, overrides=None):
         "feedforward": _bool(overrides.pop("feedforward", True), "feedforward"),
         "saturate": _bool(overrides.pop("saturate", False), "saturate"),
         "j_rate": _positive(overrides.pop("j_rate", DEFAULT_J_RATE), "j_rate"),
+        "max_step_halvings": _count(overrides.pop("max_step_halvings", DEFAULT_HALVINGS),
+                                    "max_step_halvings"),
     }
     return s, notices
 
@@ -428,13 +476,6 @@ def _initial_beta(robot, bp, chi0):
 
 # ----------------------------------------------------------------------------- one step
 
-def _j_hat(robot, chi_st, q_configs):
-    """J_j = max over the configurations of M_jj(q, chi) (eq. (27))."""
-    M = mass_matrix(robot, chi_st, q_configs)
-    J = np.max(np.diagonal(M, axis1=1, axis2=2), axis=0)
-    return J
-
-
 def _simulate(robot, bp, beta, ctrl, t, qr, qdr, s, kd_scale):
     """Closed-loop simulation with chi = beta; states at the samples t."""
     chi = bp.to_standard(beta, "zero")
@@ -452,6 +493,31 @@ def _simulate(robot, bp, beta, ctrl, t, qr, qdr, s, kd_scale):
     def at(a):
         return np.column_stack([np.interp(t, sim.t, a[:, j]) for j in range(a.shape[1])])
     return at(sim.q), at(sim.qd), at(sim.qdd), at(sim.tau), substeps, sim
+
+
+def _simulate_checked(robot, bp, beta, ctrl, t, qr, qdr, s, configs, J_ap, update_gains):
+    """Check that ``beta`` can be simulated, set the derivative gains, simulate.
+
+    M(q, chi) must be positive definite at ``configs`` (the previous simulation's
+    configurations) and, with the gain update, ``kd_scale = J / J_ap`` with
+    ``J_j = max M_jj`` (eq. (27)). Raises a DynidError when it cannot be simulated.
+    """
+    chi = bp.to_standard(beta, "zero")
+    M = mass_matrix(robot, chi, configs)
+    ev = np.linalg.eigvalsh(M)
+    ok = ev[:, 0] > PD_MARGIN * np.abs(ev[:, -1])
+    if not np.all(ok):
+        i = int(np.flatnonzero(~ok)[0])
+        raise InputError(f"M(q) is not positive definite at {int((~ok).sum())} of {len(ok)} "
+                         f"configurations (smallest eigenvalue {ev[i, 0]:.3g} at q = "
+                         f"{np.array2string(configs[i], precision=3)})")
+    if update_gains:
+        J = np.max(np.diagonal(M, axis1=1, axis2=2), axis=0)
+        kd = J / J_ap
+    else:
+        kd = np.ones(robot.n_joints)
+    out = _simulate(robot, bp, beta, ctrl, t, qr, qdr, s, kd)
+    return out + (kd,)
 
 
 def _build_chunk(robot, bp, q, qd, qdd, tau, dead):
@@ -533,17 +599,20 @@ def identify_didim(experiment, robot, *, settings=None, chi0=None, tol=DEFAULT_T
     chi0 : initial parameters: None (eq. (31)), a base or standard vector, or a dict of
         base or standard names.
     tol : tol_I, the relative change of ||rho|| between two steps that stops the
-        iteration (default 1e-3: a change the %σ of the well identified parameters,
-        ~1 %, dwarfs).
+        iteration. Default 1e-3: ||rho||^2 = ||noise||^2 + ||model error||^2, so a
+        relative change below 1e-3 means the step changed the model error by less
+        than sqrt(2e-3) ~ 4.5 % of the residual norm, i.e. well inside the noise.
     max_iter : most Gauss-Newton steps (least-squares solves).
-    update_gains : multiply the simulated derivative gains by J_j / J_ap_j (section 3.2).
+    update_gains : True (paper: derivative gains times J_j / J_ap_j at every step),
+        ``"initial"`` (only for the simulation of chi^0) or False (see the module doc).
     essential : also compute the essential parameters from the last step.
     progress : callable(fraction in [0, 1]) called while the steps run.
     bp : base parameters of the robot (computed if None).
     reference : ``"qr"`` (default) or ``"q"``: track the measured positions instead
         (only when the reference was not logged; a notice says so).
     max_error_growth : criterion of the essential-parameter search.
-    workers : threads building the regressor (default: up to 2 CPUs).
+    workers : threads building the regressor chunks (default 1; the compiled kernel
+        releases the GIL, but on a busy 2-core machine 2 threads were slower).
 
     Returns a :class:`DIDIMResult`; ``converged`` is False when ``max_iter`` steps
     did not meet the criterion or a simulation failed (``stop_reason`` says which).
@@ -554,6 +623,8 @@ def identify_didim(experiment, robot, *, settings=None, chi0=None, tol=DEFAULT_T
         raise InputError(f"DIDIM needs the controller of robot '{robot.name}': add a [controller] "
                          "table (kind, rate, wn, zeta, J_ap, g_ap) to its description or pass "
                          "controller=Controller(...)")
+    if ctrl.J_ap is None or ctrl.wn is None or ctrl.zeta is None:
+        raise InputError(f"the controller of robot '{robot.name}' needs wn, zeta and J_ap for DIDIM")
     try:
         tol = float(tol)
     except (TypeError, ValueError):
@@ -583,12 +654,16 @@ def identify_didim(experiment, robot, *, settings=None, chi0=None, tol=DEFAULT_T
     t = np.asarray(experiment.t, dtype=float)
     s, more = resolve_didim_settings(experiment, robot, ctrl, qr, settings)
     notices += more
-    s["update_gains"] = bool(update_gains)
+    if isinstance(update_gains, (bool, np.bool_)):
+        update_gains = bool(update_gains)
+    if not (isinstance(update_gains, bool) or update_gains == "initial"):
+        raise InputError(f"update_gains must be True, False or 'initial', got {update_gains!r}")
+    s["update_gains"] = update_gains
     s["tol"] = tol
     s["max_iter"] = max_iter
     beta0, init_note = _initial_beta(robot, bp, chi0)
     s["initialisation"] = init_note
-    workers = min(2, os.cpu_count() or 1) if workers is None else max(1, int(workers))
+    workers = 1 if workers is None else max(1, min(int(workers), os.cpu_count() or 1))
 
     fs = s["fs"]
     n0 = int(math.ceil(s["transient"] * fs - 1e-9))
@@ -597,7 +672,6 @@ def identify_didim(experiment, robot, *, settings=None, chi0=None, tol=DEFAULT_T
     if isinstance(thr, str):
         if thr != "auto":
             raise DataError(f"qd_threshold must be a number, a list of numbers or 'auto', got {thr!r}")
-        from analysis.observation import AUTO_DEAD_ZONE
         thr = AUTO_DEAD_ZONE * np.abs(qdr[n0:]).max(axis=0)
     thr = np.broadcast_to(np.asarray(thr, dtype=float), (robot.n_joints,)).copy()
     if not np.all(np.isfinite(thr)) or np.any(thr < 0):
@@ -609,45 +683,55 @@ def identify_didim(experiment, robot, *, settings=None, chi0=None, tol=DEFAULT_T
     notices.append(f"DIDIM: closed-loop simulation at {s['rate']:g} Hz from (qr(0), qdr(0)); first "
                    f"{n0} samples ({s['transient']:.3g} s) dropped as the closed-loop transient; "
                    f"parallel decimation by nd = {s['nd']} (low-pass {s['f_decimation_cutoff']:.3g} Hz)"
-                   + ("; derivative gains updated with J_j / J_ap_j (eq. (27))" if update_gains
-                      else "; derivative gains NOT updated (kd_scale = 1)"))
+                   + {True: "; derivative gains updated with J_j / J_ap_j (eq. (27)) at every step",
+                      "initial": "; derivative gains updated with J_j / J_ap_j (eq. (27)) for the "
+                                 "simulation of chi^0 only, the actual gains (kd_scale = 1) after",
+                      False: "; derivative gains NOT updated (kd_scale = 1)"}[update_gains])
 
     names = list(bp.names)
     info = {k: v for k, v in s.items()}
     tau_k = tau[n0:]
     history, timings = [], []
-    beta_prev = beta0
     configs = qr[::j_stride]
     rho_prev = None
     converged = False
     stop_reason = ""
     last = None
     kd = np.ones(robot.n_joints)
+    beta_sim = beta0            # the last simulated estimate (always simulatable)
+    beta_ls = None              # the last least-squares solution
+    max_halvings = s["max_step_halvings"]
     for k in range(1, max_iter + 1):
         t_start = time.perf_counter()
-        chi_prev = bp.to_standard(beta_prev, "zero")
-        if update_gains:
-            J = _j_hat(robot, chi_prev, configs)
-            if not np.all(J > 0):
-                bad = [robot.joints[j].name for j in np.flatnonzero(~(J > 0))]
-                msg = (f"step {k}: the estimate gives M_jj <= 0 for joint(s) {', '.join(bad)}; "
-                       "it cannot be simulated")
-                if k == 1:
-                    raise InputError(f"DIDIM: chi0 {msg[8:]}")
-                stop_reason = msg
-                break
-            kd = J / J_ap
+        if k == 1:
+            candidates = [(1.0, beta0)]
         else:
-            kd = np.ones(robot.n_joints)
-        try:
-            q_s, qd_s, qdd_s, tau_ddm, substeps, sim = _simulate(robot, bp, beta_prev, ctrl, t, qr,
-                                                                 qdr, s, kd)
-        except DynidError as exc:
-            if k == 1:
-                raise
-            stop_reason = (f"step {k}: the closed-loop simulation with the estimate of step {k - 1} "
-                           f"failed: {exc}")
+            step = beta_ls - beta_sim
+            candidates = [(0.5 ** h, beta_sim + 0.5 ** h * step) for h in range(max_halvings + 1)]
+        failure = first_failure = None
+        for lam, cand in candidates:
+            try:
+                q_s, qd_s, qdd_s, tau_ddm, substeps, sim, kd = _simulate_checked(
+                    robot, bp, cand, ctrl, t, qr, qdr, s, configs, J_ap,
+                    update_gains is True or (update_gains == "initial" and k == 1))
+            except DynidError as exc:
+                failure = exc
+                first_failure = first_failure or str(exc)
+                continue
+            failure = None
             break
+        if failure is not None:
+            if k == 1:
+                raise InputError(f"DIDIM cannot simulate the initial estimate chi0: {failure}") from None
+            stop_reason = (f"step {k}: the estimate of step {k - 1} cannot be simulated, even moved "
+                           f"back to 1/{2 ** max_halvings} of its step from the last simulated one: "
+                           f"{failure}")
+            break
+        if lam < 1.0:
+            notices.append(f"step {k}: the estimate of step {k - 1} could not be simulated "
+                           f"({first_failure}); simulated {lam:g} of its step from the previous "
+                           "simulated estimate instead")
+        beta_sim = cand
         for note in sim.notes:
             if note not in notices:
                 notices.append(note)
@@ -667,16 +751,16 @@ def identify_didim(experiment, robot, *, settings=None, chi0=None, tol=DEFAULT_T
                                                 dead, s, workers, inner)
         res = ls.wls(Wd, taud, names, row_mask=mask, settings=info)
         rho = _masked_norm(res.residual, mask)
-        out_err = _masked_norm(taud - Wd @ beta_prev, mask)
+        out_err = _masked_norm(taud - Wd @ beta_sim, mask)
         rel_change = abs(rho - rho_prev) / rho_prev if rho_prev is not None and rho_prev > 0 else np.nan
-        d = res.chi - beta_prev
+        d = res.chi - beta_sim
         with np.errstate(divide="ignore", invalid="ignore"):
             good = res.rel_sigma <= WELL_IDENTIFIED
             max_rel = float(np.max(np.abs(d[good]) / np.abs(res.chi[good]))) if good.any() else np.nan
             max_sig = float(np.max(np.abs(d) / res.sigma))
         track = np.sqrt(np.mean((qr[sl] - q_s[sl]) ** 2, axis=0))
-        row = {"iteration": k, "rho_norm": rho, "rel_change": rel_change, "output_error": out_err,
-               "rel_error": res.rel_error, "max_rel_param_change": max_rel,
+        row = {"iteration": k, "step_length": lam, "rho_norm": rho, "rel_change": rel_change,
+               "output_error": out_err, "rel_error": res.rel_error, "max_rel_param_change": max_rel,
                "max_change_sigma": max_sig, "substeps": int(substeps)}
         for j in range(robot.n_joints):
             row[f"track_rms_{j + 1}"] = float(track[j])
@@ -687,10 +771,10 @@ def identify_didim(experiment, robot, *, settings=None, chi0=None, tol=DEFAULT_T
                         "total_s": time.perf_counter() - t_start})
         last = dict(res=res, Wd=Wd, taud=taud, mask=mask, idx=idx, q=q_s, qd=qd_s, qdd=qdd_s,
                     tau_ddm=tau_ddm, kd=kd.copy())
-        beta_prev = res.chi
+        beta_ls = res.chi
         if progress is not None:
             progress(min(1.0, k / max_iter))
-        if rho_prev is not None and rel_change <= tol:
+        if rho_prev is not None and rel_change <= tol and lam == 1.0:
             converged = True
             stop_reason = (f"|(||rho_{k}|| - ||rho_{k - 1}||)| / ||rho_{k - 1}|| = {rel_change:.3g} "
                            f"<= tol_I = {tol:g}")
@@ -703,6 +787,11 @@ def identify_didim(experiment, robot, *, settings=None, chi0=None, tol=DEFAULT_T
                        f"max_iter = 1: one step cannot test the criterion (it compares two steps)")
     if not converged:
         notices.append(f"DIDIM did not converge: {stop_reason}")
+    elif history[-1]["max_change_sigma"] > MOVING_SIGMA:
+        notices.append(f"the residual norm met the criterion, but the last step still moved a "
+                       f"parameter by {history[-1]['max_change_sigma']:.3g} standard deviations: the "
+                       "estimate is not a fixed point of the iteration (e.g. the simulated loop does not "
+                       "reproduce the actual one; see the gain update in the documentation)")
 
     res = last["res"]
     h = experiment.data_hash() if hasattr(experiment, "data_hash") else ""
@@ -724,4 +813,4 @@ def identify_didim(experiment, robot, *, settings=None, chi0=None, tol=DEFAULT_T
         tau_ddm=last["tau_ddm"], t_dec=t[n0:][last["idx"]], tau_dec=last["taud"],
         tau_est_dec=last["Wd"] @ res.chi, W_dec=last["Wd"], row_mask=last["mask"],
         transient_samples=n0, notices=notices, data_hash=h, source=str(experiment.source),
-        timings=timings)
+        joint_names=list(robot.joint_names), timings=timings)
