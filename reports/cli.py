@@ -28,6 +28,7 @@ EPILOG_IDENTIFY = """examples:
   dynid identify run.csv --robot tx40 --validation run2.csv --fc 50 --nd 100
   dynid identify tx40.toml --robot tx40   a TOML experiment file (motor-side logs)
   dynid identify rec2.toml rec3.toml --robot kuka_lwr4 --validation rec1.toml
+  dynid identify run.csv --robot tx40 --method didim --report didim.html
 """
 EPILOG_SIMULATE = """examples:
   dynid simulate --robot tx40 --out run.csv                    20 s of a random Fourier reference
@@ -136,7 +137,10 @@ def build_parser():
     p.add_argument("data", nargs="+", help="experiment file(s) (.csv, .parquet, .npz, .mat, or .toml "
                                           "description); several recordings are identified together")
     p.add_argument("--robot", required=True, help="bundled robot name or .toml/.urdf file")
-    p.add_argument("--method", choices=["idim"], default="idim", help="identification method")
+    p.add_argument("--method", choices=["idim", "didim"], default="idim",
+                   help="idim (needs q and tau) or didim (needs qr and tau and the robot's controller; "
+                        "when the file has no qr, the measured q is tracked instead, with a notice)")
+    p.add_argument("--max-iter", type=int, default=10, help="DIDIM: largest number of Gauss-Newton steps")
     p.add_argument("--validation", metavar="DATA", help="a second recording to validate on")
     p.add_argument("--holdout", type=float, metavar="SECONDS",
                    help="identify on all but the last SECONDS, validate on them")
@@ -305,6 +309,8 @@ def cmd_identify(args, say):
                              f"({experiment.duration:.3g} s)")
         experiments, valid = [experiment.segment(None, t_split)], experiment.segment(t_split, None)
     ident = experiments if len(experiments) > 1 else experiments[0]
+    if args.method == "didim":
+        return _identify_didim(args, say, robot, experiments, valid)
     with say.progress("regressor and decimation") as bar:
         result = identify_idim(ident, robot, settings=_processing_settings(args),
                                max_error_growth=args.max_error_growth, progress=bar.update)
@@ -315,6 +321,41 @@ def cmd_identify(args, say):
             print()
             print(validation.summary())
     _write_outputs(args, say, result, robot, experiments[0], validation)
+    return EXIT_OK
+
+
+def _identify_didim(args, say, robot, experiments, valid):
+    from analysis.didim import identify_didim
+    from analysis.provenance import dumps_json
+    from dynamics.errors import InputError
+    if len(experiments) > 1:
+        raise InputError("--method didim identifies one recording at a time")
+    if robot.controller is None:
+        raise InputError(f"DIDIM simulates the robot under its controller, but '{robot.name}' "
+                         f"({robot.source}) has no [controller] table")
+    exp = experiments[0]
+    reference = "qr" if exp.qr is not None else "q"
+    with say.progress("DIDIM iterations") as bar:
+        result = identify_didim(exp, robot, settings=_processing_settings(args), reference=reference,
+                                max_iter=args.max_iter, max_error_growth=args.max_error_growth,
+                                progress=bar.update)
+    if not args.quiet:
+        print(result.summary())
+    outputs = []
+    if args.json:
+        outputs.append((args.json, dumps_json(result.to_dict())))
+    if getattr(args, "csv", None):
+        outputs.append((args.csv, result.model.to_frame().to_csv()))
+    if args.report:
+        from reports.didim_section import didim_sections
+        from reports.html import render_sections
+        outputs.append((args.report, render_sections(didim_sections(result),
+                                                     title=f"DIDIM identification of {robot.name}")))
+    commit_outputs(outputs, say)
+    if not result.converged:
+        print(f"dynid identify: DIDIM did not converge ({result.stop_reason}); the outputs say so",
+              file=sys.stderr)
+        return EXIT_NOT_CONVERGED
     return EXIT_OK
 
 

@@ -123,3 +123,18 @@ def test_sample_reports_non_convergence_with_exit_3(tmp_path):
                  "--max-steps", "50", "--json", str(js), "--quiet"])
     assert code == 3
     assert json.loads(js.read_text())["converged"] is False
+
+
+def test_identify_didim_from_reference_and_torque_only(tmp_path):
+    import pandas as pd
+    csv, js = tmp_path / "run.csv", tmp_path / "didim.json"
+    assert main(["simulate", "--robot", "planar2", "--duration", "10", "--out", str(csv), "--quiet"]) == 0
+    frame = pd.read_csv(csv)
+    frame.drop(columns=["q1", "q2"]).to_csv(csv, index=False)        # DIDIM needs no positions
+    code = main(["identify", str(csv), "--robot", "planar2", "--method", "didim", "--json", str(js), "--quiet"])
+    doc = json.loads(js.read_text())
+    assert code == (0 if doc["converged"] else 3)
+    assert doc["method"] == "DIDIM" and doc["converged"]
+    est = {p["name"]: p["value"] for p in doc["parameters"]}
+    assert est["ZZ1R"] == pytest.approx(0.6667 + 0.05 + 2.0, rel=0.03)
+    assert est["MX1R"] == pytest.approx(3.0, rel=0.03)
