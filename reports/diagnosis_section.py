@@ -1,0 +1,325 @@
+"""Report sections of a residual diagnosis (:func:`analysis.diagnosis.diagnose`).
+
+``diagnosis_sections(result, robot=None)`` returns :class:`reports.html.Section`
+objects to append to an IDIM report (``render_idim_report(...,
+extra_sections=...)``) or to render on their own
+(``render_sections(sections, title=...)``):
+
+* ``diagnosis``: the selection rule, each greedy step (winner, runner-up,
+  gap, how often the winner predicts the held-out blocks better), the
+  ranked table of effects, and the error after each step;
+* ``diagnosis-effects``: the selected effects and their identified parameters;
+* ``diagnosis-errors``: relative error and per-joint RMS before/after, on the
+  identification data and on the validation data;
+* ``diagnosis-residuals``: the residual before (red) and after (blue) the
+  effects, binned against velocity (the friction signature), position and
+  time, and its PDF per joint.
+
+Ids of sections, figures and tables all start with ``diagnosis`` or ``diag-``
+so that they never clash with those of the IDIM report.
+"""
+from __future__ import annotations
+
+import math
+
+import matplotlib
+import numpy as np
+import pandas as pd
+from markupsafe import Markup
+
+from reports import figures as F
+from reports import tables as T
+from reports.html import Section, bullets, join, kv_list, para
+
+__all__ = ["diagnosis_sections", "SECTION_IDS"]
+
+SECTION_IDS = ("diagnosis", "diagnosis-effects", "diagnosis-errors", "diagnosis-residuals")
+MAX_RANKED_ROWS = 30
+
+
+def _names(robot, n):
+    if robot is not None and len(getattr(robot, "joint_names", [])) == n:
+        return list(robot.joint_names)
+    return [f"j{j + 1}" for j in range(n)]
+
+
+def _pct(x, digits=3):
+    x = float(x)
+    return "\u2014" if not math.isfinite(x) else f"{100 * x:.{digits}g} %"
+
+
+def _nl_text(nl):
+    if not nl:
+        return ""
+    if "vs" in nl:
+        return f"v_s = {nl['vs']:.3g} rad/s"
+    if "d" in nl:
+        return f"d = {1e3 * nl['d']:.3g} ms"
+    if "signal" in nl:
+        return f"from {nl['signal']}{nl['source']}"
+    if "order" in nl:
+        return f"order {nl['order']}"
+    return ", ".join(f"{k} = {v}" for k, v in nl.items())
+
+
+# ------------------------------------------------------------------ sections
+def _overview_section(res):
+    s = res.settings
+    pairs = [
+        ("Model", s.get("model", "")),
+        ("Candidates", f"{s['n_candidates']} (effects: {', '.join(s['effects'])}; every joint; "
+                       "grid of each nonlinear parameter)"),
+        ("Selection rule", f"blocked cross-validation in {s['folds']} contiguous blocks "
+                           f"(guard {s['gap']} decimated samples on each side of the held-out "
+                           f"block): held-out error lower in at least {s['folds'] - 1} blocks; and "
+                           f"likelihood-ratio test with the effective sample size, Bonferroni over "
+                           f"the candidates, \u03b1 = {s['alpha']:g}"),
+        ("Effects selected", ", ".join(e.candidate.label for e in res.selected) or "none"),
+    ]
+    steps = []
+    for st in res.steps:
+        w = st.winner
+        if w is None:
+            steps.append(f"Step {st.step}: no candidate outside the model's span.")
+            continue
+        text = (f"Step {st.step}: best {w.label}, held-out error \u2212{100 * w.cv_gain:.2f} % "
+                f"({w.folds_better}/{w.n_folds} blocks better), LR {w.statistic:.1f} with "
+                f"n_eff = {w.n_eff:.0f}, Bonferroni p = {F.format_p(w.p_value)}: "
+                + ("selected." if st.accepted else f"not selected ({st.reason})."))
+        if w.aliases:
+            text += (f" Same columns on these data as {', '.join(w.aliases)}: the data of a moving "
+                     "joint cannot tell them apart.")
+        if st.runner_up is not None:
+            text += (f" Runner-up {st.runner_up.label} ({100 * st.runner_up.cv_gain:.2f} %): gap "
+                     f"{100 * st.gap:.2f} points; the winner predicts the held-out block better in "
+                     f"{100 * st.confidence:.0f} % of the blocks.")
+        steps.append(text)
+    body = join(kv_list(pairs), Markup("<h3>Greedy selection</h3>"), bullets(steps),
+                para("Ranked from most to least likely: the selected effects in the order they were "
+                     "added, then the others by their score against the final model. CV gain: "
+                     "fraction of the held-out (WLS-weighted) squared error the effect removes; LR: "
+                     "likelihood-ratio statistic with the effective sample size (\u03c7\u00b2 with "
+                     "as many degrees of freedom as parameters if nothing is missing); \u0394BIC: "
+                     "LR \u2212 k ln n_eff.", cls="hint"))
+    if res.notices:
+        body = join(body, Markup("<h3>Notices</h3>"), bullets(res.notices, cls="notices"))
+    rows = []
+    for k, r in enumerate(res.ranking[:MAX_RANKED_ROWS], 1):
+        rows.append({"rank": k, "effect": r.name, "joint": "all" if r.joint is None else str(r.joint),
+                     "nonlinear": _nl_text(r.nonlinear), "parameters": ", ".join(r.params),
+                     "cv_gain_pct": 100 * r.cv_gain, "blocks": f"{r.folds_better}/{r.n_folds}",
+                     "lr": r.statistic, "p_value": r.p_value, "ic_gain": r.ic_gain,
+                     "aliases": ", ".join(r.aliases), "selected": bool(r.selected)})
+    df = pd.DataFrame(rows)
+    tables = []
+    if len(df):
+        df = df.set_index("rank")
+        note = "" if len(res.ranking) <= MAX_RANKED_ROWS else \
+            f"{len(res.ranking) - MAX_RANKED_ROWS} more in the CSV and the JSON results"
+        csv = pd.DataFrame([{**r.to_dict(), "nonlinear": _nl_text(r.nonlinear)} for r in res.ranking])
+        tables.append(T.make_table(
+            df, "diag-ranking", "Effects ranked from most to least likely",
+            formats={"effect": "text", "joint": "text", "nonlinear": "text", "parameters": "code",
+                     "cv_gain_pct": "num", "blocks": "text", "aliases": "text", "selected": "bool"},
+            labels={"cv_gain_pct": "CV gain [%]", "lr": "LR (n_eff)", "p_value": "p (Bonferroni)",
+                    "ic_gain": "\u0394BIC (n_eff)", "aliases": "same columns as"},
+            note=note, csv_frame=csv, csv_index=False))
+    if len(res.path) > 1:
+        prow = []
+        for p in res.path:
+            v = p["validation"]
+            prow.append({"step": p["step"], "added": p["added"] or "(IDIM model)",
+                         "ident_rel_error_pct": 100 * p["identification"].rel_error,
+                         "valid_rel_error_pct": np.nan if v is None else 100 * v.rel_error})
+        pdf = pd.DataFrame(prow).set_index("step")
+        tables.append(T.make_table(pdf, "diag-path", "Relative error after each step",
+                                   formats={"added": "text", "ident_rel_error_pct": "num",
+                                            "valid_rel_error_pct": "num"},
+                                   labels={"ident_rel_error_pct": "identification [%]",
+                                           "valid_rel_error_pct": "validation [%]"}))
+    return Section("diagnosis", "Residual diagnosis", body, tables=tables, tables_first=True)
+
+
+def _effects_section(res):
+    if not res.selected:
+        body = para("No effect was selected: none of the candidate effects explains a part of the "
+                    "residual that the selection rule accepts. The model lacks nothing the effect "
+                    "library describes, at this noise level and with this excitation.")
+        return Section("diagnosis-effects", "Selected effects", body)
+    rows, notes = [], []
+    for e in res.selected:
+        for p, v, sd, r in zip(e.params, e.values, e.sigma, e.rel_sigma):
+            rows.append({"parameter": p, "effect": e.name,
+                         "joint": "all" if e.joint is None else str(e.joint),
+                         "nonlinear": _nl_text(e.nonlinear), "value": float(v), "std": float(sd),
+                         "rel_std_percent": float(r), "step": e.step})
+        if e.note:
+            notes.append(f"{e.candidate.label}: {e.note}")
+    df = pd.DataFrame(rows).set_index("parameter")
+    tab = T.make_table(df, "diag-effect-parameters",
+                       "Parameters of the selected effects (WLS with the essential parameters; "
+                       "\u03c3 of eq. (14))",
+                       formats={"effect": "text", "joint": "text", "nonlinear": "text", "step": "int"},
+                       labels={"std": "\u03c3", "rel_std_percent": "%\u03c3"})
+    body = para("Parameter names: Off offset; dFc, dFv half the difference of the Coulomb / "
+                "viscous friction between positive and negative velocity; Fs Stribeck excess; "
+                "Rc, Rs ripple cosine / sine; Ks spring stiffness; Cv, Ca coupling by the velocity / "
+                "acceleration of another joint; d time delay [s] (> 0: torque late; the model is "
+                "re-fitted on W(t \u2212 d)); Dr drift polynomial; Fl load-friction coefficient; "
+                "dM, dMX, dMY, dMZ payload mass and first moments.", cls="hint")
+    if notes:
+        body = join(body, Markup("<h3>Notes</h3>"), bullets(notes))
+    return Section("diagnosis-effects", "Selected effects", body, tables=[tab], tables_first=True)
+
+
+def _errors_section(res, names):
+    tables = []
+    pairs = []
+    for key, label in (("identification", "identification data"), ("validation", "validation data")):
+        e = res.errors.get(key)
+        if e is None:
+            continue
+        b, a = e["before"], e["after"]
+        pairs.append((f"Relative error, {label}", f"{_pct(b.rel_error)} \u2192 {_pct(a.rel_error)}"))
+        df = pd.DataFrame({"joint": names, "rms_before": b.rms, "rms_after": a.rms,
+                           "rel_before_pct": 100 * np.asarray(b.joint_rel_error),
+                           "rel_after_pct": 100 * np.asarray(a.joint_rel_error)},
+                          index=pd.Index(np.arange(1, len(names) + 1), name="j"))
+        tables.append(T.make_table(
+            df, f"diag-errors-{key}", f"Per-joint residual before and after the effects ({label})",
+            formats={"joint": "text", "rel_before_pct": "num", "rel_after_pct": "num"},
+            labels={"rms_before": "RMS before [N m]", "rms_after": "RMS after [N m]",
+                    "rel_before_pct": "rel. error before [%]", "rel_after_pct": "rel. error after [%]"}))
+    body = join(kv_list(pairs),
+                para("Rows used by the estimator (outside the velocity dead zone). The validation "
+                     "data were processed with the identification's settings; the effects' columns "
+                     "were built on them with the identification's model torque and time scale.",
+                     cls="hint"))
+    return Section("diagnosis-errors", "Errors before and after the effects", body, tables=tables)
+
+
+def _binned_figure(key, caption, an_before, an_after, attr, xlabel, names):
+    n = len(names)
+    with matplotlib.rc_context(F.STYLE):
+        cols = min(n, 3) if n > 1 else 1
+        rows = math.ceil(n / cols)
+        fig = F.Figure(figsize=(3.3 * cols, 1.9 * rows + 0.3), layout="constrained")
+        axes = fig.subplots(rows, cols, squeeze=False)
+        for j in range(rows * cols):
+            ax = axes.flat[j]
+            if j >= n:
+                ax.set_visible(False)
+                continue
+            for an, color, label in ((an_before, F.RED, "before"), (an_after, F.BLUE, "after")):
+                if an is None:
+                    continue
+                df = getattr(an, attr)[j + 1]
+                if len(df):
+                    ax.errorbar(df["center"], df["mean"], yerr=df["sem"], color=color, lw=0.9,
+                                marker="o", ms=2.2, capsize=1.5, elinewidth=0.6, label=label)
+            ax.axhline(0.0, color=F.GREY, lw=0.5)
+            ax.set_title(F._plain(F.joint_label(j, names[j])), loc="left")
+            if j % cols == 0:
+                ax.set_ylabel("mean residual [N m]")
+            if j >= n - cols:
+                ax.set_xlabel(xlabel)
+        handles, texts = axes.flat[0].get_legend_handles_labels()
+        fig.legend(handles, texts, loc="outside upper right", ncols=2, frameon=False)
+    return F.render_figure(fig, key, caption)
+
+
+def _pdf_figure(key, caption, an_before, an_after, names):
+    from scipy import stats
+    n = len(names)
+    with matplotlib.rc_context(F.STYLE):
+        cols = min(n, 3) if n > 1 else 1
+        rows = math.ceil(n / cols)
+        fig = F.Figure(figsize=(3.3 * cols, 1.9 * rows + 0.3), layout="constrained")
+        axes = fig.subplots(rows, cols, squeeze=False)
+        for j in range(rows * cols):
+            ax = axes.flat[j]
+            if j >= n:
+                ax.set_visible(False)
+                continue
+            title = F.joint_label(j, names[j])
+            ps = []
+            for an, color, label in ((an_before, F.RED, "before"), (an_after, F.BLUE, "after")):
+                if an is None:
+                    continue
+                e = an.residual[:, j][an.mask[:, j]]
+                e = e[np.isfinite(e)]
+                if e.size < 3:
+                    continue
+                ax.hist(e, bins=int(np.clip(np.sqrt(e.size), 8, 40)), density=True, color=color,
+                        alpha=0.25, label=f"{label} (histogram)")
+                mu, sd = float(e.mean()), float(e.std(ddof=1))
+                if sd > 0:
+                    x = np.linspace(e.min() - 0.1 * np.ptp(e), e.max() + 0.1 * np.ptp(e), 200)
+                    ax.plot(x, stats.norm.pdf(x, mu, sd), color=color, lw=1.0,
+                            label=f"{label}: normal fit")
+                ps.append(f"{label} JB p {F.format_p(an.normality['jarque_bera_p'].iloc[j])}")
+            ax.set_title(F._plain(title + (": " + ", ".join(ps) if ps else "")), loc="left",
+                         fontsize=7)
+            ax.set_yticks([])
+            ax.grid(False)
+            if j >= n - cols:
+                ax.set_xlabel("residual [N m]")
+        handles, texts = axes.flat[0].get_legend_handles_labels()
+        fig.legend(handles, texts, loc="outside upper right", ncols=4, frameon=False)
+    return F.render_figure(fig, key, caption)
+
+
+def _residual_section(res, names):
+    r = res.residuals
+    b, a = r.get("identification_before"), r.get("identification_after")
+    if b is None:
+        return Section("diagnosis-residuals", "Residuals before and after",
+                       para("Residual analysis was not computed (diagnose(..., residual_analysis=False))."))
+    figs = [
+        _binned_figure("diag-fig-velocity", "Identification data: mean residual in equal-count "
+                       "velocity bins (\u00b1 standard error), before (red) and after (blue) the "
+                       "effects: the friction signature", b, a, "velocity", "qd [rad/s]", names),
+        _binned_figure("diag-fig-position", "Identification data: mean residual against joint "
+                       "position, before (red) and after (blue)", b, a, "position", "q [rad]", names),
+        _binned_figure("diag-fig-time", "Identification data: mean residual over the recording, "
+                       "before (red) and after (blue)", b, a, "time", "t [s]", names),
+        _pdf_figure("diag-fig-pdf", "Identification data: residual PDF before (red) and after "
+                    "(blue), with fitted normal densities; Jarque-Bera p in the titles", b, a, names),
+    ]
+    vb, va = r.get("validation_before"), r.get("validation_after")
+    if vb is not None:
+        figs.append(_binned_figure("diag-fig-velocity-validation", "Validation data: mean residual "
+                                   "against velocity, before (red) and after (blue)", vb, va,
+                                   "velocity", "qd [rad/s]", names))
+        figs.append(_pdf_figure("diag-fig-pdf-validation", "Validation data: residual PDF before "
+                                "(red) and after (blue)", vb, va, names))
+    rows = []
+    for label, an in (("before", b), ("after", a)):
+        for j in range(len(names)):
+            ne = an.n_eff.iloc[j]
+            rows.append({"residual": label, "joint": names[j], "rms": float(an.rms[j]),
+                         "ljung_box_p": float(an.ljung_box["p_value"].iloc[j]),
+                         "tau_int": float(ne["tau_int"]), "n_eff": float(ne["n_eff"]),
+                         "n": int(ne["n"]),
+                         "jarque_bera_p": float(an.normality["jarque_bera_p"].iloc[j])})
+    df = pd.DataFrame(rows)
+    tab = T.make_table(df, "diag-residual-stats", "Residual whiteness and effective sample size "
+                       "(identification data)", index=False,
+                       formats={"residual": "text", "joint": "text", "n": "int"},
+                       labels={"rms": "RMS [N m]", "ljung_box_p": "Ljung-Box p",
+                               "tau_int": "\u03c4_int = 1 + 2\u03a3\u03c1_k", "n_eff": "n_eff",
+                               "jarque_bera_p": "Jarque-Bera p"})
+    body = para("n_eff = n / (1 + 2 \u03a3_{k<K} \u03c1_k), K the first lag where the residual's "
+                "autocorrelation falls inside the white-noise band 2/\u221an. A small Ljung-Box p "
+                "and \u03c4_int well above 1 say the residual is not white: the model still "
+                "misses something smooth in the motion.", cls="hint")
+    return Section("diagnosis-residuals", "Residuals before and after", body, figures=figs,
+                   tables=[tab])
+
+
+def diagnosis_sections(result, robot=None):
+    """The report sections of a :class:`analysis.diagnosis.DiagnosisResult`."""
+    n = result.model_before.n_joints
+    names = _names(robot, n)
+    return [_overview_section(result), _effects_section(result), _errors_section(result, names),
+            _residual_section(result, names)]
