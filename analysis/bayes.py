@@ -533,7 +533,7 @@ def _criteria(criteria, **overrides):
 def sample_linear(W3, tau, names, *, row_mask=None, ls=None, sigma=None, prior=None, seed=0,
                   n_walkers=None, criteria=None, max_steps=None, max_seconds=None, moves="de",
                   init_scale: float = 0.1, method_label: str = "linear model", truth=None,
-                  suff_stats: SufficientStats | None = None) -> "PosteriorResult":
+                  suff_stats: SufficientStats | None = None, progress=None) -> "PosteriorResult":
     """Posterior of χ (and σ_j) of Y = Wχ + ρ by emcee; see the module docstring.
 
     Parameters
@@ -561,6 +561,8 @@ def sample_linear(W3, tau, names, *, row_mask=None, ls=None, sigma=None, prior=N
         log σ_j the variance is 1/(2 r_j)).
     suff_stats : SufficientStats, optional
         Precomputed statistics (then W3/tau are only used for ``ls`` if needed).
+    progress : callable, optional
+        ``progress(n_steps, required_steps)`` after each batch of the sampler.
     """
     from analysis import least_squares as lsq
 
@@ -592,7 +594,7 @@ def sample_linear(W3, tau, names, *, row_mask=None, ls=None, sigma=None, prior=N
     crit = _criteria(criteria, max_steps=max_steps, max_seconds=max_seconds)
     p0 = _initial_ball(model.log_prob, centre, cov, nw, init_scale, rng)
     sampler = _sampler(model.log_prob, nw, d, moves, rng)
-    run = run_until_converged(sampler, p0, crit)
+    run = run_until_converged(sampler, p0, crit, progress=progress)
     chain = model.to_output(run.kept())
     ls_value = np.full(d, np.nan)
     ls_std = np.full(d, np.nan)

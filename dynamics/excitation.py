@@ -777,7 +777,8 @@ class ExcitationResult:
 def design_excitation(robot, f0, n_harmonics, *, n_starts=4, criterion="cond", chi=None, rng=None,
                       max_iter=150, margin=0.95, scaling="envelope",
                       samples_per_harmonic=DEFAULT_SAMPLES_PER_HARMONIC, n_constraint=None,
-                      n_check=DEFAULT_N_CHECK, bp=None, ftol=1e-7, blas_threads=1) -> ExcitationResult:
+                      n_check=DEFAULT_N_CHECK, bp=None, ftol=1e-7, blas_threads=1,
+                      progress=None) -> ExcitationResult:
     """Optimise a Fourier excitation (eq. (20)) of ``robot``; see the module docstring.
 
     ``chi``: standard parameters for the torque limits (default
@@ -785,16 +786,17 @@ def design_excitation(robot, f0, n_harmonics, *, n_starts=4, criterion="cond", c
     ``rng``: Generator or seed of the random starts. ``max_iter``: SLSQP
     iterations per start. ``blas_threads``: OpenBLAS threads during the design
     (default 1, see :func:`limit_blas_threads`; None leaves them alone).
+    ``progress(fraction)`` is called after each start.
     """
     with limit_blas_threads(blas_threads):
         return _design(robot, f0, n_harmonics, n_starts=n_starts, criterion=criterion, chi=chi,
                        rng=rng, max_iter=max_iter, margin=margin, scaling=scaling,
                        samples_per_harmonic=samples_per_harmonic, n_constraint=n_constraint,
-                       n_check=n_check, bp=bp, ftol=ftol)
+                       n_check=n_check, bp=bp, ftol=ftol, progress=progress)
 
 
 def _design(robot, f0, n_harmonics, *, n_starts, criterion, chi, rng, max_iter, margin, scaling,
-            samples_per_harmonic, n_constraint, n_check, bp, ftol):
+            samples_per_harmonic, n_constraint, n_check, bp, ftol, progress=None):
     t_start = time.perf_counter()
     try:
         f0 = float(f0)
@@ -870,6 +872,8 @@ def _design(robot, f0, n_harmonics, *, n_starts, criterion, chi, rng, max_iter, 
         if ok:
             key = c_end[cond_key] if criterion == "cond" else float(fbest)
             candidates.append((key, tr, c_end, marg))
+        if progress is not None:
+            progress((k + 1) / n_starts)
     best_start = min(starts, key=lambda s: s[0])
     if candidates:
         _, traj, c_res, marg = min(candidates, key=lambda c: c[0])

@@ -40,6 +40,23 @@ EPILOG_SAMPLE = """examples:
   dynid sample examples/staubli_tx40/experiment.toml --robot tx40 --which base --seed 3
   dynid sample run.csv --robot tx40 --csv samples.csv --max-seconds 60
 """
+EPILOG_EXCITE = """examples:
+  dynid excite --robot tx40 --f0 0.1 --harmonics 5 --out traj.csv --json ex.json
+  dynid excite --robot planar2 --f0 0.2 --harmonics 4 --criterion logdet --starts 8 --report ex.html
+  dynid excite --robot tx40 --f0 0.1 --harmonics 5 --fs 5000 --periods 25 --out traj.csv
+"""
+EPILOG_DIAGNOSE = """examples:
+  dynid diagnose run.csv --robot tx40 --holdout 3 --report diag.html --json diag.json
+  dynid diagnose run.csv --robot tx40 --validation run2.csv --effects stribeck,offset,spring
+  dynid diagnose examples/staubli_tx40/experiment.toml --robot tx40 --holdout 3 --no-offsets
+  effects: offset asymmetric_coulomb asymmetric_viscous stribeck position_ripple spring
+           coupling time_delay drift load_friction payload
+"""
+EPILOG_REPORT = """examples:
+  dynid report run.csv --robot tx40 --holdout 3 --report full.html --json full.json
+  dynid report examples/staubli_tx40/experiment.toml --robot tx40 --holdout 3 --skip didim
+  dynid report run.csv --robot tx40 --validation run2.csv --max-seconds 30 --seed 2
+"""
 EPILOG_DEMO = """examples:
   dynid demo                             simulated TX40 -> identification -> dynid-demo.html
   dynid demo --report demo.html --json demo.json --seed 7
@@ -73,6 +90,16 @@ def _add_processing_options(p):
     g.add_argument("--max-error-growth", type=float, default=0.02, metavar="F",
                    help="essential parameters: largest accepted growth of the relative error "
                         "(default 0.02 = 2%%)")
+
+
+def _add_validation_options(p):
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--validation", metavar="DATA", help="a second recording to validate on")
+    g.add_argument("--holdout", type=float, metavar="SECONDS",
+                   help="identify on all but the last SECONDS, validate on them")
+
+
+JSON_HELP = "write the results as JSON here ('-': to stdout)"
 
 
 def _processing_settings(args):
@@ -109,8 +136,14 @@ def build_parser():
               robot     show a robot's kinematics, standard and base parameters
               simulate  simulate a robot in closed loop and write a recording (CSV)
               identify  IDIM identification (OLS, WLS, essential parameters) of a recording
+              excite    design an optimal Fourier excitation trajectory (CSV for a controller)
+              identify  IDIM or DIDIM identification of a recording
               sample    Bayesian posterior of the identified parameters (emcee)
+              diagnose  find the effects the model lacks in the residual, add them, compare errors
+              report    everything at once: IDIM, DIDIM, posterior and diagnosis in one report
               demo      simulate the TX40, identify it and write an HTML report
+
+            --json - writes the machine-readable result to stdout (the summary then goes to stderr)
 
             exit codes: 0 ok, 1 internal error, 2 bad input, 3 did not converge, 130 interrupted
             """))
@@ -141,11 +174,9 @@ def build_parser():
                    help="idim (needs q and tau) or didim (needs qr and tau and the robot's controller; "
                         "when the file has no qr, the measured q is tracked instead, with a notice)")
     p.add_argument("--max-iter", type=int, default=10, help="DIDIM: largest number of Gauss-Newton steps")
-    p.add_argument("--validation", metavar="DATA", help="a second recording to validate on")
-    p.add_argument("--holdout", type=float, metavar="SECONDS",
-                   help="identify on all but the last SECONDS, validate on them")
+    _add_validation_options(p)
     p.add_argument("--report", metavar="PATH", help="write the HTML report here")
-    p.add_argument("--json", metavar="PATH", help="write the results as JSON here")
+    p.add_argument("--json", metavar="PATH", help=JSON_HELP)
     p.add_argument("--csv", metavar="PATH", help="write the essential parameters as CSV here")
     _add_processing_options(p)
 
@@ -162,6 +193,9 @@ def build_parser():
     p.add_argument("--noise-q", type=float, default=4e-5, metavar="RAD", help="position noise std")
     p.add_argument("--noise-tau", type=float, default=0.5, metavar="NM", help="torque noise std")
     p.add_argument("--seed", type=int, default=1, help="random seed (default 1)")
+    p.add_argument("--json", metavar="PATH",
+                   help="write the simulation's settings, reference coefficients and true base "
+                        "parameters as JSON ('-': to stdout)")
 
     p = sub.add_parser("sample", parents=[common], help="Bayesian posterior of the parameters (emcee)",
                        description="Identify like 'identify', then sample the posterior of the essential "
@@ -177,10 +211,74 @@ def build_parser():
     p.add_argument("--max-steps", type=int, default=200_000)
     p.add_argument("--max-seconds", type=float, default=300.0)
     p.add_argument("--report", metavar="PATH", help="write the HTML report here")
-    p.add_argument("--json", metavar="PATH", help="write the posterior summary as JSON here")
+    p.add_argument("--json", metavar="PATH", help="write the posterior summary as JSON here ('-': to stdout)")
     p.add_argument("--csv", metavar="PATH", help="write the posterior samples as CSV here")
     p.add_argument("--allow-unconverged", action="store_true",
                    help="exit 0 even if the chains did not converge (the outputs still say so)")
+    _add_processing_options(p)
+
+    p = sub.add_parser("excite", parents=[common], help="optimal Fourier excitation (Bona & Curatella)",
+                       description="Optimise the coefficients of a finite Fourier series per joint "
+                                   "(fundamental f0, N harmonics) to minimise the condition number of "
+                                   "the base regressor (or -log det), within the robot's position, "
+                                   "velocity, acceleration and torque limits (eq. (20) of Bona & "
+                                   "Curatella 2005); several random starts; every limit checked on a "
+                                   "dense grid. Writes the reference (t, qr, qdr, qddr) as CSV.",
+                       epilog=EPILOG_EXCITE, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--robot", required=True, help="bundled robot name or .toml/.urdf file")
+    p.add_argument("--f0", type=float, required=True, metavar="HZ", help="fundamental frequency")
+    p.add_argument("--harmonics", type=int, required=True, metavar="N", help="harmonics per joint")
+    p.add_argument("--starts", type=int, default=4, help="random starts (default 4)")
+    p.add_argument("--criterion", choices=["cond", "logdet"], default="cond",
+                   help="cond: condition number (default); logdet: D-optimality")
+    p.add_argument("--margin", type=float, default=0.95,
+                   help="fraction of every limit the design may use (default 0.95)")
+    p.add_argument("--seed", type=int, default=1, help="random seed of the starts (default 1)")
+    p.add_argument("--out", metavar="CSV", help="write the reference trajectory here")
+    p.add_argument("--fs", type=float, metavar="HZ",
+                   help="sampling rate of the CSV (default: the robot's controller rate, else 1000)")
+    p.add_argument("--periods", type=int, default=1, help="whole periods in the CSV (default 1)")
+    p.add_argument("--json", metavar="PATH", help="write coefficients, cond(W) and margins as JSON "
+                                                  "('-': to stdout)")
+    p.add_argument("--report", metavar="PATH", help="write an HTML report here")
+
+    p = sub.add_parser("diagnose", parents=[common], help="find what the model lacks in the residual",
+                       description="Identify like 'identify', then look for effects the model lacks "
+                                   "(offsets, asymmetric or Stribeck friction, position ripple, springs, "
+                                   "couplings, time delay, drift, load-dependent friction, payload): "
+                                   "rank them by blocked cross-validation and a likelihood-ratio test, "
+                                   "add those that pass, and report the errors before and after.",
+                       epilog=EPILOG_DIAGNOSE, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("data", help="experiment file (.csv, .parquet, .npz, .mat, or .toml description)")
+    p.add_argument("--robot", required=True, help="bundled robot name or .toml/.urdf file")
+    _add_validation_options(p)
+    p.add_argument("--effects", metavar="LIST", help="comma-separated effects to consider (default all)")
+    p.add_argument("--max-effects", type=int, default=3, help="most effects added (default 3)")
+    p.add_argument("--alpha", type=float, default=0.01,
+                   help="family-wise level of the test at each step (default 0.01)")
+    p.add_argument("--no-offsets", action="store_true",
+                   help="remove the torque offsets Off_j from the model first (to test for them)")
+    p.add_argument("--report", metavar="PATH", help="write the HTML report here")
+    p.add_argument("--json", metavar="PATH", help=JSON_HELP)
+    _add_processing_options(p)
+
+    p = sub.add_parser("report", parents=[common], help="IDIM, DIDIM, posterior and diagnosis in one report",
+                       description="Run every analysis the data and the robot file allow and write one "
+                                   "HTML report: IDIM (OLS, WLS, essential parameters, validation), "
+                                   "DIDIM (if the robot has a controller), the Bayesian posterior of the "
+                                   "essential parameters, and the residual diagnosis. Exit code 3 if "
+                                   "DIDIM or the sampler did not converge (the report says so).",
+                       epilog=EPILOG_REPORT, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("data", nargs="+", help="experiment file(s), as for 'identify'")
+    p.add_argument("--robot", required=True, help="bundled robot name or .toml/.urdf file")
+    _add_validation_options(p)
+    p.add_argument("--report", metavar="PATH", required=True, help="write the HTML report here")
+    p.add_argument("--json", metavar="PATH", help=JSON_HELP)
+    p.add_argument("--skip", metavar="LIST", default="",
+                   help="comma-separated parts to leave out: didim, sample, diagnose")
+    p.add_argument("--seed", type=int, default=1, help="random seed of the sampler (default 1)")
+    p.add_argument("--max-seconds", type=float, default=60.0,
+                   help="time limit of the sampler (default 60 s)")
     _add_processing_options(p)
 
     p = sub.add_parser("demo", parents=[common], help="simulated TX40 -> identification -> report",
@@ -191,7 +289,7 @@ def build_parser():
                        epilog=EPILOG_DEMO, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--report", metavar="PATH", default="dynid-demo.html",
                    help="HTML report path (default dynid-demo.html)")
-    p.add_argument("--json", metavar="PATH", help="write the results as JSON here")
+    p.add_argument("--json", metavar="PATH", help=JSON_HELP)
     p.add_argument("--seed", type=int, default=1, help="random seed of the noise and trajectories (default 1)")
     p.add_argument("--duration", type=float, default=20.0, metavar="SECONDS",
                    help="length of the identification recording (default 20 s)")
@@ -199,7 +297,7 @@ def build_parser():
 
 
 def cmd_robot(args, say):
-    from analysis.provenance import atomic_write_text, dumps_json
+    from analysis.provenance import dumps_json
     from dynamics.base_parameters import base_parameters
     from dynamics.robot_file import bundled_robots, load_robot
     if args.list or not args.robot:
@@ -229,7 +327,7 @@ def cmd_robot(args, say):
         out.append("  " + rel)
     if bp.unidentifiable:
         out.append(f"\nno effect on the dynamics ({len(bp.unidentifiable)}): " + " ".join(bp.unidentifiable))
-    print("\n".join(out))
+    _show(args, "\n".join(out))
     if args.json:
         doc = {"robot": robot.name, "n_joints": robot.n_joints, "source": robot.source,
                "standard": names, "base": bp.table(), "unidentifiable": bp.unidentifiable,
@@ -237,8 +335,7 @@ def cmd_robot(args, say):
                "couplings": [{"motor": c.motor, "joints": list(c.joints),
                               "coefficients": list(c.coefficients)} for c in robot.couplings],
                "regrouping_matrix": bp.matrix.tolist(), "provenance": robot.provenance}
-        atomic_write_text(args.json, dumps_json(doc))
-        say(f"wrote {args.json}")
+        commit_outputs([(args.json, dumps_json(doc))], say)
     return EXIT_OK
 
 
@@ -265,10 +362,14 @@ def _write_outputs(args, say, result, robot, experiment, validation):
 
 
 def commit_outputs(outputs, say):
+    """Write ``(path, text)`` pairs all-or-none; the path ``-`` means stdout, written last."""
     from analysis.provenance import atomic_write_text
+    to_stdout = [text for path, text in outputs if path == "-"]
     written = []
     try:
         for path, text in outputs:
+            if path == "-":
+                continue
             atomic_write_text(path, text)
             written.append(path)
     except BaseException:
@@ -280,46 +381,60 @@ def commit_outputs(outputs, say):
         raise
     for path in written:
         say(f"wrote {path}")
+    for text in to_stdout:
+        sys.stdout.write(text if text.endswith("\n") else text + "\n")
+        sys.stdout.flush()
 
 
-def cmd_identify(args, say):
+def _show(args, *texts):
+    """Print human-readable summaries: on stdout, or on stderr when stdout carries the JSON."""
+    if args.quiet:
+        return
+    stream = sys.stderr if getattr(args, "json", None) == "-" else sys.stdout
+    print("\n\n".join(t for t in texts if t), file=stream)
+
+
+def _load_data(args, say, robot, paths):
+    """The identification experiments and the validation experiment (or None) of the options."""
     from analysis.experiment import load_experiment
-    from analysis.idim import identify_idim
-    from analysis.validation import validate
     from dynamics.errors import InputError
-    from dynamics.robot_file import load_robot
-    robot = load_robot(args.robot)
-    say(f"robot '{robot.name}' ({robot.n_joints} joints)")
     experiments = []
-    for path in args.data:
+    for path in paths:
         experiments.append(load_experiment(path, robot))
         say(f"loaded {path}: {experiments[-1].n_samples} samples at {experiments[-1].fs:g} Hz")
-    if args.validation and args.holdout:
-        raise InputError("give either --validation or --holdout, not both")
     valid = None
-    if args.validation:
+    if getattr(args, "validation", None):
         valid = load_experiment(args.validation, robot)
-    elif args.holdout:
+        say(f"validation {args.validation}: {valid.n_samples} samples")
+    elif getattr(args, "holdout", None) is not None:
+        if args.holdout <= 0:
+            raise InputError(f"--holdout must be a positive number of seconds, got {args.holdout:g}")
         if len(experiments) > 1:
             raise InputError("--holdout splits one recording; with several, use --validation")
         experiment = experiments[0]
         t_split = experiment.t[-1] - args.holdout
         if not experiment.t[0] < t_split:
-            raise InputError(f"--holdout {args.holdout} s is longer than the recording "
+            raise InputError(f"--holdout {args.holdout:g} s is longer than the recording "
                              f"({experiment.duration:.3g} s)")
         experiments, valid = [experiment.segment(None, t_split)], experiment.segment(t_split, None)
-    ident = experiments if len(experiments) > 1 else experiments[0]
+    return experiments, valid
+
+
+def cmd_identify(args, say):
+    from analysis.idim import identify_idim
+    from analysis.validation import validate
+    from dynamics.robot_file import load_robot
+    robot = load_robot(args.robot)
+    say(f"robot '{robot.name}' ({robot.n_joints} joints)")
+    experiments, valid = _load_data(args, say, robot, args.data)
     if args.method == "didim":
         return _identify_didim(args, say, robot, experiments, valid)
+    ident = experiments if len(experiments) > 1 else experiments[0]
     with say.progress("regressor and decimation") as bar:
         result = identify_idim(ident, robot, settings=_processing_settings(args),
                                max_error_growth=args.max_error_growth, progress=bar.update)
     validation = validate(result, valid, robot) if valid is not None else None
-    if not args.quiet:
-        print(result.summary())
-        if validation is not None:
-            print()
-            print(validation.summary())
+    _show(args, result.summary(), validation.summary() if validation is not None else "")
     _write_outputs(args, say, result, robot, experiments[0], validation)
     return EXIT_OK
 
@@ -339,8 +454,7 @@ def _identify_didim(args, say, robot, experiments, valid):
         result = identify_didim(exp, robot, settings=_processing_settings(args), reference=reference,
                                 max_iter=args.max_iter, max_error_growth=args.max_error_growth,
                                 progress=bar.update)
-    if not args.quiet:
-        print(result.summary())
+    _show(args, result.summary())
     outputs = []
     if args.json:
         outputs.append((args.json, dumps_json(result.to_dict())))
@@ -376,25 +490,41 @@ def cmd_simulate(args, say):
     traj = random_fourier_trajectory(robot, args.f0, args.harmonics, rng)
     exp = simulate_experiment(robot, chi, traj, args.duration, rng=rng, q_noise=args.noise_q,
                               tau_noise=args.noise_tau, name=f"simulated {robot.name} (seed {args.seed})")
-    commit_outputs([(args.out, exp.to_frame().to_csv(index=False, float_format="%.10g"))], say)
+    outputs = [(args.out, exp.to_frame().to_csv(index=False, float_format="%.10g"))]
+    if args.json:
+        from analysis.provenance import dumps_json, json_safe
+        bp = base_parameters(robot)
+        doc = json_safe({
+            "robot": robot.name, "seed": args.seed, "duration": args.duration, "fs": exp.fs,
+            "noise": {"q_std": args.noise_q, "tau_std": args.noise_tau},
+            "reference": {"f0": traj.f0, "harmonics": traj.harmonics, "a": traj.a, "b": traj.b,
+                          "q0": traj.q0},
+            "true_parameters": {"source": "the robot file's a-priori values",
+                                "base": dict(zip(bp.names, bp.from_standard(chi))),
+                                "standard": dict(zip(robot.standard_names, chi))},
+            "csv": args.out})
+        outputs.append((args.json, dumps_json(doc)))
+    commit_outputs(outputs, say)
     return EXIT_OK
 
 
 def cmd_sample(args, say):
     from analysis.bayes import sample_idim
-    from analysis.experiment import load_experiment
     from analysis.idim import identify_idim
     from analysis.provenance import dumps_json
     from dynamics.robot_file import load_robot
     robot = load_robot(args.robot)
-    experiments = [load_experiment(p, robot) for p in args.data]
-    result = identify_idim(experiments if len(experiments) > 1 else experiments[0], robot,
-                           settings=_processing_settings(args), max_error_growth=args.max_error_growth)
+    experiments, _ = _load_data(args, say, robot, args.data)
+    with say.progress("regressor and decimation") as bar:
+        result = identify_idim(experiments if len(experiments) > 1 else experiments[0], robot,
+                               settings=_processing_settings(args),
+                               max_error_growth=args.max_error_growth, progress=bar.update)
     say(f"sampling the posterior of the {args.which} parameters")
-    post = sample_idim(result, which=args.which, seed=args.seed, n_walkers=args.walkers,
-                       max_steps=args.max_steps, max_seconds=args.max_seconds)
-    if not args.quiet:
-        print(post.summary())
+    with say.progress("sampling (steps / steps needed)") as bar:
+        post = sample_idim(result, which=args.which, seed=args.seed, n_walkers=args.walkers,
+                           max_steps=args.max_steps, max_seconds=args.max_seconds,
+                           progress=lambda n, need: bar.update(n / max(need, 1)))
+    _show(args, post.summary())
     outputs = []
     if args.json:
         outputs.append((args.json, dumps_json(post.to_dict())))
@@ -418,16 +548,177 @@ def cmd_demo(args, say):
     from analysis.demo import run_demo
     result, robot, experiment, validation = run_demo(seed=args.seed, duration=args.duration,
                                                      say=say)
-    if not args.quiet:
-        print(result.summary())
-        print()
-        print(validation.summary())
+    _show(args, result.summary(), validation.summary())
     _write_outputs(args, say, result, robot, experiment, validation)
     return EXIT_OK
 
 
-COMMANDS = {"robot": cmd_robot, "simulate": cmd_simulate, "identify": cmd_identify, "sample": cmd_sample,
-            "demo": cmd_demo}
+def cmd_excite(args, say):
+    from analysis.provenance import dumps_json
+    from dynamics.errors import InputError
+    from dynamics.excitation import design_excitation
+    from dynamics.robot_file import load_robot
+    robot = load_robot(args.robot)
+    if args.periods < 1:
+        raise InputError(f"--periods must be at least 1, got {args.periods}")
+    fs = args.fs if args.fs is not None else (robot.controller.rate if robot.controller else 1000.0)
+    if not fs > 0:
+        raise InputError(f"--fs must be a positive sampling rate in Hz, got {fs:g}")
+    if not args.out and not args.json and not args.report:
+        say("note: no --out, --json or --report given; only the summary is printed")
+    with say.progress(f"excitation design ({args.starts} starts)") as bar:
+        res = design_excitation(robot, args.f0, args.harmonics, n_starts=args.starts,
+                                criterion=args.criterion, margin=args.margin, rng=args.seed,
+                                progress=bar.update)
+    _show(args, res.summary())
+    outputs = []
+    if args.out:
+        outputs.append((args.out, res.to_frame(fs, args.periods).to_csv(
+            index=False, lineterminator="\n", float_format="%.17g")))
+    if args.json:
+        doc = res.to_dict()
+        doc["csv"] = {"fs": fs, "periods": args.periods} if args.out else None
+        outputs.append((args.json, dumps_json(doc)))
+    if args.report:
+        from reports.bona_section import excitation_section
+        from reports.html import render_sections
+        outputs.append((args.report, render_sections([excitation_section(res, robot)],
+                                                     title=f"Excitation design for {robot.name}")))
+    commit_outputs(outputs, say)
+    if not res.feasible:
+        print("dynid excite: no optimised trajectory respected every limit; the outputs hold the "
+              "best random start (see the margins)", file=sys.stderr)
+    return EXIT_OK
+
+
+def _effects_option(value):
+    from analysis.effects import check_effect_names
+    if not value:
+        return None
+    names = [x.strip() for x in value.split(",") if x.strip()]
+    check_effect_names(names)
+    return names
+
+
+def _run_diagnosis(args, say, robot, experiment, valid, idim_result):
+    from analysis.diagnosis import diagnose
+    kwargs = dict(validation=valid, effects=_effects_option(getattr(args, "effects", None)),
+                  max_effects=getattr(args, "max_effects", 3), alpha=getattr(args, "alpha", 0.01))
+    if getattr(args, "no_offsets", False):
+        return diagnose(experiment, robot, settings=_processing_settings(args),
+                        exclude_parameters=("Off",), **kwargs)
+    return diagnose(experiment, robot, idim_result=idim_result, **kwargs)
+
+
+def cmd_diagnose(args, say):
+    from analysis.idim import identify_idim
+    from analysis.provenance import dumps_json
+    from dynamics.robot_file import load_robot
+    robot = load_robot(args.robot)
+    _effects_option(args.effects)          # bad names fail before the long work
+    experiments, valid = _load_data(args, say, robot, [args.data])
+    experiment = experiments[0]
+    result = None
+    if not args.no_offsets:
+        with say.progress("regressor and decimation") as bar:
+            result = identify_idim(experiment, robot, settings=_processing_settings(args),
+                                   max_error_growth=args.max_error_growth, progress=bar.update)
+    say("scoring candidate effects")
+    diag = _run_diagnosis(args, say, robot, experiment, valid, result)
+    result = diag.idim if diag.idim is not None else result
+    _show(args, diag.summary())
+    outputs = []
+    if args.json:
+        outputs.append((args.json, dumps_json(diag.to_dict())))
+    if args.report:
+        from reports.diagnosis_section import diagnosis_sections
+        from reports.html import render_idim_report
+        outputs.append((args.report, render_idim_report(result, robot, experiment,
+                                                        extra_sections=diagnosis_sections(diag, robot))))
+    commit_outputs(outputs, say)
+    return EXIT_OK
+
+
+REPORT_PARTS = ("didim", "sample", "diagnose")
+
+
+def cmd_report(args, say):
+    from analysis.idim import identify_idim
+    from analysis.provenance import dumps_json
+    from analysis.validation import validate
+    from dynamics.errors import InputError
+    from dynamics.robot_file import load_robot
+    skip = {x.strip() for x in args.skip.split(",") if x.strip()}
+    unknown = skip - set(REPORT_PARTS)
+    if unknown:
+        raise InputError(f"--skip takes {', '.join(REPORT_PARTS)}; unknown: {', '.join(sorted(unknown))}")
+    robot = load_robot(args.robot)
+    say(f"robot '{robot.name}' ({robot.n_joints} joints)")
+    experiments, valid = _load_data(args, say, robot, args.data)
+    ident = experiments if len(experiments) > 1 else experiments[0]
+    settings = _processing_settings(args)
+    with say.progress("IDIM: regressor and decimation") as bar:
+        result = identify_idim(ident, robot, settings=settings, max_error_growth=args.max_error_growth,
+                               progress=bar.update)
+    validation = validate(result, valid, robot) if valid is not None else None
+    doc = {"idim": result.to_dict(), "validation": validation.to_dict() if validation else None}
+    texts = [result.summary(), validation.summary() if validation else ""]
+    extra, problems = [], []
+    if "didim" not in skip:
+        if robot.controller is None:
+            say(f"DIDIM skipped: robot '{robot.name}' has no [controller] to simulate")
+        elif len(experiments) > 1:
+            say("DIDIM skipped: it identifies one recording at a time")
+        else:
+            from analysis.didim import identify_didim
+            from reports.didim_section import didim_sections
+            exp = experiments[0]
+            with say.progress("DIDIM iterations") as bar:
+                dres = identify_didim(exp, robot, settings=settings,
+                                      reference="qr" if exp.qr is not None else "q",
+                                      max_error_growth=args.max_error_growth, progress=bar.update)
+            extra += didim_sections(dres)
+            doc["didim"] = dres.to_dict()
+            texts.append(dres.summary())
+            if not dres.converged:
+                problems.append(f"DIDIM did not converge ({dres.stop_reason})")
+    if "sample" not in skip:
+        from analysis.bayes import sample_idim
+        from reports.bayes_section import bayes_sections
+        with say.progress("sampling (steps / steps needed)") as bar:
+            post = sample_idim(result, which="essential", seed=args.seed, max_seconds=args.max_seconds,
+                               progress=lambda n, need: bar.update(n / max(need, 1)))
+        extra += bayes_sections(post)
+        doc["posterior"] = post.to_dict()
+        texts.append(post.summary())
+        if not post.converged:
+            problems.append(f"the sampler did not converge ({post.reason})")
+    if "diagnose" not in skip:
+        if len(experiments) > 1:
+            say("diagnosis skipped: it works on one recording at a time")
+        else:
+            from reports.diagnosis_section import diagnosis_sections
+            say("diagnosis: scoring candidate effects")
+            diag = _run_diagnosis(args, say, robot, experiments[0], valid, result)
+            extra += diagnosis_sections(diag, robot)
+            doc["diagnosis"] = diag.to_dict()
+            texts.append(diag.summary())
+    _show(args, *texts)
+    from reports.html import render_idim_report
+    outputs = [(args.report, render_idim_report(result, robot, experiments[0], validation,
+                                                extra_sections=extra))]
+    if args.json:
+        doc["problems"] = problems
+        outputs.append((args.json, dumps_json(doc)))
+    commit_outputs(outputs, say)
+    if problems:
+        print("dynid report: " + "; ".join(problems) + "; the report says so", file=sys.stderr)
+        return EXIT_NOT_CONVERGED
+    return EXIT_OK
+
+
+COMMANDS = {"robot": cmd_robot, "simulate": cmd_simulate, "excite": cmd_excite, "identify": cmd_identify,
+            "sample": cmd_sample, "diagnose": cmd_diagnose, "report": cmd_report, "demo": cmd_demo}
 
 
 def _terminate(signum, frame):

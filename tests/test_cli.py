@@ -75,12 +75,23 @@ def test_console_script_module_runs():
     assert out.returncode == 0 and "tx40" in out.stdout
 
 
+# the smallest valid command line of each subcommand; a new subcommand must be added here
+MINIMAL_ARGS = {
+    "robot": [], "demo": [],
+    "identify": ["x", "--robot", "tx40"], "sample": ["x", "--robot", "tx40"],
+    "diagnose": ["x", "--robot", "tx40"], "report": ["x", "--robot", "tx40", "--report", "r.html"],
+    "simulate": ["--robot", "tx40", "--out", "x.csv"],
+    "excite": ["--robot", "tx40", "--f0", "0.1", "--harmonics", "5"],
+}
+
+
 def test_parser_is_consistent():
     parser = build_parser()
+    assert set(MINIMAL_ARGS) == set(COMMANDS)
     for command in COMMANDS:
-        extra = {"identify": ["x", "--robot", "tx40"], "simulate": ["--robot", "tx40", "--out", "x.csv"]}
-        args = parser.parse_args([command] + extra.get(command, []))
-        assert args.command == command and hasattr(args, "quiet")
+        args = parser.parse_args([command] + MINIMAL_ARGS[command])
+        assert args.command == command and hasattr(args, "quiet") and hasattr(args, "debug")
+        assert hasattr(args, "json"), f"{command} has no --json"
 
 
 def test_simulate_then_identify_recovers_the_robot_file_values(tmp_path):
@@ -138,3 +149,96 @@ def test_identify_didim_from_reference_and_torque_only(tmp_path):
     est = {p["name"]: p["value"] for p in doc["parameters"]}
     assert est["ZZ1R"] == pytest.approx(0.6667 + 0.05 + 2.0, rel=0.03)
     assert est["MX1R"] == pytest.approx(3.0, rel=0.03)
+
+
+def test_excite_tx40_as_in_the_issue_respects_limits_in_the_written_csv(tmp_path):
+    """`dynid excite --robot tx40 --f0 0.1 --harmonics 5 --out traj.csv --json ex.json`.
+
+    The CSV is checked on its own: velocities within the robot file's limits,
+    positions within the ranges, and q consistent with the integral of qd
+    (trapezoid rule over the written samples, independent of the Fourier formulae).
+    """
+    import numpy as np
+    import pandas as pd
+    from dynamics.robot_file import load_robot
+    traj, js = tmp_path / "traj.csv", tmp_path / "ex.json"
+    assert main(["excite", "--robot", "tx40", "--f0", "0.1", "--harmonics", "5", "--out", str(traj),
+                 "--json", str(js), "--quiet"]) == 0
+    doc = json.loads(js.read_text())
+    assert np.shape(doc["a"]) == (6, 5) and np.shape(doc["b"]) == (6, 5) and len(doc["q0"]) == 6
+    assert doc["feasible"] and doc["cond_result"] < doc["cond_start"]
+    assert set(doc["margins"]) == {f"j{k}" for k in range(1, 7)}
+    frame = pd.read_csv(traj)
+    robot = load_robot("tx40")
+    q_min, q_max, qd_max, qdd_max, _ = robot.limits()
+    q = frame[[f"qr{k}" for k in range(1, 7)]].to_numpy()
+    qd = frame[[f"qdr{k}" for k in range(1, 7)]].to_numpy()
+    qdd = frame[[f"qddr{k}" for k in range(1, 7)]].to_numpy()
+    t = frame["t"].to_numpy()
+    assert t[-1] + (t[1] - t[0]) == pytest.approx(10.0)      # one whole period of 1 / f0
+    assert np.all(q >= q_min) and np.all(q <= q_max)
+    assert np.all(np.abs(qd) <= qd_max) and np.all(np.abs(qdd) <= qdd_max)
+    q_int = q[0] + np.concatenate([np.zeros((1, 6)), np.cumsum((qd[1:] + qd[:-1]) / 2 * np.diff(t)[:, None], 0)])
+    assert np.max(np.abs(q_int - q)) < 1e-4
+
+
+def test_excite_json_to_stdout_is_the_only_stdout(capsys):
+    assert main(["excite", "--robot", "planar2", "--f0", "0.2", "--harmonics", "3", "--starts", "1",
+                 "--json", "-"]) == 0
+    captured = capsys.readouterr()
+    doc = json.loads(captured.out)                 # nothing but the JSON on stdout
+    assert doc["robot"] == "planar2" and doc["harmonics"] == 3
+    assert "cond" in captured.err                  # the summary went to stderr
+
+
+def test_identify_json_to_stdout(tmp_path, capsys):
+    csv = tmp_path / "run.csv"
+    assert main(["simulate", "--robot", "planar2", "--duration", "8", "--out", str(csv), "--quiet"]) == 0
+    capsys.readouterr()
+    assert main(["identify", str(csv), "--robot", "planar2", "--json", "-"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert {p["name"] for p in doc["parameters"]} >= {"ZZ1R", "MX1R", "ZZ2"}
+
+
+def test_diagnose_finds_an_injected_torque_offset(tmp_path):
+    """A constant 2 N m added to the logged torque of joint 2 of a simulated run,
+    diagnosed without the Off_j columns: the offset (or its alias on these data,
+    an asymmetric Coulomb term) is selected on joint 2, and the error drops."""
+    import pandas as pd
+    csv, js, html = tmp_path / "run.csv", tmp_path / "d.json", tmp_path / "d.html"
+    assert main(["simulate", "--robot", "planar2", "--duration", "16", "--seed", "3", "--out", str(csv),
+                 "--quiet"]) == 0
+    frame = pd.read_csv(csv)
+    frame["tau2"] += 2.0
+    frame.to_csv(csv, index=False)
+    assert main(["diagnose", str(csv), "--robot", "planar2", "--holdout", "4", "--no-offsets",
+                 "--json", str(js), "--report", str(html), "--quiet"]) == 0
+    doc = json.loads(js.read_text())
+    first = doc["selected"][0]
+    assert first["joint"] == 2 and first["name"] in ("offset", "asymmetric_coulomb")
+    err = doc["errors"]["validation"]
+    assert err["after"]["rel_error"] < 0.8 * err["before"]["rel_error"]
+    assert "diagnos" in html.read_text().lower()
+
+
+def test_diagnose_rejects_unknown_effect_names_before_any_work(capsys):
+    assert main(["diagnose", "nonexistent.csv", "--robot", "planar2", "--effects", "stribeck,gremlins"]) == 2
+    assert "gremlins" in capsys.readouterr().err
+
+
+def test_report_runs_every_part_on_one_recording(tmp_path):
+    csv, js, html = tmp_path / "run.csv", tmp_path / "r.json", tmp_path / "r.html"
+    assert main(["simulate", "--robot", "planar2", "--duration", "12", "--out", str(csv), "--quiet"]) == 0
+    code = main(["report", str(csv), "--robot", "planar2", "--holdout", "3", "--max-seconds", "20",
+                 "--report", str(html), "--json", str(js), "--quiet"])
+    doc = json.loads(js.read_text())
+    assert code == (3 if doc["problems"] else 0)
+    assert set(doc) >= {"idim", "validation", "didim", "posterior", "diagnosis"}
+    text = html.read_text()
+    for word in ("DIDIM", "osterior", "iagnosis", "alidation"):
+        assert word in text
+
+
+def test_report_rejects_unknown_parts(capsys):
+    assert main(["report", "x.csv", "--robot", "planar2", "--report", "r.html", "--skip", "didim,magic"]) == 2
+    assert "magic" in capsys.readouterr().err
