@@ -48,4 +48,4 @@ def run_demo(seed=1, duration=20.0, say=print):
     result = identify_idim(ident, robot, bp=bp)
     result.truth = dict(zip(bp.names, beta))
     validation = validate(result, valid, robot)
-    return result, robot, ident, validation
+    return result, robot, ident, validation, valid

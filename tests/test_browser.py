@@ -64,14 +64,16 @@ def test_demo_report_in_chromium(tmp_path):
     assert external == [], external
     assert shot.stat().st_size > 10_000
     ids = [s["id"] for s in ev["sections"]]
-    for expected in ("run", "model", "base-parameters", "table2", "essential-path", "torques", "validation"):
+    for expected in ("run", "model", "base-parameters", "table2", "essential-path", "torques", "validation",
+                     "didim-convergence", "didim-table2", "posterior", "diagnosis", "diagnosis-residuals"):
         assert expected in ids
         assert "#" + expected in ev["nav"]
     for s in ev["sections"]:
         assert s["h2"] and s["h2"].strip(), s
     # every section that shows results has its figure
     figured = {s["id"]: s["figures"] for s in ev["sections"]}
-    for sid in ("essential-path", "torques", "validation"):
+    for sid in ("essential-path", "torques", "validation", "didim-convergence", "didim-torques",
+                "posterior", "diagnosis-residuals"):
         assert figured[sid] >= 1, sid
 
 

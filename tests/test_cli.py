@@ -242,3 +242,24 @@ def test_report_runs_every_part_on_one_recording(tmp_path):
 def test_report_rejects_unknown_parts(capsys):
     assert main(["report", "x.csv", "--robot", "planar2", "--report", "r.html", "--skip", "didim,magic"]) == 2
     assert "magic" in capsys.readouterr().err
+
+
+def test_identify_projection_method_recovers_the_robot_file_values(tmp_path):
+    csv, js = tmp_path / "run.csv", tmp_path / "pm.json"
+    assert main(["simulate", "--robot", "planar2", "--duration", "8", "--out", str(csv), "--quiet"]) == 0
+    assert main(["identify", str(csv), "--robot", "planar2", "--method", "projection", "--json", str(js),
+                 "--quiet"]) == 0
+    est = {p["name"]: p for p in json.loads(js.read_text())["parameters"]}
+    # closed-form regrouping of planar2.toml's a-priori values (as in the IDIM test above)
+    for name, value in {"ZZ1R": 0.6667 + 0.05 + 2.0, "MX1R": 3.0, "ZZ2": 0.6667, "MX2": 1.0}.items():
+        assert abs(est[name]["value"] - value) <= 3 * est[name]["std"], name
+        assert est[name]["std"] < 0.25 * abs(value), name          # and the test has teeth
+
+
+def test_identify_projection_needs_the_reference(tmp_path, capsys):
+    import pandas as pd
+    csv = tmp_path / "run.csv"
+    assert main(["simulate", "--robot", "planar2", "--duration", "4", "--out", str(csv), "--quiet"]) == 0
+    pd.read_csv(csv).drop(columns=["qr1", "qr2"]).to_csv(csv, index=False)
+    assert main(["identify", str(csv), "--robot", "planar2", "--method", "projection"]) == 2
+    assert "qr" in capsys.readouterr().err
