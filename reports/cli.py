@@ -30,6 +30,7 @@ EPILOG_IDENTIFY = """examples:
   dynid identify rec2.toml rec3.toml --robot kuka_lwr4 --validation rec1.toml
   dynid identify run.csv --robot tx40 --method didim --report didim.html
   dynid identify run.csv --robot planar2 --method projection --json pm.json
+  dynid identify run.csv --robot tx40 --asymmetric-friction --report out.html
 """
 EPILOG_SIMULATE = """examples:
   dynid simulate --robot tx40 --out run.csv                    20 s of a random Fourier reference
@@ -178,6 +179,9 @@ def build_parser():
                         "when the file has no qr, the measured q is tracked instead, with a notice); "
                         "projection (Bona & Curatella's Projection Method for closed-loop data: needs "
                         "q, qr and tau; removes the bias of noise fed back by the controller)")
+    p.add_argument("--asymmetric-friction", action="store_true",
+                   help="IDIM: also give each joint's friction with different viscous and Coulomb "
+                        "coefficients for positive and negative velocity (Bona & Curatella eq. (2))")
     p.add_argument("--max-iter", type=int, default=10, help="DIDIM: largest number of Gauss-Newton steps")
     p.add_argument("--gain-update", choices=list(GAIN_UPDATES), default="every",
                    help="DIDIM: scale the simulated derivative gains by J_j/J_ap_j (eq. 27) at every "
@@ -361,7 +365,7 @@ def cmd_robot(args, say):
     return EXIT_OK
 
 
-def _write_outputs(args, say, result, robot, experiment, validation):
+def _write_outputs(args, say, result, robot, experiment, validation, asym=None):
     """Render every requested output in memory, then write them all or none.
 
     Each file is written atomically (temp file + rename); if the run is
@@ -374,12 +378,19 @@ def _write_outputs(args, say, result, robot, experiment, validation):
         doc = result.to_dict()
         if validation is not None:
             doc["validation"] = validation.to_dict()
+        if asym is not None:
+            doc["asymmetric_friction"] = asym.to_dict()
         outputs.append((args.json, dumps_json(doc)))
     if getattr(args, "csv", None):
         outputs.append((args.csv, result.model.to_frame().to_csv()))
     if args.report:
         from reports.html import render_idim_report
-        outputs.append((args.report, render_idim_report(result, robot, experiment, validation)))
+        extra = []
+        if asym is not None:
+            from reports.friction_section import asymmetric_friction_section
+            extra.append(asymmetric_friction_section(asym))
+        outputs.append((args.report, render_idim_report(result, robot, experiment, validation,
+                                                        extra_sections=extra)))
     commit_outputs(outputs, say)
 
 
@@ -458,8 +469,16 @@ def cmd_identify(args, say):
         result = identify_idim(ident, robot, settings=_processing_settings(args),
                                max_error_growth=args.max_error_growth, progress=bar.update)
     validation = validate(result, valid, robot) if valid is not None else None
-    _show(args, result.summary(), validation.summary() if validation is not None else "")
-    _write_outputs(args, say, result, robot, experiments[0], validation)
+    asym = None
+    if args.asymmetric_friction:
+        from analysis.asymmetric_friction import asymmetric_friction
+        from dynamics.errors import InputError
+        if len(experiments) > 1:
+            raise InputError("--asymmetric-friction works on one recording at a time")
+        asym = asymmetric_friction(experiments[0], robot, result)
+    _show(args, result.summary(), validation.summary() if validation is not None else "",
+          asym.summary() if asym is not None else "")
+    _write_outputs(args, say, result, robot, experiments[0], validation, asym)
     return EXIT_OK
 
 

@@ -263,3 +263,15 @@ def test_identify_projection_needs_the_reference(tmp_path, capsys):
     pd.read_csv(csv).drop(columns=["qr1", "qr2"]).to_csv(csv, index=False)
     assert main(["identify", str(csv), "--robot", "planar2", "--method", "projection"]) == 2
     assert "qr" in capsys.readouterr().err
+
+
+def test_identify_asymmetric_friction_goes_to_json_and_report(tmp_path):
+    csv, js, html = tmp_path / "run.csv", tmp_path / "a.json", tmp_path / "a.html"
+    assert main(["simulate", "--robot", "planar2", "--duration", "8", "--out", str(csv), "--quiet"]) == 0
+    assert main(["identify", str(csv), "--robot", "planar2", "--asymmetric-friction", "--json", str(js),
+                 "--report", str(html), "--quiet"]) == 0
+    joints = json.loads(js.read_text())["asymmetric_friction"]["joints"]
+    # planar2.toml: symmetric friction Fv1 = 0.5, Fc1 = 1.0 -> both signs alike
+    for key, value in (("Fv+", 0.5), ("Fv-", 0.5), ("Fc+", 1.0), ("Fc-", 1.0)):
+        assert abs(joints[0][key]["value"] - value) < 4 * joints[0][key]["std"] + 0.02 * value, key
+    assert 'id="asymmetric-friction"' in html.read_text()

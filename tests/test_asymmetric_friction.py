@@ -1,0 +1,69 @@
+"""Asymmetric friction of the full robot (Bona & Curatella eq. (2)) from the symmetric model + |qd|."""
+import dataclasses
+
+import numpy as np
+import pytest
+
+from analysis.asymmetric_friction import asymmetric_friction
+from analysis.idim import identify_idim
+from analysis.synthetic import apriori_parameters, simulate_experiment
+from dynamics.base_parameters import base_parameters
+from dynamics.errors import InputError
+from dynamics.robot_file import load_robot
+from dynamics.trajectories import random_fourier_trajectory
+
+# Added to the logged torque: Fv+ = Fv + dFv, Fv- = Fv - dFv, Fc+ = Fc + dFc, Fc- = Fc - dFc
+D_FV = np.array([0.2, -0.1])
+D_FC = np.array([0.4, 0.15])
+
+
+@pytest.fixture(scope="module")
+def asymmetric_run():
+    robot = load_robot("planar2")
+    bp = base_parameters(robot)
+    chi = apriori_parameters(robot, bp)
+    rng = np.random.default_rng(2)
+    traj = random_fourier_trajectory(robot, 0.1, 8, rng)
+    exp = simulate_experiment(robot, chi, traj, 30.0, rng=rng, q_noise=1e-6, tau_noise=0.05)
+    # the unmodelled friction, from the velocity of the (nearly noise-free) measured motion
+    qd = np.gradient(exp.q, exp.t, axis=0)
+    exp = dataclasses.replace(exp, tau=exp.tau + D_FV * np.abs(qd) + D_FC * np.abs(np.sign(qd)))
+    fv = np.array([chi[robot.standard_names.index(f"Fv{j}")] for j in (1, 2)])
+    fc = np.array([chi[robot.standard_names.index(f"Fc{j}")] for j in (1, 2)])
+    truth = np.column_stack([fv + D_FV, fv - D_FV, fc + D_FC, fc - D_FC])
+    res = identify_idim(exp, robot)
+    return robot, exp, res, truth
+
+
+def test_asymmetric_coefficients_are_recovered_with_honest_sigma(asymmetric_run):
+    robot, exp, res, truth = asymmetric_run
+    a = asymmetric_friction(exp, robot, res)
+    print("\n" + a.summary())
+    z = (a.values - truth) / a.sigma
+    assert np.all(np.abs(z) < 4), z
+    assert np.all(np.abs(a.values - truth) < 0.03 * np.abs(truth)), a.values - truth
+    # the symmetric model cannot express it: the extra |qd| column lowers the error
+    assert a.fit.rel_error < 0.9 * a.rel_error_before
+    doc = a.to_dict()
+    assert doc["joints"][0]["Fv+"]["value"] == pytest.approx(a.values[0, 0])
+    assert list(a.to_frame().columns[:2]) == ["Fv+", "sigma Fv+"]
+
+
+def test_symmetric_friction_gives_equal_coefficients(asymmetric_run):
+    robot = asymmetric_run[0]
+    bp = base_parameters(robot)
+    chi = apriori_parameters(robot, bp)
+    rng = np.random.default_rng(5)
+    traj = random_fourier_trajectory(robot, 0.1, 8, rng)
+    sym = simulate_experiment(robot, chi, traj, 20.0, rng=rng, q_noise=1e-5, tau_noise=0.05)
+    a = asymmetric_friction(sym, robot, identify_idim(sym, robot))
+    dv, dc = a.values[:, 0] - a.values[:, 1], a.values[:, 2] - a.values[:, 3]
+    sv = np.hypot(a.sigma[:, 0], a.sigma[:, 1])
+    sc = np.hypot(a.sigma[:, 2], a.sigma[:, 3])
+    assert np.all(np.abs(dv) < 4 * sv) and np.all(np.abs(dc) < 4 * sc)
+
+
+def test_bad_joint_numbers_are_refused(asymmetric_run):
+    robot, exp, res, _ = asymmetric_run
+    with pytest.raises(InputError, match="between 1 and 2"):
+        asymmetric_friction(exp, robot, res, joints=[3])
