@@ -31,6 +31,7 @@ EPILOG_IDENTIFY = """examples:
   dynid identify run.csv --robot tx40 --method didim --report didim.html
   dynid identify run.csv --robot planar2 --method projection --json pm.json
   dynid identify run.csv --robot tx40 --asymmetric-friction --report out.html
+  dynid identify rec1.toml --robot kuka_lwr4 --urdf kuka_identified.urdf
 """
 EPILOG_SIMULATE = """examples:
   dynid simulate --robot tx40 --out run.csv                    20 s of a random Fourier reference
@@ -190,6 +191,9 @@ def build_parser():
     p.add_argument("--report", metavar="PATH", help="write the HTML report here")
     p.add_argument("--json", metavar="PATH", help=JSON_HELP)
     p.add_argument("--csv", metavar="PATH", help="write the essential parameters as CSV here")
+    p.add_argument("--urdf", metavar="PATH",
+                   help="IDIM: write a URDF with a physically consistent standard parameter set that "
+                        "reproduces the identified essential parameters as closely as consistency allows")
     _add_processing_options(p)
 
     p = sub.add_parser("simulate", parents=[common], help="simulate a robot in closed loop to a CSV",
@@ -365,7 +369,7 @@ def cmd_robot(args, say):
     return EXIT_OK
 
 
-def _write_outputs(args, say, result, robot, experiment, validation, asym=None):
+def _write_outputs(args, say, result, robot, experiment, validation, asym=None, export=None):
     """Render every requested output in memory, then write them all or none.
 
     Each file is written atomically (temp file + rename); if the run is
@@ -380,7 +384,11 @@ def _write_outputs(args, say, result, robot, experiment, validation, asym=None):
             doc["validation"] = validation.to_dict()
         if asym is not None:
             doc["asymmetric_friction"] = asym.to_dict()
+        if export is not None:
+            doc["urdf_export"] = export.to_dict()
         outputs.append((args.json, dumps_json(doc)))
+    if export is not None:
+        outputs.append((args.urdf, export.text))
     if getattr(args, "csv", None):
         outputs.append((args.csv, result.model.to_frame().to_csv()))
     if args.report:
@@ -389,6 +397,8 @@ def _write_outputs(args, say, result, robot, experiment, validation, asym=None):
         if asym is not None:
             from reports.friction_section import asymmetric_friction_section
             extra.append(asymmetric_friction_section(asym))
+        if export is not None:
+            extra.append(export.section())
         outputs.append((args.report, render_idim_report(result, robot, experiment, validation,
                                                         extra_sections=extra)))
     commit_outputs(outputs, say)
@@ -478,7 +488,14 @@ def cmd_identify(args, say):
         asym = asymmetric_friction(experiments[0], robot, result)
     _show(args, result.summary(), validation.summary() if validation is not None else "",
           asym.summary() if asym is not None else "")
-    _write_outputs(args, say, result, robot, experiments[0], validation, asym)
+    export = None
+    if args.urdf:
+        from reports.urdf_export import export_urdf
+        say("choosing a physically consistent standard parameter set for the URDF")
+        export = export_urdf(result, robot)
+        say(f"URDF: {'consistent' if export.consistent else 'NOT consistent'}; "
+            f"{'reproduces the identified values' if export.reproduces else 'does not reproduce the identified values (see the report)'}")
+    _write_outputs(args, say, result, robot, experiments[0], validation, asym, export)
     return EXIT_OK
 
 
