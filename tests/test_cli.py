@@ -233,7 +233,7 @@ def test_report_runs_every_part_on_one_recording(tmp_path):
                  "--report", str(html), "--json", str(js), "--quiet"])
     doc = json.loads(js.read_text())
     assert code == (3 if doc["problems"] else 0)
-    assert set(doc) >= {"idim", "validation", "didim", "posterior", "diagnosis"}
+    assert set(doc) >= {"parameters", "essential", "validation", "didim", "posterior", "diagnosis"}
     text = html.read_text()
     for word in ("DIDIM", "osterior", "iagnosis", "alidation"):
         assert word in text
