@@ -54,13 +54,15 @@ def apriori_parameters(robot, bp):
 
 
 def simulate_experiment(robot, chi_st, trajectory, duration, *, rng, tau_noise, q_noise,
-                        fs=None, name="simulated", v_s=0.01, substeps=4, feedforward=True):
+                        fs=None, name="simulated", v_s=0.01, substeps=4, feedforward=True,
+                        progress=None):
     """Closed-loop run of ``trajectory`` for ``duration`` s, as a noisy Experiment.
 
     The controller of the robot description (with velocity feedforward by
     default, as industrial controllers have) runs at its rate (the sampling
     rate ``fs`` by default); measured q and tau get white Gaussian noise of standard
     deviation ``q_noise`` (rad) and ``tau_noise`` (N m), scalars or per joint.
+    ``progress(fraction)`` is passed to the simulation.
     """
     fs = float(robot.controller.rate if fs is None else fs)
     t = np.arange(int(round(duration * fs))) / fs
@@ -68,7 +70,7 @@ def simulate_experiment(robot, chi_st, trajectory, duration, *, rng, tau_noise, 
     # v_s and substeps: Coulomb friction smoothed over 0.01 rad/s, well inside the
     # identification's dead zone, and an RK4 step small enough for that stiffness.
     sim = simulate_closed_loop(robot, chi_st, t, qr, qdr, q0=qr[0], qd0=qdr[0], v_s=v_s,
-                               substeps=substeps, feedforward=feedforward)
+                               substeps=substeps, feedforward=feedforward, progress=progress)
     n = robot.n_joints
     q_noise = np.broadcast_to(np.asarray(q_noise, dtype=float), (n,))
     tau_noise = np.broadcast_to(np.asarray(tau_noise, dtype=float), (n,))

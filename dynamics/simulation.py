@@ -203,17 +203,18 @@ def _integrate_interval(model, ws, stg, q, qd, tau, a1, dt, substeps, v_s):
 
 @njit(cache=True, nogil=True)
 def _closed_loop(model, v_s, t, substeps, qr, qdr, ff, pid, Kv, kp, Ki, gain, tau_max, I_max,
-                 T, q0, qd0, Q, QD, QDD, TAU, SAT):
-    """Closed-loop simulation; returns (status, sample index of the failure or -1)."""
+                 T, q, qd, integ, k0, k1, Q, QD, QDD, TAU, SAT):
+    """Closed-loop simulation of samples k0..k1-1; returns (status, sample index of the failure or -1).
+
+    The state (q, qd, integral of the PID) is updated in place, so consecutive
+    calls over adjacent ranges give exactly the result of one call.
+    """
     N, n = Q.shape
     ws = _workspace(n)
     stg = _stages(n)
-    q = q0.copy()
-    qd = qd0.copy()
-    integ = np.zeros(n)
     tau = np.empty(n)
     a1 = np.empty(n)
-    for k in range(N):
+    for k in range(k0, k1):
         for j in range(n):
             e = qr[k, j] - q[j]
             u = kp[j] * e - qd[j]
@@ -410,7 +411,7 @@ def _controller_of(robot, controller):
 
 def simulate_closed_loop(robot, chi_st, t, qr, qdr=None, *, q0=None, qd0=None, controller=None,
                          kd_scale=None, substeps=1, v_s=DEFAULT_V_S, feedforward=False,
-                         rate=None, saturate=True) -> SimulationResult:
+                         rate=None, saturate=True, progress=None) -> SimulationResult:
     """Simulate the robot with parameters ``chi_st`` tracking ``qr`` under its controller.
 
     Parameters
@@ -433,6 +434,7 @@ def simulate_closed_loop(robot, chi_st, t, qr, qdr=None, *, q0=None, qd0=None, c
     feedforward : add the reference velocity ``kv qdr`` to the PD.
     rate : controller rate in Hz, overriding ``controller.rate``.
     saturate : clip the torque at the joints' ``tau_max`` (default True).
+    progress : callable(fraction in [0, 1]) called as the simulation advances.
     """
     c = _controller_of(robot, controller)
     n = robot.n_joints
@@ -512,9 +514,18 @@ def simulate_closed_loop(robot, chi_st, t, qr, qdr=None, *, q0=None, qd0=None, c
     QDD = np.empty((N, n))
     TAU = np.empty((N, n))
     SAT = np.zeros(n, dtype=np.int64)
-    status, idx = _closed_loop(ma.kernel_args(), v_s, np.ascontiguousarray(grid), substeps,
-                               qr_g, qdr_g, bool(feedforward), pid, Kv, kp, Ki, gain, tau_max,
-                               I_max, T, q0, qd0, Q, QD, QDD, TAU, SAT)
+    q_state, qd_state, integ = q0.copy(), qd0.copy(), np.zeros(n)
+    args = (ma.kernel_args(), v_s, np.ascontiguousarray(grid), substeps, qr_g, qdr_g, bool(feedforward),
+            pid, Kv, kp, Ki, gain, tau_max, I_max, T, q_state, qd_state, integ)
+    # chunks only to report progress; the state carries over exactly
+    n_chunks = 1 if progress is None else max(1, min(50, N // 2000))
+    bounds = np.linspace(0, N, n_chunks + 1).astype(int)
+    for k0, k1 in zip(bounds[:-1], bounds[1:]):
+        status, idx = _closed_loop(*args, int(k0), int(k1), Q, QD, QDD, TAU, SAT)
+        if status != OK:
+            break
+        if progress is not None:
+            progress(k1 / N)
     _status(status, idx, grid, robot, "simulate_closed_loop")
     return SimulationResult(t=np.array(grid), q=Q, qd=QD, qdd=QDD, tau=TAU, qr=qr_g, qdr=qdr_g,
                             robot=robot.name, rate=rate, substeps=substeps, v_s=v_s,

@@ -571,9 +571,10 @@ def cmd_simulate(args, say):
     chi = apriori_parameters(robot, base_parameters(robot))
     rng = np.random.default_rng(args.seed)
     traj = random_fourier_trajectory(robot, args.f0, args.harmonics, rng)
-    say(f"simulating '{robot.name}' in closed loop for {args.duration:g} s")
-    exp = simulate_experiment(robot, chi, traj, args.duration, rng=rng, q_noise=args.noise_q,
-                              tau_noise=args.noise_tau, name=f"simulated {robot.name} (seed {args.seed})")
+    with say.progress(f"closed-loop simulation ({args.duration:g} s)") as bar:
+        exp = simulate_experiment(robot, chi, traj, args.duration, rng=rng, q_noise=args.noise_q,
+                                  tau_noise=args.noise_tau, progress=bar.update,
+                                  name=f"simulated {robot.name} (seed {args.seed})")
     outputs = [(args.out, exp.to_frame().to_csv(index=False, float_format="%.10g"))]
     if args.json:
         from analysis.provenance import dumps_json, json_safe
