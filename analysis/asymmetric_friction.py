@@ -98,6 +98,12 @@ def asymmetric_friction(experiment, robot, idim_result, *, joints=None) -> Asymm
         raise InputError(f"joints must be between 1 and {n} for robot '{robot.name}', got {bad}")
     essential = list(idim_result.model.names)
     notices = []
+    for c in robot.couplings:
+        shared = [j for j in joints if j in c.joints]
+        if shared and c.friction:
+            notices.append(f"joints {shared} also carry the friction of motor {c.motor} (Fvm{c.motor}, "
+                           f"Fcm{c.motor}, acting on the sum of their velocities), which is not in "
+                           f"these per-joint coefficients")
     cands = [make_candidate("asymmetric_viscous", j) for j in joints]
     cands += [make_candidate("asymmetric_coulomb", j) for j in joints if f"Off{j}" not in essential]
     fit, _ = fit_effects(experiment, robot, idim_result, cands)

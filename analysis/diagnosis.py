@@ -681,7 +681,7 @@ def _shift_scores(problem, state, delays, weights, folds, gap):
 # ======================================================================= API
 def diagnose(experiment, robot, *, validation=None, idim_result=None, settings=None, effects=None,
              max_effects=3, rng=None, alpha=0.01, folds=5, gap="auto", exclude_parameters=None,
-             joints=None, residual_analysis=True, confirm_on_validation=True):
+             joints=None, residual_analysis=True, confirm_on_validation=True, max_error_growth=0.02):
     """Find what the identified model of ``robot`` lacks in ``experiment``.
 
     Parameters
@@ -706,6 +706,8 @@ def diagnose(experiment, robot, *, validation=None, idim_result=None, settings=N
         from the model before identifying (only when ``idim_result`` is None).
     joints : 1-based joints whose effects are considered (default all).
     residual_analysis : compute the residual analyses before/after (for reports).
+    max_error_growth : essential-parameter criterion of that identification (when
+        ``idim_result`` is None).
     confirm_on_validation : with ``validation``, keep an effect that passes the rule only if
         it also lowers the relative error norm on the validation data; otherwise the
         selection stops there. Blocked cross-validation inside one recording cannot see a
@@ -735,7 +737,7 @@ def diagnose(experiment, robot, *, validation=None, idim_result=None, settings=N
     if isinstance(experiment, EffectObservation):
         eobs = experiment
         if idim_result is None:
-            idim_result = identify_from_observation(eobs, robot)
+            idim_result = identify_from_observation(eobs, robot, max_error_growth=max_error_growth)
     else:
         if idim_result is None:
             from analysis.idim import identify_idim
@@ -744,7 +746,8 @@ def diagnose(experiment, robot, *, validation=None, idim_result=None, settings=N
                 bp = without_parameters(bp, exclude_parameters)
                 notices.append("model identified without the base parameters "
                                + ", ".join(exclude_parameters))
-            idim_result = identify_idim(experiment, robot, settings=settings, bp=bp)
+            idim_result = identify_idim(experiment, robot, settings=settings, bp=bp,
+                                        max_error_growth=max_error_growth)
         eobs = observe_effects(experiment, robot, idim_result.base, idim_result.settings)
     obs = eobs.obs
     ref = idim_result.observation

@@ -233,6 +233,10 @@ def choose_standard_set(robot, bp, target, cov, *, target_names=None, apriori=No
     n = robot.n_joints
     link_sl = [inertial_slice(robot, j) for j in range(n)]
     ia = [names.index(f"Ia{j + 1}") for j in range(n)]
+    # A rotor inertia that only appears regrouped with its link's ZZ (same column of P) is put
+    # into ZZ: URDF has no rotor field, and a reader of the file must still see the inertia.
+    zz = [names.index(f"ZZ{j + 1}") for j in range(n)]
+    ia_free = np.array([0.0 if np.allclose(P[:, ia[j]], P[:, zz[j]]) else 1.0 for j in range(n)])
     inertial_idx = np.concatenate([np.arange(sl.start, sl.stop) for sl in link_sl])
     free = np.array(sorted(set(range(len(names))) - set(inertial_idx) - set(ia)), dtype=int)
     n_x = 11 * n + len(free)
@@ -243,9 +247,9 @@ def choose_standard_set(robot, bp, target, cov, *, target_names=None, apriori=No
         D = np.zeros((len(names), n_x))
         for j, sl in enumerate(link_sl):
             chi[sl], D[sl, 10 * j:10 * j + 10] = _values_and_jacobian(x[10 * j:10 * j + 10])
-        g = x[10 * n:11 * n]
+        g = x[10 * n:11 * n] * ia_free
         chi[ia] = g * g
-        D[ia, 10 * n + np.arange(n)] = 2 * g
+        D[ia, 10 * n + np.arange(n)] = 2 * g * ia_free
         chi[free] = x[11 * n:]
         D[free, 11 * n + np.arange(len(free))] = 1.0
         return chi, D
@@ -260,7 +264,7 @@ def choose_standard_set(robot, bp, target, cov, *, target_names=None, apriori=No
 
     x0 = np.concatenate([np.concatenate([_theta_from_J(_make_consistent(chi_ap[sl], s[sl]))
                                          for sl in link_sl]),
-                         np.sqrt(np.maximum(chi_ap[ia], 0.0)) + 1e-3,
+                         (np.sqrt(np.maximum(chi_ap[ia], 0.0)) + 1e-3) * ia_free,
                          chi_ap[free]])
     sol = scipy.optimize.least_squares(residual, x0, jac=jacobian, method="trf", xtol=1e-15,
                                        ftol=1e-15, gtol=1e-12, max_nfev=max_nfev)
@@ -278,7 +282,14 @@ def choose_standard_set(robot, bp, target, cov, *, target_names=None, apriori=No
     consistent = all(l["consistent"] for l in links) and bool(np.all(chi[ia] >= 0))
     reproduces = bool(chi2 <= REPRODUCE_CHI2)
     notices = []
-    if not reproduces:
+    if np.any(ia_free == 0):
+        notices.append("rotor inertias regrouped with their link's ZZ ("
+                       + ", ".join(f"Ia{j + 1}" for j in range(n) if ia_free[j] == 0)
+                       + ") are written into the link's izz: URDF has no rotor inertia")
+    if not reproduces and sol.status == 0:
+        notices.append(f"the optimisation stopped after {sol.nfev} evaluations (max_nfev) at chi^2 = "
+                       f"{chi2:.4g}; a consistent set closer to the identified values may exist")
+    elif not reproduces:
         worst = table.reindex(table["deviation_sigma"].abs().sort_values(ascending=False).index)
         lst = ", ".join(f"{k} {r.identified:.4g} -> {r.chosen:.4g} ({r.deviation_sigma:+.1f} sigma)"
                         for k, r in worst.head(6).iterrows())

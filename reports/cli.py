@@ -140,9 +140,8 @@ def build_parser():
             commands:
               robot     show a robot's kinematics, standard and base parameters
               simulate  simulate a robot in closed loop and write a recording (CSV)
-              identify  IDIM identification (OLS, WLS, essential parameters) of a recording
               excite    design an optimal Fourier excitation trajectory (CSV for a controller)
-              identify  IDIM or DIDIM identification of a recording
+              identify  identify a recording: IDIM (default), DIDIM or the Projection Method
               sample    Bayesian posterior of the identified parameters (emcee)
               diagnose  find the effects the model lacks in the residual, add them, compare errors
               report    everything at once: IDIM, DIDIM, posterior and diagnosis in one report
@@ -167,7 +166,7 @@ def build_parser():
     p.add_argument("--json", metavar="PATH", help="also write the parameters as JSON")
     p.add_argument("--list", action="store_true", help="list the bundled robots")
 
-    p = sub.add_parser("identify", parents=[common], help="IDIM identification of a recording",
+    p = sub.add_parser("identify", parents=[common], help="identify a recording (IDIM, DIDIM, Projection Method)",
                        description="Identify the base and essential parameters of a robot from a "
                                    "recording of q and tau (IDIM: OLS, per-joint WLS, essential "
                                    "parameters), validate, and report.",
@@ -405,28 +404,72 @@ def _write_outputs(args, say, result, robot, experiment, validation, asym=None, 
 
 
 def commit_outputs(outputs, say):
-    """Write ``(path, text)`` pairs all-or-none; the path ``-`` means stdout, written last."""
-    from analysis.provenance import atomic_write_text
+    """Write ``(path, text)`` pairs all-or-none; the path ``-`` means stdout, written last.
+
+    Phase 1 writes every file to a temporary file beside its target; only when
+    all of them are written does phase 2 rename them into place, so a failure
+    (disk full, missing folder, interruption) leaves the user's existing files
+    as they were and no new file behind.
+    """
+    import secrets
+    from dynamics.errors import InputError
     to_stdout = [text for path, text in outputs if path == "-"]
-    written = []
+    staged = []
     try:
         for path, text in outputs:
             if path == "-":
                 continue
-            atomic_write_text(path, text)
-            written.append(path)
-    except BaseException:
-        for path in written:
+            target = os.path.abspath(os.fspath(path))
+            tmp = os.path.join(os.path.dirname(target),
+                               f".{os.path.basename(target)}.{secrets.token_hex(6)}.tmp")
+            staged.append((tmp, target, path))
             try:
-                os.remove(path)
+                with open(tmp, "x", encoding="utf-8", newline="") as fh:
+                    fh.write(text)
+                    fh.flush()
+                    os.fsync(fh.fileno())
+            except OSError as exc:
+                raise InputError(f"cannot write {path}: {exc.strerror or exc}") from None
+        for tmp, target, path in staged:
+            try:
+                os.replace(tmp, target)
+            except OSError as exc:
+                raise InputError(f"cannot write {path}: {exc.strerror or exc}") from None
+    except BaseException:
+        for tmp, _, _ in staged:
+            try:
+                os.remove(tmp)
             except OSError:
                 pass
         raise
-    for path in written:
+    for _, _, path in staged:
         say(f"wrote {path}")
     for text in to_stdout:
         sys.stdout.write(text if text.endswith("\n") else text + "\n")
         sys.stdout.flush()
+
+
+OUTPUT_OPTIONS = ("json", "report", "csv", "out", "urdf")
+
+
+def check_output_paths(args):
+    """Before any computation: every output's folder exists and is writable; '-' only for --json."""
+    from dynamics.errors import InputError
+    for opt in OUTPUT_OPTIONS:
+        path = getattr(args, opt, None)
+        if not path:
+            continue
+        if path == "-":
+            if opt != "json":
+                raise InputError(f"--{opt} -: only --json can be written to stdout")
+            continue
+        folder = os.path.dirname(os.path.abspath(path)) or "."
+        if not os.path.isdir(folder):
+            raise InputError(f"--{opt} {path}: the folder {folder} does not exist")
+        if not os.access(folder, os.W_OK):
+            raise InputError(f"--{opt} {path}: the folder {folder} is not writable")
+        if os.path.isdir(path):
+            raise InputError(f"--{opt} {path} is a folder; give a file name")
 
 
 def _show(args, *texts):
@@ -450,7 +493,7 @@ def _load_data(args, say, robot, paths):
         valid = load_experiment(args.validation, robot)
         say(f"validation {args.validation}: {valid.n_samples} samples")
     elif getattr(args, "holdout", None) is not None:
-        if args.holdout <= 0:
+        if not args.holdout > 0:
             raise InputError(f"--holdout must be a positive number of seconds, got {args.holdout:g}")
         if len(experiments) > 1:
             raise InputError("--holdout splits one recording; with several, use --validation")
@@ -467,6 +510,14 @@ def cmd_identify(args, say):
     from analysis.idim import identify_idim
     from analysis.validation import validate
     from dynamics.robot_file import load_robot
+    from dynamics.errors import InputError
+    if args.method != "idim":
+        given = [f"--{o}" for o, v in (("validation", args.validation), ("holdout", args.holdout),
+                                       ("urdf", args.urdf), ("asymmetric-friction", args.asymmetric_friction))
+                 if v]
+        if given:
+            raise InputError(f"{', '.join(given)} work with --method idim only, not with --method "
+                             f"{args.method}; run the IDIM identification for them")
     robot = load_robot(args.robot)
     say(f"robot '{robot.name}' ({robot.n_joints} joints)")
     experiments, valid = _load_data(args, say, robot, args.data)
@@ -494,7 +545,7 @@ def cmd_identify(args, say):
         say("choosing a physically consistent standard parameter set for the URDF")
         export = export_urdf(result, robot)
         say(f"URDF: {'consistent' if export.consistent else 'NOT consistent'}; "
-            f"{'reproduces the identified values' if export.reproduces else 'does not reproduce the identified values (see the report)'}")
+            f"{'reproduces the identified values' if export.reproduces else 'does not reproduce the identified values (details in --report / --json)'}")
     _write_outputs(args, say, result, robot, experiments[0], validation, asym, export)
     return EXIT_OK
 
@@ -584,7 +635,9 @@ def cmd_simulate(args, say):
             "noise": {"q_std": args.noise_q, "tau_std": args.noise_tau},
             "reference": {"f0": traj.f0, "harmonics": traj.harmonics, "a": traj.a, "b": traj.b,
                           "q0": traj.q0},
-            "true_parameters": {"source": "the robot file's a-priori values",
+            "true_parameters": {"source": "the robot file's a-priori values (for tx40 with Ia6 = 0.0105 "
+                                          "added: the coupled wrist needs a rotor-6 inertia)"
+                                          if robot.name == "tx40" else "the robot file's a-priori values",
                                 "base": dict(zip(bp.names, bp.from_standard(chi))),
                                 "standard": dict(zip(robot.standard_names, chi))},
             "csv": args.out})
@@ -640,6 +693,16 @@ def cmd_excite(args, say):
     fs = args.fs if args.fs is not None else (robot.controller.rate if robot.controller else 1000.0)
     if not fs > 0:
         raise InputError(f"--fs must be a positive sampling rate in Hz, got {fs:g}")
+    if args.f0 > 0 and args.harmonics >= 1:
+        top = args.f0 * args.harmonics
+        if fs < 10 * top:
+            raise InputError(f"--fs {fs:g} Hz is too low for the highest harmonic ({top:g} Hz): a "
+                             f"controller reference needs at least 10 samples per period of it "
+                             f"(--fs {10 * top:g} or more)")
+        rows = fs * args.periods / args.f0
+        if rows > 50_000_000:
+            raise InputError(f"--fs {fs:g} Hz x --periods {args.periods} would write {rows:.3g} rows; "
+                             "lower one of them (at most 50 million rows)")
     if not args.out and not args.json and not args.report:
         say("note: no --out, --json or --report given; only the summary is printed")
     with say.progress(f"excitation design ({args.starts} starts)") as bar:
@@ -676,13 +739,25 @@ def _effects_option(value):
     return names
 
 
+def _check_diagnosis_options(args):
+    from dynamics.errors import InputError
+    alpha = getattr(args, "alpha", 0.01)
+    if not 0 < alpha < 1:
+        raise InputError(f"--alpha must be between 0 and 1, got {alpha:g}")
+    if getattr(args, "max_effects", 3) < 1:
+        raise InputError(f"--max-effects must be at least 1, got {args.max_effects}")
+    if getattr(args, "holdout", None) is not None and not args.holdout > 0:
+        raise InputError(f"--holdout must be a positive number of seconds, got {args.holdout:g}")
+
+
 def _run_diagnosis(args, say, robot, experiment, valid, idim_result):
     from analysis.diagnosis import diagnose
     kwargs = dict(validation=valid, effects=_effects_option(getattr(args, "effects", None)),
                   max_effects=getattr(args, "max_effects", 3), alpha=getattr(args, "alpha", 0.01))
     if getattr(args, "no_offsets", False):
         return diagnose(experiment, robot, settings=_processing_settings(args),
-                        exclude_parameters=("Off",), **kwargs)
+                        exclude_parameters=("Off",),
+                        max_error_growth=getattr(args, "max_error_growth", 0.02), **kwargs)
     return diagnose(experiment, robot, idim_result=idim_result, **kwargs)
 
 
@@ -690,6 +765,7 @@ def cmd_diagnose(args, say):
     from analysis.idim import identify_idim
     from analysis.provenance import dumps_json
     from dynamics.robot_file import load_robot
+    _check_diagnosis_options(args)
     robot = load_robot(args.robot)
     _effects_option(args.effects)          # bad names fail before the long work
     experiments, valid = _load_data(args, say, robot, [args.data])
@@ -811,7 +887,11 @@ def cmd_report(args, say):
     from analysis.idim import identify_idim
     from analysis.validation import validate
     from dynamics.robot_file import load_robot
+    from dynamics.errors import InputError
     skip = _skip_option(args.skip)
+    if not args.max_seconds > 0:
+        raise InputError(f"--max-seconds must be positive, got {args.max_seconds:g}")
+    _check_diagnosis_options(args)
     robot = load_robot(args.robot)
     say(f"robot '{robot.name}' ({robot.n_joints} joints)")
     experiments, valid = _load_data(args, say, robot, args.data)
@@ -826,7 +906,12 @@ def cmd_report(args, say):
 
 def cmd_demo(args, say):
     from analysis.demo import run_demo
+    from dynamics.errors import InputError
     skip = _skip_option(args.skip)
+    if not args.duration >= 2.0:
+        raise InputError(f"--duration must be at least 2 s, got {args.duration:g}")
+    if not args.max_seconds > 0:
+        raise InputError(f"--max-seconds must be positive, got {args.max_seconds:g}")
     result, robot, experiment, validation, valid = run_demo(seed=args.seed, duration=args.duration,
                                                             say=say)
     parts = _further_analyses(args, say, robot, [experiment], valid, result, skip)
@@ -854,6 +939,7 @@ def main(argv=None):
     signal.signal(signal.SIGTERM, _terminate)
     say = _Reporter(args.quiet)
     try:
+        check_output_paths(args)
         return COMMANDS[args.command](args, say)
     except BrokenPipeError:           # output piped into head & co.
         sys.stderr.close()

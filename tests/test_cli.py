@@ -275,3 +275,48 @@ def test_identify_asymmetric_friction_goes_to_json_and_report(tmp_path):
     for key, value in (("Fv+", 0.5), ("Fv-", 0.5), ("Fc+", 1.0), ("Fc-", 1.0)):
         assert abs(joints[0][key]["value"] - value) < 4 * joints[0][key]["std"] + 0.02 * value, key
     assert 'id="asymmetric-friction"' in html.read_text()
+
+
+def test_missing_output_folder_is_refused_before_any_work_and_existing_files_survive(tmp_path, capsys):
+    old = tmp_path / "a.json"
+    old.write_text('{"old": true}')
+    code = main(["identify", "no-such-data.csv", "--robot", "planar2", "--json", str(old),
+                 "--report", str(tmp_path / "missing" / "x.html")])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "--report" in err and "does not exist" in err
+    assert old.read_text() == '{"old": true}'
+
+
+def test_commit_outputs_is_all_or_none_and_keeps_existing_files(tmp_path):
+    from dynamics.errors import InputError
+    from reports.cli import commit_outputs
+    old = tmp_path / "a.json"
+    old.write_text("old")
+    with pytest.raises(InputError, match="cannot write"):
+        commit_outputs([(old, "new"), (tmp_path / "gone" / "b.html", "x")], lambda m: None)
+    assert old.read_text() == "old"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.json"]      # no temporary files left
+
+
+def test_only_json_goes_to_stdout(capsys):
+    assert main(["excite", "--robot", "planar2", "--f0", "0.2", "--harmonics", "3", "--out", "-"]) == 2
+    assert "only --json" in capsys.readouterr().err
+
+
+def test_options_that_need_idim_are_refused_with_other_methods(capsys):
+    assert main(["identify", "x.csv", "--robot", "planar2", "--method", "didim", "--holdout", "2"]) == 2
+    assert "--holdout" in capsys.readouterr().err
+    assert main(["identify", "x.csv", "--robot", "planar2", "--method", "projection", "--urdf", "m.urdf"]) == 2
+    assert "--urdf" in capsys.readouterr().err
+
+
+def test_excite_refuses_a_sampling_rate_below_the_harmonics(capsys):
+    assert main(["excite", "--robot", "planar2", "--f0", "0.2", "--harmonics", "3", "--fs", "1",
+                 "--out", "x.csv"]) == 2
+    assert "--fs" in capsys.readouterr().err
+
+
+def test_demo_refuses_a_negative_duration(capsys):
+    assert main(["demo", "--duration", "-1", "--report", "x.html"]) == 2
+    assert "--duration" in capsys.readouterr().err

@@ -17,9 +17,11 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from analysis.decoupled_campaign import identify_campaign, simulate_campaign  # noqa: E402
-from analysis.provenance import atomic_write_text, dumps_json  # noqa: E402
+from analysis.provenance import dumps_json  # noqa: E402
+from dynamics.errors import DynidError  # noqa: E402
+from reports.cli import commit_outputs  # noqa: E402
 from reports.decoupled_section import decoupled_sections  # noqa: E402
-from reports.html import render_sections, write_report  # noqa: E402
+from reports.html import render_sections  # noqa: E402
 
 
 def main(argv=None):
@@ -29,6 +31,14 @@ def main(argv=None):
     ap.add_argument("--repetitions", type=int, default=25)
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
+    try:
+        return _run(args)
+    except DynidError as exc:
+        print(f"comau_decoupled: error: {exc}", file=sys.stderr)
+        return exc.exit_code
+
+
+def _run(args):
     campaign = simulate_campaign(args.repetitions, seed=args.seed)
     ident = identify_campaign(campaign)
     print(ident.summary())
@@ -41,9 +51,10 @@ def main(argv=None):
                     ("Largest validation position error",
                      f"{ident.validation.max_q_error_deg.max():.3g} deg")],
         footer=[f"seed {args.seed}; true values: dynamics/comau_decoupled.py (paper Tables 1-3)"])
-    write_report(args.out, html)
+    outputs = [(args.out, html)]
     if args.json:
-        atomic_write_text(args.json, dumps_json(ident.to_dict()))
+        outputs.append((args.json, dumps_json(ident.to_dict())))
+    commit_outputs(outputs, lambda m: None)
     print(f"\nwrote {args.out}")
     return 0
 

@@ -41,7 +41,8 @@ def main(argv=None):
     from analysis.diagnosis import diagnose
     from analysis.experiment import load_experiment
     from analysis.idim import identify_idim
-    from analysis.provenance import atomic_write_text, dumps_json, json_safe, versions
+    from analysis.provenance import dumps_json, json_safe, versions
+    from reports.cli import commit_outputs
     from analysis.validation import validate
     from dynamics.robot_file import load_robot
     from reports import tables as T
@@ -131,9 +132,8 @@ def main(argv=None):
     })
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(out / "kuka_lwr4.html", html)
-    atomic_write_text(out / "kuka_lwr4.json", dumps_json(doc))
-    urdf.write(out / "kuka_lwr4_identified.urdf")
+    commit_outputs([(out / "kuka_lwr4.html", html), (out / "kuka_lwr4.json", dumps_json(doc)),
+                    (out / "kuka_lwr4_identified.urdf", urdf.text)], lambda m: None)
 
     for (train, held), row in zip(SPLITS, rows):
         print(f"KUKA held-out {'+'.join(map(str, train))} -> {held}: relative error "

@@ -72,7 +72,8 @@ def main(argv=None):
     from analysis.didim import identify_didim
     from analysis.experiment import load_experiment
     from analysis.idim import identify_idim
-    from analysis.provenance import atomic_write_text, dumps_json, json_safe, versions
+    from analysis.provenance import dumps_json, json_safe, versions
+    from reports.cli import commit_outputs
     from analysis.validation import validate
     from dynamics.robot_file import load_robot
     from reports.bayes_section import bayes_sections
@@ -142,8 +143,7 @@ def main(argv=None):
     })
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(out / "tx40.html", html)
-    atomic_write_text(out / "tx40.json", dumps_json(doc))
+    commit_outputs([(out / "tx40.html", html), (out / "tx40.json", dumps_json(doc))], lambda m: None)
     total = time.perf_counter() - t0
 
     ess = full.model
