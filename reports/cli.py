@@ -30,6 +30,7 @@ EPILOG_IDENTIFY = """examples:
   dynid identify rec2.toml rec3.toml --robot kuka_lwr4 --validation rec1.toml
   dynid identify run.csv --robot tx40 --method didim --report didim.html
   dynid identify run.csv --robot planar2 --method projection --json pm.json
+  dynid identify run.csv --robot planar2 --method ml --f0 0.1 --ml-harmonics 20 --json ml.json
   dynid identify run.csv --robot tx40 --asymmetric-friction --report out.html
   dynid identify rec1.toml --robot kuka_lwr4 --urdf kuka_identified.urdf
 """
@@ -174,11 +175,16 @@ def build_parser():
     p.add_argument("data", nargs="+", help="experiment file(s) (.csv, .parquet, .npz, .mat, or .toml "
                                           "description); several recordings are identified together")
     p.add_argument("--robot", required=True, help="bundled robot name or .toml/.urdf file")
-    p.add_argument("--method", choices=["idim", "didim", "projection"], default="idim",
+    p.add_argument("--method", choices=["idim", "didim", "projection", "ml"], default="idim",
                    help="idim (needs q and tau); didim (needs qr and tau and the robot's controller; "
                         "when the file has no qr, the measured q is tracked instead, with a notice); "
                         "projection (Bona & Curatella's Projection Method for closed-loop data: needs "
-                        "q, qr and tau; removes the bias of noise fed back by the controller)")
+                        "q, qr and tau; removes the bias of noise fed back by the controller); ml "
+                        "(maximum likelihood with noise on q and tau, for a periodic excitation: give --f0)")
+    p.add_argument("--f0", type=float, metavar="HZ",
+                   help="ML: fundamental frequency of the periodic excitation")
+    p.add_argument("--ml-harmonics", type=int, metavar="K",
+                   help="ML: harmonics of the latent trajectory (default: chosen by BIC on q)")
     p.add_argument("--asymmetric-friction", action="store_true",
                    help="IDIM: also give each joint's friction with different viscous and Coulomb "
                         "coefficients for positive and negative velocity (Bona & Curatella eq. (2))")
@@ -525,6 +531,8 @@ def cmd_identify(args, say):
         return _identify_didim(args, say, robot, experiments, valid)
     if args.method == "projection":
         return _identify_projection(args, say, robot, experiments)
+    if args.method == "ml":
+        return _identify_ml(args, say, robot, experiments)
     ident = experiments if len(experiments) > 1 else experiments[0]
     with say.progress("regressor and decimation") as bar:
         result = identify_idim(ident, robot, settings=_processing_settings(args),
@@ -547,6 +555,40 @@ def cmd_identify(args, say):
         say(f"URDF: {'consistent' if export.consistent else 'NOT consistent'}; "
             f"{'reproduces the identified values' if export.reproduces else 'does not reproduce the identified values (details in --report / --json)'}")
     _write_outputs(args, say, result, robot, experiments[0], validation, asym, export)
+    return EXIT_OK
+
+
+ML_MAX_VALUES = 200_000
+
+
+def _identify_ml(args, say, robot, experiments):
+    from analysis.maximum_likelihood import maximum_likelihood, robot_model
+    from analysis.provenance import dumps_json
+    from dynamics.errors import InputError
+    if args.f0 is None:
+        raise InputError("--method ml needs --f0, the fundamental frequency of the periodic excitation")
+    if len(experiments) > 1:
+        raise InputError("--method ml identifies one recording at a time")
+    exp = experiments[0]
+    if exp.n_samples * robot.n_joints > ML_MAX_VALUES:
+        raise InputError(f"{exp.source}: {exp.n_samples} samples x {robot.n_joints} joints; maximum "
+                         f"likelihood keeps every sample and is limited to {ML_MAX_VALUES:,} values: "
+                         "resample or cut the recording (a TOML experiment file), or use IDIM")
+    say("maximum likelihood (noise on q and tau), from the LS start")
+    res = maximum_likelihood(exp.t, exp.q, exp.tau, robot_model(robot), f0=args.f0,
+                             n_harmonics=args.ml_harmonics)
+    _show(args, res.summary())
+    outputs = []
+    if args.json:
+        outputs.append((args.json, dumps_json(res.to_dict())))
+    if getattr(args, "csv", None):
+        outputs.append((args.csv, res.to_frame().to_csv()))
+    if args.report:
+        from reports.html import render_sections
+        from reports.projection_section import ml_section
+        outputs.append((args.report, render_sections([ml_section(res)],
+                                                     title=f"Maximum-likelihood identification of {robot.name}")))
+    commit_outputs(outputs, say)
     return EXIT_OK
 
 

@@ -95,3 +95,19 @@ def projection_section(pm, ml=None, *, truth=None, id="projection",
                            formats={"M1": "int", "M2": "int", "fir_rank": "int", "max_xcorr_lag": "int"})]
     figs = [_scatter_figure(pm, f"fig-{id}-uhat")] if pm.u_hat is not None else []
     return Section(id, title, join(*body), figures=figs, tables=tables, tables_first=True)
+
+
+def ml_section(ml, *, id="maximum-likelihood",
+               title="Maximum likelihood with noise on q and τ (Bona & Curatella 2005, eqs. (13)–(16))"):
+    """A :class:`Section` for an :class:`analysis.maximum_likelihood.MLResult` on its own."""
+    body = [para("The positions are measured with noise too: the likelihood of eq. (13) is maximised "
+                 "over the parameters and a latent trajectory (a Fourier series in the excitation's "
+                 "fundamental), with one noise level per signal and joint; the covariance is the "
+                 "inverse Fisher information."),
+            kv_list([("Latent trajectory", f"K = {ml.n_harmonics} harmonics of {ml.f0:g} Hz"),
+                     ("Noise σ_q / σ_τ", ", ".join(f"{a:.3g} rad / {b:.3g} N m"
+                                                   for a, b in zip(ml.sigma_q, ml.sigma_tau)))])]
+    if ml.notices:
+        body.append(bullets(ml.notices, cls="notices"))
+    tab = T.make_table(ml.to_frame(), f"tab-{id}-estimates", "ML estimates beside their LS start")
+    return Section(id, title, join(*body), tables=[tab], tables_first=True)

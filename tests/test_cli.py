@@ -320,3 +320,22 @@ def test_excite_refuses_a_sampling_rate_below_the_harmonics(capsys):
 def test_demo_refuses_a_negative_duration(capsys):
     assert main(["demo", "--duration", "-1", "--report", "x.html"]) == 2
     assert "--duration" in capsys.readouterr().err
+
+
+def test_identify_maximum_likelihood_recovers_the_robot_file_values(tmp_path):
+    csv, js, html = tmp_path / "run.csv", tmp_path / "ml.json", tmp_path / "ml.html"
+    assert main(["simulate", "--robot", "planar2", "--duration", "8", "--out", str(csv), "--quiet"]) == 0
+    assert main(["identify", str(csv), "--robot", "planar2", "--method", "ml", "--f0", "0.1",
+                 "--ml-harmonics", "20", "--json", str(js), "--report", str(html), "--quiet"]) == 0
+    doc = json.loads(js.read_text())
+    est = {p["name"]: p for p in doc["parameters"]}
+    for name, value in {"ZZ1R": 0.6667 + 0.05 + 2.0, "MX1R": 3.0, "ZZ2": 0.6667, "MX2": 1.0}.items():
+        assert abs(est[name]["value"] - value) <= 4 * est[name]["std"] + 2e-3 * value, name
+    assert 'id="maximum-likelihood"' in html.read_text()
+
+
+def test_identify_ml_needs_f0(tmp_path, capsys):
+    csv = tmp_path / "run.csv"
+    assert main(["simulate", "--robot", "planar2", "--duration", "2", "--out", str(csv), "--quiet"]) == 0
+    assert main(["identify", str(csv), "--robot", "planar2", "--method", "ml"]) == 2
+    assert "--f0" in capsys.readouterr().err
