@@ -681,7 +681,8 @@ def _shift_scores(problem, state, delays, weights, folds, gap):
 # ======================================================================= API
 def diagnose(experiment, robot, *, validation=None, idim_result=None, settings=None, effects=None,
              max_effects=3, rng=None, alpha=0.01, folds=5, gap="auto", exclude_parameters=None,
-             joints=None, residual_analysis=True, confirm_on_validation=True, max_error_growth=0.02):
+             joints=None, residual_analysis=True, confirm_on_validation=True, max_error_growth=0.02,
+             progress=None):
     """Find what the identified model of ``robot`` lacks in ``experiment``.
 
     Parameters
@@ -708,6 +709,8 @@ def diagnose(experiment, robot, *, validation=None, idim_result=None, settings=N
     residual_analysis : compute the residual analyses before/after (for reports).
     max_error_growth : essential-parameter criterion of that identification (when
         ``idim_result`` is None).
+    progress : callable(fraction in [0, 1]) after each selection step (at most
+        ``max_effects + 1`` steps, so the fraction is an upper bound of the work left).
     confirm_on_validation : with ``validation``, keep an effect that passes the rule only if
         it also lowers the relative error norm on the validation data; otherwise the
         selection stops there. Blocked cross-validation inside one recording cannot see a
@@ -815,6 +818,8 @@ def diagnose(experiment, robot, *, validation=None, idim_result=None, settings=N
             scores["res0"] = np.concatenate([scores["res0"], np.repeat(r0[:, None], ms, 1)], axis=1)
             scores["active"] = scores["active"] + [[0]] * ms   # one degree of freedom
         ranking, skipped, m = _rank(col_pool + shift_pool, scores, scorer, step, alpha, folds)
+        if progress is not None:
+            progress(min(step / (max_effects + 1), 0.95))
         for r in ranking:
             last_scored[_group_key(r.candidate)] = r
         st = DiagnosisStep(step=step, ranking=ranking, n_candidates=m, skipped=skipped,
@@ -869,6 +874,8 @@ def diagnose(experiment, robot, *, validation=None, idim_result=None, settings=N
         selected.append((cand, step, w))
 
     # ------------------------------------------------------------ final model
+    if progress is not None:
+        progress(1.0)
     model_after = state["fit"]
     X_after = problem.design(state["delay"], state["effects"], cols=state["cols"])
     sel_effects = []

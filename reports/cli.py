@@ -794,13 +794,15 @@ def _check_diagnosis_options(args):
 
 def _run_diagnosis(args, say, robot, experiment, valid, idim_result):
     from analysis.diagnosis import diagnose
-    kwargs = dict(validation=valid, effects=_effects_option(getattr(args, "effects", None)),
-                  max_effects=getattr(args, "max_effects", 3), alpha=getattr(args, "alpha", 0.01))
-    if getattr(args, "no_offsets", False):
-        return diagnose(experiment, robot, settings=_processing_settings(args),
-                        exclude_parameters=("Off",),
-                        max_error_growth=getattr(args, "max_error_growth", 0.02), **kwargs)
-    return diagnose(experiment, robot, idim_result=idim_result, **kwargs)
+    with say.progress("diagnosis (selection steps)") as bar:
+        kwargs = dict(validation=valid, effects=_effects_option(getattr(args, "effects", None)),
+                      max_effects=getattr(args, "max_effects", 3), alpha=getattr(args, "alpha", 0.01),
+                      progress=bar.update)
+        if getattr(args, "no_offsets", False):
+            return diagnose(experiment, robot, settings=_processing_settings(args),
+                            exclude_parameters=("Off",),
+                            max_error_growth=getattr(args, "max_error_growth", 0.02), **kwargs)
+        return diagnose(experiment, robot, idim_result=idim_result, **kwargs)
 
 
 def cmd_diagnose(args, say):

@@ -166,8 +166,10 @@ def test_diagnose_finds_an_injected_viscous_asymmetry_and_reports(short_sim):
         sig = EffectSignals(t=exp.t, q=q, qd=qd, qdd=np.gradient(qd, 1 / exp.fs, axis=0))
         return replace(exp, tau=exp.tau + 2.0 * effect_torque(c, sig, [1.0]))
 
-    res = diagnose(inject(ident), robot, validation=inject(valid), max_effects=2)
+    seen = []
+    res = diagnose(inject(ident), robot, validation=inject(valid), max_effects=2, progress=seen.append)
     print(res.summary())
+    assert seen[-1] == 1.0 and all(0 < f <= 1 for f in seen) and seen == sorted(seen)
     top = res.ranking[0]
     assert (top.name, top.joint, top.selected) == ("asymmetric_viscous", 2, True)
     sel = res.selected[0]
