@@ -327,7 +327,7 @@ class DiagnosisResult:
                   "LR        p_adj      dBIC(n_eff)  sel"]
         for k, r in enumerate(self.ranking[:15], 1):
             j = "all" if r.joint is None else str(r.joint)
-            nl = _fmt_nl(r.nonlinear)
+            nl = nonlinear_text(r.nonlinear)
             lines.append(f"  {k:4d}  {r.name:<20} {j:>5}  {nl:<20} {100 * r.cv_gain:9.3f}  "
                          f"{r.folds_better}/{r.n_folds}    {r.statistic:8.1f}  {_fmt_p(r.p_value):>9}  "
                          f"{r.ic_gain:11.1f}  {'yes' if r.selected else ''}")
@@ -410,18 +410,21 @@ def _fmt_p(p):
     return f"{p:.2g}" if p >= 1e-3 else f"{p:.1e}"
 
 
-def _fmt_nl(nl):
+def nonlinear_text(nl, *, prose=False):
+    """The nonlinear parameter of an effect as text: compact for tables of the
+    summary (``v_s=0.1 rad/s``), or ``prose`` for reports (``v_s = 0.1 rad/s``)."""
+    eq = " = " if prose else "="
     if not nl:
         return ""
     if "vs" in nl:
-        return f"v_s={nl['vs']:.3g} rad/s"
+        return f"v_s{eq}{nl['vs']:.3g} rad/s"
     if "d" in nl:
-        return f"d={1e3 * nl['d']:.3g} ms"
+        return f"d{eq}{1e3 * nl['d']:.3g} ms"
     if "signal" in nl:
-        return f"{nl['signal']}{nl['source']}"
+        return f"{'from ' if prose else ''}{nl['signal']}{nl['source']}"
     if "order" in nl:
         return f"order {nl['order']}"
-    return ", ".join(f"{k}={v}" for k, v in nl.items())
+    return ", ".join(f"{k}{eq}{v}" for k, v in nl.items())
 
 
 # ======================================================================= scoring

@@ -104,15 +104,7 @@ def pin_aba_loop(robot, chi, t, qr, qdr, v_s=0.05):
         if k == len(t) - 1:
             break
         h = t[k + 1] - t[k]
-        a1 = plant(q, qd, tau)
-        q2, v2 = q + h / 2 * qd, qd + h / 2 * a1
-        a2 = plant(q2, v2, tau)
-        q3, v3 = q + h / 2 * v2, qd + h / 2 * a2
-        a3 = plant(q3, v3, tau)
-        q4, v4 = q + h * v3, qd + h * a3
-        a4 = plant(q4, v4, tau)
-        q = q + h / 6 * (qd + 2 * v2 + 2 * v3 + v4)
-        qd = qd + h / 6 * (a1 + 2 * a2 + 2 * a3 + a4)
+        q, qd = oracles.rk4_step(plant, q, qd, tau, h, plant(q, qd, tau))
     return time.perf_counter() - t0, Q
 
 

@@ -111,7 +111,7 @@ import scipy.optimize
 from .base_parameters import base_parameters, base_regressor
 from .dynamic_model import inverse_dynamics
 from .errors import InputError
-from .trajectories import FourierTrajectory, random_fourier_trajectory
+from .trajectories import FourierTrajectory, check_f0, check_harmonics, random_fourier_trajectory
 
 __all__ = ["ExcitationResult", "design_excitation", "limit_blas_threads", "apriori_parameters", "column_scales",
            "regressor_conditioning", "limit_margins", "spectrum_check", "SCALINGS", "CRITERIA"]
@@ -798,18 +798,8 @@ def design_excitation(robot, f0, n_harmonics, *, n_starts=4, criterion="cond", c
 def _design(robot, f0, n_harmonics, *, n_starts, criterion, chi, rng, max_iter, margin, scaling,
             samples_per_harmonic, n_constraint, n_check, bp, ftol, progress=None):
     t_start = time.perf_counter()
-    try:
-        f0 = float(f0)
-    except (TypeError, ValueError):
-        raise InputError(f"f0 must be a positive frequency in Hz, got {f0!r}") from None
-    if not np.isfinite(f0) or f0 <= 0:
-        raise InputError(f"f0 must be a positive frequency in Hz, got {f0!r}")
-    try:
-        N = int(n_harmonics)
-    except (TypeError, ValueError):
-        raise InputError(f"n_harmonics must be a positive integer, got {n_harmonics!r}") from None
-    if N < 1 or N != n_harmonics:
-        raise InputError(f"n_harmonics must be a positive integer, got {n_harmonics!r}")
+    f0 = check_f0(f0)
+    N = check_harmonics(n_harmonics)
     if criterion not in CRITERIA:
         raise InputError(f"criterion must be one of {', '.join(CRITERIA)}, got {criterion!r}")
     if scaling not in SCALINGS:

@@ -20,6 +20,28 @@ DEFAULT_SAMPLES_PER_HARMONIC = 200
 MIN_CHECK_SAMPLES = 4000
 
 
+def check_f0(f0) -> float:
+    """The fundamental frequency as a float, or InputError if it is not a positive number of Hz."""
+    try:
+        f0 = float(f0)
+    except (TypeError, ValueError):
+        raise InputError(f"f0 must be a positive frequency in Hz, got {f0!r}") from None
+    if not np.isfinite(f0) or f0 <= 0:
+        raise InputError(f"f0 must be a positive frequency in Hz, got {f0!r}")
+    return f0
+
+
+def check_harmonics(n_harmonics) -> int:
+    """The number of harmonics as an int, or InputError if it is not a positive integer."""
+    try:
+        N = int(n_harmonics)
+    except (TypeError, ValueError):
+        raise InputError(f"n_harmonics must be a positive integer, got {n_harmonics!r}") from None
+    if N < 1 or N != n_harmonics:
+        raise InputError(f"n_harmonics must be a positive integer, got {n_harmonics!r}")
+    return N
+
+
 class FourierTrajectory:
     """Finite Fourier series of ``n`` joints and ``N`` harmonics of ``f0`` (Hz).
 
@@ -27,12 +49,7 @@ class FourierTrajectory:
     """
 
     def __init__(self, f0, a, b, q0):
-        try:
-            f0 = float(f0)
-        except (TypeError, ValueError):
-            raise InputError(f"f0 must be a positive frequency in Hz, got {f0!r}") from None
-        if not np.isfinite(f0) or f0 <= 0:
-            raise InputError(f"f0 must be a positive frequency in Hz, got {f0!r}")
+        f0 = check_f0(f0)
         try:
             a = np.array(a, dtype=float, ndmin=2)
             b = np.array(b, dtype=float, ndmin=2)
@@ -162,12 +179,7 @@ def random_fourier_trajectory(robot, f0, n_harmonics, rng=None, margin=0.9, *, n
     is an error.
     """
     n = robot.n_joints
-    try:
-        N = int(n_harmonics)
-    except (TypeError, ValueError):
-        raise InputError(f"n_harmonics must be a positive integer, got {n_harmonics!r}") from None
-    if N < 1 or N != n_harmonics:
-        raise InputError(f"n_harmonics must be a positive integer, got {n_harmonics!r}")
+    N = check_harmonics(n_harmonics)
     margin = float(margin)
     if not 0 < margin <= 1:
         raise InputError(f"margin must be in (0, 1], got {margin!r}")

@@ -16,7 +16,6 @@ Both return :class:`reports.html.Section` objects for
 """
 from __future__ import annotations
 
-import math
 
 import matplotlib
 import numpy as np
@@ -28,11 +27,6 @@ from reports import tables as T
 from reports.html import Section, bullets, join, kv_list, para
 
 __all__ = ["excitation_section", "noise_section", "excitation_figures", "noise_pdf_figure"]
-
-
-def _grid(n, max_cols=3):
-    cols = min(n, max_cols) if n > 1 else 1
-    return math.ceil(n / cols), cols
 
 
 def _fmt(x, digits=4):
@@ -54,7 +48,7 @@ def _trajectory_figure(res, robot, key):
         ud = qd / qd_max
         ua = qdd / qdd_max
     with matplotlib.rc_context(F.STYLE):
-        rows, cols = _grid(n)
+        rows, cols = F.grid_shape(n)
         fig = F._new_figure(3.3 * cols, 1.9 * rows + 0.4)
         axes = fig.subplots(rows, cols, squeeze=False, sharex=True, sharey=True)
         for j in range(rows * cols):
@@ -251,7 +245,7 @@ def noise_pdf_figure(tau_tests, q_tests=None, *, joint_names=None, key="fig-nois
                     ax.set_title(F._plain(f"{F.joint_label(j, names[j])}, {what}: p = "
                                           f"{F.format_p(p)} ({verdict})"), loc="left")
         else:
-            rows, cols = _grid(n)
+            rows, cols = F.grid_shape(n)
             fig = F._new_figure(3.3 * cols, 1.9 * rows + 0.4)
             axes = fig.subplots(rows, cols, squeeze=False)
             for j in range(rows * cols):

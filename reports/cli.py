@@ -527,12 +527,10 @@ def cmd_identify(args, say):
     robot = load_robot(args.robot)
     say(f"robot '{robot.name}' ({robot.n_joints} joints)")
     experiments, valid = _load_data(args, say, robot, args.data)
-    if args.method == "didim":
-        return _identify_didim(args, say, robot, experiments, valid)
-    if args.method == "projection":
-        return _identify_projection(args, say, robot, experiments)
-    if args.method == "ml":
-        return _identify_ml(args, say, robot, experiments)
+    if args.method in METHODS:
+        if len(experiments) > 1:
+            raise InputError(f"--method {args.method} identifies one recording at a time")
+        return METHODS[args.method](args, say, robot, experiments[0])
     ident = experiments if len(experiments) > 1 else experiments[0]
     with say.progress("regressor and decimation") as bar:
         result = identify_idim(ident, robot, settings=_processing_settings(args),
@@ -541,7 +539,6 @@ def cmd_identify(args, say):
     asym = None
     if args.asymmetric_friction:
         from analysis.asymmetric_friction import asymmetric_friction
-        from dynamics.errors import InputError
         if len(experiments) > 1:
             raise InputError("--asymmetric-friction works on one recording at a time")
         asym = asymmetric_friction(experiments[0], robot, result)
@@ -561,15 +558,27 @@ def cmd_identify(args, say):
 ML_MAX_VALUES = 200_000
 
 
-def _identify_ml(args, say, robot, experiments):
-    from analysis.maximum_likelihood import maximum_likelihood, robot_model
+def _write_method_outputs(args, say, result, frame, sections, title):
+    """Summary, then JSON / CSV (``frame``) / HTML (``sections``) of a DIDIM, PM or ML result."""
     from analysis.provenance import dumps_json
+    from reports.html import render_sections
+    _show(args, result.summary())
+    outputs = []
+    if args.json:
+        outputs.append((args.json, dumps_json(result.to_dict())))
+    if args.csv:
+        outputs.append((args.csv, frame.to_csv()))
+    if args.report:
+        outputs.append((args.report, render_sections(sections(), title=title)))
+    commit_outputs(outputs, say)
+
+
+def _identify_ml(args, say, robot, exp):
+    from analysis.maximum_likelihood import maximum_likelihood, robot_model
     from dynamics.errors import InputError
+    from reports.projection_section import ml_section
     if args.f0 is None:
         raise InputError("--method ml needs --f0, the fundamental frequency of the periodic excitation")
-    if len(experiments) > 1:
-        raise InputError("--method ml identifies one recording at a time")
-    exp = experiments[0]
     if exp.n_samples * robot.n_joints > ML_MAX_VALUES:
         raise InputError(f"{exp.source}: {exp.n_samples} samples x {robot.n_joints} joints; maximum "
                          f"likelihood keeps every sample and is limited to {ML_MAX_VALUES:,} values: "
@@ -577,76 +586,43 @@ def _identify_ml(args, say, robot, experiments):
     say("maximum likelihood (noise on q and tau), from the LS start")
     res = maximum_likelihood(exp.t, exp.q, exp.tau, robot_model(robot), f0=args.f0,
                              n_harmonics=args.ml_harmonics)
-    _show(args, res.summary())
-    outputs = []
-    if args.json:
-        outputs.append((args.json, dumps_json(res.to_dict())))
-    if getattr(args, "csv", None):
-        outputs.append((args.csv, res.to_frame().to_csv()))
-    if args.report:
-        from reports.html import render_sections
-        from reports.projection_section import ml_section
-        outputs.append((args.report, render_sections([ml_section(res)],
-                                                     title=f"Maximum-likelihood identification of {robot.name}")))
-    commit_outputs(outputs, say)
+    _write_method_outputs(args, say, res, res.to_frame(), lambda: [ml_section(res)],
+                          f"Maximum-likelihood identification of {robot.name}")
     return EXIT_OK
 
 
-def _identify_projection(args, say, robot, experiments):
+def _identify_projection(args, say, robot, exp):
     from analysis.projection import identify_projection
-    from analysis.provenance import dumps_json
-    from dynamics.errors import InputError
-    if len(experiments) > 1:
-        raise InputError("--method projection identifies one recording at a time")
+    from reports.projection_section import projection_section
     say("Projection Method: FIR sensitivity per joint, then two-stage LS")
-    result = identify_projection(experiments[0], robot, settings=_processing_settings(args))
-    _show(args, result.summary())
-    outputs = []
-    if args.json:
-        outputs.append((args.json, dumps_json(result.to_dict())))
-    if getattr(args, "csv", None):
-        outputs.append((args.csv, result.to_frame().to_csv()))
-    if args.report:
-        from reports.html import render_sections
-        from reports.projection_section import projection_section
-        outputs.append((args.report, render_sections([projection_section(result)],
-                                                     title=f"Projection Method identification of {robot.name}")))
-    commit_outputs(outputs, say)
+    res = identify_projection(exp, robot, settings=_processing_settings(args))
+    _write_method_outputs(args, say, res, res.to_frame(), lambda: [projection_section(res)],
+                          f"Projection Method identification of {robot.name}")
     return EXIT_OK
 
 
-def _identify_didim(args, say, robot, experiments, valid):
+def _identify_didim(args, say, robot, exp):
     from analysis.didim import identify_didim
-    from analysis.provenance import dumps_json
     from dynamics.errors import InputError
-    if len(experiments) > 1:
-        raise InputError("--method didim identifies one recording at a time")
+    from reports.didim_section import didim_sections
     if robot.controller is None:
         raise InputError(f"DIDIM simulates the robot under its controller, but '{robot.name}' "
                          f"({robot.source}) has no [controller] table")
-    exp = experiments[0]
     reference = "qr" if exp.qr is not None else "q"
     with say.progress("DIDIM iterations") as bar:
-        result = identify_didim(exp, robot, settings=_processing_settings(args), reference=reference,
-                                max_iter=args.max_iter, max_error_growth=args.max_error_growth,
-                                update_gains=GAIN_UPDATES[args.gain_update], progress=bar.update)
-    _show(args, result.summary())
-    outputs = []
-    if args.json:
-        outputs.append((args.json, dumps_json(result.to_dict())))
-    if getattr(args, "csv", None):
-        outputs.append((args.csv, result.model.to_frame().to_csv()))
-    if args.report:
-        from reports.didim_section import didim_sections
-        from reports.html import render_sections
-        outputs.append((args.report, render_sections(didim_sections(result),
-                                                     title=f"DIDIM identification of {robot.name}")))
-    commit_outputs(outputs, say)
-    if not result.converged:
-        print(f"dynid identify: DIDIM did not converge ({result.stop_reason}); the outputs say so",
+        res = identify_didim(exp, robot, settings=_processing_settings(args), reference=reference,
+                             max_iter=args.max_iter, max_error_growth=args.max_error_growth,
+                             update_gains=GAIN_UPDATES[args.gain_update], progress=bar.update)
+    _write_method_outputs(args, say, res, res.model.to_frame(), lambda: didim_sections(res),
+                          f"DIDIM identification of {robot.name}")
+    if not res.converged:
+        print(f"dynid identify: DIDIM did not converge ({res.stop_reason}); the outputs say so",
               file=sys.stderr)
         return EXIT_NOT_CONVERGED
     return EXIT_OK
+
+
+METHODS = {"didim": _identify_didim, "projection": _identify_projection, "ml": _identify_ml}
 
 
 def cmd_simulate(args, say):

@@ -27,6 +27,7 @@ import numpy as np
 import pandas as pd
 from markupsafe import Markup
 
+from analysis.diagnosis import nonlinear_text
 from reports import figures as F
 from reports import tables as T
 from reports.html import Section, bullets, join, kv_list, para
@@ -49,17 +50,7 @@ def _pct(x, digits=3):
 
 
 def _nl_text(nl):
-    if not nl:
-        return ""
-    if "vs" in nl:
-        return f"v_s = {nl['vs']:.3g} rad/s"
-    if "d" in nl:
-        return f"d = {1e3 * nl['d']:.3g} ms"
-    if "signal" in nl:
-        return f"from {nl['signal']}{nl['source']}"
-    if "order" in nl:
-        return f"order {nl['order']}"
-    return ", ".join(f"{k} = {v}" for k, v in nl.items())
+    return nonlinear_text(nl, prose=True)
 
 
 # ------------------------------------------------------------------ sections
@@ -198,18 +189,22 @@ def _errors_section(res, names):
     return Section("diagnosis-errors", "Errors before and after the effects", body, tables=tables)
 
 
+def _joint_panels(n):
+    """A figure with one panel per joint (unused panels hidden): (fig, axes, cols)."""
+    rows, cols = F.grid_shape(n)
+    fig = F.Figure(figsize=(3.3 * cols, 1.9 * rows + 0.3), layout="constrained")
+    axes = fig.subplots(rows, cols, squeeze=False)
+    for ax in axes.flat[n:]:
+        ax.set_visible(False)
+    return fig, axes, cols
+
+
 def _binned_figure(key, caption, an_before, an_after, attr, xlabel, names):
     n = len(names)
     with matplotlib.rc_context(F.STYLE):
-        cols = min(n, 3) if n > 1 else 1
-        rows = math.ceil(n / cols)
-        fig = F.Figure(figsize=(3.3 * cols, 1.9 * rows + 0.3), layout="constrained")
-        axes = fig.subplots(rows, cols, squeeze=False)
-        for j in range(rows * cols):
+        fig, axes, cols = _joint_panels(n)
+        for j in range(n):
             ax = axes.flat[j]
-            if j >= n:
-                ax.set_visible(False)
-                continue
             for an, color, label in ((an_before, F.RED, "before"), (an_after, F.BLUE, "after")):
                 if an is None:
                     continue
@@ -232,15 +227,9 @@ def _pdf_figure(key, caption, an_before, an_after, names):
     from scipy import stats
     n = len(names)
     with matplotlib.rc_context(F.STYLE):
-        cols = min(n, 3) if n > 1 else 1
-        rows = math.ceil(n / cols)
-        fig = F.Figure(figsize=(3.3 * cols, 1.9 * rows + 0.3), layout="constrained")
-        axes = fig.subplots(rows, cols, squeeze=False)
-        for j in range(rows * cols):
+        fig, axes, cols = _joint_panels(n)
+        for j in range(n):
             ax = axes.flat[j]
-            if j >= n:
-                ax.set_visible(False)
-                continue
             title = F.joint_label(j, names[j])
             ps = []
             for an, color, label in ((an_before, F.RED, "before"), (an_after, F.BLUE, "after")):

@@ -105,7 +105,7 @@ def trajectory_figure(t, reference, simulated, joint_names, *, key="fig-didim-tr
     n = reference.shape[1]
     idx, step = F.decimate_for_plot(t.size)
     with matplotlib.rc_context(F.STYLE):
-        rows, cols = F._grid_shape(n)
+        rows, cols = F.grid_shape(n)
         fig = _figure(3.3 * cols, 1.9 * rows + 0.3)
         axes = fig.subplots(rows, cols, squeeze=False, sharex=True)
         for j in range(rows * cols):

@@ -195,7 +195,8 @@ def render_figure(fig, key: str, caption: str, *, fmt: str = "auto") -> FigureMa
     return FigureMarkup(key=key, caption=caption, markup=markup, kind=fmt)
 
 
-def _grid_shape(n: int, max_cols: int = 3):
+def grid_shape(n: int, max_cols: int = 3):
+    """(rows, cols) of a grid of per-joint panels."""
     cols = min(n, max_cols) if n > 1 else 1
     rows = math.ceil(n / cols)
     return rows, cols
@@ -211,7 +212,7 @@ def torque_figure(t, measured, estimated, joint_names, *, key="fig-torque", capt
     n = measured.shape[1]
     idx, step = decimate_for_plot(t.size)
     with matplotlib.rc_context(STYLE):
-        rows, cols = _grid_shape(n)
+        rows, cols = grid_shape(n)
         fig = _new_figure(3.3 * cols, 1.9 * rows + 0.3)
         axes = fig.subplots(rows, cols, squeeze=False, sharex=True)
         for j in range(rows * cols):
@@ -244,7 +245,7 @@ def residual_pdf_figure(residual, joint_names, jarque_bera_p=None, *, key="fig-r
     residual = np.asarray(residual, dtype=float)
     n = residual.shape[1]
     with matplotlib.rc_context(STYLE):
-        rows, cols = _grid_shape(n)
+        rows, cols = grid_shape(n)
         fig = _new_figure(3.3 * cols, 1.9 * rows + 0.3)
         axes = fig.subplots(rows, cols, squeeze=False)
         for j in range(rows * cols):

@@ -245,15 +245,19 @@ def pin_closed_loop(robot, chi_st, t, qr, qdr, q0, qd0, *, kd_scale=None, subste
         for s in range(substeps):
             if s > 0:
                 a1 = plant(q, qd, tau)
-            q2, v2 = q + h / 2 * qd, qd + h / 2 * a1
-            a2 = plant(q2, v2, tau)
-            q3, v3 = q + h / 2 * v2, qd + h / 2 * a2
-            a3 = plant(q3, v3, tau)
-            q4, v4 = q + h * v3, qd + h * a3
-            a4 = plant(q4, v4, tau)
-            q = q + h / 6 * (qd + 2 * v2 + 2 * v3 + v4)
-            qd = qd + h / 6 * (a1 + 2 * a2 + 2 * a3 + a4)
+            q, qd = rk4_step(plant, q, qd, tau, h, a1)
     return Q, QD, QDD, TAU
+
+
+def rk4_step(plant, q, qd, tau, h, a1):
+    """One classical RK4 step of qdd = plant(q, qd, tau) with tau held; a1 = plant(q, qd, tau)."""
+    q2, v2 = q + h / 2 * qd, qd + h / 2 * a1
+    a2 = plant(q2, v2, tau)
+    q3, v3 = q + h / 2 * v2, qd + h / 2 * a2
+    a3 = plant(q3, v3, tau)
+    q4, v4 = q + h * v3, qd + h * a3
+    a4 = plant(q4, v4, tau)
+    return q + h / 6 * (qd + 2 * v2 + 2 * v3 + v4), qd + h / 6 * (a1 + 2 * a2 + 2 * a3 + a4)
 
 
 # ----------------------------------------------------------------------------- base-parameter data
