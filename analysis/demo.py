@@ -2,7 +2,7 @@
 
 The simulated robot's essential parameters are the values of Table 2 of
 Gautier, Janot, Vandanjon (2010); the rest of its base parameters are zero
-except Ia6 (see :mod:`analysis.synthetic`). It tracks a random Fourier-series
+except Ia6 (see :mod:`dynid.analysis.data.synthetic`). It tracks a random Fourier-series
 reference under the PD controller of ``tx40.toml`` at 5 kHz; the recorded q
 and tau carry white noise. A second, different reference serves for
 validation.
@@ -11,12 +11,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from analysis.idim import identify_idim
-from analysis.synthetic import simulate_experiment, tx40_true_parameters
-from analysis.validation import validate
-from dynamics.base_parameters import base_parameters
-from dynamics.robot_file import load_robot
-from dynamics.trajectories import random_fourier_trajectory
+from dynid.analysis.estimators.idim import identify_idim
+from dynid.analysis.data.synthetic import simulate_experiment, tx40_true_parameters
+from dynid.analysis.statistics.validation import validate
+from dynid.dynamics.base_parameters import base_parameters
+from dynid.dynamics.robot_file import load_robot
+from dynid.dynamics.trajectories import random_fourier_trajectory
 
 # Sensor noise of the demo (standard deviations at 5 kHz): an encoder-like
 # position noise, and a torque noise of about 2-3 % of each joint's torque range.

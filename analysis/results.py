@@ -3,7 +3,7 @@
 :class:`IdentificationResult` holds the estimate χ̂ (eq. (11)), its covariance
 (eq. (14)), standard deviations and relative standard deviations (eq. (15)),
 and the residual statistics, and knows how to print, tabulate and save itself.
-Estimators in :mod:`analysis.least_squares` build it; users only read it.
+Estimators in :mod:`dynid.analysis.estimators.least_squares` build it; users only read it.
 """
 
 from __future__ import annotations
@@ -15,8 +15,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from analysis.provenance import atomic_write_text, dumps_json, json_safe, versions
-from dynamics.errors import InputError
+from dynid.provenance import atomic_write_text, dumps_json, json_safe, versions
+from dynid.errors import InputError
 
 __all__ = ["IdentificationResult"]
 
@@ -71,7 +71,7 @@ class IdentificationResult:
     notices : list[str]
         Remarks the estimator wants the user to read.
     data_hash : str or None
-        SHA-256 of the input data (see :func:`analysis.provenance.data_hash`).
+        SHA-256 of the input data (see :func:`dynid.provenance.data_hash`).
     """
 
     method: str

@@ -1,9 +1,9 @@
-"""Benchmark of the Bayesian posterior (analysis.bayes).
+"""Benchmark of the Bayesian posterior (dynid.analysis.sampling.posterior).
 
-1. The simulated TX40 of the demo (analysis.demo.demo_data(1, 20 s)), identified
+1. The simulated TX40 of the demo (dynid.analysis.demo.demo_data(1, 20 s)), identified
    by IDIM; emcee on its essential parameters plus one noise level per joint
    (6), 64 walkers, run until the chain after burn-in is >= 50 integrated
-   autocorrelation times long for every parameter (analysis.convergence).
+   autocorrelation times long for every parameter (dynid.analysis.sampling.convergence).
    Target: under 30 s for the sampling.
 2. Cost does not grow with the number of samples: a 6-joint, 25-parameter
    system with 1 k and 1 M rows (equations). Time to compute the sufficient
@@ -48,9 +48,9 @@ def best_of(fn, repeat=5, number=1):
 
 
 def tx40(seed):
-    from analysis import bayes
-    from analysis.demo import demo_data
-    from analysis.idim import identify_idim
+    from dynid.analysis.sampling import posterior as bayes
+    from dynid.analysis.demo import demo_data
+    from dynid.analysis.estimators.idim import identify_idim
 
     t0 = time.perf_counter()
     robot, bp, beta, ident, valid = demo_data(1, 20.0)
@@ -64,7 +64,7 @@ def tx40(seed):
 
 def scaling_setup(n_rows, n_joints=6, b=25, walkers=64, seed=0):
     """A system of n_rows equations (n_rows / n_joints samples); (stats_s, model, X, naive_s)."""
-    from analysis import bayes
+    from dynid.analysis.sampling import posterior as bayes
 
     rng = np.random.default_rng(seed)
     N = n_rows // n_joints

@@ -4,17 +4,17 @@ of OLS vs maximum likelihood (Bona & Curatella 2005, eqs. (10)-(16)).
     python benchmarks/bias_campaign.py                  # 100 seeds each
     python benchmarks/bias_campaign.py --seeds 50
 
-Data (analysis.bias_scenarios): a one-joint pendulum simulated by dynid's
+Data (bias_scenarios): a one-joint pendulum simulated by dynid's
 closed-loop simulator (PD + velocity feedforward).
 
 * Closed loop: a coloured torque disturbance (6 N m RMS, low-passed at 15 Hz)
   and coloured position-sensor noise (1 mrad, 8 Hz) fed back through the
   controller; 8 s at 500 Hz per seed. LS = IDIM OLS on the measured
-  positions; PM = analysis.projection.projection_method (FIR up to 25 lags,
+  positions; PM = dynid.analysis.estimators.projection.projection_method (FIR up to 25 lags,
   BIC).
 * Errors in variables: one periodic steady-state motion, 4 s at 200 Hz;
   per seed white noise on q (5 mrad) and tau (0.5 N m). OLS = IDIM OLS on the
-  Butterworth-filtered (20 Hz) noisy q; ML = analysis.maximum_likelihood with
+  Butterworth-filtered (20 Hz) noisy q; ML = dynid.analysis.estimators.maximum_likelihood with
   K = 20 latent harmonics.
 
 Reference computation (same process): the 2SLS estimate written out with
@@ -35,16 +35,16 @@ import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))   # bias_scenarios: a test fixture
 
 import numpy as np  # noqa: E402
 
-from analysis import bias_scenarios as bs  # noqa: E402
-from analysis import least_squares as ls  # noqa: E402
-from analysis.maximum_likelihood import maximum_likelihood, robot_model  # noqa: E402
-from analysis.projection import lag_matrix, projection_method  # noqa: E402
-from analysis.signals import derivatives  # noqa: E402
-from dynamics.base_parameters import base_regressor  # noqa: E402
+import bias_scenarios as bs  # noqa: E402
+from dynid.analysis.estimators import least_squares as ls  # noqa: E402
+from dynid.analysis.estimators.maximum_likelihood import maximum_likelihood, robot_model  # noqa: E402
+from dynid.analysis.estimators.projection import lag_matrix, projection_method  # noqa: E402
+from dynid.analysis.processing.signals import derivatives  # noqa: E402
+from dynid.dynamics.base_parameters import base_regressor  # noqa: E402
 
 
 def _stats(e):

@@ -5,8 +5,8 @@ does it keep quiet when nothing is missing?
     python benchmarks/diagnosis_campaign.py --seeds 3 --clean 5 --effects stribeck drift
 
 Data. The simulated Staubli TX40 of the demo (Table 2 parameters of Gautier,
-Janot & Vandanjon 2010, analysis.synthetic.simulate_experiment: closed loop
-at 5 kHz, PD + velocity feedforward, sensor noise of analysis.demo) tracks a
+Janot & Vandanjon 2010, dynid.analysis.data.synthetic.simulate_experiment: closed loop
+at 5 kHz, PD + velocity feedforward, sensor noise of dynid.analysis.demo) tracks a
 random Fourier reference for ``ID_DURATION`` s (identification) and another
 one for ``VAL_DURATION`` s (validation). Each seed's clean motion is simulated
 once; every effect is then injected into it.
@@ -78,18 +78,18 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from analysis.demo import F0, HARMONICS, Q_NOISE, TAU_NOISE  # noqa: E402
-from analysis.diagnosis import (diagnose, evaluate_effects, fit_effects,  # noqa: E402
+from dynid.analysis.demo import F0, HARMONICS, Q_NOISE, TAU_NOISE  # noqa: E402
+from dynid.analysis.diagnosis.selection import (diagnose, evaluate_effects, fit_effects,  # noqa: E402
                                 identify_from_observation, without_parameters)
-from analysis.effect_observation import observe_effects, payload_parameter_names  # noqa: E402
-from analysis.effects import make_candidate  # noqa: E402
-from analysis.synthetic import simulate_experiment, tx40_true_parameters  # noqa: E402
-from analysis.idim import identify_idim  # noqa: E402
-from dynamics.base_parameters import base_parameters  # noqa: E402
-from dynamics.errors import InputError  # noqa: E402
-from dynamics.regressor import regressor  # noqa: E402
-from dynamics.robot_file import load_robot  # noqa: E402
-from dynamics.trajectories import random_fourier_trajectory  # noqa: E402
+from dynid.analysis.diagnosis.effect_observation import observe_effects, payload_parameter_names  # noqa: E402
+from dynid.analysis.diagnosis.effects import make_candidate  # noqa: E402
+from dynid.analysis.data.synthetic import simulate_experiment, tx40_true_parameters  # noqa: E402
+from dynid.analysis.estimators.idim import identify_idim  # noqa: E402
+from dynid.dynamics.base_parameters import base_parameters  # noqa: E402
+from dynid.errors import InputError  # noqa: E402
+from dynid.dynamics.regressor import regressor  # noqa: E402
+from dynid.dynamics.robot_file import load_robot  # noqa: E402
+from dynid.dynamics.trajectories import random_fourier_trajectory  # noqa: E402
 
 ID_DURATION = 12.0
 VAL_DURATION = 5.0
@@ -498,7 +498,7 @@ def main(argv=None):
     verdict["rows"] = rows
     verdict["clean"] = clean
     verdict["elapsed_s"] = time.perf_counter() - t0
-    from analysis.provenance import json_safe
+    from dynid.provenance import json_safe
     print(json.dumps(json_safe({k: v for k, v in verdict.items() if k not in ("rows", "clean")}
                                | {"n_rows": len(rows),
                                   "clean_best": [[c["seed"], c["best_p"], c["best_passes_cv"]]

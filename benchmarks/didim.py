@@ -46,10 +46,10 @@ GOAL_S = 3.0
 
 
 def make_data(duration, fs, seed):
-    from analysis.synthetic import simulate_experiment, tx40_true_parameters
-    from dynamics.base_parameters import base_parameters
-    from dynamics.robot_file import load_robot
-    from dynamics.trajectories import random_fourier_trajectory
+    from dynid.analysis.data.synthetic import simulate_experiment, tx40_true_parameters
+    from dynid.dynamics.base_parameters import base_parameters
+    from dynid.dynamics.robot_file import load_robot
+    from dynid.dynamics.trajectories import random_fourier_trajectory
 
     robot = load_robot("tx40")
     bp = base_parameters(robot)
@@ -63,7 +63,7 @@ def make_data(duration, fs, seed):
 
 
 def didim_step(robot, bp, exp, workers=1):
-    from analysis.didim import identify_didim
+    from dynid.analysis.estimators.didim import identify_didim
 
     t0 = time.perf_counter()
     res = identify_didim(exp, robot, bp=bp, max_iter=1, essential=False, workers=workers)
@@ -71,7 +71,7 @@ def didim_step(robot, bp, exp, workers=1):
 
 
 def dynid_simulation(robot, chi, t, qr, qdr):
-    from dynamics.simulation import simulate_closed_loop
+    from dynid.dynamics.simulation import simulate_closed_loop
 
     t0 = time.perf_counter()
     sim = simulate_closed_loop(robot, chi, t, qr, qdr, q0=qr[0], qd0=qdr[0], v_s=0.05,
@@ -80,7 +80,7 @@ def dynid_simulation(robot, chi, t, qr, qdr):
 
 
 def pin_aba_loop(robot, chi, t, qr, qdr, v_s=0.05):
-    """The closed loop of dynamics.simulation in plain Python on pin.aba (diagonal armature)."""
+    """The closed loop of dynid.dynamics.simulation in plain Python on pin.aba (diagonal armature)."""
     import oracles
     pin = oracles.pin
     model = oracles.pin_model_from_robot(robot, chi)

@@ -5,7 +5,7 @@
    -> essential parameters. Target: under 3 s.
 2. A synthetic 1-hour, 5 kHz, 6-joint recording (18 M samples) generated on the
    fly in chunks and never materialised whole, processed by
-   analysis.streaming.observe_stream, in a fresh subprocess whose peak resident
+   dynid.analysis.processing.streaming.observe_stream, in a fresh subprocess whose peak resident
    memory (VmHWM) is its own. Targets: under 5 minutes, under 1.5 GB.
 
 Times are also printed as ratios to a reference workload run in the same
@@ -36,9 +36,9 @@ def reference_seconds():
 
 
 def real_tx40():
-    from analysis.experiment import load_experiment
-    from analysis.idim import identify_idim
-    from dynamics.robot_file import load_robot
+    from dynid.analysis.data.experiment import load_experiment
+    from dynid.analysis.estimators.idim import identify_idim
+    from dynid.dynamics.robot_file import load_robot
     exp_file = ROOT / "examples" / "staubli_tx40" / "experiment.toml"
     t0 = time.perf_counter()
     robot = load_robot("tx40")
@@ -51,13 +51,13 @@ def real_tx40():
 
 def stream_child(hours):
     """Runs in a subprocess: the 1-hour synthetic recording, streamed."""
-    from analysis import least_squares as ls
-    from analysis.streaming import observe_stream
-    from dynamics.base_parameters import base_parameters
-    from dynamics.regressor import inverse_dynamics
-    from dynamics.robot_file import load_robot
-    from dynamics.trajectories import random_fourier_trajectory
-    from analysis.synthetic import tx40_true_parameters
+    from dynid.analysis.estimators import least_squares as ls
+    from dynid.analysis.processing.streaming import observe_stream
+    from dynid.dynamics.base_parameters import base_parameters
+    from dynid.dynamics.regressor import inverse_dynamics
+    from dynid.dynamics.robot_file import load_robot
+    from dynid.dynamics.trajectories import random_fourier_trajectory
+    from dynid.analysis.data.synthetic import tx40_true_parameters
 
     robot = load_robot("tx40")
     bp = base_parameters(robot)

@@ -38,9 +38,9 @@ if str(ROOT) not in sys.path:
 
 import numpy as np  # noqa: E402
 
-from dynamics.base_parameters import base_parameters  # noqa: E402
-from dynamics.regressor import regressor, regressor_chunks  # noqa: E402
-from dynamics.robot_file import load_robot  # noqa: E402
+from dynid.dynamics.base_parameters import base_parameters  # noqa: E402
+from dynid.dynamics.regressor import regressor, regressor_chunks  # noqa: E402
+from dynid.dynamics.robot_file import load_robot  # noqa: E402
 
 
 def _samples(n_samples, n_joints, seed):

@@ -4,7 +4,7 @@ The inverse dynamic model of eq. (1) of Gautier, Janot, Vandanjon 2010,
 ``tau = M(q) qdd + N(q, qd)``, and the direct dynamic model of eq. (17),
 ``qdd = M(q)^-1 (tau - N(q, qd))``, evaluated from the standard parameters
 ``chi_st`` (``robot.standard_names``) rather than through the regressor, so the
-closed-loop simulator (:mod:`dynamics.simulation`) can call them millions of
+closed-loop simulator (:mod:`dynid.dynamics.simulation`) can call them millions of
 times without Python in the loop.
 
 Algorithms
@@ -33,11 +33,11 @@ Coulomb friction and the smooth sign
 ------------------------------------
 ``s(x) = tanh(x / v_s)`` when ``v_s > 0``, the exact ``sign(x)`` (with
 ``sign(0) = 0``) when ``v_s = 0``. The inverse-dynamics wrappers default to
-``v_s = 0`` (they then equal :func:`dynamics.regressor.inverse_dynamics`); the
+``v_s = 0`` (they then equal :func:`dynid.dynamics.regressor.inverse_dynamics`); the
 simulator defaults to ``v_s = DEFAULT_V_S = 0.01`` rad/s (m/s for a prismatic
 joint), so an explicit integrator is not facing a discontinuous right-hand
 side. Near ``qd = 0`` the smooth sign adds the viscous slope ``Fc / v_s``;
-see :mod:`dynamics.simulation` for what that means for the step size.
+see :mod:`dynid.dynamics.simulation` for what that means for the step size.
 """
 from __future__ import annotations
 
@@ -46,7 +46,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from .errors import InputError
+from dynid.errors import InputError
 from .robot import PER_JOINT
 
 N_PER_JOINT = len(PER_JOINT)          # 14
@@ -461,7 +461,7 @@ def inverse_dynamics(robot, chi_st, q, qd, qdd, *, v_s=0.0):
     """tau = (M(q) + A) qdd + N(q, qd) of eq. (1), from chi_st; (n,) or (N, n).
 
     With ``v_s = 0`` (default) Coulomb friction uses the exact sign and the result
-    equals ``dynamics.regressor.inverse_dynamics(robot, chi_st, q, qd, qdd)``.
+    equals ``dynid.dynamics.regressor.inverse_dynamics(robot, chi_st, q, qd, qdd)``.
     """
     ma = model_arrays(robot, chi_st)
     (q, qd, qdd), single = _samples(robot, q=q, qd=qd, qdd=qdd)

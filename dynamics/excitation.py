@@ -3,7 +3,7 @@
 Eq. (20) of Bona & Curatella 2005 (after Presse & Gautier 1993 and Swevers et
 al. 1997): choose, for every joint ``i``, the ``2 N + 1`` parameters
 ``delta_i = [a_i(1..N), b_i(1..N), q_i0]`` of the finite Fourier series of
-eqs. (17)-(19) (:class:`dynamics.trajectories.FourierTrajectory`) so that the
+eqs. (17)-(19) (:class:`dynid.dynamics.trajectories.FourierTrajectory`) so that the
 base regressor ``W`` stacked over one period is as well conditioned as the
 limits allow::
 
@@ -67,7 +67,7 @@ Optimiser
 ---------
 SLSQP (scipy) on variables normalised by the velocity limits and the joint
 half-ranges, from ``n_starts`` random feasible starts
-(:func:`dynamics.trajectories.random_fourier_trajectory` with the same
+(:func:`dynid.dynamics.trajectories.random_fourier_trajectory` with the same
 ``margin``; a start whose torque is out of bounds is shrunk towards ``q0``);
 the best feasible result is kept. The objective is ``log cond`` (half the log
 of the ratio of the extreme eigenvalues of ``W_s^T W_s``). Gradients are
@@ -110,7 +110,7 @@ import scipy.optimize
 
 from .base_parameters import base_parameters, base_regressor
 from .dynamic_model import inverse_dynamics
-from .errors import InputError
+from dynid.errors import InputError
 from .trajectories import FourierTrajectory, check_f0, check_harmonics, random_fourier_trajectory
 
 __all__ = ["ExcitationResult", "design_excitation", "limit_blas_threads", "apriori_parameters", "column_scales",
@@ -718,13 +718,13 @@ class ExcitationResult:
 
     def to_csv(self, path, fs, n_periods=1):
         """Write :meth:`to_frame` to ``path`` atomically (full precision)."""
-        from analysis.provenance import atomic_write_text
+        from dynid.provenance import atomic_write_text
 
         atomic_write_text(path, self.to_frame(fs, n_periods).to_csv(index=False, lineterminator="\n",
                                                                     float_format="%.17g"))
 
     def to_dict(self):
-        from analysis.provenance import json_safe
+        from dynid.provenance import json_safe
 
         tr = self.trajectory
         return json_safe({

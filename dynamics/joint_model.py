@@ -46,7 +46,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import InputError
+from dynid.errors import InputError
 
 G0 = 9.81
 

@@ -19,7 +19,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .errors import InputError
+from dynid.errors import InputError
 from .joint_model import G0
 from .trajectories import FourierTrajectory
 

@@ -50,7 +50,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import RobotFileError
+from dynid.errors import RobotFileError
 from .robot import Controller, Coupling, Joint, Robot, mdh_placement
 
 _JOINT_KEYS = {"name", "sigma", "alpha", "d", "theta", "r", "q_limits", "qd_max", "qdd_max",
@@ -61,12 +61,12 @@ _TOP_KEYS = {"name", "description", "gravity", "urdf", "joints", "couplings", "c
 
 def bundled_robots():
     """Names of the robots shipped with dynid."""
-    folder = resources.files("dynamics") / "robots"
+    folder = resources.files("dynid.dynamics.robots")
     return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
 
 
 def bundled_path(name):
-    return Path(str(resources.files("dynamics") / "robots" / f"{name}.toml"))
+    return Path(str(resources.files("dynid.dynamics.robots") / f"{name}.toml"))
 
 
 def load_robot(spec):

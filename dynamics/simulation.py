@@ -29,7 +29,7 @@ Control law, per joint ``j``, at the controller samples ``t_k`` (rate
 * The torque is held constant between controller samples (zero-order hold).
 
 Plant: ``qdd = M(q)^-1 (tau - N(q, qd))`` (eq. (17)) with the actuator terms,
-from :mod:`dynamics.dynamic_model`; Coulomb friction with the smooth sign
+from :mod:`dynid.dynamics.dynamic_model`; Coulomb friction with the smooth sign
 ``tanh(qd / v_s)``, ``v_s = 0.01`` rad/s by default. Integrated by the classical
 fixed-step Runge-Kutta 4 with ``substeps`` steps per controller period
 (``h = T / substeps``, default 1). The whole loop runs in one numba function.
@@ -67,7 +67,7 @@ from numba import njit
 from .dynamic_model import (DEFAULT_V_S, NOT_FINITE, NOT_POSITIVE_DEFINITE, OK, _qdd,
                             _workspace, check_parameters, mass_matrix,
                             model_arrays)
-from .errors import DynidError, InputError
+from dynid.errors import DynidError, InputError
 
 RK4_STABILITY = 2.785        # RK4 is stable on the negative real axis for h*lambda < 2.785
 STIFFNESS_WARNING = 2.5
@@ -132,8 +132,8 @@ class SimulationResult:
         return pd.DataFrame(cols)
 
     def to_experiment(self, name: str = "simulation"):
-        """An :class:`analysis.experiment.Experiment` of the simulated q, qr, qd, qdd, tau."""
-        from analysis.experiment import Experiment
+        """An :class:`dynid.analysis.data.experiment.Experiment` of the simulated q, qr, qd, qdd, tau."""
+        from dynid.analysis.data.experiment import Experiment
 
         fs = None if self.rate is None else float(self.rate)
         return Experiment(t=self.t.copy(), q=self.q.copy(),
@@ -421,12 +421,12 @@ def simulate_closed_loop(robot, chi_st, t, qr, qdr=None, *, q0=None, qd0=None, c
         otherwise the controller runs on ``t[0] + k/rate`` up to ``t[-1]`` and the
         reference is linearly interpolated onto it (a note says so).
     qr : (N, n) reference positions, or a trajectory object with
-        ``evaluate(t) -> (q, qd, qdd)`` (e.g. :class:`dynamics.trajectories.FourierTrajectory`),
+        ``evaluate(t) -> (q, qd, qdd)`` (e.g. :class:`dynid.dynamics.trajectories.FourierTrajectory`),
         evaluated on the controller grid (its velocity becomes ``qdr``).
     qdr : (N, n) reference velocities (feedforward, initial velocity). When
         missing it is the second-order finite difference of ``qr`` (a note says so).
     q0, qd0 : initial state; default ``qr(t0)``, ``qdr(t0)`` (section 3.2).
-    controller : a :class:`dynamics.robot.Controller` replacing ``robot.controller``.
+    controller : a :class:`dynid.dynamics.robot.Controller` replacing ``robot.controller``.
     kd_scale : per-joint factor on the derivative gain (DIDIM's ``J_hat^k / J_ap``);
         scalar or (n,), positive; default 1.
     substeps : RK4 steps per controller period (>= 1).

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import InputError
+from dynid.errors import InputError
 
 DEFAULT_SAMPLES_PER_HARMONIC = 200
 MIN_CHECK_SAMPLES = 4000

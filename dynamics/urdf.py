@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import RobotFileError
+from dynid.errors import RobotFileError
 from .robot import Joint, Robot
 
 _MOVING = {"revolute": 0, "continuous": 0, "prismatic": 1}

@@ -10,7 +10,7 @@ parsers ignore; a model that needs them (rotor inertia is Pinocchio's
 ``armature``) must take them from there or from the JSON written beside.
 
 Each moving joint of the written URDF has axis ``0 0 1`` and its link frame
-is dynid's joint frame, so :func:`dynamics.urdf.read_urdf` reads back the
+is dynid's joint frame, so :func:`dynid.dynamics.urdf.read_urdf` reads back the
 same placements and standard parameters (to rounding of the written
 decimals: 17 significant digits, i.e. exactly).
 
@@ -28,7 +28,7 @@ import xml.etree.ElementTree as ET
 
 import numpy as np
 
-from .errors import InputError
+from dynid.errors import InputError
 
 DYNID_NS = "https://github.com/dynid/dynid/urdf-extension"
 
@@ -52,7 +52,7 @@ def pseudo_inertia(values) -> np.ndarray:
 
 
 def pseudo_inertia_basis():
-    """E_k (10 of 4x4) with J = sum_k value_k E_k, in the order of :data:`dynamics.robot.INERTIAL`."""
+    """E_k (10 of 4x4) with J = sum_k value_k E_k, in the order of :data:`dynid.dynamics.robot.INERTIAL`."""
     E = []
     for k in range(10):
         v = np.zeros(10)
@@ -103,7 +103,7 @@ def consistency(robot, chi_st, *, tol=0.0) -> list:
 
 # ------------------------------------------------------------------ writing
 def rpy_from_matrix(R):
-    """URDF roll-pitch-yaw of a rotation (inverse of :func:`dynamics.urdf.rpy_matrix`)."""
+    """URDF roll-pitch-yaw of a rotation (inverse of :func:`dynid.dynamics.urdf.rpy_matrix`)."""
     R = np.asarray(R, dtype=float)
     sp = -R[2, 0]
     if abs(sp) < 1.0 - 1e-12:

@@ -1,8 +1,8 @@
-"""Report sections for a Bayesian posterior (:class:`analysis.bayes.PosteriorResult`).
+"""Report sections for a Bayesian posterior (:class:`dynid.analysis.sampling.posterior.PosteriorResult`).
 
-:func:`bayes_sections` returns :class:`reports.html.Section` objects to pass
-as ``extra_sections`` to :func:`reports.html.render_idim_report` or to
-:func:`reports.html.render_sections`:
+:func:`bayes_sections` returns :class:`dynid.reports.html.Section` objects to pass
+as ``extra_sections`` to :func:`dynid.reports.html.render_idim_report` or to
+:func:`dynid.reports.html.render_sections`:
 
 * ``<prefix>``: the convergence verdict first and prominently (a run that did
   not converge says so in the section title and in a red box, with the
@@ -29,9 +29,9 @@ from markupsafe import Markup
 from matplotlib.figure import Figure
 from scipy import stats
 
-from reports import figures as F
-from reports import tables as T
-from reports.html import Section, join, kv_list, para
+from dynid.reports import figures as F
+from dynid.reports import tables as T
+from dynid.reports.html import Section, join, kv_list, para
 
 __all__ = ["bayes_sections", "corner_figure", "gravity_figure", "tau_history_figure",
            "posterior_table", "diagnostics_table", "corner_selection", "status_markup"]

@@ -1,7 +1,7 @@
 """Report sections of the Bona & Curatella (2005) analyses: excitation and noise PDFs.
 
 :func:`excitation_section` shows an optimised excitation
-(:class:`dynamics.excitation.ExcitationResult`): the trajectory over one
+(:class:`dynid.dynamics.excitation.ExcitationResult`): the trajectory over one
 period normalised by the limits, its spectrum (lines at ``k f0`` only, section
 3.3), the condition numbers before and after the optimisation (eq. (20)), the
 limit margins and the Fourier coefficients. :func:`noise_section` shows the
@@ -10,9 +10,9 @@ histogram of the torque noise (and of the position noise, side by side as in
 Fig. 5) with the fitted normal density and a KDE, the normality tests, the
 torque-vs-position comparison and, when given, the averaging's numbers.
 
-Both return :class:`reports.html.Section` objects for
-:func:`reports.html.render_sections` or the ``extra_sections`` of
-:func:`reports.html.render_idim_report`.
+Both return :class:`dynid.reports.html.Section` objects for
+:func:`dynid.reports.html.render_sections` or the ``extra_sections`` of
+:func:`dynid.reports.html.render_idim_report`.
 """
 from __future__ import annotations
 
@@ -22,9 +22,9 @@ import numpy as np
 import pandas as pd
 from markupsafe import Markup
 
-from reports import figures as F
-from reports import tables as T
-from reports.html import Section, bullets, join, kv_list, para
+from dynid.reports import figures as F
+from dynid.reports import tables as T
+from dynid.reports.html import Section, bullets, join, kv_list, para
 
 __all__ = ["excitation_section", "noise_section", "excitation_figures", "noise_pdf_figure"]
 
@@ -152,7 +152,7 @@ def excitation_figures(res, robot, *, prefix="fig-excitation"):
 
 
 def excitation_section(res, robot, *, id="excitation", title="Optimal excitation (Bona & Curatella 2005)"):
-    """A :class:`Section` for an :class:`~dynamics.excitation.ExcitationResult`."""
+    """A :class:`Section` for an :class:`~dynid.dynamics.excitation.ExcitationResult`."""
     tr = res.trajectory
     pairs = [
         ("Trajectory", f"finite Fourier series, eqs. (17)\u2013(19): f0 = {_fmt(tr.f0)} Hz, "
@@ -282,10 +282,10 @@ def _tests_table(tests, key):
 
 def noise_section(tau_tests, q_tests=None, *, comparison=None, averaging=None, joint_names=None,
                   id="noise", title="Measurement noise PDFs (Bona & Curatella 2005, Fig. 5)"):
-    """A :class:`Section` for :class:`~analysis.noise.NoiseTests` of torque (and position) noise.
+    """A :class:`Section` for :class:`~dynid.analysis.statistics.noise.NoiseTests` of torque (and position) noise.
 
-    ``comparison``: :class:`~analysis.noise.NoiseComparison`; ``averaging``:
-    :class:`~analysis.averaging.AveragedPeriods` (its M, P and sigma table are shown).
+    ``comparison``: :class:`~dynid.analysis.statistics.noise.NoiseComparison`; ``averaging``:
+    :class:`~dynid.analysis.processing.averaging.AveragedPeriods` (its M, P and sigma table are shown).
     """
     names = joint_names or tau_tests.names
     body = []

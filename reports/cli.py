@@ -13,7 +13,7 @@ import signal
 import sys
 import textwrap
 
-from dynamics.errors import DynidError
+from dynid.errors import DynidError
 
 EXIT_OK, EXIT_BUG, EXIT_INPUT, EXIT_NOT_CONVERGED, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
 
@@ -79,7 +79,7 @@ class _Reporter:
             print(msg, file=sys.stderr, flush=True)
 
     def progress(self, label):
-        from reports.progress import Progress
+        from dynid.reports.progress import Progress
         return Progress(label, quiet=self.quiet)
 
 
@@ -109,7 +109,7 @@ JSON_HELP = "write the results as JSON here ('-': to stdout)"
 
 
 def _processing_settings(args):
-    from dynamics.errors import InputError
+    from dynid.errors import InputError
     s = {}
     if args.fc is not None:
         s["fc_position"] = args.fc
@@ -332,9 +332,9 @@ def build_parser():
 
 
 def cmd_robot(args, say):
-    from analysis.provenance import dumps_json
-    from dynamics.base_parameters import base_parameters
-    from dynamics.robot_file import bundled_robots, load_robot
+    from dynid.provenance import dumps_json
+    from dynid.dynamics.base_parameters import base_parameters
+    from dynid.dynamics.robot_file import bundled_robots, load_robot
     if args.list or not args.robot:
         print("bundled robots: " + ", ".join(bundled_robots()))
         return EXIT_OK
@@ -381,7 +381,7 @@ def _write_outputs(args, say, result, robot, experiment, validation, asym=None, 
     interrupted between two files, the ones already written are removed, so a
     report never sits next to a JSON of another run or without its JSON.
     """
-    from analysis.provenance import dumps_json
+    from dynid.provenance import dumps_json
     outputs = []
     if args.json:
         doc = result.to_dict()
@@ -397,10 +397,10 @@ def _write_outputs(args, say, result, robot, experiment, validation, asym=None, 
     if getattr(args, "csv", None):
         outputs.append((args.csv, result.model.to_frame().to_csv()))
     if args.report:
-        from reports.html import render_idim_report
+        from dynid.reports.html import render_idim_report
         extra = []
         if asym is not None:
-            from reports.friction_section import asymmetric_friction_section
+            from dynid.reports.friction_section import asymmetric_friction_section
             extra.append(asymmetric_friction_section(asym))
         if export is not None:
             extra.append(export.section())
@@ -418,7 +418,7 @@ def commit_outputs(outputs, say):
     as they were and no new file behind.
     """
     import secrets
-    from dynamics.errors import InputError
+    from dynid.errors import InputError
     to_stdout = [text for path, text in outputs if path == "-"]
     staged = []
     try:
@@ -460,7 +460,7 @@ OUTPUT_OPTIONS = ("json", "report", "csv", "out", "urdf")
 
 def check_output_paths(args):
     """Before any computation: every output's folder exists and is writable; '-' only for --json."""
-    from dynamics.errors import InputError
+    from dynid.errors import InputError
     for opt in OUTPUT_OPTIONS:
         path = getattr(args, opt, None)
         if not path:
@@ -488,8 +488,8 @@ def _show(args, *texts):
 
 def _load_data(args, say, robot, paths):
     """The identification experiments and the validation experiment (or None) of the options."""
-    from analysis.experiment import load_experiment
-    from dynamics.errors import InputError
+    from dynid.analysis.data.experiment import load_experiment
+    from dynid.errors import InputError
     experiments = []
     for path in paths:
         experiments.append(load_experiment(path, robot))
@@ -513,10 +513,10 @@ def _load_data(args, say, robot, paths):
 
 
 def cmd_identify(args, say):
-    from analysis.idim import identify_idim
-    from analysis.validation import validate
-    from dynamics.robot_file import load_robot
-    from dynamics.errors import InputError
+    from dynid.analysis.estimators.idim import identify_idim
+    from dynid.analysis.statistics.validation import validate
+    from dynid.dynamics.robot_file import load_robot
+    from dynid.errors import InputError
     if args.method != "idim":
         given = [f"--{o}" for o, v in (("validation", args.validation), ("holdout", args.holdout),
                                        ("urdf", args.urdf), ("asymmetric-friction", args.asymmetric_friction))
@@ -538,7 +538,7 @@ def cmd_identify(args, say):
     validation = validate(result, valid, robot) if valid is not None else None
     asym = None
     if args.asymmetric_friction:
-        from analysis.asymmetric_friction import asymmetric_friction
+        from dynid.analysis.estimators.asymmetric_friction import asymmetric_friction
         if len(experiments) > 1:
             raise InputError("--asymmetric-friction works on one recording at a time")
         asym = asymmetric_friction(experiments[0], robot, result)
@@ -546,7 +546,7 @@ def cmd_identify(args, say):
           asym.summary() if asym is not None else "")
     export = None
     if args.urdf:
-        from reports.urdf_export import export_urdf
+        from dynid.reports.urdf_export import export_urdf
         say("choosing a physically consistent standard parameter set for the URDF")
         export = export_urdf(result, robot)
         say(f"URDF: {'consistent' if export.consistent else 'NOT consistent'}; "
@@ -560,8 +560,8 @@ ML_MAX_VALUES = 200_000
 
 def _write_method_outputs(args, say, result, frame, sections, title):
     """Summary, then JSON / CSV (``frame``) / HTML (``sections``) of a DIDIM, PM or ML result."""
-    from analysis.provenance import dumps_json
-    from reports.html import render_sections
+    from dynid.provenance import dumps_json
+    from dynid.reports.html import render_sections
     _show(args, result.summary())
     outputs = []
     if args.json:
@@ -574,9 +574,9 @@ def _write_method_outputs(args, say, result, frame, sections, title):
 
 
 def _identify_ml(args, say, robot, exp):
-    from analysis.maximum_likelihood import maximum_likelihood, robot_model
-    from dynamics.errors import InputError
-    from reports.projection_section import ml_section
+    from dynid.analysis.estimators.maximum_likelihood import maximum_likelihood, robot_model
+    from dynid.errors import InputError
+    from dynid.reports.projection_section import ml_section
     if args.f0 is None:
         raise InputError("--method ml needs --f0, the fundamental frequency of the periodic excitation")
     if exp.n_samples * robot.n_joints > ML_MAX_VALUES:
@@ -592,8 +592,8 @@ def _identify_ml(args, say, robot, exp):
 
 
 def _identify_projection(args, say, robot, exp):
-    from analysis.projection import identify_projection
-    from reports.projection_section import projection_section
+    from dynid.analysis.estimators.projection import identify_projection
+    from dynid.reports.projection_section import projection_section
     say("Projection Method: FIR sensitivity per joint, then two-stage LS")
     res = identify_projection(exp, robot, settings=_processing_settings(args))
     _write_method_outputs(args, say, res, res.to_frame(), lambda: [projection_section(res)],
@@ -602,9 +602,9 @@ def _identify_projection(args, say, robot, exp):
 
 
 def _identify_didim(args, say, robot, exp):
-    from analysis.didim import identify_didim
-    from dynamics.errors import InputError
-    from reports.didim_section import didim_sections
+    from dynid.analysis.estimators.didim import identify_didim
+    from dynid.errors import InputError
+    from dynid.reports.didim_section import didim_sections
     if robot.controller is None:
         raise InputError(f"DIDIM simulates the robot under its controller, but '{robot.name}' "
                          f"({robot.source}) has no [controller] table")
@@ -627,11 +627,11 @@ METHODS = {"didim": _identify_didim, "projection": _identify_projection, "ml": _
 
 def cmd_simulate(args, say):
     import numpy as np
-    from analysis.synthetic import apriori_parameters, simulate_experiment
-    from dynamics.base_parameters import base_parameters
-    from dynamics.errors import InputError
-    from dynamics.robot_file import load_robot
-    from dynamics.trajectories import random_fourier_trajectory
+    from dynid.analysis.data.synthetic import apriori_parameters, simulate_experiment
+    from dynid.dynamics.base_parameters import base_parameters
+    from dynid.errors import InputError
+    from dynid.dynamics.robot_file import load_robot
+    from dynid.dynamics.trajectories import random_fourier_trajectory
     robot = load_robot(args.robot)
     if robot.controller is None:
         raise InputError(f"robot '{robot.name}' ({robot.source}) has no [controller]; add one to simulate")
@@ -646,7 +646,7 @@ def cmd_simulate(args, say):
                                   name=f"simulated {robot.name} (seed {args.seed})")
     outputs = [(args.out, exp.to_frame().to_csv(index=False, float_format="%.10g"))]
     if args.json:
-        from analysis.provenance import dumps_json, json_safe
+        from dynid.provenance import dumps_json, json_safe
         bp = base_parameters(robot)
         doc = json_safe({
             "robot": robot.name, "seed": args.seed, "duration": args.duration, "fs": exp.fs,
@@ -665,10 +665,10 @@ def cmd_simulate(args, say):
 
 
 def cmd_sample(args, say):
-    from analysis.bayes import sample_idim
-    from analysis.idim import identify_idim
-    from analysis.provenance import dumps_json
-    from dynamics.robot_file import load_robot
+    from dynid.analysis.sampling.posterior import sample_idim
+    from dynid.analysis.estimators.idim import identify_idim
+    from dynid.provenance import dumps_json
+    from dynid.dynamics.robot_file import load_robot
     robot = load_robot(args.robot)
     experiments, _ = _load_data(args, say, robot, args.data)
     with say.progress("regressor and decimation") as bar:
@@ -688,8 +688,8 @@ def cmd_sample(args, say):
         outputs.append((args.csv, post.samples_frame().to_csv(index=False, lineterminator="\n",
                                                               float_format="%.17g")))
     if args.report:
-        from reports.bayes_section import bayes_sections
-        from reports.html import render_idim_report
+        from dynid.reports.bayes_section import bayes_sections
+        from dynid.reports.html import render_idim_report
         outputs.append((args.report, render_idim_report(result, robot, experiments[0],
                                                         extra_sections=bayes_sections(post))))
     commit_outputs(outputs, say)
@@ -701,10 +701,10 @@ def cmd_sample(args, say):
 
 
 def cmd_excite(args, say):
-    from analysis.provenance import dumps_json
-    from dynamics.errors import InputError
-    from dynamics.excitation import design_excitation
-    from dynamics.robot_file import load_robot
+    from dynid.provenance import dumps_json
+    from dynid.errors import InputError
+    from dynid.dynamics.excitation import design_excitation
+    from dynid.dynamics.robot_file import load_robot
     robot = load_robot(args.robot)
     if args.periods < 1:
         raise InputError(f"--periods must be at least 1, got {args.periods}")
@@ -737,8 +737,8 @@ def cmd_excite(args, say):
         doc["csv"] = {"fs": fs, "periods": args.periods} if args.out else None
         outputs.append((args.json, dumps_json(doc)))
     if args.report:
-        from reports.bona_section import excitation_section
-        from reports.html import render_sections
+        from dynid.reports.bona_section import excitation_section
+        from dynid.reports.html import render_sections
         outputs.append((args.report, render_sections([excitation_section(res, robot)],
                                                      title=f"Excitation design for {robot.name}")))
     commit_outputs(outputs, say)
@@ -749,7 +749,7 @@ def cmd_excite(args, say):
 
 
 def _effects_option(value):
-    from analysis.effects import check_effect_names
+    from dynid.analysis.diagnosis.effects import check_effect_names
     if not value:
         return None
     names = [x.strip() for x in value.split(",") if x.strip()]
@@ -758,7 +758,7 @@ def _effects_option(value):
 
 
 def _check_diagnosis_options(args):
-    from dynamics.errors import InputError
+    from dynid.errors import InputError
     alpha = getattr(args, "alpha", 0.01)
     if not 0 < alpha < 1:
         raise InputError(f"--alpha must be between 0 and 1, got {alpha:g}")
@@ -769,7 +769,7 @@ def _check_diagnosis_options(args):
 
 
 def _run_diagnosis(args, say, robot, experiment, valid, idim_result):
-    from analysis.diagnosis import diagnose
+    from dynid.analysis.diagnosis.selection import diagnose
     with say.progress("diagnosis (selection steps)") as bar:
         kwargs = dict(validation=valid, effects=_effects_option(getattr(args, "effects", None)),
                       max_effects=getattr(args, "max_effects", 3), alpha=getattr(args, "alpha", 0.01),
@@ -782,9 +782,9 @@ def _run_diagnosis(args, say, robot, experiment, valid, idim_result):
 
 
 def cmd_diagnose(args, say):
-    from analysis.idim import identify_idim
-    from analysis.provenance import dumps_json
-    from dynamics.robot_file import load_robot
+    from dynid.analysis.estimators.idim import identify_idim
+    from dynid.provenance import dumps_json
+    from dynid.dynamics.robot_file import load_robot
     _check_diagnosis_options(args)
     robot = load_robot(args.robot)
     _effects_option(args.effects)          # bad names fail before the long work
@@ -803,8 +803,8 @@ def cmd_diagnose(args, say):
     if args.json:
         outputs.append((args.json, dumps_json(diag.to_dict())))
     if args.report:
-        from reports.diagnosis_section import diagnosis_sections
-        from reports.html import render_idim_report
+        from dynid.reports.diagnosis_section import diagnosis_sections
+        from dynid.reports.html import render_idim_report
         outputs.append((args.report, render_idim_report(result, robot, experiment,
                                                         extra_sections=diagnosis_sections(diag, robot))))
     commit_outputs(outputs, say)
@@ -815,7 +815,7 @@ REPORT_PARTS = ("didim", "sample", "diagnose")
 
 
 def _skip_option(value):
-    from dynamics.errors import InputError
+    from dynid.errors import InputError
     skip = {x.strip() for x in (value or "").split(",") if x.strip()}
     unknown = skip - set(REPORT_PARTS)
     if unknown:
@@ -838,8 +838,8 @@ def _further_analyses(args, say, robot, experiments, valid, result, skip):
         elif len(experiments) > 1:
             say("DIDIM skipped: it identifies one recording at a time")
         else:
-            from analysis.didim import identify_didim
-            from reports.didim_section import didim_sections
+            from dynid.analysis.estimators.didim import identify_didim
+            from dynid.reports.didim_section import didim_sections
             exp = experiments[0]
             # The paper's gain update at every step oscillated on the demo data (25 steps,
             # Ia6 +590 %) where updating only the first simulation converged in 8 (all
@@ -856,8 +856,8 @@ def _further_analyses(args, say, robot, experiments, valid, result, skip):
             if not dres.converged:
                 problems.append(f"DIDIM did not converge ({dres.stop_reason})")
     if "sample" not in skip:
-        from analysis.bayes import sample_idim
-        from reports.bayes_section import bayes_sections
+        from dynid.analysis.sampling.posterior import sample_idim
+        from dynid.reports.bayes_section import bayes_sections
         with say.progress("sampling (steps / steps needed)") as bar:
             post = sample_idim(result, which="essential", seed=args.seed, max_seconds=args.max_seconds,
                                progress=lambda n, need: bar.update(n / max(need, 1)))
@@ -870,7 +870,7 @@ def _further_analyses(args, say, robot, experiments, valid, result, skip):
         if len(experiments) > 1:
             say("diagnosis skipped: it works on one recording at a time")
         else:
-            from reports.diagnosis_section import diagnosis_sections
+            from dynid.reports.diagnosis_section import diagnosis_sections
             say("diagnosis: scoring candidate effects")
             diag = _run_diagnosis(args, say, robot, experiments[0], valid, result)
             sections += diagnosis_sections(diag, robot)
@@ -880,8 +880,8 @@ def _further_analyses(args, say, robot, experiments, valid, result, skip):
 
 
 def _write_full_report(args, say, robot, experiments, result, validation, parts):
-    from analysis.provenance import dumps_json
-    from reports.html import render_idim_report
+    from dynid.provenance import dumps_json
+    from dynid.reports.html import render_idim_report
     sections, extra_doc, texts, problems = parts
     _show(args, result.summary(), validation.summary() if validation is not None else "", *texts)
     outputs = []
@@ -904,10 +904,10 @@ def _write_full_report(args, say, robot, experiments, result, validation, parts)
 
 
 def cmd_report(args, say):
-    from analysis.idim import identify_idim
-    from analysis.validation import validate
-    from dynamics.robot_file import load_robot
-    from dynamics.errors import InputError
+    from dynid.analysis.estimators.idim import identify_idim
+    from dynid.analysis.statistics.validation import validate
+    from dynid.dynamics.robot_file import load_robot
+    from dynid.errors import InputError
     skip = _skip_option(args.skip)
     if not args.max_seconds > 0:
         raise InputError(f"--max-seconds must be positive, got {args.max_seconds:g}")
@@ -925,8 +925,8 @@ def cmd_report(args, say):
 
 
 def cmd_demo(args, say):
-    from analysis.demo import run_demo
-    from dynamics.errors import InputError
+    from dynid.analysis.demo import run_demo
+    from dynid.errors import InputError
     skip = _skip_option(args.skip)
     if not args.duration >= 2.0:
         raise InputError(f"--duration must be at least 2 s, got {args.duration:g}")
@@ -950,7 +950,7 @@ def main(argv=None):
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.version:
-        from analysis.provenance import versions
+        from dynid.provenance import versions
         print(f"dynid {versions().get('dynid', '?')}")
         return EXIT_OK
     if not args.command:

@@ -8,7 +8,7 @@ compared quantity, every value with its %σ in each source:
 * FIGAROH (``reference_results/TX40_bp_5.csv``: OLS and WLS of the 60 base
   parameters; ``TX40_ep_5.csv``: WLS of their 25 essential ones), the FIGAROH
   authors' identification on the same recording;
-* Table 2 of Gautier, Janot, Vandanjon (2010), :data:`reports.paper.DIDIM_TX40_TABLE2`:
+* Table 2 of Gautier, Janot, Vandanjon (2010), :data:`dynid.reports.paper.DIDIM_TX40_TABLE2`:
   DIDIM on another recording of a TX40 (section 5 of the paper).
 
 Mapping. FIGAROH's base parameters have the same regrouping relations as
@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from reports.paper import DIDIM_TX40_TABLE2
+from dynid.reports.paper import DIDIM_TX40_TABLE2
 
 __all__ = ["comparison_frame", "comparison_summary", "comparison_section", "figaroh_to_dynid",
            "WELL_IDENTIFIED"]
@@ -173,8 +173,8 @@ _LABELS = {
 def comparison_section(df, *, reading=(), id="comparison",
                        title="Comparison with FIGAROH and Table 2 of the DIDIM paper"):
     """A report Section of :func:`comparison_frame` with the agreement counts and ``reading``."""
-    from reports import tables as T
-    from reports.html import Section, bullets, join, para
+    from dynid.reports import tables as T
+    from dynid.reports.html import Section, bullets, join, para
     s = comparison_summary(df)
     cols = [c for c in _LABELS if c in df.columns and c != "figaroh"]
     if df["dynid_didim"].isna().all():

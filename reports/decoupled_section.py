@@ -1,9 +1,9 @@
 """Report sections of the per-joint identification of Bona & Curatella (2005), section 3.
 
 :func:`decoupled_sections` turns an
-:class:`analysis.decoupled_campaign.DecoupledIdentification` (or the three
-:class:`analysis.repeated.RepeatedEstimate` and a validation) into
-:class:`reports.html.Section` objects: Tables 1, 2 and 3 in the paper's layout
+:class:`dynid.analysis.decoupled.campaign.DecoupledIdentification` (or the three
+:class:`dynid.analysis.decoupled.repeated.RepeatedEstimate` and a validation) into
+:class:`dynid.reports.html.Section` objects: Tables 1, 2 and 3 in the paper's layout
 (Table 1: parameters by axis; Table 2: axes by β^{v+}, β^{v−}, β^{c+}, β^{c−};
 Table 3: axis, parameter, θ̄, σ, t_γ σ/√(n−1)), each entry with dynid's
 mean, σ (1/n), 99.9 % half-width and, for simulated data, the true value and
@@ -17,10 +17,10 @@ import math
 import numpy as np
 import pandas as pd
 
-from reports import figures as F
-from reports import tables as T
-from reports.bona_section import noise_pdf_figure
-from reports.html import Section, join, kv_list, para
+from dynid.reports import figures as F
+from dynid.reports import tables as T
+from dynid.reports.bona_section import noise_pdf_figure
+from dynid.reports.html import Section, join, kv_list, para
 
 __all__ = ["decoupled_sections", "gravity_section", "friction_section", "inertia_section",
            "validation_section", "table1_frame", "table2_frame", "table3_frame"]
@@ -183,7 +183,7 @@ def validation_section(val, *, joint_names=None, id="validation-fig8",
 
 
 def decoupled_sections(ident, *, joint_names=None):
-    """The sections of a :class:`~analysis.decoupled_campaign.DecoupledIdentification`."""
+    """The sections of a :class:`~dynid.analysis.decoupled.campaign.DecoupledIdentification`."""
     out = [gravity_section(ident.gravity), friction_section(ident.friction),
            inertia_section(ident.inertia)]
     if ident.validation is not None:

@@ -1,6 +1,6 @@
-"""Report sections of a residual diagnosis (:func:`analysis.diagnosis.diagnose`).
+"""Report sections of a residual diagnosis (:func:`dynid.analysis.diagnosis.selection.diagnose`).
 
-``diagnosis_sections(result, robot=None)`` returns :class:`reports.html.Section`
+``diagnosis_sections(result, robot=None)`` returns :class:`dynid.reports.html.Section`
 objects to append to an IDIM report (``render_idim_report(...,
 extra_sections=...)``) or to render on their own
 (``render_sections(sections, title=...)``):
@@ -27,10 +27,10 @@ import numpy as np
 import pandas as pd
 from markupsafe import Markup
 
-from analysis.diagnosis import nonlinear_text
-from reports import figures as F
-from reports import tables as T
-from reports.html import Section, bullets, join, kv_list, para
+from dynid.analysis.diagnosis.selection import nonlinear_text
+from dynid.reports import figures as F
+from dynid.reports import tables as T
+from dynid.reports.html import Section, bullets, join, kv_list, para
 
 __all__ = ["diagnosis_sections", "SECTION_IDS"]
 
@@ -307,7 +307,7 @@ def _residual_section(res, names):
 
 
 def diagnosis_sections(result, robot=None):
-    """The report sections of a :class:`analysis.diagnosis.DiagnosisResult`."""
+    """The report sections of a :class:`dynid.analysis.diagnosis.selection.DiagnosisResult`."""
     n = result.model_before.n_joints
     names = _names(robot, n)
     return [_overview_section(result), _effects_section(result), _errors_section(result, names),

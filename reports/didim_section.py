@@ -1,9 +1,9 @@
 """HTML report sections of a DIDIM identification (section 3 and 5 of the DIDIM paper).
 
 ``didim_sections(didim_result, idim_result=None)`` returns
-:class:`reports.html.Section` objects to pass as ``extra_sections`` to
-:func:`reports.html.render_idim_report`, or to
-:func:`reports.html.render_sections` on their own:
+:class:`dynid.reports.html.Section` objects to pass as ``extra_sections`` to
+:func:`dynid.reports.html.render_idim_report`, or to
+:func:`dynid.reports.html.render_sections` on their own:
 
 * ``didim-convergence``: ||rho|| and its relative change per Gauss-Newton
   step, the stop rule, the history table (step length, output error,
@@ -30,10 +30,10 @@ from markupsafe import Markup
 from matplotlib.figure import Figure
 from matplotlib.ticker import NullFormatter
 
-from reports import figures as F
-from reports import tables as T
-from reports.html import Section, bullets, code, join, kv_list, para
-from reports.paper import reference_for
+from dynid.reports import figures as F
+from dynid.reports import tables as T
+from dynid.reports.html import Section, bullets, code, join, kv_list, para
+from dynid.reports.paper import reference_for
 
 __all__ = ["didim_sections", "SECTION_IDS", "convergence_figure", "trajectory_figure"]
 
@@ -308,10 +308,10 @@ def _comparison_section(res, idim):
 
 
 def didim_sections(didim_result, idim_result=None, *, reference="auto"):
-    """Report sections of a :class:`analysis.didim.DIDIMResult` (ids :data:`SECTION_IDS`).
+    """Report sections of a :class:`dynid.analysis.estimators.didim.DIDIMResult` (ids :data:`SECTION_IDS`).
 
-    ``idim_result`` (an :class:`analysis.idim.IDIMResult` of the same recording) adds
-    the DIDIM-vs-IDIM table. ``reference``: a :class:`reports.paper.ReferenceTable`,
+    ``idim_result`` (an :class:`dynid.analysis.estimators.idim.IDIMResult` of the same recording) adds
+    the DIDIM-vs-IDIM table. ``reference``: a :class:`dynid.reports.paper.ReferenceTable`,
     ``None``, or ``"auto"`` (the published table for the robot, if any).
     """
     if isinstance(reference, str) and reference == "auto":

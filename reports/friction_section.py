@@ -1,8 +1,8 @@
-"""Report section of :class:`analysis.asymmetric_friction.AsymmetricFrictionResult`."""
+"""Report section of :class:`dynid.analysis.estimators.asymmetric_friction.AsymmetricFrictionResult`."""
 from __future__ import annotations
 
-from reports import tables as T
-from reports.html import Section, para
+from dynid.reports import tables as T
+from dynid.reports.html import Section, para
 
 
 def asymmetric_friction_section(result, *, id="asymmetric-friction"):

@@ -31,15 +31,14 @@ import numpy as np
 import pandas as pd
 from markupsafe import Markup, escape
 
-import reports
-from analysis.provenance import atomic_write_text, versions
-from reports import figures as F
-from reports import tables as T
-from reports.paper import reference_for
+from dynid.provenance import atomic_write_text, versions
+from dynid.reports import figures as F
+from dynid.reports import tables as T
+from dynid.reports.paper import reference_for
 
 __all__ = [
     "Section", "para", "kv_list", "bullets", "join", "render_sections", "idim_sections",
-    "render_idim_report", "write_report", "environment", "template_dirs", "SECTION_IDS",
+    "render_idim_report", "write_report", "environment", "SECTION_IDS",
 ]
 
 TEMPLATE = "report.html.j2"
@@ -56,8 +55,8 @@ class Section:
 
     ``html_body`` is escaped unless it is :class:`markupsafe.Markup` (build it
     with :func:`para`, :func:`kv_list`, :func:`bullets`, :func:`join`).
-    ``figures`` are :class:`reports.figures.FigureMarkup`, ``tables``
-    :class:`reports.tables.Table`. With ``tables_first`` the tables come
+    ``figures`` are :class:`dynid.reports.figures.FigureMarkup`, ``tables``
+    :class:`dynid.reports.tables.Table`. With ``tables_first`` the tables come
     before the figures.
     """
 
@@ -101,17 +100,18 @@ def join(*parts) -> Markup:
 
 
 # ------------------------------------------------------------------ rendering
-def template_dirs() -> list:
-    """Where the templates are: installed (``reports/templates``) first, then the repo's ``templates/``."""
-    pkg = Path(reports.__file__).resolve().parent
-    return [str(pkg / "templates"), str(pkg.parent / "templates")]
+TEMPLATE_PACKAGE = "dynid.templates"
 
 
 @functools.lru_cache(maxsize=1)
 def environment() -> jinja2.Environment:
-    """The Jinja2 environment of the reports (autoescape on, strict undefined)."""
+    """The Jinja2 environment of the reports (autoescape on, strict undefined).
+
+    Templates are package data of ``dynid.templates`` (the repository's ``templates/``),
+    found through the import system, so they work installed, editable or zipped.
+    """
     return jinja2.Environment(
-        loader=jinja2.FileSystemLoader(template_dirs()),
+        loader=jinja2.PackageLoader(TEMPLATE_PACKAGE, "."),
         autoescape=True,
         undefined=jinja2.StrictUndefined,
         trim_blocks=True,
@@ -124,7 +124,7 @@ def _check_sections(sections):
     seen = set()
     for s in sections:
         if not isinstance(s, Section):
-            raise TypeError(f"report sections must be reports.html.Section, got {type(s).__name__}")
+            raise TypeError(f"report sections must be dynid.reports.html.Section, got {type(s).__name__}")
         if not _ID_RE.match(s.id):
             raise ValueError(f"section id {s.id!r} must match [a-z][a-z0-9-]*")
         if s.id in seen:
@@ -193,7 +193,7 @@ def _setting_value(key, value, joint_names):
 
 
 def _run_section(res, robot, experiment, reference):
-    from analysis.observation import SETTINGS_HELP
+    from dynid.analysis.processing.observation import SETTINGS_HELP
 
     obs = res.observation
     names = _joint_names(robot, obs.tau.shape[1])
@@ -434,7 +434,7 @@ def _validation_section(res, robot, validation):
 def idim_sections(idim_result, robot, experiment=None, validation=None, *, reference="auto"):
     """The sections of an IDIM report (ids :data:`SECTION_IDS`; ``validation`` only if given).
 
-    ``reference``: a :class:`reports.paper.ReferenceTable`, ``None``, or
+    ``reference``: a :class:`dynid.reports.paper.ReferenceTable`, ``None``, or
     ``"auto"`` (the published table for this robot, if any).
     """
     if isinstance(reference, str) and reference == "auto":

@@ -285,7 +285,7 @@ def table2_layout(names, chi, rel_sigma, reference=None, base_order=None, *,
                   ours_label="dynid") -> Table:
     """Two side-by-side blocks of Parameter | χ̂ | %σ (| paper χ̂ | paper %σ), like Table 2.
 
-    With a ``reference`` (:class:`reports.paper.ReferenceTable`) the paper's
+    With a ``reference`` (:class:`dynid.reports.paper.ReferenceTable`) the paper's
     value and %σ stand beside dynid's; a parameter of the paper missing from
     dynid's essential set is marked † (and dynid's cells are "—"), one of
     dynid's essential set absent from the paper is marked +.

@@ -2,9 +2,9 @@
 
 ``export_urdf(result, robot)`` chooses one physically consistent
 standard-parameter set for the identified base parameters
-(:func:`analysis.standard_set.choose_standard_set`: closest to the
+(:func:`dynid.analysis.estimators.standard_set.choose_standard_set`: closest to the
 identified values in the metric of their covariance, then closest to the
-a-priori values), writes it as URDF text (:mod:`dynamics.urdf_writer`), reads
+a-priori values), writes it as URDF text (:mod:`dynid.dynamics.urdf_writer`), reads
 that text back with dynid's own URDF reader and checks that it gives the
 same base parameters, and reports how the chosen set predicts the
 identification data next to the identified model.
@@ -28,9 +28,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from analysis.provenance import atomic_write_text, json_safe
-from analysis.standard_set import choose_standard_set
-from dynamics.urdf_writer import read_extra_parameters, urdf_text, urdf_unrepresentable
+from dynid.provenance import atomic_write_text, json_safe
+from dynid.analysis.estimators.standard_set import choose_standard_set
+from dynid.dynamics.urdf_writer import read_extra_parameters, urdf_text, urdf_unrepresentable
 
 __all__ = ["UrdfExport", "export_urdf", "round_trip"]
 
@@ -39,7 +39,7 @@ __all__ = ["UrdfExport", "export_urdf", "round_trip"]
 class UrdfExport:
     robot_name: str
     text: str                     # the URDF
-    standard_set: object          # analysis.standard_set.StandardSet
+    standard_set: object          # dynid.analysis.estimators.standard_set.StandardSet
     which: str                    # "essential" or "base"
     round_trip_error: float       # max |beta(URDF read back) - beta(chosen set)|
     prediction: dict              # identification data: rel. error of the model and of the set
@@ -65,8 +65,8 @@ class UrdfExport:
         return json_safe(d)
 
     def section(self, *, id="urdf-export", title="URDF export: a physically consistent standard set"):
-        from reports import tables as T
-        from reports.html import Section, bullets, join, para
+        from dynid.reports import tables as T
+        from dynid.reports.html import Section, bullets, join, para
         ss = self.standard_set
         p = self.prediction
         verdict = ("reproduces the identified parameters" if ss.reproduces else
@@ -132,7 +132,7 @@ def _identified(result, which):
 
 def round_trip(text, robot, bp):
     """Base parameters (b,) of a URDF text written by :func:`urdf_text`, read back by dynid."""
-    from dynamics.urdf import read_urdf
+    from dynid.dynamics.urdf import read_urdf
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "model.urdf"
         path.write_text(text)
@@ -149,7 +149,7 @@ def round_trip(text, robot, bp):
 def export_urdf(result, robot, *, which="essential", max_nfev=400, comment=None) -> UrdfExport:
     """A URDF of ``robot`` holding a physically consistent standard set for ``result``.
 
-    ``result``: an :class:`analysis.idim.IDIMResult` (or a DIDIM result);
+    ``result``: an :class:`dynid.analysis.estimators.idim.IDIMResult` (or a DIDIM result);
     ``which``: reproduce the ``"essential"`` model (default; the others at 0,
     where consistency allows) or all ``"base"`` parameters of the WLS.
     """

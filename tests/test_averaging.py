@@ -12,9 +12,9 @@ import math
 import numpy as np
 import pytest
 
-from analysis.averaging import average_periods, estimate_shift, harmonic_filter, whole_periods
-from analysis.provenance import dumps_json
-from dynamics.errors import InputError
+from dynid.analysis.processing.averaging import average_periods, estimate_shift, harmonic_filter, whole_periods
+from dynid.provenance import dumps_json
+from dynid.errors import InputError
 
 F0, N_HARM, FS, M = 0.1, 5, 200.0, 25
 SIGMA = np.array([0.05, 0.2, 1.0])            # N m, per joint

@@ -6,9 +6,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dynamics.base_parameters import base_parameters, base_regressor
-from dynamics.regressor import regressor
-from dynamics.robot_file import load_robot
+from dynid.dynamics.base_parameters import base_parameters, base_regressor
+from dynid.dynamics.regressor import regressor
+from dynid.dynamics.robot_file import load_robot
 from tests.oracles import random_standard_parameters, rel_err
 
 from conftest import TX40_EXAMPLE

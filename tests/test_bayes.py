@@ -1,5 +1,5 @@
-"""Tests of the Bayesian posterior (analysis.bayes), its convergence rule (analysis.convergence)
-and its report sections (reports.bayes_section).
+"""Tests of the Bayesian posterior (dynid.analysis.sampling.posterior), its convergence rule (dynid.analysis.sampling.convergence)
+and its report sections (dynid.reports.bayes_section).
 
 Every statistical test compares emcee's draws with a closed form or with the truth of
 simulated data, with tolerances set from the Monte-Carlo error (ESS from τ), so a wrong
@@ -12,18 +12,18 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from analysis import bayes
-from analysis import least_squares as lsq
-from analysis.convergence import ConvergenceCriteria, diagnose, integrated_time, split_rhat
-from analysis.provenance import dumps_json
+from dynid.analysis.sampling import posterior as bayes
+from dynid.analysis.estimators import least_squares as lsq
+from dynid.analysis.sampling.convergence import ConvergenceCriteria, diagnose, integrated_time, split_rhat
+from dynid.provenance import dumps_json
 
 
 # ----------------------------------------------------------------------------- fixtures
 @pytest.fixture(scope="module")
 def tx40_essential():
     """W, tau, row_mask of the essential set of the simulated TX40 (demo_data(1, 20 s)) and its WLS."""
-    from analysis.demo import demo_data
-    from analysis.idim import identify_idim
+    from dynid.analysis.demo import demo_data
+    from dynid.analysis.estimators.idim import identify_idim
 
     robot, bp, beta, ident, valid = demo_data(1, 20.0)
     res = identify_idim(ident, robot, bp=bp)
@@ -297,8 +297,8 @@ def test_tiny_step_limit_is_reported_not_converged():
     assert "NOT CONVERGED" in res.summary()
     assert res.notices and "NOT CONVERGED" in res.notices[0]
 
-    from reports.bayes_section import bayes_sections
-    from reports.html import render_sections
+    from dynid.reports.bayes_section import bayes_sections
+    from dynid.reports.html import render_sections
 
     secs = bayes_sections(res, prefix="post")
     assert all("NOT CONVERGED" in s.title for s in secs)
@@ -361,8 +361,8 @@ def test_optional_exports_are_clear_about_missing_packages(tmp_path):
 
 
 def test_report_sections_for_linear_and_gravity(tx40_known_noise, gravity_runs):
-    from reports.bayes_section import bayes_sections, corner_selection
-    from reports.html import render_sections
+    from dynid.reports.bayes_section import bayes_sections, corner_selection
+    from dynid.reports.html import render_sections
 
     res = tx40_known_noise[0]
     idx, note = corner_selection(res)

@@ -53,7 +53,7 @@ def open_page(html_path, screenshot=None):
 
 
 def test_demo_report_in_chromium(tmp_path):
-    from reports.cli import main
+    from dynid.reports.cli import main
     report = tmp_path / "demo.html"
     assert main(["demo", "--duration", "8", "--report", str(report), "--quiet"]) == 0
     OUT.mkdir(exist_ok=True)
@@ -78,12 +78,12 @@ def test_demo_report_in_chromium(tmp_path):
 
 
 def test_hostile_names_do_not_execute(tmp_path):
-    from analysis.idim import identify_idim
-    from analysis.synthetic import simulate_experiment
-    from dynamics.base_parameters import base_parameters
-    from dynamics.robot_file import load_robot
-    from dynamics.trajectories import random_fourier_trajectory
-    from reports.html import render_idim_report, write_report
+    from dynid.analysis.estimators.idim import identify_idim
+    from dynid.analysis.data.synthetic import simulate_experiment
+    from dynid.dynamics.base_parameters import base_parameters
+    from dynid.dynamics.robot_file import load_robot
+    from dynid.dynamics.trajectories import random_fourier_trajectory
+    from dynid.reports.html import render_idim_report, write_report
 
     text = (ROOT / "dynamics" / "robots" / "planar2.toml").read_text()
     text = text.replace('name = "planar2"', 'name = "<script>alert(1)</script>"')

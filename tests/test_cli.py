@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from reports.cli import COMMANDS, build_parser, main
+from dynid.reports.cli import COMMANDS, build_parser, main
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -70,7 +70,7 @@ def test_missing_command_prints_help_and_exits_2(capsys):
 
 
 def test_console_script_module_runs():
-    out = subprocess.run([sys.executable, "-m", "reports.cli", "robot", "--list"], cwd=ROOT,
+    out = subprocess.run([sys.executable, "-m", "dynid.reports.cli", "robot", "--list"], cwd=ROOT,
                          capture_output=True, text=True, timeout=120)
     assert out.returncode == 0 and "tx40" in out.stdout
 
@@ -160,7 +160,7 @@ def test_excite_tx40_as_in_the_issue_respects_limits_in_the_written_csv(tmp_path
     """
     import numpy as np
     import pandas as pd
-    from dynamics.robot_file import load_robot
+    from dynid.dynamics.robot_file import load_robot
     traj, js = tmp_path / "traj.csv", tmp_path / "ex.json"
     assert main(["excite", "--robot", "tx40", "--f0", "0.1", "--harmonics", "5", "--out", str(traj),
                  "--json", str(js), "--quiet"]) == 0
@@ -289,8 +289,8 @@ def test_missing_output_folder_is_refused_before_any_work_and_existing_files_sur
 
 
 def test_commit_outputs_is_all_or_none_and_keeps_existing_files(tmp_path):
-    from dynamics.errors import InputError
-    from reports.cli import commit_outputs
+    from dynid.errors import InputError
+    from dynid.reports.cli import commit_outputs
     old = tmp_path / "a.json"
     old.write_text("old")
     with pytest.raises(InputError, match="cannot write"):

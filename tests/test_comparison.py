@@ -4,11 +4,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from analysis.experiment import load_experiment
-from analysis.idim import identify_idim
-from dynamics.robot_file import load_robot
-from reports.comparison import comparison_frame, comparison_section, comparison_summary
-from reports.paper import DIDIM_TX40_TABLE2
+from dynid.analysis.data.experiment import load_experiment
+from dynid.analysis.estimators.idim import identify_idim
+from dynid.dynamics.robot_file import load_robot
+from dynid.reports.comparison import comparison_frame, comparison_section, comparison_summary
+from dynid.reports.paper import DIDIM_TX40_TABLE2
 
 TX40 = Path(__file__).resolve().parents[1] / "examples" / "staubli_tx40"
 

@@ -1,4 +1,4 @@
-"""Tests of the parallel decimation of eq. (9) (analysis.decimation)."""
+"""Tests of the parallel decimation of eq. (9) (dynid.analysis.processing.decimation)."""
 
 import time
 import zlib
@@ -6,8 +6,8 @@ import zlib
 import numpy as np
 import pytest
 
-from analysis.decimation import DecimationFilter, ParallelDecimator, decimate
-from dynamics.errors import InputError
+from dynid.analysis.processing.decimation import DecimationFilter, ParallelDecimator, decimate
+from dynid.errors import InputError
 
 FS = 5000.0
 ND = 100

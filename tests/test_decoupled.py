@@ -1,7 +1,7 @@
 """Per-joint identification of Bona & Curatella (2005), section 3, on a simulated decoupled COMAU.
 
 The simulated robot's true values are the paper's Tables 1-3
-(:mod:`dynamics.comau_decoupled`); 25 repetitions with torque and encoder
+(:mod:`dynid.dynamics.comau_decoupled`); 25 repetitions with torque and encoder
 noise, closed loop under a sampled PID. dynid's report must reproduce the
 three tables in the paper's layout with every true value inside its 99.9 %
 Student interval, and the intervals must be narrow enough to mean something.
@@ -16,16 +16,16 @@ import pytest
 from scipy import stats
 from scipy.linalg import expm
 
-from analysis.decoupled import estimate_friction, estimate_gravity, estimate_inertia
-from analysis.decoupled_campaign import identify_campaign, simulate_campaign
-from analysis.repeated import RepeatedEstimate
-from dynamics import comau_decoupled as C
-from dynamics.errors import InputError
-from dynamics.joint_model import JointModel, JointPID, simulate_joints
-from dynamics.joint_trajectories import trapezoid_reference
-from reports.decoupled_section import (decoupled_sections, table1_frame, table2_frame,
+from dynid.analysis.decoupled.estimates import estimate_friction, estimate_gravity, estimate_inertia
+from dynid.analysis.decoupled.campaign import identify_campaign, simulate_campaign
+from dynid.analysis.decoupled.repeated import RepeatedEstimate
+from dynid.dynamics import comau_decoupled as C
+from dynid.errors import InputError
+from dynid.dynamics.joint_model import JointModel, JointPID, simulate_joints
+from dynid.dynamics.joint_trajectories import trapezoid_reference
+from dynid.reports.decoupled_section import (decoupled_sections, table1_frame, table2_frame,
                                        table3_frame)
-from reports.html import render_sections
+from dynid.reports.html import render_sections
 
 N_REP = 25
 

@@ -15,15 +15,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from analysis.diagnosis import diagnose, without_parameters
-from analysis.effect_observation import observe_effects
-from analysis.effects import EFFECT_NAMES, EffectSignals, candidate_set, effect_torque, make_candidate
-from analysis.experiment import load_experiment
-from analysis.observation import observe
-from analysis.residuals import analyze_residuals, autocorrelation, effective_sample_size
-from dynamics.base_parameters import base_parameters
-from dynamics.errors import InputError
-from dynamics.robot_file import load_robot
+from dynid.analysis.diagnosis.selection import diagnose, without_parameters
+from dynid.analysis.diagnosis.effect_observation import observe_effects
+from dynid.analysis.diagnosis.effects import EFFECT_NAMES, EffectSignals, candidate_set, effect_torque, make_candidate
+from dynid.analysis.data.experiment import load_experiment
+from dynid.analysis.processing.observation import observe
+from dynid.analysis.statistics.residuals import analyze_residuals, autocorrelation, effective_sample_size
+from dynid.dynamics.base_parameters import base_parameters
+from dynid.errors import InputError
+from dynid.dynamics.robot_file import load_robot
 
 ROOT = Path(__file__).resolve().parents[1]
 CAMPAIGN = ROOT / "benchmarks" / "diagnosis_campaign.py"
@@ -78,7 +78,7 @@ def test_residual_analysis_friction_signature():
 # ------------------------------------------------------------------ effect columns
 @pytest.fixture(scope="module")
 def short_sim():
-    from analysis.demo import demo_data
+    from dynid.analysis.demo import demo_data
     robot, bp, beta, ident, valid = demo_data(seed=5, duration=6.0)
     return robot, bp, ident, valid
 
@@ -100,7 +100,7 @@ def test_effect_observation_reproduces_observe(short_sim):
 def test_candidates_cover_the_conventions(short_sim):
     robot, bp, ident, _ = short_sim
     e = observe_effects(ident, robot, bp)
-    from analysis.effects import signals_from_observation
+    from dynid.analysis.diagnosis.effects import signals_from_observation
     sig = signals_from_observation(e, np.arange(len(bp.names)), np.ones(len(bp.names)), bp.names)
     cands = candidate_set(sig)
     assert {c.name for c in cands} == CONVENTION_NAMES == set(EFFECT_NAMES)
@@ -155,8 +155,8 @@ def test_without_parameters_drops_offsets():
 
 def test_diagnose_finds_an_injected_viscous_asymmetry_and_reports(short_sim):
     """In-process end to end: API, JSON fields of the CONVENTIONS, report sections."""
-    from reports.diagnosis_section import SECTION_IDS, diagnosis_sections
-    from reports.html import render_sections
+    from dynid.reports.diagnosis_section import SECTION_IDS, diagnosis_sections
+    from dynid.reports.html import render_sections
     robot, bp, ident, valid = short_sim
     c = make_candidate("asymmetric_viscous", 2)
 

@@ -28,16 +28,16 @@ import pytest
 
 import oracles
 from conftest import TX40_EXAMPLE
-from analysis.didim import DIDIMResult, identify_didim, initial_parameters, initial_standard
-from analysis.experiment import Experiment, load_experiment
-from analysis.idim import identify_idim
-from analysis.provenance import dumps_json
-from analysis.synthetic import tx40_true_parameters
-from dynamics.base_parameters import base_parameters
-from dynamics.dynamic_model import mass_matrix
-from dynamics.errors import DataError, InputError
-from dynamics.robot_file import load_robot
-from dynamics.trajectories import random_fourier_trajectory
+from dynid.analysis.estimators.didim import DIDIMResult, identify_didim, initial_parameters, initial_standard
+from dynid.analysis.data.experiment import Experiment, load_experiment
+from dynid.analysis.estimators.idim import identify_idim
+from dynid.provenance import dumps_json
+from dynid.analysis.data.synthetic import tx40_true_parameters
+from dynid.dynamics.base_parameters import base_parameters
+from dynid.dynamics.dynamic_model import mass_matrix
+from dynid.errors import DataError, InputError
+from dynid.dynamics.robot_file import load_robot
+from dynid.dynamics.trajectories import random_fourier_trajectory
 
 needs_pin = pytest.mark.skipif(oracles.pin is None, reason="pinocchio (pin) is not installed")
 
@@ -232,7 +232,7 @@ def test_step_safeguard_with_the_soft_assumed_loop(tx40):
     step's estimate has negative wrist inertias. Halving the step keeps the iteration
     going (and never claims convergence from a damped step); without halvings DIDIM
     stops and says why. (A robustness check on dynid-simulated data, not an accuracy test.)"""
-    from dynamics.simulation import simulate_closed_loop
+    from dynid.dynamics.simulation import simulate_closed_loop
     robot, bp, beta = tx40
     rng = np.random.default_rng(7)
     traj = random_fourier_trajectory(robot, 0.25, 6, rng)
@@ -273,8 +273,8 @@ def test_bad_input(pin_data, short):
 
 @needs_pin
 def test_report_sections(nominal, idim):
-    from reports.didim_section import SECTION_IDS, didim_sections
-    from reports.html import render_sections
+    from dynid.reports.didim_section import SECTION_IDS, didim_sections
+    from dynid.reports.html import render_sections
 
     sections = didim_sections(nominal, idim)
     assert [s.id for s in sections] == list(SECTION_IDS)
@@ -284,7 +284,7 @@ def test_report_sections(nominal, idim):
     assert "fig-didim-convergence" in html and "tab-didim-vs-idim" in html
     assert "0.65" in html                                 # paper's %sigma of ZZ1R, Table 2 layout
     # the DIDIM sections can go into the IDIM report: no id of theirs is one of the IDIM report's
-    from reports.html import SECTION_IDS as IDIM_IDS
+    from dynid.reports.html import SECTION_IDS as IDIM_IDS
     assert not set(SECTION_IDS) & set(IDIM_IDS)
     keys = [k.key for s in sections for k in s.figures + s.tables]
     assert all(k.startswith(("fig-didim-", "tab-didim-")) for k in keys) and len(set(keys)) == len(keys)

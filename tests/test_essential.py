@@ -1,4 +1,4 @@
-"""Tests of analysis.essential (Pham & Gautier essential parameters)."""
+"""Tests of dynid.analysis.estimators.essential (Pham & Gautier essential parameters)."""
 
 import json
 import time
@@ -6,9 +6,9 @@ import time
 import numpy as np
 import pytest
 
-from analysis.essential import EssentialResult, essential_parameters
-from analysis.least_squares import ols, wls
-from dynamics.errors import InputError
+from dynid.analysis.estimators.essential import EssentialResult, essential_parameters
+from dynid.analysis.estimators.least_squares import ols, wls
+from dynid.errors import InputError
 
 N, n = 400, 3
 TRUE = ["ZZ1R", "Fv1", "MX2R", "Fc2", "Ia3"]

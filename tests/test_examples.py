@@ -58,7 +58,7 @@ def test_tx40_example(tmp_path):
     doc = json.loads((d / "tx40.json").read_text())
     rows = {r["quantity"]: r for r in doc["comparison"]["rows"]}
     # every Table 2 parameter is in the table with its %sigma in each source
-    from reports.paper import DIDIM_TX40_TABLE2
+    from dynid.reports.paper import DIDIM_TX40_TABLE2
     for name in DIDIM_TX40_TABLE2.names:
         assert rows[name]["table2_rel_std"] is not None and rows[name]["dynid_wls_rel_std"] is not None
     assert rows["Fv5 + Fvm6"]["fig_wls"] == pytest.approx(1.854047)   # FIGAROH's fv5

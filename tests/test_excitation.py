@@ -11,15 +11,15 @@ import json
 import numpy as np
 import pytest
 
-from analysis.provenance import dumps_json
-from analysis.synthetic import tx40_true_parameters
-from dynamics.base_parameters import base_parameters
-from dynamics.dynamic_model import inverse_dynamics
-from dynamics.errors import InputError
-from dynamics.excitation import (_Problem, apriori_parameters, column_scales, design_excitation,
+from dynid.provenance import dumps_json
+from dynid.analysis.data.synthetic import tx40_true_parameters
+from dynid.dynamics.base_parameters import base_parameters
+from dynid.dynamics.dynamic_model import inverse_dynamics
+from dynid.errors import InputError
+from dynid.dynamics.excitation import (_Problem, apriori_parameters, column_scales, design_excitation,
                                  limit_margins, regressor_conditioning, spectrum_check)
-from dynamics.robot_file import load_robot
-from dynamics.trajectories import FourierTrajectory, random_fourier_trajectory
+from dynid.dynamics.robot_file import load_robot
+from dynid.dynamics.trajectories import FourierTrajectory, random_fourier_trajectory
 
 F0, N_HARM, MARGIN = 0.1, 5, 0.95
 
@@ -179,8 +179,8 @@ def test_logdet_criterion_runs(tx40):
 
 
 def test_excitation_report_section(tx40, design):
-    from reports.bona_section import excitation_section
-    from reports.html import render_sections
+    from dynid.reports.bona_section import excitation_section
+    from dynid.reports.html import render_sections
 
     robot, _ = tx40
     sec = excitation_section(design, robot)

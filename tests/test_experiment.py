@@ -1,5 +1,5 @@
-"""Tests of analysis.experiment (loading and validating experiment data) and
-analysis.transmission (motor ↔ joint side)."""
+"""Tests of dynid.analysis.data.experiment (loading and validating experiment data) and
+dynid.analysis.data.transmission (motor ↔ joint side)."""
 
 from __future__ import annotations
 
@@ -15,9 +15,9 @@ import scipy.io
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from analysis import transmission as tr
-from analysis.experiment import Experiment, estimate_shift, load_experiment
-from dynamics.errors import DataError, InputError
+from dynid.analysis.data import transmission as tr
+from dynid.analysis.data.experiment import Experiment, estimate_shift, load_experiment
+from dynid.errors import DataError, InputError
 
 from conftest import SHARED_DATA
 TX40_DIR = SHARED_DATA / "staubli-tx40-figaroh"

@@ -8,12 +8,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from analysis.experiment import load_experiment
-from analysis.idim import identify_idim
-from analysis.validation import validate
-from dynamics.robot_file import load_robot
-from reports.cli import main
-from reports.paper import DIDIM_TX40_TABLE2
+from dynid.analysis.data.experiment import load_experiment
+from dynid.analysis.estimators.idim import identify_idim
+from dynid.analysis.statistics.validation import validate
+from dynid.dynamics.robot_file import load_robot
+from dynid.reports.cli import main
+from dynid.reports.paper import DIDIM_TX40_TABLE2
 
 ROOT = Path(__file__).resolve().parents[1]
 TX40_DIR = ROOT / "examples" / "staubli_tx40"

@@ -3,10 +3,10 @@ from pathlib import Path
 
 import pytest
 
-from analysis.experiment import load_experiment
-from analysis.idim import identify_idim
-from analysis.validation import validate
-from dynamics.robot_file import load_robot
+from dynid.analysis.data.experiment import load_experiment
+from dynid.analysis.estimators.idim import identify_idim
+from dynid.analysis.statistics.validation import validate
+from dynid.dynamics.robot_file import load_robot
 
 KUKA = Path(__file__).resolve().parents[1] / "examples" / "kuka_lwr4"
 

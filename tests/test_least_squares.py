@@ -1,4 +1,4 @@
-"""Tests of analysis.least_squares (eqs. (9)-(16)), analysis.results and analysis.provenance."""
+"""Tests of dynid.analysis.estimators.least_squares (eqs. (9)-(16)), dynid.analysis.results and dynid.provenance."""
 
 import json
 import math
@@ -7,11 +7,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-import analysis.provenance as provenance
-import analysis.results as results_mod
-from analysis.least_squares import RANK_RTOL, ols, stack, wls
-from analysis.provenance import atomic_write_bytes, atomic_write_text, data_hash, dumps_json, versions
-from dynamics.errors import IdentificationError, InputError
+import dynid.provenance as provenance
+import dynid.analysis.results as results_mod
+from dynid.analysis.estimators.least_squares import RANK_RTOL, ols, stack, wls
+from dynid.provenance import atomic_write_bytes, atomic_write_text, data_hash, dumps_json, versions
+from dynid.errors import IdentificationError, InputError
 
 N, n, b = 400, 3, 8
 NAMES = [f"P{i}" for i in range(b)]

@@ -15,14 +15,14 @@ import time
 import numpy as np
 import pytest
 
-from analysis import bias_scenarios as bs
-from analysis import least_squares as ls
-from analysis.maximum_likelihood import (fourier_basis, joint_model, linear_model, maximum_likelihood,
+import bias_scenarios as bs
+from dynid.analysis.estimators import least_squares as ls
+from dynid.analysis.estimators.maximum_likelihood import (fourier_basis, joint_model, linear_model, maximum_likelihood,
                                          robot_model, select_harmonics)
-from analysis.provenance import dumps_json
-from analysis.signals import derivatives
-from dynamics.base_parameters import base_regressor
-from dynamics.errors import InputError
+from dynid.provenance import dumps_json
+from dynid.analysis.processing.signals import derivatives
+from dynid.dynamics.base_parameters import base_regressor
+from dynid.errors import InputError
 
 N_SEEDS = 50
 FS = 200.0

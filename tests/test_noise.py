@@ -11,10 +11,10 @@ import math
 import numpy as np
 import pytest
 
-from analysis.averaging import average_periods
-from analysis.noise import compare_noise, noise_pdf, noise_pdf_tests
-from analysis.provenance import dumps_json
-from dynamics.errors import InputError
+from dynid.analysis.processing.averaging import average_periods
+from dynid.analysis.statistics.noise import compare_noise, noise_pdf, noise_pdf_tests
+from dynid.provenance import dumps_json
+from dynid.errors import InputError
 
 N_SAMPLES = 2000
 SEEDS = range(200)
@@ -126,8 +126,8 @@ def test_averaged_experiment_noise_is_gaussian_and_torque_dominates():
     cmp_ = compare_noise(avg.noise["tau"], avg.noise["q"], tau_signal=avg.mean["tau"],
                          q_signal=avg.mean["q"])
     assert cmp_.dominant == ["torque", "torque"]
-    from reports.bona_section import noise_section
-    from reports.html import render_sections
+    from dynid.reports.bona_section import noise_section
+    from dynid.reports.html import render_sections
 
     sec = noise_section(tests_tau, tests_q, comparison=cmp_, averaging=avg)
     html = render_sections([sec], title="noise")

@@ -2,7 +2,7 @@
 
 Closed-loop data: a one-joint pendulum simulated by dynid's closed-loop
 simulator with a coloured torque disturbance and coloured position-sensor
-noise fed back through its PD controller (analysis.bias_scenarios). Plain LS
+noise fed back through its PD controller (bias_scenarios). Plain LS
 (IDIM OLS on the measured positions) is biased there; the Projection Method
 must not be.
 """
@@ -15,11 +15,11 @@ import time
 import numpy as np
 import pytest
 
-from analysis import bias_scenarios as bs
-from analysis.projection import fit_fir, lag_matrix, projection_method, select_fir_order
-from analysis.provenance import dumps_json
-from analysis import least_squares as ls
-from dynamics.errors import InputError
+import bias_scenarios as bs
+from dynid.analysis.estimators.projection import fit_fir, lag_matrix, projection_method, select_fir_order
+from dynid.provenance import dumps_json
+from dynid.analysis.estimators import least_squares as ls
+from dynid.errors import InputError
 
 N_SEEDS = 50
 MAX_LAG = 25
@@ -184,8 +184,8 @@ def test_bad_input():
 
 def test_identify_projection_on_a_simulated_experiment():
     # the experiment-level path: dynid's own simulator, IDIM processing, no decimation
-    from analysis.projection import identify_projection
-    from analysis.synthetic import simulate_experiment
+    from dynid.analysis.estimators.projection import identify_projection
+    from dynid.analysis.data.synthetic import simulate_experiment
 
     robot, bp, chi, beta = bs.pendulum()
     exp = simulate_experiment(robot, chi, bs.excitation(), 4.0, rng=np.random.default_rng(0),
@@ -199,9 +199,9 @@ def test_identify_projection_on_a_simulated_experiment():
 
 
 def test_report_section(campaign):
-    from analysis.maximum_likelihood import maximum_likelihood, robot_model
-    from reports.html import render_sections
-    from reports.projection_section import estimates_frame, projection_section
+    from dynid.analysis.estimators.maximum_likelihood import maximum_likelihood, robot_model
+    from dynid.reports.html import render_sections
+    from dynid.reports.projection_section import estimates_frame, projection_section
 
     robot, bp, _, beta = bs.pendulum()
     t, q, tau = bs.periodic_motion()

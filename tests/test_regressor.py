@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dynamics.regressor import (bias_torque, gravity_torque, inverse_dynamics, mass_matrix,
+from dynid.dynamics.regressor import (bias_torque, gravity_torque, inverse_dynamics, mass_matrix,
                                 regressor, regressor_chunks)
-from dynamics.robot_file import load_robot, robot_from_dict
-from dynamics.base_parameters import base_parameters
+from dynid.dynamics.robot_file import load_robot, robot_from_dict
+from dynid.dynamics.base_parameters import base_parameters
 from tests.oracles import (actuator_torques, armature_matrix, chi_from_values, pin,
                            pin_model_from_mdh, pin_torques, random_standard_parameters, rel_err)
 

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from reports.cli import main
+from dynid.reports.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 TX40 = ROOT / "examples" / "staubli_tx40" / "experiment.toml"
@@ -37,7 +37,7 @@ def test_demo_same_seed_byte_identical_json(tmp_path):
 def test_killed_identify_leaves_no_partial_output(tmp_path, sig):
     report, js = tmp_path / "out.html", tmp_path / "out.json"
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    proc = subprocess.Popen([sys.executable, "-m", "reports.cli", "identify", str(TX40), "--robot", "tx40",
+    proc = subprocess.Popen([sys.executable, "-m", "dynid.reports.cli", "identify", str(TX40), "--robot", "tx40",
                              "--report", str(report), "--json", str(js)],
                             cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     time.sleep(2.0)          # imports done, in the middle of loading / identifying

@@ -1,9 +1,9 @@
-"""Tests of position filtering, differentiation and settings (analysis.signals)."""
+"""Tests of position filtering, differentiation and settings (dynid.analysis.processing.signals)."""
 
 import numpy as np
 import pytest
 
-from analysis.signals import (
+from dynid.analysis.processing.signals import (
     Derivatives,
     default_settings,
     derivatives,
@@ -12,7 +12,7 @@ from analysis.signals import (
     lowpass_filtfilt,
     transient_samples,
 )
-from dynamics.errors import InputError
+from dynid.errors import InputError
 
 FS = 5000.0
 
@@ -182,7 +182,7 @@ def test_default_settings_overrides():
 def test_default_settings_short_record_keeps_enough_samples():
     q = _robot_like_motion(seconds=1.5)
     s = default_settings(FS, q)
-    from analysis.decimation import DecimationFilter
+    from dynid.analysis.processing.decimation import DecimationFilter
 
     kept = DecimationFilter(s["nd"], FS).n_outputs(q.shape[0] - 2 * s["edge"])
     assert kept >= 100 and s["nd"] < 100

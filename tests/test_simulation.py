@@ -1,4 +1,4 @@
-"""Compiled dynamics (dynamics.dynamic_model) and closed-loop simulation (dynamics.simulation).
+"""Compiled dynamics (dynid.dynamics.dynamic_model) and closed-loop simulation (dynid.dynamics.simulation).
 
 The simulator is checked against an independent closed loop whose plant is
 Pinocchio (tests/oracles.py: pin_closed_loop), against closed forms of a 1-dof
@@ -10,13 +10,13 @@ import time
 import numpy as np
 import pytest
 
-from dynamics import dynamic_model as dm
-from dynamics.errors import InputError
-from dynamics.regressor import inverse_dynamics as regressor_inverse_dynamics
-from dynamics.robot import Controller, Coupling, Joint, Robot, mdh_placement
-from dynamics.robot_file import load_robot
-from dynamics.simulation import SimulationResult, simulate_closed_loop, simulate_torque
-from dynamics.trajectories import FourierTrajectory, random_fourier_trajectory
+from dynid.dynamics import dynamic_model as dm
+from dynid.errors import InputError
+from dynid.dynamics.regressor import inverse_dynamics as regressor_inverse_dynamics
+from dynid.dynamics.robot import Controller, Coupling, Joint, Robot, mdh_placement
+from dynid.dynamics.robot_file import load_robot
+from dynid.dynamics.simulation import SimulationResult, simulate_closed_loop, simulate_torque
+from dynid.dynamics.trajectories import FourierTrajectory, random_fourier_trajectory
 from tests import oracles
 
 pin = oracles.pin
@@ -342,7 +342,7 @@ def test_result_frame_and_reference_resampling(tx40):
 
 
 def test_to_experiment(tx40):
-    pytest.importorskip("analysis.experiment")
+    pytest.importorskip("dynid.analysis.data.experiment")
     rng = np.random.default_rng(2)
     chi = tx40_like_parameters(tx40, rng)
     traj = random_fourier_trajectory(tx40, 0.5, 2, rng)
@@ -398,9 +398,9 @@ def test_bad_input(tx40):
 def test_progress_chunks_give_exactly_the_single_call_result():
     """Reporting progress splits the compiled loop into chunks; the state (q, qd, PID
     integral) carries over, so the result is bit-identical to one call."""
-    from dynamics.robot_file import load_robot
-    from dynamics.simulation import simulate_closed_loop
-    from dynamics.trajectories import random_fourier_trajectory
+    from dynid.dynamics.robot_file import load_robot
+    from dynid.dynamics.simulation import simulate_closed_loop
+    from dynid.dynamics.trajectories import random_fourier_trajectory
     robot = load_robot("planar2")
     chi = robot.standard_vector({k: v for k, v in robot.apriori.items() if k in robot.standard_names})
     traj = random_fourier_trajectory(robot, 0.2, 5, np.random.default_rng(3))

@@ -2,12 +2,12 @@
 import numpy as np
 import pytest
 
-from analysis.experiment import load_experiment
-from analysis.observation import observe
-from analysis.streaming import observe_stream
-from dynamics.base_parameters import base_parameters
-from dynamics.errors import DataError
-from dynamics.robot_file import load_robot
+from dynid.analysis.data.experiment import load_experiment
+from dynid.analysis.processing.observation import observe
+from dynid.analysis.processing.streaming import observe_stream
+from dynid.dynamics.base_parameters import base_parameters
+from dynid.errors import DataError
+from dynid.dynamics.robot_file import load_robot
 from test_idim import TX40_EXPERIMENT
 
 

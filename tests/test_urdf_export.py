@@ -13,13 +13,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from analysis.standard_set import choose_standard_set
-from dynamics.base_parameters import base_parameters
-from dynamics.regressor import regressor
-from dynamics.robot_file import load_robot
-from dynamics.urdf import read_urdf
-from dynamics.urdf_writer import consistency, link_consistency, read_extra_parameters, urdf_text
-from reports.urdf_export import export_urdf, round_trip
+from dynid.analysis.estimators.standard_set import choose_standard_set
+from dynid.dynamics.base_parameters import base_parameters
+from dynid.dynamics.regressor import regressor
+from dynid.dynamics.robot_file import load_robot
+from dynid.dynamics.urdf import read_urdf
+from dynid.dynamics.urdf_writer import consistency, link_consistency, read_extra_parameters, urdf_text
+from dynid.reports.urdf_export import export_urdf, round_trip
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -126,8 +126,8 @@ def test_tx40_urdf_from_dh_reads_back(tmp_path):
 
 
 def test_real_kuka_export_is_consistent_and_honest(tmp_path):
-    from analysis.experiment import load_experiment
-    from analysis.idim import identify_idim
+    from dynid.analysis.data.experiment import load_experiment
+    from dynid.analysis.estimators.idim import identify_idim
     robot = load_robot("kuka_lwr4")
     recs = [load_experiment(ROOT / "examples" / "kuka_lwr4" / f"recording_{i}.toml", robot) for i in (2, 3)]
     res = identify_idim(recs, robot)

@@ -16,12 +16,12 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-from analysis.decoupled_campaign import identify_campaign, simulate_campaign  # noqa: E402
-from analysis.provenance import dumps_json  # noqa: E402
-from dynamics.errors import DynidError  # noqa: E402
-from reports.cli import commit_outputs  # noqa: E402
-from reports.decoupled_section import decoupled_sections  # noqa: E402
-from reports.html import render_sections  # noqa: E402
+from dynid.analysis.decoupled.campaign import identify_campaign, simulate_campaign  # noqa: E402
+from dynid.provenance import dumps_json  # noqa: E402
+from dynid.errors import DynidError  # noqa: E402
+from dynid.reports.cli import commit_outputs  # noqa: E402
+from dynid.reports.decoupled_section import decoupled_sections  # noqa: E402
+from dynid.reports.html import render_sections  # noqa: E402
 
 
 def main(argv=None):

@@ -38,17 +38,17 @@ def main(argv=None):
     args = ap.parse_args(argv)
 
     import pandas as pd
-    from analysis.diagnosis import diagnose
-    from analysis.experiment import load_experiment
-    from analysis.idim import identify_idim
-    from analysis.provenance import dumps_json, json_safe, versions
-    from reports.cli import commit_outputs
-    from analysis.validation import validate
-    from dynamics.robot_file import load_robot
-    from reports import tables as T
-    from reports.diagnosis_section import diagnosis_sections
-    from reports.html import Section, bullets, join, para, render_idim_report
-    from reports.urdf_export import export_urdf
+    from dynid.analysis.diagnosis.selection import diagnose
+    from dynid.analysis.data.experiment import load_experiment
+    from dynid.analysis.estimators.idim import identify_idim
+    from dynid.provenance import dumps_json, json_safe, versions
+    from dynid.reports.cli import commit_outputs
+    from dynid.analysis.statistics.validation import validate
+    from dynid.dynamics.robot_file import load_robot
+    from dynid.reports import tables as T
+    from dynid.reports.diagnosis_section import diagnosis_sections
+    from dynid.reports.html import Section, bullets, join, para, render_idim_report
+    from dynid.reports.urdf_export import export_urdf
 
     def say(msg):
         if not args.quiet:

@@ -67,20 +67,20 @@ def main(argv=None):
     ap.add_argument("--quiet", action="store_true", help="print only the headline figures")
     args = ap.parse_args(argv)
 
-    from analysis.bayes import sample_idim
-    from analysis.diagnosis import diagnose
-    from analysis.didim import identify_didim
-    from analysis.experiment import load_experiment
-    from analysis.idim import identify_idim
-    from analysis.provenance import dumps_json, json_safe, versions
-    from reports.cli import commit_outputs
-    from analysis.validation import validate
-    from dynamics.robot_file import load_robot
-    from reports.bayes_section import bayes_sections
-    from reports.comparison import comparison_frame, comparison_section, comparison_summary
-    from reports.diagnosis_section import diagnosis_sections
-    from reports.didim_section import didim_sections
-    from reports.html import render_idim_report
+    from dynid.analysis.sampling.posterior import sample_idim
+    from dynid.analysis.diagnosis.selection import diagnose
+    from dynid.analysis.estimators.didim import identify_didim
+    from dynid.analysis.data.experiment import load_experiment
+    from dynid.analysis.estimators.idim import identify_idim
+    from dynid.provenance import dumps_json, json_safe, versions
+    from dynid.reports.cli import commit_outputs
+    from dynid.analysis.statistics.validation import validate
+    from dynid.dynamics.robot_file import load_robot
+    from dynid.reports.bayes_section import bayes_sections
+    from dynid.reports.comparison import comparison_frame, comparison_section, comparison_summary
+    from dynid.reports.diagnosis_section import diagnosis_sections
+    from dynid.reports.didim_section import didim_sections
+    from dynid.reports.html import render_idim_report
 
     def say(msg):
         if not args.quiet:

@@ -1,0 +1,1 @@
+"""Experiment data: reading logs (CSV, Parquet, npz, MAT, TOML descriptions), transmission, synthetic recordings."""

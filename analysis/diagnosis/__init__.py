@@ -1,0 +1,1 @@
+"""Residual diagnosis: which effect the identified model lacks."""

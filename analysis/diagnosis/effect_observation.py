@@ -1,0 +1,357 @@
+"""The observation system of eq. (9) plus what extra regressor columns are built from.
+
+An unmodelled effect is tested by adding regressor columns to W. Those
+columns must be *built at full rate* from the same (q_hat, qd_hat, qdd_hat, t)
+as W and go through the *same* processing as W and Y: zeroed in the velocity
+dead zone, then low-pass filtered and down-sampled by the same parallel
+decimation. Only then does ``decimate(W) chi + decimate(C) theta`` stand for
+``decimate(W chi + C theta)`` row by row (the filter is linear).
+
+:func:`observe_effects` repeats :func:`dynid.analysis.processing.observation.observe` step by
+step (same settings, filter, edges, dead zone, decimator; its decimated W and
+tau are identical, a test checks it) and keeps the full-rate kept samples
+(q_hat, qd_hat, qdd_hat, t, tau, dead zone), plus the full-rate standard
+regressor columns of the last link's mass and first moments (the ``payload``
+effect). :meth:`EffectObservation.decimate` then pushes any full-rate columns
+through the same dead zone and decimation. With ``cache_regressor`` the
+full-rate base regressor is kept too (memory N x n x b x 8 bytes), so the
+model torque of any parameter vector is cheap; otherwise it is rebuilt chunk
+by chunk when asked for.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from dynid.analysis.processing.decimation import ParallelDecimator
+from dynid.analysis.processing.observation import CHUNK, Observation, _dead_zone, resolve_settings
+from dynid.analysis.processing.signals import derivatives
+from dynid.errors import DataError
+from dynid.dynamics.regressor import regressor
+
+__all__ = ["EffectObservation", "observe_effects", "payload_parameter_names", "CACHE_LIMIT_BYTES"]
+
+#: ``cache_regressor="auto"`` keeps the full-rate base regressor below this size.
+CACHE_LIMIT_BYTES = 400e6
+
+#: The last link's standard parameters the payload effect adds to (mass, first moments).
+PAYLOAD_SYMBOLS = ("M", "MX", "MY", "MZ")
+
+
+def payload_parameter_names(robot):
+    """Standard-parameter names of the last link's mass and first moments, e.g. ['M6', 'MX6', ...]."""
+    n = robot.n_joints
+    return [f"{s}{n}" for s in PAYLOAD_SYMBOLS]
+
+
+@dataclass
+class EffectObservation:
+    """A recording prepared for effect columns: the decimated system and its full-rate sources.
+
+    ``obs`` is the decimated observation system exactly as :func:`observe`
+    builds it. The full-rate arrays cover the kept samples (the recording
+    without the position filter's edges): ``t`` (N,), ``q``, ``qd``, ``qdd``
+    (N, n), ``tau`` (N, n), ``dead`` (N, n) the velocity dead zone (None if
+    off), ``payload`` (N, n, 4) the standard-regressor columns of the last
+    link's M, MX, MY, MZ. ``keep`` is the slice of the recording they come from.
+    """
+
+    obs: Observation
+    t: np.ndarray
+    q: np.ndarray
+    qd: np.ndarray
+    qdd: np.ndarray
+    tau: np.ndarray
+    dead: np.ndarray | None
+    payload: np.ndarray
+    keep: slice
+    fs: float
+    settings: dict
+    robot: object = None
+    bp: object = None
+    source: str = ""
+    W_full: np.ndarray | None = None
+    notices: list = field(default_factory=list)
+
+    # ------------------------------------------------------------- sizes
+    @property
+    def n_full(self) -> int:
+        return self.t.shape[0]
+
+    @property
+    def n_joints(self) -> int:
+        return self.q.shape[1]
+
+    @property
+    def t_start(self) -> float:
+        """Time of the recording's first sample (before the dropped edge), s."""
+        return float(self.t[0] - self.keep.start / self.fs)
+
+    @property
+    def duration(self) -> float:
+        """Duration of the whole recording, s (its samples / fs)."""
+        return float(self.obs.n_raw / self.fs)
+
+    # ------------------------------------------------------------- decimation
+    def _decimator(self):
+        s = self.settings
+        return ParallelDecimator(int(s["nd"]), n_samples_total=self.n_full, fs=self.fs,
+                                 cutoff=s["f_decimation_cutoff"])
+
+    def decimate(self, columns, joint=None):
+        """Decimated version of full-rate columns, with the dead zone and decimation of W.
+
+        ``columns`` is (N, n, k) (a column per joint row), or (N, k) together
+        with ``joint`` (0-based): columns that act on that joint only (zero on
+        the others). Returns (M, n, k) aligned with ``obs.W``.
+        """
+        C = np.asarray(columns, dtype=float)
+        if C.shape[0] != self.n_full:
+            raise DataError(f"effect columns have {C.shape[0]} samples, the kept recording {self.n_full}")
+        if joint is not None:
+            C = C.reshape(self.n_full, -1)
+            if self.dead is not None:
+                C = C * (~self.dead[:, joint])[:, None]
+            D = self._decimate_2d(C)
+            out = np.zeros((D.shape[0], self.n_joints, D.shape[1]))
+            out[:, joint, :] = D
+            return out
+        if C.ndim == 2:
+            C = C[:, :, None]
+        if self.dead is not None:
+            C = C * (~self.dead)[:, :, None]
+        k = C.shape[2]
+        D = self._decimate_2d(C.reshape(self.n_full, -1))
+        return D.reshape(D.shape[0], self.n_joints, k)
+
+    def _decimate_2d(self, C):
+        if int(self.settings["nd"]) <= 1:
+            return np.array(C, dtype=float)
+        dec = self._decimator()
+        parts = [dec.push(C[start:start + CHUNK]) for start in range(0, self.n_full, CHUNK)]
+        dec.finish()
+        return np.concatenate(parts, axis=0)
+
+    def decimate_joint_blocks(self, blocks):
+        """Decimate many single-joint column blocks at once.
+
+        ``blocks`` is a list of ``(columns (N, k), joint (0-based))``; the
+        blocks of one joint are stacked and decimated in one pass. Returns a
+        list of (M, n, k) arrays in the order given.
+        """
+        out = [None] * len(blocks)
+        by_joint = {}
+        for i, (C, j) in enumerate(blocks):
+            by_joint.setdefault(j, []).append(i)
+        for j, idx in by_joint.items():
+            mats = [np.asarray(blocks[i][0], dtype=float).reshape(self.n_full, -1) for i in idx]
+            widths = [m.shape[1] for m in mats]
+            C = np.concatenate(mats, axis=1)
+            if self.dead is not None:
+                C = C * (~self.dead[:, j])[:, None]
+            D = self._decimate_2d(C)
+            pos = 0
+            for i, w in zip(idx, widths):
+                block = np.zeros((D.shape[0], self.n_joints, w))
+                block[:, j, :] = D[:, pos:pos + w]
+                out[i] = block
+                pos += w
+        return out
+
+    # ------------------------------------------------------------- model torque
+    def regressor_chunks(self):
+        """Yield ``(slice, W_base chunk (n_chunk, n, b))`` over the kept samples, full rate."""
+        if self.W_full is not None:
+            for start in range(0, self.n_full, CHUNK):
+                sl = slice(start, min(self.n_full, start + CHUNK))
+                yield sl, self.W_full[sl]
+            return
+        if self.robot is None or self.bp is None:
+            raise DataError("this EffectObservation keeps neither the robot nor the full-rate regressor")
+        for start in range(0, self.n_full, CHUNK):
+            sl = slice(start, min(self.n_full, start + CHUNK))
+            W = regressor(self.robot, self.q[sl], self.qd[sl], self.qdd[sl],
+                          columns=self.bp.independent)
+            yield sl, W
+
+    def model_torque(self, columns, chi, *, exclude=None):
+        """Full-rate torque (N, n) of the model ``W_base[:, :, columns] @ chi``.
+
+        ``exclude``: a boolean (len(columns),) of parameters left out (e.g. the
+        friction terms, for the torque the transmission carries).
+        """
+        cols = np.asarray(columns, dtype=int)
+        chi = np.asarray(chi, dtype=float)
+        if exclude is not None:
+            keep = ~np.asarray(exclude, dtype=bool)
+            cols, chi = cols[keep], chi[keep]
+        tau = np.empty((self.n_full, self.n_joints))
+        for sl, W in self.regressor_chunks():
+            tau[sl] = W[:, :, cols] @ chi
+        return tau
+
+    def shifted_regressor(self, columns, d):
+        """Decimated base-regressor columns of the motion shifted by ``d`` s: W(t - d).
+
+        The full-rate columns are shifted by linear interpolation (ends
+        held), zeroed in the (unshifted) velocity dead zone like the torque,
+        and decimated, chunk by chunk. ``d > 0``: the torque samples are late
+        against the positions. Returns (M, n, len(columns)).
+        """
+        cols = np.asarray(columns, dtype=int)
+        N, n, k = self.n_full, self.n_joints, cols.size
+        x = float(d) * self.fs
+        si = int(np.floor(x))
+        frac = x - si
+        full = self.W_full is not None and k == self.W_full.shape[2] and np.array_equal(
+            cols, np.arange(k))
+
+        def source(idx):
+            idx = np.clip(idx, 0, N - 1)
+            if self.W_full is not None:
+                return self.W_full[idx] if full else self.W_full[idx][:, :, cols]
+            lo, hi = int(idx.min()), int(idx.max()) + 1
+            W = regressor(self.robot, self.q[lo:hi], self.qd[lo:hi], self.qdd[lo:hi],
+                          columns=np.asarray(self.bp.independent)[cols])
+            return W[idx - lo]
+
+        nd = int(self.settings["nd"])
+        dec = self._decimator() if nd > 1 else None
+        parts = []
+        for start in range(0, N, CHUNK):
+            kk = np.arange(start, min(N, start + CHUNK))
+            C = source(kk - si)
+            if frac:
+                C = (1.0 - frac) * C
+                C += frac * source(kk - si - 1)
+            if self.dead is not None:
+                C *= (~self.dead[kk])[:, :, None]
+            C = C.reshape(kk.size, n * k)
+            parts.append(dec.push(C) if dec is not None else C)
+        if dec is not None:
+            dec.finish()
+        D = np.concatenate(parts, axis=0)
+        return D.reshape(D.shape[0], n, k)
+
+    # ------------------------------------------------------------- variants
+    def with_base(self, bp_sub):
+        """The same data for a base-parameter set that is a subset of this one's.
+
+        E.g. ``dynid.analysis.diagnosis.selection.without_parameters(bp, ("Off",))``: a model
+        without torque offsets. W (decimated and cached full-rate) keeps the
+        columns of ``bp_sub`` only.
+        """
+        pos = {int(c): k for k, c in enumerate(np.asarray(self.bp.independent))}
+        try:
+            idx = [pos[int(c)] for c in np.asarray(bp_sub.independent)]
+        except KeyError:
+            raise DataError("with_base: the new base parameters are not a subset of this "
+                            "observation's") from None
+        obs = replace(self.obs, W=self.obs.W[:, :, idx], names=list(bp_sub.names))
+        W_full = None if self.W_full is None else self.W_full[:, :, idx]
+        return replace(self, obs=obs, bp=bp_sub, W_full=W_full)
+
+    def with_torque(self, tau_recording):
+        """The same motion with another recorded torque (N_raw, n) (e.g. an injected effect).
+
+        Only the torque is decimated again (with the same dead zone and filter);
+        the regressor, full-rate signals and cache are shared, not copied.
+        """
+        tau_recording = np.asarray(tau_recording, dtype=float)
+        tau = tau_recording[self.keep]
+        if tau.shape != self.q.shape:
+            raise DataError(f"torque of shape {tau_recording.shape} does not match the recording "
+                            f"({self.keep.stop - self.keep.start} kept samples of {self.n_joints} joints)")
+        taud = self.decimate(tau[:, :, None])[:, :, 0]
+        obs = replace(self.obs, tau=taud)
+        return replace(self, obs=obs, tau=tau)
+
+
+def observe_effects(experiment, robot, bp, settings=None, *, cache_regressor="auto",
+                    progress=None) -> EffectObservation:
+    """:func:`dynid.analysis.processing.observation.observe`, keeping what effect columns are built from.
+
+    Same steps and settings as ``observe`` (its decimated W, tau, q, qd, qdd,
+    t and row mask are reproduced exactly); ``settings`` are overrides or a
+    resolved settings dict (e.g. an identification's, for validation data).
+    ``cache_regressor``: True, False or "auto" (keep the full-rate base
+    regressor if it takes less than :data:`CACHE_LIMIT_BYTES`).
+    """
+    q_meas = experiment.q
+    if q_meas is None:
+        raise DataError(f"{experiment.source}: the residual diagnosis needs measured joint positions "
+                        "(q1..qn)")
+    if robot.n_joints != q_meas.shape[1]:
+        raise DataError(f"{experiment.source}: robot '{robot.name}' has {robot.n_joints} joints "
+                        f"but the data have {q_meas.shape[1]}")
+    s = settings if (settings and "fs" in settings) else resolve_settings(experiment, settings)
+    fs = experiment.fs
+    der = derivatives(q_meas, fs, s["fc_position"], s["order"])
+    N = q_meas.shape[0]
+    edge = int(s["edge"])
+    if N - 2 * edge < 10:
+        raise DataError(f"{experiment.source}: {N} samples are too few for the position filter at "
+                        f"{s['fc_position']} Hz (it needs {edge} samples at each end)")
+    keep = slice(edge, N - edge)
+    qf, qd, qdd = der.q[keep], der.qd[keep], der.qdd[keep]
+    tau = np.asarray(experiment.tau, dtype=float)[keep]
+    t = experiment.t[keep]
+    nd = int(s["nd"])
+    n_kept = qf.shape[0]
+    s, dead = _dead_zone(s, qd, robot, guard=int(np.ceil(fs / s["fc_position"])))
+    notices = [f"dropped {edge} samples ({edge / fs:.3g} s) at each end: transients of the "
+               f"{s['fc_position']:g} Hz position filter"]
+    b = len(bp.independent)
+    std_names = robot.standard_names
+    pay_idx = [std_names.index(nm) for nm in payload_parameter_names(robot)]
+    columns = np.concatenate([np.asarray(bp.independent, dtype=int), np.asarray(pay_idx, dtype=int)])
+    n = robot.n_joints
+    if cache_regressor == "auto":
+        cache_regressor = n_kept * n * b * 8 <= CACHE_LIMIT_BYTES
+    W_full = np.empty((n_kept, n, b)) if cache_regressor else None
+    payload = np.empty((n_kept, n, len(pay_idx)))
+    keep_rows = None if dead is None else ~dead
+
+    def chunk_regressor(sl):
+        Wc = regressor(robot, qf[sl], qd[sl], qdd[sl], columns=columns)
+        payload[sl] = Wc[:, :, b:]
+        Wb = Wc[:, :, :b]
+        if W_full is not None:
+            W_full[sl] = Wb
+        return Wb
+
+    if nd <= 1:
+        W = np.concatenate([chunk_regressor(slice(a, min(n_kept, a + CHUNK)))
+                            for a in range(0, n_kept, CHUNK)], axis=0)
+        mask = np.ones(tau.shape, dtype=bool) if dead is None else keep_rows.copy()
+        Wd, taud = W * mask[:, :, None], tau * mask
+        obs = Observation(W=Wd, tau=taud, t=t, q=qf, qd=qd, qdd=qdd, row_mask=mask,
+                          names=list(bp.names), settings=s, notices=list(notices), n_raw=N)
+    else:
+        dec = ParallelDecimator(nd, n_samples_total=n_kept, fs=fs, cutoff=s["f_decimation_cutoff"])
+        parts = []
+        for start in range(0, n_kept, CHUNK):
+            sl = slice(start, min(n_kept, start + CHUNK))
+            W = chunk_regressor(sl)
+            tc = tau[sl]
+            if keep_rows is not None:
+                # as dynid.analysis.processing.observation.push_chunk: zero both sides in the dead zone
+                W = W * keep_rows[sl][:, :, None]
+                tc = tc * keep_rows[sl]
+            kept = np.ones(tc.shape) if dead is None else keep_rows[sl].astype(float)
+            parts.append(dec.push(W, tc, qf[sl], qd[sl], qdd[sl], kept))
+            if progress is not None:
+                progress(sl.stop / n_kept)
+        dec.finish()
+        Wd, taud, qf_d, qd_d, qdd_d, kept_frac = (np.concatenate([p[k] for p in parts], axis=0)
+                                                  for k in range(6))
+        td = t[dec.indices]
+        notices.append(f"parallel decimation by nd = {nd} (low-pass {s['f_decimation_cutoff']:.3g} Hz): "
+                       f"{n_kept} -> {len(dec.indices)} samples")
+        obs = Observation(W=Wd, tau=taud, t=td, q=qf_d, qd=qd_d, qdd=qdd_d,
+                          row_mask=kept_frac >= 0.5, names=list(bp.names), settings=s,
+                          notices=list(notices), n_raw=N)
+    return EffectObservation(obs=obs, t=t, q=qf, qd=qd, qdd=qdd, tau=tau, dead=dead,
+                             payload=payload, keep=keep, fs=float(fs), settings=s, robot=robot,
+                             bp=bp, source=str(experiment.source), W_full=W_full, notices=notices)

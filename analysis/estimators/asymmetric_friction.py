@@ -1,0 +1,132 @@
+"""Asymmetric friction of the full robot, in Bona & Curatella's coefficients.
+
+Bona & Curatella (2005), eq. (2), give each joint friction coefficients that
+depend on the sign of the velocity::
+
+    tau_f = beta_v+ qd + beta_c+          (qd > 0)
+    tau_f = beta_v- qd - beta_c-          (qd < 0)
+
+(with positive ``beta_c-`` the friction opposes the motion; the paper prints
+``+beta_c-``). dynid's symmetric model ``Fv qd + Fc sign(qd) + Off`` plus one
+column ``|qd|`` (coefficient ``dFv``) spans exactly the same functions, so the
+asymmetric coefficients are linear combinations of identified parameters::
+
+    beta_v+ = Fv + dFv      beta_v- = Fv - dFv
+    beta_c+ = Fc + c        beta_c- = Fc - c
+
+where ``c`` is the torque offset ``Off_j`` when the model has it (a constant
+and ``|sign(qd)|`` are the same column outside the velocity dead zone: the
+offset *is* the Coulomb asymmetry), else an extra column ``|sign(qd)|``
+(``dFc``). Their standard deviations follow from the covariance of the fit
+(``a^T C a`` for each combination), so no second identification is needed.
+
+The extra columns are added to the essential model of an IDIM result by
+:func:`dynid.analysis.diagnosis.selection.fit_effects` on the same decimated system (same
+filters, decimation and dead zone).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from dynid.errors import InputError
+
+__all__ = ["AsymmetricFrictionResult", "asymmetric_friction"]
+
+COLUMNS = ("Fv+", "Fv-", "Fc+", "Fc-")
+
+
+@dataclass
+class AsymmetricFrictionResult:
+    """Per-joint asymmetric friction (eq. (2) of Bona & Curatella) with standard deviations."""
+
+    robot_name: str
+    joints: list                 # 1-based
+    values: np.ndarray           # (n_joints, 4): Fv+, Fv-, Fc+, Fc-
+    sigma: np.ndarray            # (n_joints, 4)
+    fit: object                  # IdentificationResult of the essential model + |qd| columns
+    rel_error_before: float
+    notices: list = field(default_factory=list)
+
+    def to_frame(self) -> pd.DataFrame:
+        rows = {}
+        for k, j in enumerate(self.joints):
+            row = {}
+            for c, name in enumerate(COLUMNS):
+                row[name] = self.values[k, c]
+                row[f"sigma {name}"] = self.sigma[k, c]
+            rows[f"joint {j}"] = row
+        return pd.DataFrame.from_dict(rows, orient="index")
+
+    def summary(self) -> str:
+        lines = [f"Asymmetric friction of {self.robot_name} (Bona & Curatella 2005, eq. (2)); "
+                 f"relative error {100 * self.rel_error_before:.3f} % -> {100 * self.fit.rel_error:.3f} %",
+                 "  joint " + "".join(f"{c:>22}" for c in COLUMNS)]
+        for k, j in enumerate(self.joints):
+            cells = "".join(f"{self.values[k, c]:>12.5g} ± {self.sigma[k, c]:<7.2g}" for c in range(4))
+            lines.append(f"  {j:>5} {cells}")
+        lines += [f"  note: {m}" for m in self.notices]
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict:
+        from dynid.provenance import json_safe
+        return json_safe({
+            "robot": self.robot_name, "model": "Bona & Curatella eq. (2)",
+            "joints": [{"joint": j, **{name: {"value": self.values[k, c], "std": self.sigma[k, c]}
+                                       for c, name in enumerate(COLUMNS)}}
+                       for k, j in enumerate(self.joints)],
+            "rel_error_before": self.rel_error_before, "rel_error_after": self.fit.rel_error,
+            "notices": self.notices,
+        })
+
+
+def asymmetric_friction(experiment, robot, idim_result, *, joints=None) -> AsymmetricFrictionResult:
+    """Asymmetric viscous and Coulomb coefficients of every joint (see the module docstring).
+
+    ``experiment``: the recording ``idim_result`` was identified on (one
+    recording); ``joints``: 1-based joints (default all).
+    """
+    from dynid.analysis.diagnosis.selection import fit_effects
+    from dynid.analysis.diagnosis.effects import make_candidate
+
+    n = robot.n_joints
+    joints = list(range(1, n + 1)) if joints is None else [int(j) for j in joints]
+    bad = [j for j in joints if not 1 <= j <= n]
+    if bad:
+        raise InputError(f"joints must be between 1 and {n} for robot '{robot.name}', got {bad}")
+    essential = list(idim_result.model.names)
+    notices = []
+    for c in robot.couplings:
+        shared = [j for j in joints if j in c.joints]
+        if shared and c.friction:
+            notices.append(f"joints {shared} also carry the friction of motor {c.motor} (Fvm{c.motor}, "
+                           f"Fcm{c.motor}, acting on the sum of their velocities), which is not in "
+                           f"these per-joint coefficients")
+    cands = [make_candidate("asymmetric_viscous", j) for j in joints]
+    cands += [make_candidate("asymmetric_coulomb", j) for j in joints if f"Off{j}" not in essential]
+    fit, _ = fit_effects(experiment, robot, idim_result, cands)
+    index = {name: i for i, name in enumerate(fit.names)}
+    values = np.zeros((len(joints), 4))
+    sigma = np.zeros((len(joints), 4))
+    for k, j in enumerate(joints):
+        def vec(*terms):
+            a = np.zeros(len(fit.names))
+            for name, coef in terms:
+                if name in index:
+                    a[index[name]] += coef
+            return a
+        c_name = f"Off{j}" if f"Off{j}" in index else f"dFc{j}"
+        missing = [p for p in (f"Fv{j}", f"Fc{j}", f"dFv{j}", c_name) if p not in index]
+        if missing:
+            notices.append(f"joint {j}: {', '.join(missing)} not in the model (taken as 0: not "
+                           "identifiable from these data or removed as inessential)")
+        combos = [vec((f"Fv{j}", 1), (f"dFv{j}", 1)), vec((f"Fv{j}", 1), (f"dFv{j}", -1)),
+                  vec((f"Fc{j}", 1), (c_name, 1)), vec((f"Fc{j}", 1), (c_name, -1))]
+        for c, a in enumerate(combos):
+            values[k, c] = a @ fit.chi
+            sigma[k, c] = float(np.sqrt(max(a @ fit.cov @ a, 0.0)))
+    return AsymmetricFrictionResult(robot_name=robot.name, joints=joints, values=values, sigma=sigma,
+                                    fit=fit, rel_error_before=float(idim_result.model.rel_error),
+                                    notices=notices)

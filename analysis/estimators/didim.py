@@ -1,0 +1,816 @@
+"""DIDIM: identification from the joint torques and the reference only (section 3).
+
+Gautier, Janot, Vandanjon (2010), *Dynamic identification of a 6 dof
+industrial robot without joint position data*, section 3. DIDIM is a
+closed-loop output-error method: the robot is simulated in closed loop under
+the same control law and with the same reference as the actual robot, and the
+parameters minimise ``||Y(tau) - Y_s(tau_ddm)||``. The Gauss-Newton step is
+an IDIM least-squares problem (eqs. (18)-(24)) whose regressor is built from
+the *simulated* states::
+
+    iteration k = 1, 2, ...  (chi^{k-1} known; chi^0 from eq. (31))
+      1. simulate the closed loop with chi^{k-1} (base -> standard, regrouped
+         parameters set to zero), tracking the recorded reference qr from the
+         reference's initial state, derivative gains times J^{k-1} / J_ap
+         (section 3.2, eq. (27));
+      2. W_k = IDM(q_ddm, qd_ddm, qdd_ddm) from the simulated states (exact
+         derivatives: no position filter), decimated in parallel with the
+         measured tau (eq. (24));
+      3. per-joint WLS: chi^k and rho_k = Y - W_k chi^k;
+      4. stop when |(||rho_k|| - ||rho_{k-1}||)| / ||rho_{k-1}|| <= tol_I.
+
+So ``k`` counts least-squares solves ("steps"). The paper's TX40 needs 1 step
+for the optimum and a second one to see that the residual no longer changes
+(Table 2 is "after 2 steps"). The result reports the estimate of the last
+step, with the statistics of its WLS (eqs. (13)-(16)); optionally the
+essential parameters (Pham & Gautier) by the same backward elimination as
+IDIM, on the last step's W.
+
+Documented choices (all in ``DIDIMResult.settings``, all overridable through
+``settings=``):
+
+* **Initialisation** (eqs. (31)-(32)): chi^0 = 0 except ``Ia_j = 1``. A motor
+  ``m`` coupled with joints ``k != m`` with coefficients ``c`` (rotor speed
+  ``sum c_k qd_k``) adds ``Ia_m c_k c_l / c_m^2`` off the diagonal of M; dynid
+  absorbs its diagonal share ``(c_k / c_m)^2 Ia_m`` into ``Ia_k``. So joint
+  ``k`` gets ``Ia_k = 1 + (c_k / c_m)^2``: the rotor of ``k`` keeps a unit
+  inertia of its own and the coupled rotor adds the positive semi-definite
+  ``c c^T / c_m^2``, so ``M(q, chi^0) = I + c c^T / c_m^2`` (restricted to the
+  coupled joints) is positive definite. With ``Ia_k = 1`` instead the TX40
+  wrist block would be ``[[1, 1], [1, 1]]``, singular. For the TX40
+  (``c = (1, 1)``, motor 6) this gives the paper's ``Ia5 = 2`` and the wrist
+  block ``[[2, 1], [1, 1]]`` (eigenvalues 0.38 and 2.62); all other joints see
+  ``M = I``. (The per-joint gain update sees only the diagonal, 2 and 1, so the
+  two wrist modes of the first simulation run at 0.59 and 3.4 times the
+  designed loop gain: fine at 5 kHz, unstable at 1 kHz with wn = 400 rad/s.)
+* **Gain update** (section 3.2, ``update_gains``): before simulating with
+  chi^{k-1}, ``kd_scale_j = J_j / J_ap_j`` with ``J_j = max_q M_jj(q,
+  chi^{k-1})`` (eq. (27): dynid's M already contains ``ZZ_j + Ia_j``, so J_j is
+  the largest diagonal inertia), the maximum taken over the configurations of
+  the previous simulation (of the reference ``qr`` for the first one), sampled
+  every ``1 / j_rate`` s (1 ms). ``True`` (the paper, default): at every step.
+  ``False``: never (``kd_scale = 1``, the controller as described).
+  ``"initial"``: only for the simulation of chi^0.
+
+  What the update does: the simulated loop becomes the *designed* one
+  (``wn``, ``zeta`` of the normalised double integrator) whatever chi^k is;
+  that equals the actual loop when the actual controller's a-priori J_ap is
+  right (J_ap = max_q M_jj of the real robot). Measured on Pinocchio data of
+  the TX40 (tests/test_didim.py): with the actual loop as designed, the update
+  makes DIDIM independent of a wrong J_ap in the robot file (J_ap x 2 gives
+  the same estimate to 1e-6; without the update Ia6 comes out 6 % low, Ia5
+  1.5 % low). When instead the *actual* controller runs with
+  a wrong J_ap, the update makes the simulated loop differ from the actual one
+  at every step and biases the estimate (Ia6 +20 % on the TX40 at wn = 200
+  rad/s); ``"initial"`` or ``False`` are then exact, since at convergence the
+  simulated robot with the actual gains is the actual robot. With a soft loop
+  (wn = 60 rad/s, the assumed gains of ``tx40.toml``) the update also slows the
+  iteration down (it makes the simulated tracking error depend on the ratio
+  of the estimated friction to the estimated inertia).
+* **Step safeguard**: an estimate whose ``M(q)`` is not positive definite at
+  the previous simulation's configurations, or whose simulation fails, is
+  moved back towards the last simulated estimate by halving its step (at most
+  ``max_step_halvings`` times; history column ``step_length``). The paper's
+  iteration would stop there; a damped step is simulated instead, and
+  convergence is only declared after a full step.
+* **Initial state and transient**: the simulation starts at ``(qr(0),
+  qdr(0))``; the first ``transient`` seconds (default ``5 / min(wn)``, the
+  text after eq. (32)) are dropped from the identification data.
+* **Simulation**: the robot's controller (``robot.controller`` or
+  ``controller=``) with velocity feedforward by default (``feedforward``, as
+  :mod:`dynid.analysis.data.synthetic` records its data), no torque saturation for the
+  simulated robot (``saturate=False``: the initial robot ``M = I`` needs far more
+  torque than the real one; the actual drive's limits say nothing about it),
+  Coulomb friction smoothed over ``v_s = 0.05`` rad/s, and as many RK4
+  substeps as keep ``h * lambda_friction <= 1.5`` (``substeps="auto"``). The
+  reference velocity is the second-order finite difference of ``qr``.
+* **Decimation and dead zone**: ``nd`` and the low-pass cut-off as IDIM
+  derives them from the data (:func:`dynid.analysis.processing.signals.default_settings` on
+  ``qr``; the paper's 100 and 20 Hz at 5 kHz); the velocity dead zone of
+  :mod:`dynid.analysis.processing.observation` (``qd_threshold``, default ``"auto"`` = 1 % of
+  each joint's peak *reference* speed, so the thresholds stay fixed over the
+  iterations) applied to the simulated velocities, widened by
+  ``dead_zone_guard`` s on each side (default 5 ms: the simulated and the
+  actual velocity cross zero at slightly different times).
+* ``fc_position``, ``order`` and ``edge`` (IDIM's position filter) do not
+  apply: the simulated derivatives are exact. They are accepted and ignored
+  with a notice so that IDIM's processing settings can be passed as they are.
+
+Convergence: ``converged`` is True only when the criterion was met within
+``max_iter`` steps; otherwise (or when a simulation fails) the result says
+why in ``stop_reason`` and never pretends to have converged (the command line
+maps that to exit code 3).
+"""
+from __future__ import annotations
+
+import math
+import os
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from dynid.analysis.estimators import least_squares as ls
+from dynid.analysis.processing.decimation import ParallelDecimator
+from dynid.analysis.estimators.essential import essential_parameters
+from dynid.analysis.processing.observation import AUTO_DEAD_ZONE, _dead_zone
+from dynid.provenance import atomic_write_text, dumps_json, json_safe, versions
+from dynid.analysis.processing.signals import default_settings
+from dynid.dynamics.base_parameters import base_parameters, base_regressor
+from dynid.dynamics.dynamic_model import inverse_dynamics, mass_matrix
+from dynid.dynamics.simulation import friction_stiffness, simulate_closed_loop
+from dynid.errors import DataError, DynidError, InputError
+
+__all__ = ["identify_didim", "DIDIMResult", "initial_parameters", "initial_standard",
+           "DIDIM_SETTINGS_HELP", "resolve_didim_settings"]
+
+#: DIDIM's processing settings users may override, with their meaning.
+DIDIM_SETTINGS_HELP = {
+    "nd": "decimation factor n_d (1 = no decimation); default derived from the reference as for IDIM",
+    "f_decimation_cutoff": "cut-off of the decimation low-pass, Hz (paper: 0.8 fs / (2 nd))",
+    "bandwidth": "motion bandwidth, Hz (estimated from qr if not given)",
+    "qd_threshold": ("velocity dead zone on the simulated velocities, rad/s, one value or one per "
+                     "joint; 'auto' = 1 % of each joint's peak reference speed; 0 = keep all rows"),
+    "dead_zone_guard": "the dead zone is widened by this many seconds on each side",
+    "transient": "seconds dropped at the start (closed-loop transient; default 5 / min(wn))",
+    "v_s": "smooth-sign velocity of the simulated Coulomb friction, rad/s",
+    "substeps": "RK4 steps per controller period, or 'auto' (h * lambda_friction <= 1.5)",
+    "feedforward": "the controller adds the reference velocity (kv qdr) to the PD",
+    "saturate": "clip the simulated torque at the joints' tau_max",
+    "rate": "controller rate of the simulation, Hz (default: the robot's controller rate)",
+    "j_rate": "rate (Hz) of the configurations J_j = max_q M_jj(q) is taken over (eq. (27))",
+    "max_step_halvings": ("when an estimate cannot be simulated (M(q) not positive definite, "
+                          "diverging simulation), simulate it moved back towards the previous one "
+                          "by halving its step at most this many times (0 = stop at once)"),
+}
+#: IDIM's position-filter settings: accepted, ignored (the simulated derivatives are exact).
+IGNORED_SETTINGS = ("fc_position", "order", "edge")
+
+DEFAULT_TOL = 1e-3
+DEFAULT_MAX_ITER = 10
+DEFAULT_V_S = 0.05
+DEFAULT_GUARD = 0.005
+DEFAULT_J_RATE = 1000.0
+DEFAULT_HALVINGS = 6
+MOVING_SIGMA = 3.0          # a last step larger than this many sigma is reported
+PD_MARGIN = 1e-9            # smallest accepted eigenvalue of M(q), relative to the largest
+STIFFNESS_TARGET = 1.5      # h * lambda of the friction, per RK4 substep
+WELL_IDENTIFIED = 10.0      # %sigma below which a parameter's relative change is tracked
+CHUNK = 10_000
+
+
+# ----------------------------------------------------------------------------- result
+
+@dataclass(eq=False)
+class DIDIMResult:
+    """Everything a DIDIM identification produced.
+
+    ``result`` is the per-joint WLS of the last Gauss-Newton step on all base
+    parameters (the DIDIM estimate); ``essential`` the essential parameters
+    found from it (or None). ``history`` has one row per step (see
+    :func:`identify_didim`). Full-rate arrays of the last simulation (for
+    Fig. 7): ``t``, ``q_sim``, ``qr``, ``tau`` (measured), ``tau_sim`` (=
+    IDM(q_sim, qd_sim, qdd_sim) chi_hat, the final model on the simulated
+    motion) and ``tau_ddm`` (the torque the simulated controller applied). The
+    decimated system of the last step (for Fig. 6): ``t_dec``, ``tau_dec`` (Y),
+    ``tau_est_dec`` (W_delta chi_hat), ``W_dec``, ``row_mask``.
+    """
+
+    robot_name: str
+    base: object                      # BaseParameters
+    result: object                    # IdentificationResult, last step's WLS
+    essential: object                 # EssentialResult or None
+    history: pd.DataFrame
+    converged: bool
+    stop_reason: str
+    settings: dict
+    initial: np.ndarray               # chi^0 (base parameters)
+    kd_scale: np.ndarray              # derivative-gain factors of the last simulation
+    t: np.ndarray
+    q_sim: np.ndarray
+    qr: np.ndarray
+    tau: np.ndarray
+    tau_sim: np.ndarray
+    tau_ddm: np.ndarray
+    t_dec: np.ndarray
+    tau_dec: np.ndarray
+    tau_est_dec: np.ndarray
+    W_dec: np.ndarray
+    row_mask: np.ndarray
+    transient_samples: int = 0
+    notices: list = field(default_factory=list)
+    data_hash: str = ""
+    source: str = ""
+    truth: dict = None                # true base-parameter values, for simulated data
+    joint_names: list = None
+    timings: list = field(default_factory=list)   # seconds per step (not in to_dict)
+
+    # ---------------------------------------------------------------- access
+    @property
+    def iterations(self) -> int:
+        """Number of Gauss-Newton steps (least-squares solves) done."""
+        return int(len(self.history))
+
+    @property
+    def chi(self) -> np.ndarray:
+        """The final DIDIM estimate of the base parameters."""
+        return self.result.chi
+
+    @property
+    def model(self):
+        """The model users predict with: the essential WLS estimate if computed, else the base one."""
+        return self.essential.result if self.essential is not None else self.result
+
+    def columns(self, names=None):
+        """Indices of ``names`` (default: the model's) among the base parameters."""
+        names = self.model.names if names is None else names
+        index = {n: k for k, n in enumerate(self.base.names)}
+        return [index[n] for n in names]
+
+    def predict(self, W_base):
+        """Torques (N, n) of :attr:`model` from a base regressor (N, n, b)."""
+        return np.asarray(W_base)[:, :, self.columns()] @ self.model.chi
+
+    @property
+    def tracking_rms(self) -> np.ndarray:
+        """RMS of qr - q_sim per joint over the identification samples of the last simulation."""
+        e = (self.qr - self.q_sim)[self.transient_samples:]
+        return np.sqrt(np.mean(e ** 2, axis=0))
+
+    def parameter_table(self):
+        """One row per base parameter: relation, initial value, DIDIM value, std, %σ, essential."""
+        rows = []
+        ess = {}
+        if self.essential is not None:
+            m = self.essential.result
+            ess = dict(zip(m.names, zip(m.chi, m.sigma, m.rel_sigma)))
+        rel = self.base.relations
+        for k, name in enumerate(self.base.names):
+            row = {"name": name, "relation": rel[k], "initial": self.initial[k],
+                   "value": self.result.chi[k], "std": self.result.sigma[k],
+                   "rel_std_percent": self.result.rel_sigma[k]}
+            if self.essential is not None:
+                e = ess.get(name)
+                row.update({"essential": e is not None,
+                            "essential_value": e[0] if e else np.nan,
+                            "essential_std": e[1] if e else np.nan,
+                            "essential_rel_std_percent": e[2] if e else np.nan})
+            if self.truth:
+                row["true"] = self.truth.get(name, np.nan)
+            rows.append(row)
+        return pd.DataFrame(rows).set_index("name")
+
+    # ---------------------------------------------------------------- presentation
+    def summary(self) -> str:
+        h = self.history
+        state = "converged" if self.converged else "DID NOT CONVERGE"
+        lines = [f"DIDIM identification of robot '{self.robot_name}' from {self.source}",
+                 f"  {state} after {self.iterations} Gauss-Newton step(s): {self.stop_reason}",
+                 f"  samples: {self.t.size} at {self.settings['fs']:g} Hz, first "
+                 f"{self.transient_samples} dropped (closed-loop transient); {self.t_dec.size} "
+                 f"decimated (nd = {self.settings['nd']}, low-pass "
+                 f"{self.settings['f_decimation_cutoff']:.3g} Hz)",
+                 f"  base parameters: {self.base.n_base}"
+                 + (f", essential: {len(self.essential.result.names)}" if self.essential else ""),
+                 f"  relative error ||Y - W chi|| / ||Y||: {self.result.rel_error:.4f}"
+                 + (f" (essential model {self.essential.result.rel_error:.4f})"
+                    if self.essential else ""),
+                 "  tracking RMS of the last simulation (qr - q_sim), rad: "
+                 + ", ".join(f"{v:.3g}" for v in self.tracking_rms),
+                 "", "Gauss-Newton steps:"]
+        cols = [c for c in ("iteration", "rho_norm", "rel_change", "output_error", "rel_error",
+                            "max_rel_param_change", "max_change_sigma") if c in h]
+        lines.append(h[cols].to_string(index=False, float_format=lambda x: f"{x:.5g}"))
+        lines.append("")
+        lines.append((self.essential.result if self.essential is not None else self.result).summary())
+        if self.notices:
+            lines += ["", "Notices:"] + [f"  - {n}" for n in self.notices]
+        return "\n".join(lines)
+
+    def __str__(self) -> str:
+        return self.summary()
+
+    def to_dict(self) -> dict:
+        """JSON-safe, deterministic dict (no timings).
+
+        Laid out like :meth:`dynid.analysis.estimators.idim.IDIMResult.to_dict`: ``parameters``,
+        ``rel_error`` and ``rms_per_joint`` are those of :attr:`model` (the essential
+        parameters when they were computed, ``model`` says which); ``wls`` holds the
+        last step's WLS on all base parameters (the DIDIM estimate).
+        """
+        def params(res):
+            return [{"name": n, "value": v, "std": s, "rel_std_percent": r}
+                    for n, v, s, r in zip(res.names, res.chi, res.sigma, res.rel_sigma)]
+        r = self.result
+        m = self.model
+        return json_safe({
+            "method": "DIDIM",
+            "robot": self.robot_name,
+            "source": self.source,
+            "converged": bool(self.converged),
+            "iterations": self.iterations,
+            "stop_reason": self.stop_reason,
+            "settings": self.settings,
+            "base_parameters": self.base.table(),
+            "initial_parameters": {n: v for n, v in zip(self.base.names, self.initial) if v != 0.0},
+            "model": "essential" if self.essential is not None else "base",
+            "parameters": params(m),
+            "rel_error": m.rel_error,
+            "rms_per_joint": list(m.rms),
+            "wls": {"parameters": params(r), "rel_error": r.rel_error, "rms_per_joint": list(r.rms),
+                    "joint_sigma": None if r.joint_sigma is None else list(r.joint_sigma),
+                    "cond": r.cond},
+            "essential": None if self.essential is None else self.essential.to_dict(),
+            "history": self.history.to_dict(orient="records"),
+            "kd_scale": list(self.kd_scale),
+            "tracking_rms": list(self.tracking_rms),
+            "versions": versions(),
+            "data_hash": self.data_hash,
+            "notices": self.notices,
+            "true_values": self.truth,
+        })
+
+    def to_json(self, path) -> None:
+        atomic_write_text(path, dumps_json(self.to_dict()))
+
+
+# ----------------------------------------------------------------------------- settings
+
+def _bool(value, name):
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    raise InputError(f"DIDIM setting {name} must be true or false, got {value!r}")
+
+
+def _positive(value, name, allow_zero=False):
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise InputError(f"DIDIM setting {name} must be a number, got {value!r}") from None
+    if not math.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
+        raise InputError(f"DIDIM setting {name} must be a {'non-negative' if allow_zero else 'positive'} "
+                         f"number, got {value!r}")
+    return v
+
+
+def _count(value, name):
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
+        raise InputError(f"DIDIM setting {name} must be an integer >= 0, got {value!r}")
+    return int(value)
+
+
+def resolve_didim_settings(experiment, robot, controller, qr, overrides=None):
+    """DIDIM's settings for this recording (data-derived defaults, then ``overrides``).
+
+    Returns ``(settings, notices)``; ``qd_threshold`` is still ``"auto"`` or the
+    user's value here (it becomes numbers in :func:`identify_didim`).
+    """
+    overrides = dict(overrides or {})
+    notices = []
+    ignored = sorted(k for k in overrides if k in IGNORED_SETTINGS)
+    if ignored:
+        notices.append(f"setting(s) {', '.join(ignored)} ignored: DIDIM builds the regressor from the "
+                       "simulated states, whose derivatives are exact (no position filter)")
+        for k in ignored:
+            overrides.pop(k)
+    overrides.pop("fs", None)
+    unknown = sorted(set(overrides) - set(DIDIM_SETTINGS_HELP))
+    if unknown:
+        raise DataError(f"unknown DIDIM setting(s) {', '.join(unknown)}; known: "
+                        + ", ".join(f"{k} ({v})" for k, v in DIDIM_SETTINGS_HELP.items()))
+    fs = float(experiment.fs)
+    wn = np.broadcast_to(np.asarray(controller.wn, dtype=float), (robot.n_joints,))
+    transient = overrides.pop("transient", None)
+    transient = 5.0 / float(np.min(wn)) if transient is None else _positive(transient, "transient",
+                                                                               allow_zero=True)
+    n_transient = int(math.ceil(transient * fs - 1e-9))
+    if qr.shape[0] - n_transient < 10:
+        raise DataError(f"{experiment.source}: {qr.shape[0]} samples; DIDIM drops the first "
+                        f"{n_transient} ({transient:.3g} s, the closed-loop transient) and needs more")
+    dec_keys = {k: overrides.pop(k) for k in ("nd", "f_decimation_cutoff", "bandwidth")
+                if overrides.get(k) is not None}
+    for k in ("nd", "f_decimation_cutoff", "bandwidth"):
+        overrides.pop(k, None)
+    proposed = default_settings(fs, qr[n_transient:], edge=0, **dec_keys)
+    rate = overrides.pop("rate", None)
+    rate = float(controller.rate) if rate is None else _positive(rate, "rate")
+    substeps = overrides.pop("substeps", "auto")
+    if substeps != "auto" and (isinstance(substeps, bool) or not isinstance(substeps, (int, np.integer))
+                               or substeps < 1):
+        raise InputError(f"DIDIM setting substeps must be 'auto' or a positive integer, got {substeps!r}")
+    s = {
+        "fs": fs,
+        "rate": rate,
+        "nd": int(proposed["nd"]),
+        "f_decimation_cutoff": float(proposed["f_decimation_cutoff"]),
+        "bandwidth": float(proposed["bandwidth"]),
+        "qd_threshold": overrides.pop("qd_threshold", "auto"),
+        "dead_zone_guard": _positive(overrides.pop("dead_zone_guard", DEFAULT_GUARD),
+                                     "dead_zone_guard", allow_zero=True),
+        "transient": float(transient),
+        "v_s": _positive(overrides.pop("v_s", DEFAULT_V_S), "v_s", allow_zero=True),
+        "substeps": substeps if substeps == "auto" else int(substeps),
+        "feedforward": _bool(overrides.pop("feedforward", True), "feedforward"),
+        "saturate": _bool(overrides.pop("saturate", False), "saturate"),
+        "j_rate": _positive(overrides.pop("j_rate", DEFAULT_J_RATE), "j_rate"),
+        "max_step_halvings": _count(overrides.pop("max_step_halvings", DEFAULT_HALVINGS),
+                                    "max_step_halvings"),
+    }
+    return s, notices
+
+
+# ----------------------------------------------------------------------------- initialisation
+
+def initial_standard(robot) -> np.ndarray:
+    """chi^0 of eq. (31) as standard parameters: 0 except ``Ia_j = 1``, plus the coupled
+    rotors' diagonal share ``(c_k / c_m)^2`` on the other joints ``k`` of a coupling with
+    motor ``m`` (the TX40's ``Ia5 = 2``; see the module docstring)."""
+    n = robot.n_joints
+    chi = np.zeros(robot.n_standard)
+    ia = np.ones(n)
+    for c in robot.couplings:
+        coef = np.asarray(c.coefficients, dtype=float)
+        joints = list(c.joints)
+        cm = coef[joints.index(c.motor)] if c.motor in joints else 1.0
+        for jk, ck in zip(joints, coef):
+            if jk != c.motor:
+                ia[jk - 1] += (ck / cm) ** 2 * 1.0
+    for j in range(n):
+        chi[14 * j + 10] = ia[j]
+    return chi
+
+
+def initial_parameters(robot, bp) -> np.ndarray:
+    """chi^0 of eq. (31) as base parameters (``bp.from_standard(initial_standard(robot))``)."""
+    return bp.from_standard(initial_standard(robot))
+
+
+def _initial_beta(robot, bp, chi0):
+    if chi0 is None:
+        return initial_parameters(robot, bp), "eq. (31): 0 except Ia_j = 1 (coupled joints 1 + (c_k/c_m)^2)"
+    if isinstance(chi0, dict):
+        unknown = sorted(set(chi0) - set(bp.names) - set(robot.standard_names))
+        if unknown:
+            raise InputError(f"chi0 names {', '.join(unknown)} are neither base nor standard "
+                             f"parameters of '{robot.name}'")
+        if set(chi0) <= set(bp.names):
+            return np.array([float(chi0.get(n, 0.0)) for n in bp.names]), "given (base parameters)"
+        if set(chi0) <= set(robot.standard_names):
+            return bp.from_standard(robot.standard_vector(chi0)), "given (standard parameters)"
+        raise InputError("chi0 mixes base and standard parameter names; give one kind")
+    try:
+        v = np.asarray(chi0, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        raise InputError("chi0 must be a vector of base or standard parameters, or a dict") from None
+    if not np.all(np.isfinite(v)):
+        raise InputError("chi0 holds non-finite values")
+    if v.size == bp.n_base:
+        return v.copy(), "given (base parameters)"
+    if v.size == robot.n_standard:
+        return bp.from_standard(v), "given (standard parameters)"
+    raise InputError(f"chi0 has {v.size} values; robot '{robot.name}' has {bp.n_base} base and "
+                     f"{robot.n_standard} standard parameters")
+
+
+# ----------------------------------------------------------------------------- one step
+
+def _simulate(robot, bp, beta, ctrl, t, qr, qdr, s, kd_scale):
+    """Closed-loop simulation with chi = beta; states at the samples t."""
+    chi = bp.to_standard(beta, "zero")
+    rate = s["rate"]
+    substeps = s["substeps"]
+    if substeps == "auto":
+        x = friction_stiffness(robot, chi, qr[0], 1.0 / rate, s["v_s"])
+        substeps = max(1, int(math.ceil(x / STIFFNESS_TARGET))) if math.isfinite(x) else 1
+    sim = simulate_closed_loop(robot, chi, t, qr, qdr, q0=qr[0], qd0=qdr[0], controller=ctrl,
+                               kd_scale=kd_scale, substeps=substeps, v_s=s["v_s"],
+                               feedforward=s["feedforward"], rate=rate, saturate=s["saturate"])
+    if sim.t.size == t.size and np.allclose(sim.t, t, rtol=0, atol=1e-9 / rate):
+        return sim.q, sim.qd, sim.qdd, sim.tau, substeps, sim
+    # controller grid differs from the sampling grid: states at the samples by interpolation
+    def at(a):
+        return np.column_stack([np.interp(t, sim.t, a[:, j]) for j in range(a.shape[1])])
+    return at(sim.q), at(sim.qd), at(sim.qdd), at(sim.tau), substeps, sim
+
+
+def _simulate_checked(robot, bp, beta, ctrl, t, qr, qdr, s, configs, J_ap, update_gains):
+    """Check that ``beta`` can be simulated, set the derivative gains, simulate.
+
+    M(q, chi) must be positive definite at ``configs`` (the previous simulation's
+    configurations) and, with the gain update, ``kd_scale = J / J_ap`` with
+    ``J_j = max M_jj`` (eq. (27)). Raises a DynidError when it cannot be simulated.
+    """
+    chi = bp.to_standard(beta, "zero")
+    M = mass_matrix(robot, chi, configs)
+    ev = np.linalg.eigvalsh(M)
+    ok = ev[:, 0] > PD_MARGIN * np.abs(ev[:, -1])
+    if not np.all(ok):
+        i = int(np.flatnonzero(~ok)[0])
+        raise InputError(f"M(q) is not positive definite at {int((~ok).sum())} of {len(ok)} "
+                         f"configurations (smallest eigenvalue {ev[i, 0]:.3g} at q = "
+                         f"{np.array2string(configs[i], precision=3)})")
+    if update_gains:
+        J = np.max(np.diagonal(M, axis1=1, axis2=2), axis=0)
+        kd = J / J_ap
+    else:
+        kd = np.ones(robot.n_joints)
+    out = _simulate(robot, bp, beta, ctrl, t, qr, qdr, s, kd)
+    return out + (kd,)
+
+
+def _build_chunk(robot, bp, q, qd, qdd, tau, dead):
+    W = base_regressor(robot, bp, q, qd, qdd)
+    if dead is None:
+        return W, tau, np.ones(tau.shape)
+    # as dynid.analysis.processing.observation.push_chunk: zero both sides of the rows in the dead zone
+    keep = ~dead
+    W *= keep[:, :, None]
+    return W, tau * keep, keep.astype(float)
+
+
+def _decimated_system(robot, bp, q, qd, qdd, tau, dead, s, workers, progress=None):
+    """Base regressor of the simulated states, decimated in parallel with tau (eq. (24)).
+
+    The regressor chunks are built by ``workers`` threads (the compiled kernel
+    releases the GIL) and pushed through the decimator in order.
+    """
+    n_kept = q.shape[0]
+    nd = s["nd"]
+    slices = [slice(a, min(n_kept, a + CHUNK)) for a in range(0, n_kept, CHUNK)]
+
+    def build(sl):
+        return _build_chunk(robot, bp, q[sl], qd[sl], qdd[sl], tau[sl],
+                            None if dead is None else dead[sl])
+
+    if nd <= 1:
+        W, y, kept = build(slice(0, n_kept))
+        return W, y, kept >= 0.5, np.arange(n_kept)
+    dec = ParallelDecimator(nd, n_samples_total=n_kept, fs=s["fs"], cutoff=s["f_decimation_cutoff"])
+    parts = []
+
+    def push(res, sl):
+        parts.append(dec.push(*res))
+        if progress is not None:
+            progress(sl.stop / n_kept)
+
+    if workers <= 1 or len(slices) == 1:
+        for sl in slices:
+            push(build(sl), sl)
+    else:
+        with ThreadPoolExecutor(max_workers=workers) as ex:
+            pending = []
+            nxt = 0
+            while nxt < len(slices) and len(pending) < workers + 1:
+                pending.append((slices[nxt], ex.submit(build, slices[nxt])))
+                nxt += 1
+            while pending:
+                sl, fut = pending.pop(0)
+                res = fut.result()
+                if nxt < len(slices):
+                    pending.append((slices[nxt], ex.submit(build, slices[nxt])))
+                    nxt += 1
+                push(res, sl)
+    dec.finish()
+    Wd, taud, kept = (np.concatenate([p[k] for p in parts], axis=0) for k in range(3))
+    # a decimated row made mostly of zeroed samples is dropped, as in dynid.analysis.processing.observation
+    return Wd, taud, kept >= 0.5, dec.indices
+
+
+def _masked_norm(r, mask):
+    return float(np.sqrt(np.sum(np.where(mask, r, 0.0) ** 2)))
+
+
+# ----------------------------------------------------------------------------- DIDIM
+
+def identify_didim(experiment, robot, *, settings=None, chi0=None, tol=DEFAULT_TOL,
+                   max_iter=DEFAULT_MAX_ITER, update_gains=True, essential=True, progress=None,
+                   bp=None, controller=None, reference="qr", max_error_growth=0.02,
+                   workers=None) -> DIDIMResult:
+    """Identify the base (and essential) parameters of ``robot`` by DIDIM (section 3).
+
+    Parameters
+    ----------
+    experiment : :class:`dynid.analysis.data.experiment.Experiment` with ``t``, ``qr`` (the
+        reference the actual robot tracked) and ``tau``. Measured ``q`` is not used.
+    robot : the robot, with its controller (``robot.controller`` or ``controller=``).
+    settings : overrides of :data:`DIDIM_SETTINGS_HELP` (see the module docstring).
+    chi0 : initial parameters: None (eq. (31)), a base or standard vector, or a dict of
+        base or standard names.
+    tol : tol_I, the relative change of ||rho|| between two steps that stops the
+        iteration. Default 1e-3: ||rho||^2 = ||noise||^2 + ||model error||^2, so a
+        relative change below 1e-3 means the step changed the model error by less
+        than sqrt(2e-3) ~ 4.5 % of the residual norm, i.e. well inside the noise.
+    max_iter : most Gauss-Newton steps (least-squares solves).
+    update_gains : True (paper: derivative gains times J_j / J_ap_j at every step),
+        ``"initial"`` (only for the simulation of chi^0) or False (see the module doc).
+    essential : also compute the essential parameters from the last step.
+    progress : callable(fraction in [0, 1]) called while the steps run.
+    bp : base parameters of the robot (computed if None).
+    reference : ``"qr"`` (default) or ``"q"``: track the measured positions instead
+        (only when the reference was not logged; a notice says so).
+    max_error_growth : criterion of the essential-parameter search.
+    workers : threads building the regressor chunks (default 1; the compiled kernel
+        releases the GIL, but on a busy 2-core machine 2 threads were slower).
+
+    Returns a :class:`DIDIMResult`; ``converged`` is False when ``max_iter`` steps
+    did not meet the criterion or a simulation failed (``stop_reason`` says which).
+    """
+    bp = base_parameters(robot) if bp is None else bp
+    ctrl = controller if controller is not None else robot.controller
+    if ctrl is None:
+        raise InputError(f"DIDIM needs the controller of robot '{robot.name}': add a [controller] "
+                         "table (kind, rate, wn, zeta, J_ap, g_ap) to its description or pass "
+                         "controller=Controller(...)")
+    if ctrl.J_ap is None or ctrl.wn is None or ctrl.zeta is None:
+        raise InputError(f"the controller of robot '{robot.name}' needs wn, zeta and J_ap for DIDIM")
+    try:
+        tol = float(tol)
+    except (TypeError, ValueError):
+        raise InputError(f"tol must be a number, got {tol!r}") from None
+    if not (math.isfinite(tol) and tol > 0):
+        raise InputError(f"tol must be a positive number, got {tol!r}")
+    if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
+        raise InputError(f"max_iter must be a positive integer, got {max_iter!r}")
+    max_iter = int(max_iter)
+    notices = list(getattr(experiment, "notices", []) or [])
+    if reference not in ("qr", "q"):
+        raise InputError(f"reference must be 'qr' or 'q', got {reference!r}")
+    qr = experiment.qr if reference == "qr" else experiment.q
+    if qr is None:
+        raise DataError(f"{experiment.source}: DIDIM needs the reference positions qr1..qrn (and "
+                        "the torques); the data have none"
+                        + (" (pass reference='q' to track the measured positions instead)"
+                           if experiment.q is not None and reference == "qr" else ""))
+    if reference == "q":
+        notices.append("the measured positions q are used as the reference qr (the logged reference "
+                       "is not available): the simulated robot tracks the actual motion")
+    qr = np.ascontiguousarray(qr, dtype=float)
+    if qr.shape[1] != robot.n_joints:
+        raise DataError(f"{experiment.source}: robot '{robot.name}' has {robot.n_joints} joints "
+                        f"but the reference has {qr.shape[1]}")
+    tau = np.ascontiguousarray(experiment.tau, dtype=float)
+    t = np.asarray(experiment.t, dtype=float)
+    s, more = resolve_didim_settings(experiment, robot, ctrl, qr, settings)
+    notices += more
+    if isinstance(update_gains, (bool, np.bool_)):
+        update_gains = bool(update_gains)
+    if not (isinstance(update_gains, bool) or update_gains == "initial"):
+        raise InputError(f"update_gains must be True, False or 'initial', got {update_gains!r}")
+    s["update_gains"] = update_gains
+    s["tol"] = tol
+    s["max_iter"] = max_iter
+    beta0, init_note = _initial_beta(robot, bp, chi0)
+    s["initialisation"] = init_note
+    workers = 1 if workers is None else max(1, min(int(workers), os.cpu_count() or 1))
+
+    fs = s["fs"]
+    n0 = int(math.ceil(s["transient"] * fs - 1e-9))
+    qdr = np.gradient(qr, t, axis=0, edge_order=2)
+    thr = s["qd_threshold"]
+    if isinstance(thr, str):
+        if thr != "auto":
+            raise DataError(f"qd_threshold must be a number, a list of numbers or 'auto', got {thr!r}")
+        thr = AUTO_DEAD_ZONE * np.abs(qdr[n0:]).max(axis=0)
+    thr = np.broadcast_to(np.asarray(thr, dtype=float), (robot.n_joints,)).copy()
+    if not np.all(np.isfinite(thr)) or np.any(thr < 0):
+        raise DataError(f"qd_threshold must be finite and >= 0, got {s['qd_threshold']!r}")
+    s["qd_threshold"] = [float(v) for v in thr]
+    guard = int(round(s["dead_zone_guard"] * fs))
+    j_stride = max(1, int(round(fs / s["j_rate"])))
+    J_ap = np.broadcast_to(np.asarray(ctrl.J_ap, dtype=float), (robot.n_joints,))
+    notices.append(f"DIDIM: closed-loop simulation at {s['rate']:g} Hz from (qr(0), qdr(0)); first "
+                   f"{n0} samples ({s['transient']:.3g} s) dropped as the closed-loop transient; "
+                   f"parallel decimation by nd = {s['nd']} (low-pass {s['f_decimation_cutoff']:.3g} Hz)"
+                   + {True: "; derivative gains updated with J_j / J_ap_j (eq. (27)) at every step",
+                      "initial": "; derivative gains updated with J_j / J_ap_j (eq. (27)) for the "
+                                 "simulation of chi^0 only, the actual gains (kd_scale = 1) after",
+                      False: "; derivative gains NOT updated (kd_scale = 1)"}[update_gains])
+
+    names = list(bp.names)
+    info = {k: v for k, v in s.items()}
+    tau_k = tau[n0:]
+    history, timings = [], []
+    configs = qr[::j_stride]
+    rho_prev = None
+    converged = False
+    stop_reason = ""
+    last = None
+    kd = np.ones(robot.n_joints)
+    beta_sim = beta0            # the last simulated estimate (always simulatable)
+    beta_ls = None              # the last least-squares solution
+    max_halvings = s["max_step_halvings"]
+    for k in range(1, max_iter + 1):
+        t_start = time.perf_counter()
+        if k == 1:
+            candidates = [(1.0, beta0)]
+        else:
+            step = beta_ls - beta_sim
+            candidates = [(0.5 ** h, beta_sim + 0.5 ** h * step) for h in range(max_halvings + 1)]
+        failure = first_failure = None
+        for lam, cand in candidates:
+            try:
+                q_s, qd_s, qdd_s, tau_ddm, substeps, sim, kd = _simulate_checked(
+                    robot, bp, cand, ctrl, t, qr, qdr, s, configs, J_ap,
+                    update_gains is True or (update_gains == "initial" and k == 1))
+            except DynidError as exc:
+                failure = exc
+                first_failure = first_failure or str(exc)
+                continue
+            failure = None
+            break
+        if failure is not None:
+            if k == 1:
+                raise InputError(f"DIDIM cannot simulate the initial estimate chi0: {failure}") from None
+            stop_reason = (f"step {k}: the estimate of step {k - 1} cannot be simulated, even moved "
+                           f"back to 1/{2 ** max_halvings} of its step from the last simulated one: "
+                           f"{failure}")
+            break
+        if lam < 1.0:
+            notices.append(f"step {k}: the estimate of step {k - 1} could not be simulated "
+                           f"({first_failure}); simulated {lam:g} of its step from the previous "
+                           "simulated estimate instead")
+        beta_sim = cand
+        for note in sim.notes:
+            if note not in notices:
+                notices.append(note)
+        t_sim = time.perf_counter() - t_start
+        configs = q_s[::j_stride]
+        sl = slice(n0, None)
+        dead = None
+        s_dz = dict(s, qd_threshold=list(thr))
+        if np.any(thr > 0):
+            _, dead = _dead_zone(s_dz, qd_s[sl], robot, guard=guard)
+
+        def inner(f, k=k):
+            if progress is not None:
+                progress(min(1.0, (k - 1 + f) / max_iter))
+
+        Wd, taud, mask, idx = _decimated_system(robot, bp, q_s[sl], qd_s[sl], qdd_s[sl], tau_k,
+                                                dead, s, workers, inner)
+        res = ls.wls(Wd, taud, names, row_mask=mask, settings=info)
+        rho = _masked_norm(res.residual, mask)
+        out_err = _masked_norm(taud - Wd @ beta_sim, mask)
+        rel_change = abs(rho - rho_prev) / rho_prev if rho_prev is not None and rho_prev > 0 else np.nan
+        d = res.chi - beta_sim
+        with np.errstate(divide="ignore", invalid="ignore"):
+            good = res.rel_sigma <= WELL_IDENTIFIED
+            max_rel = float(np.max(np.abs(d[good]) / np.abs(res.chi[good]))) if good.any() else np.nan
+            max_sig = float(np.max(np.abs(d) / res.sigma))
+        track = np.sqrt(np.mean((qr[sl] - q_s[sl]) ** 2, axis=0))
+        row = {"iteration": k, "step_length": lam, "rho_norm": rho, "rel_change": rel_change,
+               "output_error": out_err, "rel_error": res.rel_error, "max_rel_param_change": max_rel,
+               "max_change_sigma": max_sig, "substeps": int(substeps)}
+        for j in range(robot.n_joints):
+            row[f"track_rms_{j + 1}"] = float(track[j])
+        for j in range(robot.n_joints):
+            row[f"kd_scale_{j + 1}"] = float(kd[j])
+        history.append(row)
+        timings.append({"iteration": k, "simulation_s": t_sim,
+                        "total_s": time.perf_counter() - t_start})
+        last = dict(res=res, Wd=Wd, taud=taud, mask=mask, idx=idx, q=q_s, qd=qd_s, qdd=qdd_s,
+                    tau_ddm=tau_ddm, kd=kd.copy())
+        beta_ls = res.chi
+        if progress is not None:
+            progress(min(1.0, k / max_iter))
+        if rho_prev is not None and rel_change <= tol and lam == 1.0:
+            converged = True
+            stop_reason = (f"|(||rho_{k}|| - ||rho_{k - 1}||)| / ||rho_{k - 1}|| = {rel_change:.3g} "
+                           f"<= tol_I = {tol:g}")
+            break
+        rho_prev = rho
+    else:
+        stop_reason = (f"max_iter = {max_iter} steps without meeting the criterion: last relative "
+                       f"change of ||rho|| {history[-1]['rel_change']:.3g} > tol_I = {tol:g}"
+                       if max_iter > 1 else
+                       f"max_iter = 1: one step cannot test the criterion (it compares two steps)")
+    if not converged:
+        notices.append(f"DIDIM did not converge: {stop_reason}")
+    elif history[-1]["max_change_sigma"] > MOVING_SIGMA:
+        notices.append(f"the residual norm met the criterion, but the last step still moved a "
+                       f"parameter by {history[-1]['max_change_sigma']:.3g} standard deviations: the "
+                       "estimate is not a fixed point of the iteration (e.g. the simulated loop does not "
+                       "reproduce the actual one; see the gain update in the documentation)")
+
+    res = last["res"]
+    h = experiment.data_hash() if hasattr(experiment, "data_hash") else ""
+    res.data_hash = h
+    ess = None
+    if essential:
+        ess = essential_parameters(last["Wd"], last["taud"], names, ls.wls,
+                                   max_error_growth=max_error_growth, row_mask=last["mask"],
+                                   settings=info)
+        for r in (ess.result, ess.base):
+            r.data_hash = h
+    chi_final = bp.to_standard(res.chi, "zero")
+    tau_sim = inverse_dynamics(robot, chi_final, last["q"], last["qd"], last["qdd"])
+    hist = pd.DataFrame(history)
+    return DIDIMResult(
+        robot_name=robot.name, base=bp, result=res, essential=ess, history=hist,
+        converged=converged, stop_reason=stop_reason, settings=s, initial=np.asarray(beta0),
+        kd_scale=last["kd"], t=t, q_sim=last["q"], qr=qr, tau=tau, tau_sim=tau_sim,
+        tau_ddm=last["tau_ddm"], t_dec=t[n0:][last["idx"]], tau_dec=last["taud"],
+        tau_est_dec=last["Wd"] @ res.chi, W_dec=last["Wd"], row_mask=last["mask"],
+        transient_samples=n0, notices=notices, data_hash=h, source=str(experiment.source),
+        joint_names=list(robot.joint_names), timings=timings)

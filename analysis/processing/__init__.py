@@ -1,0 +1,1 @@
+"""Signal processing: filtering and differentiation, parallel decimation, the observation system, period averaging."""

@@ -1,0 +1,1 @@
+"""Bayesian posterior by ensemble MCMC (emcee) and its convergence diagnostics."""

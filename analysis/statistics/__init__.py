@@ -1,0 +1,1 @@
+"""Statistical checks: validation on held-out data, residual analysis, noise PDF tests."""
