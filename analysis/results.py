@@ -1,4 +1,11 @@
-"""The result of a least-squares identification, modelled on statsmodels' results.
+"""Results of an identification, modelled on statsmodels' results classes.
+
+:class:`ParameterResults` is the one interface every estimator's result has
+(IDIM, DIDIM, the Projection Method, maximum likelihood, the posterior, the
+per-joint models): ``method``, ``names``, ``params`` (a pandas Series),
+``bse``, ``rel_std`` (%σ, eq. (15)), ``cov``, ``conf_int(alpha)``,
+``summary()``, ``to_frame()``, ``to_dict()``, ``to_json(path)`` and
+``to_csv(path)``. Method-specific extras stay attributes of each class.
 
 :class:`IdentificationResult` holds the estimate χ̂ (eq. (11)), its covariance
 (eq. (14)), standard deviations and relative standard deviations (eq. (15)),
@@ -15,16 +22,98 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from dynid.provenance import atomic_write_text, dumps_json, json_safe, versions
+from dynid.provenance import dumps_json, json_safe, versions
+from dynid.outputs import atomic_write_text
 from dynid.errors import InputError
 
-__all__ = ["IdentificationResult"]
+__all__ = ["Exportable", "ParameterResults", "IdentificationResult"]
 
 _WIDTH = 78
 
 
+class Exportable:
+    """``to_json(path)`` and ``str()`` of any result with ``to_dict()`` and ``summary()``."""
+
+    def to_json(self, path: str | os.PathLike) -> None:
+        """Write :meth:`to_dict` as JSON to ``path`` atomically (all or nothing)."""
+        # Serialise first: a failure here must not even create the temporary file.
+        text = dumps_json(self.to_dict())
+        atomic_write_text(path, text)
+
+    def __str__(self) -> str:
+        return self.summary()
+
+
+class ParameterResults(Exportable):
+    """The interface shared by every result (a mixin; it holds no data of its own).
+
+    A class using it has ``method`` (str), ``names`` (list of parameter names),
+    ``cov`` (ndarray (p, p), the covariance of the estimate), ``summary()`` and
+    ``to_dict()``, and says what its estimate is by :meth:`_estimate`
+    (default: the attribute ``chi``). Intervals are normal by default;
+    :meth:`_interval_quantile` and :meth:`conf_int` are overridden where the
+    estimate's distribution is another (Student for repeated experiments,
+    sample quantiles for a posterior).
+    """
+
+    def _estimate(self) -> np.ndarray:
+        return np.asarray(self.chi, dtype=float)
+
+    def _index(self) -> pd.Index:
+        return pd.Index(list(self.names), name="parameter")
+
+    @property
+    def params(self) -> pd.Series:
+        """The estimate, by parameter name (SI units of each parameter)."""
+        return pd.Series(self._estimate(), index=self._index(), name=self.method)
+
+    @property
+    def bse(self) -> pd.Series:
+        """Standard errors sqrt(diag(cov)) (rounding below 0 is clipped)."""
+        var = np.maximum(np.diag(np.asarray(self.cov, dtype=float)), 0.0)
+        return pd.Series(np.sqrt(var), index=self._index(), name="std")
+
+    @property
+    def rel_std(self) -> pd.Series:
+        """Relative standard deviations %σ = 100 σ / |χ̂| (eq. (15)); inf where χ̂ = 0 < σ."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            values = 100.0 * self.bse.to_numpy() / np.abs(self._estimate())
+        return pd.Series(values, index=self._index(), name="rel_std_percent")
+
+    def cov_params(self) -> pd.DataFrame:
+        """The covariance as a labelled table (statsmodels' name)."""
+        index = self._index()
+        return pd.DataFrame(np.asarray(self.cov, dtype=float), index=index, columns=list(index))
+
+    def _interval_quantile(self, alpha: float) -> float:
+        from scipy import stats
+        return float(stats.norm.ppf(1.0 - alpha / 2.0))
+
+    def conf_int(self, alpha: float = 0.05) -> pd.DataFrame:
+        """Two-sided (1 − alpha) interval per parameter: columns ``lower`` and ``upper``."""
+        _check_alpha(alpha)
+        half = self._interval_quantile(alpha) * self.bse.to_numpy()
+        value = self._estimate()
+        return pd.DataFrame({"lower": value - half, "upper": value + half}, index=self._index())
+
+    def to_frame(self) -> pd.DataFrame:
+        """Table of the parameters: index = names, columns value, std, rel_std_percent."""
+        return pd.DataFrame({"value": self._estimate(), "std": self.bse.to_numpy(),
+                             "rel_std_percent": self.rel_std.to_numpy()}, index=self._index())
+
+    def to_csv(self, path: str | os.PathLike) -> None:
+        """Write :meth:`to_frame` as CSV to ``path`` atomically (all or nothing)."""
+        text = self.to_frame().to_csv(lineterminator="\n")
+        atomic_write_text(path, text)
+
+
+def _check_alpha(alpha) -> None:
+    if not (isinstance(alpha, (int, float)) and 0 < alpha < 1):
+        raise InputError(f"conf_int: alpha must be between 0 and 1 (0.05 for a 95 % interval), got {alpha!r}")
+
+
 @dataclass(eq=False)
-class IdentificationResult:
+class IdentificationResult(ParameterResults):
     """Estimated base parameters and their statistics.
 
     Attributes
@@ -157,14 +246,6 @@ class IdentificationResult:
         return W3 @ self.chi
 
     # ------------------------------------------------------------ presentation
-    def to_frame(self) -> pd.DataFrame:
-        """Table of the parameters: index = names, columns value, std, rel_std_percent."""
-        frame = pd.DataFrame(
-            {"value": self.chi, "std": self.sigma, "rel_std_percent": self.rel_sigma},
-            index=pd.Index(self.names, name="parameter"),
-        )
-        return frame
-
     def summary(self) -> str:
         """Printable report: header block, per-joint residuals, parameter table."""
         rule, thin = "=" * _WIDTH, "-" * _WIDTH
@@ -208,9 +289,6 @@ class IdentificationResult:
             lines.extend(f"[{i}] {text}" for i, text in enumerate(self.notices, 1))
         return "\n".join(lines)
 
-    def __str__(self) -> str:
-        return self.summary()
-
     def to_dict(self) -> dict:
         """JSON-safe dict (NaN and infinities become ``None``), deterministic."""
         out = {
@@ -236,18 +314,6 @@ class IdentificationResult:
             "notices": self.notices,
         }
         return json_safe(out)
-
-    def to_json(self, path: str | os.PathLike) -> None:
-        """Write :meth:`to_dict` as JSON to ``path`` atomically (all or nothing)."""
-        # Serialise first: a failure here must not even create the temporary file.
-        text = dumps_json(self.to_dict())
-        atomic_write_text(path, text)
-
-    def to_csv(self, path: str | os.PathLike) -> None:
-        """Write :meth:`to_frame` as CSV to ``path`` atomically (all or nothing)."""
-        text = self.to_frame().to_csv(lineterminator="\n")
-        atomic_write_text(path, text)
-
 
 def _fmt(x: float) -> str:
     x = float(x)

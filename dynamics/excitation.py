@@ -718,7 +718,7 @@ class ExcitationResult:
 
     def to_csv(self, path, fs, n_periods=1):
         """Write :meth:`to_frame` to ``path`` atomically (full precision)."""
-        from dynid.provenance import atomic_write_text
+        from dynid.outputs import atomic_write_text
 
         atomic_write_text(path, self.to_frame(fs, n_periods).to_csv(index=False, lineterminator="\n",
                                                                     float_format="%.17g"))

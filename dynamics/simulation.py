@@ -131,17 +131,6 @@ class SimulationResult:
                     cols[f"{name}{j + 1}"] = a[:, j]
         return pd.DataFrame(cols)
 
-    def to_experiment(self, name: str = "simulation"):
-        """An :class:`dynid.analysis.data.experiment.Experiment` of the simulated q, qr, qd, qdd, tau."""
-        from dynid.analysis.data.experiment import Experiment
-
-        fs = None if self.rate is None else float(self.rate)
-        return Experiment(t=self.t.copy(), q=self.q.copy(),
-                          qr=None if self.qr is None else self.qr.copy(),
-                          qd=self.qd.copy(), qdd=self.qdd.copy(), tau=self.tau.copy(), fs=fs,
-                          source=f"dynid simulation of '{self.robot}' ({self.kind})",
-                          notices=list(self.notes), name=name)
-
 
 # ----------------------------------------------------------------------------- kernels
 

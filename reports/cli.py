@@ -14,6 +14,7 @@ import sys
 import textwrap
 
 from dynid.errors import DynidError
+from dynid.reports.progress import Reporter
 
 EXIT_OK, EXIT_BUG, EXIT_INPUT, EXIT_NOT_CONVERGED, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
 
@@ -66,21 +67,6 @@ EPILOG_DEMO = """examples:
   dynid demo --report demo.html --json demo.json --seed 7
   dynid demo --skip didim,sample,diagnose          IDIM only (a few seconds)
 """
-
-
-class _Reporter:
-    """Prints human messages on stderr unless --quiet."""
-
-    def __init__(self, quiet):
-        self.quiet = quiet
-
-    def __call__(self, msg):
-        if not self.quiet:
-            print(msg, file=sys.stderr, flush=True)
-
-    def progress(self, label):
-        from dynid.reports.progress import Progress
-        return Progress(label, quiet=self.quiet)
 
 
 def _add_processing_options(p):
@@ -410,49 +396,9 @@ def _write_outputs(args, say, result, robot, experiment, validation, asym=None, 
 
 
 def commit_outputs(outputs, say):
-    """Write ``(path, text)`` pairs all-or-none; the path ``-`` means stdout, written last.
-
-    Phase 1 writes every file to a temporary file beside its target; only when
-    all of them are written does phase 2 rename them into place, so a failure
-    (disk full, missing folder, interruption) leaves the user's existing files
-    as they were and no new file behind.
-    """
-    import secrets
-    from dynid.errors import InputError
-    to_stdout = [text for path, text in outputs if path == "-"]
-    staged = []
-    try:
-        for path, text in outputs:
-            if path == "-":
-                continue
-            target = os.path.abspath(os.fspath(path))
-            tmp = os.path.join(os.path.dirname(target),
-                               f".{os.path.basename(target)}.{secrets.token_hex(6)}.tmp")
-            staged.append((tmp, target, path))
-            try:
-                with open(tmp, "x", encoding="utf-8", newline="") as fh:
-                    fh.write(text)
-                    fh.flush()
-                    os.fsync(fh.fileno())
-            except OSError as exc:
-                raise InputError(f"cannot write {path}: {exc.strerror or exc}") from None
-        for tmp, target, path in staged:
-            try:
-                os.replace(tmp, target)
-            except OSError as exc:
-                raise InputError(f"cannot write {path}: {exc.strerror or exc}") from None
-    except BaseException:
-        for tmp, _, _ in staged:
-            try:
-                os.remove(tmp)
-            except OSError:
-                pass
-        raise
-    for _, _, path in staged:
-        say(f"wrote {path}")
-    for text in to_stdout:
-        sys.stdout.write(text if text.endswith("\n") else text + "\n")
-        sys.stdout.flush()
+    """Write ``(path, text)`` pairs all or none (:func:`dynid.outputs.write_all`)."""
+    from dynid.outputs import write_all
+    write_all(outputs, say)
 
 
 OUTPUT_OPTIONS = ("json", "report", "csv", "out", "urdf")
@@ -499,21 +445,16 @@ def _load_data(args, say, robot, paths):
         valid = load_experiment(args.validation, robot)
         say(f"validation {args.validation}: {valid.n_samples} samples")
     elif getattr(args, "holdout", None) is not None:
-        if not args.holdout > 0:
-            raise InputError(f"--holdout must be a positive number of seconds, got {args.holdout:g}")
+        from dynid.analysis.data.split import holdout_split
         if len(experiments) > 1:
             raise InputError("--holdout splits one recording; with several, use --validation")
-        experiment = experiments[0]
-        t_split = experiment.t[-1] - args.holdout
-        if not experiment.t[0] < t_split:
-            raise InputError(f"--holdout {args.holdout:g} s is longer than the recording "
-                             f"({experiment.duration:.3g} s)")
-        experiments, valid = [experiment.segment(None, t_split)], experiment.segment(t_split, None)
+        train, valid = holdout_split(experiments[0], args.holdout)
+        experiments = [train]
     return experiments, valid
 
 
 def cmd_identify(args, say):
-    from dynid.analysis.estimators.idim import identify_idim
+    from dynid.analysis.identify import identify
     from dynid.analysis.statistics.validation import validate
     from dynid.dynamics.robot_file import load_robot
     from dynid.errors import InputError
@@ -531,10 +472,9 @@ def cmd_identify(args, say):
         if len(experiments) > 1:
             raise InputError(f"--method {args.method} identifies one recording at a time")
         return METHODS[args.method](args, say, robot, experiments[0])
-    ident = experiments if len(experiments) > 1 else experiments[0]
     with say.progress("regressor and decimation") as bar:
-        result = identify_idim(ident, robot, settings=_processing_settings(args),
-                               max_error_growth=args.max_error_growth, progress=bar.update)
+        result = identify(experiments, robot, settings=_processing_settings(args),
+                          max_error_growth=args.max_error_growth, progress=bar.update)
     validation = validate(result, valid, robot) if valid is not None else None
     asym = None
     if args.asymmetric_friction:
@@ -555,9 +495,6 @@ def cmd_identify(args, say):
     return EXIT_OK
 
 
-ML_MAX_VALUES = 200_000
-
-
 def _write_method_outputs(args, say, result, frame, sections, title):
     """Summary, then JSON / CSV (``frame``) / HTML (``sections``) of a DIDIM, PM or ML result."""
     from dynid.provenance import dumps_json
@@ -574,45 +511,35 @@ def _write_method_outputs(args, say, result, frame, sections, title):
 
 
 def _identify_ml(args, say, robot, exp):
-    from dynid.analysis.estimators.maximum_likelihood import maximum_likelihood, robot_model
+    from dynid.analysis.identify import identify
     from dynid.errors import InputError
     from dynid.reports.projection_section import ml_section
     if args.f0 is None:
         raise InputError("--method ml needs --f0, the fundamental frequency of the periodic excitation")
-    if exp.n_samples * robot.n_joints > ML_MAX_VALUES:
-        raise InputError(f"{exp.source}: {exp.n_samples} samples x {robot.n_joints} joints; maximum "
-                         f"likelihood keeps every sample and is limited to {ML_MAX_VALUES:,} values: "
-                         "resample or cut the recording (a TOML experiment file), or use IDIM")
     say("maximum likelihood (noise on q and tau), from the LS start")
-    res = maximum_likelihood(exp.t, exp.q, exp.tau, robot_model(robot), f0=args.f0,
-                             n_harmonics=args.ml_harmonics)
+    res = identify(exp, robot, "ml", f0=args.f0, ml_harmonics=args.ml_harmonics)
     _write_method_outputs(args, say, res, res.to_frame(), lambda: [ml_section(res)],
                           f"Maximum-likelihood identification of {robot.name}")
     return EXIT_OK
 
 
 def _identify_projection(args, say, robot, exp):
-    from dynid.analysis.estimators.projection import identify_projection
+    from dynid.analysis.identify import identify
     from dynid.reports.projection_section import projection_section
     say("Projection Method: FIR sensitivity per joint, then two-stage LS")
-    res = identify_projection(exp, robot, settings=_processing_settings(args))
+    res = identify(exp, robot, "projection", settings=_processing_settings(args))
     _write_method_outputs(args, say, res, res.to_frame(), lambda: [projection_section(res)],
                           f"Projection Method identification of {robot.name}")
     return EXIT_OK
 
 
 def _identify_didim(args, say, robot, exp):
-    from dynid.analysis.estimators.didim import identify_didim
-    from dynid.errors import InputError
+    from dynid.analysis.identify import identify
     from dynid.reports.didim_section import didim_sections
-    if robot.controller is None:
-        raise InputError(f"DIDIM simulates the robot under its controller, but '{robot.name}' "
-                         f"({robot.source}) has no [controller] table")
-    reference = "qr" if exp.qr is not None else "q"
     with say.progress("DIDIM iterations") as bar:
-        res = identify_didim(exp, robot, settings=_processing_settings(args), reference=reference,
-                             max_iter=args.max_iter, max_error_growth=args.max_error_growth,
-                             update_gains=GAIN_UPDATES[args.gain_update], progress=bar.update)
+        res = identify(exp, robot, "didim", settings=_processing_settings(args), max_iter=args.max_iter,
+                       max_error_growth=args.max_error_growth,
+                       update_gains=GAIN_UPDATES[args.gain_update], progress=bar.update)
     _write_method_outputs(args, say, res, res.model.to_frame(), lambda: didim_sections(res),
                           f"DIDIM identification of {robot.name}")
     if not res.converged:
@@ -626,39 +553,15 @@ METHODS = {"didim": _identify_didim, "projection": _identify_projection, "ml": _
 
 
 def cmd_simulate(args, say):
-    import numpy as np
-    from dynid.analysis.data.synthetic import apriori_parameters, simulate_experiment
-    from dynid.dynamics.base_parameters import base_parameters
-    from dynid.errors import InputError
-    from dynid.dynamics.robot_file import load_robot
-    from dynid.dynamics.trajectories import random_fourier_trajectory
-    robot = load_robot(args.robot)
-    if robot.controller is None:
-        raise InputError(f"robot '{robot.name}' ({robot.source}) has no [controller]; add one to simulate")
-    if args.duration <= 0 or args.f0 <= 0 or args.harmonics < 1:
-        raise InputError("--duration and --f0 must be positive and --harmonics at least 1")
-    chi = apriori_parameters(robot, base_parameters(robot))
-    rng = np.random.default_rng(args.seed)
-    traj = random_fourier_trajectory(robot, args.f0, args.harmonics, rng)
+    from dynid.analysis.data.synthetic import simulate
+    from dynid.provenance import dumps_json
     with say.progress(f"closed-loop simulation ({args.duration:g} s)") as bar:
-        exp = simulate_experiment(robot, chi, traj, args.duration, rng=rng, q_noise=args.noise_q,
-                                  tau_noise=args.noise_tau, progress=bar.update,
-                                  name=f"simulated {robot.name} (seed {args.seed})")
-    outputs = [(args.out, exp.to_frame().to_csv(index=False, float_format="%.10g"))]
+        sim = simulate(args.robot, args.duration, seed=args.seed, f0=args.f0, harmonics=args.harmonics,
+                       noise_q=args.noise_q, noise_tau=args.noise_tau, progress=bar.update)
+    outputs = [(args.out, sim.experiment.to_frame().to_csv(index=False, float_format="%.10g"))]
     if args.json:
-        from dynid.provenance import dumps_json, json_safe
-        bp = base_parameters(robot)
-        doc = json_safe({
-            "robot": robot.name, "seed": args.seed, "duration": args.duration, "fs": exp.fs,
-            "noise": {"q_std": args.noise_q, "tau_std": args.noise_tau},
-            "reference": {"f0": traj.f0, "harmonics": traj.harmonics, "a": traj.a, "b": traj.b,
-                          "q0": traj.q0},
-            "true_parameters": {"source": "the robot file's a-priori values (for tx40 with Ia6 = 0.0105 "
-                                          "added: the coupled wrist needs a rotor-6 inertia)"
-                                          if robot.name == "tx40" else "the robot file's a-priori values",
-                                "base": dict(zip(bp.names, bp.from_standard(chi))),
-                                "standard": dict(zip(robot.standard_names, chi))},
-            "csv": args.out})
+        doc = sim.to_dict()
+        doc["csv"] = args.out
         outputs.append((args.json, dumps_json(doc)))
     commit_outputs(outputs, say)
     return EXIT_OK
@@ -768,17 +671,17 @@ def _check_diagnosis_options(args):
         raise InputError(f"--holdout must be a positive number of seconds, got {args.holdout:g}")
 
 
+def _diagnosis_options(args):
+    return dict(effects=_effects_option(getattr(args, "effects", None)),
+                max_effects=getattr(args, "max_effects", 3), alpha=getattr(args, "alpha", 0.01),
+                no_offsets=getattr(args, "no_offsets", False))
+
+
 def _run_diagnosis(args, say, robot, experiment, valid, idim_result):
-    from dynid.analysis.diagnosis.selection import diagnose
-    with say.progress("diagnosis (selection steps)") as bar:
-        kwargs = dict(validation=valid, effects=_effects_option(getattr(args, "effects", None)),
-                      max_effects=getattr(args, "max_effects", 3), alpha=getattr(args, "alpha", 0.01),
-                      progress=bar.update)
-        if getattr(args, "no_offsets", False):
-            return diagnose(experiment, robot, settings=_processing_settings(args),
-                            exclude_parameters=("Off",),
-                            max_error_growth=getattr(args, "max_error_growth", 0.02), **kwargs)
-        return diagnose(experiment, robot, idim_result=idim_result, **kwargs)
+    from dynid.reports.pipeline import run_diagnosis
+    return run_diagnosis(experiment, robot, valid, idim_result, settings=_processing_settings(args),
+                         max_error_growth=getattr(args, "max_error_growth", 0.02), say=say,
+                         **_diagnosis_options(args))
 
 
 def cmd_diagnose(args, say):
@@ -811,131 +714,47 @@ def cmd_diagnose(args, say):
     return EXIT_OK
 
 
-REPORT_PARTS = ("didim", "sample", "diagnose")
-
-
 def _skip_option(value):
-    from dynid.errors import InputError
-    skip = {x.strip() for x in (value or "").split(",") if x.strip()}
-    unknown = skip - set(REPORT_PARTS)
-    if unknown:
-        raise InputError(f"--skip takes {', '.join(REPORT_PARTS)}; unknown: {', '.join(sorted(unknown))}")
-    return skip
+    from dynid.reports.pipeline import check_parts
+    return check_parts((value or "").split(","))
 
 
-def _further_analyses(args, say, robot, experiments, valid, result, skip):
-    """DIDIM, posterior and diagnosis after an IDIM ``result``.
-
-    Returns (report sections, JSON parts, summaries, problems); a part that
-    does not apply (no controller, several recordings) is skipped with a notice.
-    """
-    settings = _processing_settings(args) if hasattr(args, "fc") else None
-    mge = getattr(args, "max_error_growth", 0.02)
-    sections, doc, texts, problems = [], {}, [], []
-    if "didim" not in skip:
-        if robot.controller is None:
-            say(f"DIDIM skipped: robot '{robot.name}' has no [controller] to simulate")
-        elif len(experiments) > 1:
-            say("DIDIM skipped: it identifies one recording at a time")
-        else:
-            from dynid.analysis.estimators.didim import identify_didim
-            from dynid.reports.didim_section import didim_sections
-            exp = experiments[0]
-            # The paper's gain update at every step oscillated on the demo data (25 steps,
-            # Ia6 +590 %) where updating only the first simulation converged in 8 (all
-            # parameters within 1.5 %): the report uses the latter unless told otherwise.
-            update = GAIN_UPDATES[getattr(args, "gain_update", "initial")]
-            with say.progress("DIDIM iterations") as bar:
-                dres = identify_didim(exp, robot, settings=settings,
-                                      reference="qr" if exp.qr is not None else "q",
-                                      max_iter=getattr(args, "max_iter", 15), update_gains=update,
-                                      max_error_growth=mge, progress=bar.update)
-            sections += didim_sections(dres)
-            doc["didim"] = dres.to_dict()
-            texts.append(dres.summary())
-            if not dres.converged:
-                problems.append(f"DIDIM did not converge ({dres.stop_reason})")
-    if "sample" not in skip:
-        from dynid.analysis.sampling.posterior import sample_idim
-        from dynid.reports.bayes_section import bayes_sections
-        with say.progress("sampling (steps / steps needed)") as bar:
-            post = sample_idim(result, which="essential", seed=args.seed, max_seconds=args.max_seconds,
-                               progress=lambda n, need: bar.update(n / max(need, 1)))
-        sections += bayes_sections(post)
-        doc["posterior"] = post.to_dict()
-        texts.append(post.summary())
-        if not post.converged:
-            problems.append(f"the sampler did not converge ({post.reason})")
-    if "diagnose" not in skip:
-        if len(experiments) > 1:
-            say("diagnosis skipped: it works on one recording at a time")
-        else:
-            from dynid.reports.diagnosis_section import diagnosis_sections
-            say("diagnosis: scoring candidate effects")
-            diag = _run_diagnosis(args, say, robot, experiments[0], valid, result)
-            sections += diagnosis_sections(diag, robot)
-            doc["diagnosis"] = diag.to_dict()
-            texts.append(diag.summary())
-    return sections, doc, texts, problems
-
-
-def _write_full_report(args, say, robot, experiments, result, validation, parts):
+def _write_full_report(args, say, out):
     from dynid.provenance import dumps_json
-    from dynid.reports.html import render_idim_report
-    sections, extra_doc, texts, problems = parts
-    _show(args, result.summary(), validation.summary() if validation is not None else "", *texts)
+    _show(args, out.summary())
     outputs = []
     if args.report:
-        outputs.append((args.report, render_idim_report(result, robot, experiments[0], validation,
-                                                        extra_sections=sections)))
+        outputs.append((args.report, out.html))
     if args.json:
-        doc = result.to_dict()
-        doc["validation"] = validation.to_dict() if validation is not None else None
-        doc.update(extra_doc)
-        doc["problems"] = problems
-        outputs.append((args.json, dumps_json(doc)))
+        outputs.append((args.json, dumps_json(out.to_dict())))
     if getattr(args, "csv", None):
-        outputs.append((args.csv, result.model.to_frame().to_csv()))
+        outputs.append((args.csv, out.result.model.to_frame().to_csv()))
     commit_outputs(outputs, say)
-    if problems:
-        print(f"dynid {args.command}: " + "; ".join(problems) + "; the outputs say so", file=sys.stderr)
+    if out.problems:
+        print(f"dynid {args.command}: " + "; ".join(out.problems) + "; the outputs say so", file=sys.stderr)
         return EXIT_NOT_CONVERGED
     return EXIT_OK
 
 
 def cmd_report(args, say):
-    from dynid.analysis.estimators.idim import identify_idim
-    from dynid.analysis.statistics.validation import validate
-    from dynid.dynamics.robot_file import load_robot
-    from dynid.errors import InputError
+    from dynid.reports.pipeline import report
     skip = _skip_option(args.skip)
-    if not args.max_seconds > 0:
-        raise InputError(f"--max-seconds must be positive, got {args.max_seconds:g}")
     _check_diagnosis_options(args)
-    robot = load_robot(args.robot)
-    say(f"robot '{robot.name}' ({robot.n_joints} joints)")
-    experiments, valid = _load_data(args, say, robot, args.data)
-    ident = experiments if len(experiments) > 1 else experiments[0]
-    with say.progress("IDIM: regressor and decimation") as bar:
-        result = identify_idim(ident, robot, settings=_processing_settings(args),
-                               max_error_growth=args.max_error_growth, progress=bar.update)
-    validation = validate(result, valid, robot) if valid is not None else None
-    parts = _further_analyses(args, say, robot, experiments, valid, result, skip)
-    return _write_full_report(args, say, robot, experiments, result, validation, parts)
+    _effects_option(getattr(args, "effects", None))    # bad names fail before the long work
+    out = report(args.data, args.robot, holdout=getattr(args, "holdout", None),
+                 validation=getattr(args, "validation", None), skip=skip,
+                 settings=_processing_settings(args), seed=args.seed, max_seconds=args.max_seconds,
+                 max_error_growth=args.max_error_growth,
+                 gain_update=getattr(args, "gain_update", "initial"), max_iter=getattr(args, "max_iter", 15),
+                 diagnosis_options=_diagnosis_options(args), say=say)
+    return _write_full_report(args, say, out)
 
 
 def cmd_demo(args, say):
-    from dynid.analysis.demo import run_demo
-    from dynid.errors import InputError
-    skip = _skip_option(args.skip)
-    if not args.duration >= 2.0:
-        raise InputError(f"--duration must be at least 2 s, got {args.duration:g}")
-    if not args.max_seconds > 0:
-        raise InputError(f"--max-seconds must be positive, got {args.max_seconds:g}")
-    result, robot, experiment, validation, valid = run_demo(seed=args.seed, duration=args.duration,
-                                                            say=say)
-    parts = _further_analyses(args, say, robot, [experiment], valid, result, skip)
-    return _write_full_report(args, say, robot, [experiment], result, validation, parts)
+    from dynid.reports.pipeline import demo
+    out = demo(seed=args.seed, duration=args.duration, skip=_skip_option(args.skip),
+               max_seconds=args.max_seconds, say=say)
+    return _write_full_report(args, say, out)
 
 
 COMMANDS = {"robot": cmd_robot, "simulate": cmd_simulate, "excite": cmd_excite, "identify": cmd_identify,
@@ -957,7 +776,7 @@ def main(argv=None):
         parser.print_help()
         return EXIT_INPUT
     signal.signal(signal.SIGTERM, _terminate)
-    say = _Reporter(args.quiet)
+    say = Reporter(quiet=args.quiet)
     try:
         check_output_paths(args)
         return COMMANDS[args.command](args, say)

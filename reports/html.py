@@ -24,14 +24,14 @@ import functools
 import math
 import re
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import jinja2
 import numpy as np
 import pandas as pd
 from markupsafe import Markup, escape
 
-from dynid.provenance import atomic_write_text, versions
+from dynid.provenance import versions
+from dynid.outputs import atomic_write_text
 from dynid.reports import figures as F
 from dynid.reports import tables as T
 from dynid.reports.paper import reference_for

@@ -32,3 +32,21 @@ class Progress:
             self.stream.write("\n")
             self.stream.flush()
         return False
+
+
+class Reporter:
+    """Human messages and progress bars on stderr; silent when ``quiet``.
+
+    Long pipelines take one: ``say("message")`` and ``with say.progress(label) as bar:
+    bar.update(fraction)``. The library's default is a quiet one.
+    """
+
+    def __init__(self, quiet=True):
+        self.quiet = quiet
+
+    def __call__(self, msg):
+        if not self.quiet:
+            print(msg, file=sys.stderr, flush=True)
+
+    def progress(self, label):
+        return Progress(label, quiet=self.quiet)

@@ -1,7 +1,6 @@
 """Base parameters against closed forms, the DIDIM paper's TX40 set and FIGAROH's TX40 relations."""
 import csv
 import re
-from pathlib import Path
 
 import numpy as np
 import pytest

@@ -19,7 +19,6 @@ from scipy.linalg import expm
 from dynid.analysis.decoupled.estimates import estimate_friction, estimate_gravity, estimate_inertia
 from dynid.analysis.decoupled.campaign import identify_campaign, simulate_campaign
 from dynid.analysis.decoupled.repeated import RepeatedEstimate
-from dynid.dynamics import comau_decoupled as C
 from dynid.errors import InputError
 from dynid.dynamics.joint_model import JointModel, JointPID, simulate_joints
 from dynid.dynamics.joint_trajectories import trapezoid_reference

@@ -1,7 +1,6 @@
 """Tests of dynid.analysis.estimators.essential (Pham & Gautier essential parameters)."""
 
 import json
-import time
 
 import numpy as np
 import pytest

@@ -2,7 +2,8 @@
 empty folder with the repository's examples/ beside it, with the dynid of the venv the
 tests run in; exit codes and the outputs the guide promises are checked.
 
-The code under test is the repository's (PYTHONPATH), also for `python -` snippets.
+The ```python blocks of the "Python API" section run in order, in one interpreter.
+The code under test is the installed dynid of that venv.
 """
 import json
 import os
@@ -47,8 +48,7 @@ def test_every_command_block_runs(tmp_path):
     if not dynid.exists():
         pytest.skip(f"no dynid console script beside {sys.executable}: pip install . first")
     (tmp_path / "examples").symlink_to(ROOT / "examples")
-    env = dict(os.environ, PATH=f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}",
-               PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    env = dict(os.environ, PATH=f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}")
     for block in sh_blocks():
         proc = subprocess.run(["bash", "-e", "-c", block], cwd=tmp_path, env=env, capture_output=True,
                               text=True, timeout=300)
@@ -64,3 +64,21 @@ def test_every_command_block_runs(tmp_path):
     html = (tmp_path / "tx40.html").read_text()
     assert 'id="validation"' in html
     assert "parameter" in (tmp_path / "essential.csv").read_text().splitlines()[0]
+
+
+def python_blocks():
+    return re.findall(r"```python\n(.*?)\n```", GUIDE.read_text(), flags=re.S)
+
+
+def test_python_api_blocks_run_in_order(tmp_path):
+    blocks = python_blocks()
+    assert len(blocks) == 3 and "dynid.identify(" in blocks[1] and "dynid.report(" in blocks[2]
+    assert all(len(b.strip().splitlines()) <= 8 for b in blocks)       # a handful of lines each
+    (tmp_path / "examples").symlink_to(ROOT / "examples")
+    script = "\n\n".join(blocks)
+    proc = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, capture_output=True, text=True,
+                          timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "ZZ1R =" in proc.stdout and "lower" in proc.stdout and "Validation on" in proc.stdout
+    html = (tmp_path / "tx40_report.html").read_text()
+    assert 'id="validation"' in html and 'id="diagnosis"' in html

@@ -7,10 +7,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
+import dynid.outputs as outputs
 import dynid.provenance as provenance
 import dynid.analysis.results as results_mod
 from dynid.analysis.estimators.least_squares import RANK_RTOL, ols, stack, wls
-from dynid.provenance import atomic_write_bytes, atomic_write_text, data_hash, dumps_json, versions
+from dynid.provenance import data_hash, dumps_json, versions
+from dynid.outputs import atomic_write_bytes, atomic_write_text
 from dynid.errors import IdentificationError, InputError
 
 N, n, b = 400, 3, 8
@@ -373,7 +375,7 @@ def test_atomic_writers_and_hash(tmp_path):
     atomic_write_bytes(tmp_path / "t.bin", b"\x00\x01")
     assert (tmp_path / "t.bin").read_bytes() == b"\x00\x01"
     with pytest.raises(ValueError):
-        with provenance.atomic_open(tmp_path / "u.txt") as fh:
+        with outputs.atomic_open(tmp_path / "u.txt") as fh:
             fh.write("partial")
             raise ValueError("writer failed")
     assert not (tmp_path / "u.txt").exists()

@@ -8,6 +8,8 @@ import dataclasses
 import time
 
 import numpy as np
+
+from dynid.analysis.data.synthetic import experiment_from_simulation
 import pytest
 
 from dynid.dynamics import dynamic_model as dm
@@ -16,7 +18,7 @@ from dynid.dynamics.regressor import inverse_dynamics as regressor_inverse_dynam
 from dynid.dynamics.robot import Controller, Coupling, Joint, Robot, mdh_placement
 from dynid.dynamics.robot_file import load_robot
 from dynid.dynamics.simulation import SimulationResult, simulate_closed_loop, simulate_torque
-from dynid.dynamics.trajectories import FourierTrajectory, random_fourier_trajectory
+from dynid.dynamics.trajectories import random_fourier_trajectory
 from tests import oracles
 
 pin = oracles.pin
@@ -347,7 +349,7 @@ def test_to_experiment(tx40):
     chi = tx40_like_parameters(tx40, rng)
     traj = random_fourier_trajectory(tx40, 0.5, 2, rng)
     res = simulate_closed_loop(tx40, chi, np.arange(101) / 5000.0, traj, v_s=0.05)
-    exp = res.to_experiment()
+    exp = experiment_from_simulation(res)
     assert exp.n_joints == 6 and exp.n_samples == 101 and np.allclose(exp.fs, 5000.0)
 
 

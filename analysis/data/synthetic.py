@@ -5,6 +5,8 @@ simulator itself, which is checked against Pinocchio).
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from dynid.analysis.data.experiment import Experiment
@@ -53,6 +55,16 @@ def apriori_parameters(robot, bp):
     return chi
 
 
+def experiment_from_simulation(sim, name: str = "simulation") -> Experiment:
+    """An :class:`Experiment` of a simulation's q, qr, qd, qdd, tau (noise-free, as simulated)."""
+    fs = None if sim.rate is None else float(sim.rate)
+    return Experiment(t=sim.t.copy(), q=sim.q.copy(),
+                      qr=None if sim.qr is None else sim.qr.copy(),
+                      qd=sim.qd.copy(), qdd=sim.qdd.copy(), tau=sim.tau.copy(), fs=fs,
+                      source=f"dynid simulation of '{sim.robot}' ({sim.kind})",
+                      notices=list(sim.notes), name=name)
+
+
 def simulate_experiment(robot, chi_st, trajectory, duration, *, rng, tau_noise, q_noise,
                         fs=None, name="simulated", v_s=0.01, substeps=4, feedforward=True,
                         progress=None):
@@ -88,3 +100,61 @@ def simulate_experiment(robot, chi_st, trajectory, duration, *, rng, tau_noise, 
                f"tau [{', '.join(f'{v:.3g}' for v in tau_noise)}] N m"]
     return Experiment(t=t, q=q, qr=qr, tau=tau, fs=fs, source=name, name=name, notices=notices,
                       meta={"true_q": sim.q, "true_tau": tau_sensor})
+
+
+@dataclass(eq=False)
+class SimulatedRecording:
+    """A simulated recording (:attr:`experiment`) with what produced it."""
+
+    experiment: Experiment
+    robot: object
+    trajectory: object
+    chi: np.ndarray                 # the standard parameters simulated
+    seed: int
+    duration: float
+    noise_q: float
+    noise_tau: float
+
+    def to_dict(self) -> dict:
+        """Settings, reference coefficients and true parameters (JSON-safe)."""
+        from dynid.dynamics.base_parameters import base_parameters
+        from dynid.provenance import json_safe
+        bp = base_parameters(self.robot)
+        extra = (" (with " + ", ".join(f"{k} = {v:g}" for k, v in TX40_EXTRA.items())
+                 + " added: the coupled wrist needs a rotor-6 inertia)") if self.robot.name == "tx40" else ""
+        tr = self.trajectory
+        return json_safe({
+            "robot": self.robot.name, "seed": self.seed, "duration": self.duration, "fs": self.experiment.fs,
+            "noise": {"q_std": self.noise_q, "tau_std": self.noise_tau},
+            "reference": {"f0": tr.f0, "harmonics": tr.harmonics, "a": tr.a, "b": tr.b, "q0": tr.q0},
+            "true_parameters": {"source": "the robot file's a-priori values" + extra,
+                                "base": dict(zip(bp.names, bp.from_standard(self.chi))),
+                                "standard": dict(zip(self.robot.standard_names, self.chi))}})
+
+
+def simulate(robot, duration: float = 20.0, *, seed: int = 1, f0: float = 0.1, harmonics: int = 10,
+             noise_q: float = 4e-5, noise_tau: float = 0.5, progress=None) -> SimulatedRecording:
+    """Simulate ``robot`` (its a-priori parameters) tracking a random Fourier reference.
+
+    The reference is a random feasible finite Fourier series (fundamental ``f0`` Hz,
+    ``harmonics`` harmonics, Bona & Curatella eqs. (17)-(19)); the robot runs
+    under the controller of its robot file; q and tau get white Gaussian noise of
+    standard deviation ``noise_q`` (rad) and ``noise_tau`` (N m).
+    """
+    from dynid.analysis.identify import as_robot
+    from dynid.dynamics.base_parameters import base_parameters
+    from dynid.dynamics.trajectories import random_fourier_trajectory
+    from dynid.errors import InputError
+    robot = as_robot(robot)
+    if robot.controller is None:
+        raise InputError(f"robot '{robot.name}' ({robot.source}) has no [controller]; add one to simulate")
+    if not (duration > 0 and f0 > 0 and harmonics >= 1):
+        raise InputError("duration and f0 must be positive and harmonics at least 1 "
+                         "(--duration, --f0, --harmonics)")
+    chi = apriori_parameters(robot, base_parameters(robot))
+    rng = np.random.default_rng(seed)
+    traj = random_fourier_trajectory(robot, f0, harmonics, rng)
+    exp = simulate_experiment(robot, chi, traj, duration, rng=rng, q_noise=noise_q, tau_noise=noise_tau,
+                              progress=progress, name=f"simulated {robot.name} (seed {seed})")
+    return SimulatedRecording(experiment=exp, robot=robot, trajectory=traj, chi=chi, seed=seed,
+                              duration=duration, noise_q=noise_q, noise_tau=noise_tau)

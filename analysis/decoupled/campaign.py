@@ -25,6 +25,7 @@ from dynid.analysis.decoupled.estimates import (estimate_friction, estimate_grav
                                 identified_model)
 from dynid.analysis.decoupled.validation import DecoupledValidation, validate_decoupled
 from dynid.analysis.decoupled.repeated import DEFAULT_CONFIDENCE, RepeatedEstimate
+from dynid.analysis.results import ParameterResults
 from dynid.dynamics import comau_decoupled as C
 from dynid.dynamics.joint_model import JointPID, JointSimulation, simulate_joints
 from dynid.dynamics.joint_trajectories import (bang_bang_reference, excitation_reference,
@@ -47,7 +48,7 @@ class DecoupledCampaign:
 
 
 @dataclass(eq=False)
-class DecoupledIdentification:
+class DecoupledIdentification(ParameterResults):
     """Tables 1-3 (:class:`RepeatedEstimate`) and the validation of section 3.5."""
 
     gravity: RepeatedEstimate
@@ -56,9 +57,32 @@ class DecoupledIdentification:
     validation: DecoupledValidation | None = None
     elapsed: float = float("nan")
 
+    method = "per-joint (Bona & Curatella 2005, section 3)"
+
     @property
     def tables(self):
         return (self.gravity, self.friction, self.inertia)
+
+    # the shared interface over Tables 1-3 together (each table is independent of the others)
+    @property
+    def names(self):
+        return [n for r in self.tables for n in r.names]
+
+    def _estimate(self):
+        return np.concatenate([r.mean for r in self.tables])
+
+    @property
+    def cov(self):
+        from scipy.linalg import block_diag
+        return block_diag(*[r.cov for r in self.tables])
+
+    def conf_int(self, alpha: float = 0.05):
+        import pandas as pd
+        return pd.concat([r.conf_int(alpha) for r in self.tables])
+
+    def to_frame(self):
+        import pandas as pd
+        return pd.concat([r.to_frame().assign(table=r.table or r.kind) for r in self.tables])
 
     @property
     def n_inside(self):

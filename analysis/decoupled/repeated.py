@@ -28,6 +28,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
+from dynid.analysis.results import ParameterResults
 from dynid.errors import InputError
 
 __all__ = ["RepeatedEstimate", "student_half_width", "MIN_REPETITIONS", "DEFAULT_CONFIDENCE"]
@@ -44,7 +45,7 @@ def student_half_width(std_1n, n, confidence=DEFAULT_CONFIDENCE):
 
 
 @dataclass(eq=False)
-class RepeatedEstimate:
+class RepeatedEstimate(ParameterResults):
     """Parameters estimated once per repetition, and their statistics (module doc).
 
     ``estimates`` (n, p): one row per repetition; ``names`` (p,) dynid names
@@ -85,6 +86,23 @@ class RepeatedEstimate:
         self.half_width, self.t_gamma = student_half_width(self.std, n, self.confidence)
         if self.truth is not None:
             self.truth = np.asarray(self.truth, dtype=float).reshape(p)
+
+    # the shared interface: the mean over repetitions, its standard error std/sqrt(n-1),
+    # and Student intervals with n-1 degrees of freedom (so conf_int(1 - confidence)
+    # reproduces half_width)
+    @property
+    def method(self):
+        return self.kind
+
+    def _estimate(self):
+        return self.mean
+
+    @property
+    def cov(self):
+        return np.diag((self.std / math.sqrt(self.n_repetitions - 1)) ** 2)
+
+    def _interval_quantile(self, alpha):
+        return float(stats.t.ppf(1.0 - alpha / 2.0, self.n_repetitions - 1))
 
     @property
     def n_repetitions(self) -> int:

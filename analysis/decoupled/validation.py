@@ -13,7 +13,6 @@ samples of the filtered error are not counted as independent.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np

@@ -81,7 +81,6 @@ A candidate whose columns are already in the span of the model (e.g.
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -94,9 +93,10 @@ from dynid.analysis.diagnosis.effect_observation import EffectObservation, obser
 from dynid.analysis.diagnosis.effects import (DELAY_GRID, EFFECT_NAMES, STRIBECK_GRID, Candidate, candidate_set,
                               check_effect_names, signals_from_observation)
 from dynid.analysis.estimators.essential import essential_parameters
-from dynid.provenance import atomic_write_text, dumps_json, json_safe, versions
+from dynid.provenance import json_safe, versions
 from dynid.analysis.statistics.residuals import analyze_residuals, effective_sample_size
 from dynid.dynamics.base_parameters import BaseParameters, base_parameters
+from dynid.analysis.results import Exportable
 from dynid.errors import DataError, InputError
 
 __all__ = ["diagnose", "DiagnosisResult", "RankedEffect", "SelectedEffect", "DiagnosisStep",
@@ -276,7 +276,7 @@ def _errors(tau, tau_hat, mask):
 
 
 @dataclass
-class DiagnosisResult:
+class DiagnosisResult(Exportable):
     """What :func:`diagnose` found. ``ranking`` is from most to least likely."""
 
     robot_name: str
@@ -393,9 +393,6 @@ class DiagnosisResult:
             "data_hash": self.data_hash,
             "notices": self.notices,
         })
-
-    def to_json(self, path: str | os.PathLike):
-        atomic_write_text(path, dumps_json(self.to_dict()))
 
 
 def _params(res):

@@ -116,8 +116,9 @@ from dynid.analysis.estimators import least_squares as ls
 from dynid.analysis.processing.decimation import ParallelDecimator
 from dynid.analysis.estimators.essential import essential_parameters
 from dynid.analysis.processing.observation import AUTO_DEAD_ZONE, _dead_zone
-from dynid.provenance import atomic_write_text, dumps_json, json_safe, versions
+from dynid.provenance import json_safe, versions
 from dynid.analysis.processing.signals import default_settings
+from dynid.analysis.results import ParameterResults
 from dynid.dynamics.base_parameters import base_parameters, base_regressor
 from dynid.dynamics.dynamic_model import inverse_dynamics, mass_matrix
 from dynid.dynamics.simulation import friction_stiffness, simulate_closed_loop
@@ -164,7 +165,7 @@ CHUNK = 10_000
 # ----------------------------------------------------------------------------- result
 
 @dataclass(eq=False)
-class DIDIMResult:
+class DIDIMResult(ParameterResults):
     """Everything a DIDIM identification produced.
 
     ``result`` is the per-joint WLS of the last Gauss-Newton step on all base
@@ -207,6 +208,8 @@ class DIDIMResult:
     joint_names: list = None
     timings: list = field(default_factory=list)   # seconds per step (not in to_dict)
 
+    method = "DIDIM"
+
     # ---------------------------------------------------------------- access
     @property
     def iterations(self) -> int:
@@ -222,6 +225,17 @@ class DIDIMResult:
     def model(self):
         """The model users predict with: the essential WLS estimate if computed, else the base one."""
         return self.essential.result if self.essential is not None else self.result
+
+    @property
+    def names(self):
+        return self.model.names
+
+    @property
+    def cov(self):
+        return self.model.cov
+
+    def _estimate(self):
+        return self.model.chi
 
     def columns(self, names=None):
         """Indices of ``names`` (default: the model's) among the base parameters."""
@@ -332,8 +346,6 @@ class DIDIMResult:
             "true_values": self.truth,
         })
 
-    def to_json(self, path) -> None:
-        atomic_write_text(path, dumps_json(self.to_dict()))
 
 
 # ----------------------------------------------------------------------------- settings

@@ -11,15 +11,14 @@ as well and is better identified (smaller %σ, better conditioning).
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
 
 from dynid.analysis.estimators import least_squares as ls
-from dynid.provenance import atomic_write_text, dumps_json, json_safe
-from dynid.analysis.results import IdentificationResult
+from dynid.provenance import json_safe
+from dynid.analysis.results import IdentificationResult, ParameterResults
 from dynid.errors import InputError
 
 __all__ = ["essential_parameters", "EssentialResult"]
@@ -28,7 +27,7 @@ _PATH_COLUMNS = ["step", "removed", "rel_std_removed", "max_rel_std_remaining", 
 
 
 @dataclass(eq=False)
-class EssentialResult:
+class EssentialResult(ParameterResults):
     """Outcome of :func:`essential_parameters`.
 
     Attributes
@@ -62,6 +61,21 @@ class EssentialResult:
     stop_rule: str
     stop_reason: str
     criteria: dict = field(default_factory=dict)
+
+    @property
+    def method(self):
+        return f"essential {self.result.method}"
+
+    @property
+    def names(self):
+        return self.result.names
+
+    @property
+    def cov(self):
+        return self.result.cov
+
+    def _estimate(self):
+        return self.result.chi
 
     def summary(self) -> str:
         """Criteria, stop reason, removal path, then the essential-set summary."""
@@ -102,10 +116,6 @@ class EssentialResult:
             }
         )
 
-    def to_json(self, path: str | os.PathLike) -> None:
-        """Write :meth:`to_dict` as JSON to ``path`` atomically."""
-        text = dumps_json(self.to_dict())
-        atomic_write_text(path, text)
 
 
 def _check_criteria(max_error_growth, target_rel_std, rel_std_ratio) -> dict:

@@ -16,13 +16,20 @@ import pandas as pd
 from dynid.analysis.estimators import least_squares as ls
 from dynid.analysis.estimators.essential import essential_parameters
 from dynid.analysis.processing.observation import Observation, concatenate, observe
-from dynid.provenance import atomic_write_text, data_hash, dumps_json, json_safe, versions
+from dynid.provenance import data_hash, json_safe, versions
+from dynid.analysis.results import ParameterResults
 from dynid.dynamics.base_parameters import base_parameters
 
 
-@dataclass
-class IDIMResult:
-    """Everything an IDIM identification produced."""
+@dataclass(eq=False)
+class IDIMResult(ParameterResults):
+    """Everything an IDIM identification produced.
+
+    Its parameters (``params``, ``bse``, ``conf_int()`` ...) are those of :attr:`model`,
+    the essential WLS estimate; ``ols``, ``wls`` and ``essential`` keep the others.
+    """
+
+    method = "IDIM"
 
     robot_name: str
     base: object                 # BaseParameters
@@ -35,11 +42,23 @@ class IDIMResult:
     data_hash: str = ""
     source: str = ""
     truth: dict = None           # true base-parameter values, for simulated data
+    robot: object = None         # the Robot identified (for validate() and predictions)
 
     @property
     def model(self):
         """The identified model users predict with: the essential WLS estimate."""
         return self.essential.result
+
+    @property
+    def names(self):
+        return self.model.names
+
+    @property
+    def cov(self):
+        return self.model.cov
+
+    def _estimate(self):
+        return self.model.chi
 
     def columns(self, names=None):
         """Indices of ``names`` (default: the essential set) among the base parameters."""
@@ -105,8 +124,6 @@ class IDIMResult:
             "true_values": self.truth,
         })
 
-    def to_json(self, path):
-        atomic_write_text(path, dumps_json(self.to_dict()))
 
 
 def identify_idim(experiment, robot, *, settings=None, bp=None, max_error_growth=0.02,
@@ -135,4 +152,4 @@ def identify_idim(experiment, robot, *, settings=None, bp=None, max_error_growth
     notices = [n for e in experiments for n in getattr(e, "notices", [])] + obs.notices
     return IDIMResult(robot_name=robot.name, base=bp, ols=r_ols, wls=r_wls, essential=ess,
                       observation=obs, settings=obs.settings, notices=notices, data_hash=h,
-                      source=" + ".join(str(e.source) for e in experiments))
+                      source=" + ".join(str(e.source) for e in experiments), robot=robot)

@@ -69,8 +69,8 @@ import pandas as pd
 import scipy.linalg as sla
 from scipy import optimize
 
-from dynid.provenance import atomic_write_text, data_hash, dumps_json, json_safe, versions
-from dynid.analysis.results import _fmt, _fmt_pct
+from dynid.provenance import data_hash, json_safe, versions
+from dynid.analysis.results import ParameterResults, _fmt, _fmt_pct
 from dynid.errors import ConvergenceError, InputError
 
 __all__ = ["EIVModel", "linear_model", "robot_model", "joint_model", "fourier_basis",
@@ -211,7 +211,7 @@ def select_harmonics(t, q, f0, *, max_harmonics=None):
 
 # ----------------------------------------------------------------------- result
 @dataclass(eq=False)
-class MLResult:
+class MLResult(ParameterResults):
     """Maximum-likelihood estimate (eqs. (13)-(16)) with its covariance and the LS start."""
 
     names: list
@@ -313,8 +313,6 @@ class MLResult:
             "versions": versions(), "data_hash": self.data_hash, "notices": self.notices,
         })
 
-    def to_json(self, path):
-        atomic_write_text(path, dumps_json(self.to_dict()))
 
 
 # ------------------------------------------------------------------- problem

@@ -73,8 +73,8 @@ import pandas as pd
 import scipy.linalg as sla
 
 from dynid.analysis.estimators import least_squares as ls
-from dynid.provenance import atomic_write_text, data_hash, dumps_json, json_safe, versions
-from dynid.analysis.results import _fmt, _fmt_pct
+from dynid.provenance import data_hash, json_safe, versions
+from dynid.analysis.results import ParameterResults, _fmt, _fmt_pct
 from dynid.errors import InputError
 
 __all__ = ["lag_matrix", "fit_fir", "select_fir_order", "FIRFit", "OrderSelection",
@@ -306,7 +306,7 @@ def fit_fir(r, u, m1, m2, *, rows=None, rank_rtol=RANK_RTOL, xcorr_lags=None):
 
 # ----------------------------------------------------------------------- result
 @dataclass(eq=False)
-class ProjectionResult:
+class ProjectionResult(ParameterResults):
     """Parameters identified by the Projection Method, with stage 1's diagnostics.
 
     ``chi``, ``cov`` (IV sandwich, see the module doc), ``sigma``, ``rel_sigma``
@@ -429,8 +429,6 @@ class ProjectionResult:
         }
         return json_safe(out)
 
-    def to_json(self, path):
-        atomic_write_text(path, dumps_json(self.to_dict()))
 
 
 # ------------------------------------------------------------------ covariance

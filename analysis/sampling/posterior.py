@@ -90,7 +90,9 @@ import scipy.linalg as sla
 from scipy import optimize, stats
 
 from dynid.analysis.sampling.convergence import ChainDiagnostics, ConvergenceCriteria, diagnose, run_until_converged
-from dynid.provenance import atomic_write_text, data_hash, dumps_json, json_safe, versions
+from dynid.provenance import data_hash, json_safe, versions
+from dynid.outputs import atomic_write_text
+from dynid.analysis.results import ParameterResults, _check_alpha
 from dynid.errors import IdentificationError, InputError
 
 __all__ = [
@@ -969,7 +971,7 @@ def simulate_gravity_joint(n: int = 400, *, q_centre: float = 0.0, q_amplitude: 
 
 # ============================================================ results
 @dataclass(eq=False)
-class PosteriorResult:
+class PosteriorResult(ParameterResults):
     """Posterior samples and summaries, beside the LS estimate, with convergence diagnostics.
 
     Attributes
@@ -1025,7 +1027,6 @@ class PosteriorResult:
             self.ls_value = np.asarray(self.ls_value, dtype=float)
             self.ls_std = np.asarray(self.ls_std, dtype=float)
             self.ls_rel_std = 100.0 * self.ls_std / np.abs(self.ls_value)
-            self.rel_std = 100.0 * self.std / np.abs(self.mean)
         self.corr = np.atleast_2d(self.corr)
         if not self.converged and not any("NOT CONVERGED" in n for n in self.notices):
             self.notices.insert(0, self.diagnostics.reason)
@@ -1083,6 +1084,22 @@ class PosteriorResult:
         with np.errstate(divide="ignore", invalid="ignore"):
             return self.std / np.sqrt(self.ess)
 
+    # the shared interface: posterior mean, sample covariance, equal-tailed credible intervals
+    def _estimate(self):
+        return self.mean
+
+    @property
+    def cov(self):
+        if self.samples.shape[0] < 2:
+            return np.full((len(self.names),) * 2, np.nan)
+        return np.atleast_2d(np.cov(self.samples, rowvar=False, ddof=1))
+
+    def conf_int(self, alpha: float = 0.05) -> pd.DataFrame:
+        """Equal-tailed (1 − alpha) credible interval from the draws: columns ``lower``, ``upper``."""
+        _check_alpha(alpha)
+        lo, hi = np.quantile(self.samples, [alpha / 2.0, 1.0 - alpha / 2.0], axis=0)
+        return pd.DataFrame({"lower": lo, "upper": hi}, index=self._index())
+
     def __repr__(self):
         flag = "converged" if self.converged else "NOT CONVERGED"
         return (f"<PosteriorResult {self.model}: {len(self.names)} parameters, {self.n_samples} draws, "
@@ -1095,7 +1112,7 @@ class PosteriorResult:
         sampled = dg.sampled if dg.sampled.size == len(self.names) else np.ones(len(self.names), bool)
         df = pd.DataFrame({
             "mean": self.mean, "median": self.median, "std": self.std,
-            "rel_std_percent": self.rel_std,
+            "rel_std_percent": self.rel_std.to_numpy(),
             "ci95_low": self.ci95[:, 0], "ci95_high": self.ci95[:, 1],
             "ci999_low": self.ci999[:, 0], "ci999_high": self.ci999[:, 1],
             "ls_value": self.ls_value, "ls_std": self.ls_std, "ls_rel_std_percent": self.ls_rel_std,
@@ -1161,8 +1178,6 @@ class PosteriorResult:
             "versions": versions(),
         })
 
-    def to_json(self, path) -> None:
-        atomic_write_text(path, dumps_json(self.to_dict()))
 
     def samples_frame(self) -> pd.DataFrame:
         nw, nd, _ = self.chain.shape
@@ -1171,7 +1186,7 @@ class PosteriorResult:
         df.insert(0, "walker", np.repeat(np.arange(nw), nd))
         return df
 
-    def to_csv(self, path) -> None:
+    def draws_to_csv(self, path) -> None:
         """The kept draws, one row each: walker, draw, then the parameters (full precision)."""
         atomic_write_text(path, self.samples_frame().to_csv(index=False, lineterminator="\n",
                                                             float_format="%.17g"))
@@ -1182,7 +1197,7 @@ class PosteriorResult:
         except ImportError:
             raise MissingDependencyError(
                 "to_netcdf needs the optional package xarray (pip install xarray); "
-                "to_csv() and to_json() work without it") from None
+                "draws_to_csv() and to_json() work without it") from None
         nw, nd, _ = self.chain.shape
         data = {n: (("chain", "draw"), self.chain[:, :, i]) for i, n in enumerate(self.names)}
         ds = xr.Dataset(data, coords={"chain": np.arange(nw), "draw": np.arange(nd)})
@@ -1195,10 +1210,10 @@ class PosteriorResult:
 
     def to_netcdf(self, path) -> None:
         """Write the draws (chain = walker, draw) as netCDF via xarray (optional dependency)."""
+        from dynid.outputs import staged_path
         ds = self._dataset()
-        tmp = f"{os.fspath(path)}.tmp"
-        ds.to_netcdf(tmp)
-        os.replace(tmp, path)
+        with staged_path(path) as tmp:
+            ds.to_netcdf(tmp)
 
     def to_inference_data(self):
         """An arviz.InferenceData (optional dependency arviz); chains are the walkers."""
@@ -1207,7 +1222,7 @@ class PosteriorResult:
         except ImportError:
             raise MissingDependencyError(
                 "to_inference_data needs the optional package arviz (pip install arviz); "
-                "the draws are in .chain (n_walkers, n_draws, d) and to_csv() writes them") from None
+                "the draws are in .chain (n_walkers, n_draws, d) and draws_to_csv() writes them") from None
         posterior = {n: self.chain[:, :, i] for i, n in enumerate(self.names)}
         attrs = {"model": self.model, "converged": int(self.converged), "reason": self.reason,
                  "inference_library": "emcee"}

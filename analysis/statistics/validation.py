@@ -17,6 +17,7 @@ from scipy import stats
 from statsmodels.stats.stattools import jarque_bera
 
 from dynid.analysis.processing.observation import observe
+from dynid.analysis.results import Exportable
 
 
 def normality(residual):
@@ -35,7 +36,7 @@ def normality(residual):
 
 
 @dataclass
-class ValidationResult:
+class ValidationResult(Exportable):
     """Prediction of a recording by an identified model."""
 
     source: str
@@ -79,8 +80,19 @@ def prediction_errors(tau, tau_hat):
     return rel, rms, jrel
 
 
-def validate(idim_result, experiment, robot):
-    """Predict ``experiment`` with the essential model of ``idim_result``."""
+def validate(idim_result, experiment, robot=None):
+    """Predict ``experiment`` with the essential model of ``idim_result``.
+
+    ``experiment`` may be a path; ``robot`` defaults to the one identified.
+    """
+    if robot is None:
+        robot = getattr(idim_result, "robot", None)
+        if robot is None:
+            from dynid.errors import InputError
+            raise InputError("validate: this result does not carry its robot; pass robot=")
+    if isinstance(experiment, (str, bytes)) or hasattr(experiment, "__fspath__"):
+        from dynid.analysis.data.experiment import load_experiment
+        experiment = load_experiment(experiment, robot)
     obs = observe(experiment, robot, idim_result.base, idim_result.settings)
     tau_hat = idim_result.predict(obs.W)
     rel, rms, jrel = prediction_errors(obs.tau, tau_hat)

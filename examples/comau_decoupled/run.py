@@ -14,14 +14,12 @@ import argparse
 import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
-
-from dynid.analysis.decoupled.campaign import identify_campaign, simulate_campaign  # noqa: E402
-from dynid.provenance import dumps_json  # noqa: E402
-from dynid.errors import DynidError  # noqa: E402
-from dynid.reports.cli import commit_outputs  # noqa: E402
-from dynid.reports.decoupled_section import decoupled_sections  # noqa: E402
-from dynid.reports.html import render_sections  # noqa: E402
+import dynid
+from dynid.provenance import dumps_json
+from dynid.errors import DynidError
+from dynid.outputs import write_all
+from dynid.reports.decoupled_section import decoupled_sections
+from dynid.reports.html import render_sections
 
 
 def main(argv=None):
@@ -39,8 +37,8 @@ def main(argv=None):
 
 
 def _run(args):
-    campaign = simulate_campaign(args.repetitions, seed=args.seed)
-    ident = identify_campaign(campaign)
+    campaign = dynid.simulate_campaign(args.repetitions, seed=args.seed)
+    ident = dynid.identify_campaign(campaign)
     print(ident.summary())
     html = render_sections(
         decoupled_sections(ident),
@@ -54,7 +52,7 @@ def _run(args):
     outputs = [(args.out, html)]
     if args.json:
         outputs.append((args.json, dumps_json(ident.to_dict())))
-    commit_outputs(outputs, lambda m: None)
+    write_all(outputs)
     print(f"\nwrote {args.out}")
     return 0
 

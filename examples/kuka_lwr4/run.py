@@ -38,13 +38,9 @@ def main(argv=None):
     args = ap.parse_args(argv)
 
     import pandas as pd
-    from dynid.analysis.diagnosis.selection import diagnose
-    from dynid.analysis.data.experiment import load_experiment
-    from dynid.analysis.estimators.idim import identify_idim
+    import dynid
     from dynid.provenance import dumps_json, json_safe, versions
-    from dynid.reports.cli import commit_outputs
-    from dynid.analysis.statistics.validation import validate
-    from dynid.dynamics.robot_file import load_robot
+    from dynid.outputs import write_all
     from dynid.reports import tables as T
     from dynid.reports.diagnosis_section import diagnosis_sections
     from dynid.reports.html import Section, bullets, join, para, render_idim_report
@@ -55,16 +51,16 @@ def main(argv=None):
             print(msg, flush=True)
 
     t0 = time.perf_counter()
-    robot = load_robot("kuka_lwr4")
-    rec = {i: load_experiment(HERE / f"recording_{i}.toml", robot) for i in (1, 2, 3)}
+    robot = dynid.load_robot("kuka_lwr4")
+    rec = {i: dynid.load_experiment(HERE / f"recording_{i}.toml", robot) for i in (1, 2, 3)}
     for i, e in rec.items():
         say(f"recording {i}: {e.n_samples} samples at {e.fs:.1f} Hz, reference shift "
             f"{e.meta.get('reference_shift')} samples (estimated)")
 
     runs, rows = {}, []
     for train, held in SPLITS:
-        res = identify_idim([rec[i] for i in train], robot)
-        val = validate(res, rec[held], robot)
+        res = dynid.identify([rec[i] for i in train], robot)
+        val = dynid.validate(res, rec[held], robot)
         key = "+".join(map(str, train)) + f"->{held}"
         runs[key] = (res, val)
         row = {"split": f"identify on {' + '.join(map(str, train))}, validate on {held}",
@@ -80,7 +76,7 @@ def main(argv=None):
     say(main_res.summary())
 
     say("\nresidual diagnosis (identified on 1, validated on 2) ...")
-    diag = diagnose(rec[1], robot, validation=rec[2], idim_result=runs["1->2"][0])
+    diag = dynid.diagnose(rec[1], robot, validation=rec[2], idim_result=runs["1->2"][0])
     say(diag.summary())
 
     say("\nURDF export of the 2 + 3 model ...")
@@ -132,8 +128,8 @@ def main(argv=None):
     })
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    commit_outputs([(out / "kuka_lwr4.html", html), (out / "kuka_lwr4.json", dumps_json(doc)),
-                    (out / "kuka_lwr4_identified.urdf", urdf.text)], lambda m: None)
+    write_all([(out / "kuka_lwr4.html", html), (out / "kuka_lwr4.json", dumps_json(doc)),
+                    (out / "kuka_lwr4_identified.urdf", urdf.text)])
 
     for (train, held), row in zip(SPLITS, rows):
         print(f"KUKA held-out {'+'.join(map(str, train))} -> {held}: relative error "

@@ -67,15 +67,9 @@ def main(argv=None):
     ap.add_argument("--quiet", action="store_true", help="print only the headline figures")
     args = ap.parse_args(argv)
 
-    from dynid.analysis.sampling.posterior import sample_idim
-    from dynid.analysis.diagnosis.selection import diagnose
-    from dynid.analysis.estimators.didim import identify_didim
-    from dynid.analysis.data.experiment import load_experiment
-    from dynid.analysis.estimators.idim import identify_idim
+    import dynid
     from dynid.provenance import dumps_json, json_safe, versions
-    from dynid.reports.cli import commit_outputs
-    from dynid.analysis.statistics.validation import validate
-    from dynid.dynamics.robot_file import load_robot
+    from dynid.outputs import write_all
     from dynid.reports.bayes_section import bayes_sections
     from dynid.reports.comparison import comparison_frame, comparison_section, comparison_summary
     from dynid.reports.diagnosis_section import diagnosis_sections
@@ -92,33 +86,33 @@ def main(argv=None):
     def lap(name):
         timings[name] = round(time.perf_counter() - t0 - sum(timings.values()), 2)
 
-    robot = load_robot("tx40")
-    exp = load_experiment(HERE / "experiment.toml", robot)
+    robot = dynid.load_robot("tx40")
+    exp = dynid.load_experiment(HERE / "experiment.toml", robot)
     t_split = exp.t[-1] - HOLDOUT
     ident, held_out = exp.segment(None, t_split), exp.segment(t_split, None)
     lap("load")
 
-    res = identify_idim(ident, robot)
-    val = validate(res, held_out, robot)
-    full = identify_idim(exp, robot, bp=res.base)
+    res = dynid.identify(ident, robot)
+    val = dynid.validate(res, held_out, robot)
+    full = dynid.identify(exp, robot)
     lap("idim")
     say(res.summary())
     say("")
     say(val.summary())
 
     say("\nDIDIM (measured q as the reference) ...")
-    didim = identify_didim(exp, robot, reference="q", bp=res.base)
+    didim = dynid.identify(exp, robot, "didim", reference="q")
     lap("didim")
     say(f"  {'converged' if didim.converged else 'NOT converged'} after {didim.iterations} steps; "
         f"relative error {didim.result.rel_error:.4f}")
 
     say(f"\nposterior of the essential parameters (at most {args.max_seconds:g} s) ...")
-    post = sample_idim(full, which="essential", seed=args.seed, max_seconds=args.max_seconds)
+    post = dynid.sample(full, which="essential", seed=args.seed, max_seconds=args.max_seconds)
     lap("posterior")
     say(f"  {'converged' if post.converged else 'NOT converged'}: {post.reason}")
 
     say("\nresidual diagnosis (validation: the last 3 s) ...")
-    diag = diagnose(ident, robot, validation=held_out, idim_result=res)
+    diag = dynid.diagnose(ident, robot, validation=held_out, idim_result=res)
     lap("diagnosis")
     say(diag.summary())
 
@@ -143,7 +137,7 @@ def main(argv=None):
     })
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    commit_outputs([(out / "tx40.html", html), (out / "tx40.json", dumps_json(doc))], lambda m: None)
+    write_all([(out / "tx40.html", html), (out / "tx40.json", dumps_json(doc))])
     total = time.perf_counter() - t0
 
     ess = full.model

@@ -1,9 +1,79 @@
-"""dynid: identify the dynamic model of a robot arm from measured data, and say how far to trust it."""
-from importlib.metadata import PackageNotFoundError, version as _version
+"""dynid: identify the dynamic model of a robot arm from measured data, and say how far to trust it.
+
+The public API (everything a user needs; the subpackages hold the rest)::
+
+    import dynid
+    robot = dynid.load_robot("tx40")                      # bundled name, .toml or .urdf
+    exp = dynid.load_experiment("experiment.toml", robot)
+    train, held_out = dynid.holdout_split(exp, 3.0)       # the last 3 s held out
+    r = dynid.identify(train, robot)                      # IDIM; or method="didim" | "projection" | "ml"
+    print(r.summary()); r.params["ZZ1R"]; r.conf_int()
+    v = dynid.validate(r, held_out)
+    dynid.report(exp, robot, "report.html", holdout=3.0)  # IDIM, DIDIM, posterior, diagnosis
+
+Methods follow Gautier, Janot & Vandanjon (2010) and Bona & Curatella (2005).
+"""
+from __future__ import annotations
+
+from importlib.metadata import PackageNotFoundError
+from importlib.metadata import version as _version
 
 try:
     __version__ = _version("dynid")
-except PackageNotFoundError:  # running from a source tree that is not installed
+except PackageNotFoundError:  # a source tree that is not installed
     __version__ = "0+unknown"
 
-from dynid.errors import ConvergenceError, DataError, DynidError, IdentificationError, InputError, RobotFileError
+from dynid.analysis.data.experiment import Experiment, load_experiment
+from dynid.analysis.data.split import holdout_split
+from dynid.analysis.data.synthetic import simulate
+from dynid.analysis.decoupled.campaign import identify_campaign, simulate_campaign
+from dynid.analysis.identify import identify
+from dynid.analysis.results import ParameterResults
+from dynid.analysis.statistics.validation import validate
+from dynid.dynamics.robot import Robot
+from dynid.dynamics.robot_file import load_robot
+from dynid.errors import (ConvergenceError, DataError, DynidError, IdentificationError, InputError,
+                          RobotFileError)
+from dynid.reports.pipeline import FullReport, demo, report
+
+__all__ = [
+    "__version__",
+    "load_robot", "load_experiment", "holdout_split", "identify", "validate", "sample", "diagnose",
+    "simulate", "excite", "report", "demo", "simulate_campaign", "identify_campaign",
+    "Robot", "Experiment", "ParameterResults", "FullReport",
+    "DynidError", "InputError", "DataError", "RobotFileError", "IdentificationError", "ConvergenceError",
+]
+
+
+def sample(result, *, which: str = "essential", seed: int = 1, **kwargs):
+    """Posterior of the essential (default) or base parameters of an IDIM result, by emcee.
+
+    See :func:`dynid.analysis.sampling.posterior.sample_idim` for the options
+    (walkers, steps, time limit, priors); convergence is judged from the chains.
+    """
+    from dynid.analysis.sampling.posterior import sample_idim
+    return sample_idim(result, which=which, seed=seed, **kwargs)
+
+
+def diagnose(data, robot, *, validation=None, idim_result=None, **kwargs):
+    """What does the identified model of ``robot`` lack in ``data``? (residual diagnosis).
+
+    ``data`` and ``validation`` may be paths or Experiments; the other options are
+    those of :func:`dynid.analysis.diagnosis.selection.diagnose`.
+    """
+    from dynid.analysis.diagnosis.selection import diagnose as _diagnose
+    from dynid.analysis.identify import as_experiments, as_robot
+    robot = as_robot(robot)
+    experiment = as_experiments(data, robot)[0]
+    valid = as_experiments(validation, robot)[0] if validation is not None else None
+    return _diagnose(experiment, robot, validation=valid, idim_result=idim_result, **kwargs)
+
+
+def excite(robot, f0: float, harmonics: int, **kwargs):
+    """Optimal Fourier excitation of ``robot`` (Bona & Curatella 2005, eq. (20)).
+
+    See :func:`dynid.dynamics.excitation.design_excitation` for the options.
+    """
+    from dynid.analysis.identify import as_robot
+    from dynid.dynamics.excitation import design_excitation
+    return design_excitation(as_robot(robot), f0, harmonics, **kwargs)

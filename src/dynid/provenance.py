@@ -1,8 +1,7 @@
-"""Provenance helpers: package versions, data fingerprints, JSON and atomic writes.
+"""Provenance helpers: package versions, data fingerprints and deterministic JSON.
 
-Every result dynid writes should say which code produced it (:func:`versions`),
-from which data (:func:`data_hash`), and must never be left half-written on disk
-(:func:`atomic_write_text`, :func:`atomic_write_bytes`, :func:`atomic_open`).
+Every result dynid writes should say which code produced it (:func:`versions`)
+and from which data (:func:`data_hash`); :mod:`dynid.outputs` writes it.
 :func:`dumps_json` gives deterministic JSON: the same object always gives the
 same bytes, non-finite floats become ``null``.
 """
@@ -27,9 +26,6 @@ __all__ = [
     "data_hash",
     "json_safe",
     "dumps_json",
-    "atomic_open",
-    "atomic_write_text",
-    "atomic_write_bytes",
 ]
 
 #: Packages whose versions are recorded with every result, after dynid itself.
@@ -118,47 +114,3 @@ def dumps_json(obj: Any) -> str:
     byte-identical files.
     """
     return json.dumps(json_safe(obj), indent=2, ensure_ascii=True, allow_nan=False) + "\n"
-
-
-@contextlib.contextmanager
-def atomic_open(path: str | os.PathLike, mode: str = "w", *, encoding: str | None = "utf-8") -> Iterator[IO]:
-    """Open a temporary file next to ``path``; on success replace ``path`` by it.
-
-    The temporary file lives in the same directory so that :func:`os.replace`
-    is an atomic rename. If the ``with`` body (or the final flush) raises, the
-    temporary file is removed and any existing ``path`` is left untouched.
-    ``mode`` is ``'w'`` (text, no newline translation) or ``'wb'``.
-    """
-    if mode not in ("w", "wb"):
-        raise ValueError(f"atomic_open: mode must be 'w' or 'wb', not {mode!r}")
-    target = os.fspath(path)
-    directory = os.path.dirname(os.path.abspath(target))
-    tmp = os.path.join(directory, f".{os.path.basename(target)}.{secrets.token_hex(6)}.tmp")
-    # os.open with 0o666 lets the umask decide the permissions, as for a plain open().
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666)
-    try:
-        if mode == "wb":
-            fh = os.fdopen(fd, "wb")
-        else:
-            fh = os.fdopen(fd, "w", encoding=encoding, newline="")
-        with fh:
-            yield fh
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, target)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
-
-
-def atomic_write_text(path: str | os.PathLike, text: str, *, encoding: str = "utf-8") -> None:
-    """Write ``text`` to ``path`` atomically (no newline translation)."""
-    with atomic_open(path, "w", encoding=encoding) as fh:
-        fh.write(text)
-
-
-def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
-    """Write ``data`` to ``path`` atomically."""
-    with atomic_open(path, "wb") as fh:
-        fh.write(data)

@@ -1,0 +1,110 @@
+"""``identify``: one entry point for every estimator of the two papers.
+
+``identify(data, robot, method=...)`` loads what it is given (a path, an
+:class:`~dynid.analysis.data.experiment.Experiment` or a list of them, a robot
+name, file or :class:`~dynid.dynamics.robot.Robot`) and runs
+
+* ``"idim"``: IDIM with OLS, per-joint WLS and essential parameters (Gautier,
+  Janot & Vandanjon 2010, section 2, eqs. (9)-(16));
+* ``"didim"``: the closed-loop output error of section 3 (eqs. (25)-(30));
+* ``"projection"``: the Projection Method of Bona & Curatella (2005), eqs. (10)-(12);
+* ``"ml"``: errors-in-variables maximum likelihood, eqs. (13)-(16) (needs ``f0``).
+
+Every method returns a result with the interface of
+:class:`~dynid.analysis.results.ParameterResults`.
+"""
+from __future__ import annotations
+
+import os
+
+from dynid.errors import InputError
+
+METHODS = ("idim", "didim", "projection", "ml")
+
+#: maximum likelihood keeps every sample: beyond this many values (samples x joints) it is refused
+ML_MAX_VALUES = 200_000
+
+
+def as_robot(robot):
+    """A :class:`Robot` from a Robot, a bundled name or a robot file path."""
+    from dynid.dynamics.robot import Robot
+    from dynid.dynamics.robot_file import load_robot
+    return robot if isinstance(robot, Robot) else load_robot(robot)
+
+
+def as_experiments(data, robot) -> list:
+    """A list of Experiments from one or several paths or Experiments."""
+    from dynid.analysis.data.experiment import Experiment, load_experiment
+    items = list(data) if isinstance(data, (list, tuple)) else [data]
+    if not items:
+        raise InputError("no recording given: pass a data file or an Experiment")
+    out = []
+    for item in items:
+        if isinstance(item, Experiment):
+            out.append(item)
+        elif isinstance(item, (str, os.PathLike)):
+            out.append(load_experiment(item, robot))
+        else:
+            raise InputError(f"a recording must be a data file path or an Experiment, not {type(item).__name__}")
+    return out
+
+
+def identify(data, robot, method: str = "idim", *, settings=None, max_error_growth: float = 0.02,
+             f0: float | None = None, ml_harmonics: int | None = None, reference: str | None = None,
+             max_iter: int | None = None, update_gains=True, progress=None):
+    """Identify the dynamic parameters of ``robot`` from ``data`` with ``method``.
+
+    Parameters
+    ----------
+    data : path, Experiment, or a list of them
+        The identification recording(s). IDIM stacks several recordings; the
+        other methods take one.
+    robot : Robot, bundled name (``"tx40"``) or path to a ``.toml`` / ``.urdf``
+    method : ``"idim"`` (default), ``"didim"``, ``"projection"`` or ``"ml"``
+    settings : dict, optional
+        Processing overrides (``fc_position``, ``nd``, ``decimation_cutoff``,
+        ``qd_threshold``); the defaults come from the data.
+    max_error_growth : float
+        Essential-parameter rule: stop removing parameters before the relative
+        error grows by more than this fraction (IDIM, DIDIM).
+    f0, ml_harmonics : ML only: fundamental frequency (Hz) of the periodic
+        excitation and the number of harmonics of the latent trajectory.
+    reference : DIDIM only: ``"qr"`` (the logged reference, default when logged) or ``"q"``.
+    max_iter, update_gains : DIDIM only (eq. (27) gain update: True, ``"initial"`` or False).
+    progress : callable(fraction), optional
+    """
+    if method not in METHODS:
+        raise InputError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
+    robot = as_robot(robot)
+    experiments = as_experiments(data, robot)
+    if method != "idim" and len(experiments) > 1:
+        raise InputError(f"method {method} identifies one recording at a time; "
+                         f"{len(experiments)} were given")
+    if method == "idim":
+        from dynid.analysis.estimators.idim import identify_idim
+        ident = experiments if len(experiments) > 1 else experiments[0]
+        return identify_idim(ident, robot, settings=settings, max_error_growth=max_error_growth,
+                             progress=progress)
+    exp = experiments[0]
+    if method == "didim":
+        from dynid.analysis.estimators.didim import DEFAULT_MAX_ITER, identify_didim
+        if robot.controller is None:
+            raise InputError(f"DIDIM simulates the robot under its controller, but '{robot.name}' "
+                             f"({robot.source}) has no [controller] table: add one to the robot file")
+        ref = reference or ("qr" if exp.qr is not None else "q")
+        return identify_didim(exp, robot, settings=settings, reference=ref,
+                              max_iter=DEFAULT_MAX_ITER if max_iter is None else max_iter,
+                              max_error_growth=max_error_growth, update_gains=update_gains,
+                              progress=progress)
+    if method == "projection":
+        from dynid.analysis.estimators.projection import identify_projection
+        return identify_projection(exp, robot, settings=settings)
+    from dynid.analysis.estimators.maximum_likelihood import maximum_likelihood, robot_model
+    if f0 is None:
+        raise InputError("method ml needs f0, the fundamental frequency (Hz) of the periodic excitation "
+                         "(--f0 on the command line)")
+    if exp.n_samples * robot.n_joints > ML_MAX_VALUES:
+        raise InputError(f"{exp.source}: {exp.n_samples} samples x {robot.n_joints} joints; maximum "
+                         f"likelihood keeps every sample and is limited to {ML_MAX_VALUES:,} values: "
+                         "resample or cut the recording (a TOML experiment file), or use IDIM")
+    return maximum_likelihood(exp.t, exp.q, exp.tau, robot_model(robot), f0=f0, n_harmonics=ml_harmonics)
