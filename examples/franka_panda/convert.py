@@ -63,9 +63,10 @@ def missing_data_message(where=None):
     return ("the Franka Panda data of Gaz et al. were not found"
             + (f" in {where}" if where else " (looked for shared/data/franka-panda-gaz in the "
                "parent directories of the repository and in $DYNID_SHARED_DATA)")
-            + ". They are not shipped with dynid (GPL-3.0): get rbt_log/ and model/ from "
-            "https://github.com/marcocognetti/FrankaEmikaPandaDynModel (matlab/data and "
-            "matlab/dyn_model_panda) and give the folder holding rbt_log/ with --data DIR.")
+            + ". They are not shipped with dynid (GPL-3.0): get them from "
+            "https://github.com/marcocognetti/FrankaEmikaPandaDynModel, put the four "
+            "exciting_traj_*.txt logs in DIR/rbt_log/ and get_GravityVector.m, "
+            "get_FrictionTorque.m, Load_Franka_DH.m in DIR/model/, and give --data DIR.")
 
 
 def read_column(path, label=None):
