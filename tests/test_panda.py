@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dynamics.errors import DataError
-from dynamics.kinematics import forward_kinematics
-from dynamics.robot_file import load_robot
+from dynid.errors import DataError
+from dynid.dynamics.kinematics import forward_kinematics
+from dynid.dynamics.robot_file import load_robot
 from tests.oracles import pin
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -163,7 +163,7 @@ def test_converter_round_trip_synthetic(tmp_path):
     np.testing.assert_array_equal(df[[f"q{j}" for j in range(1, 8)]], q)
     np.testing.assert_array_equal(df[[f"tau{j}" for j in range(1, 8)]], tau)
     # irregular stamps: a bare CSV is refused, the example's experiment.toml resamples
-    from analysis.experiment import load_experiment
+    from dynid.analysis.data.experiment import load_experiment
     with pytest.raises(DataError, match="irregular time steps"):
         load_experiment(tmp_path / "out" / "panda.csv", n_joints=7)
     (tmp_path / "out" / "experiment.toml").write_text((EXAMPLE / "experiment.toml").read_text())
@@ -294,7 +294,7 @@ def test_gaz_gravity_is_in_dynids_gravity_regressor():
     """Gaz et al.'s g(q) (their kinematics and identified coefficients) is exactly a
     combination of dynid's base gravity columns for panda.toml: same kinematics, same
     gravity convention."""
-    from dynamics.base_parameters import base_parameters, base_regressor
+    from dynid.dynamics.base_parameters import base_parameters, base_regressor
     gm = _module("gaz_model")
     m = gm.GazModel(DATA)
     robot = load_robot("panda")

@@ -15,7 +15,7 @@ which dynid's loader refuses for a bare CSV; load the CSV through
 ``experiment.toml`` (beside this script, ``resample = true``: linear interpolation onto
 a uniform grid at the median step) placed next to it.
 
-A wrong layout raises :class:`dynamics.errors.DataError` with one message naming the
+A wrong layout raises :class:`dynid.errors.DataError` with one message naming the
 file and the line: a non-numeric or empty line, a line count that is not a multiple of
 7, or files whose sample counts differ.
 
@@ -35,7 +35,7 @@ ROOT = HERE.parents[1]
 if str(ROOT) not in sys.path:           # run as a script from anywhere: use this checkout
     sys.path.insert(0, str(ROOT))
 
-from dynamics.errors import DataError  # noqa: E402
+from dynid.errors import DataError  # noqa: E402
 
 N_JOINTS = 7
 DATASET = "franka-panda-gaz"

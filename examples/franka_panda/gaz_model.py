@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dynamics.errors import DataError
+from dynid.errors import DataError
 
 N_JOINTS = 7
 _ALLOWED_CALLS = {"cos": np.cos, "sin": np.sin, "exp": np.exp}

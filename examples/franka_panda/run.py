@@ -70,13 +70,13 @@ def _errors(tau, tau_hat):
 def analyse(toml_path, data_dir, settings=None):
     """Identify on the first three quarters, validate on the last; return a dict of figures."""
     import numpy as np
-    from analysis.experiment import Experiment, load_experiment
-    from analysis.idim import identify_idim
-    from analysis.observation import observe
-    from analysis.signals import derivatives
-    from analysis.validation import validate
-    from dynamics.base_parameters import base_regressor
-    from dynamics.robot_file import load_robot
+    from dynid.analysis.data.experiment import Experiment, load_experiment
+    from dynid.analysis.estimators.idim import identify_idim
+    from dynid.analysis.processing.observation import observe
+    from dynid.analysis.processing.signals import derivatives
+    from dynid.analysis.statistics.validation import validate
+    from dynid.dynamics.base_parameters import base_regressor
+    from dynid.dynamics.robot_file import load_robot
     from gaz_model import GazModel
 
     settings = dict(SETTINGS if settings is None else settings)
@@ -245,7 +245,7 @@ def main(argv=None):
     args = ap.parse_args(argv)
 
     from convert import find_data, missing_data_message
-    from dynamics.errors import DynidError
+    from dynid.errors import DynidError
 
     t0 = time.perf_counter()
     data = find_data(args.data)
