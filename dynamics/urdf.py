@@ -35,7 +35,8 @@ chain; ``lower > upper`` (or equal) limits and negative velocity/effort limits
 origins beyond ``MAX_LENGTH``; link inertials with negative mass, mass above
 ``MAX_MASS``, inertia entries above ``MAX_INERTIA``, inertia about the centre
 of mass not positive semi-definite or violating the triangle inequality
-(``I1 + I2 >= I3`` for the principal moments; both to a relative 1e-6), and
+(``I1 + I2 >= I3`` for the principal moments; both to 1e-4 of the trace, the
+rounding of inertias printed to 4-5 digits), and
 mass 0 with a nonzero inertia. A massless frame (mass 0, inertia 0) is legal.
 A point mass or a thin rod (a zero principal moment) is a legal limiting case.
 Inertials of links that do not enter the model (the ground, left-out
@@ -58,7 +59,8 @@ from .robot_file import (MAX_INERTIA, MAX_JOINTS, MAX_LENGTH, MAX_MASS, MAX_URDF
 _MOVING = {"revolute": 0, "continuous": 0, "prismatic": 1}
 _UNSUPPORTED = {"floating", "planar"}          # valid URDF, but not a joint dynid can model
 _TYPES = set(_MOVING) | _UNSUPPORTED | {"fixed"}
-_INERTIA_RTOL = 1e-6        # rounding slack of PSD / triangle checks, relative to trace(I_c)
+_INERTIA_RTOL = 1e-4        # rounding slack of PSD / triangle checks, relative to trace(I_c):
+                            # inertias printed to 4-5 digits (a disk: 0.0033333 + 0.0033333 < 0.0066667)
 
 
 def rpy_matrix(r, p, y):
@@ -188,8 +190,8 @@ def _parse(path):
         from defusedxml import ElementTree as SafeET
     except ImportError:
         raise RobotFileError(f"cannot read URDF '{path}': the Python package 'defusedxml', which dynid "
-                             f"uses to parse XML safely, is not installed; install it "
-                             f"(pip install defusedxml)") from None
+                             f"uses to parse XML safely, is not installed; add it to the "
+                             f"Python environment (pip install defusedxml)") from None
     try:
         return SafeET.fromstring(data)
     except SafeET.ParseError as exc:
@@ -571,7 +573,7 @@ def _notices(tree, base, chain, left_out, robot_joints, chain_text):
                      f"from the fixed base of the {chain_text} and are left out (they do not change "
                      f"its dynamics)")
     if base != tree.root:
-        inside = set(tree.below(base))
+        inside = set(tree.below(base)) - {base}
         outside = [j.get("name") for j in tree.joints
                    if j.get("type") != "fixed" and tree.child(j) not in inside]
         if outside:
