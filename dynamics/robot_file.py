@@ -434,7 +434,7 @@ def _apriori_bounds(key, v, is_standard, path):
     bound = _NONNEGATIVE.get(prefix) or _SIGNED.get(prefix) or MAX_APRIORI
     if abs(v) > bound:
         raise RobotFileError(f"{path}: {where} = {v:g}{unit} is beyond the {bound:g}{unit} dynid "
-                             f"accepts, more than any real robot has; check the number and its unit")
+                             f"accepts, far more than a real robot needs; check the number and its unit")
 
 
 def _apply_joint_options(joint, tab, k, path, *, kinematics):
@@ -518,14 +518,16 @@ def _coupling(tab, k, n, path):
     if c_motor == 0.0:   # fix: divided by zero in the regressor (NaN columns)
         raise RobotFileError(f"{path}: {where}.coefficients: the motor joint's coefficient must not be 0")
     # fix: a ratio of 1.6e154 overflowed the regressor, 1e-300 gave NaN base-parameter relations
-    for j, c in zip(joints, coef):
-        for label, v in ((f"coefficient of joint {j}", c),
-                         (f"ratio of joint {j}'s coefficient to the motor's", c / c_motor)):
-            if not MIN_RATIO <= abs(v) <= MAX_RATIO:
-                raise RobotFileError(
-                    f"{path}: {where}.coefficients: the {label} is {v:g}; its size must be between "
-                    f"{MIN_RATIO:g} and {MAX_RATIO:g} (a gear ratio, or a joint the motor does not "
-                    f"drive): check the numbers, or remove joint {j} from {where}.joints")
+    checks = ([(j, f"coefficient of joint {j}", c) for j, c in zip(joints, coef)]
+              + [(j, f"ratio of joint {j}'s coefficient to the motor's", c / c_motor)
+                 for j, c in zip(joints, coef)])
+    for j, label, v in checks:
+        if not MIN_RATIO <= abs(v) <= MAX_RATIO:
+            raise RobotFileError(
+                f"{path}: {where}.coefficients: the {label} is {v:g}; its size must be between "
+                f"{MIN_RATIO:g} and {MAX_RATIO:g} (a gear ratio, or a joint the motor does not "
+                f"drive): check the numbers" + ("" if j == motor else
+                                                 f", or remove joint {j} from {where}.joints"))
     friction = tab.get("friction", True)
     if not isinstance(friction, bool):     # fix: any value was taken as a truth value
         raise RobotFileError(f"{path}: {where}.friction must be true or false, got {_short(friction)}")
