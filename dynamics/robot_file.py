@@ -214,8 +214,8 @@ def _num(value, where, path, *, positive=False, allow_inf=False, bounds=None, un
                                  f"must be at least {lo:g}{unit} (at most {hi:g}{unit}): check the number "
                                  f"and its unit")
         if abs(v) > hi:
-            raise RobotFileError(f"{path}: {where} = {v:g} is beyond the {hi:g}{unit} dynid accepts, more "
-                                 f"than any real robot has; check the number and its unit")
+            raise RobotFileError(f"{path}: {where} = {v:g} is beyond the {hi:g}{unit} dynid accepts, far "
+                                 f"more than a real robot needs; check the number and its unit")
     return v
 
 

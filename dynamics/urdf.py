@@ -54,7 +54,7 @@ import numpy as np
 from .errors import RobotFileError
 from .robot import Joint, Robot
 from .robot_file import (MAX_INERTIA, MAX_JOINTS, MAX_LENGTH, MAX_MASS, MAX_URDF_LINKS, check_name,
-                         read_limited)
+                         read_limited, shown)
 
 _MOVING = {"revolute": 0, "continuous": 0, "prismatic": 1}
 _UNSUPPORTED = {"floating", "planar"}          # valid URDF, but not a joint dynid can model
@@ -237,7 +237,8 @@ class _Tree:
             name = j.get("name")
             kind = j.get("type")
             if not name:
-                raise RobotFileError(f"{path}: a {kind or ''} joint has no name; give it name=\"...\"")
+                raise RobotFileError(f"{path}: a {shown(kind or '')} joint has no name; give it "
+                                     f"name=\"...\"")
             check_name(name, "joint name", path)
             if name in names:
                 raise RobotFileError(f"{path}: two <joint> elements are named '{name}' (duplicated joint "
@@ -263,6 +264,8 @@ class _Tree:
                                      f"loop; remove the joint that closes it (a URDF is a tree)")
             self.parent_joint[c] = j
             self.children.setdefault(p, []).append(j)
+        if not self.links:
+            raise RobotFileError(f"{path}: the URDF has no <link>; add the robot's links and joints")
         roots = [l for l in self.links if l not in self.parent_joint]
         if len(roots) != 1:
             raise RobotFileError(f"{path}: expected one root link, found {len(roots)} ({', '.join(roots)}); "
@@ -318,10 +321,11 @@ class _Tree:
         return out
 
     def check_link(self, name, what):
+        if not isinstance(name, str):
+            raise RobotFileError(f"{self.path}: {what} must be a link name (a string), got "
+                                 f"{shown(repr(name))[:80]}")
         if name in self.links:
             return
-        if not isinstance(name, str):
-            raise RobotFileError(f"{self.path}: {what} must be a link name (a string), got {name!r}")
         close = difflib.get_close_matches(name, list(self.links), n=3)
         hint = f" (did you mean {_few(close)}?)" if close else ""
         raise RobotFileError(f"{self.path}: {what} {name!r} is not a link of this URDF{hint}; give one "

@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 
 from dynamics.errors import InputError, RobotFileError
 from dynamics.robot_file import bundled_path, bundled_robots, load_robot, read_toml, robot_from_dict
-from tests.test_urdf import ACTION_WORDS, assert_helpful, check_valid_robot
+from tests.test_urdf import ACTION_WORDS, assert_helpful, check_bounded_robot, check_valid_robot
 
 TX40_TEXT = bundled_path("tx40").read_text(encoding="utf-8")
 TX40_DOC = tomllib.loads(TX40_TEXT)
@@ -238,6 +238,7 @@ def test_fuzzed_documents_give_robot_or_robot_file_error(doc):
         assert "fuzz.toml" in str(exc)
         return
     check_valid_robot(robot)
+    check_bounded_robot(robot)
     if robot.controller is not None:
         for v in (robot.controller.wn, robot.controller.zeta, robot.controller.J_ap):
             assert v.shape == (robot.n_joints,) and np.isfinite(v).all() and (v > 0).all()
@@ -284,6 +285,7 @@ def test_fuzzed_toml_text_gives_robot_or_robot_file_error(text):
         assert "fuzz_text.toml" in str(exc)
         return
     check_valid_robot(robot)
+    check_bounded_robot(robot)
 
 
 def test_action_words_are_not_trivially_present():

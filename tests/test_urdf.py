@@ -356,6 +356,15 @@ def check_valid_robot(robot):
         assert np.isfinite(W).all()
 
 
+def check_bounded_robot(robot):
+    """Beyond check_valid_robot: with the readers' bounds, the regressor is finite on any robot read."""
+    n = robot.n_joints
+    assert n <= 64
+    assert np.linalg.norm(robot.gravity) <= 100.0
+    W = regressor(robot, *np.random.default_rng(1).normal(size=(3, 2, n)))
+    assert np.isfinite(W).all()
+
+
 _FUZZ_DIR = Path(tempfile.mkdtemp(prefix="dynid_urdf_fuzz_"))
 atexit.register(shutil.rmtree, _FUZZ_DIR, ignore_errors=True)
 
@@ -375,6 +384,7 @@ def test_fuzzed_urdf_gives_robot_or_robot_file_error(text):
         assert "fuzz.urdf" in str(exc)
         return
     check_valid_robot(robot)
+    check_bounded_robot(robot)
 
 
 # ------------------------------------------------------------------- chains: base / tip
