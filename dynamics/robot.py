@@ -124,6 +124,9 @@ class Robot:
     provenance: dict = field(default_factory=dict)  # what -> where the numbers come from
     source: str = ""                                # file the robot was read from
     description: str = ""
+    # what the reader left out or decided that the user should know, one sentence each
+    # (e.g. the moving subtrees of a URDF off the selected chain, whose mass is not modelled)
+    notices: list = field(default_factory=list)
 
     @property
     def n_joints(self) -> int:

@@ -8,19 +8,59 @@ inertials (mass, centre of mass and inertia about the centre of mass in the
 joint frame: inertia about the frame origin (parallel-axis theorem) and first
 moments ``M c``. Fixed joints are merged: their placement folds into the next
 moving joint, the inertia of a fixed child link into its parent link.
+
+Chains. dynid models one serial chain. Without ``base``/``tip`` the moving
+joints of the whole file must form one chain from the root link (fixed side
+branches -- sensors, tool frames -- are merged); a file whose moving joints
+branch (a two-armed robot, a gripper with two fingers) is refused, naming the
+first moving joint of each branch. ``base``/``tip`` (link names, as in KDL's
+``getChain(base, tip)``) select the chain from ``base`` down to ``tip``:
+
+* ``base`` (default: the root link) is fixed to the ground; what hangs from
+  it, or from links fixed to it, does not change the chain's dynamics and is
+  left out, as is everything above it.
+* Fixed children of the chain's links (and of the tip) are merged as above:
+  their inertia folds into the moving link they are fixed to.
+* Moving subtrees off the chain (fingers below the tip, a second arm) are
+  left out **with their mass**: the model is the chain alone. Each such
+  omission is described in ``robot.notices`` (with the mass left out).
+
+Checks (each a :class:`RobotFileError` naming the file and the element):
+XML entity declarations and external references (defusedxml); duplicated
+link or joint names; names with control characters; a link with two parents,
+loops, several roots; more than ``MAX_URDF_LINKS`` links or ``MAX_JOINTS``
+moving joints in the chain; ``<mimic>``, floating and planar joints on the
+chain; ``lower > upper`` (or equal) limits and negative velocity/effort limits
+(0 means "not given", as URDF exporters write it);
+origins beyond ``MAX_LENGTH``; link inertials with negative mass, mass above
+``MAX_MASS``, inertia entries above ``MAX_INERTIA``, inertia about the centre
+of mass not positive semi-definite or violating the triangle inequality
+(``I1 + I2 >= I3`` for the principal moments; both to 1e-4 of the trace, the
+rounding of inertias printed to 4-5 digits), and
+mass 0 with a nonzero inertia. A massless frame (mass 0, inertia 0) is legal.
+A point mass or a thin rod (a zero principal moment) is a legal limiting case.
+Inertials of links that do not enter the model (the ground, left-out
+subtrees) are not read.
 """
 from __future__ import annotations
 
+import difflib
 import math
-import xml.etree.ElementTree as ET
+from collections import deque
 from pathlib import Path
 
 import numpy as np
 
 from dynid.errors import RobotFileError
 from .robot import Joint, Robot
+from .robot_file import (MAX_INERTIA, MAX_JOINTS, MAX_LENGTH, MAX_MASS, MAX_URDF_LINKS, check_name,
+                         read_limited, shown)
 
 _MOVING = {"revolute": 0, "continuous": 0, "prismatic": 1}
+_UNSUPPORTED = {"floating", "planar"}          # valid URDF, but not a joint dynid can model
+_TYPES = set(_MOVING) | _UNSUPPORTED | {"fixed"}
+_INERTIA_RTOL = 1e-4        # rounding slack of PSD / triangle checks, relative to trace(I_c):
+                            # inertias printed to 4-5 digits (a disk: 0.0033333 + 0.0033333 < 0.0066667)
 
 
 def rpy_matrix(r, p, y):
@@ -66,30 +106,58 @@ def _origin(elem, where, path):
     if o is None:
         return np.eye(3), np.zeros(3)
     xyz = _floats(o.get("xyz", "0 0 0"), 3, f"{where} origin xyz", path)
+    if np.abs(xyz).max() > MAX_LENGTH:
+        raise RobotFileError(f"{path}: {where} origin xyz {o.get('xyz')!r} is beyond {MAX_LENGTH:g} m "
+                             f"from its parent frame, more than any robot arm; check the number and "
+                             f"its unit (metres)")
     rpy = _floats(o.get("rpy", "0 0 0"), 3, f"{where} origin rpy", path)
     return rpy_matrix(*rpy), xyz
 
 
-def _spatial_inertia(link, path):
-    """(mass, c, I_origin) of a link's <inertial> in the link frame, or None."""
+def _spatial_inertia(link, where, path):
+    """(mass, c, I_origin) of a link's <inertial> in the link frame, or None (none or massless)."""
     inertial = link.find("inertial")
     if inertial is None:
         return None
-    name = link.get("name")
     mass_el = inertial.find("mass")
     if mass_el is None:
-        raise RobotFileError(f"{path}: link '{name}' has <inertial> without <mass>")
-    m = _floats(mass_el.get("value"), 1, f"link '{name}' mass", path)[0]
-    R, c = _origin(inertial, f"link '{name}' inertial", path)
+        raise RobotFileError(f"{path}: {where} has <inertial> without <mass>; add <mass value=...>")
+    m = _floats(mass_el.get("value"), 1, f"{where} mass", path)[0]
+    if m < 0:
+        raise RobotFileError(f"{path}: {where} has mass {m:g} kg; a mass must not be negative: fix it")
+    if m > MAX_MASS:
+        raise RobotFileError(f"{path}: {where} has mass {m:g} kg, above the {MAX_MASS:g} kg dynid "
+                             f"accepts for one link; check the number and its unit (kg)")
+    R, c = _origin(inertial, f"{where} inertial", path)
     I_el = inertial.find("inertia")
     if I_el is None:
-        raise RobotFileError(f"{path}: link '{name}' has <inertial> without <inertia>")
+        raise RobotFileError(f"{path}: {where} has <inertial> without <inertia>; add <inertia ixx=... />")
     vals = {}
     for key in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz"):
-        vals[key] = _floats(I_el.get(key, "0"), 1, f"link '{name}' inertia {key}", path)[0]
+        vals[key] = _floats(I_el.get(key, "0"), 1, f"{where} inertia {key}", path)[0]
+        if abs(vals[key]) > MAX_INERTIA:
+            raise RobotFileError(f"{path}: {where} inertia {key} = {vals[key]:g} kg m^2 is beyond the "
+                                 f"{MAX_INERTIA:g} kg m^2 dynid accepts; check the number and its "
+                                 f"unit (kg m^2)")
     Ic = np.array([[vals["ixx"], vals["ixy"], vals["ixz"]],
                    [vals["ixy"], vals["iyy"], vals["iyz"]],
                    [vals["ixz"], vals["iyz"], vals["izz"]]])
+    if m == 0:
+        if np.any(Ic):
+            raise RobotFileError(f"{path}: {where} has mass 0 but a nonzero inertia, which no body "
+                                 f"has; give its mass, or set the inertia to 0 for a massless frame")
+        return None                                  # a massless frame: nothing to add
+    moments = np.sort(np.linalg.eigvalsh(Ic))
+    tol = _INERTIA_RTOL * max(float(np.trace(Ic)), 0.0)
+    if moments[0] < -tol:
+        raise RobotFileError(f"{path}: {where} has an inertia that is not positive definite "
+                             f"(principal moments {', '.join(f'{v:.6g}' for v in moments)} kg m^2); "
+                             f"fix the inertia (about the centre of mass, in kg m^2) there")
+    if moments[0] + moments[1] < moments[2] - tol:
+        raise RobotFileError(f"{path}: {where} has principal moments of inertia "
+                             f"{', '.join(f'{v:.6g}' for v in moments)} kg m^2 that violate the "
+                             f"triangle inequality (the largest must be at most the sum of the other "
+                             f"two), which no body has; fix the inertia there")
     Ic = R @ Ic @ R.T
     return m, c, Ic + m * (c @ c * np.eye(3) - np.outer(c, c))
 
@@ -114,151 +182,314 @@ def _add(a, b):
     return m, c, a[2] + b[2]
 
 
-def read_urdf(path):
-    """Read a serial-chain URDF into a Robot (standard parameters as a-priori values)."""
-    path = Path(path)
+def _parse(path):
+    """The root element of a URDF file, parsed with defusedxml (no entities, no external refs)."""
+    data = read_limited(path, "URDF")
     try:
-        root = ET.parse(path).getroot()
-    except OSError as exc:
-        raise RobotFileError(f"cannot read URDF '{path}': {exc.strerror}; check the path and that "
-                             f"it is a readable file") from None
-    except ValueError:      # fix: a path with a NUL byte raised ValueError
-        raise RobotFileError(f"cannot read URDF {str(path)!r}: the path is not valid; check the path") from None
-    except ET.ParseError as exc:
+        import defusedxml
+        from defusedxml import ElementTree as SafeET
+    except ImportError:
+        raise RobotFileError(f"cannot read URDF '{path}': the Python package 'defusedxml', which dynid "
+                             f"uses to parse XML safely, is not installed; add it to the "
+                             f"Python environment (pip install defusedxml)") from None
+    try:
+        return SafeET.fromstring(data)
+    except SafeET.ParseError as exc:
         raise RobotFileError(f"URDF '{path}' is not well-formed XML: {exc}; fix the XML there") from None
+    except defusedxml.DefusedXmlException as exc:
+        raise RobotFileError(f"URDF '{path}': the XML declares entities or refers to external "
+                             f"resources ({type(exc).__name__}), which dynid refuses (they can expand "
+                             f"without bound or read other files); remove the <!DOCTYPE>/<!ENTITY> "
+                             f"declarations (expand a xacro file first)") from None
+    except RecursionError:
+        raise RobotFileError(f"URDF '{path}': the XML is nested too deeply to read; check that it "
+                             f"is a URDF") from None
+
+
+def _few(names, k=6):
+    names = list(names)
+    shown = ", ".join(f"'{n}'" for n in names[:k])
+    return shown + (f" and {len(names) - k} more" if len(names) > k else "")
+
+
+class _Tree:
+    """The validated kinematic tree of a URDF: one root, every link one parent, no loops."""
+
+    def __init__(self, root, path):
+        self.path = path
+        self.links = {}
+        for el in root.findall("link"):
+            name = el.get("name")
+            if not name:
+                raise RobotFileError(f"{path}: a <link> has no name; give it name=\"...\"")
+            check_name(name, "link name", path)
+            if name in self.links:
+                raise RobotFileError(f"{path}: two <link> elements are named '{name}'; give every "
+                                     f"link a unique name")
+            self.links[name] = el
+            if len(self.links) > MAX_URDF_LINKS:
+                raise RobotFileError(f"{path}: more than {MAX_URDF_LINKS} links, far more than a robot "
+                                     f"arm has; check that it is the right file")
+        self.joints = root.findall("joint")       # only top-level joints, not <transmission> ones
+        names = set()
+        self.parent_joint, self.children = {}, {}
+        for j in self.joints:
+            name = j.get("name")
+            kind = j.get("type")
+            if not name:
+                raise RobotFileError(f"{path}: a {shown(kind or '')} joint has no name; give it "
+                                     f"name=\"...\"")
+            check_name(name, "joint name", path)
+            if name in names:
+                raise RobotFileError(f"{path}: two <joint> elements are named '{name}' (duplicated joint "
+                                     f"name); give every joint a unique name")
+            names.add(name)
+            parent, child = j.find("parent"), j.find("child")
+            if parent is None or child is None or not parent.get("link") or not child.get("link"):
+                raise RobotFileError(f"{path}: joint '{name}' needs <parent link=...> and <child link=...>")
+            missing = [l for l in (parent.get("link"), child.get("link")) if l not in self.links]
+            if missing:
+                raise RobotFileError(f"{path}: joint '{name}' refers to link {missing[0]!r} that does "
+                                     f"not exist; add <link name={missing[0]!r}> or fix the name")
+            if kind not in _TYPES:
+                raise RobotFileError(f"{path}: joint '{name}' has type {kind!r}; dynid reads revolute, "
+                                     f"continuous, prismatic and fixed joints: use one of these")
+            p, c = parent.get("link"), child.get("link")
+            if p == c:
+                raise RobotFileError(f"{path}: joint '{name}' joins link '{c}' to itself; fix its "
+                                     f"<parent> or <child>")
+            if c in self.parent_joint:
+                raise RobotFileError(f"{path}: link '{c}' is the child of two joints, "
+                                     f"'{self.parent_joint[c].get('name')}' and '{name}', which makes a "
+                                     f"loop; remove the joint that closes it (a URDF is a tree)")
+            self.parent_joint[c] = j
+            self.children.setdefault(p, []).append(j)
+        if not self.links:
+            raise RobotFileError(f"{path}: the URDF has no <link>; add the robot's links and joints")
+        roots = [l for l in self.links if l not in self.parent_joint]
+        if len(roots) != 1:
+            raise RobotFileError(f"{path}: expected one root link, found {len(roots)} ({', '.join(roots)}); "
+                                 f"connect every link to the chain with a joint, or remove the stray ones")
+        self.root = roots[0]
+        self.order = self.below(self.root)
+        if len(self.order) != len(self.links):
+            lost = [l for l in self.links if l not in set(self.order)]
+            raise RobotFileError(f"{path}: the joints between links {_few(lost)} form a loop not "
+                                 f"connected to the root link '{self.root}'; remove the joint that "
+                                 f"closes it")
+        # moves[l]: a moving joint hangs somewhere below link l (bottom-up, no recursion)
+        self.moves = {}
+        for l in reversed(self.order):
+            self.moves[l] = any(k.get("type") != "fixed" or self.moves[self.child(k)]
+                                for k in self.children.get(l, []))
+
+    @staticmethod
+    def child(j):
+        return j.find("child").get("link")
+
+    @staticmethod
+    def parent(j):
+        return j.find("parent").get("link")
+
+    def below(self, link):
+        """Links of the subtree of ``link``, breadth first (``link`` first)."""
+        out, queue = [], deque([link])
+        while queue:
+            l = queue.popleft()
+            out.append(l)
+            queue.extend(self.child(k) for k in self.children.get(l, []))
+        return out
+
+    def first_moving(self, joint):
+        """The moving joints nearest the top of the branch that starts with ``joint``."""
+        out, queue = [], deque([joint])
+        while queue:
+            j = queue.popleft()
+            if j.get("type") != "fixed":
+                out.append(j.get("name"))
+            else:
+                queue.extend(self.children.get(self.child(j), []))
+        return out
+
+    def tips(self, joint):
+        """Child links of the last moving joints of a branch: tips one may select."""
+        out = []
+        for l in self.below(self.child(joint)):
+            pj = self.parent_joint[l]
+            if pj.get("type") != "fixed" and not self.moves[l]:
+                out.append(l)
+        return out
+
+    def check_link(self, name, what):
+        if not isinstance(name, str):
+            raise RobotFileError(f"{self.path}: {what} must be a link name (a string), got "
+                                 f"{shown(repr(name))[:80]}")
+        if name in self.links:
+            return
+        close = difflib.get_close_matches(name, list(self.links), n=3)
+        hint = f" (did you mean {_few(close)}?)" if close else ""
+        raise RobotFileError(f"{self.path}: {what} {name!r} is not a link of this URDF{hint}; give one "
+                             f"of its links, e.g. {_few(self.links)}")
+
+    def chain(self, base, tip):
+        """The joints from ``base`` down to ``tip`` (or down the only moving chain)."""
+        path = self.path
+        if base is None:
+            base = self.root
+        self.check_link(base, "base")
+        if tip is not None:
+            self.check_link(tip, "tip")
+            if tip == base:
+                raise RobotFileError(f"{path}: tip '{tip}' is the base itself; give a tip link below "
+                                     f"the base '{base}'")
+            joints, l = [], tip
+            while l != base:
+                j = self.parent_joint.get(l)
+                if j is None:
+                    raise RobotFileError(f"{path}: tip '{tip}' is not below base '{base}'; give a tip "
+                                         f"among the links below '{base}' (or a base above '{tip}')")
+                joints.append(j)
+                l = self.parent(j)
+            return base, joints[::-1]
+        joints, l = [], base
+        while True:
+            leads = [k for k in self.children.get(l, [])
+                     if k.get("type") != "fixed" or self.moves[self.child(k)]]
+            if not leads:
+                return base, joints
+            if len(leads) > 1:
+                starts = [", ".join(f"'{n}'" for n in self.first_moving(k)) for k in leads]
+                tips = [t for k in leads for t in self.tips(k)[:2]]
+                raise RobotFileError(
+                    f"{path}: the moving joints do not form one serial chain: below link '{l}' "
+                    f"{len(leads)} branches move, starting with joint(s) {'; '.join(starts)}. dynid "
+                    f"models one serial chain: give the chain you want with tip=<link> (and "
+                    f"base=<link>) to read_urdf/load_robot, or with tip = \"<link>\" beside "
+                    f"urdf = ... in a TOML robot file; tips here include {_few(tips)}")
+            joints.append(leads[0])
+            l = self.child(leads[0])
+
+
+def read_urdf(path, base=None, tip=None):
+    """Read the serial chain of a URDF into a Robot (standard parameters as a-priori values).
+
+    ``base``, ``tip``: link names selecting the chain from ``base`` (default:
+    the root link) down to ``tip`` (default: the end of the only moving chain).
+    Fixed children of chain links are merged; moving subtrees off the chain
+    are left out *with their mass*, and ``robot.notices`` says so (see the
+    module docstring).
+    """
+    path = Path(path)
+    root = _parse(path)
     if root.tag != "robot":
         raise RobotFileError(f"URDF '{path}': root element must be <robot>, got <{root.tag}>")
-    links = {}
-    for l in root.findall("link"):
-        if not l.get("name"):
-            raise RobotFileError(f"{path}: a <link> has no name")
-        links[l.get("name")] = l
-    joints = root.findall("joint")       # only top-level joints, not <transmission> ones
-    children = {}
-    for j in joints:
-        name = j.get("name") or "?"
-        parent, child = j.find("parent"), j.find("child")
-        if parent is None or child is None or not parent.get("link") or not child.get("link"):
-            raise RobotFileError(f"{path}: joint '{name}' needs <parent link=...> and <child link=...>")
-        missing = [l for l in (parent.get("link"), child.get("link")) if l not in links]
-        if missing:
-            raise RobotFileError(f"{path}: joint '{name}' refers to link '{missing[0]}' that does not "
-                                 f"exist; add <link name=\"{missing[0]}\"> or fix the name")
-        if j.get("type") not in _MOVING and j.get("type") != "fixed":
-            raise RobotFileError(f"{path}: joint '{name}' has type '{j.get('type')}'; dynid reads "
-                                 f"revolute, continuous, prismatic and fixed joints: use one of these")
-        children.setdefault(parent.get("link"), []).append(j)
-    child_links = {j.find("child").get("link") for j in joints}
-    roots = [l for l in links if l not in child_links]
-    if len(roots) != 1:
-        raise RobotFileError(f"{path}: expected one root link, found {len(roots)} ({', '.join(roots)}); "
-                             f"connect every link to the chain with a joint, or remove the stray ones")
+    if root.get("name"):
+        check_name(root.get("name"), "robot name", path)
+    tree = _Tree(root, path)
+    base, chain = tree.chain(base, tip)
+    n_moving = sum(j.get("type") != "fixed" for j in chain)
+    if n_moving == 0:
+        where = f" between '{base}' and '{tip}'" if tip is not None else f" below link '{base}'"
+        raise RobotFileError(f"{path}: no revolute or prismatic joint found{where}; add one or give "
+                             f"another base/tip")
+    if n_moving > MAX_JOINTS:
+        raise RobotFileError(f"{path}: the chain has {n_moving} moving joints, more than the "
+                             f"{MAX_JOINTS} dynid models (the regressor grows as n^2); check the file "
+                             f"or give base/tip to select a shorter chain")
+    for j in chain:
+        name, kind = j.get("name"), j.get("type")
+        if kind in _UNSUPPORTED:
+            raise RobotFileError(f"{path}: joint '{name}' has type '{kind}'; dynid reads revolute, "
+                                 f"continuous, prismatic and fixed joints: use one of these, or give "
+                                 f"base/tip so the chain leaves it out (e.g. base='{tree.child(j)}')")
+        if j.find("mimic") is not None:
+            raise RobotFileError(f"{path}: joint '{name}' is a <mimic> joint (it moves with joint "
+                                 f"{j.find('mimic').get('joint')!r}); dynid cannot model mimic joints: "
+                                 f"give base/tip so the chain leaves it out")
 
-    robot_joints, inertias, apriori = [], [], {}
-    # pending fixed transform (rotation, translation) from the last moving frame
+    def where(link):
+        pj = tree.parent_joint.get(link)
+        return f"link '{link}'" + (f" (child of joint '{pj.get('name')}')" if pj is not None else "")
+
+    robot_joints, aligns, inertias, apriori = [], [], [], {}
+    left_out = []                          # (joint, owner index or None): moving subtrees off the chain
+
+    def add_link(link, owner, R, p):
+        """Fold a link's inertia (its frame at R, p in the owner's URDF frame) into the owner."""
+        inertia = _spatial_inertia(tree.links[link], where(link), path)
+        if inertia is not None:
+            A = aligns[owner]
+            inertias[owner] = _add(inertias[owner], _transform_inertia(inertia, A.T @ R, A.T @ p))
+
+    def merge_fixed(joint, owner, R0, p0):
+        """A fixed side branch: its links' inertias go to ``owner``; moving joints in it are left out."""
+        stack = [(joint, R0, p0)]
+        while stack:                      # iterative: a fixed branch 3000 links deep is fine
+            j, R, p = stack.pop()
+            c = tree.child(j)
+            if owner is not None:
+                R_o, p_o = _origin(j, f"joint '{j.get('name')}'", path)
+                R, p = R @ R_o, R @ p_o + p
+                add_link(c, owner, R, p)
+            for k in tree.children.get(c, []):
+                if k.get("type") == "fixed":
+                    stack.append((k, R, p))
+                else:
+                    left_out.append((k, owner))
+
     A_prev = np.eye(3)                      # alignment of the previous moving frame
     T_R, T_p = np.eye(3), np.zeros(3)       # previous moving frame (URDF) -> current link frame
-    link = roots[0]
-    cur_inertia_target = None               # index of the moving joint that owns the current link
-    visited = set()
-    while True:
-        if link in visited:
-            raise RobotFileError(f"{path}: the kinematic tree has a loop at link '{link}'")
-        visited.add(link)
-        inertia = _spatial_inertia(links[link], path)
-        if cur_inertia_target is not None and inertia is not None:
-            # link frame -> aligned frame of the owning joint
-            A = robot_joints[cur_inertia_target]._align
-            R_lk = A.T @ T_R
-            inertias[cur_inertia_target] = _add(inertias[cur_inertia_target],
-                                                _transform_inertia(inertia, R_lk, A.T @ T_p))
-        kids = children.get(link, [])
-        moving_kids = [k for k in kids if k.get("type") in _MOVING]
-        if len(kids) == 0:
-            break
-        if len(kids) > 1:
-            if len(moving_kids) > 1:
-                raise RobotFileError(f"{path}: link '{link}' has {len(moving_kids)} moving child joints; "
-                                     f"dynid reads serial chains only: make the side branches fixed "
-                                     f"joints or remove them")
-            # fix: the chain goes on through the moving child or through the one fixed
-            # child with moving joints below it. Before, with no moving child, the
-            # first fixed child was merged as a side branch AND followed (its inertia
-            # counted twice), and a fixed joint continuing the chain beside a fixed
-            # side branch was rejected as "moves on a side branch".
-            if moving_kids:
-                leads = moving_kids
+    owner = None                            # index of the moving joint that carries the current link
+    chain_links = [base] + [tree.child(j) for j in chain]
+    for i, link in enumerate(chain_links):
+        if owner is not None:
+            add_link(link, owner, T_R, T_p)
+        nxt = chain[i] if i < len(chain) else None
+        for k in tree.children.get(link, []):
+            if k is nxt:
+                continue
+            if k.get("type") == "fixed":
+                merge_fixed(k, owner, T_R, T_p)
             else:
-                leads = [k for k in kids if _subtree_moves(k.find("child").get("link"), children, set())]
-                if len(leads) > 1:
-                    raise RobotFileError(f"{path}: link '{link}' has {len(leads)} fixed child joints "
-                                         f"with moving joints below them; dynid reads serial chains "
-                                         f"only: remove the extra branches")
-            # fixed side branches (sensors, tool frames) carry their inertia to this link
-            for k in kids:
-                if not leads or k is not leads[0]:
-                    _merge_fixed_branch(k, links, children, path, T_R, T_p, cur_inertia_target,
-                                        robot_joints, inertias, set())
-            if not leads:
-                break
-            kids = leads
-        j = kids[0]
+                left_out.append((k, owner))
+        if nxt is None:
+            break
+        j = nxt
         name = j.get("name")
         R_o, p_o = _origin(j, f"joint '{name}'", path)
         if j.get("type") == "fixed":
             T_p = T_R @ p_o + T_p
             T_R = T_R @ R_o
-            cur = None
-        else:
-            axis = _floats(j.find("axis").get("xyz", "1 0 0") if j.find("axis") is not None else "1 0 0",
-                           3, f"joint '{name}' axis", path)
-            if np.linalg.norm(axis) < 1e-9:
-                raise RobotFileError(f"{path}: joint '{name}' has a zero axis")
-            A = align_z(axis)
-            # placement of the new aligned frame in the previous aligned frame
-            R = A_prev.T @ (T_R @ R_o) @ A
-            p = A_prev.T @ (T_R @ p_o + T_p)
-            R[np.abs(R) < 1e-15] = 0.0
-            p[np.abs(p) < 1e-15] = 0.0
-            if not name:    # fix: a moving joint without a name became Joint(name=None)
-                raise RobotFileError(f"{path}: a {j.get('type')} joint has no name; give it name=\"...\"")
-            joint = Joint(name=name, sigma=_MOVING[j.get("type")], R=R, p=p)
-            joint._align = A
-            lim = j.find("limit")
-            if lim is not None:
-                lo, hi = lim.get("lower"), lim.get("upper")
-                if lo is not None and hi is not None and j.get("type") != "continuous":
-                    lo_v = _floats(lo, 1, f"joint '{name}' limit lower", path)[0]
-                    hi_v = _floats(hi, 1, f"joint '{name}' limit upper", path)[0]
-                    if lo_v < hi_v:
-                        joint.q_limits = (lo_v, hi_v)
-                for key, attr in (("velocity", "qd_max"), ("effort", "tau_max")):
-                    if lim.get(key) is not None:
-                        v = _floats(lim.get(key), 1, f"joint '{name}' limit {key}", path)[0]
-                        if v > 0:
-                            setattr(joint, attr, v)
-            k = len(robot_joints) + 1
-            dyn = j.find("dynamics")
-            if dyn is not None:
-                for key, pname in (("damping", "Fv"), ("friction", "Fc")):
-                    if dyn.get(key) is not None:
-                        apriori[f"{pname}{k}"] = _floats(dyn.get(key), 1, f"joint '{name}' dynamics {key}", path)[0]
-            robot_joints.append(joint)
-            inertias.append(None)
-            A_prev = A
-            T_R, T_p = np.eye(3), np.zeros(3)
-            cur_inertia_target = len(robot_joints) - 1
-        link = j.find("child").get("link")
+            continue
+        axis = _floats(j.find("axis").get("xyz", "1 0 0") if j.find("axis") is not None else "1 0 0",
+                       3, f"joint '{name}' axis", path)
+        if np.linalg.norm(axis) < 1e-9:
+            raise RobotFileError(f"{path}: joint '{name}' has a zero axis; give its direction "
+                                 f"(<axis xyz=\"0 0 1\"/>)")
+        A = align_z(axis)
+        # placement of the new aligned frame in the previous aligned frame
+        R = A_prev.T @ (T_R @ R_o) @ A
+        p = A_prev.T @ (T_R @ p_o + T_p)
+        R[np.abs(R) < 1e-15] = 0.0
+        p[np.abs(p) < 1e-15] = 0.0
+        joint = Joint(name=name, sigma=_MOVING[j.get("type")], R=R, p=p)
+        _limits(joint, j, path)
+        k = len(robot_joints) + 1
+        dyn = j.find("dynamics")
+        if dyn is not None:
+            for key, pname in (("damping", "Fv"), ("friction", "Fc")):
+                if dyn.get(key) is not None:
+                    # any sign: dynid's URDF export writes identified values, which may be < 0
+                    apriori[f"{pname}{k}"] = _floats(dyn.get(key), 1, f"joint '{name}' dynamics {key}",
+                                                     path)[0]
+        robot_joints.append(joint)
+        aligns.append(A)
+        inertias.append(None)
+        A_prev = A
+        T_R, T_p = np.eye(3), np.zeros(3)
+        owner = len(robot_joints) - 1
 
-    if not robot_joints:
-        raise RobotFileError(f"{path}: no revolute or prismatic joint found")
-    # fix: duplicated joint names and numbers that overflow (e.g. xyz="1e300 ...") gave
-    # robots with clashing names or infinite/NaN placements and parameters
-    names = [jt.name for jt in robot_joints]
-    dup = sorted({nm for nm in names if names.count(nm) > 1})
-    if dup:
-        raise RobotFileError(f"{path}: duplicated joint name(s) {', '.join(dup)}; give every joint a "
-                             f"unique name")
+    # fix: numbers that overflow (e.g. xyz="1e300 ...") gave infinite/NaN placements and parameters
     for jt, inertia in zip(robot_joints, inertias):
         vals = [jt.R, jt.p] + ([] if inertia is None else [inertia[0], inertia[1], inertia[2]])
         if not all(np.isfinite(v).all() for v in vals):
@@ -271,43 +502,85 @@ def read_urdf(path):
         apriori.update({f"XX{k}": I[0, 0], f"XY{k}": I[0, 1], f"XZ{k}": I[0, 2],
                         f"YY{k}": I[1, 1], f"YZ{k}": I[1, 2], f"ZZ{k}": I[2, 2],
                         f"MX{k}": m * c[0], f"MY{k}": m * c[1], f"MZ{k}": m * c[2], f"M{k}": m})
-    for jt in robot_joints:
-        del jt._align
+    selected = base != tree.root or tip is not None
+    chain_text = f"chain '{base}' -> '{chain_links[-1]}'"
     robot = Robot(name=root.get("name") or path.stem, joints=robot_joints,
                   gravity=np.array([0.0, 0.0, -9.81]), source=str(path),
-                  description=f"read from URDF {path.name}")
+                  description=f"read from URDF {path.name}" + (f", {chain_text}" if selected else ""))
     robot.apriori = {k: float(v) for k, v in apriori.items()}
-    robot.provenance = {"kinematics": f"URDF {path.name}", "apriori": f"URDF {path.name} inertials and <dynamics>"}
+    robot.provenance = {"kinematics": f"URDF {path.name}" + (f", {chain_text}" if selected else ""),
+                        "apriori": f"URDF {path.name} inertials and <dynamics>"}
+    robot.notices = _notices(tree, base, chain, left_out, robot_joints, chain_text)
     return robot
 
 
-def _subtree_moves(link, children, seen):
-    """Whether a moving joint hangs anywhere below ``link`` (cycle-safe)."""
-    if link in seen:
-        return False
-    seen.add(link)
-    return any(k.get("type") in _MOVING or _subtree_moves(k.find("child").get("link"), children, seen)
-               for k in children.get(link, []))
-
-
-def _merge_fixed_branch(joint, links, children, path, T_R, T_p, target, robot_joints, inertias, seen):
-    """Add the inertia of a fixed side branch to the moving link it hangs from."""
-    if target is None:
+def _limits(joint, j, path):
+    """q_limits, qd_max, tau_max of a moving joint from its <limit> (0 velocity/effort: not given)."""
+    name = joint.name
+    lim = j.find("limit")
+    if lim is None:
         return
-    R_o, p_o = _origin(joint, f"joint '{joint.get('name')}'", path)
-    R = T_R @ R_o
-    p = T_R @ p_o + T_p
-    child = joint.find("child").get("link")
-    if child in seen:   # fix: a cycle of fixed joints recursed until RecursionError
-        raise RobotFileError(f"{path}: the fixed joints below joint '{joint.get('name')}' form a loop "
-                             f"at link '{child}'; remove the joint that closes it")
-    seen.add(child)
-    inertia = _spatial_inertia(links[child], path)
-    if inertia is not None:
-        A = robot_joints[target]._align
-        inertias[target] = _add(inertias[target], _transform_inertia(inertia, A.T @ R, A.T @ p))
-    for k in children.get(child, []):
-        if k.get("type") != "fixed":
-            raise RobotFileError(f"{path}: joint '{k.get('name')}' moves on a side branch; "
-                                 f"dynid reads serial chains only")
-        _merge_fixed_branch(k, links, children, path, R, p, target, robot_joints, inertias, seen)
+    lo, hi = lim.get("lower"), lim.get("upper")
+    if lo is not None and hi is not None and j.get("type") != "continuous":
+        lo_v = _floats(lo, 1, f"joint '{name}' limit lower", path)[0]
+        hi_v = _floats(hi, 1, f"joint '{name}' limit upper", path)[0]
+        if lo_v > hi_v:
+            raise RobotFileError(f"{path}: joint '{name}' limit lower {lo_v:g} is above upper {hi_v:g}; "
+                                 f"fix the limits (lower must be below upper)")
+        if lo_v == hi_v:
+            raise RobotFileError(f"{path}: joint '{name}' limit lower and upper are both {lo_v:g}, so "
+                                 f"the joint cannot move; give its real limits, or make it a fixed joint")
+        joint.q_limits = (lo_v, hi_v)
+    for key, attr in (("velocity", "qd_max"), ("effort", "tau_max")):
+        if lim.get(key) is not None:
+            v = _floats(lim.get(key), 1, f"joint '{name}' limit {key}", path)[0]
+            if v < 0:
+                raise RobotFileError(f"{path}: joint '{name}' limit {key} = {v:g} is negative; a "
+                                     f"{key} limit must be positive (0 for none): fix it")
+            if v > 0:
+                setattr(joint, attr, v)
+
+
+def _subtree_mass(tree, joint):
+    """Mass (kg) of the links below a joint, read leniently (for notices only); None if unreadable."""
+    total = 0.0
+    for l in tree.below(tree.child(joint)):
+        el = tree.links[l].find("inertial/mass")
+        if el is None:
+            continue
+        try:
+            v = float(el.get("value"))
+        except (TypeError, ValueError):
+            return None
+        if not math.isfinite(v):
+            return None
+        total += v
+    return total
+
+
+def _notices(tree, base, chain, left_out, robot_joints, chain_text):
+    """What was left out of the URDF, for ``robot.notices``."""
+    name = tree.path.name
+    notes = []
+    loaded = [(k, o) for k, o in left_out if o is not None]
+    grounded = [k for k, o in left_out if o is None]
+    if loaded:
+        masses = [_subtree_mass(tree, k) for k, _ in loaded]
+        mass = (f"{sum(masses):.4g} kg" if all(m is not None for m in masses) else "unknown")
+        parts = [f"'{k.get('name')}' (on link '{tree.parent(k)}' of joint '{robot_joints[o].name}')"
+                 for k, o in loaded]
+        notes.append(f"URDF {name}: the moving joints {', '.join(parts)} hang off the {chain_text} "
+                     f"and are left out with everything below them; their mass ({mass}) is NOT in "
+                     f"the model, which is the serial chain alone")
+    if grounded:
+        notes.append(f"URDF {name}: the moving joints {_few([k.get('name') for k in grounded])} hang "
+                     f"from the fixed base of the {chain_text} and are left out (they do not change "
+                     f"its dynamics)")
+    if base != tree.root:
+        inside = set(tree.below(base)) - {base}
+        outside = [j.get("name") for j in tree.joints
+                   if j.get("type") != "fixed" and tree.child(j) not in inside]
+        if outside:
+            notes.append(f"URDF {name}: the moving joints {_few(outside)} are not below the base "
+                         f"'{base}' and are left out: the base is taken as fixed to the ground")
+    return notes

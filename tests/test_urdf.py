@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from dynid.errors import RobotFileError
@@ -69,7 +69,7 @@ BRANCHED = "\n".join([
     '<?xml version="1.0"?>', '<robot name="branched">',
     link("base"),
     joint("j1", "revolute", "base", "l1", "0 0 0.3", "0 0 0", "0 0 1"),
-    link("l1", 2.0, "0.02 0.03 0.1", "0.1 0 0", 0.02, 0.001, 0.0, 0.03, 0.002, 0.01),
+    link("l1", 2.0, "0.02 0.03 0.1", "0.1 0 0", 0.02, 0.001, 0.0, 0.03, 0.002, 0.015),
     joint("sensor_joint", "fixed", "l1", "sensor", "0.05 0.05 0.05", "0.3 0.2 0.1"),
     link("sensor", 0.4, "0.01 0 0", "0 0 0", 0.001, 0, 0, 0.001, 0, 0.001),
     joint("flange", "fixed", "l1", "l1b", "0 0 0.2", "0.5 0 0"),
@@ -356,12 +356,24 @@ def check_valid_robot(robot):
         assert np.isfinite(W).all()
 
 
+def check_bounded_robot(robot):
+    """Beyond check_valid_robot: with the readers' bounds, the regressor is finite on any robot read."""
+    n = robot.n_joints
+    assert n <= 64
+    assert np.linalg.norm(robot.gravity) <= 100.0
+    W = regressor(robot, *np.random.default_rng(1).normal(size=(3, 2, n)))
+    assert np.isfinite(W).all()
+
+
 _FUZZ_DIR = Path(tempfile.mkdtemp(prefix="dynid_urdf_fuzz_"))
 atexit.register(shutil.rmtree, _FUZZ_DIR, ignore_errors=True)
 
 
 @pytest.mark.filterwarnings("ignore::RuntimeWarning")    # overflow on purpose (xyz="1e300 ...")
-@settings(max_examples=500, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=500, deadline=None, suppress_health_check=[HealthCheck.too_slow],
+          derandomize=True, database=None)       # reproducible: the same 500 files every run
+@example(SMALL.replace('<origin xyz="0.05 0 0"', '<origin xyz="1e154 0 0"'))
+@example(SMALL.replace('<mass value="0.5"/>', '<mass value="-0.5"/>'))
 @given(mutated_urdf())
 def test_fuzzed_urdf_gives_robot_or_robot_file_error(text):
     path = _FUZZ_DIR / "fuzz.urdf"
@@ -372,3 +384,383 @@ def test_fuzzed_urdf_gives_robot_or_robot_file_error(text):
         assert "fuzz.urdf" in str(exc)
         return
     check_valid_robot(robot)
+    check_bounded_robot(robot)
+
+
+# ------------------------------------------------------------------- chains: base / tip
+
+def _inertia_args(k, mass):
+    """A physically valid inertial (moments 0.01..0.03, any two above the third), rotated."""
+    return (mass, f"{0.01 * k:.3f} {-0.02:.3f} {0.05 + 0.01 * k:.3f}", f"0.{k} -0.2 0.3",
+            0.012 + 0.001 * k, 0.0005, -0.0003, 0.015, 0.0004, 0.01 + 0.0005 * k)
+
+
+_ARM_AXES = ["0 0 1", "0 1 0", "1 0 0", "0 1 0", "1 0 0", "0 1 0", "1 0 0"]
+_ARM_JOINTS = ["s0", "s1", "e0", "e1", "w0", "w1", "w2"]
+
+
+def _baxter_arm(side, sign):
+    """Fixed mount on the torso, 7 revolute joints, a fixed hand: Baxter's arm layout."""
+    parts = [joint(f"{side}_torso_arm_mount", "fixed", "torso", f"{side}_arm_mount",
+                   f"0.024 {sign * 0.22} 0.11", f"0 0 {sign * 0.78}"),
+             link(f"{side}_arm_mount", *_inertia_args(1, 0.4))]
+    prev = f"{side}_arm_mount"
+    for k in range(7):
+        cur = f"{side}_arm_link{k + 1}"
+        parts += [joint(f"{side}_{_ARM_JOINTS[k]}", "revolute", prev, cur, f"0.05 {sign * 0.01} 0.12",
+                        f"{0.3 * sign} 0.1 {-0.2 * k}", _ARM_AXES[k], dyn=(0.5 + 0.1 * k, 0.2)),
+                  link(cur, *_inertia_args(k + 1, 4.0 - 0.4 * k))]
+        prev = cur
+    parts += [joint(f"{side}_hand_joint", "fixed", prev, f"{side}_hand", "0 0 0.08", "0 0 0.4"),
+              link(f"{side}_hand", *_inertia_args(2, 0.6))]
+    return parts
+
+
+def baxter(sides=("left", "right"), head=True):
+    """A Baxter-like tree: a torso, a moving head, two 7-joint arms on fixed branches."""
+    parts = ['<?xml version="1.0"?>', '<robot name="baxter">', link("torso", *_inertia_args(3, 30.0))]
+    if head:
+        parts += [joint("head_pan", "revolute", "torso", "head", "0.06 0 0.68", axis="0 0 1"),
+                  link("head", *_inertia_args(1, 0.5))]
+    for side in sides:
+        parts += _baxter_arm(side, 1 if side == "left" else -1)
+    return "\n".join(parts + ["</robot>"])
+
+
+def panda(fingers=True, mimic=True):
+    """A Panda-like arm: 7 joints, fixed flange link8, fixed hand with two sibling prismatic fingers."""
+    rpys = ["0 0 0", "-1.5708 0 0", "1.5708 0 0", "1.5708 0 0", "-1.5708 0 0", "1.5708 0 0", "1.5708 0 0"]
+    xyzs = ["0 0 0.333", "0 0 0", "0 -0.316 0", "0.0825 0 0", "-0.0825 0.384 0", "0 0 0", "0.088 0 0"]
+    parts = ['<?xml version="1.0"?>', '<robot name="panda">', link("link0", *_inertia_args(2, 2.9))]
+    for k in range(7):
+        parts += [joint(f"joint{k + 1}", "revolute", f"link{k}", f"link{k + 1}", xyzs[k], rpys[k], "0 0 1",
+                        dyn=(0.3, 0.1)),
+                  link(f"link{k + 1}", *_inertia_args(k + 1, 3.0 - 0.3 * k))]
+    parts += [joint("joint8", "fixed", "link7", "link8", "0 0 0.107"), link("link8"),
+              joint("hand_joint", "fixed", "link8", "hand", "0 0 0", "0 0 -0.7854"),
+              link("hand", *_inertia_args(3, 0.73))]
+    if fingers:
+        for k, (side, y) in enumerate((("left", "1"), ("right", "-1")), start=1):
+            j = joint(f"finger_joint{k}", "prismatic", "hand", f"{side}finger", "0 0 0.0584", axis=f"0 {y} 0")
+            if mimic and k == 2:
+                j = j.replace("</joint>", '<mimic joint="finger_joint1"/></joint>')
+            parts += [j, link(f"{side}finger", *_inertia_args(1, 0.015))]
+    return "\n".join(parts + ["</robot>"])
+
+
+def assert_same_dynamics_as_pinocchio(robot, urdf_path, seed=41):
+    """dynid's robot and Pinocchio's model of ``urdf_path`` give the same inverse dynamics."""
+    model = pin.buildModelFromUrdf(str(urdf_path))
+    assert robot.n_joints == model.nv
+    assert robot.joint_names == [str(n) for n in list(model.names)[1:]]
+    rng = np.random.default_rng(seed)
+    g = rng.normal(size=3)
+    g *= 9.81 / np.linalg.norm(g)
+    robot.gravity = g
+    model.gravity.linear = g
+    chi = chi_from_values(robot, robot.apriori)
+    n = robot.n_joints
+    N = 300
+    q = rng.uniform(-np.pi, np.pi, (N, n))
+    qd, qdd = rng.normal(0, 2, (N, n)), rng.normal(0, 5, (N, n))
+    data = model.createData()
+    ref = np.array([pin.rnea(model, data, pin_configuration(model, q[i]), qd[i], qdd[i]).copy()
+                    for i in range(N)])
+    ref += model.damping * qd + model.friction * np.sign(qd)
+    assert rel_err(regressor(robot, q, qd, qdd) @ chi, ref) <= 1e-9
+
+
+def test_baxter_without_tip_is_refused_naming_the_moving_branches(tmp_path):
+    """Before: arms on fixed branches beside the moving head loaded as a 1-joint robot."""
+    with pytest.raises(RobotFileError) as exc:
+        read_urdf(write(tmp_path, baxter(), "baxter.urdf"))
+    assert_helpful(exc, "baxter.urdf", "torso", "serial chain", "'head_pan'", "'left_s0'", "'right_s0'",
+                   "tip")
+    # without the head, the two arms alone (both behind fixed joints) are refused too
+    with pytest.raises(RobotFileError) as exc:
+        load_robot(write(tmp_path, baxter(head=False), "arms.urdf"))
+    assert_helpful(exc, "arms.urdf", "'left_s0'", "'right_s0'", "left_arm_link7")
+
+
+@needs_pin
+def test_baxter_left_arm_chain_matches_pinocchio(tmp_path):
+    full = write(tmp_path, baxter(), "baxter.urdf")
+    robot = read_urdf(full, tip="left_arm_link7")
+    assert robot.n_joints == 7
+    assert robot.joint_names == [f"left_{j}" for j in _ARM_JOINTS]
+    # the fixed hand below the tip is merged into link 7; the mount (fixed to the torso) is ground
+    assert robot.apriori["M7"] == pytest.approx(4.0 - 0.4 * 6 + 0.6)
+    assert any("head_pan" in s and "right_s0" in s and "do not change" in s for s in robot.notices)
+    # Pinocchio on a URDF holding only that chain
+    only = write(tmp_path, baxter(sides=("left",), head=False), "left_only.urdf")
+    assert_same_dynamics_as_pinocchio(robot, only)
+    # the same through load_robot, with the tip at the hand, and from the mount as base
+    same = load_robot(full, tip="left_hand")
+    assert same.apriori == robot.apriori and same.joint_names == robot.joint_names
+    mounted = load_robot(full, base="left_arm_mount", tip="left_arm_link7")
+    assert mounted.apriori == robot.apriori
+    for a, b in zip(mounted.joints[1:], robot.joints[1:]):
+        np.testing.assert_array_equal(a.R, b.R)
+        np.testing.assert_array_equal(a.p, b.p)
+    assert any("not below the base" in s for s in mounted.notices)
+    (above,) = read_urdf(full, base="left_arm_link3", tip="left_arm_link7").notices
+    assert "'left_e0'" in above and "'left_e1'" not in above
+
+
+def test_panda_fingers_refused_without_tip(tmp_path):
+    with pytest.raises(RobotFileError) as exc:
+        read_urdf(write(tmp_path, panda(), "panda.urdf"))
+    assert_helpful(exc, "panda.urdf", "hand", "'finger_joint1'", "'finger_joint2'", "tip")
+
+
+@needs_pin
+@pytest.mark.parametrize("tip", ["link8", "hand"])
+def test_panda_arm_chain_matches_pinocchio(tmp_path, tip):
+    robot = load_robot(write(tmp_path, panda(), "panda.urdf"), tip=tip)
+    assert robot.joint_names == [f"joint{k}" for k in range(1, 8)]
+    assert robot.apriori["M7"] == pytest.approx(3.0 - 0.3 * 6 + 0.73)     # hand merged, fingers not
+    (note,) = robot.notices
+    assert "finger_joint1" in note and "finger_joint2" in note and "NOT" in note and "0.03 kg" in note
+    assert "chain" in robot.provenance["kinematics"] and tip in robot.provenance["kinematics"]
+    assert_same_dynamics_as_pinocchio(robot, write(tmp_path, panda(fingers=False), "arm_only.urdf"))
+    # the arm without fingers needs no tip and gives the same robot
+    plain = read_urdf(tmp_path / "arm_only.urdf")
+    assert plain.apriori == robot.apriori and plain.notices == []
+
+
+def test_chain_selection_errors(tmp_path):
+    path = write(tmp_path, baxter(), "baxter.urdf")
+    with pytest.raises(RobotFileError) as exc:
+        read_urdf(path, tip="left_arm_link9")
+    assert_helpful(exc, "baxter.urdf", "tip", "left_arm_link9", "not a link", "did you mean")
+    with pytest.raises(RobotFileError) as exc:
+        read_urdf(path, base="pelvis", tip="left_arm_link7")
+    assert_helpful(exc, "baxter.urdf", "base", "pelvis")
+    with pytest.raises(RobotFileError) as exc:
+        read_urdf(path, base="left_arm_link3", tip="right_arm_link7")
+    assert_helpful(exc, "baxter.urdf", "right_arm_link7", "not below base", "left_arm_link3")
+    with pytest.raises(RobotFileError) as exc:
+        read_urdf(path, base="left_arm_link5", tip="left_arm_link2")      # tip above the base
+    assert_helpful(exc, "baxter.urdf", "not below base")
+    with pytest.raises(RobotFileError) as exc:
+        read_urdf(path, base="torso", tip="torso")
+    assert_helpful(exc, "baxter.urdf", "tip", "base")
+    with pytest.raises(RobotFileError) as exc:
+        read_urdf(path, tip="left_arm_mount")                           # only fixed joints
+    assert_helpful(exc, "baxter.urdf", "no revolute or prismatic joint")
+    with pytest.raises(RobotFileError) as exc:
+        load_robot("tx40", tip="j6")
+    assert_helpful(exc, "tx40", "urdf")
+
+
+def test_mimic_joint_on_the_chain_is_refused(tmp_path):
+    path = write(tmp_path, panda(), "panda.urdf")
+    with pytest.raises(RobotFileError) as exc:
+        read_urdf(path, tip="rightfinger")
+    assert_helpful(exc, "panda.urdf", "finger_joint2", "mimic", "base/tip")
+    # the non-mimic finger is a legal 8th joint
+    assert read_urdf(path, tip="leftfinger").joint_names[-1] == "finger_joint1"
+
+
+def test_floating_joint_needs_a_base(tmp_path):
+    text = SMALL.replace('<link name="base"></link>',
+                         '<link name="world"></link><joint name="float" type="floating">'
+                         '<parent link="world"/><child link="base"/></joint><link name="base"></link>')
+    assert text != SMALL
+    path = write(tmp_path, text, "floating_base.urdf")
+    with pytest.raises(RobotFileError) as exc:
+        read_urdf(path)
+    assert_helpful(exc, "floating_base.urdf", "float", "floating", "base")
+    assert read_urdf(path, base="base").joint_names == ["j1", "j2"]
+
+
+def test_toml_selects_a_urdf_chain(tmp_path):
+    write(tmp_path, baxter(), "baxter.urdf")
+    (tmp_path / "left.toml").write_text('name = "baxter_left"\nurdf = "baxter.urdf"\n'
+                                        'tip = "left_arm_link7"\n')
+    robot = load_robot(tmp_path / "left.toml")
+    assert robot.n_joints == 7 and robot.joint_names[0] == "left_s0" and robot.notices
+    assert load_robot(tmp_path / "left.toml", tip="left_arm_link7").apriori == robot.apriori
+    with pytest.raises(RobotFileError) as exc:
+        load_robot(tmp_path / "left.toml", tip="right_arm_link7")
+    assert_helpful(exc, "left.toml", "tip", "right_arm_link7", "left_arm_link7")
+    (tmp_path / "plain.toml").write_text('name = "baxter"\nurdf = "baxter.urdf"\n')
+    assert read_toml(tmp_path / "plain.toml", tip="right_arm_link7").joint_names[0] == "right_s0"
+    with pytest.raises(RobotFileError) as exc:
+        read_toml(tmp_path / "plain.toml")
+    assert_helpful(exc, "baxter.urdf", "serial chain", "tip")
+    (tmp_path / "nourdf.toml").write_text('name = "x"\ntip = "l1"\n[[joints]]\n')
+    with pytest.raises(RobotFileError) as exc:
+        read_toml(tmp_path / "nourdf.toml")
+    assert_helpful(exc, "nourdf.toml", "tip", "urdf")
+
+
+# ------------------------------------------------------------------- XML, files, names
+
+BILLION_LAUGHS = ('<?xml version="1.0"?>\n<!DOCTYPE lolz [<!ENTITY lol "lol">'
+                  + "".join(f'<!ENTITY lol{k} "{("&lol" + str(k - 1 if k > 1 else "") + ";") * 10}">'
+                            for k in range(1, 10))
+                  + ']>\n<robot name="&lol9;"><link name="base"/></robot>')
+EXTERNAL_ENTITY = ('<?xml version="1.0"?>\n<!DOCTYPE robot [<!ENTITY xxe SYSTEM "file:///etc/passwd">]>\n'
+                   '<robot name="&xxe;"><link name="base"/></robot>')
+
+
+@pytest.mark.parametrize("text", [BILLION_LAUGHS, EXTERNAL_ENTITY], ids=["billion_laughs", "external"])
+def test_xml_attacks_are_refused(tmp_path, text):
+    with pytest.raises(RobotFileError) as exc:
+        read_urdf(write(tmp_path, text, "attack.urdf"))
+    assert_helpful(exc, "attack.urdf", "entities")
+
+
+def test_missing_defusedxml_is_a_clear_error(tmp_path, monkeypatch):
+    import sys
+    monkeypatch.setitem(sys.modules, "defusedxml", None)
+    monkeypatch.setitem(sys.modules, "defusedxml.ElementTree", None)
+    with pytest.raises(RobotFileError) as exc:
+        read_urdf(write(tmp_path, SMALL, "small.urdf"))
+    assert_helpful(exc, "small.urdf", "defusedxml", "install")
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "mkfifo"), reason="no named pipes here")
+def test_fifo_device_and_huge_files_are_refused_before_reading(tmp_path):
+    import os
+    os.mkfifo(tmp_path / "pipe.urdf")          # opening it for reading would block forever
+    with pytest.raises(RobotFileError) as exc:
+        read_urdf(tmp_path / "pipe.urdf")
+    assert_helpful(exc, "pipe.urdf", "FIFO", "not a regular file")
+    with pytest.raises(RobotFileError) as exc:
+        load_robot(tmp_path / "pipe.urdf")
+    assert_helpful(exc, "pipe.urdf", "FIFO")
+    if os.path.exists("/dev/zero"):            # endless: reading it would never stop
+        (tmp_path / "zero.urdf").symlink_to("/dev/zero")
+        with pytest.raises(RobotFileError) as exc:
+            load_robot(tmp_path / "zero.urdf")
+        assert_helpful(exc, "zero.urdf", "device")
+    with open(tmp_path / "huge.urdf", "wb") as fh:   # sparse: no disk used
+        fh.truncate(17 * 2 ** 20)
+    with pytest.raises(RobotFileError) as exc:
+        read_urdf(tmp_path / "huge.urdf")
+    assert_helpful(exc, "huge.urdf", "16 MiB")
+
+
+def test_control_characters_in_names_are_refused(tmp_path):
+    # XML 1.0 forbids C0 controls (ESC, BEL) even as &#27;: the parser refuses them
+    text = SMALL.replace('<robot name="small">', '<robot name="&#27;]0;TITLE&#7;">')
+    with pytest.raises(RobotFileError) as exc:
+        read_urdf(write(tmp_path, text, "esc.urdf"))
+    assert "\x1b" not in str(exc.value) and "esc.urdf" in str(exc.value)
+    # C1 controls (CSI) and bidirectional overrides are legal XML: dynid refuses them
+    for label, old, new, field in [
+            ("csi", '<robot name="small">', '<robot name="&#x9b;31m">', "robot name"),
+            ("bidi", 'joint name="j2"', 'joint name="j&#x202e;2"', "joint name"),
+            ("linkname", 'link name="l1"', 'link name="l&#x85;1"', "link name")]:
+        text = SMALL.replace(old, new)
+        assert text != SMALL
+        with pytest.raises(RobotFileError) as exc:
+            read_urdf(write(tmp_path, text, f"{label}.urdf"))
+        assert_helpful(exc, f"{label}.urdf", field, "control character")
+        assert not any(c in str(exc.value) for c in "\x9b\u202e\x85"), str(exc.value)
+
+
+def test_duplicate_link_and_fixed_joint_names(tmp_path):
+    text = SMALL.replace("</robot>", '<link name="l1"/></robot>')
+    with pytest.raises(RobotFileError) as exc:
+        read_urdf(write(tmp_path, text, "duplink.urdf"))
+    assert_helpful(exc, "duplink.urdf", "'l1'", "unique")
+    text = SMALL.replace('joint name="tool_joint"', 'joint name="j1"')
+    with pytest.raises(RobotFileError) as exc:
+        read_urdf(write(tmp_path, text, "dupjoint.urdf"))
+    assert_helpful(exc, "dupjoint.urdf", "'j1'", "unique")
+
+
+# ------------------------------------------------------------------- impossible robots
+
+L1 = link("l1", 1.0, "0 0 0.1", "0 0 0", 0.01, 0, 0, 0.01, 0, 0.005)
+assert L1 in SMALL
+
+
+def small_with_l1(*inertia):
+    return SMALL.replace(L1, link("l1", *inertia))
+
+
+@pytest.mark.parametrize("label, inertia, fields", [
+    ("negative_mass", (-1.0, "0 0 0.1", "0 0 0", 0.01, 0, 0, 0.01, 0, 0.005), ["mass", "negative"]),
+    ("heavy", (2e5, "0 0 0.1", "0 0 0", 0.01, 0, 0, 0.01, 0, 0.005), ["mass", "100000 kg"]),
+    ("not_pd", (1.0, "0 0 0.1", "0 0 0", 0.01, 0, 0, -0.01, 0, 0.005), ["positive definite"]),
+    ("not_pd_offdiag", (1.0, "0 0 0.1", "0 0 0", 0.01, 0.02, 0, 0.01, 0, 0.005), ["positive definite"]),
+    ("triangle", (1.0, "0 0 0.1", "0.3 0.2 0.1", 0.001, 0, 0, 0.001, 0, 0.01), ["triangle inequality"]),
+    ("massless_inertia", (0.0, "0 0 0.1", "0 0 0", 0.01, 0, 0, 0.01, 0, 0.005), ["mass 0"]),
+    ("huge_inertia", (1.0, "0 0 0.1", "0 0 0", 2e5, 0, 0, 2e5, 0, 2e5), ["ixx", "100000 kg m^2"]),
+    ("far_com", (1.0, "0 0 150", "0 0 0", 0.01, 0, 0, 0.01, 0, 0.005), ["inertial origin", "100 m"]),
+])
+def test_impossible_inertials_are_refused(tmp_path, label, inertia, fields):
+    with pytest.raises(RobotFileError) as exc:
+        read_urdf(write(tmp_path, small_with_l1(*inertia), f"{label}.urdf"))
+    assert_helpful(exc, f"{label}.urdf", "link 'l1'", "joint 'j1'", *fields)
+
+
+def test_limiting_inertials_are_legal(tmp_path):
+    """A massless frame (mass 0, inertia 0), a point mass and a thin rod are legal."""
+    massless = read_urdf(write(tmp_path, small_with_l1(0.0, "0 0 0.1", "0 0 0", 0, 0, 0, 0, 0, 0), "a.urdf"))
+    assert "M1" not in massless.apriori
+    point = read_urdf(write(tmp_path, small_with_l1(1.0, "0 0 0.1", "0 0 0", 0, 0, 0, 0, 0, 0), "b.urdf"))
+    assert point.apriori["M1"] == 1.0 and point.apriori["ZZ1"] == 0.0
+    assert point.apriori["XX1"] == pytest.approx(0.01)               # m c^2 about the joint frame
+    rod = read_urdf(write(tmp_path, small_with_l1(1.0, "0 0 0.1", "0.3 0 0", 0.02, 0, 0, 0.02, 0, 0), "c.urdf"))
+    assert rod.apriori["M1"] == 1.0
+    # a disk: izz = ixx + iyy exactly, also with rounding in the last digit
+    disk = small_with_l1(1.0, "0 0 0.1", "0 0 0", 0.0033333, 0, 0, 0.0033333, 0, 0.0066667)
+    assert read_urdf(write(tmp_path, disk, "d.urdf")).apriori["M1"] == 1.0
+
+
+@pytest.mark.parametrize("label, old, new, fields", [
+    ("reversed", 'lower="-2" upper="2"', 'lower="2" upper="-2"', ["lower", "upper"]),
+    ("equal", 'lower="-2" upper="2"', 'lower="1" upper="1"', ["lower", "upper", "fixed"]),
+    ("velocity", 'velocity="3"', 'velocity="-3"', ["velocity", "negative"]),
+    ("effort", 'effort="50"', 'effort="-50"', ["effort", "negative"]),
+    ("far_origin", '<origin xyz="0 0 0.1"', '<origin xyz="0 0 101"', ["origin xyz", "100 m"]),
+])
+def test_bad_limits_and_origins_are_refused(tmp_path, label, old, new, fields):
+    """Before: reversed limits and negative velocity/effort were silently dropped."""
+    assert old in SMALL
+    with pytest.raises(RobotFileError) as exc:
+        read_urdf(write(tmp_path, SMALL.replace(old, new, 1), f"{label}.urdf"))
+    assert_helpful(exc, f"{label}.urdf", "joint 'j1'", *fields)
+
+
+def test_zero_velocity_and_effort_mean_no_limit(tmp_path):
+    robot = read_urdf(write(tmp_path, SMALL.replace('effort="50" velocity="3"', 'effort="0" velocity="0"'),
+                            "zero.urdf"))
+    assert robot.joints[0].qd_max == np.inf and robot.joints[0].tau_max == np.inf
+
+
+def _chain_urdf(n_moving, n_fixed_side=0):
+    parts = ['<?xml version="1.0"?>', '<robot name="long">', link("l0")]
+    for k in range(n_moving):
+        parts += [joint(f"j{k + 1}", "revolute", f"l{k}", f"l{k + 1}", "0 0 0.1", axis="0 0 1"),
+                  link(f"l{k + 1}", 1.0, "0 0 0.05", "0 0 0", 0.01, 0, 0, 0.01, 0, 0.005)]
+    prev = "l1"
+    for k in range(n_fixed_side):
+        parts += [joint(f"s{k}", "fixed", prev, f"s{k}", "0 0.001 0"),
+                  link(f"s{k}", 0.001, "0 0 0", "0 0 0", 1e-6, 0, 0, 1e-6, 0, 1e-6)]
+        prev = f"s{k}"
+    return "\n".join(parts + ["</robot>"])
+
+
+def test_joint_and_link_counts_are_bounded(tmp_path):
+    """Before: a 1000-joint URDF took 6.5 GiB in the regressor."""
+    with pytest.raises(RobotFileError) as exc:
+        read_urdf(write(tmp_path, _chain_urdf(1000), "long.urdf"))
+    assert_helpful(exc, "long.urdf", "1000 moving joints", "64")
+    assert read_urdf(write(tmp_path, _chain_urdf(64), "ok.urdf")).n_joints == 64
+    with pytest.raises(RobotFileError) as exc:
+        read_urdf(write(tmp_path, _chain_urdf(2, 10_000), "many.urdf"))
+    assert_helpful(exc, "many.urdf", "10000 links")
+
+
+def test_deep_fixed_branch_is_merged_without_recursion(tmp_path):
+    """Before: a fixed side branch 3000 links deep raised RecursionError."""
+    robot = read_urdf(write(tmp_path, _chain_urdf(2, 3000), "deep.urdf"))
+    assert robot.n_joints == 2
+    assert robot.apriori["M1"] == pytest.approx(1.0 + 3000 * 0.001)
+    assert robot.apriori["M2"] == 1.0
