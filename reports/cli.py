@@ -69,6 +69,22 @@ EPILOG_DEMO = """examples:
 """
 
 
+def _add_robot_options(p, positional=False):
+    if positional:
+        p.add_argument("robot", help="bundled robot name or .toml/.urdf file")
+    else:
+        p.add_argument("--robot", required=True, help="bundled robot name or .toml/.urdf file")
+    p.add_argument("--base", metavar="LINK", help="URDF: the link the chain starts from (default: the root)")
+    p.add_argument("--tip", metavar="LINK",
+                   help="URDF: the link the chain ends at, e.g. one arm of a two-arm robot or a Panda "
+                        "without its fingers (default: the tree must be one chain)")
+
+
+def _robot(args):
+    from dynid.dynamics.robot_file import load_robot
+    return load_robot(args.robot, base=getattr(args, "base", None), tip=getattr(args, "tip", None))
+
+
 def _add_processing_options(p):
     g = p.add_argument_group("processing (defaults derived from the data)")
     g.add_argument("--fc", type=float, metavar="HZ", help="cut-off of the zero-phase filter of q")
@@ -149,7 +165,9 @@ def build_parser():
                        description="Print a robot's DH table, standard parameters and base "
                                    "parameters with their regrouping relations.",
                        epilog=EPILOG_ROBOT, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("robot", nargs="?", help="bundled name (tx40, planar2, kuka_lwr4) or .toml/.urdf file")
+    p.add_argument("robot", nargs="?", help="bundled name (tx40, planar2, kuka_lwr4, panda) or .toml/.urdf file")
+    p.add_argument("--base", metavar="LINK", help="URDF: the link the chain starts from (default: the root)")
+    p.add_argument("--tip", metavar="LINK", help="URDF: the link the chain ends at (default: one chain)")
     p.add_argument("--json", metavar="PATH", help="also write the parameters as JSON")
     p.add_argument("--list", action="store_true", help="list the bundled robots")
 
@@ -160,7 +178,7 @@ def build_parser():
                        epilog=EPILOG_IDENTIFY, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("data", nargs="+", help="experiment file(s) (.csv, .parquet, .npz, .mat, or .toml "
                                           "description); several recordings are identified together")
-    p.add_argument("--robot", required=True, help="bundled robot name or .toml/.urdf file")
+    _add_robot_options(p)
     p.add_argument("--method", choices=["idim", "didim", "projection", "ml"], default="idim",
                    help="idim (needs q and tau); didim (needs qr and tau and the robot's controller; "
                         "when the file has no qr, the measured q is tracked instead, with a notice); "
@@ -192,7 +210,7 @@ def build_parser():
                                    "random Fourier-series reference under its controller, add sensor "
                                    "noise, and write a dynid CSV (t, q*, qr*, tau*).",
                        epilog=EPILOG_SIMULATE, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--robot", required=True, help="bundled robot name or .toml/.urdf file")
+    _add_robot_options(p)
     p.add_argument("--out", required=True, metavar="CSV", help="where to write the recording")
     p.add_argument("--duration", type=float, default=20.0, metavar="SECONDS")
     p.add_argument("--f0", type=float, default=0.1, metavar="HZ", help="fundamental of the reference")
@@ -210,7 +228,7 @@ def build_parser():
                                    "the chains are 50 autocorrelation times long. Exit code 3 if they are not.",
                        epilog=EPILOG_SAMPLE, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("data", nargs="+", help="experiment file(s), as for 'identify'")
-    p.add_argument("--robot", required=True, help="bundled robot name or .toml/.urdf file")
+    _add_robot_options(p)
     p.add_argument("--which", choices=["essential", "base"], default="essential")
     p.add_argument("--seed", type=int, default=1, help="random seed of the sampler (default 1)")
     p.add_argument("--walkers", type=int, default=None,
@@ -232,7 +250,7 @@ def build_parser():
                                    "Curatella 2005); several random starts; every limit checked on a "
                                    "dense grid. Writes the reference (t, qr, qdr, qddr) as CSV.",
                        epilog=EPILOG_EXCITE, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--robot", required=True, help="bundled robot name or .toml/.urdf file")
+    _add_robot_options(p)
     p.add_argument("--f0", type=float, required=True, metavar="HZ", help="fundamental frequency")
     p.add_argument("--harmonics", type=int, required=True, metavar="N", help="harmonics per joint")
     p.add_argument("--starts", type=int, default=4, help="random starts (default 4)")
@@ -257,7 +275,7 @@ def build_parser():
                                    "add those that pass, and report the errors before and after.",
                        epilog=EPILOG_DIAGNOSE, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("data", help="experiment file (.csv, .parquet, .npz, .mat, or .toml description)")
-    p.add_argument("--robot", required=True, help="bundled robot name or .toml/.urdf file")
+    _add_robot_options(p)
     _add_validation_options(p)
     p.add_argument("--effects", metavar="LIST", help="comma-separated effects to consider (default all)")
     p.add_argument("--max-effects", type=int, default=3, help="most effects added (default 3)")
@@ -277,7 +295,7 @@ def build_parser():
                                    "DIDIM or the sampler did not converge (the report says so).",
                        epilog=EPILOG_REPORT, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("data", nargs="+", help="experiment file(s), as for 'identify'")
-    p.add_argument("--robot", required=True, help="bundled robot name or .toml/.urdf file")
+    _add_robot_options(p)
     _add_validation_options(p)
     p.add_argument("--report", metavar="PATH", required=True, help="write the HTML report here")
     p.add_argument("--json", metavar="PATH", help=JSON_HELP)
@@ -320,11 +338,11 @@ def build_parser():
 def cmd_robot(args, say):
     from dynid.provenance import dumps_json
     from dynid.dynamics.base_parameters import base_parameters
-    from dynid.dynamics.robot_file import bundled_robots, load_robot
+    from dynid.dynamics.robot_file import bundled_robots
     if args.list or not args.robot:
         print("bundled robots: " + ", ".join(bundled_robots()))
         return EXIT_OK
-    robot = load_robot(args.robot)
+    robot = _robot(args)
     bp = base_parameters(robot)
     out = [f"robot '{robot.name}': {robot.n_joints} joints"
            + (f" — {robot.description}" if robot.description else "")]
@@ -456,7 +474,6 @@ def _load_data(args, say, robot, paths):
 def cmd_identify(args, say):
     from dynid.analysis.identify import identify
     from dynid.analysis.statistics.validation import validate
-    from dynid.dynamics.robot_file import load_robot
     from dynid.errors import InputError
     if args.method != "idim":
         given = [f"--{o}" for o, v in (("validation", args.validation), ("holdout", args.holdout),
@@ -465,7 +482,7 @@ def cmd_identify(args, say):
         if given:
             raise InputError(f"{', '.join(given)} work with --method idim only, not with --method "
                              f"{args.method}; run the IDIM identification for them")
-    robot = load_robot(args.robot)
+    robot = _robot(args)
     say(f"robot '{robot.name}' ({robot.n_joints} joints)")
     experiments, valid = _load_data(args, say, robot, args.data)
     if args.method in METHODS:
@@ -556,7 +573,7 @@ def cmd_simulate(args, say):
     from dynid.analysis.data.synthetic import simulate
     from dynid.provenance import dumps_json
     with say.progress(f"closed-loop simulation ({args.duration:g} s)") as bar:
-        sim = simulate(args.robot, args.duration, seed=args.seed, f0=args.f0, harmonics=args.harmonics,
+        sim = simulate(_robot(args), args.duration, seed=args.seed, f0=args.f0, harmonics=args.harmonics,
                        noise_q=args.noise_q, noise_tau=args.noise_tau, progress=bar.update)
     outputs = [(args.out, sim.experiment.to_frame().to_csv(index=False, float_format="%.10g"))]
     if args.json:
@@ -571,8 +588,7 @@ def cmd_sample(args, say):
     from dynid.analysis.sampling.posterior import sample_idim
     from dynid.analysis.estimators.idim import identify_idim
     from dynid.provenance import dumps_json
-    from dynid.dynamics.robot_file import load_robot
-    robot = load_robot(args.robot)
+    robot = _robot(args)
     experiments, _ = _load_data(args, say, robot, args.data)
     with say.progress("regressor and decimation") as bar:
         result = identify_idim(experiments if len(experiments) > 1 else experiments[0], robot,
@@ -607,8 +623,7 @@ def cmd_excite(args, say):
     from dynid.provenance import dumps_json
     from dynid.errors import InputError
     from dynid.dynamics.excitation import design_excitation
-    from dynid.dynamics.robot_file import load_robot
-    robot = load_robot(args.robot)
+    robot = _robot(args)
     if args.periods < 1:
         raise InputError(f"--periods must be at least 1, got {args.periods}")
     fs = args.fs if args.fs is not None else (robot.controller.rate if robot.controller else 1000.0)
@@ -687,9 +702,8 @@ def _run_diagnosis(args, say, robot, experiment, valid, idim_result):
 def cmd_diagnose(args, say):
     from dynid.analysis.estimators.idim import identify_idim
     from dynid.provenance import dumps_json
-    from dynid.dynamics.robot_file import load_robot
     _check_diagnosis_options(args)
-    robot = load_robot(args.robot)
+    robot = _robot(args)
     _effects_option(args.effects)          # bad names fail before the long work
     experiments, valid = _load_data(args, say, robot, [args.data])
     experiment = experiments[0]
@@ -741,7 +755,7 @@ def cmd_report(args, say):
     skip = _skip_option(args.skip)
     _check_diagnosis_options(args)
     _effects_option(getattr(args, "effects", None))    # bad names fail before the long work
-    out = report(args.data, args.robot, holdout=getattr(args, "holdout", None),
+    out = report(args.data, _robot(args), holdout=getattr(args, "holdout", None),
                  validation=getattr(args, "validation", None), skip=skip,
                  settings=_processing_settings(args), seed=args.seed, max_seconds=args.max_seconds,
                  max_error_growth=args.max_error_growth,
