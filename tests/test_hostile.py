@@ -66,7 +66,7 @@ ROOT = Path(__file__).resolve().parents[1]
 warnings.filterwarnings("ignore", r"Unknown pytest\.mark\.slow", pytest.PytestUnknownMarkWarning)
 
 # ---- the one place that knows where the CLI lives ------------------------------------------
-DYNID_MODULE = "reports.cli"
+DYNID_MODULE = "dynid.reports.cli"
 DYNID_CODE = f"import sys; from {DYNID_MODULE} import main; sys.exit(main(sys.argv[1:]))"
 
 MEMORY_LIMIT = 4 << 30          # RLIMIT_AS of every subprocess: a runaway cannot take the machine down
