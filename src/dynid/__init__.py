@@ -15,8 +15,11 @@ Methods follow Gautier, Janot & Vandanjon (2010) and Bona & Curatella (2005).
 """
 from __future__ import annotations
 
+import os
+from collections.abc import Sequence
 from importlib.metadata import PackageNotFoundError
 from importlib.metadata import version as _version
+from typing import TYPE_CHECKING, Any
 
 try:
     __version__ = _version("dynid")
@@ -36,6 +39,12 @@ from dynid.errors import (ConvergenceError, DataError, DynidError, Identificatio
                           RobotFileError)
 from dynid.reports.pipeline import FullReport, demo, report
 
+if TYPE_CHECKING:   # for the annotations only: the subpackages below are imported when used
+    from dynid.analysis.diagnosis.selection import DiagnosisResult
+    from dynid.analysis.estimators.idim import IDIMResult
+    from dynid.analysis.sampling.posterior import PosteriorResult
+    from dynid.dynamics.excitation import ExcitationResult
+
 __all__ = [
     "__version__",
     "load_robot", "load_experiment", "holdout_split", "identify", "validate", "sample", "diagnose",
@@ -45,7 +54,7 @@ __all__ = [
 ]
 
 
-def sample(result, *, which: str = "essential", seed: int = 1, **kwargs):
+def sample(result: IDIMResult, *, which: str = "essential", seed: int = 1, **kwargs: Any) -> PosteriorResult:
     """Posterior of the essential (default) or base parameters of an IDIM result, by emcee.
 
     See :func:`dynid.analysis.sampling.posterior.sample_idim` for the options
@@ -55,7 +64,10 @@ def sample(result, *, which: str = "essential", seed: int = 1, **kwargs):
     return sample_idim(result, which=which, seed=seed, **kwargs)
 
 
-def diagnose(data, robot, *, validation=None, idim_result=None, **kwargs):
+def diagnose(data: str | os.PathLike[str] | Experiment | Sequence[str | os.PathLike[str] | Experiment],
+             robot: Robot | str | os.PathLike[str], *,
+             validation: str | os.PathLike[str] | Experiment | None = None,
+             idim_result: IDIMResult | None = None, **kwargs: Any) -> DiagnosisResult:
     """What does the identified model of ``robot`` lack in ``data``? (residual diagnosis).
 
     ``data`` and ``validation`` may be paths or Experiments; the other options are
@@ -69,7 +81,7 @@ def diagnose(data, robot, *, validation=None, idim_result=None, **kwargs):
     return _diagnose(experiment, robot, validation=valid, idim_result=idim_result, **kwargs)
 
 
-def excite(robot, f0: float, harmonics: int, **kwargs):
+def excite(robot: Robot | str | os.PathLike[str], f0: float, harmonics: int, **kwargs: Any) -> ExcitationResult:
     """Optimal Fourier excitation of ``robot`` (Bona & Curatella 2005, eq. (20)).
 
     See :func:`dynid.dynamics.excitation.design_excitation` for the options.
