@@ -268,13 +268,13 @@ def noise_pdf_figure(tau_tests, q_tests=None, *, joint_names=None, key="fig-nois
 
 def _tests_table(tests, key):
     tab = tests.table.copy()
-    cols = ["n", "mean", "std", "skew", "kurtosis", "jarque_bera_p", "shapiro_p", "anderson_p",
+    cols = ["n", "mean", "std", "skew", "excess_kurtosis", "jarque_bera_p", "shapiro_p", "anderson_p",
             "lilliefors_p", "gaussian"]
     tab = tab[[c for c in cols if c in tab.columns]]
     unit = f" [{tests.unit}]" if tests.unit else ""
     return T.make_table(tab, key, f"Normality tests of the {tests.label} ({tests.rule_text()})",
                         formats={"gaussian": "bool", "n": "int"},
-                        labels={"mean": f"mean{unit}", "std": f"\u03c3{unit}", "kurtosis": "excess kurtosis",
+                        labels={"mean": f"mean{unit}", "std": f"\u03c3{unit}", "excess_kurtosis": "excess kurtosis",
                                 "jarque_bera_p": "Jarque-Bera p", "shapiro_p": "Shapiro-Wilk p",
                                 "anderson_p": "Anderson-Darling p", "lilliefors_p": "Lilliefors p"},
                         csv_frame=tests.table)

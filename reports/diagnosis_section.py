@@ -127,7 +127,7 @@ def _overview_section(res):
                                    formats={"added": "text", "ident_rel_error_pct": "num",
                                             "valid_rel_error_pct": "num"},
                                    labels={"ident_rel_error_pct": "identification [%]",
-                                           "valid_rel_error_pct": "validation [%]"}))
+                                           "valid_rel_error_pct": "validation, moving samples [%]"}))
     return Section("diagnosis", "Residual diagnosis", body, tables=tables, tables_first=True)
 
 
@@ -298,10 +298,21 @@ def _residual_section(res, names):
                        labels={"rms": "RMS [N m]", "ljung_box_p": "Ljung-Box p",
                                "tau_int": "\u03c4_int = 1 + 2\u03a3\u03c1_k", "n_eff": "n_eff",
                                "jarque_bera_p": "Jarque-Bera p"})
-    body = para("n_eff = n / (1 + 2 \u03a3_{k<K} \u03c1_k), K the first lag where the residual's "
-                "autocorrelation falls inside the white-noise band 2/\u221an. A small Ljung-Box p "
-                "and \u03c4_int well above 1 say the residual is not white: the model still "
-                "misses something smooth in the motion.", cls="hint")
+    lb = b.ljung_box
+    found = ("the diagnosis added " + ", ".join(f"{s_.name} (joint {s_.joint})" for s_ in res.selected)
+             if res.selected else "the diagnosis found no missing effect among the candidates it tested")
+    corr = [f"{names[j]} p = {F.format_p(lb['p_value'].iloc[j])}" for j in range(len(names))
+            if float(lb["p_value"].iloc[j]) < 0.05]
+    state = (f"Before the effects the residual is correlated in time (Ljung-Box at lag "
+             f"{int(lb['lag'].iloc[0])}: {', '.join(corr)}); {found}." if corr else
+             f"Before the effects the residual is white (Ljung-Box p \u2265 0.05 on every joint); {found}.")
+    body = join(para(state),
+                para("n_eff = n / (1 + 2 \u03a3_{k<K} \u03c1_k), K the first lag where the residual's "
+                     "autocorrelation falls inside the white-noise band 2/\u221an. A correlated residual "
+                     "(small Ljung-Box p, \u03c4_int well above 1) makes tests that count the samples as "
+                     "independent optimistic; it comes from a missing effect only if the diagnosis finds "
+                     "one (filtering and decimation alone correlate the residual too). Residual PDFs and "
+                     "tests use only the fitted rows.", cls="hint"))
     return Section("diagnosis-residuals", "Residuals before and after", body, figures=figs,
                    tables=[tab])
 

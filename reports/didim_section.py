@@ -173,11 +173,22 @@ def _convergence_section(res):
         body = join(body, Markup("<h3>Notices</h3>"), bullets(res.notices, cls="notices"))
     fig = convergence_figure(h, float(s["tol"]))
     n = res.q_sim.shape[1]
+    # one step index everywhere: the history's own "iteration" column (1, 2, ...), which the
+    # plot, the terminal summary, the JSON and the notices ("step k") use. The columns are
+    # taken as plain arrays: Series keep their 0-based RangeIndex, and pandas would align
+    # them to the new 1-based index (row k showing step k + 1, step 1 lost, last row empty).
+    steps = pd.Index(h["iteration"].to_numpy().astype(int), name="step")
+
+    def col(c, scale=1.0):
+        return scale * h[c].to_numpy(dtype=float)
+
     shown = pd.DataFrame({
-        "step_length": h["step_length"], "rho_norm": h["rho_norm"], "rel_change": h["rel_change"],
-        "output_error": h["output_error"], "rel_error_percent": 100 * h["rel_error"],
-        "max_rel_param_change": h["max_rel_param_change"], "max_change_sigma": h["max_change_sigma"],
-    }, index=pd.Index(h["iteration"].astype(int), name="step"))
+        "step_length": col("step_length"), "rho_norm": col("rho_norm"),
+        "rel_change": col("rel_change"), "output_error": col("output_error"),
+        "rel_error_percent": col("rel_error", 100.0),
+        "max_rel_param_change": col("max_rel_param_change"),
+        "max_change_sigma": col("max_change_sigma"),
+    }, index=steps)
     labels = {"step_length": "step length", "rho_norm": "\u2016\u03c1\u2016",
               "rel_change": "relative change", "output_error": "output error",
               "rel_error_percent": "relative error [%]",
@@ -185,11 +196,9 @@ def _convergence_section(res):
               "max_change_sigma": "max change [\u03c3]"}
     tab = T.make_table(shown, "tab-didim-history", "Gauss-Newton steps", labels=labels,
                        formats={"rel_error_percent": "num"}, csv_frame=h.set_index("iteration"))
-    track = pd.DataFrame({
-        **{f"track_rms_{j + 1}": 1e3 * h[f"track_rms_{j + 1}"] for j in range(n)},
-    }, index=pd.Index(h["iteration"].astype(int), name="step"))
-    kd = pd.DataFrame({f"kd_scale_{j + 1}": h[f"kd_scale_{j + 1}"] for j in range(n)},
-                      index=pd.Index(h["iteration"].astype(int), name="step"))
+    track = pd.DataFrame({f"track_rms_{j + 1}": col(f"track_rms_{j + 1}", 1e3) for j in range(n)},
+                         index=steps)
+    kd = pd.DataFrame({f"kd_scale_{j + 1}": col(f"kd_scale_{j + 1}") for j in range(n)}, index=steps)
     tab_track = T.make_table(track, "tab-didim-tracking",
                              "RMS tracking error of each step's simulation, q\u1d63 \u2212 q_sim [mrad]",
                              labels={f"track_rms_{j + 1}": f"j{j + 1}" for j in range(n)})
@@ -234,7 +243,8 @@ def _torque_section(res, reference):
                           caption="Actual torque Y(\u03c4) (red) and the torque of the identified model "
                                   "on the simulated motion, W\u03b4(q_ddm, q\u0307_ddm, q\u0308_ddm, "
                                   "\u03c7\u0302)\u03c7\u0302 (blue), at the decimated rate (Fig. 6)",
-                          labels=("actual Y(\u03c4)", "DIDIM W\u03b4\u03c7\u0302"))
+                          labels=("actual Y(\u03c4)", "DIDIM W\u03b4\u03c7\u0302"),
+                          mask=res.row_mask)
     r = res.result
     df = pd.DataFrame({"rms": np.asarray(r.rms, dtype=float),
                        "rel_error_percent": 100 * np.asarray(r.joint_rel_error, dtype=float)},

@@ -35,6 +35,7 @@ __all__ = [
     "FigureMarkup", "MAX_POINTS", "SVG_MAX_VERTICES", "RED", "BLUE",
     "decimate_for_plot", "joint_label", "render_figure",
     "torque_figure", "residual_pdf_figure", "essential_path_figure", "rel_std_bar_figure",
+    "verdict_rel_std_figure", "masked",
 ]
 
 #: Samples per line above which a series is decimated for plotting.
@@ -42,6 +43,8 @@ MAX_POINTS = 5000
 #: Total line vertices above which a figure is written as PNG rather than SVG.
 SVG_MAX_VERTICES = 20000
 RED, BLUE, GREY, GREEN = "#d62728", "#1f4fb4", "#777777", "#2ca02c"
+AMBER = "#c77700"
+EXCLUDED_COLOR = "#e3e6ea"
 PAPER_COLOR = "#e0a030"
 
 STYLE = {
@@ -203,14 +206,49 @@ def grid_shape(n: int, max_cols: int = 3):
 
 
 # ------------------------------------------------------------------ figures
+def masked(values, mask):
+    """``values`` with the samples outside ``mask`` set to NaN (drawn as gaps, never as zeros)."""
+    values = np.asarray(values, dtype=float)
+    if mask is None:
+        return values
+    m = np.broadcast_to(np.asarray(mask, dtype=bool), values.shape)
+    return np.where(m, values, np.nan)
+
+
+def _excluded_spans(t, excluded):
+    """(start, end) time spans of consecutive excluded samples."""
+    spans = []
+    k, n = 0, len(excluded)
+    while k < n:
+        if excluded[k]:
+            s0 = k
+            while k < n and excluded[k]:
+                k += 1
+            lo = t[s0 - 1] if s0 > 0 else t[s0]
+            hi = t[k] if k < n else t[k - 1]
+            spans.append((0.5 * (lo + t[s0]), 0.5 * (hi + t[k - 1])))
+        else:
+            k += 1
+    return spans
+
+
 def torque_figure(t, measured, estimated, joint_names, *, key="fig-torque", caption=None,
-                  fmt="auto", ylabel="torque [N m]", labels=("measured", "estimated")):
-    """Measured (red) vs estimated (blue) torque, one small subplot per joint (Fig. 6)."""
+                  fmt="auto", ylabel="torque [N m]", labels=("measured", "estimated"), mask=None,
+                  shade=None, shade_label="velocity dead zone"):
+    """Measured (red) vs estimated (blue) torque, one small subplot per joint (Fig. 6).
+
+    ``mask`` (N, n): samples NOT in it (e.g. the velocity dead zone, zeroed
+    for the fit) are drawn as gaps in both curves on a grey band, never as
+    zeros. NaN samples are gaps too. ``shade`` (N, n): samples drawn normally but
+    on a grey band labelled ``shade_label`` (e.g. the dead zone of held-out data,
+    predicted but left out of the moving-sample error).
+    """
     t = np.asarray(t, dtype=float)
-    measured = np.asarray(measured, dtype=float)
-    estimated = np.asarray(estimated, dtype=float)
+    measured = masked(measured, mask)
+    estimated = masked(estimated, mask)
     n = measured.shape[1]
     idx, step = decimate_for_plot(t.size)
+    any_excluded = False
     with matplotlib.rc_context(STYLE):
         rows, cols = grid_shape(n)
         fig = _new_figure(3.3 * cols, 1.9 * rows + 0.3)
@@ -220,6 +258,17 @@ def torque_figure(t, measured, estimated, joint_names, *, key="fig-torque", capt
             if j >= n:
                 ax.set_visible(False)
                 continue
+            excl = ~np.isfinite(measured[:, j])
+            if shade is not None and not excl.any():
+                sh = np.broadcast_to(np.asarray(shade, dtype=bool), measured.shape)[:, j]
+                for k, (a, b) in enumerate(_excluded_spans(t, sh)):
+                    ax.axvspan(a, b, color=EXCLUDED_COLOR, lw=0, zorder=0,
+                               label=shade_label if k == 0 else None)
+            if excl.any():
+                any_excluded = True
+                for k, (a, b) in enumerate(_excluded_spans(t, excl)):
+                    ax.axvspan(a, b, color=EXCLUDED_COLOR, lw=0, zorder=0,
+                               label="excluded (not measured here)" if k == 0 else None)
             ax.plot(t[idx], measured[idx, j], color=RED, lw=0.9, label=labels[0])
             ax.plot(t[idx], estimated[idx, j], color=BLUE, lw=0.8, label=labels[1])
             ax.set_title(_plain(joint_label(j, joint_names[j])), loc="left")
@@ -228,10 +277,17 @@ def torque_figure(t, measured, estimated, joint_names, *, key="fig-torque", capt
             if j >= n - cols:
                 ax.set_xlabel("time [s]")
                 ax.tick_params(labelbottom=True)
-        handles, texts = axes.flat[0].get_legend_handles_labels()
-        fig.legend(handles, texts, loc="outside upper right", ncols=2, frameon=False)
+        handles, texts = [], []
+        for ax in axes.flat[:n]:
+            for h, tx in zip(*ax.get_legend_handles_labels()):
+                if tx not in texts:
+                    handles.append(h)
+                    texts.append(tx)
+        fig.legend(handles, texts, loc="outside upper right", ncols=3, frameon=False)
     if caption is None:
         caption = "Measured torque (red) and torque estimated by the identified model (blue), per joint"
+    if any_excluded:
+        caption += "; excluded samples are gaps on a grey band, not zeros"
     if step > 1:
         caption += f" (every {step}th of {t.size} samples plotted)"
     return render_figure(fig, key, caption, fmt=fmt)
@@ -374,4 +430,39 @@ def rel_std_bar_figure(names, rel_sigma, reference=None, *, key="fig-rel-std",
             caption += ", beside the paper's %\u03c3 (Table 2) where the parameter is in both"
         if logy:
             caption += " (log scale)"
+    return render_figure(fig, key, caption, fmt=fmt)
+
+
+def verdict_rel_std_figure(names, rel_sigma, threshold, *, key="fig-verdict-rel-std", caption=None,
+                           fmt="auto"):
+    """%σ of the essential parameters with the identification threshold; flagged bars in amber."""
+    names = [str(n) for n in names]
+    rs = np.asarray(rel_sigma, dtype=float)
+    bad = ~(rs <= threshold)
+    x = np.arange(len(names))
+    finite = rs[np.isfinite(rs) & (rs > 0)]
+    logy = finite.size > 0 and max(finite.max(), threshold) / max(min(finite.min(), threshold), 1e-12) > 30
+    with matplotlib.rc_context(STYLE):
+        fig = _new_figure(min(10.5, max(4.0, 0.26 * len(names) + 1.2)), 2.6)
+        ax = fig.subplots()
+        shown = np.where(np.isfinite(rs), rs, np.nan)
+        ax.bar(x[~bad], shown[~bad], width=0.7, color=BLUE, label="identified")
+        if bad.any():
+            top = np.nanmax(np.where(np.isfinite(rs), rs, np.nan)) if np.isfinite(rs).any() else threshold
+            ax.bar(x[bad], np.where(np.isfinite(shown[bad]), shown[bad], 2 * max(top, threshold)),
+                   width=0.7, color=AMBER, hatch="//", edgecolor="white", linewidth=0.0,
+                   label=f"not identified (%\u03c3 > {threshold:g} %)")
+        ax.axhline(threshold, color=RED, ls="--", lw=1.0, label=f"threshold {threshold:g} %")
+        if logy:
+            ax.set_yscale("log")
+            ax.yaxis.set_minor_formatter(NullFormatter())
+        ax.set_xticks(x, [_plain(n) for n in names], rotation=90)
+        ax.set_xlim(-0.6, len(names) - 0.4)
+        ax.set_ylabel("%\u03c3")
+        ax.grid(axis="x", visible=False)
+        fig.legend(*ax.get_legend_handles_labels(), loc="outside upper left", frameon=False, ncols=3)
+    if caption is None:
+        caption = (f"%\u03c3 = 100 \u03c3/|\u03c7\u0302| of the essential parameters; bars above the "
+                   f"{threshold:g} % line (amber, hatched) are flagged as not identified"
+                   + (" (log scale)" if logy else ""))
     return render_figure(fig, key, caption, fmt=fmt)

@@ -38,7 +38,8 @@ from dynid.reports.paper import reference_for
 
 __all__ = [
     "Section", "para", "kv_list", "bullets", "join", "render_sections", "idim_sections",
-    "render_idim_report", "write_report", "environment", "SECTION_IDS",
+    "render_idim_report", "write_report", "environment", "SECTION_IDS", "VerdictBlock",
+    "verdict_block",
 ]
 
 TEMPLATE = "report.html.j2"
@@ -57,7 +58,8 @@ class Section:
     with :func:`para`, :func:`kv_list`, :func:`bullets`, :func:`join`).
     ``figures`` are :class:`dynid.reports.figures.FigureMarkup`, ``tables``
     :class:`dynid.reports.tables.Table`. With ``tables_first`` the tables come
-    before the figures.
+    before the figures. ``details`` are tables shown collapsed (a ``<details>``
+    element titled ``details_summary``): setup tables that are not results.
     """
 
     id: str
@@ -66,6 +68,8 @@ class Section:
     figures: list = field(default_factory=list)
     tables: list = field(default_factory=list)
     tables_first: bool = False
+    details: list = field(default_factory=list)      # tables in a collapsed <details> at the end
+    details_summary: str = "Setup details"
 
 
 # ------------------------------------------------------------------ body helpers
@@ -137,17 +141,18 @@ def _check_sections(sections):
             seen.add(k)
 
 
-def render_sections(sections, *, title, subtitle="", highlights=(), footer=()) -> str:
+def render_sections(sections, *, title, subtitle="", highlights=(), footer=(), verdict=None) -> str:
     """The HTML page of ``sections`` (a list of :class:`Section`).
 
     ``highlights``: (label, value) pairs shown under the title; ``footer``:
-    lines of text at the bottom.
+    lines of text at the bottom; ``verdict``: a :class:`VerdictBlock` (see
+    :func:`verdict_block`) shown first, above the sections.
     """
     sections = list(sections)
     _check_sections(sections)
     html = environment().get_template(TEMPLATE).render(
         title=title, subtitle=subtitle, sections=sections, highlights=list(highlights),
-        footer=list(footer), generator=f"dynid {versions().get('dynid', '?')}",
+        footer=list(footer), generator=f"dynid {versions().get('dynid', '?')}", verdict=verdict,
     )
     return html
 
@@ -155,6 +160,56 @@ def render_sections(sections, *, title, subtitle="", highlights=(), footer=()) -
 def write_report(path, html: str) -> None:
     """Write ``html`` to ``path`` atomically (all or nothing, never half a file)."""
     atomic_write_text(path, html)
+
+
+# ------------------------------------------------------------------ the verdict
+#: level -> (css class, icon); the same colours and icons everywhere in the verdict block
+LEVELS = {"ok": ("ok", "\u2714"), "info": ("info", "\u2139"), "warn": ("warn", "\u26a0"),
+          "bad": ("bad", "\u2716")}
+STATUS_LEVEL = {"identified": "ok", "identified with reservations": "warn", "not identified": "bad"}
+
+
+@dataclass
+class VerdictBlock:
+    """What the template shows first: status, findings, the %σ figure and the parameter table."""
+
+    status: str
+    level: str
+    icon: str
+    findings: list                  # (css class, icon, text)
+    flagged_parameters: list
+    flagged_joints: list
+    figure: object = None           # FigureMarkup
+    table: object = None            # Table
+
+
+def verdict_block(v) -> VerdictBlock:
+    """The :class:`VerdictBlock` of a :class:`dynid.analysis.statistics.verdict.Verdict`."""
+    level = STATUS_LEVEL.get(v.status, "warn")
+    findings = [(LEVELS.get(f["level"], LEVELS["info"])[0], LEVELS.get(f["level"], LEVELS["info"])[1],
+                 f["text"]) for f in v.findings]
+    names = [p["name"] for p in v.parameters]
+    fig = F.verdict_rel_std_figure(names, [p["rel_std_percent"] for p in v.parameters],
+                                   v.rel_std_threshold) if names else None
+    ap = {c["name"]: c for c in (v.apriori or {}).get("compared", [])}
+    df = pd.DataFrame({
+        "value": [p["value"] for p in v.parameters],
+        "unit": [p["unit"] for p in v.parameters],
+        "rel_std_percent": [p["rel_std_percent"] for p in v.parameters],
+        "identified": [not p["flagged"] for p in v.parameters],
+        "apriori": [ap[n]["apriori"] if n in ap else np.nan for n in names],
+        "n_sigma": [ap[n]["n_sigma"] if n in ap else np.nan for n in names],
+    }, index=pd.Index(names, name="parameter"))
+    k = (v.apriori or {}).get("k", 3.0)
+    tab = T.make_table(df, "tab-verdict-parameters",
+                       f"Essential parameters: value, %\u03c3 (identified when \u2264 "
+                       f"{v.rel_std_threshold:g} %), a-priori value and distance to it",
+                       formats={"unit": "text", "identified": "bool", "rel_std_percent": "pct"},
+                       labels={"value": "\u03c7\u0302", "rel_std_percent": "%\u03c3",
+                               "apriori": "a-priori", "n_sigma": f"|\u03c7\u0302 \u2212 a-priori| / \u03c3 (flag > {k:g})"})
+    return VerdictBlock(status=v.status, level=LEVELS[level][0], icon=LEVELS[level][1],
+                        findings=findings, flagged_parameters=list(v.not_identified),
+                        flagged_joints=list(v.flagged_joints), figure=fig, table=tab)
 
 
 # ------------------------------------------------------------------ IDIM sections
@@ -235,7 +290,8 @@ def _run_section(res, robot, experiment, reference):
     vdf = pd.DataFrame({"package": list(vers), "version": list(vers.values())}).set_index("package")
     t_versions = T.make_table(vdf, "tab-versions", "dynid and dependency versions",
                               formats={"version": "code"})
-    return Section("run", "Run and data", body, tables=[t_settings, t_versions])
+    return Section("run", "Run and data", body, details=[t_settings, t_versions],
+                   details_summary="Processing settings and versions")
 
 
 def _model_section(robot, res):
@@ -283,13 +339,16 @@ def _model_section(robot, res):
     if prov:
         pdf = pd.DataFrame({"what": list(prov), "source": [str(v) for v in prov.values()]}).set_index("what")
         tables.append(T.make_table(pdf, "tab-provenance", "Provenance of the robot's numbers"))
-    return Section("model", "Model", join(*desc), tables=tables)
+    return Section("model", "Model", join(*desc), details=tables,
+                   details_summary="DH table, joints and limits, provenance")
 
 
 def _base_section(res):
     table = res.parameter_table()
+    from dynid.analysis.statistics.verdict import parameter_unit
     shown = pd.DataFrame({
         "relation": [r.split(" = ", 1)[1] if " = " in r else r for r in table["relation"]],
+        "unit": [parameter_unit(n) for n in table.index],
         "ols": table["ols"], "ols_rel_std": table["ols_rel_std"],
         "wls": table["wls"], "wls_rel_std": table["wls_rel_std"],
         "essential": table["essential"].astype(bool),
@@ -303,7 +362,7 @@ def _base_section(res):
         labels["true"] = "true value"
         csv_frame = table.assign(true=[res.truth.get(n, np.nan) for n in table.index])
     tab = T.make_table(shown, "tab-base", "Base parameters: OLS and per-joint WLS estimates",
-                       formats={"relation": "code", "essential": "bool"}, labels=labels,
+                       formats={"relation": "code", "essential": "bool", "unit": "text"}, labels=labels,
                        csv_frame=csv_frame, cls="base")
     body = join(
         para(f"{res.base.n_base} base parameters (eq. (4)), {len(res.model.names)} essential. "
@@ -383,52 +442,90 @@ def _torque_section(res, robot, reference):
     obs = res.observation
     names = _joint_names(robot, obs.tau.shape[1])
     est = res.predict(obs.W)
-    fig = F.torque_figure(obs.t, obs.tau, est, names, key="fig-torque",
-                          caption="Identification data: measured torque Y(\u03c4) (red) and torque "
-                                  "estimated by the essential WLS model W\u03c7\u0302 (blue), per joint, "
-                                  "at the decimated rate (layout of Fig. 6 of the paper)")
+    mask = np.broadcast_to(np.asarray(obs.row_mask, dtype=bool), obs.tau.shape)
+    frac = float(mask.mean())
+    fitted = f"fitted (moving) samples, {_pct(frac, 1)} of rows"
+    fig = F.torque_figure(obs.t, obs.tau, est, names, key="fig-torque", mask=mask,
+                          caption="Identification data, " + fitted + ": measured torque Y(\u03c4) (red) "
+                                  "and torque estimated by the essential WLS model W\u03c7\u0302 (blue), "
+                                  "per joint, at the decimated rate (layout of Fig. 6 of the paper)")
     m = res.model
     tab = _joint_error_table("tab-torque-errors", "Per-joint residual of the essential model "
-                             "(identification data, equations used)", names, m.rms,
+                             f"(identification data, {fitted})", names, m.rms,
                              m.joint_rel_error, m.joint_sigma)
     text = (f"Relative error norm \u2016Y \u2212 W\u03c7\u0302\u2016/\u2016Y\u2016 of the essential model on "
-            f"the identification data: {_pct(m.rel_error)}.")
+            f"the identification data ({fitted}; the rest is the velocity dead zone, where "
+            f"Coulomb friction's sign is undetermined at rest): {_pct(m.rel_error)}.")
     if reference is not None and "rel_error_below" in reference.settings:
         text += f" The paper reports below {_pct(reference.settings['rel_error_below'], 0)} for IDIM-LS and DIDIM."
     return Section("torques", "Measured vs estimated torque", para(text), figures=[fig], tables=[tab])
 
 
 def _validation_section(res, robot, validation):
+    from dynid.analysis.statistics.validation import DEAD_ZONE_REASON
     n = validation.tau.shape[1]
     names = _joint_names(robot, n)
+    excl = float(getattr(validation, "excluded_fraction", 0.0))
     pairs = [("Validation data", code(validation.source)),
-             ("Samples", f"{len(validation.t)} decimated samples"),
-             ("Relative error \u2016\u03c4 \u2212 \u03c4\u0302\u2016/\u2016\u03c4\u2016", _pct(validation.rel_error))]
+             ("Samples", f"{len(validation.t)} decimated samples, all of them predicted"),
+             ("Relative error \u2016\u03c4 \u2212 \u03c4\u0302\u2016/\u2016\u03c4\u2016, all samples",
+              _pct(validation.rel_error)),
+             ("Moving samples only", f"{_pct(validation.moving_rel_error)} ({_pct(excl, 1)} of the "
+                                     f"equations excluded: {DEAD_ZONE_REASON})")]
     body = kv_list(pairs)
     if validation.notices:
         body = join(body, Markup("<h3>Notices</h3>"), bullets(validation.notices, cls="notices"))
     body = join(body, para("The essential model predicts torques of data it was not fitted to, "
-                           "processed with the same filter and decimation. A Gaussian residual "
-                           "(Jarque-Bera and Shapiro-Wilk p not small) supports the least-squares "
-                           "assumptions behind %\u03c3.", cls="hint"))
+                           "processed with the same filter and decimation. The headline error is over "
+                           "ALL held-out samples (\u03c4\u0302 = W\u03c7\u0302, nothing zeroed); the "
+                           "moving-sample error leaves out the rows of the velocity dead zone, as the "
+                           "fit did. A Gaussian residual (Jarque-Bera and Shapiro-Wilk p not small) "
+                           "supports the least-squares assumptions behind %\u03c3.", cls="hint"))
     fig_t = F.torque_figure(validation.t, validation.tau, validation.tau_hat, names,
                             key="fig-validation-torque",
-                            caption="Validation data: measured torque (red) and torque predicted by "
-                                    "the essential model (blue), per joint")
+                            shade=None if validation.mask is None else ~np.asarray(validation.mask),
+                            shade_label="dead zone: in the all-sample error, not in the moving one",
+                            caption="Validation data, all held-out samples: measured torque (red) and "
+                                    "torque predicted by the essential model (blue), per joint; grey "
+                                    "bands: the velocity dead zone, left out of the moving-sample error")
     fig_p = F.residual_pdf_figure(validation.residual, names,
                                   np.asarray(validation.noise["jarque_bera_p"], dtype=float),
-                                  key="fig-residual-pdf")
-    tab_e = _joint_error_table("tab-validation-errors", "Per-joint prediction error (validation data)",
-                               names, validation.rms, validation.joint_rel_error)
-    noise = validation.noise.copy()
-    noise.insert(0, "name", names[:len(noise)])
-    noise.index.name = "j"
-    tab_n = T.make_table(noise, "tab-normality", "Residual noise-PDF checks per joint",
-                         formats={"name": "text"},
-                         labels={"name": "joint", "jarque_bera": "Jarque-Bera",
-                                 "jarque_bera_p": "JB p", "shapiro": "Shapiro-Wilk W",
-                                 "shapiro_p": "SW p"})
-    return Section("validation", "Validation", body, figures=[fig_t, fig_p], tables=[tab_e, tab_n])
+                                  key="fig-residual-pdf",
+                                  caption="Validation residual PDF per joint, all held-out samples: "
+                                          "histogram, fitted normal density (red), kernel density "
+                                          "estimate (blue, dashed); Jarque-Bera p-value in the title")
+    tab_e = _joint_error_table("tab-validation-errors", "Per-joint prediction error (validation data, "
+                               "all samples)", names, validation.rms, validation.joint_rel_error)
+    mj = getattr(validation, "moving_joint_rel_error", None)
+    tab_e_m = None
+    if mj is not None:
+        df = pd.DataFrame({"joint": names, "rel_error_percent": 100 * np.asarray(mj, dtype=float),
+                           "excluded_percent": 100 * np.asarray(validation.excluded_per_joint)},
+                          index=pd.Index(np.arange(1, n + 1), name="j"))
+        tab_e_m = T.make_table(df, "tab-validation-errors-moving", "Per-joint prediction error on the "
+                               "moving samples only (dead-zone rows excluded)",
+                               formats={"joint": "text", "rel_error_percent": "num",
+                                        "excluded_percent": "num"},
+                               labels={"rel_error_percent": "relative error [%]",
+                                       "excluded_percent": "excluded [%]"})
+    tabs = [tab_e] + ([tab_e_m] if tab_e_m is not None else [])
+    for key, caption, frame in (("tab-normality", "Residual noise-PDF checks per joint (all samples)",
+                                 validation.noise),
+                                ("tab-normality-moving", "Residual noise-PDF checks per joint (moving "
+                                 "samples: the rows the diagnosis tests)",
+                                 getattr(validation, "noise_moving", None))):
+        if frame is None:
+            continue
+        noise = frame.copy()
+        noise.insert(0, "name", names[:len(noise)])
+        noise.index.name = "j"
+        tabs.append(T.make_table(noise, key, caption, formats={"name": "text", "n": "int",
+                                                               "shapiro_n": "int"},
+                                 labels={"name": "joint", "excess_kurtosis": "excess kurtosis",
+                                         "jarque_bera": "Jarque-Bera", "jarque_bera_p": "JB p",
+                                         "shapiro": "Shapiro-Wilk W", "shapiro_p": "SW p",
+                                         "shapiro_n": "SW samples (evenly spaced)"}))
+    return Section("validation", "Validation", body, figures=[fig_t, fig_p], tables=tabs)
 
 
 def idim_sections(idim_result, robot, experiment=None, validation=None, *, reference="auto"):
@@ -453,12 +550,17 @@ def idim_sections(idim_result, robot, experiment=None, validation=None, *, refer
 
 
 def render_idim_report(idim_result, robot, experiment=None, validation=None, *, title=None,
-                       extra_sections=None, reference="auto") -> str:
+                       extra_sections=None, reference="auto", verdict=None) -> str:
     """One self-contained HTML page reporting an IDIM identification.
 
     ``extra_sections`` (list of :class:`Section`) are appended after the
-    standard ones. Returns the HTML text; write it with :func:`write_report`.
+    standard ones. ``verdict``: a :class:`dynid.analysis.statistics.verdict.Verdict`
+    (computed from the result and the validation if not given), shown first.
+    Returns the HTML text; write it with :func:`write_report`.
     """
+    if verdict is None:
+        from dynid.analysis.statistics.verdict import verdict as _verdict
+        verdict = _verdict(idim_result, validation, robot=robot)
     if isinstance(reference, str) and reference == "auto":
         reference = reference_for(robot)
     sections = idim_sections(idim_result, robot, experiment, validation, reference=reference)
@@ -468,10 +570,12 @@ def render_idim_report(idim_result, robot, experiment=None, validation=None, *, 
         ("robot", idim_result.robot_name),
         ("base parameters", str(idim_result.base.n_base)),
         ("essential", str(len(m.names))),
-        ("relative error (identification)", _pct(m.rel_error)),
+        ("relative error (identification, fitted rows)", _pct(m.rel_error)),
     ]
     if validation is not None:
-        highlights.append(("relative error (validation)", _pct(validation.rel_error)))
+        highlights.append(("held-out error (all samples)", _pct(validation.rel_error)))
+        highlights.append(("held-out error (moving samples)", _pct(validation.moving_rel_error)))
+    highlights.insert(0, ("verdict", verdict.status))
     footer = ["Method: IDIM with OLS, per-joint WLS and essential parameters, after section 2 of "
               "Gautier, Janot, Vandanjon (2010)."]
     if reference is not None:
@@ -482,4 +586,5 @@ def render_idim_report(idim_result, robot, experiment=None, validation=None, *, 
         subtitle=str(idim_result.source),
         highlights=highlights,
         footer=footer,
+        verdict=verdict_block(verdict),
     )

@@ -35,14 +35,29 @@ class FullReport:
     sections: list = field(default_factory=list)
     problems: list = field(default_factory=list)
 
+    _verdict: object = field(default=None, repr=False)
+
+    @property
+    def verdict(self):
+        """The :class:`dynid.analysis.statistics.verdict.Verdict` of this report (computed once)."""
+        if self._verdict is None:
+            from dynid.analysis.statistics.verdict import verdict
+            residuals = None
+            if self.diagnosis is not None:
+                residuals = (getattr(self.diagnosis, "residuals", None) or {}).get("identification_before")
+            self._verdict = verdict(self.result, self.validation, robot=self.robot,
+                                    diagnosis=self.diagnosis, residuals=residuals)
+        return self._verdict
+
     @property
     def html(self) -> str:
         from dynid.reports.html import render_idim_report
         return render_idim_report(self.result, self.robot, self.experiments[0], self.validation,
-                                  extra_sections=self.sections)
+                                  extra_sections=self.sections, verdict=self.verdict)
 
     def to_dict(self) -> dict:
         doc = self.result.to_dict()
+        doc["verdict"] = self.verdict.to_dict()
         doc["validation"] = self.validation.to_dict() if self.validation is not None else None
         for key, part in (("didim", self.didim), ("posterior", self.posterior), ("diagnosis", self.diagnosis)):
             if part is not None:
@@ -51,7 +66,8 @@ class FullReport:
         return doc
 
     def summary(self) -> str:
-        parts = [self.result.summary(), self.validation.summary() if self.validation is not None else ""]
+        parts = [self.verdict.summary(), self.result.summary(),
+                 self.validation.summary() if self.validation is not None else ""]
         parts += [p.summary() for p in (self.didim, self.posterior, self.diagnosis) if p is not None]
         return "\n\n".join(p for p in parts if p)
 

@@ -107,3 +107,40 @@ def test_hostile_names_do_not_execute(tmp_path):
     assert ev["imgs_x"] == 0                         # the <img> was not created
     assert ev["console_errors"] == [] and ev["page_errors"] == []
     assert "<script>alert(1)</script>" in ev["body_text"]    # shown as text
+
+
+def _verdict_in_browser(html_path):
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=ARGS)
+        page = browser.new_page(viewport={"width": 1280, "height": 900})
+        page.goto(html_path.resolve().as_uri())
+        page.wait_for_load_state("load")
+        got = page.eval_on_selector(
+            "#verdict", "v => ({status: v.dataset.status, params: v.dataset.flaggedParameters,"
+            " joints: v.dataset.flaggedJoints, text: v.innerText,"
+            " top: v.getBoundingClientRect().top, first: document.querySelector('main section').id})")
+        browser.close()
+    return got
+
+
+@pytest.mark.parametrize("which", ["demo", "tx40"])
+def test_verdict_block_matches_the_json(tmp_path, which):
+    import json
+    from dynid.reports.cli import main
+    report, js = tmp_path / f"{which}.html", tmp_path / f"{which}.json"
+    if which == "demo":
+        argv = ["demo", "--duration", "8", "--skip", "didim,sample,diagnose"]
+    else:
+        argv = ["identify", str(ROOT / "examples" / "staubli_tx40" / "experiment.toml"), "--robot", "tx40",
+                "--holdout", "3"]
+    assert main(argv + ["--report", str(report), "--json", str(js), "--quiet"]) == 0
+    doc = json.loads(js.read_text())
+    vd = doc["verdict"]
+    got = _verdict_in_browser(report)
+    assert got["first"] == "verdict" and got["top"] < 900             # on the first screen
+    assert got["status"] == vd["status"] and vd["status"].upper() in got["text"].upper()
+    assert got["params"].split() == vd["not_identified"]
+    assert got["joints"].split() == vd["validation"]["flagged_joints"]
+    for name in vd["not_identified"]:
+        assert name in got["text"]
+    assert f"{100 * doc['validation']['all_samples']['rel_error']:.1f} %" in got["text"]

@@ -53,8 +53,8 @@ def test_table_contents_and_shapes():
     tab = res.table
     assert list(tab.index) == ["a", "b", "c"]
     assert list(res.gaussian) == [True, False, False]
-    assert tab.loc["b", "kurtosis"] == pytest.approx(3.0, abs=0.8)      # Laplace: excess 3
-    assert tab.loc["c", "kurtosis"] == pytest.approx(-1.2, abs=0.2)     # uniform: -1.2
+    assert tab.loc["b", "excess_kurtosis"] == pytest.approx(3.0, abs=0.8)      # Laplace: excess 3
+    assert tab.loc["c", "excess_kurtosis"] == pytest.approx(-1.2, abs=0.2)     # uniform: -1.2
     assert tab.loc["a", "std"] == pytest.approx(1.0, abs=0.05)
     for t in ("jarque_bera", "shapiro", "anderson", "lilliefors"):
         assert tab.loc["b", f"{t}_reject"] and 0 <= tab.loc["a", f"{t}_p"] <= 1
@@ -121,7 +121,7 @@ def test_averaged_experiment_noise_is_gaussian_and_torque_dominates():
     tests_tau = noise_pdf_tests(avg.noise["tau"], label="torque noise", unit="N m")
     tests_q = noise_pdf_tests(avg.noise["q"], label="position noise", unit="rad")
     assert all(tests_tau.gaussian) and all(tests_q.gaussian)
-    assert np.all(np.abs(tests_tau.table["kurtosis"]) < 0.2) and np.all(np.abs(tests_tau.table["skew"]) < 0.1)
+    assert np.all(np.abs(tests_tau.table["excess_kurtosis"]) < 0.2) and np.all(np.abs(tests_tau.table["skew"]) < 0.1)
     assert np.allclose(tests_tau.table["std"], sig_tau, rtol=0.05)
     cmp_ = compare_noise(avg.noise["tau"], avg.noise["q"], tau_signal=avg.mean["tau"],
                          q_signal=avg.mean["q"])

@@ -324,8 +324,8 @@ def test_panda_identification_held_out(tmp_path):
     assert r["rel_error_identification"] < 0.012
     assert r["held_out"]["rel_error"] < 0.012
     assert r["n_held"] >= 150
-    # the dead zone was applied in validate() only
-    assert r["validate_rel_error"] != r["held_out"]["rel_error"]
+    # validate() scores all held-out samples too: the same figure as the example's own
+    assert abs(r["validate_rel_error"] - r["held_out"]["rel_error"]) < 1e-3
     assert r["dead_zone"].startswith("velocity dead zone")
     # Gaz's gravity + friction alone misses the inertial torques; completed with dynid's
     # inertial part it is close

@@ -210,7 +210,7 @@ def test_extra_sections_plug_in(planar):
     html = render_idim_report(res, robot, None, None, extra_sections=extra, title="T")
     assert "validation" not in re.findall(r'<section id="([^"]+)"', html)
     ids = re.findall(r'<section id="([^"]+)"', html)
-    assert ids == [s for s in SECTION_IDS if s != "validation"] + ["diagnosis", "posterior"]
+    assert ids == ["verdict"] + [s for s in SECTION_IDS if s != "validation"] + ["diagnosis", "posterior"]
     assert "&lt;b&gt;plain text is escaped&lt;/b&gt;" in html
     assert "Diagnosis &lt;draft&gt;" in html
     assert "<p>value <em>trusted</em></p>" in html
@@ -359,3 +359,29 @@ def test_svg_is_inline_ready_and_stable():
     pdf = F.residual_pdf_figure(np.random.default_rng(0).standard_normal((300, 2)), ["j1", "$x$"],
                                 [0.5, 1e-9], key="fig-c")
     assert "JB p = 0.5" in str(pdf.markup) and "$x$" in str(pdf.markup)
+
+
+def test_no_excluded_sample_is_drawn_at_zero(planar, monkeypatch):
+    """Rows of the velocity dead zone (zeroed in W and Y for the fit) are gaps in every plot."""
+    import matplotlib.axes
+    robot, ident, res, val = planar
+    obs = res.observation
+    excluded = ~np.broadcast_to(np.asarray(obs.row_mask, dtype=bool), obs.tau.shape)
+    assert excluded.any(), "the planar data must have dead-zone rows for this test to mean anything"
+    # what the fit sees there: rows (partly) zeroed before decimation, not measurements
+    drawn = []
+    plot = matplotlib.axes.Axes.plot
+
+    def spy(self, *args, **kwargs):
+        lines = plot(self, *args, **kwargs)
+        for ln in lines:
+            drawn.append(np.asarray(ln.get_ydata(), dtype=float))
+        return lines
+
+    monkeypatch.setattr(matplotlib.axes.Axes, "plot", spy)
+    render_idim_report(res, robot, ident, val)
+    assert drawn
+    zeros = sum(int(np.sum(y == 0.0)) for y in drawn)
+    assert zeros == 0, f"{zeros} plotted samples are exactly zero (excluded rows drawn as measurements)"
+    # the held-out figures show every sample: nothing there is NaN
+    assert np.all(np.isfinite(val.tau)) and np.all(np.isfinite(val.tau_hat))

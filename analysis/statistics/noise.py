@@ -8,8 +8,10 @@ with the validation error. This module gives the numbers behind such a
 figure.
 
 :func:`noise_pdf_tests`
-    Per joint (column): mean, standard deviation, skewness, excess kurtosis
-    (0 for a Gaussian) and four normality tests,
+    Per joint (column): mean, standard deviation, skewness, ``excess_kurtosis``
+    (0 for a Gaussian) and four normality tests (the first two, and the
+    moments, from :func:`normality_row`, the one normality computation that
+    validation and the residual analysis use too),
 
     * Jarque-Bera (``statsmodels.stats.stattools.jarque_bera``; asymptotic
       chi-square p-value),
@@ -67,7 +69,7 @@ from statsmodels.stats.stattools import jarque_bera
 from dynid.errors import InputError
 
 __all__ = ["NoiseTests", "noise_pdf_tests", "noise_pdf", "compare_noise", "NoiseComparison",
-           "TESTS", "RULES"]
+           "TESTS", "RULES", "normality", "normality_row", "shapiro_subsample"]
 
 TESTS = ("jarque_bera", "shapiro", "anderson", "lilliefors")
 RULES = ("primary", "bonferroni", "all")
@@ -106,23 +108,72 @@ def _anderson(e):
         return float(r.statistic), float(np.interp(r.statistic, crit, levels))
 
 
-def _one(e, max_shapiro):
+def shapiro_subsample(e, max_shapiro=MAX_SHAPIRO):
+    """The evenly spaced subsample Shapiro-Wilk is run on: every ``ceil(N / max_shapiro)``-th sample."""
+    step = int(math.ceil(e.size / max_shapiro)) if e.size else 1
+    return e[::max(1, step)]
+
+
+def normality_row(e, max_shapiro=MAX_SHAPIRO):
+    """THE normality computation of dynid, for one residual or noise column.
+
+    Non-finite samples (NaN marks a sample that was not fitted or predicted,
+    e.g. a row in the velocity dead zone) are dropped first. Returns ``n``,
+    ``mean``, ``std``, ``skew``, ``excess_kurtosis`` (0 for a Gaussian),
+    Jarque-Bera (statistic and asymptotic p, statsmodels) and Shapiro-Wilk
+    (scipy; on the evenly spaced subsample of :func:`shapiro_subsample`, at
+    most ``max_shapiro`` = 5000 samples, ``shapiro_n`` of them). Validation
+    (:func:`dynid.analysis.statistics.validation.normality`), the residual
+    analysis and the noise sections all call it, so one residual always gets
+    one set of numbers.
+    """
+    e = np.asarray(e, dtype=float)
     e = e[np.isfinite(e)]
-    n = e.size
-    row = {"n": n, "mean": np.nan, "std": np.nan, "skew": np.nan, "kurtosis": np.nan}
-    for name in TESTS:
-        row[name] = np.nan
-        row[f"{name}_p"] = np.nan
-    if n < 8 or np.ptp(e) == 0:
+    n = int(e.size)
+    row = {"n": n, "mean": np.nan, "std": np.nan, "skew": np.nan, "excess_kurtosis": np.nan,
+           "jarque_bera": np.nan, "jarque_bera_p": np.nan, "shapiro": np.nan, "shapiro_p": np.nan,
+           "shapiro_n": 0}
+    if n < 3:
+        return row
+    row["mean"] = float(e.mean())
+    row["std"] = float(e.std(ddof=1))
+    if np.ptp(e) == 0:
         return row
     jb, jb_p, skew, kurt = jarque_bera(e)
-    row.update(mean=float(e.mean()), std=float(e.std(ddof=1)), skew=float(skew),
-               kurtosis=float(kurt) - 3.0)
-    row["jarque_bera"], row["jarque_bera_p"] = float(jb), float(jb_p)
-    step = int(math.ceil(n / max_shapiro))
-    sw = stats.shapiro(e[::step])
-    row["shapiro"], row["shapiro_p"] = float(sw.statistic), float(sw.pvalue)
-    row["shapiro_n"] = int(e[::step].size)
+    row.update(skew=float(skew), excess_kurtosis=float(kurt) - 3.0, jarque_bera=float(jb),
+               jarque_bera_p=float(jb_p))
+    sub = shapiro_subsample(e, max_shapiro)
+    sw = stats.shapiro(sub)
+    row.update(shapiro=float(sw.statistic), shapiro_p=float(sw.pvalue), shapiro_n=int(sub.size))
+    return row
+
+
+def normality(residual, names=None, max_shapiro=MAX_SHAPIRO):
+    """Per-joint :func:`normality_row` of ``residual`` (N,) or (N, n); DataFrame indexed by joint.
+
+    The index is ``joint`` = 1..n unless ``names`` are given. NaN samples are
+    left out (pass the residual with the rows that were not fitted set to NaN).
+    """
+    a = np.asarray(residual, dtype=float)
+    if a.ndim == 1:
+        a = a[:, None]
+    rows = [normality_row(a[:, j], max_shapiro) for j in range(a.shape[1])]
+    index = (pd.Index(list(names), name="joint") if names is not None
+             else pd.Index(np.arange(1, a.shape[1] + 1), name="joint"))
+    return pd.DataFrame(rows, index=index)
+
+
+def _one(e, max_shapiro):
+    row = normality_row(e, max_shapiro)
+    for name in ("anderson", "lilliefors"):
+        row[name] = np.nan
+        row[f"{name}_p"] = np.nan
+    e = np.asarray(e, dtype=float)
+    e = e[np.isfinite(e)]
+    if e.size < 8 or np.ptp(e) == 0:
+        for name in ("jarque_bera", "shapiro"):
+            row[name] = row[f"{name}_p"] = np.nan
+        return row
     row["anderson"], row["anderson_p"] = _anderson(e)
     lf, lf_p = lilliefors(e, dist="norm", pvalmethod="table")
     row["lilliefors"], row["lilliefors_p"] = float(lf), float(lf_p)
@@ -174,7 +225,7 @@ class NoiseTests:
         lines = [f"Noise PDF tests of {self.label} ({self.rule_text()}):",
                  "  joint        n        std     skew  ex.kurt    JB p    SW p    AD p    LF p  gaussian"]
         for name, r in self.table.iterrows():
-            lines.append(f"  {name:>5} {int(r['n']):8d} {r['std']:10.4g} {r['skew']:8.3f} {r['kurtosis']:8.3f} "
+            lines.append(f"  {name:>5} {int(r['n']):8d} {r['std']:10.4g} {r['skew']:8.3f} {r['excess_kurtosis']:8.3f} "
                          f"{r['jarque_bera_p']:7.3g} {r['shapiro_p']:7.3g} {r['anderson_p']:7.3g} "
                          f"{r['lilliefors_p']:7.3g}  {'yes' if r['gaussian'] else 'no'}")
         return "\n".join(lines)
@@ -210,7 +261,7 @@ def noise_pdf_tests(noise, alpha=0.05, *, rule="primary", primary="shapiro", nam
         row["gaussian"] = _verdict(row, alpha, rule, primary)
         rows.append(row)
     table = pd.DataFrame(rows, index=pd.Index(names, name="joint"))
-    order = ["n", "mean", "std", "skew", "kurtosis"]
+    order = ["n", "mean", "std", "skew", "excess_kurtosis"]
     for t in TESTS:
         order += [t, f"{t}_p", f"{t}_reject"]
     order += [c for c in table.columns if c not in order and c != "gaussian"] + ["gaussian"]

@@ -2,10 +2,22 @@
 
 The identified model predicts τ̂ = W χ̂ on data it was not fitted to (a second
 recording or a held-out time segment), processed with the *same* filter and
-decimation settings. Reported: the relative error norm ‖τ − τ̂‖ / ‖τ‖ over
-all joints, per-joint RMS and relative error, and whether each joint's
-residual looks Gaussian (Jarque-Bera from statsmodels, Shapiro-Wilk from
-scipy), the noise-PDF check of both papers.
+decimation settings.
+
+**All samples first.** The headline numbers (``rel_error``, ``rms``,
+``joint_rel_error``; JSON ``validation.all_samples``) are over ALL held-out
+decimated samples: the held-out system is built with the velocity dead zone
+OFF (``qd_threshold = 0``), so τ is the measured torque and τ̂ the model's
+prediction everywhere, nothing zeroed. Beside them, the error over the
+*moving* samples (JSON ``validation.moving_samples``): the same system with
+the training dead zone applied (rows where a joint is slow zeroed in W and τ
+before decimation, rows whose window kept < half its samples dropped), scored
+on the rows the estimator would use. Those rows are excluded from the fit
+because Coulomb friction's sign is undetermined at rest; the excluded fraction
+is reported with it.
+
+Per joint the residual's normality (:func:`normality`, the one computation of
+:mod:`dynid.analysis.statistics.noise`) on all samples, and on the moving rows.
 """
 from __future__ import annotations
 
@@ -13,69 +25,131 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
-from scipy import stats
-from statsmodels.stats.stattools import jarque_bera
 
 from dynid.analysis.processing.observation import observe
 from dynid.analysis.results import Exportable
+from dynid.analysis.statistics.noise import normality as _normality
+
+#: why the moving-sample figure leaves rows out
+DEAD_ZONE_REASON = "Coulomb friction's sign is undetermined at rest"
 
 
 def normality(residual):
-    """Per-joint noise-PDF checks of a residual (N, n): mean, std, skew, kurtosis, tests."""
-    rows = []
-    for j in range(residual.shape[1]):
-        e = residual[:, j]
-        e = e[np.isfinite(e)]
-        jb, jb_p, skew, kurt = jarque_bera(e)
-        sw = stats.shapiro(e[:5000]) if e.size >= 3 else (np.nan, np.nan)
-        rows.append({"joint": j + 1, "mean": float(e.mean()), "std": float(e.std(ddof=1)),
-                     "skew": float(skew), "kurtosis": float(kurt),
-                     "jarque_bera": float(jb), "jarque_bera_p": float(jb_p),
-                     "shapiro": float(sw[0]), "shapiro_p": float(sw[1])})
-    return pd.DataFrame(rows).set_index("joint")
+    """Per-joint noise-PDF checks of a residual (N, n), index ``joint`` = 1..n.
+
+    The one normality computation of dynid
+    (:func:`dynid.analysis.statistics.noise.normality`): n, mean, std, skew,
+    ``excess_kurtosis``, Jarque-Bera, Shapiro-Wilk on an evenly spaced
+    subsample of at most 5000 samples. NaN samples (not fitted / not
+    predicted) are left out.
+    """
+    return _normality(residual)
 
 
 @dataclass
 class ValidationResult(Exportable):
-    """Prediction of a recording by an identified model."""
+    """Prediction of a recording by an identified model (all samples first)."""
 
     source: str
     t: np.ndarray
-    tau: np.ndarray
-    tau_hat: np.ndarray
-    rel_error: float
-    rms: np.ndarray
-    joint_rel_error: np.ndarray
-    noise: pd.DataFrame
+    tau: np.ndarray                  # (M, n) measured torque, all decimated samples
+    tau_hat: np.ndarray              # (M, n) predicted W chi_hat, all samples
+    rel_error: float                 # over ALL samples
+    rms: np.ndarray                  # per joint, all samples
+    joint_rel_error: np.ndarray      # per joint, all samples
+    noise: pd.DataFrame              # normality of the all-sample residual
     notices: list = field(default_factory=list)
+    mask: np.ndarray = None          # (M, n) moving rows (the estimator's row_mask)
+    moving_rel_error: float = float("nan")
+    moving_rms: np.ndarray = None
+    moving_joint_rel_error: np.ndarray = None
+    noise_moving: pd.DataFrame = None
+    tau_moving: np.ndarray = None    # dead-zone system: zeroed tau (NaN outside mask)
+    tau_hat_moving: np.ndarray = None
 
     @property
     def residual(self):
+        """τ − τ̂ on all samples (nothing zeroed)."""
         return self.tau - self.tau_hat
+
+    @property
+    def residual_moving(self):
+        """Residual of the dead-zone system on the moving rows, NaN elsewhere."""
+        if self.tau_moving is None:
+            return self.residual
+        return self.tau_moving - self.tau_hat_moving
+
+    @property
+    def moving_fraction(self) -> float:
+        """Fraction of the (row, joint) equations that are moving (used)."""
+        return 1.0 if self.mask is None else float(np.mean(self.mask))
+
+    @property
+    def excluded_fraction(self) -> float:
+        return 1.0 - self.moving_fraction
+
+    @property
+    def excluded_per_joint(self) -> np.ndarray:
+        n = self.tau.shape[1]
+        return np.zeros(n) if self.mask is None else 1.0 - np.mean(self.mask, axis=0)
 
     def summary(self):
         lines = [f"Validation on {self.source}: {len(self.t)} decimated samples",
-                 f"  relative error ||tau - tau_hat|| / ||tau|| = {self.rel_error:.4f}",
-                 "  joint   RMS [N m]   rel. error   Jarque-Bera p"]
+                 f"  all samples: relative error ||tau - tau_hat|| / ||tau|| = {self.rel_error:.4f}",
+                 f"  moving samples only: {self.moving_rel_error:.4f} ({100 * self.excluded_fraction:.1f} % "
+                 f"of the equations excluded: {DEAD_ZONE_REASON})",
+                 "  joint   RMS [N m]   rel. error (all)   rel. error (moving)   excluded   JB p (all)"]
+        mj = (self.moving_joint_rel_error if self.moving_joint_rel_error is not None
+              else np.full(self.tau.shape[1], np.nan))
+        ex = self.excluded_per_joint
         for j in range(self.tau.shape[1]):
-            lines.append(f"  {j + 1:5d}   {self.rms[j]:9.4g}   {self.joint_rel_error[j]:10.4f}   "
+            lines.append(f"  {j + 1:5d}   {self.rms[j]:9.4g}   {self.joint_rel_error[j]:16.4f}   "
+                         f"{mj[j]:19.4f}   {100 * ex[j]:6.1f} %   "
                          f"{self.noise['jarque_bera_p'].iloc[j]:.3g}")
         return "\n".join(lines)
 
     def to_dict(self):
         from dynid.provenance import json_safe
-        return json_safe({"source": self.source, "n_samples": int(len(self.t)),
-                          "rel_error": self.rel_error, "rms_per_joint": list(self.rms),
-                          "joint_rel_error": list(self.joint_rel_error),
-                          "noise": self.noise.reset_index().to_dict(orient="records"),
-                          "notices": self.notices})
+        mj = self.moving_joint_rel_error
+        return json_safe({
+            "source": self.source, "n_samples": int(len(self.t)),
+            "all_samples": {"rel_error": self.rel_error, "rms_per_joint": list(self.rms),
+                            "joint_rel_error": list(self.joint_rel_error),
+                            "n_samples": int(len(self.t)),
+                            "noise": self.noise.reset_index().to_dict(orient="records"),
+                            "what": "all held-out decimated samples, tau_hat = W chi_hat, "
+                                    "no dead-zone zeroing"},
+            "moving_samples": {"rel_error": self.moving_rel_error,
+                               "fraction": self.moving_fraction,
+                               "excluded_fraction": self.excluded_fraction,
+                               "excluded_per_joint": list(self.excluded_per_joint),
+                               "rms_per_joint": None if self.moving_rms is None else list(self.moving_rms),
+                               "joint_rel_error": None if mj is None else list(mj),
+                               "noise": (None if self.noise_moving is None else
+                                         self.noise_moving.reset_index().to_dict(orient="records")),
+                               "reason": f"rows in the velocity dead zone are excluded: {DEAD_ZONE_REASON}"},
+            # compatibility: the top-level numbers are the all-samples ones
+            "rel_error": self.rel_error, "rms_per_joint": list(self.rms),
+            "joint_rel_error": list(self.joint_rel_error),
+            "rel_error_note": "rel_error, rms_per_joint and joint_rel_error are over ALL samples "
+                              "(= all_samples)",
+            "noise": self.noise.reset_index().to_dict(orient="records"),
+            "notices": self.notices})
 
 
-def prediction_errors(tau, tau_hat):
-    """Relative error norm, per-joint RMS and per-joint relative error."""
+def prediction_errors(tau, tau_hat, mask=None):
+    """Relative error norm, per-joint RMS and per-joint relative error (over ``mask`` if given)."""
+    tau = np.asarray(tau, dtype=float)
     res = tau - tau_hat
+    if mask is not None:
+        m = np.broadcast_to(np.asarray(mask, dtype=bool), tau.shape)
+        res = np.where(m, res, 0.0)
+        tau = np.where(m, tau, 0.0)
+        cnt = np.maximum(m.sum(axis=0), 1)
+        rms = np.sqrt(np.sum(res ** 2, axis=0) / cnt)
+    else:
+        rms = np.sqrt(np.mean(res ** 2, axis=0))
     rel = float(np.linalg.norm(res) / np.linalg.norm(tau))
-    rms = np.sqrt(np.mean(res ** 2, axis=0))
     jrel = np.linalg.norm(res, axis=0) / np.linalg.norm(tau, axis=0)
     return rel, rms, jrel
 
@@ -84,6 +158,9 @@ def validate(idim_result, experiment, robot=None):
     """Predict ``experiment`` with the essential model of ``idim_result``.
 
     ``experiment`` may be a path; ``robot`` defaults to the one identified.
+    The held-out system is built twice with the identification's settings:
+    with the dead zone off (all samples: the headline numbers) and with it
+    on (moving samples, the rows an estimator would use).
     """
     if robot is None:
         robot = getattr(idim_result, "robot", None)
@@ -93,9 +170,33 @@ def validate(idim_result, experiment, robot=None):
     if isinstance(experiment, (str, bytes)) or hasattr(experiment, "__fspath__"):
         from dynid.analysis.data.experiment import load_experiment
         experiment = load_experiment(experiment, robot)
-    obs = observe(experiment, robot, idim_result.base, idim_result.settings)
-    tau_hat = idim_result.predict(obs.W)
-    rel, rms, jrel = prediction_errors(obs.tau, tau_hat)
-    return ValidationResult(source=str(experiment.source), t=obs.t, tau=obs.tau, tau_hat=tau_hat,
-                            rel_error=rel, rms=rms, joint_rel_error=jrel,
-                            noise=normality(obs.tau - tau_hat), notices=obs.notices)
+    settings = dict(idim_result.settings)
+    full = observe(experiment, robot, idim_result.base, dict(settings, qd_threshold=0.0))
+    tau_hat = idim_result.predict(full.W)
+    rel, rms, jrel = prediction_errors(full.tau, tau_hat)
+    n = full.tau.shape[1]
+    thr = settings.get("qd_threshold") or 0.0
+    dz = thr == "auto" if isinstance(thr, str) else bool(np.any(np.asarray(thr, dtype=float) > 0))
+    notices = list(full.notices)
+    if dz:
+        mov = observe(experiment, robot, idim_result.base, settings)
+        if mov.tau.shape != full.tau.shape or not np.allclose(mov.t, full.t):
+            from dynid.errors import DataError
+            raise DataError("validate: the dead-zone and the all-sample systems have different rows")
+        mask = np.broadcast_to(np.asarray(mov.row_mask, dtype=bool), mov.tau.shape).copy()
+        that_m = idim_result.predict(mov.W)
+        mrel, mrms, mjrel = prediction_errors(mov.tau, that_m, mask)
+        tau_m = np.where(mask, mov.tau, np.nan)
+        that_m = np.where(mask, that_m, np.nan)
+        notices += [n_ for n_ in mov.notices if n_ not in notices]
+    else:
+        mask = np.ones((full.tau.shape[0], n), dtype=bool)
+        mrel, mrms, mjrel = rel, rms, jrel
+        tau_m, that_m = full.tau, tau_hat
+    out = ValidationResult(source=str(experiment.source), t=full.t, tau=full.tau, tau_hat=tau_hat,
+                           rel_error=rel, rms=rms, joint_rel_error=jrel,
+                           noise=normality(full.tau - tau_hat), notices=notices, mask=mask,
+                           moving_rel_error=mrel, moving_rms=mrms, moving_joint_rel_error=mjrel,
+                           tau_moving=tau_m, tau_hat_moving=that_m)
+    out.noise_moving = normality(tau_m - that_m)
+    return out

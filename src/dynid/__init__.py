@@ -35,7 +35,7 @@ from dynid.analysis.results import ParameterResults
 from dynid.analysis.statistics.validation import validate
 from dynid.dynamics.robot import Robot
 from dynid.dynamics.robot_file import load_robot
-from dynid.errors import (ConvergenceError, DataError, DynidError, IdentificationError, InputError,
+from dynid.errors import (ConvergenceError, DataError, DynidError, IdentificationError, InputError, OutputError,
                           RobotFileError)
 from dynid.reports.pipeline import FullReport, demo, report
 
@@ -50,7 +50,7 @@ __all__ = [
     "load_robot", "load_experiment", "holdout_split", "identify", "validate", "sample", "diagnose",
     "simulate", "excite", "report", "demo", "simulate_campaign", "identify_campaign",
     "Robot", "Experiment", "ParameterResults", "FullReport",
-    "DynidError", "InputError", "DataError", "RobotFileError", "IdentificationError", "ConvergenceError",
+    "DynidError", "InputError", "DataError", "RobotFileError", "OutputError", "IdentificationError", "ConvergenceError",
 ]
 
 

@@ -28,6 +28,13 @@ class DataError(InputError):
     """An experiment file is unreadable or inconsistent."""
 
 
+class OutputError(InputError, OSError):
+    """An output file cannot be written (missing folder, full disk, no permission ...).
+
+    It is an :class:`OSError` too, so code that guards file writes keeps working.
+    """
+
+
 class IdentificationError(DynidError):
     """The data cannot identify the model (rank deficiency, too few samples...)."""
 

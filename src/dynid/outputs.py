@@ -29,7 +29,7 @@ import stat
 import sys
 from typing import IO, Iterator
 
-from dynid.errors import InputError
+from dynid.errors import InputError, OutputError
 
 __all__ = ["write_all", "atomic_open", "atomic_write_text", "atomic_write_bytes", "resolve_target"]
 
@@ -77,9 +77,9 @@ def remove_stale_temporaries(folder: str) -> list:
     return removed
 
 
-def _write_error(path, exc: OSError) -> InputError:
+def _write_error(path, exc: OSError) -> OutputError:
     reason = "the disk is full" if exc.errno == errno.ENOSPC else (exc.strerror or str(exc))
-    return InputError(f"cannot write {path}: {reason}")
+    return OutputError(f"cannot write {path}: {reason}")
 
 
 def _stage(target: str, data: bytes, label) -> str:
@@ -130,7 +130,7 @@ def _signals_held():
 def write_all(outputs, say=None) -> list:
     """Write ``(path, text_or_bytes)`` pairs all or none; the path ``-`` means stdout, written last.
 
-    Returns the paths written. Raises :class:`~dynid.errors.InputError` naming the
+    Returns the paths written. Raises :class:`~dynid.errors.OutputError` naming the
     file when one cannot be written; the folder is then as it was before.
     """
     to_stdout = [data for path, data in outputs if os.fspath(path) == "-"]

@@ -1,0 +1,368 @@
+"""The verdict: is the model identified, and how far can it be trusted?
+
+:func:`verdict` gathers, from an IDIM result (and its validation, and a
+residual diagnosis if one was run), the few facts a reader needs before any
+table:
+
+* **held-out error on all samples** (``ValidationResult.rel_error``: every
+  held-out decimated sample, τ̂ = W χ̂, nothing zeroed), per joint; joints
+  whose relative error exceeds ``joint_error_threshold`` (default 20 %) are
+  named, and the worst joint always is;
+* **essential parameters not identified**: those with %σ = 100 σ/|χ̂| above
+  ``rel_std_threshold`` (default 10 %);
+* **residual whiteness and normality**, stated once, on the identification
+  residual over the fitted (moving) rows: Ljung-Box (statistic and p at the
+  lag of :func:`dynid.analysis.statistics.residuals.analyze_residuals`) and
+  Jarque-Bera / Shapiro-Wilk (:func:`dynid.analysis.statistics.noise.normality`).
+  A correlated residual is *not* taken as proof of a missing effect: the
+  text points to the diagnosis and says what it found;
+* **physical plausibility**: an identified parameter that must not be
+  negative and is. The rule (simple on purpose): a parameter must be ≥ 0 when
+  it is, or regroups with non-negative coefficients only, standard
+  parameters of the non-negative kinds — masses ``M``, diagonal inertias
+  ``XX``, ``YY``, ``ZZ``, rotor inertias ``Ia``, viscous and Coulomb friction
+  ``Fv``, ``Fc``, ``Fvm``, ``Fcm``. ``ZZ2R = ZZ2 + Ia2 + 0.05 M3 + ...`` is
+  checked; ``XX2R = XX2 - YY2 - ...`` or anything with a first moment is not;
+* **a-priori values** (``robot.apriori``, mapped to base parameters): an
+  essential parameter more than ``apriori_k`` (default 3) standard
+  deviations from its a-priori value is flagged;
+* **data quality**: saturation notices, cond(W) (flagged above
+  ``cond_threshold`` = 1000 for the unit-column scaling), the fraction of the
+  equations in the velocity dead zone (identification and validation).
+
+Status: ``"not identified"`` when the held-out error on all samples exceeds
+``fail_rel_error`` (default 30 %) or more than half the essential parameters
+are not identified or a parameter is physically impossible; ``"identified
+with reservations"`` when anything else is flagged; ``"identified"``
+otherwise.
+"""
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["Verdict", "verdict", "parameter_unit", "must_be_nonnegative", "NONNEGATIVE_KINDS"]
+
+#: standard-parameter kinds that are never negative (see the module docstring)
+NONNEGATIVE_KINDS = ("M", "XX", "YY", "ZZ", "Ia", "Fv", "Fc", "Fvm", "Fcm")
+
+_UNITS = (("XX", "kg m\u00b2"), ("XY", "kg m\u00b2"), ("XZ", "kg m\u00b2"), ("YY", "kg m\u00b2"),
+          ("YZ", "kg m\u00b2"), ("ZZ", "kg m\u00b2"), ("MX", "kg m"), ("MY", "kg m"), ("MZ", "kg m"),
+          ("Ia", "kg m\u00b2"), ("Fvm", "N m s/rad"), ("Fcm", "N m"), ("Fv", "N m s/rad"),
+          ("Fc", "N m"), ("Off", "N m"), ("M", "kg"))
+_KIND_RE = re.compile(r"^([A-Za-z]+?)(\d+)R?$")
+
+
+def parameter_kind(name: str) -> str:
+    """``ZZ2R`` -> ``ZZ``; ``Fvm6`` -> ``Fvm``; ``M3`` -> ``M``; unknown patterns -> ``""``."""
+    m = _KIND_RE.match(str(name))
+    return m.group(1) if m else ""
+
+
+def parameter_unit(name: str) -> str:
+    """SI unit of a (standard or regrouped) parameter from its name pattern, ``""`` if unknown.
+
+    XX..ZZ kg m², MX/MY/MZ kg m, M kg, Ia kg m², Fv/Fvm N m s/rad, Fc/Fcm N m,
+    Off N m (revolute joints; a prismatic joint's are in N and kg).
+    """
+    kind = parameter_kind(name)
+    for k, u in _UNITS:
+        if kind == k:
+            return u
+    return ""
+
+
+def must_be_nonnegative(bp, standard_names, k) -> bool:
+    """Whether base parameter ``k`` regroups non-negative kinds with non-negative coefficients."""
+    row = np.asarray(bp.matrix)[k]
+    nz = np.flatnonzero(np.abs(row) > 1e-12)
+    if nz.size == 0:
+        return False
+    return all(row[i] > 0 and parameter_kind(standard_names[i]) in NONNEGATIVE_KINDS for i in nz)
+
+
+@dataclass
+class Verdict:
+    """What :func:`verdict` concluded; ``to_dict()`` is the JSON ``"verdict"``."""
+
+    status: str                                   # identified / identified with reservations / not identified
+    identified: bool
+    reasons: list = field(default_factory=list)   # why not plainly "identified"
+    validation: dict = None                       # all-sample held-out error, per joint, flagged joints
+    rel_std_threshold: float = 10.0
+    parameters: list = field(default_factory=list)        # essential: name, value, unit, %σ, flagged
+    not_identified: list = field(default_factory=list)    # names with %σ > threshold
+    whiteness: dict = None
+    normality: dict = None
+    implausible: list = field(default_factory=list)       # negative where it must not be
+    apriori: dict = None                                  # k, compared, flagged
+    data_quality: list = field(default_factory=list)      # {"level", "text"}
+    findings: list = field(default_factory=list)          # {"level", "text"}: the list shown first
+
+    @property
+    def flagged_parameters(self):
+        return list(self.not_identified)
+
+    @property
+    def flagged_joints(self):
+        return [] if not self.validation else list(self.validation["flagged_joints"])
+
+    def to_dict(self):
+        from dynid.provenance import json_safe
+        return json_safe({
+            "status": self.status, "identified": self.identified, "reasons": self.reasons,
+            "validation": self.validation, "rel_std_threshold_percent": self.rel_std_threshold,
+            "not_identified": self.not_identified, "parameters": self.parameters,
+            "whiteness": self.whiteness, "normality": self.normality,
+            "implausible": self.implausible, "apriori": self.apriori,
+            "data_quality": self.data_quality, "findings": self.findings,
+        })
+
+    def summary(self):
+        lines = [f"Verdict: {self.status.upper()}"]
+        lines += [f"  [{f['level']}] {f['text']}" for f in self.findings]
+        return "\n".join(lines)
+
+    def __str__(self):
+        return self.summary()
+
+
+def _pct(x):
+    return f"{100 * float(x):.1f} %"
+
+
+def _fmt_p(p):
+    p = float(p)
+    if not np.isfinite(p):
+        return "n/a"
+    return f"{p:.1e}" if p < 1e-4 else f"{p:.3g}"
+
+
+def _joint_names(robot, n):
+    names = list(getattr(robot, "joint_names", []) or []) if robot is not None else []
+    return names + [f"j{k + 1}" for k in range(len(names), n)]
+
+
+def identification_residual(idim_result):
+    """Residual of the essential model on the identification rows, NaN outside the fitted rows."""
+    obs = idim_result.observation
+    e = obs.tau - idim_result.predict(obs.W)
+    mask = np.broadcast_to(np.asarray(obs.row_mask, dtype=bool), e.shape)
+    return e, mask
+
+
+def verdict(idim_result, validation=None, *, robot=None, diagnosis=None, residuals=None,
+            rel_std_threshold=10.0, joint_error_threshold=0.20, warn_rel_error=0.10,
+            fail_rel_error=0.30, apriori_k=3.0, alpha=0.05, cond_threshold=1000.0) -> Verdict:
+    """The verdict of an identification (see the module docstring for every rule).
+
+    ``validation``: a :class:`~dynid.analysis.statistics.validation.ValidationResult`;
+    ``diagnosis``: a :class:`~dynid.analysis.diagnosis.selection.DiagnosisResult`
+    (only its conclusion is quoted); ``residuals``: a precomputed
+    :class:`~dynid.analysis.statistics.residuals.ResidualAnalysis` of the
+    identification residual (computed here otherwise). Thresholds:
+    ``rel_std_threshold`` in percent, the error thresholds as fractions.
+    """
+    robot = robot if robot is not None else getattr(idim_result, "robot", None)
+    m = idim_result.model
+    obs = idim_result.observation
+    n = obs.tau.shape[1]
+    names = _joint_names(robot, n)
+    findings, reasons = [], []
+    fail = False
+
+    # --- held-out error on all samples
+    vinfo = None
+    if validation is not None:
+        jrel = np.asarray(validation.joint_rel_error, dtype=float)
+        flagged_j = [names[j] for j in range(n) if jrel[j] > joint_error_threshold]
+        worst = int(np.nanargmax(jrel))
+        vinfo = {"rel_error": float(validation.rel_error),
+                 "joint_rel_error": [float(x) for x in jrel],
+                 "joints": names, "flagged_joints": flagged_j, "worst_joint": names[worst],
+                 "joint_error_threshold": joint_error_threshold,
+                 "moving_rel_error": float(getattr(validation, "moving_rel_error", np.nan)),
+                 "excluded_fraction": float(getattr(validation, "excluded_fraction", 0.0)),
+                 "n_samples": int(len(validation.t))}
+        level = ("bad" if validation.rel_error > fail_rel_error else
+                 "ok" if validation.rel_error <= warn_rel_error and not flagged_j else "warn")
+        per = ", ".join(f"{nm} {_pct(x)}" for nm, x in zip(names, jrel))
+        text = (f"Held-out error on all {len(validation.t)} samples: {_pct(validation.rel_error)} "
+                f"(per joint {per}); worst {names[worst]}")
+        if flagged_j:
+            text += f"; above {_pct(joint_error_threshold)}: {', '.join(flagged_j)}"
+        text += (f". On the moving samples only: {_pct(vinfo['moving_rel_error'])} "
+                 f"({_pct(vinfo['excluded_fraction'])} excluded: Coulomb friction's sign is "
+                 f"undetermined at rest).")
+        findings.append({"level": level, "text": text, "key": "validation"})
+        if validation.rel_error > fail_rel_error:
+            fail = True
+            reasons.append(f"held-out error {_pct(validation.rel_error)} > {_pct(fail_rel_error)}")
+        elif validation.rel_error > warn_rel_error:
+            reasons.append(f"held-out error {_pct(validation.rel_error)} > {_pct(warn_rel_error)}")
+        if flagged_j:
+            reasons.append(f"joints with held-out error > {_pct(joint_error_threshold)}: "
+                           + ", ".join(flagged_j))
+    else:
+        findings.append({"level": "warn", "key": "validation",
+                         "text": "No held-out data: the model was not tested on data it was not "
+                                 f"fitted to (identification error {_pct(m.rel_error)} on the fitted "
+                                 "rows); use --holdout or --validation."})
+        reasons.append("no validation data")
+
+    # --- essential parameters and their %σ
+    params, flagged = [], []
+    for name, v, s, r in zip(m.names, m.chi, m.sigma, m.rel_sigma):
+        bad = not (float(r) <= rel_std_threshold)
+        params.append({"name": name, "value": float(v), "std": float(s), "unit": parameter_unit(name),
+                       "rel_std_percent": float(r), "flagged": bool(bad)})
+        if bad:
+            flagged.append(name)
+    if flagged:
+        findings.append({"level": "warn", "key": "parameters",
+                         "text": f"{len(flagged)} of {len(m.names)} essential parameters not identified "
+                                 f"(%\u03c3 > {rel_std_threshold:g} %): {', '.join(flagged)}."})
+        reasons.append(f"%\u03c3 > {rel_std_threshold:g} %: {', '.join(flagged)}")
+        if len(flagged) > len(m.names) / 2:
+            fail = True
+    else:
+        findings.append({"level": "ok", "key": "parameters",
+                         "text": f"All {len(m.names)} essential parameters have %\u03c3 \u2264 "
+                                 f"{rel_std_threshold:g} %."})
+
+    # --- whiteness and normality of the identification residual (fitted rows)
+    if residuals is None:
+        from dynid.analysis.statistics.residuals import residual_analysis
+        e, mask = identification_residual(idim_result)
+        residuals = residual_analysis(obs, e)
+    lb = residuals.ljung_box
+    lb_p = [float(x) for x in lb["p_value"]]
+    corr = [names[j] for j in range(n) if np.isfinite(lb_p[j]) and lb_p[j] < alpha]
+    white = {"test": "Ljung-Box", "lag": int(lb["lag"].iloc[0]),
+             "statistic": [float(x) for x in lb["statistic"]], "p_value": lb_p,
+             "correlated_joints": corr, "alpha": alpha,
+             "residual": "identification, fitted (moving) rows"}
+    diag_text = ""
+    if diagnosis is not None:
+        sel = [f"{s.name} (joint {s.joint})" if getattr(s, "joint", None) else str(s.name)
+               for s in diagnosis.selected]
+        white["diagnosis_selected"] = sel
+        diag_text = (f" The diagnosis added {', '.join(sel)}." if sel else
+                     " The diagnosis found no missing effect among the candidates it tested: the "
+                     "correlation comes from the filtering and decimation, or from an effect it "
+                     "does not model.")
+    if corr:
+        white["text"] = ("The residual is correlated in time (Ljung-Box at lag "
+                         f"{white['lag']}: " + ", ".join(f"{names[j]} p = {_fmt_p(lb_p[j])}"
+                                                         for j in range(n) if names[j] in corr)
+                         + "): %\u03c3 counts the samples as independent and is optimistic; "
+                         + ("see the diagnosis." + diag_text if diagnosis is not None else
+                            "whether an effect is missing is what the diagnosis tests (dynid diagnose, "
+                            "or the full report)."))
+    else:
+        white["text"] = (f"The residual is white (Ljung-Box at lag {white['lag']}, every p \u2265 {alpha:g})."
+                         + diag_text)
+    nm_tab = residuals.normality
+    jb = [float(x) for x in nm_tab["jarque_bera_p"]]
+    sw = [float(x) for x in nm_tab["shapiro_p"]]
+    nongauss = [names[j] for j in range(n) if np.isfinite(jb[j]) and jb[j] < alpha]
+    normal = {"jarque_bera_p": jb, "shapiro_p": sw,
+              "excess_kurtosis": [float(x) for x in nm_tab["excess_kurtosis"]],
+              "non_gaussian_joints": nongauss, "alpha": alpha,
+              "residual": "identification, fitted (moving) rows"}
+    normal["text"] = ("Residual not Gaussian (Jarque-Bera p < " + f"{alpha:g}) on "
+                      + ", ".join(f"{names[j]} (p = {_fmt_p(jb[j])})" for j in range(n)
+                                  if names[j] in nongauss) + "."
+                      if nongauss else f"Residual Gaussian on every joint (Jarque-Bera p \u2265 {alpha:g}).")
+    findings.append({"level": "warn" if corr else "ok", "key": "whiteness", "text": white["text"]})
+    findings.append({"level": "warn" if nongauss else "ok", "key": "normality", "text": normal["text"]})
+
+    # --- physical plausibility
+    bp = idim_result.base
+    std_names = list(getattr(robot, "standard_names", []) or []) if robot is not None else []
+    implausible = []
+    if std_names:
+        index = {nm: k for k, nm in enumerate(bp.names)}
+        for p in params:
+            k = index.get(p["name"])
+            if k is not None and p["value"] < 0 and must_be_nonnegative(bp, std_names, k):
+                implausible.append({"name": p["name"], "value": p["value"], "unit": p["unit"],
+                                    "n_sigma": abs(p["value"]) / p["std"] if p["std"] > 0 else np.inf,
+                                    "relation": bp.relations[k]})
+    if implausible:
+        fail = True
+        findings.append({"level": "bad", "key": "plausibility",
+                         "text": "Physically impossible (negative mass, inertia or friction): "
+                                 + ", ".join(f"{q['name']} = {q['value']:.4g} {q['unit']}".strip()
+                                             for q in implausible) + "."})
+        reasons.append("negative " + ", ".join(q["name"] for q in implausible))
+    else:
+        findings.append({"level": "ok", "key": "plausibility",
+                         "text": "No identified mass, diagonal or rotor inertia, or friction "
+                                 "coefficient is negative."})
+
+    # --- a-priori values
+    ap = None
+    if robot is not None and getattr(robot, "apriori", None):
+        try:
+            from dynid.dynamics.excitation import apriori_parameters
+            _, beta, missing = apriori_parameters(robot, bp)
+        except Exception as exc:          # a-priori values that do not map: say so, no verdict
+            ap = {"k": apriori_k, "compared": [], "flagged": [], "error": str(exc)}
+        else:
+            index = {nm: k for k, nm in enumerate(bp.names)}
+            compared, far = [], []
+            for p in params:
+                if p["name"] in missing or p["name"] not in index:
+                    continue
+                a = float(beta[index[p["name"]]])
+                ns = abs(p["value"] - a) / p["std"] if p["std"] > 0 else np.inf
+                compared.append({"name": p["name"], "value": p["value"], "apriori": a,
+                                 "n_sigma": ns, "unit": p["unit"], "flagged": bool(ns > apriori_k)})
+                if ns > apriori_k:
+                    far.append(p["name"])
+            ap = {"k": apriori_k, "compared": compared, "flagged": far,
+                  "source": str((getattr(robot, "provenance", {}) or {}).get("apriori", ""))}
+        if ap.get("compared"):
+            far = ap["flagged"]
+            findings.append({"level": "info" if far else "ok", "key": "apriori",
+                             "text": (f"{len(far)} of {len(ap['compared'])} essential parameters with an "
+                                      f"a-priori value are more than {apriori_k:g} \u03c3 from it: "
+                                      + ", ".join(far) + "." if far else
+                                      f"All {len(ap['compared'])} essential parameters with an a-priori "
+                                      f"value are within {apriori_k:g} \u03c3 of it.")})
+
+    # --- data quality
+    dq = []
+    sat = [x for x in list(idim_result.notices) + list(getattr(validation, "notices", []) or [])
+           if "saturat" in x.lower()]
+    for x in dict.fromkeys(sat):
+        dq.append({"level": "warn", "text": x})
+    cs = float(getattr(idim_result.wls, "cond_scaled", np.nan))
+    c = float(idim_result.wls.cond)
+    dq.append({"level": "warn" if cs > cond_threshold else "ok",
+               "text": f"cond(W) = {c:.3g} ({cs:.3g} with unit columns"
+                       + (f", above {cond_threshold:g}: poorly exciting data" if cs > cond_threshold else "")
+                       + ")."})
+    mask = np.broadcast_to(np.asarray(obs.row_mask, dtype=bool), obs.tau.shape)
+    dz = 1.0 - float(mask.mean())
+    text = (f"{_pct(dz)} of the decimated identification equations are left out (velocity dead "
+            "zone, not fitted)")
+    if validation is not None:
+        text += f"; {_pct(validation.excluded_fraction)} of the held-out ones"
+    vz = float(validation.excluded_fraction) if validation is not None else 0.0
+    dq.append({"level": "warn" if max(dz, vz) > 0.3 else "ok",
+               "text": text + (": the moving-sample error leaves out much of the motion"
+                               if max(dz, vz) > 0.3 else "") + "."})
+    for d in dq:
+        findings.append(dict(d, key="data"))
+    if sat:
+        reasons.append("saturation")
+
+    status = "not identified" if fail else ("identified with reservations" if reasons else "identified")
+    return Verdict(status=status, identified=not fail, reasons=reasons, validation=vinfo,
+                   rel_std_threshold=float(rel_std_threshold), parameters=params,
+                   not_identified=flagged, whiteness=white, normality=normal,
+                   implausible=implausible, apriori=ap, data_quality=dq, findings=findings)
