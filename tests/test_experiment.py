@@ -965,3 +965,177 @@ def test_random_toml_loads_or_raises_data_error(toml_dir, doc, use_robot):
         assert any(f in str(ex) for f in ("fuzz.toml", "d.csv", "d.npz", "c.csv")), str(ex)
         return
     _check_loaded(e)
+
+
+# --------------------------------------------------------------------------------------
+# bad inputs in data files: booleans, special files, CSV renamed .npz
+# --------------------------------------------------------------------------------------
+
+
+def test_boolean_cell_in_csv_is_not_a_number(tmp_path):
+    msg = err(write(tmp_path, "b.csv", "t,q1,tau1\n0,1,True\n0.1,1,False\n"))
+    assert "b.csv" in msg and "column 'tau1'" in msg and "'True' is not a number" in msg
+
+
+def test_boolean_column_in_parquet_is_rejected(tmp_path):
+    df = frame(n=1, N=6)
+    df["tau1"] = [True, False] * 3
+    p = tmp_path / "b.parquet"
+    df.to_parquet(p)
+    msg = err(p)
+    assert "b.parquet" in msg and "column 'tau1'" in msg and "'True' is not a number" in msg
+    assert "row 1 (1-based sample number)" in msg
+
+
+def test_boolean_array_in_npz_is_rejected(tmp_path):
+    p = tmp_path / "b.npz"
+    np.savez(p, t=np.arange(4.0), q=np.ones((4, 2)), tau=np.zeros((4, 2), dtype=bool))
+    msg = err(p)
+    assert "b.npz" in msg and "array 'tau'" in msg and "not a number" in msg
+
+
+def test_boolean_words_in_csv_are_not_read_as_0_1(tmp_path):
+    # pandas' float parser reads a whole column of True/False as 1.0/0.0; dynid must not
+    rows = "".join(f"{k / 10},1,{'True' if k % 2 else 'False'}\n" for k in range(6))
+    msg = err(write(tmp_path, "bw.csv", "t,q1,tau1\n" + rows))
+    assert "bw.csv" in msg and "column 'tau1'" in msg and "'False' is not a number" in msg
+    assert "data row 1 (file line 2)" in msg
+
+
+def err_within(path, seconds=20) -> str:
+    """err(path), failing instead of hanging if the loader blocks on a special file."""
+    import signal
+
+    def alarm(*_):
+        raise TimeoutError("the loader blocked on a special file")
+
+    previous = signal.signal(signal.SIGALRM, alarm)
+    signal.alarm(seconds)
+    try:
+        return err(path)
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+@pytest.mark.parametrize("ext", [".csv", ".npz", ".parquet", ".mat", ".toml"])
+def test_fifo_is_refused_before_reading(tmp_path, ext):
+    import os
+
+    p = tmp_path / f"pipe{ext}"
+    os.mkfifo(p)
+    msg = err_within(p)
+    assert f"pipe{ext}" in msg and "named pipe" in msg and "not a regular file" in msg
+
+
+@pytest.mark.parametrize("ext", [".csv", ".npz", ".parquet", ".mat", ".toml"])
+def test_symlink_to_dev_zero_is_refused(tmp_path, ext):
+    p = tmp_path / f"zero{ext}"
+    p.symlink_to("/dev/zero")
+    msg = err_within(p)
+    assert f"zero{ext}" in msg and "character device" in msg and "/dev/zero" in msg
+
+
+def test_toml_naming_a_device_names_the_toml_and_the_file(tmp_path):
+    (tmp_path / "dev.csv").symlink_to("/dev/zero")
+    p = write(tmp_path, "e.toml", '[experiment]\nfile = "dev.csv"\n')
+    msg = err(p)
+    assert "e.toml" in msg and "dev.csv" in msg and "not a regular file" in msg
+
+
+def test_cli_refuses_a_special_file_with_exit_2(tmp_path, capsys):
+    from dynid.reports.cli import main
+
+    p = tmp_path / "zero.csv"
+    p.symlink_to("/dev/zero")
+    assert main(["identify", str(p), "--robot", "planar2", "--quiet"]) == 2
+    assert "not a regular file" in capsys.readouterr().err
+
+
+def test_csv_renamed_npz_never_suggests_unpickling(tmp_path):
+    p = write(tmp_path, "data.npz", "t,q1,tau1\n0,1,2\n0.1,1,2\n")
+    msg = err(p)
+    assert "data.npz" in msg and "not an npz archive" in msg and ".csv" in msg
+    assert "pickle" not in msg.lower()
+
+
+def test_object_array_in_npz_never_suggests_unpickling(tmp_path):
+    p = tmp_path / "obj.npz"
+    np.savez(p, t=np.arange(3.0), q=np.array([[1], "a", None], dtype=object), tau=np.ones(3))
+    msg = err(p)
+    assert "obj.npz" in msg and "'q'" in msg and "allow_pickle" not in msg
+    assert "pickle.load" not in msg
+
+
+# --------------------------------------------------------------------------------------
+# the fast CSV path reads exactly what the precise path reads
+# --------------------------------------------------------------------------------------
+
+
+def _same_raw(fast, precise):
+    from dynid.analysis.data.columns import _cell
+
+    assert list(fast.arrays) == list(precise.arrays)
+    assert fast.notices == precise.notices and not fast.unreadable and not precise.unreadable
+    n = len(next(iter(precise.arrays.values())))
+    assert all(fast.row(k) == precise.row(k) for k in range(n))
+    for name, a in fast.arrays.items():
+        b = precise.arrays[name]
+        if a.dtype == object:
+            assert list(a) == list(b)
+        else:
+            ref = np.array([_cell(x) for x in b], dtype=float)  # float() of each cell
+            assert a.dtype == np.float64 and a.tobytes() == ref.tobytes()
+
+
+def test_fast_csv_path_is_used_and_bit_identical(tmp_path):
+    from dynid.analysis.data import readers
+
+    rng = np.random.default_rng(3)
+    v = rng.standard_normal((500, 4)) * 10.0 ** rng.integers(-300, 300, (500, 4))
+    v[0, 1] = -0.0
+    lines = ["t,q1,tau1,note,x2"] + [
+        f"{k / 1000!r},{v[k, 0]:.17e},{float(v[k, 1])!r},x{k},{float(v[k, 2])!r}"
+        for k in range(500)]
+    for newline in ("\n", "\r\n"):
+        p = tmp_path / "fast.csv"
+        p.write_bytes((newline.join(lines) + newline).encode())
+        fast = readers._read_csv_fast(p, str(p))
+        assert fast is not None and fast.arrays["q1"].dtype == np.float64
+        _same_raw(fast, readers._read_csv_precise(p, str(p)))
+        e = load_experiment(p)
+        assert np.signbit(e.tau[0, 0]) and any("'note'" in m for m in e.notices)
+
+
+@pytest.mark.parametrize("text", [
+    "t,q1,tau1\n0,1,2\n\n0.1,1,2\n",          # blank line among the data: a notice
+    "t,q1,tau1,\n0,1,2,\n0.1,1,3,\n",        # trailing commas
+    "t,q1,tau1,x\n0,1,2,a\n0.1,1,3\n",       # short row, text column
+    "t,q1,tau1\n0,1,2,3\n0.1,1,3\n",         # long first row
+    't,q1,tau1\n0,"1",2\n0.1,1,3\n',         # quotes
+    "t,q1,tau1\r0,1,2\r0.1,1,3\r",           # CR line ends
+    "t,q1,tau1\n0,1_0,2\n0.1,1,3\n",         # Python's float() accepts 1_0
+    "t,q1,tau1\n0,nan,2\n0.1,1,3\n",
+    "t,q1,tau1\n0,1,2\n0.1,1,3\n\n\n",       # blank lines at the end
+    "\nt,q1,tau1\n0,1,2\n0.1,1,3\n",         # blank line before the header
+])
+def test_fast_csv_path_declines_what_it_cannot_judge(tmp_path, text):
+    from dynid.analysis.data import readers
+
+    p = tmp_path / "odd.csv"
+    p.write_bytes(text.encode())
+    assert readers._read_csv_fast(p, str(p)) is None
+
+
+@settings(max_examples=300, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+@given(text=csv_texts())
+def test_fast_csv_path_agrees_with_the_precise_path(tmp_path, text):
+    from dynid.analysis.data import readers
+
+    p = tmp_path / "agree.csv"
+    p.write_text(text, encoding="utf-8", newline="")
+    fast = readers._read_csv_fast(p, str(p))
+    if fast is None:
+        return
+    _same_raw(fast, readers._read_csv_precise(p, str(p)))

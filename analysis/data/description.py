@@ -1,0 +1,539 @@
+"""The experiment description (``.toml``): schema, checks and loading.
+
+Reference: docs/formats.md, section "Experiment description (TOML)". In short:
+
+For logs that are not in dynid's column format. Paths are relative to the TOML file.
+All sections and keys are checked; an unknown key is an error (typos do not pass).
+
+``[experiment]`` (these keys may also be written at the top of the file)
+    ``name``            str, optional.
+    ``file``            default data file for every section below. With no signal
+                        section at all, this file is read in dynid's column format and
+                        the options below apply to it.
+    ``sampling_rate``   Hz; required when there is no time column ([time] / ``t``),
+                        t = start_time + k / sampling_rate. With a time column it is
+                        checked against the median step (1 %).
+    ``start_time``      s, default 0, used with ``sampling_rate``.
+    ``start_offset``    samples to skip at the start (default 0).
+    ``resample``        bool (default false): linear interpolation of every signal onto
+                        a uniform grid at the median time step, for irregular time
+                        stamps. Done last, after ``start_offset`` and the reference shift.
+    ``time_tolerance``  allowed relative deviation of a time step from the median
+                        (default 0.01).
+
+``[time]``: ``file``, ``column`` (or ``key``) naming a 1-D column/array in s,
+``scale`` (e.g. 0.001 for ms).
+
+Signal sections ``[positions]`` (q), ``[reference]`` (qr), ``[velocities]`` (qd),
+``[accelerations]`` (qdd), ``[torques]`` (tau), ``[currents]`` (i → tau), keys:
+    ``file``            data file (.csv, .parquet, .npz, .mat); default [experiment].file.
+    ``columns``         list of n column names (CSV/Parquet), or of n 1-D arrays
+                        (npz/mat), one per joint in joint order; or
+    ``key``             one 2-D array of shape (N, n) in an npz/mat file.
+    ``side``            "joint" (default) or "motor": motor-side signals are converted
+                        through [transmission]: q = R⁻¹·q_m + position_offsets,
+                        qd = R⁻¹·qd_m, qdd = R⁻¹·qdd_m, tau = Rᵀ·tau_m.
+    ``scale``           number or list of n numbers multiplying the signal (default 1),
+                        applied before the transmission.
+    ``drive_gains``     ([torques], [currents]) list of n gains, signal → (motor)
+                        torque, applied before the transmission. Default for
+                        [currents]: ``robot.drive_gains``; for [torques]: 1.
+    ``shift``           ([reference] only) 0 (default), an integer L, or "estimate":
+                        pair measured q[i + L] with reference[i]. "estimate" picks the L
+                        that minimises the mean square of q[i + L] − reference[i] over all
+                        joints and overlapping samples, searching min_shift ≤ L ≤
+                        max_shift (see below). For L > 0 the first L measured samples and the last L
+                        reference samples have no partner and are dropped (for L < 0,
+                        the reverse). L is recorded in the notices and in
+                        ``meta["reference_shift"]``. The shift is applied to the raw
+                        samples (after ``start_offset``, before resampling).
+    ``min_shift``, ``max_shift``  ([reference] only) search range in samples,
+                        defaults 0 and N // 4 (N after start_offset). L ≥ 0 by default
+                        because the measurement follows the command. Keep the range below
+                        one period of a periodic excitation: a shift by ± one period fits
+                        as well (the KUKA trajectories repeat every ~1257 / ~2513 samples).
+
+``[transmission]``  (only needed for ``side = "motor"``; see :mod:`dynid.analysis.data.transmission`)
+    ``gear_ratios``     n numbers, the diagonal of R (q_motor = R · q_joint).
+    ``couplings``       list of {motor = m, joint = j, ratio = r} (1-based): R[m, j] += r.
+    ``position_offsets`` n numbers (rad) added to q (and a motor-side qr) after R⁻¹.
+
+Examples (the Stäubli TX40 and KUKA LWR4+ recordings): docs/formats.md, same section.
+
+Arrays or columns of a data file that no section uses are listed in a notice.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from dynid.analysis.data import transmission as _tr
+from dynid.analysis.data._format import _fmt, _short_list
+from dynid.analysis.data.columns import (
+    _assemble,
+    _check_finite,
+    _Col,
+    _drive_gains,
+    _from_columns,
+    _robot_joints,
+    _time_values,
+    _to_float,
+)
+from dynid.analysis.data.readers import _RawFile, _read_bytes, _read_data_file
+from dynid.analysis.data.timebase import TIME_STEP_TOLERANCE, _Options
+from dynid.errors import DataError
+
+if TYPE_CHECKING:
+    from dynid.analysis.data.experiment import Experiment
+
+# --------------------------------------------------------------------------------------
+# TOML experiment descriptions
+# --------------------------------------------------------------------------------------
+
+_EXPERIMENT_KEYS = {"name", "file", "sampling_rate", "start_time", "start_offset",
+                    "resample", "time_tolerance"}
+_SECTIONS = {"positions": "q", "reference": "qr", "velocities": "qd",
+             "accelerations": "qdd", "torques": "tau", "currents": "i"}
+_SECTION_KEYS = {"file", "key", "columns", "side", "scale"}
+_EXTRA_KEYS = {"torques": {"drive_gains"}, "currents": {"drive_gains"},
+               "reference": {"shift", "max_shift", "min_shift"}}
+_TIME_KEYS = {"file", "key", "column", "scale"}
+_TRANSMISSION_KEYS = {"gear_ratios", "couplings", "position_offsets"}
+
+
+class _Toml:
+    """Typed access to a parsed TOML with messages naming file, section and key."""
+
+    def __init__(self, label: str):
+        self.label = label
+
+    def err(self, section: str | None, msg: str) -> DataError:
+        where = f"{self.label}, [{section}]" if section else self.label
+        return DataError(f"{where}: {msg}")
+
+    def check_keys(self, section: str, table: dict, allowed: set[str]) -> None:
+        if not isinstance(table, dict):
+            raise self.err(None, f"'{section}' must be a table [{section}], got {table!r}.")
+        unknown = sorted(set(table) - allowed)
+        if unknown:
+            raise self.err(
+                section,
+                f"unknown key(s) {', '.join(repr(u) for u in unknown)}. Allowed: "
+                f"{', '.join(sorted(allowed))} (see docs/formats.md, section "
+                "'Experiment description (TOML)').",
+            )
+
+    def string(self, section, table, key, default=None):
+        v = table.get(key, default)
+        if v is not None and not isinstance(v, str):
+            raise self.err(section, f"{key} must be a string, got {v!r}.")
+        return v
+
+    def number(self, section, table, key, default=None, positive=False):
+        v = table.get(key, default)
+        if v is None:
+            return None
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise self.err(section, f"{key} must be a finite number, got {v!r}.")
+        if positive and not v > 0:
+            raise self.err(section, f"{key} must be positive, got {v!r}.")
+        return float(v)
+
+    def integer(self, section, table, key, default=None, minimum=None):
+        v = table.get(key, default)
+        if v is None:
+            return None
+        if isinstance(v, bool) or not isinstance(v, int):
+            raise self.err(section, f"{key} must be a whole number, got {v!r}.")
+        if minimum is not None and v < minimum:
+            raise self.err(section, f"{key} must be ≥ {minimum}, got {v}.")
+        return v
+
+    def numbers(self, section, table, key, n=None):
+        v = table.get(key)
+        if v is None:
+            return None
+        if not isinstance(v, list) or not all(
+            isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+            for x in v
+        ):
+            raise self.err(section, f"{key} must be a list of numbers, got {v!r}.")
+        if n is not None and len(v) != n:
+            raise self.err(
+                section, f"{key} has {len(v)} entries but there are {n} joints; give one per joint."
+            )
+        return np.asarray(v, dtype=float)
+
+
+def _load_toml(path: Path, label: str, robot, n_joints) -> Experiment:
+    data = _read_bytes(path, label)
+    try:
+        doc = tomllib.loads(data.decode("utf-8-sig"))
+    except UnicodeDecodeError:
+        raise DataError(f"{label} is not UTF-8 text. Save it as UTF-8.") from None
+    except tomllib.TOMLDecodeError as e:
+        raise DataError(f"{label} is not valid TOML: {e}. Fix the syntax there.") from None
+    tk = _Toml(label)
+    base = path.parent
+
+    # --- [experiment], optionally at the top level
+    top = {k: v for k, v in doc.items() if not isinstance(v, dict)}
+    tables = {k: v for k, v in doc.items() if isinstance(v, dict)}
+    allowed_tables = {"experiment", "time", "transmission"} | set(_SECTIONS)
+    unknown = sorted(set(tables) - allowed_tables)
+    if unknown:
+        raise tk.err(
+            None,
+            f"unknown section(s) {', '.join(f'[{u}]' for u in unknown)}. Allowed: "
+            f"{', '.join(f'[{a}]' for a in sorted(allowed_tables))}.",
+        )
+    unknown = sorted(set(top) - _EXPERIMENT_KEYS)
+    if unknown:
+        raise tk.err(
+            None,
+            f"unknown top-level key(s) {', '.join(repr(u) for u in unknown)}. Allowed: "
+            f"{', '.join(sorted(_EXPERIMENT_KEYS))} (or put them under [experiment]).",
+        )
+    exp = dict(tables.get("experiment", {}))
+    tk.check_keys("experiment", exp, _EXPERIMENT_KEYS)
+    both = sorted(set(top) & set(exp))
+    if both:
+        raise tk.err(
+            None, f"{', '.join(both)} given both at the top and in [experiment]; keep one."
+        )
+    exp.update(top)
+    S = "experiment"
+    opts = _Options(
+        name=tk.string(S, exp, "name", "") or path.stem,
+        sampling_rate=tk.number(S, exp, "sampling_rate", positive=True),
+        start_time=tk.number(S, exp, "start_time", 0.0),
+        start_offset=tk.integer(S, exp, "start_offset", 0, minimum=0),
+        resample=exp.get("resample", False),
+        time_tolerance=tk.number(S, exp, "time_tolerance", TIME_STEP_TOLERANCE, positive=True),
+        where=f"{label}, [experiment]",
+    )
+    if not isinstance(opts.resample, bool):
+        raise tk.err(S, f"resample must be true or false, got {opts.resample!r}.")
+    default_file = tk.string(S, exp, "file")
+    notices: list[str] = []
+    meta: dict = {"description": label}
+
+    def resolve(f: str) -> tuple[Path, str]:
+        p = Path(f)
+        if not p.is_absolute():
+            p = base / p
+        return p, str(p)
+
+    sections = {s: tables[s] for s in _SECTIONS if s in tables}
+    if not sections and "time" not in tables:
+        # the data file is in dynid's column format
+        if default_file is None:
+            raise tk.err(
+                None,
+                "describes no data. Give [experiment] file = \"...\" (a file in dynid's "
+                "column format) or [positions] / [torques] sections.",
+            )
+        if "transmission" in tables:
+            raise tk.err(
+                "transmission",
+                "applies to [positions] / [torques] sections with side = \"motor\"; this "
+                "file has none.",
+            )
+        p, plabel = resolve(default_file)
+        if p.suffix.lower() == ".toml":
+            raise tk.err(S, "file must be a data file, not another TOML.")
+        raw = _read_referenced(p, plabel, f"{label}, [experiment]")
+        return _from_columns(raw, robot, n_joints, opts, f"{label} (data: {plabel})", notices, meta)
+
+    # --- signal sections
+    raws: dict[str, _RawFile] = {}
+    used_names: dict[str, set[str]] = {}
+
+    def raw_for(section: str, table: dict) -> _RawFile:
+        f = tk.string(section, table, "file", default_file)
+        if f is None:
+            raise tk.err(section, "no data file: give file = \"...\" here or in [experiment].")
+        p, plabel = resolve(f)
+        if plabel not in raws:
+            raws[plabel] = _read_referenced(p, plabel, f"{label}, [{section}]")
+            used_names[plabel] = set()
+            notices.extend(raws[plabel].notices)
+        return raws[plabel]
+
+    def available(raw: _RawFile) -> str:
+        names = list(raw.arrays)
+        return _short_list([f"'{x}'" for x in names], 15)
+
+    def select(section: str, table: dict, single: bool = False) -> list[_Col]:
+        raw = raw_for(section, table)
+        key = table.get("key")
+        cols = table.get("columns")
+        if single:
+            key2 = table.get("column")
+            if key is not None and key2 is not None:
+                raise tk.err(section, "give either key or column, not both.")
+            key = key if key is not None else key2
+            if key is None:
+                raise tk.err(section, "name the time column: column = \"...\" (or key = \"...\").")
+            if not isinstance(key, str):
+                raise tk.err(section, f"column must be a string, got {key!r}.")
+        else:
+            if (key is None) == (cols is None):
+                raise tk.err(
+                    section,
+                    "give exactly one of columns = [\"...\", ...] (one column per joint) "
+                    "or key = \"...\" (a 2-D array of shape (N, n) in an npz/mat file).",
+                )
+        if cols is not None:
+            if not isinstance(cols, list) or not cols or not all(isinstance(c, str) for c in cols):
+                raise tk.err(section, f"columns must be a non-empty list of names, got {cols!r}.")
+            dup = sorted({c for c in cols if cols.count(c) > 1})
+            if dup:
+                raise tk.err(section, f"columns lists {', '.join(map(repr, dup))} twice.")
+            out = []
+            for c in cols:
+                out.append(_lookup(raw, c, section, tk, available, one_d=True))
+                used_names[raw.label].add(c)
+            return out
+        if not isinstance(key, str):
+            raise tk.err(section, f"key must be a string, got {key!r}.")
+        if raw.tabular and not single:
+            raise tk.err(
+                section,
+                f"key = {key!r}: {raw.label} is a table; name its columns with "
+                "columns = [\"...\", ...], one per joint.",
+            )
+        col = _lookup(raw, key, section, tk, available, one_d=single)
+        used_names[raw.label].add(key)
+        if single:
+            return [col]
+        a = col.data
+        if a.ndim == 1:
+            a = a[:, None]
+        if a.ndim != 2:
+            raise tk.err(
+                section,
+                f"array '{key}' of {raw.label} has shape {a.shape}; expected (N, n), one row "
+                "per sample and one column per joint.",
+            )
+        return [_Col(raw, key, j, a[:, j]) for j in range(a.shape[1])]
+
+    # time
+    time_col = None
+    t = None
+    if "time" in tables:
+        tt = tables["time"]
+        tk.check_keys("time", tt, _TIME_KEYS)
+        time_col = select("time", tt, single=True)[0]
+        t, note = _time_values(time_col)
+        if note:
+            notices.append(note)
+        _check_finite([(time_col, t)])
+        tscale = tk.number("time", tt, "scale", 1.0, positive=True)
+        if tscale != 1.0:
+            t = t * tscale
+            notices.append(f"time scaled by {_fmt(tscale)} ([time] scale)")
+    elif opts.sampling_rate is None:
+        raise tk.err(
+            None,
+            "no time: give [experiment] sampling_rate = ... (Hz) or a [time] section naming "
+            "the time column.",
+        )
+
+    if "torques" not in sections and "currents" not in sections:
+        raise tk.err(None, "no [torques] (or [currents]) section: torques are required.")
+    if "torques" in sections and "currents" in sections:
+        raise tk.err(None, "give either [torques] or [currents], not both.")
+    if "positions" not in sections and "reference" not in sections:
+        raise tk.err(None, "no [positions] (or [reference]) section: positions are required.")
+
+    values: dict[str, np.ndarray] = {}
+    sides: dict[str, str] = {}
+    section_cols: dict[str, list[_Col]] = {}
+    for s, table in sections.items():
+        tk.check_keys(s, table, _SECTION_KEYS | _EXTRA_KEYS.get(s, set()))
+        cols = select(s, table)
+        items = [(c, _to_float(c)) for c in cols]
+        _check_finite(items)
+        values[s] = np.column_stack([v for _, v in items])
+        section_cols[s] = cols
+        side = tk.string(s, table, "side", "joint")
+        if side not in ("joint", "motor"):
+            raise tk.err(s, f"side must be \"joint\" or \"motor\", got {side!r}.")
+        sides[s] = side
+
+    # joint counts
+    ns = {s: v.shape[1] for s, v in values.items()}
+    if len(set(ns.values())) > 1:
+        raise tk.err(
+            None,
+            "the sections disagree on the number of joints: "
+            + ", ".join(f"[{s}] has {k}" for s, k in ns.items())
+            + ". Give one column per joint in every section.",
+        )
+    n = next(iter(ns.values()))
+    expected, who = _robot_joints(robot, n_joints)
+    if expected is not None and n != expected:
+        s0 = next(iter(values))
+        raise DataError(
+            f"{who} but {label} gives {n} columns in [{s0}] ({section_cols[s0][0].raw.label}). "
+            "Load the data with the robot it was recorded on, or fix the column lists."
+        )
+    # lengths
+    lens = {s: v.shape[0] for s, v in values.items()}
+    if time_col is not None:
+        lens["time"] = t.size
+    if len(set(lens.values())) > 1:
+        raise tk.err(
+            None,
+            "the sections have different numbers of samples: "
+            + ", ".join(
+                f"[{s}] {k} ({(time_col if s == 'time' else section_cols[s][0]).raw.label})"
+                for s, k in lens.items()
+            )
+            + ". Every signal needs one value per sample.",
+        )
+    if next(iter(lens.values())) < 2:
+        raise tk.err(None, "the data have fewer than 2 samples.")
+
+    # scale and gains
+    for s, table in sections.items():
+        sc = table.get("scale")
+        if sc is not None:
+            if isinstance(sc, list):
+                sc = tk.numbers(s, table, "scale", n)
+            else:
+                sc = tk.number(s, table, "scale")
+            values[s] = values[s] * sc
+            notices.append(f"[{s}] scaled by {sc if np.isscalar(sc) else list(sc)}")
+        if s in ("torques", "currents"):
+            g = tk.numbers(s, table, "drive_gains", n)
+            if g is None and s == "currents":
+                g, origin = _drive_gains(robot, n, label)
+                notices.append(
+                    f"[currents]: torque = drive gain × current, g = "
+                    f"[{', '.join(_fmt(x) for x in g)}] ({origin})"
+                )
+            elif g is not None:
+                notices.append(
+                    f"[{s}]: drive gains [{', '.join(_fmt(x) for x in g)}] applied "
+                    "(signal → torque)"
+                )
+            if g is not None:
+                values[s] = values[s] * g
+
+    # transmission
+    motor = [s for s in sections if sides[s] == "motor"]
+    R = offsets = None
+    if "transmission" in tables:
+        tr = tables["transmission"]
+        tk.check_keys("transmission", tr, _TRANSMISSION_KEYS)
+        if "gear_ratios" not in tr:
+            raise tk.err("transmission", "gear_ratios is required (one per joint).")
+        ratios = tk.numbers("transmission", tr, "gear_ratios", n)
+        couplings = tr.get("couplings", [])
+        if not isinstance(couplings, list):
+            raise tk.err("transmission", f"couplings must be a list, got {couplings!r}.")
+        try:
+            R = _tr.reduction_matrix(list(ratios), couplings)
+        except DataError as e:
+            raise tk.err("transmission", str(e)) from None
+        offsets = tk.numbers("transmission", tr, "position_offsets", n)
+        if not motor:
+            notices.append(
+                f"{label}: [transmission] given but no section has side = \"motor\"; unused"
+            )
+    if motor and R is None:
+        raise tk.err(
+            motor[0],
+            "side = \"motor\" needs a [transmission] section (gear_ratios, couplings, "
+            "position_offsets) to convert to the joint side.",
+        )
+    for s in motor:
+        if s in ("positions", "reference"):
+            values[s] = _tr.joint_from_motor_positions(values[s], R, offsets)
+            how = "q = R⁻¹·q_motor" + (" + position_offsets" if offsets is not None else "")
+        elif s in ("velocities", "accelerations"):
+            values[s] = _tr.joint_from_motor_velocities(values[s], R)
+            how = "R⁻¹·(motor signal)"
+        else:
+            values[s] = _tr.joint_from_motor_torques(values[s], R)
+            how = "tau = Rᵀ·tau_motor"
+        notices.append(f"[{s}]: motor side converted to joint side, {how}")
+
+    # unused data
+    for plabel, raw in raws.items():
+        unused = [k for k in raw.arrays if k not in used_names[plabel]]
+        unused += [k for k in raw.unreadable]
+        if unused:
+            notices.append(
+                f"{plabel}: not used by {label}: {_short_list([repr(u) for u in unused])}"
+            )
+
+    signals = {_SECTIONS[s]: v for s, v in values.items()}
+    if "i" in signals:
+        signals["tau"] = signals.pop("i")
+    shift = max_shift = min_shift = None
+    if "reference" in sections:
+        rt = sections["reference"]
+        shift = rt.get("shift", 0)
+        if not (shift == "estimate" or (isinstance(shift, int) and not isinstance(shift, bool))):
+            raise tk.err(
+                "reference",
+                f"shift must be a whole number of samples or \"estimate\", got {shift!r}.",
+            )
+        max_shift = tk.integer("reference", rt, "max_shift", None)
+        min_shift = tk.integer("reference", rt, "min_shift", None)
+        if min_shift is not None and max_shift is not None and min_shift > max_shift:
+            raise tk.err("reference", f"min_shift = {min_shift} exceeds max_shift = {max_shift}.")
+        if shift == 0:
+            shift = None
+    files = ", ".join(raws)
+    return _assemble(
+        t=t, time_col=time_col, signals=signals, opts=opts, notices=notices,
+        source=f"{label} (data: {files})", meta=meta, shift=shift, max_shift=max_shift,
+        min_shift=min_shift,
+        shift_where=f"{label}, [reference]",
+    )
+
+
+def _read_referenced(p: Path, plabel: str, where: str) -> _RawFile:
+    """Read a data file named in a TOML; errors also say where the name came from."""
+    try:
+        return _read_data_file(p, plabel)
+    except DataError as e:
+        hint = (" Paths in an experiment TOML are relative to the TOML file's folder."
+                if "not found" in str(e) else "")
+        raise DataError(f"{where} names a data file that cannot be used: {e}{hint}") from None
+
+
+def _lookup(raw: _RawFile, name: str, section: str, tk: _Toml, available, one_d: bool) -> _Col:
+    if name in raw.unreadable:
+        raise tk.err(
+            section,
+            f"array '{name}' of {raw.label} cannot be read ({raw.unreadable[name]}). Store "
+            "it as a plain numeric array.",
+        )
+    if name not in raw.arrays:
+        raise tk.err(
+            section,
+            f"{raw.label} has no {'column' if raw.tabular else 'array'} '{name}'. "
+            f"Available: {available(raw)}.",
+        )
+    a = raw.arrays[name]
+    if one_d:
+        if a.ndim == 2 and 1 in a.shape:
+            a = a.reshape(-1)
+        if a.ndim != 1:
+            raise tk.err(
+                section,
+                f"'{name}' of {raw.label} has shape {a.shape}; a single column of shape "
+                "(N,) is needed here (use key = ... for a 2-D array).",
+            )
+    return _Col(raw, name, None, a)
+

@@ -1,0 +1,549 @@
+"""Readers: one data file (CSV, Parquet, npz, MAT) → its named raw columns.
+
+Each reader returns a :class:`_RawFile`: the file's arrays by name (CSV cells as text
+until a column is used, or float64 columns when the fast CSV path succeeded), plus
+the row-numbering convention used in messages. Turning raw columns into signals is
+:mod:`dynid.analysis.data.columns`' job.
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+import re
+import stat
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from dynid.analysis.data._format import _short_list
+from dynid.analysis.data.columns import _COLUMN_RE, _CONVENTION
+from dynid.errors import DataError
+
+# --------------------------------------------------------------------------------------
+# Raw file readers
+# --------------------------------------------------------------------------------------
+
+
+class _RawFile:
+    """The named arrays of one data file, with the file's row-numbering convention."""
+
+    def __init__(self, path: Path, label: str, kind: str):
+        self.path = path
+        self.label = label
+        self.kind = kind  # csv | parquet | npz | mat
+        self.arrays: dict[str, np.ndarray] = {}
+        self.unreadable: dict[str, str] = {}
+        self.line_of_row: list[int] | None = None
+        #: CSV read by the fast path: data row k (0-based) is on file line first_line + k.
+        self.first_line: int | None = None
+        self.notices: list[str] = []
+
+    @property
+    def tabular(self) -> bool:
+        return self.kind in ("csv", "parquet")
+
+    def row(self, k: int) -> str:
+        if self.line_of_row is not None:
+            return f"data row {k + 1} (file line {self.line_of_row[k]})"
+        if self.first_line is not None:
+            return f"data row {k + 1} (file line {self.first_line + k})"
+        return f"row {k + 1} (1-based sample number)"
+
+    def add(self, name: str, array, where: str) -> None:
+        if name in self.arrays or name in self.unreadable:
+            raise DataError(
+                f"{self.label}: the column name '{name}' appears twice ({where}). "
+                "Rename or delete one of them."
+            )
+        self.arrays[name] = array
+
+
+def _file_kind(mode: int) -> str:
+    for test, name in ((stat.S_ISFIFO, "a named pipe (FIFO)"), (stat.S_ISCHR, "a character device"),
+                       (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket")):
+        if test(mode):
+            return name
+    return "a special file"
+
+
+def _refuse_special(path: Path, label: str) -> None:
+    """DataError for a FIFO, device, socket (or a symlink to one) before any read.
+
+    Reading /dev/zero or a pipe would never end (or fill the memory); only regular
+    files are data files. Stat errors are left to the reader's own messages."""
+    try:
+        st_ = path.stat()
+    except OSError:
+        return
+    if stat.S_ISDIR(st_.st_mode) or stat.S_ISREG(st_.st_mode):
+        return
+    what = _file_kind(st_.st_mode)
+    if path.is_symlink():
+        try:
+            what = f"a symbolic link to {os.readlink(path)}, {what}"
+        except OSError:
+            what = f"a symbolic link to {what}"
+    raise DataError(
+        f"{label} is {what}, not a regular file. dynid reads experiment data only from "
+        "regular files (a pipe or device would be read without end): save the recording to a "
+        "file and load that."
+    )
+
+
+def _check_file(path: Path, label: str) -> None:
+    """Exists, is a file and is not empty (for formats read by a library)."""
+    try:
+        st_ = path.stat()
+    except FileNotFoundError:
+        rel = "" if path.is_absolute() else f" (a relative path is taken relative to {Path.cwd()})"
+        raise DataError(f"{label}: file not found. Check the path{rel}.") from None
+    except OSError as e:
+        raise DataError(f"{label} cannot be read: {e.strerror or e}.") from None
+    if path.is_dir():
+        raise DataError(f"{label} is a folder, not a file. Give the data file itself.")
+    _refuse_special(path, label)
+    if st_.st_size == 0:
+        raise DataError(f"{label} is empty. Export the recording again.")
+
+
+def _read_bytes(path: Path, label: str) -> bytes:
+    _refuse_special(path, label)
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        rel = "" if path.is_absolute() else f" (a relative path is taken relative to {Path.cwd()})"
+        raise DataError(f"{label}: file not found. Check the path{rel}.") from None
+    except IsADirectoryError:
+        raise DataError(f"{label} is a folder, not a file. Give the data file itself.") from None
+    except PermissionError:
+        raise DataError(f"{label} cannot be read: permission denied.") from None
+    except OSError as e:
+        raise DataError(f"{label} cannot be read: {e.strerror or e}.") from None
+    if not data.strip():
+        raise DataError(f"{label} is empty. Export the recording again.")
+    return data
+
+
+def _read_csv(path: Path, label: str) -> _RawFile:
+    """A CSV file: the fast pandas path when the file is regular, else the precise one."""
+    _refuse_special(path, label)
+    raw = _read_csv_fast(path, label)
+    if raw is not None:
+        return raw
+    return _read_csv_precise(path, label)
+
+
+#: Bytes read at a time by the fast CSV path's scan of the file.
+_SCAN_CHUNK = 1 << 22
+#: Spellings pandas' float parser reads as booleans (1.0 / 0.0); Python's float() does not.
+_BOOL_WORDS = (b"rue", b"RUE", b"alse", b"ALSE")
+
+
+def _scan_csv(path: Path) -> str | None:
+    """Check a CSV (in chunks, at memchr speed) for what pandas would read differently
+    from :func:`_read_csv_precise`; the header line, or None.
+
+    Refused: a first line that is blank or quoted, quotes, NUL bytes, a CR that does not
+    end a line, and boolean words (pandas reads "True" as 1.0)."""
+    try:
+        f = open(path, "rb")  # noqa: SIM115 - closed by the with below
+    except OSError:
+        return None
+    with f:
+        first = f.readline(1 << 20)
+        if not first.endswith(b"\n") or b'"' in first or b"\0" in first:
+            return None
+        line = first[:-1]
+        if line.endswith(b"\r"):
+            line = line[:-1]
+        if not line.strip() or b"\r" in line:
+            return None
+        try:
+            header = line.decode("utf-8-sig")
+        except UnicodeDecodeError:
+            return None
+        last = b""
+        cr_open = False
+        while True:
+            chunk = f.read(_SCAN_CHUNK)
+            if not chunk:
+                break
+            if b'"' in chunk or b"\0" in chunk:
+                return None
+            if cr_open and not chunk.startswith(b"\n"):
+                return None
+            if b"\r" in chunk:
+                cr_open = chunk.endswith(b"\r")
+                if chunk.count(b"\r") != chunk.count(b"\r\n") + cr_open:
+                    return None
+            else:
+                cr_open = False
+            if any(c in chunk or c in last for c in (b"u", b"U", b"l", b"L")):
+                joined = last + chunk
+                if any(w in joined for w in _BOOL_WORDS):
+                    return None
+            last = chunk[-4:]
+    if cr_open:
+        return None
+    return header
+
+
+def _read_csv_fast(path: Path, label: str) -> _RawFile | None:
+    """The whole CSV parsed by pandas' C reader into float64 columns (text for columns
+    outside the dynid convention, exactly as the precise path keeps them), or None
+    when anything is unusual and :func:`_read_csv_precise` must read (and judge) it.
+
+    The values are bit-identical to Python's ``float()`` of each cell (pandas ≥ 3 parses
+    floats exactly; pandas 2 does with ``float_precision="round_trip"``). Cells the
+    precise path would reject or read differently (text, empty cells, NaN, booleans,
+    '_' digit separators, Unicode digits) make pandas fail, and the precise path
+    then names the file, column, data row and file line."""
+    try:
+        import pandas as pd
+    except ImportError:
+        return None
+    try:
+        if path.stat().st_size == 0:
+            return None
+    except OSError:
+        return None
+    header_text = _scan_csv(path)
+    if header_text is None:
+        return None
+    names = next(csv.reader([header_text]))
+    stripped = [c.strip() for c in names]
+    if (any(c == "" for c in stripped) or len(set(stripped)) != len(stripped)
+            or len(set(names)) != len(names) or len(names) < 2
+            or all(_is_number(h) for h in stripped)):
+        return None
+    kw = {} if int(pd.__version__.split(".")[0]) >= 3 else {"float_precision": "round_trip"}
+
+    def parse(dtypes):
+        with warnings.catch_warnings():
+            # "Length of header or names does not match length of data": a long first row
+            warnings.simplefilter("error")
+            # No blank lines are skipped: a blank or short row gives '' in a float column,
+            # which fails; so data row k is on file line k + 2.
+            return pd.read_csv(path, sep=",", header=0, dtype=dtypes, na_filter=False,
+                               engine="c", encoding="utf-8", quoting=csv.QUOTE_NONE,
+                               skip_blank_lines=False, index_col=False, **kw)
+
+    # Every column as numbers first (a TOML may name any column); if that fails, the
+    # columns outside the convention as text, as the precise path keeps them.
+    dtypes = dict.fromkeys(names, float)
+    try:
+        df = parse(dtypes)
+    except Exception:  # noqa: BLE001 - any parse failure: the precise path explains it
+        dtypes = {raw: (float if _COLUMN_RE.match(name) else object)
+                  for raw, name in zip(names, stripped, strict=True)}
+        if object not in dtypes.values():
+            return None
+        try:
+            df = parse(dtypes)
+        except Exception:  # noqa: BLE001
+            return None
+        # a short row or a blank line shows only in the columns read as text
+        if _count_commas(path) != (len(names) - 1) * (len(df) + 1):
+            return None
+    if list(df.columns) != names or len(df) < 1:
+        return None
+    raw = _RawFile(path, label, "csv")
+    raw.first_line = 2
+    for c, name in enumerate(stripped):
+        col = df.iloc[:, c]
+        if dtypes[names[c]] is float:
+            a = col.to_numpy(dtype=float)
+            if a.dtype != np.float64 or np.isnan(a).any():
+                return None
+        else:
+            a = col.to_numpy(dtype=object)
+        raw.arrays[name] = a
+    return raw
+
+
+def _count_commas(path: Path) -> int | None:
+    try:
+        with open(path, "rb") as f:
+            return sum(chunk.count(b",") for chunk in iter(lambda: f.read(_SCAN_CHUNK), b""))
+    except OSError:
+        return None
+
+
+
+def _read_csv_precise(path: Path, label: str) -> _RawFile:
+    """Python's csv module and one text cell per value; every malformed-input message
+    (file, line, data row, column) comes from here. Slow and memory-hungry (a Python
+    string per cell), so used only when :func:`_read_csv_fast` declines the file."""
+    data = _read_bytes(path, label)
+    if b"\0" in data:
+        raise DataError(
+            f"{label} is not a text file (it contains NUL bytes). Export the data as a "
+            "comma-separated text file, or use the matching extension (.parquet, .npz, .mat)."
+        )
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        line = data[: e.start].count(b"\n") + 1
+        raise DataError(
+            f"{label}: line {line} is not valid UTF-8 text (byte {e.start}). "
+            "Save the file as UTF-8 CSV."
+        ) from None
+    raw = _RawFile(path, label, "csv")
+    lines = re.split(r"\r\n|\r|\n", text)
+    reader = csv.reader(lines)
+    header: list[str] | None = None
+    header_line = 0
+    rows: list[list[str]] = []
+    line_of_row: list[int] = []
+    blank: list[int] = []
+    while True:
+        ln = reader.line_num + 1  # first line of the next row (quoted fields may span lines)
+        try:
+            row = next(reader)
+        except StopIteration:
+            break
+        except csv.Error as e:
+            raise DataError(
+                f"{label}, file line {ln}: cannot be parsed as CSV ({e}). Fix that line "
+                "(check the quotes)."
+            ) from None
+        if not row or (len(row) == 1 and not row[0].strip()):
+            if header is not None:
+                blank.append(ln)
+            continue
+        if header is None:
+            header, header_line = [c.strip() for c in row], ln
+            continue
+        rows.append(row)
+        line_of_row.append(ln)
+    if header is None:
+        raise DataError(f"{label} is empty. Export the recording again.")
+    while header and header[-1] == "":
+        header.pop()
+    if not header:
+        raise DataError(
+            f"{label}, file line {header_line}: the header line has no column names. "
+            "The first line must name the columns (t, q1..qn, tau1..taun; "
+            f"{_CONVENTION})."
+        )
+    if len(header) == 1 and any(s in header[0] for s in (";", "\t", "|")):
+        sep = next(s for s in (";", "\t", "|") if s in header[0])
+        raise DataError(
+            f"{label}, file line {header_line}: the columns seem to be separated by "
+            f"{sep!r}; dynid reads comma-separated files. Export with ',' as the column "
+            "separator and '.' as the decimal point."
+        )
+    if all(_is_number(h) for h in header if h):
+        raise DataError(
+            f"{label}, file line {header_line}: the first line holds numbers, not column "
+            "names. Add a header line naming the columns (t, q1..qn, tau1..taun; "
+            f"{_CONVENTION}), or describe the file in an experiment TOML."
+        )
+    # blank lines at the very end are normal; others are reported
+    if blank and rows:
+        last = line_of_row[-1]
+        inner = [b for b in blank if b < last]
+        if inner:
+            raw.notices.append(
+                f"{label}: skipped {len(inner)} blank line(s) among the data (file line(s) "
+                f"{_short_list(inner)})"
+            )
+    if not rows:
+        raise DataError(
+            f"{label} has a header line but no data rows. Export the recording again."
+        )
+    h = len(header)
+    for k, row in enumerate(rows):
+        if len(row) > h:
+            extra = row[h:]
+            if all(not c.strip() for c in extra):
+                del row[h:]
+            else:
+                raise DataError(
+                    f"{label}, {_csv_row(line_of_row, k)}: {len(row)} values but the "
+                    f"header names {h} columns. Remove the extra values, or name the "
+                    "extra columns in the header."
+                )
+        if len(row) < h:
+            raise DataError(
+                f"{label}, {_csv_row(line_of_row, k)}: {len(row)} value(s) but the header "
+                f"names {h} columns: the row is truncated (column '{header[len(row)]}' and "
+                "after are missing). Complete or delete that line."
+            )
+    raw.line_of_row = line_of_row
+    columns = list(zip(*rows, strict=True))
+    first_pos: dict[str, int] = {}
+    for c, name in enumerate(header):
+        if name == "":
+            raw.notices.append(f"{label}: column {c + 1} has no name in the header; ignored")
+            continue
+        if name in first_pos:
+            raise DataError(
+                f"{label}, file line {header_line}: the column name '{name}' appears twice "
+                f"(columns {first_pos[name] + 1} and {c + 1} of the header). Rename or "
+                "delete one of them."
+            )
+        first_pos[name] = c
+        raw.arrays[name] = np.array(columns[c], dtype=object)
+    return raw
+
+
+def _csv_row(line_of_row: list[int], k: int) -> str:
+    return f"data row {k + 1} (file line {line_of_row[k]})"
+
+
+def _is_number(s: str) -> bool:
+    try:
+        float(s)
+    except (ValueError, TypeError):
+        return False
+    return True
+
+
+def _read_parquet(path: Path, label: str) -> _RawFile:
+    _check_file(path, label)
+    try:
+        import pandas as pd
+    except ImportError:
+        raise DataError(
+            f"{label}: reading Parquet needs pandas and pyarrow: pip install pandas pyarrow"
+        ) from None
+    try:
+        df = pd.read_parquet(path)
+    except ImportError:
+        raise DataError(
+            f"{label}: reading Parquet files needs pyarrow. Install it with "
+            "`pip install pyarrow`, or export the data as CSV."
+        ) from None
+    except Exception as e:  # noqa: BLE001 - any reader failure is a bad file
+        raise DataError(
+            f"{label} is not a readable Parquet file ({type(e).__name__}: "
+            f"{str(e).splitlines()[0] if str(e) else ''}). Export it again."
+        ) from None
+    raw = _RawFile(path, label, "parquet")
+    for c, name in enumerate(df.columns):
+        sname = str(name).strip()
+        s = df.iloc[:, c]
+        if sname == "":
+            raw.notices.append(f"{label}: column {c + 1} has no name; ignored")
+            continue
+        if sname in raw.arrays:
+            raise DataError(
+                f"{label}: the column name '{sname}' appears twice. Rename or delete one "
+                "of them."
+            )
+        if isinstance(s.dtype, pd.DatetimeTZDtype):
+            s = s.dt.tz_convert(None)
+        kind = s.dtype.kind if isinstance(s.dtype, np.dtype) else None
+        if kind in ("M", "m"):
+            raw.arrays[sname] = s.to_numpy()
+        elif pd.api.types.is_numeric_dtype(s.dtype) and not pd.api.types.is_bool_dtype(s.dtype):
+            try:
+                raw.arrays[sname] = s.to_numpy(dtype=float, na_value=np.nan)
+            except (TypeError, ValueError):
+                raw.arrays[sname] = s.to_numpy(dtype=object)
+        else:
+            raw.arrays[sname] = s.to_numpy(dtype=object)
+    if len(df) == 0:
+        raise DataError(f"{label} has columns but no rows. Export the recording again.")
+    return raw
+
+
+def _read_npz(path: Path, label: str) -> _RawFile:
+    _check_file(path, label)
+    try:
+        with open(path, "rb") as fh:
+            magic = fh.read(6)
+    except OSError as e:
+        raise DataError(f"{label} cannot be read: {e.strerror or e}.") from None
+    if magic.startswith(b"\x93NUMPY"):
+        raise DataError(
+            f"{label} holds a single array, not an .npz archive of named arrays. Save it "
+            "with numpy.savez(path, t=..., q=..., tau=...)."
+        )
+    if not magic.startswith((b"PK\x03\x04", b"PK\x05\x06")):
+        text = " (it looks like a text file, e.g. a CSV: give it the .csv extension)" if (
+            magic and all(32 <= b < 127 or b in (9, 10, 13) for b in magic)) else ""
+        raise DataError(
+            f"{label} is not an npz archive: it does not start with the zip signature of "
+            f"files written by numpy.savez{text}. Save the data with "
+            "numpy.savez(path, t=..., q=..., tau=...)."
+        )
+    try:
+        f = np.load(path, allow_pickle=False)
+    except Exception as e:  # noqa: BLE001
+        raise DataError(
+            f"{label} is not a readable .npz archive ({_safe_reason(e)}). Save it with "
+            "numpy.savez(path, t=..., q=..., tau=...)."
+        ) from None
+    if not hasattr(f, "files"):
+        raise DataError(
+            f"{label} holds a single array, not an .npz archive of named arrays. Save it "
+            "with numpy.savez(path, t=..., q=..., tau=...)."
+        )
+    raw = _RawFile(path, label, "npz")
+    with f:
+        for key in f.files:
+            try:
+                a = f[key]
+            except Exception as e:  # noqa: BLE001 - object arrays, corrupt members
+                raw.unreadable[key] = _safe_reason(e)
+                continue
+            raw.arrays[key] = np.asarray(a)
+    if not raw.arrays and not raw.unreadable:
+        raise DataError(f"{label} holds no arrays. Save the data with numpy.savez.")
+    return raw
+
+
+def _read_mat(path: Path, label: str) -> _RawFile:
+    _check_file(path, label)
+    try:
+        import scipy.io
+    except ImportError:
+        raise DataError(f"{label}: reading .mat files needs scipy: pip install scipy") from None
+    try:
+        d = scipy.io.loadmat(path, squeeze_me=True)
+    except NotImplementedError:
+        raise DataError(
+            f"{label} is a MATLAB v7.3 (HDF5) file, which scipy cannot read. Save it "
+            "from MATLAB with save(..., '-v7'), or export CSV."
+        ) from None
+    except Exception as e:  # noqa: BLE001
+        raise DataError(
+            f"{label} is not a readable MATLAB .mat file ({type(e).__name__}: "
+            f"{str(e).splitlines()[0] if str(e) else ''}). Save it with save(..., '-v7')."
+        ) from None
+    raw = _RawFile(path, label, "mat")
+    for key, a in d.items():
+        if key.startswith("__"):
+            continue
+        raw.arrays[key] = np.asarray(a)
+    if not raw.arrays:
+        raise DataError(f"{label} holds no variables.")
+    return raw
+
+
+def _safe_reason(e: Exception) -> str:
+    """An exception as a short reason, never suggesting unpickling (numpy's messages
+    mention allow_pickle; loading pickles runs arbitrary code)."""
+    first = str(e).splitlines()[0] if str(e) else ""
+    if "pickle" in first.lower():
+        return "it holds Python objects (pickled data), which dynid does not load"
+    return f"{type(e).__name__}: {first}"
+
+
+_READERS = {".csv": _read_csv, ".parquet": _read_parquet, ".npz": _read_npz, ".mat": _read_mat}
+
+
+def _read_data_file(path: Path, label: str) -> _RawFile:
+    ext = path.suffix.lower()
+    if ext not in _READERS:
+        raise DataError(
+            f"{label}: unknown data file extension '{path.suffix}'. Supported: "
+            ".csv, .parquet, .npz, .mat (and .toml experiment descriptions). If it is a "
+            "comma-separated table, rename it to .csv."
+        )
+    return _READERS[ext](path, label)
+

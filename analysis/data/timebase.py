@@ -1,0 +1,197 @@
+"""The time base of an experiment: time-column checks, resampling and reference shift.
+
+* :func:`_check_time`: ``t`` strictly increasing and uniform within
+  :data:`TIME_STEP_TOLERANCE` of the median step; steps longer than :data:`GAP_FACTOR` ×
+  the median are named as dropped samples or clock jumps.
+* :func:`_resample`: linear interpolation onto a uniform grid at the median step
+  (``resample = true`` in an experiment TOML).
+* :func:`estimate_shift`: the integer sample shift between measured and reference
+  positions, by least squares (``shift = "estimate"`` in ``[reference]``).
+
+The rules are described in docs/formats.md, section "Experiment data".
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from dynid.analysis.data._format import _fmt, _fmt_t, _short_list
+from dynid.errors import DataError
+
+if TYPE_CHECKING:
+    from dynid.analysis.data.columns import _Col
+
+__all__ = ["estimate_shift", "TIME_STEP_TOLERANCE", "GAP_FACTOR"]
+
+#: Largest allowed relative deviation of a time step from the median step.
+TIME_STEP_TOLERANCE = 0.01
+#: A time step longer than this × the median is reported as dropped samples / clock jump.
+GAP_FACTOR = 1.5
+
+
+@dataclass
+class _Options:
+    """Loader options (an experiment TOML's [experiment] table, or the defaults)."""
+
+    name: str = ""
+    sampling_rate: float | None = None
+    start_time: float = 0.0
+    start_offset: int = 0
+    resample: bool = False
+    time_tolerance: float = TIME_STEP_TOLERANCE
+    where: str = ""  # the TOML file, for messages about options
+
+
+def _check_time(t: np.ndarray, col: _Col, rows: np.ndarray, opts: _Options,
+                notices: list[str]) -> bool:
+    """Validate the time column; True if the caller must resample."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        dt = np.diff(t)
+    if not np.all(np.isfinite(dt)):
+        k = int(np.flatnonzero(~np.isfinite(dt))[0])
+        raise DataError(
+            f"{col.where}: the time values at {col.raw.row(rows[k + 1])} are too large to "
+            "take differences. Store time in s relative to the start of the recording."
+        )
+    back = np.flatnonzero(dt <= 0)
+    if back.size:
+        k = int(back[0])
+        what = "repeats" if dt[k] == 0 else "goes back"
+        raise DataError(
+            f"{col.where}: time {what} at {col.raw.row(rows[k + 1])}: t = {_fmt_t(t[k + 1])} "
+            f"follows t = {_fmt_t(t[k])} at {col.raw.row(rows[k])} ({back.size} such step(s) "
+            "in all). Time must be strictly increasing: sort the rows by time and remove "
+            "repeated samples."
+        )
+    med = float(np.median(dt))
+    if not (med > 0 and math.isfinite(1.0 / med)):
+        raise DataError(
+            f"{col.where}: the median time step {med!r} s is too small. Store time in s."
+        )
+    dev = np.abs(dt - med) / med
+    tol = opts.time_tolerance
+    gaps = np.flatnonzero(dt > GAP_FACTOR * med)
+    gap_text = ""
+    if gaps.size:
+        gap_text = (
+            f" Dropped samples or clock jumps (steps longer than {GAP_FACTOR} × the median) "
+            f"before: "
+            + _short_list(
+                [f"{col.raw.row(rows[k + 1])} ({dt[k] * 1e3:.4g} ms)" for k in gaps], 5
+            )
+            + "."
+        )
+    if not (dev > tol).any():
+        if opts.resample:
+            notices.append(
+                f"resample = true, but the time steps of {col.where} are already uniform "
+                f"within {tol:.3g} of the median: not resampled"
+            )
+        return False
+    n_off = int((dev > tol).sum())
+    if opts.resample:
+        notices.append(
+            f"{col.where}: irregular time steps ({_fmt(dt.min() * 1e3)} … "
+            f"{_fmt(dt.max() * 1e3)} ms, median {_fmt(med * 1e3)} ms; {n_off} of "
+            f"{dt.size} steps off by more than {tol:.1%})." + gap_text
+        )
+        return True
+    k = int(np.argmax(dev))
+    raise DataError(
+        f"{col.where}: irregular time steps: the median step is {_fmt(med * 1e3)} ms but "
+        f"the step to {col.raw.row(rows[k + 1])} from the row before is {_fmt(dt[k] * 1e3)} ms "
+        f"({dev[k]:.1%} off; the tolerance is {tol:.2%}). {n_off} of {dt.size} "
+        f"steps are off by more than the tolerance.{gap_text} Resample the data onto a "
+        "uniform time grid, or load it through an experiment TOML with `resample = true` "
+        "in [experiment] (linear interpolation at the median step)."
+    )
+
+
+def _resample(t: np.ndarray, signals: dict[str, np.ndarray], notices: list[str]):
+    med = float(np.median(np.diff(t)))
+    k = int(math.floor((t[-1] - t[0]) / med * (1 + 1e-12)))
+    grid = t[0] + med * np.arange(k + 1)
+    grid = grid[grid <= t[-1]]
+    out = {}
+    for s, a in signals.items():
+        out[s] = np.column_stack([np.interp(grid, t, a[:, j]) for j in range(a.shape[1])])
+    notices.append(
+        f"resampled {t.size} samples with irregular time steps onto a uniform grid of "
+        f"{grid.size} samples at the median step {_fmt(med * 1e3)} ms "
+        f"({_fmt(1 / med)} Hz) by linear interpolation"
+    )
+    return grid, out
+
+
+def estimate_shift(measured, reference, max_shift: int | None = None,
+                   min_shift: int = 0) -> tuple[int, float]:
+    """Integer sample shift L with ``measured[i + L] ≈ reference[i]``, by least squares.
+
+    Minimises the mean over joints and overlapping samples of
+    ``(measured[i + L] − reference[i])²`` for ``min_shift ≤ L ≤ max_shift``.
+    Defaults: ``min_shift = 0`` (causal: the measurement follows the command, never
+    precedes it) and ``max_shift = N // 4`` (at least three quarters of the record
+    overlap). Both are capped at ±(N − 2). The range matters for periodic excitation
+    trajectories: a shift by a whole period (or minus one) fits about as well, so keep
+    the range below one period. Ties go to the smallest |L|. The cross terms are
+    computed by FFT; the best candidates are re-evaluated directly.
+
+    Returns ``(L, rms)``: the shift in samples and the RMS difference at that shift.
+    """
+    m = np.asarray(measured, dtype=float)
+    r = np.asarray(reference, dtype=float)
+    if m.ndim == 1:
+        m = m[:, None]
+    if r.ndim == 1:
+        r = r[:, None]
+    if m.shape != r.shape:
+        raise DataError(
+            f"estimate_shift: measured {m.shape} and reference {r.shape} differ in shape."
+        )
+    n, c = m.shape
+    if n < 3:
+        raise DataError("estimate_shift needs at least 3 samples.")
+    hi = n // 4 if max_shift is None else int(max_shift)
+    lo = int(min_shift)
+    hi = max(-(n - 2), min(hi, n - 2))
+    lo = max(-(n - 2), min(lo, n - 2))
+    if lo > hi:
+        raise DataError(
+            f"estimate_shift: min_shift = {min_shift} is larger than max_shift = {max_shift}."
+        )
+    size = 1
+    while size < 2 * n:
+        size *= 2
+    corr = np.zeros(size)
+    for j in range(c):
+        corr += np.fft.irfft(np.fft.rfft(m[:, j], size) * np.conj(np.fft.rfft(r[:, j], size)), size)
+    cm = np.concatenate([[0.0], np.cumsum((m**2).sum(axis=1))])
+    cr = np.concatenate([[0.0], np.cumsum((r**2).sum(axis=1))])
+    lags = np.arange(lo, hi + 1)
+    cost = np.empty(lags.size)
+    for idx, L in enumerate(lags):
+        if L >= 0:
+            ov = n - L
+            sm, sr, x = cm[n] - cm[L], cr[ov], corr[L]
+        else:
+            K = -L
+            ov = n - K
+            sm, sr, x = cm[ov], cr[n] - cr[K], corr[size - K]
+        cost[idx] = (sm + sr - 2 * x) / (ov * c)
+
+    def direct(L: int) -> float:
+        if L >= 0:
+            d = m[L:] - r[: n - L]
+        else:
+            d = m[: n + L] - r[-L:]
+        return float(np.mean(d**2))
+
+    cand = lags[np.argsort(cost, kind="stable")[: min(7, lags.size)]]
+    exact = sorted((direct(int(L)), abs(int(L)), int(L)) for L in cand)
+    best_cost, _, best = exact[0]
+    return best, math.sqrt(max(best_cost, 0.0))
+
