@@ -33,7 +33,8 @@ Coulomb friction and the smooth sign
 ------------------------------------
 ``s(x) = tanh(x / v_s)`` when ``v_s > 0``, the exact ``sign(x)`` (with
 ``sign(0) = 0``) when ``v_s = 0``. The inverse-dynamics wrappers default to
-``v_s = 0`` (they then equal :func:`dynid.dynamics.regressor.inverse_dynamics`); the
+``v_s = 0`` (they then equal the regressor route ``W(q, qd, qdd) chi_st``, kept as the
+test oracle ``dynid.dynamics.regressor._inverse_dynamics_via_regressor``); the
 simulator defaults to ``v_s = DEFAULT_V_S = 0.01`` rad/s (m/s for a prismatic
 joint), so an explicit integrator is not facing a discontinuous right-hand
 side. Near ``qd = 0`` the smooth sign adds the viscous slope ``Fc / v_s``;
@@ -461,7 +462,10 @@ def inverse_dynamics(robot, chi_st, q, qd, qdd, *, v_s=0.0):
     """tau = (M(q) + A) qdd + N(q, qd) of eq. (1), from chi_st; (n,) or (N, n).
 
     With ``v_s = 0`` (default) Coulomb friction uses the exact sign and the result
-    equals ``dynid.dynamics.regressor.inverse_dynamics(robot, chi_st, q, qd, qdd)``.
+    equals the regressor route ``regressor(robot, q, qd, qdd) @ chi_st`` (the test oracle
+    ``dynid.dynamics.regressor._inverse_dynamics_via_regressor``). dynid's one
+    implementation of the inverse dynamics, also importable from
+    :mod:`dynid.dynamics.regressor`.
     """
     ma = model_arrays(robot, chi_st)
     (q, qd, qdd), single = _samples(robot, q=q, qd=qd, qdd=qdd)

@@ -111,7 +111,7 @@ import scipy.optimize
 from .base_parameters import base_parameters, base_regressor
 from .dynamic_model import inverse_dynamics
 from dynid.errors import InputError
-from .trajectories import FourierTrajectory, check_f0, check_harmonics, random_fourier_trajectory
+from .trajectories import FourierTrajectory, _rng, check_f0, check_harmonics, random_fourier_trajectory
 
 __all__ = ["ExcitationResult", "design_excitation", "limit_blas_threads", "apriori_parameters", "column_scales",
            "regressor_conditioning", "limit_margins", "spectrum_check", "SCALINGS", "CRITERIA"]
@@ -606,14 +606,6 @@ def limit_blas_threads(n):
     finally:
         for setter, old in restore:
             setter(ctypes.c_int(old))
-
-
-def _rng(rng):
-    if isinstance(rng, np.random.Generator):
-        return rng
-    if rng is None or isinstance(rng, (int, np.integer)):
-        return np.random.default_rng(rng)
-    raise InputError(f"rng must be a numpy Generator, an integer seed or None, got {rng!r}")
 
 
 def _shrink_to_torque(prob, traj, n_grid=2000):

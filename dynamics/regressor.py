@@ -21,6 +21,8 @@ import numpy as np
 from . import _kernels
 from .kinematics import _cross, forward_kinematics, newton_euler_forward
 from .robot import PER_JOINT
+# the one implementation of each, importable from here too (e.g. benchmarks/idim.py)
+from .dynamic_model import bias_torque, inverse_dynamics, mass_matrix  # noqa: F401
 
 N_PER_JOINT = len(PER_JOINT)
 DEFAULT_CHUNK = 10_000
@@ -178,8 +180,16 @@ def regressor_chunks(robot, q, qd, qdd, *, columns=None, chunk=DEFAULT_CHUNK):
         yield sl, regressor(robot, q[sl], qd[sl], qdd[sl], columns=columns, chunk=chunk)
 
 
-def inverse_dynamics(robot, chi, q, qd, qdd, *, chunk=DEFAULT_CHUNK):
-    """tau = IDM_st(q, qd, qdd) chi, shape (N, n), eq. (2)."""
+# ------------------------------------------------ the regressor route (test oracles)
+# dynid's one public inverse_dynamics / mass_matrix / bias_torque are the
+# per-sample RNEA of dynid.dynamics.dynamic_model (re-exported below). The three
+# functions here compute the same quantities through the regressor, tau = W chi;
+# they stay, private, only as an independent check: tests/test_regressor.py
+# compares them with Pinocchio (which checks the regressor's columns) and
+# tests/test_simulation.py compares the RNEA with them.
+
+def _inverse_dynamics_via_regressor(robot, chi, q, qd, qdd, *, chunk=DEFAULT_CHUNK):
+    """tau = IDM_st(q, qd, qdd) chi, shape (N, n), eq. (2) (test oracle)."""
     chi = np.asarray(chi, dtype=float)
     q, qd, qdd = _as_samples(robot, q, qd, qdd)
     tau = np.empty(q.shape)
@@ -188,8 +198,8 @@ def inverse_dynamics(robot, chi, q, qd, qdd, *, chunk=DEFAULT_CHUNK):
     return tau
 
 
-def mass_matrix(robot, chi, q):
-    """Inertia matrix M(q) of eq. (1), (N, n, n), from the standard parameters chi.
+def _mass_matrix_via_regressor(robot, chi, q):
+    """Inertia matrix M(q) of eq. (1), (N, n, n), from the standard parameters chi (test oracle).
 
     Column k is the inertial torque of a unit acceleration of joint k with the
     robot at rest and no gravity (the numerical route of section 4 of the paper).
@@ -206,10 +216,10 @@ def mass_matrix(robot, chi, q):
     return M
 
 
-def bias_torque(robot, chi, q, qd):
-    """N(q, qd) of eq. (1): Coriolis, centrifugal, gravity, friction and offset torques."""
+def _bias_torque_via_regressor(robot, chi, q, qd):
+    """N(q, qd) of eq. (1): Coriolis, centrifugal, gravity, friction and offsets (test oracle)."""
     q = np.atleast_2d(np.asarray(q, dtype=float))
-    return inverse_dynamics(robot, chi, q, qd, np.zeros_like(q))
+    return _inverse_dynamics_via_regressor(robot, chi, q, qd, np.zeros_like(q))
 
 
 def gravity_torque(robot, chi, q):

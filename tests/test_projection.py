@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 
 import bias_scenarios as bs
-from dynid.analysis.estimators.projection import fit_fir, lag_matrix, projection_method, select_fir_order
+from dynid.analysis.estimators.projection import (_hac_lags, _iv_covariance, fit_fir, lag_matrix, projection_method,
+                                                 select_fir_order)
 from dynid.provenance import dumps_json
 from dynid.analysis.estimators import least_squares as ls
 from dynid.errors import InputError
@@ -214,3 +215,30 @@ def test_report_section(campaign):
     sec = projection_section(pm, ml, truth=dict(zip(pm.names, beta)))
     html = render_sections([sec], title="PM")
     assert "tab-projection-estimates" in html and "tab-projection-fir" in html and "ZZ1R" in html
+
+
+def _iv_covariance_hand_written(What, e, L):
+    """The Newey-West IV sandwich as dynid wrote it before calling statsmodels."""
+    g = np.einsum("tjb,tj->tb", What, e)
+    S = g.T @ g
+    for l in range(1, L + 1):
+        w = 1.0 - l / (L + 1.0)
+        G = g[l:].T @ g[:-l]
+        S += w * (G + G.T)
+    A = np.einsum("tjb,tjc->bc", What, What)
+    Ainv = np.linalg.pinv(A, rcond=1e-13)
+    return Ainv @ S @ Ainv
+
+
+@pytest.mark.parametrize("L", [0, 1, 7, None])
+def test_iv_covariance_equals_the_hand_written_newey_west(L):
+    # statsmodels' S_hac_simple (Bartlett weights) replaced the loop: same covariance
+    rng = np.random.default_rng(3)
+    N, n, b = 600, 2, 5
+    What = rng.normal(size=(N, n, b)).cumsum(axis=0) / 10.0
+    e = np.zeros((N, n))
+    for t in range(1, N):               # AR(1) residual: several HAC lags matter
+        e[t] = 0.8 * e[t - 1] + rng.normal(size=n)
+    L = _hac_lags(e, N) if L is None else L
+    new, old = _iv_covariance(What, e, L), _iv_covariance_hand_written(What, e, L)
+    assert np.max(np.abs(new - old)) <= 1e-12 * np.max(np.abs(old))

@@ -14,7 +14,7 @@ import pytest
 
 from dynid.dynamics import dynamic_model as dm
 from dynid.errors import InputError
-from dynid.dynamics.regressor import inverse_dynamics as regressor_inverse_dynamics
+from dynid.dynamics.regressor import _inverse_dynamics_via_regressor as regressor_inverse_dynamics
 from dynid.dynamics.robot import Controller, Coupling, Joint, Robot, mdh_placement
 from dynid.dynamics.robot_file import load_robot
 from dynid.dynamics.simulation import SimulationResult, simulate_closed_loop, simulate_torque

@@ -25,8 +25,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from dynid.analysis.processing.decimation import ParallelDecimator
-from dynid.analysis.processing.observation import CHUNK, Observation, _dead_zone, resolve_settings
-from dynid.analysis.processing.signals import derivatives
+from dynid.analysis.processing.observation import CHUNK, Observation, full_rate
 from dynid.errors import DataError
 from dynid.dynamics.regressor import regressor
 
@@ -282,26 +281,12 @@ def observe_effects(experiment, robot, bp, settings=None, *, cache_regressor="au
     if q_meas is None:
         raise DataError(f"{experiment.source}: the residual diagnosis needs measured joint positions "
                         "(q1..qn)")
-    if robot.n_joints != q_meas.shape[1]:
-        raise DataError(f"{experiment.source}: robot '{robot.name}' has {robot.n_joints} joints "
-                        f"but the data have {q_meas.shape[1]}")
-    s = settings if (settings and "fs" in settings) else resolve_settings(experiment, settings)
-    fs = experiment.fs
-    der = derivatives(q_meas, fs, s["fc_position"], s["order"])
-    N = q_meas.shape[0]
-    edge = int(s["edge"])
-    if N - 2 * edge < 10:
-        raise DataError(f"{experiment.source}: {N} samples are too few for the position filter at "
-                        f"{s['fc_position']} Hz (it needs {edge} samples at each end)")
-    keep = slice(edge, N - edge)
-    qf, qd, qdd = der.q[keep], der.qd[keep], der.qdd[keep]
-    tau = np.asarray(experiment.tau, dtype=float)[keep]
-    t = experiment.t[keep]
+    fr = full_rate(experiment, robot, q_meas, settings)
+    s, fs, N, dead, keep = fr.settings, fr.fs, fr.n_raw, fr.dead, fr.keep
+    qf, qd, qdd, tau, t = fr.q, fr.qd, fr.qdd, fr.tau, fr.t
+    notices = [fr.edge_notice]
     nd = int(s["nd"])
     n_kept = qf.shape[0]
-    s, dead = _dead_zone(s, qd, robot, guard=int(np.ceil(fs / s["fc_position"])))
-    notices = [f"dropped {edge} samples ({edge / fs:.3g} s) at each end: transients of the "
-               f"{s['fc_position']:g} Hz position filter"]
     b = len(bp.independent)
     std_names = robot.standard_names
     pay_idx = [std_names.index(nm) for nm in payload_parameter_names(robot)]

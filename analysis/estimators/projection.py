@@ -71,6 +71,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 import scipy.linalg as sla
+from statsmodels.stats.sandwich_covariance import S_hac_simple, weights_bartlett
 
 from dynid.analysis.estimators import least_squares as ls
 from dynid.provenance import data_hash, json_safe, versions
@@ -403,9 +404,6 @@ class ProjectionResult(ParameterResults):
             lines += [f"[{i}] {t}" for i, t in enumerate(self.notices, 1)]
         return "\n".join(lines)
 
-    def __str__(self):
-        return self.summary()
-
     def to_dict(self):
         params = [{"name": n, "value": v, "std": s, "rel_std_percent": r}
                   for n, v, s, r in zip(self.names, self.chi, self.sigma, self.rel_sigma)]
@@ -449,11 +447,8 @@ def _hac_lags(e, n_rows):
 def _iv_covariance(What, e, L):
     """(Ŵ^T Ŵ)^-1 S (Ŵ^T Ŵ)^-1, S the Bartlett long-run covariance of g_t = Σ_j Ŵ_tj^T e_tj."""
     g = np.einsum("tjb,tj->tb", What, e)
-    S = g.T @ g
-    for l in range(1, L + 1):
-        w = 1.0 - l / (L + 1.0)
-        G = g[l:].T @ g[:-l]
-        S += w * (G + G.T)
+    # S = Σ_{|l|<=L} (1 - |l|/(L+1)) Σ_t g_t g_{t-l}^T, not divided by the row count
+    S = S_hac_simple(g, nlags=int(L), weights_func=weights_bartlett)
     A = np.einsum("tjb,tjc->bc", What, What)
     Ainv = np.linalg.pinv(A, rcond=1e-13)
     return Ainv @ S @ Ainv

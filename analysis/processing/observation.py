@@ -9,21 +9,17 @@ built, pushed through the decimator and dropped.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
-from scipy import ndimage
 
 from dynid.analysis.processing.decimation import ParallelDecimator
-from dynid.analysis.processing.signals import default_settings, derivatives, low_velocity_mask
+from dynid.analysis.processing.signals import (AUTO_DEAD_ZONE, dead_zone_thresholds, default_settings,
+                                               derivatives, low_velocity_mask, velocity_dead_zone)
 from dynid.dynamics.base_parameters import base_regressor
 from dynid.errors import DataError
 
 CHUNK = 20_000
-# Default dead zone: the Coulomb model sign(qd) is wrong while a joint reverses
-# (stiction, Stribeck, filtered qd crossing zero late). On the real TX40 data it
-# is worth 7.4 % -> 5.0 % relative error; 1 % of the joint's peak speed matches
-# the thresholds FIGAROH uses there (0.05-0.12 rad/s).
-AUTO_DEAD_ZONE = 0.01
 
 # the settings users may override, with their meaning
 SETTINGS_HELP = {
@@ -89,28 +85,12 @@ def observe(experiment, robot, bp, settings=None, *, progress=None, reference=Fa
         col = "qr" if reference else "q"
         raise DataError(f"{experiment.source}: IDIM needs measured joint positions ({col}1..{col}n); "
                         f"the file has none. Use DIDIM (needs qr and tau) or add the position columns.")
-    if robot.n_joints != q_meas.shape[1]:
-        raise DataError(f"{experiment.source}: robot '{robot.name}' has {robot.n_joints} joints "
-                        f"but the data have {q_meas.shape[1]}")
-    s = settings if (settings and "fs" in settings) else resolve_settings(experiment, settings)
-    notices = []
-    fs = experiment.fs
-    der = derivatives(q_meas, fs, s["fc_position"], s["order"])
-    N = q_meas.shape[0]
-    edge = int(s["edge"])
-    if N - 2 * edge < 10:
-        raise DataError(f"{experiment.source}: {N} samples are too few for the position filter at "
-                        f"{s['fc_position']} Hz (it needs {edge} samples at each end); record longer "
-                        f"or raise fc_position")
-    keep = slice(edge, N - edge)
-    notices.append(f"dropped {edge} samples ({edge / fs:.3g} s) at each end: transients of the "
-                   f"{s['fc_position']:g} Hz position filter")
-    qf, qd, qdd = der.q[keep], der.qd[keep], der.qdd[keep]
-    tau = experiment.tau[keep]
-    t = experiment.t[keep]
+    fr = full_rate(experiment, robot, q_meas, settings)
+    s, fs, N, dead = fr.settings, fr.fs, fr.n_raw, fr.dead
+    qf, qd, qdd, tau, t = fr.q, fr.qd, fr.qdd, fr.tau, fr.t
+    notices = [fr.edge_notice]
     nd = int(s["nd"])
     n_kept = qf.shape[0]
-    s, dead = _dead_zone(s, qd, robot, guard=int(np.ceil(fs / s["fc_position"])))
     if dead is not None:
         notices.append("velocity dead zone (Coulomb friction's sign is unreliable there): rows with "
                        + ", ".join(f"|qd{j + 1}| < {v:.3g}" for j, v in enumerate(s["qd_threshold"]))
@@ -147,8 +127,9 @@ def observe(experiment, robot, bp, settings=None, *, progress=None, reference=Fa
                        names=list(bp.names), settings=s, notices=notices, n_raw=N)
 
 
-# low_velocity_mask is the per-sample version, re-exported for users
-__all__ = ["Observation", "observe", "resolve_settings", "low_velocity_mask", "SETTINGS_HELP"]
+# the dead-zone functions of dynid.analysis.processing.signals, re-exported for users
+__all__ = ["Observation", "observe", "resolve_settings", "low_velocity_mask", "velocity_dead_zone",
+           "SETTINGS_HELP", "AUTO_DEAD_ZONE"]
 
 
 def push_chunk(dec, robot, bp, qf, qd, qdd, tau, dead):
@@ -165,31 +146,66 @@ def push_chunk(dec, robot, bp, qf, qd, qdd, tau, dead):
     return dec.push(W, tau, qf, qd, qdd, kept)
 
 
+class FullRate(NamedTuple):
+    """The full-rate signals every observation is built from (see :func:`full_rate`)."""
+
+    settings: dict           # resolved settings, qd_threshold as numbers
+    fs: float
+    n_raw: int               # samples of the recording
+    keep: slice              # the samples kept (the filter's edges dropped)
+    t: np.ndarray            # (N', ) times of the kept samples
+    q: np.ndarray            # (N', n) filtered positions
+    qd: np.ndarray           # (N', n) velocities
+    qdd: np.ndarray          # (N', n) accelerations
+    tau: np.ndarray          # (N', n) torques
+    dead: np.ndarray | None  # (N', n) velocity dead zone, None if qd_threshold is 0
+    edge_notice: str
+
+
+def full_rate(experiment, robot, q_meas, settings=None) -> FullRate:
+    """Filter and differentiate ``q_meas``, drop the filter's edges, find the dead zone.
+
+    The steps :func:`observe`, :func:`dynid.analysis.diagnosis.effect_observation.observe_effects`
+    share before the regressor: settings resolved as :func:`resolve_settings`
+    (or given in full), zero-phase filter and central differences
+    (:func:`derivatives`), ``edge`` samples dropped at each end, the velocity
+    dead zone widened by fs / fc_position samples.
+    """
+    if robot.n_joints != q_meas.shape[1]:
+        raise DataError(f"{experiment.source}: robot '{robot.name}' has {robot.n_joints} joints "
+                        f"but the data have {q_meas.shape[1]}")
+    s = settings if (settings and "fs" in settings) else resolve_settings(experiment, settings)
+    fs = experiment.fs
+    der = derivatives(q_meas, fs, s["fc_position"], s["order"])
+    N = q_meas.shape[0]
+    edge = int(s["edge"])
+    if N - 2 * edge < 10:
+        raise DataError(f"{experiment.source}: {N} samples are too few for the position filter at "
+                        f"{s['fc_position']} Hz (it needs {edge} samples at each end); record longer "
+                        f"or raise fc_position")
+    keep = slice(edge, N - edge)
+    qd = der.qd[keep]
+    s, dead = _dead_zone(s, qd, robot, guard=int(np.ceil(fs / s["fc_position"])))
+    return FullRate(settings=s, fs=fs, n_raw=N, keep=keep, t=experiment.t[keep], q=der.q[keep], qd=qd,
+                    qdd=der.qdd[keep], tau=np.asarray(experiment.tau, dtype=float)[keep], dead=dead,
+                    edge_notice=f"dropped {edge} samples ({edge / fs:.3g} s) at each end: transients "
+                                f"of the {s['fc_position']:g} Hz position filter")
+
+
 def _dead_zone(s, qd, robot, guard=0):
     """Full-rate samples (N, n) inside the velocity dead zone, or None; settings with numbers.
 
-    The zone is widened by ``guard`` samples on each side: a joint that sticks
-    and slips changes its acceleration abruptly, and the position filter
-    spreads that over about fs/fc samples of the estimated qdd while the torque
-    stays sharp (measured: +0.7 % on Ia5 of the simulated TX40 without it).
+    The settings' ``qd_threshold`` resolved by
+    :func:`dynid.analysis.processing.signals.dead_zone_thresholds` and applied, with the
+    robot's couplings and widened by ``guard`` samples on each side, by
+    :func:`dynid.analysis.processing.signals.velocity_dead_zone` (measured: +0.7 % on Ia5 of
+    the simulated TX40 without the widening). None when every threshold is 0.
     """
-    thr = s.get("qd_threshold") or 0.0
-    if isinstance(thr, str):
-        if thr != "auto":
-            raise DataError(f"qd_threshold must be a number, a list of numbers or 'auto', got {thr!r}")
-        thr = AUTO_DEAD_ZONE * np.abs(qd).max(axis=0)
-    thr_arr = np.broadcast_to(np.asarray(thr, dtype=float), (qd.shape[1],)).copy()
-    if not np.any(thr_arr > 0):
+    thr = dead_zone_thresholds(qd, s.get("qd_threshold"))
+    if not np.any(thr > 0):
         return dict(s, qd_threshold=[0.0] * qd.shape[1]), None
-    dead = np.abs(qd) < thr_arr
-    # a motor turning with several joints has its own Coulomb sign: sign(sum c_k qd_k)
-    for c in robot.couplings:
-        idx = np.asarray(c.joints) - 1
-        w = qd[:, idx] @ np.asarray(c.coefficients, dtype=float)
-        dead[:, idx] |= (np.abs(w) < thr_arr[c.motor - 1])[:, None]
-    if guard > 0:
-        dead = ndimage.binary_dilation(dead, structure=np.ones((2 * guard + 1, 1), dtype=bool))
-    return dict(s, qd_threshold=[float(v) for v in thr_arr]), dead
+    dead = velocity_dead_zone(qd, thr, guard=guard, couplings=robot.couplings)
+    return dict(s, qd_threshold=[float(v) for v in thr]), dead
 
 
 def concatenate(observations):

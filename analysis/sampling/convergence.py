@@ -68,7 +68,7 @@ __all__ = [
     "ChainRun",
     "integrated_time",
     "split_rhat",
-    "effective_sample_size",
+    "chain_effective_sample_size",
     "diagnose",
     "run_until_converged",
 ]
@@ -173,8 +173,7 @@ class ChainDiagnostics:
 
     def ess(self) -> np.ndarray:
         """Effective sample size n_walkers · (n_steps − burn_in) / τ_i of each parameter."""
-        with np.errstate(divide="ignore", invalid="ignore"):
-            return self.n_walkers * (self.n_steps - self.burn_in) / self.tau
+        return chain_effective_sample_size(self.n_walkers, self.n_steps - self.burn_in, self.tau)
 
     def to_dict(self) -> dict:
         return json_safe({
@@ -272,8 +271,18 @@ def split_rhat(chain: np.ndarray) -> np.ndarray:
     return out
 
 
-def effective_sample_size(n_walkers: int, n_steps: int, tau: np.ndarray) -> np.ndarray:
-    """ESS = n_walkers · n_steps / τ (τ in the same steps as ``n_steps``)."""
+def chain_effective_sample_size(n_walkers: int, n_steps: int, tau: np.ndarray) -> np.ndarray:
+    """ESS = n_walkers · n_steps / τ of an ensemble MCMC chain (τ in the same steps as ``n_steps``).
+
+    τ is the chain's integrated autocorrelation time from :func:`integrated_time`
+    (emcee's estimator: walker-averaged autocorrelation, Sokal's automatic
+    window c = 5). Not to be confused with
+    :func:`dynid.analysis.statistics.residuals.effective_sample_size`, the
+    effective size of one serially correlated *residual* series, whose τ_int
+    sum stops at the first lag inside the white-noise band 2/sqrt(n) (with a
+    row mask); the two answer different questions with different truncation
+    rules, hence two functions with two names.
+    """
     with np.errstate(divide="ignore", invalid="ignore"):
         return n_walkers * n_steps / np.asarray(tau, dtype=float)
 

@@ -1146,9 +1146,6 @@ class PosteriorResult(ParameterResults):
             lines += [f"[{i}] {t}" for i, t in enumerate(self.notices, 1)]
         return "\n".join(lines)
 
-    def __str__(self):
-        return self.summary()
-
     def to_dict(self) -> dict:
         """JSON-safe and deterministic for a given seed (no timings)."""
         params = []

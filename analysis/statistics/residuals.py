@@ -100,6 +100,13 @@ def effective_sample_size(e, mask=None, max_lag=None):
 
     Returns ``(n_eff, tau_int, K, n)`` as arrays over the columns of ``e``
     (scalars for a 1-D ``e``).
+
+    Not the MCMC effective sample size: that one
+    (:func:`dynid.analysis.sampling.convergence.chain_effective_sample_size`)
+    uses emcee's walker-averaged τ with Sokal's automatic window (c = 5), the
+    right rule for a long, smooth chain autocorrelation; a regression residual
+    is short next to its correlation structure and masked, and its ρ_k beyond
+    the white-noise band are noise, hence the band truncation here.
     """
     e = np.asarray(e, dtype=float)
     one = e.ndim == 1
