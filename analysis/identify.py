@@ -51,7 +51,7 @@ def as_experiments(data, robot) -> list:
 
 def identify(data, robot, method: str = "idim", *, settings=None, max_error_growth: float = 0.02,
              f0: float | None = None, ml_harmonics: int | None = None, reference: str | None = None,
-             max_iter: int | None = None, update_gains=True, progress=None):
+             max_iter: int | None = None, update_gains=True, gains: str = "assumed", progress=None):
     """Identify the dynamic parameters of ``robot`` from ``data`` with ``method``.
 
     Parameters
@@ -71,6 +71,12 @@ def identify(data, robot, method: str = "idim", *, settings=None, max_error_grow
         excitation and the number of harmonics of the latent trajectory.
     reference : DIDIM only: ``"qr"`` (the logged reference, default when logged) or ``"q"``.
     max_iter, update_gains : DIDIM only (eq. (27) gain update: True, ``"initial"`` or False).
+    gains : DIDIM only. ``"assumed"``: the controller gains of the robot file, as the
+        paper does. ``"identify"``: the gains are identified from the logged reference,
+        position and torque first (:func:`~dynid.analysis.estimators.controller_gains.identify_gains`),
+        DIDIM simulates with them and no gain update (they are the real loop's); the
+        result's ``gains`` holds them with their %σ. Without a logged reference the
+        gains cannot be identified: the result says what its parameters depend on.
     progress : callable(fraction), optional
     """
     if method not in METHODS:
@@ -91,11 +97,42 @@ def identify(data, robot, method: str = "idim", *, settings=None, max_error_grow
         if robot.controller is None:
             raise InputError(f"DIDIM simulates the robot under its controller, but '{robot.name}' "
                              f"({robot.source}) has no [controller] table: add one to the robot file")
+        if gains not in ("assumed", "identify"):
+            raise InputError(f"gains must be 'assumed' or 'identify', got {gains!r} (--gains)")
         ref = reference or ("qr" if exp.qr is not None else "q")
-        return identify_didim(exp, robot, settings=settings, reference=ref,
-                              max_iter=DEFAULT_MAX_ITER if max_iter is None else max_iter,
-                              max_error_growth=max_error_growth, update_gains=update_gains,
-                              progress=progress)
+        identified, controller = None, None
+        if gains == "identify":
+            from dynid.analysis.estimators.controller_gains import identify_gains
+            if exp.qr is None:
+                raise InputError(f"{exp.source}: the controller gains cannot be identified without the "
+                                 "logged reference (columns qr1..qrn); use the gains of the robot file "
+                                 "(--gains assumed) and read the DIDIM result as depending on them")
+            identified = identify_gains(exp, robot)
+            controller = identified.controller(robot)
+            update_gains = False
+            # With the real loop's gains, the paper's rough start (Ia = 1 ...) drives the simulated
+            # robot into saturation on the first step; IDIM's estimate is a start in the right basin.
+            from dynid.analysis.estimators.idim import identify_idim
+            start = identify_idim(exp, robot, settings=settings, max_error_growth=max_error_growth)
+            chi0 = dict(zip(start.base.names, start.wls.chi))
+        else:
+            chi0 = None
+        res = identify_didim(exp, robot, settings=settings, reference=ref, controller=controller, chi0=chi0,
+                             max_iter=DEFAULT_MAX_ITER if max_iter is None else max_iter,
+                             max_error_growth=max_error_growth, update_gains=update_gains,
+                             progress=progress)
+        res.gains = identified
+        if identified is not None:
+            res.notices.append("controller gains identified from the logged reference, position and "
+                               "torque (" + ", ".join(f"{n} {v:.4g}" for n, v in zip(identified.names,
+                                                                                  identified.chi)) + ")")
+        else:
+            what = ("the logged reference" if exp.qr is not None else
+                    "the measured position used as the reference (no reference logged)")
+            res.notices.append(f"DIDIM simulated the loop with the controller gains assumed in the robot "
+                               f"file ({robot.source}) tracking {what}: its parameters depend on those gains"
+                               + ("" if exp.qr is None else "; --gains identify estimates them from the data"))
+        return res
     if method == "projection":
         from dynid.analysis.estimators.projection import identify_projection
         return identify_projection(exp, robot, settings=settings)

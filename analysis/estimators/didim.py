@@ -87,7 +87,7 @@ Documented choices (all in ``DIDIMResult.settings``, all overridable through
 * **Decimation and dead zone**: ``nd`` and the low-pass cut-off as IDIM
   derives them from the data (:func:`dynid.analysis.processing.signals.default_settings` on
   ``qr``; the paper's 100 and 20 Hz at 5 kHz); the velocity dead zone of
-  :mod:`dynid.analysis.processing.observation` (``qd_threshold``, default ``"auto"`` = 1 % of
+  :func:`dynid.analysis.processing.signals.velocity_dead_zone` (``qd_threshold``, default ``"auto"`` = 1 % of
   each joint's peak *reference* speed, so the thresholds stay fixed over the
   iterations) applied to the simulated velocities, widened by
   ``dead_zone_guard`` s on each side (default 5 ms: the simulated and the
@@ -115,9 +115,8 @@ import pandas as pd
 from dynid.analysis.estimators import least_squares as ls
 from dynid.analysis.processing.decimation import ParallelDecimator
 from dynid.analysis.estimators.essential import essential_parameters
-from dynid.analysis.processing.observation import AUTO_DEAD_ZONE, _dead_zone
 from dynid.provenance import json_safe, versions
-from dynid.analysis.processing.signals import default_settings
+from dynid.analysis.processing.signals import dead_zone_thresholds, default_settings, velocity_dead_zone
 from dynid.analysis.results import ParameterResults
 from dynid.dynamics.base_parameters import base_parameters, base_regressor
 from dynid.dynamics.dynamic_model import inverse_dynamics, mass_matrix
@@ -207,6 +206,7 @@ class DIDIMResult(ParameterResults):
     truth: dict = None                # true base-parameter values, for simulated data
     joint_names: list = None
     timings: list = field(default_factory=list)   # seconds per step (not in to_dict)
+    gains: object = None              # GainsResult when the controller gains were identified
 
     method = "DIDIM"
 
@@ -303,9 +303,6 @@ class DIDIMResult(ParameterResults):
             lines += ["", "Notices:"] + [f"  - {n}" for n in self.notices]
         return "\n".join(lines)
 
-    def __str__(self) -> str:
-        return self.summary()
-
     def to_dict(self) -> dict:
         """JSON-safe, deterministic dict (no timings).
 
@@ -343,6 +340,7 @@ class DIDIMResult(ParameterResults):
             "versions": versions(),
             "data_hash": self.data_hash,
             "notices": self.notices,
+            "controller_gains": None if self.gains is None else self.gains.to_dict(),
             "true_values": self.truth,
         })
 
@@ -680,14 +678,8 @@ def identify_didim(experiment, robot, *, settings=None, chi0=None, tol=DEFAULT_T
     fs = s["fs"]
     n0 = int(math.ceil(s["transient"] * fs - 1e-9))
     qdr = np.gradient(qr, t, axis=0, edge_order=2)
-    thr = s["qd_threshold"]
-    if isinstance(thr, str):
-        if thr != "auto":
-            raise DataError(f"qd_threshold must be a number, a list of numbers or 'auto', got {thr!r}")
-        thr = AUTO_DEAD_ZONE * np.abs(qdr[n0:]).max(axis=0)
-    thr = np.broadcast_to(np.asarray(thr, dtype=float), (robot.n_joints,)).copy()
-    if not np.all(np.isfinite(thr)) or np.any(thr < 0):
-        raise DataError(f"qd_threshold must be finite and >= 0, got {s['qd_threshold']!r}")
+    # 'auto' from the reference speed, so the thresholds stay fixed over the iterations
+    thr = dead_zone_thresholds(qdr[n0:], s["qd_threshold"])
     s["qd_threshold"] = [float(v) for v in thr]
     guard = int(round(s["dead_zone_guard"] * fs))
     j_stride = max(1, int(round(fs / s["j_rate"])))
@@ -751,9 +743,8 @@ def identify_didim(experiment, robot, *, settings=None, chi0=None, tol=DEFAULT_T
         configs = q_s[::j_stride]
         sl = slice(n0, None)
         dead = None
-        s_dz = dict(s, qd_threshold=list(thr))
         if np.any(thr > 0):
-            _, dead = _dead_zone(s_dz, qd_s[sl], robot, guard=guard)
+            dead = velocity_dead_zone(qd_s[sl], thr, guard=guard, couplings=robot.couplings)
 
         def inner(f, k=k):
             if progress is not None:
