@@ -14,7 +14,7 @@ import sys
 import textwrap
 
 from dynid.errors import DynidError
-from dynid.reports.progress import Reporter
+from dynid.reports.progress import Reporter, clean_text
 
 EXIT_OK, EXIT_BUG, EXIT_INPUT, EXIT_NOT_CONVERGED, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
 
@@ -69,6 +69,90 @@ EPILOG_DEMO = """examples:
 """
 
 
+#: largest --harmonics of a reference or excitation trajectory
+MAX_HARMONICS = 1000
+#: smallest --fc as a fraction of the sampling rate: below it the zero-phase filter's
+#: transient (about fs / fc samples at each end) is longer than any recording
+MIN_FC_PER_FS = 1e-4
+
+
+def _number(text):
+    import math
+    try:
+        value = float(text)
+    except (TypeError, ValueError):
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"must be a finite number, got {text!r}")
+    return value
+
+
+def positive_float(text):
+    """argparse type: a finite number > 0."""
+    value = _number(text)
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"must be positive, got {text!r}")
+    return value
+
+
+def non_negative_float(text):
+    """argparse type: a finite number >= 0."""
+    value = _number(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must not be negative (0 for none), got {text!r}")
+    return value
+
+
+def _integer(text):
+    try:
+        return int(text)
+    except (TypeError, ValueError):
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+
+
+def seed_type(text):
+    """argparse type of --seed: a non-negative integer (numpy's generators refuse others)."""
+    value = _integer(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"a random seed must be a non-negative integer, got {text!r}; "
+                                         f"use e.g. --seed 1")
+    return value
+
+
+def positive_int(text):
+    """argparse type: a whole number >= 1."""
+    value = _integer(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {text!r}")
+    return value
+
+
+def harmonics_type(text):
+    """argparse type of --harmonics: 1 to MAX_HARMONICS."""
+    value = positive_int(text)
+    if value > MAX_HARMONICS:
+        raise argparse.ArgumentTypeError(f"{value} harmonics is more than {MAX_HARMONICS}, the most dynid "
+                                         f"designs (a trajectory needs a few, typically 3 to 20)")
+    return value
+
+
+def qd_threshold_type(text):
+    """argparse type of --qd-threshold: 'auto', or comma-separated finite numbers >= 0."""
+    import math
+    v = str(text).strip()
+    if v == "auto":
+        return v
+    try:
+        vals = [float(x) for x in v.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number, per-joint numbers separated by commas, or "
+                                         f"'auto'; got {text!r}") from None
+    if not all(math.isfinite(x) and x >= 0 for x in vals):
+        raise argparse.ArgumentTypeError(f"the velocity dead zone must be finite and non-negative "
+                                         f"(0 keeps every row); got {text!r}")
+    return v
+
+
 def _add_robot_options(p, positional=False):
     if positional:
         p.add_argument("robot", help="bundled robot name or .toml/.urdf file")
@@ -82,16 +166,51 @@ def _add_robot_options(p, positional=False):
 
 def _robot(args):
     from dynid.dynamics.robot_file import load_robot
-    return load_robot(args.robot, base=getattr(args, "base", None), tip=getattr(args, "tip", None))
+    robot = load_robot(args.robot, base=getattr(args, "base", None), tip=getattr(args, "tip", None))
+    _check_robot_options(args, robot)
+    return robot
+
+
+def _check_robot_options(args, robot):
+    """Options whose valid values depend on the robot, checked before any data is loaded."""
+    from dynid.errors import InputError
+    v = getattr(args, "qd_threshold", None)
+    if v and v != "auto":
+        k = len(v.split(","))
+        if k not in (1, robot.n_joints):
+            raise InputError(f"--qd-threshold {v}: {k} values for the {robot.n_joints} joints of robot "
+                             f"'{robot.name}'; give one value for every joint or {robot.n_joints} "
+                             f"comma-separated ones (one per joint)")
+
+
+def _check_cutoffs(args, experiments):
+    """--fc against the sampling rate of every recording (after loading)."""
+    from dynid.errors import InputError
+    fc = getattr(args, "fc", None)
+    if fc is None:
+        return
+    for exp in experiments:
+        fs = getattr(exp, "fs", None)
+        if exp is None or not fs:
+            continue
+        name = getattr(exp, "name", None) or getattr(exp, "source", None) or "the recording"
+        if fc >= fs / 2:
+            raise InputError(f"--fc {fc:g} Hz is not below half the sampling rate ({fs:g} Hz) of {name}; "
+                             f"give --fc below {fs / 2:g} Hz")
+        if fc < MIN_FC_PER_FS * fs:
+            raise InputError(f"--fc {fc:g} Hz is below {MIN_FC_PER_FS * fs:g} Hz ({MIN_FC_PER_FS:g} of the "
+                             f"sampling rate {fs:g} Hz of {name}): the filter's transient would last about "
+                             f"{fs / fc:.3g} samples at each end, longer than a recording; give --fc "
+                             f"{MIN_FC_PER_FS * fs:g} or more (typically 10 to 100 Hz)")
 
 
 def _add_processing_options(p):
     g = p.add_argument_group("processing (defaults derived from the data)")
-    g.add_argument("--fc", type=float, metavar="HZ", help="cut-off of the zero-phase filter of q")
-    g.add_argument("--nd", type=int, metavar="N", help="decimation factor (1 = none)")
-    g.add_argument("--decimation-cutoff", type=float, metavar="HZ",
+    g.add_argument("--fc", type=positive_float, metavar="HZ", help="cut-off of the zero-phase filter of q")
+    g.add_argument("--nd", type=positive_int, metavar="N", help="decimation factor (1 = none)")
+    g.add_argument("--decimation-cutoff", type=positive_float, metavar="HZ",
                    help="low-pass of the parallel decimation (default 0.8 fs / (2 nd))")
-    g.add_argument("--qd-threshold", metavar="RAD_S",
+    g.add_argument("--qd-threshold", type=qd_threshold_type, metavar="RAD_S",
                    help="velocity dead zone: a number, comma-separated per-joint numbers, "
                         "'auto' (default, 1%% of each joint's peak speed) or 0 to keep all rows")
     g.add_argument("--max-error-growth", type=float, default=0.02, metavar="F",
@@ -102,7 +221,7 @@ def _add_processing_options(p):
 def _add_validation_options(p):
     g = p.add_mutually_exclusive_group()
     g.add_argument("--validation", metavar="DATA", help="a second recording to validate on")
-    g.add_argument("--holdout", type=float, metavar="SECONDS",
+    g.add_argument("--holdout", type=positive_float, metavar="SECONDS",
                    help="identify on all but the last SECONDS, validate on them")
 
 
@@ -185,9 +304,9 @@ def build_parser():
                         "projection (Bona & Curatella's Projection Method for closed-loop data: needs "
                         "q, qr and tau; removes the bias of noise fed back by the controller); ml "
                         "(maximum likelihood with noise on q and tau, for a periodic excitation: give --f0)")
-    p.add_argument("--f0", type=float, metavar="HZ",
+    p.add_argument("--f0", type=positive_float, metavar="HZ",
                    help="ML: fundamental frequency of the periodic excitation")
-    p.add_argument("--ml-harmonics", type=int, metavar="K",
+    p.add_argument("--ml-harmonics", type=harmonics_type, metavar="K",
                    help="ML: harmonics of the latent trajectory (default: chosen by BIC on q)")
     p.add_argument("--asymmetric-friction", action="store_true",
                    help="IDIM: also give each joint's friction with different viscous and Coulomb "
@@ -196,6 +315,10 @@ def build_parser():
     p.add_argument("--gain-update", choices=list(GAIN_UPDATES), default="every",
                    help="DIDIM: scale the simulated derivative gains by J_j/J_ap_j (eq. 27) at every "
                         "step (default, as the paper), only for the first simulation (initial), or never")
+    p.add_argument("--gains", choices=["assumed", "identify"], default="assumed",
+                   help="DIDIM: the controller gains of the robot file (assumed, as the paper), or "
+                        "identified first from the logged reference qr, q and tau (identify: the "
+                        "controller's structure, pd or pid, comes from the robot file)")
     _add_validation_options(p)
     p.add_argument("--report", metavar="PATH", help="write the HTML report here")
     p.add_argument("--json", metavar="PATH", help=JSON_HELP)
@@ -212,12 +335,12 @@ def build_parser():
                        epilog=EPILOG_SIMULATE, formatter_class=argparse.RawDescriptionHelpFormatter)
     _add_robot_options(p)
     p.add_argument("--out", required=True, metavar="CSV", help="where to write the recording")
-    p.add_argument("--duration", type=float, default=20.0, metavar="SECONDS")
-    p.add_argument("--f0", type=float, default=0.1, metavar="HZ", help="fundamental of the reference")
-    p.add_argument("--harmonics", type=int, default=10, metavar="N")
-    p.add_argument("--noise-q", type=float, default=4e-5, metavar="RAD", help="position noise std")
-    p.add_argument("--noise-tau", type=float, default=0.5, metavar="NM", help="torque noise std")
-    p.add_argument("--seed", type=int, default=1, help="random seed (default 1)")
+    p.add_argument("--duration", type=positive_float, default=20.0, metavar="SECONDS")
+    p.add_argument("--f0", type=positive_float, default=0.1, metavar="HZ", help="fundamental of the reference")
+    p.add_argument("--harmonics", type=harmonics_type, default=10, metavar="N")
+    p.add_argument("--noise-q", type=non_negative_float, default=4e-5, metavar="RAD", help="position noise std")
+    p.add_argument("--noise-tau", type=non_negative_float, default=0.5, metavar="NM", help="torque noise std")
+    p.add_argument("--seed", type=seed_type, default=1, help="random seed (default 1)")
     p.add_argument("--json", metavar="PATH",
                    help="write the simulation's settings, reference coefficients and true base "
                         "parameters as JSON ('-': to stdout)")
@@ -230,11 +353,11 @@ def build_parser():
     p.add_argument("data", nargs="+", help="experiment file(s), as for 'identify'")
     _add_robot_options(p)
     p.add_argument("--which", choices=["essential", "base"], default="essential")
-    p.add_argument("--seed", type=int, default=1, help="random seed of the sampler (default 1)")
-    p.add_argument("--walkers", type=int, default=None,
+    p.add_argument("--seed", type=seed_type, default=1, help="random seed of the sampler (default 1)")
+    p.add_argument("--walkers", type=positive_int, default=None,
                    help="emcee walkers (default: max(64, 2 x dimensions + 2))")
-    p.add_argument("--max-steps", type=int, default=200_000)
-    p.add_argument("--max-seconds", type=float, default=300.0)
+    p.add_argument("--max-steps", type=positive_int, default=200_000)
+    p.add_argument("--max-seconds", type=positive_float, default=300.0)
     p.add_argument("--report", metavar="PATH", help="write the HTML report here")
     p.add_argument("--json", metavar="PATH", help="write the posterior summary as JSON here ('-': to stdout)")
     p.add_argument("--csv", metavar="PATH", help="write the posterior samples as CSV here")
@@ -251,16 +374,16 @@ def build_parser():
                                    "dense grid. Writes the reference (t, qr, qdr, qddr) as CSV.",
                        epilog=EPILOG_EXCITE, formatter_class=argparse.RawDescriptionHelpFormatter)
     _add_robot_options(p)
-    p.add_argument("--f0", type=float, required=True, metavar="HZ", help="fundamental frequency")
-    p.add_argument("--harmonics", type=int, required=True, metavar="N", help="harmonics per joint")
-    p.add_argument("--starts", type=int, default=4, help="random starts (default 4)")
+    p.add_argument("--f0", type=positive_float, required=True, metavar="HZ", help="fundamental frequency")
+    p.add_argument("--harmonics", type=harmonics_type, required=True, metavar="N", help="harmonics per joint")
+    p.add_argument("--starts", type=positive_int, default=4, help="random starts (default 4)")
     p.add_argument("--criterion", choices=["cond", "logdet"], default="cond",
                    help="cond: condition number (default); logdet: D-optimality")
     p.add_argument("--margin", type=float, default=0.95,
                    help="fraction of every limit the design may use (default 0.95)")
-    p.add_argument("--seed", type=int, default=1, help="random seed of the starts (default 1)")
+    p.add_argument("--seed", type=seed_type, default=1, help="random seed of the starts (default 1)")
     p.add_argument("--out", metavar="CSV", help="write the reference trajectory here")
-    p.add_argument("--fs", type=float, metavar="HZ",
+    p.add_argument("--fs", type=positive_float, metavar="HZ",
                    help="sampling rate of the CSV (default: the robot's controller rate, else 1000)")
     p.add_argument("--periods", type=int, default=1, help="whole periods in the CSV (default 1)")
     p.add_argument("--json", metavar="PATH", help="write coefficients, cond(W) and margins as JSON "
@@ -301,8 +424,8 @@ def build_parser():
     p.add_argument("--json", metavar="PATH", help=JSON_HELP)
     p.add_argument("--skip", metavar="LIST", default="",
                    help="comma-separated parts to leave out: didim, sample, diagnose")
-    p.add_argument("--seed", type=int, default=1, help="random seed of the sampler (default 1)")
-    p.add_argument("--max-seconds", type=float, default=60.0,
+    p.add_argument("--seed", type=seed_type, default=1, help="random seed of the sampler (default 1)")
+    p.add_argument("--max-seconds", type=positive_float, default=60.0,
                    help="time limit of the sampler (default 60 s)")
     p.add_argument("--max-iter", type=int, default=15, help="DIDIM: largest number of Gauss-Newton steps")
     p.add_argument("--gain-update", choices=list(GAIN_UPDATES), default="initial",
@@ -321,12 +444,12 @@ def build_parser():
     p.add_argument("--report", metavar="PATH", default="dynid-demo.html",
                    help="HTML report path (default dynid-demo.html)")
     p.add_argument("--json", metavar="PATH", help=JSON_HELP)
-    p.add_argument("--seed", type=int, default=1, help="random seed of the noise and trajectories (default 1)")
-    p.add_argument("--duration", type=float, default=20.0, metavar="SECONDS",
+    p.add_argument("--seed", type=seed_type, default=1, help="random seed of the noise and trajectories (default 1)")
+    p.add_argument("--duration", type=positive_float, default=20.0, metavar="SECONDS",
                    help="length of the identification recording (default 20 s)")
     p.add_argument("--skip", metavar="LIST", default="",
                    help="comma-separated parts to leave out: didim, sample, diagnose")
-    p.add_argument("--max-seconds", type=float, default=60.0,
+    p.add_argument("--max-seconds", type=positive_float, default=60.0,
                    help="time limit of the sampler (default 60 s)")
     p.add_argument("--max-iter", type=int, default=15, help="DIDIM: largest number of Gauss-Newton steps")
     p.add_argument("--gain-update", choices=list(GAIN_UPDATES), default="initial",
@@ -366,7 +489,7 @@ def cmd_robot(args, say):
         out.append("  " + rel)
     if bp.unidentifiable:
         out.append(f"\nno effect on the dynamics ({len(bp.unidentifiable)}): " + " ".join(bp.unidentifiable))
-    _show(args, "\n".join(out))
+    _show(args, clean_text("\n".join(out)))
     if args.json:
         doc = {"robot": robot.name, "n_joints": robot.n_joints, "source": robot.source,
                "standard": names, "base": bp.table(), "unidentifiable": bp.unidentifiable,
@@ -385,10 +508,14 @@ def _write_outputs(args, say, result, robot, experiment, validation, asym=None, 
     interrupted between two files, the ones already written are removed, so a
     report never sits next to a JSON of another run or without its JSON.
     """
+    from dynid.analysis.statistics.verdict import verdict as make_verdict
     from dynid.provenance import dumps_json
     outputs = []
+    the_verdict = make_verdict(result, validation, robot=robot)
+    _show(args, the_verdict.summary())
     if args.json:
         doc = result.to_dict()
+        doc["verdict"] = the_verdict.to_dict()
         if validation is not None:
             doc["validation"] = validation.to_dict()
         if asym is not None:
@@ -409,7 +536,7 @@ def _write_outputs(args, say, result, robot, experiment, validation, asym=None, 
         if export is not None:
             extra.append(export.section())
         outputs.append((args.report, render_idim_report(result, robot, experiment, validation,
-                                                        extra_sections=extra)))
+                                                        extra_sections=extra, verdict=the_verdict)))
     commit_outputs(outputs, say)
 
 
@@ -420,11 +547,95 @@ def commit_outputs(outputs, say):
 
 
 OUTPUT_OPTIONS = ("json", "report", "csv", "out", "urdf")
+#: longest file name (bytes) when the file system does not say
+NAME_MAX = 255
+#: the largest robot / experiment TOML read for the file names it refers to
+_TOML_PEEK_BYTES = 1 << 20
+
+
+def _same_file(a, b) -> bool:
+    """Whether paths ``a`` and ``b`` are one file (symlinks followed, hard links too)."""
+    try:
+        if os.path.realpath(a) == os.path.realpath(b):
+            return True
+        return os.path.samefile(a, b)
+    except (OSError, ValueError):
+        return False
+
+
+def _referenced_files(path):
+    """Files a robot or experiment TOML refers to (``urdf``, ``file``), relative to its folder."""
+    try:
+        if not path.lower().endswith(".toml") or not os.path.isfile(path) \
+                or os.path.getsize(path) > _TOML_PEEK_BYTES:
+            return []
+        import tomllib
+        with open(path, "rb") as fh:
+            doc = tomllib.load(fh)
+    except Exception:           # noqa: BLE001 - the loader reports a bad file properly later
+        return []
+    found = []
+    tables = [doc] + [v for k, v in doc.items() if k == "experiment" and isinstance(v, dict)]
+    for tab in tables:
+        for key in ("urdf", "file"):
+            v = tab.get(key)
+            if isinstance(v, str) and v:
+                found.append((key, os.path.join(os.path.dirname(path), v)))
+    return found
+
+
+def _input_files(args):
+    """``(what, path)`` of every input file the options name (data, validation, robot file)."""
+    out = []
+    data = getattr(args, "data", None)
+    for p in [data] if isinstance(data, str) else (data or []):
+        out.append(("the data file", p))
+    if getattr(args, "validation", None):
+        out.append(("the --validation file", args.validation))
+    robot = getattr(args, "robot", None)
+    if robot:
+        out.append(("the robot file" if args.command == "robot" else "the --robot file", robot))
+    for what, p in list(out):
+        for key, ref in _referenced_files(p):
+            out.append((f"the file {key} = ... of {p}", ref))
+            if "\0" in ref:
+                from dynid.errors import InputError
+                raise InputError(f"{p}: {key} = {os.path.basename(ref)!r} contains a NUL byte, which no "
+                                 f"file name can; fix '{key}' in {p}")
+    return out
+
+
+def check_input_paths(args):
+    """Before any computation: input names without NUL bytes, no recording given twice."""
+    from dynid.errors import InputError
+    inputs = _input_files(args)
+    for what, p in inputs:
+        if "\0" in p:
+            raise InputError(f"{what} {p!r}: the name contains a NUL byte, which no file name can; "
+                             f"check how the command line was built")
+    data = [p for what, p in inputs if what == "the data file"]
+    for i, p in enumerate(data):
+        for q in data[:i]:
+            if _same_file(p, q):
+                extra = "" if p == q else f" (as {q} and {p})"
+                raise InputError(f"the data file {p} is given twice{extra}: the same recording counted "
+                                 f"twice doubles its weight and proves nothing; give each recording once")
+    valid = getattr(args, "validation", None)
+    if valid:
+        for p in data:
+            if _same_file(valid, p):
+                raise InputError(f"--validation {valid} is the same file as the data file {p}: validating "
+                                 f"on the identification data says nothing about the model; give another "
+                                 f"recording, or --holdout SECONDS to hold out the end of this one")
 
 
 def check_output_paths(args):
-    """Before any computation: every output's folder exists and is writable; '-' only for --json."""
+    """Before any computation: every output's folder exists and is writable; '-' only for --json;
+    no output is an input or another output; names are valid file names."""
     from dynid.errors import InputError
+    check_input_paths(args)
+    inputs = _input_files(args)
+    seen = []
     for opt in OUTPUT_OPTIONS:
         path = getattr(args, opt, None)
         if not path:
@@ -433,13 +644,85 @@ def check_output_paths(args):
             if opt != "json":
                 raise InputError(f"--{opt} -: only --json can be written to stdout")
             continue
+        if "\0" in path:
+            raise InputError(f"--{opt} {path!r}: the name contains a NUL byte, which no file name can; "
+                             f"give --{opt} a plain file name")
         folder = os.path.dirname(os.path.abspath(path)) or "."
+        name = os.path.basename(os.path.abspath(path))
+        try:
+            name_max = os.pathconf(folder, "PC_NAME_MAX")
+        except (OSError, ValueError):
+            name_max = NAME_MAX
+        if len(os.fsencode(name)) > name_max:
+            raise InputError(f"--{opt} {name[:40]}...: the file name is {len(os.fsencode(name))} bytes "
+                             f"long, more than the {name_max} the file system allows; give --{opt} a "
+                             f"shorter name")
         if not os.path.isdir(folder):
             raise InputError(f"--{opt} {path}: the folder {folder} does not exist")
         if not os.access(folder, os.W_OK):
             raise InputError(f"--{opt} {path}: the folder {folder} is not writable")
         if os.path.isdir(path):
             raise InputError(f"--{opt} {path} is a folder; give a file name")
+        for what, p in inputs:
+            if "\0" not in p and os.path.exists(p) and _same_file(path, p):
+                how = "" if os.path.abspath(path) == os.path.abspath(p) else " (through a link)"
+                raise InputError(f"--{opt} {path} is {what} {p}{how}: writing it would destroy the "
+                                 f"input; give --{opt} another path")
+        for other, q in seen:
+            if _same_file(path, q):
+                raise InputError(f"--{other} {q} and --{opt} {path} are the same file: one would "
+                                 f"overwrite the other; give each its own path")
+        seen.append((opt, path))
+    _check_stdout(args)
+
+
+def _check_stdout(args):
+    """--json - needs a standard output to write to (not closed with >&-)."""
+    from dynid.errors import InputError
+    if getattr(args, "json", None) != "-":
+        return
+    ok = sys.stdout is not None and not getattr(sys.stdout, "closed", False)
+    if ok:
+        try:
+            fd = sys.stdout.fileno()
+        except (AttributeError, ValueError, OSError):     # a Python stream without a descriptor
+            fd = None
+        if fd is not None:
+            try:
+                os.fstat(fd)
+            except OSError:                               # descriptor 1 closed
+                ok = False
+    if not ok:
+        raise InputError("--json -: cannot write the JSON to stdout: standard output is closed; "
+                         "give a file name (--json out.json) or leave stdout open")
+
+
+def _stdout_failed(args):
+    """A BrokenPipe while writing: the exit code (2 if the JSON went to stdout, else 0)."""
+    try:                       # further writes (and the flush at exit) go nowhere
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError, AttributeError):
+        pass
+    if getattr(args, "json", None) == "-":
+        try:
+            print(f"dynid {args.command}: error: cannot write the JSON to stdout: the pipe was closed "
+                  f"before it was written (broken pipe); the reader of --json - must read to the end, "
+                  f"or give --json a file name", file=sys.stderr, flush=True)
+        except (OSError, ValueError, AttributeError):
+            pass
+        return EXIT_INPUT
+    try:
+        sys.stderr.close()
+    except (OSError, ValueError, AttributeError):
+        pass
+    return EXIT_OK
+
+
+def _show_clean(args, *texts):
+    """:func:`_show` with control characters escaped (names read from files reach summaries)."""
+    _show(args, *(clean_text(t) if t else t for t in texts))
 
 
 def _show(args, *texts):
@@ -458,10 +741,12 @@ def _load_data(args, say, robot, paths):
     for path in paths:
         experiments.append(load_experiment(path, robot))
         say(f"loaded {path}: {experiments[-1].n_samples} samples at {experiments[-1].fs:g} Hz")
+    _check_cutoffs(args, experiments)
     valid = None
     if getattr(args, "validation", None):
         valid = load_experiment(args.validation, robot)
         say(f"validation {args.validation}: {valid.n_samples} samples")
+        _check_cutoffs(args, [valid])
     elif getattr(args, "holdout", None) is not None:
         from dynid.analysis.data.split import holdout_split
         if len(experiments) > 1:
@@ -499,7 +784,7 @@ def cmd_identify(args, say):
         if len(experiments) > 1:
             raise InputError("--asymmetric-friction works on one recording at a time")
         asym = asymmetric_friction(experiments[0], robot, result)
-    _show(args, result.summary(), validation.summary() if validation is not None else "",
+    _show_clean(args, result.summary(), validation.summary() if validation is not None else "",
           asym.summary() if asym is not None else "")
     export = None
     if args.urdf:
@@ -516,7 +801,7 @@ def _write_method_outputs(args, say, result, frame, sections, title):
     """Summary, then JSON / CSV (``frame``) / HTML (``sections``) of a DIDIM, PM or ML result."""
     from dynid.provenance import dumps_json
     from dynid.reports.html import render_sections
-    _show(args, result.summary())
+    _show_clean(args, result.summary())
     outputs = []
     if args.json:
         outputs.append((args.json, dumps_json(result.to_dict())))
@@ -555,8 +840,10 @@ def _identify_didim(args, say, robot, exp):
     from dynid.reports.didim_section import didim_sections
     with say.progress("DIDIM iterations") as bar:
         res = identify(exp, robot, "didim", settings=_processing_settings(args), max_iter=args.max_iter,
-                       max_error_growth=args.max_error_growth,
+                       max_error_growth=args.max_error_growth, gains=args.gains,
                        update_gains=GAIN_UPDATES[args.gain_update], progress=bar.update)
+    if res.gains is not None:
+        _show(args, res.gains.summary())
     _write_method_outputs(args, say, res, res.model.to_frame(), lambda: didim_sections(res),
                           f"DIDIM identification of {robot.name}")
     if not res.converged:
@@ -599,7 +886,7 @@ def cmd_sample(args, say):
         post = sample_idim(result, which=args.which, seed=args.seed, n_walkers=args.walkers,
                            max_steps=args.max_steps, max_seconds=args.max_seconds,
                            progress=lambda n, need: bar.update(n / max(need, 1)))
-    _show(args, post.summary())
+    _show_clean(args, post.summary())
     outputs = []
     if args.json:
         outputs.append((args.json, dumps_json(post.to_dict())))
@@ -645,7 +932,7 @@ def cmd_excite(args, say):
         res = design_excitation(robot, args.f0, args.harmonics, n_starts=args.starts,
                                 criterion=args.criterion, margin=args.margin, rng=args.seed,
                                 progress=bar.update)
-    _show(args, res.summary())
+    _show_clean(args, res.summary())
     outputs = []
     if args.out:
         outputs.append((args.out, res.to_frame(fs, args.periods).to_csv(
@@ -715,7 +1002,7 @@ def cmd_diagnose(args, say):
     say("scoring candidate effects")
     diag = _run_diagnosis(args, say, robot, experiment, valid, result)
     result = diag.idim if diag.idim is not None else result
-    _show(args, diag.summary())
+    _show_clean(args, diag.summary())
     outputs = []
     if args.json:
         outputs.append((args.json, dumps_json(diag.to_dict())))
@@ -735,7 +1022,7 @@ def _skip_option(value):
 
 def _write_full_report(args, say, out):
     from dynid.provenance import dumps_json
-    _show(args, out.summary())
+    _show_clean(args, out.summary())
     outputs = []
     if args.report:
         outputs.append((args.report, out.html))
@@ -781,7 +1068,12 @@ def _terminate(signum, frame):
 
 def main(argv=None):
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:           # --help raises on; a bad option is exit 2, not an exception
+        if exc.code in (0, None):
+            raise
+        return EXIT_INPUT if exc.code == 2 else exc.code
     if args.version:
         from dynid.provenance import versions
         print(f"dynid {versions().get('dynid', '?')}")
@@ -794,27 +1086,26 @@ def main(argv=None):
     try:
         check_output_paths(args)
         return COMMANDS[args.command](args, say)
-    except BrokenPipeError:           # output piped into head & co.
-        sys.stderr.close()
-        return EXIT_OK
+    except BrokenPipeError:           # output piped into head & co. (an error for --json -)
+        return _stdout_failed(args)
     except KeyboardInterrupt:
         print("dynid: interrupted; no partial output was written", file=sys.stderr)
         return EXIT_INTERRUPTED
     except DynidError as exc:
         if args.debug:
             raise
-        print(f"dynid {args.command}: error: {exc}", file=sys.stderr)
+        print(clean_text(f"dynid {args.command}: error: {exc}"), file=sys.stderr)
         return exc.exit_code
     except (FileNotFoundError, PermissionError, IsADirectoryError) as exc:
         if args.debug:
             raise
-        print(f"dynid {args.command}: error: {exc.strerror}: '{exc.filename}'", file=sys.stderr)
+        print(clean_text(f"dynid {args.command}: error: {exc.strerror}: '{exc.filename}'"), file=sys.stderr)
         return EXIT_INPUT
     except Exception as exc:  # a bug: say so plainly
         if args.debug:
             raise
-        print(f"dynid {args.command}: internal error ({type(exc).__name__}: {exc}). This is a bug in "
-              f"dynid; rerun with --debug and report the traceback.", file=sys.stderr)
+        print(clean_text(f"dynid {args.command}: internal error ({type(exc).__name__}: {exc}). This is a "
+                         f"bug in dynid; rerun with --debug and report the traceback."), file=sys.stderr)
         return EXIT_BUG
 
 

@@ -208,10 +208,19 @@ def demo(*, seed=1, duration=20.0, skip=(), max_seconds=300.0, path=None, say=No
     from dynid.analysis.demo import run_demo
     say = say or Reporter()
     skip = check_parts(skip)
-    if not duration >= 2.0:
-        raise InputError(f"duration must be at least 2 s, got {duration:g} (--duration)")
-    if not max_seconds > 0:
-        raise InputError(f"max_seconds must be positive, got {max_seconds:g} (--max-seconds)")
+    import math
+    if not (isinstance(duration, (int, float)) and math.isfinite(duration) and duration >= 2.0):
+        raise InputError(f"duration must be a finite number of seconds, at least 2 s, got {duration!r} "
+                         f"(--duration)")
+    if not (isinstance(max_seconds, (int, float)) and max_seconds > 0 and not math.isnan(max_seconds)):
+        raise InputError(f"max_seconds must be positive, got {max_seconds!r} (--max-seconds)")
+    import numbers
+    if isinstance(seed, numbers.Integral) and seed < 0:
+        raise InputError(f"seed must be a non-negative integer, got {seed!r} (--seed)")
+    from dynid.analysis.data.synthetic import sample_count
+    from dynid.dynamics.robot_file import load_robot
+    sample_count(duration, float(load_robot("tx40").controller.rate),
+                 what="the demo's controller rate (the TX40's)")
     result, robot, experiment, validation, valid = run_demo(seed=seed, duration=duration, say=say)
     out = FullReport(result=result, robot=robot, experiments=[experiment], validation=validation)
     further_analyses(out, valid, skip=skip, seed=seed, max_seconds=max_seconds, say=say)

@@ -2,13 +2,27 @@
 only for work that lasts more than a second, silent with --quiet."""
 from __future__ import annotations
 
+import re
 import sys
 import time
+
+#: control characters a terminal may act on (escape sequences, bell, carriage return...);
+#: tab and newline are kept
+_CONTROL = re.compile(r"[\x00-\x08\x0b-\x1f\x7f-\x9f]")
+
+
+def clean_text(text) -> str:
+    """``text`` with every control character but tab and newline shown escaped (``\\x1b``).
+
+    Names read from files (robot names, column names) reach messages; printed raw, an
+    escape sequence in one could retitle or clear the user's terminal.
+    """
+    return _CONTROL.sub(lambda m: f"\\x{ord(m.group()):02x}", str(text))
 
 
 class Progress:
     def __init__(self, label, quiet=False, stream=None, delay=1.0):
-        self.label = label
+        self.label = clean_text(label)
         self.stream = stream or sys.stderr
         self.enabled = not quiet and hasattr(self.stream, "isatty") and self.stream.isatty()
         self.start = time.monotonic()
@@ -46,7 +60,7 @@ class Reporter:
 
     def __call__(self, msg):
         if not self.quiet:
-            print(msg, file=sys.stderr, flush=True)
+            print(clean_text(msg), file=sys.stderr, flush=True)
 
     def progress(self, label):
         return Progress(label, quiet=self.quiet)

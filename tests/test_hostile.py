@@ -92,8 +92,18 @@ class Run:
 
 
 OUTPUT_FLAGS = {"--json", "--report", "--csv", "--out", "--urdf"}
-#: dynid's temporary files: ".<target>.<12 hex>.tmp" beside the target
-DYNID_TEMP = re.compile(r"^\..+\.[0-9a-f]{12}\.tmp$")
+#: dynid's temporary files beside the target (dynid.outputs): ".dynid-<pid>-<12 hex>.tmp", and
+#: ".dynid-<pid>-<12 hex>.bak" (hard-linked backups of old outputs); the older layout's
+#: ".<target>.<12 hex>.tmp" is matched too
+DYNID_TEMP = re.compile(r"^\.dynid-\d+-[0-9a-f]{12}\.(tmp|bak)$|^\..+\.[0-9a-f]{12}\.tmp$")
+
+
+def _dead_pid():
+    """A process id no process has (above the kernel's pid_max)."""
+    try:
+        return int(Path("/proc/sys/kernel/pid_max").read_text()) + 1
+    except (OSError, ValueError):
+        return (1 << 22) + 1
 
 
 class _Watch:
@@ -620,17 +630,19 @@ def test_g3_sigterm_between_renames(tmp_path, data, monkeypatch, capsys):
 
 
 def test_g3_stale_temp_files_of_a_killed_run_are_cleaned(tmp_path):
-    stale = [tmp_path / ".out.json.0123456789ab.tmp", tmp_path / ".out.json.fedcba987654.tmp"]
+    dead = _dead_pid()                  # temporary files name the process that wrote them
+    stale = [tmp_path / f".dynid-{dead}-0123456789ab.tmp", tmp_path / f".dynid-{dead}-fedcba987654.tmp"]
     for p in stale:
         p.write_text('{"half": ')
         os.utime(p, (time.time() - 86400, time.time() - 86400))       # a day old
-    keep = [tmp_path / "notes.tmp", tmp_path / ".other.tmp"]               # not dynid's naming
+    keep = [tmp_path / "notes.tmp", tmp_path / ".other.tmp",                # not dynid's naming
+            tmp_path / f".dynid-{os.getpid()}-00112233aabb.tmp"]            # a running process's
     for p in keep:
         p.write_text("mine")
     run = run_dynid("robot", "planar2", "--json", "out.json", "--quiet", cwd=tmp_path, timeout=30)
     assert_clean(run)
     assert run.rc == 0, str(run)
-    assert all(p.exists() for p in keep), "removed files that are not dynid's temporary files"
+    assert all(p.exists() for p in keep), "removed files that are not stale dynid temporary files"
     left = [p.name for p in stale if p.exists()]
     assert not left, f"stale temporary files of a killed run are still there: {left}"
 

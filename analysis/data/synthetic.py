@@ -17,6 +17,55 @@ from dynid.dynamics.simulation import simulate_closed_loop
 # singular. Every other base parameter outside Table 2 is zero.
 TX40_EXTRA = {"Ia6": 0.0105}
 
+#: most samples one simulation may produce (duration x rate): beyond that the
+#: arrays alone take gigabytes and the run lasts hours
+MAX_SAMPLES = 50_000_000
+#: fewest samples of a simulated recording
+MIN_SAMPLES = 10
+#: most harmonics of a random reference trajectory
+MAX_HARMONICS = 1000
+
+
+def sample_count(duration, fs, *, option="--duration", what="the controller rate") -> int:
+    """Samples of ``duration`` s at ``fs`` Hz, refused (InputError naming ``option``) if unbounded.
+
+    ``fs`` is ``what`` (the controller rate of the robot file by default).
+    """
+    import math
+    from dynid.errors import InputError
+    if not (isinstance(duration, (int, float, np.floating, np.integer)) and math.isfinite(duration)
+            and duration > 0):
+        raise InputError(f"the duration must be a positive, finite number of seconds, got {duration!r} "
+                         f"({option})")
+    if not (math.isfinite(fs) and fs > 0):
+        raise InputError(f"{what} must be a positive, finite number of Hz, got {fs!r}")
+    n = duration * fs
+    if n > MAX_SAMPLES:
+        raise InputError(f"{duration:g} s at {what} of {fs:g} Hz would be {n:.3g} samples, at least "
+                         f"{_bytes(n * 8 * 10)} of memory; at most {MAX_SAMPLES:.3g} samples "
+                         f"({MAX_SAMPLES / fs:.4g} s) are simulated: lower {option}")
+    n = int(round(n))
+    if n < MIN_SAMPLES:
+        raise InputError(f"{duration:g} s at {what} of {fs:g} Hz is only {n} samples; at least "
+                         f"{MIN_SAMPLES} are needed: raise {option} to {MIN_SAMPLES / fs:.3g} s or more")
+    return n
+
+
+def _bytes(n) -> str:
+    for unit, size in (("TB", 1e12), ("GB", 1e9), ("MB", 1e6)):
+        if n >= size:
+            return f"{n / size:.3g} {unit}"
+    return f"{n / 1e3:.3g} kB"
+
+
+def check_noise(value, option) -> None:
+    """A noise standard deviation (scalar or per joint): finite and non-negative."""
+    from dynid.errors import InputError
+    arr = np.asarray(value, dtype=float)
+    if not np.all(np.isfinite(arr)) or np.any(arr < 0):
+        raise InputError(f"the noise standard deviation must be finite and non-negative (0 for none), "
+                         f"got {value!r} ({option})")
+
 
 def tx40_true_parameters(robot, bp):
     """Base and standard parameters of the simulated TX40 (Table 2 + TX40_EXTRA).
@@ -77,7 +126,10 @@ def simulate_experiment(robot, chi_st, trajectory, duration, *, rng, tau_noise, 
     ``progress(fraction)`` is passed to the simulation.
     """
     fs = float(robot.controller.rate if fs is None else fs)
-    t = np.arange(int(round(duration * fs))) / fs
+    check_noise(q_noise, "--noise-q")
+    check_noise(tau_noise, "--noise-tau")
+    t = np.arange(sample_count(duration, fs, what="the controller rate" if fs == getattr(
+        robot.controller, "rate", None) else "the sampling rate")) / fs
     qr, qdr, _ = trajectory.evaluate(t)
     # v_s and substeps: Coulomb friction smoothed over 0.01 rad/s, well inside the
     # identification's dead zone, and an RK4 step small enough for that stiffness.
@@ -151,6 +203,14 @@ def simulate(robot, duration: float = 20.0, *, seed: int = 1, f0: float = 0.1, h
     if not (duration > 0 and f0 > 0 and harmonics >= 1):
         raise InputError("duration and f0 must be positive and harmonics at least 1 "
                          "(--duration, --f0, --harmonics)")
+    if not np.isfinite(f0):
+        raise InputError(f"f0 must be a finite frequency in Hz, got {f0!r} (--f0)")
+    if harmonics > MAX_HARMONICS:
+        raise InputError(f"harmonics = {harmonics} is more than {MAX_HARMONICS}, the most a reference "
+                         f"trajectory uses (--harmonics)")
+    check_noise(noise_q, "--noise-q")
+    check_noise(noise_tau, "--noise-tau")
+    sample_count(duration, float(robot.controller.rate), what=f"the controller rate of robot '{robot.name}'")
     chi = apriori_parameters(robot, base_parameters(robot))
     rng = np.random.default_rng(seed)
     traj = random_fourier_trajectory(robot, f0, harmonics, rng)
