@@ -39,3 +39,27 @@ def test_readme_main_command_in_fresh_venv(tmp_path):
     assert proc.returncode == 0, proc.stderr[-3000:]
     html = report.read_text()
     assert "IDIM identification of tx40" in html and 'id="table2"' in html
+
+
+def test_installed_distribution_is_the_dynid_namespace_alone(tmp_path):
+    """pip install . (not editable) into a fresh venv: the only top-level name is dynid, and
+    `import dynid` works from a folder holding folders named analysis/, dynamics/, reports/."""
+    venv = tmp_path / "venv"
+    subprocess.run(["python3", "-m", "venv", str(venv)], check=True, timeout=300)
+    proc = subprocess.run([str(venv / "bin" / "pip"), "install", "-q", str(ROOT)], capture_output=True,
+                          text=True, timeout=900)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    work = tmp_path / "work"
+    for name in ("analysis", "dynamics", "reports"):
+        (work / name).mkdir(parents=True)
+        (work / name / "__init__.py").write_text("raise ImportError('the wrong package')\n")
+    script = ("import importlib.metadata as md, dynid\n"
+              "files = md.distribution('dynid').files\n"
+              "print(sorted({f.parts[0] for f in files if not f.parts[0].endswith('.dist-info')}))\n"
+              "print(dynid.__version__, dynid.load_robot('tx40').n_joints)\n")
+    out = subprocess.run([str(venv / "bin" / "python"), "-c", script], cwd=work, capture_output=True,
+                         text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-3000:]
+    names, version = out.stdout.splitlines()
+    assert names == "['dynid']"
+    assert version.split()[1] == "6"
