@@ -26,7 +26,7 @@ from dynid.provenance import dumps_json, json_safe, versions
 from dynid.outputs import atomic_write_text
 from dynid.errors import InputError
 
-__all__ = ["Exportable", "ParameterResults", "IdentificationResult"]
+__all__ = ["Exportable", "ParameterResults", "ModelResults", "IdentificationResult"]
 
 _WIDTH = 78
 
@@ -105,6 +105,36 @@ class ParameterResults(Exportable):
         """Write :meth:`to_frame` as CSV to ``path`` atomically (all or nothing)."""
         text = self.to_frame().to_csv(lineterminator="\n")
         atomic_write_text(path, text)
+
+
+class ModelResults(ParameterResults):
+    """A result whose parameters are those of its :attr:`model` (an IdentificationResult).
+
+    IDIM and DIDIM identify every base parameter (``base``) and then keep a model (the
+    essential parameters): ``params``, ``bse``, ``conf_int()`` and :meth:`predict` are the
+    model's. The class using it defines ``model`` and ``base``.
+    """
+
+    @property
+    def names(self):
+        return self.model.names
+
+    @property
+    def cov(self):
+        return self.model.cov
+
+    def _estimate(self):
+        return self.model.chi
+
+    def columns(self, names=None):
+        """Indices of ``names`` (default: the model's) among the base parameters."""
+        names = self.model.names if names is None else names
+        index = {n: k for k, n in enumerate(self.base.names)}
+        return [index[n] for n in names]
+
+    def predict(self, W_base):
+        """Torques (N, n) of :attr:`model` from a base regressor (N, n, b)."""
+        return np.asarray(W_base)[:, :, self.columns()] @ self.model.chi
 
 
 def _check_alpha(alpha) -> None:

@@ -12,7 +12,7 @@ import math
 import numpy as np
 import pytest
 
-from dynid.analysis.processing.averaging import average_periods, estimate_shift, harmonic_filter, whole_periods
+from dynid.analysis.processing.averaging import average_periods, estimate_period_shift, harmonic_filter, whole_periods
 from dynid.provenance import dumps_json
 from dynid.errors import InputError
 
@@ -112,7 +112,7 @@ def test_alignment_undoes_period_delays():
     assert bad.sigma["tau"][0] > 1.5 * SIGMA[0]
     assert abs(res.sigma["tau"][0] / SIGMA[0] - 1) < 0.1
     # a single estimate
-    assert estimate_shift(blocks[0], blocks[4]) == pytest.approx(73.3, abs=0.3)
+    assert estimate_period_shift(blocks[0], blocks[4]) == pytest.approx(73.3, abs=0.3)
 
 
 def test_non_integer_samples_per_period_are_resampled():

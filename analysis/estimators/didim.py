@@ -117,7 +117,7 @@ from dynid.analysis.processing.decimation import ParallelDecimator
 from dynid.analysis.estimators.essential import essential_parameters
 from dynid.provenance import json_safe, versions
 from dynid.analysis.processing.signals import dead_zone_thresholds, default_settings, velocity_dead_zone
-from dynid.analysis.results import ParameterResults
+from dynid.analysis.results import ModelResults
 from dynid.dynamics.base_parameters import base_parameters, base_regressor
 from dynid.dynamics.dynamic_model import inverse_dynamics, mass_matrix
 from dynid.dynamics.simulation import friction_stiffness, simulate_closed_loop
@@ -164,7 +164,7 @@ CHUNK = 10_000
 # ----------------------------------------------------------------------------- result
 
 @dataclass(eq=False)
-class DIDIMResult(ParameterResults):
+class DIDIMResult(ModelResults):
     """Everything a DIDIM identification produced.
 
     ``result`` is the per-joint WLS of the last Gauss-Newton step on all base
@@ -225,27 +225,6 @@ class DIDIMResult(ParameterResults):
     def model(self):
         """The model users predict with: the essential WLS estimate if computed, else the base one."""
         return self.essential.result if self.essential is not None else self.result
-
-    @property
-    def names(self):
-        return self.model.names
-
-    @property
-    def cov(self):
-        return self.model.cov
-
-    def _estimate(self):
-        return self.model.chi
-
-    def columns(self, names=None):
-        """Indices of ``names`` (default: the model's) among the base parameters."""
-        names = self.model.names if names is None else names
-        index = {n: k for k, n in enumerate(self.base.names)}
-        return [index[n] for n in names]
-
-    def predict(self, W_base):
-        """Torques (N, n) of :attr:`model` from a base regressor (N, n, b)."""
-        return np.asarray(W_base)[:, :, self.columns()] @ self.model.chi
 
     @property
     def tracking_rms(self) -> np.ndarray:
@@ -787,7 +766,7 @@ def identify_didim(experiment, robot, *, settings=None, chi0=None, tol=DEFAULT_T
         stop_reason = (f"max_iter = {max_iter} steps without meeting the criterion: last relative "
                        f"change of ||rho|| {history[-1]['rel_change']:.3g} > tol_I = {tol:g}"
                        if max_iter > 1 else
-                       f"max_iter = 1: one step cannot test the criterion (it compares two steps)")
+                       "max_iter = 1: one step cannot test the criterion (it compares two steps)")
     if not converged:
         notices.append(f"DIDIM did not converge: {stop_reason}")
     elif history[-1]["max_change_sigma"] > MOVING_SIGMA:

@@ -17,12 +17,12 @@ from dynid.analysis.estimators import least_squares as ls
 from dynid.analysis.estimators.essential import essential_parameters
 from dynid.analysis.processing.observation import Observation, concatenate, observe
 from dynid.provenance import data_hash, json_safe, versions
-from dynid.analysis.results import ParameterResults
+from dynid.analysis.results import ModelResults
 from dynid.dynamics.base_parameters import base_parameters
 
 
 @dataclass(eq=False)
-class IDIMResult(ParameterResults):
+class IDIMResult(ModelResults):
     """Everything an IDIM identification produced.
 
     Its parameters (``params``, ``bse``, ``conf_int()`` ...) are those of :attr:`model`,
@@ -48,27 +48,6 @@ class IDIMResult(ParameterResults):
     def model(self):
         """The identified model users predict with: the essential WLS estimate."""
         return self.essential.result
-
-    @property
-    def names(self):
-        return self.model.names
-
-    @property
-    def cov(self):
-        return self.model.cov
-
-    def _estimate(self):
-        return self.model.chi
-
-    def columns(self, names=None):
-        """Indices of ``names`` (default: the essential set) among the base parameters."""
-        names = self.model.names if names is None else names
-        index = {n: k for k, n in enumerate(self.base.names)}
-        return [index[n] for n in names]
-
-    def predict(self, W_base):
-        """Torques (N, n) predicted by the essential model from a base regressor."""
-        return W_base[:, :, self.columns()] @ self.model.chi
 
     def parameter_table(self):
         """One row per base parameter: relation, OLS and WLS value and %σ, essential flag."""

@@ -21,7 +21,7 @@ the measured torque, only the FFT lines at the excitation's harmonics
       noise), and the noise samples themselves are then slightly correlated.
     * **Alignment** (``align=True``). Each period of the signal ``align_on``
       (default: the first key; choose the least noisy one, the measured
-      positions) is compared with the first period by :func:`estimate_shift`:
+      positions) is compared with the first period by :func:`estimate_period_shift`:
       the maximum of the circular cross-correlation (the signal is periodic),
       summed over joints weighted by ``1 / sigma_j^2`` and restricted to the DFT
       bins where the signal's power is 10x the noise's, refined to a fraction
@@ -53,7 +53,7 @@ import numpy as np
 
 from dynid.errors import InputError
 
-__all__ = ["AveragedPeriods", "average_periods", "estimate_shift", "harmonic_filter",
+__all__ = ["AveragedPeriods", "average_periods", "estimate_period_shift", "harmonic_filter",
            "whole_periods", "noise_level"]
 
 _INTEGER_TOL = 1e-6
@@ -108,7 +108,7 @@ def noise_level(x):
 SIGNAL_BIN_SNR = 10.0      # a DFT bin is "signal" when its power is 10x the noise's
 
 
-def estimate_shift(reference, x, sigma=None, *, return_se=False):
+def estimate_period_shift(reference, x, sigma=None, *, return_se=False):
     """Lag (samples, sub-sample) of one period ``x`` behind ``reference``, both (P, n).
 
     Maximum of the weighted circular cross-correlation
@@ -303,7 +303,7 @@ def average_periods(t, signals, period, n_periods=None, align=True, *, fs=None, 
         sig = np.minimum(noise_level(b), spread) / math.sqrt(gain)
         ref = b[0]
         for m in range(1, M):
-            lag, se = estimate_shift(ref, b[m], sig, return_se=True)
+            lag, se = estimate_period_shift(ref, b[m], sig, return_se=True)
             lag_estimates[m], lag_se[m] = lag, se
             if abs(lag) >= max(align_tol, ALIGN_SIGNIFICANCE * se):
                 shifts[m] = lag

@@ -26,20 +26,49 @@ try:
 except PackageNotFoundError:  # a source tree that is not installed
     __version__ = "0+unknown"
 
-from dynid.analysis.data.experiment import Experiment, load_experiment
-from dynid.analysis.data.split import holdout_split
-from dynid.analysis.data.synthetic import simulate
-from dynid.analysis.decoupled.campaign import identify_campaign, simulate_campaign
-from dynid.analysis.identify import identify
-from dynid.analysis.results import ParameterResults
-from dynid.analysis.statistics.validation import validate
-from dynid.dynamics.robot import Robot
-from dynid.dynamics.robot_file import load_robot
 from dynid.errors import (ConvergenceError, DataError, DynidError, IdentificationError, InputError, OutputError,
                           RobotFileError)
-from dynid.reports.pipeline import FullReport, demo, report
 
-if TYPE_CHECKING:   # for the annotations only: the subpackages below are imported when used
+# The public names, imported on first use (PEP 562): `import dynid` and the command line
+# start in milliseconds, and a signal at start-up reaches the command's handler rather
+# than an import of scipy half-way.
+_LAZY = {
+    "Experiment": "dynid.analysis.data.experiment", "load_experiment": "dynid.analysis.data.experiment",
+    "holdout_split": "dynid.analysis.data.split", "simulate": "dynid.analysis.data.synthetic",
+    "identify_campaign": "dynid.analysis.decoupled.campaign",
+    "simulate_campaign": "dynid.analysis.decoupled.campaign",
+    "identify": "dynid.analysis.identify", "ParameterResults": "dynid.analysis.results",
+    "validate": "dynid.analysis.statistics.validation", "Robot": "dynid.dynamics.robot",
+    "load_robot": "dynid.dynamics.robot_file", "FullReport": "dynid.reports.pipeline",
+    "demo": "dynid.reports.pipeline", "report": "dynid.reports.pipeline",
+}
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'dynid' has no attribute {name!r}")
+    import importlib
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list:
+    return sorted(set(globals()) | set(_LAZY))
+
+
+if TYPE_CHECKING:   # static tools (type checkers, the API reference) see the real imports
+    from dynid.analysis.data.experiment import Experiment, load_experiment
+    from dynid.analysis.data.split import holdout_split
+    from dynid.analysis.data.synthetic import simulate
+    from dynid.analysis.decoupled.campaign import identify_campaign, simulate_campaign
+    from dynid.analysis.identify import identify
+    from dynid.analysis.results import ParameterResults
+    from dynid.analysis.statistics.validation import validate
+    from dynid.dynamics.robot import Robot
+    from dynid.dynamics.robot_file import load_robot
+    from dynid.reports.pipeline import FullReport, demo, report
     from dynid.analysis.diagnosis.selection import DiagnosisResult
     from dynid.analysis.estimators.idim import IDIMResult
     from dynid.analysis.sampling.posterior import PosteriorResult
