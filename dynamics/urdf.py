@@ -224,7 +224,7 @@ class _Tree:
                 raise RobotFileError(f"{path}: a <link> has no name; give it name=\"...\"")
             check_name(name, "link name", path)
             if name in self.links:
-                raise RobotFileError(f"{path}: two <link> elements are named '{name}'; give every "
+                raise RobotFileError(f"{path}: duplicate <link> name '{name}': two <link> elements are named '{name}'; give every "
                                      f"link a unique name")
             self.links[name] = el
             if len(self.links) > MAX_URDF_LINKS:

@@ -1139,3 +1139,91 @@ def test_fast_csv_path_agrees_with_the_precise_path(tmp_path, text):
     if fast is None:
         return
     _same_raw(fast, readers._read_csv_precise(p, str(p)))
+
+
+# --------------------------------------------------------------------------------------
+# plausibility against the robot's limits (dynid.analysis.data.plausibility)
+# --------------------------------------------------------------------------------------
+
+
+def limited_robot(n=2, tau_max=100.0, q_limits=(-3.0, 3.0), qd_max=5.0):
+    joints = [SimpleNamespace(tau_max=tau_max, q_limits=q_limits, qd_max=qd_max)
+              for _ in range(n)]
+    return SimpleNamespace(n_joints=n, name="lim", drive_gains=np.ones(n), joints=joints)
+
+
+def smooth(N=2000, fs=1000.0):
+    t = np.arange(N) / fs
+    return pd.DataFrame({"t": t, "q1": np.sin(2 * t), "q2": 0.5 * np.cos(3 * t),
+                         "tau1": 40 * np.sin(2 * t + 0.3), "tau2": 10 * np.cos(t)})
+
+
+def test_plausible_data_raise_no_notice(tmp_path):
+    e = load_experiment(csv_of(smooth(), tmp_path), limited_robot())
+    assert e.notices == []
+
+
+def test_torques_in_mNm_are_refused_naming_column_and_tau_max(tmp_path):
+    df = smooth()
+    df["tau1"] *= 1000
+    msg = err(csv_of(df, tmp_path), robot=limited_robot())
+    assert "tau1" in msg and "tau_max" in msg and "mN" in msg
+
+
+def test_torque_a_few_times_tau_max_is_a_notice(tmp_path):
+    df = smooth()
+    df["tau1"] *= 10          # 400 N m, 4x tau_max
+    e = load_experiment(csv_of(df, tmp_path), limited_robot())
+    assert any("tau1" in m and "tau_max" in m for m in e.notices)
+
+
+def test_positions_in_degrees_are_refused(tmp_path):
+    df = smooth()
+    df[["q1", "q2"]] = np.degrees(df[["q1", "q2"]]) * 3
+    msg = err(csv_of(df, tmp_path), robot=limited_robot())
+    assert "q1" in msg and "q_limits" in msg and "degrees" in msg
+
+
+def test_time_in_ms_is_refused(tmp_path):
+    df = smooth()
+    df["t"] *= 1000
+    msg = err(csv_of(df, tmp_path), robot=limited_robot())
+    assert "column 't'" in msg and "ms" in msg and "qd_max" in msg
+
+
+def test_impossible_single_torque_sample_names_the_row(tmp_path):
+    df = smooth()
+    df.loc[777, "tau1"] = 1e6
+    msg = err(csv_of(df, tmp_path), robot=limited_robot())
+    assert "tau1" in msg and "data row 778" in msg
+
+
+def test_isolated_spike_within_limits_is_a_notice(tmp_path):
+    df = smooth()
+    df.loc[500, "tau2"] = 500.0         # tau2 stays within ±10 otherwise; 5x tau_max, not 20x
+    e = load_experiment(csv_of(df, tmp_path), limited_robot())
+    assert any("tau2" in m and "spike" in m and "data row 501" in m for m in e.notices)
+
+
+def test_huge_value_is_refused_with_robot_only(tmp_path):
+    df = smooth()
+    df.loc[10, "tau1"] = 1e300
+    p = csv_of(df, tmp_path)
+    msg = err(p, robot=limited_robot())
+    assert "tau1" in msg and "data row 11" in msg
+    load_experiment(p)          # without a robot any finite number is read
+
+
+def test_experiment_toml_zero_scale_and_gain_and_huge_rate(tmp_path):
+    csv_of(smooth(), tmp_path)
+    base = '[experiment]\nfile = "data.csv"\n[time]\ncolumn = "t"\n'
+    p = write(tmp_path, "a.toml", base + '[positions]\ncolumns = ["q1", "q2"]\nscale = [1, 0]\n'
+              '[torques]\ncolumns = ["tau1", "tau2"]\n')
+    assert "scale[1]" in err(p)
+    p = write(tmp_path, "b.toml", base + '[positions]\ncolumns = ["q1", "q2"]\n'
+              '[torques]\ncolumns = ["tau1", "tau2"]\ndrive_gains = [0.0, 1.0]\n')
+    assert "drive_gains[0] = 0" in err(p)
+    p = write(tmp_path, "c.toml", '[experiment]\nfile = "data.csv"\nsampling_rate = 1e308\n')
+    assert "sampling_rate" in err(p)
+    p = write(tmp_path, "d.toml", 'file = "data.csv"\nname = ' + "[" * 500 + "]" * 500 + "\n")
+    assert "d.toml" in err(p)

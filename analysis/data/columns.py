@@ -61,6 +61,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from dynid.analysis.data import plausibility as _plaus
 from dynid.analysis.data._format import _fmt, _short_list
 from dynid.analysis.data.timebase import _check_time, _Options, _resample, estimate_shift
 from dynid.errors import DataError
@@ -332,8 +333,15 @@ def _assemble(
     max_shift: int | None = None,
     min_shift: int | None = None,
     shift_where: str = "",
+    robot=None,
+    cols_of: dict | None = None,
 ) -> Experiment:
-    """start_offset → reference shift → time checks / resampling → saturation."""
+    """start_offset → reference shift → plausibility (robot limits, spikes) → time checks /
+    resampling → rate check → saturation.
+
+    ``cols_of``: signal → the joint columns (:class:`_Col`) it came from, or None, for
+    naming the column and row in messages.
+    """
     n_raw = next(iter(signals.values())).shape[0]
     rows = np.arange(n_raw)
     if t is None:
@@ -403,6 +411,8 @@ def _assemble(
             f"reference shifted by L = {L} samples (measured q[i + L] ≈ reference[i]), "
             f"{how}{rms_text}; {dropped}"
         )
+    _plaus.check_limits(signals, rows, robot, cols_of, source, notices)
+    _plaus.check_spikes(signals, rows, cols_of, source, notices)
     if time_col is not None:
         if _check_time(t, time_col, rows, opts, notices):
             t, signals = _resample(t, signals, notices)
@@ -417,6 +427,9 @@ def _assemble(
                 )
     from dynid.analysis.data.experiment import Experiment  # the record imports this module
 
+    _plaus.check_rate(t, signals, robot,
+                      time_col.where if time_col is not None
+                      else f"{opts.where}: t (from sampling_rate)", notices)
     tau = signals["tau"]
     _saturation_notices(tau, notices, source)
     fs = None
@@ -637,9 +650,12 @@ def _from_columns(raw: _RawFile, robot, n_joints, opts: _Options, source: str,
         values[(s, k)] = v
         items.append((c, v))
     _check_finite(items)
+    _plaus.check_magnitude([(c, v) for c, v in items if c is not tcol], robot)
     signals = {}
+    cols_of = {}
     for s, idx in present.items():
         signals[s] = np.column_stack([values[(s, k)] for k in idx])
+        cols_of["tau" if s == "i" else s] = [cols[by_stem[s][k]] for k in idx]
     if "tau" not in signals:
         g, origin = _drive_gains(robot, n, raw.label)
         signals["tau"] = signals.pop("i") * g
@@ -648,5 +664,5 @@ def _from_columns(raw: _RawFile, robot, n_joints, opts: _Options, source: str,
             f"g = [{', '.join(_fmt(x) for x in g)}], {origin})"
         )
     return _assemble(t=t, time_col=tcol, signals=signals, opts=opts, notices=notices,
-                     source=source, meta=meta)
+                     source=source, meta=meta, robot=robot, cols_of=cols_of)
 

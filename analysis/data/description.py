@@ -72,6 +72,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from dynid.analysis.data import plausibility as _plaus
 from dynid.analysis.data import transmission as _tr
 from dynid.analysis.data._format import _fmt, _short_list
 from dynid.analysis.data.columns import (
@@ -104,6 +105,8 @@ _EXTRA_KEYS = {"torques": {"drive_gains"}, "currents": {"drive_gains"},
                "reference": {"shift", "max_shift", "min_shift"}}
 _TIME_KEYS = {"file", "key", "column", "scale"}
 _TRANSMISSION_KEYS = {"gear_ratios", "couplings", "position_offsets"}
+#: Largest accepted ``sampling_rate`` (Hz): far above any robot controller's rate.
+MAX_SAMPLING_RATE = 1e6
 
 
 class _Toml:
@@ -178,6 +181,11 @@ def _load_toml(path: Path, label: str, robot, n_joints) -> Experiment:
         raise DataError(f"{label} is not UTF-8 text. Save it as UTF-8.") from None
     except tomllib.TOMLDecodeError as e:
         raise DataError(f"{label} is not valid TOML: {e}. Fix the syntax there.") from None
+    except RecursionError:
+        raise DataError(
+            f"{label}: arrays or tables are nested too deeply to read. An experiment TOML "
+            "needs no nesting beyond lists of numbers or names; fix the file."
+        ) from None
     tk = _Toml(label)
     base = path.parent
 
@@ -217,6 +225,12 @@ def _load_toml(path: Path, label: str, robot, n_joints) -> Experiment:
         time_tolerance=tk.number(S, exp, "time_tolerance", TIME_STEP_TOLERANCE, positive=True),
         where=f"{label}, [experiment]",
     )
+    if opts.sampling_rate is not None and opts.sampling_rate > MAX_SAMPLING_RATE:
+        raise tk.err(
+            S,
+            f"sampling_rate = {opts.sampling_rate:g} Hz is out of range: give the rate in Hz, "
+            f"at most {MAX_SAMPLING_RATE:g} (robot controllers log at 100 Hz … 10 kHz).",
+        )
     if not isinstance(opts.resample, bool):
         raise tk.err(S, f"resample must be true or false, got {opts.resample!r}.")
     default_file = tk.string(S, exp, "file")
@@ -360,6 +374,7 @@ def _load_toml(path: Path, label: str, robot, n_joints) -> Experiment:
         cols = select(s, table)
         items = [(c, _to_float(c)) for c in cols]
         _check_finite(items)
+        _plaus.check_magnitude(items, robot)
         values[s] = np.column_stack([v for _, v in items])
         section_cols[s] = cols
         side = tk.string(s, table, "side", "joint")
@@ -409,10 +424,28 @@ def _load_toml(path: Path, label: str, robot, n_joints) -> Experiment:
                 sc = tk.numbers(s, table, "scale", n)
             else:
                 sc = tk.number(s, table, "scale")
+            zero = np.flatnonzero(np.atleast_1d(sc) == 0)
+            if zero.size:
+                which = "scale" if np.isscalar(sc) else f"scale[{int(zero[0])}] (joint {int(zero[0]) + 1})"
+                raise tk.err(
+                    s,
+                    f"{which} = 0 would make every value of the signal 0. Give the factor "
+                    "that converts the file's values to SI units (1 if they are already), "
+                    "or remove scale.",
+                )
             values[s] = values[s] * sc
             notices.append(f"[{s}] scaled by {sc if np.isscalar(sc) else list(sc)}")
         if s in ("torques", "currents"):
             g = tk.numbers(s, table, "drive_gains", n)
+            if g is not None and np.any(g == 0):
+                j = int(np.flatnonzero(g == 0)[0])
+                raise tk.err(
+                    s,
+                    f"drive_gains[{j}] = 0 (joint {j + 1}) would make that joint's torque 0 "
+                    "throughout. Give the gain that converts the signal to N·m (the motor's "
+                    "torque constant × gear ratio for a current), or 1 if the column already "
+                    "holds torques.",
+                )
             if g is None and s == "currents":
                 g, origin = _drive_gains(robot, n, label)
                 notices.append(
@@ -494,11 +527,14 @@ def _load_toml(path: Path, label: str, robot, n_joints) -> Experiment:
         if shift == 0:
             shift = None
     files = ", ".join(raws)
+    cols_of = {("tau" if _SECTIONS[s] == "i" else _SECTIONS[s]):
+               (None if sides[s] == "motor" else section_cols[s]) for s in sections}
     return _assemble(
         t=t, time_col=time_col, signals=signals, opts=opts, notices=notices,
         source=f"{label} (data: {files})", meta=meta, shift=shift, max_shift=max_shift,
         min_shift=min_shift,
         shift_where=f"{label}, [reference]",
+        robot=robot, cols_of=cols_of,
     )
 
 

@@ -237,7 +237,8 @@ def _fit(system: _System, cols: np.ndarray, weights: np.ndarray, rank_rtol: floa
         raise IdentificationError(
             f"only {r} equations are used for {s} parameters; eq. (13) needs more rows than "
             "parameters. Record a longer trajectory, decimate less, include more joints/rows, "
-            "or identify fewer parameters."
+            "or identify fewer parameters; if the velocity dead zone (--qd-threshold, "
+            "qd_threshold) is above the joint speeds it drops every row: lower it."
         )
     w = np.asarray(weights, dtype=float)[active]
     blocks = system.blocks[active]
@@ -524,9 +525,12 @@ def _joint_sigma(system: _System, rank_rtol: float) -> np.ndarray:
         sig[j] = math.sqrt(float(c @ c) / dof)
         if not sig[j] > 0.0:
             raise IdentificationError(
-                f"the OLS residual of joint {j + 1}'s equations (eq. (16)) is exactly zero, so the "
-                f"WLS weight 1/σ_{j + 1} is infinite; use ols(), or pass joint_sigma with a positive "
-                "value for that joint."
+                f"joint {j + 1}'s torque tau{j + 1} has no variation the model cannot explain: "
+                f"the residual of its equations (eq. (16)) is exactly zero, so its error level "
+                f"σ_{j + 1} and the weight 1/σ_{j + 1} cannot be computed. Usually tau{j + 1} "
+                "is all zero or constant (a torque column that was not logged, or a drive gain "
+                f"of 0): check the torque column tau{j + 1} (or current i{j + 1} and its drive "
+                "gain) in the data file."
             )
     return sig
 

@@ -205,6 +205,14 @@ def _dead_zone(s, qd, robot, guard=0):
     if not np.any(thr > 0):
         return dict(s, qd_threshold=[0.0] * qd.shape[1]), None
     dead = velocity_dead_zone(qd, thr, guard=guard, couplings=robot.couplings)
+    if dead.size and dead.all():
+        peak = np.abs(np.asarray(qd, dtype=float)).max(axis=0)
+        raise DataError(
+            "the velocity dead zone (--qd-threshold, qd_threshold: "
+            + ", ".join(f"{v:.3g}" for v in thr) + " rad/s) is above every joint speed (peak "
+            + ", ".join(f"|qd{j + 1}| = {v:.3g}" for j, v in enumerate(peak))
+            + " rad/s), so every sample is dropped and no equation is left. Lower "
+            "--qd-threshold below the joint speeds, or leave it at 'auto'.")
     return dict(s, qd_threshold=[float(v) for v in thr]), dead
 
 

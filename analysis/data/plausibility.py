@@ -1,0 +1,259 @@
+"""Plausibility of loaded data: magnitudes, robot limits, units, spikes.
+
+Checks run by :func:`dynid.analysis.data.columns._assemble` (and, for magnitudes,
+right after the cells are parsed). They catch silent nonsense that parses fine:
+
+* :func:`check_magnitude` (robot given): a signal cell with ``|value| > MAGNITUDE_LIMIT`` (1e12) is
+  refused (no torque, position or current in SI units gets there; it is a corrupted
+  cell or an overflow), naming the column and the row.
+* :func:`check_limits` (robot given): the joint torques against ``tau_max``, the
+  positions against ``q_limits``; wrong units (mN·m, degrees) and single impossible
+  samples are errors, milder excess is a notice.
+* :func:`check_spikes`: isolated spikes (one sample far from its neighbours' median,
+  measured in the column's robust scale) are a notice naming the column and the row.
+* :func:`check_rate` (robot given): a sampling rate below ``LOW_RATE`` with joint
+  speeds far below ``qd_max`` (time in ms), or speeds far above ``qd_max``.
+
+Thresholds are generous: the Stäubli TX40, KUKA LWR4+ and Panda recordings and
+``dynid simulate`` data raise nothing.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from dynid.errors import DataError
+
+#: |value| above which a signal cell is refused.
+MAGNITUDE_LIMIT = 1e12
+#: 99th percentile of |tau_j| above this × tau_max: a notice (units?).
+TAU_NOTICE_FACTOR = 3.0
+#: 99th percentile (units) or a single sample (spike) of |tau_j| above this × tau_max: an error.
+TAU_ERROR_FACTOR = 20.0
+#: A sample farther than this × the column's robust scale (1.4826 × MAD) from the median
+#: of its 4 neighbours, which agree among themselves, is an isolated spike.
+SPIKE_FACTOR = 20.0
+#: Sampling rates below this (Hz) are implausible for dynamic identification.
+LOW_RATE = 10.0
+#: ... and an error when every joint's 99th-percentile speed is below this × qd_max.
+SLOW_FRACTION = 0.01
+#: 99th-percentile |dq/dt| above this × qd_max: a notice.
+FAST_FACTOR = 10.0
+
+_UNIT = {"q": "rad", "qr": "rad", "qd": "rad/s", "qdd": "rad/s²", "tau": "N·m"}
+
+
+def _g(x: float) -> str:
+    return f"{x:.4g}"
+
+
+def check_magnitude(items, robot) -> None:
+    """DataError for the first cell with |value| > MAGNITUDE_LIMIT in ``items`` [(col, values)].
+
+    Only with a robot (the data are then meant as a recording of it, in SI units);
+    without one the loader reads any finite number."""
+    if robot is None:
+        return
+    for col, v in items:
+        big = np.abs(v) > MAGNITUDE_LIMIT
+        if big.any():
+            k = int(np.flatnonzero(big)[0])
+            raise DataError(
+                f"{col.where}, {col.raw.row(k)}: {v[k]:.6g} is implausibly large (|value| > "
+                f"{MAGNITUDE_LIMIT:g}; {int(big.sum())} such cell(s) in this column): a "
+                "corrupted cell or an overflow. Fix or remove that row."
+            )
+
+
+def _joint_value(robot, j: int, attr: str):
+    try:
+        return getattr(robot.joints[j], attr)
+    except (AttributeError, IndexError, TypeError):
+        return None
+
+
+def _positive(x) -> float | None:
+    try:
+        x = float(x)
+    except (TypeError, ValueError):
+        return None
+    return x if math.isfinite(x) and x > 0 else None
+
+
+def _limits(x):
+    try:
+        lo, hi = (float(v) for v in x)
+    except (TypeError, ValueError):
+        return None
+    if not (math.isfinite(lo) and math.isfinite(hi) and hi > lo):
+        return None
+    return lo, hi
+
+
+class _Where:
+    """Names a signal's joint column and a row of it in messages."""
+
+    def __init__(self, cols_of, rows, source):
+        self.cols_of = cols_of or {}
+        self.rows = rows
+        self.source = source
+
+    def col(self, s: str, j: int):
+        cols = self.cols_of.get(s)
+        return cols[j] if cols is not None and j < len(cols) else None
+
+    def name(self, s: str, j: int) -> str:
+        c = self.col(s, j)
+        own = f"{s}{j + 1}"
+        if c is None:
+            return f"{self.source}: {own}"
+        return c.where if own in c.label else f"{c.where} ({own})"
+
+    def row(self, s: str, j: int, k: int) -> str:
+        c = self.col(s, j)
+        if c is None or self.rows is None:
+            return f"sample {k + 1}"
+        return c.raw.row(int(self.rows[k]))
+
+
+def check_limits(signals: dict, rows, robot, cols_of, source: str, notices: list[str]) -> None:
+    """Torques against tau_max and positions against q_limits (see the module doc)."""
+    if robot is None:
+        return
+    w = _Where(cols_of, rows, source)
+    tau = signals.get("tau")
+    if tau is not None:
+        for j in range(tau.shape[1]):
+            tmax = _positive(_joint_value(robot, j, "tau_max"))
+            if tmax is None:
+                continue
+            a = np.abs(tau[:, j])
+            p99 = float(np.percentile(a, 99))
+            k = int(np.argmax(a))
+            if p99 > TAU_ERROR_FACTOR * tmax:
+                raise DataError(
+                    f"{w.name('tau', j)}: tau{j + 1} reaches {_g(p99)} N·m (99th percentile of "
+                    f"|tau{j + 1}|), {p99 / tmax:.0f}× the robot's tau_max {_g(tmax)} N·m for "
+                    f"joint {j + 1}: are the torques in mN·m (or is the drive gain wrong)? "
+                    "Convert the column to N·m (in an experiment TOML: [torques] scale = "
+                    "0.001), or correct tau_max in the robot file."
+                )
+            if a[k] > TAU_ERROR_FACTOR * tmax:
+                raise DataError(
+                    f"{w.name('tau', j)}, {w.row('tau', j, k)}: tau{j + 1} = {tau[k, j]:.6g} "
+                    f"N·m, {a[k] / tmax:.0f}× the robot's tau_max {_g(tmax)} N·m, while 99 % of "
+                    f"the samples stay below {_g(p99)} N·m: a spike or corrupted value. Fix or "
+                    "remove that row."
+                )
+            if p99 > TAU_NOTICE_FACTOR * tmax:
+                notices.append(
+                    f"{w.name('tau', j)}: tau{j + 1} reaches {_g(p99)} N·m (99th percentile), "
+                    f"{p99 / tmax:.1f}× the robot's tau_max {_g(tmax)} N·m: check the units "
+                    "of the torque column (N·m?), the drive gain, or tau_max in the robot file"
+                )
+    for s in ("q", "qr"):
+        x = signals.get(s)
+        if x is None:
+            continue
+        for j in range(x.shape[1]):
+            lim = _limits(_joint_value(robot, j, "q_limits"))
+            if lim is None:
+                continue
+            lo, hi = lim
+            span = hi - lo
+            margin = max(1.0, 0.5 * span)
+            obs_lo, obs_hi = (float(v) for v in np.percentile(x[:, j], [0.5, 99.5]))
+            if obs_lo >= lo - margin and obs_hi <= hi + margin:
+                continue
+            rad = np.radians([obs_lo, obs_hi])
+            degrees = rad[0] >= lo - margin and rad[1] <= hi + margin
+            what = (f"{w.name(s, j)}: {s}{j + 1} spans {_g(obs_lo)} … {_g(obs_hi)} but the "
+                    f"robot's q_limits for joint {j + 1} are [{_g(lo)}, {_g(hi)}] rad")
+            if degrees:
+                fix = ("are the positions in degrees? Convert them to rad (in an experiment "
+                       f"TOML: [positions] scale = {math.pi / 180!r})")
+            else:
+                fix = ("check the units of the position column (rad, m for prismatic joints), "
+                       "its zero offset, or q_limits in the robot file")
+            if obs_lo < lo - span or obs_hi > hi + span:
+                raise DataError(f"{what}: {fix}.")
+            notices.append(f"{what}: {fix}")
+
+
+def _isolated_spikes(x: np.ndarray):
+    """Indices of isolated spikes of ``x`` and the column's robust scale."""
+    n = x.size
+    if n < 9:
+        return np.array([], dtype=int), 0.0
+    scale = 1.4826 * float(np.median(np.abs(x - np.median(x))))
+    if not scale > 0:
+        return np.array([], dtype=int), 0.0
+    p = np.pad(x, 2, mode="edge")
+    nb = np.stack([p[0:n], p[1:n + 1], p[3:n + 3], p[4:n + 4]])
+    dev = np.abs(x - np.median(nb, axis=0))
+    spread = nb.max(axis=0) - nb.min(axis=0)
+    return np.flatnonzero((dev > SPIKE_FACTOR * scale) & (dev > 4.0 * spread)), scale
+
+
+def check_spikes(signals: dict, rows, cols_of, source: str, notices: list[str]) -> None:
+    """A notice per column (q, qr, tau) with isolated spikes, naming the first row."""
+    w = _Where(cols_of, rows, source)
+    for s in ("q", "qr", "tau"):
+        x = signals.get(s)
+        if x is None:
+            continue
+        for j in range(x.shape[1]):
+            idx, scale = _isolated_spikes(x[:, j])
+            if not idx.size:
+                continue
+            k = int(idx[0])
+            more = f" ({idx.size} such samples in all)" if idx.size > 1 else ""
+            notices.append(
+                f"{w.name(s, j)}, {w.row(s, j, k)}: isolated spike in {s}{j + 1}: "
+                f"{x[k, j]:.6g} {_UNIT[s]}, more than {SPIKE_FACTOR:g}× the column's robust "
+                f"scale ({_g(scale)}, from its median absolute deviation) away from its "
+                f"neighbours{more}: a glitch? Fix or remove that row (outliers bias the fit)"
+            )
+
+
+def check_rate(t: np.ndarray, signals: dict, robot, time_where: str, notices: list[str]) -> None:
+    """A time column in ms (rate below LOW_RATE, joints far slower than qd_max) and
+    joint speeds far above qd_max."""
+    if robot is None or t.size < 3:
+        return
+    q = signals.get("q")
+    if q is None:
+        q = signals.get("qr")
+    if q is None:
+        return
+    step = float(np.median(np.diff(t)))
+    if not step > 0:
+        return
+    fs = 1.0 / step
+    with np.errstate(all="ignore"):
+        qd = np.gradient(q, t, axis=0)
+    speed = np.percentile(np.abs(qd), 99, axis=0)
+    qd_max = [_positive(_joint_value(robot, j, "qd_max")) for j in range(q.shape[1])]
+    known = [j for j, v in enumerate(qd_max) if v is not None]
+    dur = float(t[-1] - t[0])
+    if fs < LOW_RATE:
+        head = (f"{time_where}: t steps by {_g(step)} (median) and spans {_g(dur)} s, a "
+                f"sampling rate of {_g(fs)} Hz")
+        if known and all(speed[j] < SLOW_FRACTION * qd_max[j] for j in known):
+            j = max(known, key=lambda i: speed[i] / qd_max[i])
+            raise DataError(
+                f"{head}; at that rate the fastest joint (joint {j + 1}) moves at "
+                f"{_g(speed[j])} rad/s, {100 * speed[j] / qd_max[j]:.2g} % of its qd_max "
+                f"{_g(qd_max[j])} rad/s: is t in ms? Convert the time column to s (in an "
+                "experiment TOML: [time] scale = 0.001)."
+            )
+        notices.append(f"{head}, low for dynamic identification: is t in s (not ms)?")
+    for j in known:
+        if speed[j] > FAST_FACTOR * qd_max[j]:
+            notices.append(
+                f"{time_where}: with this time column joint {j + 1} moves at {_g(speed[j])} "
+                f"rad/s (99th percentile), {speed[j] / qd_max[j]:.0f}× its qd_max "
+                f"{_g(qd_max[j])} rad/s: check the units of t (s) and of the positions (rad)"
+            )
