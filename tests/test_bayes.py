@@ -374,3 +374,20 @@ def test_report_sections_for_linear_and_gravity(tx40_known_noise, gravity_runs):
     html = render_sections(secs, title="posterior")
     assert "8 of 25 parameters shown" in html
     assert "delta method" in html and "CONVERGED" in html
+
+
+def test_rank_normalized_rhat_sees_chains_that_differ_in_scale_only():
+    # Vehtari et al. (2021): chains with one mean but different scales fool the classic
+    # split R-hat (close to 1) and not the rank-normalised, folded one
+    from dynid.analysis.sampling.convergence import rank_normalized_rhat, split_rhat
+    rng = np.random.default_rng(3)
+    same = rng.normal(size=(2000, 8, 1))
+    scaled = same * np.array([1, 1, 1, 1, 3, 3, 3, 3])[None, :, None]
+    assert split_rhat(same)[0] < 1.01 and rank_normalized_rhat(same)[0] < 1.01
+    assert split_rhat(scaled)[0] < 1.02
+    assert rank_normalized_rhat(scaled)[0] > 1.1
+    # for well-mixed Gaussian chains the two agree
+    assert abs(rank_normalized_rhat(same)[0] - split_rhat(same)[0]) < 0.01
+    # heavy tails (Cauchy) leave the rank version finite and near 1
+    cauchy = rng.standard_cauchy(size=(2000, 8, 1))
+    assert rank_normalized_rhat(cauchy)[0] < 1.02

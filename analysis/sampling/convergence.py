@@ -68,6 +68,7 @@ __all__ = [
     "ChainRun",
     "integrated_time",
     "split_rhat",
+    "rank_normalized_rhat",
     "chain_effective_sample_size",
     "diagnose",
     "run_until_converged",
@@ -147,6 +148,7 @@ class ChainDiagnostics:
     sampled: np.ndarray
     criteria: ConvergenceCriteria
     limit: str | None = None
+    rhat_rank: np.ndarray | None = None      # rank-normalised split R̂ (reported; the rule uses rhat)
     history: list = field(default_factory=list)
     storage_interval: int = 1
     elapsed: float = math.nan
@@ -190,6 +192,7 @@ class ChainDiagnostics:
             "chain_over_tau": self.chain_over_tau,
             "rhat": self.rhat,
             "rhat_max": self.rhat_max,
+            "rhat_rank_normalized": self.rhat_rank,
             "acceptance_mean": self.acceptance_mean,
             "acceptance_min": float(np.min(self.acceptance)),
             "sampled": self.sampled,
@@ -269,6 +272,31 @@ def split_rhat(chain: np.ndarray) -> np.ndarray:
     ok = np.isfinite(W) & (W > 0)
     out[ok] = r[ok]
     return out
+
+
+def rank_normalized_rhat(chain: np.ndarray) -> np.ndarray:
+    """Rank-normalised split R̂ of each parameter (Vehtari et al. 2021, Bayesian Analysis 16(2)).
+
+    The draws of all chains are replaced by their normal scores
+    ``Φ⁻¹((r − 3/8) / (S − 1/4))`` (r the rank among all S draws) and :func:`split_rhat`
+    is taken of those (the bulk R̂), and of the same for the draws folded about their
+    median, ``|θ − median|`` (the tail R̂); the larger is returned. It is robust to heavy
+    tails and to chains that differ in scale only, which the classic R̂ misses; ArviZ's
+    ``rhat(method="rank")`` is the same estimator. ``chain`` is (n_steps, n_walkers, d).
+    """
+    from scipy.stats import norm, rankdata
+
+    chain = np.asarray(chain, dtype=float)
+    n_steps, n_walkers, d = chain.shape
+
+    def z(x):
+        flat = x.reshape(-1, d)
+        r = rankdata(flat, axis=0, method="average")
+        return norm.ppf((r - 0.375) / (flat.shape[0] + 0.25)).reshape(x.shape)
+
+    bulk = split_rhat(z(chain))
+    tail = split_rhat(z(np.abs(chain - np.median(chain.reshape(-1, d), axis=0))))
+    return np.fmax(bulk, tail)
 
 
 def chain_effective_sample_size(n_walkers: int, n_steps: int, tau: np.ndarray) -> np.ndarray:
@@ -365,7 +393,8 @@ def diagnose(stored: np.ndarray, interval: int, n_steps: int, accepted: np.ndarr
             reason += f" (run stopped by its {limit} limit after meeting the rule)"
     else:
         reason = "NOT CONVERGED: " + "; ".join(problems)
-    return ChainDiagnostics(tau=tau, rhat=rhat, acceptance=acc, n_steps=int(n_steps),
+    return ChainDiagnostics(tau=tau, rhat=rhat, rhat_rank=rank_normalized_rhat(post) if post.shape[0] >= 4 else None,
+                            acceptance=acc, n_steps=int(n_steps),
                             n_walkers=n_walkers, burn_in=int(burn), thin=int(thin),
                             converged=bool(converged), reason=reason, sampled=sampled,
                             criteria=c, limit=limit, history=list(history or []),

@@ -28,10 +28,8 @@ import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
-ROOT = HERE.parents[1]
-for p in (str(HERE), str(ROOT)):        # this checkout's dynid (it bundles panda.toml)
-    if p not in sys.path:
-        sys.path.insert(0, p)
+if str(HERE) not in sys.path:          # convert.py and gaz_model.py beside this file, also when imported
+    sys.path.insert(0, str(HERE))
 
 HOLDOUT = 5.25          # s: the last quarter of the 21.0 s recording
 # Processing. dynid's automatic choice fails here: its bandwidth estimate reads the
