@@ -20,8 +20,12 @@ from dynid.analysis.data.experiment import Experiment, estimate_shift, load_expe
 from dynid.errors import DataError, InputError
 
 from conftest import SHARED_DATA
-TX40_DIR = SHARED_DATA / "staubli-tx40-figaroh"
-KUKA_DIR = SHARED_DATA / "kuka-lwr4-flobaroid"
+# the copies the project ships first; ../shared only for what it does not ship
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+TX40_DIR = EXAMPLES / "staubli_tx40" if (EXAMPLES / "staubli_tx40" / "curr_data.csv").exists() \
+    else SHARED_DATA / "staubli-tx40-figaroh"
+KUKA_DIR = EXAMPLES / "kuka_lwr4" if (EXAMPLES / "kuka_lwr4" / "measurements_1.npz").exists() \
+    else SHARED_DATA / "kuka-lwr4-flobaroid"
 FIXTURES = Path(__file__).parent / "data"
 
 

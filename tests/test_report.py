@@ -31,7 +31,9 @@ EVIL_ROBOT = "<script>alert(1)</script>"
 EVIL_JOINT = '"><img src=x onerror=alert(1)>'
 EVIL_SOURCE = "runs/<b>bold</b> & 'quoted'.csv"
 from conftest import SHARED_DATA
-TX40_DATA = SHARED_DATA / "staubli-tx40-figaroh"
+TX40_DATA = (Path(__file__).resolve().parents[1] / "examples" / "staubli_tx40"   # the shipped copy
+             if (Path(__file__).resolve().parents[1] / "examples" / "staubli_tx40" / "curr_data.csv").exists()
+             else SHARED_DATA / "staubli-tx40-figaroh")
 
 TITLES = {"run": "Run and data", "model": "Model", "base-parameters": "Base parameters",
           "table2": "Essential parameters (Table 2)", "essential-path": "Elimination path",
