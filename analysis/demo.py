@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from dynid.analysis.estimators.idim import identify_idim
 from dynid.analysis.data.synthetic import simulate_experiment, tx40_true_parameters
+from dynid.analysis.estimators.idim import identify_idim
 from dynid.analysis.statistics.validation import validate
 from dynid.dynamics.base_parameters import base_parameters
 from dynid.dynamics.robot_file import load_robot

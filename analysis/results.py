@@ -22,9 +22,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from dynid.provenance import dumps_json, json_safe, versions
-from dynid.outputs import atomic_write_text
 from dynid.errors import InputError
+from dynid.outputs import atomic_write_text
+from dynid.provenance import dumps_json, json_safe, versions
 
 __all__ = ["Exportable", "ParameterResults", "ModelResults", "IdentificationResult"]
 

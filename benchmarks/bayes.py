@@ -48,9 +48,9 @@ def best_of(fn, repeat=5, number=1):
 
 
 def tx40(seed):
-    from dynid.analysis.sampling import posterior as bayes
     from dynid.analysis.demo import demo_data
     from dynid.analysis.estimators.idim import identify_idim
+    from dynid.analysis.sampling import posterior as bayes
 
     t0 = time.perf_counter()
     robot, bp, beta, ident, valid = demo_data(1, 20.0)

@@ -37,9 +37,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))   # bias_scenarios: a test fixture
 
+import bias_scenarios as bs  # noqa: E402
 import numpy as np  # noqa: E402
 
-import bias_scenarios as bs  # noqa: E402
 from dynid.analysis.estimators import least_squares as ls  # noqa: E402
 from dynid.analysis.estimators.maximum_likelihood import maximum_likelihood, robot_model  # noqa: E402
 from dynid.analysis.estimators.projection import lag_matrix, projection_method  # noqa: E402

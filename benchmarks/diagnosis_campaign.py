@@ -78,18 +78,23 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from dynid.analysis.data.synthetic import simulate_experiment, tx40_true_parameters  # noqa: E402
 from dynid.analysis.demo import F0, HARMONICS, Q_NOISE, TAU_NOISE  # noqa: E402
-from dynid.analysis.diagnosis.selection import (diagnose, evaluate_effects, fit_effects,  # noqa: E402
-                                identify_from_observation, without_parameters)
 from dynid.analysis.diagnosis.effect_observation import observe_effects, payload_parameter_names  # noqa: E402
 from dynid.analysis.diagnosis.effects import make_candidate  # noqa: E402
-from dynid.analysis.data.synthetic import simulate_experiment, tx40_true_parameters  # noqa: E402
+from dynid.analysis.diagnosis.selection import (  # noqa: E402
+    diagnose,
+    evaluate_effects,
+    fit_effects,
+    identify_from_observation,
+    without_parameters,
+)
 from dynid.analysis.estimators.idim import identify_idim  # noqa: E402
 from dynid.dynamics.base_parameters import base_parameters  # noqa: E402
-from dynid.errors import InputError  # noqa: E402
 from dynid.dynamics.regressor import regressor  # noqa: E402
 from dynid.dynamics.robot_file import load_robot  # noqa: E402
 from dynid.dynamics.trajectories import random_fourier_trajectory  # noqa: E402
+from dynid.errors import InputError  # noqa: E402
 
 ID_DURATION = 12.0
 VAL_DURATION = 5.0
@@ -418,7 +423,7 @@ def summarize(rows, clean, effects=EFFECTS):
         rs = [r for r in rows if r["effect"] == name]
         if not rs:
             continue
-        med = lambda k: float(np.median([r[k] for r in rs]))
+        med = lambda k, rs=rs: float(np.median([r[k] for r in rs]))
         table[name] = {
             "runs": len(rs),
             "ranked_first": float(np.mean([r["ranked_first"] for r in rs])),

@@ -51,13 +51,13 @@ def real_tx40():
 
 def stream_child(hours):
     """Runs in a subprocess: the 1-hour synthetic recording, streamed."""
+    from dynid.analysis.data.synthetic import tx40_true_parameters
     from dynid.analysis.estimators import least_squares as ls
     from dynid.analysis.processing.streaming import observe_stream
     from dynid.dynamics.base_parameters import base_parameters
     from dynid.dynamics.regressor import inverse_dynamics
     from dynid.dynamics.robot_file import load_robot
     from dynid.dynamics.trajectories import random_fourier_trajectory
-    from dynid.analysis.data.synthetic import tx40_true_parameters
 
     robot = load_robot("tx40")
     bp = base_parameters(robot)

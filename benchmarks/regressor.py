@@ -85,6 +85,7 @@ def speed(n_samples, repeats=3):
     dynid_s, dynid_runs = _median_time(lambda: regressor(robot, q, qd, qdd), repeats)
 
     import pinocchio as pin
+
     from tests.oracles import pin_model_from_robot, random_standard_parameters
     chi = random_standard_parameters(robot, np.random.default_rng(2))
     model = pin_model_from_robot(robot, chi)
@@ -119,7 +120,7 @@ def memory_child(n_samples, chunk):
     t0 = time.perf_counter()
     WtW = np.zeros((bp.n_base, bp.n_base))
     rows = 0
-    for sl, W in regressor_chunks(robot, q, qd, qdd, columns=bp.independent, chunk=chunk):
+    for _sl, W in regressor_chunks(robot, q, qd, qdd, columns=bp.independent, chunk=chunk):
         W2 = W.reshape(-1, bp.n_base)
         WtW += W2.T @ W2
         rows += W2.shape[0]

@@ -48,6 +48,7 @@ import numpy as np
 from numba import njit
 
 from dynid.errors import InputError
+
 from .robot import PER_JOINT
 
 N_PER_JOINT = len(PER_JOINT)          # 14

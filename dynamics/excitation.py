@@ -108,9 +108,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.optimize
 
+from dynid.errors import InputError
+
 from .base_parameters import base_parameters, base_regressor
 from .dynamic_model import inverse_dynamics
-from dynid.errors import InputError
 from .trajectories import FourierTrajectory, _rng, check_f0, check_harmonics, random_fourier_trajectory
 
 __all__ = ["ExcitationResult", "design_excitation", "limit_blas_threads", "apriori_parameters", "column_scales",

@@ -20,6 +20,7 @@ from typing import NamedTuple
 import numpy as np
 
 from dynid.errors import InputError
+
 from .joint_model import G0
 from .trajectories import FourierTrajectory
 

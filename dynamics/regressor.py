@@ -19,10 +19,11 @@ from __future__ import annotations
 import numpy as np
 
 from . import _kernels
-from .kinematics import _cross, forward_kinematics, newton_euler_forward
-from .robot import PER_JOINT
+
 # the one implementation of each, importable from here too (e.g. benchmarks/idim.py)
 from .dynamic_model import bias_torque, inverse_dynamics, mass_matrix  # noqa: F401
+from .kinematics import _cross, forward_kinematics, newton_euler_forward
+from .robot import PER_JOINT
 
 N_PER_JOINT = len(PER_JOINT)
 DEFAULT_CHUNK = 10_000

@@ -18,7 +18,6 @@ TX40 wrist).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Optional
 
 import numpy as np
 
@@ -49,7 +48,7 @@ class Joint:
     sigma: int = 0                      # 0 revolute, 1 prismatic
     R: np.ndarray = field(default_factory=lambda: np.eye(3))   # placement rotation
     p: np.ndarray = field(default_factory=lambda: np.zeros(3))  # placement translation
-    mdh: Optional[tuple] = None         # (alpha, d, theta, r) when given as MDH
+    mdh: tuple | None = None         # (alpha, d, theta, r) when given as MDH
     q_limits: tuple = (-np.inf, np.inf)
     qd_max: float = np.inf
     qdd_max: float = np.inf
@@ -119,7 +118,7 @@ class Robot:
     joints: list
     gravity: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, -9.81]))
     couplings: list = field(default_factory=list)
-    controller: Optional[Controller] = None
+    controller: Controller | None = None
     apriori: dict = field(default_factory=dict)     # parameter name -> value
     provenance: dict = field(default_factory=dict)  # what -> where the numbers come from
     source: str = ""                                # file the robot was read from

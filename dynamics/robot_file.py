@@ -60,6 +60,7 @@ from pathlib import Path
 import numpy as np
 
 from dynid.errors import RobotFileError
+
 from .robot import Controller, Coupling, Joint, Robot, mdh_placement
 
 # ----------------------------------------------------------------- bounds

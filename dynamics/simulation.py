@@ -64,10 +64,19 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
-from .dynamic_model import (DEFAULT_V_S, NOT_FINITE, NOT_POSITIVE_DEFINITE, OK, _qdd,
-                            _workspace, check_parameters, mass_matrix,
-                            model_arrays)
 from dynid.errors import DynidError, InputError
+
+from .dynamic_model import (
+    DEFAULT_V_S,
+    NOT_FINITE,
+    NOT_POSITIVE_DEFINITE,
+    OK,
+    _qdd,
+    _workspace,
+    check_parameters,
+    mass_matrix,
+    model_arrays,
+)
 
 RK4_STABILITY = 2.785        # RK4 is stable on the negative real axis for h*lambda < 2.785
 STIFFNESS_WARNING = 2.5

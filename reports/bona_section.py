@@ -16,7 +16,6 @@ Both return :class:`dynid.reports.html.Section` objects for
 """
 from __future__ import annotations
 
-
 import matplotlib
 import numpy as np
 import pandas as pd

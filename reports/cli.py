@@ -459,9 +459,9 @@ def build_parser():
 
 
 def cmd_robot(args, say):
-    from dynid.provenance import dumps_json
     from dynid.dynamics.base_parameters import base_parameters
     from dynid.dynamics.robot_file import bundled_robots
+    from dynid.provenance import dumps_json
     if args.list or not args.robot:
         print("bundled robots: " + ", ".join(bundled_robots()))
         return EXIT_OK
@@ -595,7 +595,7 @@ def _input_files(args):
     robot = getattr(args, "robot", None)
     if robot:
         out.append(("the robot file" if args.command == "robot" else "the --robot file", robot))
-    for what, p in list(out):
+    for _what, p in list(out):
         for key, ref in _referenced_files(p):
             out.append((f"the file {key} = ... of {p}", ref))
             if "\0" in ref:
@@ -872,8 +872,8 @@ def cmd_simulate(args, say):
 
 
 def cmd_sample(args, say):
-    from dynid.analysis.sampling.posterior import sample_idim
     from dynid.analysis.estimators.idim import identify_idim
+    from dynid.analysis.sampling.posterior import sample_idim
     from dynid.provenance import dumps_json
     robot = _robot(args)
     experiments, _ = _load_data(args, say, robot, args.data)
@@ -907,9 +907,9 @@ def cmd_sample(args, say):
 
 
 def cmd_excite(args, say):
-    from dynid.provenance import dumps_json
-    from dynid.errors import InputError
     from dynid.dynamics.excitation import design_excitation
+    from dynid.errors import InputError
+    from dynid.provenance import dumps_json
     robot = _robot(args)
     if args.periods < 1:
         raise InputError(f"--periods must be at least 1, got {args.periods}")

@@ -80,7 +80,7 @@ def table1_frame(res):
     """Table 1 layout: rows k [N m], q^off [deg]; a column group per axis."""
     joints = sorted(set(res.joints))
     rows = []
-    for label, base, scale in (("k [N m]", "k", 1.0), ("q^off [deg]", "qoff", 180 / math.pi)):
+    for _label, base, scale in (("k [N m]", "k", 1.0), ("q^off [deg]", "qoff", 180 / math.pi)):
         rows.append({f"Axis {j}": _entry(res, f"{base}{j}", scale) for j in joints})
     return _grouped(rows, ["k [N m]", "q^off [deg]"], [f"Axis {j}" for j in joints], "Parameter")
 
@@ -122,7 +122,7 @@ def friction_section(res, *, id="table2", title="Table 2. Estimated friction par
 def table3_frame(res):
     """Table 3 layout: Axis, Parameter [unit], θ̄, σ, t_γ σ/√(n−1) (+ true, inside)."""
     recs = []
-    for i, nm in enumerate(res.names):
+    for i, _nm in enumerate(res.names):
         r = {"Axis": res.joints[i], "Parameter": f"{res.symbols[i]} [{res.units[i]}]",
              "θ̄": res.mean[i], "σ": res.std[i], "t_γ σ/√(n−1)": res.half_width[i]}
         if res.truth is not None:

@@ -30,8 +30,8 @@ import numpy as np
 import pandas as pd
 from markupsafe import Markup, escape
 
-from dynid.provenance import versions
 from dynid.outputs import atomic_write_text
+from dynid.provenance import versions
 from dynid.reports import figures as F
 from dynid.reports import tables as T
 from dynid.reports.paper import reference_for

@@ -28,10 +28,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from dynid.provenance import json_safe
-from dynid.outputs import atomic_write_text
 from dynid.analysis.estimators.standard_set import choose_standard_set
 from dynid.dynamics.urdf_writer import read_extra_parameters, urdf_text, urdf_unrepresentable
+from dynid.outputs import atomic_write_text
+from dynid.provenance import json_safe
 
 __all__ = ["UrdfExport", "export_urdf", "round_trip"]
 

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import os
 import tempfile
-from functools import lru_cache
+from functools import cache, lru_cache
 
 import numpy as np
 from scipy import ndimage
@@ -62,7 +62,7 @@ F0 = 0.5            # Hz, fundamental of the excitation
 HARMONICS = 5
 
 
-@lru_cache(maxsize=None)
+@cache
 def pendulum():
     """(robot, base parameters, true standard parameters, true base parameters)."""
     from dynid.analysis.data.synthetic import apriori_parameters

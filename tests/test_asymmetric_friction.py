@@ -4,13 +4,13 @@ import dataclasses
 import numpy as np
 import pytest
 
+from dynid.analysis.data.synthetic import apriori_parameters, simulate_experiment
 from dynid.analysis.estimators.asymmetric_friction import asymmetric_friction
 from dynid.analysis.estimators.idim import identify_idim
-from dynid.analysis.data.synthetic import apriori_parameters, simulate_experiment
 from dynid.dynamics.base_parameters import base_parameters
-from dynid.errors import InputError
 from dynid.dynamics.robot_file import load_robot
 from dynid.dynamics.trajectories import random_fourier_trajectory
+from dynid.errors import InputError
 
 # Added to the logged torque: Fv+ = Fv + dFv, Fv- = Fv - dFv, Fc+ = Fc + dFc, Fc- = Fc - dFc
 D_FV = np.array([0.2, -0.1])

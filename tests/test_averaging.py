@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from dynid.analysis.processing.averaging import average_periods, estimate_period_shift, harmonic_filter, whole_periods
-from dynid.provenance import dumps_json
 from dynid.errors import InputError
+from dynid.provenance import dumps_json
 
 F0, N_HARM, FS, M = 0.1, 5, 200.0, 25
 SIGMA = np.array([0.05, 0.2, 1.0])            # N m, per joint

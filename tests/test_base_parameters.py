@@ -4,13 +4,13 @@ import re
 
 import numpy as np
 import pytest
+from conftest import TX40_EXAMPLE
 
 from dynid.dynamics.base_parameters import base_parameters, base_regressor
 from dynid.dynamics.regressor import regressor
 from dynid.dynamics.robot_file import load_robot
 from tests.oracles import random_standard_parameters, rel_err
 
-from conftest import TX40_EXAMPLE
 FIGAROH_BP = TX40_EXAMPLE / "reference_results" / "TX40_bp_5.csv"
 
 

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from dynid.analysis.sampling import posterior as bayes
 from dynid.analysis.estimators import least_squares as lsq
+from dynid.analysis.sampling import posterior as bayes
 from dynid.analysis.sampling.convergence import ConvergenceCriteria, diagnose, integrated_time, split_rhat
 from dynid.provenance import dumps_json
 

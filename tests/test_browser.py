@@ -78,8 +78,8 @@ def test_demo_report_in_chromium(tmp_path):
 
 
 def test_hostile_names_do_not_execute(tmp_path):
-    from dynid.analysis.estimators.idim import identify_idim
     from dynid.analysis.data.synthetic import simulate_experiment
+    from dynid.analysis.estimators.idim import identify_idim
     from dynid.dynamics.base_parameters import base_parameters
     from dynid.dynamics.robot_file import load_robot
     from dynid.dynamics.trajectories import random_fourier_trajectory
@@ -126,6 +126,7 @@ def _verdict_in_browser(html_path):
 @pytest.mark.parametrize("which", ["demo", "tx40"])
 def test_verdict_block_matches_the_json(tmp_path, which):
     import json
+
     from dynid.reports.cli import main
     report, js = tmp_path / f"{which}.html", tmp_path / f"{which}.json"
     if which == "demo":

@@ -160,6 +160,7 @@ def test_excite_tx40_as_in_the_issue_respects_limits_in_the_written_csv(tmp_path
     """
     import numpy as np
     import pandas as pd
+
     from dynid.dynamics.robot_file import load_robot
     traj, js = tmp_path / "traj.csv", tmp_path / "ex.json"
     assert main(["excite", "--robot", "tx40", "--f0", "0.1", "--harmonics", "5", "--out", str(traj),

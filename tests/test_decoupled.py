@@ -16,14 +16,13 @@ import pytest
 from scipy import stats
 from scipy.linalg import expm
 
-from dynid.analysis.decoupled.estimates import estimate_friction, estimate_gravity, estimate_inertia
 from dynid.analysis.decoupled.campaign import identify_campaign, simulate_campaign
+from dynid.analysis.decoupled.estimates import estimate_friction, estimate_gravity, estimate_inertia
 from dynid.analysis.decoupled.repeated import RepeatedEstimate
-from dynid.errors import InputError
 from dynid.dynamics.joint_model import JointModel, JointPID, simulate_joints
 from dynid.dynamics.joint_trajectories import trapezoid_reference
-from dynid.reports.decoupled_section import (decoupled_sections, table1_frame, table2_frame,
-                                       table3_frame)
+from dynid.errors import InputError
+from dynid.reports.decoupled_section import decoupled_sections, table1_frame, table2_frame, table3_frame
 from dynid.reports.html import render_sections
 
 N_REP = 25
@@ -53,9 +52,9 @@ def test_tables_1_2_3_contain_the_true_values(ident):
 def test_intervals_are_informative(ident):
     """A wide interval would contain anything; these must pin the parameters down."""
     rel = {r.kind: r.half_width / np.abs(r.truth) for r in ident.tables}
-    print("\nlargest relative half-width: gravity %.3g, friction %.3g, inertia ZZ %.3g"
-          % (rel["gravity"].max(), rel["friction"].max(),
-             max(h for n, h in zip(ident.inertia.names, rel["inertia"]) if n.startswith("ZZ"))))
+    zz = max(h for n, h in zip(ident.inertia.names, rel["inertia"]) if n.startswith("ZZ"))
+    print(f"\nlargest relative half-width: gravity {rel['gravity'].max():.3g}, "
+          f"friction {rel['friction'].max():.3g}, inertia ZZ {zz:.3g}")
     assert rel["friction"].max() < 0.01
     zz = [h for n, h in zip(ident.inertia.names, rel["inertia"]) if n.startswith("ZZ")]
     assert max(zz) < 0.01

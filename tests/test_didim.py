@@ -24,20 +24,20 @@ import dataclasses
 import json
 
 import numpy as np
-import pytest
-
 import oracles
+import pytest
 from conftest import TX40_EXAMPLE
-from dynid.analysis.estimators.didim import DIDIMResult, identify_didim, initial_parameters, initial_standard
+
 from dynid.analysis.data.experiment import Experiment, load_experiment
-from dynid.analysis.estimators.idim import identify_idim
-from dynid.provenance import dumps_json
 from dynid.analysis.data.synthetic import tx40_true_parameters
+from dynid.analysis.estimators.didim import DIDIMResult, identify_didim, initial_parameters, initial_standard
+from dynid.analysis.estimators.idim import identify_idim
 from dynid.dynamics.base_parameters import base_parameters
 from dynid.dynamics.dynamic_model import mass_matrix
-from dynid.errors import DataError, InputError
 from dynid.dynamics.robot_file import load_robot
 from dynid.dynamics.trajectories import random_fourier_trajectory
+from dynid.errors import DataError, InputError
+from dynid.provenance import dumps_json
 
 needs_pin = pytest.mark.skipif(oracles.pin is None, reason="pinocchio (pin) is not installed")
 

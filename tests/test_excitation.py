@@ -11,15 +11,22 @@ import json
 import numpy as np
 import pytest
 
-from dynid.provenance import dumps_json
 from dynid.analysis.data.synthetic import tx40_true_parameters
 from dynid.dynamics.base_parameters import base_parameters
 from dynid.dynamics.dynamic_model import inverse_dynamics
-from dynid.errors import InputError
-from dynid.dynamics.excitation import (_Problem, apriori_parameters, column_scales, design_excitation,
-                                 limit_margins, regressor_conditioning, spectrum_check)
+from dynid.dynamics.excitation import (
+    _Problem,
+    apriori_parameters,
+    column_scales,
+    design_excitation,
+    limit_margins,
+    regressor_conditioning,
+    spectrum_check,
+)
 from dynid.dynamics.robot_file import load_robot
 from dynid.dynamics.trajectories import FourierTrajectory, random_fourier_trajectory
+from dynid.errors import InputError
+from dynid.provenance import dumps_json
 
 F0, N_HARM, MARGIN = 0.1, 5, 0.95
 
@@ -137,7 +144,7 @@ def test_gradients_match_finite_differences(tx40):
         dz = rng.normal(size=z.size) * 1e-6
         fd = (prob.fun(z + dz) - prob.fun(z - dz)) / 2
         assert prob.jac(z) @ dz == pytest.approx(fd, rel=1e-4, abs=1e-12)
-    c0, J = prob._torque_value(z), prob._torque_jac(z)
+    J = prob._torque_jac(z)
     fd = (prob._torque_value(z + dz) - prob._torque_value(z - dz)) / 2
     assert np.allclose(J @ dz, fd, rtol=1e-4, atol=1e-10)
     # criterion values: log cond of the envelope-scaled regressor

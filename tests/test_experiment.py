@@ -12,6 +12,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import scipy.io
+from conftest import SHARED_DATA
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -19,7 +20,6 @@ from dynid.analysis.data import transmission as tr
 from dynid.analysis.data.experiment import Experiment, estimate_shift, load_experiment
 from dynid.errors import DataError, InputError
 
-from conftest import SHARED_DATA
 # the copies the project ships first; ../shared only for what it does not ship
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 TX40_DIR = EXAMPLES / "staubli_tx40" if (EXAMPLES / "staubli_tx40" / "curr_data.csv").exists() \

@@ -3,11 +3,11 @@ Projection Method, maximum likelihood, the posterior and the per-joint models.""
 import json
 import math
 
+import bias_scenarios as bs
 import numpy as np
 import pandas as pd
 import pytest
 
-import bias_scenarios as bs
 import dynid
 from dynid.analysis.data.synthetic import simulate_experiment
 from dynid.analysis.decoupled.campaign import identify_campaign, simulate_campaign

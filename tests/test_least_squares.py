@@ -7,13 +7,13 @@ import numpy as np
 import pandas as pd
 import pytest
 
+import dynid.analysis.results as results_mod
 import dynid.outputs as outputs
 import dynid.provenance as provenance
-import dynid.analysis.results as results_mod
 from dynid.analysis.estimators.least_squares import RANK_RTOL, ols, stack, wls
-from dynid.provenance import data_hash, dumps_json, versions
-from dynid.outputs import atomic_write_bytes, atomic_write_text
 from dynid.errors import IdentificationError, InputError
+from dynid.outputs import atomic_write_bytes, atomic_write_text
+from dynid.provenance import data_hash, dumps_json, versions
 
 N, n, b = 400, 3, 8
 NAMES = [f"P{i}" for i in range(b)]

@@ -12,17 +12,23 @@ import json
 import math
 import time
 
+import bias_scenarios as bs
 import numpy as np
 import pytest
 
-import bias_scenarios as bs
 from dynid.analysis.estimators import least_squares as ls
-from dynid.analysis.estimators.maximum_likelihood import (fourier_basis, joint_model, linear_model, maximum_likelihood,
-                                         robot_model, select_harmonics)
-from dynid.provenance import dumps_json
+from dynid.analysis.estimators.maximum_likelihood import (
+    fourier_basis,
+    joint_model,
+    linear_model,
+    maximum_likelihood,
+    robot_model,
+    select_harmonics,
+)
 from dynid.analysis.processing.signals import derivatives
 from dynid.dynamics.base_parameters import base_regressor
 from dynid.errors import InputError
+from dynid.provenance import dumps_json
 
 N_SEEDS = 50
 FS = 200.0

@@ -13,8 +13,8 @@ import pytest
 
 from dynid.analysis.processing.averaging import average_periods
 from dynid.analysis.statistics.noise import compare_noise, noise_pdf, noise_pdf_tests
-from dynid.provenance import dumps_json
 from dynid.errors import InputError
+from dynid.provenance import dumps_json
 
 N_SAMPLES = 2000
 SEEDS = range(200)

@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dynid.errors import DataError
 from dynid.dynamics.kinematics import forward_kinematics
 from dynid.dynamics.robot_file import load_robot
+from dynid.errors import DataError
 from tests.oracles import pin
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -73,7 +73,7 @@ def test_panda_robot_file():
     np.testing.assert_allclose(r.gravity, [0, 0, -9.80665])
     np.testing.assert_allclose(r.drive_gains, 1.0)
     # dynid row (alpha, d, theta, r) = (alpha_{i-1}, a_{i-1}, 0, d_i)
-    for (j, sigma, alpha, d, theta, rr), (a, al, dd) in zip(r.dh_table(), CRAIG[:7]):
+    for (_j, sigma, alpha, d, theta, rr), (a, al, dd) in zip(r.dh_table(), CRAIG[:7]):
         assert sigma == 0 and (alpha, d, theta, rr) == (al, a, 0.0, dd)
     q_min, q_max, qd_max, qdd_max, tau_max = r.limits()
     np.testing.assert_allclose(q_max, [2.8973, 1.7628, 2.8973, -0.0698, 2.8973, 3.7525, 2.8973])

@@ -12,15 +12,21 @@ import json
 import math
 import time
 
+import bias_scenarios as bs
 import numpy as np
 import pytest
 
-import bias_scenarios as bs
-from dynid.analysis.estimators.projection import (_hac_lags, _iv_covariance, fit_fir, lag_matrix, projection_method,
-                                                 select_fir_order)
-from dynid.provenance import dumps_json
 from dynid.analysis.estimators import least_squares as ls
+from dynid.analysis.estimators.projection import (
+    _hac_lags,
+    _iv_covariance,
+    fit_fir,
+    lag_matrix,
+    projection_method,
+    select_fir_order,
+)
 from dynid.errors import InputError
+from dynid.provenance import dumps_json
 
 N_SEEDS = 50
 MAX_LAG = 25
@@ -185,8 +191,8 @@ def test_bad_input():
 
 def test_identify_projection_on_a_simulated_experiment():
     # the experiment-level path: dynid's own simulator, IDIM processing, no decimation
-    from dynid.analysis.estimators.projection import identify_projection
     from dynid.analysis.data.synthetic import simulate_experiment
+    from dynid.analysis.estimators.projection import identify_projection
 
     robot, bp, chi, beta = bs.pendulum()
     exp = simulate_experiment(robot, chi, bs.excitation(), 4.0, rng=np.random.default_rng(0),

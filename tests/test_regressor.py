@@ -9,6 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from dynid.dynamics.base_parameters import base_parameters
+
 # the regressor route of M, N and tau (private oracles; dynid's public ones are
 # dynid.dynamics.dynamic_model's): these tests check the regressor against Pinocchio
 from dynid.dynamics.regressor import _bias_torque_via_regressor as bias_torque
@@ -16,9 +18,16 @@ from dynid.dynamics.regressor import _inverse_dynamics_via_regressor as inverse_
 from dynid.dynamics.regressor import _mass_matrix_via_regressor as mass_matrix
 from dynid.dynamics.regressor import gravity_torque, regressor, regressor_chunks
 from dynid.dynamics.robot_file import load_robot, robot_from_dict
-from dynid.dynamics.base_parameters import base_parameters
-from tests.oracles import (actuator_torques, armature_matrix, chi_from_values, pin,
-                           pin_model_from_mdh, pin_torques, random_standard_parameters, rel_err)
+from tests.oracles import (
+    actuator_torques,
+    armature_matrix,
+    chi_from_values,
+    pin,
+    pin_model_from_mdh,
+    pin_torques,
+    random_standard_parameters,
+    rel_err,
+)
 
 pytestmark = pytest.mark.skipif(pin is None, reason="Pinocchio (pip package 'pin') not installed")
 

@@ -8,12 +8,12 @@ import re
 import urllib.parse
 from pathlib import Path
 
+import jinja2
 import numpy as np
 import pandas as pd
 import pytest
 from markupsafe import Markup
 
-import jinja2
 from dynid import provenance
 from dynid.analysis.data.experiment import Experiment
 from dynid.analysis.estimators.idim import identify_idim
@@ -23,14 +23,22 @@ from dynid.dynamics.regressor import regressor
 from dynid.dynamics.robot_file import load_robot
 from dynid.reports import figures as F
 from dynid.reports import tables as T
-from dynid.reports.html import (SECTION_IDS, Section, environment, para, render_idim_report,
-                          render_sections, write_report)
+from dynid.reports.html import (
+    SECTION_IDS,
+    Section,
+    environment,
+    para,
+    render_idim_report,
+    render_sections,
+    write_report,
+)
 from dynid.reports.paper import DIDIM_TX40_TABLE2, reference_for
 
 EVIL_ROBOT = "<script>alert(1)</script>"
 EVIL_JOINT = '"><img src=x onerror=alert(1)>'
 EVIL_SOURCE = "runs/<b>bold</b> & 'quoted'.csv"
 from conftest import SHARED_DATA
+
 TX40_DATA = (Path(__file__).resolve().parents[1] / "examples" / "staubli_tx40"   # the shipped copy
              if (Path(__file__).resolve().parents[1] / "examples" / "staubli_tx40" / "curr_data.csv").exists()
              else SHARED_DATA / "staubli-tx40-figaroh")

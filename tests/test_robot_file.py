@@ -12,8 +12,8 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from dynid.errors import InputError, RobotFileError
 from dynid.dynamics.robot_file import bundled_path, bundled_robots, load_robot, read_toml, robot_from_dict
+from dynid.errors import InputError, RobotFileError
 from tests.test_urdf import ACTION_WORDS, assert_helpful, check_bounded_robot, check_valid_robot
 
 TX40_TEXT = bundled_path("tx40").read_text(encoding="utf-8")

@@ -1,14 +1,14 @@
 """The streamed observation equals the in-memory one (up to the filter-transient tolerance)."""
 import numpy as np
 import pytest
+from test_idim import TX40_EXPERIMENT
 
 from dynid.analysis.data.experiment import load_experiment
 from dynid.analysis.processing.observation import observe
 from dynid.analysis.processing.streaming import observe_stream
 from dynid.dynamics.base_parameters import base_parameters
-from dynid.errors import DataError
 from dynid.dynamics.robot_file import load_robot
-from test_idim import TX40_EXPERIMENT
+from dynid.errors import DataError
 
 
 @pytest.fixture(scope="module")

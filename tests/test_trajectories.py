@@ -2,10 +2,10 @@
 import numpy as np
 import pytest
 
-from dynid.errors import InputError
 from dynid.dynamics.robot import Joint, Robot
 from dynid.dynamics.robot_file import load_robot
 from dynid.dynamics.trajectories import FourierTrajectory, random_fourier_trajectory
+from dynid.errors import InputError
 
 
 def test_closed_form_of_one_harmonic():

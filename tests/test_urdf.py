@@ -10,11 +10,11 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from dynid.errors import RobotFileError
 from dynid.dynamics.regressor import regressor
 from dynid.dynamics.robot import Robot
 from dynid.dynamics.robot_file import load_robot, read_toml
 from dynid.dynamics.urdf import read_urdf
+from dynid.errors import RobotFileError
 from tests.oracles import chi_from_values, pin, rel_err
 
 needs_pin = pytest.mark.skipif(pin is None, reason="Pinocchio (pip package 'pin') not installed")

@@ -32,6 +32,7 @@ def sample_count(duration, fs, *, option="--duration", what="the controller rate
     ``fs`` is ``what`` (the controller rate of the robot file by default).
     """
     import math
+
     from dynid.errors import InputError
     if not (isinstance(duration, (int, float, np.floating, np.integer)) and math.isfinite(duration)
             and duration > 0):

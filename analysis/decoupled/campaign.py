@@ -21,15 +21,18 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from dynid.analysis.decoupled.estimates import (estimate_friction, estimate_gravity, estimate_inertia,
-                                identified_model)
-from dynid.analysis.decoupled.validation import DecoupledValidation, validate_decoupled
+from dynid.analysis.decoupled.estimates import estimate_friction, estimate_gravity, estimate_inertia, identified_model
 from dynid.analysis.decoupled.repeated import DEFAULT_CONFIDENCE, RepeatedEstimate
+from dynid.analysis.decoupled.validation import DecoupledValidation, validate_decoupled
 from dynid.analysis.results import ParameterResults
 from dynid.dynamics import comau_decoupled as C
 from dynid.dynamics.joint_model import JointPID, JointSimulation, simulate_joints
-from dynid.dynamics.joint_trajectories import (bang_bang_reference, excitation_reference,
-                                         sweep_reference, trapezoid_reference)
+from dynid.dynamics.joint_trajectories import (
+    bang_bang_reference,
+    excitation_reference,
+    sweep_reference,
+    trapezoid_reference,
+)
 
 __all__ = ["DecoupledCampaign", "DecoupledIdentification", "simulate_campaign", "identify_campaign"]
 

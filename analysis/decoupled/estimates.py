@@ -54,8 +54,8 @@ import numpy as np
 from scipy.signal import savgol_filter
 
 from dynid.analysis.decoupled.repeated import DEFAULT_CONFIDENCE, MIN_REPETITIONS, RepeatedEstimate
-from dynid.errors import InputError
 from dynid.dynamics.joint_model import G0, JointModel
+from dynid.errors import InputError
 
 __all__ = ["estimate_gravity", "estimate_friction", "estimate_inertia", "gravity_coefficients",
            "identified_model", "FRICTION_SYMBOLS"]

@@ -19,8 +19,8 @@ import numpy as np
 from scipy import signal
 
 from dynid.analysis.statistics.noise import NoiseTests, noise_pdf_tests
-from dynid.errors import InputError
 from dynid.dynamics.joint_model import JointModel, JointPID, simulate_joints
+from dynid.errors import InputError
 
 __all__ = ["DecoupledValidation", "validate_decoupled"]
 

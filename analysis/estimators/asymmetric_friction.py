@@ -88,8 +88,8 @@ def asymmetric_friction(experiment, robot, idim_result, *, joints=None) -> Asymm
     ``experiment``: the recording ``idim_result`` was identified on (one
     recording); ``joints``: 1-based joints (default all).
     """
-    from dynid.analysis.diagnosis.selection import fit_effects
     from dynid.analysis.diagnosis.effects import make_candidate
+    from dynid.analysis.diagnosis.selection import fit_effects
 
     n = robot.n_joints
     joints = list(range(1, n + 1)) if joints is None else [int(j) for j in joints]

@@ -113,15 +113,15 @@ import numpy as np
 import pandas as pd
 
 from dynid.analysis.estimators import least_squares as ls
-from dynid.analysis.processing.decimation import ParallelDecimator
 from dynid.analysis.estimators.essential import essential_parameters
-from dynid.provenance import json_safe, versions
+from dynid.analysis.processing.decimation import ParallelDecimator
 from dynid.analysis.processing.signals import dead_zone_thresholds, default_settings, velocity_dead_zone
 from dynid.analysis.results import ModelResults
 from dynid.dynamics.base_parameters import base_parameters, base_regressor
 from dynid.dynamics.dynamic_model import inverse_dynamics, mass_matrix
 from dynid.dynamics.simulation import friction_stiffness, simulate_closed_loop
 from dynid.errors import DataError, DynidError, InputError
+from dynid.provenance import json_safe, versions
 
 __all__ = ["identify_didim", "DIDIMResult", "initial_parameters", "initial_standard",
            "DIDIM_SETTINGS_HELP", "resolve_didim_settings"]
@@ -692,7 +692,7 @@ def identify_didim(experiment, robot, *, settings=None, chi0=None, tol=DEFAULT_T
             step = beta_ls - beta_sim
             candidates = [(0.5 ** h, beta_sim + 0.5 ** h * step) for h in range(max_halvings + 1)]
         failure = first_failure = None
-        for lam, cand in candidates:
+        for lam, cand in candidates:  # noqa: B007 (lam: the step taken, used after the loop)
             try:
                 q_s, qd_s, qdd_s, tau_ddm, substeps, sim, kd = _simulate_checked(
                     robot, bp, cand, ctrl, t, qr, qdr, s, configs, J_ap,

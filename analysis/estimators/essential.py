@@ -17,9 +17,9 @@ import numpy as np
 import pandas as pd
 
 from dynid.analysis.estimators import least_squares as ls
-from dynid.provenance import json_safe
 from dynid.analysis.results import IdentificationResult, ParameterResults
 from dynid.errors import InputError
+from dynid.provenance import json_safe
 
 __all__ = ["essential_parameters", "EssentialResult"]
 

@@ -16,9 +16,9 @@ import pandas as pd
 from dynid.analysis.estimators import least_squares as ls
 from dynid.analysis.estimators.essential import essential_parameters
 from dynid.analysis.processing.observation import Observation, concatenate, observe
-from dynid.provenance import data_hash, json_safe, versions
 from dynid.analysis.results import ModelResults
 from dynid.dynamics.base_parameters import base_parameters
+from dynid.provenance import data_hash, json_safe, versions
 
 
 @dataclass(eq=False)

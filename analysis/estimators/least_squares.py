@@ -28,9 +28,9 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg as sla
 
-from dynid.provenance import data_hash, json_safe
 from dynid.analysis.results import IdentificationResult
 from dynid.errors import IdentificationError, InputError
+from dynid.provenance import data_hash, json_safe
 
 __all__ = ["stack", "ols", "wls", "RANK_RTOL"]
 

@@ -61,18 +61,18 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 import pandas as pd
 import scipy.linalg as sla
 from scipy import optimize
 
-from dynid.provenance import data_hash, json_safe, versions
-from dynid.analysis.results import ParameterResults, _fmt, _fmt_pct
 from dynid.analysis.processing.signals import velocity_dead_zone
+from dynid.analysis.results import ParameterResults, _fmt, _fmt_pct
 from dynid.errors import ConvergenceError, InputError
+from dynid.provenance import data_hash, json_safe, versions
 
 __all__ = ["EIVModel", "linear_model", "robot_model", "joint_model", "fourier_basis",
            "select_harmonics", "maximum_likelihood", "MLResult"]

@@ -74,9 +74,9 @@ import scipy.linalg as sla
 from statsmodels.stats.sandwich_covariance import S_hac_simple, weights_bartlett
 
 from dynid.analysis.estimators import least_squares as ls
-from dynid.provenance import data_hash, json_safe, versions
 from dynid.analysis.results import ParameterResults, _fmt, _fmt_pct
 from dynid.errors import InputError
+from dynid.provenance import data_hash, json_safe, versions
 
 __all__ = ["lag_matrix", "fit_fir", "select_fir_order", "FIRFit", "OrderSelection",
            "ProjectionResult", "projection_method", "identify_projection", "RANK_RTOL"]

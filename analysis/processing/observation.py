@@ -14,8 +14,14 @@ from typing import NamedTuple
 import numpy as np
 
 from dynid.analysis.processing.decimation import ParallelDecimator
-from dynid.analysis.processing.signals import (AUTO_DEAD_ZONE, dead_zone_thresholds, default_settings,
-                                               derivatives, low_velocity_mask, velocity_dead_zone)
+from dynid.analysis.processing.signals import (
+    AUTO_DEAD_ZONE,
+    dead_zone_thresholds,
+    default_settings,
+    derivatives,
+    low_velocity_mask,
+    velocity_dead_zone,
+)
 from dynid.dynamics.base_parameters import base_regressor
 from dynid.errors import DataError
 

@@ -59,8 +59,8 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from dynid.provenance import json_safe
 from dynid.errors import InputError
+from dynid.provenance import json_safe
 
 __all__ = [
     "ConvergenceCriteria",

@@ -81,7 +81,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -89,11 +88,11 @@ import pandas as pd
 import scipy.linalg as sla
 from scipy import optimize, stats
 
-from dynid.analysis.sampling.convergence import ChainDiagnostics, ConvergenceCriteria, diagnose, run_until_converged
-from dynid.provenance import data_hash, json_safe, versions
-from dynid.outputs import atomic_write_text
 from dynid.analysis.results import ParameterResults, _check_alpha
+from dynid.analysis.sampling.convergence import ChainDiagnostics, ConvergenceCriteria, diagnose, run_until_converged
 from dynid.errors import IdentificationError, InputError
+from dynid.outputs import atomic_write_text
+from dynid.provenance import data_hash, json_safe, versions
 
 __all__ = [
     "SufficientStats", "sufficient_statistics", "GaussianPrior", "LinearPosterior",
@@ -535,7 +534,7 @@ def _criteria(criteria, **overrides):
 def sample_linear(W3, tau, names, *, row_mask=None, ls=None, sigma=None, prior=None, seed=0,
                   n_walkers=None, criteria=None, max_steps=None, max_seconds=None, moves="de",
                   init_scale: float = 0.1, method_label: str = "linear model", truth=None,
-                  suff_stats: SufficientStats | None = None, progress=None) -> "PosteriorResult":
+                  suff_stats: SufficientStats | None = None, progress=None) -> PosteriorResult:
     """Posterior of χ (and σ_j) of Y = Wχ + ρ by emcee; see the module docstring.
 
     Parameters
@@ -631,7 +630,7 @@ def sample_linear(W3, tau, names, *, row_mask=None, ls=None, sigma=None, prior=N
         coords=model.coords)
 
 
-def sample_idim(idim_result, *, which: str = "essential", **kwargs) -> "PosteriorResult":
+def sample_idim(idim_result, *, which: str = "essential", **kwargs) -> PosteriorResult:
     """Posterior of the essential (default) or base parameters of an :class:`IDIMResult`.
 
     Uses its decimated observation (W, tau, row_mask) and its WLS estimate
@@ -877,7 +876,7 @@ class GravityPosterior:
 def sample_gravity(q, qd, tau, *, row_mask=None, friction=("Fv", "Fc", "offset"), marginalize=True,
                    ls: GravityLSResult | None = None, seed=0, n_walkers=None, criteria=None,
                    max_steps=None, max_seconds=None, moves="de", init_scale: float = 0.1,
-                   truth=None, joint_label: str = "joint") -> "PosteriorResult":
+                   truth=None, joint_label: str = "joint") -> PosteriorResult:
     """Posterior of (k, q_off, friction, σ) of the per-joint gravity model (module docstring).
 
     ``marginalize=True`` samples (k, q_off) only and draws the friction terms

@@ -12,12 +12,11 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
 import dynid
-from dynid.provenance import dumps_json
 from dynid.errors import DynidError
 from dynid.outputs import write_all
+from dynid.provenance import dumps_json
 from dynid.reports.decoupled_section import decoupled_sections
 from dynid.reports.html import render_sections
 

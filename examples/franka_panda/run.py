@@ -68,6 +68,8 @@ def _errors(tau, tau_hat):
 def analyse(toml_path, data_dir, settings=None):
     """Identify on the first three quarters, validate on the last; return a dict of figures."""
     import numpy as np
+    from gaz_model import GazModel
+
     from dynid.analysis.data.experiment import Experiment, load_experiment
     from dynid.analysis.estimators.idim import identify_idim
     from dynid.analysis.processing.observation import observe
@@ -75,7 +77,6 @@ def analyse(toml_path, data_dir, settings=None):
     from dynid.analysis.statistics.validation import validate
     from dynid.dynamics.base_parameters import base_regressor
     from dynid.dynamics.robot_file import load_robot
-    from gaz_model import GazModel
 
     settings = dict(SETTINGS if settings is None else settings)
     robot = load_robot("panda")
@@ -243,6 +244,7 @@ def main(argv=None):
     args = ap.parse_args(argv)
 
     from convert import find_data, missing_data_message
+
     from dynid.errors import DynidError
 
     t0 = time.perf_counter()

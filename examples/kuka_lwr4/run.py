@@ -38,9 +38,10 @@ def main(argv=None):
     args = ap.parse_args(argv)
 
     import pandas as pd
+
     import dynid
-    from dynid.provenance import dumps_json, json_safe, versions
     from dynid.outputs import write_all
+    from dynid.provenance import dumps_json, json_safe, versions
     from dynid.reports import tables as T
     from dynid.reports.diagnosis_section import diagnosis_sections
     from dynid.reports.html import Section, bullets, join, para, render_idim_report

@@ -68,8 +68,8 @@ def main(argv=None):
     args = ap.parse_args(argv)
 
     import dynid
-    from dynid.provenance import dumps_json, json_safe, versions
     from dynid.outputs import write_all
+    from dynid.provenance import dumps_json, json_safe, versions
     from dynid.reports.bayes_section import bayes_sections
     from dynid.reports.comparison import comparison_frame, comparison_section, comparison_summary
     from dynid.reports.diagnosis_section import diagnosis_sections

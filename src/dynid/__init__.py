@@ -26,8 +26,15 @@ try:
 except PackageNotFoundError:  # a source tree that is not installed
     __version__ = "0+unknown"
 
-from dynid.errors import (ConvergenceError, DataError, DynidError, IdentificationError, InputError, OutputError,
-                          RobotFileError)
+from dynid.errors import (
+    ConvergenceError,
+    DataError,
+    DynidError,
+    IdentificationError,
+    InputError,
+    OutputError,
+    RobotFileError,
+)
 
 # The public names, imported on first use (PEP 562): `import dynid` and the command line
 # start in milliseconds, and a signal at start-up reaches the command's handler rather
@@ -63,16 +70,16 @@ if TYPE_CHECKING:   # static tools (type checkers, the API reference) see the re
     from dynid.analysis.data.split import holdout_split
     from dynid.analysis.data.synthetic import simulate
     from dynid.analysis.decoupled.campaign import identify_campaign, simulate_campaign
+    from dynid.analysis.diagnosis.selection import DiagnosisResult
+    from dynid.analysis.estimators.idim import IDIMResult
     from dynid.analysis.identify import identify
     from dynid.analysis.results import ParameterResults
+    from dynid.analysis.sampling.posterior import PosteriorResult
     from dynid.analysis.statistics.validation import validate
+    from dynid.dynamics.excitation import ExcitationResult
     from dynid.dynamics.robot import Robot
     from dynid.dynamics.robot_file import load_robot
     from dynid.reports.pipeline import FullReport, demo, report
-    from dynid.analysis.diagnosis.selection import DiagnosisResult
-    from dynid.analysis.estimators.idim import IDIMResult
-    from dynid.analysis.sampling.posterior import PosteriorResult
-    from dynid.dynamics.excitation import ExcitationResult
 
 __all__ = [
     "__version__",

@@ -27,7 +27,8 @@ import secrets
 import signal
 import stat
 import sys
-from typing import IO, Iterator
+from collections.abc import Iterator
+from typing import IO
 
 from dynid.errors import InputError, OutputError
 
@@ -150,13 +151,14 @@ def write_all(outputs, say=None) -> list:
         for path, target, data in staged_files:
             staged.append((_stage(target, data, path), target, path))
         with _signals_held():
+            path = None                                     # the output being committed
             try:
-                for _, target, path in staged:
+                for _, target, path in staged:              # noqa: B007 (path: for the message)
                     if os.path.exists(target):
                         bak = _temp_name(os.path.dirname(target), "bak")
                         os.link(target, bak)
                         backups.append((bak, target))
-                for tmp, target, path in staged:
+                for tmp, target, path in staged:            # noqa: B007 (path: for the message)
                     os.replace(tmp, target)
                     replaced.append(target)
             except OSError as exc:

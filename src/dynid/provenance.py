@@ -8,14 +8,12 @@ same bytes, non-finite floats become ``null``.
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import importlib.metadata
 import json
 import math
 import os
-import secrets
-from typing import IO, Any, Iterator
+from typing import Any
 
 import numpy as np
 
