@@ -363,7 +363,7 @@ class _Tree:
                 raise RobotFileError(
                     f"{path}: the moving joints do not form one serial chain: below link '{l}' "
                     f"{len(leads)} branches move, starting with joint(s) {'; '.join(starts)}. dynid "
-                    f"models one serial chain: choose it with --tip LINK (and --base LINK) on the "
+                    f"models one serial chain: give the one you want with --tip LINK (and --base LINK) on the "
                     f"command line, tip=/base= in load_robot, or tip = \"<link>\" beside "
                     f"urdf = ... in a TOML robot file; tips here include {_few(tips)}")
             joints.append(leads[0])

@@ -180,6 +180,7 @@ def test_unknown_noise_single_joint_student_t_marginals():
 
 
 # ----------------------------------------------------------------------------- calibration
+@pytest.mark.slow
 def test_calibration_of_credible_intervals():
     """120 simulated datasets of a small one-joint friction model (b = 2 plus σ).
 

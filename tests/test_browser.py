@@ -52,6 +52,7 @@ def open_page(html_path, screenshot=None):
     return events
 
 
+@pytest.mark.slow
 def test_demo_report_in_chromium(tmp_path):
     from dynid.reports.cli import main
     report = tmp_path / "demo.html"

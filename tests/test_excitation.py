@@ -196,6 +196,7 @@ def test_excitation_report_section(tx40, design):
     assert 'id="fig-excitation-spectrum"' in html and 'id="tab-excitation-margins"' in html
 
 
+@pytest.mark.slow
 def test_torque_limits_bind_and_hold(tx40):
     """Tight torque limits (45 N m on joints 1-3): the design keeps every torque inside them."""
     import copy

@@ -43,6 +43,7 @@ def test_guide_has_the_promised_blocks():
         assert sum(marker in b for b in blocks) == 1, marker
 
 
+@pytest.mark.slow
 def test_every_command_block_runs(tmp_path):
     dynid = BIN / "dynid"
     if not dynid.exists():

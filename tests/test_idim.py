@@ -36,6 +36,7 @@ def _table2_names():
     return list(names)
 
 
+@pytest.mark.slow
 def test_demo_recovers_every_table2_parameter(demo_run):
     _, doc = demo_run
     truth = doc["true_values"]

@@ -24,6 +24,7 @@ def test_same_command_twice_gives_byte_identical_json(tmp_path):
     assert outs[0] == outs[1]
 
 
+@pytest.mark.slow
 def test_demo_same_seed_byte_identical_json(tmp_path):
     a, b = tmp_path / "a.json", tmp_path / "b.json"
     for js in (a, b):

@@ -198,7 +198,7 @@ def full_rate(experiment, robot, q_meas, settings=None) -> FullRate:
                                 f"of the {s['fc_position']:g} Hz position filter")
 
 
-def _dead_zone(s, qd, robot, guard=0):
+def _dead_zone(s, qd, robot, guard=0, whole=True):
     """Full-rate samples (N, n) inside the velocity dead zone, or None; settings with numbers.
 
     The settings' ``qd_threshold`` resolved by
@@ -211,7 +211,9 @@ def _dead_zone(s, qd, robot, guard=0):
     if not np.any(thr > 0):
         return dict(s, qd_threshold=[0.0] * qd.shape[1]), None
     dead = velocity_dead_zone(qd, thr, guard=guard, couplings=robot.couplings)
-    if dead.size and dead.all():
+    # on a whole recording, no equation left is the user's threshold; a chunk of a streamed
+    # recording may well be all at rest
+    if whole and dead.size and dead.all():
         peak = np.abs(np.asarray(qd, dtype=float)).max(axis=0)
         raise DataError(
             "the velocity dead zone (--qd-threshold, qd_threshold: "

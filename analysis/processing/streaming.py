@@ -47,7 +47,7 @@ def observe_stream(chunks, fs, robot, bp, *, fc_position, nd, f_decimation_cutof
         der = derivatives(q, fs, fc_position, order)
         lo = margin
         hi = len(q) - margin
-        s, dead = _dead_zone(settings, der.qd, robot, guard=guard)
+        s, dead = _dead_zone(settings, der.qd, robot, guard=guard, whole=False)
         for start in range(lo, hi, CHUNK):
             sl = slice(start, min(hi, start + CHUNK))
             parts.append(push_chunk(dec, robot, bp, der.q[sl], der.qd[sl], der.qdd[sl], tau[sl],

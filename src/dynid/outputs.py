@@ -161,15 +161,19 @@ def write_all(outputs, say=None) -> list:
                 for tmp, target, path in staged:            # noqa: B007 (path: for the message)
                     os.replace(tmp, target)
                     replaced.append(target)
-            except OSError as exc:
-                kept = dict((t, b) for b, t in backups)
+            except BaseException as exc:
+                # a failed rename, or an interruption the signal mask did not hold back
+                # (another thread, a platform without pthread_sigmask): undo the renames done
+                kept = {t: b for b, t in backups}
                 for target in replaced:                     # roll back
                     with contextlib.suppress(OSError):
                         if target in kept:
                             os.replace(kept.pop(target), target)
                         else:
                             os.unlink(target)
-                raise _write_error(path, exc) from None
+                if isinstance(exc, OSError):
+                    raise _write_error(path, exc) from None
+                raise
     finally:
         for tmp, _, _ in staged:
             with contextlib.suppress(OSError):
