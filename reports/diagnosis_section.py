@@ -13,7 +13,10 @@ extra_sections=...)``) or to render on their own
   identification data and on the validation data;
 * ``diagnosis-residuals``: the residual before (red) and after (blue) the
   effects, binned against velocity (the friction signature), position and
-  time, and its PDF per joint.
+  time, and its PDF per joint; the catalogue-free structure tests of the final
+  residual (joints whose residual has structure no candidate explains: the
+  variable it depends on, its size and p-value, and a figure of the residual
+  against that variable).
 
 Ids of sections, figures and tables all start with ``diagnosis`` or ``diag-``
 so that they never clash with those of the IDIM report.
@@ -67,6 +70,13 @@ def _overview_section(res):
                            f"the candidates, \u03b1 = {s['alpha']:g}"),
         ("Effects selected", ", ".join(e.candidate.label for e in res.selected) or "none"),
     ]
+    if getattr(res, "structure", None) is not None:
+        un = res.unexplained
+        pairs.append(("Unexplained structure",
+                      "; ".join(f"joint {u.joint}: {u.depends_on} ({u.rms:.3g} N m, "
+                                f"p = {F.format_p(u.p_value)})" for u in un) if un else
+                      "none (no joint's final residual has significant structure large against "
+                      "its noise)"))
     steps = []
     for st in res.steps:
         w = st.winner
@@ -262,8 +272,10 @@ def _residual_section(res, names):
     r = res.residuals
     b, a = r.get("identification_before"), r.get("identification_after")
     if b is None:
-        return Section("diagnosis-residuals", "Residuals before and after",
-                       para("Residual analysis was not computed (diagnose(..., residual_analysis=False))."))
+        body, figs, tables = _structure_parts(res, para(
+            "Residual analysis was not computed (diagnose(..., residual_analysis=False))."), [], [])
+        return Section("diagnosis-residuals", "Residuals before and after", body, figures=figs,
+                       tables=tables)
     figs = [
         _binned_figure("diag-fig-velocity", "Identification data: mean residual in equal-count "
                        "velocity bins (\u00b1 standard error), before (red) and after (blue) the "
@@ -313,8 +325,69 @@ def _residual_section(res, names):
                      "independent optimistic; it comes from a missing effect only if the diagnosis finds "
                      "one (filtering and decimation alone correlate the residual too). Residual PDFs and "
                      "tests use only the fitted rows.", cls="hint"))
+    body, figs, tables = _structure_parts(res, body, figs, [tab])
     return Section("diagnosis-residuals", "Residuals before and after", body, figures=figs,
-                   tables=[tab])
+                   tables=tables)
+
+
+def _structure_parts(res, body, figs, tables):
+    """The catalogue-free structure tests appended to the residual section's parts."""
+    st = getattr(res, "structure", None)
+    if st is not None:
+        body = join(body, Markup("<h3>Structure no candidate explains</h3>"), _structure_text(st))
+        if st.unexplained:
+            fig = _unexplained_figure(st.unexplained)
+            if fig is not None:
+                figs.append(fig)
+        srows = [{"joint": u.joint, "depends_on": u.depends_on, "test": u.test, "rms": u.rms,
+                  "noise_rms": u.noise_rms, "p_value": u.p_value, "also": ", ".join(u.also[:4])}
+                 for u in st.unexplained]
+        if srows:
+            tables.append(T.make_table(
+                pd.DataFrame(srows), "diag-unexplained", "Joints with unexplained residual structure",
+                index=False, formats={"depends_on": "text", "test": "text", "also": "text",
+                                      "joint": "int"},
+                labels={"rms": "structure RMS [N m]", "noise_rms": "rest / noise RMS [N m]",
+                        "p_value": "p (Bonferroni)", "depends_on": "depends on"}))
+    return body, figs, tables
+
+
+def _structure_text(st):
+    items = [u.sentence() for u in st.unexplained] or [
+        "No joint: the final residual has no significant structure that is large against its "
+        "noise."]
+    return join(bullets(items), para(
+        f"{st.n_tests} catalogue-free tests of the final residual, per joint: binned means against "
+        "q_j, qd_j, qdd_j, t, the friction level over time (residual × sign(qd_j) against t) and "
+        "the other joints' q and qd; spectral lines against q_j at any order (full-rate residual "
+        "resampled on position); a step in time; the residual RMS against the torque-noise floor "
+        "(torque noise from the full-rate second differences, through the same decimation: "
+        + ", ".join(f"{x:.3g}" for x in st.noise_floor) + " N m). Nulls by block permutation "
+        f"(blocks of {st.block_length} decimated samples), Bonferroni over tests and joints, "
+        f"α = {st.alpha:g}. Flagged when significant and the structure RMS is at least half "
+        "the RMS of the rest of the residual (noise-floor test: residual RMS at least twice the "
+        "floor).", cls="hint"))
+
+
+def _unexplained_figure(unexplained):
+    items = [u for u in unexplained if u.curve is not None]
+    if not items:
+        return None
+    n = len(items)
+    with matplotlib.rc_context(F.STYLE):
+        fig, axes, cols = _joint_panels(n)
+        for k, u in enumerate(items):
+            ax = axes.flat[k]
+            x, y = u.curve
+            ax.plot(x, y, color=F.BLUE, lw=0.8, marker="o" if len(x) < 60 else None, ms=2.0)
+            ax.axhline(0.0, color=F.GREY, lw=0.5)
+            ax.set_title(F._plain(f"joint {u.joint}: {u.depends_on}"), loc="left", fontsize=7)
+            ax.set_xlabel(u.curve_label)
+            if k % cols == 0:
+                ax.set_ylabel("mean residual [N m]")
+    return F.render_figure(fig, "diag-fig-unexplained", "Final residual against the variable its "
+                           "unexplained structure depends on (binned means; noise-floor and step "
+                           "tests: the residual over time)")
 
 
 def diagnosis_sections(result, robot=None):

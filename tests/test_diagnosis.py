@@ -15,15 +15,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dynid.analysis.diagnosis.selection import diagnose, without_parameters
+from dynid.analysis.data.experiment import load_experiment
 from dynid.analysis.diagnosis.effect_observation import observe_effects
 from dynid.analysis.diagnosis.effects import EFFECT_NAMES, EffectSignals, candidate_set, effect_torque, make_candidate
-from dynid.analysis.data.experiment import load_experiment
+from dynid.analysis.diagnosis.selection import diagnose, without_parameters
 from dynid.analysis.processing.observation import observe
 from dynid.analysis.statistics.residuals import analyze_residuals, autocorrelation, effective_sample_size
 from dynid.dynamics.base_parameters import base_parameters
-from dynid.errors import InputError
 from dynid.dynamics.robot_file import load_robot
+from dynid.errors import InputError
 
 ROOT = Path(__file__).resolve().parents[1]
 CAMPAIGN = ROOT / "benchmarks" / "diagnosis_campaign.py"
@@ -243,3 +243,76 @@ def test_real_tx40_effects_lower_the_held_out_error():
     for r in res.ranking:
         if r.selected:
             assert r.passes
+
+
+# ------------------------------------------------------------------ catalogue-free structure tests
+def test_friction_drift_candidate_columns(short_sim):
+    robot, bp, ident, _ = short_sim
+    e = observe_effects(ident, robot, bp)
+    sig = EffectSignals(t=e.t, q=e.q, qd=e.qd, qdd=e.qdd, t0=e.t_start, T=e.duration)
+    c = make_candidate("drift", 2, order=1, shape="friction")
+    assert c.params == ["Dv2", "Dc2"] and "friction level" in c.label
+    C = c.columns(sig)
+    s = (sig.t - sig.t0) / sig.T
+    assert np.allclose(C[:, 0], s * sig.qd[:, 1]) and np.allclose(C[:, 1], s * np.sign(sig.qd[:, 1]))
+    assert c.family != make_candidate("drift", 2, order=1).family
+    from dynid.analysis.diagnosis.effects import signals_from_observation
+    sig2 = signals_from_observation(e, np.arange(len(bp.names)), np.ones(len(bp.names)), bp.names)
+    assert any(x.nonlinear.get("shape") == "friction" for x in candidate_set(sig2, ["drift"]))
+
+
+def _inject(exp, func):
+    q = exp.meta["true_q"]
+    return replace(exp, tau=exp.tau + func(exp.t, q))
+
+
+def test_structure_clean_nothing_unexplained_and_ripple_found(short_sim):
+    """Simulated data of the model itself: no joint flagged; a high-order position ripple
+    (order 40, outside the catalogue's orders) on joint 3 is flagged with its period."""
+    robot, bp, ident, _ = short_sim
+    res = diagnose(ident, robot, effects=["offset"], max_effects=0, residual_analysis=False)
+    d = json.loads(json.dumps(res.to_dict()))
+    assert d["unexplained"] == [] and res.unexplained == []
+    assert "none" in res.summary().split("Structure left")[1]
+
+    def ripple(t, q):
+        out = np.zeros_like(q)
+        out[:, 2] = 0.5 * np.sin(40.0 * q[:, 2])
+        return out
+
+    res2 = diagnose(_inject(ident, ripple), robot, effects=["offset"], max_effects=0,
+                    residual_analysis=False)
+    print(res2.summary())
+    un = {u.joint: u for u in res2.unexplained}
+    assert set(un) == {3}, [u.to_dict() for u in res2.unexplained]
+    assert un[3].variable == "q3" and un[3].period == pytest.approx(2 * np.pi / 40, rel=0.05)
+    assert 0.2 < un[3].rms < 0.5                     # 0.5 N m amplitude: RMS 0.35
+    d2 = json.loads(json.dumps(res2.to_dict()))
+    assert {"joint", "depends_on", "rms", "p_value"} <= set(d2["unexplained"][0])
+    assert "joint 3: the residual depends on q3 with period" in res2.summary()
+    from dynid.reports.diagnosis_section import diagnosis_sections
+    from dynid.reports.html import render_sections
+    html = render_sections(diagnosis_sections(res2, robot), title="diagnosis")
+    assert "diag-fig-unexplained" in html and "diag-unexplained" in html
+
+
+def test_ranking_by_evidence_and_start_models(short_sim):
+    robot, bp, ident, _ = short_sim
+    res = diagnose(ident, robot, effects=["offset", "spring", "coupling"], max_effects=1,
+                   residual_analysis=False, structure_tests=False)
+    st = res.steps[0]
+    k = [len(r.params) for r in st.ranking]
+    lr = [r.statistic for r in st.ranking]
+    # same number of parameters: ranked by the LR statistic
+    same = [(a, b) for a, b, ka, kb in zip(lr, lr[1:], k, k[1:], strict=False) if ka == kb]
+    assert all(a >= b - 1e-9 for a, b in same)
+    assert res.settings["start_model"] == "essential"
+    full = diagnose(ident, robot, effects=["offset"], max_effects=0, residual_analysis=False,
+                    structure_tests=False, start_model="base")
+    assert list(full.model_before.names) == list(full.idim.base.names)
+    chosen = list(full.idim.model.names)[:5]
+    user = diagnose(ident, robot, effects=["offset"], max_effects=0, residual_analysis=False,
+                    structure_tests=False, start_model=chosen)
+    assert list(user.model_before.names) == chosen
+    with pytest.raises(InputError):
+        diagnose(ident, robot, effects=["offset"], max_effects=0, start_model=["nope"])

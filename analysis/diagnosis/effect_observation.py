@@ -26,8 +26,8 @@ import numpy as np
 
 from dynid.analysis.processing.decimation import ParallelDecimator
 from dynid.analysis.processing.observation import CHUNK, Observation, full_rate
-from dynid.errors import DataError
 from dynid.dynamics.regressor import regressor
+from dynid.errors import DataError
 
 __all__ = ["EffectObservation", "observe_effects", "payload_parameter_names", "CACHE_LIMIT_BYTES"]
 

@@ -21,6 +21,7 @@ name                   columns (joint j, 1-based in names)          parameters  
                                                                     ``Ca{j}_{i}``
 ``time_delay``         none: W(t - d) replaces W(t), all joints     (d)                   d [s] (± log grid)
 ``drift``              s, s^2 with s = (t - t0) / T  (per joint)    ``Dr{j}_1``, ...      order 1 or 2
+                       or the friction level: s qd_j, s sign(qd_j)  ``Dv{j}``, ``Dc{j}`` shape "friction"
 ``load_friction``      abs(tau_load_j) sign(qd_j)                   ``Fl{j}``             --
 ``payload``            standard-regressor columns of the last       ``dM{n}``, ``dMX{n}``, --
                        link's M, MX, MY, MZ, on every joint         ``dMY{n}``, ``dMZ{n}``
@@ -47,7 +48,12 @@ Notes on the definitions:
   torque without its friction and offset terms.
 * ``drift``: ``t0`` and ``T`` are the start and duration of the identification
   recording, so a validation recording (or a held-out later segment) uses the
-  same time scale.
+  same time scale. ``shape="friction"`` (nonlinear ``{"order": 1, "shape":
+  "friction"}``) is a friction whose level changes over the recording (grease
+  warm-up, temperature): Fv and Fc scaled by ``1 + a s``, i.e. the columns
+  ``s qd_j`` and ``s sign(qd_j)`` (a first-order drift of the friction
+  parameters); an additive drift has zero mean over a back-and-forth motion
+  and cannot describe it.
 * ``payload``: the columns of the standard regressor of the last link's mass
   and first moments (a point-like extra mass); those already in the span of
   the model (regrouped into identified base parameters) are dropped by the
@@ -202,8 +208,11 @@ def coupling_columns(s, j, source, sig):
     return x[:, source][:, None]
 
 
-def drift_columns(s, j, order):
+def drift_columns(s, j, order, shape=None):
     x = (s.t - s.t0) / s.T
+    if shape == "friction":
+        v = s.qd[:, j]
+        return np.column_stack([x * v, x * np.sign(v)])
     return np.column_stack([x ** p for p in range(1, order + 1)])
 
 
@@ -241,6 +250,8 @@ class Candidate:
         """Candidates of one family are alternatives (one of them at most is added)."""
         if self.name in ("position_ripple", "coupling"):
             return (self.name, self.joint, tuple(sorted(self.nonlinear.items())))
+        if self.name == "drift" and self.nonlinear.get("shape") == "friction":
+            return (self.name, self.joint, "friction")
         return (self.name, self.joint)
 
     @property
@@ -265,7 +276,8 @@ class Candidate:
         elif self.name == "position_ripple":
             nl = f", order {self.nonlinear['order']}"
         elif self.name == "drift":
-            nl = f", order {self.nonlinear['order']}"
+            nl = (", friction level" if self.nonlinear.get("shape") == "friction"
+                  else f", order {self.nonlinear['order']}")
         elif self.name == "coupling":
             nl = f", from {self.nonlinear['signal']}{self.nonlinear['source']}"
         elif self.name == "time_delay":
@@ -292,7 +304,7 @@ class Candidate:
         elif name == "coupling":
             C = coupling_columns(s, j, nl["source"] - 1, nl["signal"])
         elif name == "drift":
-            C = drift_columns(s, j, nl["order"])
+            C = drift_columns(s, j, nl["order"], nl.get("shape"))
         elif name == "load_friction":
             C = load_friction_columns(s, j)
         elif name == "time_delay":
@@ -344,6 +356,8 @@ def _params(name, j, nl, last_link):
     if name == "coupling":
         return [f"{'Cv' if nl['signal'] == 'qd' else 'Ca'}{j}_{nl['source']}"]
     if name == "drift":
+        if nl.get("shape") == "friction":
+            return [f"Dv{j}", f"Dc{j}"]
         return [f"Dr{j}_{p}" for p in range(1, nl["order"] + 1)]
     if name == "load_friction":
         return [f"Fl{j}"]
@@ -381,14 +395,15 @@ def check_effect_names(effects):
 def candidate_set(s: EffectSignals, effects=None, *, joints=None, qd_peak=None,
                   stribeck_grid=STRIBECK_GRID, ripple_orders=RIPPLE_ORDERS,
                   drift_orders=DRIFT_ORDERS, coupling_signals=COUPLING_SIGNALS,
-                  delay_grid=DELAY_GRID):
+                  delay_grid=DELAY_GRID, friction_drift=True):
     """All candidates: every effect x joint x value of its nonlinear parameter.
 
     ``effects``: names (default all); ``joints``: 1-based joints (default
     all); ``qd_peak`` (n,): peak |qd_j| the Stribeck grid scales with (default
     from ``s``). Position ripple is skipped on prismatic joints (an order in
     periods per radian means nothing there); ``time_delay`` and
-    ``load_friction`` need the model torque in ``s``.
+    ``load_friction`` need the model torque in ``s``. ``friction_drift``: also the
+    friction-level drift (``drift`` with ``shape="friction"``) on every joint.
     """
     effects = check_effect_names(effects)
     n = s.n_joints
@@ -423,6 +438,8 @@ def candidate_set(s: EffectSignals, effects=None, *, joints=None, qd_peak=None,
             elif name == "drift":
                 for p in drift_orders:
                     out.append(make_candidate(name, j, last, order=int(p)))
+                if friction_drift:
+                    out.append(make_candidate(name, j, last, order=1, shape="friction"))
             elif name == "coupling":
                 for i in range(1, n + 1):
                     if i == j:

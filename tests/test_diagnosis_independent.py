@@ -1,0 +1,69 @@
+"""Residual diagnosis on the independent closed-loop plant (data it was not tuned to).
+
+A reduced version of benchmarks/diagnosis_independent.py: one seed per case, 8 s of
+identification and 4 s of validation at 5 kHz (the plant in tests/independent_plant.py,
+effects injected in the plant, so the closed loop reacts to them). Slow: each case is
+two plant runs (~30 s) and a diagnosis (~20 s).
+
+* clean: nothing named and no joint flagged unexplained;
+* stribeck on joint 1: named on joint 1;
+* friction warm-up (not in the catalogue) on joints 1 and 2: named (the friction-level
+  drift) or flagged unexplained on those joints, nothing elsewhere;
+* high-order ripple (order 50, not in the catalogue's orders) on joint 3: flagged
+  unexplained (or named) on joint 3, the period found within 5 % of 2 pi / 50.
+"""
+import importlib.util
+import json
+import math
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+_spec = importlib.util.spec_from_file_location("diagnosis_independent",
+                                               ROOT / "benchmarks" / "diagnosis_independent.py")
+bench = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(bench)
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory):
+    return tmp_path_factory.mktemp("independent_plant")
+
+
+def _run(case, cache, seed=1):
+    r = bench.run_case(case, seed, cache=cache)
+    print(r["summary"])
+    print(case, "named:", r["named"], "unexplained:", json.dumps(r["unexplained"]), r["why"])
+    return r
+
+
+def test_clean_plant_names_nothing(cache):
+    r = _run("clean", cache)
+    assert r["named"] == [], r["named"]
+    assert r["unexplained"] == [], r["unexplained"]
+
+
+def test_stribeck_named_on_joint_1(cache):
+    r = _run("stribeck_j1", cache)
+    assert ("stribeck", 1) in r["named"], r["named"]
+    assert r["ok"], r["why"]
+
+
+def test_friction_warmup_named_or_unexplained_on_its_joints(cache):
+    r = _run("friction_warmup_j1_j2", cache)
+    assert r["ok"], r["why"]
+    hits = {j for _, j in r["named"]} | {u["joint"] for u in r["unexplained"]}
+    assert {1, 2} <= hits
+
+
+def test_high_order_ripple_unexplained_on_joint_3(cache):
+    r = _run("high_order_ripple_j3", cache)
+    assert r["ok"], r["why"]
+    un = {u["joint"]: u for u in r["unexplained"]}
+    if 3 in un and un[3]["period_rad"] is not None:
+        assert un[3]["period_rad"] == pytest.approx(2 * math.pi / 50, rel=0.05)
+        assert un[3]["variable"] == "q3"
+        assert un[3]["rms"] > 0.5           # the injected ripple is 1.5 N m (RMS 1.06)
