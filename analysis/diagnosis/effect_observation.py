@@ -141,7 +141,7 @@ class EffectObservation:
         """
         out = [None] * len(blocks)
         by_joint = {}
-        for i, (C, j) in enumerate(blocks):
+        for i, (_C, j) in enumerate(blocks):
             by_joint.setdefault(j, []).append(i)
         for j, idx in by_joint.items():
             mats = [np.asarray(blocks[i][0], dtype=float).reshape(self.n_full, -1) for i in idx]
