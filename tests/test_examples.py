@@ -51,7 +51,7 @@ def test_kuka_example(tmp_path):
 def test_tx40_example(tmp_path):
     out = run_example("staubli_tx40", tmp_path, "--out", "res", "--quiet", "--max-seconds", "40")
     m = re.search(r"held-out last 3 s: ([0-9.]+)", out)
-    assert m and float(m.group(1)) < 0.10                      # measured 0.0669
+    assert m and float(m.group(1)) < 0.20      # all held-out samples: measured 0.1563 (0.0663 on moving ones)
     m = re.search(r"TX40 vs FIGAROH: (\d+) of (\d+) well-identified parameters agree", out)
     assert m and int(m.group(2)) >= 18 and m.group(1) == m.group(2)   # measured 19 of 19
     d = tmp_path / "res"
