@@ -63,6 +63,11 @@ class ParameterResults(Exportable):
         return pd.Index(list(self.names), name="parameter")
 
     @property
+    def n_params(self) -> int:
+        """The number of estimated parameters."""
+        return len(self.names)
+
+    @property
     def params(self) -> pd.Series:
         """The estimate, by parameter name (SI units of each parameter)."""
         return pd.Series(self._estimate(), index=self._index(), name=self.method)
@@ -238,10 +243,6 @@ class IdentificationResult(ParameterResults):
             self.rel_sigma = 100.0 * self.sigma / np.abs(self.chi)
 
     # ------------------------------------------------------------------ access
-    @property
-    def n_params(self) -> int:
-        """b, the number of estimated parameters."""
-        return self.chi.size
 
     @property
     def dof(self) -> int:

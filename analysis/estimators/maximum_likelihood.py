@@ -253,10 +253,6 @@ class MLResult(ParameterResults):
     def chi(self):
         return self.theta
 
-    @property
-    def n_params(self):
-        return self.theta.size
-
     def __getitem__(self, name):
         i = self.names.index(name)
         return float(self.theta[i]), float(self.sigma[i])

@@ -353,10 +353,6 @@ class ProjectionResult(ParameterResults):
 
     method = "PM"
 
-    @property
-    def n_params(self):
-        return self.chi.size
-
     def __getitem__(self, name):
         i = self.names.index(name)
         return float(self.chi[i]), float(self.sigma[i])
