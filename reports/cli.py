@@ -797,18 +797,25 @@ def cmd_identify(args, say):
     return EXIT_OK
 
 
-def _write_method_outputs(args, say, result, frame, sections, title):
-    """Summary, then JSON / CSV (``frame``) / HTML (``sections``) of a DIDIM, PM or ML result."""
+def _write_method_outputs(args, say, result, frame, sections, title, robot=None):
+    """Verdict and summary, then JSON / CSV (``frame``) / HTML (``sections``) of a DIDIM, PM or ML result."""
+    from dynid.analysis.statistics.verdict import verdict as make_verdict
     from dynid.provenance import dumps_json
-    from dynid.reports.html import render_sections
+    from dynid.reports.html import render_sections, verdict_block
+    the_verdict = make_verdict(result, robot=robot)
+    _show(args, the_verdict.summary())
     _show_clean(args, result.summary())
     outputs = []
     if args.json:
-        outputs.append((args.json, dumps_json(result.to_dict())))
+        doc = result.to_dict()
+        doc["verdict"] = the_verdict.to_dict()
+        outputs.append((args.json, dumps_json(doc)))
     if args.csv:
         outputs.append((args.csv, frame.to_csv()))
     if args.report:
-        outputs.append((args.report, render_sections(sections(), title=title)))
+        outputs.append((args.report, render_sections(sections(), title=title,
+                                                     highlights=[("verdict", the_verdict.status)],
+                                                     verdict=verdict_block(the_verdict))))
     commit_outputs(outputs, say)
 
 
@@ -821,7 +828,7 @@ def _identify_ml(args, say, robot, exp):
     say("maximum likelihood (noise on q and tau), from the LS start")
     res = identify(exp, robot, "ml", f0=args.f0, ml_harmonics=args.ml_harmonics)
     _write_method_outputs(args, say, res, res.to_frame(), lambda: [ml_section(res)],
-                          f"Maximum-likelihood identification of {robot.name}")
+                          f"Maximum-likelihood identification of {robot.name}", robot=robot)
     return EXIT_OK
 
 
@@ -831,7 +838,7 @@ def _identify_projection(args, say, robot, exp):
     say("Projection Method: FIR sensitivity per joint, then two-stage LS")
     res = identify(exp, robot, "projection", settings=_processing_settings(args))
     _write_method_outputs(args, say, res, res.to_frame(), lambda: [projection_section(res)],
-                          f"Projection Method identification of {robot.name}")
+                          f"Projection Method identification of {robot.name}", robot=robot)
     return EXIT_OK
 
 
@@ -845,7 +852,7 @@ def _identify_didim(args, say, robot, exp):
     if res.gains is not None:
         _show(args, res.gains.summary())
     _write_method_outputs(args, say, res, res.model.to_frame(), lambda: didim_sections(res),
-                          f"DIDIM identification of {robot.name}")
+                          f"DIDIM identification of {robot.name}", robot=robot)
     if not res.converged:
         print(f"dynid identify: DIDIM did not converge ({res.stop_reason}); the outputs say so",
               file=sys.stderr)
@@ -886,10 +893,15 @@ def cmd_sample(args, say):
         post = sample_idim(result, which=args.which, seed=args.seed, n_walkers=args.walkers,
                            max_steps=args.max_steps, max_seconds=args.max_seconds,
                            progress=lambda n, need: bar.update(n / max(need, 1)))
+    from dynid.analysis.statistics.verdict import verdict as make_verdict
+    the_verdict = make_verdict(result, robot=robot)
+    _show(args, the_verdict.summary())
     _show_clean(args, post.summary())
     outputs = []
     if args.json:
-        outputs.append((args.json, dumps_json(post.to_dict())))
+        doc = post.to_dict()
+        doc["verdict"] = the_verdict.to_dict()
+        outputs.append((args.json, dumps_json(doc)))
     if args.csv:
         outputs.append((args.csv, post.samples_frame().to_csv(index=False, lineterminator="\n",
                                                               float_format="%.17g")))
@@ -897,7 +909,8 @@ def cmd_sample(args, say):
         from dynid.reports.bayes_section import bayes_sections
         from dynid.reports.html import render_idim_report
         outputs.append((args.report, render_idim_report(result, robot, experiments[0],
-                                                        extra_sections=bayes_sections(post))))
+                                                        extra_sections=bayes_sections(post),
+                                                        verdict=the_verdict)))
     commit_outputs(outputs, say)
     if not post.converged and not args.allow_unconverged:
         print(f"dynid sample: the chains did not converge ({post.reason}); the outputs say so",
@@ -1002,15 +1015,30 @@ def cmd_diagnose(args, say):
     say("scoring candidate effects")
     diag = _run_diagnosis(args, say, robot, experiment, valid, result)
     result = diag.idim if diag.idim is not None else result
+    validation = None
+    if valid is not None and result is not None:
+        from dynid.analysis.statistics.validation import validate
+        validation = validate(result, valid, robot)
+    the_verdict = None
+    if result is not None:
+        from dynid.analysis.statistics.verdict import verdict as make_verdict
+        the_verdict = make_verdict(result, validation, robot=robot, diagnosis=diag)
+        _show(args, the_verdict.summary())
     _show_clean(args, diag.summary())
     outputs = []
     if args.json:
-        outputs.append((args.json, dumps_json(diag.to_dict())))
+        doc = diag.to_dict()
+        if the_verdict is not None:
+            doc["verdict"] = the_verdict.to_dict()
+        if validation is not None:
+            doc["validation"] = validation.to_dict()
+        outputs.append((args.json, dumps_json(doc)))
     if args.report:
         from dynid.reports.diagnosis_section import diagnosis_sections
         from dynid.reports.html import render_idim_report
-        outputs.append((args.report, render_idim_report(result, robot, experiment,
-                                                        extra_sections=diagnosis_sections(diag, robot))))
+        outputs.append((args.report, render_idim_report(result, robot, experiment, validation,
+                                                        extra_sections=diagnosis_sections(diag, robot),
+                                                        verdict=the_verdict)))
     commit_outputs(outputs, say)
     return EXIT_OK
 

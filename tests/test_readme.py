@@ -64,3 +64,37 @@ def test_installed_distribution_is_the_dynid_namespace_alone(tmp_path):
     names, version = out.stdout.splitlines()
     assert names == "['dynid']"
     assert version.split()[1] == "6"
+
+
+def _table_columns(block):
+    """{column heading: [cells]} of the first Markdown table in ``block``."""
+    rows = [[c.strip() for c in line.strip().strip("|").split("|")]
+            for line in block.splitlines() if line.startswith("|") and not line.startswith("|---")]
+    heads = rows[0][1:]
+    return {h: [r[k + 1] for r in rows[1:]] for k, h in enumerate(heads)}
+
+
+@pytest.mark.slow
+def test_readme_real_data_table_is_what_the_benchmark_computes():
+    """Every cell of the README's real-data table comes out of `benchmarks/real_data.py` today."""
+    import importlib.util
+    import json
+    import sys
+    proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "real_data.py")], cwd=ROOT,
+                          capture_output=True, text=True, timeout=1200,
+                          env=dict(os.environ, OMP_NUM_THREADS="1"))
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    results = json.loads(proc.stdout.strip().splitlines()[-1])["datasets"]
+    spec = importlib.util.spec_from_file_location("real_data", ROOT / "benchmarks" / "real_data.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    shown = _table_columns(text.split(bench.README_BEGIN, 1)[1].split(bench.README_END, 1)[0])
+    fresh = _table_columns(bench.readme_block(results))
+    compared = 0
+    for key, head in bench.README_HEADS.items():
+        if not results.get(key, {}).get("available"):
+            continue                              # e.g. the Panda log, not shipped
+        assert shown[head] == fresh[head], (head, shown[head], fresh[head])
+        compared += 1
+    assert compared >= 3                          # the TX40 and both LWR4+ splits ship with the project

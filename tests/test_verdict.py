@@ -180,3 +180,34 @@ def test_didim_step_index_is_the_same_everywhere(monkeypatch):
     cols = [c for c in ("iteration", "rho_norm") if c in h]
     text = h[cols].to_string(index=False)
     assert [int(line.split()[0]) for line in text.splitlines()[1:]] == steps
+
+
+@pytest.mark.parametrize("method", ["didim", "projection", "ml"])
+def test_every_method_gives_a_verdict(tmp_path, method):
+    """DIDIM, the Projection Method and ML get the verdict too: JSON, summary and report's first block."""
+    from dynid.reports.cli import main
+    csv, js, html = tmp_path / "run.csv", tmp_path / "out.json", tmp_path / "out.html"
+    assert main(["simulate", "--robot", "planar2", "--duration", "10", "--out", str(csv), "--quiet"]) == 0
+    extra = ["--f0", "0.1"] if method == "ml" else []
+    code = main(["identify", str(csv), "--robot", "planar2", "--method", method, *extra,
+                 "--json", str(js), "--report", str(html), "--quiet"])
+    assert code == 0
+    doc = json.loads(js.read_text())
+    v = doc["verdict"]
+    assert v["status"] in ("identified", "identified with reservations", "not identified")
+    assert "no validation data" in v["reasons"]                # no held-out data for these methods
+    # the flagged parameters are exactly those above the threshold in the JSON's own table
+    rel = {p["name"]: p["rel_std_percent"] for p in doc["parameters"]}
+    above = sorted(n for n, r in rel.items() if not r <= v["rel_std_threshold_percent"])
+    assert sorted(v["not_identified"]) == above
+    assert [p["name"] for p in v["parameters"]] == list(rel)
+    if method == "didim":                                       # its own residual is judged
+        assert v["whiteness"]["test"] == "Ljung-Box" and len(v["whiteness"]["p_value"]) == 2
+    else:
+        assert v["whiteness"]["test"] is None
+    text = html.read_text(encoding="utf-8")
+    block = re.search(r'<section id="verdict"[^>]*data-status="([^"]*)"[^>]*data-flagged-parameters="([^"]*)"',
+                      text)
+    assert block and block.group(1) == v["status"]
+    assert sorted(block.group(2).split()) == above
+    assert block.start() == text.index("<section")              # the first section of the page

@@ -153,11 +153,78 @@ def identification_residual(idim_result):
     return e, mask
 
 
+def _estimate(result):
+    """The estimate the verdict judges: an IDIM or DIDIM result's model, otherwise the result."""
+    m = getattr(result, "model", None)
+    return m if m is not None and hasattr(m, "rel_sigma") else result
+
+
+def _fitted_residual(result):
+    """``residual_analysis`` of the residual on the rows the method fitted, or None.
+
+    IDIM: τ − W χ̂ on the decimated identification rows. DIDIM: the measured
+    minus the simulated-model torque on its decimated rows, with the simulated
+    motion for the binned means. The Projection Method and maximum likelihood
+    have no such residual of the torque equation alone (their noise model is
+    another), so their whiteness is not judged here.
+    """
+    from dynid.analysis.statistics.residuals import analyze_residuals, residual_analysis
+    if getattr(result, "observation", None) is not None:
+        e, _ = identification_residual(result)
+        return residual_analysis(result.observation, e)
+    if getattr(result, "tau_est_dec", None) is not None:
+        t_dec = np.asarray(result.t_dec, dtype=float)
+        t = np.asarray(result.t, dtype=float)
+        q_sim = np.asarray(result.q_sim, dtype=float)
+        qd_sim = np.gradient(q_sim, t, axis=0)
+        q = np.column_stack([np.interp(t_dec, t, q_sim[:, j]) for j in range(q_sim.shape[1])])
+        qd = np.column_stack([np.interp(t_dec, t, qd_sim[:, j]) for j in range(q_sim.shape[1])])
+        e = np.asarray(result.tau_dec, dtype=float) - np.asarray(result.tau_est_dec, dtype=float)
+        return analyze_residuals(e, t=t_dec, q=q, qd=qd, mask=result.row_mask)
+    return None
+
+
+def _base(result, robot):
+    """The base parameters the estimate is expressed in (None if they cannot be told)."""
+    bp = getattr(result, "base", None)
+    if bp is None and robot is not None:
+        from dynid.dynamics.base_parameters import base_parameters
+        bp = base_parameters(robot)
+    names = list(getattr(_estimate(result), "names", []) or [])
+    if bp is None or not set(names) <= set(bp.names):
+        return None
+    return bp
+
+
+def _least_squares(result):
+    """The least-squares fit whose cond(W) and dead zone describe the data, or None."""
+    for attr in ("wls", "result", "stage2", "ls"):
+        r = getattr(result, attr, None)
+        if r is not None and hasattr(r, "cond"):
+            return r
+    return result if hasattr(result, "cond") else None
+
+
+def _fitted_mask(result):
+    obs = getattr(result, "observation", None)
+    if obs is not None:
+        return np.broadcast_to(np.asarray(obs.row_mask, dtype=bool), obs.tau.shape)
+    mask = getattr(result, "row_mask", None)
+    tau = getattr(result, "tau_dec", None)
+    if mask is not None and tau is not None:
+        return np.broadcast_to(np.asarray(mask, dtype=bool), np.shape(tau))
+    return None
+
+
 def verdict(idim_result, validation=None, *, robot=None, diagnosis=None, residuals=None,
             rel_std_threshold=10.0, joint_error_threshold=0.20, warn_rel_error=0.10,
             fail_rel_error=0.30, apriori_k=3.0, alpha=0.05, cond_threshold=1000.0) -> Verdict:
     """The verdict of an identification (see the module docstring for every rule).
 
+    ``idim_result``: any result with the :class:`~dynid.analysis.results.ParameterResults`
+    interface: IDIM and DIDIM are judged on their essential model; the
+    Projection Method and maximum likelihood on their estimate, without the
+    residual whiteness (see :func:`_fitted_residual`).
     ``validation``: a :class:`~dynid.analysis.statistics.validation.ValidationResult`;
     ``diagnosis``: a :class:`~dynid.analysis.diagnosis.selection.DiagnosisResult`
     (only its conclusion is quoted); ``residuals``: a precomputed
@@ -165,11 +232,16 @@ def verdict(idim_result, validation=None, *, robot=None, diagnosis=None, residua
     identification residual (computed here otherwise). Thresholds:
     ``rel_std_threshold`` in percent, the error thresholds as fractions.
     """
-    robot = robot if robot is not None else getattr(idim_result, "robot", None)
-    m = idim_result.model
-    obs = idim_result.observation
-    n = obs.tau.shape[1]
+    result = idim_result
+    robot = robot if robot is not None else getattr(result, "robot", None)
+    m = _estimate(result)
+    if residuals is None:
+        residuals = _fitted_residual(result)
+    n = (residuals.normality.shape[0] if residuals is not None else
+         len(validation.joint_rel_error) if validation is not None else
+         int(getattr(robot, "n_joints", 0) or getattr(result, "n_joints", 0) or 0))
     names = _joint_names(robot, n)
+    kind = "essential" if getattr(result, "essential", None) is not None else "base"
     findings, reasons = [], []
     fail = False
 
@@ -208,8 +280,12 @@ def verdict(idim_result, validation=None, *, robot=None, diagnosis=None, residua
     else:
         findings.append({"level": "warn", "key": "validation",
                          "text": "No held-out data: the model was not tested on data it was not "
-                                 f"fitted to (identification error {_pct(m.rel_error)} on the fitted "
-                                 "rows); use --holdout or --validation."})
+                                 + (f"fitted to (identification error {_pct(m.rel_error)} on the fitted "
+                                    "rows); " if residuals is not None and np.isfinite(float(getattr(m, "rel_error", np.nan))) else
+                                    "fitted to; ")
+                                 + ("use --holdout or --validation." if hasattr(result, "observation") else
+                                    "the held-out check is IDIM's: dynid identify --holdout, or dynid "
+                                    "report --holdout for every method at once.")})
         reasons.append("no validation data")
 
     # --- essential parameters and their %σ
@@ -222,68 +298,71 @@ def verdict(idim_result, validation=None, *, robot=None, diagnosis=None, residua
             flagged.append(name)
     if flagged:
         findings.append({"level": "warn", "key": "parameters",
-                         "text": f"{len(flagged)} of {len(m.names)} essential parameters not identified "
+                         "text": f"{len(flagged)} of {len(m.names)} {kind} parameters not identified "
                                  f"(%\u03c3 > {rel_std_threshold:g} %): {', '.join(flagged)}."})
         reasons.append(f"%\u03c3 > {rel_std_threshold:g} %: {', '.join(flagged)}")
         if len(flagged) > len(m.names) / 2:
             fail = True
     else:
         findings.append({"level": "ok", "key": "parameters",
-                         "text": f"All {len(m.names)} essential parameters have %\u03c3 \u2264 "
+                         "text": f"All {len(m.names)} {kind} parameters have %\u03c3 \u2264 "
                                  f"{rel_std_threshold:g} %."})
 
     # --- whiteness and normality of the identification residual (fitted rows)
-    if residuals is None:
-        from dynid.analysis.statistics.residuals import residual_analysis
-        e, mask = identification_residual(idim_result)
-        residuals = residual_analysis(obs, e)
-    lb = residuals.ljung_box
-    lb_p = [float(x) for x in lb["p_value"]]
-    corr = [names[j] for j in range(n) if np.isfinite(lb_p[j]) and lb_p[j] < alpha]
-    white = {"test": "Ljung-Box", "lag": int(lb["lag"].iloc[0]),
-             "statistic": [float(x) for x in lb["statistic"]], "p_value": lb_p,
-             "correlated_joints": corr, "alpha": alpha,
-             "residual": "identification, fitted (moving) rows"}
-    diag_text = ""
-    if diagnosis is not None:
-        sel = [f"{s.name} (joint {s.joint})" if getattr(s, "joint", None) else str(s.name)
-               for s in diagnosis.selected]
-        white["diagnosis_selected"] = sel
-        diag_text = (f" The diagnosis added {', '.join(sel)}." if sel else
-                     " The diagnosis found no missing effect among the candidates it tested: the "
-                     "correlation comes from the filtering and decimation, or from an effect it "
-                     "does not model.")
-    if corr:
-        white["text"] = ("The residual is correlated in time (Ljung-Box at lag "
-                         f"{white['lag']}: " + ", ".join(f"{names[j]} p = {_fmt_p(lb_p[j])}"
-                                                         for j in range(n) if names[j] in corr)
-                         + "): %\u03c3 counts the samples as independent and is optimistic; "
-                         + ("see the diagnosis." + diag_text if diagnosis is not None else
-                            "whether an effect is missing is what the diagnosis tests (dynid diagnose, "
-                            "or the full report)."))
+    if residuals is not None:
+        lb = residuals.ljung_box
+        lb_p = [float(x) for x in lb["p_value"]]
+        corr = [names[j] for j in range(n) if np.isfinite(lb_p[j]) and lb_p[j] < alpha]
+        white = {"test": "Ljung-Box", "lag": int(lb["lag"].iloc[0]),
+                 "statistic": [float(x) for x in lb["statistic"]], "p_value": lb_p,
+                 "correlated_joints": corr, "alpha": alpha,
+                 "residual": "identification, fitted (moving) rows"}
+        diag_text = ""
+        if diagnosis is not None:
+            sel = [f"{s.name} (joint {s.joint})" if getattr(s, "joint", None) else str(s.name)
+                   for s in diagnosis.selected]
+            white["diagnosis_selected"] = sel
+            diag_text = (f" The diagnosis added {', '.join(sel)}." if sel else
+                         " The diagnosis found no missing effect among the candidates it tested: the "
+                         "correlation comes from the filtering and decimation, or from an effect it "
+                         "does not model.")
+        if corr:
+            white["text"] = ("The residual is correlated in time (Ljung-Box at lag "
+                             f"{white['lag']}: " + ", ".join(f"{names[j]} p = {_fmt_p(lb_p[j])}"
+                                                             for j in range(n) if names[j] in corr)
+                             + "): %\u03c3 counts the samples as independent and is optimistic; "
+                             + ("see the diagnosis." + diag_text if diagnosis is not None else
+                                "whether an effect is missing is what the diagnosis tests (dynid diagnose, "
+                                "or the full report)."))
+        else:
+            white["text"] = (f"The residual is white (Ljung-Box at lag {white['lag']}, every p \u2265 {alpha:g})."
+                             + diag_text)
+        nm_tab = residuals.normality
+        jb = [float(x) for x in nm_tab["jarque_bera_p"]]
+        sw = [float(x) for x in nm_tab["shapiro_p"]]
+        nongauss = [names[j] for j in range(n) if np.isfinite(jb[j]) and jb[j] < alpha]
+        normal = {"jarque_bera_p": jb, "shapiro_p": sw,
+                  "excess_kurtosis": [float(x) for x in nm_tab["excess_kurtosis"]],
+                  "non_gaussian_joints": nongauss, "alpha": alpha,
+                  "residual": "identification, fitted (moving) rows"}
+        normal["text"] = ("Residual not Gaussian (Jarque-Bera p < " + f"{alpha:g}) on "
+                          + ", ".join(f"{names[j]} (p = {_fmt_p(jb[j])})" for j in range(n)
+                                      if names[j] in nongauss) + "."
+                          if nongauss else f"Residual Gaussian on every joint (Jarque-Bera p \u2265 {alpha:g}).")
+        findings.append({"level": "warn" if corr else "ok", "key": "whiteness", "text": white["text"]})
+        findings.append({"level": "warn" if nongauss else "ok", "key": "normality", "text": normal["text"]})
     else:
-        white["text"] = (f"The residual is white (Ljung-Box at lag {white['lag']}, every p \u2265 {alpha:g})."
-                         + diag_text)
-    nm_tab = residuals.normality
-    jb = [float(x) for x in nm_tab["jarque_bera_p"]]
-    sw = [float(x) for x in nm_tab["shapiro_p"]]
-    nongauss = [names[j] for j in range(n) if np.isfinite(jb[j]) and jb[j] < alpha]
-    normal = {"jarque_bera_p": jb, "shapiro_p": sw,
-              "excess_kurtosis": [float(x) for x in nm_tab["excess_kurtosis"]],
-              "non_gaussian_joints": nongauss, "alpha": alpha,
-              "residual": "identification, fitted (moving) rows"}
-    normal["text"] = ("Residual not Gaussian (Jarque-Bera p < " + f"{alpha:g}) on "
-                      + ", ".join(f"{names[j]} (p = {_fmt_p(jb[j])})" for j in range(n)
-                                  if names[j] in nongauss) + "."
-                      if nongauss else f"Residual Gaussian on every joint (Jarque-Bera p \u2265 {alpha:g}).")
-    findings.append({"level": "warn" if corr else "ok", "key": "whiteness", "text": white["text"]})
-    findings.append({"level": "warn" if nongauss else "ok", "key": "normality", "text": normal["text"]})
+        why = (f"{getattr(result, 'method', 'this method')}: no residual of the torque equation alone "
+               "on fitted rows (its noise model is another); whiteness and normality are not judged here.")
+        white = {"test": None, "text": why, "residual": None, "correlated_joints": []}
+        normal = {"test": None, "text": why, "residual": None, "non_gaussian_joints": []}
+        findings.append({"level": "info", "key": "whiteness", "text": why})
 
     # --- physical plausibility
-    bp = idim_result.base
+    bp = _base(result, robot)
     std_names = list(getattr(robot, "standard_names", []) or []) if robot is not None else []
     implausible = []
-    if std_names:
+    if std_names and bp is not None:
         index = {nm: k for k, nm in enumerate(bp.names)}
         for p in params:
             k = index.get(p["name"])
@@ -305,7 +384,7 @@ def verdict(idim_result, validation=None, *, robot=None, diagnosis=None, residua
 
     # --- a-priori values
     ap = None
-    if robot is not None and getattr(robot, "apriori", None):
+    if robot is not None and bp is not None and getattr(robot, "apriori", None):
         try:
             from dynid.dynamics.excitation import apriori_parameters
             _, beta, missing = apriori_parameters(robot, bp)
@@ -328,34 +407,40 @@ def verdict(idim_result, validation=None, *, robot=None, diagnosis=None, residua
         if ap.get("compared"):
             far = ap["flagged"]
             findings.append({"level": "info" if far else "ok", "key": "apriori",
-                             "text": (f"{len(far)} of {len(ap['compared'])} essential parameters with an "
+                             "text": (f"{len(far)} of {len(ap['compared'])} {kind} parameters with an "
                                       f"a-priori value are more than {apriori_k:g} \u03c3 from it: "
                                       + ", ".join(far) + "." if far else
-                                      f"All {len(ap['compared'])} essential parameters with an a-priori "
+                                      f"All {len(ap['compared'])} {kind} parameters with an a-priori "
                                       f"value are within {apriori_k:g} \u03c3 of it.")})
 
     # --- data quality
     dq = []
-    sat = [x for x in list(idim_result.notices) + list(getattr(validation, "notices", []) or [])
+    sat = [x for x in list(getattr(result, "notices", []) or []) + list(getattr(validation, "notices", []) or [])
            if "saturat" in x.lower()]
     for x in dict.fromkeys(sat):
         dq.append({"level": "warn", "text": x})
-    cs = float(getattr(idim_result.wls, "cond_scaled", np.nan))
-    c = float(idim_result.wls.cond)
-    dq.append({"level": "warn" if cs > cond_threshold else "ok",
-               "text": f"cond(W) = {c:.3g} ({cs:.3g} with unit columns"
-                       + (f", above {cond_threshold:g}: poorly exciting data" if cs > cond_threshold else "")
-                       + ")."})
-    mask = np.broadcast_to(np.asarray(obs.row_mask, dtype=bool), obs.tau.shape)
-    dz = 1.0 - float(mask.mean())
-    text = (f"{_pct(dz)} of the decimated identification equations are left out (velocity dead "
-            "zone, not fitted)")
-    if validation is not None:
-        text += f"; {_pct(validation.excluded_fraction)} of the held-out ones"
+    ls_fit = _least_squares(result)
+    if ls_fit is not None:
+        cs = float(getattr(ls_fit, "cond_scaled", np.nan))
+        c = float(ls_fit.cond)
+        dq.append({"level": "warn" if cs > cond_threshold else "ok",
+                   "text": f"cond(W) = {c:.3g} ({cs:.3g} with unit columns"
+                           + (f", above {cond_threshold:g}: poorly exciting data" if cs > cond_threshold else "")
+                           + ")."})
+    mask = _fitted_mask(result)
+    dz = 1.0 - float(mask.mean()) if mask is not None else 0.0
     vz = float(validation.excluded_fraction) if validation is not None else 0.0
-    dq.append({"level": "warn" if max(dz, vz) > 0.3 else "ok",
-               "text": text + (": the moving-sample error leaves out much of the motion"
-                               if max(dz, vz) > 0.3 else "") + "."})
+    if mask is not None or validation is not None:
+        parts = []
+        if mask is not None:
+            parts.append(f"{_pct(dz)} of the decimated identification equations are left out "
+                         "(velocity dead zone, not fitted)")
+        if validation is not None:
+            parts.append(f"{_pct(vz)} of the held-out ones" if mask is not None else
+                         f"{_pct(vz)} of the held-out equations are in the velocity dead zone")
+        dq.append({"level": "warn" if max(dz, vz) > 0.3 else "ok",
+                   "text": "; ".join(parts) + (": the moving-sample error leaves out much of the motion"
+                                               if max(dz, vz) > 0.3 else "") + "."})
     for d in dq:
         findings.append(dict(d, key="data"))
     if sat:
