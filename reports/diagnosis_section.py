@@ -174,6 +174,14 @@ def _effects_section(res):
 
 
 def _errors_section(res, names):
+    if not res.selected:
+        # Nothing was added: before and after are the same model, say so in one line.
+        errs = [f"{label} {_pct(res.errors[key]['before'].rel_error)}"
+                for key, label in (("identification", "identification data"), ("validation", "validation data"))
+                if res.errors.get(key) is not None]
+        return Section("diagnosis-errors", "Errors before and after the effects",
+                       para("No effect was added, so the errors are those of the model identified ("
+                            + ", ".join(errs) + ", moving samples)."))
     tables = []
     pairs = []
     for key, label in (("identification", "identification data"), ("validation", "validation data")):
@@ -271,6 +279,8 @@ def _pdf_figure(key, caption, an_before, an_after, names):
 def _residual_section(res, names):
     r = res.residuals
     b, a = r.get("identification_before"), r.get("identification_after")
+    if not res.selected:
+        a = None                      # the same model: draw it once
     if b is None:
         body, figs, tables = _structure_parts(res, para(
             "Residual analysis was not computed (diagnose(..., residual_analysis=False))."), [], [])
@@ -288,6 +298,8 @@ def _residual_section(res, names):
                     "(blue), with fitted normal densities; Jarque-Bera p in the titles", b, a, names),
     ]
     vb, va = r.get("validation_before"), r.get("validation_after")
+    if not res.selected:
+        va = None
     if vb is not None:
         figs.append(_binned_figure("diag-fig-velocity-validation", "Validation data: mean residual "
                                    "against velocity, before (red) and after (blue)", vb, va,
@@ -296,6 +308,8 @@ def _residual_section(res, names):
                                 "(red) and after (blue)", vb, va, names))
     rows = []
     for label, an in (("before", b), ("after", a)):
+        if an is None:
+            continue
         for j in range(len(names)):
             ne = an.n_eff.iloc[j]
             rows.append({"residual": label, "joint": names[j], "rms": float(an.rms[j]),

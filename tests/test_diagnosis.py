@@ -316,3 +316,20 @@ def test_ranking_by_evidence_and_start_models(short_sim):
     assert list(user.model_before.names) == chosen
     with pytest.raises(InputError):
         diagnose(ident, robot, effects=["offset"], max_effects=0, start_model=["nope"])
+
+
+def test_nothing_added_means_one_line_not_a_before_after_comparison(short_sim):
+    """When no effect is selected the errors section is one sentence and the residuals are drawn once."""
+    from dynid.reports.diagnosis_section import diagnosis_sections
+    from dynid.reports.html import render_sections
+    robot, bp, ident, valid = short_sim
+    res = diagnose(ident, robot, validation=valid, max_effects=1)
+    if res.selected:
+        pytest.skip(f"the clean recording selected {res.selected_names()}")   # tested elsewhere
+    secs = {s.id: s for s in diagnosis_sections(res, robot)}
+    err = secs["diagnosis-errors"]
+    assert not err.tables and "No effect was added" in str(err.html_body)
+    html = render_sections(list(secs.values()), title="diagnosis")
+    assert "diag-errors-identification" not in html
+    stats = [t for t in secs["diagnosis-residuals"].tables if t.key == "diag-residual-stats"]
+    assert stats and {row[0].text for row in stats[0].rows} == {"before"}
