@@ -138,7 +138,7 @@ def read_limited(path, what="robot file"):
     except OSError as exc:
         raise RobotFileError(f"cannot read {what} '{path}': {exc.strerror}; check the path and that "
                              f"it is a readable file") from None
-    except ValueError:      # fix: a path with a NUL byte raised ValueError
+    except ValueError:      # a path with a NUL byte
         raise RobotFileError(f"cannot read {what} {str(path)!r}: the path is not valid; "
                              f"check the path") from None
     if len(data) > MAX_FILE_BYTES:
@@ -179,7 +179,11 @@ def load_robot(spec, base=None, tip=None):
         return spec
     spec = str(spec)
     path = Path(spec)
-    if path.suffix.lower() in (".toml", ".urdf", ".xml") or path.exists():
+    known = path.suffix.lower() in (".toml", ".urdf", ".xml")
+    # A folder or file called "panda" in the working directory must not hide the bundled robot.
+    if not known and spec in bundled_robots():
+        return read_toml(bundled_path(spec), base=base, tip=tip)
+    if known or path.exists():
         if not path.exists():
             raise RobotFileError(f"robot file '{spec}' does not exist; give a path to a .toml or "
                                  f".urdf file, or one of the bundled robots: {', '.join(bundled_robots())}")
@@ -201,7 +205,7 @@ def _num(value, where, path, *, positive=False, allow_inf=False, bounds=None, un
         raise RobotFileError(f"{path}: {where} must be a number, got {_short(value)}")
     try:
         v = float(value)
-    except OverflowError:   # fix: a huge integer crashed with OverflowError
+    except OverflowError:   # an integer beyond float range
         raise RobotFileError(f"{path}: {where} must be a finite number, got an integer too large "
                              f"for a float") from None
     if math.isnan(v) or (math.isinf(v) and not allow_inf):
@@ -264,7 +268,7 @@ def read_toml(path, base=None, tip=None):
     except tomllib.TOMLDecodeError as exc:
         raise RobotFileError(f"robot file '{path}' is not valid TOML: {exc}; fix the syntax "
                              f"there (see dynamics/robots/tx40.toml for an example)") from None
-    except RecursionError:      # fix: arrays nested 500 deep crashed tomllib
+    except RecursionError:      # tomllib recurses: arrays nested 500 deep
         raise RobotFileError(f"robot file '{path}': tables or arrays are nested too deeply to read "
                              f"(a robot file needs {MAX_NESTING} levels at most); fix the file") from None
     return robot_from_dict(doc, path, base=base, tip=tip)
@@ -315,8 +319,7 @@ def robot_from_dict(doc, path="<robot>", base=None, tip=None):
 
     if "urdf" in doc:
         from .urdf import read_urdf
-        # fix: a non-string 'urdf' was turned into a path, non-list/non-table
-        # [[joints]] overrides crashed with TypeError
+        # a non-string 'urdf' is no path, and [[joints]] overrides must be tables
         if not isinstance(doc["urdf"], str) or not doc["urdf"].strip():
             raise RobotFileError(f"{path}: 'urdf' must be the path of a URDF file (a string), "
                                  f"got {_short(doc['urdf'])}")
@@ -342,7 +345,7 @@ def robot_from_dict(doc, path="<robot>", base=None, tip=None):
         tables = doc.get("joints")
         if not isinstance(tables, list) or not tables:
             raise RobotFileError(f"{path}: at least one [[joints]] table is required")
-        if len(tables) > MAX_JOINTS:     # fix: 400 joints took 3 minutes
+        if len(tables) > MAX_JOINTS:     # the regressor grows with n^2: 400 joints take minutes
             raise RobotFileError(f"{path}: {len(tables)} [[joints]] tables, more than the {MAX_JOINTS} "
                                  f"joints dynid models (the regressor grows as n^2); check the file")
         joints = []
@@ -365,12 +368,12 @@ def robot_from_dict(doc, path="<robot>", base=None, tip=None):
 
     couplings = []
     tabs = doc.get("couplings", [])
-    if not isinstance(tabs, list):      # fix: a non-list crashed with TypeError
+    if not isinstance(tabs, list):      # [[couplings]] must be an array of tables
         raise RobotFileError(f"{path}: 'couplings' must be a list of [[couplings]] tables")
     for k, tab in enumerate(tabs):
         couplings.append(_coupling(tab, k, n, path))
     motors = [c.motor for c in couplings]
-    if len(set(motors)) != len(motors):  # fix: duplicated parameter names Fvm<j>, Fcm<j>
+    if len(set(motors)) != len(motors):  # one motor, one set of names Fvm<j>, Fcm<j>
         raise RobotFileError(f"{path}: two [[couplings]] have the same motor; give each motor "
                              f"one coupling table")
 
@@ -402,8 +405,7 @@ def robot_from_dict(doc, path="<robot>", base=None, tip=None):
         _check_text(str(ap["source"]), "apriori.source", path)
         robot.provenance["apriori"] = str(ap["source"])
     standard = set(robot.standard_names)
-    # fix: any name holding an R (RUBBISH) passed as a base name; base names are
-    # standard names with an R appended (ZZ1R)
+    # base names are standard names with an R appended (ZZ1R), not any name holding an R
     bad = [k for k in given if k not in standard and not (k.endswith("R") and k[:-1] in standard)]
     if bad:
         raise RobotFileError(f"{path}: apriori value(s) for unknown parameter(s) "
@@ -504,7 +506,7 @@ def _coupling(tab, k, n, path):
             raise RobotFileError(f"{path}: {where} needs '{key}'")
     joints = tab["joints"]
     coef = tab["coefficients"]
-    # fix: booleans passed as joint numbers and repeated joints were accepted
+    # True is an int to Python, and a joint listed twice would count twice
     if (not isinstance(joints, list) or len(set(map(repr, joints))) != len(joints)
             or not all(isinstance(j, int) and not isinstance(j, bool) and 1 <= j <= n for j in joints)):
         raise RobotFileError(f"{path}: {where}.joints must be a list of distinct joint numbers "
@@ -516,9 +518,9 @@ def _coupling(tab, k, n, path):
     if not isinstance(motor, int) or isinstance(motor, bool) or motor not in joints:
         raise RobotFileError(f"{path}: {where}.motor must be one of its joints {joints}, got {_short(motor)}")
     c_motor = coef[joints.index(motor)]
-    if c_motor == 0.0:   # fix: divided by zero in the regressor (NaN columns)
+    if c_motor == 0.0:   # the regressor divides by it
         raise RobotFileError(f"{path}: {where}.coefficients: the motor joint's coefficient must not be 0")
-    # fix: a ratio of 1.6e154 overflowed the regressor, 1e-300 gave NaN base-parameter relations
+    # finite but absurd ratios (1.6e154, 1e-300) overflow the regressor or the base relations
     checks = ([(j, f"coefficient of joint {j}", c) for j, c in zip(joints, coef)]
               + [(j, f"ratio of joint {j}'s coefficient to the motor's", c / c_motor)
                  for j, c in zip(joints, coef)])
@@ -530,7 +532,7 @@ def _coupling(tab, k, n, path):
                 f"drive): check the numbers" + ("" if j == motor else
                                                  f", or remove joint {j} from {where}.joints"))
     friction = tab.get("friction", True)
-    if not isinstance(friction, bool):     # fix: any value was taken as a truth value
+    if not isinstance(friction, bool):     # "no" or 0 must not pass as a truth value
         raise RobotFileError(f"{path}: {where}.friction must be true or false, got {_short(friction)}")
     return Coupling(motor=motor, joints=tuple(joints), coefficients=tuple(coef), friction=friction)
 

@@ -74,7 +74,7 @@ def rpy_matrix(r, p, y):
 def align_z(axis):
     """A rotation A with A @ [0, 0, 1] = axis (unit), deterministic."""
     a = np.asarray(axis, dtype=float)
-    a = a / np.abs(a).max()     # fix: the norm of a huge axis (1e300) overflowed to a NaN rotation
+    a = a / np.abs(a).max()     # scaled first: the norm of a huge axis (1e300) would overflow
     a = a / np.linalg.norm(a)
     z = np.array([0.0, 0.0, 1.0])
     c = float(z @ a)
@@ -489,7 +489,7 @@ def read_urdf(path, base=None, tip=None):
         T_R, T_p = np.eye(3), np.zeros(3)
         owner = len(robot_joints) - 1
 
-    # fix: numbers that overflow (e.g. xyz="1e300 ...") gave infinite/NaN placements and parameters
+    # numbers that overflow (xyz="1e300 ...") would give infinite placements and parameters
     for jt, inertia in zip(robot_joints, inertias):
         vals = [jt.R, jt.p] + ([] if inertia is None else [inertia[0], inertia[1], inertia[2]])
         if not all(np.isfinite(v).all() for v in vals):

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import dynid
 from dynid.dynamics.kinematics import forward_kinematics
 from dynid.dynamics.robot_file import load_robot
 from dynid.errors import DataError
@@ -337,3 +338,21 @@ def test_panda_identification_held_out(tmp_path):
     assert g["MY4R"]["dynid"] == pytest.approx(g["MY4R"]["gaz"], rel=0.03)
     text = run.report(r)
     assert "held-out, ALL" in text and "published" in text
+
+
+@needs_data
+def test_panda_default_settings_from_the_data(tmp_path):
+    """Without hand-set filters: the log's positions are 4-decimal values interpolated onto a 1 kHz
+    grid, which attenuates the top of their noise band; the bandwidth estimate must still find the
+    motion's ~1 Hz (it read 181 Hz when the noise was fitted on the top band alone), and the default
+    processing must identify a model that holds on the held-out quarter."""
+    from dynid.analysis.processing.signals import estimate_bandwidth
+    run = _module("run")
+    toml = run.prepare(DATA, tmp_path)
+    robot = load_robot("panda")
+    exp = dynid.load_experiment(toml, robot)
+    assert 0.3 <= estimate_bandwidth(exp.q, exp.fs) <= 2.0
+    train, held = dynid.holdout_split(exp, run.HOLDOUT)
+    res = dynid.identify(train, robot)
+    assert res.settings["fc_position"] <= 60
+    assert dynid.validate(res, held).rel_error < 0.012

@@ -425,3 +425,13 @@ def test_fifo_and_huge_toml_are_refused(tmp_path):
 
 def test_unknown_apriori_table_key():
     _bad_doc(_tx40_doc(lambda d: d["apriori"].update(valeus={"Fv1": 1.0})), "[apriori]", "valeus")
+
+
+def test_a_folder_named_like_a_bundled_robot_does_not_hide_it(tmp_path, monkeypatch):
+    """`--robot panda` in a folder that holds a `panda/` data directory still means the bundled robot."""
+    from dynid.dynamics.robot_file import load_robot
+    (tmp_path / "panda").mkdir()
+    (tmp_path / "tx40").write_text("not a robot file")
+    monkeypatch.chdir(tmp_path)
+    assert load_robot("panda").n_joints == 7
+    assert load_robot("tx40").n_joints == 6

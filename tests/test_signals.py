@@ -197,3 +197,4 @@ def test_low_velocity_mask():
         low_velocity_mask(qd, [0.1, 0.1, 0.1])
     with pytest.raises(InputError, match=">= 0"):
         low_velocity_mask(qd, -1.0)
+

@@ -162,6 +162,10 @@ def derivatives(q, fs, fc=None, order=4) -> Derivatives:
     return Derivatives(q_f, qd, qdd)
 
 
+#: a Welch bin counts as motion when its power is this many times the fitted noise
+MOTION_SNR = 3.0
+
+
 def estimate_bandwidth(q, fs, energy=0.99) -> float:
     """Frequency (Hz) below which ``energy`` of the motion's velocity power lies.
 
@@ -171,10 +175,15 @@ def estimate_bandwidth(q, fs, energy=0.99) -> float:
     returned frequency is the first Welch bin where the cumulative power
     reaches ``energy`` of the total.  The maximum over joints is returned.
 
-    Measurement noise on q is assumed white; its velocity spectrum
+    Measurement noise on q is taken as white; its velocity spectrum
     ``s2 * 4 sin^2(pi f / fs)`` rises with frequency and at kHz rates would
-    otherwise own the top 1 %.  ``s2`` is fitted on the band above fs/4
-    (where robot motion has no power) and subtracted before accumulating.
+    otherwise own the top 1 %.  ``s2`` is the largest of its fits on the
+    bands fs/16-fs/8, fs/8-fs/4 and fs/4-fs/2 (where robot motion has no
+    power): on a log that was resampled or low-passed before it reached
+    dynid (the Panda's, interpolated onto a uniform grid from 4-decimal
+    positions) the top band is attenuated and a fit there alone would leave
+    noise to be read as motion up to hundreds of Hz.  Only bins whose power
+    exceeds ``MOTION_SNR`` times the noise count as motion.
     Joints whose remaining power is not clearly above the uncertainty of
     that subtraction (10x) are considered still and ignored.
 
@@ -194,12 +203,16 @@ def estimate_bandwidth(q, fs, energy=0.99) -> float:
     f, power = signal.welch(v, fs=fs, nperseg=nperseg, detrend="constant", axis=0)
 
     shape = 4.0 * np.sin(np.pi * f / fs) ** 2
-    high = f >= fs / 4
     # Mean, not median: the median of a chi-square PSD estimate is biased low
     # and the left-over noise would be read as motion at high frequency.
-    s2 = np.mean(power[high] / shape[high, None], axis=0)
+    fits = []
+    for lo, hi in ((fs / 16, fs / 8), (fs / 8, fs / 4), (fs / 4, fs / 2 + 1.0)):
+        band = (f >= lo) & (f < hi)
+        if band.sum() >= 2:
+            fits.append(np.mean(power[band] / shape[band, None], axis=0))
+    s2 = np.max(fits, axis=0)
     noise = s2 * shape[:, None]
-    motion = power - noise
+    motion = np.where(power > MOTION_SNR * noise, power - noise, 0.0)
     cumulative = np.cumsum(motion, axis=0)
     total = cumulative[-1]
 
