@@ -9,6 +9,7 @@ import pytest
 import dynid
 from dynid.analysis.data.experiment import Experiment
 from dynid.analysis.estimators.controller_gains import identify_gains
+from dynid.errors import InputError
 
 ip = pytest.importorskip("independent_plant")
 
@@ -32,18 +33,26 @@ def test_gains_are_recovered_from_the_control_law(plant_run):
     rec, robot, exp = plant_run
     g = identify_gains(exp, robot)
     assert g.feedforward and g.integral
-    # Kp and Ki within 2 % on every joint, Kd within 2 % on joints 1 and 3-6. Kd of joint 2
-    # (the loaded shoulder, whose velocity error is small against 2e-5 rad of encoder noise
-    # differentiated) is the weakest: measured +5.2 % here, 0.4-3 % on other seeds and lengths;
-    # the 2 % is not met for it.
-    tol = {"Kp": [0.02] * 6, "Ki": [0.02] * 6, "Kd": [0.02, 0.06, 0.02, 0.02, 0.02, 0.02]}
+    # Every gain within 2 % or 2.5 of its own sigma. Kp and Ki are within 2 % on every joint.
+    # Kd of joints 1-2 (large inertias, small velocity errors against 2e-5 rad of encoder noise
+    # differentiated) has a sigma of 1.5-2.2 %: measured here +1.4 % and +2.1 %; on seeds 4-8
+    # Kd1 +4.4 (2.1 sigma), -1.0, +0.5, +0.5, +1.3 % and Kd2 -0.7, +0.4, +0.1, +1.8, 0.0 %
+    # The 2 % is not met for Kd1-2 on every seed: their sigma is that large on 8 s of data.
     for kind in ("Kp", "Kd", "Ki"):
         err = g.gain(kind) / np.asarray(rec["gains"][kind]) - 1
-        print(kind, "relative error", np.round(err, 4))
-        assert np.all(np.abs(err) < tol[kind]), (kind, err)
+        rel = np.array([g.rel_std[f"{kind}{j + 1}"] for j in range(6)]) / 100
+        print(kind, "relative error", np.round(err, 4), "sigma", np.round(rel, 4))
+        assert np.all(np.abs(err) < np.maximum(0.02, 2.5 * rel)), (kind, err, rel)
+        if kind != "Kd":
+            assert np.all(np.abs(err) < 0.02), (kind, err)
     # the plain least squares, biased by the encoder noise in the regressors
     plain = identify_gains(exp, robot, noise_q=0.0)
     assert np.abs(plain.gain("Kd")[0] / rec["gains"]["Kd"][0] - 1) > 0.1
+    # None is the default's "estimated", never a NaN; nonsense is refused
+    np.testing.assert_array_equal(identify_gains(exp, robot, noise_q=None).chi, g.chi)
+    for bad in ("loud", -1e-5, float("nan"), True):
+        with pytest.raises(InputError, match="noise_q"):
+            identify_gains(exp, robot, noise_q=bad)
 
 
 @pytest.mark.slow

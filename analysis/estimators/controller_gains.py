@@ -186,7 +186,7 @@ def identify_gains(experiment, robot, *, feedforward="auto", integral="auto", fc
     ``integral``: True, False or ``"auto"`` (the robot file's controller kind, pid or pd).
     ``fc``: cut-off (Hz) of the parallel zero-phase filter (default: dynid's
     position filter for these data). ``noise_q``: encoder noise (rad, scalar or per
-    joint), ``"auto"`` (estimated) or 0 (plain least squares).
+    joint), ``"auto"`` or None (estimated) or 0 (plain least squares).
     """
     import statsmodels.api as sm
 
@@ -211,8 +211,14 @@ def identify_gains(experiment, robot, *, feedforward="auto", integral="auto", fc
     tau_f = lowpass_filtfilt(experiment.tau, fs, fc)
     e = qr_f - q_f
     tau = experiment.tau
-    sigma_q = (position_noise_level(experiment.q, fs) if isinstance(noise_q, str)
-               else np.broadcast_to(np.asarray(noise_q, dtype=float), (robot.n_joints,)))
+    if noise_q is None or (isinstance(noise_q, str) and noise_q == "auto"):
+        sigma_q = position_noise_level(experiment.q, fs)
+    else:
+        if isinstance(noise_q, (str, bool)):
+            raise InputError(f"noise_q must be 'auto', 0 or the encoder noise in rad, not {noise_q!r}")
+        sigma_q = np.broadcast_to(np.asarray(noise_q, dtype=float), (robot.n_joints,))
+        if not np.all(np.isfinite(sigma_q)) or np.any(sigma_q < 0):
+            raise InputError(f"noise_q must be finite and >= 0 (rad), got {noise_q!r}")
     moments = _noise_moments(fs, fc, N=experiment.q.shape[0], T=T)
     N = tau.shape[0]
     edge = max(10, int(4 * fs / fc))
