@@ -162,10 +162,6 @@ def derivatives(q, fs, fc=None, order=4) -> Derivatives:
     return Derivatives(q_f, qd, qdd)
 
 
-#: a Welch bin counts as motion when its power is this many times the fitted noise
-MOTION_SNR = 3.0
-
-
 def estimate_bandwidth(q, fs, energy=0.99) -> float:
     """Frequency (Hz) below which ``energy`` of the motion's velocity power lies.
 
@@ -182,8 +178,7 @@ def estimate_bandwidth(q, fs, energy=0.99) -> float:
     power): on a log that was resampled or low-passed before it reached
     dynid (the Panda's, interpolated onto a uniform grid from 4-decimal
     positions) the top band is attenuated and a fit there alone would leave
-    noise to be read as motion up to hundreds of Hz.  Only bins whose power
-    exceeds ``MOTION_SNR`` times the noise count as motion.
+    noise to be read as motion up to hundreds of Hz.
     Joints whose remaining power is not clearly above the uncertainty of
     that subtraction (10x) are considered still and ignored.
 
@@ -212,7 +207,7 @@ def estimate_bandwidth(q, fs, energy=0.99) -> float:
             fits.append(np.mean(power[band] / shape[band, None], axis=0))
     s2 = np.max(fits, axis=0)
     noise = s2 * shape[:, None]
-    motion = np.where(power > MOTION_SNR * noise, power - noise, 0.0)
+    motion = power - noise
     cumulative = np.cumsum(motion, axis=0)
     total = cumulative[-1]
 
