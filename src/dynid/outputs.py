@@ -174,13 +174,16 @@ def write_all(outputs, say=None) -> list:
                 if isinstance(exc, OSError):
                     raise _write_error(path, exc) from None
                 raise
+            finally:
+                # Still under the mask: a signal held back during the renames is delivered
+                # when it is lifted, and its handler must not cut this clean-up short.
+                for bak, _ in backups:
+                    with contextlib.suppress(OSError):
+                        os.unlink(bak)
     finally:
         for tmp, _, _ in staged:
             with contextlib.suppress(OSError):
                 os.unlink(tmp)
-        for bak, _ in backups:
-            with contextlib.suppress(OSError):
-                os.unlink(bak)
     for path, target, data in direct:
         _write_direct(target, data, path)
     written = [p for p, _, _ in files]
