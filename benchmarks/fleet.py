@@ -63,14 +63,15 @@ def timed_run(client, specs, store_dir):
     t0 = time.perf_counter()
     results, _ = execute(specs, ResultStore(store_dir), client)
     wall = time.perf_counter() - t0
-    return wall, float(np.nansum([r["task_seconds"] for r in results]))
+    return (wall, float(np.nansum([r["task_seconds"] for r in results])),
+            float(np.nansum([r["task_cpu_seconds"] for r in results])))
 
 
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--robots", type=int, default=200)
     ap.add_argument("--days", type=int, default=30)
-    ap.add_argument("--scaling-tasks", type=int, default=400)
+    ap.add_argument("--scaling-tasks", type=int, default=300)
     ap.add_argument("--quick", action="store_true", help="20 robots x 30 days, 100 scaling tasks")
     ap.add_argument("--keep", help="folder to keep the fleet, store and report in (default: temporary)")
     args = ap.parse_args()
@@ -105,13 +106,15 @@ def main():
         # reference: 1 worker, run first
         with LocalCluster(**{**kw, "n_workers": 1}) as cluster1, Client(cluster1) as client1:
             client1.gather(client1.map(identify_recording, warm, pure=False))
-            wall1, busy1 = timed_run(client1, subset, root / "store-1")
+            wall1, busy1, cpu1 = timed_run(client1, subset, root / "store-1")
         client2.gather(client2.map(identify_recording, warm * 2, pure=False))
-        wall2, busy2 = timed_run(client2, subset, root / "store-2")
+        wall2, busy2, cpu2 = timed_run(client2, subset, root / "store-2")
         thr1, thr2 = len(subset) / wall1, len(subset) / wall2
         mean_task = busy2 / len(subset)
         overhead2 = (2 * wall2 - busy2) / len(subset) / mean_task
         overhead1 = (wall1 - busy1) / len(subset) / (busy1 / len(subset))
+        print(f"load average {os.getloadavg()}, task CPU {1e3 * cpu1 / len(subset):.1f} ms (1 worker) "
+              f"{1e3 * cpu2 / len(subset):.1f} ms (2 workers)", flush=True)
         print(f"scaling on {len(subset)} recordings: 1 worker {thr1:.2f}/s, 2 workers {thr2:.2f}/s, "
               f"ratio {thr2 / thr1:.2f}; mean task {1e3 * mean_task:.1f} ms, Dask overhead per task "
               f"{100 * overhead1:.1f} % (1 worker), {100 * overhead2:.1f} % (2 workers)", flush=True)
@@ -158,7 +161,8 @@ def main():
         "crashed": False,
         "throughput_1_worker_per_s": round(thr1, 3), "throughput_2_workers_per_s": round(thr2, 3),
         "scaling_ratio_2_vs_1": round(thr2 / thr1, 3), "scaling_tasks": len(subset),
-        "mean_task_ms": round(1e3 * mean_task, 2), "dask_overhead_fraction_1_worker": round(overhead1, 4),
+        "mean_task_ms": round(1e3 * mean_task, 2), "mean_task_cpu_ms": round(1e3 * cpu2 / len(subset), 2),
+        "load_average_1min": round(os.getloadavg()[0], 2), "cpu_cores": os.cpu_count(), "dask_overhead_fraction_1_worker": round(overhead1, 4),
         "dask_overhead_fraction_2_workers": round(overhead2, 4),
         "rerun_computed": rerun.n_computed, "rerun_seconds": round(t_rerun, 2),
         "simulate_seconds": round(t_sim, 1), "identify_seconds": round(t_ident, 1),

@@ -23,7 +23,7 @@ from dynid.reports import tables as T
 from dynid.reports.html import Section, bullets, para, render_sections
 
 #: most robots drawn in the trends section (alarming ones first)
-MAX_TREND_ROBOTS = 24
+MAX_TREND_ROBOTS = 12
 
 # click a header to sort its table (numbers as numbers); inline, so the page stays one file
 _SORT_SCRIPT = Markup("""<script>

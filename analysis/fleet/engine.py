@@ -127,7 +127,7 @@ def execute(specs, store: ResultStore, client, *, progress=None):
         except distributed.KilledWorker:
             result = {**{k: spec[k] for k in ("key", "robot_id", "path", "robot", "timestamp", "day",
                                              "data_hash", "version")}, "temperatures": spec["temperatures"],
-                      "status": "error", "task_seconds": float("nan"),
+                      "status": "error", "task_seconds": float("nan"), "task_cpu_seconds": float("nan"),
                       "error": f"{spec['path']}: the worker running this recording died on every retry "
                                f"(out of memory? a crash in a native library?); it was not identified"}
         result = _expand_shared(spec, result)

@@ -26,9 +26,9 @@ _FILE = re.compile(r"^([0-9a-f]{16})__([0-9a-f]{24})\.parquet$")
 #: columns of the store, one row per (recording, parameter); an error is one row with no parameter
 COLUMNS = ["key", "robot_id", "recording", "robot", "timestamp", "day", "data_hash", "experiment_hash",
            "version", "status", "error", "n_samples", "rel_error", "parameter", "joint", "value", "sigma",
-           "essential", "essential_value", "essential_sigma", "temperature", "effects", "task_seconds"]
+           "essential", "essential_value", "essential_sigma", "temperature", "effects", "task_seconds", "task_cpu_seconds"]
 #: columns that depend on the run (machine, load), not on the inputs
-RUN_COLUMNS = ("task_seconds",)
+RUN_COLUMNS = ("task_seconds", "task_cpu_seconds")
 
 
 def _pyarrow():
@@ -57,7 +57,8 @@ def result_frame(result: dict) -> pd.DataFrame:
               "data_hash": result["data_hash"], "experiment_hash": result.get("experiment_hash", ""),
               "version": result["version"], "status": result["status"], "error": result.get("error", ""),
               "n_samples": int(result.get("n_samples", 0)), "rel_error": float(result.get("rel_error", np.nan)),
-              "effects": "; ".join(result.get("effects", [])), "task_seconds": float(result["task_seconds"])}
+              "effects": "; ".join(result.get("effects", [])), "task_seconds": float(result["task_seconds"]),
+              "task_cpu_seconds": float(result.get("task_cpu_seconds", np.nan))}
     if result["status"] != "ok":
         rows = [{**common, "parameter": "", "joint": 0, "value": np.nan, "sigma": np.nan, "essential": False,
                  "essential_value": np.nan, "essential_sigma": np.nan, "temperature": np.nan}]

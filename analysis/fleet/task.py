@@ -4,7 +4,7 @@ The task reads the recording, runs IDIM (OLS, per-joint WLS, essential set of
 Gautier, Janot & Vandanjon 2010 section 2, exactly as ``dynid identify``
 does through :func:`dynid.analysis.estimators.idim.identify_idim`) and returns a
 plain dict. Nothing in the result depends on the worker, the clock or the
-order of execution except ``task_seconds``, which the comparisons leave out.
+order of execution except ``task_seconds`` and ``task_cpu_seconds``, which the comparisons leave out.
 
 A recording longer than ``max_samples`` is not processed whole: its observation
 system is built block by block by :func:`dynid.analysis.processing.streaming.observe_stream`
@@ -92,7 +92,7 @@ def identify_recording(spec: dict) -> dict:
     """Run one task. ``spec``: robot_id, path, robot, timestamp, day, key, data_hash,
     temperatures, settings, max_samples, diagnose. Returns the result dict (``status``
     ``"ok"`` with the parameters, or ``"error"`` with the message)."""
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     out = {k: spec[k] for k in ("key", "robot_id", "path", "robot", "timestamp", "day", "data_hash",
                                 "version")}
     out["temperatures"] = list(spec.get("temperatures") or [])
@@ -121,4 +121,5 @@ def identify_recording(spec: dict) -> dict:
     except (OSError, ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
         out.update(status="error", error=f"{spec['path']}: {type(exc).__name__}: {exc}")
     out["task_seconds"] = time.perf_counter() - t0
+    out["task_cpu_seconds"] = time.process_time() - c0
     return out
