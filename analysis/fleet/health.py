@@ -16,7 +16,8 @@ warms (Bittencourt & Gunnarsson 2012, on an industrial arm), which would
 hide or mimic wear. The model is ``p(T) = p_ref (1 + c (T - T_ref))``
 with one coefficient ``c`` per parameter, identified across the fleet's
 history: the within-robot regression of p / mean(p) on T - mean(T) over every
-robot's baseline window (where no wear is assumed).
+robot's baseline window (where no wear is assumed), whose slope c / (1 + c d)
+(d: mean temperature - T_ref) is converted back to c.
 """
 from __future__ import annotations
 
@@ -32,8 +33,9 @@ from dynid.errors import InputError
 DEFAULT_PARAMETERS = ("Fv", "Fc")
 #: reference temperature of the compensated values, degrees Celsius
 T_REF = 25.0
-#: CUSUM allowance k, in units of the parameter's day-to-day scatter: tuned to shifts of 2 sigma
-DEFAULT_ALLOWANCE = 1.0
+#: CUSUM allowance k, in units of the day-to-day scatter: tuned to shifts of 3 sigma (a 20 % friction
+#: change is 5-7 sigma of a 9 s production recording), and less sensitive to the baseline's error
+DEFAULT_ALLOWANCE = 1.5
 #: recordings of each robot that make its baseline (assumed healthy)
 DEFAULT_BASELINE = 8
 #: false alarms accepted per monitored series and recording (ARL0 = 1 / rate)
@@ -86,29 +88,46 @@ class FleetHealth:
                           "alarms": [a.to_dict() for a in self.alarms]})
 
 
-def cusum_threshold(false_alarm_rate: float, allowance: float = DEFAULT_ALLOWANCE) -> float:
-    """One-sided CUSUM threshold h with in-control run length 1 / ``false_alarm_rate`` (N(0,1) data).
+def _arl(h, k, mu=0.0):
+    """Siegmund's approximation of a one-sided CUSUM's average run length, N(mu, 1) data."""
+    b = h + 1.166
+    d = mu - k
+    if abs(d) < 1e-9:
+        return b * b
+    return (math.expm1(-2 * d * b) + 2 * d * b) / (2 * d * d)
 
-    Siegmund's approximation ARL0 = (exp(2 k b) - 2 k b - 1) / (2 k^2), b = h + 1.166,
-    solved for h by bisection (it grows monotonically in h).
+
+def cusum_threshold(false_alarm_rate: float, allowance: float = DEFAULT_ALLOWANCE,
+                    n_baseline: int | None = None) -> float:
+    """One-sided CUSUM threshold h whose false-alarm rate per recording is ``false_alarm_rate``.
+
+    Siegmund's approximation ARL(mu) = (exp(-2 D b) + 2 D b - 1) / (2 D^2), D = mu - k,
+    b = h + 1.166 (Siegmund 1985; Basseville & Nikiforov 1993, eq. (5.2.44)). With
+    ``n_baseline`` the reference value is a mean of that many recordings, so the
+    in-control data are N(e, 1) with a persistent error e ~ N(0, 1/n): the rate
+    1/ARL is averaged over e (Gauss-Hermite), which is what makes a baseline of a
+    week safe (Jones, Champ & Rigdon 2004 show the ARL0 collapsing otherwise).
     """
     if not (0 < false_alarm_rate < 0.5):
         raise InputError(f"the false-alarm rate is a probability per recording in (0, 0.5), got {false_alarm_rate!r}")
     k = float(allowance)
     if not k > 0:
         raise InputError(f"the CUSUM allowance k must be positive, got {allowance!r}")
-    target = 1.0 / false_alarm_rate
+    if n_baseline:
+        nodes, weights = np.polynomial.hermite_e.hermegauss(31)
+        nodes, weights = nodes / math.sqrt(n_baseline), weights / weights.sum()
+    else:
+        nodes, weights = np.zeros(1), np.ones(1)
 
-    def arl(h):
-        b = 2 * k * (h + 1.166)
-        return (math.expm1(b) - b) / (2 * k * k)
+    def rate(h):
+        return float(sum(w / _arl(h, k, e) for e, w in zip(nodes, weights)))
 
     lo, hi = 0.0, 1.0
-    while arl(hi) < target:
+    while rate(hi) > false_alarm_rate:
         hi *= 2
     for _ in range(100):
         mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if arl(mid) < target else (lo, mid)
+        lo, hi = (mid, hi) if rate(mid) > false_alarm_rate else (lo, mid)
     return 0.5 * (lo + hi)
 
 
@@ -178,7 +197,14 @@ def temperature_coefficients(history: pd.DataFrame, n_baseline: int = DEFAULT_BA
         x = (g["temperature"] - mean_t).to_numpy()
         sxx = float(x @ x)
         # fewer than a few kelvin of spread in total: the slope is noise
-        out[name] = float(x @ y / sxx) if sxx > 10.0 and g["robot_id"].nunique() >= 2 else float("nan")
+        if sxx <= 10.0 or g["robot_id"].nunique() < 2:
+            out[name] = float("nan")
+            continue
+        # the slope s of p / mean(p) is c / (1 + c d), d = mean(T) - T_ref: relative to the mean
+        # value, not to p(T_ref); undo that (exact for the linear model when d is common)
+        slope = float(x @ y / sxx)
+        d = float((mean_t - T_REF).mean())
+        out[name] = slope / (1.0 - slope * d)
     return out
 
 
@@ -197,7 +223,7 @@ def monitor(frame: pd.DataFrame, parameters=DEFAULT_PARAMETERS, *, false_alarm_r
     n_baseline = int(n_baseline)
     if n_baseline < 3:
         raise InputError(f"the baseline needs at least 3 recordings per robot, got {n_baseline}")
-    h = cusum_threshold(false_alarm_rate / 2, allowance)
+    h = cusum_threshold(false_alarm_rate / 2, allowance, n_baseline)
     hist = parameter_history(frame, parameters)
     coeffs = temperature_coefficients(hist, n_baseline) if compensate else {}
     c = hist["parameter"].map(lambda n: coeffs.get(n, float("nan"))).to_numpy(dtype=float)
@@ -222,7 +248,9 @@ def monitor(frame: pd.DataFrame, parameters=DEFAULT_PARAMETERS, *, false_alarm_r
     del g
     sig_ref = hist[base].groupby(["robot_id", "parameter"])["compensated_sigma"].median().rename("sigma_ref")
     hist = hist.join(sig_ref, on=["robot_id", "parameter"])
-    scale = hist["sigma_ref"] * hist["parameter"].map(ratios) * np.sqrt(1.0 + 1.0 / hist["count"])
+    # (the baseline mean's own error is a persistent offset, not more scatter: the threshold
+    # accounts for it, see cusum_threshold)
+    scale = hist["sigma_ref"] * hist["parameter"].map(ratios)
     hist["z"] = (hist["compensated"] - hist["mean"]) / scale
     hist["cusum_up"] = np.nan
     hist["cusum_down"] = np.nan

@@ -80,7 +80,7 @@ def _identify(exp, robot, bp, settings, max_samples):
         return r.wls, r.essential, r.observation
     from dynid.analysis.estimators import least_squares as ls
     from dynid.analysis.estimators.essential import essential_parameters
-    obs = _streamed_observation(exp, robot, bp, settings, max(50_000, max_samples // 4))
+    obs = _streamed_observation(exp, robot, bp, settings, max(1000, max_samples // 4))
     names = list(bp.names)
     wls = ls.wls(obs.W, obs.tau, names, row_mask=obs.row_mask, settings=dict(obs.settings))
     ess = essential_parameters(obs.W, obs.tau, names, ls.wls, row_mask=obs.row_mask,
