@@ -120,7 +120,7 @@ def test_killed_worker_loses_and_duplicates_nothing(small_fleet, tmp_path):
     distributed = pytest.importorskip("distributed")
     reference = comparable(serial_store(small_fleet.catalogue, tmp_path / "serial").read())
     killed = []
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
                                   silence_logs=40) as cluster, distributed.Client(cluster) as client:
         pids = client.run(os.getpid)
 
@@ -186,11 +186,15 @@ def test_monitor_finds_the_step_with_its_onset_size_and_the_temperature_coeffici
     assert abs(a.rel_size - 0.25) < 0.05 and a.joint == 2
 
 
-def test_without_temperature_compensation_the_daily_cycle_raises_false_alarms():
-    """The test of the compensation: the same data, uncompensated, alarms on healthy robots."""
-    frame = _synthetic_store(np.random.default_rng(3), step=0.0)
-    assert health.monitor(frame, false_alarm_rate=1e-4).alarms == []
-    assert len(health.monitor(frame, false_alarm_rate=1e-4, compensate=False).alarms) > 0
+def test_temperature_compensation_is_what_makes_a_small_change_visible():
+    """The test of the compensation: uncompensated, the daily cycle (+-8 %) is scatter that hides an 8 % step."""
+    frame = _synthetic_store(np.random.default_rng(3), step=0.08)
+    comp = health.monitor(frame, false_alarm_rate=1e-4)
+    raw = health.monitor(frame, false_alarm_rate=1e-4, compensate=False)
+    assert [(a.robot_id, a.parameter, a.alarm_day) for a in comp.alarms] == [("R03", "Fv2", "2026-01-16")]
+    assert raw.alarms == []
+    assert raw.scatter_ratio["Fv2"] > 4 * comp.scatter_ratio["Fv2"]
+    assert 0.8 < comp.scatter_ratio["Fv2"] < 1.25      # compensated: the scatter is the model's sigma
 
 
 # ------------------------------------------------------------------ report and command line

@@ -106,7 +106,7 @@ def start_client(scheduler=None, workers=None):
     if n < 1:
         raise InputError(f"--workers must be at least 1, got {workers}")
     cluster = distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                                       dashboard_address=None, silence_logs=40)
+                                       dashboard_address=":0", silence_logs=40)
     return distributed.Client(cluster), cluster
 
 
