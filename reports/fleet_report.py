@@ -55,7 +55,7 @@ def _trend_figure(hist, alarms, robot_id, key):
             h = hist[hist["parameter"] == name]
             x = pd.to_datetime(h["timestamp"]).dt.tz_convert(None)
             y = h["compensated"].to_numpy()
-            band = 2 * (h["compensated"] - h["baseline_value"]).to_numpy() / np.where(h["z"] == 0, np.nan, h["z"])
+            band = 2 * h["scatter"].to_numpy()
             ax.fill_between(x, y - band, y + band, color="#9ecae1", alpha=0.5, lw=0, label="±2σ")
             ax.plot(x, y, "o-", ms=2.5, color="#08519c", label="identified (T-compensated)")
             ax.axhline(float(h["baseline_value"].iloc[0]), color="#636363", lw=0.7, ls="--", label="baseline")

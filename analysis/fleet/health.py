@@ -251,6 +251,7 @@ def monitor(frame: pd.DataFrame, parameters=DEFAULT_PARAMETERS, *, false_alarm_r
     # (the baseline mean's own error is a persistent offset, not more scatter: the threshold
     # accounts for it, see cusum_threshold)
     scale = hist["sigma_ref"] * hist["parameter"].map(ratios)
+    hist["scatter"] = scale
     hist["z"] = (hist["compensated"] - hist["mean"]) / scale
     hist["cusum_up"] = np.nan
     hist["cusum_down"] = np.nan
