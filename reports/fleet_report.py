@@ -13,7 +13,6 @@ import json
 import os
 
 import matplotlib
-import numpy as np
 import pandas as pd
 from markupsafe import Markup
 
