@@ -467,7 +467,16 @@ def _add_fleet_parser(sub, common):
                                    "Dask task per recording) into a Parquet results store, then monitor "
                                    "each robot's friction (temperature-compensated, two-sided CUSUM) and "
                                    "raise alarms naming robot, joint, parameter, onset and size. Needs "
-                                   'pip install "dynid[fleet]". Formats: docs/formats.md.')
+                                   'pip install "dynid[fleet]". Formats: docs/formats.md.',
+                       epilog=textwrap.dedent("""\
+                           examples:
+                             dynid fleet catalogue.csv --out store/ --report fleet.html --json fleet.json
+                             dynid fleet catalogue.csv --out store/ --workers 2 --parameters Fv,Fc,Ia
+                             dynid fleet catalogue.parquet --out store/ --scheduler tcp://head:8786
+
+                           A rerun computes only the recordings that are new or changed; failed
+                           recordings are listed and stored with their error, the rest goes on.
+                           """), formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("catalogue", help="fleet catalogue (.csv or .parquet): robot_id, timestamp, path, robot "
                                      "[, temperature | temperature1..N]")
     p.add_argument("--out", dest="store", metavar="STORE", required=True,
