@@ -6,8 +6,13 @@ machine (the kernels are NumPy and numba: processes, not threads, scale them);
 with an address (``tcp://host:8786``) the run uses that cluster. One task per
 recording, submitted with its store key as the Dask key; a task whose worker
 dies is rescheduled by Dask on another worker (``distributed.scheduler.allowed-failures``
-times), and since the client writes each result under its deterministic file
+times), and since each task writes its result under its deterministic file
 name, a retried task can neither be lost nor stored twice.
+
+The workers write the results themselves (the store must be a folder they can
+all write, as the recordings must be files they can all read): a single client
+writing every result would become the bottleneck of a large cluster, and on a
+small machine it would steal a core from the workers.
 """
 from __future__ import annotations
 
@@ -110,14 +115,23 @@ def start_client(scheduler=None, workers=None):
     return distributed.Client(cluster), cluster
 
 
-def execute(specs, store: ResultStore, client, *, progress=None):
-    """Run ``specs`` on ``client``, writing each result to ``store`` as it completes.
+def identify_and_store(spec: dict, store_root: str) -> dict:
+    """The Dask task: identify one recording, write its result to the store, return a summary."""
+    result = _expand_shared(spec, identify_recording(spec))
+    ResultStore(store_root).write(result)
+    return {k: result[k] for k in ("key", "status", "error", "task_seconds", "task_cpu_seconds") if k in result}
 
-    Returns (results, errors). A task that keeps killing its workers ends as an
-    error of its recording; the rest goes on.
+
+def execute(specs, store: ResultStore, client, *, progress=None):
+    """Run ``specs`` on ``client``; each task writes its result to ``store`` as it completes.
+
+    Returns (summaries, errors): per task its key, status, error and times. A task
+    that keeps killing its workers ends as an error of its recording (written by
+    the client); the rest goes on.
     """
     distributed = import_distributed()
-    futures = client.map(identify_recording, specs, key=[f"dynid-fleet-{s['key']}" for s in specs], pure=False)
+    futures = client.map(identify_and_store, specs, store_root=store.root,
+                         key=[f"dynid-fleet-{s['key']}" for s in specs], pure=False)
     by_key = {f.key: s for f, s in zip(futures, specs)}
     results, errors = [], []
     for done, fut in enumerate(distributed.as_completed(futures), 1):
@@ -130,8 +144,7 @@ def execute(specs, store: ResultStore, client, *, progress=None):
                       "status": "error", "task_seconds": float("nan"), "task_cpu_seconds": float("nan"),
                       "error": f"{spec['path']}: the worker running this recording died on every retry "
                                f"(out of memory? a crash in a native library?); it was not identified"}
-        result = _expand_shared(spec, result)
-        store.write(result)
+            store.write(result)
         results.append(result)
         if result["status"] != "ok":
             errors.append((spec["robot_id"], spec["path"], result["error"]))

@@ -121,10 +121,12 @@ def simulate_recording(job: dict) -> str:
 
 def simulate_fleet(folder, n_robots: int = 20, n_days: int = 30, *, seed: int = 1, robot: str = "planar2",
                    fs: float = 200.0, moves: int = 6, wear_fraction: float = 0.3, n_corrupted: int = 3,
-                   ramp_days: int = 2, client=None) -> SimulatedFleet:
+                   ramp_days: int = 2, client=None, write: bool = True) -> SimulatedFleet:
     """Write a simulated fleet's recordings and ``catalogue.csv`` to ``folder``.
 
     ``client``: a Dask client to simulate on (the recordings are independent), else serial.
+    ``write=False``: only the plan and the truth (the recordings of an earlier call with the
+    same arguments are reused).
     """
     from dynid.analysis.fleet.task import _robot
     os.makedirs(folder, exist_ok=True)
@@ -153,7 +155,9 @@ def simulate_fleet(folder, n_robots: int = 20, n_days: int = 30, *, seed: int = 
             ts = START + pd.Timedelta(days=d) + pd.Timedelta(hours=hour)
             rows.append({"robot_id": r.robot_id, "timestamp": ts.strftime("%Y-%m-%dT%H:%M:%SZ"), "path": name,
                          "robot": robot, **{f"temperature{j + 1}": round(t, 2) for j, t in enumerate(temps)}})
-    if client is not None:
+    if not write:
+        pass
+    elif client is not None:
         client.gather(client.map(simulate_recording, jobs, pure=False))
     else:
         for job in jobs:
