@@ -76,6 +76,8 @@ def main():
     ap.add_argument("--keep", help="folder to keep the fleet, store and report in (default: temporary)")
     ap.add_argument("--reuse", action="store_true",
                     help="with --keep: reuse the simulated fleet already there (its stores are recomputed)")
+    ap.add_argument("--scaling-only", action="store_true",
+                    help="with --keep --reuse: only the scaling measurement (step 2), e.g. again on a quieter machine")
     args = ap.parse_args()
     if args.quick:
         args.robots, args.scaling_tasks = 20, 100
@@ -128,6 +130,15 @@ def main():
         print(f"scaling on {len(subset)} recordings: 1 worker {thr1:.2f}/s, 2 workers {thr2:.2f}/s, "
               f"ratio {thr2 / thr1:.2f}; mean task {1e3 * mean_task:.1f} ms, Dask overhead per task "
               f"{100 * overhead1:.1f} % (1 worker), {100 * overhead2:.1f} % (2 workers)", flush=True)
+        if args.scaling_only:
+            print(json.dumps({"scaling_ratio_2_vs_1": round(thr2 / thr1, 3), "throughput_1_worker_per_s": round(thr1, 3),
+                              "throughput_2_workers_per_s": round(thr2, 3), "scaling_tasks": len(subset),
+                              "dask_overhead_fraction_1_worker": round(overhead1, 4),
+                              "dask_overhead_fraction_2_workers": round(overhead2, 4),
+                              "mean_task_cpu_ms": round(1e3 * cpu2 / len(subset), 2),
+                              "load_average_1min": round(os.getloadavg()[0], 2),
+                              "wall_seconds": round(time.perf_counter() - t_all, 1)}))
+            return
         # the whole fleet
         t0 = time.perf_counter()
         run = identify_fleet(fleet.catalogue, root / "store", client=client2)
