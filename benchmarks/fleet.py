@@ -99,7 +99,7 @@ def main():
         t0 = time.perf_counter()
         if args.reuse:      # the same fleet again (same seed), without writing its recordings
             import shutil
-            for old in ("store", "store-1", "store-2"):
+            for old in ("store-1", "store-2") + (() if args.scaling_only else ("store",)):
                 shutil.rmtree(root / old, ignore_errors=True)
             fleet = simulate_fleet(root / "fleet", args.robots, args.days, seed=2026,
                                    n_corrupted=max(3, args.robots // 20), client=client2, write=False)
