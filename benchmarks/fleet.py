@@ -76,6 +76,8 @@ def main():
     ap.add_argument("--keep", help="folder to keep the fleet, store and report in (default: temporary)")
     ap.add_argument("--reuse", action="store_true",
                     help="with --keep: reuse the simulated fleet already there (its stores are recomputed)")
+    ap.add_argument("--reuse-store", action="store_true",
+                    help="with --keep --reuse: keep the fleet's main store too (step 3 then computes nothing)")
     ap.add_argument("--scaling-only", action="store_true",
                     help="with --keep --reuse: only the scaling measurement (step 2), e.g. again on a quieter machine")
     args = ap.parse_args()
@@ -99,7 +101,7 @@ def main():
         t0 = time.perf_counter()
         if args.reuse:      # the same fleet again (same seed), without writing its recordings
             import shutil
-            for old in ("store-1", "store-2") + (() if args.scaling_only else ("store",)):
+            for old in ("store-1", "store-2") + (() if args.scaling_only or args.reuse_store else ("store",)):
                 shutil.rmtree(root / old, ignore_errors=True)
             fleet = simulate_fleet(root / "fleet", args.robots, args.days, seed=2026,
                                    n_corrupted=max(3, args.robots // 20), client=client2, write=False)
@@ -151,8 +153,11 @@ def main():
     frame = ResultStore(root / "store").read()
     t0 = time.perf_counter()
     n_series = 2 * 2      # planar2: Fv, Fc of 2 joints
-    # the false-alarm budget: 1 per 100 robot-months, halved for margin, spread over the series and days
-    rate = 0.5 / 100 / (n_series * 30)
+    # the false-alarm budget, 1 per 100 robot-months spread over the series and days, asked for
+    # 10 times lower: the CUSUM's threshold assumes Gaussian standardised values, and identified
+    # friction has heavier tails (a recording whose cycle separates Fv from Fc badly); at the
+    # nominal budget the measured rate was about 2.5 per 100 robot-months
+    rate = 0.1 / 100 / (n_series * 30)
     health = monitor(frame, false_alarm_rate=rate)
     t_health = time.perf_counter() - t0
     run.health = health

@@ -250,7 +250,16 @@ def monitor(frame: pd.DataFrame, parameters=DEFAULT_PARAMETERS, *, false_alarm_r
     hist = hist.join(sig_ref, on=["robot_id", "parameter"])
     # (the baseline mean's own error is a persistent offset, not more scatter: the threshold
     # accounts for it, see cusum_threshold)
-    scale = hist["sigma_ref"] * hist["parameter"].map(ratios)
+    # each recording's own sigma (never below the robot's typical one): a recording whose
+    # motion separates Fv from Fc poorly says so through its sigma and weighs less
+    scale = np.maximum(hist["compensated_sigma"], hist["sigma_ref"]) * hist["parameter"].map(ratios)
+    # a robot whose own baseline scatters more than the fleet's (a cell whose motion identifies
+    # its friction badly, unmodelled effects) gets its own, larger scale: never a smaller one,
+    # which 8 points could underestimate
+    dev = (hist["compensated"] - hist["mean"]) / scale
+    own = (dev.where(base) ** 2).groupby([hist["robot_id"], hist["parameter"]]).transform("mean")
+    own = np.sqrt(own * hist["count"] / np.maximum(hist["count"] - 1, 1))
+    scale = scale * np.maximum(1.0, own.fillna(1.0))
     hist["scatter"] = scale
     hist["z"] = (hist["compensated"] - hist["mean"]) / scale
     hist["cusum_up"] = np.nan
