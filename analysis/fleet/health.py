@@ -18,6 +18,12 @@ with one coefficient ``c`` per parameter, identified across the fleet's
 history: the within-robot regression of p / mean(p) on T - mean(T) over every
 robot's baseline window (where no wear is assumed), whose slope c / (1 + c d)
 (d: mean temperature - T_ref) is converted back to c.
+
+Standardisation: z = (p - baseline mean) / s, with s the recording's own σ times
+one fleet-wide ratio of day-to-day scatter to σ (pooled over every baseline), or
+the robot's own baseline scatter where it is larger. The threshold assumes z is
+Gaussian; identified friction has heavier tails, so the measured false-alarm rate
+exceeds the nominal one (about 5x on the benchmark's simulated fleet).
 """
 from __future__ import annotations
 
