@@ -167,7 +167,9 @@ def main():
     html_kb = os.path.getsize(root / "fleet.html") / 1e3
     detected, delays, false, n_worn = score(health, fleet.robots, args.days, START)
     robot_months = args.robots * args.days / 30
-    err_paths = {p for _, p, _ in run.errors}
+    # reported = stored as an error of its recording (by this run or, with --reuse-store, an earlier one)
+    failed = frame[frame["status"] != "ok"].drop_duplicates("key")
+    err_paths = set(failed["recording"])
     reported = sum(1 for p in fleet.corrupted if p in err_paths)
     print(f"health: {len(health.alarms)} alarms, threshold h = {health.threshold:.2f}; worn joints detected "
           f"within 3 days {100 * detected:.1f} % of {n_worn}; delays (days) "
@@ -183,7 +185,8 @@ def main():
         "robots": args.robots, "days": args.days, "recordings": run.n_recordings,
         "worn_joints": n_worn, "detected_within_3_days": round(detected, 4),
         "false_alarms": len(false), "false_alarms_per_100_robot_months": round(100 * len(false) / robot_months, 3),
-        "corrupted_logs": len(fleet.corrupted), "corrupted_reported": reported, "errors": len(run.errors),
+        "corrupted_logs": len(fleet.corrupted), "corrupted_reported": reported, "errors": len(err_paths),
+        "errors_not_corrupted": len(err_paths - set(fleet.corrupted)),
         "crashed": False,
         "throughput_1_worker_per_s": round(thr1, 3), "throughput_2_workers_per_s": round(thr2, 3),
         "scaling_ratio_2_vs_1": round(thr2 / thr1, 3), "scaling_tasks": len(subset),
