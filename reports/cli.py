@@ -268,6 +268,7 @@ def build_parser():
               diagnose  find the effects the model lacks in the residual, add them, compare errors
               report    everything at once: IDIM, DIDIM, posterior and diagnosis in one report
               demo      simulate the TX40, identify it and write an HTML report
+              fleet     identify a fleet's recordings on Dask, store them, raise friction-wear alarms
 
             --json - writes the machine-readable result to stdout (the summary then goes to stderr)
 
@@ -455,7 +456,43 @@ def build_parser():
     p.add_argument("--gain-update", choices=list(GAIN_UPDATES), default="initial",
                    help="DIDIM's derivative-gain update (see identify --help); default initial: "
                         "the paper's every-step update oscillated on the demo data")
+    _add_fleet_parser(sub, common)
     return parser
+
+
+def _add_fleet_parser(sub, common):
+    """The `fleet` command (its own function, so that its options stay together)."""
+    p = sub.add_parser("fleet", parents=[common], help="identify a fleet's recordings on Dask, watch friction",
+                       description="Identify every new or changed recording of a fleet catalogue (IDIM, one "
+                                   "Dask task per recording) into a Parquet results store, then monitor "
+                                   "each robot's friction (temperature-compensated, two-sided CUSUM) and "
+                                   "raise alarms naming robot, joint, parameter, onset and size. Needs "
+                                   'pip install "dynid[fleet]". Formats: docs/formats.md.',
+                       epilog=textwrap.dedent("""\
+                           examples:
+                             dynid fleet catalogue.csv --out store/ --report fleet.html --json fleet.json
+                             dynid fleet catalogue.csv --out store/ --workers 2 --parameters Fv,Fc,Ia
+                             dynid fleet catalogue.parquet --out store/ --scheduler tcp://head:8786
+
+                           A rerun computes only the recordings that are new or changed; failed
+                           recordings are listed and stored with their error, the rest goes on.
+                           """), formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("catalogue", help="fleet catalogue (.csv or .parquet): robot_id, timestamp, path, robot "
+                                     "[, temperature | temperature1..N]")
+    p.add_argument("--out", dest="store", metavar="STORE", required=True,
+                   help="results store folder (created; a rerun computes only what is missing or changed)")
+    p.add_argument("--scheduler", metavar="ADDRESS", help="a running Dask scheduler, e.g. tcp://host:8786 "
+                                                          "(default: a local cluster on this machine)")
+    p.add_argument("--workers", type=int, metavar="N", help="local cluster: worker processes (default: cores)")
+    p.add_argument("--parameters", default="Fv,Fc", metavar="LIST",
+                   help="base parameters to monitor, by family (Fv: every joint's) or name (Fv2); default Fv,Fc")
+    p.add_argument("--false-alarm-rate", type=float, default=None, metavar="P",
+                   help="accepted false alarms per monitored parameter and recording (default 1e-4)")
+    p.add_argument("--baseline", type=int, default=None, metavar="N",
+                   help="the first N recordings of each robot are its healthy baseline (default 8)")
+    p.add_argument("--diagnose", action="store_true", help="also run the residual diagnosis per recording")
+    p.add_argument("--report", metavar="PATH", help="write the fleet's HTML report here")
+    p.add_argument("--json", metavar="PATH", help="write the fleet's results and alarms as JSON here ('-': stdout)")
 
 
 def cmd_robot(args, say):
@@ -1086,8 +1123,47 @@ def cmd_demo(args, say):
     return _write_full_report(args, say, out)
 
 
+def cmd_fleet(args, say):
+    """dynid fleet CATALOGUE --out STORE: identify on Dask, store, monitor, report."""
+    import json as _json
+
+    import dynid.fleet as fleet
+    from dynid.analysis.fleet.health import DEFAULT_BASELINE, DEFAULT_FALSE_ALARM_RATE
+    from dynid.errors import InputError
+    if args.workers is not None and args.workers < 1:
+        raise InputError(f"--workers must be at least 1, got {args.workers}")
+    if os.path.exists(args.store) and not os.path.isdir(args.store):
+        raise InputError(f"--out {args.store} is a file; the results store is a folder")
+    params = [p.strip() for p in args.parameters.split(",") if p.strip()]
+    if not params:
+        raise InputError("--parameters: name at least one base parameter (Fv, Fc, Fv2 ...)")
+    say(f"fleet: {args.catalogue} -> {args.store}"
+        + (f" on {args.scheduler}" if args.scheduler else f" on a local cluster of {args.workers or os.cpu_count()} workers"))
+    with say.progress("identifying") as bar:
+        run = fleet.run(args.catalogue, args.store, scheduler=args.scheduler, workers=args.workers,
+                        diagnose=args.diagnose, parameters=params,
+                        false_alarm_rate=args.false_alarm_rate or DEFAULT_FALSE_ALARM_RATE,
+                        n_baseline=args.baseline or DEFAULT_BASELINE, report=args.report,
+                        json=None if args.json in (None, "-") else args.json,
+                        progress=lambda done, total: bar.update(done / total))
+    say(f"{run.n_recordings} recordings: {run.n_computed} identified, {run.n_skipped} already in the store, "
+        f"{len(run.errors)} failed ({run.wall_seconds:.1f} s)")
+    for rid, path, msg in run.errors:
+        say(f"  failed: {rid} {path}: {msg}")
+    for a in run.health.alarms:
+        say(f"  ALARM {a.robot_id} joint {a.joint} {a.parameter}: {a.direction} of {100 * a.rel_size:+.1f} % "
+            f"since {a.onset_day} (alarm {a.alarm_day})")
+    if not run.health.alarms:
+        say("  no alarm")
+    if args.json == "-":
+        from dynid.reports.fleet_report import fleet_json
+        print(_json.dumps(fleet_json(run, fleet.read_store(args.store), run.health), indent=1))
+    return EXIT_OK
+
+
 COMMANDS = {"robot": cmd_robot, "simulate": cmd_simulate, "excite": cmd_excite, "identify": cmd_identify,
-            "sample": cmd_sample, "diagnose": cmd_diagnose, "report": cmd_report, "demo": cmd_demo}
+            "sample": cmd_sample, "diagnose": cmd_diagnose, "report": cmd_report, "demo": cmd_demo,
+            "fleet": cmd_fleet}
 
 
 def _terminate(signum, frame):

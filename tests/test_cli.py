@@ -82,6 +82,7 @@ MINIMAL_ARGS = {
     "diagnose": ["x", "--robot", "tx40"], "report": ["x", "--robot", "tx40", "--report", "r.html"],
     "simulate": ["--robot", "tx40", "--out", "x.csv"],
     "excite": ["--robot", "tx40", "--f0", "0.1", "--harmonics", "5"],
+    "fleet": ["catalogue.csv", "--out", "store"],
 }
 
 

@@ -49,9 +49,14 @@ _LAZY = {
     "load_robot": "dynid.dynamics.robot_file", "FullReport": "dynid.reports.pipeline",
     "demo": "dynid.reports.pipeline", "report": "dynid.reports.pipeline",
 }
+# subpackage-like modules loaded on first use: `dynid.fleet.run(...)` after a plain `import dynid`
+_LAZY_MODULES = {"fleet": "dynid.fleet"}
 
 
 def __getattr__(name: str) -> Any:
+    if name in _LAZY_MODULES:
+        import importlib
+        return importlib.import_module(_LAZY_MODULES[name])
     module = _LAZY.get(name)
     if module is None:
         raise AttributeError(f"module 'dynid' has no attribute {name!r}")
@@ -62,7 +67,7 @@ def __getattr__(name: str) -> Any:
 
 
 def __dir__() -> list:
-    return sorted(set(globals()) | set(_LAZY))
+    return sorted(set(globals()) | set(_LAZY) | set(_LAZY_MODULES))
 
 
 if TYPE_CHECKING:   # static tools (type checkers, the API reference) see the real imports

@@ -1,0 +1,179 @@
+"""The fleet engine: plan the tasks, run them on Dask distributed, store each result as it arrives.
+
+Dask is the scheduler (no process pool of dynid's own): with no address a
+``LocalCluster`` of worker *processes* with one thread each is started on this
+machine (the kernels are NumPy and numba: processes, not threads, scale them);
+with an address (``tcp://host:8786``) the run uses that cluster. One task per
+recording, submitted with its store key as the Dask key; a task whose worker
+dies is rescheduled by Dask on another worker (``distributed.scheduler.allowed-failures``
+times), and since each task writes its result under its deterministic file
+name, a retried task can neither be lost nor stored twice.
+
+The workers write the results themselves (the store must be a folder they can
+all write, as the recordings must be files they can all read): a single client
+writing every result would become the bottleneck of a large cluster, and on a
+small machine it would steal a core from the workers.
+"""
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass, field
+
+from dynid.analysis.fleet.catalogue import joint_temperature, read_catalogue
+from dynid.analysis.fleet.store import ResultStore
+from dynid.analysis.fleet.task import MAX_SAMPLES, file_hash, identify_recording, task_key
+from dynid.errors import InputError
+
+INSTALL_HINT = 'pip install "dynid[fleet]"'
+
+
+def import_distributed():
+    """The ``distributed`` module, or an InputError saying how to install it."""
+    try:
+        import distributed
+    except ImportError:
+        raise InputError(f"the fleet runs on Dask distributed, which is not installed: {INSTALL_HINT}") from None
+    return distributed
+
+
+@dataclass
+class FleetRun:
+    """What one run did."""
+
+    store: str
+    n_recordings: int
+    n_computed: int
+    n_skipped: int               # already in the store under the same key
+    errors: list                 # (robot_id, recording, message) of the tasks that failed this run
+    wall_seconds: float
+    task_seconds: list = field(default_factory=list)   # per computed task, as measured in the task
+    workers: int = 0
+    health: object = None        # FleetHealth, when monitored
+
+    def to_dict(self) -> dict:
+        from dynid.provenance import json_safe
+        out = {"store": self.store, "n_recordings": self.n_recordings, "n_computed": self.n_computed,
+               "n_skipped": self.n_skipped, "n_errors": len(self.errors),
+               "errors": [{"robot_id": r, "recording": p, "error": m} for r, p, m in self.errors],
+               "wall_seconds": self.wall_seconds, "workers": self.workers}
+        if self.health is not None:
+            out["health"] = self.health.to_dict()
+        return json_safe(out)
+
+
+def plan(catalogue, store: ResultStore, *, settings=None, diagnose=False, max_samples=MAX_SAMPLES):
+    """(all task specs, the specs not yet in ``store``) of a catalogue."""
+    from dynid.provenance import versions
+    version = versions().get("dynid", "?")
+    frame = read_catalogue(catalogue)
+    options = {"settings": repr(sorted((settings or {}).items())), "diagnose": bool(diagnose),
+               "max_samples": int(max_samples)}
+    have = store.keys()
+    specs = []
+    for row in frame.to_dict("records"):
+        try:
+            h = file_hash(row["path"])
+        except OSError as exc:            # the task will report it; a rerun retries once it exists
+            h = f"unreadable:{exc.strerror}"
+        n_temps = max([int(c[11:]) for c in row if c.startswith("temperature") and c[11:].isdigit()] or [0])
+        temps = [joint_temperature(row, j) for j in range(1, n_temps + 1)]
+        if not temps and "temperature" in row:
+            temps = [joint_temperature(row, 1)]     # one value: every joint (repeated by the store)
+        ts = row["timestamp"].isoformat()
+        key = task_key(row["robot_id"], row["path"], h, version,
+                       {**options, "robot": row["robot"], "timestamp": ts, "temperatures": repr(temps)})
+        specs.append({"key": key, "robot_id": row["robot_id"], "path": row["path"], "robot": row["robot"],
+                      "timestamp": ts, "day": row["day"], "data_hash": h, "version": version,
+                      "temperatures": temps, "settings": settings, "diagnose": bool(diagnose),
+                      "max_samples": int(max_samples), "shared_temperature": "temperature" in row})
+    return specs, [s for s in specs if s["key"] not in have]
+
+
+def _expand_shared(spec, result):
+    # one `temperature` column stands for every joint: repeat it once the joint count is known
+    if spec.get("shared_temperature") and result.get("names") and len(result["temperatures"]) == 1:
+        n = max([int("".join(ch for ch in nm if ch.isdigit()) or 0) for nm in result["names"]] or [1])
+        result["temperatures"] = result["temperatures"] * n
+    return result
+
+
+def start_client(scheduler=None, workers=None):
+    """(client, cluster or None): a Client of ``scheduler``, or of a new LocalCluster of ``workers``."""
+    distributed = import_distributed()
+    if scheduler:
+        try:
+            return distributed.Client(scheduler, timeout="20s"), None
+        except OSError as exc:
+            raise InputError(f"cannot reach the Dask scheduler at {scheduler} ({exc}); start one with "
+                             f"`dask scheduler` or leave --scheduler out for a local cluster") from None
+    n = int(workers or os.cpu_count() or 1)
+    if n < 1:
+        raise InputError(f"--workers must be at least 1, got {workers}")
+    cluster = distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                       dashboard_address=":0", silence_logs=40)
+    return distributed.Client(cluster), cluster
+
+
+def identify_and_store(spec: dict, store_root: str) -> dict:
+    """The Dask task: identify one recording, write its result to the store, return a summary."""
+    result = _expand_shared(spec, identify_recording(spec))
+    ResultStore(store_root).write(result)
+    return {k: result[k] for k in ("key", "status", "error", "task_seconds", "task_cpu_seconds") if k in result}
+
+
+def execute(specs, store: ResultStore, client, *, progress=None):
+    """Run ``specs`` on ``client``; each task writes its result to ``store`` as it completes.
+
+    Returns (summaries, errors): per task its key, status, error and times. A task
+    that keeps killing its workers ends as an error of its recording (written by
+    the client); the rest goes on.
+    """
+    distributed = import_distributed()
+    futures = client.map(identify_and_store, specs, store_root=store.root,
+                         key=[f"dynid-fleet-{s['key']}" for s in specs], pure=False)
+    by_key = {f.key: s for f, s in zip(futures, specs)}
+    results, errors = [], []
+    for done, fut in enumerate(distributed.as_completed(futures), 1):
+        spec = by_key[fut.key]
+        try:
+            result = fut.result()
+        except distributed.KilledWorker:
+            result = {**{k: spec[k] for k in ("key", "robot_id", "path", "robot", "timestamp", "day",
+                                             "data_hash", "version")}, "temperatures": spec["temperatures"],
+                      "status": "error", "task_seconds": float("nan"), "task_cpu_seconds": float("nan"),
+                      "error": f"{spec['path']}: the worker running this recording died on every retry "
+                               f"(out of memory? a crash in a native library?); it was not identified"}
+            store.write(result)
+        results.append(result)
+        if result["status"] != "ok":
+            errors.append((spec["robot_id"], spec["path"], result["error"]))
+        fut.release()
+        if progress is not None:
+            progress(done, len(specs))
+    return results, errors
+
+
+def identify_fleet(catalogue, store, *, scheduler=None, workers=None, client=None, settings=None,
+                   diagnose=False, max_samples=MAX_SAMPLES, progress=None) -> FleetRun:
+    """Identify every recording of ``catalogue`` not yet in ``store`` (the store is updated)."""
+    t0 = time.perf_counter()
+    store = store if isinstance(store, ResultStore) else ResultStore(store)
+    specs, todo = plan(catalogue, store, settings=settings, diagnose=diagnose, max_samples=max_samples)
+    own = None
+    n_workers = 0
+    if todo:
+        if client is None:
+            client, own = start_client(scheduler, workers)
+        try:
+            n_workers = len(client.scheduler_info().get("workers", {}))
+            results, errors = execute(todo, store, client, progress=progress)
+        finally:
+            if own is not None:
+                client.close()
+                own.close()
+    else:
+        results, errors = [], []
+    return FleetRun(store=store.root, n_recordings=len(specs), n_computed=len(results),
+                    n_skipped=len(specs) - len(todo), errors=errors, wall_seconds=time.perf_counter() - t0,
+                    task_seconds=[r["task_seconds"] for r in results], workers=n_workers)

@@ -1,0 +1,220 @@
+"""The fleet: catalogue, store, Dask engine (a worker killed mid-run), rerun, CUSUM, report, CLI."""
+import json
+import os
+import signal
+import sys
+
+import numpy as np
+import pandas as pd
+import pytest
+
+pytest.importorskip("pyarrow")
+
+from dynid.analysis.fleet import health
+from dynid.analysis.fleet.catalogue import read_catalogue
+from dynid.analysis.fleet.engine import identify_fleet, import_distributed, plan
+from dynid.analysis.fleet.simulated import simulate_fleet
+from dynid.analysis.fleet.store import RUN_COLUMNS, ResultStore
+from dynid.analysis.fleet.task import identify_recording
+from dynid.errors import InputError
+
+
+@pytest.fixture(scope="module")
+def small_fleet(tmp_path_factory):
+    """3 robots x 10 days of simulated planar2 recordings, 2 of them corrupted (serial, ~3 s)."""
+    folder = tmp_path_factory.mktemp("fleet")
+    return simulate_fleet(folder, 3, 10, seed=5, n_corrupted=2)
+
+
+def serial_store(catalogue, root):
+    """The reference: every task run in this process, one after the other, into a store."""
+    store = ResultStore(root)
+    specs, _ = plan(catalogue, store)
+    for spec in specs:
+        store.write(identify_recording(spec))
+    return store
+
+
+def comparable(frame):
+    return frame.drop(columns=list(RUN_COLUMNS)).sort_values(["recording", "parameter"]).reset_index(drop=True)
+
+
+# ------------------------------------------------------------------ catalogue
+def test_catalogue_errors_name_column_and_row(tmp_path):
+    p = tmp_path / "cat.csv"
+    p.write_text("robot_id,timestamp,path\nR1,2026-01-01T00:00:00Z,a.npz\n")
+    with pytest.raises(InputError, match="missing column.*robot"):
+        read_catalogue(p)
+    p.write_text("robot_id,timestamp,path,robot\nR1,2026-01-01T00:00:00Z,a.npz,planar2\n"
+                 "R1,yesterday,b.npz,planar2\n")
+    with pytest.raises(InputError, match=r"column timestamp, row 2: 'yesterday'"):
+        read_catalogue(p)
+    p.write_text("robot_id,timestamp,path,robot,temperature2\nR1,2026-01-01T00:00:00Z,a.npz,planar2,warm\n")
+    with pytest.raises(InputError, match="column temperature2, row 1"):
+        read_catalogue(p)
+    p.write_text("robot_id,timestamp,path,robot\nR/1,2026-01-01T00:00:00Z,a.npz,planar2\n")
+    with pytest.raises(InputError, match="robot_id, row 1"):
+        read_catalogue(p)
+
+
+def test_catalogue_paths_relative_to_catalogue_and_days_utc(tmp_path):
+    p = tmp_path / "cat.csv"
+    p.write_text("robot_id,timestamp,path,robot,temperature\nR1,2026-01-01T23:30:00-02:00,sub/a.npz,planar2,30\n")
+    frame = read_catalogue(p)
+    assert frame["path"][0] == str(tmp_path / "sub" / "a.npz")
+    assert frame["day"][0] == "2026-01-02"        # 23:30 at UTC-2 is 01:30 UTC the next day
+
+
+def test_missing_dask_says_how_to_install(monkeypatch):
+    monkeypatch.setitem(sys.modules, "distributed", None)
+    with pytest.raises(InputError, match=r'pip install "dynid\[fleet\]"'):
+        import_distributed()
+
+
+# ------------------------------------------------------------------ task and store
+def test_task_reports_corrupted_logs_and_identifies_the_rest(small_fleet, tmp_path):
+    store = serial_store(small_fleet.catalogue, tmp_path / "store")
+    frame = store.read()
+    per_rec = frame.drop_duplicates("key")
+    assert len(per_rec) == 30 and per_rec["key"].is_unique
+    failed = per_rec[per_rec["status"] == "error"]
+    assert sorted(failed["recording"]) == sorted(small_fleet.corrupted)
+    assert all(rec in msg for rec, msg in zip(failed["recording"], failed["error"]))   # names the file
+    ok = frame[(frame["status"] == "ok") & (frame["parameter"] == "Fv1")]
+    assert np.all(ok["sigma"] > 0) and np.all(np.abs(ok["value"] - 0.5) < 0.25)   # planar2's Fv1 = 0.5 +-20 %
+    # partitioned by robot and day, one file per recording
+    files = sorted(p.relative_to(store.root).parts[:2] for p in __import__("pathlib").Path(store.root).rglob("*.parquet"))
+    assert len(files) == 30 and files[0][0] == "robot_id=R000" and files[0][1].startswith("day=2026-03-")
+
+
+def test_streamed_long_recording_agrees_with_whole(small_fleet, tmp_path):
+    specs, _ = plan(small_fleet.catalogue, ResultStore(tmp_path / "s"))
+    spec = next(s for s in specs if s["path"] not in small_fleet.corrupted)
+    whole = identify_recording(spec)
+    streamed = identify_recording({**spec, "max_samples": 1200})     # blocks of 1000 samples
+    assert whole["status"] == streamed["status"] == "ok"
+    for name in ("Fv1", "Fc1", "Fv2", "Fc2"):
+        k = whole["names"].index(name)
+        assert abs(streamed["value"][k] - whole["value"][k]) < 3 * whole["sigma"][k]
+
+
+def test_rerun_with_nothing_changed_computes_nothing(small_fleet, tmp_path):
+    store = serial_store(small_fleet.catalogue, tmp_path / "store")
+    before = {p: os.stat(p).st_mtime_ns for p in store._files()}
+    # an unreachable scheduler: the run fails if it tries to compute anything
+    run = identify_fleet(small_fleet.catalogue, store, scheduler="tcp://127.0.0.1:9")
+    assert (run.n_computed, run.n_skipped) == (0, 30)
+    assert {p: os.stat(p).st_mtime_ns for p in store._files()} == before
+    # a changed recording is recomputed, and only it
+    specs, todo = plan(small_fleet.catalogue, store)
+    target = next(s["path"] for s in specs if s["path"] not in small_fleet.corrupted)
+    data = dict(np.load(target))
+    data["tau"] = data["tau"] * 1.01
+    np.savez(target, **data)
+    _, todo = plan(small_fleet.catalogue, store)
+    assert [s["path"] for s in todo] == [target]
+
+
+@pytest.mark.slow
+def test_killed_worker_loses_and_duplicates_nothing(small_fleet, tmp_path):
+    distributed = pytest.importorskip("distributed")
+    reference = comparable(serial_store(small_fleet.catalogue, tmp_path / "serial").read())
+    killed = []
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
+                                  silence_logs=40) as cluster, distributed.Client(cluster) as client:
+        pids = client.run(os.getpid)
+
+        def kill_one(done, total):
+            # after the third result, SIGKILL a worker that is processing a task right now
+            if done == 3 and not killed:
+                busy = [w for w, keys in client.processing().items() if keys]
+                assert busy, "no worker was busy mid-run"
+                os.kill(pids[busy[0]], signal.SIGKILL)
+                killed.append(busy[0])
+        run = identify_fleet(small_fleet.catalogue, tmp_path / "dask", client=client, progress=kill_one)
+        assert killed and run.n_computed == 30
+        assert set(client.run(os.getpid).values()) != set(pids.values())   # the nanny started a new worker
+    stored = ResultStore(tmp_path / "dask")
+    assert len(stored._files()) == 30
+    frame = stored.read()
+    assert frame.drop_duplicates("key")["recording"].is_unique and frame["recording"].nunique() == 30
+    pd.testing.assert_frame_equal(comparable(frame), reference, check_exact=False, rtol=1e-12, atol=0)
+
+
+# ------------------------------------------------------------------ health
+def test_cusum_threshold_gives_the_asked_false_alarm_rate():
+    """Run lengths of the one-sided CUSUM on N(0,1) noise against Siegmund's ARL0 (the threshold's input)."""
+    rng = np.random.default_rng(0)
+    k, arl0 = 0.5, 200.0
+    h = health.cusum_threshold(1 / arl0, k)
+    runs = []
+    for _ in range(150):
+        z = rng.normal(size=3000)
+        s, t = 0.0, None
+        for i, v in enumerate(z):
+            s = max(0.0, s + v - k)
+            if s > h:
+                t = i + 1
+                break
+        runs.append(t or 3000)
+    assert 0.75 * arl0 < np.mean(runs) < 1.33 * arl0
+
+
+def _synthetic_store(rng, n_robots=12, n_days=30, c=-0.01, step=0.25, worn=("R03", "Fv2", 15)):
+    rows = []
+    for r in range(n_robots):
+        rid = f"R{r:02d}"
+        level = {"Fv1": rng.uniform(0.4, 0.6), "Fv2": rng.uniform(0.25, 0.35)}
+        for d in range(n_days):
+            T = 30 + 8 * np.sin(rng.uniform(0, 2 * np.pi))
+            for name, v0 in level.items():
+                v = v0 * (1 + c * (T - 25)) * (1 + (step if (rid, name) == worn[:2] and d >= worn[2] else 0))
+                rows.append({"status": "ok", "robot_id": rid, "parameter": name, "joint": int(name[-1]),
+                             "timestamp": pd.Timestamp("2026-01-01", tz="UTC") + pd.Timedelta(days=d, hours=9),
+                             "day": f"2026-01-{d + 1:02d}", "recording": f"{rid}-{d}",
+                             "value": v + rng.normal(0, 0.01 * v0), "sigma": 0.01 * v0, "temperature": T})
+    return pd.DataFrame(rows)
+
+
+def test_monitor_finds_the_step_with_its_onset_size_and_the_temperature_coefficient():
+    frame = _synthetic_store(np.random.default_rng(3))
+    h = health.monitor(frame, false_alarm_rate=1e-4)
+    assert abs(h.temperature_coefficients["Fv2"] + 0.01) < 0.001
+    assert [(a.robot_id, a.parameter, a.direction) for a in h.alarms] == [("R03", "Fv2", "increase")]
+    a = h.alarms[0]
+    assert a.onset_day == "2026-01-16" and a.alarm_day in ("2026-01-16", "2026-01-17")
+    assert abs(a.rel_size - 0.25) < 0.05 and a.joint == 2
+
+
+def test_temperature_compensation_is_what_makes_a_small_change_visible():
+    """The test of the compensation: uncompensated, the daily cycle (+-8 %) is scatter that hides an 8 % step."""
+    frame = _synthetic_store(np.random.default_rng(3), step=0.08)
+    comp = health.monitor(frame, false_alarm_rate=1e-4)
+    raw = health.monitor(frame, false_alarm_rate=1e-4, compensate=False)
+    assert [(a.robot_id, a.parameter, a.alarm_day) for a in comp.alarms] == [("R03", "Fv2", "2026-01-16")]
+    assert raw.alarms == []
+    assert raw.scatter_ratio["Fv2"] > 4 * comp.scatter_ratio["Fv2"]
+    assert 0.8 < comp.scatter_ratio["Fv2"] < 1.25      # compensated: the scatter is the model's sigma
+
+
+# ------------------------------------------------------------------ report and command line
+def test_cli_fleet_rerun_writes_report_and_json(small_fleet, tmp_path, capsys):
+    from dynid.reports.cli import main
+    serial_store(small_fleet.catalogue, tmp_path / "store")
+    rc = main(["fleet", small_fleet.catalogue, "--out", str(tmp_path / "store"), "--scheduler", "tcp://127.0.0.1:9",
+               "--baseline", "4", "--report", str(tmp_path / "f.html"), "--json", str(tmp_path / "f.json")])
+    err = capsys.readouterr().err
+    assert rc == 0, err
+    assert "30 recordings: 0 identified, 30 already in the store, 0 failed" in err
+    html = (tmp_path / "f.html").read_text()
+    assert "Fleet overview" in html and "table class=\"data sortable\"" in html and "<script>" in html
+    assert "src=\"http" not in html and "href=\"http" not in html          # self-contained
+    doc = json.loads((tmp_path / "f.json").read_text())
+    assert doc["n_recordings"] == 30 and len(doc["robots"]) == 3
+    assert "alarms" in doc["health"]
+
+
+def test_cli_fleet_bad_catalogue_is_an_input_error(tmp_path, capsys):
+    from dynid.reports.cli import main
+    rc = main(["fleet", str(tmp_path / "nope.csv"), "--out", str(tmp_path / "store")])
+    assert rc == 2 and "nope.csv: fleet catalogue not found" in capsys.readouterr().err
