@@ -322,6 +322,13 @@ class DiagnosisResult(Exportable):
     data_hash: str = ""
     path: list = field(default_factory=list)   # errors after each step (see diagnose)
     structure: object = None       # StructureResult: catalogue-free tests of the final residual
+    hidden_tests: list = field(default_factory=list)   # HiddenEffect: a-priori prior tests (hidden.py)
+
+    @property
+    def hidden(self):
+        """Effects the base parameters absorbed, found through the a-priori values (list of
+        reported :class:`~dynid.analysis.diagnosis.hidden.HiddenEffect`)."""
+        return [h for h in self.hidden_tests if h.reported]
 
     @property
     def unexplained(self):
@@ -405,6 +412,16 @@ class DiagnosisResult(Exportable):
             else:
                 lines.append("    none: no joint's residual has significant structure large against "
                              "its noise")
+        if self.hidden_tests:
+            lines += ["", "  Effects hidden in the parameters (prior fit toward the a-priori values):"]
+            if self.hidden:
+                lines += [f"    HIDDEN {h.sentence()}" for h in self.hidden]
+            else:
+                best = self.hidden_tests[0]
+                lines.append(f"    none: the parameters contradict the a-priori values "
+                             f"({', '.join(a for a, *_ in best.contradicted[:3])}), but no "
+                             f"gravity-shaped spring explains it (best joint {best.joint}, "
+                             f"p = {best.p_value:.2g})")
         if self.notices:
             lines += ["", "  Notices:"] + [f"    - {n}" for n in self.notices]
         return "\n".join(lines)
@@ -441,6 +458,8 @@ class DiagnosisResult(Exportable):
             "notices": self.notices,
             "unexplained": [u.to_dict() for u in self.unexplained],
             "structure": None if self.structure is None else self.structure.to_dict(),
+            "hidden": [h.to_dict() for h in self.hidden],
+            "hidden_tests": [h.to_dict() for h in self.hidden_tests],
         })
 
 
@@ -734,7 +753,7 @@ def diagnose(experiment, robot, *, validation=None, idim_result=None, settings=N
              max_effects=3, rng=None, alpha=0.01, folds=5, gap="auto", exclude_parameters=None,
              joints=None, residual_analysis=True, confirm_on_validation=True, max_error_growth=0.02,
              progress=None, structure_tests=True, start_model="essential", base_guard=True,
-             max_tries=5):
+             max_tries=5, hidden_tests=True):
     """Find what the identified model of ``robot`` lacks in ``experiment``.
 
     Parameters
@@ -766,6 +785,9 @@ def diagnose(experiment, robot, *, validation=None, idim_result=None, settings=N
     structure_tests : run the catalogue-free tests of the final residual
         (:mod:`dynid.analysis.diagnosis.structure`); joints with structure no selected
         effect explains are in ``result.unexplained``.
+    hidden_tests : when the identified parameters contradict ``robot.apriori``, fit with the
+        a-priori values as a prior and test gravity-shaped springs the base parameters
+        absorbed (:mod:`dynid.analysis.diagnosis.hidden`); found ones are in ``result.hidden``.
     start_model : the model the selection starts from: ``"essential"`` (default: the
         essential WLS of the identification), ``"base"`` (all base parameters, WLS), or a
         list of base-parameter names (the set the user chose).
@@ -1061,7 +1083,17 @@ def diagnose(experiment, robot, *, validation=None, idim_result=None, settings=N
                                        gap=gap, explained=[c.label for c, _, _ in selected],
                                        full_residual=full_res, full_mask=full_mask)
         cfg["structure_rule"] = structure.rule
-    return DiagnosisResult(robot_name=robot.name, source=eobs.source, ranking=final, steps=steps,
+    hidden = []
+    if hidden_tests:
+        from dynid.analysis.diagnosis.hidden import hidden_effects
+        vdata = None
+        if vprob is not None:
+            vdata = (vprob.design(state["delay"], state["effects"], cols=state["cols"]), vprob.Y,
+                     vprob.mask, vprob.eobs)
+        hidden = hidden_effects(eobs, X_after, problem.Y, problem.mask, list(model_after.names),
+                                model_after.chi, model_after.sigma, robot,
+                                weights=_weights(model_after), alpha=alpha, validation=vdata)
+    return DiagnosisResult(hidden_tests=hidden, robot_name=robot.name, source=eobs.source, ranking=final, steps=steps,
                            structure=structure,
                            selected=sel_effects, model_before=model0, model_after=model_after,
                            errors=errors, settings=cfg, idim=idim_result, residuals=residuals,
