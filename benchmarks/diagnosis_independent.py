@@ -199,7 +199,7 @@ def run_case(case, seed, *, dead_zone=QD_THRESHOLD, cache=None, **diag_kw):
             "first_ok": case in FIRST and first == FIRST[case],
             "val_rms_after": float(np.sqrt(np.mean(val["after"].rms ** 2))),
             "val_rms_before": float(np.sqrt(np.mean(val["before"].rms ** 2))),
-            "seconds": dt, "summary": res.summary()}
+            "seconds": dt, "summary": res.summary(), "dead_zone": dead_zone}
 
 
 def judge(case, named, flagged, hidden=()):
@@ -301,6 +301,10 @@ def main(argv=None):
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--time-20s", action="store_true",
                     help="also time one diagnosis of a 20 s, 5 kHz TX40 recording")
+    ap.add_argument("--rows", default=None,
+                    help="append each run's row (JSON lines) to this file")
+    ap.add_argument("--from-rows", nargs="*", default=None,
+                    help="no runs: table and headline rates of rows saved with --rows")
     ap.add_argument("--verbose", action="store_true")
     a = ap.parse_args(argv)
     t_start = time.time()
@@ -309,12 +313,16 @@ def main(argv=None):
     for c in a.cases:
         ns = a.clean_seeds if (c in CLEAN and a.clean_seeds) else a.seeds
         jobs += [(c, s) for s in range(a.first_seed, a.first_seed + ns)]
-    if a.workers > 1:
+    if a.from_rows is not None:
+        rows = [json.loads(line) for fn in a.from_rows for line in open(fn) if line.strip()]
+        rows = [r for r in rows if r["case"] in a.cases]
+        a.cases = [c for c in a.cases if any(r["case"] == c for r in rows)]
+    elif a.workers > 1:
         from concurrent.futures import ProcessPoolExecutor
         with ProcessPoolExecutor(a.workers) as ex:
-            rows = list(ex.map(_job, *zip(*[(c, s, dz, a.cache) for c, s in jobs])))
+            rows = list(ex.map(_job, *zip(*[(c, s, dz, a.cache, a.rows) for c, s in jobs])))
     else:
-        rows = [_job(c, s, dz, a.cache) for c, s in jobs]
+        rows = [_job(c, s, dz, a.cache, a.rows) for c, s in jobs]
     print(f"{'case':<30} {'seed':>4}  {'named':<40} {'unexplained':<24} {'hidden/onset':<12} {'s':>5}  verdict")
     for r in rows:
         nm = ", ".join(f"{n} j{j}" for n, j in r["named"]) or "-"
@@ -328,8 +336,10 @@ def main(argv=None):
     for c in a.cases:
         rs = [r for r in rows if r["case"] == c]
         per_case[c] = {"runs": len(rs), "passed": sum(r["ok"] for r in rs)}
-    out = {**headline(rows), "cases": per_case, "seeds": [a.first_seed, a.first_seed + a.seeds - 1],
-           "dead_zone": dz, "id_duration": ID_DURATION, "val_duration": VAL_DURATION,
+    seeds = sorted({r["seed"] for r in rows})
+    out = {**headline(rows), "cases": per_case, "seeds": seeds,
+           "dead_zone": sorted({str(r.get("dead_zone", dz)) for r in rows}),
+           "id_duration": ID_DURATION, "val_duration": VAL_DURATION,
            "seconds_per_diagnosis": float(np.mean([r["seconds"] for r in rows])) if rows else None}
     if a.time_20s:
         out["seconds_per_diagnosis_20s_5kHz_tx40"] = time_long_recording(a.cache)
@@ -338,8 +348,12 @@ def main(argv=None):
     return 0 if out["passed"] == out["runs"] else 1
 
 
-def _job(case, seed, dz, cache):
-    return run_case(case, seed, dead_zone=dz, cache=cache)
+def _job(case, seed, dz, cache, rows_file=None):
+    r = run_case(case, seed, dead_zone=dz, cache=cache)
+    if rows_file:
+        with open(rows_file, "a") as f:
+            f.write(json.dumps({**r, "dead_zone": dz}) + "\n")
+    return r
 
 
 if __name__ == "__main__":
