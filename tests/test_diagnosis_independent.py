@@ -1,7 +1,7 @@
 """Residual diagnosis on the independent closed-loop plant (data it was not tuned to).
 
 A reduced version of benchmarks/diagnosis_independent.py: one seed per case, 8 s of
-identification and 4 s of validation at 5 kHz (the plant in tests/independent_plant.py,
+identification and 4 s of validation at 5 kHz, dynid's default processing (the plant in tests/independent_plant.py,
 effects injected in the plant, so the closed loop reacts to them). Slow: each case is
 two plant runs (~30 s) and a diagnosis (~20 s).
 
