@@ -40,7 +40,10 @@ pytestmark = pytest.mark.slow
 
 @pytest.fixture(scope="module")
 def cache(tmp_path_factory):
-    return tmp_path_factory.mktemp("independent_plant")
+    # DYNID_PLANT_CACHE: a folder of recordings kept by the campaign (--cache), so the
+    # plant runs (~30 s each) are not repeated
+    import os
+    return os.environ.get("DYNID_PLANT_CACHE") or tmp_path_factory.mktemp("independent_plant")
 
 
 def _run(case, cache, seed=1):
