@@ -1,7 +1,7 @@
 """Residual diagnosis on the independent closed-loop plant (data it was not tuned to).
 
 A reduced version of benchmarks/diagnosis_independent.py: one seed per case, 8 s of
-identification and 4 s of validation at 5 kHz (the plant in tests/independent_plant.py,
+identification and 4 s of validation at 5 kHz, dynid's default processing (the plant in tests/independent_plant.py,
 effects injected in the plant, so the closed loop reacts to them). Slow: each case is
 two plant runs (~30 s) and a diagnosis (~20 s).
 
@@ -10,13 +10,23 @@ two plant runs (~30 s) and a diagnosis (~20 s).
 * friction warm-up (not in the catalogue) on joints 1 and 2: named (the friction-level
   drift) or flagged unexplained on those joints, nothing elsewhere;
 * high-order ripple (order 50, not in the catalogue's orders) on joint 3: flagged
-  unexplained (or named) on joint 3, the period found within 5 % of 2 pi / 50.
+  unexplained (or named) on joint 3, the period found within 5 % of 2 pi / 50;
+* clean data with the default processing (dead zone 1 % of the peak speed, narrower
+  than the plant's tanh Coulomb onset): no effect and no unexplained joint (a
+  Coulomb onset may be kept in the model, not reported as an effect);
+* clean data whose torque was low-pass filtered upstream (100 Hz, zero phase, above
+  the 10 Hz decimation cutoff: the decimated data are unchanged): no joint flagged,
+  the noise floor reported unknown rather than 1000 x too low;
+* a gravity-compensation spring on joint 2 shaped like link 2's gravity (absorbed by
+  the base parameters): found through the a-priori values, on joint 2 only;
+* the KUKA LWR4+ plant, clean: nothing named or flagged.
 """
 import importlib.util
 import json
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -30,7 +40,10 @@ pytestmark = pytest.mark.slow
 
 @pytest.fixture(scope="module")
 def cache(tmp_path_factory):
-    return tmp_path_factory.mktemp("independent_plant")
+    # DYNID_PLANT_CACHE: a folder of recordings kept by the campaign (--cache), so the
+    # plant runs (~30 s each) are not repeated
+    import os
+    return os.environ.get("DYNID_PLANT_CACHE") or tmp_path_factory.mktemp("independent_plant")
 
 
 def _run(case, cache, seed=1):
@@ -67,3 +80,51 @@ def test_high_order_ripple_unexplained_on_joint_3(cache):
         assert un[3]["period_rad"] == pytest.approx(2 * math.pi / 50, rel=0.05)
         assert un[3]["variable"] == "q3"
         assert un[3]["rms"] > 0.5           # the injected ripple is 1.5 N m (RMS 1.06)
+
+
+def test_clean_plant_default_dead_zone_names_nothing(cache):
+    r = bench.run_case("clean", 1, cache=cache, dead_zone="auto")
+    print(r["summary"])
+    assert r["named"] == [], r["named"]
+    assert r["unexplained"] == [], r["unexplained"]
+
+
+def test_prefiltered_torque_no_false_floor_alarm(cache):
+    from scipy import signal
+
+    from dynid.analysis.diagnosis.selection import diagnose
+    from dynid.dynamics.robot_file import load_robot
+    recs = bench.recordings("clean", 1, cache)
+    sos = signal.butter(4, 100.0, fs=bench.RATE, output="sos")
+    for e in recs:
+        e.tau[:] = signal.sosfiltfilt(sos, e.tau, axis=0)
+    res = diagnose(recs[0], load_robot("tx40"), validation=recs[1],
+                   settings={"qd_threshold": bench.QD_THRESHOLD})
+    print(res.summary())
+    assert not res.structure.floor_known.any()
+    assert res.unexplained == [], [u.to_dict() for u in res.unexplained]
+    assert res.effects == []
+
+
+def test_gravity_spring_found_through_the_parameters(cache):
+    r = _run("gravity_spring_j2", cache)
+    assert r["hidden"] == [2], r["hidden"]
+    assert r["ok"], r["why"]
+
+
+def test_kuka_clean_names_nothing(cache):
+    r = _run("kuka_clean", cache)
+    assert r["named"] == [] and r["unexplained"] == [] and r["hidden"] == [], r["why"]
+
+
+def test_headline_rates_of_the_reduced_campaign():
+    rows = [{"case": "clean", "robot": "tx40", "seed": 1, "named": [], "unexplained": [], "hidden": [],
+             "onsets": [], "ok": True, "first_ok": False, "val_rms_after": 0.02},
+            {"case": "stribeck_j1", "robot": "tx40", "seed": 1, "named": [("stribeck", 1)],
+             "unexplained": [], "hidden": [], "onsets": [], "ok": True, "first_ok": True,
+             "val_rms_after": 0.021}]
+    h = bench.headline(rows)
+    assert h["catalogue_named_first"] == 1.0 and h["clean_quiet"] == 1.0
+    assert h["catalogue_heldout_ratio_to_true_max"] == pytest.approx(1.05)
+    assert h["wrong_joint"] == 0.0
+    assert np.isfinite(h["catalogue_heldout_ratio_to_true_max"])

@@ -264,6 +264,7 @@ class SelectedEffect:
     candidate: Candidate
     torque_rms: np.ndarray = None    # RMS of its torque per joint (identification rows)
     note: str = ""                   # when the fitted sign contradicts the effect's name
+    kind: str = "effect"             # or "coulomb_onset" (see :func:`_onset`)
 
     @property
     def rel_sigma(self):
@@ -275,7 +276,7 @@ class SelectedEffect:
                 "parameters": [{"name": p, "value": v, "std": s, "rel_std_percent": r}
                                for p, v, s, r in zip(self.params, self.values, self.sigma,
                                                      self.rel_sigma)],
-                "note": self.note or None,
+                "note": self.note or None, "kind": self.kind,
                 "torque_rms_per_joint": None if self.torque_rms is None else list(self.torque_rms)}
 
 
@@ -322,12 +323,26 @@ class DiagnosisResult(Exportable):
     data_hash: str = ""
     path: list = field(default_factory=list)   # errors after each step (see diagnose)
     structure: object = None       # StructureResult: catalogue-free tests of the final residual
+    hidden_tests: list = field(default_factory=list)   # HiddenEffect: a-priori prior tests (hidden.py)
+
+    @property
+    def hidden(self):
+        """Effects the base parameters absorbed, found through the a-priori values (list of
+        reported :class:`~dynid.analysis.diagnosis.hidden.HiddenEffect`)."""
+        return [h for h in self.hidden_tests if h.reported]
 
     @property
     def unexplained(self):
         """Joints whose final residual has structure no selected effect explains (list of
         :class:`~dynid.analysis.diagnosis.structure.Unexplained`)."""
         return [] if self.structure is None else list(self.structure.unexplained)
+
+    @property
+    def effects(self):
+        """The selected effects that are effects of the robot (``kind == "effect"``): without the
+        Coulomb onsets, which are kept in the model but say the velocity dead zone is narrower
+        than the friction's smooth onset (:func:`_onset`)."""
+        return [e for e in self.selected if e.kind == "effect"]
 
     @property
     def selected_names(self):
@@ -396,7 +411,15 @@ class DiagnosisResult(Exportable):
             st = self.structure
             lines += ["", f"  Structure left in the final residual ({st.n_tests} catalogue-free tests, "
                           f"Bonferroni alpha = {st.alpha:g}; noise floor RMS "
-                          + " ".join(f"{x:.3g}" for x in st.noise_floor) + " N m):"]
+                          + " ".join(f"{x:.3g}" if np.isfinite(x) else "unknown" for x in st.noise_floor)
+                          + " N m):"]
+            unknown = [j + 1 for j, k in enumerate(st.floor_known) if not k]
+            if unknown:
+                lines.append(f"    noise floor unknown on joint(s) {', '.join(map(str, unknown))}: the "
+                             f"torque's full-rate increments are not white (var(d3)/var(d2) "
+                             + ", ".join(f"{st.whiteness[j - 1]:.2g}" for j in unknown)
+                             + ", white noise 3.33): it was low-pass filtered before it was "
+                             "recorded, so the excess-over-floor test is not run there")
             if st.unexplained:
                 for u in st.unexplained:
                     lines.append(f"    UNEXPLAINED {u.sentence()}")
@@ -405,6 +428,16 @@ class DiagnosisResult(Exportable):
             else:
                 lines.append("    none: no joint's residual has significant structure large against "
                              "its noise")
+        if self.hidden_tests:
+            lines += ["", "  Effects hidden in the parameters (prior fit toward the a-priori values):"]
+            if self.hidden:
+                lines += [f"    HIDDEN {h.sentence()}" for h in self.hidden]
+            else:
+                best = self.hidden_tests[0]
+                lines.append(f"    none: the parameters contradict the a-priori values "
+                             f"({', '.join(a for a, *_ in best.contradicted[:3])}), but no "
+                             f"gravity-shaped spring explains it (best joint {best.joint}, "
+                             f"p = {best.p_value:.2g})")
         if self.notices:
             lines += ["", "  Notices:"] + [f"    - {n}" for n in self.notices]
         return "\n".join(lines)
@@ -441,6 +474,8 @@ class DiagnosisResult(Exportable):
             "notices": self.notices,
             "unexplained": [u.to_dict() for u in self.unexplained],
             "structure": None if self.structure is None else self.structure.to_dict(),
+            "hidden": [h.to_dict() for h in self.hidden],
+            "hidden_tests": [h.to_dict() for h in self.hidden_tests],
         })
 
 
@@ -734,7 +769,7 @@ def diagnose(experiment, robot, *, validation=None, idim_result=None, settings=N
              max_effects=3, rng=None, alpha=0.01, folds=5, gap="auto", exclude_parameters=None,
              joints=None, residual_analysis=True, confirm_on_validation=True, max_error_growth=0.02,
              progress=None, structure_tests=True, start_model="essential", base_guard=True,
-             max_tries=5):
+             max_tries=5, hidden_tests=True):
     """Find what the identified model of ``robot`` lacks in ``experiment``.
 
     Parameters
@@ -766,6 +801,9 @@ def diagnose(experiment, robot, *, validation=None, idim_result=None, settings=N
     structure_tests : run the catalogue-free tests of the final residual
         (:mod:`dynid.analysis.diagnosis.structure`); joints with structure no selected
         effect explains are in ``result.unexplained``.
+    hidden_tests : when the identified parameters contradict ``robot.apriori``, fit with the
+        a-priori values as a prior and test gravity-shaped springs the base parameters
+        absorbed (:mod:`dynid.analysis.diagnosis.hidden`); found ones are in ``result.hidden``.
     start_model : the model the selection starts from: ``"essential"`` (default: the
         essential WLS of the identification), ``"base"`` (all base parameters, WLS), or a
         list of base-parameter names (the set the user chose).
@@ -992,11 +1030,13 @@ def diagnose(experiment, robot, *, validation=None, idim_result=None, settings=N
             values, sigmas, params = model_after.chi[idx], model_after.sigma[idx], cand.active_params
         rms = np.sqrt(np.sum(np.where(problem.mask, tq, 0.0) ** 2, axis=0)
                       / np.maximum(problem.mask.sum(axis=0), 1))
+        onset = _onset(cand, values, obs.settings)
         sel_effects.append(SelectedEffect(name=cand.name, joint=cand.joint,
                                           nonlinear=dict(cand.nonlinear), params=list(params),
                                           values=np.asarray(values), sigma=np.asarray(sigmas),
                                           step=step, candidate=cand, torque_rms=rms,
-                                          note=_physics_note(cand, values)))
+                                          note=onset or _physics_note(cand, values),
+                                          kind="coulomb_onset" if onset else "effect"))
     pred_before = problem.X @ model0.chi
     pred_after = X_after @ model_after.chi
     errors = {"identification": {"before": _errors(problem.Y, pred_before, problem.mask),
@@ -1061,7 +1101,17 @@ def diagnose(experiment, robot, *, validation=None, idim_result=None, settings=N
                                        gap=gap, explained=[c.label for c, _, _ in selected],
                                        full_residual=full_res, full_mask=full_mask)
         cfg["structure_rule"] = structure.rule
-    return DiagnosisResult(robot_name=robot.name, source=eobs.source, ranking=final, steps=steps,
+    hidden = []
+    if hidden_tests:
+        from dynid.analysis.diagnosis.hidden import hidden_effects
+        vdata = None
+        if vprob is not None:
+            vdata = (vprob.design(state["delay"], state["effects"], cols=state["cols"]), vprob.Y,
+                     vprob.mask, vprob.eobs)
+        hidden = hidden_effects(eobs, X_after, problem.Y, problem.mask, list(model_after.names),
+                                model_after.chi, model_after.sigma, robot,
+                                weights=_weights(model_after), alpha=alpha, validation=vdata)
+    return DiagnosisResult(hidden_tests=hidden, robot_name=robot.name, source=eobs.source, ranking=final, steps=steps,
                            structure=structure,
                            selected=sel_effects, model_before=model0, model_after=model_after,
                            errors=errors, settings=cfg, idim=idim_result, residuals=residuals,
@@ -1136,6 +1186,39 @@ def _delay_sigma(problem, state, d, weights):
     n_eff, _, _, n_used = effective_sample_size(r, problem.mask)
     inflate = float(np.sum(n_used) / max(np.sum(n_eff), 1.0))
     return float(d), float(math.sqrt(2.0 * (s0 / dof) / curv * inflate))
+
+
+#: a Stribeck term with Fs < 0 whose v_s is at most this many dead-zone widths is a Coulomb onset
+ONSET_VS_FACTOR = 2.0
+
+
+def _onset(cand, values, settings):
+    """Note (or "") when a selected Stribeck term is the friction's smooth Coulomb onset.
+
+    dynid's friction model has ``Fc sign(qd)``; a real (or simulated) friction rises to
+    its Coulomb level over a small speed range (the independent plant: ``Fc tanh(qd /
+    0.01)``). The velocity dead zone (default 1 % of the peak speed) exists to drop the
+    rows where that matters; when the onset is wider than the dead zone the rows just
+    outside it carry the mismatch and a Stribeck term with ``Fs < 0`` and ``v_s``
+    within ``ONSET_VS_FACTOR`` dead-zone widths takes it (measured on the clean plant,
+    TX40 joint 2, default dead zone 0.02 rad/s: Fs < 0, v_s 0.016 rad/s, CV gain 14 %).
+    It is kept in the model (it does lower the errors) but is not reported as an effect
+    of the robot: it says the dead zone is narrower than the friction's onset.
+    """
+    if cand.name != "stribeck" or not len(values) or values[0] >= 0:
+        return ""
+    vs = float(cand.nonlinear.get("vs", np.inf))
+    thr = settings.get("qd_threshold")
+    if thr is None:
+        return ""
+    thr = np.atleast_1d(np.asarray(thr, dtype=float))
+    thr = float(thr[cand.joint - 1] if thr.size >= cand.joint else thr[0])
+    if not (thr > 0 and vs <= ONSET_VS_FACTOR * thr):
+        return ""
+    return (f"Coulomb onset, not a missing effect: Fs < 0 with v_s = {vs:.3g} rad/s, within "
+            f"{ONSET_VS_FACTOR:g} x the velocity dead zone ({thr:.3g} rad/s): the friction rises to "
+            f"its Coulomb level more smoothly than sign(qd), over a range wider than the dead zone "
+            f"(kept in the model; a dead zone of ~{3 * vs:.2g} rad/s would drop those rows)")
 
 
 def _physics_note(cand, values):
