@@ -66,6 +66,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -128,7 +129,10 @@ class _Problem:
     def solve(self, t):
         self.target.value = np.asarray(t, dtype=float)
         try:
-            self.prob.solve(solver="CLARABEL")
+            with warnings.catch_warnings():
+                # "optimal_inaccurate" is reported in the status (and the result's notices)
+                warnings.simplefilter("ignore", UserWarning)
+                self.prob.solve(solver="CLARABEL")
         except self.cp.error.SolverError as e:
             raise InputError(f"the physically consistent fit failed in the SDP solver: {e}") from None
         if self.prob.status not in ("optimal", "optimal_inaccurate"):
@@ -137,7 +141,7 @@ class _Problem:
         return self.s * np.asarray(self.z.value, dtype=float)
 
 
-def _build(robot, bp, R, chi_ap, s, weight, mass_tolerance):
+def _build(robot, bp, R, chi_ap, s, weight, mass_tolerance, nonneg_kinds=_NONNEG):
     cp = require_cvxpy()
     names = list(robot.standard_names)
     n_std = len(names)
@@ -152,7 +156,7 @@ def _build(robot, bp, R, chi_ap, s, weight, mass_tolerance):
         ss = s[sl]
         J = sum(E[k] * ss[k] * z[sl.start + k] for k in range(10))
         cons.append(J - J_MARGIN * np.eye(4) >> 0)
-    nonneg = [i for i, nm in enumerate(names) if nm.rstrip("0123456789").rstrip("m") in _NONNEG]
+    nonneg = [i for i, nm in enumerate(names) if nm.rstrip("0123456789").rstrip("m") in nonneg_kinds]
     if nonneg:
         cons.append(z[nonneg] >= 0)
     mass_idx = [names.index(f"M{j + 1}") for j in range(robot.n_joints)]
@@ -367,12 +371,16 @@ def pc_wls(robot, bp, beta_wls, cov_wls, *, prior=None, prior_weight=1.0, mass_t
     t0 = time.perf_counter()
     chi = pb.solve(R @ beta_wls)
     seconds = time.perf_counter() - t0
+    status = pb.prob.status
     beta = bp.matrix @ chi
     chi2 = float(np.sum((R @ (beta - beta_wls)) ** 2))
     active, k = _active(pb, chi)
     from scipy import stats
     p = 1.0 if k == 0 else float(stats.chi2.sf(chi2, min(k, bp.n_base)))
     notices = []
+    if status != "optimal":
+        notices.append(f"the SDP solver ended with status {status}: the solution is feasible to the "
+                       "solver's tolerance but its last digits may be off")
     boot = None
     if n_boot:
         rng = np.random.default_rng(seed)
