@@ -281,6 +281,24 @@ class PhysicalResult(ParameterResults):
                                  "shift_sigma": (self.chi - self.wls_chi) / s_wls},
                                 index=self._index())
 
+    def to_standard_set(self):
+        """The PC standard set as a :class:`~dynid.analysis.estimators.standard_set.StandardSet`
+        (what the URDF export writes), its targets the unconstrained WLS values."""
+        from dynid.analysis.estimators.standard_set import REPRODUCE_CHI2, StandardSet
+        sig = np.sqrt(np.maximum(np.diag(self.wls_cov), 0.0))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            dev = (self.chi - self.wls_chi) / sig
+        table = pd.DataFrame({"identified": self.wls_chi, "std": sig, "chosen": self.chi,
+                              "deviation_sigma": dev}, index=pd.Index(self.names, name="base parameter"))
+        notices = [] if self.chi2 <= REPRODUCE_CHI2 else [
+            f"PC-WLS: {self.verdict_line()}; active: {', '.join(self.active) or 'none'}"]
+        return StandardSet(robot_name=self.robot_name, names=list(self.standard_names), chi=self.standard,
+                           apriori=self.apriori, beta=self.chi, target=table, base_names=list(self.names),
+                           consistent=self.consistent, reproduces=bool(self.chi2 <= REPRODUCE_CHI2),
+                           links=self.links, chi2=self.chi2,
+                           message="PC-WLS (SDP, cvxpy + Clarabel): the physically consistent fit itself",
+                           notices=notices)
+
     def predict(self, W_base):
         """Torques (N, n) from a base regressor (N, n, b)."""
         return np.asarray(W_base) @ self.chi
