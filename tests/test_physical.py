@@ -189,3 +189,27 @@ def test_real_kuka_sdp_is_below_the_log_cholesky_search(kuka_23):
     chi2 = float(np.sum((R @ (res.base.matrix @ chi - b)) ** 2))
     assert chi2 < local.chi2
     assert all(lk["pseudo_inertia_min_eig"] > 0 for lk in local.links)
+
+
+def test_pc_is_never_farther_from_a_physical_truth_in_the_wls_metric(pendulum):
+    """Projection on a convex set holding the truth is non-expansive: ||R (beta_pc - beta)|| <=
+    ||R (beta_wls - beta)|| for every draw of the WLS estimate (here the truth has Fv1 = 0, on
+    a constraint, and a 30 % noise level so that WLS is often non-physical)."""
+    from dynid.analysis.estimators.physical import _whitening
+    robot, bp, chi, _ = pendulum
+    chi = chi.copy()
+    chi[robot.standard_names.index("Fv1")] = 0.0
+    beta = bp.from_standard(chi)
+    cov, _ = _cov(beta)
+    cov = cov * 30 ** 2
+    R = _whitening(cov)
+    L = np.linalg.cholesky(cov)
+    rng = np.random.default_rng(3)
+    non_physical = 0
+    for _ in range(12):
+        b = beta + L @ rng.standard_normal(bp.n_base)
+        # weight 0: the pure projection (no tie-break pull toward the a-priori values)
+        r = pc_wls(robot, bp, b, cov, n_boot=0, prior="apriori", prior_weight=0.0)
+        non_physical += r.chi2 > 1e-6
+        assert np.linalg.norm(R @ (r.chi - beta)) <= np.linalg.norm(R @ (b - beta)) * (1 + 1e-6)
+    assert non_physical >= 3
