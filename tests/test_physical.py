@@ -213,3 +213,29 @@ def test_pc_is_never_farther_from_a_physical_truth_in_the_wls_metric(pendulum):
         non_physical += r.chi2 > 1e-6
         assert np.linalg.norm(R @ (r.chi - beta)) <= np.linalg.norm(R @ (b - beta)) * (1 + 1e-6)
     assert non_physical >= 3
+
+
+def test_mass_tolerance_from_the_robot_file(tmp_path):
+    from dynid.dynamics.base_parameters import base_parameters
+    from dynid.dynamics.robot_file import load_robot
+    from dynid.errors import RobotFileError
+    text = bs.PENDULUM_TOML.replace('[apriori]\n', '[apriori]\nmass_tolerance = 0.05\n')
+    path = tmp_path / "p.toml"
+    path.write_text(text)
+    robot = load_robot(path)
+    assert robot.mass_tolerance == 0.05
+    bp = base_parameters(robot)
+    beta = bp.from_standard(robot.standard_vector({k: v for k, v in robot.apriori.items()}))
+    cov, _ = _cov(beta)
+    # MX1 = 1 needs ZZ1 >= MX1^2 / M1: a small ZZ1R forces a large mass, which the bound refuses
+    b = beta.copy()
+    b[bp.names.index("ZZ1R")] = 0.3
+    free = pc_wls(robot, bp, b, cov, n_boot=0, mass_tolerance=9.0)
+    bound = pc_wls(robot, bp, b, cov, n_boot=0)
+    m = bound.standard[bound.standard_names.index("M1")]
+    assert 1.9 - 1e-6 <= m <= 2.1 + 1e-6 and bound.mass_tolerance == 0.05
+    assert any("M1 at its bound" in a for a in bound.active)
+    assert bound.chi2 > free.chi2
+    path.write_text(bs.PENDULUM_TOML.replace('[apriori]\n', '[apriori]\nmass_tolerance = -1\n'))
+    with pytest.raises(RobotFileError, match="mass_tolerance"):
+        load_robot(path)

@@ -367,7 +367,7 @@ def pc_wls(robot, bp, beta_wls, cov_wls, *, prior=None, prior_weight=1.0, mass_t
     ``prior``: None (a-priori values only break ties) or ``"apriori"`` (add
     ``prior_weight * sum(((chi - chi_ap) / s)^2)``, Euclidean, to the chi^2).
     ``mass_tolerance``: keep each link mass within this fraction of its
-    a-priori value. ``n_boot``: parametric-bootstrap refits for the
+    a-priori value (default: the robot file's ``[apriori] mass_tolerance``, else none). ``n_boot``: parametric-bootstrap refits for the
     uncertainty (0: the WLS covariance is reported, with a notice).
     """
     if prior not in (None, "apriori"):
@@ -385,6 +385,8 @@ def pc_wls(robot, bp, beta_wls, cov_wls, *, prior=None, prior_weight=1.0, mass_t
     chi_ap = apriori_standard(robot) if apriori is None else np.asarray(apriori, dtype=float)
     s = scales(robot, chi_ap)
     R = _whitening(cov_wls)
+    if mass_tolerance is None:
+        mass_tolerance = getattr(robot, "mass_tolerance", None)      # [apriori] mass_tolerance
     pb = _build(robot, bp, R, chi_ap, s, w, mass_tolerance)
     t0 = time.perf_counter()
     chi = pb.solve(R @ beta_wls)
