@@ -239,3 +239,21 @@ def test_mass_tolerance_from_the_robot_file(tmp_path):
     path.write_text(bs.PENDULUM_TOML.replace('[apriori]\n', '[apriori]\nmass_tolerance = -1\n'))
     with pytest.raises(RobotFileError, match="mass_tolerance"):
         load_robot(path)
+
+
+@pytest.mark.slow
+def test_pc_didim_simulates_physical_estimates():
+    """PC-DIDIM (each Gauss-Newton step a PC-WLS) on a simulated planar arm whose truth is
+    physical: the last step's estimate is physical and, where DIDIM's own estimate is
+    compatible with a physical model (small chi2), both agree within a standard deviation."""
+    import dynid
+    from dynid.analysis.estimators.didim import identify_didim
+    robot = dynid.load_robot("planar2")
+    rec = dynid.simulate(robot, 8.0, seed=3)
+    plain = identify_didim(rec.experiment, robot, max_iter=4, essential=False)
+    res = identify_didim(rec.experiment, robot, max_iter=4, physical=True, essential=False)
+    pc = res.physical
+    assert plain.physical is None and pc is not None and pc.consistent
+    assert pc.chi2 < 10
+    sig = plain.result.sigma
+    assert np.all(np.abs(pc.chi - plain.result.chi) <= sig + 1e-9)
