@@ -404,7 +404,10 @@ def pc_wls(robot, bp, beta_wls, cov_wls, *, prior=None, prior_weight=1.0, mass_t
     boot = None
     if n_boot:
         rng = np.random.default_rng(seed)
-        L = np.linalg.cholesky(cov_wls + 1e-14 * np.max(np.diag(cov_wls)) * np.eye(bp.n_base))
+        # a square root by eigen-decomposition: a Cholesky factor can fail on the nearly
+        # singular covariance of a badly excited parameter
+        w_c, V_c = np.linalg.eigh(0.5 * (cov_wls + cov_wls.T))
+        L = V_c * np.sqrt(np.maximum(w_c, 0.0))
         draws = beta + rng.standard_normal((int(n_boot), bp.n_base)) @ L.T
         boot = np.array([bp.matrix @ pb.solve(R @ d) for d in draws])
         cov = np.cov(boot, rowvar=False).reshape(bp.n_base, bp.n_base)
