@@ -12,7 +12,10 @@ PC-WLS, and measures the distance of each to the true base parameters:
   holds the truth, so it is never farther (up to the tie-break pull, 1e-8);
 * in relative terms, sum_i |beta_i - beta_true_i| / sum_i |beta_true_i|.
 
-Run from the repository root: python benchmarks/physical_seeds.py [--seeds 50]
+With ``--didim`` the same for DIDIM and PC-DIDIM (each Gauss-Newton step a
+PC-WLS, ``identify_didim(physical=True)``), 4 steps each, from the IDIM-WLS start.
+
+Run from the repository root: python benchmarks/physical_seeds.py [--seeds 50] [--didim]
 The last line is a JSON object with the figures.
 """
 import argparse
@@ -50,6 +53,7 @@ def truth(robot, rng):
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--seeds", type=int, default=50)
+    ap.add_argument("--didim", action="store_true", help="also DIDIM against PC-DIDIM")
     args = ap.parse_args()
     import numpy as np
 
@@ -75,8 +79,22 @@ def main():
         d_w, d_p = (float(np.linalg.norm(R @ (b - beta))) for b in (res.wls.chi, pc.chi))
         s = np.abs(beta).sum()
         e_w, e_p = (float(np.abs(b - beta).sum() / s) for b in (res.wls.chi, pc.chi))
-        rows.append({"seed": seed, "metric_wls": d_w, "metric_pc": d_p, "rel_wls": e_w, "rel_pc": e_p,
-                     "wls_physical": pc.wls_consistent, "chi2": pc.chi2, "n_active": len(pc.active)})
+        row = {"seed": seed, "metric_wls": d_w, "metric_pc": d_p, "rel_wls": e_w, "rel_pc": e_p,
+               "wls_physical": pc.wls_consistent, "chi2": pc.chi2, "n_active": len(pc.active)}
+        if args.didim:
+            from dynid.analysis.estimators.didim import identify_didim
+            start = dict(zip(res.base.names, res.wls.chi))
+            # the simulation ran the robot file's controller: no gain update is needed
+            plain = identify_didim(exp, robot, chi0=start, max_iter=4, essential=False, update_gains=False)
+            phys = identify_didim(exp, robot, chi0=start, max_iter=4, essential=False, update_gains=False,
+                                  physical=True)
+            row["didim_metric"] = float(np.linalg.norm(R @ (plain.result.chi - beta)))
+            row["pc_didim_metric"] = float(np.linalg.norm(R @ (phys.physical.chi - beta)))
+            row["didim_rel"] = float(np.abs(plain.result.chi - beta).sum() / s)
+            row["pc_didim_rel"] = float(np.abs(phys.physical.chi - beta).sum() / s)
+            print(f"  DIDIM metric {row['didim_metric']:.3f} PC-DIDIM {row['pc_didim_metric']:.3f}; relative "
+                  f"{row['didim_rel']:.4f} / {row['pc_didim_rel']:.4f}", flush=True)
+        rows.append(row)
         print(f"seed {seed}: metric WLS {d_w:.3f} PC {d_p:.3f}; relative WLS {e_w:.4f} PC {e_p:.4f}; "
               f"WLS physical {pc.wls_consistent}; chi2 {pc.chi2:.2f}", flush=True)
     m_ok = [r["metric_pc"] <= r["metric_wls"] * (1 + 1e-6) for r in rows]
@@ -88,6 +106,10 @@ def main():
         "wls_non_physical_fraction": float(np.mean([r["wls_physical"] is False for r in rows])),
         "median_rel_error_wls": float(np.median([r["rel_wls"] for r in rows])),
         "median_rel_error_pc": float(np.median([r["rel_pc"] for r in rows])),
+        **({"pc_didim_at_least_as_close_metric_fraction":
+            float(np.mean([r["pc_didim_metric"] <= r["didim_metric"] * (1 + 1e-6) for r in rows])),
+            "pc_didim_at_least_as_close_relative_fraction":
+            float(np.mean([r["pc_didim_rel"] <= r["didim_rel"] for r in rows]))} if args.didim else {}),
         "seconds": round(time.perf_counter() - t0, 1)}))
 
 
