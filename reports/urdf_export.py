@@ -16,8 +16,15 @@ Use::
     exp.to_dict()                             # choice, checks, per-link consistency (JSON)
     exp.section()                             # a report Section (id "urdf-export")
 
-For the command line: ``dynid identify ... --urdf PATH`` would call
-``export_urdf(result, robot).text`` and write it with the other outputs.
+The set is the global optimum of a semidefinite program (cvxpy + Clarabel,
+``dynid[physical]``; the log-Cholesky local search without it). With
+``physical=`` a PC-WLS result (:mod:`dynid.analysis.estimators.physical`), its
+standard set is written instead. :func:`mjcf_of` gives the same set as MuJoCo
+MJCF (:mod:`dynid.dynamics.mjcf_writer`).
+
+For the command line: ``dynid identify ... --urdf PATH [--mjcf PATH] [--physical]``
+calls ``export_urdf(result, robot, physical=...)`` and writes the texts with the
+other outputs.
 """
 from __future__ import annotations
 
