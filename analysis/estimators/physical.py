@@ -442,7 +442,9 @@ def _wls_standard_consistent(robot, bp, beta_wls):
         cons.append(chi[nonneg] >= 0)
     prob = cp.Problem(cp.Minimize(0), cons)
     try:
-        prob.solve(solver="CLARABEL")
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)     # the status says it
+            prob.solve(solver="CLARABEL")
     except cp.error.SolverError:
         return None
     if prob.status in ("infeasible", "infeasible_inaccurate"):
