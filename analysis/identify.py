@@ -10,6 +10,13 @@ name, file or :class:`~dynid.dynamics.robot.Robot`) and runs
 * ``"projection"``: the Projection Method of Bona & Curatella (2005), eqs. (10)-(12);
 * ``"ml"``: errors-in-variables maximum likelihood, eqs. (13)-(16) (needs ``f0``).
 
+With ``physical=True`` (IDIM only) the WLS of all base parameters is refitted
+under physical consistency (every link's pseudo-inertia positive
+semidefinite, Ia, Fv, Fc >= 0; Wensing, Kim & Slotine 2017), an SDP:
+:func:`~dynid.analysis.estimators.physical.identify_physical`; the result is a
+:class:`~dynid.analysis.estimators.physical.PhysicalResult` whose ``idim``
+holds the unconstrained identification.
+
 Every method returns a result with the interface of
 :class:`~dynid.analysis.results.ParameterResults`.
 """
@@ -51,7 +58,9 @@ def as_experiments(data, robot) -> list:
 
 def identify(data, robot, method: str = "idim", *, settings=None, max_error_growth: float = 0.02,
              f0: float | None = None, ml_harmonics: int | None = None, reference: str | None = None,
-             max_iter: int | None = None, update_gains=True, gains: str = "assumed", progress=None):
+             max_iter: int | None = None, update_gains=True, gains: str = "assumed", progress=None,
+             physical: bool = False, prior: str | None = None, prior_weight: float = 1.0,
+             mass_tolerance: float | None = None, n_boot: int = 100):
     """Identify the dynamic parameters of ``robot`` from ``data`` with ``method``.
 
     Parameters
@@ -78,6 +87,13 @@ def identify(data, robot, method: str = "idim", *, settings=None, max_error_grow
         result's ``gains`` holds them with their %σ. Without a logged reference the
         gains cannot be identified: the result says what its parameters depend on.
     progress : callable(fraction), optional
+    physical : IDIM only: return the physically consistent WLS (PC-WLS) instead.
+    prior, prior_weight : physical only: ``"apriori"`` adds ``prior_weight`` times the
+        squared scaled distance to the robot file's a-priori values (default: none,
+        the a-priori values only break ties).
+    mass_tolerance : physical only: keep each link mass within this fraction of its
+        a-priori value.
+    n_boot : physical only: parametric-bootstrap refits for the uncertainty.
     """
     if method not in METHODS:
         raise InputError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
@@ -86,11 +102,24 @@ def identify(data, robot, method: str = "idim", *, settings=None, max_error_grow
     if method != "idim" and len(experiments) > 1:
         raise InputError(f"method {method} identifies one recording at a time; "
                          f"{len(experiments)} were given")
+    if physical and method != "idim":
+        raise InputError(f"physical=True works with method idim only, not {method!r}")
+    if not physical and (prior is not None or mass_tolerance is not None):
+        raise InputError("prior and mass_tolerance are options of the physically consistent fit: "
+                         "pass physical=True (--physical)")
     if method == "idim":
         from dynid.analysis.estimators.idim import identify_idim
+        if physical:
+            from dynid.analysis.estimators.physical import require_cvxpy
+            require_cvxpy()          # before the identification, not after it
         ident = experiments if len(experiments) > 1 else experiments[0]
-        return identify_idim(ident, robot, settings=settings, max_error_growth=max_error_growth,
-                             progress=progress)
+        res = identify_idim(ident, robot, settings=settings, max_error_growth=max_error_growth,
+                            progress=progress)
+        if not physical:
+            return res
+        from dynid.analysis.estimators.physical import identify_physical
+        return identify_physical(res, robot, prior=prior, prior_weight=prior_weight,
+                                 mass_tolerance=mass_tolerance, n_boot=n_boot)
     exp = experiments[0]
     if method == "didim":
         from dynid.analysis.estimators.didim import DEFAULT_MAX_ITER, identify_didim

@@ -120,6 +120,9 @@ class Robot:
     couplings: list = field(default_factory=list)
     controller: Controller | None = None
     apriori: dict = field(default_factory=dict)     # parameter name -> value
+    # [apriori] mass_tolerance: a physically consistent fit keeps each link mass within this
+    # fraction of its a-priori value (None: no bound)
+    mass_tolerance: float | None = None
     provenance: dict = field(default_factory=dict)  # what -> where the numbers come from
     source: str = ""                                # file the robot was read from
     description: str = ""

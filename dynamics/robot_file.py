@@ -394,7 +394,13 @@ def robot_from_dict(doc, path="<robot>", base=None, tip=None):
     ap = doc.get("apriori", {})
     if not isinstance(ap, dict):
         raise RobotFileError(f"{path}: [apriori] must be a table with 'source' and 'values'")
-    _no_unknown_keys(ap, ("source", "values"), "[apriori]", path)
+    _no_unknown_keys(ap, ("source", "values", "mass_tolerance"), "[apriori]", path)
+    if "mass_tolerance" in ap:
+        tol = _num(ap["mass_tolerance"], "apriori.mass_tolerance", path)
+        if not 0 <= tol < 10:
+            raise RobotFileError(f"{path}: apriori.mass_tolerance must be a fraction of the a-priori mass "
+                                 f"between 0 and 10 (0.1 for +-10 %), got {tol:g}")
+        robot.mass_tolerance = tol
     values = ap.get("values", {})
     if not isinstance(values, dict):
         raise RobotFileError(f"{path}: apriori.values must be a table of name = number")

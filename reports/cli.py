@@ -326,7 +326,23 @@ def build_parser():
     p.add_argument("--csv", metavar="PATH", help="write the essential parameters as CSV here")
     p.add_argument("--urdf", metavar="PATH",
                    help="IDIM: write a URDF with a physically consistent standard parameter set that "
-                        "reproduces the identified essential parameters as closely as consistency allows")
+                        "reproduces the identified essential parameters as closely as consistency allows "
+                        "(with --physical: the PC-WLS set)")
+    p.add_argument("--mjcf", metavar="PATH",
+                   help="IDIM: write a MuJoCo MJCF of the same physically consistent set (inertials, "
+                        "armature = Ia, damping = Fv, frictionloss = Fc)")
+    g = p.add_argument_group("physically consistent identification (IDIM; needs dynid[physical])")
+    g.add_argument("--physical", action="store_true",
+                   help="refit the WLS under physical consistency (pseudo-inertias PSD, Ia, Fv, Fc >= 0), "
+                        "an SDP; JSON block \"physical\" and a report section")
+    g.add_argument("--prior", choices=["apriori"],
+                   help="--physical: regularise toward the robot file's a-priori values")
+    g.add_argument("--prior-weight", type=non_negative_float, default=1.0, metavar="W",
+                   help="--physical --prior apriori: weight of the a-priori term (default 1)")
+    g.add_argument("--mass-tolerance", type=non_negative_float, metavar="F",
+                   help="--physical: keep each link mass within this fraction of its a-priori value")
+    g.add_argument("--bootstrap", type=int, default=100, metavar="N",
+                   help="--physical: bootstrap refits for the %%sigma of the PC fit (default 100)")
     _add_processing_options(p)
 
     p = sub.add_parser("simulate", parents=[common], help="simulate a robot in closed loop to a CSV",
@@ -538,7 +554,8 @@ def cmd_robot(args, say):
     return EXIT_OK
 
 
-def _write_outputs(args, say, result, robot, experiment, validation, asym=None, export=None):
+def _write_outputs(args, say, result, robot, experiment, validation, asym=None, export=None,
+                   physical=None):
     """Render every requested output in memory, then write them all or none.
 
     Each file is written atomically (temp file + rename); if the run is
@@ -559,9 +576,14 @@ def _write_outputs(args, say, result, robot, experiment, validation, asym=None, 
             doc["asymmetric_friction"] = asym.to_dict()
         if export is not None:
             doc["urdf_export"] = export.to_dict()
+        if physical is not None:
+            doc["physical"] = physical.physical_block()
         outputs.append((args.json, dumps_json(doc)))
-    if export is not None:
+    if export is not None and args.urdf:
         outputs.append((args.urdf, export.text))
+    if export is not None and getattr(args, "mjcf", None):
+        from dynid.reports.urdf_export import mjcf_of
+        outputs.append((args.mjcf, mjcf_of(export, robot)))
     if getattr(args, "csv", None):
         outputs.append((args.csv, result.model.to_frame().to_csv()))
     if args.report:
@@ -570,6 +592,9 @@ def _write_outputs(args, say, result, robot, experiment, validation, asym=None, 
         if asym is not None:
             from dynid.reports.friction_section import asymmetric_friction_section
             extra.append(asymmetric_friction_section(asym))
+        if physical is not None:
+            from dynid.reports.physical_section import physical_section
+            extra.append(physical_section(physical))
         if export is not None:
             extra.append(export.section())
         outputs.append((args.report, render_idim_report(result, robot, experiment, validation,
@@ -583,7 +608,7 @@ def commit_outputs(outputs, say):
     write_all(outputs, say)
 
 
-OUTPUT_OPTIONS = ("json", "report", "csv", "out", "urdf")
+OUTPUT_OPTIONS = ("json", "report", "csv", "out", "urdf", "mjcf")
 #: longest file name (bytes) when the file system does not say
 NAME_MAX = 255
 #: the largest robot / experiment TOML read for the file names it refers to
@@ -799,11 +824,15 @@ def cmd_identify(args, say):
     from dynid.errors import InputError
     if args.method != "idim":
         given = [f"--{o}" for o, v in (("validation", args.validation), ("holdout", args.holdout),
-                                       ("urdf", args.urdf), ("asymmetric-friction", args.asymmetric_friction))
+                                       ("urdf", args.urdf), ("asymmetric-friction", args.asymmetric_friction),
+                                       ("mjcf", args.mjcf), ("physical", args.physical))
                  if v]
         if given:
             raise InputError(f"{', '.join(given)} work with --method idim only, not with --method "
                              f"{args.method}; run the IDIM identification for them")
+    if args.physical:
+        from dynid.analysis.estimators.physical import require_cvxpy
+        require_cvxpy()                      # before any work
     robot = _robot(args)
     say(f"robot '{robot.name}' ({robot.n_joints} joints)")
     experiments, valid = _load_data(args, say, robot, args.data)
@@ -823,14 +852,25 @@ def cmd_identify(args, say):
         asym = asymmetric_friction(experiments[0], robot, result)
     _show_clean(args, result.summary(), validation.summary() if validation is not None else "",
           asym.summary() if asym is not None else "")
+    physical = None
+    if not args.physical and (args.prior or args.mass_tolerance is not None):
+        raise InputError("--prior and --mass-tolerance are options of --physical")
+    if args.physical:
+        from dynid.analysis.estimators.physical import identify_physical
+        if args.bootstrap < 0:
+            raise InputError(f"--bootstrap must be 0 or more refits, got {args.bootstrap}")
+        say("physically consistent WLS (SDP)")
+        physical = identify_physical(result, robot, prior=args.prior, prior_weight=args.prior_weight,
+                                     mass_tolerance=args.mass_tolerance, n_boot=args.bootstrap)
+        _show_clean(args, physical.summary())
     export = None
-    if args.urdf:
+    if args.urdf or args.mjcf:
         from dynid.reports.urdf_export import export_urdf
-        say("choosing a physically consistent standard parameter set for the URDF")
-        export = export_urdf(result, robot)
+        say("choosing a physically consistent standard parameter set for the URDF/MJCF")
+        export = export_urdf(result, robot, physical=physical)
         say(f"URDF: {'consistent' if export.consistent else 'NOT consistent'}; "
             f"{'reproduces the identified values' if export.reproduces else 'does not reproduce the identified values (details in --report / --json)'}")
-    _write_outputs(args, say, result, robot, experiments[0], validation, asym, export)
+    _write_outputs(args, say, result, robot, experiments[0], validation, asym, export, physical)
     return EXIT_OK
 
 

@@ -16,8 +16,15 @@ Use::
     exp.to_dict()                             # choice, checks, per-link consistency (JSON)
     exp.section()                             # a report Section (id "urdf-export")
 
-For the command line: ``dynid identify ... --urdf PATH`` would call
-``export_urdf(result, robot).text`` and write it with the other outputs.
+The set is the global optimum of a semidefinite program (cvxpy + Clarabel,
+``dynid[physical]``; the log-Cholesky local search without it). With
+``physical=`` a PC-WLS result (:mod:`dynid.analysis.estimators.physical`), its
+standard set is written instead. :func:`mjcf_of` gives the same set as MuJoCo
+MJCF (:mod:`dynid.dynamics.mjcf_writer`).
+
+For the command line: ``dynid identify ... --urdf PATH [--mjcf PATH] [--physical]``
+calls ``export_urdf(result, robot, physical=...)`` and writes the texts with the
+other outputs.
 """
 from __future__ import annotations
 
@@ -33,7 +40,7 @@ from dynid.dynamics.urdf_writer import read_extra_parameters, urdf_text, urdf_un
 from dynid.outputs import atomic_write_text
 from dynid.provenance import json_safe
 
-__all__ = ["UrdfExport", "export_urdf", "round_trip"]
+__all__ = ["UrdfExport", "export_urdf", "round_trip", "mjcf_of"]
 
 
 @dataclass
@@ -109,6 +116,14 @@ class UrdfExport:
         return Section(id, title, body, tables=[t_target, t_links, t_std])
 
 
+def mjcf_of(export, robot) -> str:
+    """The MJCF text of the standard set of ``export`` (:mod:`dynid.dynamics.mjcf_writer`)."""
+    from dynid.dynamics.mjcf_writer import mjcf_text
+    return mjcf_text(robot, export.standard_set.chi,
+                     comment=f"dynid identification of {robot.name}: physically consistent standard set "
+                             f"({export.which}); {export.standard_set.message}")
+
+
 def _masked_errors(tau, tau_hat, mask):
     """Relative error norm and per-joint RMS over the rows the identification used."""
     mask = np.asarray(mask, dtype=bool)
@@ -147,15 +162,23 @@ def round_trip(text, robot, bp):
     return bp.from_standard(chi), back
 
 
-def export_urdf(result, robot, *, which="essential", max_nfev=400, comment=None) -> UrdfExport:
+def export_urdf(result, robot, *, which="essential", max_nfev=400, comment=None, physical=None) -> UrdfExport:
     """A URDF of ``robot`` holding a physically consistent standard set for ``result``.
 
     ``result``: an :class:`dynid.analysis.estimators.idim.IDIMResult` (or a DIDIM result);
     ``which``: reproduce the ``"essential"`` model (default; the others at 0,
-    where consistency allows) or all ``"base"`` parameters of the WLS.
+    where consistency allows) or all ``"base"`` parameters of the WLS; the set
+    is the SDP's global optimum (:func:`choose_standard_set`).
+    ``physical``: a :class:`dynid.analysis.estimators.physical.PhysicalResult` of
+    ``result``: its standard set is written (the PC-WLS fit itself, ``which`` = "physical").
     """
-    beta_hat, cov, listed = _identified(result, which)
-    ss = choose_standard_set(robot, result.base, beta_hat, cov, target_names=listed, max_nfev=max_nfev)
+    if physical is not None:
+        which = "physical"
+        beta_hat = _identified(result, "essential")[0]     # the identified model, for the comparison
+        ss = physical.to_standard_set()
+    else:
+        beta_hat, cov, listed = _identified(result, which)
+        ss = choose_standard_set(robot, result.base, beta_hat, cov, target_names=listed, max_nfev=max_nfev)
     note = comment or (f"dynid identification of {robot.name}: physically consistent standard set "
                        f"for the identified {which} parameters; data hash "
                        f"{getattr(result, 'data_hash', '') or '?'}")

@@ -29,6 +29,7 @@ PROMISED = {
     "dynid sample": ["post.json"],
     "dynid diagnose": ["diag.html", "diag.json"],
     "--urdf kuka_identified.urdf": ["kuka_identified.urdf", "kuka_urdf.json"],
+    "--physical --bootstrap 20": ["tx40_pc.urdf", "tx40_pc.xml", "tx40_pc.json"],
 }
 
 

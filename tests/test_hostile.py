@@ -91,7 +91,7 @@ class Run:
                 f"--- stderr ---\n{self.err[-3000:]}\n--- stdout ---\n{self.out[-1500:]}")
 
 
-OUTPUT_FLAGS = {"--json", "--report", "--csv", "--out", "--urdf"}
+OUTPUT_FLAGS = {"--json", "--report", "--csv", "--out", "--urdf", "--mjcf"}
 #: dynid's temporary files beside the target (dynid.outputs): ".dynid-<pid>-<12 hex>.tmp", and
 #: ".dynid-<pid>-<12 hex>.bak" (hard-linked backups of old outputs); the older layout's
 #: ".<target>.<12 hex>.tmp" is matched too

@@ -46,6 +46,11 @@ def _ml(planar2):
     return maximum_likelihood(t, q, tau, robot_model(robot, bp), f0=bs.F0, n_harmonics=10)
 
 
+def _physical(planar2):
+    robot, exp = planar2
+    return dynid.identify(exp, robot, physical=True, n_boot=30)
+
+
 def _posterior(planar2):
     return dynid.sample(_idim(planar2), seed=1, max_seconds=20)
 
@@ -55,7 +60,7 @@ def _per_joint(planar2):
 
 
 METHODS = {"idim": _idim, "didim": _didim, "projection": _projection, "ml": _ml,
-           "posterior": _posterior, "per-joint": _per_joint}
+           "posterior": _posterior, "physical": _physical, "per-joint": _per_joint}
 
 
 @pytest.fixture(scope="module", params=sorted(METHODS))

@@ -207,6 +207,7 @@ class DIDIMResult(ModelResults):
     joint_names: list = None
     timings: list = field(default_factory=list)   # seconds per step (not in to_dict)
     gains: object = None              # GainsResult when the controller gains were identified
+    physical: object = None           # PhysicalResult of the last step (physical=True: PC-DIDIM)
 
     method = "DIDIM"
 
@@ -576,7 +577,7 @@ def _masked_norm(r, mask):
 def identify_didim(experiment, robot, *, settings=None, chi0=None, tol=DEFAULT_TOL,
                    max_iter=DEFAULT_MAX_ITER, update_gains=True, essential=True, progress=None,
                    bp=None, controller=None, reference="qr", max_error_growth=0.02,
-                   workers=None) -> DIDIMResult:
+                   workers=None, physical=False) -> DIDIMResult:
     """Identify the base (and essential) parameters of ``robot`` by DIDIM (section 3).
 
     Parameters
@@ -597,6 +598,9 @@ def identify_didim(experiment, robot, *, settings=None, chi0=None, tol=DEFAULT_T
     essential : also compute the essential parameters from the last step.
     progress : callable(fraction in [0, 1]) called while the steps run.
     bp : base parameters of the robot (computed if None).
+    physical : PC-DIDIM: each Gauss-Newton step's WLS is refitted under physical consistency
+        (:func:`dynid.analysis.estimators.physical.pc_wls`), and the next step simulates that
+        physically consistent estimate; ``result.physical`` is the last step's PC fit.
     reference : ``"qr"`` (default) or ``"q"``: track the measured positions instead
         (only when the reference was not logged; a notice says so).
     max_error_growth : criterion of the essential-parameter search.
@@ -754,6 +758,10 @@ def identify_didim(experiment, robot, *, settings=None, chi0=None, tol=DEFAULT_T
         last = dict(res=res, Wd=Wd, taud=taud, mask=mask, idx=idx, q=q_s, qd=qd_s, qdd=qdd_s,
                     tau_ddm=tau_ddm, kd=kd.copy())
         beta_ls = res.chi
+        if physical:
+            from dynid.analysis.estimators.physical import pc_wls
+            last["physical"] = pc_wls(robot, bp, res.chi, res.cov, n_boot=0)
+            beta_ls = last["physical"].chi
         if progress is not None:
             progress(min(1.0, k / max_iter))
         if rho_prev is not None and rel_change <= tol and lam == 1.0:
@@ -795,4 +803,4 @@ def identify_didim(experiment, robot, *, settings=None, chi0=None, tol=DEFAULT_T
         tau_ddm=last["tau_ddm"], t_dec=t[n0:][last["idx"]], tau_dec=last["taud"],
         tau_est_dec=last["Wd"] @ res.chi, W_dec=last["Wd"], row_mask=last["mask"],
         transient_samples=n0, notices=notices, data_hash=h, source=str(experiment.source),
-        joint_names=list(robot.joint_names), timings=timings)
+        joint_names=list(robot.joint_names), timings=timings, physical=last.get("physical"))

@@ -38,7 +38,12 @@ is used only where no link inertia can carry it (``Ia1`` goes into ``ZZ1``;
 ``Ia3`` of the TX40 or of the KUKA is a base parameter of its own and stays,
 written to the URDF's ``<dynid:parameters>``).
 
-How: consistency is built into the parametrisation (log-Cholesky, Rucker &
+How (default): the problem is convex -- a quadratic objective, J_l in the
+positive-semidefinite cone, linear bounds -- and is solved as an SDP by cvxpy
+and Clarabel (:mod:`dynid.analysis.estimators.physical`), a global optimum;
+the KUKA figures below are those of the local search it replaced. Without the
+optional cvxpy (``pip install "dynid[physical]"``) or with
+``solver="log-cholesky"``: consistency is built into the parametrisation (log-Cholesky, Rucker &
 Wensing 2022: ``J_l = U U^T`` with U upper triangular and an exponentiated
 diagonal; ``Ia_j = g_j^2``), so the problem is an unconstrained nonlinear
 least squares, solved by ``scipy.optimize.least_squares`` (analytic
@@ -206,7 +211,7 @@ def _make_consistent(values, s_link):
 
 
 def choose_standard_set(robot, bp, target, cov, *, target_names=None, apriori=None, lam=1e-8,
-                        max_nfev=400) -> StandardSet:
+                        max_nfev=400, solver="sdp") -> StandardSet:
     """A physically consistent standard set for identified base parameters (see the module doc).
 
     ``target`` (b,): the identified base-parameter vector to reproduce, in the
@@ -216,6 +221,10 @@ def choose_standard_set(robot, bp, target, cov, *, target_names=None, apriori=No
     = cov^-1) is how much the weighted squared torque residual of the
     identification data grows, in units of its noise variance (a chi^2).
     ``target_names``: the parameters listed in the result's table (default all).
+    ``solver``: ``"sdp"`` (default) solves the convex problem above exactly, a
+    global optimum (:mod:`dynid.analysis.estimators.physical`, cvxpy + Clarabel,
+    with J_l positive semidefinite plus a 1e-9 margin and Fv, Fc >= 0 as well);
+    without cvxpy, or with ``"log-cholesky"``, the local search of the module doc.
     """
     names = list(robot.standard_names)
     chi_ap = apriori_standard(robot) if apriori is None else np.asarray(apriori, dtype=float)
@@ -266,9 +275,26 @@ def choose_standard_set(robot, bp, target, cov, *, target_names=None, apriori=No
                                          for sl in link_sl]),
                          (np.sqrt(np.maximum(chi_ap[ia], 0.0)) + 1e-3) * ia_free,
                          chi_ap[free]])
-    sol = scipy.optimize.least_squares(residual, x0, jac=jacobian, method="trf", xtol=1e-15,
-                                       ftol=1e-15, gtol=1e-12, max_nfev=max_nfev)
-    chi = chi_and_jac(sol.x)[0]
+    notices = []
+    sol = None
+    if solver == "sdp":
+        from dynid.errors import InputError
+        try:
+            from dynid.analysis.estimators.physical import _build
+            pb = _build(robot, bp, R, chi_ap, s, lam, None)
+        except InputError as e:
+            notices.append(f"{e}; the local log-Cholesky search was used instead of the SDP")
+            solver = "log-cholesky"
+        else:
+            chi = pb.solve(R @ b)
+            message = f"SDP (cvxpy + Clarabel): {pb.prob.status}, a global optimum"
+    elif solver != "log-cholesky":
+        raise ValueError(f"solver must be 'sdp' or 'log-cholesky', got {solver!r}")
+    if solver == "log-cholesky":
+        sol = scipy.optimize.least_squares(residual, x0, jac=jacobian, method="trf", xtol=1e-15,
+                                           ftol=1e-15, gtol=1e-12, max_nfev=max_nfev)
+        chi = chi_and_jac(sol.x)[0]
+        message = f"least_squares: {sol.message} ({sol.nfev} evaluations)"
     beta = P @ chi
     chi2 = float(np.sum((R @ (beta - b)) ** 2))
     sig = np.sqrt(np.maximum(np.diag(cov), 0.0))
@@ -281,12 +307,11 @@ def choose_standard_set(robot, bp, target, cov, *, target_names=None, apriori=No
     links = consistency(robot, chi)
     consistent = all(l["consistent"] for l in links) and bool(np.all(chi[ia] >= 0))
     reproduces = bool(chi2 <= REPRODUCE_CHI2)
-    notices = []
     if np.any(ia_free == 0):
         notices.append("rotor inertias regrouped with their link's ZZ ("
                        + ", ".join(f"Ia{j + 1}" for j in range(n) if ia_free[j] == 0)
                        + ") are written into the link's izz: URDF has no rotor inertia")
-    if not reproduces and sol.status == 0:
+    if not reproduces and sol is not None and sol.status == 0:
         notices.append(f"the optimisation stopped after {sol.nfev} evaluations (max_nfev) at chi^2 = "
                        f"{chi2:.4g}; a consistent set closer to the identified values may exist")
     elif not reproduces:
@@ -299,5 +324,4 @@ def choose_standard_set(robot, bp, target, cov, *, target_names=None, apriori=No
     return StandardSet(robot_name=robot.name, names=names, chi=chi, apriori=chi_ap, beta=beta,
                        target=table, base_names=list(bp.names), consistent=consistent,
                        reproduces=reproduces, links=links, chi2=chi2,
-                       message=f"least_squares: {sol.message} ({sol.nfev} evaluations)",
-                       notices=notices)
+                       message=message, notices=notices)

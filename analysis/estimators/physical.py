@@ -1,0 +1,478 @@
+"""Physically consistent weighted least squares (PC-WLS): an SDP over the standard parameters.
+
+The unconstrained WLS of :mod:`dynid.analysis.estimators.least_squares`
+(Gautier, Janot & Vandanjon 2010, eq. (16)) fits the base parameters
+``beta`` freely; nothing keeps them those of a rigid body. PC-WLS minimises
+the *same* weighted residual over the standard parameters ``chi``
+(``beta = P chi``, :mod:`dynid.dynamics.base_parameters`), subject to
+
+* every link's pseudo-inertia ``J_l(chi)`` positive semidefinite (Wensing,
+  Kim & Slotine 2017, "Linear matrix inequalities for physically consistent
+  inertial parameter identification", IEEE RA-L 3(1)): mass >= 0, centre of
+  mass where a non-negative density can put it, triangle inequalities;
+* actuator inertia ``Ia >= 0``, viscous ``Fv >= 0`` and Coulomb ``Fc >= 0``
+  friction (also those of a coupled motor);
+* optionally each mass within a fraction of its a-priori value
+  (``mass_tolerance``).
+
+Why the objective is written in base-parameter space. With the per-joint
+weights 1/sigma_j of the WLS kept fixed, the weighted squared residual of
+any beta is ``||W~ beta - Y~||^2 = ||W~ beta_wls - Y~||^2 + ||R (beta -
+beta_wls)||^2`` with ``R^T R = W~^T W~`` (Pythagoras on the range of W~). So
+
+    minimise   ||R_c (P chi - beta_wls)||^2  +  w * sum_i ((chi_i - chi_ap_i) / s_i)^2
+    subject to the constraints above,               R_c^T R_c = cov_wls^-1,
+
+has the PC-WLS solution, and its first term (call it Delta) is the growth of
+the weighted squared residual in units of the WLS error variance
+sigma_rho^2 (eq. (13)): a chi^2 statistic. ``chi_ap`` are the robot file's
+a-priori values and ``s_i`` per-parameter scales (as in
+:mod:`dynid.analysis.estimators.standard_set`). The second term is the
+Euclidean regularisation toward the a-priori values; ``w`` is reported. With
+``prior=None`` it is only a tie-break (``w = 1e-8``): the data see the base
+parameters only, and among the standard sets with the same fit the one
+closest to the a-priori values is returned.
+
+The test "the data want a non-physical model". Under the hypothesis that
+the true parameters are physically consistent, Delta is a chi-bar-squared
+variable (a mixture of chi^2_0 .. chi^2_k over the k active constraint
+directions; Shapiro 1985, Kodde & Palm 1986), and P(chi-bar^2 > c) <=
+P(chi^2_k > c). The reported ``p_value`` is that bound with k the number of
+active scalar constraints (``r (r + 1) / 2`` for a pseudo-inertia of nullity
+r, 1 per bound), so it is conservative: a small p-value means the data
+really want a non-physical model (a modelling error worth diagnosing), a
+large one that the constraint costs nothing worth noticing.
+
+Uncertainty: a parametric bootstrap of the constrained fit (``n_boot``
+draws). The PC fit depends on the data only through ``beta_wls``, whose
+distribution under Gaussian errors is N(beta, cov_wls); so draws beta* ~
+N(P chi_pc, cov_wls) are exactly the WLS estimates of data simulated from
+the fitted physical model, and each is re-fitted under the constraints.
+Standard errors are the spread of the refits; intervals are their
+percentiles (``conf_int``), which stay one-sided where a constraint is
+active instead of crossing into the non-physical region as a normal interval
+would. (Chosen over the unconstrained covariance projected on the inactive
+directions because it needs no decision about which constraints are
+"active enough"; at an active constraint percentile intervals can still
+under-cover, see Andrews 2000, which the coverage test on simulated data
+checks.)
+
+Solved with cvxpy and the Clarabel interior-point solver (optional extra
+``dynid[physical]``). The problem is convex, so the solution is a global
+optimum, unlike the log-Cholesky local search of
+:func:`dynid.analysis.estimators.standard_set.choose_standard_set`.
+"""
+from __future__ import annotations
+
+import math
+import time
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from dynid.analysis.estimators.standard_set import apriori_standard, scales
+from dynid.analysis.results import ParameterResults
+from dynid.dynamics.urdf_writer import consistency, inertial_slice, pseudo_inertia_basis
+from dynid.errors import InputError
+
+__all__ = ["PhysicalResult", "pc_wls", "identify_physical", "require_cvxpy", "TIE_BREAK"]
+
+#: weight of the a-priori term when no prior is asked for: it only picks one standard set
+#: among those with the same base parameters
+TIE_BREAK = 1e-8
+#: the pseudo-inertia must exceed this multiple of the identity (kg, kg m, kg m^2): a link
+#: exactly on the boundary (a rod) is reported active, not flagged inconsistent by rounding
+J_MARGIN = 1e-9
+#: a constraint counts as active when its slack is below this fraction of its scale
+ACTIVE_RTOL = 1e-5
+_NONNEG = ("Ia", "Fv", "Fc")
+
+
+def require_cvxpy():
+    """Import cvxpy (with Clarabel) or say how to install it."""
+    try:
+        import cvxpy as cp
+    except ImportError:
+        raise InputError('physically consistent identification (--physical, --urdf, --mjcf) needs '
+                         'the optional packages cvxpy and clarabel: pip install "dynid[physical]"') from None
+    if "CLARABEL" not in cp.installed_solvers():
+        raise InputError('cvxpy is installed without the Clarabel solver: pip install "dynid[physical]" '
+                         '(or pip install clarabel)')
+    return cp
+
+
+def _whitening(cov):
+    """R with R^T R = cov^-1, tolerant of a nearly singular cov (as standard_set does)."""
+    cov = np.asarray(cov, dtype=float)
+    w, V = np.linalg.eigh(0.5 * (cov + cov.T))
+    w = np.maximum(w, w.max() * 1e-14)
+    return (V / np.sqrt(w)).T
+
+
+@dataclass
+class _Problem:
+    """The compiled SDP, re-solved with another target by changing one parameter (bootstrap)."""
+
+    cp: object
+    prob: object
+    z: object            # variable: chi / s
+    target: object       # parameter: R beta_target
+    s: np.ndarray
+    names: list
+    nonneg: list         # indices of Ia, Fv, Fc parameters
+    mass_idx: list
+    links: list          # slices of the inertial parameters
+    mass_bounds: dict    # index -> (lo, hi)
+
+    def solve(self, t):
+        self.target.value = np.asarray(t, dtype=float)
+        try:
+            with warnings.catch_warnings():
+                # "optimal_inaccurate" is reported in the status (and the result's notices)
+                warnings.simplefilter("ignore", UserWarning)
+                self.prob.solve(solver="CLARABEL")
+        except self.cp.error.SolverError as e:
+            raise InputError(f"the physically consistent fit failed in the SDP solver: {e}") from None
+        if self.prob.status not in ("optimal", "optimal_inaccurate"):
+            raise InputError(f"the physically consistent fit has no solution (solver status "
+                             f"{self.prob.status}); check the mass bounds of the robot file")
+        return self.s * np.asarray(self.z.value, dtype=float)
+
+
+def _build(robot, bp, R, chi_ap, s, weight, mass_tolerance, nonneg_kinds=_NONNEG):
+    cp = require_cvxpy()
+    names = list(robot.standard_names)
+    n_std = len(names)
+    P = bp.matrix
+    z = cp.Variable(n_std)
+    target = cp.Parameter(R.shape[0])
+    A = R @ P * s[None, :]
+    E = pseudo_inertia_basis()
+    links = [inertial_slice(robot, j) for j in range(robot.n_joints)]
+    cons = []
+    for sl in links:
+        ss = s[sl]
+        J = sum(E[k] * ss[k] * z[sl.start + k] for k in range(10))
+        cons.append(J - J_MARGIN * np.eye(4) >> 0)
+    nonneg = [i for i, nm in enumerate(names) if nm.rstrip("0123456789").rstrip("m") in nonneg_kinds]
+    if nonneg:
+        cons.append(z[nonneg] >= 0)
+    mass_idx = [names.index(f"M{j + 1}") for j in range(robot.n_joints)]
+    bounds = {}
+    if mass_tolerance is not None:
+        tol = float(mass_tolerance)
+        if not (math.isfinite(tol) and tol >= 0):
+            raise InputError(f"mass_tolerance must be a fraction >= 0 (0.1 for +-10 %), got {mass_tolerance!r}")
+        for i in mass_idx:
+            if chi_ap[i] > 0:
+                bounds[i] = ((1 - tol) * chi_ap[i], (1 + tol) * chi_ap[i])
+                cons += [z[i] >= bounds[i][0] / s[i], z[i] <= bounds[i][1] / s[i]]
+    obj = cp.sum_squares(A @ z - target) + weight * cp.sum_squares(z - chi_ap / s)
+    prob = cp.Problem(cp.Minimize(obj), cons)
+    return _Problem(cp, prob, z, target, s, names, nonneg, mass_idx, links, bounds)
+
+
+def _active(pb, chi):
+    """The active constraints at chi: (labels, number of scalar directions)."""
+    E = pseudo_inertia_basis()
+    labels, k = [], 0
+    for j, sl in enumerate(pb.links):
+        J = np.tensordot(chi[sl], E, axes=1)
+        w = np.linalg.eigvalsh(J)
+        null = int(np.sum(w <= ACTIVE_RTOL * max(w[-1], 1e-12) + 10 * J_MARGIN))
+        if null:
+            labels.append(f"pseudo-inertia of link {j + 1} singular (nullity {null})")
+            k += null * (null + 1) // 2
+    for i in pb.nonneg:
+        if chi[i] <= ACTIVE_RTOL * pb.s[i]:
+            labels.append(f"{pb.names[i]} = 0")
+            k += 1
+    for i, (lo, hi) in pb.mass_bounds.items():
+        if chi[i] <= lo + ACTIVE_RTOL * pb.s[i] or chi[i] >= hi - ACTIVE_RTOL * pb.s[i]:
+            labels.append(f"{pb.names[i]} at its bound {lo if chi[i] < 0.5 * (lo + hi) else hi:.4g} kg")
+            k += 1
+    return labels, k
+
+
+@dataclass(eq=False)
+class PhysicalResult(ParameterResults):
+    """A physically consistent WLS estimate (the :class:`ParameterResults` interface).
+
+    ``names``/``params``/``bse``/``cov``: all base parameters, ``beta = P chi``;
+    ``bse`` and ``cov`` from the parametric bootstrap (see the module doc);
+    ``conf_int`` are bootstrap percentile intervals. ``standard``: the
+    standard set (what a URDF or MJCF holds).
+    """
+
+    method = "PC-WLS"
+
+    robot_name: str
+    names: list
+    chi: np.ndarray                  # base parameters of the PC solution
+    cov: np.ndarray                  # bootstrap covariance (WLS covariance when n_boot = 0)
+    standard_names: list
+    standard: np.ndarray             # the standard set
+    apriori: np.ndarray
+    wls_chi: np.ndarray              # the unconstrained WLS estimate it is compared with
+    wls_cov: np.ndarray
+    chi2: float                      # growth of the weighted squared residual / sigma_rho^2
+    dof: int                         # active scalar constraints (k of the chi-bar^2 bound)
+    p_value: float
+    active: list
+    links: list                      # per-link consistency checks of the standard set
+    prior: str | None
+    prior_weight: float
+    mass_tolerance: float | None
+    n_boot: int
+    boot: np.ndarray | None = None   # (n_boot, b) bootstrap refits of the base parameters
+    solve_seconds: float = math.nan
+    wls_consistent: bool | None = None   # was the unconstrained estimate physical?
+    rel_error: float = math.nan          # ||Y - W beta|| / ||Y|| on the identification data
+    wls_rel_error: float = math.nan
+    notices: list = field(default_factory=list)
+    data_hash: str = ""
+    idim: object = None              # the IDIMResult it came from, when it did
+
+    @property
+    def consistent(self) -> bool:
+        return all(lk["consistent"] for lk in self.links) and all(
+            self.standard[i] >= -1e-12 for i, nm in enumerate(self.standard_names)
+            if nm.rstrip("0123456789").rstrip("m") in _NONNEG)
+
+    @property
+    def base(self):
+        """The base parameters (of the IDIM result it came from): what validate() needs."""
+        return getattr(self.idim, "base", None)
+
+    @property
+    def settings(self):
+        return getattr(self.idim, "settings", {})
+
+    @property
+    def robot(self):
+        return getattr(self.idim, "robot", None)
+
+    @property
+    def sigma(self):
+        return self.bse.to_numpy()
+
+    def conf_int(self, alpha: float = 0.05) -> pd.DataFrame:
+        """Bootstrap percentile intervals (normal ones when there is no bootstrap)."""
+        if self.boot is None or len(self.boot) < 20:
+            return super().conf_int(alpha)
+        from dynid.analysis.results import _check_alpha
+        _check_alpha(alpha)
+        lo, hi = np.quantile(self.boot, [alpha / 2, 1 - alpha / 2], axis=0)
+        return pd.DataFrame({"lower": lo, "upper": hi}, index=self._index())
+
+    def standard_frame(self) -> pd.DataFrame:
+        return pd.DataFrame({"apriori": self.apriori, "value": self.standard},
+                            index=pd.Index(self.standard_names, name="parameter"))
+
+    def comparison(self) -> pd.DataFrame:
+        """Per base parameter: WLS value and sigma, PC value and bootstrap sigma, shift in WLS sigma."""
+        s_wls = np.sqrt(np.maximum(np.diag(self.wls_cov), 0))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return pd.DataFrame({"wls": self.wls_chi, "wls_std": s_wls,
+                                 "wls_rel_std_percent": 100 * s_wls / np.abs(self.wls_chi),
+                                 "pc": self.chi, "pc_std": self.sigma,
+                                 "shift_sigma": (self.chi - self.wls_chi) / s_wls},
+                                index=self._index())
+
+    def to_standard_set(self):
+        """The PC standard set as a :class:`~dynid.analysis.estimators.standard_set.StandardSet`
+        (what the URDF export writes), its targets the unconstrained WLS values."""
+        from dynid.analysis.estimators.standard_set import REPRODUCE_CHI2, StandardSet
+        sig = np.sqrt(np.maximum(np.diag(self.wls_cov), 0.0))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            dev = (self.chi - self.wls_chi) / sig
+        table = pd.DataFrame({"identified": self.wls_chi, "std": sig, "chosen": self.chi,
+                              "deviation_sigma": dev}, index=pd.Index(self.names, name="base parameter"))
+        notices = [] if self.chi2 <= REPRODUCE_CHI2 else [
+            f"PC-WLS: {self.verdict_line()}; active: {', '.join(self.active) or 'none'}"]
+        return StandardSet(robot_name=self.robot_name, names=list(self.standard_names), chi=self.standard,
+                           apriori=self.apriori, beta=self.chi, target=table, base_names=list(self.names),
+                           consistent=self.consistent, reproduces=bool(self.chi2 <= REPRODUCE_CHI2),
+                           links=self.links, chi2=self.chi2,
+                           message="PC-WLS (SDP, cvxpy + Clarabel): the physically consistent fit itself",
+                           notices=notices)
+
+    def predict(self, W_base):
+        """Torques (N, n) from a base regressor (N, n, b)."""
+        return np.asarray(W_base) @ self.chi
+
+    def physical_block(self) -> dict:
+        """The JSON block ``"physical"`` of ``dynid identify --physical``."""
+        from dynid.provenance import json_safe
+        return json_safe({
+            "consistent": self.consistent, "active": self.active, "chi2": self.chi2, "dof": self.dof,
+            "p_value": self.p_value, "unconstrained_consistent": self.wls_consistent,
+            "prior": self.prior, "prior_weight": self.prior_weight, "mass_tolerance": self.mass_tolerance,
+            "rel_error": self.rel_error, "wls_rel_error": self.wls_rel_error,
+            "n_boot": self.n_boot, "solve_seconds": self.solve_seconds,
+            "test": ("chi2 = growth of the weighted squared residual over the unconstrained WLS, in "
+                     "units of its error variance; p_value = P(chi2_dof > chi2), an upper bound of the "
+                     "chi-bar-squared p-value with dof = active scalar constraints"),
+            "parameters": [{"name": n, "value": v, "std": s, "wls": w}
+                           for n, v, s, w in zip(self.names, self.chi, self.sigma, self.wls_chi)],
+            "standard_parameters": [{"name": n, "value": v, "apriori": a} for n, v, a in
+                                    zip(self.standard_names, self.standard, self.apriori)],
+            "links": self.links,
+            "notices": self.notices,
+        })
+
+    def to_dict(self) -> dict:
+        from dynid.provenance import json_safe, versions
+        return json_safe({"method": self.method, "robot": self.robot_name,
+                          "parameters": [{"name": n, "value": v, "std": s, "rel_std_percent": r}
+                                         for n, v, s, r in zip(self.names, self.chi, self.sigma,
+                                                               self.rel_std.to_numpy())],
+                          "physical": self.physical_block(), "data_hash": self.data_hash,
+                          "versions": versions()})
+
+    def verdict_line(self) -> str:
+        if not self.active or self.chi2 < 1e-6:
+            return "the constraints cost nothing: the unconstrained fit is (or is as good as) physical"
+        if self.p_value < 0.01:
+            return (f"the data want a non-physical model (chi2 = {self.chi2:.4g} on {self.dof} active "
+                    f"constraint directions, p <= {self.p_value:.2g}): a modelling error worth diagnosing")
+        return (f"the constraints cost little (chi2 = {self.chi2:.4g}, p <= {self.p_value:.2g}): "
+                f"compatible with a physical model")
+
+    def summary(self) -> str:
+        lines = [f"Physically consistent WLS (PC-WLS, SDP) of robot '{self.robot_name}'",
+                 f"  every link consistent: {'yes' if self.consistent else 'NO'}; unconstrained WLS "
+                 f"physical: {'yes' if self.wls_consistent else 'no'}",
+                 f"  active constraints: {', '.join(self.active) or 'none'}",
+                 f"  chi2 = {self.chi2:.4g} (dof {self.dof}), p <= {self.p_value:.3g}: {self.verdict_line()}",
+                 f"  relative error ||Y - W beta|| / ||Y||: PC {self.rel_error:.4f}, WLS {self.wls_rel_error:.4f}",
+                 f"  a-priori term: {self.prior or 'tie-break only'}, weight {self.prior_weight:g}; "
+                 f"%sigma from {self.n_boot} bootstrap refits",
+                 f"{'Parameter':<14}{'PC':>14}{'sigma':>12}{'%sigma':>9}{'WLS':>14}{'shift [sigma]':>15}"]
+        for name, r in self.comparison().iterrows():
+            rs = 100 * r.pc_std / abs(r.pc) if r.pc else math.inf
+            lines.append(f"{name:<14}{r.pc:>14.6g}{r.pc_std:>12.4g}{rs:>9.2f}{r.wls:>14.6g}"
+                         f"{r.shift_sigma:>15.2f}")
+        if self.notices:
+            lines += ["Notices:"] + [f"  - {n}" for n in self.notices]
+        return "\n".join(lines)
+
+
+def pc_wls(robot, bp, beta_wls, cov_wls, *, prior=None, prior_weight=1.0, mass_tolerance=None,
+           n_boot=100, seed=0, apriori=None) -> PhysicalResult:
+    """PC-WLS from an unconstrained WLS estimate ``beta_wls`` (b,) and its covariance (b, b).
+
+    ``prior``: None (a-priori values only break ties) or ``"apriori"`` (add
+    ``prior_weight * sum(((chi - chi_ap) / s)^2)``, Euclidean, to the chi^2).
+    ``mass_tolerance``: keep each link mass within this fraction of its
+    a-priori value (default: the robot file's ``[apriori] mass_tolerance``, else none). ``n_boot``: parametric-bootstrap refits for the
+    uncertainty (0: the WLS covariance is reported, with a notice).
+    """
+    if prior not in (None, "apriori"):
+        raise InputError(f"prior must be None or 'apriori', got {prior!r}")
+    w = float(prior_weight) if prior == "apriori" else TIE_BREAK
+    if not (math.isfinite(w) and w >= 0):
+        raise InputError(f"prior_weight must be a number >= 0, got {prior_weight!r}")
+    if int(n_boot) < 0:
+        raise InputError(f"n_boot must be >= 0, got {n_boot!r}")
+    beta_wls = np.asarray(beta_wls, dtype=float)
+    cov_wls = np.asarray(cov_wls, dtype=float)
+    if beta_wls.shape != (bp.n_base,) or cov_wls.shape != (bp.n_base, bp.n_base):
+        raise InputError(f"pc_wls: {bp.n_base} base parameters expected, got an estimate of shape "
+                         f"{beta_wls.shape} and a covariance of shape {cov_wls.shape}")
+    chi_ap = apriori_standard(robot) if apriori is None else np.asarray(apriori, dtype=float)
+    s = scales(robot, chi_ap)
+    R = _whitening(cov_wls)
+    if mass_tolerance is None:
+        mass_tolerance = getattr(robot, "mass_tolerance", None)      # [apriori] mass_tolerance
+    pb = _build(robot, bp, R, chi_ap, s, w, mass_tolerance)
+    t0 = time.perf_counter()
+    chi = pb.solve(R @ beta_wls)
+    seconds = time.perf_counter() - t0
+    status = pb.prob.status
+    beta = bp.matrix @ chi
+    chi2 = float(np.sum((R @ (beta - beta_wls)) ** 2))
+    active, k = _active(pb, chi)
+    from scipy import stats
+    p = 1.0 if k == 0 else float(stats.chi2.sf(chi2, min(k, bp.n_base)))
+    notices = []
+    if status != "optimal":
+        notices.append(f"the SDP solver ended with status {status}: the solution is feasible to the "
+                       "solver's tolerance but its last digits may be off")
+    boot = None
+    if n_boot:
+        rng = np.random.default_rng(seed)
+        # a square root by eigen-decomposition: a Cholesky factor can fail on the nearly
+        # singular covariance of a badly excited parameter
+        w_c, V_c = np.linalg.eigh(0.5 * (cov_wls + cov_wls.T))
+        L = V_c * np.sqrt(np.maximum(w_c, 0.0))
+        draws = beta + rng.standard_normal((int(n_boot), bp.n_base)) @ L.T
+        boot = np.array([bp.matrix @ pb.solve(R @ d) for d in draws])
+        cov = np.cov(boot, rowvar=False).reshape(bp.n_base, bp.n_base)
+    else:
+        cov = cov_wls
+        notices.append("no bootstrap (n_boot = 0): the reported sigma is the unconstrained WLS one, "
+                       "which overstates the uncertainty where a constraint is active")
+    wls_std = _wls_standard_consistent(robot, bp, beta_wls)
+    if wls_std is False:
+        notices.append("the unconstrained WLS base parameters are those of no rigid body "
+                       "(no consistent standard set reproduces them)")
+    return PhysicalResult(robot_name=robot.name, names=list(bp.names), chi=beta, cov=cov,
+                          standard_names=pb.names, standard=chi, apriori=chi_ap, wls_chi=beta_wls,
+                          wls_cov=cov_wls, chi2=chi2, dof=k, p_value=p, active=active,
+                          links=consistency(robot, chi), prior=prior, prior_weight=w,
+                          mass_tolerance=mass_tolerance, n_boot=int(n_boot), boot=boot,
+                          solve_seconds=seconds, wls_consistent=wls_std, notices=notices)
+
+
+def _wls_standard_consistent(robot, bp, beta_wls):
+    """Whether some consistent standard set reproduces beta_wls exactly (a feasibility SDP)."""
+    cp = require_cvxpy()
+    n_std = robot.n_standard
+    chi = cp.Variable(n_std)
+    E = pseudo_inertia_basis()
+    cons = [bp.matrix @ chi == beta_wls]
+    for j in range(robot.n_joints):
+        sl = inertial_slice(robot, j)
+        cons.append(sum(E[k] * chi[sl.start + k] for k in range(10)) >> 0)
+    nonneg = [i for i, nm in enumerate(robot.standard_names) if nm.rstrip("0123456789").rstrip("m") in _NONNEG]
+    if nonneg:
+        cons.append(chi[nonneg] >= 0)
+    prob = cp.Problem(cp.Minimize(0), cons)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)     # the status says it
+            prob.solve(solver="CLARABEL")
+    except cp.error.SolverError:
+        return None
+    if prob.status in ("infeasible", "infeasible_inaccurate"):
+        return False
+    return True if prob.status in ("optimal", "optimal_inaccurate") else None
+
+
+def identify_physical(result, robot, *, prior=None, prior_weight=1.0, mass_tolerance=None,
+                      n_boot=100, seed=0) -> PhysicalResult:
+    """PC-WLS of an IDIM result: its WLS of all base parameters, constrained.
+
+    The base regressor, the decimation and the per-joint weights 1/sigma_j are
+    those of ``result`` (:func:`dynid.analysis.estimators.idim.identify_idim`).
+    """
+    wls = getattr(result, "wls", None)
+    if wls is None or getattr(result, "base", None) is None:
+        raise InputError("the physically consistent fit starts from an IDIM result (its WLS of all base "
+                         f"parameters); got {type(result).__name__}")
+    res = pc_wls(robot, result.base, wls.chi, wls.cov, prior=prior, prior_weight=prior_weight,
+                 mass_tolerance=mass_tolerance, n_boot=n_boot, seed=seed)
+    obs = getattr(result, "observation", None)
+    if obs is not None:
+        mask = np.asarray(obs.row_mask, dtype=bool)
+        if mask.ndim == 1:
+            mask = np.broadcast_to(mask[:, None], obs.tau.shape)
+        y = np.where(mask, obs.tau, 0.0)
+        res.rel_error = float(np.linalg.norm(np.where(mask, obs.tau - obs.W @ res.chi, 0.0)) / np.linalg.norm(y))
+        res.wls_rel_error = float(wls.rel_error)
+    res.idim = result
+    res.data_hash = getattr(result, "data_hash", "") or ""
+    return res

@@ -1,0 +1,162 @@
+"""Writing a robot and a standard-parameter set as MuJoCo MJCF.
+
+Per link a ``<body>`` placed like dynid's joint frame (``pos``/``quat`` of
+the joint placement, then a ``hinge`` -- or ``slide`` -- joint along its z
+axis, as :mod:`dynid.dynamics.urdf_writer` does), its ``<inertial>`` (mass,
+centre of mass, full inertia about the centre of mass), and per joint
+
+* ``armature`` = Ia (rotor inertia reflected to the joint: MuJoCo adds it to
+  the diagonal of the joint-space inertia, exactly dynid's Ia qdd);
+* ``damping`` = Fv (MuJoCo's passive force -Fv qd, dynid's Fv qd);
+* ``frictionloss`` = Fc. This is *not* dynid's Coulomb term Fc sign(qd):
+  MuJoCo makes dry friction a soft constraint solved with the other
+  constraints, a force of magnitude at most Fc that opposes the motion
+  without the sign discontinuity (near qd = 0 it is smaller than Fc, it
+  holds a joint at rest against a load below Fc, and the soft-constraint
+  parameters ``solreffriction``/``solimpfriction`` set how quickly it
+  saturates). The file sets ``solimpfriction`` near-hard (:data:`SOLIMP_FRICTION`)
+  so that inverse dynamics (``mj_inverse``) of a moving joint give Fc sign(qd).
+
+A coupled rotor (the TX40 wrist: rotor 6 turns with q5 + q6; section 4 of
+Gautier, Janot & Vandanjon 2010, eq. (33)) is a fixed ``<tendon>`` over the
+joints it turns with, coefficients ``c_k / c_motor``: its ``armature`` Ia_motor
+adds Ia_motor c c^T / c_motor^2 to M, so the joints' own armatures are
+lowered by the diagonal part dynid already counts in their Ia; its
+``damping`` and ``frictionloss`` are the motor friction ``Fvm``, ``Fcm`` (times
+c_motor, as the tendon's velocity is w / c_motor). What MJCF has no field for:
+the torque offset ``Off`` (a constant added to the measured torque, not a
+property of the arm); it is listed in a comment and is in the JSON.
+Gravity is MJCF's ``<option gravity>``, in dynid's base frame (MuJoCo's world).
+One ``<motor>`` actuator per joint (gear 1, unbounded) drives it with torque.
+Bodies get no geometry: the model is for dynamics, not for contact.
+"""
+from __future__ import annotations
+
+import math
+import xml.etree.ElementTree as ET
+
+import numpy as np
+
+from dynid.dynamics.urdf_writer import _f, _vec, inertial_slice, link_inertial
+from dynid.errors import InputError
+
+__all__ = ["mjcf_text", "mjcf_unrepresentable", "SOLIMP_FRICTION"]
+
+#: near-hard dry friction: with MuJoCo's default impedance (d = 0.9 .. 0.95) the friction force of
+#: a light joint (a wrist) stays well below Fc at the speeds of an identification trajectory,
+#: because the constraint's regulariser scales with the joint's inverse inertia; with d = 0.9999
+#: a moving joint gets Fc sign(qd), dynid's model, and one at rest is still held softly
+SOLIMP_FRICTION = "0.9999 0.9999 0.001 0.5 2"
+
+_FRICTION_NOTE = (
+    "frictionloss is MuJoCo's dry friction: a soft constraint force of magnitude at most Fc that "
+    "opposes the motion, with no sign discontinuity (dynid's model is Fc sign(qd)); damping = Fv "
+    "(viscous), armature = Ia (rotor inertia). Not written (no MJCF field): ")
+
+
+def _quat(R):
+    """Unit quaternion (w, x, y, z) of a rotation matrix (Shepperd's method)."""
+    R = np.asarray(R, dtype=float)
+    tr = np.trace(R)
+    if tr > 0:
+        s = 2.0 * math.sqrt(tr + 1.0)
+        q = [0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s]
+    else:
+        i = int(np.argmax(np.diag(R)))
+        j, k = (i + 1) % 3, (i + 2) % 3
+        s = 2.0 * math.sqrt(max(1.0 + R[i, i] - R[j, j] - R[k, k], 1e-300))
+        q = [0.0] * 4
+        q[0] = (R[k, j] - R[j, k]) / s
+        q[1 + i] = 0.25 * s
+        q[1 + j] = (R[j, i] + R[i, j]) / s
+        q[1 + k] = (R[k, i] + R[i, k]) / s
+    q = np.array(q)
+    return q / np.linalg.norm(q)
+
+
+def mjcf_unrepresentable(robot) -> list:
+    """Standard parameters of ``robot`` an MJCF has no field for (Off, coupled-rotor friction)."""
+    per_joint = {f"{s}{j + 1}" for j in range(robot.n_joints) for s in ("Ia", "Fv", "Fc")}
+    per_joint |= {nm for c in robot.couplings for nm in c.parameter_names}
+    inertial = {nm for j in range(robot.n_joints) for nm in robot.standard_names[inertial_slice(robot, j)]}
+    return [n for n in robot.standard_names if n not in per_joint and n not in inertial]
+
+
+def mjcf_text(robot, chi_st, *, name=None, comment="") -> str:
+    """The MJCF of ``robot`` with the standard parameters ``chi_st`` (see the module doc).
+
+    Every link must be physically consistent with positive mass (MuJoCo's
+    compiler rejects others): export a PC-WLS solution
+    (:mod:`dynid.analysis.estimators.physical`), not an unconstrained fit.
+    """
+    chi_st = np.asarray(chi_st, dtype=float)
+    if chi_st.shape != (robot.n_standard,):
+        raise InputError(f"mjcf_text: {chi_st.size} values given, robot '{robot.name}' has "
+                         f"{robot.n_standard} standard parameters")
+    if not np.all(np.isfinite(chi_st)):
+        raise InputError("mjcf_text: the standard parameters hold NaN or infinite values")
+    value = dict(zip(robot.standard_names, chi_st))
+    root = ET.Element("mujoco", {"model": name or robot.name})
+    if comment:
+        root.append(ET.Comment(" " + comment.replace("--", "-") + " "))
+    missing = mjcf_unrepresentable(robot)
+    note = _FRICTION_NOTE + (", ".join(f"{n} = {_f(value[n])}" for n in missing) or "nothing")
+    armature = np.array([value[f"Ia{j + 1}"] for j in range(robot.n_joints)])
+    tendons = []
+    for c in robot.couplings:
+        coef = np.asarray(c.coefficients, dtype=float)
+        cm = coef[list(c.joints).index(c.motor)] if c.motor in c.joints else 1.0
+        ia_m = value[f"Ia{c.motor}"]
+        for jn, k in zip(c.joints, coef):
+            armature[jn - 1] -= ia_m * (k / cm) ** 2
+        fv, fc = ((value[f"Fvm{c.motor}"], value[f"Fcm{c.motor}"]) if c.friction else (0.0, 0.0))
+        tendons.append((c, coef / cm, ia_m, fv * cm * cm, fc * abs(cm)))
+        note += (f"; rotor {c.motor} turns joints {list(c.joints)}: tendon {robot.name}_rotor{c.motor}, "
+                 f"joint armatures lowered by the part of Ia{c.motor} it carries")
+    clipped = [j + 1 for j in range(robot.n_joints) if armature[j] < 0]
+    if clipped:
+        note += ("; armature of joint(s) " + ", ".join(map(str, clipped)) + " would be negative "
+                 "(joint Ia below the coupled rotor's share) and is written 0")
+        armature = np.maximum(armature, 0.0)
+    root.append(ET.Comment(" " + note.replace("--", "-") + " "))
+    # balanceinertia off: the written inertia is the identified one, never adjusted by the compiler
+    ET.SubElement(root, "compiler", {"angle": "radian", "balanceinertia": "false", "autolimits": "true"})
+    ET.SubElement(root, "option", {"gravity": _vec(robot.gravity)})
+    parent = ET.SubElement(root, "worldbody")
+    joint_names = []
+    for j, joint in enumerate(robot.joints):
+        k = j + 1
+        m, h, I_o = link_inertial(chi_st[inertial_slice(robot, j)])
+        if not m > 0:
+            raise InputError(f"mjcf_text: link {k} has mass {m:g}; MuJoCo needs a positive mass on every "
+                             "moving body: export a physically consistent set (--physical)")
+        body = ET.SubElement(parent, "body", {"name": f"{robot.name}_link{k}", "pos": _vec(joint.p),
+                                              "quat": _vec(_quat(joint.R))})
+        attrs = {"name": joint.name, "type": "slide" if joint.sigma == 1 else "hinge",
+                 "pos": "0 0 0", "axis": "0 0 1", "armature": _f(armature[j]),
+                 "damping": _f(value[f"Fv{k}"]), "frictionloss": _f(value[f"Fc{k}"]),
+                 "solimpfriction": SOLIMP_FRICTION}
+        lo, hi = joint.q_limits
+        if math.isfinite(lo) and math.isfinite(hi):
+            attrs["range"] = f"{_f(lo)} {_f(hi)}"
+        ET.SubElement(body, "joint", attrs)
+        joint_names.append(joint.name)
+        c = h / m
+        I_c = I_o - m * (c @ c * np.eye(3) - np.outer(c, c))
+        ET.SubElement(body, "inertial", {
+            "pos": _vec(c), "mass": _f(m),
+            "fullinertia": _vec([I_c[0, 0], I_c[1, 1], I_c[2, 2], I_c[0, 1], I_c[0, 2], I_c[1, 2]])})
+        parent = body
+    if tendons:
+        ten = ET.SubElement(root, "tendon")
+        for c, coef, ia_m, fv, fc in tendons:
+            fixed = ET.SubElement(ten, "fixed", {"name": f"{robot.name}_rotor{c.motor}", "armature": _f(ia_m),
+                                                 "damping": _f(fv), "frictionloss": _f(fc),
+                                                 "solimpfriction": SOLIMP_FRICTION})
+            for jn, k in zip(c.joints, coef):
+                ET.SubElement(fixed, "joint", {"joint": robot.joints[jn - 1].name, "coef": _f(k)})
+    act = ET.SubElement(root, "actuator")
+    for nm in joint_names:
+        ET.SubElement(act, "motor", {"name": f"{nm}_motor", "joint": nm, "gear": "1"})
+    ET.indent(root, space="  ")
+    return ET.tostring(root, encoding="unicode") + "\n"
