@@ -116,6 +116,10 @@ def main():
         specs, _ = plan(fleet.catalogue, ResultStore(root / "none"))
         good = [s for s in specs if s["path"] not in set(fleet.corrupted)]
         subset = good[:args.scaling_tasks]
+        missing = [s["path"] for s in subset if not Path(s["path"]).exists()]
+        if missing:         # timing tasks that only report "file not found" would measure nothing
+            raise SystemExit(f"{len(missing)} of the {len(subset)} scaling recordings are missing (e.g. "
+                             f"{missing[0]}); run without --reuse to simulate the fleet again")
         warm = good[-4:]
         # reference: 1 worker, run first
         with LocalCluster(**{**kw, "n_workers": 1}) as cluster1, Client(cluster1) as client1:
