@@ -115,17 +115,30 @@ def _write_direct(target: str, data: bytes, label) -> None:
 
 @contextlib.contextmanager
 def _signals_held():
-    """Hold SIGINT and SIGTERM back for the duration (they are delivered afterwards)."""
-    sigs = {signal.SIGINT, signal.SIGTERM}
-    try:
-        old = signal.pthread_sigmask(signal.SIG_BLOCK, sigs)
-    except (AttributeError, ValueError, OSError):      # not the main thread, or no such call
-        yield
+    """Defer SIGINT and SIGTERM for the duration (delivered afterwards, in order of arrival).
+
+    The Python-level handlers are swapped for one that only records the signal: a signal
+    mask would not do, because a process-directed signal goes to any thread that does not
+    block it (NumPy's, Dask's), and Python then runs the handler in the main thread anyway.
+    """
+    import threading
+    if threading.current_thread() is not threading.main_thread():
+        yield                                   # handlers can only be set from the main thread
         return
+    pending = []
+    old = {}
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        try:
+            old[sig] = signal.signal(sig, lambda signum, frame: pending.append(signum))
+        except (ValueError, OSError):           # not settable here
+            pass
     try:
         yield
     finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
+        for sig in dict.fromkeys(pending):
+            signal.raise_signal(sig)
 
 
 def write_all(outputs, say=None) -> list:
@@ -159,11 +172,11 @@ def write_all(outputs, say=None) -> list:
                         os.link(target, bak)
                         backups.append((bak, target))
                 for tmp, target, path in staged:            # noqa: B007 (path: for the message)
+                    replaced.append(target)                 # before: an interruption may land right after
                     os.replace(tmp, target)
-                    replaced.append(target)
             except BaseException as exc:
-                # a failed rename, or an interruption the signal mask did not hold back
-                # (another thread, a platform without pthread_sigmask): undo the renames done
+                # a failed rename, or an interruption that was not deferred (outside the main
+                # thread): undo the renames done
                 kept = {t: b for b, t in backups}
                 for target in replaced:                     # roll back
                     with contextlib.suppress(OSError):
@@ -175,8 +188,8 @@ def write_all(outputs, say=None) -> list:
                     raise _write_error(path, exc) from None
                 raise
             finally:
-                # Still under the mask: a signal held back during the renames is delivered
-                # when it is lifted, and its handler must not cut this clean-up short.
+                # Still deferred: a signal held back during the renames is delivered after
+                # the clean-up, so its handler cannot cut it short.
                 for bak, _ in backups:
                     with contextlib.suppress(OSError):
                         os.unlink(bak)
