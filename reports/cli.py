@@ -554,6 +554,14 @@ def cmd_robot(args, say):
     return EXIT_OK
 
 
+def _verdict(args, result, validation=None, **kw):
+    """The verdict of ``result`` (:func:`dynid.analysis.statistics.verdict.verdict`), shown first."""
+    from dynid.analysis.statistics.verdict import verdict
+    v = verdict(result, validation, **kw)
+    _show(args, v.summary())
+    return v
+
+
 def _write_outputs(args, say, result, robot, experiment, validation, asym=None, export=None,
                    physical=None):
     """Render every requested output in memory, then write them all or none.
@@ -562,11 +570,9 @@ def _write_outputs(args, say, result, robot, experiment, validation, asym=None, 
     interrupted between two files, the ones already written are removed, so a
     report never sits next to a JSON of another run or without its JSON.
     """
-    from dynid.analysis.statistics.verdict import verdict as make_verdict
     from dynid.provenance import dumps_json
     outputs = []
-    the_verdict = make_verdict(result, validation, robot=robot)
-    _show(args, the_verdict.summary())
+    the_verdict = _verdict(args, result, validation, robot=robot)
     if args.json:
         doc = result.to_dict()
         doc["verdict"] = the_verdict.to_dict()
@@ -876,11 +882,9 @@ def cmd_identify(args, say):
 
 def _write_method_outputs(args, say, result, frame, sections, title, robot=None):
     """Verdict and summary, then JSON / CSV (``frame``) / HTML (``sections``) of a DIDIM, PM or ML result."""
-    from dynid.analysis.statistics.verdict import verdict as make_verdict
     from dynid.provenance import dumps_json
     from dynid.reports.html import render_sections, verdict_block
-    the_verdict = make_verdict(result, robot=robot)
-    _show(args, the_verdict.summary())
+    the_verdict = _verdict(args, result, robot=robot)
     _show_clean(args, result.summary())
     outputs = []
     if args.json:
@@ -970,9 +974,7 @@ def cmd_sample(args, say):
         post = sample_idim(result, which=args.which, seed=args.seed, n_walkers=args.walkers,
                            max_steps=args.max_steps, max_seconds=args.max_seconds,
                            progress=lambda n, need: bar.update(n / max(need, 1)))
-    from dynid.analysis.statistics.verdict import verdict as make_verdict
-    the_verdict = make_verdict(result, robot=robot)
-    _show(args, the_verdict.summary())
+    the_verdict = _verdict(args, result, robot=robot)
     _show_clean(args, post.summary())
     outputs = []
     if args.json:
@@ -1096,11 +1098,8 @@ def cmd_diagnose(args, say):
     if valid is not None and result is not None:
         from dynid.analysis.statistics.validation import validate
         validation = validate(result, valid, robot)
-    the_verdict = None
-    if result is not None:
-        from dynid.analysis.statistics.verdict import verdict as make_verdict
-        the_verdict = make_verdict(result, validation, robot=robot, diagnosis=diag)
-        _show(args, the_verdict.summary())
+    the_verdict = (_verdict(args, result, validation, robot=robot, diagnosis=diag)
+                   if result is not None else None)
     _show_clean(args, diag.summary())
     outputs = []
     if args.json:
