@@ -152,8 +152,12 @@ def test_unknown_noise_single_joint_student_t_marginals():
     """One joint, b = 2, r = 10 (ν = 8), unknown σ, flat prior, Jeffreys on σ.
 
     emcee's marginals of Fv, Fc match t_ν(χ̂, s√[(WᵀW)⁻¹]_ii) and σ matches
-    σ² ~ RSS/χ²_ν (KS p > 0.01, on draws ≥ 3 τ apart). Negative control: σ² is
+    σ² ~ RSS/χ²_ν (KS p > 0.001, on draws ≥ 3 τ apart). Negative control: σ² is
     NOT distributed as RSS/χ²_{ν±1} (what a missing log-σ Jacobian would give).
+    Three KS tests at 0.01 fail together about 3 % of the time under the null, so a
+    new NumPy or emcee (another random stream for the same seed) could fail them
+    (numpy 2.4 gave p = 0.006 for Fv); at 0.001 that is 0.3 %, and the negative
+    control (p < 1e-3 for a one-degree-of-freedom error) shows the power kept.
     The run uses a stricter rule (≥ 200 τ instead of 50 τ): KS assumes independent
     draws, and at 50-100 τ the residual autocorrelation (τ itself is under-estimated
     on short chains) makes its p-values too small about 5 % of the time; at 200 τ
@@ -172,8 +176,8 @@ def test_unknown_noise_single_joint_student_t_marginals():
     S = res.chain[:, ::k].reshape(-1, 3)
     assert S.shape[0] > 1500
     for i in range(2):
-        assert stats.kstest(S[:, i], an.marginal(i).cdf).pvalue > 0.01, names[i]
-    assert stats.kstest(S[:, 2], an.sigma().cdf).pvalue > 0.01
+        assert stats.kstest(S[:, i], an.marginal(i).cdf).pvalue > 1e-3, names[i]
+    assert stats.kstest(S[:, 2], an.sigma().cdf).pvalue > 1e-3
     for df in (an.df - 1, an.df + 1):
         wrong = stats.invgamma(a=df / 2, scale=an.rss / 2)
         assert stats.kstest(S[:, 2] ** 2, wrong.cdf).pvalue < 1e-3

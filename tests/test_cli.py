@@ -118,6 +118,7 @@ def test_simulate_needs_a_controller(tmp_path, capsys):
     assert not (tmp_path / "x.csv").exists()
 
 
+@pytest.mark.slow
 def test_sample_on_real_tx40_converges_and_writes_outputs(tmp_path):
     js, csv, html = tmp_path / "p.json", tmp_path / "p.csv", tmp_path / "p.html"
     code = main(["sample", str(ROOT / "examples" / "staubli_tx40" / "experiment.toml"), "--robot", "tx40",
@@ -152,6 +153,7 @@ def test_identify_didim_from_reference_and_torque_only(tmp_path):
     assert est["MX1R"] == pytest.approx(3.0, rel=0.03)
 
 
+@pytest.mark.slow
 def test_excite_tx40_as_in_the_issue_respects_limits_in_the_written_csv(tmp_path):
     """`dynid excite --robot tx40 --f0 0.1 --harmonics 5 --out traj.csv --json ex.json`.
 

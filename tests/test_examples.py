@@ -17,8 +17,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 
-pytestmark = pytest.mark.skipif(not (os.environ.get("CI") or os.environ.get("DYNID_SLOW_TESTS")),
-                                reason="runs both real-data examples: set DYNID_SLOW_TESTS=1 (CI does)")
+pytestmark = pytest.mark.slow          # minutes each: DYNID_SLOW_TESTS=1 runs them
 
 
 def run_example(name, cwd, *args):
