@@ -89,6 +89,16 @@ def test_gains_on_the_benchmark_recording(plant_run):
     np.testing.assert_array_equal(identify_gains(exp, robot, noise_q=None).chi, g.chi)
 
 
+def _agreement(idim, didim):
+    close = []
+    for n in idim.names:
+        if n in didim.names:
+            a, b = idim.params[n], didim.params[n]
+            s = max(idim.bse[n], didim.bse[n])
+            close.append((n, abs(b - a) <= max(0.02 * abs(a), 2 * s)))
+    return [n for n, ok in close if not ok], len(close)
+
+
 @pytest.mark.slow
 def test_didim_with_identified_gains_agrees_with_idim(plant_run):
     rec, robot, exp = plant_run
@@ -96,16 +106,22 @@ def test_didim_with_identified_gains_agrees_with_idim(plant_run):
     didim = dynid.identify(exp, robot, "didim", gains="identify")
     assert didim.converged and didim.gains is not None
     assert any("identified from the logged reference" in n for n in didim.notices)
-    close = []
-    for n in idim.names:
-        if n in didim.names:
-            a, b = idim.params[n], didim.params[n]
-            s = max(idim.bse[n], didim.bse[n])
-            close.append(abs(b - a) <= max(0.02 * abs(a), 2 * s))
-    print(f"DIDIM (identified gains) vs IDIM: {sum(close)} of {len(close)} within 2 % or 2 sigma; "
-          f"relative error {didim.model.rel_error:.4f} (IDIM {idim.model.rel_error:.4f})")
-    assert sum(close) >= len(close) - 1
+    off, total = _agreement(idim, didim)
+    print(f"DIDIM (identified gains, v_s 0.05) vs IDIM: {total - len(off)} of {total} within 2 % or 2 sigma "
+          f"(off: {off}); relative error {didim.model.rel_error:.4f} (IDIM {idim.model.rel_error:.4f})")
+    assert len(off) <= 1
     assert didim.model.rel_error < 0.01
+    # The one parameter off (Ia3 here, +3.8 %, 2.6 sigma; Ia4 on seed 4) is not the gains'
+    # doing: the plant's own gains give the same Ia3, and 40 integrator substeps too. DIDIM's
+    # simulated Coulomb friction is smoothed over v_s = 0.05 rad/s, the plant's over 0.01: near
+    # the reversals the simulated robot is another one. With the plant's smoothing, DIDIM's
+    # torque residual falls to IDIM's and every parameter agrees (the IDIM start of the identified-
+    # gains path takes only IDIM's settings, so v_s reaches DIDIM alone).
+    sharp = dynid.identify(exp, robot, "didim", gains="identify", settings={"v_s": 0.01})
+    off_sharp, total = _agreement(idim, sharp)
+    print(f"with v_s 0.01: {total - len(off_sharp)} of {total}; relative error {sharp.model.rel_error:.4f}")
+    assert off_sharp == []
+    assert sharp.model.rel_error < 1.2 * idim.model.rel_error < didim.model.rel_error / 2
     # with the gains assumed in tx40.toml (wn = 60, PD) the simulated loop is another robot's
     assumed = dynid.identify(exp, robot, "didim", gains="assumed", update_gains="initial")
     assert assumed.model.rel_error > 3 * didim.model.rel_error

@@ -372,6 +372,9 @@ def identify_gains(experiment, robot, *, feedforward="auto", integral="auto", fc
         out_vals += [beta[k] for k in idx]
         blocks.append(cov[np.ix_(idx, idx)])
         rel.append(r)
+    notices.append("sigma: the sandwich of the fit, not including the error of the estimated encoder "
+                   "noise level nor of the first-pass gains in the whitening (on a simulated plant the "
+                   "errors were 0.9-1.6 sigma rms)")
     if lag:
         notices.append("velocity lag of the controller against the central derivative of q (us): "
                        + ", ".join(f"{1e6 * x:.1f}" for x in lag))
