@@ -295,7 +295,7 @@ def identify_gains(experiment, robot, *, feedforward="auto", integral="auto", fc
     sat = np.abs(tau) >= 0.999 * tau_max
     if sat.any():
         notices.append(f"{int(sat.any(axis=1).sum())} saturated samples left out")
-    def fit(j, mode, whiten=None):
+    def fit(j, mode, wf=None):
         rows = keep & ~sat[:, j]
         if rows.sum() < 50:
             raise DataError(f"{experiment.source}: joint {j + 1} has only {int(rows.sum())} unsaturated "
@@ -313,7 +313,7 @@ def identify_gains(experiment, robot, *, feedforward="auto", integral="auto", fc
         if integral:
             cols["Ki"] = np.cumsum(e[:, j]) * T
             cols["b"] = np.ones(N)
-        if whiten is None:
+        if wf is None:
             X = np.column_stack(list(cols.values()))[rows]
             y = tau_f[rows, j]
             # the same columns built from the noise alone (its part of e, -qd and I; none in qr)
@@ -325,7 +325,7 @@ def identify_gains(experiment, robot, *, feedforward="auto", integral="auto", fc
             # about n, white below fc. The integral column becomes stationary and the
             # integral's initial state b dies out with F's transient.
             from scipy.signal import lfilter
-            ba, settle = whiten
+            ba, settle = wf
             cols.pop("b", None)
             Xf = lfilter(*ba, np.column_stack(list(cols.values())), axis=0)
             yf = lfilter(*ba, tau_f[:, j])
@@ -342,7 +342,7 @@ def identify_gains(experiment, robot, *, feedforward="auto", integral="auto", fc
         u = y - X @ beta
         psi = X * u[:, None]
         psi -= psi.mean(axis=0)
-        cov = A @ _newey_west(psi, hac_lags + (0 if whiten is None else 2 * whiten[1])) @ A
+        cov = A @ _newey_west(psi, hac_lags + (0 if wf is None else 2 * wf[1])) @ A
         return list(cols), beta, cov, float(np.linalg.norm(y - X @ beta) / np.linalg.norm(y))
 
     use_ff = feedforward
@@ -354,7 +354,7 @@ def identify_gains(experiment, robot, *, feedforward="auto", integral="auto", fc
             kd, ff = beta[cols.index("Kd")], beta[cols.index("ff")]
             votes.append(abs(ff - kd) < abs(ff))
         use_ff = sum(votes) > n / 2
-    out_names, out_vals, blocks, rel, lag = [], [], [], [], []
+    out_names, out_vals, blocks, rel, lag, plain = [], [], [], [], [], []
     for j in range(n):
         cols, beta, cov, r = fit(j, bool(use_ff))
         gains = {c: beta[cols.index(c)] for c in ("Kp", "Kd", "Ki") if c in cols}
@@ -364,7 +364,12 @@ def identify_gains(experiment, robot, *, feedforward="auto", integral="auto", fc
             slowest = np.max(np.abs(np.roots(ba[1])))
             settle = int(10 / max(1e-12, -math.log(min(slowest, 1 - 1e-12)))) + 1
             if settle < N // 4:
-                cols, beta, cov, r = fit(j, bool(use_ff), (ba, settle))
+                # r stays the first pass's: the relative error of the law on the torque itself
+                cols, beta, cov, _ = fit(j, bool(use_ff), (ba, settle))
+            else:
+                plain.append(j + 1)
+        elif whiten:
+            plain.append(j + 1)
         if "Ka" in cols:
             lag.append(beta[cols.index("Ka")] / beta[cols.index("Kd")])
         idx = [k for k, c in enumerate(cols) if c in ("Kp", "Kd", "Ki")]
@@ -372,6 +377,9 @@ def identify_gains(experiment, robot, *, feedforward="auto", integral="auto", fc
         out_vals += [beta[k] for k in idx]
         blocks.append(cov[np.ix_(idx, idx)])
         rel.append(r)
+    if plain:
+        notices.append("not whitened (saturated samples, gains not positive or a transient too long): joint "
+                       + ", ".join(map(str, plain)))
     notices.append("sigma: the sandwich of the fit, not including the error of the estimated encoder "
                    "noise level nor of the first-pass gains in the whitening (on a simulated plant the "
                    "errors were 0.9-1.6 sigma rms)")
