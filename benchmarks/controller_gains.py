@@ -2,6 +2,7 @@
 
     python benchmarks/controller_gains.py                  # seeds 3-8 and 11-16, 8 s at 5 kHz each
     python benchmarks/controller_gains.py --seeds 3 4 --duration 16
+    python benchmarks/controller_gains.py --didim          # and DIDIM with them against IDIM
 
 Data: ``tests/independent_plant.py`` (Pinocchio TX40 with the Table 2 parameters and the
 coupled wrist, its own semi-implicit Euler integrator and PID with velocity feed-forward,
@@ -17,6 +18,11 @@ relative error, the share within 2 %, the rms of the z-scores (error / sigma; 1 
 honest sigma) and the share within 2 sigma; the velocity lag found (us; the plant's state is
 h/2 = 25 us behind the central derivative); and the time per identification as a ratio to
 the plant simulation of the same seed.
+
+``--didim``: per seed, IDIM and DIDIM with the identified gains (``gains="identify"``), with
+DIDIM's default Coulomb smoothing ``v_s = 0.05`` rad/s and with the plant's 0.01; per run the
+essential parameters of IDIM within 2 % or 2 sigma of DIDIM's, the ones that are not, and
+both torque residuals.
 """
 from __future__ import annotations
 
@@ -52,10 +58,32 @@ def _stats(errs, sig):
     return out
 
 
+def _didim_vs_idim(dynid, exp, robot, seed):
+    """IDIM and DIDIM (identified gains, v_s 0.05 and 0.01): agreement of the parameters."""
+    idim = dynid.identify(exp, robot)
+    row = {"seed": seed}
+    for vs in (0.05, 0.01):
+        d = dynid.identify(exp, robot, "didim", gains="identify", settings={"v_s": vs})
+        off, total = [], 0
+        for n in idim.names:
+            if n in d.names:
+                a, b = idim.params[n], d.params[n]
+                s = max(idim.bse[n], d.bse[n])
+                total += 1
+                if abs(b - a) > max(0.02 * abs(a), 2 * s):
+                    off.append(f"{n} {100 * (b - a) / abs(a):+.1f} % ({(b - a) / s:+.1f} sigma)")
+        row[vs] = {"converged": bool(d.converged), "compared": total, "off": off,
+                   "didim_rel_error": float(d.model.rel_error), "idim_rel_error": float(idim.model.rel_error)}
+        print(f"{seed:>4} DIDIM v_s {vs}: {total - len(off)} of {total} within 2 % or 2 sigma of IDIM "
+              f"{off}; torque residual {d.model.rel_error:.4f} (IDIM {idim.model.rel_error:.4f})", flush=True)
+    return row
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, nargs="+", default=[3, 4, 5, 6, 7, 8, 11, 12, 13, 14, 15, 16])
     ap.add_argument("--duration", type=float, default=8.0)
+    ap.add_argument("--didim", action="store_true", help="also DIDIM with the identified gains vs IDIM")
     args = ap.parse_args()
     import independent_plant as ip
 
@@ -70,7 +98,7 @@ def main():
               "held_out": [s for s in args.seeds if not 3 <= s <= 8]}
     acc = {(v, grp): ({k: [] for k in ("Kp", "Kd", "Ki")}, {k: [] for k in ("Kp", "Kd", "Ki")})
            for v in variants for grp in groups}
-    ratios, lags = [], []
+    ratios, lags, didim_rows = [], [], []
     print(f"{'seed':>4} {'variant':>8} {'gain':>4} " + " ".join(f"{'j' + str(j + 1):>15}" for j in range(6)))
     for seed in args.seeds:
         grp = "development" if seed in groups["development"] else "held_out"
@@ -95,12 +123,18 @@ def main():
                 sig[kind].append(s)
                 print(f"{seed:>4} {v:>8} {kind:>4} " + " ".join(f"{x:+6.2f} % ({y:4.2f})" for x, y in zip(e, s)),
                       flush=True)
+        if args.didim:
+            didim_rows.append(_didim_vs_idim(dynid, exp, robot, seed))
     print("cells: relative error of the gain (its %sigma)")
     out = {"seeds": args.seeds, "duration_s": args.duration,
            "identification_time_over_simulation": float(np.median(ratios)),
            "velocity_lag_us_median_per_joint": [float(x) for x in np.median(lags, axis=0)]}
     for v in variants:
         out[v] = {grp: _stats(*acc[(v, grp)]) for grp in groups if groups[grp]}
+    if didim_rows:
+        out["didim"] = {f"v_s_{vs}": {"all_agree_share": float(np.mean([r[vs]["off"] == [] for r in didim_rows])),
+                                      "runs": [{"seed": r["seed"], **r[vs]} for r in didim_rows]}
+                        for vs in (0.05, 0.01)}
     print(json.dumps(out))
 
 

@@ -60,6 +60,9 @@ def test_gains_are_recovered_from_the_control_law(short_run):
         assert np.all(np.abs(err) < 0.02), (kind, err)
         # and the reported sigma is of the size of the error (measured z rms 0.9-1.6 over seeds)
         assert np.all(np.abs(err) < np.maximum(4 * rel, 0.002)), (kind, err, rel)
+    # Kd1 and Kd2 are drawn from the band where the encoder noise is strongest: with the whitened
+    # pass their sigma is 0.45 % and 0.34 % here, without it 2.1 % and 1.4 % (errors of 4 % on 8 s)
+    assert g.rel_std["Kd1"] < 1.0 and g.rel_std["Kd2"] < 1.0, (g.rel_std["Kd1"], g.rel_std["Kd2"])
     # the lag of the controller's velocity: the plant's semi-implicit Euler state is half a
     # substep (T / 8 = 25 us) behind the central derivative
     lag = next(x for x in g.notices if x.startswith("velocity lag"))
@@ -116,7 +119,8 @@ def test_didim_with_identified_gains_agrees_with_idim(plant_run):
     # simulated Coulomb friction is smoothed over v_s = 0.05 rad/s, the plant's over 0.01: near
     # the reversals the simulated robot is another one. With the plant's smoothing, DIDIM's
     # torque residual falls to IDIM's and every parameter agrees (the IDIM start of the identified-
-    # gains path takes only IDIM's settings, so v_s reaches DIDIM alone).
+    # gains path takes only IDIM's settings, so v_s reaches DIDIM alone). Over the benchmark's 12
+    # seeds: one or two parameters off on every seed with 0.05, none with 0.01.
     sharp = dynid.identify(exp, robot, "didim", gains="identify", settings={"v_s": 0.01})
     off_sharp, total = _agreement(idim, sharp)
     print(f"with v_s 0.01: {total - len(off_sharp)} of {total}; relative error {sharp.model.rel_error:.4f}")
