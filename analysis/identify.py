@@ -142,7 +142,10 @@ def identify(data, robot, method: str = "idim", *, settings=None, max_error_grow
             # With the real loop's gains, the paper's rough start (Ia = 1 ...) drives the simulated
             # robot into saturation on the first step; IDIM's estimate is a start in the right basin.
             from dynid.analysis.estimators.idim import identify_idim
-            start = identify_idim(exp, robot, settings=settings, max_error_growth=max_error_growth)
+            from dynid.analysis.processing.observation import SETTINGS_HELP
+            # the start gets the settings IDIM shares with DIDIM (not v_s, substeps, transient ...)
+            shared = None if settings is None else {k: v for k, v in settings.items() if k in SETTINGS_HELP}
+            start = identify_idim(exp, robot, settings=shared, max_error_growth=max_error_growth)
             chi0 = dict(zip(start.base.names, start.wls.chi))
         else:
             chi0 = None

@@ -1,6 +1,10 @@
 """DIDIM when the controller gains are not known: the gains identified from (qr, q, tau) on
 closed-loop data of an independent plant (Pinocchio, its own integrator, PID and friction law,
-gains unknown to dynid), then DIDIM with them, against IDIM on the same data."""
+gains unknown to dynid), then DIDIM with them, against IDIM on the same data.
+
+The default suite runs one short (3 s) plant recording; the 8 s recording of the benchmark
+(seed 3) and DIDIM on it are slow tests. ``benchmarks/controller_gains.py`` measures the
+gains over seeds."""
 import dataclasses
 
 import numpy as np
@@ -14,13 +18,12 @@ from dynid.errors import InputError
 ip = pytest.importorskip("independent_plant")
 
 
-@pytest.fixture(scope="module")
-def plant_run():
+def _plant_run(duration, seed):
     plant = ip.tx40_plant("table2", coupled_wrist=True)
     # ten harmonics: with five, DIDIM from the identified gains diverged (the estimate of a step
     # could not be simulated) on this plant; the gains themselves were as good
-    rec = ip.run(plant, duration=8.0, rate=5000.0, seed=3, sensor=ip.Sensor(q_noise=2e-5, tau_noise=0.2),
-                 n_harmonics=10)
+    rec = ip.run(plant, duration=duration, rate=5000.0, seed=seed,
+                 sensor=ip.Sensor(q_noise=2e-5, tau_noise=0.2), n_harmonics=10)
     robot = dynid.load_robot("tx40")
     # the structure is known (a PID with velocity feed-forward); the gains are not
     robot.controller = dataclasses.replace(robot.controller, kind="pid", ki=np.zeros(6))
@@ -29,30 +32,74 @@ def plant_run():
     return rec, robot, exp
 
 
-def test_gains_are_recovered_from_the_control_law(plant_run):
-    rec, robot, exp = plant_run
+@pytest.fixture(scope="module")
+def short_run():
+    return _plant_run(3.0, 21)
+
+
+@pytest.fixture(scope="module")
+def plant_run():
+    return _plant_run(8.0, 3)
+
+
+def _errors(g, rec, kind):
+    err = g.gain(kind) / np.asarray(rec["gains"][kind]) - 1
+    rel = np.array([g.rel_std[f"{kind}{j + 1}"] for j in range(g.n_joints)]) / 100
+    print(kind, "relative error", np.round(err, 4), "sigma", np.round(rel, 4))
+    return err, rel
+
+
+def test_gains_are_recovered_from_the_control_law(short_run):
+    rec, robot, exp = short_run
     g = identify_gains(exp, robot)
     assert g.feedforward and g.integral
-    # Every gain within 2 % or 2.5 of its own sigma. Kp and Ki are within 2 % on every joint.
-    # Kd of joints 1-2 (large inertias, small velocity errors against 2e-5 rad of encoder noise
-    # differentiated) has a sigma of 1.5-2.2 %: measured here +1.4 % and +2.1 %; on seeds 4-8
-    # Kd1 +4.4 (2.1 sigma), -1.0, +0.5, +0.5, +1.3 % and Kd2 -0.7, +0.4, +0.1, +1.8, 0.0 %
-    # The issue's 2 % is not met for Kd1-2 on every seed: their sigma is that large on 8 s of data.
+    # every gain within 2 %. Before the velocity-lag column and the whitened second pass, Kd1
+    # was off by up to 4.4 % (sigma 2 %) on 8 s and Kp1 by +1 % without any noise.
     for kind in ("Kp", "Kd", "Ki"):
-        err = g.gain(kind) / np.asarray(rec["gains"][kind]) - 1
-        rel = np.array([g.rel_std[f"{kind}{j + 1}"] for j in range(6)]) / 100
-        print(kind, "relative error", np.round(err, 4), "sigma", np.round(rel, 4))
-        assert np.all(np.abs(err) < np.maximum(0.02, 2.5 * rel)), (kind, err, rel)
-        if kind != "Kd":
-            assert np.all(np.abs(err) < 0.02), (kind, err)
-    # the plain least squares, biased by the encoder noise in the regressors
-    plain = identify_gains(exp, robot, noise_q=0.0)
-    assert np.abs(plain.gain("Kd")[0] / rec["gains"]["Kd"][0] - 1) > 0.1
+        err, rel = _errors(g, rec, kind)
+        assert np.all(np.abs(err) < 0.02), (kind, err)
+        # and the reported sigma is of the size of the error (measured z rms 0.9-1.6 over seeds)
+        assert np.all(np.abs(err) < np.maximum(4 * rel, 0.002)), (kind, err, rel)
+    # Kd1 and Kd2 are drawn from the band where the encoder noise is strongest: with the whitened
+    # pass their sigma is 0.45 % and 0.34 % here, without it 2.1 % and 1.4 % (errors of 4 % on 8 s)
+    assert g.rel_std["Kd1"] < 1.0 and g.rel_std["Kd2"] < 1.0, (g.rel_std["Kd1"], g.rel_std["Kd2"])
+    # the lag of the controller's velocity: the plant's semi-implicit Euler state is half a
+    # substep (T / 8 = 25 us) behind the central derivative
+    lag = next(x for x in g.notices if x.startswith("velocity lag"))
+    values = np.array([float(v) for v in lag.split(":")[1].split(",")])
+    assert np.all(np.abs(values[:3] - 25.0) < 10.0), lag
     # None is the default's "estimated", never a NaN; nonsense is refused
-    np.testing.assert_array_equal(identify_gains(exp, robot, noise_q=None).chi, g.chi)
     for bad in ("loud", -1e-5, float("nan"), True):
         with pytest.raises(InputError, match="noise_q"):
             identify_gains(exp, robot, noise_q=bad)
+
+
+@pytest.mark.slow
+def test_gains_on_the_benchmark_recording(plant_run):
+    rec, robot, exp = plant_run
+    g = identify_gains(exp, robot)
+    for kind in ("Kp", "Kd", "Ki"):
+        err, _ = _errors(g, rec, kind)
+        assert np.all(np.abs(err) < 0.02), (kind, err)
+    # the one-pass corrected least squares without the lag column: Kp1 biased by ~1 %, Kd1's
+    # sigma three times the whitened one
+    one = identify_gains(exp, robot, whiten=False, velocity_lag=False)
+    assert one.gain("Kp")[0] / rec["gains"]["Kp"][0] - 1 > 0.005
+    assert one.rel_std["Kd1"] > 2.5 * g.rel_std["Kd1"]
+    # plain least squares (no noise correction) is biased towards zero on Kd1
+    plain = identify_gains(exp, robot, noise_q=0.0, whiten=False)
+    assert plain.gain("Kd")[0] / rec["gains"]["Kd"][0] - 1 < -0.1
+    np.testing.assert_array_equal(identify_gains(exp, robot, noise_q=None).chi, g.chi)
+
+
+def _agreement(idim, didim):
+    close = []
+    for n in idim.names:
+        if n in didim.names:
+            a, b = idim.params[n], didim.params[n]
+            s = max(idim.bse[n], didim.bse[n])
+            close.append((n, abs(b - a) <= max(0.02 * abs(a), 2 * s)))
+    return [n for n, ok in close if not ok], len(close)
 
 
 @pytest.mark.slow
@@ -62,24 +109,31 @@ def test_didim_with_identified_gains_agrees_with_idim(plant_run):
     didim = dynid.identify(exp, robot, "didim", gains="identify")
     assert didim.converged and didim.gains is not None
     assert any("identified from the logged reference" in n for n in didim.notices)
-    close = []
-    for n in idim.names:
-        if n in didim.names:
-            a, b = idim.params[n], didim.params[n]
-            s = max(idim.bse[n], didim.bse[n])
-            close.append(abs(b - a) <= max(0.02 * abs(a), 2 * s))
-    print(f"DIDIM (identified gains) vs IDIM: {sum(close)} of {len(close)} within 2 % or 2 sigma; "
-          f"relative error {didim.model.rel_error:.4f} (IDIM {idim.model.rel_error:.4f})")
-    assert sum(close) >= len(close) - 1
+    off, total = _agreement(idim, didim)
+    print(f"DIDIM (identified gains, v_s 0.05) vs IDIM: {total - len(off)} of {total} within 2 % or 2 sigma "
+          f"(off: {off}); relative error {didim.model.rel_error:.4f} (IDIM {idim.model.rel_error:.4f})")
+    assert len(off) <= 1
     assert didim.model.rel_error < 0.01
+    # The one parameter off (Ia3 here, +3.8 %, 2.6 sigma; Ia4 on seed 4) is not the gains'
+    # doing: the plant's own gains give the same Ia3, and 40 integrator substeps too. DIDIM's
+    # simulated Coulomb friction is smoothed over v_s = 0.05 rad/s, the plant's over 0.01: near
+    # the reversals the simulated robot is another one. With the plant's smoothing, DIDIM's
+    # torque residual falls to IDIM's and every parameter agrees (the IDIM start of the identified-
+    # gains path takes only IDIM's settings, so v_s reaches DIDIM alone). Over the benchmark's 12
+    # seeds: one or two parameters off on every seed with 0.05, none with 0.01.
+    sharp = dynid.identify(exp, robot, "didim", gains="identify", settings={"v_s": 0.01})
+    off_sharp, total = _agreement(idim, sharp)
+    print(f"with v_s 0.01: {total - len(off_sharp)} of {total}; relative error {sharp.model.rel_error:.4f}")
+    assert off_sharp == []
+    assert sharp.model.rel_error < 1.2 * idim.model.rel_error < didim.model.rel_error / 2
     # with the gains assumed in tx40.toml (wn = 60, PD) the simulated loop is another robot's
     assumed = dynid.identify(exp, robot, "didim", gains="assumed", update_gains="initial")
     assert assumed.model.rel_error > 3 * didim.model.rel_error
     assert any("depend on those gains" in n for n in assumed.notices)
 
 
-def test_gains_need_a_logged_reference(plant_run):
-    _, robot, exp = plant_run
+def test_gains_need_a_logged_reference(short_run):
+    _, robot, exp = short_run
     no_ref = dataclasses.replace(exp, qr=None)
     with pytest.raises(dynid.InputError, match="reference"):
         dynid.identify(no_ref, robot, "didim", gains="identify")
