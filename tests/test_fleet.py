@@ -98,6 +98,40 @@ def test_streamed_long_recording_agrees_with_whole(small_fleet, tmp_path):
         assert abs(streamed["value"][k] - whole["value"][k]) < 3 * whole["sigma"][k]
 
 
+def test_long_recording_reduced_chunk_by_chunk_equals_its_decimated_system_in_memory(small_fleet, tmp_path):
+    """The task's streamed path (W never held) against WLS/essential set on the same decimated W, held."""
+    from dynid.analysis.data.experiment import load_experiment
+    from dynid.analysis.estimators import least_squares as ls
+    from dynid.analysis.estimators.essential import essential_parameters
+    from dynid.analysis.fleet import task
+    from dynid.analysis.processing import streaming
+    specs, _ = plan(small_fleet.catalogue, ResultStore(tmp_path / "s"))
+    spec = next(s for s in specs if s["path"] not in small_fleet.corrupted)
+    robot, bp = task._robot(spec["robot"])
+    exp = load_experiment(spec["path"], robot)
+    held = {}
+    real = streaming.reduce_stream
+
+    def both(chunks, *args, **kw):      # the same blocks, through both paths
+        chunks = list(chunks)
+        held["obs"] = streaming.observe_stream(iter(chunks), *args, **kw)
+        return real(iter(chunks), *args, **kw)
+    streaming.reduce_stream = both
+    try:
+        wls, ess, n_raw = task._identify(exp, robot, bp, None, 1200)
+    finally:
+        streaming.reduce_stream = real
+    obs = held["obs"]
+    ref = ls.wls(obs.W, obs.tau, list(bp.names), row_mask=obs.row_mask)
+    ref_ess = essential_parameters(obs.W, obs.tau, list(bp.names), ls.wls, row_mask=obs.row_mask)
+    assert n_raw == exp.q.shape[0] and wls.n_rows == ref.n_rows
+    np.testing.assert_allclose(wls.chi, ref.chi, rtol=1e-10)
+    np.testing.assert_allclose(wls.sigma, ref.sigma, rtol=1e-10)
+    assert abs(wls.rel_error / ref.rel_error - 1) < 1e-10
+    assert ess.essential == ref_ess.essential
+    np.testing.assert_allclose(ess.result.chi, ref_ess.result.chi, rtol=1e-10)
+
+
 def test_rerun_with_nothing_changed_computes_nothing(small_fleet, tmp_path):
     store = serial_store(small_fleet.catalogue, tmp_path / "store")
     before = {p: os.stat(p).st_mtime_ns for p in store._files()}
