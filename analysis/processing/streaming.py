@@ -33,10 +33,9 @@ def observe_stream(chunks, fs, robot, bp, *, fc_position, nd, f_decimation_cutof
     whole record's peak speed before the first block is processed.
     """
     parts = []
-    stream = _stream(parts.append, chunks, fs, robot, bp, fc_position=fc_position, nd=nd,
-                     f_decimation_cutoff=f_decimation_cutoff, qd_threshold=qd_threshold, order=order,
-                     block=block, progress=progress)
-    settings, dec, margin, n_in = stream
+    settings, dec, margin, n_in = _stream(parts.append, chunks, fs, robot, bp, fc_position=fc_position, nd=nd,
+                                          f_decimation_cutoff=f_decimation_cutoff, qd_threshold=qd_threshold,
+                                          order=order, block=block, progress=progress)
     Wd, taud, qf_d, qd_d, qdd_d, kept = (np.concatenate([p[k] for p in parts], axis=0) for k in range(6))
     t = (margin + dec.indices) / fs
     return Observation(W=Wd, tau=taud, t=t, q=qf_d, qd=qd_d, qdd=qdd_d, row_mask=kept >= 0.5,
