@@ -18,12 +18,15 @@ from dynid.analysis.fleet.store import RUN_COLUMNS, ResultStore
 from dynid.analysis.fleet.task import identify_recording
 from dynid.errors import InputError
 
+N_DAYS = 6
+N_REC = 3 * N_DAYS          # recordings of the small fleet
+
 
 @pytest.fixture(scope="module")
 def small_fleet(tmp_path_factory):
-    """3 robots x 10 days of simulated planar2 recordings, 2 of them corrupted (serial, ~3 s)."""
+    """3 robots x 6 days of simulated planar2 recordings, 2 of them corrupted (serial, ~1 s)."""
     folder = tmp_path_factory.mktemp("fleet")
-    return simulate_fleet(folder, 3, 10, seed=5, n_corrupted=2)
+    return simulate_fleet(folder, 3, N_DAYS, seed=5, n_corrupted=2)
 
 
 def serial_store(catalogue, root):
@@ -88,7 +91,7 @@ def test_task_reports_corrupted_logs_and_identifies_the_rest(small_fleet, small_
     store = small_store
     frame = store.read()
     per_rec = frame.drop_duplicates("key")
-    assert len(per_rec) == 30 and per_rec["key"].is_unique
+    assert len(per_rec) == N_REC and per_rec["key"].is_unique
     failed = per_rec[per_rec["status"] == "error"]
     assert sorted(failed["recording"]) == sorted(small_fleet.corrupted)
     assert all(rec in msg for rec, msg in zip(failed["recording"], failed["error"]))   # names the file
@@ -97,7 +100,7 @@ def test_task_reports_corrupted_logs_and_identifies_the_rest(small_fleet, small_
     assert set(frame["effects"]) == {""}                 # no diagnosis unless asked for
     # partitioned by robot and day, one file per recording
     files = sorted(p.relative_to(store.root).parts[:2] for p in __import__("pathlib").Path(store.root).rglob("*.parquet"))
-    assert len(files) == 30 and files[0][0] == "robot_id=R000" and files[0][1].startswith("day=2026-03-")
+    assert len(files) == N_REC and files[0][0] == "robot_id=R000" and files[0][1].startswith("day=2026-03-")
 
 
 def test_streamed_long_recording_agrees_with_whole(small_fleet, tmp_path):
@@ -150,7 +153,7 @@ def test_rerun_with_nothing_changed_computes_nothing(small_fleet, small_store, t
     before = {p: os.stat(p).st_mtime_ns for p in store._files()}
     # an unreachable scheduler: the run fails if it tries to compute anything
     run = identify_fleet(small_fleet.catalogue, store, scheduler="tcp://127.0.0.1:9")
-    assert (run.n_computed, run.n_skipped) == (0, 30)
+    assert (run.n_computed, run.n_skipped) == (0, N_REC)
     assert {p: os.stat(p).st_mtime_ns for p in store._files()} == before
     # a changed recording is recomputed, and only it
     specs, todo = plan(small_fleet.catalogue, store)
@@ -184,12 +187,12 @@ def test_killed_worker_loses_and_duplicates_nothing(small_fleet, small_store, tm
                 os.kill(pids[busy[0]], signal.SIGKILL)
                 killed.append(busy[0])
         run = identify_fleet(small_fleet.catalogue, tmp_path / "dask", client=client, progress=kill_one)
-        assert killed and run.n_computed == 30
+        assert killed and run.n_computed == N_REC
         assert set(client.run(os.getpid).values()) != set(pids.values())   # the nanny started a new worker
     stored = ResultStore(tmp_path / "dask")
-    assert len(stored._files()) == 30
+    assert len(stored._files()) == N_REC
     frame = stored.read()
-    assert frame.drop_duplicates("key")["recording"].is_unique and frame["recording"].nunique() == 30
+    assert frame.drop_duplicates("key")["recording"].is_unique and frame["recording"].nunique() == N_REC
     pd.testing.assert_frame_equal(comparable(frame), reference, check_exact=False, rtol=1e-12, atol=0)
 
 
@@ -257,12 +260,12 @@ def test_cli_fleet_rerun_writes_report_and_json(small_fleet, small_store, tmp_pa
                "--baseline", "4", "--report", str(tmp_path / "f.html"), "--json", str(tmp_path / "f.json")])
     err = capsys.readouterr().err
     assert rc == 0, err
-    assert "30 recordings: 0 identified, 30 already in the store, 0 failed" in err
+    assert f"{N_REC} recordings: 0 identified, {N_REC} already in the store, 0 failed" in err
     html = (tmp_path / "f.html").read_text()
     assert "Fleet overview" in html and "table class=\"data sortable\"" in html and "<script>" in html
     assert "src=\"http" not in html and "href=\"http" not in html          # self-contained
     doc = json.loads((tmp_path / "f.json").read_text())
-    assert doc["n_recordings"] == 30 and len(doc["robots"]) == 3
+    assert doc["n_recordings"] == N_REC and len(doc["robots"]) == 3
     assert "alarms" in doc["health"]
 
 
