@@ -18,12 +18,15 @@ from dynid.analysis.fleet.store import RUN_COLUMNS, ResultStore
 from dynid.analysis.fleet.task import identify_recording
 from dynid.errors import InputError
 
+N_DAYS = 6
+N_REC = 3 * N_DAYS          # recordings of the small fleet
+
 
 @pytest.fixture(scope="module")
 def small_fleet(tmp_path_factory):
-    """3 robots x 10 days of simulated planar2 recordings, 2 of them corrupted (serial, ~3 s)."""
+    """3 robots x 6 days of simulated planar2 recordings, 2 of them corrupted (serial, ~1 s)."""
     folder = tmp_path_factory.mktemp("fleet")
-    return simulate_fleet(folder, 3, 10, seed=5, n_corrupted=2)
+    return simulate_fleet(folder, 3, N_DAYS, seed=5, n_corrupted=2)
 
 
 def serial_store(catalogue, root):
@@ -33,6 +36,18 @@ def serial_store(catalogue, root):
     for spec in specs:
         store.write(identify_recording(spec))
     return store
+
+
+@pytest.fixture(scope="module")
+def small_store(small_fleet, tmp_path_factory):
+    """The serial store of the small fleet, computed once (tests that write to a store copy it)."""
+    return serial_store(small_fleet.catalogue, tmp_path_factory.mktemp("serial") / "store")
+
+
+def copied(store, root):
+    import shutil
+    shutil.copytree(store.root, root)
+    return ResultStore(root)
 
 
 def comparable(frame):
@@ -72,19 +87,20 @@ def test_missing_dask_says_how_to_install(monkeypatch):
 
 
 # ------------------------------------------------------------------ task and store
-def test_task_reports_corrupted_logs_and_identifies_the_rest(small_fleet, tmp_path):
-    store = serial_store(small_fleet.catalogue, tmp_path / "store")
+def test_task_reports_corrupted_logs_and_identifies_the_rest(small_fleet, small_store):
+    store = small_store
     frame = store.read()
     per_rec = frame.drop_duplicates("key")
-    assert len(per_rec) == 30 and per_rec["key"].is_unique
+    assert len(per_rec) == N_REC and per_rec["key"].is_unique
     failed = per_rec[per_rec["status"] == "error"]
     assert sorted(failed["recording"]) == sorted(small_fleet.corrupted)
     assert all(rec in msg for rec, msg in zip(failed["recording"], failed["error"]))   # names the file
     ok = frame[(frame["status"] == "ok") & (frame["parameter"] == "Fv1")]
     assert np.all(ok["sigma"] > 0) and np.all(np.abs(ok["value"] - 0.5) < 0.25)   # planar2's Fv1 = 0.5 +-20 %
+    assert set(frame["effects"]) == {""}                 # no diagnosis unless asked for
     # partitioned by robot and day, one file per recording
     files = sorted(p.relative_to(store.root).parts[:2] for p in __import__("pathlib").Path(store.root).rglob("*.parquet"))
-    assert len(files) == 30 and files[0][0] == "robot_id=R000" and files[0][1].startswith("day=2026-03-")
+    assert len(files) == N_REC and files[0][0] == "robot_id=R000" and files[0][1].startswith("day=2026-03-")
 
 
 def test_streamed_long_recording_agrees_with_whole(small_fleet, tmp_path):
@@ -98,27 +114,66 @@ def test_streamed_long_recording_agrees_with_whole(small_fleet, tmp_path):
         assert abs(streamed["value"][k] - whole["value"][k]) < 3 * whole["sigma"][k]
 
 
-def test_rerun_with_nothing_changed_computes_nothing(small_fleet, tmp_path):
-    store = serial_store(small_fleet.catalogue, tmp_path / "store")
+def test_long_recording_reduced_chunk_by_chunk_equals_its_decimated_system_in_memory(small_fleet, tmp_path):
+    """The task's streamed path (W never held) against WLS/essential set on the same decimated W, held."""
+    from dynid.analysis.data.experiment import load_experiment
+    from dynid.analysis.estimators import least_squares as ls
+    from dynid.analysis.estimators.essential import essential_parameters
+    from dynid.analysis.fleet import task
+    from dynid.analysis.processing import streaming
+    specs, _ = plan(small_fleet.catalogue, ResultStore(tmp_path / "s"))
+    spec = next(s for s in specs if s["path"] not in small_fleet.corrupted)
+    robot, bp = task._robot(spec["robot"])
+    exp = load_experiment(spec["path"], robot)
+    held = {}
+    real = streaming.reduce_stream
+
+    def both(chunks, *args, **kw):      # the same blocks, through both paths
+        chunks = list(chunks)
+        held["obs"] = streaming.observe_stream(iter(chunks), *args, **kw)
+        return real(iter(chunks), *args, **kw)
+    streaming.reduce_stream = both
+    try:
+        wls, ess, n_raw = task._identify(exp, robot, bp, None, 1200)
+    finally:
+        streaming.reduce_stream = real
+    obs = held["obs"]
+    ref = ls.wls(obs.W, obs.tau, list(bp.names), row_mask=obs.row_mask)
+    ref_ess = essential_parameters(obs.W, obs.tau, list(bp.names), ls.wls, row_mask=obs.row_mask)
+    assert n_raw == exp.q.shape[0] and wls.n_rows == ref.n_rows
+    np.testing.assert_allclose(wls.chi, ref.chi, rtol=1e-10)
+    np.testing.assert_allclose(wls.sigma, ref.sigma, rtol=1e-10)
+    assert abs(wls.rel_error / ref.rel_error - 1) < 1e-10
+    assert ess.essential == ref_ess.essential
+    np.testing.assert_allclose(ess.result.chi, ref_ess.result.chi, rtol=1e-10)
+
+
+def test_rerun_with_nothing_changed_computes_nothing(small_fleet, small_store, tmp_path):
+    store = copied(small_store, tmp_path / "store")
     before = {p: os.stat(p).st_mtime_ns for p in store._files()}
     # an unreachable scheduler: the run fails if it tries to compute anything
     run = identify_fleet(small_fleet.catalogue, store, scheduler="tcp://127.0.0.1:9")
-    assert (run.n_computed, run.n_skipped) == (0, 30)
+    assert (run.n_computed, run.n_skipped) == (0, N_REC)
     assert {p: os.stat(p).st_mtime_ns for p in store._files()} == before
     # a changed recording is recomputed, and only it
     specs, todo = plan(small_fleet.catalogue, store)
     target = next(s["path"] for s in specs if s["path"] not in small_fleet.corrupted)
+    original = open(target, "rb").read()
     data = dict(np.load(target))
     data["tau"] = data["tau"] * 1.01
-    np.savez(target, **data)
-    _, todo = plan(small_fleet.catalogue, store)
+    try:
+        np.savez(target, **data)
+        _, todo = plan(small_fleet.catalogue, store)
+    finally:                # the module's fleet and store stay as they were for the other tests
+        with open(target, "wb") as f:
+            f.write(original)
     assert [s["path"] for s in todo] == [target]
 
 
 @pytest.mark.slow
-def test_killed_worker_loses_and_duplicates_nothing(small_fleet, tmp_path):
+def test_killed_worker_loses_and_duplicates_nothing(small_fleet, small_store, tmp_path):
     distributed = pytest.importorskip("distributed")
-    reference = comparable(serial_store(small_fleet.catalogue, tmp_path / "serial").read())
+    reference = comparable(small_store.read())
     killed = []
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
                                   silence_logs=40) as cluster, distributed.Client(cluster) as client:
@@ -132,12 +187,12 @@ def test_killed_worker_loses_and_duplicates_nothing(small_fleet, tmp_path):
                 os.kill(pids[busy[0]], signal.SIGKILL)
                 killed.append(busy[0])
         run = identify_fleet(small_fleet.catalogue, tmp_path / "dask", client=client, progress=kill_one)
-        assert killed and run.n_computed == 30
+        assert killed and run.n_computed == N_REC
         assert set(client.run(os.getpid).values()) != set(pids.values())   # the nanny started a new worker
     stored = ResultStore(tmp_path / "dask")
-    assert len(stored._files()) == 30
+    assert len(stored._files()) == N_REC
     frame = stored.read()
-    assert frame.drop_duplicates("key")["recording"].is_unique and frame["recording"].nunique() == 30
+    assert frame.drop_duplicates("key")["recording"].is_unique and frame["recording"].nunique() == N_REC
     pd.testing.assert_frame_equal(comparable(frame), reference, check_exact=False, rtol=1e-12, atol=0)
 
 
@@ -198,20 +253,90 @@ def test_temperature_compensation_is_what_makes_a_small_change_visible():
 
 
 # ------------------------------------------------------------------ report and command line
-def test_cli_fleet_rerun_writes_report_and_json(small_fleet, tmp_path, capsys):
+def test_cli_fleet_rerun_writes_report_and_json(small_fleet, small_store, tmp_path, capsys):
     from dynid.reports.cli import main
-    serial_store(small_fleet.catalogue, tmp_path / "store")
+    copied(small_store, tmp_path / "store")
     rc = main(["fleet", small_fleet.catalogue, "--out", str(tmp_path / "store"), "--scheduler", "tcp://127.0.0.1:9",
                "--baseline", "4", "--report", str(tmp_path / "f.html"), "--json", str(tmp_path / "f.json")])
     err = capsys.readouterr().err
     assert rc == 0, err
-    assert "30 recordings: 0 identified, 30 already in the store, 0 failed" in err
+    assert f"{N_REC} recordings: 0 identified, {N_REC} already in the store, 0 failed" in err
     html = (tmp_path / "f.html").read_text()
     assert "Fleet overview" in html and "table class=\"data sortable\"" in html and "<script>" in html
     assert "src=\"http" not in html and "href=\"http" not in html          # self-contained
     doc = json.loads((tmp_path / "f.json").read_text())
-    assert doc["n_recordings"] == 30 and len(doc["robots"]) == 3
+    assert doc["n_recordings"] == N_REC and len(doc["robots"]) == 3
     assert "alarms" in doc["health"]
+
+
+def _sub_catalogue(fleet, folder, n_good, n_bad=1):
+    """A catalogue of ``n_good`` recordings of ``fleet`` and ``n_bad`` corrupted ones (absolute paths)."""
+    frame = pd.read_csv(fleet.catalogue)
+    frame["path"] = [str((os.path.dirname(fleet.catalogue) / __import__("pathlib").Path(p)).resolve())
+                     for p in frame["path"]]
+    bad = frame["path"].isin([str(__import__("pathlib").Path(p).resolve()) for p in fleet.corrupted])
+    sub = pd.concat([frame[~bad].head(n_good), frame[bad].head(n_bad)])
+    folder.mkdir(parents=True, exist_ok=True)
+    sub.to_csv(folder / "catalogue.csv", index=False)
+    return str(folder / "catalogue.csv"), list(sub["path"])
+
+
+@pytest.fixture
+def tcp_cluster():
+    """An in-process LocalCluster on TCP: a running scheduler to give --scheduler the address of (~1 s)."""
+    distributed = pytest.importorskip("distributed")
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, protocol="tcp",
+                                  dashboard_address=":0", silence_logs=40) as cluster:
+        yield cluster
+
+
+def test_scheduler_address_cli_and_api_give_the_serial_results(small_fleet, small_store, tmp_path, tcp_cluster,
+                                                                capsys):
+    from dynid.fleet import run
+    from dynid.reports.cli import main
+    catalogue, paths = _sub_catalogue(small_fleet, tmp_path / "cat", 2)
+    serial = small_store.read()
+    reference = comparable(serial[serial["recording"].isin(paths)])
+    assert reference["recording"].nunique() == 3
+    address = tcp_cluster.scheduler_address
+    assert address.startswith("tcp://")
+    clients = len(tcp_cluster.scheduler.clients)
+    rc = main(["fleet", catalogue, "--out", str(tmp_path / "cli"), "--scheduler", address, "--baseline", "3"])
+    err = capsys.readouterr().err
+    assert rc == 0, err
+    assert f"on {address}" in err and "3 recordings: 3 identified, 0 already in the store, 1 failed" in err
+    api = run(catalogue, tmp_path / "api", scheduler=address, n_baseline=3)
+    assert (api.n_computed, api.workers, len(api.errors)) == (3, 1, 1)
+    # the tasks ran on that scheduler (under the engine's keys), and its clients were closed after
+    assert tcp_cluster.scheduler.task_prefixes["dynid-fleet"].state_counts["memory"] == 6
+    assert len(tcp_cluster.scheduler.clients) == clients
+    for store in ("cli", "api"):
+        frame = ResultStore(tmp_path / store).read()
+        assert sorted(frame["recording"].unique()) == sorted(paths)
+        pd.testing.assert_frame_equal(comparable(frame), reference, check_exact=False, rtol=1e-12, atol=0)
+
+
+def test_diagnose_stores_the_effect_a_recording_has(small_fleet, tmp_path, tcp_cluster, capsys):
+    """--diagnose: a spring added to joint 1's torque is named in the store; the option is part of the key.
+
+    (Without it no diagnosis runs: test_task_reports_corrupted_logs... checks the empty effects.)"""
+    from dynid.reports.cli import main
+    catalogue, paths = _sub_catalogue(small_fleet, tmp_path / "cat", 1, n_bad=0)
+    data = dict(np.load(paths[0]))
+    data["tau"][:, 0] += 2.0 * data["q"][:, 0]          # Ks1 = 2 N m/rad, not in the model
+    np.savez(paths[0].replace(".npz", "-spring.npz"), **data)
+    frame = pd.read_csv(catalogue)
+    frame["path"] = [paths[0].replace(".npz", "-spring.npz")]
+    frame.to_csv(catalogue, index=False)
+    store = tmp_path / "store"
+    assert main(["fleet", catalogue, "--out", str(store), "--scheduler", tcp_cluster.scheduler_address,
+                 "--baseline", "3", "--diagnose"]) == 0
+    assert "1 recordings: 1 identified, 0 already in the store, 0 failed" in capsys.readouterr().err
+    stored = ResultStore(store).read().drop_duplicates("key")
+    assert list(stored["effects"]) == ["spring (joint 1)"]
+    # the option is part of the key: without it, the recording is still to compute (and with it, not)
+    assert len(plan(catalogue, ResultStore(store))[1]) == 1
+    assert plan(catalogue, ResultStore(store), diagnose=True)[1] == []
 
 
 def test_cli_fleet_bad_catalogue_is_an_input_error(tmp_path, capsys):

@@ -167,6 +167,9 @@ def essential_parameters(
     W3, tau, names
         Base-parameter regressor (N, n, b), torques (N, n), names, as for
         :func:`dynid.analysis.estimators.least_squares.ols`.
+        Or ``W3`` a :class:`~dynid.analysis.estimators.least_squares.Reduction`
+        (a recording reduced chunk by chunk) with ``tau`` and ``names`` None:
+        the same search on its triangles, the same result to rounding.
     estimator : callable
         :func:`~dynid.analysis.estimators.least_squares.ols` or :func:`~dynid.analysis.estimators.least_squares.wls`
         (or any function with the same signature returning an
@@ -214,6 +217,8 @@ def essential_parameters(
     simply called on the remaining columns at every step.
     """
     crit = _check_criteria(max_error_growth, target_rel_std, rel_std_ratio)
+    if isinstance(W3, ls.Reduction):
+        return _essential_reduced(W3, estimator, crit, estimator_kwargs)
     base = estimator(W3, tau, names, **estimator_kwargs)
     names = list(base.names)
     fixed_kwargs = dict(estimator_kwargs)
@@ -221,12 +226,42 @@ def essential_parameters(
         fixed_kwargs["joint_sigma"] = base.joint_sigma
 
     if estimator is ls.ols or estimator is ls.wls:
-        step_fit = _compressed_stepper(W3, tau, names, base, fixed_kwargs)
+        system = ls._build_system(W3, tau, names, fixed_kwargs.get("row_mask"), fixed_kwargs.get("joints"))
+        step_fit = _compressed_stepper(system, base, fixed_kwargs)
     else:
         def step_fit(cols):
             res = estimator(np.asarray(W3)[:, :, cols], tau, [names[c] for c in cols], **fixed_kwargs)
             return res.chi, res.rel_sigma, res.rel_error, res
 
+    def final(cols, essential, kw):
+        return estimator(np.asarray(W3)[:, :, cols], tau, essential, **kw)
+
+    return _search(base, names, step_fit, final, crit, fixed_kwargs, estimator_kwargs)
+
+
+def _essential_reduced(reduction, estimator, crit, estimator_kwargs):
+    """The search of :func:`essential_parameters` on a :class:`~ls.Reduction` (chunked recordings)."""
+    reduced = {ls.ols: ls.ols_reduced, ls.wls: ls.wls_reduced}.get(estimator, estimator)
+    if reduced not in (ls.ols_reduced, ls.wls_reduced):
+        raise InputError("essential_parameters of a Reduction needs estimator=ls.ols or ls.wls "
+                         "(or their _reduced forms): other estimators need the samples.")
+    if {"row_mask", "joints"} & set(estimator_kwargs):
+        raise InputError("row_mask and joints apply when a chunk is reduced (ls.reduce_system), "
+                         "not to the Reduction.")
+    base = reduced(reduction, **estimator_kwargs)
+    names = list(base.names)
+    fixed_kwargs = dict(estimator_kwargs)
+    if reduced is ls.wls_reduced and "joint_sigma" not in fixed_kwargs:
+        fixed_kwargs["joint_sigma"] = base.joint_sigma
+    step_fit = _compressed_stepper(reduction.system(), base, fixed_kwargs)
+
+    def final(cols, essential, kw):
+        return reduced(reduction.columns(cols), **kw)
+
+    return _search(base, names, step_fit, final, crit, fixed_kwargs, estimator_kwargs)
+
+
+def _search(base, names, step_fit, final, crit, fixed_kwargs, estimator_kwargs):
     cols = np.arange(len(names))
     rel_sigma, err0 = base.rel_sigma, base.rel_error
     current_result = base
@@ -281,7 +316,7 @@ def essential_parameters(
             **(estimator_kwargs.get("settings") or {}),
             "essential_parameters": {**crit, "removed": removed, "stop_rule": stop_rule},
         }
-        current_result = estimator(np.asarray(W3)[:, :, cols], tau, essential, **kw)
+        current_result = final(cols, essential, kw)
     path = pd.DataFrame(rows, columns=_PATH_COLUMNS)
     return EssentialResult(
         result=current_result,
@@ -295,13 +330,12 @@ def essential_parameters(
     )
 
 
-def _compressed_stepper(W3, tau, names, base, kwargs):
+def _compressed_stepper(system, base, kwargs):
     """Step function re-estimating a column subset on the compressed system.
 
     Returns (chi, rel_sigma, rel_error, None); ``None`` tells the caller that
     no full IdentificationResult was built for the step.
     """
-    system = ls._build_system(W3, tau, names, kwargs.get("row_mask"), kwargs.get("joints"))
     rtol = ls._check_rtol(kwargs.get("rank_rtol", ls.RANK_RTOL))
     if base.joint_sigma is None:
         weights = np.ones(system.n_joints)

@@ -32,7 +32,7 @@ from dynid.analysis.results import IdentificationResult
 from dynid.errors import IdentificationError, InputError
 from dynid.provenance import data_hash, json_safe
 
-__all__ = ["stack", "ols", "wls", "RANK_RTOL"]
+__all__ = ["stack", "ols", "wls", "RANK_RTOL", "Reduction", "reduce_system", "ols_reduced", "wls_reduced"]
 
 #: Default relative tolerance of the rank check: a column-normalised W whose
 #: pivoted-QR diagonal falls below RANK_RTOL * |R_11| is declared rank-deficient.
@@ -177,13 +177,21 @@ class _System:
     y_ss: np.ndarray  # (n,) ‖Y^j‖²
     support: np.ndarray  # (n, b) column k is non-zero in joint j's rows
 
+    n_samples: int = 0
+    n_equations: int = 0  # n*N: every equation, included or not
+
     @property
     def n_joints(self) -> int:
-        return self.W3.shape[1]
+        return self.blocks.shape[0]
 
     @property
     def n_params(self) -> int:
-        return self.W3.shape[2]
+        return self.blocks.shape[2] - 1
+
+    @property
+    def reduced(self) -> bool:
+        """True when only the triangles are held (built from a :class:`Reduction`, no W3)."""
+        return self.W3 is None
 
 
 def _build_system(W3, tau, names, row_mask=None, joints=None) -> _System:
@@ -209,7 +217,76 @@ def _build_system(W3, tau, names, row_mask=None, joints=None) -> _System:
         R = sla.qr(A, mode="r", overwrite_a=True, check_finite=False)[0]
         k = min(rows[j], b + 1)
         blocks[j, :k] = R[:k]
-    return _System(W3, tau, mask, names, blocks, rows, y_ss, support)
+    return _System(W3, tau, mask, names, blocks, rows, y_ss, support, N, mask.size)
+
+
+# ------------------------------------------------------- chunked reduction
+@dataclass
+class Reduction:
+    """The stacked system of eq. (10) reduced to what OLS, WLS and the essential set need.
+
+    Per joint j, ``blocks[j]`` is a (b+1) x (b+1) upper triangle R^j with
+    R^jᵀR^j = [W^j | Y^j]ᵀ[W^j | Y^j]: it holds W^jᵀW^j, W^jᵀY^j and ‖Y^j‖²
+    (the normal equations and the residual sum of squares of every fit,
+    ‖Y^j − W^j x‖² = ‖R^j [x; −1]‖²) without squaring the condition number of W
+    as forming WᵀW would. Reductions of consecutive chunks of one recording add
+    up (``a + b``: the two triangles stacked and factorised again, the tall-skinny
+    QR of Demmel et al. 2012), so a recording is identified chunk by chunk with
+    memory independent of its length; the result equals that of the whole system
+    to rounding. ``rows``: r_j; ``y_ss``: ‖Y^j‖²; ``support``: the columns non-zero
+    in joint j's rows; ``n_samples``, ``n_equations``: N and n·N of every chunk.
+    """
+
+    names: list
+    blocks: np.ndarray  # (n, b+1, b+1)
+    rows: np.ndarray  # (n,)
+    y_ss: np.ndarray  # (n,)
+    support: np.ndarray  # (n, b)
+    n_samples: int
+    n_equations: int
+
+    def __add__(self, other: Reduction) -> Reduction:
+        if not isinstance(other, Reduction):
+            return NotImplemented
+        if list(other.names) != list(self.names):
+            raise InputError(
+                f"cannot add reductions of different parameter lists ({', '.join(self.names[:3])}... "
+                f"and {', '.join(other.names[:3])}...); reduce every chunk with the same names."
+            )
+        n, k = self.blocks.shape[0], self.blocks.shape[1]
+        blocks = np.zeros_like(self.blocks)
+        for j in range(n):
+            if other.rows[j] == 0 or self.rows[j] == 0:
+                blocks[j] = self.blocks[j] if other.rows[j] == 0 else other.blocks[j]
+                continue
+            R = sla.qr(np.vstack([self.blocks[j], other.blocks[j]]), mode="r", check_finite=False)[0]
+            blocks[j] = R[:k]
+        return Reduction(list(self.names), blocks, self.rows + other.rows, self.y_ss + other.y_ss,
+                         self.support | other.support, self.n_samples + other.n_samples,
+                         self.n_equations + other.n_equations)
+
+    def columns(self, cols) -> Reduction:
+        """The reduction of the model restricted to the parameters ``cols`` (indices)."""
+        cols = np.asarray(cols, dtype=int)
+        b = len(self.names)
+        keep = np.append(cols, b)
+        blocks = np.zeros((self.blocks.shape[0], keep.size, keep.size))
+        for j in range(self.blocks.shape[0]):
+            R = sla.qr(self.blocks[j][:, keep], mode="r", check_finite=False)[0]
+            m = min(R.shape[0], keep.size)
+            blocks[j, :m] = R[:m]
+        return Reduction([self.names[c] for c in cols], blocks, self.rows.copy(), self.y_ss.copy(),
+                         self.support[:, cols], self.n_samples, self.n_equations)
+
+    def system(self) -> _System:
+        return _System(None, None, None, list(self.names), self.blocks, self.rows, self.y_ss,
+                       self.support, self.n_samples, self.n_equations)
+
+
+def reduce_system(W3, tau, names, *, row_mask=None, joints=None) -> Reduction:
+    """The :class:`Reduction` of one chunk (W3 (N, n, b), tau (N, n)); add the chunks' reductions."""
+    s = _build_system(W3, tau, names, row_mask, joints)
+    return Reduction(s.names, s.blocks, s.rows, s.y_ss, s.support, s.n_samples, s.n_equations)
 
 
 # --------------------------------------------------------------------- solver
@@ -304,7 +381,8 @@ def _rank_error(system, cols, nonzero, R, piv, rank, rank_rtol, Ms) -> Identific
     lines = []
     for k in np.flatnonzero(~nonzero):
         col = cols[k]
-        elsewhere = np.flatnonzero(np.any(system.W3[:, :, col] != 0.0, axis=0))
+        elsewhere = (np.array([], dtype=int) if system.reduced
+                     else np.flatnonzero(np.any(system.W3[:, :, col] != 0.0, axis=0)))
         if elsewhere.size:
             hint = (
                 f"it only appears in rows excluded by row_mask/joints ({_joint_list(elsewhere)}); "
@@ -374,12 +452,19 @@ def _raw_norms(system: _System, cols) -> np.ndarray:
 def _make_result(method, system, fit, sigma_rho, joint_sigma, settings, notices) -> IdentificationResult:
     names = [system.names[c] for c in fit.cols]
     W3, tau, mask = system.W3, system.tau, system.mask
-    full = fit.cols.size == system.n_params and np.array_equal(fit.cols, np.arange(system.n_params))
-    sub = W3 if full else W3[:, :, fit.cols]
-    with np.errstate(invalid="ignore", over="ignore"):
-        residual = tau - sub @ fit.chi
-    used = np.where(mask, residual, 0.0)
-    ss_j = np.einsum("ij,ij->j", used, used)
+    if system.reduced:
+        # no samples held: the residual sums come from the triangles (equal to rounding)
+        residual = np.zeros((0, system.n_joints))
+        ss_j = fit.ss_joint
+        digest = data_hash(system.blocks, system.rows, system.y_ss)
+    else:
+        full = fit.cols.size == system.n_params and np.array_equal(fit.cols, np.arange(system.n_params))
+        sub = W3 if full else W3[:, :, fit.cols]
+        with np.errstate(invalid="ignore", over="ignore"):
+            residual = tau - sub @ fit.chi
+        used = np.where(mask, residual, 0.0)
+        ss_j = np.einsum("ij,ij->j", used, used)
+        digest = data_hash(W3, tau, mask)
     with np.errstate(divide="ignore", invalid="ignore"):
         rms = np.sqrt(ss_j / system.rows)
         joint_rel = np.sqrt(ss_j / system.y_ss)
@@ -396,19 +481,19 @@ def _make_result(method, system, fit, sigma_rho, joint_sigma, settings, notices)
         joint_rel_error=joint_rel,
         cond=fit.cond,
         cond_scaled=fit.cond_scaled,
-        n_samples=W3.shape[0],
-        n_joints=W3.shape[1],
+        n_samples=system.n_samples,
+        n_joints=system.n_joints,
         n_rows=int(system.rows.sum()),
         joint_sigma=joint_sigma,
         settings=settings,
         notices=notices,
-        data_hash=data_hash(W3, tau, mask),
+        data_hash=digest,
     )
 
 
 def _row_notices(system: _System) -> list[str]:
     notices = []
-    total = system.mask.size
+    total = system.n_equations
     excluded = total - int(system.rows.sum())
     if excluded:
         notices.append(f"{excluded} of {total} equations were excluded by row_mask/joints.")
@@ -473,9 +558,22 @@ def ols(W3, tau, names, *, row_mask=None, joints=None, rank_rtol: float = RANK_R
         W is (nearly) rank-deficient: the message names the parameters and
         what to do; or there are not more rows than parameters.
     """
+    system = _build_system(W3, tau, names, row_mask, joints)
+    return _ols_system(system, rank_rtol, settings, row_mask, joints)
+
+
+def ols_reduced(reduction: Reduction, *, rank_rtol: float = RANK_RTOL, settings=None) -> IdentificationResult:
+    """:func:`ols` of a system given by its :class:`Reduction` (chunked recordings).
+
+    Same estimate, covariance and residual statistics as :func:`ols` on the whole
+    W3 to rounding; ``residual`` is empty (the samples are not held).
+    """
+    return _ols_system(reduction.system(), rank_rtol, settings, None, None)
+
+
+def _ols_system(system, rank_rtol, settings, row_mask, joints) -> IdentificationResult:
     rtol = _check_rtol(rank_rtol)
     user = _check_settings(settings)
-    system = _build_system(W3, tau, names, row_mask, joints)
     b = system.n_params
     fit = _fit(system, np.arange(b), np.ones(system.n_joints), rtol)
     r = int(system.rows.sum())
@@ -584,9 +682,24 @@ def wls(
     fixes the σ_j instead of estimating them (``nan`` allowed for joints
     without equations).
     """
+    system = _build_system(W3, tau, names, row_mask, joints)
+    return _wls_system(system, joint_sigma, rank_rtol, settings, row_mask, joints)
+
+
+def wls_reduced(reduction: Reduction, *, joint_sigma=None, rank_rtol: float = RANK_RTOL,
+                settings=None) -> IdentificationResult:
+    """:func:`wls` of a system given by its :class:`Reduction` (chunked recordings).
+
+    The σ_j of eq. (16), the weighted solution and its statistics need only the
+    per-joint triangles, so they equal :func:`wls` on the whole W3 to rounding;
+    ``residual`` is empty (the samples are not held).
+    """
+    return _wls_system(reduction.system(), joint_sigma, rank_rtol, settings, None, None)
+
+
+def _wls_system(system, joint_sigma, rank_rtol, settings, row_mask, joints) -> IdentificationResult:
     rtol = _check_rtol(rank_rtol)
     user = _check_settings(settings)
-    system = _build_system(W3, tau, names, row_mask, joints)
     b, n = system.n_params, system.n_joints
     cols = np.arange(b)
     if joint_sigma is None:

@@ -163,14 +163,16 @@ def identify_fleet(catalogue, store, *, scheduler=None, workers=None, client=Non
     own = None
     n_workers = 0
     if todo:
-        if client is None:
+        created = client is None
+        if created:
             client, own = start_client(scheduler, workers)
         try:
             n_workers = len(client.scheduler_info().get("workers", {}))
             results, errors = execute(todo, store, client, progress=progress)
         finally:
-            if own is not None:
+            if created:         # our client of someone's scheduler is closed too, not left connected
                 client.close()
+            if own is not None:
                 own.close()
     else:
         results, errors = [], []

@@ -9,9 +9,13 @@ of its peak: see :func:`dynid.analysis.processing.signals.transient_samples`), s
 centre equals the whole-record filtfilt to that tolerance. The centre then
 goes through the same regressor -> dead zone -> parallel decimation as
 :func:`dynid.analysis.processing.observation.observe`. Memory: a few blocks of q and tau plus
-one regressor chunk.
+one regressor chunk, plus the decimated system (n_d times smaller than the
+recording); :func:`reduce_stream` does not keep even that: each decimated chunk
+is reduced to its per-joint triangles and added up.
 """
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -28,6 +32,68 @@ def observe_stream(chunks, fs, robot, bp, *, fc_position, nd, f_decimation_cutof
     ``qd_threshold`` must be numbers (per joint or one): 'auto' would need the
     whole record's peak speed before the first block is processed.
     """
+    parts = []
+    settings, dec, margin, n_in = _stream(parts.append, chunks, fs, robot, bp, fc_position=fc_position, nd=nd,
+                                          f_decimation_cutoff=f_decimation_cutoff, qd_threshold=qd_threshold,
+                                          order=order, block=block, progress=progress)
+    Wd, taud, qf_d, qd_d, qdd_d, kept = (np.concatenate([p[k] for p in parts], axis=0) for k in range(6))
+    t = (margin + dec.indices) / fs
+    return Observation(W=Wd, tau=taud, t=t, q=qf_d, qd=qd_d, qdd=qdd_d, row_mask=kept >= 0.5,
+                       names=list(bp.names), settings=settings,
+                       notices=[f"streamed {n_in} samples in blocks of {block} (+{margin} overlap)"],
+                       n_raw=n_in)
+
+
+def reduce_stream(chunks, fs, robot, bp, *, fc_position, nd, f_decimation_cutoff=None,
+                  qd_threshold, order=4, block=200_000, progress=None) -> StreamedReduction:
+    """The observation system of a chunked recording reduced as it streams, W never held.
+
+    The same decimated rows as :func:`observe_stream` (same arguments), but each
+    decimated part is reduced at once to its per-joint triangles
+    (:func:`dynid.analysis.estimators.least_squares.reduce_system`: WᵀW, WᵀY and ‖Y‖²
+    in factored form) and added to the running total, so memory is a few blocks
+    of q and tau whatever the recording's length. Rows are selected as there
+    (decimated rows that kept at least half their samples). Solve the result
+    with ``ls.wls_reduced`` / ``essential_parameters(reduction, None, None, ls.wls)``.
+    """
+    from dynid.analysis.estimators import least_squares as ls
+    total = []
+    names = list(bp.names)
+
+    def add(part):
+        W, tau, kept = part[0], part[1], part[5]
+        if W.shape[0] == 0:
+            return
+        red = ls.reduce_system(W, tau, names, row_mask=kept >= 0.5)
+        total[:] = [red if not total else total[0] + red]
+
+    settings, dec, margin, n_in = _stream(add, chunks, fs, robot, bp, fc_position=fc_position, nd=nd,
+                                          f_decimation_cutoff=f_decimation_cutoff,
+                                          qd_threshold=qd_threshold, order=order, block=block,
+                                          progress=progress)
+    return StreamedReduction(reduction=total[0], settings=settings, n_raw=n_in,
+                             n_decimated=int(len(dec.indices)),
+                             notices=[f"streamed {n_in} samples in blocks of {block} (+{margin} overlap), "
+                                      f"reduced chunk by chunk"])
+
+
+@dataclass
+class StreamedReduction:
+    """What :func:`reduce_stream` returns: the summed :class:`~ls.Reduction` and its settings."""
+
+    reduction: object
+    settings: dict
+    n_raw: int
+    n_decimated: int
+    notices: list
+
+
+def _stream(sink, chunks, fs, robot, bp, *, fc_position, nd, f_decimation_cutoff, qd_threshold,
+            order, block, progress):
+    """Push every block through filter, regressor, dead zone and decimator; ``sink`` each part.
+
+    Returns (settings, decimator, margin, samples read).
+    """
     if isinstance(qd_threshold, str):
         raise DataError("observe_stream needs numeric qd_threshold values (rad/s); 'auto' needs the "
                         "whole recording first. Estimate it on a first segment.")
@@ -39,7 +105,6 @@ def observe_stream(chunks, fs, robot, bp, *, fc_position, nd, f_decimation_cutof
     dec = ParallelDecimator(nd, fs=fs, cutoff=f_cut)
     buf_q, buf_tau = [], []
     n_buf = 0
-    parts = []
     n_in = 0
 
     def process(q, tau):
@@ -50,8 +115,8 @@ def observe_stream(chunks, fs, robot, bp, *, fc_position, nd, f_decimation_cutof
         s, dead = _dead_zone(settings, der.qd, robot, guard=guard, whole=False)
         for start in range(lo, hi, CHUNK):
             sl = slice(start, min(hi, start + CHUNK))
-            parts.append(push_chunk(dec, robot, bp, der.q[sl], der.qd[sl], der.qdd[sl], tau[sl],
-                                    None if dead is None else dead[sl]))
+            sink(push_chunk(dec, robot, bp, der.q[sl], der.qd[sl], der.qdd[sl], tau[sl],
+                            None if dead is None else dead[sl]))
 
     for q_c, tau_c in chunks:
         q_c = np.asarray(q_c, dtype=float)
@@ -75,9 +140,4 @@ def observe_stream(chunks, fs, robot, bp, *, fc_position, nd, f_decimation_cutof
         tau = np.concatenate(buf_tau)
         process(q, tau)
     dec.finish()
-    Wd, taud, qf_d, qd_d, qdd_d, kept = (np.concatenate([p[k] for p in parts], axis=0) for k in range(6))
-    t = (margin + dec.indices) / fs
-    return Observation(W=Wd, tau=taud, t=t, q=qf_d, qd=qd_d, qdd=qdd_d, row_mask=kept >= 0.5,
-                       names=list(bp.names), settings=settings,
-                       notices=[f"streamed {n_in} samples in blocks of {block} (+{margin} overlap)"],
-                       n_raw=n_in)
+    return settings, dec, margin, n_in
