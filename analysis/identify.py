@@ -10,7 +10,7 @@ name, file or :class:`~dynid.dynamics.robot.Robot`) and runs
 * ``"projection"``: the Projection Method of Bona & Curatella (2005), eqs. (10)-(12);
 * ``"ml"``: errors-in-variables maximum likelihood, eqs. (13)-(16) (needs ``f0``).
 
-With ``physical=True`` (IDIM only) the WLS of all base parameters is refitted
+With ``physical=True`` (IDIM; DIDIM refits every Gauss-Newton step the same way) the WLS of all base parameters is refitted
 under physical consistency (every link's pseudo-inertia positive
 semidefinite, Ia, Fv, Fc >= 0; Wensing, Kim & Slotine 2017), an SDP:
 :func:`~dynid.analysis.estimators.physical.identify_physical`; the result is a
@@ -87,7 +87,9 @@ def identify(data, robot, method: str = "idim", *, settings=None, max_error_grow
         result's ``gains`` holds them with their %σ. Without a logged reference the
         gains cannot be identified: the result says what its parameters depend on.
     progress : callable(fraction), optional
-    physical : IDIM only: return the physically consistent WLS (PC-WLS) instead.
+    physical : IDIM: return the physically consistent WLS (PC-WLS) instead. DIDIM: PC-DIDIM,
+        each Gauss-Newton step's WLS refitted under physical consistency (``result.physical``
+        is the last step's PC fit, the robot file's mass bounds apply).
     prior, prior_weight : physical only: ``"apriori"`` adds ``prior_weight`` times the
         squared scaled distance to the robot file's a-priori values (default: none,
         the a-priori values only break ties).
@@ -102,8 +104,12 @@ def identify(data, robot, method: str = "idim", *, settings=None, max_error_grow
     if method != "idim" and len(experiments) > 1:
         raise InputError(f"method {method} identifies one recording at a time; "
                          f"{len(experiments)} were given")
-    if physical and method != "idim":
-        raise InputError(f"physical=True works with method idim only, not {method!r}")
+    if physical and method not in ("idim", "didim"):
+        raise InputError(f"physical=True works with methods idim and didim only, not {method!r}")
+    if physical and method == "didim" and (prior is not None or mass_tolerance is not None):
+        raise InputError("prior and mass_tolerance are options of the physically consistent IDIM fit; "
+                         "PC-DIDIM refits each Gauss-Newton step without a prior, with the mass bounds "
+                         "of the robot file ([apriori] mass_tolerance)")
     if not physical and (prior is not None or mass_tolerance is not None):
         raise InputError("prior and mass_tolerance are options of the physically consistent fit: "
                          "pass physical=True (--physical)")
@@ -146,10 +152,13 @@ def identify(data, robot, method: str = "idim", *, settings=None, max_error_grow
             chi0 = dict(zip(start.base.names, start.wls.chi))
         else:
             chi0 = None
+        if physical:
+            from dynid.analysis.estimators.physical import require_cvxpy
+            require_cvxpy()
         res = identify_didim(exp, robot, settings=settings, reference=ref, controller=controller, chi0=chi0,
                              max_iter=DEFAULT_MAX_ITER if max_iter is None else max_iter,
                              max_error_growth=max_error_growth, update_gains=update_gains,
-                             progress=progress)
+                             progress=progress, physical=physical)
         res.gains = identified
         if identified is not None:
             res.notices.append("controller gains identified from the logged reference, position and "

@@ -331,10 +331,11 @@ def build_parser():
     p.add_argument("--mjcf", metavar="PATH",
                    help="IDIM: write a MuJoCo MJCF of the same physically consistent set (inertials, "
                         "armature = Ia, damping = Fv, frictionloss = Fc)")
-    g = p.add_argument_group("physically consistent identification (IDIM; needs dynid[physical])")
+    g = p.add_argument_group("physically consistent identification (IDIM, DIDIM; needs dynid[physical])")
     g.add_argument("--physical", action="store_true",
                    help="refit the WLS under physical consistency (pseudo-inertias PSD, Ia, Fv, Fc >= 0), "
-                        "an SDP; JSON block \"physical\" and a report section")
+                        "an SDP; JSON block \"physical\" and a report section. With --method didim: "
+                        "PC-DIDIM, every Gauss-Newton step refitted so")
     g.add_argument("--prior", choices=["apriori"],
                    help="--physical: regularise toward the robot file's a-priori values")
     g.add_argument("--prior-weight", type=non_negative_float, default=1.0, metavar="W",
@@ -831,7 +832,8 @@ def cmd_identify(args, say):
     if args.method != "idim":
         given = [f"--{o}" for o, v in (("validation", args.validation), ("holdout", args.holdout),
                                        ("urdf", args.urdf), ("asymmetric-friction", args.asymmetric_friction),
-                                       ("mjcf", args.mjcf), ("physical", args.physical))
+                                       ("mjcf", args.mjcf),
+                                       ("physical", args.physical and args.method != "didim"))
                  if v]
         if given:
             raise InputError(f"{', '.join(given)} work with --method idim only, not with --method "
@@ -929,11 +931,19 @@ def _identify_didim(args, say, robot, exp):
     with say.progress("DIDIM iterations") as bar:
         res = identify(exp, robot, "didim", settings=_processing_settings(args), max_iter=args.max_iter,
                        max_error_growth=args.max_error_growth, gains=args.gains,
-                       update_gains=GAIN_UPDATES[args.gain_update], progress=bar.update)
+                       update_gains=GAIN_UPDATES[args.gain_update], progress=bar.update,
+                       physical=args.physical, prior=args.prior, mass_tolerance=args.mass_tolerance)
     if res.gains is not None:
         _show(args, res.gains.summary())
-    _write_method_outputs(args, say, res, res.model.to_frame(), lambda: didim_sections(res),
-                          f"DIDIM identification of {robot.name}", robot=robot)
+    def sections():
+        out = didim_sections(res)
+        if res.physical is not None:
+            from dynid.reports.physical_section import physical_section
+            out.append(physical_section(res.physical))
+        return out
+    _write_method_outputs(args, say, res, res.model.to_frame(), sections,
+                          f"{'PC-' if res.physical is not None else ''}DIDIM identification of {robot.name}",
+                          robot=robot)
     if not res.converged:
         print(f"dynid identify: DIDIM did not converge ({res.stop_reason}); the outputs say so",
               file=sys.stderr)

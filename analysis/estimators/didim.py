@@ -279,6 +279,9 @@ class DIDIMResult(ModelResults):
         lines.append(h[cols].to_string(index=False, float_format=lambda x: f"{x:.5g}"))
         lines.append("")
         lines.append((self.essential.result if self.essential is not None else self.result).summary())
+        if self.physical is not None:
+            lines += ["", "PC-DIDIM: the last step's WLS refitted under physical consistency (the "
+                      "estimate the loop simulated)", self.physical.summary()]
         if self.notices:
             lines += ["", "Notices:"] + [f"  - {n}" for n in self.notices]
         return "\n".join(lines)
@@ -322,6 +325,8 @@ class DIDIMResult(ModelResults):
             "notices": self.notices,
             "controller_gains": None if self.gains is None else self.gains.to_dict(),
             "true_values": self.truth,
+            # PC-DIDIM: the physically consistent estimate of the last step (None: plain DIDIM)
+            "physical": None if self.physical is None else self.physical.physical_block(),
         })
 
 
