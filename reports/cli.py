@@ -371,6 +371,10 @@ def build_parser():
     p.add_argument("data", nargs="+", help="experiment file(s), as for 'identify'")
     _add_robot_options(p)
     p.add_argument("--which", choices=["essential", "base"], default="essential")
+    p.add_argument("--physical", action="store_true",
+                   help="with --which base: the posterior's support is the physically consistent set "
+                        "(draws whose base parameters no rigid body with Ia, Fv, Fc >= 0 gives are "
+                        "rejected; one feasibility SDP per point, needs dynid[physical])")
     p.add_argument("--seed", type=seed_type, default=1, help="random seed of the sampler (default 1)")
     p.add_argument("--walkers", type=positive_int, default=None,
                    help="emcee walkers (default: max(64, 2 x dimensions + 2))")
@@ -972,7 +976,13 @@ def cmd_simulate(args, say):
 def cmd_sample(args, say):
     from dynid.analysis.estimators.idim import identify_idim
     from dynid.analysis.sampling.posterior import sample_idim
+    from dynid.errors import InputError
     from dynid.provenance import dumps_json
+    if args.physical:
+        if args.which != "base":
+            raise InputError("--physical samples the base parameters: add --which base")
+        from dynid.analysis.estimators.physical import require_cvxpy
+        require_cvxpy()
     robot = _robot(args)
     experiments, _ = _load_data(args, say, robot, args.data)
     with say.progress("regressor and decimation") as bar:
@@ -981,7 +991,8 @@ def cmd_sample(args, say):
                                max_error_growth=args.max_error_growth, progress=bar.update)
     say(f"sampling the posterior of the {args.which} parameters")
     with say.progress("sampling (steps / steps needed)") as bar:
-        post = sample_idim(result, which=args.which, seed=args.seed, n_walkers=args.walkers,
+        post = sample_idim(result, which=args.which, physical=args.physical, robot=robot,
+                           seed=args.seed, n_walkers=args.walkers,
                            max_steps=args.max_steps, max_seconds=args.max_seconds,
                            progress=lambda n, need: bar.update(n / max(need, 1)))
     the_verdict = _verdict(args, result, robot=robot)

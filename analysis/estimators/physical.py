@@ -77,7 +77,7 @@ from dynid.analysis.results import ParameterResults
 from dynid.dynamics.urdf_writer import consistency, inertial_slice, pseudo_inertia_basis
 from dynid.errors import InputError
 
-__all__ = ["PhysicalResult", "pc_wls", "identify_physical", "require_cvxpy", "TIE_BREAK"]
+__all__ = ["PhysicalResult", "PhysicalSupport", "pc_wls", "identify_physical", "require_cvxpy", "TIE_BREAK"]
 
 #: weight of the a-priori term when no prior is asked for: it only picks one standard set
 #: among those with the same base parameters
@@ -476,3 +476,82 @@ def identify_physical(result, robot, *, prior=None, prior_weight=1.0, mass_toler
     res.idim = result
     res.data_hash = getattr(result, "data_hash", "") or ""
     return res
+
+
+class PhysicalSupport:
+    """Indicator of the physically consistent set in base-parameter space (the posterior's support).
+
+    ``beta`` (base parameters, or a subset ``names`` of them with the others zero, as an
+    essential model) is physical when some standard set ``chi`` has ``P chi = beta``, every
+    link's pseudo-inertia PSD and Ia, Fv, Fc >= 0 (the constraints of PC-WLS, without the
+    margin or the mass bounds): a feasibility SDP, compiled once and re-solved per point.
+    Cheap tests first: a base parameter that is a lone Ia, Fv or Fc (its own column, nothing
+    regrouped into it) must be >= 0 (necessary); and with ``reference`` (a consistent standard
+    set, e.g. the PC-WLS one) the standard set keeping its regrouped parameters and taking the
+    independent ones from ``beta`` is checked by eigenvalues (sufficient when it passes). The
+    SDP decides only the points between the two.
+    """
+
+    def __init__(self, robot, bp, names=None, reference=None):
+        cp = require_cvxpy()
+        self.cp = cp
+        names = list(bp.names) if names is None else [str(n) for n in names]
+        unknown = [n for n in names if n not in bp.names]
+        if unknown:
+            raise InputError(f"physical support: {', '.join(unknown)} are not base parameters of "
+                             f"'{robot.name}'")
+        self.idx = np.array([bp.names.index(n) for n in names], dtype=int)
+        self.n_base = bp.n_base
+        chi = cp.Variable(robot.n_standard)
+        self.beta = cp.Parameter(bp.n_base)
+        E = pseudo_inertia_basis()
+        cons = [bp.matrix @ chi == self.beta]
+        for j in range(robot.n_joints):
+            sl = inertial_slice(robot, j)
+            cons.append(sum(E[k] * chi[sl.start + k] for k in range(10)) >> 0)
+        std = list(robot.standard_names)
+        nonneg = [i for i, nm in enumerate(std) if nm.rstrip("0123456789").rstrip("m") in _NONNEG]
+        if nonneg:
+            cons.append(chi[nonneg] >= 0)
+        self.prob = cp.Problem(cp.Minimize(0), cons)
+        self.lone = [k for k, n in enumerate(names) if n.rstrip("0123456789").rstrip("m") in _NONNEG]
+        self.n_solves = 0
+        self.bp = bp
+        self.links = [inertial_slice(robot, j) for j in range(robot.n_joints)]
+        self.nonneg_std = np.array(nonneg, dtype=int)
+        self.reference = None if reference is None else np.asarray(reference, dtype=float)
+
+    def _one(self, beta_full):
+        self.beta.value = beta_full
+        self.n_solves += 1
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", UserWarning)
+                self.prob.solve(solver="CLARABEL")
+        except self.cp.error.SolverError:
+            return False
+        return self.prob.status in ("optimal", "optimal_inaccurate")
+
+    def __call__(self, B) -> np.ndarray:
+        """Boolean (K,): which rows of B (K, len(names)) are physically consistent."""
+        B = np.atleast_2d(np.asarray(B, dtype=float))
+        ok = np.all(np.isfinite(B), axis=1)
+        if self.lone:
+            ok &= np.all(B[:, self.lone] >= 0, axis=1)
+        full = np.zeros((B.shape[0], self.n_base))
+        full[:, self.idx] = B
+        todo = np.flatnonzero(ok)
+        if self.reference is not None and todo.size:
+            dep = self.reference[self.bp.dependent]
+            chi = np.tile(self.reference, (todo.size, 1))
+            chi[:, self.bp.independent] = full[todo] - dep @ self.bp.K.T
+            E = pseudo_inertia_basis()
+            good = np.all(chi[:, self.nonneg_std] >= 0, axis=1) if self.nonneg_std.size else \
+                np.ones(todo.size, dtype=bool)
+            for sl in self.links:
+                J = np.einsum("kp,pab->kab", chi[:, sl], E)
+                good &= np.linalg.eigvalsh(J)[:, 0] >= 0
+            todo = todo[~good]
+        for k in todo:
+            ok[k] = self._one(full[k])
+        return ok
