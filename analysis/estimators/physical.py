@@ -141,7 +141,9 @@ class _Problem:
         return self.s * np.asarray(self.z.value, dtype=float)
 
 
-def _build(robot, bp, R, chi_ap, s, weight, mass_tolerance, nonneg_kinds=_NONNEG):
+def _build(robot, bp, R, chi_ap, s, weight, mass_tolerance, nonneg_kinds=_NONNEG, zero_kinds=()):
+    """The SDP; ``zero_kinds`` (e.g. ``("Ia",)``) fixes those standard parameters at 0 (a
+    model without them, such as no rotor inertia behind a link-side torque sensor)."""
     cp = require_cvxpy()
     names = list(robot.standard_names)
     n_std = len(names)
@@ -159,6 +161,9 @@ def _build(robot, bp, R, chi_ap, s, weight, mass_tolerance, nonneg_kinds=_NONNEG
     nonneg = [i for i, nm in enumerate(names) if nm.rstrip("0123456789").rstrip("m") in nonneg_kinds]
     if nonneg:
         cons.append(z[nonneg] >= 0)
+    zero = [i for i, nm in enumerate(names) if nm.rstrip("0123456789").rstrip("m") in zero_kinds]
+    if zero:
+        cons.append(z[zero] == 0)
     mass_idx = [names.index(f"M{j + 1}") for j in range(robot.n_joints)]
     bounds = {}
     if mass_tolerance is not None:
