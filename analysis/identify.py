@@ -60,7 +60,7 @@ def identify(data, robot, method: str = "idim", *, settings=None, max_error_grow
              f0: float | None = None, ml_harmonics: int | None = None, reference: str | None = None,
              max_iter: int | None = None, update_gains=True, gains: str = "assumed", progress=None,
              physical: bool = False, prior: str | None = None, prior_weight: float = 1.0,
-             mass_tolerance: float | None = None, n_boot: int = 100):
+             mass_tolerance: float | None = None, n_boot: int = 100, physical_set: str = "base"):
     """Identify the dynamic parameters of ``robot`` from ``data`` with ``method``.
 
     Parameters
@@ -96,6 +96,8 @@ def identify(data, robot, method: str = "idim", *, settings=None, max_error_grow
     mass_tolerance : physical only: keep each link mass within this fraction of its
         a-priori value.
     n_boot : physical only: parametric-bootstrap refits for the uncertainty.
+    physical_set : IDIM physical only: ``"base"`` (the WLS of all base parameters, default) or
+        ``"essential"`` (the essential WLS) is constrained.
     """
     if method not in METHODS:
         raise InputError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
@@ -125,7 +127,7 @@ def identify(data, robot, method: str = "idim", *, settings=None, max_error_grow
             return res
         from dynid.analysis.estimators.physical import identify_physical
         return identify_physical(res, robot, prior=prior, prior_weight=prior_weight,
-                                 mass_tolerance=mass_tolerance, n_boot=n_boot)
+                                 mass_tolerance=mass_tolerance, n_boot=n_boot, which=physical_set)
     exp = experiments[0]
     if method == "didim":
         from dynid.analysis.estimators.didim import DEFAULT_MAX_ITER, identify_didim

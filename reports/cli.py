@@ -342,6 +342,9 @@ def build_parser():
                    help="--physical --prior apriori: weight of the a-priori term (default 1)")
     g.add_argument("--mass-tolerance", type=non_negative_float, metavar="F",
                    help="--physical: keep each link mass within this fraction of its a-priori value")
+    g.add_argument("--physical-set", choices=["base", "essential"], default="base",
+                   help="--physical (IDIM): constrain the WLS of all base parameters (default) or the "
+                        "essential parameters")
     g.add_argument("--bootstrap", type=int, default=100, metavar="N",
                    help="--physical: bootstrap refits for the %%sigma of the PC fit (default 100)")
     _add_processing_options(p)
@@ -873,7 +876,8 @@ def cmd_identify(args, say):
             raise InputError(f"--bootstrap must be 0 or more refits, got {args.bootstrap}")
         say("physically consistent WLS (SDP)")
         physical = identify_physical(result, robot, prior=args.prior, prior_weight=args.prior_weight,
-                                     mass_tolerance=args.mass_tolerance, n_boot=args.bootstrap)
+                                     mass_tolerance=args.mass_tolerance, n_boot=args.bootstrap,
+                                     which=args.physical_set)
         _show_clean(args, physical.summary())
     export = None
     if args.urdf or args.mjcf:

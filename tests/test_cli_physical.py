@@ -96,3 +96,19 @@ def test_didim_physical_refuses_the_prior(planar2_csv, capsys):
     assert main(["identify", str(planar2_csv), "--robot", "planar2", "--method", "didim", "--physical",
                  "--prior", "apriori", "--quiet"]) == 2
     assert "PC-DIDIM" in capsys.readouterr().err
+
+
+def test_identify_physical_essential_set(planar2_csv, tmp_path):
+    """--physical --physical-set essential: the block "physical" is over the essential names
+    (those of the unconstrained essential model), its standard set consistent."""
+    js, urdf = tmp_path / "e.json", tmp_path / "e.urdf"
+    assert main(["identify", str(planar2_csv), "--robot", "planar2", "--physical", "--physical-set",
+                 "essential", "--bootstrap", "0", "--json", str(js), "--urdf", str(urdf), "--quiet"]) == 0
+    doc = json.loads(js.read_text())
+    ph = doc["physical"]
+    assert ph["model"] == "essential" and ph["consistent"] is True
+    assert [p["name"] for p in ph["parameters"]] == [p["name"] for p in doc["parameters"]]
+    std = {p["name"]: p["value"] for p in ph["standard_parameters"]}
+    for link in (1, 2):
+        assert _pseudo_inertia_min_eig(std, link) >= -1e-9
+    assert "<robot" in urdf.read_text()

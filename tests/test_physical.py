@@ -259,3 +259,35 @@ def test_pc_didim_simulates_physical_estimates():
     assert pc.chi2 < 10
     sig = plain.result.sigma
     assert np.all(np.abs(pc.chi - plain.result.chi) <= sig + 1e-9)
+
+
+def test_pc_fit_of_the_essential_set(kuka_23):
+    """which="essential": the essential WLS constrained; its parameters are the essential ones,
+    equal to P_e chi of a standard set whose pseudo-inertias are PSD (eigenvalues computed
+    here from the 4x4 matrices), and the held-out prediction uses the essential columns."""
+    from conftest import ROOT
+
+    import dynid
+    from dynid.analysis.estimators.physical import identify_physical
+    robot, res = kuka_23
+    pe = identify_physical(res, robot, n_boot=0, which="essential")
+    ess = res.essential.result
+    assert pe.names == list(ess.names) and pe.model == "essential" and len(pe.names) < res.base.n_base
+    rows = [res.base.names.index(n) for n in pe.names]
+    np.testing.assert_allclose(pe.chi, res.base.matrix[rows] @ pe.standard, atol=1e-12)
+    names = robot.standard_names
+    for j in range(1, robot.n_joints + 1):
+        g = {k: pe.standard[names.index(f"{k}{j}")] for k in ("XX", "XY", "XZ", "YY", "YZ", "ZZ", "MX", "MY", "MZ", "M")}
+        inertia = np.array([[g["XX"], g["XY"], g["XZ"]], [g["XY"], g["YY"], g["YZ"]], [g["XZ"], g["YZ"], g["ZZ"]]])
+        J = np.block([[0.5 * np.trace(inertia) * np.eye(3) - inertia, np.array([[g["MX"], g["MY"], g["MZ"]]]).T],
+                      [np.array([[g["MX"], g["MY"], g["MZ"]]]), np.array([[g["M"]]])]])
+        assert np.linalg.eigvalsh(J)[0] >= -1e-9
+        # the robot file's +-50 % mass bounds
+        ap = robot.apriori[f"M{j}"]
+        assert 0.5 * ap - 1e-9 <= g["M"] <= 1.5 * ap + 1e-9
+    assert pe.consistent and pe.chi2 > 100 and pe.physical_block()["model"] == "essential"
+    # same data, same constraints: the essential PC fit is no better on its own data than WLS
+    assert ess.rel_error < pe.rel_error < ess.rel_error + 0.01
+    held = dynid.load_experiment(ROOT / "examples" / "kuka_lwr4" / "recording_1.toml", robot)
+    v = dynid.validate(pe, held, robot)
+    assert np.isfinite(v.rel_error) and v.rel_error < 0.03

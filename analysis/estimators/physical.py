@@ -239,6 +239,10 @@ class PhysicalResult(ParameterResults):
     notices: list = field(default_factory=list)
     data_hash: str = ""
     idim: object = None              # the IDIMResult it came from, when it did
+    # which unconstrained model was constrained: "base" (all base parameters) or "essential";
+    # columns: the base-regressor columns of ``names`` (None: all, in order)
+    model: str = "base"
+    columns: np.ndarray | None = None
 
     @property
     def consistent(self) -> bool:
@@ -297,21 +301,28 @@ class PhysicalResult(ParameterResults):
                               "deviation_sigma": dev}, index=pd.Index(self.names, name="base parameter"))
         notices = [] if self.chi2 <= REPRODUCE_CHI2 else [
             f"PC-WLS: {self.verdict_line()}; active: {', '.join(self.active) or 'none'}"]
+        beta, base_names = self.chi, list(self.names)
+        if self.columns is not None and self.idim is not None:
+            # the essential fit: the set's own base parameters, all of them (what a URDF of it holds)
+            beta, base_names = self.idim.base.from_standard(self.standard), list(self.idim.base.names)
         return StandardSet(robot_name=self.robot_name, names=list(self.standard_names), chi=self.standard,
-                           apriori=self.apriori, beta=self.chi, target=table, base_names=list(self.names),
+                           apriori=self.apriori, beta=beta, target=table, base_names=base_names,
                            consistent=self.consistent, reproduces=bool(self.chi2 <= REPRODUCE_CHI2),
                            links=self.links, chi2=self.chi2,
                            message="PC-WLS (SDP, cvxpy + Clarabel): the physically consistent fit itself",
                            notices=notices)
 
     def predict(self, W_base):
-        """Torques (N, n) from a base regressor (N, n, b)."""
-        return np.asarray(W_base) @ self.chi
+        """Torques (N, n) from a base regressor (N, n, b) (its essential columns for the
+        PC fit of the essential set)."""
+        W = np.asarray(W_base)
+        return (W if self.columns is None else W[..., self.columns]) @ self.chi
 
     def physical_block(self) -> dict:
         """The JSON block ``"physical"`` of ``dynid identify --physical``."""
         from dynid.provenance import json_safe
         return json_safe({
+            "model": self.model,
             "consistent": self.consistent, "active": self.active, "chi2": self.chi2, "dof": self.dof,
             "p_value": self.p_value, "unconstrained_consistent": self.wls_consistent,
             "prior": self.prior, "prior_weight": self.prior_weight, "mass_tolerance": self.mass_tolerance,
@@ -347,7 +358,8 @@ class PhysicalResult(ParameterResults):
                 f"compatible with a physical model")
 
     def summary(self) -> str:
-        lines = [f"Physically consistent WLS (PC-WLS, SDP) of robot '{self.robot_name}'",
+        lines = [f"Physically consistent WLS (PC-WLS, SDP) of robot '{self.robot_name}'"
+                 + (", essential parameters" if self.model == "essential" else ""),
                  f"  every link consistent: {'yes' if self.consistent else 'NO'}; unconstrained WLS "
                  f"physical: {'yes' if self.wls_consistent else 'no'}",
                  f"  active constraints: {', '.join(self.active) or 'none'}",
@@ -457,26 +469,56 @@ def _wls_standard_consistent(robot, bp, beta_wls):
     return True if prob.status in ("optimal", "optimal_inaccurate") else None
 
 
+class _Rows:
+    """The base parameters ``names`` of ``bp`` alone (the essential set): rows of P."""
+
+    def __init__(self, bp, names):
+        self.names = list(names)
+        self.rows = np.array([bp.names.index(n) for n in self.names], dtype=int)
+        self.matrix = bp.matrix[self.rows]
+        self.n_base = len(self.names)
+
+
 def identify_physical(result, robot, *, prior=None, prior_weight=1.0, mass_tolerance=None,
-                      n_boot=100, seed=0) -> PhysicalResult:
-    """PC-WLS of an IDIM result: its WLS of all base parameters, constrained.
+                      n_boot=100, seed=0, which="base") -> PhysicalResult:
+    """PC-WLS of an IDIM result: its WLS of all base parameters (``which="base"``) or its
+    essential WLS (``which="essential"``), constrained.
 
     The base regressor, the decimation and the per-joint weights 1/sigma_j are
     those of ``result`` (:func:`dynid.analysis.estimators.idim.identify_idim`).
+
+    The essential set: the same SDP with the essential WLS estimate and covariance as the
+    target and ``beta_e = P_e chi`` (the essential rows of P). The parameters the essential
+    model dropped are not in its torques, so they are free in the SDP: the standard set
+    gives them whatever values consistency needs (reported in ``standard``; a URDF of that
+    set predicts them too, a small difference by the essential rule's construction).
     """
     wls = getattr(result, "wls", None)
     if wls is None or getattr(result, "base", None) is None:
         raise InputError("the physically consistent fit starts from an IDIM result (its WLS of all base "
                          f"parameters); got {type(result).__name__}")
-    res = pc_wls(robot, result.base, wls.chi, wls.cov, prior=prior, prior_weight=prior_weight,
+    if which not in ("base", "essential"):
+        raise InputError(f"which must be 'base' or 'essential', got {which!r}")
+    columns = None
+    bp = result.base
+    if which == "essential":
+        ess = getattr(getattr(result, "essential", None), "result", None)
+        if ess is None:
+            raise InputError("this IDIM result has no essential parameters; use which='base'")
+        bp = _Rows(result.base, ess.names)
+        columns = bp.rows
+        wls = ess
+    res = pc_wls(robot, bp, wls.chi, wls.cov, prior=prior, prior_weight=prior_weight,
                  mass_tolerance=mass_tolerance, n_boot=n_boot, seed=seed)
+    res.model, res.columns = which, columns
     obs = getattr(result, "observation", None)
     if obs is not None:
         mask = np.asarray(obs.row_mask, dtype=bool)
         if mask.ndim == 1:
             mask = np.broadcast_to(mask[:, None], obs.tau.shape)
         y = np.where(mask, obs.tau, 0.0)
-        res.rel_error = float(np.linalg.norm(np.where(mask, obs.tau - obs.W @ res.chi, 0.0)) / np.linalg.norm(y))
+        res.rel_error = float(np.linalg.norm(np.where(mask, obs.tau - res.predict(obs.W), 0.0)) /
+                              np.linalg.norm(y))
         res.wls_rel_error = float(wls.rel_error)
     res.idim = result
     res.data_hash = getattr(result, "data_hash", "") or ""
