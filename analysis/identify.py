@@ -10,7 +10,7 @@ name, file or :class:`~dynid.dynamics.robot.Robot`) and runs
 * ``"projection"``: the Projection Method of Bona & Curatella (2005), eqs. (10)-(12);
 * ``"ml"``: errors-in-variables maximum likelihood, eqs. (13)-(16) (needs ``f0``).
 
-With ``physical=True`` (IDIM only) the WLS of all base parameters is refitted
+With ``physical=True`` (IDIM; DIDIM refits every Gauss-Newton step the same way) the WLS of all base parameters is refitted
 under physical consistency (every link's pseudo-inertia positive
 semidefinite, Ia, Fv, Fc >= 0; Wensing, Kim & Slotine 2017), an SDP:
 :func:`~dynid.analysis.estimators.physical.identify_physical`; the result is a
@@ -60,7 +60,7 @@ def identify(data, robot, method: str = "idim", *, settings=None, max_error_grow
              f0: float | None = None, ml_harmonics: int | None = None, reference: str | None = None,
              max_iter: int | None = None, update_gains=True, gains: str = "assumed", progress=None,
              physical: bool = False, prior: str | None = None, prior_weight: float = 1.0,
-             mass_tolerance: float | None = None, n_boot: int = 100):
+             mass_tolerance: float | None = None, n_boot: int = 100, physical_set: str = "base"):
     """Identify the dynamic parameters of ``robot`` from ``data`` with ``method``.
 
     Parameters
@@ -87,13 +87,17 @@ def identify(data, robot, method: str = "idim", *, settings=None, max_error_grow
         result's ``gains`` holds them with their %σ. Without a logged reference the
         gains cannot be identified: the result says what its parameters depend on.
     progress : callable(fraction), optional
-    physical : IDIM only: return the physically consistent WLS (PC-WLS) instead.
+    physical : IDIM: return the physically consistent WLS (PC-WLS) instead. DIDIM: PC-DIDIM,
+        each Gauss-Newton step's WLS refitted under physical consistency (``result.physical``
+        is the last step's PC fit, the robot file's mass bounds apply).
     prior, prior_weight : physical only: ``"apriori"`` adds ``prior_weight`` times the
         squared scaled distance to the robot file's a-priori values (default: none,
         the a-priori values only break ties).
     mass_tolerance : physical only: keep each link mass within this fraction of its
         a-priori value.
     n_boot : physical only: parametric-bootstrap refits for the uncertainty.
+    physical_set : IDIM physical only: ``"base"`` (the WLS of all base parameters, default) or
+        ``"essential"`` (the essential WLS) is constrained.
     """
     if method not in METHODS:
         raise InputError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
@@ -102,8 +106,12 @@ def identify(data, robot, method: str = "idim", *, settings=None, max_error_grow
     if method != "idim" and len(experiments) > 1:
         raise InputError(f"method {method} identifies one recording at a time; "
                          f"{len(experiments)} were given")
-    if physical and method != "idim":
-        raise InputError(f"physical=True works with method idim only, not {method!r}")
+    if physical and method not in ("idim", "didim"):
+        raise InputError(f"physical=True works with methods idim and didim only, not {method!r}")
+    if physical and method == "didim" and (prior is not None or mass_tolerance is not None):
+        raise InputError("prior and mass_tolerance are options of the physically consistent IDIM fit; "
+                         "PC-DIDIM refits each Gauss-Newton step without a prior, with the mass bounds "
+                         "of the robot file ([apriori] mass_tolerance)")
     if not physical and (prior is not None or mass_tolerance is not None):
         raise InputError("prior and mass_tolerance are options of the physically consistent fit: "
                          "pass physical=True (--physical)")
@@ -119,7 +127,7 @@ def identify(data, robot, method: str = "idim", *, settings=None, max_error_grow
             return res
         from dynid.analysis.estimators.physical import identify_physical
         return identify_physical(res, robot, prior=prior, prior_weight=prior_weight,
-                                 mass_tolerance=mass_tolerance, n_boot=n_boot)
+                                 mass_tolerance=mass_tolerance, n_boot=n_boot, which=physical_set)
     exp = experiments[0]
     if method == "didim":
         from dynid.analysis.estimators.didim import DEFAULT_MAX_ITER, identify_didim
@@ -149,10 +157,13 @@ def identify(data, robot, method: str = "idim", *, settings=None, max_error_grow
             chi0 = dict(zip(start.base.names, start.wls.chi))
         else:
             chi0 = None
+        if physical:
+            from dynid.analysis.estimators.physical import require_cvxpy
+            require_cvxpy()
         res = identify_didim(exp, robot, settings=settings, reference=ref, controller=controller, chi0=chi0,
                              max_iter=DEFAULT_MAX_ITER if max_iter is None else max_iter,
                              max_error_growth=max_error_growth, update_gains=update_gains,
-                             progress=progress)
+                             progress=progress, physical=physical)
         res.gains = identified
         if identified is not None:
             res.notices.append("controller gains identified from the logged reference, position and "

@@ -331,16 +331,20 @@ def build_parser():
     p.add_argument("--mjcf", metavar="PATH",
                    help="IDIM: write a MuJoCo MJCF of the same physically consistent set (inertials, "
                         "armature = Ia, damping = Fv, frictionloss = Fc)")
-    g = p.add_argument_group("physically consistent identification (IDIM; needs dynid[physical])")
+    g = p.add_argument_group("physically consistent identification (IDIM, DIDIM; needs dynid[physical])")
     g.add_argument("--physical", action="store_true",
                    help="refit the WLS under physical consistency (pseudo-inertias PSD, Ia, Fv, Fc >= 0), "
-                        "an SDP; JSON block \"physical\" and a report section")
+                        "an SDP; JSON block \"physical\" and a report section. With --method didim: "
+                        "PC-DIDIM, every Gauss-Newton step refitted so")
     g.add_argument("--prior", choices=["apriori"],
                    help="--physical: regularise toward the robot file's a-priori values")
     g.add_argument("--prior-weight", type=non_negative_float, default=1.0, metavar="W",
                    help="--physical --prior apriori: weight of the a-priori term (default 1)")
     g.add_argument("--mass-tolerance", type=non_negative_float, metavar="F",
                    help="--physical: keep each link mass within this fraction of its a-priori value")
+    g.add_argument("--physical-set", choices=["base", "essential"], default="base",
+                   help="--physical (IDIM): constrain the WLS of all base parameters (default) or the "
+                        "essential parameters")
     g.add_argument("--bootstrap", type=int, default=100, metavar="N",
                    help="--physical: bootstrap refits for the %%sigma of the PC fit (default 100)")
     _add_processing_options(p)
@@ -370,6 +374,10 @@ def build_parser():
     p.add_argument("data", nargs="+", help="experiment file(s), as for 'identify'")
     _add_robot_options(p)
     p.add_argument("--which", choices=["essential", "base"], default="essential")
+    p.add_argument("--physical", action="store_true",
+                   help="with --which base: the posterior's support is the physically consistent set "
+                        "(draws whose base parameters no rigid body with Ia, Fv, Fc >= 0 gives are "
+                        "rejected; one feasibility SDP per point, needs dynid[physical])")
     p.add_argument("--seed", type=seed_type, default=1, help="random seed of the sampler (default 1)")
     p.add_argument("--walkers", type=positive_int, default=None,
                    help="emcee walkers (default: max(64, 2 x dimensions + 2))")
@@ -831,7 +839,8 @@ def cmd_identify(args, say):
     if args.method != "idim":
         given = [f"--{o}" for o, v in (("validation", args.validation), ("holdout", args.holdout),
                                        ("urdf", args.urdf), ("asymmetric-friction", args.asymmetric_friction),
-                                       ("mjcf", args.mjcf), ("physical", args.physical))
+                                       ("mjcf", args.mjcf),
+                                       ("physical", args.physical and args.method != "didim"))
                  if v]
         if given:
             raise InputError(f"{', '.join(given)} work with --method idim only, not with --method "
@@ -867,7 +876,8 @@ def cmd_identify(args, say):
             raise InputError(f"--bootstrap must be 0 or more refits, got {args.bootstrap}")
         say("physically consistent WLS (SDP)")
         physical = identify_physical(result, robot, prior=args.prior, prior_weight=args.prior_weight,
-                                     mass_tolerance=args.mass_tolerance, n_boot=args.bootstrap)
+                                     mass_tolerance=args.mass_tolerance, n_boot=args.bootstrap,
+                                     which=args.physical_set)
         _show_clean(args, physical.summary())
     export = None
     if args.urdf or args.mjcf:
@@ -929,11 +939,19 @@ def _identify_didim(args, say, robot, exp):
     with say.progress("DIDIM iterations") as bar:
         res = identify(exp, robot, "didim", settings=_processing_settings(args), max_iter=args.max_iter,
                        max_error_growth=args.max_error_growth, gains=args.gains,
-                       update_gains=GAIN_UPDATES[args.gain_update], progress=bar.update)
+                       update_gains=GAIN_UPDATES[args.gain_update], progress=bar.update,
+                       physical=args.physical, prior=args.prior, mass_tolerance=args.mass_tolerance)
     if res.gains is not None:
         _show(args, res.gains.summary())
-    _write_method_outputs(args, say, res, res.model.to_frame(), lambda: didim_sections(res),
-                          f"DIDIM identification of {robot.name}", robot=robot)
+    def sections():
+        out = didim_sections(res)
+        if res.physical is not None:
+            from dynid.reports.physical_section import physical_section
+            out.append(physical_section(res.physical))
+        return out
+    _write_method_outputs(args, say, res, res.model.to_frame(), sections,
+                          f"{'PC-' if res.physical is not None else ''}DIDIM identification of {robot.name}",
+                          robot=robot)
     if not res.converged:
         print(f"dynid identify: DIDIM did not converge ({res.stop_reason}); the outputs say so",
               file=sys.stderr)
@@ -962,7 +980,13 @@ def cmd_simulate(args, say):
 def cmd_sample(args, say):
     from dynid.analysis.estimators.idim import identify_idim
     from dynid.analysis.sampling.posterior import sample_idim
+    from dynid.errors import InputError
     from dynid.provenance import dumps_json
+    if args.physical:
+        if args.which != "base":
+            raise InputError("--physical samples the base parameters: add --which base")
+        from dynid.analysis.estimators.physical import require_cvxpy
+        require_cvxpy()
     robot = _robot(args)
     experiments, _ = _load_data(args, say, robot, args.data)
     with say.progress("regressor and decimation") as bar:
@@ -971,7 +995,8 @@ def cmd_sample(args, say):
                                max_error_growth=args.max_error_growth, progress=bar.update)
     say(f"sampling the posterior of the {args.which} parameters")
     with say.progress("sampling (steps / steps needed)") as bar:
-        post = sample_idim(result, which=args.which, seed=args.seed, n_walkers=args.walkers,
+        post = sample_idim(result, which=args.which, physical=args.physical, robot=robot,
+                           seed=args.seed, n_walkers=args.walkers,
                            max_steps=args.max_steps, max_seconds=args.max_seconds,
                            progress=lambda n, need: bar.update(n / max(need, 1)))
     the_verdict = _verdict(args, result, robot=robot)

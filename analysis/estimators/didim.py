@@ -72,7 +72,11 @@ Documented choices (all in ``DIDIMResult.settings``, all overridable through
   moved back towards the last simulated estimate by halving its step (at most
   ``max_step_halvings`` times; history column ``step_length``). The paper's
   iteration would stop there; a damped step is simulated instead, and
-  convergence is only declared after a full step.
+  convergence is only declared after a full step. PC-DIDIM (``physical=True``)
+  also halves a step that raises the output error ||tau - tau_sim|| above the
+  last simulated estimate's (a projected Gauss-Newton step needs that descent
+  test; the halved steps stay physical, the set being convex); the smallest
+  step is taken untested.
 * **Initial state and transient**: the simulation starts at ``(qr(0),
   qdr(0))``; the first ``transient`` seconds (default ``5 / min(wn)``, the
   text after eq. (32)) are dropped from the identification data.
@@ -279,6 +283,9 @@ class DIDIMResult(ModelResults):
         lines.append(h[cols].to_string(index=False, float_format=lambda x: f"{x:.5g}"))
         lines.append("")
         lines.append((self.essential.result if self.essential is not None else self.result).summary())
+        if self.physical is not None:
+            lines += ["", "PC-DIDIM: the last step's WLS refitted under physical consistency (the "
+                      "estimate the loop simulated)", self.physical.summary()]
         if self.notices:
             lines += ["", "Notices:"] + [f"  - {n}" for n in self.notices]
         return "\n".join(lines)
@@ -322,6 +329,8 @@ class DIDIMResult(ModelResults):
             "notices": self.notices,
             "controller_gains": None if self.gains is None else self.gains.to_dict(),
             "true_values": self.truth,
+            # PC-DIDIM: the physically consistent estimate of the last step (None: plain DIDIM)
+            "physical": None if self.physical is None else self.physical.physical_block(),
         })
 
 
@@ -688,6 +697,21 @@ def identify_didim(experiment, robot, *, settings=None, chi0=None, tol=DEFAULT_T
     beta_sim = beta0            # the last simulated estimate (always simulatable)
     beta_ls = None              # the last least-squares solution
     max_halvings = s["max_step_halvings"]
+    out_prev = None             # output error of the last simulated estimate (PC-DIDIM's descent test)
+
+    def _system_of(q_s, qd_s, qdd_s, k=None):
+        """The decimated system (Wd, taud, mask, idx) of one simulation, after the transient."""
+        sl = slice(n0, None)
+        dead = None
+        if np.any(thr > 0):
+            dead = velocity_dead_zone(qd_s[sl], thr, guard=guard, couplings=robot.couplings)
+
+        def inner(f):
+            if progress is not None and k is not None:
+                progress(min(1.0, (k - 1 + f) / max_iter))
+
+        return _decimated_system(robot, bp, q_s[sl], qd_s[sl], qdd_s[sl], tau_k, dead, s, workers, inner)
+
     for k in range(1, max_iter + 1):
         t_start = time.perf_counter()
         if k == 1:
@@ -696,6 +720,7 @@ def identify_didim(experiment, robot, *, settings=None, chi0=None, tol=DEFAULT_T
             step = beta_ls - beta_sim
             candidates = [(0.5 ** h, beta_sim + 0.5 ** h * step) for h in range(max_halvings + 1)]
         failure = first_failure = None
+        system = None
         for lam, cand in candidates:  # noqa: B007 (lam: the step taken, used after the loop)
             try:
                 q_s, qd_s, qdd_s, tau_ddm, substeps, sim, kd = _simulate_checked(
@@ -706,6 +731,17 @@ def identify_didim(experiment, robot, *, settings=None, chi0=None, tol=DEFAULT_T
                 first_failure = first_failure or str(exc)
                 continue
             failure = None
+            if physical and out_prev is not None and lam > 0.5 ** max_halvings:
+                # PC-DIDIM: the projected step is a Gauss-Newton step of the linearised problem
+                # only; a projected Gauss-Newton needs a descent test on the nonlinear one (the
+                # output error). Halved steps stay physical: the set is convex and both ends are in it.
+                system = _system_of(q_s, qd_s, qdd_s)
+                oe = _masked_norm(system[1] - system[0] @ cand, system[2])
+                if oe > out_prev:
+                    first_failure = first_failure or (f"the output error grew ({oe:.4g} > "
+                                                      f"{out_prev:.4g})")
+                    system = None
+                    continue
             break
         if failure is not None:
             if k == 1:
@@ -715,7 +751,9 @@ def identify_didim(experiment, robot, *, settings=None, chi0=None, tol=DEFAULT_T
                            f"{failure}")
             break
         if lam < 1.0:
-            notices.append(f"step {k}: the estimate of step {k - 1} could not be simulated "
+            what = ("did not lower the output error" if first_failure.startswith("the output error grew")
+                    else "could not be simulated")
+            notices.append(f"step {k}: the estimate of step {k - 1} {what} "
                            f"({first_failure}); simulated {lam:g} of its step from the previous "
                            "simulated estimate instead")
         beta_sim = cand
@@ -725,19 +763,11 @@ def identify_didim(experiment, robot, *, settings=None, chi0=None, tol=DEFAULT_T
         t_sim = time.perf_counter() - t_start
         configs = q_s[::j_stride]
         sl = slice(n0, None)
-        dead = None
-        if np.any(thr > 0):
-            dead = velocity_dead_zone(qd_s[sl], thr, guard=guard, couplings=robot.couplings)
-
-        def inner(f, k=k):
-            if progress is not None:
-                progress(min(1.0, (k - 1 + f) / max_iter))
-
-        Wd, taud, mask, idx = _decimated_system(robot, bp, q_s[sl], qd_s[sl], qdd_s[sl], tau_k,
-                                                dead, s, workers, inner)
+        Wd, taud, mask, idx = system if system is not None else _system_of(q_s, qd_s, qdd_s, k)
         res = ls.wls(Wd, taud, names, row_mask=mask, settings=info)
         rho = _masked_norm(res.residual, mask)
         out_err = _masked_norm(taud - Wd @ beta_sim, mask)
+        out_prev = out_err
         rel_change = abs(rho - rho_prev) / rho_prev if rho_prev is not None and rho_prev > 0 else np.nan
         d = res.chi - beta_sim
         with np.errstate(divide="ignore", invalid="ignore"):

@@ -77,7 +77,7 @@ from dynid.analysis.results import ParameterResults
 from dynid.dynamics.urdf_writer import consistency, inertial_slice, pseudo_inertia_basis
 from dynid.errors import InputError
 
-__all__ = ["PhysicalResult", "pc_wls", "identify_physical", "require_cvxpy", "TIE_BREAK"]
+__all__ = ["PhysicalResult", "PhysicalSupport", "pc_wls", "identify_physical", "require_cvxpy", "TIE_BREAK"]
 
 #: weight of the a-priori term when no prior is asked for: it only picks one standard set
 #: among those with the same base parameters
@@ -141,7 +141,9 @@ class _Problem:
         return self.s * np.asarray(self.z.value, dtype=float)
 
 
-def _build(robot, bp, R, chi_ap, s, weight, mass_tolerance, nonneg_kinds=_NONNEG):
+def _build(robot, bp, R, chi_ap, s, weight, mass_tolerance, nonneg_kinds=_NONNEG, zero_kinds=()):
+    """The SDP; ``zero_kinds`` (e.g. ``("Ia",)``) fixes those standard parameters at 0 (a
+    model without them, such as no rotor inertia behind a link-side torque sensor)."""
     cp = require_cvxpy()
     names = list(robot.standard_names)
     n_std = len(names)
@@ -159,6 +161,9 @@ def _build(robot, bp, R, chi_ap, s, weight, mass_tolerance, nonneg_kinds=_NONNEG
     nonneg = [i for i, nm in enumerate(names) if nm.rstrip("0123456789").rstrip("m") in nonneg_kinds]
     if nonneg:
         cons.append(z[nonneg] >= 0)
+    zero = [i for i, nm in enumerate(names) if nm.rstrip("0123456789").rstrip("m") in zero_kinds]
+    if zero:
+        cons.append(z[zero] == 0)
     mass_idx = [names.index(f"M{j + 1}") for j in range(robot.n_joints)]
     bounds = {}
     if mass_tolerance is not None:
@@ -234,6 +239,10 @@ class PhysicalResult(ParameterResults):
     notices: list = field(default_factory=list)
     data_hash: str = ""
     idim: object = None              # the IDIMResult it came from, when it did
+    # which unconstrained model was constrained: "base" (all base parameters) or "essential";
+    # columns: the base-regressor columns of ``names`` (None: all, in order)
+    model: str = "base"
+    columns: np.ndarray | None = None
 
     @property
     def consistent(self) -> bool:
@@ -292,21 +301,28 @@ class PhysicalResult(ParameterResults):
                               "deviation_sigma": dev}, index=pd.Index(self.names, name="base parameter"))
         notices = [] if self.chi2 <= REPRODUCE_CHI2 else [
             f"PC-WLS: {self.verdict_line()}; active: {', '.join(self.active) or 'none'}"]
+        beta, base_names = self.chi, list(self.names)
+        if self.columns is not None and self.idim is not None:
+            # the essential fit: the set's own base parameters, all of them (what a URDF of it holds)
+            beta, base_names = self.idim.base.from_standard(self.standard), list(self.idim.base.names)
         return StandardSet(robot_name=self.robot_name, names=list(self.standard_names), chi=self.standard,
-                           apriori=self.apriori, beta=self.chi, target=table, base_names=list(self.names),
+                           apriori=self.apriori, beta=beta, target=table, base_names=base_names,
                            consistent=self.consistent, reproduces=bool(self.chi2 <= REPRODUCE_CHI2),
                            links=self.links, chi2=self.chi2,
                            message="PC-WLS (SDP, cvxpy + Clarabel): the physically consistent fit itself",
                            notices=notices)
 
     def predict(self, W_base):
-        """Torques (N, n) from a base regressor (N, n, b)."""
-        return np.asarray(W_base) @ self.chi
+        """Torques (N, n) from a base regressor (N, n, b) (its essential columns for the
+        PC fit of the essential set)."""
+        W = np.asarray(W_base)
+        return (W if self.columns is None else W[..., self.columns]) @ self.chi
 
     def physical_block(self) -> dict:
         """The JSON block ``"physical"`` of ``dynid identify --physical``."""
         from dynid.provenance import json_safe
         return json_safe({
+            "model": self.model,
             "consistent": self.consistent, "active": self.active, "chi2": self.chi2, "dof": self.dof,
             "p_value": self.p_value, "unconstrained_consistent": self.wls_consistent,
             "prior": self.prior, "prior_weight": self.prior_weight, "mass_tolerance": self.mass_tolerance,
@@ -342,7 +358,8 @@ class PhysicalResult(ParameterResults):
                 f"compatible with a physical model")
 
     def summary(self) -> str:
-        lines = [f"Physically consistent WLS (PC-WLS, SDP) of robot '{self.robot_name}'",
+        lines = [f"Physically consistent WLS (PC-WLS, SDP) of robot '{self.robot_name}'"
+                 + (", essential parameters" if self.model == "essential" else ""),
                  f"  every link consistent: {'yes' if self.consistent else 'NO'}; unconstrained WLS "
                  f"physical: {'yes' if self.wls_consistent else 'no'}",
                  f"  active constraints: {', '.join(self.active) or 'none'}",
@@ -452,27 +469,136 @@ def _wls_standard_consistent(robot, bp, beta_wls):
     return True if prob.status in ("optimal", "optimal_inaccurate") else None
 
 
+class _Rows:
+    """The base parameters ``names`` of ``bp`` alone (the essential set): rows of P."""
+
+    def __init__(self, bp, names):
+        self.names = list(names)
+        self.rows = np.array([bp.names.index(n) for n in self.names], dtype=int)
+        self.matrix = bp.matrix[self.rows]
+        self.n_base = len(self.names)
+
+
 def identify_physical(result, robot, *, prior=None, prior_weight=1.0, mass_tolerance=None,
-                      n_boot=100, seed=0) -> PhysicalResult:
-    """PC-WLS of an IDIM result: its WLS of all base parameters, constrained.
+                      n_boot=100, seed=0, which="base") -> PhysicalResult:
+    """PC-WLS of an IDIM result: its WLS of all base parameters (``which="base"``) or its
+    essential WLS (``which="essential"``), constrained.
 
     The base regressor, the decimation and the per-joint weights 1/sigma_j are
     those of ``result`` (:func:`dynid.analysis.estimators.idim.identify_idim`).
+
+    The essential set: the same SDP with the essential WLS estimate and covariance as the
+    target and ``beta_e = P_e chi`` (the essential rows of P). The parameters the essential
+    model dropped are not in its torques, so they are free in the SDP: the standard set
+    gives them whatever values consistency needs (reported in ``standard``; a URDF of that
+    set predicts them too, a small difference by the essential rule's construction).
     """
     wls = getattr(result, "wls", None)
     if wls is None or getattr(result, "base", None) is None:
         raise InputError("the physically consistent fit starts from an IDIM result (its WLS of all base "
                          f"parameters); got {type(result).__name__}")
-    res = pc_wls(robot, result.base, wls.chi, wls.cov, prior=prior, prior_weight=prior_weight,
+    if which not in ("base", "essential"):
+        raise InputError(f"which must be 'base' or 'essential', got {which!r}")
+    columns = None
+    bp = result.base
+    if which == "essential":
+        ess = getattr(getattr(result, "essential", None), "result", None)
+        if ess is None:
+            raise InputError("this IDIM result has no essential parameters; use which='base'")
+        bp = _Rows(result.base, ess.names)
+        columns = bp.rows
+        wls = ess
+    res = pc_wls(robot, bp, wls.chi, wls.cov, prior=prior, prior_weight=prior_weight,
                  mass_tolerance=mass_tolerance, n_boot=n_boot, seed=seed)
+    res.model, res.columns = which, columns
     obs = getattr(result, "observation", None)
     if obs is not None:
         mask = np.asarray(obs.row_mask, dtype=bool)
         if mask.ndim == 1:
             mask = np.broadcast_to(mask[:, None], obs.tau.shape)
         y = np.where(mask, obs.tau, 0.0)
-        res.rel_error = float(np.linalg.norm(np.where(mask, obs.tau - obs.W @ res.chi, 0.0)) / np.linalg.norm(y))
+        res.rel_error = float(np.linalg.norm(np.where(mask, obs.tau - res.predict(obs.W), 0.0)) /
+                              np.linalg.norm(y))
         res.wls_rel_error = float(wls.rel_error)
     res.idim = result
     res.data_hash = getattr(result, "data_hash", "") or ""
     return res
+
+
+class PhysicalSupport:
+    """Indicator of the physically consistent set in base-parameter space (the posterior's support).
+
+    ``beta`` (base parameters, or a subset ``names`` of them with the others zero, as an
+    essential model) is physical when some standard set ``chi`` has ``P chi = beta``, every
+    link's pseudo-inertia PSD and Ia, Fv, Fc >= 0 (the constraints of PC-WLS, without the
+    margin or the mass bounds): a feasibility SDP, compiled once and re-solved per point.
+    Cheap tests first: a base parameter that is a lone Ia, Fv or Fc (its own column, nothing
+    regrouped into it) must be >= 0 (necessary); and with ``reference`` (a consistent standard
+    set, e.g. the PC-WLS one) the standard set keeping its regrouped parameters and taking the
+    independent ones from ``beta`` is checked by eigenvalues (sufficient when it passes). The
+    SDP decides only the points between the two.
+    """
+
+    def __init__(self, robot, bp, names=None, reference=None):
+        cp = require_cvxpy()
+        self.cp = cp
+        names = list(bp.names) if names is None else [str(n) for n in names]
+        unknown = [n for n in names if n not in bp.names]
+        if unknown:
+            raise InputError(f"physical support: {', '.join(unknown)} are not base parameters of "
+                             f"'{robot.name}'")
+        self.idx = np.array([bp.names.index(n) for n in names], dtype=int)
+        self.n_base = bp.n_base
+        chi = cp.Variable(robot.n_standard)
+        self.beta = cp.Parameter(bp.n_base)
+        E = pseudo_inertia_basis()
+        cons = [bp.matrix @ chi == self.beta]
+        for j in range(robot.n_joints):
+            sl = inertial_slice(robot, j)
+            cons.append(sum(E[k] * chi[sl.start + k] for k in range(10)) >> 0)
+        std = list(robot.standard_names)
+        nonneg = [i for i, nm in enumerate(std) if nm.rstrip("0123456789").rstrip("m") in _NONNEG]
+        if nonneg:
+            cons.append(chi[nonneg] >= 0)
+        self.prob = cp.Problem(cp.Minimize(0), cons)
+        self.lone = [k for k, n in enumerate(names) if n.rstrip("0123456789").rstrip("m") in _NONNEG]
+        self.n_solves = 0
+        self.bp = bp
+        self.links = [inertial_slice(robot, j) for j in range(robot.n_joints)]
+        self.nonneg_std = np.array(nonneg, dtype=int)
+        self.reference = None if reference is None else np.asarray(reference, dtype=float)
+
+    def _one(self, beta_full):
+        self.beta.value = beta_full
+        self.n_solves += 1
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", UserWarning)
+                self.prob.solve(solver="CLARABEL")
+        except self.cp.error.SolverError:
+            return False
+        return self.prob.status in ("optimal", "optimal_inaccurate")
+
+    def __call__(self, B) -> np.ndarray:
+        """Boolean (K,): which rows of B (K, len(names)) are physically consistent."""
+        B = np.atleast_2d(np.asarray(B, dtype=float))
+        ok = np.all(np.isfinite(B), axis=1)
+        if self.lone:
+            ok &= np.all(B[:, self.lone] >= 0, axis=1)
+        full = np.zeros((B.shape[0], self.n_base))
+        full[:, self.idx] = B
+        todo = np.flatnonzero(ok)
+        if self.reference is not None and todo.size:
+            dep = self.reference[self.bp.dependent]
+            chi = np.tile(self.reference, (todo.size, 1))
+            chi[:, self.bp.independent] = full[todo] - dep @ self.bp.K.T
+            E = pseudo_inertia_basis()
+            good = np.all(chi[:, self.nonneg_std] >= 0, axis=1) if self.nonneg_std.size else \
+                np.ones(todo.size, dtype=bool)
+            for sl in self.links:
+                J = np.einsum("kp,pab->kab", chi[:, sl], E)
+                good &= np.linalg.eigvalsh(J)[:, 0] >= 0
+            todo = todo[~good]
+        for k in todo:
+            ok[k] = self._one(full[k])
+        return ok

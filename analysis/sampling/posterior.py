@@ -534,7 +534,8 @@ def _criteria(criteria, **overrides):
 def sample_linear(W3, tau, names, *, row_mask=None, ls=None, sigma=None, prior=None, seed=0,
                   n_walkers=None, criteria=None, max_steps=None, max_seconds=None, moves="de",
                   init_scale: float = 0.1, method_label: str = "linear model", truth=None,
-                  suff_stats: SufficientStats | None = None, progress=None) -> PosteriorResult:
+                  suff_stats: SufficientStats | None = None, progress=None, support=None,
+                  start=None) -> PosteriorResult:
     """Posterior of χ (and σ_j) of Y = Wχ + ρ by emcee; see the module docstring.
 
     Parameters
@@ -564,6 +565,12 @@ def sample_linear(W3, tau, names, *, row_mask=None, ls=None, sigma=None, prior=N
         Precomputed statistics (then W3/tau are only used for ``ls`` if needed).
     progress : callable, optional
         ``progress(n_steps, required_steps)`` after each batch of the sampler.
+    support : callable, optional
+        ``support(chi)`` (K, b) -> bool (K,): the prior is restricted to where it is true
+        (log p = −inf elsewhere), e.g. the physically consistent set
+        (:class:`dynid.analysis.estimators.physical.PhysicalSupport`).
+    start : (b,) array, optional
+        Centre of the initial ball instead of the LS estimate (it must be in ``support``).
     """
     from dynid.analysis.estimators import least_squares as lsq
 
@@ -582,7 +589,16 @@ def sample_linear(W3, tau, names, *, row_mask=None, ls=None, sigma=None, prior=N
     b = st.n_params
     nw = _n_walkers(n_walkers, d)
     centre = np.empty(d)
-    centre[:b] = ls.chi
+    centre[:b] = ls.chi if start is None else np.asarray(start, dtype=float)
+    log_prob = model.log_prob
+    if support is not None:
+        def log_prob(X, _lp=model.log_prob):
+            lp = _lp(X)
+            X = np.atleast_2d(X)
+            fin = np.isfinite(lp)
+            inside = np.zeros(lp.shape, dtype=bool)
+            inside[fin] = support(X[fin, :b])
+            return np.where(inside, lp, -np.inf)
     cov = np.zeros((d, d))
     cov[:b, :b] = ls.cov
     if sigma is None:
@@ -593,8 +609,8 @@ def sample_linear(W3, tau, names, *, row_mask=None, ls=None, sigma=None, prior=N
         centre[b:] = np.log(np.asarray(js, dtype=float)[act])
         cov[b:, b:] = np.diag(1.0 / (2.0 * st.rows[act]))
     crit = _criteria(criteria, max_steps=max_steps, max_seconds=max_seconds)
-    p0 = _initial_ball(model.log_prob, centre, cov, nw, init_scale, rng)
-    sampler = _sampler(model.log_prob, nw, d, moves, rng)
+    p0 = _initial_ball(log_prob, centre, cov, nw, init_scale, rng)
+    sampler = _sampler(log_prob, nw, d, moves, rng)
     run = run_until_converged(sampler, p0, crit, progress=progress)
     chain = model.to_output(run.kept())
     ls_value = np.full(d, np.nan)
@@ -621,6 +637,7 @@ def sample_linear(W3, tau, names, *, row_mask=None, ls=None, sigma=None, prior=N
         "rows_per_joint": st.rows,
         "n_samples": st.n_samples,
         "sufficient_statistics": "per joint W'W, W'(Y - W chi_ref), |Y - W chi_ref|^2, r_j; chi_ref = LS",
+        "support": "all of R^b" if support is None else getattr(support, "description", "restricted"),
     }
     return PosteriorResult(
         method="emcee", model=method_label, names=model.names, chain=chain,
@@ -630,11 +647,18 @@ def sample_linear(W3, tau, names, *, row_mask=None, ls=None, sigma=None, prior=N
         coords=model.coords)
 
 
-def sample_idim(idim_result, *, which: str = "essential", **kwargs) -> PosteriorResult:
+def sample_idim(idim_result, *, which: str = "essential", physical: bool = False, robot=None,
+                **kwargs) -> PosteriorResult:
     """Posterior of the essential (default) or base parameters of an :class:`IDIMResult`.
 
     Uses its decimated observation (W, tau, row_mask) and its WLS estimate
     as the starting point and LS reference. Other arguments: :func:`sample_linear`.
+
+    ``physical=True`` (base parameters only): the posterior's support is the physically
+    consistent set (:class:`~dynid.analysis.estimators.physical.PhysicalSupport`: some
+    standard set with PSD pseudo-inertias and Ia, Fv, Fc >= 0 gives these base parameters),
+    i.e. the flat prior restricted to it; the walkers start around the PC-WLS estimate.
+    ``robot`` defaults to the result's.
     """
     obs = idim_result.observation
     if which == "essential":
@@ -648,7 +672,23 @@ def sample_idim(idim_result, *, which: str = "essential", **kwargs) -> Posterior
     truth = None
     if idim_result.truth:
         truth = {k: v for k, v in idim_result.truth.items() if k in ls.names}
-    kwargs.setdefault("method_label", f"IDIM {which} parameters of {idim_result.robot_name}")
+    kwargs.setdefault("method_label", f"IDIM {which} parameters of {idim_result.robot_name}"
+                      + (", physically consistent support" if physical else ""))
+    if physical:
+        if which != "base":
+            raise InputError("the physically consistent posterior is over the base parameters: "
+                             "use which='base' (--which base)")
+        from dynid.analysis.estimators.physical import PhysicalSupport, pc_wls
+        robot = robot if robot is not None else getattr(idim_result, "robot", None)
+        if robot is None:
+            raise InputError("physical=True needs the robot of the identification")
+        pc = pc_wls(robot, idim_result.base, ls.chi, ls.cov, n_boot=0)
+        support = PhysicalSupport(robot, idim_result.base, ls.names, reference=pc.standard)
+        support.description = ("physically consistent set: some standard set with every link's "
+                               "pseudo-inertia PSD and Ia, Fv, Fc >= 0 gives these base parameters "
+                               "(feasibility SDP per point, cvxpy + Clarabel)")
+        kwargs["support"] = support
+        kwargs["start"] = pc.chi
     res = sample_linear(W, obs.tau, ls.names, row_mask=obs.row_mask, ls=ls, truth=truth, **kwargs)
     res.data_hash = idim_result.data_hash or res.data_hash
     return res
