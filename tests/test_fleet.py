@@ -170,7 +170,6 @@ def test_rerun_with_nothing_changed_computes_nothing(small_fleet, small_store, t
     assert [s["path"] for s in todo] == [target]
 
 
-@pytest.mark.slow
 def test_killed_worker_loses_and_duplicates_nothing(small_fleet, small_store, tmp_path):
     distributed = pytest.importorskip("distributed")
     reference = comparable(small_store.read())
