@@ -284,7 +284,7 @@ def rank_normalized_rhat(chain: np.ndarray) -> np.ndarray:
     tails and to chains that differ in scale only, which the classic R̂ misses; ArviZ's
     ``rhat(method="rank")`` is the same estimator. ``chain`` is (n_steps, n_walkers, d).
     """
-    from scipy.special import ndtri       # Φ⁻¹ without scipy.stats' per-call argument checks (5x)
+    from scipy.special import ndtri  # Φ⁻¹ without scipy.stats' per-call argument checks (5x)
     from scipy.stats import rankdata
 
     chain = np.asarray(chain, dtype=float)
