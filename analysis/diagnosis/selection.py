@@ -769,7 +769,7 @@ def diagnose(experiment, robot, *, validation=None, idim_result=None, settings=N
              max_effects=3, rng=None, alpha=0.01, folds=5, gap="auto", exclude_parameters=None,
              joints=None, residual_analysis=True, confirm_on_validation=True, max_error_growth=0.02,
              progress=None, structure_tests=True, start_model="essential", base_guard=True,
-             max_tries=5, hidden_tests=True, physical_tests=True):
+             max_tries=5, hidden_tests=True, physical_tests=True, reselect_essential=True):
     """Find what the identified model of ``robot`` lacks in ``experiment``.
 
     Parameters
@@ -804,6 +804,9 @@ def diagnose(experiment, robot, *, validation=None, idim_result=None, settings=N
     hidden_tests : when the identified parameters contradict ``robot.apriori``, fit with the
         a-priori values as a prior and test gravity-shaped springs the base parameters
         absorbed (:mod:`dynid.analysis.diagnosis.hidden`); found ones are in ``result.hidden``.
+    reselect_essential : with ``start_model="essential"`` and effects selected, re-select the
+        essential parameters on the torque less those effects (kept if the validation error
+        does not grow); the reduction of the identification ran with their torque in the residual.
     physical_tests : when no a-priori test found one and PC-WLS (cvxpy) says the data want a model
         no rigid body has, test the same springs on the physically consistent fit
         (:func:`dynid.analysis.diagnosis.hidden.physical_effects`); found ones are in
@@ -1016,6 +1019,38 @@ def diagnose(experiment, robot, *, validation=None, idim_result=None, settings=N
         chosen_families.add(cand.family)
         history.append(state)
         selected.append((cand, step, w))
+
+    # ------------------------------------------------------------ essential set, effects known
+    if start_model == "essential" and state["effects"] and reselect_essential:
+        # the essential reduction of the identification ran with the effects' torque still in the
+        # residual, where it dominates the error criterion: parameters whose torque is small
+        # against it were dropped although the data determine them (independent plant, KUKA
+        # LWR4+ with a 3 N m Stribeck friction on joint 2: found exactly, Fs 3.02, v_s 0.202,
+        # but the held-out RMS of joints 3, 4 stayed 0.044, 0.038 N m against 0.015, 0.017 for
+        # the true model). Re-selected as IDIM would on the torque less the selected effects,
+        # then refitted with them; kept if the validation error does not grow.
+        nb = len(state["cols"])
+        X_e = problem.design(state["delay"], state["effects"], cols=state["cols"])
+        tau_e = X_e[:, :, nb:] @ np.asarray(state["fit"].chi[nb:])
+        ess = essential_parameters(problem.base(state["delay"], cols=problem.all_cols),
+                                   problem.Y - tau_e, problem.all_names, ls.wls,
+                                   max_error_growth=max_error_growth, row_mask=problem.mask)
+        index = {nm: k for k, nm in enumerate(problem.all_names)}
+        names_e = list(ess.result.names)
+        if set(names_e) != set(state["names"]):
+            trial = dict(state, names=names_e, cols=np.array([index[nm] for nm in names_e], dtype=int))
+            trial["fit"] = _fit(problem.design(trial["delay"], trial["effects"], cols=trial["cols"]),
+                                problem.Y, problem.mask,
+                                problem.names_for(trial["effects"], trial["names"]))
+            keep = True
+            if vprob is not None:
+                Xv = vprob.design(trial["delay"], trial["effects"], cols=trial["cols"])
+                keep = _errors(vprob.Y, Xv @ trial["fit"].chi, vprob.mask).rel_error <= val_prev
+            if keep:
+                notices.append(f"essential parameters re-selected on the torque less the selected "
+                               f"effects: {len(state['names'])} -> {len(names_e)} parameters")
+                state = trial
+                history[-1] = state
 
     # ------------------------------------------------------------ final model
     if progress is not None:
