@@ -117,6 +117,27 @@ def test_kuka_clean_names_nothing(cache):
     assert r["named"] == [] and r["unexplained"] == [] and r["hidden"] == [], r["why"]
 
 
+def test_kuka_clean_seed_2_position_noise_is_in_the_floor(cache):
+    # seed 2 flagged joint 2 "coloured" (3.2 x the torque-noise floor) before the floor held the
+    # position noise carried through the model
+    r = _run("kuka_clean", cache, seed=2)
+    assert r["named"] == [] and r["unexplained"] == [] and r["hidden"] == [], r["why"]
+
+
+def test_offset_in_the_base_span_is_absorbed_and_named_without_offsets(cache):
+    clean = _run("clean", cache)
+    r = _run("offset_j5", cache)
+    assert r["named"] == [] and r["unexplained"] == [], r["why"]
+    assert bench.absorbed(r, clean), (r["params"].get("Off5"), clean["params"].get("Off5"))
+    r2 = _run("offset_j5_no_off", cache)
+    assert r2["first_ok"] and r2["ok"], r2["why"]
+
+
+def test_wrist_not_flagged_when_the_essential_model_dropped_its_parameters(cache):
+    r = _run("velocity_dependent_ripple_j1", cache, seed=2)
+    assert r["ok"], r["why"]
+
+
 def test_headline_rates_of_the_reduced_campaign():
     rows = [{"case": "clean", "robot": "tx40", "seed": 1, "named": [], "unexplained": [], "hidden": [],
              "onsets": [], "ok": True, "first_ok": False, "val_rms_after": 0.02},
@@ -128,3 +149,15 @@ def test_headline_rates_of_the_reduced_campaign():
     assert h["catalogue_heldout_ratio_to_true_max"] == pytest.approx(1.05)
     assert h["wrong_joint"] == 0.0
     assert np.isfinite(h["catalogue_heldout_ratio_to_true_max"])
+    assert h["in_span_runs"] == 0 and h["in_span_absorbed"] is None
+
+
+def test_in_span_absorption_rule():
+    clean = {"case": "clean", "robot": "tx40", "seed": 1, "params": {"Off5": [0.01, 0.02]}}
+    hit = {"case": "offset_j5", "robot": "tx40", "seed": 1, "params": {"Off5": [1.02, 0.02]}}
+    miss = {"case": "offset_j5", "robot": "tx40", "seed": 1, "params": {"Off5": [0.5, 0.02]}}
+    assert bench.absorbed(hit, clean) is True
+    assert bench.absorbed(miss, clean) is False
+    assert bench.absorbed(hit, None) is None
+    assert bench.judge("offset_j5_no_off", [("asymmetric_coulomb", 5)], [])[0]   # aliases
+    assert not bench.judge("offset_j5_no_off", [("offset", 4)], [])[0]

@@ -113,7 +113,7 @@ from dynid.analysis.processing.decimation import DecimationFilter
 from dynid.analysis.results import Exportable
 from dynid.analysis.statistics.residuals import analyze_residuals, effective_sample_size
 from dynid.dynamics.base_parameters import BaseParameters, base_parameters
-from dynid.errors import DataError, InputError
+from dynid.errors import DataError, DynidError, InputError
 from dynid.provenance import json_safe, versions
 
 __all__ = ["diagnose", "DiagnosisResult", "RankedEffect", "SelectedEffect", "DiagnosisStep",
@@ -769,7 +769,7 @@ def diagnose(experiment, robot, *, validation=None, idim_result=None, settings=N
              max_effects=3, rng=None, alpha=0.01, folds=5, gap="auto", exclude_parameters=None,
              joints=None, residual_analysis=True, confirm_on_validation=True, max_error_growth=0.02,
              progress=None, structure_tests=True, start_model="essential", base_guard=True,
-             max_tries=5, hidden_tests=True):
+             max_tries=5, hidden_tests=True, physical_tests=True, reselect_essential=True):
     """Find what the identified model of ``robot`` lacks in ``experiment``.
 
     Parameters
@@ -804,6 +804,13 @@ def diagnose(experiment, robot, *, validation=None, idim_result=None, settings=N
     hidden_tests : when the identified parameters contradict ``robot.apriori``, fit with the
         a-priori values as a prior and test gravity-shaped springs the base parameters
         absorbed (:mod:`dynid.analysis.diagnosis.hidden`); found ones are in ``result.hidden``.
+    reselect_essential : with ``start_model="essential"`` and effects selected, re-select the
+        essential parameters on the torque less those effects (kept if the validation error
+        does not grow); the reduction of the identification ran with their torque in the residual.
+    physical_tests : when no a-priori test found one and PC-WLS (cvxpy) says the data want a model
+        no rigid body has, test the same springs on the physically consistent fit
+        (:func:`dynid.analysis.diagnosis.hidden.physical_effects`); found ones are in
+        ``result.hidden`` too (``route="physical"``).
     start_model : the model the selection starts from: ``"essential"`` (default: the
         essential WLS of the identification), ``"base"`` (all base parameters, WLS), or a
         list of base-parameter names (the set the user chose).
@@ -1013,6 +1020,38 @@ def diagnose(experiment, robot, *, validation=None, idim_result=None, settings=N
         history.append(state)
         selected.append((cand, step, w))
 
+    # ------------------------------------------------------------ essential set, effects known
+    if start_model == "essential" and state["effects"] and reselect_essential:
+        # the essential reduction of the identification ran with the effects' torque still in the
+        # residual, where it dominates the error criterion: parameters whose torque is small
+        # against it were dropped although the data determine them (independent plant, KUKA
+        # LWR4+ with a 3 N m Stribeck friction on joint 2: found exactly, Fs 3.02, v_s 0.202,
+        # but the held-out RMS of joints 3, 4 stayed 0.044, 0.038 N m against 0.015, 0.017 for
+        # the true model). Re-selected as IDIM would on the torque less the selected effects,
+        # then refitted with them; kept if the validation error does not grow.
+        nb = len(state["cols"])
+        X_e = problem.design(state["delay"], state["effects"], cols=state["cols"])
+        tau_e = X_e[:, :, nb:] @ np.asarray(state["fit"].chi[nb:])
+        ess = essential_parameters(problem.base(state["delay"], cols=problem.all_cols),
+                                   problem.Y - tau_e, problem.all_names, ls.wls,
+                                   max_error_growth=max_error_growth, row_mask=problem.mask)
+        index = {nm: k for k, nm in enumerate(problem.all_names)}
+        names_e = list(ess.result.names)
+        if set(names_e) != set(state["names"]):
+            trial = dict(state, names=names_e, cols=np.array([index[nm] for nm in names_e], dtype=int))
+            trial["fit"] = _fit(problem.design(trial["delay"], trial["effects"], cols=trial["cols"]),
+                                problem.Y, problem.mask,
+                                problem.names_for(trial["effects"], trial["names"]))
+            keep = True
+            if vprob is not None:
+                Xv = vprob.design(trial["delay"], trial["effects"], cols=trial["cols"])
+                keep = _errors(vprob.Y, Xv @ trial["fit"].chi, vprob.mask).rel_error <= val_prev
+            if keep:
+                notices.append(f"essential parameters re-selected on the torque less the selected "
+                               f"effects: {len(state['names'])} -> {len(names_e)} parameters")
+                state = trial
+                history[-1] = state
+
     # ------------------------------------------------------------ final model
     if progress is not None:
         progress(1.0)
@@ -1093,14 +1132,38 @@ def diagnose(experiment, robot, *, validation=None, idim_result=None, settings=N
         path.append({"step": k, "added": None if k == 0 else selected[k - 1][0].label,
                      "identification": _errors(problem.Y, Xh @ h["fit"].chi, problem.mask),
                      "validation": None if val_path is None else val_path[k]})
+    # the structure and physical tests examine the full base model plus the selected effects: a
+    # rigid-body term the essential reduction dropped is explained by the base parameters,
+    # not by a missing effect (measured on the independent plant, TX40 with a 1 N m speed-
+    # dependent ripple on joint 1: the essential model of 24 parameters left 0.064 and
+    # 0.074 N m on the wrist joints 5, 6, 5.6 x their noise floor; the full base model
+    # leaves them at the floor)
+    s_test, fit_test = state, model_after
+    if len(state["cols"]) < len(problem.all_cols):
+        s_test = dict(state, cols=problem.all_cols, names=list(problem.all_names))
+        fit_test = _fit(problem.design(s_test["delay"], s_test["effects"], cols=s_test["cols"]),
+                        problem.Y, problem.mask,
+                        problem.names_for(s_test["effects"], s_test["names"]))
+    X_test = problem.design(s_test["delay"], s_test["effects"], cols=s_test["cols"])
     structure = None
     if structure_tests:
-        from dynid.analysis.diagnosis.structure import residual_structure
-        full_res, full_mask = _full_rate_residual(problem, state, model_after)
-        structure = residual_structure(eobs, problem.Y - pred_after, problem.mask, alpha=alpha,
+        from dynid.analysis.diagnosis.structure import position_noise_residual, residual_structure
+        pred_test = X_test @ fit_test.chi
+        full_res, full_mask = _full_rate_residual(problem, s_test, fit_test)
+        delta = None
+        if not isinstance(experiment, EffectObservation) and not s_test["delay"]:
+            try:
+                delta, _ = position_noise_residual(experiment, robot, eobs, s_test["cols"],
+                                                   fit_test.chi[:len(s_test["cols"])])
+            except DynidError as exc:     # the floor is then the torque noise's alone
+                notices.append(f"position-noise floor not estimated: {exc}")
+        structure = residual_structure(eobs, problem.Y - pred_test, problem.mask, alpha=alpha,
                                        gap=gap, explained=[c.label for c, _, _ in selected],
-                                       full_residual=full_res, full_mask=full_mask)
+                                       full_residual=full_res, full_mask=full_mask,
+                                       position_delta=delta)
         cfg["structure_rule"] = structure.rule
+        cfg["structure_model"] = ("full base model" if s_test is not state else "final model") + (
+            " plus the selected effects" if state["effects"] else "")
     hidden = []
     if hidden_tests:
         from dynid.analysis.diagnosis.hidden import hidden_effects
@@ -1111,6 +1174,24 @@ def diagnose(experiment, robot, *, validation=None, idim_result=None, settings=N
         hidden = hidden_effects(eobs, X_after, problem.Y, problem.mask, list(model_after.names),
                                 model_after.chi, model_after.sigma, robot,
                                 weights=_weights(model_after), alpha=alpha, validation=vdata)
+    if physical_tests and not any(h.reported for h in hidden) and len(s_test["cols"]) == len(
+            problem.all_cols) and list(s_test["names"]) == list(eobs.bp.names):
+        # the parameters may contradict physics rather than the a-priori values (or the robot
+        # file has none): the residual of the physically consistent fit (issue 15 item 3)
+        from dynid.analysis.diagnosis.hidden import physical_effects
+        from dynid.analysis.estimators.physical import require_cvxpy
+        try:
+            require_cvxpy()
+            vfull = None
+            if vprob is not None:
+                vfull = (vprob.design(s_test["delay"], s_test["effects"], cols=s_test["cols"]),
+                         vprob.Y, vprob.mask, vprob.eobs)
+            hidden = hidden + physical_effects(eobs, X_test, problem.Y, problem.mask,
+                                               len(s_test["cols"]), fit_test.chi, robot,
+                                               weights=_weights(fit_test), alpha=alpha,
+                                               validation=vfull)
+        except DynidError as exc:      # no cvxpy, or a robot PC-WLS cannot handle
+            notices.append(f"physically consistent test not run: {exc}")
     return DiagnosisResult(hidden_tests=hidden, robot_name=robot.name, source=eobs.source, ranking=final, steps=steps,
                            structure=structure,
                            selected=sel_effects, model_before=model0, model_after=model_after,
