@@ -153,7 +153,6 @@ def test_identify_didim_from_reference_and_torque_only(tmp_path):
     assert est["MX1R"] == pytest.approx(3.0, rel=0.03)
 
 
-@pytest.mark.slow
 def test_excite_tx40_as_in_the_issue_respects_limits_in_the_written_csv(tmp_path):
     """`dynid excite --robot tx40 --f0 0.1 --harmonics 5 --out traj.csv --json ex.json`.
 

@@ -153,7 +153,6 @@ def test_without_parameters_drops_offsets():
     assert without_parameters(bp, ("Off3",)).names == [n for n in bp.names if n != "Off3"]
 
 
-@pytest.mark.slow      # > 10 s (a diagnosis on 2 shared cores: 20-70 s)
 def test_diagnose_finds_an_injected_viscous_asymmetry_and_reports(short_sim):
     """In-process end to end: API, JSON fields of the CONVENTIONS, report sections."""
     from dynid.reports.diagnosis_section import SECTION_IDS, diagnosis_sections
@@ -203,7 +202,7 @@ def campaign():
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-@pytest.mark.slow      # > 10 s (a diagnosis on 2 shared cores: 20-70 s)
+@pytest.mark.slow      # the campaign fixture: minutes
 def test_reduced_campaign_detects_each_injected_effect(campaign):
     for name in ("stribeck", "offset", "time_delay"):
         t = campaign["effects"][name]
@@ -215,7 +214,7 @@ def test_reduced_campaign_detects_each_injected_effect(campaign):
         assert t["val_after"] < t["val_before"]
 
 
-@pytest.mark.slow      # > 10 s (a diagnosis on 2 shared cores: 20-70 s)
+@pytest.mark.slow      # the campaign fixture: minutes
 def test_reduced_campaign_false_alarms(campaign):
     assert campaign["clean_runs"] == 10
     assert len(campaign["false_alarms"]) <= 1, campaign["false_alarms"]
@@ -223,7 +222,6 @@ def test_reduced_campaign_false_alarms(campaign):
 
 # ------------------------------------------------------------------ real TX40
 @pytest.mark.skipif(not TX40_EXPERIMENT.exists(), reason="real TX40 recording not available")
-@pytest.mark.slow      # > 10 s (a diagnosis on 2 shared cores: 20-70 s)
 def test_real_tx40_effects_lower_the_held_out_error():
     """Last 3 s held out. An effect is kept only if the held-out error falls: the
     diagnosis checks it (confirm_on_validation) and stops where it does not; here the
@@ -270,7 +268,6 @@ def _inject(exp, func):
     return replace(exp, tau=exp.tau + func(exp.t, q))
 
 
-@pytest.mark.slow      # > 10 s (a diagnosis on 2 shared cores: 20-70 s)
 def test_structure_clean_nothing_unexplained_and_ripple_found(short_sim):
     """Simulated data of the model itself: no joint flagged; a high-order position ripple
     (order 40, outside the catalogue's orders) on joint 3 is flagged with its period."""
@@ -301,7 +298,6 @@ def test_structure_clean_nothing_unexplained_and_ripple_found(short_sim):
     assert "diag-fig-unexplained" in html and "diag-unexplained" in html
 
 
-@pytest.mark.slow      # > 10 s (a diagnosis on 2 shared cores: 20-70 s)
 def test_ranking_by_evidence_and_start_models(short_sim):
     robot, bp, ident, _ = short_sim
     res = diagnose(ident, robot, effects=["offset", "spring", "coupling"], max_effects=1,
@@ -324,7 +320,6 @@ def test_ranking_by_evidence_and_start_models(short_sim):
         diagnose(ident, robot, effects=["offset"], max_effects=0, start_model=["nope"])
 
 
-@pytest.mark.slow      # > 10 s (a diagnosis on 2 shared cores: 20-70 s)
 def test_nothing_added_means_one_line_not_a_before_after_comparison(short_sim):
     """When no effect is selected the errors section is one sentence and the residuals are drawn once."""
     from dynid.reports.diagnosis_section import diagnosis_sections
