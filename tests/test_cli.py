@@ -342,3 +342,18 @@ def test_identify_ml_needs_f0(tmp_path, capsys):
     assert main(["simulate", "--robot", "planar2", "--duration", "2", "--out", str(csv), "--quiet"]) == 0
     assert main(["identify", str(csv), "--robot", "planar2", "--method", "ml"]) == 2
     assert "--f0" in capsys.readouterr().err
+
+
+def test_didim_coulomb_sign_width_option(tmp_path, capsys):
+    """--v-s reaches DIDIM's simulation (the JSON's settings say it), and is refused for other methods."""
+    csv, js = tmp_path / "run.csv", tmp_path / "didim.json"
+    assert main(["simulate", "--robot", "planar2", "--duration", "10", "--out", str(csv), "--quiet"]) == 0
+    code = main(["identify", str(csv), "--robot", "planar2", "--method", "didim", "--v-s", "0.02",
+                 "--json", str(js), "--quiet"])
+    doc = json.loads(js.read_text())
+    assert code == (0 if doc["converged"] else 3)
+    assert doc["settings"]["v_s"] == 0.02
+    capsys.readouterr()
+    assert main(["identify", str(csv), "--robot", "planar2", "--v-s", "0.02", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "--v-s" in err and "Traceback" not in err
