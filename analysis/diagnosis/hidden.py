@@ -173,23 +173,11 @@ def hidden_effects(eobs, X, Y, mask, names, chi, sigma, robot, *, weights, alpha
     if not contradicted:
         return []
     n = Y.shape[1]
-    # data term in effective samples: divide each joint's whitened rows by its residual's
-    # integrated autocorrelation time (the rows of the decimated residual are correlated)
-    res = np.where(mask, Y - X @ chi, 0.0)
-    tau = np.ones(n)
-    for j in range(n):
-        u = mask[:, j]
-        if u.sum() > 20:
-            tau[j] = max(1.0, float(effective_sample_size(res[u, j])[1]))
-    scale = np.asarray(weights, float) / np.sqrt(tau)
-    A, y = _rows(X, Y, mask, scale)
+    A, y, scale = _effective_rows(X, Y, mask, chi, weights)
     coef0, jd0, jp0, _ = _prior_fit(A, y, P, b0, s)
-    q_full = np.asarray(eobs.q, float)
     out = []
     for j in range(n):
-        C = np.stack([np.cos(q_full[:, j]), np.sin(q_full[:, j])], axis=1)
-        D = eobs.decimate(C, joint=j)                       # (M, n, 2)
-        E, _ = _rows(D, Y, mask, scale)
+        E, _ = _rows(_spring_columns(eobs, j), Y, mask, scale)
         coef, jd, jp, cov = _prior_fit(A, y, P, b0, s, E)
         delta = (jd0 + jp0) - (jd + jp)
         p_raw = float(stats.chi2.sf(max(delta, 0.0), 2))
@@ -204,7 +192,7 @@ def hidden_effects(eobs, X, Y, mask, names, chi, sigma, robot, *, weights, alpha
         ok = h.p_value < alpha and amp >= MIN_AMPLITUDE_SIGMA * sd and jp <= 0.5 * jp0
         if ok and validation is not None:
             Xv, Yv, mv, ev = validation
-            Dv = ev.decimate(np.stack([np.cos(ev.q[:, j]), np.sin(ev.q[:, j])], axis=1), joint=j)
+            Dv = _spring_columns(ev, j)
             e_before = _rel(Yv, Xv @ chi, mv)
             e_prior = _rel(Yv, Xv @ coef0, mv)
             e_after = _rel(Yv, np.concatenate([Xv, Dv], axis=2) @ coef, mv)
@@ -215,6 +203,27 @@ def hidden_effects(eobs, X, Y, mask, names, chi, sigma, robot, *, weights, alpha
         out.append(h)
     out.sort(key=lambda h: (not h.reported, h.p_value))
     return out
+
+
+def _effective_rows(X, Y, mask, chi, weights):
+    """Whitened rows (eq. (1)) counted in effective samples: each joint's rows are divided by
+    the integrated autocorrelation time of its residual ``Y - X chi`` (the rows of the
+    decimated residual are correlated). Returns ``(A, y, scale)``."""
+    res = np.where(mask, Y - X @ chi, 0.0)
+    tau = np.ones(Y.shape[1])
+    for j in range(Y.shape[1]):
+        u = mask[:, j]
+        if u.sum() > 20:
+            tau[j] = max(1.0, float(effective_sample_size(res[u, j])[1]))
+    scale = np.asarray(weights, float) / np.sqrt(tau)
+    A, y = _rows(X, Y, mask, scale)
+    return A, y, scale
+
+
+def _spring_columns(eobs, j):
+    """The decimated columns ``[cos q_j, sin q_j]`` of a gravity-shaped spring on joint j: (M, n, 2)."""
+    q = np.asarray(eobs.q, float)[:, j]
+    return eobs.decimate(np.stack([np.cos(q), np.sin(q)], axis=1), joint=j)
 
 
 def _rel(Y, Yh, mask):
@@ -265,14 +274,7 @@ def physical_effects(eobs, X, Y, mask, n_base, chi, robot, *, weights, alpha=0.0
     nb = int(n_base)
     chi = np.asarray(chi, float)
     n = Y.shape[1]
-    res = np.where(mask, Y - X @ chi, 0.0)
-    tau = np.ones(n)
-    for j in range(n):
-        u = mask[:, j]
-        if u.sum() > 20:
-            tau[j] = max(1.0, float(effective_sample_size(res[u, j])[1]))
-    scale = np.asarray(weights, float) / np.sqrt(tau)
-    A, y = _rows(X, Y, mask, scale)
+    A, y, scale = _effective_rows(X, Y, mask, chi, weights)
 
     def constrained(Aa):
         coef, *_ = np.linalg.lstsq(Aa, y, rcond=None)
@@ -299,11 +301,9 @@ def physical_effects(eobs, X, Y, mask, n_base, chi, robot, *, weights, alpha=0.0
     sse0, c0, pc0, coef0 = constrained(A)
     if not pc0.p_value < alpha:
         return []
-    q_full = np.asarray(eobs.q, float)
     out = []
     for j in range(n):
-        C = np.stack([np.cos(q_full[:, j]), np.sin(q_full[:, j])], axis=1)
-        E, _ = _rows(eobs.decimate(C, joint=j), Y, mask, scale)
+        E, _ = _rows(_spring_columns(eobs, j), Y, mask, scale)
         Aa = np.hstack([A, E])
         sse, c1, pc1, coef = constrained(Aa)
         delta = (sse0 + c0) - (sse + c1)
@@ -320,7 +320,7 @@ def physical_effects(eobs, X, Y, mask, n_base, chi, robot, *, weights, alpha=0.0
         ok = h.p_value < alpha and amp >= min_amplitude_sigma * sd and c1 <= 0.5 * c0
         if ok and validation is not None:
             Xv, Yv, mv, ev = validation
-            Dv = ev.decimate(np.stack([np.cos(ev.q[:, j]), np.sin(ev.q[:, j])], axis=1), joint=j)
+            Dv = _spring_columns(ev, j)
             e_before = _rel(Yv, Xv @ chi, mv)
             e_after = _rel(Yv, np.concatenate([Xv, Dv], axis=2) @ coef, mv)
             h.errors = {"validation": {"before": e_before, "physical_without_effect": _rel(Yv, Xv @ coef0, mv),
