@@ -237,7 +237,11 @@ def run_case(case, seed, *, dead_zone="auto", cache=None, **diag_kw):
     fit = res.model_after
     params = {nm: [float(fit.chi[k]), float(fit.sigma[k])] for k, nm in enumerate(fit.names)
               if nm.startswith(("Off", "Fc"))}
-    return {"params": params,"case": case, "seed": seed, "robot": CASES[case][0], "named": named,
+    detail = [{"name": s_.name, "joint": s_.joint, "nonlinear": dict(s_.nonlinear),
+               "parameters": list(s_.params), "values": [float(v) for v in s_.values]}
+              for s_ in res.effects]
+    return {"params": params, "case": case, "seed": seed, "robot": CASES[case][0], "named": named,
+            "effects_detail": detail,
             "unexplained": unexplained, "hidden": hidden, "onsets": onsets, "ok": ok, "why": why,
             "first_ok": case in FIRST and first is not None and first[1] == FIRST[case][1]
             and first[0] in ALIASES.get(FIRST[case][0], {FIRST[case][0]}),

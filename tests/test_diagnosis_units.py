@@ -101,3 +101,35 @@ def test_physical_route_finds_a_gravity_shaped_spring_the_base_parameters_absorb
 def test_physical_route_quiet_on_a_rigid_body():
     found = _physical_tests(0.0)
     assert not [h for h in found if h.reported]
+
+
+def test_chi2_log_tail_stays_finite_and_ordered_where_scipy_underflows():
+    from scipy import stats
+
+    from dynid.analysis.diagnosis.selection import chi2_logsf
+    for k in (1, 2, 3):
+        for x in (5.0, 50.0, 500.0):
+            assert chi2_logsf(x, k) == pytest.approx(float(stats.chi2.logsf(x, k)), rel=1e-12)
+        assert not np.isfinite(stats.chi2.logsf(3e6, k))
+        assert np.isfinite(chi2_logsf(3e6, k))
+    # ordered across the switch to the asymptotic form, and by the statistic
+    xs = [1e3, 1.5e3, 3e3, 1e4, 3e6]
+    for k in (1, 2):
+        v = [chi2_logsf(x, k) for x in xs]
+        assert all(a > b for a, b in zip(v, v[1:], strict=False)), v
+    # the asymptotic form is the tail's leading term: within 1 % of the exact value at 1e3
+    assert chi2_logsf(1e3, 2) == pytest.approx(-500.0, rel=1e-12)
+
+
+def test_coulomb_onset_rule_by_dead_zone_and_by_peak_speed():
+    from dynid.analysis.diagnosis.effects import make_candidate
+    from dynid.analysis.diagnosis.selection import _onset
+    c = make_candidate("stribeck", 2, vs=0.029)
+    settings = {"qd_threshold": 0.012}
+    # Fs < 0 at v_s = 2.4 dead zones: an onset once the joint reaches 1 rad/s (2.9 % of it)
+    assert _onset(c, np.array([-0.3]), settings, np.array([1.0, 1.0]))
+    assert not _onset(c, np.array([-0.3]), settings, np.array([1.0, 0.3]))
+    assert not _onset(c, np.array([-0.3]), settings)
+    # a real Stribeck dip (Fs > 0) is never an onset
+    assert not _onset(c, np.array([0.3]), settings, np.array([1.0, 1.0]))
+    assert _onset(make_candidate("stribeck", 2, vs=0.02), np.array([-0.3]), settings)

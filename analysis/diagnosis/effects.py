@@ -14,8 +14,8 @@ name                   columns (joint j, 1-based in names)          parameters  
 ``asymmetric_coulomb`` abs(sign(qd_j)): Fcp = Fc + dFc, Fcn = Fc - dFc ``dFc{j}``          --
 ``asymmetric_viscous`` abs(qd_j): Fvp = Fv + dFv, Fvn = Fv - dFv     ``dFv{j}``            --
 ``stribeck``           sign(qd_j) exp(-(qd_j / v_s)^2)              ``Fs{j}``             v_s (log grid)
-``position_ripple``    cos(k q_j), sin(k q_j)                       ``Rc{j}k{k}``,        order k
-                                                                    ``Rs{j}k{k}``
+``position_ripple``    cos(k q_j), sin(k q_j)                       ``Rc{j}k{k}``,        order k (grid,
+                                                                    ``Rs{j}k{k}``         then refined)
 ``spring``             q_j                                          ``Ks{j}``             --
 ``coupling``           qd_i or qdd_i of another joint i, on j       ``Cv{j}_{i}`` /       (i, signal)
                                                                     ``Ca{j}_{i}``
@@ -274,7 +274,7 @@ class Candidate:
         if self.name == "stribeck":
             nl = f", v_s = {self.nonlinear['vs']:.3g} rad/s"
         elif self.name == "position_ripple":
-            nl = f", order {self.nonlinear['order']}"
+            nl = f", order {order_text(self.nonlinear['order'])}"
         elif self.name == "drift":
             nl = (", friction level" if self.nonlinear.get("shape") == "friction"
                   else f", order {self.nonlinear['order']}")
@@ -328,10 +328,13 @@ class Candidate:
         return out
 
     def with_nonlinear(self, **values):
-        """A copy at another value of the nonlinear parameter (same names)."""
+        """A copy at another value of the nonlinear parameter (same names, but a ripple's
+        names carry its order)."""
         nl = dict(self.nonlinear)
         nl.update(values)
-        return Candidate(self.name, self.joint, list(self.params), nl,
+        params = (_params(self.name, self.joint, nl, None) if self.name == "position_ripple"
+                  else list(self.params))
+        return Candidate(self.name, self.joint, params, nl,
                          None if self.active is None else list(self.active))
 
     def to_dict(self):
@@ -349,7 +352,7 @@ def _params(name, j, nl, last_link):
     if name == "stribeck":
         return [f"Fs{j}"]
     if name == "position_ripple":
-        k = nl["order"]
+        k = order_text(nl["order"])
         return [f"Rc{j}k{k}", f"Rs{j}k{k}"]
     if name == "spring":
         return [f"Ks{j}"]
@@ -366,6 +369,12 @@ def _params(name, j, nl, last_link):
     if name == "payload":
         return [f"d{sym}{last_link}" for sym in ("M", "MX", "MY", "MZ")]
     raise InputError(f"unknown effect {name!r}")
+
+
+def order_text(k):
+    """A ripple order as written in names and labels: 7, or 7.02 once refined."""
+    k = float(k)
+    return f"{int(round(k))}" if abs(k - round(k)) < 1e-9 else f"{k:.3g}"
 
 
 def make_candidate(name, joint=None, last_link=6, **nonlinear):
