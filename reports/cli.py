@@ -34,6 +34,7 @@ EPILOG_IDENTIFY = """examples:
   dynid identify run.csv --robot planar2 --method ml --f0 0.1 --ml-harmonics 20 --json ml.json
   dynid identify run.csv --robot tx40 --asymmetric-friction --report out.html
   dynid identify rec1.toml --robot kuka_lwr4 --urdf kuka_identified.urdf
+  dynid identify rec1.toml --robot kuka_lwr4 --validation rec2.toml --physical --effects spring:all
 """
 EPILOG_SIMULATE = """examples:
   dynid simulate --robot tx40 --out run.csv                    20 s of a random Fourier reference
@@ -352,6 +353,12 @@ def build_parser():
                         "essential parameters")
     g.add_argument("--bootstrap", type=int, default=100, metavar="N",
                    help="--physical: bootstrap refits for the %%sigma of the PC fit (default 100)")
+    g.add_argument("--effects", metavar="SPEC",
+                   help="IDIM: fit these effects beside the rigid body, e.g. spring:all or "
+                        "spring:all,position_ripple:7:1 (name:joint[:order], joint 1-based or all; "
+                        "offset, asymmetric_coulomb, asymmetric_viscous, spring, position_ripple): "
+                        "the unconstrained WLS of the model with them and, with --physical, its "
+                        "PC-WLS (the rigid body constrained, the effects free); JSON block \"effects\"")
     _add_processing_options(p)
 
     p = sub.add_parser("simulate", parents=[common], help="simulate a robot in closed loop to a CSV",
@@ -576,7 +583,7 @@ def _verdict(args, result, validation=None, **kw):
 
 
 def _write_outputs(args, say, result, robot, experiment, validation, asym=None, export=None,
-                   physical=None):
+                   physical=None, effects=None):
     """Render every requested output in memory, then write them all or none.
 
     Each file is written atomically (temp file + rename); if the run is
@@ -597,6 +604,10 @@ def _write_outputs(args, say, result, robot, experiment, validation, asym=None, 
             doc["urdf_export"] = export.to_dict()
         if physical is not None:
             doc["physical"] = physical.physical_block()
+        if effects is not None:
+            doc["effects"] = effects.to_dict()
+            if physical is not None:
+                doc["physical"]["effects"] = doc["effects"]
         outputs.append((args.json, dumps_json(doc)))
     if export is not None and args.urdf:
         outputs.append((args.urdf, export.text))
@@ -614,6 +625,9 @@ def _write_outputs(args, say, result, robot, experiment, validation, asym=None, 
         if physical is not None:
             from dynid.reports.physical_section import physical_section
             extra.append(physical_section(physical))
+        if effects is not None:
+            from dynid.reports.physical_section import effects_section
+            extra.append(effects_section(effects))
         if export is not None:
             extra.append(export.section())
         outputs.append((args.report, render_idim_report(result, robot, experiment, validation,
@@ -844,7 +858,7 @@ def cmd_identify(args, say):
     if args.method != "idim":
         given = [f"--{o}" for o, v in (("validation", args.validation), ("holdout", args.holdout),
                                        ("urdf", args.urdf), ("asymmetric-friction", args.asymmetric_friction),
-                                       ("mjcf", args.mjcf),
+                                       ("mjcf", args.mjcf), ("effects", args.effects),
                                        ("physical", args.physical and args.method != "didim"))
                  if v]
         if given:
@@ -858,6 +872,7 @@ def cmd_identify(args, say):
         require_cvxpy()                      # before any work
     robot = _robot(args)
     say(f"robot '{robot.name}' ({robot.n_joints} joints)")
+    candidates = _effect_candidates(args, robot)
     experiments, valid = _load_data(args, say, robot, args.data)
     if args.method in METHODS:
         if len(experiments) > 1:
@@ -875,17 +890,33 @@ def cmd_identify(args, say):
         asym = asymmetric_friction(experiments[0], robot, result)
     _show_clean(args, result.summary(), validation.summary() if validation is not None else "",
           asym.summary() if asym is not None else "")
-    physical = None
+    physical = effects = None
     if not args.physical and (args.prior or args.mass_tolerance is not None):
         raise InputError("--prior and --mass-tolerance are options of --physical")
-    if args.physical:
+    if args.bootstrap < 0:
+        raise InputError(f"--bootstrap must be 0 or more refits, got {args.bootstrap}")
+    if candidates is not None:
+        from dynid.analysis.diagnosis.physical_fit import identify_physical_effects
+        say(f"effects beside the rigid body: {args.effects}"
+            + ("; physically consistent WLS (SDP)" if args.physical else ""))
+        effects = identify_physical_effects(experiments, robot, result, candidates, physical=args.physical,
+                                            validation=valid, spec=args.effects, prior=args.prior,
+                                            prior_weight=args.prior_weight, mass_tolerance=args.mass_tolerance,
+                                            n_boot=args.bootstrap)
+        physical = effects.physical
+        if physical is not None:
+            physical.idim, physical.data_hash = result, getattr(result, "data_hash", "") or ""
+            physical.rel_error, physical.wls_rel_error = effects.rel_error_pc, effects.rel_error_wls
+            physical.validation = effects.validation
+        _show_clean(args, effects.summary(), physical.summary() if physical is not None else "")
+    elif args.physical:
         from dynid.analysis.estimators.physical import identify_physical
-        if args.bootstrap < 0:
-            raise InputError(f"--bootstrap must be 0 or more refits, got {args.bootstrap}")
         say("physically consistent WLS (SDP)")
         physical = identify_physical(result, robot, prior=args.prior, prior_weight=args.prior_weight,
                                      mass_tolerance=args.mass_tolerance, n_boot=args.bootstrap,
                                      which=args.physical_set)
+        if valid is not None:
+            physical.validation = physical.held_out_block(valid, robot)
         _show_clean(args, physical.summary())
     export = None
     if args.urdf or args.mjcf:
@@ -894,8 +925,27 @@ def cmd_identify(args, say):
         export = export_urdf(result, robot, physical=physical)
         say(f"URDF: {'consistent' if export.consistent else 'NOT consistent'}; "
             f"{'reproduces the identified values' if export.reproduces else 'does not reproduce the identified values (details in --report / --json)'}")
-    _write_outputs(args, say, result, robot, experiments[0], validation, asym, export, physical)
+    _write_outputs(args, say, result, robot, experiments[0], validation, asym, export, physical, effects)
     return EXIT_OK
+
+
+def _effect_candidates(args, robot):
+    """The candidates of ``--effects`` (None without it), refused early with the options they
+    do not combine with."""
+    from dynid.errors import InputError
+    if not getattr(args, "effects", None):
+        return None
+    from dynid.analysis.diagnosis.physical_fit import effect_candidates
+    if args.physical_set != "base":
+        raise InputError("--effects fits the effects beside all base parameters: drop --physical-set "
+                         f"{args.physical_set}")
+    if args.urdf or args.mjcf:
+        raise InputError("--urdf/--mjcf write a rigid body, which cannot hold the effects of --effects: "
+                         "export from a run without --effects")
+    out = effect_candidates(args.effects, robot.n_joints)
+    if not out:
+        raise InputError(f"--effects {args.effects!r} names no effect; e.g. --effects spring:all")
+    return out
 
 
 def _write_method_outputs(args, say, result, frame, sections, title, robot=None):

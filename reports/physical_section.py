@@ -1,4 +1,5 @@
-"""Report section of a PC-WLS fit (:class:`dynid.analysis.estimators.physical.PhysicalResult`).
+"""Report sections of a PC-WLS fit (:class:`dynid.analysis.estimators.physical.PhysicalResult`) and of
+effects fitted beside the rigid body (``--effects``).
 
 What the constraints are, which are active at the solution, what they cost
 (chi^2 and its p-value bound against the unconstrained WLS), the base
@@ -54,7 +55,11 @@ def physical_section(result, *, id="physical", fmt="auto"):
              f"residual in units of the WLS error variance) on {r.dof} active constraint directions, "
              f"p \u2264 {r.p_value:.3g} (a chi-bar-squared bound). Relative error on the identification "
              f"data: PC {100 * r.rel_error:.3f} %, unconstrained WLS {100 * r.wls_rel_error:.3f} %. "
-             f"Unconstrained WLS physical: {'yes' if r.wls_consistent else 'no'}."),
+             f"Unconstrained WLS physical: {'yes' if r.wls_consistent else 'no'}."
+             + (f" Held out (all {r.validation['n_samples']} decimated samples): PC "
+                f"{100 * r.validation['rel_error_pc']:.3f} %, unconstrained WLS "
+                f"{100 * r.validation['rel_error_wls']:.3f} % (PC \u2212 WLS {r.validation['gap_points']:+.3f} "
+                "points)." if getattr(r, "validation", None) else "")),
         para(f"A-priori term: {'weight ' + format(r.prior_weight, 'g') if r.prior else 'tie-break only (weight ' + format(r.prior_weight, 'g') + ')'}. "
              f"\u03c3 of the PC parameters: parametric bootstrap of the constrained fit ({r.n_boot} refits); "
              "intervals are its percentiles, one-sided where a constraint is active.", cls="hint"),
@@ -75,3 +80,24 @@ def physical_section(result, *, id="physical", fmt="auto"):
     return Section(id, "Physically consistent identification (PC-WLS, SDP)", body,
                    figures=[principal_moments_figure(r, key=f"fig-{id}-moments", fmt=fmt)],
                    tables=[t_links, t_comp])
+
+
+def effects_section(fit, *, id="effects"):
+    """Effects fitted beside the rigid body (:class:`~dynid.analysis.diagnosis.physical_fit.EffectsFit`):
+    their values and sigma (unconstrained and PC), the errors of both fits of that model."""
+    pc = fit.physical is not None
+    text = (f"Effects fitted with the rigid body ({fit.spec}): the unconstrained WLS of the base "
+            "parameters plus the effects' columns" + (" and its physically consistent fit, the rigid "
+            "body constrained and the effects free (profiled out: one SDP)" if pc else "") + ". "
+            f"Relative error on the identification data: WLS {100 * fit.rel_error_wls:.3f} %"
+            + (f", PC {100 * fit.rel_error_pc:.3f} %" if pc else "") + ".")
+    parts = [para(text)]
+    v = fit.validation
+    if v is not None:
+        parts.append(para(f"Held out (all {v['n_samples']} decimated samples): WLS {100 * v['rel_error_wls']:.3f} %"
+                          + (f", PC {100 * v['rel_error_pc']:.3f} % (PC \u2212 WLS {v['gap_points']:+.3f} points)"
+                             if pc else "") + "."))
+    frame = pd.DataFrame(fit.effects()).set_index("name")
+    labels = {"wls": "WLS", "wls_std": "\u03c3 WLS", "pc": "PC-WLS", "pc_std": "\u03c3 PC"}
+    table = T.make_table(frame, f"tab-{id}-parameters", "Effect parameters", labels=labels)
+    return Section(id, "Effects fitted beside the rigid body", join(*parts), tables=[table])

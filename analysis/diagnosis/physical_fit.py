@@ -33,6 +33,15 @@ from dynid.analysis.diagnosis.effect_observation import observe_effects
 from dynid.analysis.diagnosis.effects import make_candidate, signals_from_observation
 from dynid.errors import InputError
 
+SPEC_EFFECTS = ("offset", "asymmetric_coulomb", "asymmetric_viscous", "spring", "position_ripple")
+
+
+def _integer(text, what, item):
+    try:
+        return int(text)
+    except ValueError:
+        raise InputError(f"effect {item!r}: {what} must be a whole number, got {text!r}") from None
+
 
 def effect_candidates(spec, n_joints):
     """Candidates from a short text: ``"spring:all,position_ripple:7:1"``.
@@ -40,27 +49,36 @@ def effect_candidates(spec, n_joints):
     Items ``name:joint[:order]``, ``joint`` 1-based or ``all``; ``order`` for
     ``position_ripple`` (harmonic k of cos k q_j, sin k q_j). Only the effects whose columns
     need nothing but the motion: offset, asymmetric_coulomb, asymmetric_viscous, spring,
-    position_ripple.
+    position_ripple. An effect named twice on one joint is refused (its columns would repeat).
     """
-    allowed = ("offset", "asymmetric_coulomb", "asymmetric_viscous", "spring", "position_ripple")
-    out = []
+    out, seen = [], set()
     for item in [s.strip() for s in str(spec).split(",") if s.strip()]:
         parts = item.split(":")
         name = parts[0]
-        if name not in allowed or len(parts) < 2:
+        if name not in SPEC_EFFECTS or len(parts) < 2 or len(parts) > 3:
             raise InputError(f"effect {item!r}: expected name:joint[:order] with name one of "
-                             f"{', '.join(allowed)} and joint 1..{n_joints} or 'all'")
-        joints = range(1, n_joints + 1) if parts[1] == "all" else [int(parts[1])]
+                             f"{', '.join(SPEC_EFFECTS)} and joint 1..{n_joints} or 'all', "
+                             "e.g. spring:all,position_ripple:7:1")
+        joints = range(1, n_joints + 1) if parts[1] == "all" else [_integer(parts[1], "the joint", item)]
+        if name == "position_ripple":
+            if len(parts) != 3:
+                raise InputError(f"effect {item!r}: position_ripple needs an order, e.g. "
+                                 "position_ripple:7:1")
+            order = _integer(parts[2], "the order", item)
+            if order < 1:
+                raise InputError(f"effect {item!r}: the order must be 1 or more, got {order}")
+        elif len(parts) == 3:
+            raise InputError(f"effect {item!r}: only position_ripple takes an order (name:joint)")
         for j in joints:
             if not 1 <= j <= n_joints:
                 raise InputError(f"effect {item!r}: joint {j} outside 1..{n_joints}")
-            if name == "position_ripple":
-                if len(parts) != 3:
-                    raise InputError(f"effect {item!r}: position_ripple needs an order, e.g. "
-                                     "position_ripple:7:1")
-                out.append(make_candidate(name, j, n_joints, order=int(parts[2])))
-            else:
-                out.append(make_candidate(name, j, n_joints))
+            c = (make_candidate(name, j, n_joints, order=order) if name == "position_ripple"
+                 else make_candidate(name, j, n_joints))
+            key = (name, j, c.nonlinear.get("order"))
+            if key in seen:
+                raise InputError(f"effect {item!r}: {name} on joint {j} is given twice")
+            seen.add(key)
+            out.append(c)
     return out
 
 
@@ -84,15 +102,25 @@ def effect_design(experiment, robot, bp, settings, candidates):
 
 @dataclass
 class EffectsFit:
-    """The WLS of ``[W, C]`` and its physically consistent counterpart."""
+    """The WLS of ``[W, C]`` and, when asked, its physically consistent counterpart.
+
+    ``cov_effects_pc``: covariance of the PC effect parameters, eq. (3); ``rel_error_*``:
+    ||Y - W x|| / ||Y|| on the identification rows; ``validation``: the held-out errors of
+    :func:`held_out_errors` when a validation recording was given (None otherwise).
+    """
 
     names: list            # base parameters then effect parameters
     n_base: int
     wls: object            # IdentificationResult of the stacked design
-    physical: object       # PhysicalResult of the base parameters, eq. (1)
-    theta_pc: np.ndarray   # effect parameters given the PC base parameters, eq. (2)
+    physical: object       # PhysicalResult of the base parameters, eq. (1); None: unconstrained only
+    theta_pc: np.ndarray | None   # effect parameters given the PC base parameters, eq. (2)
     settings: dict
     candidates: list
+    spec: str = ""
+    cov_effects_pc: np.ndarray | None = None
+    rel_error_wls: float = float("nan")
+    rel_error_pc: float = float("nan")
+    validation: dict | None = None
 
     @property
     def x_wls(self):
@@ -100,28 +128,101 @@ class EffectsFit:
 
     @property
     def x_pc(self):
+        if self.physical is None:
+            raise InputError("this fit has no physically consistent part (fitted without physical=True)")
         return np.concatenate([np.asarray(self.physical.chi, float), self.theta_pc])
+
+    @property
+    def effect_names(self):
+        return list(self.names[self.n_base:])
+
+    def effects(self) -> list:
+        """Per effect parameter: name, effect, joint, unconstrained value and sigma, PC value and sigma."""
+        b = self.n_base
+        sd = np.sqrt(np.maximum(np.diag(self.wls.cov)[b:], 0.0))
+        sd_pc = (np.sqrt(np.maximum(np.diag(self.cov_effects_pc), 0.0)) if self.cov_effects_pc is not None
+                 else [None] * len(sd))
+        owner = [(c.name, c.joint) for c in self.candidates for _ in c.active_params]
+        out = []
+        for k, n in enumerate(self.effect_names):
+            row = {"name": n, "effect": owner[k][0], "joint": owner[k][1],
+                   "wls": float(self.x_wls[b + k]), "wls_std": float(sd[k])}
+            if self.physical is not None:
+                row.update(pc=float(self.theta_pc[k]), pc_std=float(sd_pc[k]))
+            out.append(row)
+        return out
+
+    def to_dict(self) -> dict:
+        """The JSON block of the effects: ``spec``, per-parameter values and sigma (unconstrained
+        and, with the physical fit, PC), the errors on the identification data and held out."""
+        from dynid.provenance import json_safe
+        return json_safe({
+            "spec": self.spec, "candidates": [{"effect": c.name, "joint": c.joint, **c.nonlinear}
+                                              for c in self.candidates],
+            "parameters": self.effects(),
+            "sigma": ("wls_std: the stacked WLS covariance (eq. (14)); pc_std: eq. (3) of "
+                      "dynid.analysis.diagnosis.physical_fit, the base parameters' bootstrap "
+                      "covariance carried through the profile"),
+            "rel_error_wls": self.rel_error_wls, "rel_error_pc": self.rel_error_pc,
+            "validation": self.validation,
+        })
+
+    def summary(self) -> str:
+        pc = self.physical is not None
+        lines = [f"Effects fitted with the rigid body ({self.spec}): "
+                 + ("unconstrained WLS and PC-WLS of the same model" if pc else "unconstrained WLS"),
+                 f"  relative error on the identification data: WLS {self.rel_error_wls:.4f}"
+                 + (f", PC {self.rel_error_pc:.4f}" if pc else "")]
+        if self.validation is not None:
+            v = self.validation
+            lines.append(f"  held-out relative error (all samples): WLS {v['rel_error_wls']:.4f}"
+                         + (f", PC {v['rel_error_pc']:.4f} (PC - WLS {v['gap_points']:+.3f} points)" if pc else ""))
+        hdr = f"{'Parameter':<12}{'effect':>20}{'WLS':>13}{'sigma':>11}"
+        lines.append(hdr + (f"{'PC':>13}{'sigma':>11}" if pc else ""))
+        for r in self.effects():
+            line = f"{r['name']:<12}{r['effect'] + ' j' + str(r['joint']):>20}{r['wls']:>13.5g}{r['wls_std']:>11.3g}"
+            if pc:
+                line += f"{r['pc']:>13.5g}{r['pc_std']:>11.3g}"
+            lines.append(line)
+        return "\n".join(lines)
 
 
 def profile_physical(robot, bp, x_hat, cov, n_base, **pc_options):
-    """PC-WLS of the base parameters with the effect parameters profiled out: eqs. (1)-(2).
+    """PC-WLS of the base parameters with the effect parameters profiled out: eqs. (1)-(3).
 
     ``x_hat`` (b + k,), ``cov`` (b + k, b + k): the WLS of the stacked design. Returns
-    ``(PhysicalResult, theta_pc)``.
+    ``(PhysicalResult, theta_pc, cov_theta_pc)``. With ``K = cov_tb cov_bb^-1``, eq. (2) reads
+    ``theta_pc = u + K beta_pc`` where ``u = theta_hat - K beta_hat`` is uncorrelated with
+    ``beta_hat`` (so independent, Gaussian errors) and ``beta_pc`` depends on ``beta_hat``
+    alone; hence
+
+        cov(theta_pc) = (cov_tt - K cov_bt) + K cov(beta_pc) K^T,                         (3)
+
+    with ``cov(beta_pc)`` the PC fit's bootstrap covariance (``cov_bb`` itself when
+    ``n_boot = 0``, which gives back ``cov_tt``).
     """
     from dynid.analysis.estimators.physical import pc_wls
     b = int(n_base)
     x_hat, cov = np.asarray(x_hat, float), np.asarray(cov, float)
     cov_bb = 0.5 * (cov[:b, :b] + cov[:b, :b].T)
     pc = pc_wls(robot, bp, x_hat[:b], cov_bb, **pc_options)
-    theta = x_hat[b:] + cov[b:, :b] @ np.linalg.solve(cov_bb, np.asarray(pc.chi, float) - x_hat[:b])
-    return pc, theta
+    K = np.linalg.solve(cov_bb, cov[:b, b:]).T
+    theta = x_hat[b:] + K @ (np.asarray(pc.chi, float) - x_hat[:b])
+    cov_t = cov[b:, b:] - K @ cov[:b, b:] + K @ np.asarray(pc.cov, float) @ K.T
+    return pc, theta, 0.5 * (cov_t + cov_t.T)
 
 
-def identify_physical_effects(experiments, robot, result, candidates, **pc_options) -> EffectsFit:
-    """WLS and PC-WLS of the base model of ``result`` (an IDIM result on ``experiments``) plus
-    ``candidates``' columns, with ``result``'s processing settings; the per-joint sigma_j are
-    re-estimated on the stacked design (eq. (16))."""
+def _rel_error(tau, W, x, mask):
+    r = np.where(mask, tau - W @ x, 0.0)
+    return float(np.linalg.norm(r) / np.linalg.norm(np.where(mask, tau, 0.0)))
+
+
+def identify_physical_effects(experiments, robot, result, candidates, *, physical=True, validation=None,
+                              spec="", **pc_options) -> EffectsFit:
+    """WLS and (``physical=True``) PC-WLS of the base model of ``result`` (an IDIM result on
+    ``experiments``) plus ``candidates``' columns, with ``result``'s processing settings; the
+    per-joint sigma_j are re-estimated on the stacked design (eq. (16)). ``validation``: a
+    held-out recording, whose errors (:func:`held_out_errors`) go into the result."""
     from dynid.analysis.estimators import least_squares as ls
     if not isinstance(experiments, (list, tuple)):
         experiments = [experiments]
@@ -132,14 +233,36 @@ def identify_physical_effects(experiments, robot, result, candidates, **pc_optio
     mask = np.concatenate([p[2] for p in parts])
     names = parts[0][3]
     wls = ls.wls(W, tau, names, row_mask=mask)
-    pc, theta = profile_physical(robot, bp, wls.chi, wls.cov, bp.n_base, **pc_options)
-    return EffectsFit(names=names, n_base=bp.n_base, wls=wls, physical=pc, theta_pc=theta,
-                      settings=dict(s), candidates=list(candidates))
+    pc = theta = cov_t = None
+    if physical:
+        pc, theta, cov_t = profile_physical(robot, bp, wls.chi, wls.cov, bp.n_base, **pc_options)
+    fit = EffectsFit(names=names, n_base=bp.n_base, wls=wls, physical=pc, theta_pc=theta,
+                     settings=dict(s), candidates=list(candidates), spec=str(spec), cov_effects_pc=cov_t,
+                     rel_error_wls=_rel_error(tau, W, wls.chi, mask))
+    if physical:
+        fit.rel_error_pc = _rel_error(tau, W, fit.x_pc, mask)
+    if validation is not None:
+        fit.validation = held_out_errors(fit, validation, robot, bp, detail=True)
+    return fit
 
 
-def held_out_errors(fit: EffectsFit, experiment, robot, bp):
+def held_out_errors(fit: EffectsFit, experiment, robot, bp, *, detail=False):
     """Relative error ||tau - tau_hat|| / ||tau|| on all decimated samples of ``experiment`` (no
-    dead zone, as :func:`dynid.analysis.statistics.validation.validate`): ``{"wls", "pc"}``."""
+    dead zone, as :func:`dynid.analysis.statistics.validation.validate`): ``{"wls", "pc"}``
+    ("pc" only with the physical fit). ``detail=True``: the block of the JSON instead, with the
+    per-joint RMS [N m] and the gap PC - WLS in points."""
     from dynid.analysis.statistics.validation import prediction_errors
     W, tau, _, _ = effect_design(experiment, robot, bp, dict(fit.settings, qd_threshold=0.0), fit.candidates)
-    return {"wls": prediction_errors(tau, W @ fit.x_wls)[0], "pc": prediction_errors(tau, W @ fit.x_pc)[0]}
+    e_wls, rms_wls, _ = prediction_errors(tau, W @ fit.x_wls)
+    out = {"wls": e_wls}
+    if fit.physical is not None:
+        e_pc, rms_pc, _ = prediction_errors(tau, W @ fit.x_pc)
+        out["pc"] = e_pc
+    if not detail:
+        return out
+    block = {"samples": "all", "n_samples": int(tau.shape[0]), "rel_error_wls": e_wls,
+             "rms_wls": [float(x) for x in rms_wls]}
+    if fit.physical is not None:
+        block.update(rel_error_pc=e_pc, rms_pc=[float(x) for x in rms_pc],
+                     gap_points=100.0 * (e_pc - e_wls))
+    return block

@@ -243,6 +243,8 @@ class PhysicalResult(ParameterResults):
     # columns: the base-regressor columns of ``names`` (None: all, in order)
     model: str = "base"
     columns: np.ndarray | None = None
+    # held-out errors of this fit and of the unconstrained one (held_out_block), when validated
+    validation: dict | None = None
 
     @property
     def consistent(self) -> bool:
@@ -318,6 +320,22 @@ class PhysicalResult(ParameterResults):
         W = np.asarray(W_base)
         return (W if self.columns is None else W[..., self.columns]) @ self.chi
 
+    def held_out_block(self, experiment, robot) -> dict:
+        """Held-out relative error ||tau - tau_hat|| / ||tau|| and per-joint RMS [N m] of this fit and
+        of the unconstrained WLS it constrains, on all decimated samples of ``experiment`` (no dead
+        zone, as :func:`dynid.analysis.statistics.validation.validate`), with the gap in points."""
+        from dynid.analysis.processing.observation import observe
+        from dynid.analysis.statistics.validation import prediction_errors
+        if self.idim is None:
+            raise InputError("held_out_block: this PC fit does not carry the IDIM result it came from")
+        full = observe(experiment, robot, self.idim.base, dict(self.settings, qd_threshold=0.0))
+        W = full.W if self.columns is None else full.W[..., self.columns]
+        e_wls, rms_wls, _ = prediction_errors(full.tau, W @ self.wls_chi)
+        e_pc, rms_pc, _ = prediction_errors(full.tau, W @ self.chi)
+        return {"samples": "all", "n_samples": int(full.tau.shape[0]), "rel_error_wls": e_wls,
+                "rms_wls": [float(x) for x in rms_wls], "rel_error_pc": e_pc,
+                "rms_pc": [float(x) for x in rms_pc], "gap_points": 100.0 * (e_pc - e_wls)}
+
     def physical_block(self) -> dict:
         """The JSON block ``"physical"`` of ``dynid identify --physical``."""
         from dynid.provenance import json_safe
@@ -327,7 +345,7 @@ class PhysicalResult(ParameterResults):
             "p_value": self.p_value, "unconstrained_consistent": self.wls_consistent,
             "prior": self.prior, "prior_weight": self.prior_weight, "mass_tolerance": self.mass_tolerance,
             "rel_error": self.rel_error, "wls_rel_error": self.wls_rel_error,
-            "n_boot": self.n_boot, "solve_seconds": self.solve_seconds,
+            "n_boot": self.n_boot, "solve_seconds": self.solve_seconds, "validation": self.validation,
             "test": ("chi2 = growth of the weighted squared residual over the unconstrained WLS, in "
                      "units of its error variance; p_value = P(chi2_dof > chi2), an upper bound of the "
                      "chi-bar-squared p-value with dof = active scalar constraints"),
@@ -365,6 +383,9 @@ class PhysicalResult(ParameterResults):
                  f"  active constraints: {', '.join(self.active) or 'none'}",
                  f"  chi2 = {self.chi2:.4g} (dof {self.dof}), p <= {self.p_value:.3g}: {self.verdict_line()}",
                  f"  relative error ||Y - W beta|| / ||Y||: PC {self.rel_error:.4f}, WLS {self.wls_rel_error:.4f}",
+                 *([f"  held-out relative error (all samples): PC {self.validation['rel_error_pc']:.4f}, WLS "
+                    f"{self.validation['rel_error_wls']:.4f} (PC - WLS {self.validation['gap_points']:+.3f} points)"]
+                   if self.validation else []),
                  f"  a-priori term: {self.prior or 'tie-break only'}, weight {self.prior_weight:g}; "
                  f"%sigma from {self.n_boot} bootstrap refits",
                  f"{'Parameter':<14}{'PC':>14}{'sigma':>12}{'%sigma':>9}{'WLS':>14}{'shift [sigma]':>15}"]
