@@ -30,6 +30,7 @@ PROMISED = {
     "dynid diagnose": ["diag.html", "diag.json"],
     "--urdf kuka_identified.urdf": ["kuka_identified.urdf", "kuka_urdf.json"],
     "--physical --bootstrap 20": ["tx40_pc.urdf", "tx40_pc.xml", "tx40_pc.json"],
+    "--effects spring:all": ["kuka_effects.json"],
 }
 
 
@@ -63,6 +64,10 @@ def test_every_command_block_runs(tmp_path):
             export = json.loads((tmp_path / "kuka_urdf.json").read_text())["urdf_export"]
             assert export["consistent"] is True
             assert "<robot" in (tmp_path / "kuka_identified.urdf").read_text()
+        if marker == "--effects spring:all":
+            ph = json.loads((tmp_path / "kuka_effects.json").read_text())["physical"]
+            assert ph["consistent"] is True and ph["validation"]["gap_points"] < 0.2
+            assert [p["name"] for p in ph["effects"]["parameters"]] == [f"Ks{j}" for j in range(1, 8)]
     html = (tmp_path / "tx40.html").read_text()
     assert 'id="validation"' in html
     assert "parameter" in (tmp_path / "essential.csv").read_text().splitlines()[0]
