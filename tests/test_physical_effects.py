@@ -65,3 +65,63 @@ def test_springs_close_the_lwr4_gap_on_flobaroids_split(lwr):
     e0 = held_out_errors(none, rec[2], robot, res.base)
     assert e0["pc"] - e0["wls"] > 0.003          # the gap the springs remove
     assert e["pc"] < e0["pc"]
+
+
+
+def _clamped_case():
+    """planar2's a-priori base parameters with Fv1 = Fc2 = 0 (on their bound) and two effect
+    parameters, each 0.95-correlated with one of them, sd 1; the base block of the covariance is
+    diagonal."""
+    from dynid.analysis.estimators.standard_set import apriori_standard
+    from dynid.dynamics.base_parameters import base_parameters
+    robot = dynid.load_robot("planar2")
+    bp = base_parameters(robot)
+    b = bp.n_base
+    beta = bp.matrix @ apriori_standard(robot)
+    idx = [bp.names.index("Fv1"), bp.names.index("Fc2")]
+    beta[idx] = 0.0
+    sd = np.r_[0.02 * np.abs(beta) + 0.01, 1.0, 1.0]
+    corr = np.eye(b + 2)
+    for t, i in zip((b, b + 1), idx):
+        corr[t, i] = corr[i, t] = 0.95
+    return robot, bp, np.r_[beta, 0.0, 0.0], corr * np.outer(sd, sd)
+
+
+def test_pc_effect_covariance_at_a_lone_bound_is_the_clamped_normal_one():
+    """Eq. (3) against a hand-derived value. Fv1 and Fc2 are lone base parameters with only their
+    own bound >= 0 and a diagonal base covariance, so PC-WLS clamps them, beta_pc = max(0, beta_hat),
+    variance (1/2 - 1/(2 pi)) sigma^2 at a true value 0; an effect parameter with correlation
+    rho to one of them then has variance (1 - rho^2) + rho^2 (1/2 - 1/(2 pi)) = 0.405 (sd 1), where
+    the unconstrained fit says 1."""
+    from dynid.analysis.diagnosis.physical_fit import profile_physical
+    robot, bp, x_true, cov = _clamped_case()
+    _, _, cov3 = profile_physical(robot, bp, x_true, cov, bp.n_base, n_boot=800, seed=1)
+    rho2 = 0.95 ** 2
+    expected = (1 - rho2) + rho2 * (0.5 - 1 / (2 * np.pi))
+    # 15 %: the bootstrap's own spread is ~4 % at 800 refits; leaving out the Schur term (0.31)
+    # or the constraint (1.0) is outside it
+    assert np.allclose(np.diag(cov3), expected, rtol=0.15), (np.diag(cov3), expected)
+
+
+@pytest.mark.slow
+def test_pc_effect_covariance_matches_a_monte_carlo_of_the_profiled_fit():
+    """Eq. (3) against the estimator's own sampling distribution: x_hat ~ N(x_true, cov) drawn
+    jointly (base and effect parameters), each draw's base part refitted under the constraints
+    and theta from eq. (2) (~17 s: 800 SDP solves)."""
+    from dynid.analysis.diagnosis.physical_fit import profile_physical
+    from dynid.analysis.estimators.physical import TIE_BREAK, _build, _whitening
+    from dynid.analysis.estimators.standard_set import apriori_standard, scales
+    robot, bp, x_true, cov = _clamped_case()
+    b = bp.n_base
+    _, _, cov3 = profile_physical(robot, bp, x_true, cov, b, n_boot=2000, seed=1)
+    chi_ap = apriori_standard(robot)
+    cov_bb = cov[:b, :b]
+    R = _whitening(cov_bb)
+    pb = _build(robot, bp, R, chi_ap, scales(robot, chi_ap), TIE_BREAK, getattr(robot, "mass_tolerance", None))
+    K = np.linalg.solve(cov_bb, cov[:b, b:]).T
+    draws = np.random.default_rng(7).multivariate_normal(x_true, cov, size=800)
+    theta = np.array([d[b:] + K @ (bp.matrix @ pb.solve(R @ d[:b]) - d[:b]) for d in draws])
+    mc = np.cov(theta, rowvar=False)
+    ratio = np.diag(cov3) / np.diag(mc)
+    assert np.all(np.abs(ratio - 1) < 0.25), ratio            # sampling error ~ 7 % (800 draws, 2000 refits)
+    assert np.all(np.diag(mc) < 0.75 * np.diag(cov[b:, b:]))  # the constraint does shrink theta
