@@ -122,7 +122,8 @@ KUKA = Path(__file__).resolve().parents[1] / "examples" / "kuka_lwr4"
     ("spring:3", "joint 3 outside 1..2"), ("spring:x", "whole number"),
     ("position_ripple:1", "needs an order"), ("position_ripple:1:0", "order must be 1 or more"),
     ("spring:1:2", "only position_ripple takes an order"), ("stribeck:1", "expected name:joint"),
-    ("spring:1,spring:all", "given twice"), (",", "names no effect")])
+    ("spring:1,spring:all", "given twice"), (",", "names no effect"),
+    ("offset:1", "Off1 already in the base model"), ("asymmetric_coulomb:1", "cannot be identified")])
 def test_identify_effects_bad_text_is_refused(planar2_csv, capsys, spec, words):
     assert main(["identify", str(planar2_csv), "--robot", "planar2", "--effects", spec, "--quiet"]) == 2
     err = capsys.readouterr().err

@@ -19,6 +19,11 @@ and ``cov``; the weighted squared residual of any ``(beta, theta)`` is
 PC-WLS of ``(beta_hat, cov_bb)`` (:func:`~dynid.analysis.estimators.physical.pc_wls`) followed
 by (2) is the constrained minimum of the whole weighted residual, one SDP as without effects.
 
+The effect parameters' uncertainty at the PC solution is eq. (3) of :func:`profile_physical`:
+the base parameters' bootstrap covariance carried through (2), plus the part of theta that
+the base parameters do not explain. From the command line: ``dynid identify EXP --robot R
+--effects spring:all [--physical] [--validation V]`` (JSON block ``"effects"``).
+
 Measured on the KUKA LWR4+ (``benchmarks/physical.py``, ``examples/kuka_lwr4/README.md``):
 a linear spring on every joint and the first position harmonic on joint 7 take the negative
 ZZ1R, Ia3 and Ia7 the unconstrained fit wanted.
@@ -31,7 +36,7 @@ import numpy as np
 
 from dynid.analysis.diagnosis.effect_observation import observe_effects
 from dynid.analysis.diagnosis.effects import make_candidate, signals_from_observation
-from dynid.errors import InputError
+from dynid.errors import IdentificationError, InputError
 
 SPEC_EFFECTS = ("offset", "asymmetric_coulomb", "asymmetric_viscous", "spring", "position_ripple")
 
@@ -232,7 +237,16 @@ def identify_physical_effects(experiments, robot, result, candidates, *, physica
     tau = np.concatenate([p[1] for p in parts])
     mask = np.concatenate([p[2] for p in parts])
     names = parts[0][3]
-    wls = ls.wls(W, tau, names, row_mask=mask)
+    clash = sorted(set(names[:bp.n_base]) & set(names[bp.n_base:]))
+    if clash:
+        raise InputError(f"effects {spec or ''}: {', '.join(clash)} already in the base model of "
+                         f"'{robot.name}'; leave that effect out")
+    try:
+        wls = ls.wls(W, tau, names, row_mask=mask)
+    except IdentificationError as e:
+        raise InputError(f"effects {spec or ''}: the model with these effects cannot be identified "
+                         f"from these data ({str(e).splitlines()[0].rstrip('.')}; {_culprit(str(e))}); leave "
+                         "out the effect named") from None
     pc = theta = cov_t = None
     if physical:
         pc, theta, cov_t = profile_physical(robot, bp, wls.chi, wls.cov, bp.n_base, **pc_options)
@@ -244,6 +258,11 @@ def identify_physical_effects(experiments, robot, result, candidates, *, physica
     if validation is not None:
         fit.validation = held_out_errors(fit, validation, robot, bp, detail=True)
     return fit
+
+
+def _culprit(message):
+    lines = [ln.strip(" -") for ln in message.splitlines()[1:] if "column is" in ln]
+    return lines[0].split(", so")[0] if lines else "see the message above"
 
 
 def held_out_errors(fit: EffectsFit, experiment, robot, bp, *, detail=False):
