@@ -339,6 +339,9 @@ def test_v_s_is_chosen_from_the_data(tx40):
     # measured: 0.0095 rad/s, ||rho|| 0.224 against 0.302 at 0.05 (0.226 at 0.00625, 0.224 at 0.0125)
     assert scan[s["v_s"]] < 0.85 * scan[0.05] and scan[s["v_s"]] == min(scan.values())
     assert res.history["v_s"].iloc[-1] == s["v_s"] and res.history["v_s"].iloc[0] == 0.05
+    # one step index everywhere: the stop reason names the history's last step
+    assert res.history["iteration"].tolist() == list(range(1, res.iterations + 1))
+    assert f"rho_{res.iterations}||" in res.stop_reason, res.stop_reason
     assert f"v_s = {s['v_s']:.3g} rad/s (auto" in res.summary()
     doc = json.loads(dumps_json(res.to_dict()))
     assert doc["settings"]["v_s"] == s["v_s"] and doc["settings"]["v_s_choice"] == s["v_s_choice"]

@@ -118,6 +118,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -982,14 +983,19 @@ def _identify_auto_v_s(experiment, robot, *, settings, chi0, tol, max_iter, upda
     s["v_s_scan"] = rows
     s["initialisation"] = first.settings.get("initialisation")
     s["update_gains"] = update_gains
-    notices = list(first.notices) + [note] + [f"v_s candidate failed ({f})" for f in failed]
-    notices += [n for n in final.notices if n not in notices]
     h1, h2 = first.history, final.history.copy()
     h2["iteration"] = h2["iteration"] + len(h1)
+
+    def renumber(text):
+        """The final run's step numbers as steps of the whole history (one index everywhere)."""
+        return re.sub(r"(rho_|step )(\d+)", lambda m: f"{m.group(1)}{int(m.group(2)) + len(h1)}", text)
+
+    notices = list(first.notices) + [note] + [f"v_s candidate failed ({f})" for f in failed]
+    notices += [renumber(n) for n in final.notices if n not in notices]
     final.history = pd.concat([h1, h2], ignore_index=True)
     final.settings = s
     final.notices = notices
     final.initial = first.initial
     final.timings = list(first.timings) + list(final.timings)
-    final.stop_reason = f"at v_s = {chosen:.3g} rad/s: {final.stop_reason}"
+    final.stop_reason = f"at v_s = {chosen:.3g} rad/s: {renumber(final.stop_reason)}"
     return final
