@@ -20,9 +20,12 @@ h/2 = 25 us behind the central derivative); and the time per identification as a
 the plant simulation of the same seed.
 
 ``--didim``: per seed, IDIM and DIDIM with the identified gains (``gains="identify"``), with
-DIDIM's default Coulomb smoothing ``v_s = 0.05`` rad/s and with the plant's 0.01; per run the
-essential parameters of IDIM within 2 % or 2 sigma of DIDIM's, the ones that are not, and
-both torque residuals.
+DIDIM's Coulomb smoothing ``v_s`` chosen from the data (``"auto"``, the default), at the former
+default 0.05 rad/s and at the plant's 0.01 (``--v-s`` selects which); per run the essential
+parameters of IDIM within 2 % or 2 sigma of DIDIM's, the ones that are not, both torque
+residuals, the v_s used and DIDIM's wall time.
+
+    python benchmarks/controller_gains.py --didim --seeds 3 4 5 6 7 8 --v-s auto
 """
 from __future__ import annotations
 
@@ -58,12 +61,14 @@ def _stats(errs, sig):
     return out
 
 
-def _didim_vs_idim(dynid, exp, robot, seed):
-    """IDIM and DIDIM (identified gains, v_s 0.05 and 0.01): agreement of the parameters."""
+def _didim_vs_idim(dynid, exp, robot, seed, v_s_values):
+    """IDIM and DIDIM (identified gains, each v_s): agreement of the parameters."""
     idim = dynid.identify(exp, robot)
     row = {"seed": seed}
-    for vs in (0.05, 0.01):
+    for vs in v_s_values:
+        t0 = time.perf_counter()
         d = dynid.identify(exp, robot, "didim", gains="identify", settings={"v_s": vs})
+        wall = time.perf_counter() - t0
         off, total = [], 0
         for n in idim.names:
             if n in d.names:
@@ -73,9 +78,11 @@ def _didim_vs_idim(dynid, exp, robot, seed):
                 if abs(b - a) > max(0.02 * abs(a), 2 * s):
                     off.append(f"{n} {100 * (b - a) / abs(a):+.1f} % ({(b - a) / s:+.1f} sigma)")
         row[vs] = {"converged": bool(d.converged), "compared": total, "off": off,
-                   "didim_rel_error": float(d.model.rel_error), "idim_rel_error": float(idim.model.rel_error)}
-        print(f"{seed:>4} DIDIM v_s {vs}: {total - len(off)} of {total} within 2 % or 2 sigma of IDIM "
-              f"{off}; torque residual {d.model.rel_error:.4f} (IDIM {idim.model.rel_error:.4f})", flush=True)
+                   "didim_rel_error": float(d.model.rel_error), "idim_rel_error": float(idim.model.rel_error),
+                   "v_s_used": float(d.settings["v_s"]), "didim_wall_s": wall}
+        print(f"{seed:>4} DIDIM v_s {vs} ({d.settings['v_s']:.3g}): {total - len(off)} of {total} within 2 % "
+              f"or 2 sigma of IDIM {off}; torque residual {d.model.rel_error:.4f} (IDIM "
+              f"{idim.model.rel_error:.4f}); {wall:.1f} s", flush=True)
     return row
 
 
@@ -84,7 +91,10 @@ def main():
     ap.add_argument("--seeds", type=int, nargs="+", default=[3, 4, 5, 6, 7, 8, 11, 12, 13, 14, 15, 16])
     ap.add_argument("--duration", type=float, default=8.0)
     ap.add_argument("--didim", action="store_true", help="also DIDIM with the identified gains vs IDIM")
+    ap.add_argument("--v-s", nargs="+", default=["auto", "0.05", "0.01"], dest="v_s",
+                    help="DIDIM's v_s values with --didim: 'auto' or numbers (rad/s)")
     args = ap.parse_args()
+    v_s_values = [v if v == "auto" else float(v) for v in args.v_s]
     import independent_plant as ip
 
     import dynid
@@ -124,7 +134,7 @@ def main():
                 print(f"{seed:>4} {v:>8} {kind:>4} " + " ".join(f"{x:+6.2f} % ({y:4.2f})" for x, y in zip(e, s)),
                       flush=True)
         if args.didim:
-            didim_rows.append(_didim_vs_idim(dynid, exp, robot, seed))
+            didim_rows.append(_didim_vs_idim(dynid, exp, robot, seed, v_s_values))
     print("cells: relative error of the gain (its %sigma)")
     out = {"seeds": args.seeds, "duration_s": args.duration,
            "identification_time_over_simulation": float(np.median(ratios)),
@@ -132,9 +142,17 @@ def main():
     for v in variants:
         out[v] = {grp: _stats(*acc[(v, grp)]) for grp in groups if groups[grp]}
     if didim_rows:
-        out["didim"] = {f"v_s_{vs}": {"all_agree_share": float(np.mean([r[vs]["off"] == [] for r in didim_rows])),
-                                      "runs": [{"seed": r["seed"], **r[vs]} for r in didim_rows]}
-                        for vs in (0.05, 0.01)}
+        out["didim"] = {}
+        for vs in v_s_values:
+            block = {}
+            for grp, seeds in groups.items():
+                rows = [r for r in didim_rows if r["seed"] in seeds]
+                if rows:
+                    block[grp] = {"all_agree": int(sum(r[vs]["off"] == [] for r in rows)),
+                                  "seeds": len(rows),
+                                  "all_agree_share": float(np.mean([r[vs]["off"] == [] for r in rows]))}
+            block["runs"] = [{"seed": r["seed"], **r[vs]} for r in didim_rows]
+            out["didim"][f"v_s_{vs}"] = block
     print(json.dumps(out))
 
 

@@ -155,7 +155,8 @@ def _convergence_section(res):
                          False: "none (kd_scale = 1)"}.get(s.get("update_gains"), str(s.get("update_gains")))),
         ("Simulation", f"controller at {T.format_number(s['rate'])} Hz"
                        f"{', velocity feedforward' if s['feedforward'] else ''}, Coulomb friction "
-                       f"smoothed over v_s = {T.format_number(s['v_s'])} rad/s, "
+                       f"smoothed over v_s = {T.format_number(s['v_s'])} rad/s "
+                       f"({s.get('v_s_choice', 'given')}), "
                        f"{'torque saturated' if s['saturate'] else 'no torque saturation'}; first "
                        f"{res.transient_samples} samples ({T.format_number(s['transient'])} s) dropped"),
         ("Decimation", f"nd = {s['nd']}, low-pass {T.format_number(s['f_decimation_cutoff'])} Hz; "
@@ -183,13 +184,14 @@ def _convergence_section(res):
         return scale * h[c].to_numpy(dtype=float)
 
     shown = pd.DataFrame({
+        **({"v_s": col("v_s")} if "v_s" in h else {}),
         "step_length": col("step_length"), "rho_norm": col("rho_norm"),
         "rel_change": col("rel_change"), "output_error": col("output_error"),
         "rel_error_percent": col("rel_error", 100.0),
         "max_rel_param_change": col("max_rel_param_change"),
         "max_change_sigma": col("max_change_sigma"),
     }, index=steps)
-    labels = {"step_length": "step length", "rho_norm": "\u2016\u03c1\u2016",
+    labels = {"v_s": "v_s [rad/s]", "step_length": "step length", "rho_norm": "\u2016\u03c1\u2016",
               "rel_change": "relative change", "output_error": "output error",
               "rel_error_percent": "relative error [%]",
               "max_rel_param_change": "max relative parameter change",

@@ -352,8 +352,16 @@ def test_didim_coulomb_sign_width_option(tmp_path, capsys):
                  "--json", str(js), "--quiet"])
     doc = json.loads(js.read_text())
     assert code == (0 if doc["converged"] else 3)
-    assert doc["settings"]["v_s"] == 0.02
+    assert doc["settings"]["v_s"] == 0.02 and doc["settings"]["v_s_choice"] == "given"
+    # the default is "auto": the JSON says which v_s was used and how it was chosen
+    code = main(["identify", str(csv), "--robot", "planar2", "--method", "didim", "--v-s", "auto",
+                 "--json", str(js), "--quiet"])
+    doc = json.loads(js.read_text())
+    assert code == (0 if doc["converged"] else 3)
+    assert doc["settings"]["v_s"] > 0 and doc["settings"]["v_s_choice"].startswith("auto")
     capsys.readouterr()
+    assert main(["identify", str(csv), "--robot", "planar2", "--method", "didim", "--v-s", "sharp"]) == 2
+    assert "Traceback" not in capsys.readouterr().err
     assert main(["identify", str(csv), "--robot", "planar2", "--v-s", "0.02", "--quiet"]) == 2
     err = capsys.readouterr().err
     assert "--v-s" in err and "Traceback" not in err
