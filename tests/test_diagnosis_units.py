@@ -133,3 +133,23 @@ def test_coulomb_onset_rule_by_dead_zone_and_by_peak_speed():
     # a real Stribeck dip (Fs > 0) is never an onset
     assert not _onset(c, np.array([0.3]), settings, np.array([1.0, 1.0]))
     assert _onset(make_candidate("stribeck", 2, vs=0.02), np.array([-0.3]), settings)
+
+
+def test_spectral_line_confirmed_across_halves_only_when_it_is_a_function_of_position():
+    from dynid.analysis.diagnosis.structure import GRID, _line_confirmation
+    rng = np.random.default_rng(4)
+    n = 40000
+    t = np.arange(n) / 5000.0
+    x = 0.8 * np.sin(2 * np.pi * 0.3 * t) + 0.3 * np.sin(2 * np.pi * 0.71 * t + 1.0)
+    lo, hi = x.min(), x.max()
+    dq = (hi - lo) / (GRID - 1)
+    gi = np.clip(np.round((x - lo) / dq).astype(int), 0, GRID - 1)
+    k = 2 * np.pi * np.fft.rfftfreq(2 * GRID, dq)
+    sel = (k >= 2 * np.pi * 3 / (hi - lo)) & (k <= 2 * np.pi / (4 * dq))
+    noise = rng.normal(0.0, 0.2, n)
+    ripple = 0.05 * np.sin(50.0 * x)
+    p_line = _line_confirmation(gi, noise + ripple, sel, 200, 20, np.random.default_rng(0))
+    p_noise = [_line_confirmation(gi, rng.normal(0.0, 0.2, n), sel, 200, 20, np.random.default_rng(s))
+               for s in range(5)]
+    assert p_line < 1e-8, p_line
+    assert min(p_noise) > 1e-3, p_noise
