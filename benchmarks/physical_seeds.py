@@ -93,7 +93,9 @@ def main():
             q_lo, q_hi = np.quantile(pc.boot, [0.025, 0.975], axis=0)
             row_cov = {"pc_wls_hits": hit.tolist(), "wls_hits": (np.abs(res.wls.chi - beta) <= hw).tolist(),
                        # the former intervals (percentiles alone), for comparison
-                       "pct_hits": ((q_lo <= beta + 1e-12) & (beta - 1e-12 <= q_hi)).tolist()}
+                       "pct_hits": ((q_lo <= beta + 1e-12) & (beta - 1e-12 <= q_hi)).tolist(),
+                       # width of the PC interval over that of the WLS one, per parameter
+                       "width_ratio": ((ci["upper"].to_numpy() - ci["lower"].to_numpy()) / (2 * hw)).tolist()}
         else:
             row_cov = {}
         R = _whitening(res.wls.cov)
@@ -159,6 +161,8 @@ def main():
             "coverage_95_wls": float(np.mean([r["wls_hits"] for r in rows])),
             "coverage_95_wls_by_parameter_min": float(np.min(np.mean([r["wls_hits"] for r in rows], axis=0))),
             "coverage_95_pc_percentiles_alone": float(np.mean([r["pct_hits"] for r in rows])),
+            "width_over_wls_median": float(np.median([r["width_ratio"] for r in rows])),
+            "width_over_wls_min": float(np.min([r["width_ratio"] for r in rows])),
             "wls_mahalanobis2_mean_over_b": float(np.mean([r["wls_mahalanobis2"] for r in rows]) / len(beta)),
             "n_boot": args.coverage} if args.coverage else {}),
         **({"coverage_95_pc_didim": float(np.mean([r["pc_didim_hits"] for r in rows if "pc_didim_hits" in r]))}
