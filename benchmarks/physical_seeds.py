@@ -15,9 +15,12 @@ PC-WLS, and measures the distance of each to the true base parameters:
 With ``--didim`` the same for DIDIM and PC-DIDIM (each Gauss-Newton step a
 PC-WLS, ``identify_didim(physical=True)``), 4 steps each, from the IDIM-WLS start.
 
-``--coverage N``: the 95 % intervals of PC-WLS (bootstrap percentiles, N refits) and of
+``--coverage N``: the 95 % intervals of PC-WLS (``PhysicalResult.conf_int``: hull of the
+bootstrap percentiles, N refits, and the WLS half-width, cut at the physical bound), of the
+unconstrained WLS itself (1.96 sigma: how good the noise model is on the same seeds) and of
 PC-DIDIM (1.96 times its reported sigma, the last step's WLS one) against the truth, over
-all parameters and seeds (nominal 95 %, the bar of issue 15 is +-5 points).
+all parameters and seeds (nominal 95 %, the bar of issue 15 is +-5 points). Seeds 0-49 are
+the development seeds; ``--start 100`` gives held-out ones.
 
 Run from the repository root: python benchmarks/physical_seeds.py [--seeds 50] [--didim] [--coverage 50]
 The last line is a JSON object with the figures.
@@ -86,10 +89,18 @@ def main():
         if args.coverage:
             ci = pc.conf_int()
             hit = (ci["lower"].to_numpy() <= beta + 1e-12) & (beta - 1e-12 <= ci["upper"].to_numpy())
-            row_cov = {"pc_wls_hits": hit.tolist()}
+            hw = 1.96 * np.sqrt(np.diag(res.wls.cov))
+            q_lo, q_hi = np.quantile(pc.boot, [0.025, 0.975], axis=0)
+            row_cov = {"pc_wls_hits": hit.tolist(), "wls_hits": (np.abs(res.wls.chi - beta) <= hw).tolist(),
+                       # the former intervals (percentiles alone), for comparison
+                       "pct_hits": ((q_lo <= beta + 1e-12) & (beta - 1e-12 <= q_hi)).tolist(),
+                       # width of the PC interval over that of the WLS one, per parameter
+                       "width_ratio": ((ci["upper"].to_numpy() - ci["lower"].to_numpy()) / (2 * hw)).tolist()}
         else:
             row_cov = {}
         R = _whitening(res.wls.cov)
+        # ||R (beta_wls - beta)||^2 is chi^2 with b degrees of freedom if cov_wls is right
+        row_cov["wls_mahalanobis2"] = float(np.sum((R @ (res.wls.chi - beta)) ** 2))
         d_w, d_p = (float(np.linalg.norm(R @ (b - beta))) for b in (res.wls.chi, pc.chi))
         s = np.abs(beta).sum()
         e_w, e_p = (float(np.abs(b - beta).sum() / s) for b in (res.wls.chi, pc.chi))
@@ -147,6 +158,12 @@ def main():
                            for r in rows]))} if args.didim else {}),
         **({"coverage_95_pc_wls": float(np.mean([r["pc_wls_hits"] for r in rows])),
             "coverage_95_pc_wls_by_parameter_min": float(np.min(np.mean([r["pc_wls_hits"] for r in rows], axis=0))),
+            "coverage_95_wls": float(np.mean([r["wls_hits"] for r in rows])),
+            "coverage_95_wls_by_parameter_min": float(np.min(np.mean([r["wls_hits"] for r in rows], axis=0))),
+            "coverage_95_pc_percentiles_alone": float(np.mean([r["pct_hits"] for r in rows])),
+            "width_over_wls_median": float(np.median([r["width_ratio"] for r in rows])),
+            "width_over_wls_min": float(np.min([r["width_ratio"] for r in rows])),
+            "wls_mahalanobis2_mean_over_b": float(np.mean([r["wls_mahalanobis2"] for r in rows]) / len(beta)),
             "n_boot": args.coverage} if args.coverage else {}),
         **({"coverage_95_pc_didim": float(np.mean([r["pc_didim_hits"] for r in rows if "pc_didim_hits" in r]))}
            if args.coverage and args.didim and any("pc_didim_hits" in r for r in rows) else {}),

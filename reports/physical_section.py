@@ -62,7 +62,8 @@ def physical_section(result, *, id="physical", fmt="auto"):
                 "points)." if getattr(r, "validation", None) else "")),
         para(f"A-priori term: {'weight ' + format(r.prior_weight, 'g') if r.prior else 'tie-break only (weight ' + format(r.prior_weight, 'g') + ')'}. "
              f"\u03c3 of the PC parameters: parametric bootstrap of the constrained fit ({r.n_boot} refits); "
-             "intervals are its percentiles, one-sided where a constraint is active.", cls="hint"),
+             "95 % intervals: the hull of its percentiles and the PC value \u00b1 1.96 \u03c3 WLS, one-sided "
+             "where the physical bound (Ia, Fv, Fc \u2265 0) cuts them.", cls="hint"),
     )
     body = join(body, bullets(["Active constraints: " + (", ".join(r.active) or "none")] + list(r.notices),
                               cls="notices"))
