@@ -955,7 +955,6 @@ def diagnose(experiment, robot, *, validation=None, idim_result=None, settings=N
             st.reason = f"passes the rule, but max_effects = {max_effects} effects were added already"
             break
         accepted = None
-        guard = None
         reduced = base_guard and len(state["cols"]) < len(problem.all_cols)
         if reduced:
             guard = _Scorer(problem.design(state["delay"], state["effects"], cols=problem.all_cols),
@@ -1465,7 +1464,7 @@ def _by_base_evidence(problem, guard, passing, m):
                 logsf[id(w)] = chi2_logsf(lr_i, k_i)
     for w in passing:
         if id(w) not in logsf:
-            logsf[id(w)] = float(getattr(w, "_logsf", chi2_logsf(w.statistic, max(w.candidate.n_params, 1))))
+            logsf[id(w)] = w._logsf          # time_delay: its ranking statistic is already that
     order = {id(w): i for i, w in enumerate(passing)}
     return sorted(passing, key=lambda w: (round(logsf[id(w)], 9), order[id(w)]))
 
@@ -1501,10 +1500,7 @@ def _refine(problem, scorer, cand, state, weights):
         if cand.name == "time_delay":
             X = problem.design(v, state["effects"], cache=False, cols=problem.all_cols)
             return _weighted_sse(X, problem.Y, problem.mask, weights)[0]
-        c = cand.with_nonlinear(**{key: v})
-        D = problem.eobs.decimate(c.columns(problem.signals), joint=c.joint - 1)
-        s = scorer.score([scorer.rows(D)])
-        return float(np.sum(s["res"][:, 0] ** 2)) if s["active"][0] else np.inf
+        return _candidate_sse(problem, scorer, cand.with_nonlinear(**{key: v}))
 
     a = np.log(abs(v0))
     r = optimize.minimize_scalar(sse, bounds=(a - np.log(2.0), a + np.log(2.0)), method="bounded",
@@ -1512,6 +1508,13 @@ def _refine(problem, scorer, cand, state, weights):
     if r.success and r.fun < sse(a):
         return cand.with_nonlinear(**{key: sgn * float(np.exp(r.x))})
     return cand
+
+
+def _candidate_sse(problem, scorer, cand):
+    """Full-data weighted residual sum of squares of the model plus one one-joint candidate."""
+    D = problem.eobs.decimate(cand.columns(problem.signals), joint=cand.joint - 1)
+    s = scorer.score([scorer.rows(D)])
+    return float(np.sum(s["res"][:, 0] ** 2)) if s["active"][0] else np.inf
 
 
 #: phase step of the ripple-order scan across the joint's range of motion, rad
@@ -1544,10 +1547,7 @@ def _refine_order(problem, scorer, cand):
     step = ORDER_SCAN_PHASE / span
 
     def sse(k):
-        c = cand.with_nonlinear(order=float(k))
-        D = problem.eobs.decimate(c.columns(problem.signals), joint=j)
-        s = scorer.score([scorer.rows(D)])
-        return float(np.sum(s["res"][:, 0] ** 2)) if s["active"][0] else np.inf
+        return _candidate_sse(problem, scorer, cand.with_nonlinear(order=float(k)))
 
     ks = np.unique(np.concatenate([np.arange(lo, hi + 0.5 * step, step), [k0]]))
     vals = np.array([sse(k) for k in ks])

@@ -363,14 +363,8 @@ def _line_test(j, x, e, L, n_perm, rng, noise_rms):
     dq = rng_q / (GRID - 1)
     gi = np.clip(np.round((x - lo) / dq).astype(int), 0, GRID - 1)
     nfft = 2 * GRID
-
-    def power(y):
-        s = np.bincount(gi, weights=y, minlength=GRID)
-        return np.abs(np.fft.rfft(s, nfft)) ** 2
-
-    P = power(e)
-    perms = _block_perms(nu, L, n_perm, rng)
-    Pn = np.mean([power(e[p]) for p in perms], axis=0)
+    P = _position_power(gi, e)
+    Pn = np.mean([_position_power(gi, e[p]) for p in _block_perms(nu, L, n_perm, rng)], axis=0)
     k_orders = 2 * np.pi * np.fft.rfftfreq(nfft, dq)
     kmin = 2 * np.pi * 3.0 / rng_q           # at least 3 periods over the range
     kmax = 2 * np.pi / (4 * dq)              # at least 4 grid steps per period
@@ -398,6 +392,11 @@ def _line_test(j, x, e, L, n_perm, rng, noise_rms):
                                  "full_rate_rms": float(np.std(e))})
 
 
+def _position_power(gi, y):
+    """Periodogram against position: y summed on the position grid (bins gi), zero-padded x2."""
+    return np.abs(np.fft.rfft(np.bincount(gi, weights=y, minlength=GRID), 2 * GRID)) ** 2
+
+
 def _line_confirmation(gi, e, sel, L, n_perm, rng):
     """p of the spectral line found in one half of the recording, tested in the other.
 
@@ -416,15 +415,11 @@ def _line_confirmation(gi, e, sel, L, n_perm, rng):
     half = nu // 2
     if half < 100:
         return 1.0
-    nfft = 2 * GRID
 
     def spectra(idx):
         g, y = gi[idx], e[idx]
-
-        def power(v):
-            return np.abs(np.fft.rfft(np.bincount(g, weights=v, minlength=GRID), nfft)) ** 2
-        Pn = np.mean([power(y[q]) for q in _block_perms(y.size, L, n_perm, rng)], axis=0)
-        return np.where(sel & (Pn > 0), power(y) / np.where(Pn > 0, Pn, 1.0), 0.0)
+        Pn = np.mean([_position_power(g, y[q]) for q in _block_perms(y.size, L, n_perm, rng)], axis=0)
+        return np.where(sel & (Pn > 0), _position_power(g, y) / np.where(Pn > 0, Pn, 1.0), 0.0)
 
     za = spectra(np.arange(half))
     zb = spectra(np.arange(half, nu))
