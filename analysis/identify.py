@@ -89,7 +89,8 @@ def identify(data, robot, method: str = "idim", *, settings=None, max_error_grow
     progress : callable(fraction), optional
     physical : IDIM: return the physically consistent WLS (PC-WLS) instead. DIDIM: PC-DIDIM,
         each Gauss-Newton step's WLS refitted under physical consistency (``result.physical``
-        is the last step's PC fit, the robot file's mass bounds apply).
+        is the last step's PC fit; ``prior``, ``prior_weight`` and ``mass_tolerance`` apply to
+        every step, ``n_boot`` to the last one).
     prior, prior_weight : physical only: ``"apriori"`` adds ``prior_weight`` times the
         squared scaled distance to the robot file's a-priori values (default: none,
         the a-priori values only break ties).
@@ -108,10 +109,6 @@ def identify(data, robot, method: str = "idim", *, settings=None, max_error_grow
                          f"{len(experiments)} were given")
     if physical and method not in ("idim", "didim"):
         raise InputError(f"physical=True works with methods idim and didim only, not {method!r}")
-    if physical and method == "didim" and (prior is not None or mass_tolerance is not None):
-        raise InputError("prior and mass_tolerance are options of the physically consistent IDIM fit; "
-                         "PC-DIDIM refits each Gauss-Newton step without a prior, with the mass bounds "
-                         "of the robot file ([apriori] mass_tolerance)")
     if not physical and (prior is not None or mass_tolerance is not None):
         raise InputError("prior and mass_tolerance are options of the physically consistent fit: "
                          "pass physical=True (--physical)")
@@ -163,7 +160,8 @@ def identify(data, robot, method: str = "idim", *, settings=None, max_error_grow
         res = identify_didim(exp, robot, settings=settings, reference=ref, controller=controller, chi0=chi0,
                              max_iter=DEFAULT_MAX_ITER if max_iter is None else max_iter,
                              max_error_growth=max_error_growth, update_gains=update_gains,
-                             progress=progress, physical=physical)
+                             progress=progress, physical=physical, prior=prior, prior_weight=prior_weight,
+                             mass_tolerance=mass_tolerance, n_boot=n_boot)
         res.gains = identified
         if identified is not None:
             res.notices.append("controller gains identified from the logged reference, position and "

@@ -16,10 +16,11 @@ With ``--didim`` the same for DIDIM and PC-DIDIM (each Gauss-Newton step a
 PC-WLS, ``identify_didim(physical=True)``), 4 steps each, from the IDIM-WLS start.
 
 ``--coverage N``: the 95 % intervals of PC-WLS (``PhysicalResult.conf_int``: hull of the
-bootstrap percentiles, N refits, and the WLS half-width, cut at the physical bound), of the
-unconstrained WLS itself (1.96 sigma: how good the noise model is on the same seeds) and of
-PC-DIDIM (1.96 times its reported sigma, the last step's WLS one) against the truth, over
-all parameters and seeds (nominal 95 %, the bar of issue 15 is +-5 points). Seeds 0-49 are
+bootstrap percentiles, N refits, and the WLS half-width, cut at the physical bound; and the
+reported sigma read as PC +- 1.96 sigma, beside the refits' spread read the same way), of the
+unconstrained WLS itself (1.96 sigma: how good the noise model is on the same seeds) and,
+with ``--didim``, of PC-DIDIM (the same intervals from the last step's PC fit, N refits) and
+DIDIM (1.96 sigma) against the truth, over all parameters and seeds (nominal 95 %, the bar of issue 15 is +-5 points). Seeds 0-49 are
 the development seeds; ``--start 100`` gives held-out ones.
 
 Run from the repository root: python benchmarks/physical_seeds.py [--seeds 50] [--didim] [--coverage 50]
@@ -92,6 +93,9 @@ def main():
             hw = 1.96 * np.sqrt(np.diag(res.wls.cov))
             q_lo, q_hi = np.quantile(pc.boot, [0.025, 0.975], axis=0)
             row_cov = {"pc_wls_hits": hit.tolist(), "wls_hits": (np.abs(res.wls.chi - beta) <= hw).tolist(),
+                       # the reported sigma read as PC +- 1.96 sigma, and the refits' spread in its place
+                       "pc_sigma_hits": (np.abs(pc.chi - beta) <= 1.96 * pc.sigma + 1e-12).tolist(),
+                       "pc_spread_hits": (np.abs(pc.chi - beta) <= 1.96 * pc.boot_std + 1e-12).tolist(),
                        # the former intervals (percentiles alone), for comparison
                        "pct_hits": ((q_lo <= beta + 1e-12) & (beta - 1e-12 <= q_hi)).tolist(),
                        # width of the PC interval over that of the WLS one, per parameter
@@ -125,15 +129,20 @@ def main():
                 rows.append(row)
                 continue
             phys = identify_didim(exp, robot, chi0=start, max_iter=4, essential=False, update_gains=False,
-                                  physical=True)
+                                  physical=True, n_boot=args.coverage)
             row["didim_metric"] = float(np.linalg.norm(R @ (plain.result.chi - beta)))
             row["pc_didim_metric"] = float(np.linalg.norm(R @ (phys.physical.chi - beta)))
             row["didim_rel"] = float(np.abs(plain.result.chi - beta).sum() / s)
             row["pc_didim_rel"] = float(np.abs(phys.physical.chi - beta).sum() / s)
             if args.coverage:
-                # PC-DIDIM reports the last step's WLS sigma (no bootstrap): normal 95 % intervals
-                sd = phys.physical.sigma
-                row["pc_didim_hits"] = (np.abs(phys.physical.chi - beta) <= 1.96 * sd).tolist()
+                # PC-DIDIM: the last step's PC fit with its bootstrap (the last Gauss-Newton step's
+                # linear problem), conf_int and +- 1.96 sigma as for PC-WLS; DIDIM's own 1.96 sigma
+                ci = phys.physical.conf_int()
+                row["pc_didim_hits"] = ((ci["lower"].to_numpy() <= beta + 1e-12)
+                                        & (beta - 1e-12 <= ci["upper"].to_numpy())).tolist()
+                row["pc_didim_sigma_hits"] = (np.abs(phys.physical.chi - beta)
+                                              <= 1.96 * phys.physical.sigma + 1e-12).tolist()
+                row["didim_hits"] = (np.abs(plain.result.chi - beta) <= 1.96 * plain.result.sigma).tolist()
             print(f"  DIDIM metric {row['didim_metric']:.3f} PC-DIDIM {row['pc_didim_metric']:.3f}; relative "
                   f"{row['didim_rel']:.4f} / {row['pc_didim_rel']:.4f}", flush=True)
         rows.append(row)
@@ -161,11 +170,22 @@ def main():
             "coverage_95_wls": float(np.mean([r["wls_hits"] for r in rows])),
             "coverage_95_wls_by_parameter_min": float(np.min(np.mean([r["wls_hits"] for r in rows], axis=0))),
             "coverage_95_pc_percentiles_alone": float(np.mean([r["pct_hits"] for r in rows])),
+            "coverage_95_pc_sigma": float(np.mean([r["pc_sigma_hits"] for r in rows])),
+            "coverage_95_pc_sigma_by_parameter_min": float(np.min(np.mean([r["pc_sigma_hits"] for r in rows], axis=0))),
+            "coverage_95_pc_refit_spread": float(np.mean([r["pc_spread_hits"] for r in rows])),
+            "coverage_95_pc_refit_spread_by_parameter_min": float(np.min(np.mean([r["pc_spread_hits"] for r in rows],
+                                                                                  axis=0))),
             "width_over_wls_median": float(np.median([r["width_ratio"] for r in rows])),
             "width_over_wls_min": float(np.min([r["width_ratio"] for r in rows])),
             "wls_mahalanobis2_mean_over_b": float(np.mean([r["wls_mahalanobis2"] for r in rows]) / len(beta)),
             "n_boot": args.coverage} if args.coverage else {}),
-        **({"coverage_95_pc_didim": float(np.mean([r["pc_didim_hits"] for r in rows if "pc_didim_hits" in r]))}
+        **({"coverage_95_pc_didim": float(np.mean([r["pc_didim_hits"] for r in rows if "pc_didim_hits" in r])),
+            "coverage_95_pc_didim_by_parameter_min": float(np.min(np.mean(
+                [r["pc_didim_hits"] for r in rows if "pc_didim_hits" in r], axis=0))),
+            "coverage_95_pc_didim_sigma": float(np.mean([r["pc_didim_sigma_hits"] for r in rows
+                                                         if "pc_didim_sigma_hits" in r])),
+            "coverage_95_didim": float(np.mean([r["didim_hits"] for r in rows if "didim_hits" in r])),
+            "pc_didim_rows": int(sum("pc_didim_hits" in r for r in rows))}
            if args.coverage and args.didim and any("pc_didim_hits" in r for r in rows) else {}),
         "seconds": round(time.perf_counter() - t0, 1)}))
 

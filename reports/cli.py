@@ -873,6 +873,10 @@ def cmd_identify(args, say):
     if args.v_s is not None and args.method != "didim":
         raise InputError(f"--v-s is the simulated Coulomb friction's sign width of DIDIM; it does not "
                          f"apply to --method {args.method}")
+    if args.bootstrap < 0:
+        raise InputError(f"--bootstrap must be 0 or more refits, got {args.bootstrap}")
+    if not args.physical and (args.prior or args.mass_tolerance is not None):
+        raise InputError("--prior and --mass-tolerance are options of --physical")
     if args.physical:
         from dynid.analysis.estimators.physical import require_cvxpy
         require_cvxpy()                      # before any work
@@ -897,10 +901,6 @@ def cmd_identify(args, say):
     _show_clean(args, result.summary(), validation.summary() if validation is not None else "",
           asym.summary() if asym is not None else "")
     physical = effects = None
-    if not args.physical and (args.prior or args.mass_tolerance is not None):
-        raise InputError("--prior and --mass-tolerance are options of --physical")
-    if args.bootstrap < 0:
-        raise InputError(f"--bootstrap must be 0 or more refits, got {args.bootstrap}")
     if candidates is not None:
         from dynid.analysis.diagnosis.physical_fit import identify_physical_effects
         say(f"effects beside the rigid body: {args.effects}"
@@ -1007,7 +1007,8 @@ def _identify_didim(args, say, robot, exp):
         res = identify(exp, robot, "didim", settings=settings, max_iter=args.max_iter,
                        max_error_growth=args.max_error_growth, gains=args.gains,
                        update_gains=GAIN_UPDATES[args.gain_update], progress=bar.update,
-                       physical=args.physical, prior=args.prior, mass_tolerance=args.mass_tolerance)
+                       physical=args.physical, prior=args.prior, prior_weight=args.prior_weight,
+                       mass_tolerance=args.mass_tolerance, n_boot=args.bootstrap)
     if res.gains is not None:
         _show(args, res.gains.summary())
     def sections():

@@ -61,16 +61,17 @@ def physical_section(result, *, id="physical", fmt="auto"):
                 f"{100 * r.validation['rel_error_wls']:.3f} % (PC \u2212 WLS {r.validation['gap_points']:+.3f} "
                 "points)." if getattr(r, "validation", None) else "")),
         para(f"A-priori term: {'weight ' + format(r.prior_weight, 'g') if r.prior else 'tie-break only (weight ' + format(r.prior_weight, 'g') + ')'}. "
-             f"\u03c3 of the PC parameters: parametric bootstrap of the constrained fit ({r.n_boot} refits); "
-             "95 % intervals: the hull of its percentiles and the PC value \u00b1 1.96 \u03c3 WLS, one-sided "
-             "where the physical bound (Ia, Fv, Fc \u2265 0) cuts them.", cls="hint"),
+             f"95 % intervals of the PC parameters: the hull of the percentiles of a parametric bootstrap "
+             f"of the constrained fit ({r.n_boot} refits) and the PC value \u00b1 1.96 \u03c3 WLS, one-sided "
+             "where the physical bound (Ia, Fv, Fc \u2265 0) cuts them; \u03c3 PC is the wider side of that "
+             "interval over 1.96 (so PC \u00b1 1.96 \u03c3 contains it).", cls="hint"),
     )
     body = join(body, bullets(["Active constraints: " + (", ".join(r.active) or "none")] + list(r.notices),
                               cls="notices"))
     comp = r.comparison()
     t_comp = T.make_table(comp, f"tab-{id}-parameters", "Base parameters: unconstrained WLS and PC-WLS",
                           labels={"wls": "WLS", "wls_std": "\u03c3 WLS", "wls_rel_std_percent": "%\u03c3 WLS",
-                                  "pc": "PC-WLS", "pc_std": "\u03c3 PC (bootstrap)",
+                                  "pc": "PC-WLS", "pc_std": "\u03c3 PC",
                                   "shift_sigma": "shift [\u03c3 WLS]"})
     links = pd.DataFrame([{"link": lk["link"], "mass": lk["mass"],
                            "pseudo_inertia_min_eig": lk["pseudo_inertia_min_eig"],

@@ -93,10 +93,17 @@ def test_identify_didim_physical_is_pc_didim(planar2_csv, tmp_path):
     assert 'id="physical"' in html.read_text()
 
 
-def test_didim_physical_refuses_the_prior(planar2_csv, capsys):
-    assert main(["identify", str(planar2_csv), "--robot", "planar2", "--method", "didim", "--physical",
-                 "--prior", "apriori", "--quiet"]) == 2
-    assert "PC-DIDIM" in capsys.readouterr().err
+def test_didim_physical_takes_the_prior_and_the_bootstrap(planar2_csv, tmp_path):
+    """--method didim --physical --prior apriori --prior-weight W --bootstrap N reach the PC fit
+    (they were refused before; the API test of the same is in tests/test_physical.py)."""
+    js = tmp_path / "d.json"
+    code = main(["identify", str(planar2_csv), "--robot", "planar2", "--method", "didim", "--physical",
+                 "--prior", "apriori", "--prior-weight", "1e6", "--bootstrap", "25", "--max-iter", "1",
+                 "--v-s", "0.01", "--json", str(js), "--quiet"])
+    assert code in (0, 3)
+    ph = json.loads(js.read_text())["physical"]
+    assert ph["prior"] == "apriori" and ph["prior_weight"] == 1e6 and ph["n_boot"] == 25
+    assert ph["consistent"] is True
 
 
 def test_identify_physical_essential_set(planar2_csv, tmp_path):

@@ -20,7 +20,7 @@ PC-WLS of ``(beta_hat, cov_bb)`` (:func:`~dynid.analysis.estimators.physical.pc_
 by (2) is the constrained minimum of the whole weighted residual, one SDP as without effects.
 
 The effect parameters' uncertainty at the PC solution is eq. (3) of :func:`profile_physical`:
-the base parameters' bootstrap covariance carried through (2), plus the part of theta that
+the covariance of the base parameters' bootstrap refits carried through (2), plus the part of theta that
 the base parameters do not explain. From the command line: ``dynid identify EXP --robot R
 --effects spring:all [--physical] [--validation V]`` (JSON block ``"effects"``).
 
@@ -109,7 +109,8 @@ def effect_design(experiment, robot, bp, settings, candidates):
 class EffectsFit:
     """The WLS of ``[W, C]`` and, when asked, its physically consistent counterpart.
 
-    ``cov_effects_pc``: covariance of the PC effect parameters, eq. (3); ``rel_error_*``:
+    ``cov_effects_pc``: sampling covariance of the PC effect parameters, eq. (3) (the reported
+    sigma is floored at the unconstrained one, :meth:`effects`); ``rel_error_*``:
     ||Y - W x|| / ||Y|| on the identification rows; ``validation``: the held-out errors of
     :func:`held_out_errors` when a validation recording was given (None otherwise).
     """
@@ -145,8 +146,10 @@ class EffectsFit:
         """Per effect parameter: name, effect, joint, unconstrained value and sigma, PC value and sigma."""
         b = self.n_base
         sd = np.sqrt(np.maximum(np.diag(self.wls.cov)[b:], 0.0))
-        sd_pc = (np.sqrt(np.maximum(np.diag(self.cov_effects_pc), 0.0)) if self.cov_effects_pc is not None
-                 else [None] * len(sd))
+        # floored at the unconstrained sigma, as interval_covariance does for the base parameters:
+        # the refits' spread is that of a truth on the constraint, too small for one inside it
+        sd_pc = (np.maximum(np.sqrt(np.maximum(np.diag(self.cov_effects_pc), 0.0)), sd)
+                 if self.cov_effects_pc is not None else [None] * len(sd))
         owner = [(c.name, c.joint) for c in self.candidates for _ in c.active_params]
         out = []
         for k, n in enumerate(self.effect_names):
@@ -166,8 +169,9 @@ class EffectsFit:
                                               for c in self.candidates],
             "parameters": self.effects(),
             "sigma": ("wls_std: the stacked WLS covariance (eq. (14)); pc_std: eq. (3) of "
-                      "dynid.analysis.diagnosis.physical_fit, the base parameters' bootstrap "
-                      "covariance carried through the profile"),
+                      "dynid.analysis.diagnosis.physical_fit (the base parameters' bootstrap covariance "
+                      "carried through the profile), floored at wls_std: a constraint is not counted "
+                      "as information (the rule of the base parameters' sigma)"),
             "rel_error_wls": self.rel_error_wls, "rel_error_pc": self.rel_error_pc,
             "validation": self.validation,
         })
@@ -203,8 +207,11 @@ def profile_physical(robot, bp, x_hat, cov, n_base, **pc_options):
 
         cov(theta_pc) = (cov_tt - K cov_bt) + K cov(beta_pc) K^T,                         (3)
 
-    with ``cov(beta_pc)`` the PC fit's bootstrap covariance (``cov_bb`` itself when
-    ``n_boot = 0``, which gives back ``cov_tt``).
+    with ``cov(beta_pc)`` the covariance of the PC fit's bootstrap refits (``boot_cov``: the
+    sampling covariance if the truth sat on the active constraints; ``cov_bb`` itself when
+    ``n_boot = 0``, which gives back ``cov_tt``). The sigma reported for theta
+    (:meth:`EffectsFit.effects`) is never below the unconstrained one, the rule of the base
+    parameters' (:func:`~dynid.analysis.estimators.physical.interval_covariance`).
     """
     from dynid.analysis.estimators.physical import pc_wls
     b = int(n_base)
@@ -213,7 +220,8 @@ def profile_physical(robot, bp, x_hat, cov, n_base, **pc_options):
     pc = pc_wls(robot, bp, x_hat[:b], cov_bb, **pc_options)
     K = np.linalg.solve(cov_bb, cov[:b, b:]).T
     theta = x_hat[b:] + K @ (np.asarray(pc.chi, float) - x_hat[:b])
-    cov_t = cov[b:, b:] - K @ cov[:b, b:] + K @ np.asarray(pc.cov, float) @ K.T
+    cov_pc = cov_bb if pc.boot_cov is None else np.asarray(pc.boot_cov, float)
+    cov_t = cov[b:, b:] - K @ cov[:b, b:] + K @ cov_pc @ K.T
     return pc, theta, 0.5 * (cov_t + cov_t.T)
 
 

@@ -611,7 +611,8 @@ def _masked_norm(r, mask):
 def identify_didim(experiment, robot, *, settings=None, chi0=None, tol=DEFAULT_TOL,
                    max_iter=DEFAULT_MAX_ITER, update_gains=True, essential=True, progress=None,
                    bp=None, controller=None, reference="qr", max_error_growth=0.02,
-                   workers=None, physical=False) -> DIDIMResult:
+                   workers=None, physical=False, prior=None, prior_weight=1.0, mass_tolerance=None,
+                   n_boot=100) -> DIDIMResult:
     """Identify the base (and essential) parameters of ``robot`` by DIDIM (section 3).
 
     Parameters
@@ -635,6 +636,11 @@ def identify_didim(experiment, robot, *, settings=None, chi0=None, tol=DEFAULT_T
     physical : PC-DIDIM: each Gauss-Newton step's WLS is refitted under physical consistency
         (:func:`dynid.analysis.estimators.physical.pc_wls`), and the next step simulates that
         physically consistent estimate; ``result.physical`` is the last step's PC fit.
+    prior, prior_weight, mass_tolerance : of each step's PC fit (``pc_wls``).
+    n_boot : physical=True: parametric-bootstrap refits of the last step's PC fit (its sigma
+        and intervals, as for PC-WLS; the steps before it need none). The bootstrap is that
+        of the last Gauss-Newton step's linear problem, the simulated regressor held fixed:
+        the uncertainty DIDIM's own sigma (eq. (16) on that step) describes.
     reference : ``"qr"`` (default) or ``"q"``: track the measured positions instead
         (only when the reference was not logged; a notice says so).
     max_error_growth : criterion of the essential-parameter search.
@@ -689,7 +695,9 @@ def identify_didim(experiment, robot, *, settings=None, chi0=None, tol=DEFAULT_T
         return _identify_auto_v_s(experiment, robot, settings=settings, chi0=chi0, tol=tol,
                                   max_iter=max_iter, update_gains=update_gains, essential=essential,
                                   progress=progress, bp=bp, controller=controller, reference=reference,
-                                  max_error_growth=max_error_growth, workers=workers, physical=physical)
+                                  max_error_growth=max_error_growth, workers=workers, physical=physical,
+                                  prior=prior, prior_weight=prior_weight, mass_tolerance=mass_tolerance,
+                                  n_boot=n_boot)
     s["update_gains"] = update_gains
     s["tol"] = tol
     s["max_iter"] = max_iter
@@ -820,7 +828,8 @@ def identify_didim(experiment, robot, *, settings=None, chi0=None, tol=DEFAULT_T
         beta_ls = res.chi
         if physical:
             from dynid.analysis.estimators.physical import pc_wls
-            last["physical"] = pc_wls(robot, bp, res.chi, res.cov, n_boot=0)
+            pc_options = dict(prior=prior, prior_weight=prior_weight, mass_tolerance=mass_tolerance)
+            last["physical"] = pc_wls(robot, bp, res.chi, res.cov, n_boot=0, **pc_options)
             beta_ls = last["physical"].chi
         if progress is not None:
             progress(min(1.0, k / max_iter))
@@ -844,6 +853,9 @@ def identify_didim(experiment, robot, *, settings=None, chi0=None, tol=DEFAULT_T
                        "reproduce the actual one; see the gain update in the documentation)")
 
     res = last["res"]
+    if physical and n_boot:
+        from dynid.analysis.estimators.physical import pc_wls
+        last["physical"] = pc_wls(robot, bp, res.chi, res.cov, n_boot=n_boot, **pc_options)
     h = experiment.data_hash() if hasattr(experiment, "data_hash") else ""
     res.data_hash = h
     ess = None
@@ -903,16 +915,24 @@ def _identify_auto_v_s(experiment, robot, *, settings, chi0, tol, max_iter, upda
     (:func:`dynid.dynamics.simulation.friction_stiffness`).
     """
     base = dict(settings or {})
+    # PC-DIDIM: only the final run's PC fit is bootstrapped (the candidates are scored by ||rho||)
+    n_boot = kw.pop("n_boot", 0)
 
-    def run(v, start, iters, ess, upd, prog=None):
+    def run(v, start, iters, ess, upd, prog=None, boot=0):
         return identify_didim(experiment, robot, settings={**base, "v_s": v}, chi0=start, tol=tol,
-                              max_iter=iters, update_gains=upd, essential=ess, progress=prog, **kw)
+                              max_iter=iters, update_gains=upd, essential=ess, progress=prog,
+                              n_boot=boot, **kw)
 
     def part(a, b):
         return None if progress is None else (lambda f: progress(a + (b - a) * f))
 
     first = run(V_S_START, chi0, max_iter, False, update_gains, part(0.0, 0.5))
     if not first.converged:
+        if kw.get("physical") and n_boot:
+            from dynid.analysis.estimators.physical import pc_wls
+            first.physical = pc_wls(robot, first.base, first.result.chi, first.result.cov, n_boot=n_boot,
+                                    prior=kw.get("prior"), prior_weight=kw.get("prior_weight", 1.0),
+                                    mass_tolerance=kw.get("mass_tolerance"))
         if essential:
             first.essential = essential_parameters(
                 first.W_dec, first.tau_dec, list(first.base.names), ls.wls,
@@ -965,7 +985,7 @@ def _identify_auto_v_s(experiment, robot, *, settings, chi0, tol, max_iter, upda
             evaluate(v)
             refined = f"; parabola in log v_s through {lo:.3g}, {b:.3g}, {hi:.3g} rad/s gave {v:.3g}"
     chosen = best()
-    final = run(chosen, scan[chosen][1], max_iter, essential, cont, part(0.85, 1.0))
+    final = run(chosen, scan[chosen][1], max_iter, essential, cont, part(0.85, 1.0), boot=n_boot)
     if progress is not None:
         progress(1.0)
 
