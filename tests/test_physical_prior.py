@@ -368,7 +368,7 @@ def test_unknown_prior_lists_the_choices():
 
 
 # ------------------------------------------------------------------ command line
-def test_cli_geometric_prior_in_the_json(tmp_path):
+def test_cli_geometric_prior_in_the_json(tmp_path, capsys):
     from dynid.reports.cli import main
     toml = tmp_path / "bars.toml"
     toml.write_text(TOML)
@@ -379,3 +379,15 @@ def test_cli_geometric_prior_in_the_json(tmp_path):
                  "--prior-weight", "0.1", "--bootstrap", "0", "--json", str(js), "--quiet"]) == 0
     ph = json.loads(js.read_text())["physical"]
     assert ph["prior"] == "geometric" and ph["prior_weight"] == 0.1 and ph["consistent"] is True
+    # the effects' PC fit (physical_fit.profile_physical) passes the prior on to the same SDP
+    js2 = tmp_path / "e.json"
+    assert main(["identify", str(csv), "--robot", str(toml), "--physical", "--prior", "geometric",
+                 "--prior-weight", "0.1", "--effects", "spring:all", "--bootstrap", "0", "--json", str(js2),
+                 "--quiet"]) == 0
+    ph = json.loads(js2.read_text())["physical"]
+    assert ph["prior"] == "geometric" and ph["prior_weight"] == 0.1 and "effects" in ph
+    # a robot file whose a-priori links are no bodies: exit 2, the link named, the way out given
+    assert main(["identify", str(csv), "--robot", "planar2", "--physical", "--prior", "geometric",
+                 "--bootstrap", "0", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "link 1" in err and "--prior apriori" in err
