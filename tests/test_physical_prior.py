@@ -108,6 +108,10 @@ def test_divergence_by_hand():
     J = np.diag([2.0, 2.0, 3.0, 8.0])
     assert divergence(J, J0) == pytest.approx(2 - 2 * np.log(2), rel=1e-14)
     assert divergence(J0, J0) == pytest.approx(0.0, abs=1e-14)
+    # not diagonal: J0 = 1, J with the block [[2, 1], [1, 2]] (eigenvalues 3, 1): det 3, trace 6
+    J = np.eye(4)
+    J[:2, :2] = [[2.0, 1.0], [1.0, 2.0]]
+    assert divergence(J, np.eye(4)) == pytest.approx(2 - np.log(3), rel=1e-14)
     rng = np.random.default_rng(0)
     for _ in range(20):
         A = rng.normal(size=(4, 4))

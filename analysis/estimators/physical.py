@@ -37,9 +37,9 @@ The geometric prior (``prior="geometric"``; Lee, Wensing & Park 2020, "Geometric
 robot dynamic identification: a convex programming approach", IEEE T-RO 36(2),
 the entropic divergence, eq. (19); the authors' reference code, ``ID_Entropic.m``
 of Geometric-Robot-DynID, minimises the same -log det J + tr(J0^-1 J)). For the
-ten inertial parameters of link l the
-Euclidean term is replaced by the Bregman divergence of -log det on the
-pseudo-inertias, i.e. the Kullback-Leibler divergence of two Gaussians,
+ten inertial parameters of link l the Euclidean term is replaced by the Bregman
+divergence of -log det on the pseudo-inertias (twice the Kullback-Leibler
+divergence of zero-mean Gaussians of covariances J_l and J0_l),
 
     d(J_l || J0_l) = -log det(J0_l^-1 J_l) + tr(J0_l^-1 J_l) - 4,
 
