@@ -42,8 +42,23 @@
   identification data choose no common shift (best -10 ms on 2 + 3, +20 ms or more on 1)
   and the gap never falls below +0.26 points.
 
+* The a-priori priors (``--priors``, ``prior_table``): LWR4+ held-out error (all samples) and
+  chi2 of PC-WLS with no prior, the Euclidean prior and the geometric one (entropic divergence
+  of the pseudo-inertias, Lee, Wensing & Park 2020) at weights 1e-3 .. 1, and the SDP time of
+  both priors on the LWR4+ and the TX40 (whose robot file has no a-priori inertials: its
+  reference set there is the tie-break PC-WLS set lifted to PD, for timing only). Measured
+  (2026-12-02): no prior 2.400 % (2+3 -> 1) / 2.155 % (1 -> 2); Euclidean 2.428 / 2.428 /
+  2.449 / 2.897 % and geometric 2.428 / 2.429 / 2.451 / 2.893 % at 1e-3 / 1e-2 / 1e-1 / 1 on
+  2+3 -> 1; 2.163 / 2.158 / 2.202 / 3.076 % and 2.163 / 2.163 / 2.208 / 3.090 % on 1 -> 2.
+  Both priors share the Euclidean term of Ia (scale 1e-5, a-priori 0): at 1e-3 they add ~450
+  to chi2 (1562 -> 2011 on 2+3 -> 1), and with that Ia term made negligible (a diagnostic run
+  outside this script) chi2 is 1552, so it is all Ia's. SDP build + first solve at weight 0.1
+  (two runs, shared 2-core machine): LWR4+ 0.11-0.21 s Euclidean, 0.49-0.50 s geometric
+  (re-solve 0.04 / 0.05-0.07 s); TX40 0.10-0.14 / 0.26-0.43 s: under the 2 s goal.
+
 Run from the repository root: python benchmarks/physical.py  (``--effects``: only the
-LWR4+ effects table, ~10 s; ``--effects --delays`` adds the time-shift scan, ~30 s)
+LWR4+ effects table, ~10 s; ``--effects --delays`` adds the time-shift scan, ~30 s;
+``--priors``: only the prior table and its timings, ~20 s)
 The last line is a JSON object with the figures.
 """
 import json
@@ -169,6 +184,89 @@ def prior_weights(res, robot, held, weights=(1e-4, 1e-2, 1.0)):
         pc = identify_physical(res, robot, n_boot=0, prior="apriori", prior_weight=w)
         out[f"{w:g}"] = {"held_out": round(dynid.validate(pc, held, robot).rel_error, 5), "chi2": round(pc.chi2, 1)}
     print(f"  a-priori prior, held-out by weight: {out}", flush=True)
+    return out
+
+
+PRIOR_WEIGHTS = (1e-3, 1e-2, 1e-1, 1.0)
+
+
+def prior_table(res, robot, held, weights=PRIOR_WEIGHTS):
+    """Held-out relative error (all samples, ``dynid.validate``) and chi2 of PC-WLS with no prior
+    (tie-break), the Euclidean prior and the geometric one (Lee, Wensing & Park 2020) at each
+    weight. Measured, not used to choose a weight (that would tune on the validation data)."""
+    import dynid
+    from dynid.analysis.estimators.physical import identify_physical
+    rows = [(None, None)] + [(p, w) for p in ("apriori", "geometric") for w in weights]
+    out = {}
+    for prior, w in rows:
+        pc = identify_physical(res, robot, n_boot=0, prior=prior, prior_weight=1.0 if w is None else w)
+        v = dynid.validate(pc, held, robot).rel_error
+        key = "none" if prior is None else f"{prior} {w:g}"
+        out[key] = {"held_out": round(v, 5), "chi2": round(pc.chi2, 1), "solve_s": round(pc.solve_seconds, 3),
+                    "status_optimal": not any("status" in n for n in pc.notices)}
+        print(f"  {key:<16} held-out {100 * v:.3f} %  chi2 {pc.chi2:9.1f}  first solve {pc.solve_seconds:.3f} s"
+              + ("" if out[key]["status_optimal"] else "  (solver: optimal_inaccurate)"), flush=True)
+    return out
+
+
+def prior_solve_times(res, robot, weight=0.1, apriori=None):
+    """Building + first solve and a re-solve (best of 3) of the SDP with the Euclidean and with the
+    geometric prior at ``weight``; ``apriori``: the reference set instead of the robot file's."""
+    from dynid.analysis.estimators.physical import _build, _whitening
+    from dynid.analysis.estimators.standard_set import apriori_standard, scales
+    ap = apriori_standard(robot) if apriori is None else apriori
+    R = _whitening(res.wls.cov)
+    out = {}
+    for prior in ("apriori", "geometric"):
+        def total(prior=prior):
+            pb = _build(robot, res.base, R, ap, scales(robot, ap), weight, robot.mass_tolerance, prior=prior)
+            return pb, pb.solve(R @ res.wls.chi)
+        total_s, (pb, _) = _timed(total)
+        solve_s, _ = _timed(lambda pb=pb: pb.solve(R @ res.wls.chi))
+        out[prior] = {"sdp_total_s": round(total_s, 4), "sdp_solve_s": round(solve_s, 4),
+                      "status": pb.prob.status, "under_goal": bool(total_s < GOAL_S)}
+    print(f"  {robot.name} SDP, weight {weight:g}: Euclidean total {out['apriori']['sdp_total_s']:.3f} s, "
+          f"re-solve {out['apriori']['sdp_solve_s']:.3f} s; geometric total {out['geometric']['sdp_total_s']:.3f} s, "
+          f"re-solve {out['geometric']['sdp_solve_s']:.3f} s", flush=True)
+    return out
+
+
+def _physical_reference(res, robot):
+    """A positive-definite reference set for timing on a robot file without a-priori inertials
+    (the TX40's): the tie-break PC-WLS standard set, each link's pseudo-inertia lifted by 1 % of
+    its trace (so J0 is PD). For timing only: it is no a-priori knowledge."""
+    import numpy as np
+
+    from dynid.analysis.estimators.physical import identify_physical
+    from dynid.dynamics.urdf_writer import inertial_slice, pseudo_inertia, pseudo_inertia_basis
+    chi = identify_physical(res, robot, n_boot=0).standard.copy()
+    E = pseudo_inertia_basis().reshape(10, 16)
+    for j in range(robot.n_joints):
+        sl = inertial_slice(robot, j)
+        J = pseudo_inertia(chi[sl])
+        J = J + 0.01 * max(np.trace(J), 1e-3) * np.eye(4)
+        chi[sl] = np.linalg.lstsq(E.T, J.ravel(), rcond=None)[0]
+    return chi
+
+
+def priors_only():
+    import dynid
+    kuka = dynid.load_robot("kuka_lwr4")
+    here = ROOT / "examples" / "kuka_lwr4"
+    rec = {i: dynid.load_experiment(here / f"recording_{i}.toml", kuka) for i in (1, 2, 3)}
+    out = {"weights": list(PRIOR_WEIGHTS), "goal_s": GOAL_S}
+    for train, held in (((2, 3), 1), ((1,), 2)):
+        key = "+".join(map(str, train)) + f"->{held}"
+        res = dynid.identify([rec[i] for i in train], kuka)
+        print(f"LWR4+ {key}: held-out relative error (all samples) of PC-WLS by prior and weight", flush=True)
+        out.setdefault("kuka_lwr4_held_out", {})[key] = prior_table(res, kuka, rec[held])
+        if train == (2, 3):
+            out["kuka_lwr4_prior_timing"] = prior_solve_times(res, kuka)
+    tx40 = dynid.load_robot("tx40")
+    res = dynid.identify(dynid.load_experiment(ROOT / "examples" / "staubli_tx40" / "experiment.toml", tx40), tx40)
+    print("TX40 (no a-priori inertials: the reference is the tie-break PC-WLS set, lifted to PD)", flush=True)
+    out["tx40_prior_timing"] = prior_solve_times(res, tx40, apriori=_physical_reference(res, tx40))
+    out["tx40_prior_timing"]["reference"] = "tie-break PC-WLS set, each J + 1 % tr(J) I (timing only)"
     return out
 
 
@@ -349,5 +447,7 @@ if __name__ == "__main__":
     sys.path.insert(0, str(ROOT))
     if "--effects" in sys.argv[1:]:
         print(json.dumps({"kuka_lwr4_with_effects": effects_only()}, default=float))
+    elif "--priors" in sys.argv[1:]:
+        print(json.dumps({"priors": priors_only()}, default=float))
     else:
         main()

@@ -348,10 +348,13 @@ def build_parser():
                    help="refit the WLS under physical consistency (pseudo-inertias PSD, Ia, Fv, Fc >= 0), "
                         "an SDP; JSON block \"physical\" and a report section. With --method didim: "
                         "PC-DIDIM, every Gauss-Newton step refitted so")
-    g.add_argument("--prior", choices=["apriori"],
-                   help="--physical: regularise toward the robot file's a-priori values")
+    g.add_argument("--prior", choices=["apriori", "geometric"],
+                   help="--physical: regularise toward the robot file's a-priori values: 'apriori' by the "
+                        "scaled Euclidean distance, 'geometric' by the entropic divergence of each link's "
+                        "pseudo-inertia (Lee, Wensing & Park 2020; needs physical a-priori links), "
+                        "Euclidean for Ia, Fv, Fc, Off")
     g.add_argument("--prior-weight", type=non_negative_float, default=1.0, metavar="W",
-                   help="--physical --prior apriori: weight of the a-priori term (default 1)")
+                   help="--physical --prior: weight of the a-priori term (default 1; reported)")
     g.add_argument("--mass-tolerance", type=non_negative_float, metavar="F",
                    help="--physical: keep each link mass within this fraction of its a-priori value")
     g.add_argument("--physical-set", choices=["base", "essential"], default="base",

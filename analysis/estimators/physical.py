@@ -28,10 +28,33 @@ the weighted squared residual in units of the WLS error variance
 sigma_rho^2 (eq. (13)): a chi^2 statistic. ``chi_ap`` are the robot file's
 a-priori values and ``s_i`` per-parameter scales (as in
 :mod:`dynid.analysis.estimators.standard_set`). The second term is the
-Euclidean regularisation toward the a-priori values; ``w`` is reported. With
-``prior=None`` it is only a tie-break (``w = 1e-8``): the data see the base
-parameters only, and among the standard sets with the same fit the one
-closest to the a-priori values is returned.
+Euclidean regularisation toward the a-priori values (``prior="apriori"``); ``w``
+is reported. With ``prior=None`` it is only a tie-break (``w = 1e-8``): the data
+see the base parameters only, and among the standard sets with the same fit the
+one closest to the a-priori values is returned.
+
+The geometric prior (``prior="geometric"``; Lee, Wensing & Park 2020, "Geometric
+robot dynamic identification: a convex programming approach", IEEE T-RO 36(2),
+the entropic divergence, eq. (19); the authors' reference code, ``ID_Entropic.m``
+of Geometric-Robot-DynID, minimises the same -log det J + tr(J0^-1 J)). For the
+ten inertial parameters of link l the Euclidean term is replaced by the Bregman
+divergence of -log det on the pseudo-inertias (twice the Kullback-Leibler
+divergence of zero-mean Gaussians of covariances J_l and J0_l),
+
+    d(J_l || J0_l) = -log det(J0_l^-1 J_l) + tr(J0_l^-1 J_l) - 4,
+
+with ``J0_l`` the a-priori link's pseudo-inertia (it must be positive definite:
+a robot file without a-priori inertials is refused). d is convex in J_l, zero
+only at J_l = J0_l, and invariant under a rigid change of the link's frame
+(J -> T J T^T, T a homogeneous transform, applied to J and J0), which no
+per-parameter Euclidean distance is: the pull no longer depends on where the
+link frame sits or on the scales s_i. Near J0 it is ``||J0^-1/2 dJ J0^-1/2||_F^2 / 2``,
+a relative change like the scaled Euclidean term, so the same weight ``w``
+means about the same strength. The parameters that have no pseudo-inertia (Ia,
+Fv, Fc, Off, motor couplings) keep the Euclidean term with the same ``w``.
+The SDP gains one log-det (exponential and PSD cones, Clarabel) per link. This
+is the paper's entropic divergence, not its constant-pullback distance (the
+quadratic form of the affine-invariant metric at J0).
 
 The test "the data want a non-physical model". Under the hypothesis that
 the true parameters are physically consistent, Delta is a chi-bar-squared
@@ -104,6 +127,11 @@ _Z95 = 1.959963984540054
 J_MARGIN = 1e-9
 #: a constraint counts as active when its slack is below this fraction of its scale
 ACTIVE_RTOL = 1e-5
+#: prior="geometric" refuses an a-priori pseudo-inertia whose smallest eigenvalue is below this
+#: fraction of its largest (singular to rounding: the divergence would be infinite there)
+GEOMETRIC_RTOL = 1e-12
+#: the a-priori terms of pc_wls(prior=...): None = tie-break only
+PRIORS = (None, "apriori", "geometric")
 _NONNEG = ("Ia", "Fv", "Fc")
 
 
@@ -158,10 +186,37 @@ class _Problem:
         return self.s * np.asarray(self.z.value, dtype=float)
 
 
-def _build(robot, bp, R, chi_ap, s, weight, mass_tolerance, nonneg_kinds=_NONNEG, zero_kinds=()):
+def apriori_pseudo_inertias(robot, chi_ap):
+    """Each link's a-priori pseudo-inertia J0_l (4x4), checked positive definite, as the
+    geometric prior needs (its divergence is infinite at a singular J0). One InputError
+    names every link that fails."""
+    E = pseudo_inertia_basis()
+    out, bad = [], []
+    for j in range(robot.n_joints):
+        J0 = np.tensordot(np.asarray(chi_ap, dtype=float)[inertial_slice(robot, j)], E, axes=1)
+        w = np.linalg.eigvalsh(J0)
+        # relative test: a rod (a zero principal moment) is as singular at any scale
+        if not (np.all(np.isfinite(w)) and w[0] > GEOMETRIC_RTOL * max(abs(w[-1]), np.finfo(float).tiny)):
+            bad.append(f"link {j + 1} (XX{j + 1}..M{j + 1}: smallest eigenvalue {w[0]:.3g}"
+                       + (", no a-priori inertial values" if not np.any(J0) else "") + ")")
+        out.append(J0)
+    if bad:
+        raise InputError(f"prior='geometric' needs a positive-definite a-priori pseudo-inertia for every "
+                         f"link, but robot '{robot.name}' has a singular or non-physical one for "
+                         f"{'; '.join(bad)}: give those links a physical a-priori mass, first moment and "
+                         "inertia in the robot file's [apriori] values, or use prior='apriori' (Euclidean; "
+                         "--prior apriori)")
+    return out
+
+
+def _build(robot, bp, R, chi_ap, s, weight, mass_tolerance, nonneg_kinds=_NONNEG, zero_kinds=(),
+           prior=None):
     """The SDP; ``zero_kinds`` (e.g. ``("Ia",)``) fixes those standard parameters at 0 (a
-    model without them, such as no rotor inertia behind a link-side torque sensor)."""
+    model without them, such as no rotor inertia behind a link-side torque sensor).
+    ``prior="geometric"``: the inertial parameters' a-priori term is the entropic divergence
+    of the module doc, the others' stays Euclidean (same ``weight``)."""
     cp = require_cvxpy()
+    J0 = apriori_pseudo_inertias(robot, chi_ap) if prior == "geometric" else None
     names = list(robot.standard_names)
     n_std = len(names)
     P = bp.matrix
@@ -191,7 +246,23 @@ def _build(robot, bp, R, chi_ap, s, weight, mass_tolerance, nonneg_kinds=_NONNEG
             if chi_ap[i] > 0:
                 bounds[i] = ((1 - tol) * chi_ap[i], (1 + tol) * chi_ap[i])
                 cons += [z[i] >= bounds[i][0] / s[i], z[i] <= bounds[i][1] / s[i]]
-    obj = cp.sum_squares(A @ z - target) + weight * cp.sum_squares(z - chi_ap / s)
+    if J0 is None:
+        reg = cp.sum_squares(z - chi_ap / s)
+    else:
+        # d(J || J0) of M = L0^-1 J L0^-T (J0 = L0 L0^T): det M = det(J0^-1 J), tr M = tr(J0^-1 J),
+        # and M is near the identity, better conditioned for the log-det cone than J itself
+        inertial = np.zeros(n_std, dtype=bool)
+        reg = 0
+        for sl, J0_l in zip(links, J0):
+            inertial[sl] = True
+            Li = np.linalg.inv(np.linalg.cholesky(J0_l))
+            B = [Li @ E[k] @ Li.T * s[sl][k] for k in range(10)]
+            M = sum(0.5 * (B[k] + B[k].T) * z[sl.start + k] for k in range(10))
+            reg = reg - cp.log_det(M) + cp.trace(M) - 4.0
+        rest = np.flatnonzero(~inertial)
+        if rest.size:
+            reg = reg + cp.sum_squares(z[rest] - chi_ap[rest] / s[rest])
+    obj = cp.sum_squares(A @ z - target) + weight * reg
     prob = cp.Problem(cp.Minimize(obj), cons)
     return _Problem(cp, prob, z, target, s, names, nonneg, mass_idx, links, bounds)
 
@@ -438,15 +509,23 @@ def pc_wls(robot, bp, beta_wls, cov_wls, *, prior=None, prior_weight=1.0, mass_t
            n_boot=100, seed=0, apriori=None) -> PhysicalResult:
     """PC-WLS from an unconstrained WLS estimate ``beta_wls`` (b,) and its covariance (b, b).
 
-    ``prior``: None (a-priori values only break ties) or ``"apriori"`` (add
-    ``prior_weight * sum(((chi - chi_ap) / s)^2)``, Euclidean, to the chi^2).
+    ``prior``: None (a-priori values only break ties), ``"apriori"`` (add
+    ``prior_weight * sum(((chi - chi_ap) / s)^2)``, Euclidean, to the chi^2) or
+    ``"geometric"`` (add ``prior_weight`` times the entropic divergence of each link's
+    pseudo-inertia from its a-priori one, Lee, Wensing & Park 2020, and the Euclidean term
+    of the other parameters; module doc). ``apriori``: standard values to use instead of
+    the robot file's.
     ``mass_tolerance``: keep each link mass within this fraction of its
     a-priori value (default: the robot file's ``[apriori] mass_tolerance``, else none). ``n_boot``: parametric-bootstrap refits for the
     uncertainty (0: the WLS covariance is reported, with a notice).
     """
-    if prior not in (None, "apriori"):
-        raise InputError(f"prior must be None or 'apriori', got {prior!r}")
-    w = float(prior_weight) if prior == "apriori" else TIE_BREAK
+    if prior not in PRIORS:
+        raise InputError(f"prior must be one of None, 'apriori' (Euclidean) or 'geometric' (Lee, Wensing & "
+                         f"Park 2020), got {prior!r}")
+    try:
+        w = TIE_BREAK if prior is None else float(prior_weight)
+    except (TypeError, ValueError):
+        w = math.nan
     if not (math.isfinite(w) and w >= 0):
         raise InputError(f"prior_weight must be a number >= 0, got {prior_weight!r}")
     if int(n_boot) < 0:
@@ -461,7 +540,7 @@ def pc_wls(robot, bp, beta_wls, cov_wls, *, prior=None, prior_weight=1.0, mass_t
     R = _whitening(cov_wls)
     if mass_tolerance is None:
         mass_tolerance = getattr(robot, "mass_tolerance", None)      # [apriori] mass_tolerance
-    pb = _build(robot, bp, R, chi_ap, s, w, mass_tolerance)
+    pb = _build(robot, bp, R, chi_ap, s, w, mass_tolerance, prior=prior)
     t0 = time.perf_counter()
     chi = pb.solve(R @ beta_wls)
     seconds = time.perf_counter() - t0
