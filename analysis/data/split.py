@@ -67,7 +67,7 @@ def blocked_folds(experiment, k: int, *, margin: float = 0.0, gap: float = 0.0) 
         raise InputError(f"margin and gap must be >= 0 s, got {margin:g} and {gap:g}")
     t = experiment.t
     lo, hi = t[0] + margin, t[-1] - margin
-    edges = lo + (hi - lo) * np.arange(k + 1) / k
+    edges = np.linspace(lo, hi, k + 1)
     n_min = int(np.min(np.diff(np.searchsorted(t, edges)))) if hi > lo else 0
     if n_min < 2:
         raise InputError(f"{experiment.source or 'the recording'} ({experiment.duration:.3g} s) is too short "
