@@ -1,5 +1,10 @@
-"""Splitting one recording into identification and held-out validation parts."""
+"""Splitting one recording into identification and held-out validation parts, or into
+time blocks for cross-validation."""
 from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
 
 from dynid.errors import InputError
 
@@ -22,3 +27,65 @@ def holdout_split(experiment, seconds: float):
         raise InputError(f"holdout {seconds:g} s is longer than the recording {experiment.source} "
                          f"({experiment.duration:.3g} s): hold out less")
     return experiment.segment(None, t_split), experiment.segment(t_split, None)
+
+
+@dataclass(frozen=True)
+class Fold:
+    """One fold of :func:`blocked_folds`: ``block`` (0-based), the scored time ``span``
+    ``[start, end)``, the ``test`` recording (the span widened by the margin) and the
+    ``train`` recordings (the rest of the record, ``gap`` away from ``test``)."""
+
+    block: int
+    span: tuple
+    test: object
+    train: list
+
+
+def blocked_folds(experiment, k: int, *, margin: float = 0.0, gap: float = 0.0) -> list:
+    """Blocked (h-block) cross-validation folds of one recording, cut in time.
+
+    The time that processing keeps, ``[t0 + margin, t_end - margin]`` (``margin``: what the
+    position filter and the decimation drop at each end of a recording, in s), is cut into
+    ``k`` blocks of equal duration. Fold ``i`` predicts block ``i`` from the rest: its test
+    recording holds the samples of ``[c_i - margin, c_(i+1) + margin)`` (the whole record's
+    start / end for the first / last block), so that once processed its samples are those of
+    block ``i``; its training recordings are the contiguous parts of the record that end
+    ``gap`` seconds before the test recording starts or start ``gap`` after it ends. No raw
+    sample is in both, and ``gap`` keeps samples that a filter applied before the recording
+    (e.g. by a recording script) couples out of the training data (the h-block
+    cross-validation of Burman, Chow & Nolan 1994, Biometrika 81(2), 351-358, for
+    dependent data). A training part no longer than ``2 margin`` (nothing left once
+    processed) is left out.
+    """
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 2:
+        raise InputError(f"blocked cross-validation needs a whole number of blocks k >= 2, got {k!r}")
+    try:
+        margin, gap = float(margin), float(gap)
+    except (TypeError, ValueError):
+        raise InputError(f"margin and gap must be numbers of seconds, got {margin!r}, {gap!r}") from None
+    if not (margin >= 0 and gap >= 0):
+        raise InputError(f"margin and gap must be >= 0 s, got {margin:g} and {gap:g}")
+    t = experiment.t
+    lo, hi = t[0] + margin, t[-1] - margin
+    edges = np.linspace(lo, hi, k + 1)
+    n_min = int(np.min(np.diff(np.searchsorted(t, edges)))) if hi > lo else 0
+    if n_min < 2:
+        raise InputError(f"{experiment.source or 'the recording'} ({experiment.duration:.3g} s) is too short "
+                         f"for {k} blocks after a margin of {margin:g} s at each end: every block needs 2 "
+                         "samples or more; use fewer blocks")
+    folds = []
+    for i in range(k):
+        start = None if i == 0 else float(edges[i] - margin)
+        end = None if i == k - 1 else float(edges[i + 1] + margin)
+        train = []
+        if start is not None and start - gap - t[0] > 2 * margin:
+            train.append(experiment.segment(None, start - gap))
+        if end is not None and t[-1] - (end + gap) > 2 * margin:
+            train.append(experiment.segment(end + gap, None))
+        if not train:
+            raise InputError(f"block {i + 1} of {k} of {experiment.source or 'the recording'}: nothing is left "
+                             f"to train on with a margin of {margin:g} s and a gap of {gap:g} s; use more "
+                             "blocks, or a smaller margin or gap")
+        folds.append(Fold(block=i, span=(float(edges[i]), float(edges[i + 1])),
+                          test=experiment.segment(start, end), train=train))
+    return folds
