@@ -92,7 +92,9 @@ def identify(data, robot, method: str = "idim", *, settings=None, max_error_grow
         is the last step's PC fit; ``prior``, ``prior_weight`` and ``mass_tolerance`` apply to
         every step, ``n_boot`` to the last one).
     prior, prior_weight : physical only: ``"apriori"`` adds ``prior_weight`` times the
-        squared scaled distance to the robot file's a-priori values (default: none,
+        squared scaled distance to the robot file's a-priori values, ``"geometric"`` the
+        entropic divergence of each link's pseudo-inertia from its a-priori one (Lee, Wensing
+        & Park 2020; :func:`~dynid.analysis.estimators.physical.pc_wls`) (default: none,
         the a-priori values only break ties).
     mass_tolerance : physical only: keep each link mass within this fraction of its
         a-priori value.

@@ -75,8 +75,8 @@ def test_mass_bounds_and_prior(pendulum):
     dist = [np.linalg.norm((f.standard - chi) / s) for f in fits]
     assert chi2[0] < chi2[1] < chi2[2] and dist[0] > dist[1] > dist[2]
     assert all(f.consistent for f in fits)
-    with pytest.raises(InputError, match="prior"):
-        pc_wls(robot, bp, beta, cov, prior="geometric")
+    with pytest.raises(InputError, match="prior must be one of"):
+        pc_wls(robot, bp, beta, cov, prior="bogus")
     with pytest.raises(InputError, match="mass_tolerance"):
         pc_wls(robot, bp, beta, cov, mass_tolerance=-1)
 

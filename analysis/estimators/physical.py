@@ -35,7 +35,7 @@ one closest to the a-priori values is returned.
 
 The geometric prior (``prior="geometric"``; Lee, Wensing & Park 2020, "Geometric
 robot dynamic identification: a convex programming approach", IEEE T-RO 36(2),
-the entropic divergence, eq. (19); the authors' reference code, ``ID_Entropic.m``
+the entropic divergence; the authors' reference code, ``ID_Entropic.m``
 of Geometric-Robot-DynID, minimises the same -log det J + tr(J0^-1 J)). For the
 ten inertial parameters of link l the Euclidean term is replaced by the Bregman
 divergence of -log det on the pseudo-inertias (twice the Kullback-Leibler
