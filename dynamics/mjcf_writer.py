@@ -26,6 +26,17 @@ lowered by the diagonal part dynid already counts in their Ia; its
 c_motor, as the tendon's velocity is w / c_motor). What MJCF has no field for:
 the torque offset ``Off`` (a constant added to the measured torque, not a
 property of the arm); it is listed in a comment and is in the JSON.
+
+``springs`` (the ``spring`` effect of :mod:`dynid.analysis.diagnosis.effects`, fitted
+beside the rigid body by :mod:`dynid.analysis.diagnosis.physical_fit`): dynid's
+column is ``+q_j`` in the joint torque, the drive gives ``Ks_j q_j``; MuJoCo's joint
+spring is the passive force ``-stiffness (q - springref)``, which the drive must
+balance, so ``stiffness = Ks_j`` and ``springref = 0`` (a spring ``k (q_j - q0)``
+is ``Ks q_j`` plus a constant, which dynid puts in ``Off``). MuJoCo's compiler
+keeps a negative stiffness and its passive force applies it with its sign
+(``mj_inverse`` gives ``+stiffness q``, ``mj_step`` follows the anti-spring;
+checked with MuJoCo 3.3.0 and 4.0.0, and by ``tests/test_replay.py``), so a
+negative ``Ks`` is written as it is and the file's comment says so.
 Gravity is MJCF's ``<option gravity>``, in dynid's base frame (MuJoCo's world).
 One ``<motor>`` actuator per joint (gear 1, unbounded) drives it with torque.
 Bodies get no geometry: the model is for dynamics, not for contact.
@@ -82,13 +93,35 @@ def mjcf_unrepresentable(robot) -> list:
     return [n for n in robot.standard_names if n not in per_joint and n not in inertial]
 
 
-def mjcf_text(robot, chi_st, *, name=None, comment="") -> str:
+def _springs(robot, springs):
+    """``{joint (1-based): Ks}`` checked: whole joint numbers of ``robot``, finite values."""
+    out = {}
+    for j, k in dict(springs or {}).items():
+        if isinstance(j, bool) or not isinstance(j, (int, np.integer)) or not 1 <= j <= robot.n_joints:
+            raise InputError(f"mjcf_text: spring on joint {j!r}: joints of '{robot.name}' are "
+                             f"1..{robot.n_joints}")
+        try:
+            k = float(k)
+        except (TypeError, ValueError):
+            raise InputError(f"mjcf_text: spring Ks{j} = {k!r} is not a number") from None
+        if not math.isfinite(k):
+            raise InputError(f"mjcf_text: spring Ks{j} = {k} is not finite; the model cannot be "
+                             "written as MJCF")
+        out[int(j)] = k
+    return dict(sorted(out.items()))
+
+
+def mjcf_text(robot, chi_st, *, name=None, comment="", springs=None) -> str:
     """The MJCF of ``robot`` with the standard parameters ``chi_st`` (see the module doc).
 
     Every link must be physically consistent with positive mass (MuJoCo's
     compiler rejects others): export a PC-WLS solution
     (:mod:`dynid.analysis.estimators.physical`), not an unconstrained fit.
+    ``springs``: ``{joint (1-based): Ks}`` [N m/rad, N/m for a prismatic joint], the
+    linear springs ``Ks_j q_j`` fitted with that rigid body, written as the joint's
+    ``stiffness`` with ``springref`` 0.
     """
+    springs = _springs(robot, springs)
     chi_st = np.asarray(chi_st, dtype=float)
     if chi_st.shape != (robot.n_standard,):
         raise InputError(f"mjcf_text: {chi_st.size} values given, robot '{robot.name}' has "
@@ -118,6 +151,13 @@ def mjcf_text(robot, chi_st, *, name=None, comment="") -> str:
         note += ("; armature of joint(s) " + ", ".join(map(str, clipped)) + " would be negative "
                  "(joint Ia below the coupled rotor's share) and is written 0")
         armature = np.maximum(armature, 0.0)
+    if springs:
+        note += ("; joint springs (dynid's Ks q in the drive torque): stiffness = Ks, springref = 0: "
+                 + ", ".join(f"Ks{j} = {_f(k)}" for j, k in springs.items()))
+        negative = [j for j, k in springs.items() if k < 0]
+        if negative:
+            note += ("; negative stiffness on joint(s) " + ", ".join(map(str, negative)) + ": a spring "
+                     "pushing away from q = 0, which MuJoCo's passive force applies with its sign")
     root.append(ET.Comment(" " + note.replace("--", "-") + " "))
     # balanceinertia off: the written inertia is the identified one, never adjusted by the compiler
     ET.SubElement(root, "compiler", {"angle": "radian", "balanceinertia": "false", "autolimits": "true"})
@@ -139,6 +179,8 @@ def mjcf_text(robot, chi_st, *, name=None, comment="") -> str:
         lo, hi = joint.q_limits
         if math.isfinite(lo) and math.isfinite(hi):
             attrs["range"] = f"{_f(lo)} {_f(hi)}"
+        if k in springs:
+            attrs.update(stiffness=_f(springs[k]), springref="0")
         ET.SubElement(body, "joint", attrs)
         joint_names.append(joint.name)
         c = h / m

@@ -342,7 +342,8 @@ def build_parser():
                         "(with --physical: the PC-WLS set)")
     p.add_argument("--mjcf", metavar="PATH",
                    help="IDIM: write a MuJoCo MJCF of the same physically consistent set (inertials, "
-                        "armature = Ia, damping = Fv, frictionloss = Fc)")
+                        "armature = Ia, damping = Fv, frictionloss = Fc). With --physical --effects "
+                        "spring:...: the PC-WLS rigid body and its springs (stiffness = Ks, springref 0)")
     g = p.add_argument_group("physically consistent identification (IDIM, DIDIM; needs dynid[physical])")
     g.add_argument("--physical", action="store_true",
                    help="refit the WLS under physical consistency (pseudo-inertias PSD, Ia, Fv, Fc >= 0), "
@@ -931,9 +932,12 @@ def cmd_identify(args, say):
     if args.urdf or args.mjcf:
         from dynid.reports.urdf_export import export_urdf
         say("choosing a physically consistent standard parameter set for the URDF/MJCF")
-        export = export_urdf(result, robot, physical=physical)
+        export = export_urdf(result, robot, physical=physical, effects=effects)
         say(f"URDF: {'consistent' if export.consistent else 'NOT consistent'}; "
             f"{'reproduces the identified values' if export.reproduces else 'does not reproduce the identified values (details in --report / --json)'}")
+        if export.springs:
+            say("MJCF: with the springs of --effects as joint stiffness: "
+                + ", ".join(f"Ks{j} = {k:.4g}" for j, k in export.springs.items()))
     _write_outputs(args, say, result, robot, experiments[0], validation, asym, export, physical, effects)
     return EXIT_OK
 
@@ -948,12 +952,23 @@ def _effect_candidates(args, robot):
     if args.physical_set != "base":
         raise InputError("--effects fits the effects beside all base parameters: drop --physical-set "
                          f"{args.physical_set}")
-    if args.urdf or args.mjcf:
-        raise InputError("--urdf/--mjcf write a rigid body, which cannot hold the effects of --effects: "
-                         "export from a run without --effects")
+    if args.urdf:
+        raise InputError("--urdf writes a rigid body, and URDF has no field for the effects of --effects: "
+                         "--mjcf PATH writes the rigid body with its springs (MuJoCo joint stiffness), "
+                         "or export the URDF from a run without --effects")
     out = effect_candidates(args.effects, robot.n_joints)
     if not out:
         raise InputError(f"--effects {args.effects!r} names no effect; e.g. --effects spring:all")
+    if args.mjcf:
+        if not args.physical:
+            raise InputError("--mjcf with --effects writes the physically consistent rigid body fitted "
+                             "with the springs (an unconstrained fit may not be a body MuJoCo accepts, "
+                             "and another consistent set does not go with these springs): add --physical")
+        other = [f"{c.name} on joint {c.joint}" for c in out if c.name != "spring"]
+        if other:
+            raise InputError("--mjcf with --effects: MJCF has no field for " + ", ".join(other) +
+                             "; only spring (joint stiffness) can be written: drop the others from "
+                             "--effects, or drop --mjcf")
     return out
 
 

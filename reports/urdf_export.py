@@ -20,11 +20,15 @@ The set is the global optimum of a semidefinite program (cvxpy + Clarabel,
 ``dynid[physical]``; the log-Cholesky local search without it). With
 ``physical=`` a PC-WLS result (:mod:`dynid.analysis.estimators.physical`), its
 standard set is written instead. :func:`mjcf_of` gives the same set as MuJoCo
-MJCF (:mod:`dynid.dynamics.mjcf_writer`).
+MJCF (:mod:`dynid.dynamics.mjcf_writer`). With ``effects=`` a PC fit of the rigid body
+with linear springs (:func:`dynid.analysis.diagnosis.physical_fit.identify_physical_effects`,
+``spring`` effects only: :func:`effect_springs`), the MJCF holds the springs too, as
+joint ``stiffness``; a URDF has no field for them.
 
 For the command line: ``dynid identify ... --urdf PATH [--mjcf PATH] [--physical]``
 calls ``export_urdf(result, robot, physical=...)`` and writes the texts with the
-other outputs.
+other outputs; ``dynid identify ... --physical --effects spring:all --mjcf PATH``
+calls ``export_urdf(result, robot, physical=effects.physical, effects=effects)``.
 """
 from __future__ import annotations
 
@@ -37,10 +41,11 @@ import pandas as pd
 
 from dynid.analysis.estimators.standard_set import choose_standard_set
 from dynid.dynamics.urdf_writer import read_extra_parameters, urdf_text, urdf_unrepresentable
+from dynid.errors import InputError
 from dynid.outputs import atomic_write_text
 from dynid.provenance import json_safe
 
-__all__ = ["UrdfExport", "export_urdf", "round_trip", "mjcf_of"]
+__all__ = ["UrdfExport", "export_urdf", "round_trip", "mjcf_of", "effect_springs"]
 
 
 @dataclass
@@ -53,6 +58,7 @@ class UrdfExport:
     prediction: dict              # identification data: rel. error of the model and of the set
     unrepresentable: dict         # name -> value of parameters only in <dynid:parameters>
     notices: list = field(default_factory=list)
+    springs: dict = field(default_factory=dict)   # joint (1-based) -> Ks, written in the MJCF only
 
     @property
     def consistent(self) -> bool:
@@ -70,6 +76,8 @@ class UrdfExport:
         d.update({"which": self.which, "round_trip_error": self.round_trip_error,
                   "prediction": self.prediction, "urdf_extension_parameters": self.unrepresentable,
                   "notices": self.notices + d.get("notices", [])})
+        if self.springs:
+            d["mjcf_springs"] = {f"Ks{j}": k for j, k in self.springs.items()}
         return json_safe(d)
 
     def section(self, *, id="urdf-export", title="URDF export: a physically consistent standard set"):
@@ -95,6 +103,15 @@ class UrdfExport:
                  "; they are written in the file's <dynid:parameters> element (URDF parsers ignore "
                  "it) and in the JSON.", cls="hint"),
         )
+        if self.springs:
+            ks = ", ".join(f"Ks{j} = {k:.4g}" for j, k in self.springs.items())
+            with_springs = 100 * p.get("rel_error_chosen_set_with_springs", float("nan"))
+            body = join(body, para(
+                "The MJCF holds the linear springs fitted with this rigid body (--effects) as joint "
+                "stiffness, springref 0 (MuJoCo's passive force \u2212stiffness\u00b7q, which the drive "
+                f"balances with dynid's Ks\u00b7q): {ks} [N m/rad; N/m on a prismatic joint]. With "
+                f"them the set's relative error on the identification data is {with_springs:.2f} %; "
+                "the URDF set alone (above) is the rigid body without them, a different model."))
         notes = self.notices + ss.notices
         if notes:
             body = join(body, bullets(notes, cls="notices"))
@@ -117,11 +134,31 @@ class UrdfExport:
 
 
 def mjcf_of(export, robot) -> str:
-    """The MJCF text of the standard set of ``export`` (:mod:`dynid.dynamics.mjcf_writer`)."""
+    """The MJCF text of the standard set of ``export`` and its springs (:mod:`dynid.dynamics.mjcf_writer`)."""
     from dynid.dynamics.mjcf_writer import mjcf_text
-    return mjcf_text(robot, export.standard_set.chi,
+    with_springs = " with the linear joint springs fitted with it" if export.springs else ""
+    return mjcf_text(robot, export.standard_set.chi, springs=export.springs,
                      comment=f"dynid identification of {robot.name}: physically consistent standard set "
-                             f"({export.which}); {export.standard_set.message}")
+                             f"({export.which}){with_springs}; {export.standard_set.message}")
+
+
+def effect_springs(effects) -> dict:
+    """``{joint (1-based): Ks}`` of the PC fit ``effects`` (an
+    :class:`~dynid.analysis.diagnosis.physical_fit.EffectsFit`): the springs an MJCF can hold.
+
+    Every effect must be a ``spring`` (MuJoCo's joint stiffness); any other has no MJCF field
+    and is refused, and so is a fit without its physically consistent part (the springs go
+    with the PC rigid body, ``theta_pc`` of eq. (2) there).
+    """
+    if effects.physical is None:
+        raise InputError("the springs of --effects are written with the physically consistent rigid "
+                         "body they were fitted with: add --physical")
+    other = sorted({(r["effect"], r["joint"]) for r in effects.effects() if r["effect"] != "spring"})
+    if other:
+        raise InputError("MJCF has no field for the effect(s) " + ", ".join(
+            f"{e} on joint {j}" for e, j in other) + " of --effects; only spring (joint stiffness) "
+            "can be written: drop the others from --effects, or drop --mjcf")
+    return {int(r["joint"]): float(r["pc"]) for r in effects.effects()}
 
 
 def _masked_errors(tau, tau_hat, mask):
@@ -162,7 +199,8 @@ def round_trip(text, robot, bp):
     return bp.from_standard(chi), back
 
 
-def export_urdf(result, robot, *, which="essential", max_nfev=400, comment=None, physical=None) -> UrdfExport:
+def export_urdf(result, robot, *, which="essential", max_nfev=400, comment=None, physical=None,
+                effects=None) -> UrdfExport:
     """A URDF of ``robot`` holding a physically consistent standard set for ``result``.
 
     ``result``: an :class:`dynid.analysis.estimators.idim.IDIMResult` (or a DIDIM result);
@@ -171,7 +209,15 @@ def export_urdf(result, robot, *, which="essential", max_nfev=400, comment=None,
     is the SDP's global optimum (:func:`choose_standard_set`).
     ``physical``: a :class:`dynid.analysis.estimators.physical.PhysicalResult` of
     ``result``: its standard set is written (the PC-WLS fit itself, ``which`` = "physical").
+    ``effects``: the :class:`~dynid.analysis.diagnosis.physical_fit.EffectsFit` whose PC fit
+    ``physical`` is (springs only, :func:`effect_springs`): its springs go into the MJCF
+    (:func:`mjcf_of`), not the URDF, and the prediction gains the set with them.
     """
+    springs = {}
+    if effects is not None:
+        springs = effect_springs(effects)
+        if physical is not effects.physical:
+            raise InputError("export_urdf: physical must be the PC fit of effects (effects.physical)")
     if physical is not None:
         which = "physical"
         beta_hat = _identified(result, "essential")[0]     # the identified model, for the comparison
@@ -197,7 +243,13 @@ def export_urdf(result, robot, *, which="essential", max_nfev=400, comment=None,
         rel_c, rms_c = _masked_errors(obs.tau, obs.W @ ss.beta, obs.row_mask)
         prediction = {"rel_error_identified_model": rel_i, "rel_error_chosen_set": rel_c,
                       "rms_identified_model": list(rms_i), "rms_chosen_set": list(rms_c)}
+    if springs:
+        # the MJCF's model: the PC rigid body plus the springs, on the stacked design's rows
+        prediction["rel_error_chosen_set_with_springs"] = effects.rel_error_pc
+        notices.append("the MJCF holds the springs of --effects as joint stiffness (springref 0): "
+                       + ", ".join(f"Ks{j} = {k:.4g}" for j, k in springs.items())
+                       + "; a URDF has no field for them")
     extras = {n: float(v) for n, v in zip(ss.names, ss.chi) if n in set(urdf_unrepresentable(robot))}
     return UrdfExport(robot_name=robot.name, text=text, standard_set=ss, which=which,
                       round_trip_error=err, prediction=prediction, unrepresentable=extras,
-                      notices=notices)
+                      notices=notices, springs=springs)

@@ -3,6 +3,7 @@ import json
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from dynid.reports.cli import main
@@ -138,13 +139,47 @@ def test_identify_effects_bad_text_is_refused(planar2_csv, capsys, spec, words):
 
 
 @pytest.mark.parametrize("extra, words", [
-    (["--method", "didim"], "--effects"), (["--urdf", "x.urdf"], "--urdf/--mjcf"),
-    (["--physical", "--physical-set", "essential"], "--physical-set")])
+    (["--method", "didim"], "--effects"), (["--urdf", "x.urdf"], "--mjcf PATH writes the rigid body with its springs"),
+    (["--physical", "--physical-set", "essential"], "--physical-set"),
+    (["--mjcf", "x.xml"], "add --physical")])
 def test_identify_effects_refuses_options_it_does_not_combine_with(planar2_csv, capsys, tmp_path, extra, words):
-    extra = [str(tmp_path / a) if a.endswith(".urdf") else a for a in extra]
+    extra = [str(tmp_path / a) if a.endswith((".urdf", ".xml")) else a for a in extra]
     assert main(["identify", str(planar2_csv), "--robot", "planar2", "--effects", "spring:all", *extra,
                  "--quiet"]) == 2
     assert words in capsys.readouterr().err
+    assert not list(tmp_path.iterdir())
+
+
+def test_identify_mjcf_refuses_effects_it_has_no_field_for(planar2_csv, capsys, tmp_path):
+    xml = tmp_path / "m.xml"
+    assert main(["identify", str(planar2_csv), "--robot", "planar2", "--physical", "--effects",
+                 "spring:all,position_ripple:2:1", "--mjcf", str(xml), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "MJCF has no field for position_ripple on joint 2" in err and "Traceback" not in err
+    assert not xml.exists()
+
+
+def test_identify_mjcf_writes_the_springs(planar2_csv, tmp_path):
+    """--physical --effects spring:all --mjcf: the PC standard set of the effects model and its
+    springs as joint stiffness (springref 0), listed in the JSON and the report."""
+    mujoco = pytest.importorskip("mujoco")
+    js, html, xml = tmp_path / "s.json", tmp_path / "s.html", tmp_path / "s.xml"
+    assert main(["identify", str(planar2_csv), "--robot", "planar2", "--physical", "--bootstrap", "0",
+                 "--effects", "spring:all", "--mjcf", str(xml), "--json", str(js), "--report", str(html),
+                 "--quiet"]) == 0
+    doc = json.loads(js.read_text())
+    pc = {p["name"]: p["pc"] for p in doc["effects"]["parameters"]}
+    exp = doc["urdf_export"]
+    assert exp["which"] == "physical" and exp["mjcf_springs"] == pc
+    assert any("joint stiffness" in n for n in exp["notices"])
+    assert exp["prediction"]["rel_error_chosen_set_with_springs"] == doc["effects"]["rel_error_pc"]
+    # the rigid body written is the PC fit of the effects model, not a separate consistent set
+    std = {p["name"]: p["value"] for p in doc["physical"]["standard_parameters"]}
+    model = mujoco.MjModel.from_xml_path(str(xml))
+    np.testing.assert_array_equal(model.jnt_stiffness, [pc["Ks1"], pc["Ks2"]])
+    np.testing.assert_array_equal(model.qpos_spring, 0.0)
+    np.testing.assert_allclose(model.body_mass[1:], [std["M1"], std["M2"]], rtol=1e-12)
+    assert "The MJCF holds the linear springs" in html.read_text()
 
 
 def test_identify_effects_without_physical_fits_the_unconstrained_model(planar2_csv, tmp_path):

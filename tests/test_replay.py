@@ -9,6 +9,10 @@ the URDF) is the rigid body; the joint terms are added from the URDF's own field
 frictionloss set to 0), then armature + damping against Ia qdd + Fv qd, then its dry
 friction, a soft constraint, against Fc sign(qd) where the joint moves; finally the whole
 MuJoCo torque (+ Off, which MJCF has no field for) against dynid's prediction.
+
+The LWR4+ again with a linear spring on every joint fitted beside the PC rigid body
+(``--effects spring:all``, issue 15): the MJCF's joint stiffness against Ks q in closed
+form, and MuJoCo's whole torque against dynid's prediction of that effects model.
 """
 from pathlib import Path
 
@@ -16,6 +20,7 @@ import numpy as np
 import pytest
 
 import dynid
+from dynid.analysis.diagnosis.physical_fit import effect_candidates, effect_design, identify_physical_effects
 from dynid.analysis.estimators.physical import identify_physical
 from dynid.analysis.processing.observation import observe
 from dynid.dynamics.mjcf_writer import mjcf_text
@@ -202,3 +207,101 @@ def test_mujoco_replays_the_mjcf(replay):
     assert _rel(total - friction + dry, predicted) < 1e-8
     rows = moving.all(axis=1)
     assert rows.sum() > 20 and _rel(total[rows], predicted[rows]) < 0.01
+
+
+# ------------------------------------------------------------------ the LWR4+ with its springs
+@pytest.fixture(scope="module")
+def replay_springs():
+    """PC-WLS of the LWR4+ with a spring Ks_j q_j on every joint (issue 15), identified on
+    recordings 2 + 3, its MJCF with the springs, and recording 1 held out: dynid's prediction
+    of that model is the effect design's ``[W, C] @ x_pc`` (as ``held_out_errors`` builds it)."""
+    robot, ident, held = _kuka()
+    res = dynid.identify(ident, robot)
+    candidates = effect_candidates("spring:all", robot.n_joints)
+    fit = identify_physical_effects(ident, robot, res, candidates, n_boot=0)
+    springs = {c.joint: float(k) for c, k in zip(candidates, fit.theta_pc)}
+    settings = dict(res.settings, qd_threshold=0.0)
+    obs = observe(held, robot, res.base, settings)
+    W, _, _, names = effect_design(held, robot, res.base, settings, candidates)
+    assert names[res.base.n_base:] == [f"Ks{j}" for j in springs]
+    return robot, fit, springs, obs, mjcf_text(robot, fit.physical.standard, springs=springs), W @ fit.x_pc
+
+
+def _model(xml, *zeroed):
+    """The MJCF's model, joint limits off (see test_mujoco_replays_the_mjcf), ``zeroed`` fields 0."""
+    model = mujoco.MjModel.from_xml_string(xml)
+    model.jnt_limited[:] = 0
+    for name in zeroed:
+        getattr(model, name)[:] = 0.0
+    return model
+
+
+def test_the_mjcf_holds_the_springs(replay_springs):
+    robot, fit, springs, _, xml, _ = replay_springs
+    assert fit.physical.consistent
+    model = _model(xml)
+    Ks = np.array([springs[j + 1] for j in range(robot.n_joints)])
+    np.testing.assert_array_equal(model.jnt_stiffness, Ks)
+    np.testing.assert_array_equal(model.qpos_spring, 0.0)
+    # these data give a negative Ks4: the anti-spring is replayed below too
+    assert Ks.min() < 0 < Ks.max()
+    assert "negative stiffness on joint(s) 4" in xml
+
+
+def test_mujoco_replays_the_springs(replay_springs):
+    robot, fit, springs, obs, xml, predicted = replay_springs
+    chi = fit.physical.standard
+    Ks = np.array([springs[j + 1] for j in range(robot.n_joints)])
+    off = _per_joint(robot, chi, "Off")
+    full = _inverse(_model(xml), obs)
+    no_springs = _inverse(_model(xml, "jnt_stiffness"), obs)
+    rigid_mj = _inverse(_model(xml, "jnt_stiffness", "dof_armature", "dof_damping", "dof_frictionloss"), obs)
+    # the spring part alone, closed form: the drive balances MuJoCo's -stiffness (q - springref)
+    # with +Ks q
+    spring = Ks * obs.q
+    assert np.abs(spring).max() > 0.1
+    np.testing.assert_allclose(full - no_springs, spring, rtol=0, atol=1e-12)
+    # the rest as in test_mujoco_replays_the_mjcf: the rigid body exactly, then the dry friction
+    # (a soft constraint) within Fc, and Fc sign(qd) where the joint moves
+    W = regressor(robot, obs.q, obs.qd, obs.qdd)
+    assert _rel(rigid_mj, W @ _rigid(robot, chi)) < 1e-8
+    smooth, coulomb = _columns(robot, "Ia", "Fv"), _columns(robot, "Fc")
+    friction = (no_springs - rigid_mj) - W[:, :, smooth] @ chi[smooth]
+    dry = W[:, :, coulomb] @ chi[coulomb]
+    assert np.all(np.abs(friction) <= np.abs(_per_joint(robot, chi, "Fc")) * (1 + 1e-6) + 1e-9)
+    moving = np.abs(obs.qd) > 0.05
+    assert (np.abs(friction - dry) > 0.01 * np.abs(dry) + 1e-9)[moving].mean() < 0.01
+    # the whole MuJoCo torque (+ Off) against dynid's prediction of the effects model on the
+    # held-out recording, where every joint moves (measured 0.06 %; the decimated design is not
+    # W at the decimated states, so not to 1e-8)
+    rows = moving.all(axis=1)
+    assert rows.sum() > 100
+    assert _rel((full + off)[rows], predicted[rows]) < 0.01
+    # the rigid body without its springs is another model: 2.2 % from that prediction
+    assert _rel((no_springs + off)[rows], predicted[rows]) > 0.01
+
+
+@pytest.mark.parametrize("springs, words", [
+    ({0: 1.0}, "spring on joint 0"), ({3: 1.0}, "joints of 'planar2' are 1..2"),
+    ({"1": 1.0}, "spring on joint '1'"), ({1: float("nan")}, "Ks1 = nan is not finite"),
+    ({2: "stiff"}, "Ks2 = 'stiff' is not a number")])
+def test_mjcf_text_refuses_springs_it_cannot_write(springs, words):
+    from dynid.errors import InputError
+    robot = dynid.load_robot("planar2")
+    chi = _a_rigid_body_set(robot, np.random.default_rng(0))
+    with pytest.raises(InputError, match=words.replace(".", r"\.").replace("(", r"\(")):
+        mjcf_text(robot, chi, springs=springs)
+
+
+def test_effect_springs_refuses_what_mjcf_cannot_hold():
+    """The Python path of the CLI's refusal: an effect other than spring, or no PC fit."""
+    from types import SimpleNamespace
+
+    from dynid.errors import InputError
+    from dynid.reports.urdf_export import effect_springs
+    rows = [{"effect": "spring", "joint": 1, "pc": 0.5}, {"effect": "position_ripple", "joint": 2, "pc": 0.1}]
+    with pytest.raises(InputError, match="no field for the effect.s. position_ripple on joint 2"):
+        effect_springs(SimpleNamespace(physical=object(), effects=lambda: rows))
+    with pytest.raises(InputError, match="add --physical"):
+        effect_springs(SimpleNamespace(physical=None, effects=lambda: rows[:1]))
+    assert effect_springs(SimpleNamespace(physical=object(), effects=lambda: rows[:1])) == {1: 0.5}
