@@ -430,3 +430,27 @@ def test_pc_didim_steps_lower_the_output_error():
     R = _whitening(res.wls.cov)
     assert np.linalg.norm(R @ (pc.physical.chi - beta)) <= np.linalg.norm(R @ (plain.result.chi - beta))
     assert pc.physical.consistent
+
+
+def test_pc_didim_with_the_automatic_v_s_continues_from_physical_estimates(monkeypatch):
+    """PC-DIDIM with v_s = "auto": every warm start of the v_s search and of its final run is the
+    physical estimate of a previous run (its unconstrained WLS may have M(q) indefinite: on
+    simulated Panda seeds 15 and 123 the final run could not simulate it)."""
+    import dynid
+    from dynid.analysis.estimators import didim
+    robot = dynid.load_robot("planar2")
+    rec = dynid.simulate(robot, 4.0, seed=5)
+    real, starts, results = didim.identify_didim, [], []
+
+    def spy(*args, **kw):
+        starts.append(kw.get("chi0"))
+        out = real(*args, **kw)
+        results.append(out)
+        return out
+    monkeypatch.setattr(didim, "identify_didim", spy)
+    out = real(rec.experiment, robot, max_iter=10, physical=True, essential=False, n_boot=0)
+    assert "v_s_scan" in out.settings             # the search ran (the first run converged)
+    assert len(starts) >= 3                        # the first run, candidates, the final run
+    physical = [np.asarray(r.physical.chi) for r in results]
+    for chi0 in starts[1:]:
+        assert any(np.array_equal(np.asarray(chi0), p) for p in physical)

@@ -948,7 +948,13 @@ def _identify_auto_v_s(experiment, robot, *, settings, chi0, tol, max_iter, upda
         return first
     # the later runs continue the first one: "initial" updated the gains for chi^0 only
     cont = False if update_gains == "initial" else update_gains
-    scan = {V_S_START: (float(first.history["rho_norm"].iloc[-1]), first.chi, int(first.history["substeps"].iloc[-1]))}
+    def estimate(r):
+        # PC-DIDIM continues from the physical estimate, the one its next step would simulate: the
+        # last step's unconstrained WLS can have M(q) indefinite and not be simulable at all
+        return r.chi if r.physical is None else r.physical.chi
+
+    scan = {V_S_START: (float(first.history["rho_norm"].iloc[-1]), estimate(first),
+                        int(first.history["substeps"].iloc[-1]))}
     failed = []
 
     def best():
@@ -961,7 +967,7 @@ def _identify_auto_v_s(experiment, robot, *, settings, chi0, tol, max_iter, upda
             failed.append(f"v_s = {v:.3g}: {exc}")
             scan[v] = (math.inf, None, 0)
             return math.inf
-        scan[v] = (float(r.history["rho_norm"].iloc[-1]), r.chi, int(r.history["substeps"].iloc[-1]))
+        scan[v] = (float(r.history["rho_norm"].iloc[-1]), estimate(r), int(r.history["substeps"].iloc[-1]))
         return scan[v][0]
 
     for factor, bound in ((0.5, V_S_MIN), (2.0, V_S_MAX)):
