@@ -123,6 +123,15 @@ class GravityTiltResult(Exportable):
         lines += [f"  note: {m}" for m in self.notices]
         return "\n".join(lines)
 
+    def sentence(self) -> str:
+        """The estimate in one sentence (for a report paragraph)."""
+        t, s = 1e3 * self.theta, 1e3 * self.sigma
+        return (f"Tilt {t[0]:+.2f} \u00b1 {s[0]:.2f} mrad about the base x axis and {t[1]:+.2f} \u00b1 "
+                f"{s[1]:.2f} mrad about the base y axis; gravity (" + ", ".join(f"{v:+.4f}" for v in self.gravity)
+                + f") m/s\u00b2; WLS relative error {100 * self.rel_error_before:.3f} % level, "
+                f"{100 * self.rel_error_after:.3f} % tilted; likelihood ratio of no tilt \u03c7\u00b2 = "
+                f"{self.lr_statistic:.1f} on {self.lr_dof} dof (p = {self.p_value:.2g}).")
+
     def to_dict(self) -> dict:
         return json_safe({
             "robot": self.robot_name,
@@ -231,4 +240,6 @@ def gravity_tilt(experiments, robot, *, settings=None, max_iter=20, tol=1e-3):
         rel_error_before=float(fit0.rel_error), rel_error_after=float(fit1.rel_error),
         weighted_rss_before=s0, weighted_rss_after=s1, lr_statistic=float(lr), lr_dof=dof,
         p_value=float(stats.chi2.sf(lr, dof)), iterations=steps, converged=converged,
-        robot=dataclasses.replace(robot, gravity=g), wls=aug, added_parameters=added, notices=notices)
+        robot=dataclasses.replace(robot, gravity=g, notices=list(robot.notices) + [
+            f"gravity rotated from the robot file's by the estimated base tilt ({1e3 * theta[0]:+.2f}, "
+            f"{1e3 * theta[1]:+.2f}) mrad about the base x and y axes"]), wls=aug, added_parameters=added, notices=notices)
