@@ -91,6 +91,7 @@ class GravityTiltResult(Exportable):
     robot: object                # the Robot with the tilted gravity
     wls: object                  # IdentificationResult of the augmented WLS at convergence
     added_parameters: list = field(default_factory=list)
+    settings: dict = field(default_factory=dict)   # the processing settings (IDIM's)
     notices: list = field(default_factory=list)
     method = "gravity tilt"
     names = list(NAMES)
@@ -144,7 +145,7 @@ class GravityTiltResult(Exportable):
             "likelihood_ratio": {"statistic": self.lr_statistic, "dof": self.lr_dof, "p_value": self.p_value,
                                  "hypothesis": "no tilt (the robot file's gravity)"},
             "added_parameters": self.added_parameters,
-            "iterations": self.iterations, "converged": self.converged,
+            "iterations": self.iterations, "converged": self.converged, "settings": self.settings,
             "covariance": "separable nonlinear LS, base parameters profiled (augmented WLS, eq. (14))",
             "notices": self.notices,
         })
@@ -186,11 +187,24 @@ def gravity_tilt(experiments, robot, *, settings=None, max_iter=20, tol=1e-3):
     def W_at(theta):
         return obs.W + G @ tilted_gravity(g0, theta)
 
+    def not_identifiable(exc):
+        return InputError(
+            f"the direction of gravity is not identifiable from these data with robot "
+            f"'{robot.name}': the torques a tilt about the base x and y axes would cause are "
+            f"not separable from the base parameters ({exc}). Use a robot whose joints carry "
+            "gravity torques in several directions, or drop the tilt estimate")
+
     def fit(theta, joint_sigma=None):
         W = W_at(theta)
-        cols = level_cols if not np.any(theta) else list(range(len(names)))
-        return ls.wls(W[:, :, cols], obs.tau, [names[k] for k in cols], row_mask=mask,
-                      joint_sigma=joint_sigma), W, cols
+        level = not np.any(theta)
+        cols = level_cols if level else list(range(len(names)))
+        try:
+            return ls.wls(W[:, :, cols], obs.tau, [names[k] for k in cols], row_mask=mask,
+                          joint_sigma=joint_sigma), W, cols
+        except IdentificationError as exc:
+            if level:                        # the plain IDIM of these data fails: say it as IDIM does
+                raise
+            raise not_identifiable(exc) from None
 
     def augmented(theta, chi_full):
         r0, W, cols = fit(theta)
@@ -200,11 +214,7 @@ def gravity_tilt(experiments, robot, *, settings=None, max_iter=20, tol=1e-3):
             return ls.wls(np.concatenate([W[:, :, cols], Jchi], axis=2), obs.tau,
                           [names[k] for k in cols] + list(NAMES), row_mask=mask), r0, cols
         except IdentificationError as exc:
-            raise InputError(
-                f"the direction of gravity is not identifiable from these data with robot "
-                f"'{robot.name}': the torques a tilt about the base x and y axes would cause are "
-                f"not separable from the base parameters ({exc}). Use a robot whose joints carry "
-                "gravity torques in several directions, or drop the tilt estimate") from None
+            raise not_identifiable(exc) from None
 
     theta = np.zeros(2)
     fit0, _, _ = fit(theta)
@@ -242,4 +252,5 @@ def gravity_tilt(experiments, robot, *, settings=None, max_iter=20, tol=1e-3):
         p_value=float(stats.chi2.sf(lr, dof)), iterations=steps, converged=converged,
         robot=dataclasses.replace(robot, gravity=g, notices=list(robot.notices) + [
             f"gravity rotated from the robot file's by the estimated base tilt ({1e3 * theta[0]:+.2f}, "
-            f"{1e3 * theta[1]:+.2f}) mrad about the base x and y axes"]), wls=aug, added_parameters=added, notices=notices)
+            f"{1e3 * theta[1]:+.2f}) mrad about the base x and y axes"]), wls=aug, added_parameters=added, settings=dict(obs.settings),
+        notices=notices)
