@@ -344,6 +344,11 @@ def build_parser():
                    help="IDIM: write a MuJoCo MJCF of the same physically consistent set (inertials, "
                         "armature = Ia, damping = Fv, frictionloss = Fc). With --physical --effects "
                         "spring:...: the PC-WLS rigid body and its springs (stiffness = Ks, springref 0)")
+    p.add_argument("--gravity-tilt", action="store_true",
+                   help="IDIM: first estimate the direction of gravity (a base tilt about the base x and y "
+                        "axes, |g| kept, with sigma and a likelihood-ratio test of no tilt) on the "
+                        "identification data, then identify, validate and export with that gravity; JSON "
+                        "block \"gravity_tilt\"")
     g = p.add_argument_group("physically consistent identification (IDIM, DIDIM; needs dynid[physical])")
     g.add_argument("--physical", action="store_true",
                    help="refit the WLS under physical consistency (pseudo-inertias PSD, Ia, Fv, Fc >= 0), "
@@ -593,7 +598,7 @@ def _verdict(args, result, validation=None, **kw):
 
 
 def _write_outputs(args, say, result, robot, experiment, validation, asym=None, export=None,
-                   physical=None, effects=None):
+                   physical=None, effects=None, tilt=None):
     """Render every requested output in memory, then write them all or none.
 
     Each file is written atomically (temp file + rename); if the run is
@@ -608,6 +613,8 @@ def _write_outputs(args, say, result, robot, experiment, validation, asym=None, 
         doc["verdict"] = the_verdict.to_dict()
         if validation is not None:
             doc["validation"] = validation.to_dict()
+        if tilt is not None:
+            doc["gravity_tilt"] = tilt.to_dict()
         if asym is not None:
             doc["asymmetric_friction"] = asym.to_dict()
         if export is not None:
@@ -629,6 +636,12 @@ def _write_outputs(args, say, result, robot, experiment, validation, asym=None, 
     if args.report:
         from dynid.reports.html import render_idim_report
         extra = []
+        if tilt is not None:
+            from dynid.reports.html import Section, para
+            extra.append(Section("gravity-tilt", "Direction of gravity (base tilt)", para(
+                "The robot file's gravity was rotated by the base tilt estimated on the identification "
+                "data (Gauss-Newton on the two angles with the base parameters profiled out), and "
+                "every result of this report uses the rotated gravity. " + tilt.sentence())))
         if asym is not None:
             from dynid.reports.friction_section import asymmetric_friction_section
             extra.append(asymmetric_friction_section(asym))
@@ -869,7 +882,8 @@ def cmd_identify(args, say):
         given = [f"--{o}" for o, v in (("validation", args.validation), ("holdout", args.holdout),
                                        ("urdf", args.urdf), ("asymmetric-friction", args.asymmetric_friction),
                                        ("mjcf", args.mjcf), ("effects", args.effects),
-                                       ("physical", args.physical and args.method != "didim"))
+                                       ("physical", args.physical and args.method != "didim"),
+                                       ("gravity-tilt", args.gravity_tilt))
                  if v]
         if given:
             raise InputError(f"{', '.join(given)} work with --method idim only, not with --method "
@@ -892,6 +906,13 @@ def cmd_identify(args, say):
         if len(experiments) > 1:
             raise InputError(f"--method {args.method} identifies one recording at a time")
         return METHODS[args.method](args, say, robot, experiments[0])
+    tilt = None
+    if args.gravity_tilt:
+        from dynid.analysis.estimators.gravity_tilt import gravity_tilt
+        say("estimating the direction of gravity (base tilt) on the identification data")
+        tilt = gravity_tilt(experiments, robot, settings=_processing_settings(args))
+        _show_clean(args, tilt.summary())
+        robot = tilt.robot                   # everything below runs with the tilted gravity
     with say.progress("regressor and decimation") as bar:
         result = identify(experiments, robot, settings=_processing_settings(args),
                           max_error_growth=args.max_error_growth, progress=bar.update)
@@ -938,7 +959,8 @@ def cmd_identify(args, say):
         if export.springs:
             say("MJCF: with the springs of --effects as joint stiffness: "
                 + ", ".join(f"Ks{j} = {k:.4g}" for j, k in export.springs.items()))
-    _write_outputs(args, say, result, robot, experiments[0], validation, asym, export, physical, effects)
+    _write_outputs(args, say, result, robot, experiments[0], validation, asym, export, physical, effects,
+                   tilt=tilt)
     return EXIT_OK
 
 

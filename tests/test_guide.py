@@ -31,6 +31,7 @@ PROMISED = {
     "--urdf kuka_identified.urdf": ["kuka_identified.urdf", "kuka_urdf.json"],
     "--physical --bootstrap 20": ["tx40_pc.urdf", "tx40_pc.xml", "tx40_pc.json"],
     "--effects spring:all": ["kuka_effects.json"],
+    "--gravity-tilt": ["kuka_tilt.json"],
 }
 
 
@@ -64,6 +65,10 @@ def test_every_command_block_runs(tmp_path):
             export = json.loads((tmp_path / "kuka_urdf.json").read_text())["urdf_export"]
             assert export["consistent"] is True
             assert "<robot" in (tmp_path / "kuka_identified.urdf").read_text()
+        if marker == "--gravity-tilt":
+            doc = json.loads((tmp_path / "kuka_tilt.json").read_text())
+            assert doc["gravity_tilt"]["theta_rad"] == pytest.approx([20.0e-3, 6.0e-3], abs=0.1e-3)
+            assert doc["physical"]["validation"]["gap_points"] == pytest.approx(0.085, abs=0.002)
         if marker == "--effects spring:all":
             ph = json.loads((tmp_path / "kuka_effects.json").read_text())["physical"]
             assert ph["consistent"] is True and ph["validation"]["gap_points"] < 0.2
