@@ -95,9 +95,12 @@ def find_shared_data(start=None) -> Path:
 
 
 def tx40_urdf_path(shared_data=None) -> Path:
-    """FIGAROH's ``staubli-tx40-figaroh/tx40_mdh_modified.urdf`` under ``shared_data``."""
-    base = Path(shared_data) if shared_data is not None else find_shared_data()
-    return base / "staubli-tx40-figaroh" / "tx40_mdh_modified.urdf"
+    """FIGAROH's ``tx40_mdh_modified.urdf``: under ``shared_data`` when given, else the copy the
+    TX40 example ships beside its data (same source and licence, examples/staubli_tx40/README.md),
+    so a fresh clone without the shared folder has it."""
+    if shared_data is not None:
+        return Path(shared_data) / "staubli-tx40-figaroh" / "tx40_mdh_modified.urdf"
+    return ROOT / "examples" / "staubli_tx40" / "tx40_mdh_modified.urdf"
 
 
 def kuka_urdf_path() -> Path:
