@@ -22,6 +22,17 @@ def _cov(beta):
     return np.diag(sig ** 2), sig
 
 
+def _pushed(pendulum, name, value):
+    """The pendulum's base parameters with ``name`` set to ``value`` (off the physical set), the
+    diagonal covariance of :func:`_cov`, and that parameter's index."""
+    robot, bp, _, beta = pendulum
+    cov, sig = _cov(beta)
+    b = beta.copy()
+    k = bp.names.index(name)
+    b[k] = value
+    return robot, bp, b, cov, sig, k
+
+
 def test_a_physical_estimate_is_left_alone(pendulum):
     robot, bp, chi, beta = pendulum
     cov, sig = _cov(beta)
@@ -35,11 +46,7 @@ def test_a_physical_estimate_is_left_alone(pendulum):
 def test_a_negative_inertia_costs_its_closed_form_chi2(pendulum):
     # ZZ1R = ZZ1 + Ia1 < 0 is no rigid body: with a diagonal covariance the nearest physical
     # point moves ZZ1R to (about) 0 and nothing else, at cost (ZZ1R / sigma)^2
-    robot, bp, chi, beta = pendulum
-    cov, sig = _cov(beta)
-    b = beta.copy()
-    k = bp.names.index("ZZ1R")
-    b[k] = -0.05
+    robot, bp, b, cov, sig, k = _pushed(pendulum, "ZZ1R", -0.05)
     r = pc_wls(robot, bp, b, cov, n_boot=0)
     assert r.consistent and r.wls_consistent is False
     assert 0 <= r.chi[k] < 0.01 * sig[k] * 10
@@ -50,11 +57,7 @@ def test_a_negative_inertia_costs_its_closed_form_chi2(pendulum):
 
 
 def test_negative_friction_goes_to_its_bound(pendulum):
-    robot, bp, chi, beta = pendulum
-    cov, sig = _cov(beta)
-    b = beta.copy()
-    k = bp.names.index("Fv1")
-    b[k] = -0.02
+    robot, bp, b, cov, sig, k = _pushed(pendulum, "Fv1", -0.02)
     r = pc_wls(robot, bp, b, cov, n_boot=0)
     assert abs(r.chi[k]) < 1e-6 and "Fv1 = 0" in r.active
     assert r.chi2 == pytest.approx((0.02 / sig[k]) ** 2, rel=1e-3)
@@ -88,11 +91,7 @@ def test_missing_cvxpy_says_how_to_install(monkeypatch):
 
 
 def test_bootstrap_intervals_stay_physical_at_an_active_bound(pendulum):
-    robot, bp, chi, beta = pendulum
-    cov, sig = _cov(beta)
-    b = beta.copy()
-    k = bp.names.index("Fv1")
-    b[k] = -0.01
+    robot, bp, b, cov, sig, k = _pushed(pendulum, "Fv1", -0.01)
     r = pc_wls(robot, bp, b, cov, n_boot=60, seed=1)
     ci = r.conf_int()
     assert ci["lower"].iloc[k] >= -1e-9            # a normal interval would cross into Fv < 0
@@ -136,11 +135,7 @@ def test_bootstrap_coverage_on_simulated_data(pendulum):
 
 def test_intervals_keep_the_wls_half_width_and_are_one_sided_at_a_bound(pendulum):
     """conf_int: hull of the percentiles and chi +- 1.96 sigma_wls, cut at Fv >= 0 (module doc)."""
-    robot, bp, chi, beta = pendulum
-    cov, sig = _cov(beta)
-    b = beta.copy()
-    k = bp.names.index("Fv1")
-    b[k] = -0.01
+    robot, bp, b, cov, sig, k = _pushed(pendulum, "Fv1", -0.01)
     r = pc_wls(robot, bp, b, cov, n_boot=30, seed=2)
     z = stats.norm.ppf(0.975)
     ci = r.conf_int()

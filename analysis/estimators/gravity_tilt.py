@@ -207,12 +207,13 @@ def gravity_tilt(experiments, robot, *, settings=None, max_iter=20, tol=1e-3):
             raise not_identifiable(exc) from None
 
     def augmented(theta, chi_full):
-        r0, W, cols = fit(theta)
+        W = W_at(theta)
+        cols = level_cols if not np.any(theta) else list(range(len(names)))
         J = G @ _dg_dtheta(g0, theta)                       # (M, n, b, 2)
         Jchi = np.einsum("mnbk,b->mnk", J[:, :, cols, :], chi_full[cols])
         try:
             return ls.wls(np.concatenate([W[:, :, cols], Jchi], axis=2), obs.tau,
-                          [names[k] for k in cols] + list(NAMES), row_mask=mask), r0, cols
+                          [names[k] for k in cols] + list(NAMES), row_mask=mask), cols
         except IdentificationError as exc:
             raise not_identifiable(exc) from None
 
@@ -223,7 +224,7 @@ def gravity_tilt(experiments, robot, *, settings=None, max_iter=20, tol=1e-3):
     converged, steps = False, 0
     while steps < max_iter:
         steps += 1
-        aug, _, cols = augmented(theta, chi_full)
+        aug, cols = augmented(theta, chi_full)
         step = aug.chi[-2:]
         theta = theta + step
         chi_full = np.zeros(len(names))
@@ -232,7 +233,8 @@ def gravity_tilt(experiments, robot, *, settings=None, max_iter=20, tol=1e-3):
             converged = True
             break
     # the covariance at the solution (the last step is below tol sigma: the same point)
-    aug, fit1, _ = augmented(theta, chi_full)
+    aug, _ = augmented(theta, chi_full)
+    fit1, _, _ = fit(theta)
     cov = aug.cov[-2:, -2:]
     sig = fit1.joint_sigma
     f0_fixed, _, _ = fit(np.zeros(2), joint_sigma=sig)

@@ -577,8 +577,8 @@ def pc_wls(robot, bp, beta_wls, cov_wls, *, prior=None, prior_weight=1.0, mass_t
     else:
         notices.append("no bootstrap (n_boot = 0): the reported sigma and intervals are the "
                        "unconstrained WLS ones (cut at the physical bounds)")
-    cov = interval_covariance(beta, cov_wls, boot)
-    boot_cov = None if boot is None or len(boot) < 2 else np.cov(boot, rowvar=False).reshape(cov.shape)
+    boot_cov = None if boot is None or len(boot) < 2 else np.cov(boot, rowvar=False).reshape(cov_wls.shape)
+    cov = interval_covariance(beta, cov_wls, boot, boot_cov)
     wls_std = _wls_standard_consistent(robot, bp, beta_wls)
     if wls_std is False:
         notices.append("the unconstrained WLS base parameters are those of no rigid body "
@@ -592,13 +592,14 @@ def pc_wls(robot, bp, beta_wls, cov_wls, *, prior=None, prior_weight=1.0, mass_t
                           solve_seconds=seconds, wls_consistent=wls_std, notices=notices)
 
 
-def interval_covariance(beta, cov_wls, boot=None):
+def interval_covariance(beta, cov_wls, boot=None, boot_cov=None):
     """The reported covariance of a PC fit: standard deviations that make ``beta +- 1.96 sigma``
     contain the 95 % interval of :meth:`PhysicalResult.conf_int` (before its cut at a bound),
 
         sigma_i = max(sigma_wls_i, (q97.5_i - beta_i) / 1.96, (beta_i - q2.5_i) / 1.96),
 
-    with the correlations of the bootstrap refits ``boot`` (K, b) (those of ``cov_wls``
+    with the correlations of the bootstrap refits ``boot`` (K, b; ``boot_cov`` their covariance,
+    computed when not given) (those of ``cov_wls``
     without a bootstrap or with fewer than 20 refits, where ``sigma_i`` is the larger of
     ``sigma_wls_i`` and the refits' spread).
 
@@ -614,7 +615,7 @@ def interval_covariance(beta, cov_wls, boot=None):
         z = _Z95
         q_lo, q_hi = np.quantile(boot, [0.025, 0.975], axis=0)
         sd = np.maximum.reduce([sd_wls, (q_hi - beta) / z, (beta - q_lo) / z])
-        corr_of = np.cov(boot, rowvar=False).reshape(len(beta), len(beta))
+        corr_of = np.cov(boot, rowvar=False).reshape(len(beta), len(beta)) if boot_cov is None else boot_cov
     else:
         sd = sd_wls if boot is None or len(boot) < 2 else np.maximum(sd_wls, np.std(boot, axis=0, ddof=1))
         corr_of = np.asarray(cov_wls, dtype=float)
