@@ -16,12 +16,18 @@ except ImportError:  # pragma: no cover - numba is a declared dependency
     HAVE_NUMBA = False
 
 
-def _inertial_columns(Rp, pp, sigma, gravity, q, qd, qdd, out):
+def _inertial_columns(Rp, pp, sigma, gravity, q, qd, qdd, out, whole_rows):
     """Fill the 10 inertial columns of every link, for every sample, into ``out``.
 
-    out: (N, n, Ns) with link j's columns at 14*j ... 14*j+9. Other columns untouched.
+    out: (N, n, Ns) with link j's columns at 14*j ... 14*j+9. With ``whole_rows``
+    False the other columns are untouched; with True every column of a sample is
+    written here (zeros, and Ia, Fv, Fc, Off on the diagonal as in
+    ``regressor._actuator_columns``), while that sample's rows are still in cache:
+    a separate zeroing pass and a separate actuator pass over W cost two more
+    trips through memory than the kernel itself.
     """
     N, n = q.shape
+    width = out.shape[2]
     R = np.empty((n, 3, 3))       # frame j in frame j-1
     P = np.empty((n, 3))          # origin j in frame j-1
     Rw = np.empty((n, 3, 3))      # frame j in base
@@ -29,6 +35,27 @@ def _inertial_columns(Rp, pp, sigma, gravity, q, qd, qdd, out):
     f = np.empty((3, 10))
     m = np.empty((3, 10))
     for s in range(N):
+        if whole_rows:
+            for i in range(n):
+                # zeros where nothing below writes: links j < i (they do not load
+                # joint i), the other joints' actuator columns, the coupling columns
+                for j in range(n):
+                    c = 14 * j
+                    if j < i:
+                        for k in range(10):
+                            out[s, i, c + k] = 0.0
+                    if j != i:
+                        for k in range(10, 14):
+                            out[s, i, c + k] = 0.0
+                for k in range(14 * n, width):
+                    out[s, i, k] = 0.0
+                d = qd[s, i]
+                c = 14 * i
+                out[s, i, c + 10] = qdd[s, i]
+                out[s, i, c + 11] = d
+                # np.sign: 0 at 0, nan at nan
+                out[s, i, c + 12] = 1.0 if d > 0.0 else (-1.0 if d < 0.0 else (0.0 if d == 0.0 else d))
+                out[s, i, c + 13] = 1.0
         # --- kinematics
         for j in range(n):
             if sigma[j] == 0:

@@ -79,17 +79,21 @@ def _robot_arrays(robot):
 
 
 def _fill_chunk(robot, q, qd, qdd, out, gravity=None, backend="numba"):
-    """Write IDM_st for one chunk of samples into ``out`` (N, n, Ns), zeroed."""
-    N, n = q.shape
+    """Write IDM_st for one chunk of samples into ``out`` (N, n, Ns).
+
+    The numba backend writes every column itself, so ``out`` may hold anything;
+    the NumPy backend needs ``out`` zeroed.
+    """
     if backend == "numba" and _kernels.HAVE_NUMBA:
         g = robot.gravity if gravity is None else np.asarray(gravity, dtype=float)
         Rp, pp, sigma = _robot_arrays(robot)
         _kernels.inertial_columns(Rp, pp, sigma, np.asarray(g, dtype=float),
                                   np.ascontiguousarray(q), np.ascontiguousarray(qd),
-                                  np.ascontiguousarray(qdd), out)
+                                  np.ascontiguousarray(qdd), out, True)
+        _coupling_columns(robot, qd, qdd, out)
     else:
         _inertial_columns_numpy(robot, q, qd, qdd, out, gravity)
-    _actuator_columns(robot, qd, qdd, out)
+        _actuator_columns(robot, qd, qdd, out)
     return out
 
 
@@ -126,7 +130,12 @@ def _actuator_columns(robot, qd, qdd, out):
     out[:, rows, base + 11] = qd
     out[:, rows, base + 12] = np.sign(qd)
     out[:, rows, base + 13] = 1.0
-    # couplings (section 4 of the DIDIM paper, eq. (33))
+    _coupling_columns(robot, qd, qdd, out)
+
+
+def _coupling_columns(robot, qd, qdd, out):
+    """Coupling terms (section 4 of the DIDIM paper, eq. (33)), added to zeroed columns."""
+    n = qd.shape[1]
     col = N_PER_JOINT * n
     for c in robot.couplings:
         idx = np.asarray(c.joints) - 1
@@ -159,17 +168,22 @@ def regressor(robot, q, qd, qdd, *, columns=None, chunk=DEFAULT_CHUNK, gravity=N
     N, n = q.shape
     ns = robot.n_standard
     width = ns if columns is None else len(columns)
-    W = np.empty((N, n, width))
-    if columns is None:
-        W[...] = 0.0
+    compiled = backend == "numba" and _kernels.HAVE_NUMBA
+    # the compiled kernel writes every column; the NumPy one adds into zeros
+    W = np.empty((N, n, width)) if compiled or columns is not None else np.zeros((N, n, width))
+    block = None
     for start in range(0, N, chunk):
         sl = slice(start, min(N, start + chunk))
         if columns is None:
             _fill_chunk(robot, q[sl], qd[sl], qdd[sl], W[sl], gravity, backend)
         else:
-            block = np.zeros((sl.stop - sl.start, n, ns))
+            m = sl.stop - sl.start
+            if block is None or block.shape[0] != m:      # one buffer for every full chunk
+                block = np.empty((m, n, ns))
+            if not compiled:
+                block[...] = 0.0
             _fill_chunk(robot, q[sl], qd[sl], qdd[sl], block, gravity, backend)
-            W[sl] = block[:, :, columns]
+            np.take(block, columns, axis=2, out=W[sl])
     return W
 
 
