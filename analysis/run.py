@@ -349,6 +349,17 @@ def check_identify(settings: Settings) -> None:
         require_cvxpy()          # before the identification, not after it
 
 
+def _carrying(result, robot):
+    """`result` with its robot (DIDIM, PM and ML results are built without one): dynid.verdict and
+    dynid.validate of the result then judge it as the command line does (joint names, a-priori values)."""
+    if getattr(result, "robot", None) is None:
+        try:
+            result.robot = robot
+        except AttributeError:           # a read-only property: the result knows its robot otherwise
+            pass
+    return result
+
+
 def identify_step(experiments, robot, settings: Settings, progress=None):
     """Step 3: identify with `settings.method`; IDIM stacks several recordings, the others take one.
 
@@ -371,9 +382,9 @@ def identify_step(experiments, robot, settings: Settings, progress=None):
                                  which=settings.physical_set)
     exp = experiments[0]
     if method == "didim":
-        return _didim(exp, robot, settings, progress)
+        return _carrying(_didim(exp, robot, settings, progress), robot)
     if method == "projection":
-        return identify_projection(exp, robot, settings=settings.processing())
+        return _carrying(identify_projection(exp, robot, settings=settings.processing()), robot)
     if settings.f0 is None:
         raise InputError("method ml needs f0, the fundamental frequency (Hz) of the periodic excitation "
                          "(--f0 on the command line)")
@@ -381,8 +392,8 @@ def identify_step(experiments, robot, settings: Settings, progress=None):
         raise InputError(f"{exp.source}: {exp.n_samples} samples x {robot.n_joints} joints; maximum "
                          f"likelihood keeps every sample and is limited to {ML_MAX_VALUES:,} values: "
                          "resample or cut the recording (a TOML experiment file), or use IDIM")
-    return maximum_likelihood(exp.t, exp.q, exp.tau, robot_model(robot), f0=settings.f0,
-                              n_harmonics=settings.ml_harmonics)
+    return _carrying(maximum_likelihood(exp.t, exp.q, exp.tau, robot_model(robot), f0=settings.f0,
+                                        n_harmonics=settings.ml_harmonics), robot)
 
 
 def _didim(exp, robot, settings: Settings, progress):
@@ -437,7 +448,6 @@ def didim_gains_notice(exp, robot, identified) -> str:
 def check_run(settings: Settings, robot=None):
     """The options of a whole run (`dynid identify`), refused before any data is loaded;
     returns the effect candidates of `effects` (None without)."""
-    check_identify(settings)
     if settings.method != "idim":
         given = [f"--{o}" for o, v in (("validation", settings.validation), ("holdout", settings.holdout),
                                        ("urdf", settings.urdf),
@@ -449,6 +459,7 @@ def check_run(settings: Settings, robot=None):
         if given:
             raise InputError(f"{', '.join(given)} work with --method idim only, not with --method "
                              f"{settings.method}; run the IDIM identification for them")
+    check_identify(settings)
     if settings.v_s is not None and settings.method != "didim":
         raise InputError(f"--v-s is the simulated Coulomb friction's sign width of DIDIM; it does not "
                          f"apply to --method {settings.method}")
@@ -649,7 +660,9 @@ def run(data, robot, settings=None, *, say=None, **options) -> Identification:
     tilt, robot = tilt_step(experiments, robot, settings, say)
     label = "DIDIM iterations" if settings.method == "didim" else "regressor and decimation"
     with say.progress(label) as bar:
-        result = identify_step(experiments, robot, settings, progress=bar.update)
+        # IDIM: the unconstrained fit; its PC-WLS (physical) is step 6, beside it
+        result = identify_step(experiments, robot, settings.replace(physical=False, prior=None, mass_tolerance=None)
+                               if settings.method == "idim" else settings, progress=bar.update)
     if settings.method != "idim":
         return Identification(settings=settings, robot=robot, experiments=experiments, result=result,
                               verdict=verdict(result, robot=robot))

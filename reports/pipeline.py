@@ -311,8 +311,10 @@ def _report_settings(settings, options) -> Settings:
         warnings.warn("report(diagnosis_options={...}) is now report(effects=..., max_effects=..., alpha=..., "
                       "no_offsets=...); diagnosis_options= will be removed", DeprecationWarning, stacklevel=3)
         options.update({k: v for k, v in old.items() if v is not None})
-    options.setdefault("gain_update", REPORT_GAIN_UPDATE)
-    options.setdefault("max_iter", 15)
+    if not isinstance(settings, Settings):       # a Settings (the command line's) carries its own
+        options.setdefault("gain_update", REPORT_GAIN_UPDATE)
+        options.setdefault("max_iter", 15)
+        options.setdefault("max_seconds", 300.0)
     s = steps.settings_from(settings, **options)
     steps.check_report(s)
     return s
@@ -339,7 +341,6 @@ def report(data, robot, path=None, *, settings=None, say=None, **options) -> Ful
     FullReport
     """
     say = say or Reporter()
-    options.setdefault("max_seconds", 300.0)
     s = _report_settings(settings, options)
     robot = steps.as_robot(robot)
     experiments, held_out = steps.load_data(data, robot, s, say)
