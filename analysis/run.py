@@ -31,6 +31,7 @@ import os
 import tempfile
 import warnings
 from dataclasses import dataclass
+from pathlib import Path
 
 from dynid.analysis.data.experiment import Experiment, load_experiment
 from dynid.analysis.data.split import holdout_split
@@ -51,7 +52,7 @@ from dynid.analysis.statistics.validation import ValidationResult, validate
 from dynid.analysis.statistics.verdict import verdict
 from dynid.dynamics.robot import Robot
 from dynid.dynamics.robot_file import load_robot
-from dynid.errors import InputError
+from dynid.errors import DataError, InputError
 from dynid.provenance import dumps_json
 
 METHODS = ("idim", "didim", "projection", "ml")
@@ -242,10 +243,19 @@ def as_experiments(data, robot, *, resample=False) -> list:
         if isinstance(item, Experiment):
             out.append(item)
         elif isinstance(item, (str, os.PathLike)):
-            out.append(_load_resampled(item, robot) if resample else load_experiment(item, robot))
+            out.append(_load_resampled(item, robot) if resample else _load(item, robot))
         else:
             raise InputError(f"a recording must be a data file path or an Experiment, not {type(item).__name__}")
     return out
+
+
+def _load(path, robot):
+    try:
+        return load_experiment(path, robot)
+    except DataError as exc:
+        if "irregular time steps" in str(exc) and not str(path).lower().endswith(".toml"):
+            raise DataError(f"{exc} On the command line: --resample.") from None
+        raise
 
 
 def _load_resampled(path, robot):
@@ -257,8 +267,11 @@ def _load_resampled(path, robot):
     with tempfile.TemporaryDirectory(prefix="dynid-resample-") as tmp:
         toml = os.path.join(tmp, "resample.toml")
         with open(toml, "w", encoding="utf-8") as fh:
-            fh.write(f"[experiment]\nfile = {json.dumps(os.path.abspath(os.fspath(path)))}\nresample = true\n")
-        return load_experiment(toml, robot)
+            fh.write(f"[experiment]\nfile = {json.dumps(os.path.abspath(os.fspath(path)))}\n"
+                     f"name = {json.dumps(Path(path).stem)}\nresample = true\n")
+        exp = load_experiment(toml, robot)
+    # the recording's own name, not the temporary description's
+    return dataclasses.replace(exp, source=f"{os.fspath(path)} (resampled)")
 
 
 def check_robot_options(settings: Settings, robot) -> None:
@@ -614,10 +627,13 @@ class Identification:
     def summaries(self) -> list:
         """The printed parts, the verdict first."""
         gains = getattr(self.result, "gains", None)
+        validation = self.validation.summary() if self.validation is not None else None
+        if validation is not None and self.settings.holdout is not None:
+            validation = f"held out: the last {self.settings.holdout:g} s\n{validation}"
         parts = [self.verdict.summary()]
-        parts += [p.summary() for p in (self.tilt, self.result, self.validation, self.asymmetric_friction,
-                                         self.effects, self.physical if self.method == "idim" else None,
-                                         gains) if p is not None]
+        parts += [p if isinstance(p, str) else p.summary()
+                  for p in (self.tilt, self.result, validation, self.asymmetric_friction, self.effects,
+                            self.physical if self.method == "idim" else None, gains) if p is not None]
         return parts
 
     def summary(self) -> str:
