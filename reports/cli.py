@@ -91,6 +91,7 @@ def cmd_simulate(args, say):
 
 
 def cmd_sample(args, say):
+    from dynid.analysis import further
     from dynid.analysis import run as steps
     from dynid.reports import pipeline
     settings = settings_of(args)
@@ -104,7 +105,7 @@ def cmd_sample(args, say):
     with say.progress("regressor and decimation") as bar:
         result = steps.identify_step(experiments, robot, settings, progress=bar.update)
     say(f"sampling the posterior of the {args.which} parameters")
-    post = steps.posterior_step(result, settings, say, robot=robot)
+    post = further.posterior_step(result, settings, say, robot=robot)
     verdict = steps.verdict_of(result, robot=robot)
     show(args, verdict.summary())
     show_clean(args, post.summary())

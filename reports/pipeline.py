@@ -17,13 +17,14 @@ import numbers
 import warnings
 from dataclasses import dataclass, field
 
+from dynid.analysis import further
 from dynid.analysis import run as steps
 from dynid.analysis.data.synthetic import sample_count
 from dynid.analysis.demo import run_demo
+from dynid.analysis.further import DiagnosisRun
 from dynid.analysis.run import (  # noqa: F401 - REPORT_PARTS: public here since 0.1
     REPORT_GAIN_UPDATE,
     REPORT_PARTS,
-    DiagnosisRun,
     Identification,
     Settings,
 )
@@ -43,7 +44,7 @@ from dynid.reports.progress import Reporter
 from dynid.reports.projection_section import ml_section, projection_section
 from dynid.reports.urdf_export import export_urdf, mjcf_of
 
-check_parts = steps.check_parts
+check_parts = further.check_parts
 
 
 # ---------------------------------------------------------------- dynid identify
@@ -176,8 +177,8 @@ def sample_outputs(post, result, robot, experiment, verdict, settings: Settings)
 
 
 def diagnose_run(data, robot, settings=None, *, say=None, **options) -> DiagnosisRun:
-    """`dynid diagnose` as a function (dynid.analysis.run.diagnosis_run), messages on `say`."""
-    return steps.diagnosis_run(data, robot, settings, say=say or Reporter(), **options)
+    """`dynid diagnose` as a function (dynid.analysis.further.diagnosis_run), messages on `say`."""
+    return further.diagnosis_run(data, robot, settings, say=say or Reporter(), **options)
 
 
 def diagnosis_outputs(run: DiagnosisRun, settings: Settings | None = None) -> list:
@@ -255,7 +256,7 @@ class FullReport:
     def verdict(self):
         """The Verdict of this report (dynid.analysis.statistics.verdict.Verdict)."""
         if self._verdict is None:        # a FullReport built by hand
-            self._verdict = steps.report_verdict(self.result, self.validation, self.robot, self.diagnosis)
+            self._verdict = further.report_verdict(self.result, self.validation, self.robot, self.diagnosis)
         return self._verdict
 
     @property
@@ -289,7 +290,7 @@ class FullReport:
 
 def _full_report(result, robot, experiments, validation, held_out, settings: Settings, say) -> FullReport:
     """Steps 8-10 after IDIM, the verdict, and the report's sections."""
-    more = steps.further_analyses(experiments, robot, result, held_out, settings, say)
+    more = further.further_analyses(experiments, robot, result, held_out, settings, say)
     sections = []
     if more.didim is not None:
         sections += didim_sections(more.didim)
@@ -300,7 +301,7 @@ def _full_report(result, robot, experiments, validation, held_out, settings: Set
     return FullReport(result=result, robot=robot, experiments=experiments, validation=validation,
                       didim=more.didim, posterior=more.posterior, diagnosis=more.diagnosis, sections=sections,
                       problems=list(more.problems),
-                      _verdict=steps.report_verdict(result, validation, robot, more.diagnosis))
+                      _verdict=further.report_verdict(result, validation, robot, more.diagnosis))
 
 
 def _report_settings(settings, options) -> Settings:
@@ -316,7 +317,7 @@ def _report_settings(settings, options) -> Settings:
         options.setdefault("max_iter", 15)
         options.setdefault("max_seconds", 300.0)
     s = steps.settings_from(settings, **options)
-    steps.check_report(s)
+    further.check_report(s)
     return s
 
 
