@@ -50,6 +50,7 @@ from dynid.analysis.statistics.verdict import verdict
 from dynid.dynamics.robot import Robot
 from dynid.dynamics.robot_file import load_robot
 from dynid.errors import DataError, InputError
+from dynid.outputs import atomic_write_text
 from dynid.provenance import dumps_json
 
 METHODS = ("idim", "didim", "projection", "ml")
@@ -618,7 +619,6 @@ class Identification:
         """The JSON text of `to_dict()`; written atomically to `path` when given."""
         text = dumps_json(self.to_dict())
         if path is not None:
-            from dynid.outputs import atomic_write_text
             atomic_write_text(path, text)
         return text
 

@@ -103,7 +103,8 @@ def cmd_sample(args, say):
     robot = _robot(args, settings)
     experiments, _ = steps.load_data(args.data, robot, settings, say)
     with say.progress("regressor and decimation") as bar:
-        result = steps.identify_step(experiments, robot, settings, progress=bar.update)
+        # the unconstrained IDIM: --physical is the posterior's support, not a PC refit
+        result = steps.identify_step(experiments, robot, settings.replace(physical=False), progress=bar.update)
     say(f"sampling the posterior of the {args.which} parameters")
     post = further.posterior_step(result, settings, say, robot=robot)
     verdict = steps.verdict_of(result, robot=robot)
