@@ -33,15 +33,7 @@ from dynid.dynamics.robot_file import load_robot
 from dynid.errors import InputError
 from dynid.outputs import atomic_write_text, write_all
 from dynid.provenance import dumps_json
-from dynid.reports.bayes_section import bayes_sections
-from dynid.reports.bona_section import excitation_section
-from dynid.reports.diagnosis_section import diagnosis_sections
-from dynid.reports.didim_section import didim_sections
-from dynid.reports.friction_section import asymmetric_friction_section
-from dynid.reports.html import Section, para, render_idim_report, render_sections, verdict_block
-from dynid.reports.physical_section import effects_section, physical_section
 from dynid.reports.progress import Reporter
-from dynid.reports.projection_section import ml_section, projection_section
 from dynid.reports.urdf_export import export_urdf, mjcf_of
 
 check_parts = further.check_parts
@@ -91,49 +83,17 @@ def run(data, robot, settings=None, *, say=None, write=True, **options) -> Ident
     return ident
 
 
-def _title(ident: Identification) -> str:
-    name, method = ident.robot.name, ident.method
-    if method == "didim":
-        return f"{'PC-' if ident.result.physical is not None else ''}DIDIM identification of {name}"
-    return {"projection": f"Projection Method identification of {name}",
-            "ml": f"Maximum-likelihood identification of {name}"}[method]
-
-
-def _sections(ident: Identification) -> list:
-    res = ident.result
-    if ident.method == "didim":
-        return didim_sections(res) + ([physical_section(res.physical)] if res.physical is not None else [])
-    if ident.method == "projection":
-        return [projection_section(res)]
-    return [ml_section(res)]
-
-
-def idim_extra_sections(ident: Identification) -> list:
-    """The report sections of the optional parts of an IDIM run."""
-    extra = []
-    if ident.tilt is not None:
-        extra.append(Section("gravity-tilt", "Direction of gravity (base tilt)", para(
-            "The robot file's gravity was rotated by the base tilt estimated on the identification "
-            "data (Gauss-Newton on the two angles with the base parameters profiled out), and "
-            "every result of this report uses the rotated gravity. " + ident.tilt.sentence())))
-    if ident.asymmetric_friction is not None:
-        extra.append(asymmetric_friction_section(ident.asymmetric_friction))
-    if ident.physical is not None:
-        extra.append(physical_section(ident.physical))
-    if ident.effects is not None:
-        extra.append(effects_section(ident.effects))
-    if ident.export is not None:
-        extra.append(ident.export.section())
-    return extra
+def _render():
+    """The HTML renderers (dynid.reports.render), imported when a report is rendered: they load
+    matplotlib and every report section, seconds a run without --report does not need to spend
+    (and an interrupted run then stops in the identification, not inside a plotting import)."""
+    from dynid.reports import render
+    return render
 
 
 def html(ident: Identification) -> str:
     """The HTML report of a run."""
-    if ident.method == "idim":
-        return render_idim_report(ident.result, ident.robot, ident.experiments[0], ident.validation,
-                                  extra_sections=idim_extra_sections(ident), verdict=ident.verdict)
-    return render_sections(_sections(ident), title=_title(ident), highlights=[("verdict", ident.verdict.status)],
-                           verdict=verdict_block(ident.verdict))
+    return _render().identification_html(ident)
 
 
 def parameter_frame(ident: Identification):
@@ -171,8 +131,7 @@ def sample_outputs(post, result, robot, experiment, verdict, settings: Settings)
         out.append((settings.csv, post.samples_frame().to_csv(index=False, lineterminator="\n",
                                                                float_format="%.17g")))
     if settings.report:
-        out.append((settings.report, render_idim_report(result, robot, experiment,
-                                                         extra_sections=bayes_sections(post), verdict=verdict)))
+        out.append((settings.report, _render().sample_html(post, result, robot, experiment, verdict)))
     return out
 
 
@@ -188,9 +147,7 @@ def diagnosis_outputs(run: DiagnosisRun, settings: Settings | None = None) -> li
     if s.json:
         out.append((s.json, dumps_json(run.to_dict())))
     if s.report:
-        out.append((s.report, render_idim_report(run.result, run.robot, run.experiment, run.validation,
-                                                  extra_sections=diagnosis_sections(run.diagnosis, run.robot),
-                                                  verdict=run.verdict)))
+        out.append((s.report, _render().diagnosis_html(run)))
     return out
 
 
@@ -229,8 +186,7 @@ def excitation_outputs(res, robot, fs, periods, *, out=None, json=None, report=N
         doc["csv"] = {"fs": fs, "periods": periods} if out else None
         outputs.append((json, dumps_json(doc)))
     if report:
-        outputs.append((report, render_sections([excitation_section(res, robot)],
-                                                title=f"Excitation design for {robot.name}")))
+        outputs.append((report, _render().excitation_html(res, robot)))
     return outputs
 
 
@@ -261,8 +217,8 @@ class FullReport:
 
     @property
     def html(self) -> str:
-        return render_idim_report(self.result, self.robot, self.experiments[0], self.validation,
-                                  extra_sections=self.sections, verdict=self.verdict)
+        return _render().render_idim_report(self.result, self.robot, self.experiments[0], self.validation,
+                                            extra_sections=self.sections, verdict=self.verdict)
 
     def to_dict(self) -> dict:
         doc = self.result.to_dict()
@@ -291,13 +247,7 @@ class FullReport:
 def _full_report(result, robot, experiments, validation, held_out, settings: Settings, say) -> FullReport:
     """Steps 8-10 after IDIM, the verdict, and the report's sections."""
     more = further.further_analyses(experiments, robot, result, held_out, settings, say)
-    sections = []
-    if more.didim is not None:
-        sections += didim_sections(more.didim)
-    if more.posterior is not None:
-        sections += bayes_sections(more.posterior)
-    if more.diagnosis is not None:
-        sections += diagnosis_sections(more.diagnosis, robot)
+    sections = _render().full_report_sections(more, robot)
     return FullReport(result=result, robot=robot, experiments=experiments, validation=validation,
                       didim=more.didim, posterior=more.posterior, diagnosis=more.diagnosis, sections=sections,
                       problems=list(more.problems),
