@@ -229,7 +229,9 @@ def test_fleet(tmp_path):
                  "--json", str(js), "--quiet"]) == 0
     dynid.fleet.run(str(cat), tmp_path / "api", workers=1, n_baseline=2, json=tmp_path / "api.json")
     cli, api = (_clean(json.loads(p.read_text())) for p in (js, tmp_path / "api.json"))
-    assert cli.get("alarms") == api.get("alarms")
+    assert cli["robots"] and cli["robots"] == api["robots"]     # per robot: parameters, alarms
+    assert {k: v for k, v in cli.items() if k not in ("store", "robots")} == \
+        {k: v for k, v in api.items() if k not in ("store", "robots")}
 
 
 def test_renamed_keywords_still_work_with_a_warning(recording):
