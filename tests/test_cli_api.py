@@ -223,11 +223,11 @@ def test_demo(tmp_path):
 def test_fleet(tmp_path):
     pytest.importorskip("distributed")
     import dynid.fleet
-    cat = dynid.fleet.simulate_fleet(tmp_path / "fleet", 2, 4, seed=5, n_corrupted=0).catalogue
+    cat = dynid.fleet.simulate_fleet(tmp_path / "fleet", 2, 5, seed=5, n_corrupted=0).catalogue
     js = tmp_path / "fleet.json"
-    assert main(["fleet", str(cat), "--out", str(tmp_path / "cli"), "--workers", "1", "--baseline", "2",
+    assert main(["fleet", str(cat), "--out", str(tmp_path / "cli"), "--workers", "1", "--baseline", "3",
                  "--json", str(js), "--quiet"]) == 0
-    dynid.fleet.run(str(cat), tmp_path / "api", workers=1, n_baseline=2, json=tmp_path / "api.json")
+    dynid.fleet.run(str(cat), tmp_path / "api", workers=1, n_baseline=3, json=tmp_path / "api.json")
     cli, api = (_clean(json.loads(p.read_text())) for p in (js, tmp_path / "api.json"))
     assert cli["robots"] and cli["robots"] == api["robots"]     # per robot: parameters, alarms
     assert {k: v for k, v in cli.items() if k not in ("store", "robots")} == \
