@@ -22,169 +22,105 @@ Every method returns a result with the interface of
 """
 from __future__ import annotations
 
-import os
-
+from dynid.analysis.run import (  # noqa: F401 - as_robot, as_experiments, METHODS: public here since 0.1
+    METHODS,
+    ML_MAX_VALUES,
+    Settings,
+    as_experiments,
+    as_robot,
+    identify_step,
+    settings_from,
+)
 from dynid.errors import InputError
-
-METHODS = ("idim", "didim", "projection", "ml")
-
-#: maximum likelihood keeps every sample: beyond this many values (samples x joints) it is refused
-ML_MAX_VALUES = 200_000
-
-
-def as_robot(robot):
-    """A :class:`Robot` from a Robot, a bundled name or a robot file path."""
-    from dynid.dynamics.robot import Robot
-    from dynid.dynamics.robot_file import load_robot
-    return robot if isinstance(robot, Robot) else load_robot(robot)
-
-
-def as_experiments(data, robot) -> list:
-    """A list of Experiments from one or several paths or Experiments."""
-    from dynid.analysis.data.experiment import Experiment, load_experiment
-    items = list(data) if isinstance(data, (list, tuple)) else [data]
-    if not items:
-        raise InputError("no recording given: pass a data file or an Experiment")
-    out = []
-    for item in items:
-        if isinstance(item, Experiment):
-            out.append(item)
-        elif isinstance(item, (str, os.PathLike)):
-            out.append(load_experiment(item, robot))
-        else:
-            raise InputError(f"a recording must be a data file path or an Experiment, not {type(item).__name__}")
-    return out
 
 
 def identify(data, robot, method: str = "idim", *, settings=None, max_error_growth: float = 0.02,
              f0: float | None = None, ml_harmonics: int | None = None, reference: str | None = None,
-             max_iter: int | None = None, update_gains=True, gains: str = "assumed", progress=None,
+             max_iter: int | None = None, gain_update: str | None = None, gains: str = "assumed", progress=None,
              physical: bool = False, prior: str | None = None, prior_weight: float = 1.0,
-             mass_tolerance: float | None = None, n_boot: int = 100, physical_set: str = "base"):
-    """Identify the dynamic parameters of ``robot`` from ``data`` with ``method``.
+             mass_tolerance: float | None = None, bootstrap: int | None = None, physical_set: str = "base",
+             **options):
+    """Identify the dynamic parameters of `robot` from `data` with `method`.
+
+    Step 3 of the orchestrator (dynid.analysis.run.identify_step); `dynid.run` runs the
+    whole of `dynid identify` (hold-out, tilt, effects, verdict ...).
 
     Parameters
     ----------
     data : path, Experiment, or a list of them
         The identification recording(s). IDIM stacks several recordings; the
         other methods take one.
-    robot : Robot, bundled name (``"tx40"``) or path to a ``.toml`` / ``.urdf``
-    method : ``"idim"`` (default), ``"didim"``, ``"projection"`` or ``"ml"``
-    settings : dict, optional
-        Processing overrides (``fc_position``, ``nd``, ``decimation_cutoff``,
-        ``qd_threshold``); the defaults come from the data.
+    robot : Robot, bundled name ('tx40') or path to a .toml / .urdf
+    method : 'idim' (default), 'didim', 'projection' or 'ml'
+    settings : dict or Settings, optional
+        Processing overrides by the observation's names (fc_position, nd,
+        f_decimation_cutoff, qd_threshold), or a dynid.analysis.run.Settings; the
+        defaults come from the data. The keywords fc, nd, decimation_cutoff,
+        qd_threshold and v_s (the command line's names) do the same.
     max_error_growth : float
         Essential-parameter rule: stop removing parameters before the relative
         error grows by more than this fraction (IDIM, DIDIM).
     f0, ml_harmonics : ML only: fundamental frequency (Hz) of the periodic
         excitation and the number of harmonics of the latent trajectory.
-    reference : DIDIM only: ``"qr"`` (the logged reference, default when logged) or ``"q"``.
-    max_iter, update_gains : DIDIM only (eq. (27) gain update: True, ``"initial"`` or False).
-    gains : DIDIM only. ``"assumed"``: the controller gains of the robot file, as the
-        paper does. ``"identify"``: the gains are identified from the logged reference,
-        position and torque first (:func:`~dynid.analysis.estimators.controller_gains.identify_gains`),
+    reference : DIDIM only: 'qr' (the logged reference, default when logged) or 'q'.
+    max_iter : DIDIM only: the most Gauss-Newton steps.
+    gain_update : DIDIM only: the eq. (27) gain update 'every' step (default), 'initial'
+        (the first simulation only) or 'none'. The old keyword update_gains (True,
+        'initial', False) still works, with a DeprecationWarning.
+    gains : DIDIM only. 'assumed': the controller gains of the robot file, as the
+        paper does. 'identify': the gains are identified from the logged reference,
+        position and torque first (dynid.analysis.estimators.controller_gains.identify_gains),
         DIDIM simulates with them and no gain update (they are the real loop's); the
-        result's ``gains`` holds them with their %σ. Without a logged reference the
-        gains cannot be identified: the result says what its parameters depend on.
+        result's gains holds them with their %sigma. Without a logged reference the
+        gains cannot be identified. Either way the result's notices say which gains
+        DIDIM simulated with.
     progress : callable(fraction), optional
     physical : IDIM: return the physically consistent WLS (PC-WLS) instead. DIDIM: PC-DIDIM,
-        each Gauss-Newton step's WLS refitted under physical consistency (``result.physical``
-        is the last step's PC fit; ``prior``, ``prior_weight`` and ``mass_tolerance`` apply to
-        every step, ``n_boot`` to the last one).
-    prior, prior_weight : physical only: ``"apriori"`` adds ``prior_weight`` times the
-        squared scaled distance to the robot file's a-priori values, ``"geometric"`` the
+        each Gauss-Newton step's WLS refitted under physical consistency (result.physical
+        is the last step's PC fit; prior, prior_weight and mass_tolerance apply to
+        every step, bootstrap to the last one).
+    prior, prior_weight : physical only: 'apriori' adds prior_weight times the
+        squared scaled distance to the robot file's a-priori values, 'geometric' the
         entropic divergence of each link's pseudo-inertia from its a-priori one (Lee, Wensing
-        & Park 2020; :func:`~dynid.analysis.estimators.physical.pc_wls`) (default: none,
+        & Park 2020; dynid.analysis.estimators.physical.pc_wls) (default: none,
         the a-priori values only break ties).
     mass_tolerance : physical only: keep each link mass within this fraction of its
         a-priori value.
-    n_boot : physical only: parametric-bootstrap refits for the uncertainty.
-    physical_set : IDIM physical only: ``"base"`` (the WLS of all base parameters, default) or
-        ``"essential"`` (the essential WLS) is constrained.
+    bootstrap : physical only: parametric-bootstrap refits for the uncertainty (the old
+        keyword n_boot still works, with a DeprecationWarning).
+    physical_set : IDIM physical only: 'base' (the WLS of all base parameters, default) or
+        'essential' (the essential WLS) is constrained.
+    **options
+        fc, nd, decimation_cutoff, qd_threshold, v_s (processing, as on the command line).
+
+    Returns
+    -------
+    ParameterResults
+        IDIMResult, DIDIMResult, ProjectionResult, the ML result or (physical) PhysicalResult.
+
+    Raises
+    ------
+    InputError
+        A bad option, or a method that does not apply (DIDIM without a controller ...).
     """
+    allowed = {"fc", "nd", "decimation_cutoff", "qd_threshold", "v_s", "update_gains", "n_boot"}
+    unknown = sorted(set(options) - allowed)
+    if unknown:
+        raise TypeError(f"identify() got an unexpected keyword argument {unknown[0]!r}")
     if method not in METHODS:
         raise InputError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
+    given = dict(method=method, max_error_growth=max_error_growth, f0=f0, ml_harmonics=ml_harmonics,
+                 reference=reference, max_iter=max_iter, gain_update=gain_update, gains=gains,
+                 physical=physical, prior=prior, prior_weight=prior_weight, mass_tolerance=mass_tolerance,
+                 bootstrap=bootstrap, physical_set=physical_set)
+    # None: not given (the Settings default, or a deprecated keyword's value); with a Settings,
+    # only the keywords that differ from identify's defaults change it
+    given = {k: v for k, v in given.items() if v is not None and not (
+        isinstance(settings, Settings) and v == _DEFAULTS.get(k))}
+    s = settings_from(settings, **given, **options)
     robot = as_robot(robot)
-    experiments = as_experiments(data, robot)
-    if method != "idim" and len(experiments) > 1:
-        raise InputError(f"method {method} identifies one recording at a time; "
-                         f"{len(experiments)} were given")
-    if physical and method not in ("idim", "didim"):
-        raise InputError(f"physical=True works with methods idim and didim only, not {method!r}")
-    if not physical and (prior is not None or mass_tolerance is not None):
-        raise InputError("prior and mass_tolerance are options of the physically consistent fit: "
-                         "pass physical=True (--physical)")
-    if method == "idim":
-        from dynid.analysis.estimators.idim import identify_idim
-        if physical:
-            from dynid.analysis.estimators.physical import require_cvxpy
-            require_cvxpy()          # before the identification, not after it
-        ident = experiments if len(experiments) > 1 else experiments[0]
-        res = identify_idim(ident, robot, settings=settings, max_error_growth=max_error_growth,
-                            progress=progress)
-        if not physical:
-            return res
-        from dynid.analysis.estimators.physical import identify_physical
-        return identify_physical(res, robot, prior=prior, prior_weight=prior_weight,
-                                 mass_tolerance=mass_tolerance, n_boot=n_boot, which=physical_set)
-    exp = experiments[0]
-    if method == "didim":
-        from dynid.analysis.estimators.didim import DEFAULT_MAX_ITER, identify_didim
-        if robot.controller is None:
-            raise InputError(f"DIDIM simulates the robot under its controller, but '{robot.name}' "
-                             f"({robot.source}) has no [controller] table: add one to the robot file")
-        if gains not in ("assumed", "identify"):
-            raise InputError(f"gains must be 'assumed' or 'identify', got {gains!r} (--gains)")
-        ref = reference or ("qr" if exp.qr is not None else "q")
-        identified, controller = None, None
-        if gains == "identify":
-            from dynid.analysis.estimators.controller_gains import identify_gains
-            if exp.qr is None:
-                raise InputError(f"{exp.source}: the controller gains cannot be identified without the "
-                                 "logged reference (columns qr1..qrn); use the gains of the robot file "
-                                 "(--gains assumed) and read the DIDIM result as depending on them")
-            identified = identify_gains(exp, robot)
-            controller = identified.controller(robot)
-            update_gains = False
-            # With the real loop's gains, the paper's rough start (Ia = 1 ...) drives the simulated
-            # robot into saturation on the first step; IDIM's estimate is a start in the right basin.
-            from dynid.analysis.estimators.idim import identify_idim
-            from dynid.analysis.processing.observation import SETTINGS_HELP
-            # the start gets the settings IDIM shares with DIDIM (not v_s, substeps, transient ...)
-            shared = None if settings is None else {k: v for k, v in settings.items() if k in SETTINGS_HELP}
-            start = identify_idim(exp, robot, settings=shared, max_error_growth=max_error_growth)
-            chi0 = dict(zip(start.base.names, start.wls.chi))
-        else:
-            chi0 = None
-        if physical:
-            from dynid.analysis.estimators.physical import require_cvxpy
-            require_cvxpy()
-        res = identify_didim(exp, robot, settings=settings, reference=ref, controller=controller, chi0=chi0,
-                             max_iter=DEFAULT_MAX_ITER if max_iter is None else max_iter,
-                             max_error_growth=max_error_growth, update_gains=update_gains,
-                             progress=progress, physical=physical, prior=prior, prior_weight=prior_weight,
-                             mass_tolerance=mass_tolerance, n_boot=n_boot)
-        res.gains = identified
-        if identified is not None:
-            res.notices.append("controller gains identified from the logged reference, position and "
-                               "torque (" + ", ".join(f"{n} {v:.4g}" for n, v in zip(identified.names,
-                                                                                  identified.chi)) + ")")
-        else:
-            what = ("the logged reference" if exp.qr is not None else
-                    "the measured position used as the reference (no reference logged)")
-            res.notices.append(f"DIDIM simulated the loop with the controller gains assumed in the robot "
-                               f"file ({robot.source}) tracking {what}: its parameters depend on those gains"
-                               + ("" if exp.qr is None else "; --gains identify estimates them from the data"))
-        return res
-    if method == "projection":
-        from dynid.analysis.estimators.projection import identify_projection
-        return identify_projection(exp, robot, settings=settings)
-    from dynid.analysis.estimators.maximum_likelihood import maximum_likelihood, robot_model
-    if f0 is None:
-        raise InputError("method ml needs f0, the fundamental frequency (Hz) of the periodic excitation "
-                         "(--f0 on the command line)")
-    if exp.n_samples * robot.n_joints > ML_MAX_VALUES:
-        raise InputError(f"{exp.source}: {exp.n_samples} samples x {robot.n_joints} joints; maximum "
-                         f"likelihood keeps every sample and is limited to {ML_MAX_VALUES:,} values: "
-                         "resample or cut the recording (a TOML experiment file), or use IDIM")
-    return maximum_likelihood(exp.t, exp.q, exp.tau, robot_model(robot), f0=f0, n_harmonics=ml_harmonics)
+    return identify_step(as_experiments(data, robot), robot, s, progress=progress)
+
+
+_DEFAULTS = {"method": "idim", "max_error_growth": 0.02, "gains": "assumed", "physical": False,
+             "prior_weight": 1.0, "physical_set": "base"}

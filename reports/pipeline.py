@@ -1,29 +1,200 @@
-"""The full pipeline behind ``dynid report`` and ``dynid demo``: everything in one report.
+"""The reports layer of a run: the steps of dynid.analysis.run, then the exports.
 
-IDIM (Gautier, Janot & Vandanjon 2010, section 2) on the identification data,
-validation on held-out data, then DIDIM (section 3), the Bayesian posterior of
-the essential parameters and the residual diagnosis, rendered as one
-self-contained HTML report with the matching JSON document.
+`run` is `dynid identify` as a function (`dynid.run`): the orchestrator's steps 1-7
+(dynid.analysis.run.run), the URDF/MJCF export, and the outputs (JSON, CSV, URDF,
+MJCF, HTML) rendered in memory by `outputs` and written all or none.
+
+`report` and `demo` are `dynid report` and `dynid demo`: IDIM (Gautier, Janot &
+Vandanjon 2010, section 2) on the identification data, validation on held-out data,
+then DIDIM (section 3), the Bayesian posterior of the essential parameters and the
+residual diagnosis (the orchestrator's steps 8-10), rendered as one self-contained
+HTML report with the matching JSON document.
 """
 from __future__ import annotations
 
+import dataclasses
+import numbers
+import warnings
 from dataclasses import dataclass, field
 
+from dynid.analysis import further
+from dynid.analysis import run as steps
+from dynid.analysis.data.synthetic import sample_count
+from dynid.analysis.demo import run_demo
+from dynid.analysis.further import DiagnosisRun
+from dynid.analysis.run import (  # noqa: F401 - REPORT_PARTS: public here since 0.1
+    REPORT_GAIN_UPDATE,
+    REPORT_PARTS,
+    Identification,
+    Settings,
+)
+from dynid.analysis.statistics.validation import validate
+from dynid.dynamics.robot_file import load_robot
 from dynid.errors import InputError
+from dynid.outputs import atomic_write_text, write_all
+from dynid.provenance import dumps_json
 from dynid.reports.progress import Reporter
+from dynid.reports.urdf_export import export_urdf, mjcf_of
 
-#: the analyses after IDIM that a full report runs (each can be skipped)
-REPORT_PARTS = ("didim", "sample", "diagnose")
+check_parts = further.check_parts
 
-#: DIDIM's gain update in reports: the paper's update at every step oscillated on
-#: the demo data (25 steps, Ia6 +590 %) where updating only the first simulation
-#: converged in 8 (all parameters within 1.5 %).
-REPORT_GAIN_UPDATE = "initial"
 
+# ---------------------------------------------------------------- dynid identify
+
+def export_step(ident: Identification, say=None) -> Identification:
+    """The URDF/MJCF export of a run (`urdf` or `mjcf` set): a new Identification that carries it."""
+    s = ident.settings
+    if not (s.urdf or s.mjcf):
+        return ident
+    say = say or Reporter()
+    say("choosing a physically consistent standard parameter set for the URDF/MJCF")
+    export = export_urdf(ident.result, ident.robot, physical=ident.physical, effects=ident.effects)
+    say(f"URDF: {'consistent' if export.consistent else 'NOT consistent'}; "
+        f"{'reproduces the identified values' if export.reproduces else 'does not reproduce the identified values (details in --report / --json)'}")
+    if export.springs:
+        say("MJCF: with the springs of --effects as joint stiffness: "
+            + ", ".join(f"Ks{j} = {k:.4g}" for j, k in export.springs.items()))
+    return dataclasses.replace(ident, export=export)
+
+
+def run(data, robot, settings=None, *, say=None, write=True, **options) -> Identification:
+    """`dynid identify` as a function: identify, validate, verdict, the optional parts, exports.
+
+    Parameters
+    ----------
+    data : path, Experiment, or a list of them
+    robot : Robot, bundled name or robot file
+    settings : dynid.analysis.run.Settings or a dict of processing overrides, optional
+    say : dynid.reports.progress.Reporter, optional (quiet by default)
+    write : write the outputs named by `json`, `report`, `csv`, `urdf`, `mjcf` (all or none)
+    **options
+        The options of `dynid identify`, by their names (`holdout=3`, `method="didim"`,
+        `gravity_tilt=True`, `physical=True`, `effects="spring:all"`, `urdf="arm.urdf"` ...).
+
+    Returns
+    -------
+    Identification
+        `to_dict()` is the JSON that `dynid identify --json` writes; `verdict` its verdict.
+    """
+    say = say or Reporter()
+    ident = export_step(steps.run(data, robot, settings, say=say, **options), say)
+    if write:
+        write_all(outputs(ident), say)
+    return ident
+
+
+def _render():
+    """The HTML renderers (dynid.reports.render), imported when a report is rendered: they load
+    matplotlib and every report section, seconds a run without --report does not need to spend
+    (and an interrupted run then stops in the identification, not inside a plotting import)."""
+    from dynid.reports import render
+    return render
+
+
+def html(ident: Identification) -> str:
+    """The HTML report of a run."""
+    return _render().identification_html(ident)
+
+
+def parameter_frame(ident: Identification):
+    """The essential (IDIM, DIDIM) or estimated parameters as a table: what --csv writes."""
+    return ident.result.model.to_frame() if ident.method in ("idim", "didim") else ident.result.to_frame()
+
+
+def outputs(ident: Identification) -> list:
+    """`(path, text)` of every output the settings name, rendered in memory (nothing written)."""
+    s, out = ident.settings, []
+    if s.json:
+        out.append((s.json, dumps_json(ident.to_dict())))
+    if ident.export is not None and s.urdf:
+        out.append((s.urdf, ident.export.text))
+    if ident.export is not None and s.mjcf:
+        out.append((s.mjcf, mjcf_of(ident.export, ident.robot)))
+    if s.csv:
+        out.append((s.csv, parameter_frame(ident).to_csv()))
+    if s.report:
+        out.append((s.report, html(ident)))
+    return out
+
+
+# ---------------------------------------------------------------- sample, diagnose, excite
+
+def sample_outputs(post, result, robot, experiment, verdict, settings: Settings) -> list:
+    """`(path, text)` of the outputs of `dynid sample`: JSON (the posterior and the verdict of the
+    identification it samples), the samples as CSV, the HTML report."""
+    out = []
+    if settings.json:
+        doc = post.to_dict()
+        doc["verdict"] = verdict.to_dict()
+        out.append((settings.json, dumps_json(doc)))
+    if settings.csv:
+        out.append((settings.csv, post.samples_frame().to_csv(index=False, lineterminator="\n",
+                                                               float_format="%.17g")))
+    if settings.report:
+        out.append((settings.report, _render().sample_html(post, result, robot, experiment, verdict)))
+    return out
+
+
+def diagnose_run(data, robot, settings=None, *, say=None, **options) -> DiagnosisRun:
+    """`dynid diagnose` as a function (dynid.analysis.further.diagnosis_run), messages on `say`."""
+    return further.diagnosis_run(data, robot, settings, say=say or Reporter(), **options)
+
+
+def diagnosis_outputs(run: DiagnosisRun, settings: Settings | None = None) -> list:
+    """`(path, text)` of the JSON and the HTML report of `dynid diagnose`."""
+    s = settings or run_settings(run)
+    out = []
+    if s.json:
+        out.append((s.json, dumps_json(run.to_dict())))
+    if s.report:
+        out.append((s.report, _render().diagnosis_html(run)))
+    return out
+
+
+def run_settings(run) -> Settings:
+    return getattr(run, "settings", None) or Settings()
+
+
+def excitation_rate(robot, f0, harmonics, fs=None, periods=1) -> float:
+    """The sampling rate of an excitation's CSV (default: the controller's, else 1000 Hz), checked."""
+    if periods < 1:
+        raise InputError(f"--periods must be at least 1, got {periods}")
+    fs = fs if fs is not None else (robot.controller.rate if robot.controller else 1000.0)
+    if not fs > 0:
+        raise InputError(f"--fs must be a positive sampling rate in Hz, got {fs:g}")
+    if f0 > 0 and harmonics >= 1:
+        top = f0 * harmonics
+        if fs < 10 * top:
+            raise InputError(f"--fs {fs:g} Hz is too low for the highest harmonic ({top:g} Hz): a "
+                             f"controller reference needs at least 10 samples per period of it "
+                             f"(--fs {10 * top:g} or more)")
+        rows = fs * periods / f0
+        if rows > 50_000_000:
+            raise InputError(f"--fs {fs:g} Hz x --periods {periods} would write {rows:.3g} rows; "
+                             "lower one of them (at most 50 million rows)")
+    return fs
+
+
+def excitation_outputs(res, robot, fs, periods, *, out=None, json=None, report=None) -> list:
+    """`(path, text)` of the trajectory CSV, the JSON and the HTML report of `dynid excite`."""
+    outputs = []
+    if out:
+        outputs.append((out, res.to_frame(fs, periods).to_csv(index=False, lineterminator="\n",
+                                                              float_format="%.17g")))
+    if json:
+        doc = res.to_dict()
+        doc["csv"] = {"fs": fs, "periods": periods} if out else None
+        outputs.append((json, dumps_json(doc)))
+    if report:
+        outputs.append((report, _render().excitation_html(res, robot)))
+    return outputs
+
+
+# ---------------------------------------------------------------- dynid report, dynid demo
 
 @dataclass(eq=False)
 class FullReport:
-    """What :func:`report` produced: the results, the HTML and the JSON document."""
+    """What `report` produced: the results, the HTML and the JSON document."""
 
     result: object                       # IDIMResult
     robot: object
@@ -39,21 +210,15 @@ class FullReport:
 
     @property
     def verdict(self):
-        """The :class:`dynid.analysis.statistics.verdict.Verdict` of this report (computed once)."""
-        if self._verdict is None:
-            from dynid.analysis.statistics.verdict import verdict
-            residuals = None
-            if self.diagnosis is not None:
-                residuals = (getattr(self.diagnosis, "residuals", None) or {}).get("identification_before")
-            self._verdict = verdict(self.result, self.validation, robot=self.robot,
-                                    diagnosis=self.diagnosis, residuals=residuals)
+        """The Verdict of this report (dynid.analysis.statistics.verdict.Verdict)."""
+        if self._verdict is None:        # a FullReport built by hand
+            self._verdict = further.report_verdict(self.result, self.validation, self.robot, self.diagnosis)
         return self._verdict
 
     @property
     def html(self) -> str:
-        from dynid.reports.html import render_idim_report
-        return render_idim_report(self.result, self.robot, self.experiments[0], self.validation,
-                                  extra_sections=self.sections, verdict=self.verdict)
+        return _render().render_idim_report(self.result, self.robot, self.experiments[0], self.validation,
+                                            extra_sections=self.sections, verdict=self.verdict)
 
     def to_dict(self) -> dict:
         doc = self.result.to_dict()
@@ -75,129 +240,65 @@ class FullReport:
         return self.summary()
 
     def write(self, path) -> None:
-        """Write the HTML report to ``path`` atomically."""
-        from dynid.outputs import atomic_write_text
+        """Write the HTML report to `path` atomically."""
         atomic_write_text(path, self.html)
 
 
-def check_parts(skip) -> set:
-    """The set of parts to skip, checked against :data:`REPORT_PARTS`."""
-    skip = {x.strip() for x in (skip or ()) if x.strip()}
-    unknown = skip - set(REPORT_PARTS)
-    if unknown:
-        raise InputError(f"skip takes {', '.join(REPORT_PARTS)}; unknown: {', '.join(sorted(unknown))} "
-                         "(--skip on the command line)")
-    return skip
+def _full_report(result, robot, experiments, validation, held_out, settings: Settings, say) -> FullReport:
+    """Steps 8-10 after IDIM, the verdict, and the report's sections."""
+    more = further.further_analyses(experiments, robot, result, held_out, settings, say)
+    sections = _render().full_report_sections(more, robot)
+    return FullReport(result=result, robot=robot, experiments=experiments, validation=validation,
+                      didim=more.didim, posterior=more.posterior, diagnosis=more.diagnosis, sections=sections,
+                      problems=list(more.problems),
+                      _verdict=further.report_verdict(result, validation, robot, more.diagnosis))
 
 
-def run_diagnosis(experiment, robot, validation, idim_result, *, settings=None, effects=None,
-                  max_effects=3, alpha=0.01, no_offsets=False, max_error_growth=0.02, say=None):
-    """The residual diagnosis of an IDIM result, with the command line's options."""
-    from dynid.analysis.diagnosis.selection import diagnose
-    say = say or Reporter()
-    with say.progress("diagnosis (selection steps)") as bar:
-        kwargs = dict(validation=validation, effects=effects, max_effects=max_effects, alpha=alpha,
-                      progress=bar.update)
-        if no_offsets:
-            return diagnose(experiment, robot, settings=settings, exclude_parameters=("Off",),
-                            max_error_growth=max_error_growth, **kwargs)
-        return diagnose(experiment, robot, idim_result=idim_result, **kwargs)
+def _report_settings(settings, options) -> Settings:
+    """`dynid report`'s settings: its defaults (DIDIM gain update 'initial', 15 steps), the
+    old keyword `diagnosis_options` (a dict of effects, max_effects, alpha, no_offsets) accepted."""
+    old = options.pop("diagnosis_options", None)
+    if old:
+        warnings.warn("report(diagnosis_options={...}) is now report(effects=..., max_effects=..., alpha=..., "
+                      "no_offsets=...); diagnosis_options= will be removed", DeprecationWarning, stacklevel=3)
+        options.update({k: v for k, v in old.items() if v is not None})
+    if not isinstance(settings, Settings):       # a Settings (the command line's) carries its own
+        options.setdefault("gain_update", REPORT_GAIN_UPDATE)
+        options.setdefault("max_iter", 15)
+        options.setdefault("max_seconds", 300.0)
+    s = steps.settings_from(settings, **options)
+    further.check_report(s)
+    return s
 
 
-def further_analyses(out: FullReport, valid, *, skip=(), settings=None, seed=1, max_seconds=300.0,
-                     gain_update=REPORT_GAIN_UPDATE, max_iter=15, max_error_growth=0.02,
-                     diagnosis_options=None, say=None) -> FullReport:
-    """DIDIM, posterior and diagnosis after the IDIM result of ``out`` (in place).
-
-    A part that does not apply (no controller, several recordings) is skipped
-    with a notice; one that does not converge is listed in ``out.problems``.
-    """
-    from dynid.reports.bayes_section import bayes_sections
-    from dynid.reports.diagnosis_section import diagnosis_sections
-    from dynid.reports.didim_section import didim_sections
-    say = say or Reporter()
-    robot, experiments, result = out.robot, out.experiments, out.result
-    if "didim" not in skip:
-        if robot.controller is None:
-            say(f"DIDIM skipped: robot '{robot.name}' has no [controller] to simulate")
-        elif len(experiments) > 1:
-            say("DIDIM skipped: it identifies one recording at a time")
-        else:
-            from dynid.analysis.estimators.didim import identify_didim
-            exp = experiments[0]
-            update = {"every": True, "initial": "initial", "none": False}.get(gain_update, gain_update)
-            with say.progress("DIDIM iterations") as bar:
-                out.didim = identify_didim(exp, robot, settings=settings,
-                                           reference="qr" if exp.qr is not None else "q",
-                                           max_iter=max_iter, update_gains=update,
-                                           max_error_growth=max_error_growth, progress=bar.update)
-            out.sections += didim_sections(out.didim)
-            if not out.didim.converged:
-                out.problems.append(f"DIDIM did not converge ({out.didim.stop_reason})")
-    if "sample" not in skip:
-        from dynid.analysis.sampling.posterior import sample_idim
-        with say.progress("sampling (steps / steps needed)") as bar:
-            out.posterior = sample_idim(result, which="essential", seed=seed, max_seconds=max_seconds,
-                                        progress=lambda n, need: bar.update(n / max(need, 1)))
-        out.sections += bayes_sections(out.posterior)
-        if not out.posterior.converged:
-            out.problems.append(f"the sampler did not converge ({out.posterior.reason})")
-    if "diagnose" not in skip:
-        if len(experiments) > 1:
-            say("diagnosis skipped: it works on one recording at a time")
-        else:
-            say("diagnosis: scoring candidate effects")
-            out.diagnosis = run_diagnosis(experiments[0], robot, valid, result, settings=settings,
-                                          max_error_growth=max_error_growth, say=say,
-                                          **(diagnosis_options or {}))
-            out.sections += diagnosis_sections(out.diagnosis, robot)
-    return out
-
-
-def report(data, robot, path=None, *, holdout=None, validation=None, skip=(), settings=None, seed=1,
-           max_seconds=300.0, max_error_growth=0.02, gain_update=REPORT_GAIN_UPDATE, max_iter=15,
-           diagnosis_options=None, say=None) -> FullReport:
-    """IDIM, validation, DIDIM, posterior and diagnosis of ``data`` in one report.
+def report(data, robot, path=None, *, settings=None, say=None, **options) -> FullReport:
+    """IDIM, validation, DIDIM, posterior and diagnosis of `data` in one report.
 
     Parameters
     ----------
     data : path, Experiment or a list of them (identification recordings)
     robot : Robot, bundled name or robot file
-    path : where to write the HTML report (optional; :attr:`FullReport.html` has it)
-    holdout : seconds at the end of a single recording held out for validation
-    validation : a held-out recording (path or Experiment), instead of ``holdout``
-    skip : parts of :data:`REPORT_PARTS` not to run
+    path : where to write the HTML report (optional; FullReport.html has it)
+    settings : Settings or a dict of processing overrides, optional
+    say : dynid.reports.progress.Reporter, optional (quiet by default)
+    **options
+        The options of `dynid report` by name: holdout (seconds at the end of a single
+        recording held out), validation (a held-out recording, path or Experiment),
+        skip (parts of REPORT_PARTS not to run), seed, max_seconds (default 300),
+        max_error_growth, gain_update (default 'initial'), max_iter (default 15), fc, nd ...
+
+    Returns
+    -------
+    FullReport
     """
-    from dynid.analysis.data.split import holdout_split
-    from dynid.analysis.estimators.idim import identify_idim
-    from dynid.analysis.identify import as_experiments, as_robot
-    from dynid.analysis.statistics.validation import validate
     say = say or Reporter()
-    skip = check_parts(skip)
-    if not max_seconds > 0:
-        raise InputError(f"max_seconds must be positive, got {max_seconds:g} (--max-seconds)")
-    robot = as_robot(robot)
-    experiments = as_experiments(data, robot)
-    valid = None
-    if validation is not None and holdout is not None:
-        raise InputError("give a validation recording or a holdout, not both (--validation, --holdout)")
-    if validation is not None:
-        valid = as_experiments(validation, robot)[0]
-    elif holdout is not None:
-        if len(experiments) > 1:
-            raise InputError("holdout splits one recording; with several, give a validation recording "
-                             "(--validation)")
-        train, valid = holdout_split(experiments[0], holdout)
-        experiments = [train]
-    ident = experiments if len(experiments) > 1 else experiments[0]
+    s = _report_settings(settings, options)
+    robot = steps.as_robot(robot)
+    experiments, held_out = steps.load_data(data, robot, s, say)
     with say.progress("IDIM: regressor and decimation") as bar:
-        result = identify_idim(ident, robot, settings=settings, max_error_growth=max_error_growth,
-                               progress=bar.update)
-    out = FullReport(result=result, robot=robot, experiments=experiments,
-                     validation=validate(result, valid, robot) if valid is not None else None)
-    further_analyses(out, valid, skip=skip, settings=settings, seed=seed, max_seconds=max_seconds,
-                     gain_update=gain_update, max_iter=max_iter, max_error_growth=max_error_growth,
-                     diagnosis_options=diagnosis_options, say=say)
+        result = steps.identify_step(experiments, robot, s.replace(method="idim"), progress=bar.update)
+    validation = validate(result, held_out, robot) if held_out is not None else None
+    out = _full_report(result, robot, experiments, validation, held_out, s, say)
     if path is not None:
         out.write(path)
     return out
@@ -205,25 +306,18 @@ def report(data, robot, path=None, *, holdout=None, validation=None, skip=(), se
 
 def demo(*, seed=1, duration=20.0, skip=(), max_seconds=300.0, path=None, say=None) -> FullReport:
     """The demo: a simulated TX40 (Table 2 of the DIDIM paper) through the whole pipeline."""
-    from dynid.analysis.demo import run_demo
     say = say or Reporter()
-    skip = check_parts(skip)
-    import math
-    if not (isinstance(duration, (int, float)) and math.isfinite(duration) and duration >= 2.0):
+    s = _report_settings(None, dict(seed=seed, skip=skip, max_seconds=max_seconds, duration=duration))
+    if not (isinstance(duration, (int, float)) and duration == duration and abs(duration) != float("inf")
+            and duration >= 2.0):
         raise InputError(f"duration must be a finite number of seconds, at least 2 s, got {duration!r} "
                          f"(--duration)")
-    if not (isinstance(max_seconds, (int, float)) and max_seconds > 0 and not math.isnan(max_seconds)):
-        raise InputError(f"max_seconds must be positive, got {max_seconds!r} (--max-seconds)")
-    import numbers
     if isinstance(seed, numbers.Integral) and seed < 0:
         raise InputError(f"seed must be a non-negative integer, got {seed!r} (--seed)")
-    from dynid.analysis.data.synthetic import sample_count
-    from dynid.dynamics.robot_file import load_robot
     sample_count(duration, float(load_robot("tx40").controller.rate),
                  what="the demo's controller rate (the TX40's)")
-    result, robot, experiment, validation, valid = run_demo(seed=seed, duration=duration, say=say)
-    out = FullReport(result=result, robot=robot, experiments=[experiment], validation=validation)
-    further_analyses(out, valid, skip=skip, seed=seed, max_seconds=max_seconds, say=say)
+    result, robot, experiment, validation, held_out = run_demo(seed=seed, duration=duration, say=say)
+    out = _full_report(result, robot, [experiment], validation, held_out, s, say)
     if path is not None:
         out.write(path)
     return out

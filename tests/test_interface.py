@@ -48,7 +48,7 @@ def _ml(planar2):
 
 def _physical(planar2):
     robot, exp = planar2
-    return dynid.identify(exp, robot, physical=True, n_boot=30)
+    return dynid.identify(exp, robot, physical=True, bootstrap=30)
 
 
 def _posterior(planar2):

@@ -9,6 +9,8 @@ The public API (everything a user needs; the subpackages hold the rest)::
     r = dynid.identify(train, robot)                      # IDIM; or method="didim" | "projection" | "ml"
     print(r.summary()); r.params["ZZ1R"]; r.conf_int()
     v = dynid.validate(r, held_out)
+    print(dynid.verdict(r, held_out))                     # how far to trust it (as the report)
+    run = dynid.run(exp, robot, holdout=3.0, gravity_tilt=True)   # all of `dynid identify`
     dynid.report(exp, robot, "report.html", holdout=3.0)  # IDIM, DIDIM, posterior, diagnosis
 
 Methods follow Gautier, Janot & Vandanjon (2010) and Bona & Curatella (2005).
@@ -47,7 +49,8 @@ _LAZY = {
     "identify": "dynid.analysis.identify", "ParameterResults": "dynid.analysis.results",
     "validate": "dynid.analysis.statistics.validation", "Robot": "dynid.dynamics.robot",
     "load_robot": "dynid.dynamics.robot_file", "FullReport": "dynid.reports.pipeline",
-    "demo": "dynid.reports.pipeline", "report": "dynid.reports.pipeline",
+    "demo": "dynid.reports.pipeline", "report": "dynid.reports.pipeline", "run": "dynid.reports.pipeline",
+    "Settings": "dynid.analysis.run", "Identification": "dynid.analysis.run",
 }
 # subpackage-like modules loaded on first use: `dynid.fleet.run(...)` after a plain `import dynid`
 _LAZY_MODULES = {"fleet": "dynid.fleet"}
@@ -79,18 +82,20 @@ if TYPE_CHECKING:   # static tools (type checkers, the API reference) see the re
     from dynid.analysis.estimators.idim import IDIMResult
     from dynid.analysis.identify import identify
     from dynid.analysis.results import ParameterResults
+    from dynid.analysis.run import Identification, Settings
     from dynid.analysis.sampling.posterior import PosteriorResult
     from dynid.analysis.statistics.validation import validate
+    from dynid.analysis.statistics.verdict import Verdict
     from dynid.dynamics.excitation import ExcitationResult
     from dynid.dynamics.robot import Robot
     from dynid.dynamics.robot_file import load_robot
-    from dynid.reports.pipeline import FullReport, demo, report
+    from dynid.reports.pipeline import FullReport, demo, report, run
 
 __all__ = [
     "__version__",
     "load_robot", "load_experiment", "holdout_split", "identify", "validate", "sample", "diagnose",
-    "simulate", "excite", "report", "demo", "simulate_campaign", "identify_campaign",
-    "Robot", "Experiment", "ParameterResults", "FullReport",
+    "simulate", "excite", "report", "demo", "run", "verdict", "simulate_campaign", "identify_campaign",
+    "Robot", "Experiment", "ParameterResults", "FullReport", "Settings", "Identification",
     "DynidError", "InputError", "DataError", "RobotFileError", "OutputError", "IdentificationError", "ConvergenceError",
 ]
 
@@ -130,3 +135,30 @@ def excite(robot: Robot | str | os.PathLike[str], f0: float, harmonics: int, **k
     from dynid.analysis.identify import as_robot
     from dynid.dynamics.excitation import design_excitation
     return design_excitation(as_robot(robot), f0, harmonics, **kwargs)
+
+
+def verdict(result: Any, held_out: str | os.PathLike[str] | Experiment | None = None, *,
+            robot: Robot | None = None) -> Verdict:
+    """How far to trust `result`: the verdict the report and the command line show.
+
+    Parameters
+    ----------
+    result : any identification result (IDIM, DIDIM, Projection Method, ML, PC-WLS), or what
+        `dynid.run` or `dynid.report` returned (their own verdict is returned as is)
+    held_out : Experiment or path, optional
+        Held-out data: the result is validated on it (`dynid.validate`) and the verdict
+        judges the held-out errors too. A ValidationResult is used as it is.
+    robot : Robot, optional (default: the result's)
+
+    Returns
+    -------
+    Verdict
+        `print()` shows it; `to_dict()` is the "verdict" block of the command's JSON.
+
+    Examples
+    --------
+    >>> train, held_out = dynid.holdout_split(exp, 3.0)        # doctest: +SKIP
+    >>> print(dynid.verdict(dynid.identify(train, robot), held_out))   # doctest: +SKIP
+    """
+    from dynid.analysis.run import verdict_of
+    return verdict_of(result, held_out, robot=robot)

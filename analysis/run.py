@@ -1,0 +1,689 @@
+"""One identification run, step by step: the orchestrator of dynid.
+
+Every entry point runs the same steps in the same order with one settings
+object, `Settings` (one field per command-line option, same name):
+`dynid.identify` (step 3 alone), `dynid.run` and `dynid identify` (steps 1-7),
+`dynid.report`, `dynid.demo`, `dynid report` and `dynid demo` (steps 1-4, 7, then 8-10).
+
+1. `load_data`: the recordings, and the held-out data (a validation recording
+   or the last `holdout` seconds of the one recording).
+2. `tilt_step`: the direction of gravity (base tilt) on the identification data.
+3. `identify_step`: IDIM (Gautier, Janot & Vandanjon 2010, eqs. (9)-(16)), DIDIM
+   (eqs. (25)-(30)), the Projection Method or maximum likelihood (Bona &
+   Curatella 2005, eqs. (10)-(16)).
+4. `validate` on the held-out data.
+5. `asymmetric_step`: friction with a different slope each way (Bona & Curatella eq. (2)).
+6. `physical_step`: the physically consistent WLS, alone or with the effects of `effects`.
+7. `verdict_of`: how far the result can be trusted.
+8-10. DIDIM beside IDIM, the posterior, the diagnosis: the further analyses of a full report
+   and the run of `dynid diagnose` (dynid.analysis.further).
+
+The exports (URDF, MJCF, JSON, CSV, HTML) are rendered by the reports layer
+(dynid.reports.pipeline) from what these steps return. No step changes a
+result after it is returned: a step that adds to one builds a new one.
+"""
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import json
+import os
+import tempfile
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+from dynid.analysis.data.experiment import Experiment, load_experiment
+from dynid.analysis.data.split import holdout_split
+from dynid.analysis.diagnosis.physical_fit import effect_candidates, identify_physical_effects
+from dynid.analysis.estimators.asymmetric_friction import asymmetric_friction
+from dynid.analysis.estimators.controller_gains import identify_gains
+from dynid.analysis.estimators.didim import DEFAULT_MAX_ITER, identify_didim
+from dynid.analysis.estimators.gravity_tilt import gravity_tilt
+from dynid.analysis.estimators.idim import identify_idim
+from dynid.analysis.estimators.maximum_likelihood import maximum_likelihood, robot_model
+from dynid.analysis.estimators.physical import identify_physical, require_cvxpy
+from dynid.analysis.estimators.projection import identify_projection
+from dynid.analysis.processing.observation import SETTINGS_HELP
+from dynid.analysis.statistics.validation import ValidationResult, validate
+from dynid.analysis.statistics.verdict import verdict
+from dynid.dynamics.robot import Robot
+from dynid.dynamics.robot_file import load_robot
+from dynid.errors import DataError, InputError
+from dynid.outputs import atomic_write_text
+from dynid.provenance import dumps_json
+
+METHODS = ("idim", "didim", "projection", "ml")
+
+#: --gain-update -> identify_didim's update_gains (eq. (27) at every step, the first simulation only, never)
+GAIN_UPDATES = {"every": True, "initial": "initial", "none": False}
+
+#: the analyses after IDIM that a full report runs (each can be skipped)
+REPORT_PARTS = ("didim", "sample", "diagnose")
+
+#: DIDIM's gain update in reports: the paper's update at every step oscillated on
+#: the demo data (25 steps, Ia6 +590 %) where updating only the first simulation
+#: converged in 8 (all parameters within 1.5 %).
+REPORT_GAIN_UPDATE = "initial"
+
+#: maximum likelihood keeps every sample: beyond this many values (samples x joints) it is refused
+ML_MAX_VALUES = 200_000
+
+#: smallest --fc as a fraction of the sampling rate: below it the zero-phase filter's
+#: transient (about fs / fc samples at each end) is longer than any recording
+MIN_FC_PER_FS = 1e-4
+
+#: keyword names renamed to the command line's (old name -> new name); the old ones still work
+RENAMED = {"update_gains": "gain_update", "n_boot": "bootstrap"}
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Every option of an identification run; the names are the command line's (`--gain-update`
+    is `gain_update`).
+
+    Data: `holdout` (seconds at the end held out) or `validation` (a recording);
+    `resample` (irregular time steps put on a uniform grid). Processing (default: from the
+    data): `fc` (Hz, filter of q), `nd` (decimation factor), `decimation_cutoff` (Hz),
+    `qd_threshold` ('auto', a number or one per joint, rad/s), `max_error_growth` (the
+    essential-parameter rule). Method: `method` ('idim', 'didim', 'projection', 'ml');
+    ML: `f0` (Hz), `ml_harmonics`; DIDIM: `max_iter`, `gain_update` ('every', 'initial',
+    'none'), `gains` ('assumed', 'identify'), `v_s` (rad/s or 'auto'), `reference` ('qr' or
+    'q'). Model: `gravity_tilt`, `asymmetric_friction`, `physical`, `prior`, `prior_weight`,
+    `mass_tolerance`, `physical_set`, `bootstrap`, `effects` (identify: the effects fitted
+    beside the rigid body, 'spring:all'; diagnose: the candidate effects). Report and demo:
+    `skip`, `seed`, `max_seconds`, `duration`. Diagnosis: `max_effects`, `alpha`, `no_offsets`.
+    Posterior: `which`, `walkers`, `max_steps`. Outputs (written by the reports layer):
+    `report`, `json`, `csv`, `urdf`, `mjcf`.
+    """
+
+    method: str = "idim"
+    holdout: float | None = None
+    validation: object = None
+    resample: bool = False
+    fc: float | None = None
+    nd: int | None = None
+    decimation_cutoff: float | None = None
+    qd_threshold: object = None
+    max_error_growth: float = 0.02
+    f0: float | None = None
+    ml_harmonics: int | None = None
+    max_iter: int | None = None
+    gain_update: object = "every"
+    gains: str = "assumed"
+    v_s: object = None
+    reference: str | None = None
+    gravity_tilt: bool = False
+    asymmetric_friction: bool = False
+    physical: bool = False
+    prior: str | None = None
+    prior_weight: float = 1.0
+    mass_tolerance: float | None = None
+    physical_set: str = "base"
+    bootstrap: int = 100
+    effects: object = None
+    skip: tuple = ()
+    seed: int = 1
+    max_seconds: float = 300.0
+    duration: float = 20.0
+    max_effects: int = 3
+    alpha: float = 0.01
+    no_offsets: bool = False
+    which: str = "essential"
+    walkers: int | None = None
+    max_steps: int | None = None
+    report: object = None
+    json: object = None
+    csv: object = None
+    urdf: object = None
+    mjcf: object = None
+    #: processing overrides by the observation's own names (fc_position ...), merged under the above
+    processing_overrides: dict | None = None
+
+    def processing(self) -> dict | None:
+        """The observation's settings (fc_position, nd, f_decimation_cutoff, qd_threshold, v_s)."""
+        s = dict(self.processing_overrides or {})
+        for name, key in (("fc", "fc_position"), ("nd", "nd"), ("decimation_cutoff", "f_decimation_cutoff")):
+            if getattr(self, name) is not None:
+                s[key] = getattr(self, name)
+        if self.qd_threshold is not None:
+            s["qd_threshold"] = qd_threshold_value(self.qd_threshold)
+        if self.v_s is not None and self.method == "didim":
+            s["v_s"] = self.v_s
+        return s or (None if self.processing_overrides is None else s)
+
+    @property
+    def update_gains(self):
+        """identify_didim's `update_gains` of `gain_update` (True, 'initial' or False)."""
+        return GAIN_UPDATES.get(self.gain_update, self.gain_update) if isinstance(self.gain_update, str) \
+            else self.gain_update
+
+    def replace(self, **changes) -> Settings:
+        return dataclasses.replace(self, **changes)
+
+
+def settings_from(settings=None, **options) -> Settings:
+    """A `Settings` from a `Settings`, a processing dict (fc_position ...) and keyword options.
+
+    The renamed keywords `update_gains` and `n_boot` still work, with a DeprecationWarning.
+    """
+    for old, new in RENAMED.items():
+        if old in options:
+            warnings.warn(f"the keyword {old}= is now {new}= (as --{new.replace('_', '-')} on the command "
+                          f"line); {old}= will be removed", DeprecationWarning, stacklevel=3)
+            value = options.pop(old)
+            if new == "gain_update":
+                value = {v: k for k, v in GAIN_UPDATES.items()}.get(value, value) \
+                    if isinstance(value, bool) or value == "initial" else value
+            if new in options:
+                raise InputError(f"give {new}= or the old {old}=, not both")
+            options[new] = value
+    unknown = sorted(set(options) - {f.name for f in dataclasses.fields(Settings)})
+    if unknown:
+        raise InputError(f"unknown option(s) {', '.join(unknown)}; the options are those of Settings "
+                         f"(the command line's, with _ for -)")
+    if isinstance(settings, Settings):
+        return settings.replace(**options)
+    if settings is not None and not isinstance(settings, dict):
+        raise InputError(f"settings must be a dict of processing options or a Settings, not "
+                         f"{type(settings).__name__}")
+    return Settings(processing_overrides=dict(settings) if settings is not None else None, **options)
+
+
+def qd_threshold_value(v):
+    """--qd-threshold: 'auto', one number, or one number per joint (a list or comma-separated text)."""
+    if not isinstance(v, str):
+        return v
+    v = v.strip()
+    if v == "auto":
+        return v
+    try:
+        vals = [float(x) for x in v.split(",")]
+    except ValueError:
+        raise InputError(f"--qd-threshold must be a number, per-joint numbers separated by "
+                         f"commas, or 'auto'; got {v!r}") from None
+    return vals[0] if len(vals) == 1 else vals
+
+
+class _Silent:
+    """The default reporter: no messages, no progress bars (the reports layer's Reporter prints)."""
+
+    def __call__(self, msg):
+        pass
+
+    def progress(self, label):
+        return contextlib.nullcontext(_NoBar())
+
+
+class _NoBar:
+    def update(self, fraction):
+        pass
+
+
+def messages(say):
+    """`say`, or a silent reporter when None."""
+    return say if say is not None else _Silent()
+
+
+# ---------------------------------------------------------------- step 1: data
+
+def as_robot(robot, *, base=None, tip=None):
+    """A Robot from a Robot, a bundled name or a robot file path."""
+    return robot if isinstance(robot, Robot) else load_robot(robot, base=base, tip=tip)
+
+
+def as_experiments(data, robot, *, resample=False) -> list:
+    """A list of Experiments from one or several paths or Experiments."""
+    items = list(data) if isinstance(data, (list, tuple)) else [data]
+    if not items:
+        raise InputError("no recording given: pass a data file or an Experiment")
+    out = []
+    for item in items:
+        if isinstance(item, Experiment):
+            out.append(item)
+        elif isinstance(item, (str, os.PathLike)):
+            out.append(_load_resampled(item, robot) if resample else _load(item, robot))
+        else:
+            raise InputError(f"a recording must be a data file path or an Experiment, not {type(item).__name__}")
+    return out
+
+
+def _load(path, robot):
+    try:
+        return load_experiment(path, robot)
+    except DataError as exc:
+        if "irregular time steps" in str(exc) and not str(path).lower().endswith(".toml"):
+            raise DataError(f"{exc} On the command line: --resample.") from None
+        raise
+
+
+def _load_resampled(path, robot):
+    """`--resample`: a recording in dynid's column format put on a uniform time grid, through the
+    experiment description's `resample = true` (a one-line TOML beside nothing: a temporary one)."""
+    if str(path).lower().endswith(".toml"):
+        raise InputError(f"--resample: {path} is an experiment description; write resample = true in "
+                         f"its [experiment] table instead")
+    with tempfile.TemporaryDirectory(prefix="dynid-resample-") as tmp:
+        toml = os.path.join(tmp, "resample.toml")
+        with open(toml, "w", encoding="utf-8") as fh:
+            fh.write(f"[experiment]\nfile = {json.dumps(os.path.abspath(os.fspath(path)))}\n"
+                     f"name = {json.dumps(Path(path).stem)}\nresample = true\n")
+        exp = load_experiment(toml, robot)
+    # the recording's own name, not the temporary description's
+    return dataclasses.replace(exp, source=f"{os.fspath(path)} (resampled)")
+
+
+def check_robot_options(settings: Settings, robot) -> None:
+    """Options whose valid values depend on the robot, checked before any data is loaded."""
+    v = settings.qd_threshold
+    if isinstance(v, str) and v.strip() != "auto":
+        k = len(v.split(","))
+        if k not in (1, robot.n_joints):
+            raise InputError(f"--qd-threshold {v}: {k} values for the {robot.n_joints} joints of robot "
+                             f"'{robot.name}'; give one value for every joint or {robot.n_joints} "
+                             f"comma-separated ones (one per joint)")
+
+
+def check_cutoffs(settings: Settings, experiments) -> None:
+    """--fc against the sampling rate of every recording (after loading)."""
+    fc = settings.fc
+    if fc is None:
+        return
+    for exp in experiments:
+        fs = getattr(exp, "fs", None)
+        if exp is None or not fs:
+            continue
+        name = getattr(exp, "name", None) or getattr(exp, "source", None) or "the recording"
+        if fc >= fs / 2:
+            raise InputError(f"--fc {fc:g} Hz is not below half the sampling rate ({fs:g} Hz) of {name}; "
+                             f"give --fc below {fs / 2:g} Hz")
+        if fc < MIN_FC_PER_FS * fs:
+            raise InputError(f"--fc {fc:g} Hz is below {MIN_FC_PER_FS * fs:g} Hz ({MIN_FC_PER_FS:g} of the "
+                             f"sampling rate {fs:g} Hz of {name}): the filter's transient would last about "
+                             f"{fs / fc:.3g} samples at each end, longer than a recording; give --fc "
+                             f"{MIN_FC_PER_FS * fs:g} or more (typically 10 to 100 Hz)")
+
+
+def load_data(data, robot, settings: Settings, say=None):
+    """Step 1: `(experiments, held_out)`: the identification recordings and the held-out
+    Experiment (the `validation` recording, or the last `holdout` seconds; None without)."""
+    say = messages(say)
+    if settings.validation is not None and settings.holdout is not None:
+        raise InputError("give a validation recording or a holdout, not both (--validation, --holdout)")
+    if settings.holdout is not None and not settings.holdout > 0:
+        raise InputError(f"--holdout must be a positive number of seconds, got {settings.holdout:g}")
+    experiments = as_experiments(data, robot, resample=settings.resample)
+    for item, exp in zip(data if isinstance(data, (list, tuple)) else [data], experiments):
+        if not isinstance(item, Experiment):
+            say(f"loaded {item}: {exp.n_samples} samples at {exp.fs:g} Hz")
+    check_cutoffs(settings, experiments)
+    held_out = None
+    if settings.validation is not None:
+        held_out = as_experiments(settings.validation, robot, resample=settings.resample)[0]
+        if not isinstance(settings.validation, Experiment):
+            say(f"validation {settings.validation}: {held_out.n_samples} samples")
+        check_cutoffs(settings, [held_out])
+    elif settings.holdout is not None:
+        if len(experiments) > 1:
+            raise InputError("--holdout splits one recording; with several, use --validation")
+        train, held_out = holdout_split(experiments[0], settings.holdout)
+        experiments = [train]
+    return experiments, held_out
+
+
+# ---------------------------------------------------------------- step 2: gravity tilt
+
+def tilt_step(experiments, robot, settings: Settings, say=None):
+    """Step 2: `(tilt, robot)`: the base tilt and the robot with the tilted gravity (None, robot
+    without `gravity_tilt`)."""
+    if not settings.gravity_tilt:
+        return None, robot
+    messages(say)("estimating the direction of gravity (base tilt) on the identification data")
+    tilt = gravity_tilt(experiments, robot, settings=settings.processing())
+    return tilt, tilt.robot
+
+
+# ---------------------------------------------------------------- step 3: identify
+
+def check_identify(settings: Settings) -> None:
+    """The method's options, checked before any work."""
+    method = settings.method
+    if method not in METHODS:
+        raise InputError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
+    if settings.physical and method not in ("idim", "didim"):
+        raise InputError(f"physical=True works with methods idim and didim only, not {method!r}")
+    if not settings.physical and (settings.prior is not None or settings.mass_tolerance is not None):
+        raise InputError("prior and mass_tolerance are options of the physically consistent fit: "
+                         "pass physical=True (--physical)")
+    if method == "didim" and settings.gains not in ("assumed", "identify"):
+        raise InputError(f"gains must be 'assumed' or 'identify', got {settings.gains!r} (--gains)")
+    if settings.physical:
+        require_cvxpy()          # before the identification, not after it
+
+
+def _carrying(result, robot):
+    """`result` with its robot (DIDIM, PM and ML results are built without one): dynid.verdict and
+    dynid.validate of the result then judge it as the command line does (joint names, a-priori values)."""
+    if getattr(result, "robot", None) is None:
+        try:
+            result.robot = robot
+        except AttributeError:           # a read-only property: the result knows its robot otherwise
+            pass
+    return result
+
+
+def identify_step(experiments, robot, settings: Settings, progress=None):
+    """Step 3: identify with `settings.method`; IDIM stacks several recordings, the others take one.
+
+    IDIM with `physical`: the PC-WLS (a PhysicalResult whose `idim` is the unconstrained fit).
+    DIDIM: its notices say which controller gains it simulated with.
+    """
+    check_identify(settings)
+    method = settings.method
+    if method != "idim" and len(experiments) > 1:
+        raise InputError(f"method {method} identifies one recording at a time; "
+                         f"{len(experiments)} were given")
+    if method == "idim":
+        res = identify_idim(experiments if len(experiments) > 1 else experiments[0], robot,
+                            settings=settings.processing(), max_error_growth=settings.max_error_growth,
+                            progress=progress)
+        if not settings.physical:
+            return res
+        return identify_physical(res, robot, prior=settings.prior, prior_weight=settings.prior_weight,
+                                 mass_tolerance=settings.mass_tolerance, n_boot=settings.bootstrap,
+                                 which=settings.physical_set)
+    exp = experiments[0]
+    if method == "didim":
+        return _carrying(_didim(exp, robot, settings, progress), robot)
+    if method == "projection":
+        return _carrying(identify_projection(exp, robot, settings=settings.processing()), robot)
+    if settings.f0 is None:
+        raise InputError("method ml needs f0, the fundamental frequency (Hz) of the periodic excitation "
+                         "(--f0 on the command line)")
+    if exp.n_samples * robot.n_joints > ML_MAX_VALUES:
+        raise InputError(f"{exp.source}: {exp.n_samples} samples x {robot.n_joints} joints; maximum "
+                         f"likelihood keeps every sample and is limited to {ML_MAX_VALUES:,} values: "
+                         "resample or cut the recording (a TOML experiment file), or use IDIM")
+    return _carrying(maximum_likelihood(exp.t, exp.q, exp.tau, robot_model(robot), f0=settings.f0,
+                                        n_harmonics=settings.ml_harmonics), robot)
+
+
+def _didim(exp, robot, settings: Settings, progress):
+    """DIDIM (section 3), with the gains of the robot file or identified from the logged loop."""
+    if robot.controller is None:
+        raise InputError(f"DIDIM simulates the robot under its controller, but '{robot.name}' "
+                         f"({robot.source}) has no [controller] table: add one to the robot file")
+    ref = settings.reference or ("qr" if exp.qr is not None else "q")
+    processing = settings.processing()
+    identified, controller, chi0, update_gains = None, None, None, settings.update_gains
+    if settings.gains == "identify":
+        if exp.qr is None:
+            raise InputError(f"{exp.source}: --gains identify needs the reference the controller tracked: "
+                             "the recording has no qr columns. Log the controller's reference "
+                             "(columns qr1..qrn); use the gains of the robot file "
+                             "(--gains assumed) and read the DIDIM result as depending on them")
+        identified = identify_gains(exp, robot)
+        controller = identified.controller(robot)
+        update_gains = False
+        # With the real loop's gains, the paper's rough start (Ia = 1 ...) drives the simulated
+        # robot into saturation on the first step; IDIM's estimate is a start in the right basin.
+        # The start gets the settings IDIM shares with DIDIM (not v_s, substeps, transient ...).
+        shared = None if processing is None else {k: v for k, v in processing.items() if k in SETTINGS_HELP}
+        start = identify_idim(exp, robot, settings=shared, max_error_growth=settings.max_error_growth)
+        chi0 = dict(zip(start.base.names, start.wls.chi))
+    res = identify_didim(exp, robot, settings=processing, reference=ref, controller=controller, chi0=chi0,
+                         max_iter=DEFAULT_MAX_ITER if settings.max_iter is None else settings.max_iter,
+                         max_error_growth=settings.max_error_growth, update_gains=update_gains,
+                         progress=progress, physical=settings.physical, prior=settings.prior,
+                         prior_weight=settings.prior_weight, mass_tolerance=settings.mass_tolerance,
+                         n_boot=settings.bootstrap)
+    # the new result's own fields, set before it leaves this step
+    res.gains = identified
+    res.notices.append(didim_gains_notice(exp, robot, identified))
+    return res
+
+
+def didim_gains_notice(exp, robot, identified) -> str:
+    """What DIDIM's parameters depend on: the gains it simulated the loop with."""
+    if identified is not None:
+        return ("controller gains identified from the logged reference, position and torque ("
+                + ", ".join(f"{n} {v:.4g}" for n, v in zip(identified.names, identified.chi)) + ")")
+    what = ("the logged reference" if exp.qr is not None else
+            "the measured position used as the reference (no reference logged)")
+    return (f"DIDIM simulated the loop with the controller gains assumed in the robot "
+            f"file ({robot.source}) tracking {what}: its parameters depend on those gains"
+            + ("" if exp.qr is None else "; --gains identify estimates them from the data"))
+
+
+# ---------------------------------------------------------------- steps 5-6: friction, physical
+
+def check_run(settings: Settings, robot=None):
+    """The options of a whole run (`dynid identify`), refused before any data is loaded;
+    returns the effect candidates of `effects` (None without)."""
+    if settings.method != "idim":
+        given = [f"--{o}" for o, v in (("validation", settings.validation), ("holdout", settings.holdout),
+                                       ("urdf", settings.urdf),
+                                       ("asymmetric-friction", settings.asymmetric_friction),
+                                       ("mjcf", settings.mjcf), ("effects", settings.effects),
+                                       ("physical", settings.physical and settings.method != "didim"),
+                                       ("gravity-tilt", settings.gravity_tilt))
+                 if v is not None and v is not False]
+        if given:
+            raise InputError(f"{', '.join(given)} work with --method idim only, not with --method "
+                             f"{settings.method}; run the IDIM identification for them")
+    check_identify(settings)
+    if settings.v_s is not None and settings.method != "didim":
+        raise InputError(f"--v-s is the simulated Coulomb friction's sign width of DIDIM; it does not "
+                         f"apply to --method {settings.method}")
+    if settings.bootstrap < 0:
+        raise InputError(f"--bootstrap must be 0 or more refits, got {settings.bootstrap}")
+    if robot is not None:
+        check_robot_options(settings, robot)
+        return _effect_candidates(settings, robot)
+    return None
+
+
+def _effect_candidates(settings: Settings, robot):
+    """The candidates of `effects` (None without it), refused early with the options they
+    do not combine with."""
+    if not settings.effects:
+        return None
+    spec = settings.effects
+    if settings.physical_set != "base":
+        raise InputError("--effects fits the effects beside all base parameters: drop --physical-set "
+                         f"{settings.physical_set}")
+    if settings.urdf:
+        raise InputError("--urdf writes a rigid body, and URDF has no field for the effects of --effects: "
+                         "--mjcf PATH writes the rigid body with its springs (MuJoCo joint stiffness), "
+                         "or export the URDF from a run without --effects")
+    out = effect_candidates(spec, robot.n_joints)
+    if not out:
+        raise InputError(f"--effects {spec!r} names no effect; e.g. --effects spring:all")
+    if settings.mjcf:
+        if not settings.physical:
+            raise InputError("--mjcf with --effects writes the physically consistent rigid body fitted "
+                             "with the springs (an unconstrained fit may not be a body MuJoCo accepts, "
+                             "and another consistent set does not go with these springs): add --physical")
+        other = [f"{c.name} on joint {c.joint}" for c in out if c.name != "spring"]
+        if other:
+            raise InputError("--mjcf with --effects: MJCF has no field for " + ", ".join(other) +
+                             "; only spring (joint stiffness) can be written: drop the others from "
+                             "--effects, or drop --mjcf")
+    return out
+
+
+def asymmetric_step(experiments, robot, result, settings: Settings):
+    """Step 5: each joint's friction with different slopes for q' > 0 and q' < 0 (None without)."""
+    if not settings.asymmetric_friction:
+        return None
+    if len(experiments) > 1:
+        raise InputError("--asymmetric-friction works on one recording at a time")
+    return asymmetric_friction(experiments[0], robot, result)
+
+
+def physical_step(experiments, robot, result, held_out, settings: Settings, candidates=None, say=None):
+    """Step 6: `(physical, effects)`: the PC-WLS of the IDIM `result` (with `physical`) and the
+    fit with the effects of `effects` beside the rigid body (with `candidates`)."""
+    say = messages(say)
+    if candidates is not None:
+        say(f"effects beside the rigid body: {settings.effects}"
+            + ("; physically consistent WLS (SDP)" if settings.physical else ""))
+        effects = identify_physical_effects(experiments, robot, result, candidates, physical=settings.physical,
+                                            validation=held_out, spec=settings.effects, prior=settings.prior,
+                                            prior_weight=settings.prior_weight,
+                                            mass_tolerance=settings.mass_tolerance, n_boot=settings.bootstrap)
+        if effects.physical is None:
+            return None, effects
+        physical = dataclasses.replace(effects.physical, idim=result,
+                                       data_hash=getattr(result, "data_hash", "") or "",
+                                       rel_error=effects.rel_error_pc, wls_rel_error=effects.rel_error_wls,
+                                       validation=effects.validation)
+        return physical, dataclasses.replace(effects, physical=physical)
+    if not settings.physical:
+        return None, None
+    say("physically consistent WLS (SDP)")
+    physical = identify_physical(result, robot, prior=settings.prior, prior_weight=settings.prior_weight,
+                                 mass_tolerance=settings.mass_tolerance, n_boot=settings.bootstrap,
+                                 which=settings.physical_set)
+    if held_out is not None:
+        physical = dataclasses.replace(physical, validation=physical.held_out_block(held_out, robot))
+    return physical, None
+
+
+# ---------------------------------------------------------------- step 7: verdict
+
+def verdict_of(result, held_out=None, *, robot=None, diagnosis=None, residuals=None):
+    """Step 7: the verdict of `result` (statistics.verdict.verdict), on the `held_out` data when
+    given: an Experiment or a path (validated here) or a ValidationResult.
+
+    A run (`Identification`) or a full report carries its verdict: it is returned as is.
+    """
+    own = getattr(result, "verdict", None)
+    if own is not None and not callable(own) and held_out is None:
+        return own
+    validation = held_out
+    if held_out is not None and not isinstance(held_out, ValidationResult):
+        target = getattr(result, "result", result)         # a run: its identification result
+        validation = validate(target, held_out, robot)
+        result = target
+    return verdict(result, validation, robot=robot, diagnosis=diagnosis, residuals=residuals)
+
+
+# ---------------------------------------------------------------- the run
+
+@dataclass(frozen=True, eq=False)
+class Identification:
+    """What one run of `dynid identify` gives: the identification, its validation and
+    verdict, and the optional parts (tilt, asymmetric friction, PC fit, effects, export).
+
+    `to_dict()` is the JSON `dynid identify --json` writes; `summary()` what it prints.
+    """
+
+    settings: Settings
+    robot: object                        # with the tilted gravity under gravity_tilt
+    experiments: list
+    result: object                       # IDIMResult, DIDIMResult, ProjectionResult, ML, PhysicalResult
+    verdict: object
+    held_out: object = None              # the held-out Experiment
+    validation: object = None            # ValidationResult
+    tilt: object = None
+    asymmetric_friction: object = None
+    physical: object = None
+    effects: object = None
+    export: object = None                # the URDF/MJCF export (reports layer), when asked
+
+    @property
+    def method(self) -> str:
+        return self.settings.method
+
+    def to_dict(self) -> dict:
+        doc = self.result.to_dict()
+        doc["verdict"] = self.verdict.to_dict()
+        if self.method != "idim":
+            return doc
+        if self.validation is not None:
+            doc["validation"] = self.validation.to_dict()
+        for key, part in (("gravity_tilt", self.tilt), ("asymmetric_friction", self.asymmetric_friction),
+                          ("urdf_export", self.export)):
+            if part is not None:
+                doc[key] = part.to_dict()
+        if self.physical is not None:
+            doc["physical"] = self.physical.physical_block()
+        if self.effects is not None:
+            doc["effects"] = self.effects.to_dict()
+            if self.physical is not None:
+                doc["physical"]["effects"] = doc["effects"]
+        return doc
+
+    def to_json(self, path=None) -> str:
+        """The JSON text of `to_dict()`; written atomically to `path` when given."""
+        text = dumps_json(self.to_dict())
+        if path is not None:
+            atomic_write_text(path, text)
+        return text
+
+    def summaries(self) -> list:
+        """The printed parts, the verdict first."""
+        gains = getattr(self.result, "gains", None)
+        validation = self.validation.summary() if self.validation is not None else None
+        if validation is not None and self.settings.holdout is not None:
+            validation = f"held out: the last {self.settings.holdout:g} s\n{validation}"
+        parts = [self.verdict.summary()]
+        parts += [p if isinstance(p, str) else p.summary()
+                  for p in (self.tilt, self.result, validation, self.asymmetric_friction, self.effects,
+                            self.physical if self.method == "idim" else None, gains) if p is not None]
+        return parts
+
+    def summary(self) -> str:
+        return "\n\n".join(p for p in self.summaries() if p)
+
+    def __str__(self) -> str:
+        return self.summary()
+
+    def __repr__(self) -> str:
+        return (f"<Identification {self.method} of {getattr(self.robot, 'name', '?')}: "
+                f"verdict {getattr(self.verdict, 'status', '?')}>")
+
+
+def run(data, robot, settings=None, *, say=None, **options) -> Identification:
+    """Steps 1-7 of `dynid identify`: load, split, tilt, identify, validate, asymmetric
+    friction, physically consistent fit and effects, verdict.
+
+    Parameters
+    ----------
+    data : path, Experiment, or a list of them
+        The identification recording(s).
+    robot : Robot, bundled name or robot file
+    settings : Settings or dict, optional
+        A `Settings`, or processing overrides by the observation's names (fc_position ...).
+    say : callable with a progress(label) method, optional
+        Messages and progress bars (dynid.reports.progress.Reporter); silent by default.
+    **options
+        Any field of `Settings` (the command line's options: holdout=3, gravity_tilt=True ...).
+
+    Returns
+    -------
+    Identification
+        Its `to_dict()` is the JSON of `dynid identify --json`.
+    """
+    settings = settings_from(settings, **options)
+    say = messages(say)
+    robot = as_robot(robot)
+    candidates = check_run(settings, robot)
+    experiments, held_out = load_data(data, robot, settings, say)
+    tilt, robot = tilt_step(experiments, robot, settings, say)
+    label = "DIDIM iterations" if settings.method == "didim" else "regressor and decimation"
+    with say.progress(label) as bar:
+        # IDIM: the unconstrained fit; its PC-WLS (physical) is step 6, beside it
+        result = identify_step(experiments, robot, settings.replace(physical=False, prior=None, mass_tolerance=None)
+                               if settings.method == "idim" else settings, progress=bar.update)
+    if settings.method != "idim":
+        return Identification(settings=settings, robot=robot, experiments=experiments, result=result,
+                              verdict=verdict(result, robot=robot))
+    validation = validate(result, held_out, robot) if held_out is not None else None
+    asym = asymmetric_step(experiments, robot, result, settings)
+    physical, effects = physical_step(experiments, robot, result, held_out, settings, candidates, say)
+    return Identification(settings=settings, robot=robot, experiments=experiments, result=result,
+                          verdict=verdict(result, validation, robot=robot), held_out=held_out,
+                          validation=validation, tilt=tilt, asymmetric_friction=asym, physical=physical,
+                          effects=effects)

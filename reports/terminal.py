@@ -1,0 +1,201 @@
+"""The command line's terminal and files: printing the summaries, checking every input and
+output path before any work, and writing the outputs all or none.
+"""
+from __future__ import annotations
+
+import os
+import sys
+import tomllib
+
+from dynid.errors import InputError
+from dynid.outputs import write_all
+from dynid.reports.progress import clean_text
+
+EXIT_OK, EXIT_INPUT = 0, 2
+
+def commit_outputs(outputs, say):
+    """Write `(path, text)` pairs all or none (dynid.outputs.write_all)."""
+    write_all(outputs, say)
+
+
+OUTPUT_OPTIONS = ("json", "report", "csv", "out", "urdf", "mjcf")
+#: longest file name (bytes) when the file system does not say
+NAME_MAX = 255
+#: the largest robot / experiment TOML read for the file names it refers to
+_TOML_PEEK_BYTES = 1 << 20
+
+
+def _same_file(a, b) -> bool:
+    """Whether paths ``a`` and ``b`` are one file (symlinks followed, hard links too)."""
+    try:
+        if os.path.realpath(a) == os.path.realpath(b):
+            return True
+        return os.path.samefile(a, b)
+    except (OSError, ValueError):
+        return False
+
+
+def _referenced_files(path):
+    """Files a robot or experiment TOML refers to (``urdf``, ``file``), relative to its folder."""
+    try:
+        if not path.lower().endswith(".toml") or not os.path.isfile(path) \
+                or os.path.getsize(path) > _TOML_PEEK_BYTES:
+            return []
+        with open(path, "rb") as fh:
+            doc = tomllib.load(fh)
+    except Exception:           # noqa: BLE001 - the loader reports a bad file properly later
+        return []
+    found = []
+    tables = [doc] + [v for k, v in doc.items() if k == "experiment" and isinstance(v, dict)]
+    for tab in tables:
+        for key in ("urdf", "file"):
+            v = tab.get(key)
+            if isinstance(v, str) and v:
+                found.append((key, os.path.join(os.path.dirname(path), v)))
+    return found
+
+
+def _input_files(args):
+    """``(what, path)`` of every input file the options name (data, validation, robot file)."""
+    out = []
+    data = getattr(args, "data", None)
+    for p in [data] if isinstance(data, str) else (data or []):
+        out.append(("the data file", p))
+    if getattr(args, "validation", None):
+        out.append(("the --validation file", args.validation))
+    robot = getattr(args, "robot", None)
+    if robot:
+        out.append(("the robot file" if args.command == "robot" else "the --robot file", robot))
+    for _what, p in list(out):
+        for key, ref in _referenced_files(p):
+            out.append((f"the file {key} = ... of {p}", ref))
+            if "\0" in ref:
+                raise InputError(f"{p}: {key} = {os.path.basename(ref)!r} contains a NUL byte, which no "
+                                 f"file name can; fix '{key}' in {p}")
+    return out
+
+
+def check_input_paths(args):
+    """Before any computation: input names without NUL bytes, no recording given twice."""
+    inputs = _input_files(args)
+    for what, p in inputs:
+        if "\0" in p:
+            raise InputError(f"{what} {p!r}: the name contains a NUL byte, which no file name can; "
+                             f"check how the command line was built")
+    data = [p for what, p in inputs if what == "the data file"]
+    for i, p in enumerate(data):
+        for q in data[:i]:
+            if _same_file(p, q):
+                extra = "" if p == q else f" (as {q} and {p})"
+                raise InputError(f"the data file {p} is given twice{extra}: the same recording counted "
+                                 f"twice doubles its weight and proves nothing; give each recording once")
+    valid = getattr(args, "validation", None)
+    if valid:
+        for p in data:
+            if _same_file(valid, p):
+                raise InputError(f"--validation {valid} is the same file as the data file {p}: validating "
+                                 f"on the identification data says nothing about the model; give another "
+                                 f"recording, or --holdout SECONDS to hold out the end of this one")
+
+
+def check_output_paths(args):
+    """Before any computation: every output's folder exists and is writable; '-' only for --json;
+    no output is an input or another output; names are valid file names."""
+    check_input_paths(args)
+    inputs = _input_files(args)
+    seen = []
+    for opt in OUTPUT_OPTIONS:
+        path = getattr(args, opt, None)
+        if not path:
+            continue
+        if path == "-":
+            if opt != "json":
+                raise InputError(f"--{opt} -: only --json can be written to stdout")
+            continue
+        if "\0" in path:
+            raise InputError(f"--{opt} {path!r}: the name contains a NUL byte, which no file name can; "
+                             f"give --{opt} a plain file name")
+        folder = os.path.dirname(os.path.abspath(path)) or "."
+        name = os.path.basename(os.path.abspath(path))
+        try:
+            name_max = os.pathconf(folder, "PC_NAME_MAX")
+        except (OSError, ValueError):
+            name_max = NAME_MAX
+        if len(os.fsencode(name)) > name_max:
+            raise InputError(f"--{opt} {name[:40]}...: the file name is {len(os.fsencode(name))} bytes "
+                             f"long, more than the {name_max} the file system allows; give --{opt} a "
+                             f"shorter name")
+        if not os.path.isdir(folder):
+            raise InputError(f"--{opt} {path}: the folder {folder} does not exist")
+        if not os.access(folder, os.W_OK):
+            raise InputError(f"--{opt} {path}: the folder {folder} is not writable")
+        if os.path.isdir(path):
+            raise InputError(f"--{opt} {path} is a folder; give a file name")
+        for what, p in inputs:
+            if "\0" not in p and os.path.exists(p) and _same_file(path, p):
+                how = "" if os.path.abspath(path) == os.path.abspath(p) else " (through a link)"
+                raise InputError(f"--{opt} {path} is {what} {p}{how}: writing it would destroy the "
+                                 f"input; give --{opt} another path")
+        for other, q in seen:
+            if _same_file(path, q):
+                raise InputError(f"--{other} {q} and --{opt} {path} are the same file: one would "
+                                 f"overwrite the other; give each its own path")
+        seen.append((opt, path))
+    _check_stdout(args)
+
+
+def _check_stdout(args):
+    """--json - needs a standard output to write to (not closed with >&-)."""
+    if getattr(args, "json", None) != "-":
+        return
+    ok = sys.stdout is not None and not getattr(sys.stdout, "closed", False)
+    if ok:
+        try:
+            fd = sys.stdout.fileno()
+        except (AttributeError, ValueError, OSError):     # a Python stream without a descriptor
+            fd = None
+        if fd is not None:
+            try:
+                os.fstat(fd)
+            except OSError:                               # descriptor 1 closed
+                ok = False
+    if not ok:
+        raise InputError("--json -: cannot write the JSON to stdout: standard output is closed; "
+                         "give a file name (--json out.json) or leave stdout open")
+
+
+def stdout_failed(args):
+    """A BrokenPipe while writing: the exit code (2 if the JSON went to stdout, else 0)."""
+    try:                       # further writes (and the flush at exit) go nowhere
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError, AttributeError):
+        pass
+    if getattr(args, "json", None) == "-":
+        try:
+            print(f"dynid {args.command}: error: cannot write the JSON to stdout: the pipe was closed "
+                  f"before it was written (broken pipe); the reader of --json - must read to the end, "
+                  f"or give --json a file name", file=sys.stderr, flush=True)
+        except (OSError, ValueError, AttributeError):
+            pass
+        return EXIT_INPUT
+    try:
+        sys.stderr.close()
+    except (OSError, ValueError, AttributeError):
+        pass
+    return EXIT_OK
+
+
+def show_clean(args, *texts):
+    """:func:`_show` with control characters escaped (names read from files reach summaries)."""
+    show(args, *(clean_text(t) if t else t for t in texts))
+
+
+def show(args, *texts):
+    """Print human-readable summaries: on stdout, or on stderr when stdout carries the JSON."""
+    if args.quiet:
+        return
+    stream = sys.stderr if getattr(args, "json", None) == "-" else sys.stdout
+    print("\n\n".join(t for t in texts if t), file=stream)
+
