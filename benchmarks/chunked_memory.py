@@ -7,7 +7,7 @@ N/4 samples and on all N:
 - in memory: dynid.analysis.estimators.idim.identify_idim (the full-rate filtered
   signals and the decimated W are held);
 - chunked: blocks of 50 000 samples, each decimated chunk reduced to its
-  per-joint triangles and added up (dynid.analysis.processing.streaming.reduce_stream,
+  per-joint triangles and added up (dynid.analysis.estimators.streamed.reduce_stream,
   least_squares.Reduction); W never held.
 Peak memory is tracemalloc's peak during the identification alone (the recording
 itself, loaded first, is not counted: both paths need it). The chunked peak
