@@ -919,7 +919,7 @@ def cmd_identify(args, say):
     validation = validate(result, valid, robot) if valid is not None else None
     asym = None
     if args.asymmetric_friction:
-        from dynid.analysis.estimators.asymmetric_friction import asymmetric_friction
+        from dynid.analysis.diagnosis.asymmetric_friction import asymmetric_friction
         if len(experiments) > 1:
             raise InputError("--asymmetric-friction works on one recording at a time")
         asym = asymmetric_friction(experiments[0], robot, result)
