@@ -27,6 +27,7 @@ import numpy as np
 import pandas as pd
 
 from dynid.analysis.processing.observation import observe
+from dynid.analysis.processing.prediction import prediction_errors
 from dynid.analysis.results import Exportable
 from dynid.analysis.statistics.noise import normality as _normality
 
@@ -135,23 +136,6 @@ class ValidationResult(Exportable):
                               "(= all_samples)",
             "noise": self.noise.reset_index().to_dict(orient="records"),
             "notices": self.notices})
-
-
-def prediction_errors(tau, tau_hat, mask=None):
-    """Relative error norm, per-joint RMS and per-joint relative error (over ``mask`` if given)."""
-    tau = np.asarray(tau, dtype=float)
-    res = tau - tau_hat
-    if mask is not None:
-        m = np.broadcast_to(np.asarray(mask, dtype=bool), tau.shape)
-        res = np.where(m, res, 0.0)
-        tau = np.where(m, tau, 0.0)
-        cnt = np.maximum(m.sum(axis=0), 1)
-        rms = np.sqrt(np.sum(res ** 2, axis=0) / cnt)
-    else:
-        rms = np.sqrt(np.mean(res ** 2, axis=0))
-    rel = float(np.linalg.norm(res) / np.linalg.norm(tau))
-    jrel = np.linalg.norm(res, axis=0) / np.linalg.norm(tau, axis=0)
-    return rel, rms, jrel
 
 
 def validate(idim_result, experiment, robot=None):
