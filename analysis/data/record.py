@@ -174,7 +174,7 @@ class Experiment:
 
     def to_frame(self):
         """The data as a pandas DataFrame in the column convention (t, q1.., tau1..)."""
-        import pandas as pd   # slow to import, and loading an experiment does not need it
+        import pandas as pd  # slow to import, and loading an experiment does not need it
 
         cols = {"t": self.t}
         for s in SIGNALS:

@@ -37,7 +37,7 @@ NONNEG_KINDS = ("Ia", "Fv", "Fc")
 def require_cvxpy():
     """Import cvxpy (with Clarabel) or say how to install it."""
     try:
-        import cvxpy as cp
+        import cvxpy as cp  # optional (the physical extra)
     except ImportError:
         raise InputError('physically consistent identification (--physical, --urdf, --mjcf) needs '
                          'the optional packages cvxpy and clarabel: pip install "dynid[physical]"') from None
