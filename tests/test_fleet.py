@@ -10,10 +10,11 @@ import pytest
 
 pytest.importorskip("pyarrow")
 
+from simulated_fleet import simulate_fleet
+
 from dynid.analysis.fleet import health
 from dynid.analysis.fleet.catalogue import read_catalogue
 from dynid.analysis.fleet.engine import identify_fleet, import_distributed, plan
-from dynid.analysis.fleet.simulated import simulate_fleet
 from dynid.analysis.fleet.store import RUN_COLUMNS, ResultStore
 from dynid.analysis.fleet.task import identify_recording
 from dynid.errors import InputError

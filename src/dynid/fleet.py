@@ -18,9 +18,8 @@ from __future__ import annotations
 from dynid.analysis.fleet.catalogue import read_catalogue
 from dynid.analysis.fleet.engine import FleetRun, plan, start_client
 from dynid.analysis.fleet.health import FleetHealth, monitor
-from dynid.analysis.fleet.simulated import simulate_fleet
 from dynid.analysis.fleet.store import ResultStore
 from dynid.reports.fleet_run import read_store, run
 
-__all__ = ["run", "read_store", "monitor", "simulate_fleet", "read_catalogue", "plan", "start_client",
+__all__ = ["run", "read_store", "monitor", "read_catalogue", "plan", "start_client",
            "FleetRun", "FleetHealth", "ResultStore"]
