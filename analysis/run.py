@@ -36,7 +36,7 @@ from pathlib import Path
 from dynid.analysis.data.experiment import Experiment, load_experiment
 from dynid.analysis.data.split import holdout_split
 from dynid.analysis.diagnosis.physical_fit import effect_candidates, identify_physical_effects
-from dynid.analysis.estimators.asymmetric_friction import asymmetric_friction
+from dynid.analysis.diagnosis.asymmetric_friction import asymmetric_friction
 from dynid.analysis.estimators.controller_gains import identify_gains
 from dynid.analysis.estimators.didim import DEFAULT_MAX_ITER, identify_didim
 from dynid.analysis.estimators.gravity_tilt import gravity_tilt

@@ -1,13 +1,13 @@
 """Memory of a long recording identified in memory vs reduced chunk by chunk (the fleet task's two paths).
 
 One long production recording of the planar2 arm (pick-and-place cycles at 1 kHz,
-simulated in closed loop as dynid.fleet.simulate_fleet does) is identified by
+simulated in closed loop as tests/simulated_fleet.py does) is identified by
 the fleet task (IDIM: WLS and essential set) twice per length, on its first
 N/4 samples and on all N:
 - in memory: dynid.analysis.estimators.idim.identify_idim (the full-rate filtered
   signals and the decimated W are held);
 - chunked: blocks of 50 000 samples, each decimated chunk reduced to its
-  per-joint triangles and added up (dynid.analysis.processing.streaming.reduce_stream,
+  per-joint triangles and added up (dynid.analysis.estimators.streamed.reduce_stream,
   least_squares.Reduction); W never held.
 Peak memory is tracemalloc's peak during the identification alone (the recording
 itself, loaded first, is not counted: both paths need it). The chunked peak
@@ -30,6 +30,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests"))      # simulated_fleet.py: the test fleet's recordings
 
 import numpy as np
 
@@ -49,9 +50,10 @@ def main():
     ap.add_argument("--samples", type=int, default=1_200_000, help="samples of the long recording (1 kHz)")
     ap.add_argument("--block", type=int, default=50_000)
     args = ap.parse_args()
+    from simulated_fleet import simulate_recording
+
     from dynid.analysis.data.experiment import Experiment, load_experiment
     from dynid.analysis.fleet import task
-    from dynid.analysis.fleet.simulated import simulate_recording
 
     robot, bp = task._robot("planar2")
     fs = 1000.0

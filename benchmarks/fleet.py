@@ -1,6 +1,6 @@
 """Benchmark of the fleet: 200 robots x 30 days identified on Dask, friction wear detected.
 
-1. A simulated fleet (dynid.fleet.simulate_fleet: planar2 at 200 Hz, one 9 s
+1. A simulated fleet (simulate_fleet of tests/simulated_fleet.py: planar2 at 200 Hz, one 9 s
    pick-and-place recording per robot and day, friction spread, daily temperature
    cycles, wear on one joint of 30 % of the robots from a random day on, a few
    corrupted logs) is written to a temporary folder, simulated on the cluster.
@@ -40,6 +40,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests"))      # simulated_fleet.py: the test fleet (Dask workers inherit the path)
 
 import numpy as np
 import pandas as pd
@@ -92,10 +93,10 @@ def main():
     if args.quick:
         args.robots, args.scaling_tasks = 20, 100
     from distributed import Client, LocalCluster
+    from simulated_fleet import START, simulate_fleet
 
     from dynid.analysis.fleet.engine import identify_fleet, plan
     from dynid.analysis.fleet.health import monitor
-    from dynid.analysis.fleet.simulated import START, simulate_fleet
     from dynid.analysis.fleet.store import ResultStore
     from dynid.analysis.fleet.task import identify_recording
     from dynid.reports.fleet_report import write_fleet_outputs

@@ -38,26 +38,9 @@ from pathlib import Path
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))      # physical_truth.py: the random physical truth, shared with a test
 
-
-def truth(robot, rng):
-    import numpy as np
-    chi = np.zeros(robot.n_standard)
-    names = robot.standard_names
-    for k in range(1, robot.n_joints + 1):
-        m = rng.uniform(0.5, 4.0)
-        c = rng.normal(0, 0.05, 3)
-        a = rng.uniform(0.005, 0.03)
-        # a rod-like link (moments eps, a, a + eps/2): near a singular pseudo-inertia
-        moments = rng.permutation([1e-4, a, a + 0.5e-4])
-        I_o = np.diag(moments) + m * (c @ c * np.eye(3) - np.outer(c, c))
-        for sym, v in zip(("XX", "XY", "XZ", "YY", "YZ", "ZZ", "MX", "MY", "MZ", "M"),
-                          (I_o[0, 0], I_o[0, 1], I_o[0, 2], I_o[1, 1], I_o[1, 2], I_o[2, 2], *(m * c), m)):
-            chi[names.index(f"{sym}{k}")] = v
-        chi[names.index(f"Ia{k}")] = 0.0 if k >= 5 else rng.uniform(0.01, 0.1)
-        chi[names.index(f"Fv{k}")] = rng.uniform(0.0, 0.05)
-        chi[names.index(f"Fc{k}")] = rng.uniform(0.1, 1.0)
-    return chi
+from physical_truth import truth
 
 
 def main():

@@ -109,6 +109,8 @@ import numpy as np
 import scipy.optimize
 
 from dynid.errors import InputError
+from dynid.outputs import atomic_write_text
+from dynid.provenance import json_safe
 
 from .base_parameters import base_parameters, base_regressor
 from .dynamic_model import inverse_dynamics
@@ -226,7 +228,7 @@ def limit_margins(robot, trajectory, chi_st=None, *, n_check=DEFAULT_N_CHECK, bp
     plus the peak values. The grid is ``n_check`` points over one period (offset
     by half a step from t = 0).
     """
-    import pandas as pd
+    import pandas as pd  # slow to import; the dynamics layer needs it only for this table
 
     q_min, q_max, qd_max, qdd_max, tau_max = robot.limits()
     t = (np.arange(n_check) + 0.5) * (trajectory.period / n_check)
@@ -711,14 +713,10 @@ class ExcitationResult:
 
     def to_csv(self, path, fs, n_periods=1):
         """Write :meth:`to_frame` to ``path`` atomically (full precision)."""
-        from dynid.outputs import atomic_write_text
-
         atomic_write_text(path, self.to_frame(fs, n_periods).to_csv(index=False, lineterminator="\n",
                                                                     float_format="%.17g"))
 
     def to_dict(self):
-        from dynid.provenance import json_safe
-
         tr = self.trajectory
         return json_safe({
             "robot": self.robot_name, "f0": tr.f0, "harmonics": tr.harmonics,

@@ -108,10 +108,6 @@ class JointModel:
         """``(gs, gc)`` of ``g0 (MX cos q - MY sin q)`` (horizontal joint axis)."""
         return -g0 * np.asarray(my, dtype=float), g0 * np.asarray(mx, dtype=float)
 
-    def with_gravity(self, gs, gc, name=None) -> JointModel:
-        return JointModel(self.inertia, self.fv_pos, self.fv_neg, self.fc_pos, self.fc_neg,
-                          gs, gc, name or self.name)
-
     def gravity(self, q):
         """g_i(q), eq. (23); q (..., n)."""
         return self.gs * np.sin(q) + self.gc * np.cos(q)

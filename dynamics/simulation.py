@@ -63,6 +63,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
+from scipy.linalg import eigh
 
 from dynid.errors import DynidError, InputError
 
@@ -130,7 +131,7 @@ class SimulationResult:
     def to_frame(self):
         """pandas DataFrame with columns t, q1.., qr1.., qd1.., qdd1.., tau1.. (dynid's
         experiment column convention)."""
-        import pandas as pd
+        import pandas as pd  # slow to import; the dynamics layer needs it only for this export
 
         cols = {"t": self.t}
         for name in ("q", "qr", "qd", "qdd", "tau"):
@@ -353,8 +354,6 @@ def friction_stiffness(robot, chi_st, q0, h, v_s):
     slope at rest: ``diag(Fv + Fc / v_s) + sum_c c c^T (Fvm + Fcm / v_s)``. For
     ``v_s = 0`` only the viscous part counts (the sign has no slope).
     """
-    from scipy.linalg import eigh
-
     ma = model_arrays(robot, chi_st)
     inv = 1.0 / v_s if v_s > 0 else 0.0
     D = np.diag(ma.Fv + ma.Fc * inv)

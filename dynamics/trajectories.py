@@ -121,12 +121,6 @@ class FourierTrajectory:
         t = t0 + np.arange(int(np.floor(duration * fs + 1e-9)) + 1) / fs
         return (t,) + self.evaluate(t)
 
-    def extrema(self, n_samples=None):
-        """Per joint (q_min, q_max, max |qd|, max |qdd|) on a dense grid of one period."""
-        t = self._dense_grid(n_samples)
-        q, qd, qdd = self.evaluate(t)
-        return q.min(axis=0), q.max(axis=0), np.abs(qd).max(axis=0), np.abs(qdd).max(axis=0)
-
     def _dense_grid(self, n_samples=None):
         m = n_samples or max(MIN_CHECK_SAMPLES, DEFAULT_SAMPLES_PER_HARMONIC * self.harmonics)
         return np.arange(m) * (self.period / m)
@@ -134,7 +128,7 @@ class FourierTrajectory:
     def to_frame(self, t, derivatives=True):
         """pandas DataFrame with columns t, qr1..qrn and, with ``derivatives``, qdr1..qdrn,
         qddr1..qddrn (the reference of an experiment)."""
-        import pandas as pd
+        import pandas as pd  # slow to import; the dynamics layer needs it only for this export
 
         t = np.atleast_1d(np.asarray(t, dtype=float))
         q, qd, qdd = self.evaluate(t)

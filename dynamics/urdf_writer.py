@@ -30,6 +30,8 @@ import numpy as np
 
 from dynid.errors import InputError
 
+from .urdf import align_z
+
 DYNID_NS = "https://github.com/dynid/dynid/urdf-extension"
 
 
@@ -167,7 +169,6 @@ def urdf_text(robot, chi_st, *, name=None, comment="", link_names=None) -> str:
     g = np.asarray(robot.gravity, dtype=float)
     parent = "base_link"
     if np.linalg.norm(g) > 0 and not np.allclose(g / np.linalg.norm(g), [0, 0, -1], atol=1e-12):
-        from .urdf import align_z
         A = align_z(-g)                        # A z = -g/|g|: world z is A^T applied to base -g
         ET.SubElement(root, "link", {"name": "world"})
         j0 = ET.SubElement(root, "joint", {"name": "world_base_joint", "type": "fixed"})

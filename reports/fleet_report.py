@@ -17,6 +17,7 @@ import pandas as pd
 from markupsafe import Markup
 
 from dynid.outputs import write_all
+from dynid.provenance import json_safe
 from dynid.reports import figures as F
 from dynid.reports import tables as T
 from dynid.reports.html import Section, bullets, para, render_sections
@@ -130,7 +131,6 @@ def fleet_sections(run, frame, health):
 
 
 def fleet_json(run, frame, health) -> dict:
-    from dynid.provenance import json_safe
     out = run.to_dict()
     out["robots"] = json_safe(robot_table(frame, health).reset_index().to_dict("records"))
     return out

@@ -15,6 +15,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import pandas as pd
+
 __all__ = [
     "PublishedValue",
     "ReferenceTable",
@@ -81,8 +83,6 @@ class ReferenceTable:
 
     def to_frame(self):
         """DataFrame indexed by parameter: value, rel_std_percent, label."""
-        import pandas as pd
-
         return pd.DataFrame(
             {"value": [v.value for v in self.values],
              "rel_std_percent": [v.rel_std_percent for v in self.values],

@@ -9,18 +9,17 @@ moments, each at most the sum of the other two).
 """
 from __future__ import annotations
 
+import matplotlib
 import numpy as np
 import pandas as pd
 
 from dynid.reports import tables as T
+from dynid.reports.figures import BLUE, STYLE, _new_figure, render_figure
 from dynid.reports.html import Section, bullets, join, para
 
 
 def principal_moments_figure(result, *, key="fig-physical-moments", fmt="auto"):
     """Bars of the three principal moments (about the centre of mass) of each link, log scale."""
-    import matplotlib
-
-    from dynid.reports.figures import BLUE, STYLE, _new_figure, render_figure
     rows = [(lk["link"], lk["principal_moments"] or [np.nan] * 3, lk["mass"]) for lk in result.links]
     with matplotlib.rc_context(STYLE):
         fig = _new_figure(min(10.0, 1.2 + 0.9 * len(rows)), 3.0)

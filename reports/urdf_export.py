@@ -40,6 +40,8 @@ import numpy as np
 import pandas as pd
 
 from dynid.analysis.estimators.standard_set import choose_standard_set
+from dynid.dynamics.mjcf_writer import mjcf_text
+from dynid.dynamics.urdf import read_urdf
 from dynid.dynamics.urdf_writer import read_extra_parameters, urdf_text, urdf_unrepresentable
 from dynid.errors import InputError
 from dynid.outputs import atomic_write_text
@@ -81,6 +83,7 @@ class UrdfExport:
         return json_safe(d)
 
     def section(self, *, id="urdf-export", title="URDF export: a physically consistent standard set"):
+        # the HTML report only: writing a URDF needs neither jinja2 nor matplotlib
         from dynid.reports import tables as T
         from dynid.reports.html import Section, bullets, join, para
         ss = self.standard_set
@@ -135,7 +138,6 @@ class UrdfExport:
 
 def mjcf_of(export, robot) -> str:
     """The MJCF text of the standard set of ``export`` and its springs (:mod:`dynid.dynamics.mjcf_writer`)."""
-    from dynid.dynamics.mjcf_writer import mjcf_text
     with_springs = " with the linear joint springs fitted with it" if export.springs else ""
     return mjcf_text(robot, export.standard_set.chi, springs=export.springs,
                      comment=f"dynid identification of {robot.name}: physically consistent standard set "
@@ -185,7 +187,6 @@ def _identified(result, which):
 
 def round_trip(text, robot, bp):
     """Base parameters (b,) of a URDF text written by :func:`urdf_text`, read back by dynid."""
-    from dynid.dynamics.urdf import read_urdf
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "model.urdf"
         path.write_text(text)

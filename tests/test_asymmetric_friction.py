@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from dynid.analysis.data.synthetic import apriori_parameters, simulate_experiment
-from dynid.analysis.estimators.asymmetric_friction import asymmetric_friction
+from dynid.analysis.diagnosis.asymmetric_friction import asymmetric_friction
 from dynid.analysis.estimators.idim import identify_idim
 from dynid.dynamics.base_parameters import base_parameters
 from dynid.dynamics.robot_file import load_robot

@@ -223,7 +223,8 @@ def test_demo(tmp_path):
 def test_fleet(tmp_path):
     pytest.importorskip("distributed")
     import dynid.fleet
-    cat = dynid.fleet.simulate_fleet(tmp_path / "fleet", 2, 5, seed=5, n_corrupted=0).catalogue
+    from simulated_fleet import simulate_fleet
+    cat = simulate_fleet(tmp_path / "fleet", 2, 5, seed=5, n_corrupted=0).catalogue
     js = tmp_path / "fleet.json"
     assert main(["fleet", str(cat), "--out", str(tmp_path / "cli"), "--workers", "1", "--baseline", "3",
                  "--json", str(js), "--quiet"]) == 0

@@ -1,4 +1,5 @@
-"""reports/comparison.py on the real TX40: the mapping of FIGAROH's parameters and the counts."""
+"""examples/staubli_tx40/figaroh_comparison.py on the real TX40: the mapping of FIGAROH's parameters and the counts."""
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -7,10 +8,11 @@ import pytest
 from dynid.analysis.data.experiment import load_experiment
 from dynid.analysis.estimators.idim import identify_idim
 from dynid.dynamics.robot_file import load_robot
-from dynid.reports.comparison import comparison_frame, comparison_section, comparison_summary
 from dynid.reports.paper import DIDIM_TX40_TABLE2
 
 TX40 = Path(__file__).resolve().parents[1] / "examples" / "staubli_tx40"
+sys.path.insert(0, str(TX40))    # the comparison is the example's, beside its run.py
+from figaroh_comparison import comparison_frame, comparison_section, comparison_summary
 
 
 @pytest.fixture(scope="module")

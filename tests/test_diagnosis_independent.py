@@ -21,7 +21,6 @@ two plant runs (~30 s) and a diagnosis (~20 s).
   the base parameters): found through the a-priori values, on joint 2 only;
 * the KUKA LWR4+ plant, clean: nothing named or flagged.
 """
-import importlib.util
 import json
 import math
 from pathlib import Path
@@ -30,10 +29,7 @@ import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-_spec = importlib.util.spec_from_file_location("diagnosis_independent",
-                                               ROOT / "benchmarks" / "diagnosis_independent.py")
-bench = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(bench)
+import diagnosis_cases as bench  # tests/: shared with benchmarks/diagnosis_independent.py
 
 pytestmark = pytest.mark.slow
 

@@ -10,10 +10,11 @@ import pytest
 
 pytest.importorskip("pyarrow")
 
+from simulated_fleet import simulate_fleet
+
 from dynid.analysis.fleet import health
 from dynid.analysis.fleet.catalogue import read_catalogue
 from dynid.analysis.fleet.engine import identify_fleet, import_distributed, plan
-from dynid.analysis.fleet.simulated import simulate_fleet
 from dynid.analysis.fleet.store import RUN_COLUMNS, ResultStore
 from dynid.analysis.fleet.task import identify_recording
 from dynid.errors import InputError
@@ -118,6 +119,7 @@ def test_long_recording_reduced_chunk_by_chunk_equals_its_decimated_system_in_me
     """The task's streamed path (W never held) against WLS/essential set on the same decimated W, held."""
     from dynid.analysis.data.experiment import load_experiment
     from dynid.analysis.estimators import least_squares as ls
+    from dynid.analysis.estimators import streamed
     from dynid.analysis.estimators.essential import essential_parameters
     from dynid.analysis.fleet import task
     from dynid.analysis.processing import streaming
@@ -126,17 +128,17 @@ def test_long_recording_reduced_chunk_by_chunk_equals_its_decimated_system_in_me
     robot, bp = task._robot(spec["robot"])
     exp = load_experiment(spec["path"], robot)
     held = {}
-    real = streaming.reduce_stream
+    real = streamed.reduce_stream
 
     def both(chunks, *args, **kw):      # the same blocks, through both paths
         chunks = list(chunks)
         held["obs"] = streaming.observe_stream(iter(chunks), *args, **kw)
         return real(iter(chunks), *args, **kw)
-    streaming.reduce_stream = both
+    streamed.reduce_stream = both
     try:
         wls, ess, n_raw = task._identify(exp, robot, bp, None, 1200)
     finally:
-        streaming.reduce_stream = real
+        streamed.reduce_stream = real
     obs = held["obs"]
     ref = ls.wls(obs.W, obs.tau, list(bp.names), row_mask=obs.row_mask)
     ref_ess = essential_parameters(obs.W, obs.tau, list(bp.names), ls.wls, row_mask=obs.row_mask)

@@ -399,8 +399,7 @@ def test_pc_didim_steps_lower_the_output_error():
     projected steps drove the output error from 13.9 to 431 N m (distance to the truth 779 in
     the WLS metric, DIDIM 48). With it every accepted full or halved step lowers the output
     error, and PC-DIDIM ends no farther from the physical truth than DIDIM."""
-    sys.path.insert(0, str(__import__("conftest").ROOT / "benchmarks"))
-    from physical_seeds import truth
+    from physical_truth import truth
 
     import dynid
     from dynid.analysis.data.synthetic import simulate_experiment

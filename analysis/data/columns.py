@@ -425,7 +425,7 @@ def _assemble(
                     f"time column {time_col.where} gives {_fmt(fs_file)} Hz. Remove "
                     "sampling_rate (the time column is used) or correct it."
                 )
-    from dynid.analysis.data.experiment import Experiment  # the record imports this module
+    from dynid.analysis.data.record import Experiment  # TODO(issue 25): to module level (no cycle since record.py)
 
     _plaus.check_rate(t, signals, robot,
                       time_col.where if time_col is not None

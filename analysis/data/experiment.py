@@ -4,6 +4,7 @@
 :class:`Experiment`. The file formats, column names, units and the experiment TOML
 schema are documented in docs/formats.md. The loader is split by concept:
 
+* :mod:`dynid.analysis.data.record`: the :class:`Experiment` record itself (re-exported here);
 * :mod:`dynid.analysis.data.readers`: CSV / Parquet / npz / MAT file → raw named columns;
 * :mod:`dynid.analysis.data.columns`: column names, parsing to numbers, finite /
   joint-count / saturation checks, assembling an Experiment;
@@ -17,17 +18,12 @@ column and the row; non-fatal findings go to :attr:`Experiment.notices`.
 
 from __future__ import annotations
 
-import hashlib
-import math
-from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-
-from dynid.analysis.data._format import _fmt_t
 from dynid.analysis.data.columns import SATURATION_FRACTION, SATURATION_MIN_RUN, SATURATION_REL_TOL, _from_columns
 from dynid.analysis.data.description import _load_toml
 from dynid.analysis.data.readers import _READERS, _read_data_file
+from dynid.analysis.data.record import SIGNALS, Experiment
 from dynid.analysis.data.timebase import GAP_FACTOR, TIME_STEP_TOLERANCE, _Options, estimate_shift
 from dynid.errors import DataError
 
@@ -42,217 +38,6 @@ __all__ = [
     "SATURATION_MIN_RUN",
     "SATURATION_REL_TOL",
 ]
-
-#: Signal names of the column convention, in the order they are stored.
-SIGNALS = ("q", "qr", "qd", "qdd", "tau")
-
-
-@dataclass(eq=False)
-class Experiment:
-    """One recorded trajectory, uniformly sampled, in joint space.
-
-    Attributes
-    ----------
-    t : (N,) time in s, strictly increasing, uniform within the tolerance.
-    q, qr, qd, qdd : (N, n) or None, measured / reference positions, velocities,
-        accelerations.
-    tau : (N, n) joint torques (computed as drive gain × current when the file had
-        only ``i*``).
-    fs : sampling rate in Hz, 1 / median time step.
-    source : the file(s) the data came from.
-    notices : what the loader ignored, converted, dropped or noticed.
-    name : a name for reports (from a TOML ``[experiment] name``, else the file stem).
-    meta : loader facts, e.g. ``reference_shift`` (samples), ``reference_shift_rms``
-        (rad), ``start_offset``, ``resampled``, ``time_from``.
-    """
-
-    t: np.ndarray
-    q: np.ndarray | None = None
-    qr: np.ndarray | None = None
-    qd: np.ndarray | None = None
-    qdd: np.ndarray | None = None
-    tau: np.ndarray | None = None
-    fs: float | None = None
-    source: str = ""
-    notices: list[str] = field(default_factory=list)
-    name: str = ""
-    meta: dict = field(default_factory=dict)
-
-    def __post_init__(self) -> None:
-        t = np.asarray(self.t, dtype=float)
-        if t.ndim != 1:
-            raise DataError(f"Experiment.t must be 1-D, got shape {t.shape}.")
-        if t.size < 2:
-            raise DataError(f"An experiment needs at least 2 samples, got {t.size}.")
-        self.t = t
-        if self.tau is None:
-            raise DataError("An experiment needs joint torques (tau); none were given.")
-        n = None
-        for name in SIGNALS:
-            a = getattr(self, name)
-            if a is None:
-                continue
-            a = np.asarray(a, dtype=float)
-            if a.ndim == 1:
-                a = a[:, None]
-            if a.ndim != 2 or a.shape[0] != t.size:
-                raise DataError(
-                    f"Experiment.{name} has shape {a.shape}; expected ({t.size}, n) "
-                    "with one row per time sample."
-                )
-            if n is None:
-                n = a.shape[1]
-            elif a.shape[1] != n:
-                raise DataError(
-                    f"Experiment.{name} has {a.shape[1]} columns but the other signals "
-                    f"have {n}: every signal needs one column per joint."
-                )
-            setattr(self, name, a)
-        if self.fs is None:
-            step = float(np.median(np.diff(t)))
-            if not step > 0:
-                raise DataError("Experiment.t must be strictly increasing.")
-            self.fs = 1.0 / step
-        self.fs = float(self.fs)
-        self.notices = list(self.notices)
-        self.meta = dict(self.meta)
-
-    # ---- sizes -----------------------------------------------------------------------
-    @property
-    def n_joints(self) -> int:
-        """Number of joints n (columns of ``tau``)."""
-        return int(self.tau.shape[1])
-
-    @property
-    def n_samples(self) -> int:
-        """Number of samples N."""
-        return int(self.t.size)
-
-    @property
-    def duration(self) -> float:
-        """Time span ``t[-1] - t[0]`` in s."""
-        return float(self.t[-1] - self.t[0])
-
-    @property
-    def signals(self) -> tuple[str, ...]:
-        """Names of the signals present, among q, qr, qd, qdd, tau."""
-        return tuple(s for s in SIGNALS if getattr(self, s) is not None)
-
-    # ---- operations ------------------------------------------------------------------
-    def segment(self, t_start: float | None = None, t_end: float | None = None) -> Experiment:
-        """The samples with ``t_start <= t < t_end`` as a new Experiment.
-
-        ``None`` means the start / end of the record. The window is half-open, so
-        ``segment(None, a)`` and ``segment(a, None)`` split the record without overlap
-        (e.g. identification and held-out validation data).
-        """
-        lo = -math.inf if t_start is None else float(t_start)
-        hi = math.inf if t_end is None else float(t_end)
-        if math.isnan(lo) or math.isnan(hi) or not lo < hi:
-            raise DataError(
-                f"segment({t_start!r}, {t_end!r}) of {self.source or 'the experiment'}: "
-                "t_start must be smaller than t_end."
-            )
-        keep = (self.t >= lo) & (self.t < hi)
-        idx = np.flatnonzero(keep)
-        if idx.size < 2:
-            raise DataError(
-                f"segment({t_start!r}, {t_end!r}) of {self.source or 'the experiment'} "
-                f"holds {idx.size} sample(s); the data span t = {_fmt_t(self.t[0])} … "
-                f"{_fmt_t(self.t[-1])} s. Choose a window inside that span with at least "
-                "2 samples."
-            )
-        sl = slice(int(idx[0]), int(idx[-1]) + 1)
-        arrays = {s: (None if getattr(self, s) is None else getattr(self, s)[sl].copy())
-                  for s in SIGNALS}
-        meta = dict(self.meta)
-        meta["segment"] = (t_start, t_end)
-        return Experiment(
-            t=self.t[sl].copy(),
-            fs=self.fs,
-            source=self.source,
-            notices=self.notices
-            + [f"segment t ∈ [{'start' if t_start is None else _fmt_t(lo)}, "
-               f"{'end' if t_end is None else _fmt_t(hi)}) s: samples {sl.start + 1}.."
-               f"{sl.stop} of {self.n_samples} kept"],
-            name=self.name,
-            meta=meta,
-            **arrays,
-        )
-
-    def data_hash(self) -> str:
-        """SHA-256 (hex) of the arrays t, q, qr, qd, qdd, tau: names, dtypes, shapes and
-        little-endian bytes. Deterministic across runs and platforms; independent of
-        source, notices and meta."""
-        h = hashlib.sha256(b"dynid-experiment-v1\0")
-        for name in ("t",) + SIGNALS:
-            a = getattr(self, name)
-            h.update(name.encode() + b"\0")
-            if a is None:
-                h.update(b"none\0")
-                continue
-            a = np.ascontiguousarray(a, dtype=np.dtype(a.dtype).newbyteorder("<"))
-            h.update(f"{a.dtype.str}{a.shape}\0".encode())
-            h.update(a.tobytes())
-        return h.hexdigest()
-
-    def to_frame(self):
-        """The data as a pandas DataFrame in the column convention (t, q1.., tau1..)."""
-        import pandas as pd
-
-        cols = {"t": self.t}
-        for s in SIGNALS:
-            a = getattr(self, s)
-            if a is not None:
-                for j in range(a.shape[1]):
-                    cols[f"{s}{j + 1}"] = a[:, j]
-        return pd.DataFrame(cols)
-
-    def summary(self) -> str:
-        """A short text: source, N, fs, duration, signals and per-joint ranges."""
-        lines = []
-        title = f"Experiment '{self.name}'" if self.name else "Experiment"
-        lines.append(f"{title} from {self.source or '(memory)'}")
-        lines.append(
-            f"  {self.n_joints} joints, {self.n_samples} samples at {self.fs:.6g} Hz "
-            f"(step {1e3 / self.fs:.4g} ms), duration {self.duration:.6g} s "
-            f"(t = {_fmt_t(self.t[0])} … {_fmt_t(self.t[-1])} s)"
-        )
-        absent = [s for s in SIGNALS if getattr(self, s) is None]
-        lines.append(
-            "  signals: " + ", ".join(self.signals)
-            + (f" (absent: {', '.join(absent)})" if absent else "")
-        )
-        qd, qd_note = self.qd, ""
-        if qd is None and self.q is not None:
-            qd, qd_note = np.gradient(self.q, self.t, axis=0), " (from q)"
-        head = f"  {'joint':>5}"
-        if self.q is not None:
-            head += f"  {'q min … max [rad]':>24}"
-        if qd is not None:
-            head += f"  {('qd min … max [rad/s]' + qd_note):>30}"
-        head += f"  {'tau min … max [N·m]':>26}"
-        lines.append(head)
-        for j in range(self.n_joints):
-            row = f"  {j + 1:>5}"
-            if self.q is not None:
-                row += f"  {self.q[:, j].min():>11.4g} … {self.q[:, j].max():<10.4g}"
-            if qd is not None:
-                row += f"  {qd[:, j].min():>14.4g} … {qd[:, j].max():<13.4g}"
-            row += f"  {self.tau[:, j].min():>12.4g} … {self.tau[:, j].max():<11.4g}"
-            lines.append(row)
-        if self.notices:
-            lines.append(f"  notices ({len(self.notices)}):")
-            lines.extend(f"    - {m}" for m in self.notices)
-        return "\n".join(lines)
-
-    def __repr__(self) -> str:
-        return (
-            f"Experiment(name={self.name!r}, n_joints={self.n_joints}, "
-            f"n_samples={self.n_samples}, fs={self.fs:.6g}, signals={self.signals}, "
-            f"source={self.source!r})"
-        )
-
 
 # --------------------------------------------------------------------------------------
 # Entry point

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dynid.analysis.data.experiment import Experiment
+from dynid.dynamics.robot_file import load_robot
 from dynid.dynamics.simulation import simulate_closed_loop
 
 # Values of the simulated TX40 outside Table 2. Ia6 is FIGAROH's a-priori rotor
@@ -194,11 +195,10 @@ def simulate(robot, duration: float = 20.0, *, seed: int = 1, f0: float = 0.1, h
     under the controller of its robot file; q and tau get white Gaussian noise of
     standard deviation ``noise_q`` (rad) and ``noise_tau`` (N m).
     """
-    from dynid.analysis.identify import as_robot
     from dynid.dynamics.base_parameters import base_parameters
     from dynid.dynamics.trajectories import random_fourier_trajectory
     from dynid.errors import InputError
-    robot = as_robot(robot)
+    robot = load_robot(robot)   # a Robot passes through
     if robot.controller is None:
         raise InputError(f"robot '{robot.name}' ({robot.source}) has no [controller]; add one to simulate")
     if not (duration > 0 and f0 > 0 and harmonics >= 1):

@@ -20,6 +20,8 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+import pandas as pd
+from scipy.linalg import block_diag
 
 from dynid.analysis.decoupled.estimates import estimate_friction, estimate_gravity, estimate_inertia, identified_model
 from dynid.analysis.decoupled.repeated import DEFAULT_CONFIDENCE, RepeatedEstimate
@@ -33,6 +35,7 @@ from dynid.dynamics.joint_trajectories import (
     sweep_reference,
     trapezoid_reference,
 )
+from dynid.provenance import json_safe, versions
 
 __all__ = ["DecoupledCampaign", "DecoupledIdentification", "simulate_campaign", "identify_campaign"]
 
@@ -76,15 +79,12 @@ class DecoupledIdentification(ParameterResults):
 
     @property
     def cov(self):
-        from scipy.linalg import block_diag
         return block_diag(*[r.cov for r in self.tables])
 
     def conf_int(self, alpha: float = 0.05):
-        import pandas as pd
         return pd.concat([r.conf_int(alpha) for r in self.tables])
 
     def to_frame(self):
-        import pandas as pd
         return pd.concat([r.to_frame().assign(table=r.table or r.kind) for r in self.tables])
 
     @property
@@ -105,8 +105,6 @@ class DecoupledIdentification(ParameterResults):
         return "\n\n".join(parts)
 
     def to_dict(self) -> dict:
-        from dynid.provenance import json_safe, versions
-
         return json_safe({"method": "per-joint identification (Bona & Curatella 2005, section 3)",
                           "gravity": self.gravity.to_dict(), "friction": self.friction.to_dict(),
                           "inertia": self.inertia.to_dict(),

@@ -30,6 +30,7 @@ from scipy import stats
 
 from dynid.analysis.results import ParameterResults
 from dynid.errors import InputError
+from dynid.provenance import json_safe
 
 __all__ = ["RepeatedEstimate", "student_half_width", "MIN_REPETITIONS", "DEFAULT_CONFIDENCE"]
 
@@ -168,7 +169,6 @@ class RepeatedEstimate(ParameterResults):
         return self.summary()
 
     def to_dict(self) -> dict:
-        from dynid.provenance import json_safe
 
         params = []
         for i, name in enumerate(self.names):

@@ -21,6 +21,7 @@ from scipy import signal
 from dynid.analysis.statistics.noise import NoiseTests, noise_pdf_tests
 from dynid.dynamics.joint_model import JointModel, JointPID, simulate_joints
 from dynid.errors import InputError
+from dynid.provenance import json_safe
 
 __all__ = ["DecoupledValidation", "validate_decoupled"]
 
@@ -81,7 +82,6 @@ class DecoupledValidation:
         return "\n".join(lines)
 
     def to_dict(self) -> dict:
-        from dynid.provenance import json_safe
 
         return json_safe({"settings": self.settings,
                           "max_q_error_deg": self.max_q_error_deg, "rms_q_error_deg": self.rms_q_error_deg,

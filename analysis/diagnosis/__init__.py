@@ -1,1 +1,1 @@
-"""Residual diagnosis: which effect the identified model lacks."""
+"""Residual diagnosis: which effect the identified model lacks; fits of named effects (asymmetric friction)."""

@@ -1,1 +1,1 @@
-"""Estimators: OLS/WLS, IDIM, essential parameters, DIDIM, the Projection Method, maximum likelihood, friction, standard sets."""
+"""Estimators: OLS/WLS, IDIM, essential parameters, DIDIM, the Projection Method, maximum likelihood, gravity tilt, physically consistent and standard sets, the streamed reduction."""

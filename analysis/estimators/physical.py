@@ -109,184 +109,39 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
+from scipy import stats
 
-from dynid.analysis.estimators.standard_set import apriori_standard, scales
-from dynid.analysis.results import ParameterResults
+from dynid.analysis.estimators.sdp import (
+    NONNEG_KINDS,
+    SDPProblem,
+    active_constraints,
+    apriori_pseudo_inertias,
+    build_sdp,
+    require_cvxpy,
+    whitening,
+)
+from dynid.analysis.estimators.standard_set import REPRODUCE_CHI2, StandardSet, apriori_standard, scales
+from dynid.analysis.processing.observation import observe
+from dynid.analysis.processing.prediction import prediction_errors
+from dynid.analysis.results import ParameterResults, _check_alpha
 from dynid.dynamics.urdf_writer import consistency, inertial_slice, pseudo_inertia_basis
 from dynid.errors import InputError
+from dynid.provenance import json_safe, versions
 
-__all__ = ["PhysicalResult", "PhysicalSupport", "pc_wls", "identify_physical", "require_cvxpy", "TIE_BREAK"]
+__all__ = ["PhysicalResult", "PhysicalSupport", "pc_wls", "identify_physical", "require_cvxpy", "TIE_BREAK",
+           "apriori_pseudo_inertias"]
 
 #: weight of the a-priori term when no prior is asked for: it only picks one standard set
 #: among those with the same base parameters
 TIE_BREAK = 1e-8
 #: the normal 97.5 % quantile: the level at which the reported sigma matches the interval
 _Z95 = 1.959963984540054
-#: the pseudo-inertia must exceed this multiple of the identity (kg, kg m, kg m^2): a link
-#: exactly on the boundary (a rod) is reported active, not flagged inconsistent by rounding
-J_MARGIN = 1e-9
-#: a constraint counts as active when its slack is below this fraction of its scale
-ACTIVE_RTOL = 1e-5
-#: prior="geometric" refuses an a-priori pseudo-inertia whose smallest eigenvalue is below this
-#: fraction of its largest (singular to rounding: the divergence would be infinite there)
-GEOMETRIC_RTOL = 1e-12
+# TODO(issue 25 item 6): tests and benchmarks import these private names; point them at
+# dynid.analysis.estimators.sdp (build_sdp, whitening, SDPProblem) and drop the aliases.
+_build, _whitening, _Problem = build_sdp, whitening, SDPProblem
+
 #: the a-priori terms of pc_wls(prior=...): None = tie-break only
 PRIORS = (None, "apriori", "geometric")
-_NONNEG = ("Ia", "Fv", "Fc")
-
-
-def require_cvxpy():
-    """Import cvxpy (with Clarabel) or say how to install it."""
-    try:
-        import cvxpy as cp
-    except ImportError:
-        raise InputError('physically consistent identification (--physical, --urdf, --mjcf) needs '
-                         'the optional packages cvxpy and clarabel: pip install "dynid[physical]"') from None
-    if "CLARABEL" not in cp.installed_solvers():
-        raise InputError('cvxpy is installed without the Clarabel solver: pip install "dynid[physical]" '
-                         '(or pip install clarabel)')
-    return cp
-
-
-def _whitening(cov):
-    """R with R^T R = cov^-1, tolerant of a nearly singular cov (as standard_set does)."""
-    cov = np.asarray(cov, dtype=float)
-    w, V = np.linalg.eigh(0.5 * (cov + cov.T))
-    w = np.maximum(w, w.max() * 1e-14)
-    return (V / np.sqrt(w)).T
-
-
-@dataclass
-class _Problem:
-    """The compiled SDP, re-solved with another target by changing one parameter (bootstrap)."""
-
-    cp: object
-    prob: object
-    z: object            # variable: chi / s
-    target: object       # parameter: R beta_target
-    s: np.ndarray
-    names: list
-    nonneg: list         # indices of Ia, Fv, Fc parameters
-    mass_idx: list
-    links: list          # slices of the inertial parameters
-    mass_bounds: dict    # index -> (lo, hi)
-
-    def solve(self, t):
-        self.target.value = np.asarray(t, dtype=float)
-        try:
-            with warnings.catch_warnings():
-                # "optimal_inaccurate" is reported in the status (and the result's notices)
-                warnings.simplefilter("ignore", UserWarning)
-                self.prob.solve(solver="CLARABEL")
-        except self.cp.error.SolverError as e:
-            raise InputError(f"the physically consistent fit failed in the SDP solver: {e}") from None
-        if self.prob.status not in ("optimal", "optimal_inaccurate"):
-            raise InputError(f"the physically consistent fit has no solution (solver status "
-                             f"{self.prob.status}); check the mass bounds of the robot file")
-        return self.s * np.asarray(self.z.value, dtype=float)
-
-
-def apriori_pseudo_inertias(robot, chi_ap):
-    """Each link's a-priori pseudo-inertia J0_l (4x4), checked positive definite, as the
-    geometric prior needs (its divergence is infinite at a singular J0). One InputError
-    names every link that fails."""
-    E = pseudo_inertia_basis()
-    out, bad = [], []
-    for j in range(robot.n_joints):
-        J0 = np.tensordot(np.asarray(chi_ap, dtype=float)[inertial_slice(robot, j)], E, axes=1)
-        w = np.linalg.eigvalsh(J0)
-        # relative test: a rod (a zero principal moment) is as singular at any scale
-        if not (np.all(np.isfinite(w)) and w[0] > GEOMETRIC_RTOL * max(abs(w[-1]), np.finfo(float).tiny)):
-            bad.append(f"link {j + 1} (XX{j + 1}..M{j + 1}: smallest eigenvalue {w[0]:.3g}"
-                       + (", no a-priori inertial values" if not np.any(J0) else "") + ")")
-        out.append(J0)
-    if bad:
-        raise InputError(f"prior='geometric' needs a positive-definite a-priori pseudo-inertia for every "
-                         f"link, but robot '{robot.name}' has a singular or non-physical one for "
-                         f"{'; '.join(bad)}: give those links a physical a-priori mass, first moment and "
-                         "inertia in the robot file's [apriori] values, or use prior='apriori' (Euclidean; "
-                         "--prior apriori)")
-    return out
-
-
-def _build(robot, bp, R, chi_ap, s, weight, mass_tolerance, nonneg_kinds=_NONNEG, zero_kinds=(),
-           prior=None):
-    """The SDP; ``zero_kinds`` (e.g. ``("Ia",)``) fixes those standard parameters at 0 (a
-    model without them, such as no rotor inertia behind a link-side torque sensor).
-    ``prior="geometric"``: the inertial parameters' a-priori term is the entropic divergence
-    of the module doc, the others' stays Euclidean (same ``weight``)."""
-    cp = require_cvxpy()
-    J0 = apriori_pseudo_inertias(robot, chi_ap) if prior == "geometric" else None
-    names = list(robot.standard_names)
-    n_std = len(names)
-    P = bp.matrix
-    z = cp.Variable(n_std)
-    target = cp.Parameter(R.shape[0])
-    A = R @ P * s[None, :]
-    E = pseudo_inertia_basis()
-    links = [inertial_slice(robot, j) for j in range(robot.n_joints)]
-    cons = []
-    for sl in links:
-        ss = s[sl]
-        J = sum(E[k] * ss[k] * z[sl.start + k] for k in range(10))
-        cons.append(J - J_MARGIN * np.eye(4) >> 0)
-    nonneg = [i for i, nm in enumerate(names) if nm.rstrip("0123456789").rstrip("m") in nonneg_kinds]
-    if nonneg:
-        cons.append(z[nonneg] >= 0)
-    zero = [i for i, nm in enumerate(names) if nm.rstrip("0123456789").rstrip("m") in zero_kinds]
-    if zero:
-        cons.append(z[zero] == 0)
-    mass_idx = [names.index(f"M{j + 1}") for j in range(robot.n_joints)]
-    bounds = {}
-    if mass_tolerance is not None:
-        tol = float(mass_tolerance)
-        if not (math.isfinite(tol) and tol >= 0):
-            raise InputError(f"mass_tolerance must be a fraction >= 0 (0.1 for +-10 %), got {mass_tolerance!r}")
-        for i in mass_idx:
-            if chi_ap[i] > 0:
-                bounds[i] = ((1 - tol) * chi_ap[i], (1 + tol) * chi_ap[i])
-                cons += [z[i] >= bounds[i][0] / s[i], z[i] <= bounds[i][1] / s[i]]
-    if J0 is None:
-        reg = cp.sum_squares(z - chi_ap / s)
-    else:
-        # d(J || J0) of M = L0^-1 J L0^-T (J0 = L0 L0^T): det M = det(J0^-1 J), tr M = tr(J0^-1 J),
-        # and M is near the identity, better conditioned for the log-det cone than J itself
-        inertial = np.zeros(n_std, dtype=bool)
-        reg = 0
-        for sl, J0_l in zip(links, J0):
-            inertial[sl] = True
-            Li = np.linalg.inv(np.linalg.cholesky(J0_l))
-            B = [Li @ E[k] @ Li.T * s[sl][k] for k in range(10)]
-            M = sum(0.5 * (B[k] + B[k].T) * z[sl.start + k] for k in range(10))
-            reg = reg - cp.log_det(M) + cp.trace(M) - 4.0
-        rest = np.flatnonzero(~inertial)
-        if rest.size:
-            reg = reg + cp.sum_squares(z[rest] - chi_ap[rest] / s[rest])
-    obj = cp.sum_squares(A @ z - target) + weight * reg
-    prob = cp.Problem(cp.Minimize(obj), cons)
-    return _Problem(cp, prob, z, target, s, names, nonneg, mass_idx, links, bounds)
-
-
-def _active(pb, chi):
-    """The active constraints at chi: (labels, number of scalar directions)."""
-    E = pseudo_inertia_basis()
-    labels, k = [], 0
-    for j, sl in enumerate(pb.links):
-        J = np.tensordot(chi[sl], E, axes=1)
-        w = np.linalg.eigvalsh(J)
-        null = int(np.sum(w <= ACTIVE_RTOL * max(w[-1], 1e-12) + 10 * J_MARGIN))
-        if null:
-            labels.append(f"pseudo-inertia of link {j + 1} singular (nullity {null})")
-            k += null * (null + 1) // 2
-    for i in pb.nonneg:
-        if chi[i] <= ACTIVE_RTOL * pb.s[i]:
-            labels.append(f"{pb.names[i]} = 0")
-            k += 1
-    for i, (lo, hi) in pb.mass_bounds.items():
-        if chi[i] <= lo + ACTIVE_RTOL * pb.s[i] or chi[i] >= hi - ACTIVE_RTOL * pb.s[i]:
-            labels.append(f"{pb.names[i]} at its bound {lo if chi[i] < 0.5 * (lo + hi) else hi:.4g} kg")
-            k += 1
-    return labels, k
 
 
 @dataclass(eq=False)
@@ -345,7 +200,7 @@ class PhysicalResult(ParameterResults):
     def consistent(self) -> bool:
         return all(lk["consistent"] for lk in self.links) and all(
             self.standard[i] >= -1e-12 for i, nm in enumerate(self.standard_names)
-            if nm.rstrip("0123456789").rstrip("m") in _NONNEG)
+            if nm.rstrip("0123456789").rstrip("m") in NONNEG_KINDS)
 
     @property
     def base(self):
@@ -375,7 +230,6 @@ class PhysicalResult(ParameterResults):
         """(1 - alpha) intervals: hull of the bootstrap percentiles and ``chi +- z sigma_wls``,
         cut at the physical lower bound (module doc); without a bootstrap (or with fewer
         than 20 refits) the WLS half-width alone, cut the same way."""
-        from dynid.analysis.results import _check_alpha
         _check_alpha(alpha)
         half = self._interval_quantile(alpha) * np.sqrt(np.maximum(np.diag(self.wls_cov), 0.0))
         lb = np.full(len(self.chi), -np.inf) if self.lower_bound is None else self.lower_bound
@@ -402,7 +256,6 @@ class PhysicalResult(ParameterResults):
     def to_standard_set(self):
         """The PC standard set as a :class:`~dynid.analysis.estimators.standard_set.StandardSet`
         (what the URDF export writes), its targets the unconstrained WLS values."""
-        from dynid.analysis.estimators.standard_set import REPRODUCE_CHI2, StandardSet
         sig = np.sqrt(np.maximum(np.diag(self.wls_cov), 0.0))
         with np.errstate(divide="ignore", invalid="ignore"):
             dev = (self.chi - self.wls_chi) / sig
@@ -431,8 +284,6 @@ class PhysicalResult(ParameterResults):
         """Held-out relative error ||tau - tau_hat|| / ||tau|| and per-joint RMS [N m] of this fit and
         of the unconstrained WLS it constrains, on all decimated samples of ``experiment`` (no dead
         zone, as :func:`dynid.analysis.statistics.validation.validate`), with the gap in points."""
-        from dynid.analysis.processing.observation import observe
-        from dynid.analysis.statistics.validation import prediction_errors
         if self.idim is None:
             raise InputError("held_out_block: this PC fit does not carry the IDIM result it came from")
         full = observe(experiment, robot, self.idim.base, dict(self.settings, qd_threshold=0.0))
@@ -445,7 +296,6 @@ class PhysicalResult(ParameterResults):
 
     def physical_block(self) -> dict:
         """The JSON block ``"physical"`` of ``dynid identify --physical``."""
-        from dynid.provenance import json_safe
         return json_safe({
             "model": self.model,
             "consistent": self.consistent, "active": self.active, "chi2": self.chi2, "dof": self.dof,
@@ -465,7 +315,6 @@ class PhysicalResult(ParameterResults):
         })
 
     def to_dict(self) -> dict:
-        from dynid.provenance import json_safe, versions
         return json_safe({"method": self.method, "robot": self.robot_name,
                           "parameters": [{"name": n, "value": v, "std": s, "rel_std_percent": r}
                                          for n, v, s, r in zip(self.names, self.chi, self.sigma,
@@ -537,18 +386,17 @@ def pc_wls(robot, bp, beta_wls, cov_wls, *, prior=None, prior_weight=1.0, mass_t
                          f"{beta_wls.shape} and a covariance of shape {cov_wls.shape}")
     chi_ap = apriori_standard(robot) if apriori is None else np.asarray(apriori, dtype=float)
     s = scales(robot, chi_ap)
-    R = _whitening(cov_wls)
+    R = whitening(cov_wls)
     if mass_tolerance is None:
         mass_tolerance = getattr(robot, "mass_tolerance", None)      # [apriori] mass_tolerance
-    pb = _build(robot, bp, R, chi_ap, s, w, mass_tolerance, prior=prior)
+    pb = build_sdp(robot, bp, R, chi_ap, s, w, mass_tolerance, prior=prior)
     t0 = time.perf_counter()
     chi = pb.solve(R @ beta_wls)
     seconds = time.perf_counter() - t0
     status = pb.prob.status
     beta = bp.matrix @ chi
     chi2 = float(np.sum((R @ (beta - beta_wls)) ** 2))
-    active, k = _active(pb, chi)
-    from scipy import stats
+    active, k = active_constraints(pb, chi)
     p = 1.0 if k == 0 else float(stats.chi2.sf(chi2, min(k, bp.n_base)))
     notices = []
     if status != "optimal":
@@ -632,7 +480,7 @@ def _lower_bounds(names):
     """0 for a base parameter that is a lone Ia, Fv or Fc (nothing regrouped into it, so the
     constraint bounds it directly), -inf for the others (whose physical range the intervals
     do not use)."""
-    return np.array([0.0 if n.rstrip("0123456789").rstrip("m") in _NONNEG else -np.inf for n in names])
+    return np.array([0.0 if n.rstrip("0123456789").rstrip("m") in NONNEG_KINDS else -np.inf for n in names])
 
 
 def _wls_standard_consistent(robot, bp, beta_wls):
@@ -645,7 +493,7 @@ def _wls_standard_consistent(robot, bp, beta_wls):
     for j in range(robot.n_joints):
         sl = inertial_slice(robot, j)
         cons.append(sum(E[k] * chi[sl.start + k] for k in range(10)) >> 0)
-    nonneg = [i for i, nm in enumerate(robot.standard_names) if nm.rstrip("0123456789").rstrip("m") in _NONNEG]
+    nonneg = [i for i, nm in enumerate(robot.standard_names) if nm.rstrip("0123456789").rstrip("m") in NONNEG_KINDS]
     if nonneg:
         cons.append(chi[nonneg] >= 0)
     prob = cp.Problem(cp.Minimize(0), cons)
@@ -748,11 +596,11 @@ class PhysicalSupport:
             sl = inertial_slice(robot, j)
             cons.append(sum(E[k] * chi[sl.start + k] for k in range(10)) >> 0)
         std = list(robot.standard_names)
-        nonneg = [i for i, nm in enumerate(std) if nm.rstrip("0123456789").rstrip("m") in _NONNEG]
+        nonneg = [i for i, nm in enumerate(std) if nm.rstrip("0123456789").rstrip("m") in NONNEG_KINDS]
         if nonneg:
             cons.append(chi[nonneg] >= 0)
         self.prob = cp.Problem(cp.Minimize(0), cons)
-        self.lone = [k for k, n in enumerate(names) if n.rstrip("0123456789").rstrip("m") in _NONNEG]
+        self.lone = [k for k, n in enumerate(names) if n.rstrip("0123456789").rstrip("m") in NONNEG_KINDS]
         self.n_solves = 0
         self.bp = bp
         self.links = [inertial_slice(robot, j) for j in range(robot.n_joints)]

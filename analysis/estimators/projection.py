@@ -74,7 +74,9 @@ import scipy.linalg as sla
 from statsmodels.stats.sandwich_covariance import S_hac_simple, weights_bartlett
 
 from dynid.analysis.estimators import least_squares as ls
+from dynid.analysis.processing.observation import observe
 from dynid.analysis.results import ParameterResults, _fmt, _fmt_pct
+from dynid.dynamics.base_parameters import base_parameters
 from dynid.errors import InputError
 from dynid.provenance import data_hash, json_safe, versions
 
@@ -582,8 +584,6 @@ def identify_projection(experiment, robot, *, bp=None, settings=None, **kwargs) 
     rows of the dead zone are masked. Other keyword arguments go to
     :func:`projection_method`.
     """
-    from dynid.analysis.processing.observation import observe
-    from dynid.dynamics.base_parameters import base_parameters
 
     if getattr(experiment, "qr", None) is None:
         raise InputError(f"{experiment.source}: the Projection Method needs the reference positions "

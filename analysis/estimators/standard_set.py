@@ -64,7 +64,10 @@ import numpy as np
 import pandas as pd
 import scipy.optimize
 
+from dynid.analysis.estimators.sdp import build_sdp
 from dynid.dynamics.urdf_writer import consistency, inertial_slice, pseudo_inertia
+from dynid.errors import InputError
+from dynid.provenance import json_safe
 
 # floors of the scales s_i per kind of parameter (SI units): a parameter whose
 # a-priori value is 0 may still move by about this much at unit cost
@@ -128,7 +131,6 @@ class StandardSet:
                             index=pd.Index(self.base_names, name="base parameter"))
 
     def to_dict(self):
-        from dynid.provenance import json_safe
         return json_safe({
             "robot": self.robot_name,
             "choice": ("physically consistent standard set (pseudo-inertia of every link positive "
@@ -278,10 +280,8 @@ def choose_standard_set(robot, bp, target, cov, *, target_names=None, apriori=No
     notices = []
     sol = None
     if solver == "sdp":
-        from dynid.errors import InputError
         try:
-            from dynid.analysis.estimators.physical import _build
-            pb = _build(robot, bp, R, chi_ap, s, lam, None)
+            pb = build_sdp(robot, bp, R, chi_ap, s, lam, None)
         except InputError as e:
             notices.append(f"{e}; the local log-Cholesky search was used instead of the SDP")
             solver = "log-cholesky"

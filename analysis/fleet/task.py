@@ -7,7 +7,7 @@ plain dict. Nothing in the result depends on the worker, the clock or the
 order of execution except ``task_seconds`` and ``task_cpu_seconds``, which the comparisons leave out.
 
 A recording longer than ``max_samples`` (default :data:`MAX_SAMPLES`) is not
-processed whole: :func:`dynid.analysis.processing.streaming.reduce_stream` filters,
+processed whole: :func:`dynid.analysis.estimators.streamed.reduce_stream` filters,
 builds the regressor and decimates it block by block, and reduces each decimated
 chunk at once to its per-joint triangles (WᵀW, Wᵀτ and ‖τ‖² in factored form,
 :class:`dynid.analysis.estimators.least_squares.Reduction`), which add up; OLS, WLS
@@ -63,9 +63,9 @@ def _robot(spec: str):
 def _streamed_reduction(exp, robot, bp, settings, block):
     """The reduced system of a long recording, block by block (settings from its first block)."""
     from dynid.analysis.data.experiment import Experiment
+    from dynid.analysis.estimators.streamed import reduce_stream
     from dynid.analysis.processing.observation import resolve_settings
     from dynid.analysis.processing.signals import dead_zone_thresholds, derivatives
-    from dynid.analysis.processing.streaming import reduce_stream
     head = slice(0, min(exp.q.shape[0], block))
     first = Experiment(t=exp.t[head], q=exp.q[head], tau=exp.tau[head], fs=exp.fs, source=exp.source)
     s = resolve_settings(first, settings)

@@ -52,6 +52,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dynid.errors import InputError
+from dynid.provenance import json_safe
 
 __all__ = ["AveragedPeriods", "average_periods", "estimate_period_shift", "harmonic_filter",
            "whole_periods", "noise_level"]
@@ -218,7 +219,6 @@ class AveragedPeriods:
         return "\n".join(lines)
 
     def to_dict(self):
-        from dynid.provenance import json_safe
 
         return json_safe({
             "period": self.period, "fs": self.fs, "samples_per_period": self.samples_per_period,

@@ -10,12 +10,11 @@ centre equals the whole-record filtfilt to that tolerance. The centre then
 goes through the same regressor -> dead zone -> parallel decimation as
 :func:`dynid.analysis.processing.observation.observe`. Memory: a few blocks of q and tau plus
 one regressor chunk, plus the decimated system (n_d times smaller than the
-recording); :func:`reduce_stream` does not keep even that: each decimated chunk
-is reduced to its per-joint triangles and added up.
+recording); :func:`dynid.analysis.estimators.streamed.reduce_stream` does not keep even
+that: it feeds :func:`stream_blocks` a sink that reduces each decimated chunk to its
+per-joint triangles and adds them up.
 """
 from __future__ import annotations
-
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -33,9 +32,10 @@ def observe_stream(chunks, fs, robot, bp, *, fc_position, nd, f_decimation_cutof
     whole record's peak speed before the first block is processed.
     """
     parts = []
-    settings, dec, margin, n_in = _stream(parts.append, chunks, fs, robot, bp, fc_position=fc_position, nd=nd,
-                                          f_decimation_cutoff=f_decimation_cutoff, qd_threshold=qd_threshold,
-                                          order=order, block=block, progress=progress)
+    settings, dec, margin, n_in = stream_blocks(parts.append, chunks, fs, robot, bp, fc_position=fc_position,
+                                                 nd=nd, f_decimation_cutoff=f_decimation_cutoff,
+                                                 qd_threshold=qd_threshold, order=order, block=block,
+                                                 progress=progress)
     Wd, taud, qf_d, qd_d, qdd_d, kept = (np.concatenate([p[k] for p in parts], axis=0) for k in range(6))
     t = (margin + dec.indices) / fs
     return Observation(W=Wd, tau=taud, t=t, q=qf_d, qd=qd_d, qdd=qdd_d, row_mask=kept >= 0.5,
@@ -44,55 +44,13 @@ def observe_stream(chunks, fs, robot, bp, *, fc_position, nd, f_decimation_cutof
                        n_raw=n_in)
 
 
-def reduce_stream(chunks, fs, robot, bp, *, fc_position, nd, f_decimation_cutoff=None,
-                  qd_threshold, order=4, block=200_000, progress=None) -> StreamedReduction:
-    """The observation system of a chunked recording reduced as it streams, W never held.
-
-    The same decimated rows as :func:`observe_stream` (same arguments), but each
-    decimated part is reduced at once to its per-joint triangles
-    (:func:`dynid.analysis.estimators.least_squares.reduce_system`: WᵀW, WᵀY and ‖Y‖²
-    in factored form) and added to the running total, so memory is a few blocks
-    of q and tau whatever the recording's length. Rows are selected as there
-    (decimated rows that kept at least half their samples). Solve the result
-    with ``ls.wls_reduced`` / ``essential_parameters(reduction, None, None, ls.wls)``.
-    """
-    from dynid.analysis.estimators import least_squares as ls
-    total = []
-    names = list(bp.names)
-
-    def add(part):
-        W, tau, kept = part[0], part[1], part[5]
-        if W.shape[0] == 0:
-            return
-        red = ls.reduce_system(W, tau, names, row_mask=kept >= 0.5)
-        total[:] = [red if not total else total[0] + red]
-
-    settings, dec, margin, n_in = _stream(add, chunks, fs, robot, bp, fc_position=fc_position, nd=nd,
-                                          f_decimation_cutoff=f_decimation_cutoff,
-                                          qd_threshold=qd_threshold, order=order, block=block,
-                                          progress=progress)
-    return StreamedReduction(reduction=total[0], settings=settings, n_raw=n_in,
-                             n_decimated=int(len(dec.indices)),
-                             notices=[f"streamed {n_in} samples in blocks of {block} (+{margin} overlap), "
-                                      f"reduced chunk by chunk"])
-
-
-@dataclass
-class StreamedReduction:
-    """What :func:`reduce_stream` returns: the summed :class:`~ls.Reduction` and its settings."""
-
-    reduction: object
-    settings: dict
-    n_raw: int
-    n_decimated: int
-    notices: list
-
-
-def _stream(sink, chunks, fs, robot, bp, *, fc_position, nd, f_decimation_cutoff, qd_threshold,
-            order, block, progress):
+def stream_blocks(sink, chunks, fs, robot, bp, *, fc_position, nd, f_decimation_cutoff, qd_threshold,
+                  order, block, progress):
     """Push every block through filter, regressor, dead zone and decimator; ``sink`` each part.
 
-    Returns (settings, decimator, margin, samples read).
+    Each part is the decimated ``(W, tau, q, qd, qdd, kept)`` of one regressor chunk
+    (``kept``: the fraction of its samples outside the dead zone). Arguments as
+    `observe_stream`. Returns (settings, decimator, margin, samples read).
     """
     if isinstance(qd_threshold, str):
         raise DataError("observe_stream needs numeric qd_threshold values (rad/s); 'auto' needs the "

@@ -67,6 +67,7 @@ from statsmodels.stats.diagnostic import lilliefors
 from statsmodels.stats.stattools import jarque_bera
 
 from dynid.errors import InputError
+from dynid.provenance import json_safe
 
 __all__ = ["NoiseTests", "noise_pdf_tests", "noise_pdf", "compare_noise", "NoiseComparison",
            "TESTS", "RULES", "normality", "normality_row", "shapiro_subsample"]
@@ -231,7 +232,6 @@ class NoiseTests:
         return "\n".join(lines)
 
     def to_dict(self):
-        from dynid.provenance import json_safe
 
         return json_safe({"label": self.label, "unit": self.unit, "alpha": self.alpha,
                           "rule": self.rule, "primary": self.primary, "rule_text": self.rule_text(),
@@ -326,7 +326,6 @@ class NoiseComparison:
         return "\n".join([title, head] + rows)
 
     def to_dict(self):
-        from dynid.provenance import json_safe
 
         return json_safe({"mode": self.mode,
                           "joints": self.table.reset_index().to_dict(orient="records")})

@@ -38,6 +38,7 @@ from scipy import signal
 from statsmodels.stats.diagnostic import acorr_ljungbox
 
 from dynid.analysis.statistics.validation import normality
+from dynid.provenance import json_safe
 
 __all__ = ["autocorrelation", "effective_sample_size", "binned_means", "ResidualAnalysis",
            "analyze_residuals", "residual_analysis"]
@@ -198,7 +199,6 @@ class ResidualAnalysis:
         return "\n".join(lines)
 
     def to_dict(self):
-        from dynid.provenance import json_safe
         return json_safe({
             "rms_per_joint": list(self.rms),
             "ljung_box": self.ljung_box.reset_index().to_dict(orient="records"),

@@ -26,9 +26,13 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
+from dynid.analysis.data.experiment import load_experiment
 from dynid.analysis.processing.observation import observe
+from dynid.analysis.processing.prediction import prediction_errors
 from dynid.analysis.results import Exportable
 from dynid.analysis.statistics.noise import normality as _normality
+from dynid.errors import DataError, InputError
+from dynid.provenance import json_safe
 
 #: why the moving-sample figure leaves rows out
 DEAD_ZONE_REASON = "Coulomb friction's sign is undetermined at rest"
@@ -109,7 +113,6 @@ class ValidationResult(Exportable):
         return "\n".join(lines)
 
     def to_dict(self):
-        from dynid.provenance import json_safe
         mj = self.moving_joint_rel_error
         return json_safe({
             "source": self.source, "n_samples": int(len(self.t)),
@@ -137,23 +140,6 @@ class ValidationResult(Exportable):
             "notices": self.notices})
 
 
-def prediction_errors(tau, tau_hat, mask=None):
-    """Relative error norm, per-joint RMS and per-joint relative error (over ``mask`` if given)."""
-    tau = np.asarray(tau, dtype=float)
-    res = tau - tau_hat
-    if mask is not None:
-        m = np.broadcast_to(np.asarray(mask, dtype=bool), tau.shape)
-        res = np.where(m, res, 0.0)
-        tau = np.where(m, tau, 0.0)
-        cnt = np.maximum(m.sum(axis=0), 1)
-        rms = np.sqrt(np.sum(res ** 2, axis=0) / cnt)
-    else:
-        rms = np.sqrt(np.mean(res ** 2, axis=0))
-    rel = float(np.linalg.norm(res) / np.linalg.norm(tau))
-    jrel = np.linalg.norm(res, axis=0) / np.linalg.norm(tau, axis=0)
-    return rel, rms, jrel
-
-
 def validate(idim_result, experiment, robot=None):
     """Predict ``experiment`` with the essential model of ``idim_result``.
 
@@ -165,10 +151,8 @@ def validate(idim_result, experiment, robot=None):
     if robot is None:
         robot = getattr(idim_result, "robot", None)
         if robot is None:
-            from dynid.errors import InputError
             raise InputError("validate: this result does not carry its robot; pass robot=")
     if isinstance(experiment, (str, bytes)) or hasattr(experiment, "__fspath__"):
-        from dynid.analysis.data.experiment import load_experiment
         experiment = load_experiment(experiment, robot)
     settings = dict(idim_result.settings)
     full = observe(experiment, robot, idim_result.base, dict(settings, qd_threshold=0.0))
@@ -181,7 +165,6 @@ def validate(idim_result, experiment, robot=None):
     if dz:
         mov = observe(experiment, robot, idim_result.base, settings)
         if mov.tau.shape != full.tau.shape or not np.allclose(mov.t, full.t):
-            from dynid.errors import DataError
             raise DataError("validate: the dead-zone and the all-sample systems have different rows")
         mask = np.broadcast_to(np.asarray(mov.row_mask, dtype=bool), mov.tau.shape).copy()
         that_m = idim_result.predict(mov.W)

@@ -67,11 +67,12 @@ def main(argv=None):
     ap.add_argument("--quiet", action="store_true", help="print only the headline figures")
     args = ap.parse_args(argv)
 
+    from figaroh_comparison import comparison_frame, comparison_section, comparison_summary  # beside this script
+
     import dynid
     from dynid.outputs import write_all
     from dynid.provenance import dumps_json, json_safe, versions
     from dynid.reports.bayes_section import bayes_sections
-    from dynid.reports.comparison import comparison_frame, comparison_section, comparison_summary
     from dynid.reports.diagnosis_section import diagnosis_sections
     from dynid.reports.didim_section import didim_sections
     from dynid.reports.html import render_idim_report

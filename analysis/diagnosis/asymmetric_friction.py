@@ -31,6 +31,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
+from dynid.analysis.diagnosis.effects import make_candidate
+from dynid.analysis.diagnosis.selection import fit_effects
 from dynid.errors import InputError
 
 __all__ = ["AsymmetricFrictionResult", "asymmetric_friction"]
@@ -88,9 +90,6 @@ def asymmetric_friction(experiment, robot, idim_result, *, joints=None) -> Asymm
     ``experiment``: the recording ``idim_result`` was identified on (one
     recording); ``joints``: 1-based joints (default all).
     """
-    from dynid.analysis.diagnosis.effects import make_candidate
-    from dynid.analysis.diagnosis.selection import fit_effects
-
     n = robot.n_joints
     joints = list(range(1, n + 1)) if joints is None else [int(j) for j in joints]
     bad = [j for j in joints if not 1 <= j <= n]

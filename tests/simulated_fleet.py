@@ -1,4 +1,7 @@
-"""A simulated production fleet, for tests and benchmarks (not used when a real fleet is run).
+"""A simulated production fleet, for tests and benchmarks (not part of the dynid package).
+
+Imported by tests/test_fleet.py (tests/ is on the path) and by benchmarks/fleet.py and
+benchmarks/chunked_memory.py (which put tests/ on the path).
 
 N robots x D days, one recording a day at a random hour: the robot repeats its
 cell's pick-and-place cycle (trapezoidal-velocity moves between a few poses with

@@ -1,5 +1,8 @@
 """dynid's TX40 estimates beside FIGAROH's published results and Table 2 of the DIDIM paper.
 
+Part of this example, not of the dynid package (run.py imports it from beside
+itself; tests/test_comparison.py and benchmarks/real_data.py from this folder).
+
 ``comparison_frame(idim, reference_dir, didim=None)`` returns one row per
 compared quantity, every value with its %σ in each source:
 
