@@ -54,7 +54,7 @@ import numpy as np
 from dynid.errors import RobotFileError
 
 from .robot import Joint, Robot
-from .robot_file import MAX_INERTIA, MAX_JOINTS, MAX_LENGTH, MAX_MASS, MAX_URDF_LINKS, check_name, read_limited, shown
+from .robot_checks import MAX_INERTIA, MAX_JOINTS, MAX_LENGTH, MAX_MASS, MAX_URDF_LINKS, check_name, read_limited, shown
 
 _MOVING = {"revolute": 0, "continuous": 0, "prismatic": 1}
 _UNSUPPORTED = {"floating", "planar"}          # valid URDF, but not a joint dynid can model
