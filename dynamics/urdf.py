@@ -185,7 +185,7 @@ def _add(a, b):
 def _parse(path):
     """The root element of a URDF file, parsed with defusedxml (no entities, no external refs)."""
     data = read_limited(path, "URDF")
-    try:
+    try:        # a dependency; imported here so a broken environment gives a RobotFileError
         import defusedxml
         from defusedxml import ElementTree as SafeET
     except ImportError:
