@@ -42,6 +42,10 @@ MIN_J_AP = 1e-9                   # kg m^2: smallest a-priori joint inertia of t
 MAX_APRIORI = 1e9                 # |any other a-priori value| (friction, offsets, base parameters)
 MAX_NESTING = 32                  # depth of TOML tables/arrays (tx40.toml uses 4)
 MAX_ANGLE = 2 * math.pi           # rad: |alpha|, |theta| of an MDH row (one turn; 90 or 180 is degrees)
+MAX_TRAVEL = 1e4                  # rad or m: |joint limit| when finite (infinite: no limit)
+MAX_SPEED = 1e4                   # rad/s or m/s: qd_max when finite (a fast arm joint: ~10 rad/s)
+MAX_ACCEL = 1e6                   # rad/s^2 or m/s^2: qdd_max when finite
+MAX_EFFORT = 1e7                  # N m or N: tau_max when finite (the largest arms: ~1e5 N m)
 
 # C0 and C1 control characters, DEL, and the bidirectional overrides that reorder text on screen
 _CONTROL = re.compile("[\x00-\x1f\x7f-\x9f\u200e\u200f\u202a-\u202e\u2066-\u2069]")
@@ -137,7 +141,7 @@ def number(value, where, path, *, positive=False, nonnegative=False, allow_inf=F
     if nonnegative and v < 0:
         raise RobotFileError(f"{path}: {where} = {v:g}{who} is negative; it must be 0 or positive: "
                              f"fix the sign")
-    if bounds is not None:
+    if bounds is not None and not math.isinf(v):     # an allowed infinity means "no limit"
         lo, hi = bounds
         if lo and abs(v) < lo:
             raise RobotFileError(f"{path}: {where} = {v:g}{who} is {'0' if v == 0 else 'too small'}; its "

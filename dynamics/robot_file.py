@@ -62,8 +62,10 @@ from dynid.errors import RobotFileError
 
 from .robot import Controller, Coupling, Joint, Robot, mdh_placement
 from .robot_checks import (  # noqa: F401  (MAX_*, check_name, read_limited, shown: importable from here)
+    MAX_ACCEL,
     MAX_ANGLE,
     MAX_APRIORI,
+    MAX_EFFORT,
     MAX_FILE_BYTES,
     MAX_GRAVITY,
     MAX_INERTIA,
@@ -73,6 +75,8 @@ from .robot_checks import (  # noqa: F401  (MAX_*, check_name, read_limited, sho
     MAX_NESTING,
     MAX_RATE,
     MAX_RATIO,
+    MAX_SPEED,
+    MAX_TRAVEL,
     MAX_URDF_LINKS,
     MIN_J_AP,
     MIN_RATE,
@@ -95,16 +99,18 @@ from .urdf import read_urdf
 # (see robot_checks for why each bound is where it is). A new field is one row.
 _LENGTH = Number(unit=" m", bounds=(0, MAX_LENGTH))
 _ANGLE = Number(unit=" rad", bounds=(0, MAX_ANGLE), hint=radians_hint)
-_LIMIT = Number(positive=True, allow_inf=True)
 _RATIO = Number(positive=True, bounds=(MIN_RATIO, MAX_RATIO))
 
 #: [[joints]]: modified DH row (Khalil-Kleinfinger), limits and drive gain
 JOINT_FIELDS = {
     "alpha": _ANGLE, "d": _LENGTH, "theta": _ANGLE, "r": _LENGTH,
-    "qd_max": _LIMIT, "qdd_max": _LIMIT, "tau_max": _LIMIT,
+    "qd_max": Number(positive=True, allow_inf=True, bounds=(0, MAX_SPEED)),
+    "qdd_max": Number(positive=True, allow_inf=True, bounds=(0, MAX_ACCEL)),
+    "tau_max": Number(positive=True, allow_inf=True, bounds=(0, MAX_EFFORT)),
     "drive_gain": Number(bounds=(MIN_RATIO, MAX_RATIO)),
 }
 _KINEMATICS = ("alpha", "d", "theta", "r")
+_Q_LIMIT = Number(allow_inf=True, bounds=(0, MAX_TRAVEL))      # each of [lower, upper]
 
 #: [controller]: rate (a number) and per-joint gains (a number or one per joint), with defaults
 CONTROLLER_FIELDS = {
@@ -459,7 +465,7 @@ def _set_kinematics(joint, tab, where, path, who):
 def _q_limits(lim, where, path):
     if not isinstance(lim, list) or len(lim) != 2:
         raise RobotFileError(f"{path}: {where}.q_limits must be [lower, upper]")
-    lo, hi = (number(v, f"{where}.q_limits", path, allow_inf=True) for v in lim)
+    lo, hi = (_Q_LIMIT(v, f"{where}.q_limits", path) for v in lim)
     if not lo < hi:
         raise RobotFileError(f"{path}: {where}.q_limits lower {lo} must be below upper {hi}")
     return lo, hi

@@ -479,3 +479,17 @@ def test_angle_refusal_from_a_file_names_the_file(tmp_path):
     with pytest.raises(RobotFileError) as exc:
         load_robot(path)
     assert_helpful(exc, "degrees.toml", ".alpha = -90", "degrees")
+
+
+@pytest.mark.parametrize("key, value, fields", [
+    ("tau_max", 1e300, ["joints[1].tau_max", "1e+300", "joint 'j1'", "1e+07"]),
+    ("qd_max", 1e300, ["joints[1].qd_max", "1e+300", "1e+04"]),
+    ("qdd_max", 1e300, ["joints[1].qdd_max", "1e+06"]),
+    ("q_limits", [-1e300, 1.0], ["joints[1].q_limits", "1e+04"]),
+])
+def test_finite_limits_beyond_any_robot_are_refused(key, value, fields):
+    """Issue 31: limits of 1e300 made excite write an all-zero trajectory; infinity still means no limit."""
+    _bad_doc(_joint_edit(0, **{key: value}), *fields)
+    robot = robot_from_dict(_joint_edit(0, tau_max=math.inf, qd_max=math.inf, q_limits=[-math.inf, math.inf]),
+                            "ok.toml")
+    assert robot.joints[0].tau_max == math.inf and robot.joints[0].q_limits == (-math.inf, math.inf)
