@@ -325,10 +325,10 @@ def check_validation(x: VerdictInputs) -> CheckOutcome:
 
 def _no_validation(x: VerdictInputs) -> CheckOutcome:
     """No held-out data: say so, with the option that supplies it."""
-    fitted_error = float(getattr(x.estimate, "rel_error", np.nan))
+    fitted = x.residuals is not None and np.isfinite(float(getattr(x.estimate, "rel_error", np.nan)))
     text = ("No held-out data: the model was not tested on data it was not "
             + (f"fitted to (identification error {_pct(x.estimate.rel_error)} on the fitted rows); "
-               if x.residuals is not None and np.isfinite(fitted_error) else "fitted to; ")
+               if fitted else "fitted to; ")
             + ("use --holdout or --validation." if hasattr(x.result, "observation") else
                "the held-out check is IDIM's: dynid identify --holdout, or dynid "
                "report --holdout for every method at once."))
