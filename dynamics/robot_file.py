@@ -46,13 +46,12 @@ Every value is checked against the bounds below; names (robot, joints) must
 not hold control characters (they are printed on terminals); a-priori names
 must be standard parameters of this robot or base names (a standard name
 followed by ``R``); a-priori masses and inertia diagonals must not be negative.
+The fields, their units and ranges are the tables `JOINT_FIELDS` and
+`CONTROLLER_FIELDS`; the shared checks live in `robot_checks`.
 """
 from __future__ import annotations
 
-import math
-import os
 import re
-import stat
 import tomllib
 from importlib import resources
 from pathlib import Path
@@ -62,96 +61,69 @@ import numpy as np
 from dynid.errors import RobotFileError
 
 from .robot import Controller, Coupling, Joint, Robot, mdh_placement
+from .robot_checks import (  # noqa: F401  (MAX_*, check_name, read_limited, shown: importable from here)
+    MAX_ACCEL,
+    MAX_ANGLE,
+    MAX_APRIORI,
+    MAX_EFFORT,
+    MAX_FILE_BYTES,
+    MAX_GRAVITY,
+    MAX_INERTIA,
+    MAX_JOINTS,
+    MAX_LENGTH,
+    MAX_MASS,
+    MAX_NESTING,
+    MAX_RATE,
+    MAX_RATIO,
+    MAX_SPEED,
+    MAX_TRAVEL,
+    MAX_URDF_LINKS,
+    MIN_J_AP,
+    MIN_RATE,
+    MIN_RATIO,
+    Number,
+    check_name,
+    check_text,
+    nesting,
+    no_unknown_keys,
+    number,
+    radians_hint,
+    read_limited,
+    short,
+    shown,
+)
+from .urdf import read_urdf
 
-# ----------------------------------------------------------------- bounds
-# Limits on what a robot description may say. Each is far beyond any real robot arm
-# (the largest industrial arms weigh a few tonnes, reach under 5 m, have under 10
-# joints and run their controllers at 1-10 kHz), so they only refuse typing slips and
-# unit mix-ups (1e300, a ratio of 1.6e154 that overflowed the regressor, 1e-300 that
-# gave NaN base-parameter relations) and inputs that would take minutes and gigabytes
-# (a 1000-joint URDF took 6.5 GiB, a 400-joint TOML 3 minutes). Every message says
-# the bound and what to do.
-MAX_FILE_BYTES = 16 * 2 ** 20     # a robot file; a detailed humanoid URDF is under 1 MiB
-MAX_JOINTS = 64                   # moving joints of a robot (a humanoid has ~40)
-MAX_URDF_LINKS = 10_000           # links of a URDF, chain or not (a humanoid has ~100)
-MAX_LENGTH = 100.0                # m: |d|, |r| of an MDH row, each URDF origin coordinate
-MAX_GRAVITY = 100.0               # m/s^2: norm of gravity (10 g; the Earth's is 9.81)
-MAX_MASS = 1e5                    # kg: one link's mass (100 t)
-MAX_INERTIA = 1e5                 # kg m^2: inertia entries, rotor inertia Ia, controller J_ap
-MIN_RATIO, MAX_RATIO = 1e-6, 1e6  # |coupling coefficient|, |its ratio to the motor's|, |drive gain|,
-                                  # controller wn (rad/s), zeta, g_ap, ki
-MIN_RATE, MAX_RATE = 1.0, 1e6     # Hz: controller rate
-MIN_J_AP = 1e-9                   # kg m^2: smallest a-priori joint inertia of the controller
-MAX_APRIORI = 1e9                 # |any other a-priori value| (friction, offsets, base parameters)
-MAX_NESTING = 32                  # depth of TOML tables/arrays (tx40.toml uses 4)
+# ----------------------------------------------------------------- the fields
+# Every numeric field of a robot file with its unit and finite physical range
+# (see robot_checks for why each bound is where it is). A new field is one row.
+_LENGTH = Number(unit=" m", bounds=(0, MAX_LENGTH))
+_ANGLE = Number(unit=" rad", bounds=(0, MAX_ANGLE), hint=radians_hint)
+_RATIO = Number(positive=True, bounds=(MIN_RATIO, MAX_RATIO))
 
-# C0 and C1 control characters, DEL, and the bidirectional overrides that reorder text on screen
-_CONTROL = re.compile("[\x00-\x1f\x7f-\x9f\u200e\u200f\u202a-\u202e\u2066-\u2069]")
-_TEXT_CONTROL = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\x7f-\x9f\u200e\u200f\u202a-\u202e\u2066-\u2069]")
+#: [[joints]]: modified DH row (Khalil-Kleinfinger), limits and drive gain
+JOINT_FIELDS = {
+    "alpha": _ANGLE, "d": _LENGTH, "theta": _ANGLE, "r": _LENGTH,
+    "qd_max": Number(positive=True, allow_inf=True, bounds=(0, MAX_SPEED)),
+    "qdd_max": Number(positive=True, allow_inf=True, bounds=(0, MAX_ACCEL)),
+    "tau_max": Number(positive=True, allow_inf=True, bounds=(0, MAX_EFFORT)),
+    "drive_gain": Number(bounds=(MIN_RATIO, MAX_RATIO)),
+}
+_KINEMATICS = ("alpha", "d", "theta", "r")
+_Q_LIMIT = Number(allow_inf=True, bounds=(0, MAX_TRAVEL))      # each of [lower, upper]
 
+#: [controller]: rate (a number) and per-joint gains (a number or one per joint), with defaults
+CONTROLLER_FIELDS = {
+    "rate": (Number(unit=" Hz", positive=True, bounds=(MIN_RATE, MAX_RATE)), 1000.0),
+    "wn": (Number(unit=" rad/s", positive=True, bounds=(MIN_RATIO, MAX_RATIO)), None),
+    "zeta": (_RATIO, None),
+    "J_ap": (Number(unit=" kg m^2", positive=True, bounds=(MIN_J_AP, MAX_INERTIA)), None),
+    "g_ap": (_RATIO, 1.0),
+    "ki": (Number(nonnegative=True, bounds=(0, MAX_RATIO)), 0.0),   # "pid" only
+}
 
-def shown(text):
-    """``text`` with its control characters escaped, safe to print in a message."""
-    return _CONTROL.sub(lambda m: m.group().encode("unicode_escape").decode("ascii"), str(text))
-
-
-def check_name(name, where, path):
-    """Refuse a name with control characters (it would be printed on a terminal as is)."""
-    m = _CONTROL.search(name)
-    if m:
-        raise RobotFileError(f"{path}: {where} '{shown(name)}' holds the control character "
-                             f"{shown(m.group())} (at position {m.start() + 1}); names are printed on "
-                             f"terminals: remove it")
-
-
-def _check_text(text, where, path):
-    """Free text (descriptions, provenance) may hold tabs and newlines, no other control characters."""
-    m = _TEXT_CONTROL.search(text)
-    if m:
-        raise RobotFileError(f"{path}: {where} holds the control character {shown(m.group())} (at "
-                             f"position {m.start() + 1}); it is printed on terminals: remove it")
-
-
-def read_limited(path, what="robot file"):
-    """The bytes of a robot file: a regular file of at most ``MAX_FILE_BYTES``, checked before reading."""
-    path = Path(path)
-    try:
-        st = os.stat(path)
-        if not stat.S_ISREG(st.st_mode):
-            kind = ("a folder" if stat.S_ISDIR(st.st_mode) else
-                    "a named pipe (FIFO)" if stat.S_ISFIFO(st.st_mode) else
-                    "a device" if stat.S_ISCHR(st.st_mode) or stat.S_ISBLK(st.st_mode) else
-                    "a socket" if stat.S_ISSOCK(st.st_mode) else "not a regular file")
-            raise RobotFileError(f"cannot read {what} '{path}': it is {kind}, not a regular file; "
-                                 f"give the path of a .toml or .urdf file")
-        if st.st_size > MAX_FILE_BYTES:
-            raise RobotFileError(_too_big(path, what))
-        # O_NONBLOCK: should the path become a FIFO after the check, opening does not hang
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_BINARY", 0))
-        with os.fdopen(fd, "rb") as fh:
-            if not stat.S_ISREG(os.fstat(fh.fileno()).st_mode):
-                raise RobotFileError(f"cannot read {what} '{path}': it is not a regular file; give "
-                                     f"the path of a .toml or .urdf file")
-            data = fh.read(MAX_FILE_BYTES + 1)
-    except RobotFileError:
-        raise
-    except OSError as exc:
-        raise RobotFileError(f"cannot read {what} '{path}': {exc.strerror}; check the path and that "
-                             f"it is a readable file") from None
-    except ValueError:      # a path with a NUL byte
-        raise RobotFileError(f"cannot read {what} {str(path)!r}: the path is not valid; "
-                             f"check the path") from None
-    if len(data) > MAX_FILE_BYTES:
-        raise RobotFileError(_too_big(path, what))
-    return data
-
-
-def _too_big(path, what):
-    return (f"cannot read {what} '{path}': it is larger than {MAX_FILE_BYTES // 2 ** 20} MiB, more "
-            f"than any robot description; check that it is the right file")
-
-_JOINT_KEYS = {"name", "sigma", "alpha", "d", "theta", "r", "q_limits", "qd_max", "qdd_max",
-               "tau_max", "drive_gain", "friction"}
+_GRAVITY = Number(unit=" m/s^2", bounds=(0, MAX_GRAVITY))
+_JOINT_KEYS = {"name", "sigma", "q_limits", "friction", *JOINT_FIELDS}
 _TOP_KEYS = {"name", "description", "gravity", "urdf", "base", "tip", "joints", "couplings",
              "controller", "apriori", "provenance"}
 
@@ -190,69 +162,12 @@ def load_robot(spec, base=None, tip=None):
         if path.suffix.lower() == ".toml":
             return read_toml(path, base=base, tip=tip)
         if path.suffix.lower() in (".urdf", ".xml"):
-            from .urdf import read_urdf
             return read_urdf(path, base=base, tip=tip)
         raise RobotFileError(f"robot file '{spec}': unknown extension '{path.suffix}'; use .toml or .urdf")
     if spec in bundled_robots():
         return read_toml(bundled_path(spec), base=base, tip=tip)
     raise RobotFileError(f"unknown robot '{spec}': not a file and not a bundled robot; give a path "
                          f"to a .toml or .urdf file or one of: {', '.join(bundled_robots())}")
-
-
-def _num(value, where, path, *, positive=False, allow_inf=False, bounds=None, unit=""):
-    """A finite float (``allow_inf``: or +-inf); ``bounds=(lo, hi)`` on ``|value|`` (lo: nonzero)."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise RobotFileError(f"{path}: {where} must be a number, got {_short(value)}")
-    try:
-        v = float(value)
-    except OverflowError:   # an integer beyond float range
-        raise RobotFileError(f"{path}: {where} must be a finite number, got an integer too large "
-                             f"for a float") from None
-    if math.isnan(v) or (math.isinf(v) and not allow_inf):
-        raise RobotFileError(f"{path}: {where} must be a finite number, got {value!r}")
-    if positive and v <= 0:
-        raise RobotFileError(f"{path}: {where} must be positive, got {value!r}")
-    if bounds is not None:
-        lo, hi = bounds
-        if lo and abs(v) < lo:
-            raise RobotFileError(f"{path}: {where} = {v:g} is {'0' if v == 0 else 'too small'}; its size "
-                                 f"must be at least {lo:g}{unit} (at most {hi:g}{unit}): check the number "
-                                 f"and its unit")
-        if abs(v) > hi:
-            raise RobotFileError(f"{path}: {where} = {v:g} is beyond the {hi:g}{unit} dynid accepts, far "
-                                 f"more than a real robot needs; check the number and its unit")
-    return v
-
-
-def _short(value, limit=80):
-    """A value's repr, cut short and with control characters escaped, for a message."""
-    text = shown(repr(value))
-    return text if len(text) <= limit else text[:limit] + "..."
-
-
-def _vector(value, n, where, path, *, positive=False, bounds=None, unit=""):
-    if isinstance(value, (int, float)) and not isinstance(value, bool):
-        value = [value] * n
-    if not isinstance(value, list) or len(value) != n:
-        raise RobotFileError(f"{path}: {where} must be a list of {n} numbers (one per joint), "
-                             f"got {_short(value)}")
-    return np.array([_num(v, f"{where}[{k + 1}]", path, positive=positive, bounds=bounds, unit=unit)
-                     for k, v in enumerate(value)])
-
-
-def _nesting(doc):
-    """Depth of nested tables/arrays of a document, counted without recursion."""
-    deepest, stack = 0, [(doc, 1)]
-    while stack:
-        obj, depth = stack.pop()
-        deepest = max(deepest, depth)
-        if depth > MAX_NESTING:
-            return depth
-        if isinstance(obj, dict):
-            stack.extend((v, depth + 1) for v in obj.values() if isinstance(v, (dict, list)))
-        elif isinstance(obj, list):
-            stack.extend((v, depth + 1) for v in obj if isinstance(v, (dict, list)))
-    return deepest
 
 
 def read_toml(path, base=None, tip=None):
@@ -275,34 +190,92 @@ def read_toml(path, base=None, tip=None):
 
 
 def robot_from_dict(doc, path="<robot>", base=None, tip=None):
-    """Build a Robot from a parsed TOML document, validating every field."""
+    """Build a Robot from a parsed TOML document, validating every field.
+
+    Parameters
+    ----------
+    doc : dict
+        The parsed document (see the module docstring for its schema).
+    path : str or Path
+        Named in every message.
+    base, tip : str, optional
+        Link names selecting one chain of the document's URDF.
+
+    Returns
+    -------
+    Robot
+
+    Raises
+    ------
+    RobotFileError
+        One message naming the file, the field and what to do.
+    """
+    _check_document(doc, path)
+    name = _robot_name(doc, path)
+    description = _description(doc, path)
+    gravity = _gravity(doc, path)
+    chain = _chain(doc, base, tip, path)
+    if "urdf" in doc:
+        joints, apriori, provenance, notices = _joints_from_urdf(doc, chain, path)
+    else:
+        joints, apriori, provenance, notices = _joints_from_tables(doc, chain, path)
+    _check_unique_names(joints, path)
+    n = len(joints)
+    couplings = _couplings(doc, n, path)
+    controller = (_controller(doc["controller"], n, path, [j.name for j in joints])
+                  if "controller" in doc else None)
+    robot = Robot(name=name, joints=joints, gravity=gravity, couplings=couplings,
+                  controller=controller, source=str(path), description=description)
+    robot.notices = notices
+    provenance.update(_provenance(doc, path))
+    robot.provenance = provenance
+    _apply_apriori(robot, doc, apriori, path)
+    return robot
+
+
+def _check_document(doc, path):
     if not isinstance(doc, dict):
-        raise RobotFileError(f"{path}: a robot description must be a table of keys, got {_short(doc)}")
-    if _nesting(doc) > MAX_NESTING:
+        raise RobotFileError(f"{path}: a robot description must be a table of keys, got {short(doc)}")
+    if nesting(doc) > MAX_NESTING:
         raise RobotFileError(f"{path}: tables or arrays are nested more than {MAX_NESTING} deep; a "
                              f"robot file needs 4 levels: fix the file")
     unknown = sorted(map(str, set(doc) - _TOP_KEYS))
     if unknown:
         raise RobotFileError(f"{path}: unknown top-level key(s) {', '.join(map(shown, unknown))}; "
                              f"allowed: {', '.join(sorted(_TOP_KEYS))}")
+
+
+def _robot_name(doc, path):
     name = doc.get("name")
     if not isinstance(name, str) or not name.strip():
         raise RobotFileError(f"{path}: 'name' (a non-empty string) is required")
     check_name(name, "robot name", path)
+    return name
+
+
+def _description(doc, path):
     description = doc.get("description", "")
     if not isinstance(description, str):
-        raise RobotFileError(f"{path}: 'description' must be a text (a string), got {_short(description)}")
-    _check_text(description, "'description'", path)
+        raise RobotFileError(f"{path}: 'description' must be a text (a string), got {short(description)}")
+    check_text(description, "'description'", path)
+    return description
+
+
+def _gravity(doc, path):
     gravity = doc.get("gravity", [0.0, 0.0, -9.81])
     if not isinstance(gravity, list) or len(gravity) != 3:
         raise RobotFileError(f"{path}: 'gravity' must be a list of 3 numbers in the base frame, "
-                             f"got {_short(gravity)}")
-    gravity = np.array([_num(g, f"gravity[{k}]", path, bounds=(0, MAX_GRAVITY), unit=" m/s^2")
-                        for k, g in enumerate(gravity)])
+                             f"got {short(gravity)}")
+    gravity = np.array([_GRAVITY(g, f"gravity[{k}]", path) for k, g in enumerate(gravity)])
     if np.linalg.norm(gravity) > MAX_GRAVITY:
         raise RobotFileError(f"{path}: 'gravity' has norm {np.linalg.norm(gravity):g} m/s^2, beyond the "
                              f"{MAX_GRAVITY:g} m/s^2 dynid accepts (the Earth's is 9.81); check the "
                              f"numbers and their unit (m/s^2)")
+    return gravity
+
+
+def _chain(doc, base, tip, path):
+    """The base and tip links of the URDF chain: from the call or from the file, not both."""
     chain = {}
     for key, given in (("base", base), ("tip", tip)):
         in_file = doc.get(key)
@@ -311,92 +284,95 @@ def robot_from_dict(doc, path="<robot>", base=None, tip=None):
                                  f"remove '{key}' or add urdf = \"<file>.urdf\"")
         if in_file is not None and (not isinstance(in_file, str) or not in_file):
             raise RobotFileError(f"{path}: '{key}' must be a link name of the URDF (a string), "
-                                 f"got {_short(in_file)}")
+                                 f"got {short(in_file)}")
         if given is not None and in_file is not None and given != in_file:
-            raise RobotFileError(f"{path}: {key} {_short(given)} was asked for, but the file says "
-                                 f"{key} = {_short(in_file)}; give one of them only")
+            raise RobotFileError(f"{path}: {key} {short(given)} was asked for, but the file says "
+                                 f"{key} = {short(in_file)}; give one of them only")
         chain[key] = given if given is not None else in_file
+    return chain
 
-    if "urdf" in doc:
-        from .urdf import read_urdf
-        # a non-string 'urdf' is no path, and [[joints]] overrides must be tables
-        if not isinstance(doc["urdf"], str) or not doc["urdf"].strip():
-            raise RobotFileError(f"{path}: 'urdf' must be the path of a URDF file (a string), "
-                                 f"got {_short(doc['urdf'])}")
-        urdf_path = Path(path).parent / doc["urdf"]
-        from_urdf = read_urdf(urdf_path, base=chain["base"], tip=chain["tip"])
-        joints = from_urdf.joints
-        overrides = doc.get("joints", [])
-        if not isinstance(overrides, list) or not all(isinstance(t, dict) for t in overrides):
-            raise RobotFileError(f"{path}: 'joints' must be a list of [[joints]] tables")
-        if overrides and len(overrides) != len(joints):
-            raise RobotFileError(f"{path}: {len(overrides)} [[joints]] tables but the URDF "
-                                 f"'{urdf_path.name}' has {len(joints)} moving joints; give one table "
-                                 f"per moving joint, or none")
-        for k, (joint, tab) in enumerate(zip(joints, overrides)):
-            _apply_joint_options(joint, tab, k, path, kinematics=False)
-        apriori = dict(from_urdf.apriori)
-        provenance = dict(from_urdf.provenance)
-        notices = list(from_urdf.notices)
-    else:
-        if chain["base"] is not None or chain["tip"] is not None:
-            raise RobotFileError(f"{path}: base/tip select a chain of a URDF, but this robot file has "
-                                 f"no 'urdf'; remove base/tip, or add urdf = \"<file>.urdf\"")
-        tables = doc.get("joints")
-        if not isinstance(tables, list) or not tables:
-            raise RobotFileError(f"{path}: at least one [[joints]] table is required")
-        if len(tables) > MAX_JOINTS:     # the regressor grows with n^2: 400 joints take minutes
-            raise RobotFileError(f"{path}: {len(tables)} [[joints]] tables, more than the {MAX_JOINTS} "
-                                 f"joints dynid models (the regressor grows as n^2); check the file")
-        joints = []
-        for k, tab in enumerate(tables):
-            if not isinstance(tab, dict):
-                raise RobotFileError(f"{path}: joints[{k + 1}] must be a table")
-            joint = Joint(name=f"j{k + 1}")
-            _apply_joint_options(joint, tab, k, path, kinematics=True)
-            joints.append(joint)
-        apriori, provenance, notices = {}, {}, []
 
-    names = [j.name for j in joints]
+def _joints_from_urdf(doc, chain, path):
+    """Joints, a-priori values, provenance and notices of the URDF, with the [[joints]] overrides."""
+    # a non-string 'urdf' is no path, and [[joints]] overrides must be tables
+    if not isinstance(doc["urdf"], str) or not doc["urdf"].strip():
+        raise RobotFileError(f"{path}: 'urdf' must be the path of a URDF file (a string), "
+                             f"got {short(doc['urdf'])}")
+    urdf_path = Path(path).parent / doc["urdf"]
+    from_urdf = read_urdf(urdf_path, base=chain["base"], tip=chain["tip"])
+    joints = from_urdf.joints
+    overrides = doc.get("joints", [])
+    if not isinstance(overrides, list) or not all(isinstance(t, dict) for t in overrides):
+        raise RobotFileError(f"{path}: 'joints' must be a list of [[joints]] tables")
+    if overrides and len(overrides) != len(joints):
+        raise RobotFileError(f"{path}: {len(overrides)} [[joints]] tables but the URDF "
+                             f"'{urdf_path.name}' has {len(joints)} moving joints; give one table "
+                             f"per moving joint, or none")
+    for k, (joint, tab) in enumerate(zip(joints, overrides)):
+        _apply_joint_options(joint, tab, k, path, kinematics=False)
+    return joints, dict(from_urdf.apriori), dict(from_urdf.provenance), list(from_urdf.notices)
+
+
+def _joints_from_tables(doc, chain, path):
+    """Joints from the [[joints]] tables (modified DH rows); no a-priori values, provenance or notices yet."""
+    if chain["base"] is not None or chain["tip"] is not None:
+        raise RobotFileError(f"{path}: base/tip select a chain of a URDF, but this robot file has "
+                             f"no 'urdf'; remove base/tip, or add urdf = \"<file>.urdf\"")
+    tables = doc.get("joints")
+    if not isinstance(tables, list) or not tables:
+        raise RobotFileError(f"{path}: at least one [[joints]] table is required")
+    if len(tables) > MAX_JOINTS:     # the regressor grows with n^2: 400 joints take minutes
+        raise RobotFileError(f"{path}: {len(tables)} [[joints]] tables, more than the {MAX_JOINTS} "
+                             f"joints dynid models (the regressor grows as n^2); check the file")
+    joints = []
+    for k, tab in enumerate(tables):
+        if not isinstance(tab, dict):
+            raise RobotFileError(f"{path}: joints[{k + 1}] must be a table")
+        joint = Joint(name=f"j{k + 1}")
+        _apply_joint_options(joint, tab, k, path, kinematics=True)
+        joints.append(joint)
+    return joints, {}, {}, []
+
+
+def _check_unique_names(joints, path):
     seen, dup = set(), set()
-    for nm in names:
+    for nm in (j.name for j in joints):
         (dup if nm in seen else seen).add(nm)
     if dup:
         raise RobotFileError(f"{path}: duplicated joint name(s) {', '.join(sorted(dup))}; give every "
                              f"joint a unique name")
-    n = len(joints)
 
-    couplings = []
+
+def _couplings(doc, n, path):
     tabs = doc.get("couplings", [])
     if not isinstance(tabs, list):      # [[couplings]] must be an array of tables
         raise RobotFileError(f"{path}: 'couplings' must be a list of [[couplings]] tables")
-    for k, tab in enumerate(tabs):
-        couplings.append(_coupling(tab, k, n, path))
+    couplings = [_coupling(tab, k, n, path) for k, tab in enumerate(tabs)]
     motors = [c.motor for c in couplings]
     if len(set(motors)) != len(motors):  # one motor, one set of names Fvm<j>, Fcm<j>
         raise RobotFileError(f"{path}: two [[couplings]] have the same motor; give each motor "
                              f"one coupling table")
+    return couplings
 
-    controller = _controller(doc["controller"], n, path) if "controller" in doc else None
 
-    robot = Robot(name=name, joints=joints, gravity=gravity, couplings=couplings,
-                  controller=controller, source=str(path), description=description)
-    robot.notices = notices
+def _provenance(doc, path):
     prov = doc.get("provenance", {})
     if not isinstance(prov, dict):
         raise RobotFileError(f"{path}: [provenance] must be a table of texts")
     for k, v in prov.items():
-        _check_text(str(k), "a [provenance] key", path)
-        _check_text(str(v), f"provenance.{shown(k)}", path)
-    provenance.update({str(k): str(v) for k, v in prov.items()})
-    robot.provenance = provenance
+        check_text(str(k), "a [provenance] key", path)
+        check_text(str(v), f"provenance.{shown(k)}", path)
+    return {str(k): str(v) for k, v in prov.items()}
 
+
+def _apply_apriori(robot, doc, apriori, path):
+    """Check [apriori] and set the robot's a-priori values (over the URDF's), mass tolerance and source."""
     ap = doc.get("apriori", {})
     if not isinstance(ap, dict):
         raise RobotFileError(f"{path}: [apriori] must be a table with 'source' and 'values'")
-    _no_unknown_keys(ap, ("source", "values", "mass_tolerance"), "[apriori]", path)
+    no_unknown_keys(ap, ("source", "values", "mass_tolerance"), "[apriori]", path)
     if "mass_tolerance" in ap:
-        tol = _num(ap["mass_tolerance"], "apriori.mass_tolerance", path)
+        tol = number(ap["mass_tolerance"], "apriori.mass_tolerance", path)
         if not 0 <= tol < 10:
             raise RobotFileError(f"{path}: apriori.mass_tolerance must be a fraction of the a-priori mass "
                                  f"between 0 and 10 (0.1 for +-10 %), got {tol:g}")
@@ -404,13 +380,12 @@ def robot_from_dict(doc, path="<robot>", base=None, tip=None):
     values = ap.get("values", {})
     if not isinstance(values, dict):
         raise RobotFileError(f"{path}: apriori.values must be a table of name = number")
-    given = {}
-    for key, v in values.items():
-        given[str(key)] = _num(v, f"apriori.values.{shown(key)}", path)
+    given = {str(key): number(v, f"apriori.values.{shown(key)}", path) for key, v in values.items()}
     if "source" in ap:
-        _check_text(str(ap["source"]), "apriori.source", path)
+        check_text(str(ap["source"]), "apriori.source", path)
         robot.provenance["apriori"] = str(ap["source"])
     standard = set(robot.standard_names)
+    n = robot.n_joints
     # base names are standard names with an R appended (ZZ1R), not any name holding an R
     bad = [k for k in given if k not in standard and not (k.endswith("R") and k[:-1] in standard)]
     if bad:
@@ -422,7 +397,6 @@ def robot_from_dict(doc, path="<robot>", base=None, tip=None):
         _apriori_bounds(key, v, key in standard, path)
     apriori.update(given)
     robot.apriori = apriori
-    return robot
 
 
 _NONNEGATIVE = {"M": MAX_MASS, "XX": MAX_INERTIA, "YY": MAX_INERTIA, "ZZ": MAX_INERTIA,
@@ -447,6 +421,7 @@ def _apriori_bounds(key, v, is_standard, path):
 
 
 def _apply_joint_options(joint, tab, k, path, *, kinematics):
+    """Set a joint's fields from its [[joints]] table (its kinematics only when they are not the URDF's)."""
     where = f"joints[{k + 1}]"
     unknown = sorted(map(str, set(tab) - _JOINT_KEYS))
     if unknown:
@@ -457,72 +432,79 @@ def _apply_joint_options(joint, tab, k, path, *, kinematics):
             raise RobotFileError(f"{path}: {where}.name must be a non-empty string")
         check_name(tab["name"], f"{where}.name", path)
         joint.name = tab["name"]
+    who = f" (joint '{shown(joint.name)}')"
     if kinematics:
-        sigma = tab.get("sigma", 0)
-        if sigma not in (0, 1) or isinstance(sigma, bool):
-            raise RobotFileError(f"{path}: {where}.sigma must be 0 (revolute) or 1 (prismatic), "
-                                 f"got {_short(sigma)}")
-        vals = [_num(tab.get(key, 0.0), f"{where}.{key}", path,
-                     bounds=(0, MAX_LENGTH) if key in ("d", "r") else None,
-                     unit=" m" if key in ("d", "r") else "")
-                for key in ("alpha", "d", "theta", "r")]
-        joint.sigma = int(sigma)
-        joint.mdh = tuple(vals)
-        joint.R, joint.p = mdh_placement(*vals)
-    elif any(key in tab for key in ("sigma", "alpha", "d", "theta", "r")):
+        _set_kinematics(joint, tab, where, path, who)
+    elif any(key in tab for key in ("sigma", *_KINEMATICS)):
         raise RobotFileError(f"{path}: {where} gives kinematics, but they come from the URDF; remove "
                              f"sigma/alpha/d/theta/r there")
     if "q_limits" in tab:
-        lim = tab["q_limits"]
-        if not isinstance(lim, list) or len(lim) != 2:
-            raise RobotFileError(f"{path}: {where}.q_limits must be [lower, upper]")
-        lo, hi = (_num(v, f"{where}.q_limits", path, allow_inf=True) for v in lim)
-        if not lo < hi:
-            raise RobotFileError(f"{path}: {where}.q_limits lower {lo} must be below upper {hi}")
-        joint.q_limits = (lo, hi)
-    for key in ("qd_max", "qdd_max", "tau_max"):
+        joint.q_limits = _q_limits(tab["q_limits"], where, path)
+    for key in ("qd_max", "qdd_max", "tau_max", "drive_gain"):
         if key in tab:
-            setattr(joint, key, _num(tab[key], f"{where}.{key}", path, positive=True, allow_inf=True))
-    if "drive_gain" in tab:
-        if tab["drive_gain"] == 0 and not isinstance(tab["drive_gain"], bool):
-            raise RobotFileError(f"{path}: {where}.drive_gain must not be 0")
-        joint.drive_gain = _num(tab["drive_gain"], f"{where}.drive_gain", path,
-                                bounds=(MIN_RATIO, MAX_RATIO))
+            setattr(joint, key, JOINT_FIELDS[key](tab[key], f"{where}.{key}", path, who))
     if "friction" in tab:
         if tab["friction"] not in ("viscous_coulomb",):
             raise RobotFileError(f"{path}: {where}.friction must be 'viscous_coulomb', "
-                                 f"got {_short(tab['friction'])}")
+                                 f"got {short(tab['friction'])}")
         joint.friction = tab["friction"]
 
 
-def _no_unknown_keys(tab, allowed, where, path):
-    unknown = sorted(set(tab) - set(allowed))
-    if unknown:
-        raise RobotFileError(f"{path}: {where} has unknown key(s) {', '.join(map(shown, unknown))}; "
-                             f"allowed: {', '.join(sorted(allowed))}. Check the spelling.")
+def _set_kinematics(joint, tab, where, path, who):
+    """Joint type and modified DH row (alpha, d, theta, r; rad and m), and the placement they give."""
+    sigma = tab.get("sigma", 0)
+    if sigma not in (0, 1) or isinstance(sigma, bool):
+        raise RobotFileError(f"{path}: {where}.sigma must be 0 (revolute) or 1 (prismatic), "
+                             f"got {short(sigma)}")
+    vals = [JOINT_FIELDS[key](tab.get(key, 0.0), f"{where}.{key}", path, who) for key in _KINEMATICS]
+    joint.sigma = int(sigma)
+    joint.mdh = tuple(vals)
+    joint.R, joint.p = mdh_placement(*vals)
+
+
+def _q_limits(lim, where, path):
+    if not isinstance(lim, list) or len(lim) != 2:
+        raise RobotFileError(f"{path}: {where}.q_limits must be [lower, upper]")
+    lo, hi = (_Q_LIMIT(v, f"{where}.q_limits", path) for v in lim)
+    if not lo < hi:
+        raise RobotFileError(f"{path}: {where}.q_limits lower {lo} must be below upper {hi}")
+    return lo, hi
 
 
 def _coupling(tab, k, n, path):
+    """One [[couplings]] table: a motor turning several joints with coefficients (gear ratios)."""
     where = f"couplings[{k + 1}]"
     if not isinstance(tab, dict):
         raise RobotFileError(f"{path}: {where} must be a table")
-    _no_unknown_keys(tab, ("motor", "joints", "coefficients", "friction"), where, path)
+    no_unknown_keys(tab, ("motor", "joints", "coefficients", "friction"), where, path)
     for key in ("motor", "joints", "coefficients"):
         if key not in tab:
             raise RobotFileError(f"{path}: {where} needs '{key}'")
-    joints = tab["joints"]
+    joints = _coupled_joints(tab["joints"], n, where, path)
     coef = tab["coefficients"]
+    if not isinstance(coef, list) or len(coef) != len(joints):
+        raise RobotFileError(f"{path}: {where}.coefficients must have one number per joint in 'joints'")
+    coef = [number(c, f"{where}.coefficients", path) for c in coef]
+    motor = tab["motor"]
+    if not isinstance(motor, int) or isinstance(motor, bool) or motor not in joints:
+        raise RobotFileError(f"{path}: {where}.motor must be one of its joints {joints}, got {short(motor)}")
+    _check_ratios(joints, coef, motor, where, path)
+    friction = tab.get("friction", True)
+    if not isinstance(friction, bool):     # "no" or 0 must not pass as a truth value
+        raise RobotFileError(f"{path}: {where}.friction must be true or false, got {short(friction)}")
+    return Coupling(motor=motor, joints=tuple(joints), coefficients=tuple(coef), friction=friction)
+
+
+def _coupled_joints(joints, n, where, path):
     # True is an int to Python, and a joint listed twice would count twice
     if (not isinstance(joints, list) or len(set(map(repr, joints))) != len(joints)
             or not all(isinstance(j, int) and not isinstance(j, bool) and 1 <= j <= n for j in joints)):
         raise RobotFileError(f"{path}: {where}.joints must be a list of distinct joint numbers "
-                             f"1..{n}, got {_short(joints)}")
-    if not isinstance(coef, list) or len(coef) != len(joints):
-        raise RobotFileError(f"{path}: {where}.coefficients must have one number per joint in 'joints'")
-    coef = [_num(c, f"{where}.coefficients", path) for c in coef]
-    motor = tab["motor"]
-    if not isinstance(motor, int) or isinstance(motor, bool) or motor not in joints:
-        raise RobotFileError(f"{path}: {where}.motor must be one of its joints {joints}, got {_short(motor)}")
+                             f"1..{n}, got {short(joints)}")
+    return joints
+
+
+def _check_ratios(joints, coef, motor, where, path):
     c_motor = coef[joints.index(motor)]
     if c_motor == 0.0:   # the regressor divides by it
         raise RobotFileError(f"{path}: {where}.coefficients: the motor joint's coefficient must not be 0")
@@ -537,33 +519,23 @@ def _coupling(tab, k, n, path):
                 f"{MIN_RATIO:g} and {MAX_RATIO:g} (a gear ratio, or a joint the motor does not "
                 f"drive): check the numbers" + ("" if j == motor else
                                                  f", or remove joint {j} from {where}.joints"))
-    friction = tab.get("friction", True)
-    if not isinstance(friction, bool):     # "no" or 0 must not pass as a truth value
-        raise RobotFileError(f"{path}: {where}.friction must be true or false, got {_short(friction)}")
-    return Coupling(motor=motor, joints=tuple(joints), coefficients=tuple(coef), friction=friction)
 
 
-def _controller(tab, n, path):
+def _controller(tab, n, path, names=None):
+    """The [controller] table: kind, rate and per-joint gains, each checked against `CONTROLLER_FIELDS`."""
     if not isinstance(tab, dict):
         raise RobotFileError(f"{path}: [controller] must be a table")
-    _no_unknown_keys(tab, ("kind", "rate", "wn", "zeta", "J_ap", "g_ap", "ki"), "[controller]", path)
+    no_unknown_keys(tab, ("kind", *CONTROLLER_FIELDS), "[controller]", path)
     kind = tab.get("kind", "pd")
     if kind not in ("pd", "pid"):
-        raise RobotFileError(f"{path}: controller.kind must be 'pd' or 'pid', got {_short(kind)}")
-    rate = _num(tab.get("rate", 1000.0), "controller.rate", path, positive=True)
-    if not MIN_RATE <= rate <= MAX_RATE:
-        raise RobotFileError(f"{path}: controller.rate = {rate:g} Hz; it must be between {MIN_RATE:g} Hz "
-                             f"and {MAX_RATE:g} Hz: check the number and its unit (Hz)")
-    for key in ("wn", "zeta", "J_ap"):
-        if key not in tab:
+        raise RobotFileError(f"{path}: controller.kind must be 'pd' or 'pid', got {short(kind)}")
+    values = {}
+    for key, (field, default) in CONTROLLER_FIELDS.items():
+        if key == "ki" and kind != "pid":
+            continue
+        if default is None and key not in tab:
             raise RobotFileError(f"{path}: controller.{key} is required (one value per joint)")
-    ratio = dict(positive=True, bounds=(MIN_RATIO, MAX_RATIO))
-    c = Controller(kind=kind, rate=rate,
-                   wn=_vector(tab["wn"], n, "controller.wn", path, unit=" rad/s", **ratio),
-                   zeta=_vector(tab["zeta"], n, "controller.zeta", path, **ratio),
-                   J_ap=_vector(tab["J_ap"], n, "controller.J_ap", path, positive=True,
-                                bounds=(MIN_J_AP, MAX_INERTIA), unit=" kg m^2"),
-                   g_ap=_vector(tab.get("g_ap", 1.0), n, "controller.g_ap", path, **ratio))
-    if kind == "pid":
-        c.ki = _vector(tab.get("ki", 0.0), n, "controller.ki", path, bounds=(0, MAX_RATIO))
-    return c
+        value = tab.get(key, default)
+        values[key] = (field(value, f"controller.{key}", path) if key == "rate" else
+                       field.vector(value, n, f"controller.{key}", path, names))
+    return Controller(kind=kind, **values)

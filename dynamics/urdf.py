@@ -54,7 +54,7 @@ import numpy as np
 from dynid.errors import RobotFileError
 
 from .robot import Joint, Robot
-from .robot_file import MAX_INERTIA, MAX_JOINTS, MAX_LENGTH, MAX_MASS, MAX_URDF_LINKS, check_name, read_limited, shown
+from .robot_checks import MAX_INERTIA, MAX_JOINTS, MAX_LENGTH, MAX_MASS, MAX_URDF_LINKS, check_name, read_limited, shown
 
 _MOVING = {"revolute": 0, "continuous": 0, "prismatic": 1}
 _UNSUPPORTED = {"floating", "planar"}          # valid URDF, but not a joint dynid can model
@@ -185,7 +185,7 @@ def _add(a, b):
 def _parse(path):
     """The root element of a URDF file, parsed with defusedxml (no entities, no external refs)."""
     data = read_limited(path, "URDF")
-    try:
+    try:        # a dependency; imported here so a broken environment gives a RobotFileError
         import defusedxml
         from defusedxml import ElementTree as SafeET
     except ImportError:
@@ -217,71 +217,84 @@ class _Tree:
 
     def __init__(self, root, path):
         self.path = path
-        self.links = {}
-        for el in root.findall("link"):
-            name = el.get("name")
-            if not name:
-                raise RobotFileError(f"{path}: a <link> has no name; give it name=\"...\"")
-            check_name(name, "link name", path)
-            if name in self.links:
-                raise RobotFileError(f"{path}: duplicate <link> name '{name}': two <link> elements are named '{name}'; give every "
-                                     f"link a unique name")
-            self.links[name] = el
-            if len(self.links) > MAX_URDF_LINKS:
-                raise RobotFileError(f"{path}: more than {MAX_URDF_LINKS} links, far more than a robot "
-                                     f"arm has; check that it is the right file")
+        self.links = self._read_links(root)
         self.joints = root.findall("joint")       # only top-level joints, not <transmission> ones
-        names = set()
         self.parent_joint, self.children = {}, {}
+        names = set()
         for j in self.joints:
-            name = j.get("name")
-            kind = j.get("type")
-            if not name:
-                raise RobotFileError(f"{path}: a {shown(kind or '')} joint has no name; give it "
-                                     f"name=\"...\"")
-            check_name(name, "joint name", path)
-            if name in names:
-                raise RobotFileError(f"{path}: two <joint> elements are named '{name}' (duplicated joint "
-                                     f"name); give every joint a unique name")
-            names.add(name)
-            parent, child = j.find("parent"), j.find("child")
-            if parent is None or child is None or not parent.get("link") or not child.get("link"):
-                raise RobotFileError(f"{path}: joint '{name}' needs <parent link=...> and <child link=...>")
-            missing = [l for l in (parent.get("link"), child.get("link")) if l not in self.links]
-            if missing:
-                raise RobotFileError(f"{path}: joint '{name}' refers to link {missing[0]!r} that does "
-                                     f"not exist; add <link name={missing[0]!r}> or fix the name")
-            if kind not in _TYPES:
-                raise RobotFileError(f"{path}: joint '{name}' has type {kind!r}; dynid reads revolute, "
-                                     f"continuous, prismatic and fixed joints: use one of these")
-            p, c = parent.get("link"), child.get("link")
-            if p == c:
-                raise RobotFileError(f"{path}: joint '{name}' joins link '{c}' to itself; fix its "
-                                     f"<parent> or <child>")
-            if c in self.parent_joint:
-                raise RobotFileError(f"{path}: link '{c}' is the child of two joints, "
-                                     f"'{self.parent_joint[c].get('name')}' and '{name}', which makes a "
-                                     f"loop; remove the joint that closes it (a URDF is a tree)")
-            self.parent_joint[c] = j
-            self.children.setdefault(p, []).append(j)
+            self._add_joint(j, names)
         if not self.links:
             raise RobotFileError(f"{path}: the URDF has no <link>; add the robot's links and joints")
-        roots = [l for l in self.links if l not in self.parent_joint]
-        if len(roots) != 1:
-            raise RobotFileError(f"{path}: expected one root link, found {len(roots)} ({', '.join(roots)}); "
-                                 f"connect every link to the chain with a joint, or remove the stray ones")
-        self.root = roots[0]
-        self.order = self.below(self.root)
-        if len(self.order) != len(self.links):
-            lost = [l for l in self.links if l not in set(self.order)]
-            raise RobotFileError(f"{path}: the joints between links {_few(lost)} form a loop not "
-                                 f"connected to the root link '{self.root}'; remove the joint that "
-                                 f"closes it")
+        self.root = self._find_root()
         # moves[l]: a moving joint hangs somewhere below link l (bottom-up, no recursion)
         self.moves = {}
         for l in reversed(self.order):
             self.moves[l] = any(k.get("type") != "fixed" or self.moves[self.child(k)]
                                 for k in self.children.get(l, []))
+
+    def _read_links(self, root):
+        path, links = self.path, {}
+        for el in root.findall("link"):
+            name = el.get("name")
+            if not name:
+                raise RobotFileError(f"{path}: a <link> has no name; give it name=\"...\"")
+            check_name(name, "link name", path)
+            if name in links:
+                raise RobotFileError(f"{path}: duplicate <link> name '{name}': two <link> elements are named '{name}'; give every "
+                                     f"link a unique name")
+            links[name] = el
+            if len(links) > MAX_URDF_LINKS:
+                raise RobotFileError(f"{path}: more than {MAX_URDF_LINKS} links, far more than a robot "
+                                     f"arm has; check that it is the right file")
+        return links
+
+    def _add_joint(self, j, names):
+        """Check one <joint> (name, type, existing parent and child links, no loop) and link it in."""
+        path, name, kind = self.path, j.get("name"), j.get("type")
+        if not name:
+            raise RobotFileError(f"{path}: a {shown(kind or '')} joint has no name; give it "
+                                 f"name=\"...\"")
+        check_name(name, "joint name", path)
+        if name in names:
+            raise RobotFileError(f"{path}: two <joint> elements are named '{name}' (duplicated joint "
+                                 f"name); give every joint a unique name")
+        names.add(name)
+        parent, child = j.find("parent"), j.find("child")
+        if parent is None or child is None or not parent.get("link") or not child.get("link"):
+            raise RobotFileError(f"{path}: joint '{name}' needs <parent link=...> and <child link=...>")
+        missing = [l for l in (parent.get("link"), child.get("link")) if l not in self.links]
+        if missing:
+            raise RobotFileError(f"{path}: joint '{name}' refers to link {missing[0]!r} that does "
+                                 f"not exist; add <link name={missing[0]!r}> or fix the name")
+        if kind not in _TYPES:
+            raise RobotFileError(f"{path}: joint '{name}' has type {kind!r}; dynid reads revolute, "
+                                 f"continuous, prismatic and fixed joints: use one of these")
+        p, c = parent.get("link"), child.get("link")
+        if p == c:
+            raise RobotFileError(f"{path}: joint '{name}' joins link '{c}' to itself; fix its "
+                                 f"<parent> or <child>")
+        if c in self.parent_joint:
+            raise RobotFileError(f"{path}: link '{c}' is the child of two joints, "
+                                 f"'{self.parent_joint[c].get('name')}' and '{name}', which makes a "
+                                 f"loop; remove the joint that closes it (a URDF is a tree)")
+        self.parent_joint[c] = j
+        self.children.setdefault(p, []).append(j)
+
+    def _find_root(self):
+        """The one root link, every link reachable from it (sets `order`, breadth first)."""
+        path = self.path
+        roots = [l for l in self.links if l not in self.parent_joint]
+        if len(roots) != 1:
+            raise RobotFileError(f"{path}: expected one root link, found {len(roots)} ({', '.join(roots)}); "
+                                 f"connect every link to the chain with a joint, or remove the stray ones")
+        root = roots[0]
+        self.order = self.below(root)
+        if len(self.order) != len(self.links):
+            lost = [l for l in self.links if l not in set(self.order)]
+            raise RobotFileError(f"{path}: the joints between links {_few(lost)} form a loop not "
+                                 f"connected to the root link '{root}'; remove the joint that "
+                                 f"closes it")
+        return root
 
     @staticmethod
     def child(j):
@@ -373,11 +386,25 @@ class _Tree:
 def read_urdf(path, base=None, tip=None):
     """Read the serial chain of a URDF into a Robot (standard parameters as a-priori values).
 
-    ``base``, ``tip``: link names selecting the chain from ``base`` (default:
-    the root link) down to ``tip`` (default: the end of the only moving chain).
-    Fixed children of chain links are merged; moving subtrees off the chain
-    are left out *with their mass*, and ``robot.notices`` says so (see the
-    module docstring).
+    Parameters
+    ----------
+    path : str or Path
+        The URDF file.
+    base, tip : str, optional
+        Link names selecting the chain from `base` (default: the root link)
+        down to `tip` (default: the end of the only moving chain).
+
+    Returns
+    -------
+    Robot
+        Fixed children of chain links are merged; moving subtrees off the
+        chain are left out *with their mass*, and `robot.notices` says so
+        (see the module docstring).
+
+    Raises
+    ------
+    RobotFileError
+        One message naming the file, the element and what to do.
     """
     path = Path(path)
     root = _parse(path)
@@ -387,6 +414,26 @@ def read_urdf(path, base=None, tip=None):
         check_name(root.get("name"), "robot name", path)
     tree = _Tree(root, path)
     base, chain = tree.chain(base, tip)
+    _check_chain(tree, chain, base, tip, path)
+    walk = _ChainWalk(tree, path)
+    walk.run(base, chain)
+    _check_finite(walk.joints, walk.inertias, path)
+    apriori = dict(walk.apriori)
+    apriori.update(_inertial_apriori(walk.inertias))
+    selected = base != tree.root or tip is not None
+    chain_text = f"chain '{base}' -> '{walk.chain_links[-1]}'"
+    robot = Robot(name=root.get("name") or path.stem, joints=walk.joints,
+                  gravity=np.array([0.0, 0.0, -9.81]), source=str(path),
+                  description=f"read from URDF {path.name}" + (f", {chain_text}" if selected else ""))
+    robot.apriori = {k: float(v) for k, v in apriori.items()}
+    robot.provenance = {"kinematics": f"URDF {path.name}" + (f", {chain_text}" if selected else ""),
+                        "apriori": f"URDF {path.name} inertials and <dynamics>"}
+    robot.notices = _notices(tree, base, chain, walk.left_out, walk.joints, chain_text)
+    return robot
+
+
+def _check_chain(tree, chain, base, tip, path):
+    """The chain has 1..MAX_JOINTS moving joints, none of a type or a mimic dynid cannot model."""
     n_moving = sum(j.get("type") != "fixed" for j in chain)
     if n_moving == 0:
         where = f" between '{base}' and '{tip}'" if tip is not None else f" below link '{base}'"
@@ -407,60 +454,83 @@ def read_urdf(path, base=None, tip=None):
                                  f"{j.find('mimic').get('joint')!r}); dynid cannot model mimic joints: "
                                  f"give base/tip so the chain leaves it out")
 
-    def where(link):
-        pj = tree.parent_joint.get(link)
+
+class _ChainWalk:
+    """The walk down a URDF chain that builds the moving joints and folds link inertias into them.
+
+    `joints`: the Robot joints (frames aligned with their axis as z); `aligns`:
+    each one's alignment with its URDF frame; `inertias`: (m, c, I) carried by
+    each, or None; `apriori`: friction read from <dynamics>; `left_out`:
+    (joint, owner index or None) of the moving subtrees off the chain.
+    """
+
+    def __init__(self, tree, path):
+        self.tree, self.path = tree, path
+        self.joints, self.aligns, self.inertias, self.apriori, self.left_out = [], [], [], {}, []
+        self.chain_links = []
+
+    def where(self, link):
+        pj = self.tree.parent_joint.get(link)
         return f"link '{link}'" + (f" (child of joint '{pj.get('name')}')" if pj is not None else "")
 
-    robot_joints, aligns, inertias, apriori = [], [], [], {}
-    left_out = []                          # (joint, owner index or None): moving subtrees off the chain
-
-    def add_link(link, owner, R, p):
+    def add_link(self, link, owner, R, p):
         """Fold a link's inertia (its frame at R, p in the owner's URDF frame) into the owner."""
-        inertia = _spatial_inertia(tree.links[link], where(link), path)
+        inertia = _spatial_inertia(self.tree.links[link], self.where(link), self.path)
         if inertia is not None:
-            A = aligns[owner]
-            inertias[owner] = _add(inertias[owner], _transform_inertia(inertia, A.T @ R, A.T @ p))
+            A = self.aligns[owner]
+            self.inertias[owner] = _add(self.inertias[owner], _transform_inertia(inertia, A.T @ R, A.T @ p))
 
-    def merge_fixed(joint, owner, R0, p0):
-        """A fixed side branch: its links' inertias go to ``owner``; moving joints in it are left out."""
+    def merge_fixed(self, joint, owner, R0, p0):
+        """A fixed side branch: its links' inertias go to `owner`; moving joints in it are left out."""
+        tree = self.tree
         stack = [(joint, R0, p0)]
         while stack:                      # iterative: a fixed branch 3000 links deep is fine
             j, R, p = stack.pop()
             c = tree.child(j)
             if owner is not None:
-                R_o, p_o = _origin(j, f"joint '{j.get('name')}'", path)
+                R_o, p_o = _origin(j, f"joint '{j.get('name')}'", self.path)
                 R, p = R @ R_o, R @ p_o + p
-                add_link(c, owner, R, p)
+                self.add_link(c, owner, R, p)
             for k in tree.children.get(c, []):
                 if k.get("type") == "fixed":
                     stack.append((k, R, p))
                 else:
-                    left_out.append((k, owner))
+                    self.left_out.append((k, owner))
 
-    A_prev = np.eye(3)                      # alignment of the previous moving frame
-    T_R, T_p = np.eye(3), np.zeros(3)       # previous moving frame (URDF) -> current link frame
-    owner = None                            # index of the moving joint that carries the current link
-    chain_links = [base] + [tree.child(j) for j in chain]
-    for i, link in enumerate(chain_links):
-        if owner is not None:
-            add_link(link, owner, T_R, T_p)
-        nxt = chain[i] if i < len(chain) else None
-        for k in tree.children.get(link, []):
+    def side_branches(self, link, nxt, owner, T_R, T_p):
+        """The children of a chain link other than the next chain joint: merged or left out."""
+        for k in self.tree.children.get(link, []):
             if k is nxt:
                 continue
             if k.get("type") == "fixed":
-                merge_fixed(k, owner, T_R, T_p)
+                self.merge_fixed(k, owner, T_R, T_p)
             else:
-                left_out.append((k, owner))
-        if nxt is None:
-            break
-        j = nxt
-        name = j.get("name")
-        R_o, p_o = _origin(j, f"joint '{name}'", path)
-        if j.get("type") == "fixed":
-            T_p = T_R @ p_o + T_p
-            T_R = T_R @ R_o
-            continue
+                self.left_out.append((k, owner))
+
+    def run(self, base, chain):
+        A_prev = np.eye(3)                      # alignment of the previous moving frame
+        T_R, T_p = np.eye(3), np.zeros(3)       # previous moving frame (URDF) -> current link frame
+        owner = None                            # index of the moving joint that carries the current link
+        self.chain_links = [base] + [self.tree.child(j) for j in chain]
+        for i, link in enumerate(self.chain_links):
+            if owner is not None:
+                self.add_link(link, owner, T_R, T_p)
+            nxt = chain[i] if i < len(chain) else None
+            self.side_branches(link, nxt, owner, T_R, T_p)
+            if nxt is None:
+                break
+            R_o, p_o = _origin(nxt, f"joint '{nxt.get('name')}'", self.path)
+            if nxt.get("type") == "fixed":
+                T_p = T_R @ p_o + T_p
+                T_R = T_R @ R_o
+                continue
+            A_prev = self.moving_joint(nxt, A_prev, T_R @ R_o, T_R @ p_o + T_p)
+            T_R, T_p = np.eye(3), np.zeros(3)
+            owner = len(self.joints) - 1
+
+    def moving_joint(self, j, A_prev, R_u, p_u):
+        """Add moving joint `j`, at R_u, p_u in the previous moving URDF frame; returns its alignment."""
+        path, name = self.path, j.get("name")
         axis = _floats(j.find("axis").get("xyz", "1 0 0") if j.find("axis") is not None else "1 0 0",
                        3, f"joint '{name}' axis", path)
         if np.linalg.norm(axis) < 1e-9:
@@ -468,33 +538,38 @@ def read_urdf(path, base=None, tip=None):
                                  f"(<axis xyz=\"0 0 1\"/>)")
         A = align_z(axis)
         # placement of the new aligned frame in the previous aligned frame
-        R = A_prev.T @ (T_R @ R_o) @ A
-        p = A_prev.T @ (T_R @ p_o + T_p)
+        R = A_prev.T @ R_u @ A
+        p = A_prev.T @ p_u
         R[np.abs(R) < 1e-15] = 0.0
         p[np.abs(p) < 1e-15] = 0.0
         joint = Joint(name=name, sigma=_MOVING[j.get("type")], R=R, p=p)
         _limits(joint, j, path)
-        k = len(robot_joints) + 1
+        k = len(self.joints) + 1
         dyn = j.find("dynamics")
         if dyn is not None:
             for key, pname in (("damping", "Fv"), ("friction", "Fc")):
                 if dyn.get(key) is not None:
                     # any sign: dynid's URDF export writes identified values, which may be < 0
-                    apriori[f"{pname}{k}"] = _floats(dyn.get(key), 1, f"joint '{name}' dynamics {key}",
-                                                     path)[0]
-        robot_joints.append(joint)
-        aligns.append(A)
-        inertias.append(None)
-        A_prev = A
-        T_R, T_p = np.eye(3), np.zeros(3)
-        owner = len(robot_joints) - 1
+                    self.apriori[f"{pname}{k}"] = _floats(dyn.get(key), 1, f"joint '{name}' dynamics {key}",
+                                                          path)[0]
+        self.joints.append(joint)
+        self.aligns.append(A)
+        self.inertias.append(None)
+        return A
 
+
+def _check_finite(robot_joints, inertias, path):
     # numbers that overflow (xyz="1e300 ...") would give infinite placements and parameters
     for jt, inertia in zip(robot_joints, inertias):
         vals = [jt.R, jt.p] + ([] if inertia is None else [inertia[0], inertia[1], inertia[2]])
         if not all(np.isfinite(v).all() for v in vals):
             raise RobotFileError(f"{path}: joint '{jt.name}' or its link has origins or inertials too "
                                  f"large to compute with; check the numbers (metres, kg, kg m^2)")
+
+
+def _inertial_apriori(inertias):
+    """Standard inertial parameters XX..M of each moving joint's link from its folded inertia."""
+    apriori = {}
     for k, inertia in enumerate(inertias, start=1):
         if inertia is None:
             continue
@@ -502,16 +577,7 @@ def read_urdf(path, base=None, tip=None):
         apriori.update({f"XX{k}": I[0, 0], f"XY{k}": I[0, 1], f"XZ{k}": I[0, 2],
                         f"YY{k}": I[1, 1], f"YZ{k}": I[1, 2], f"ZZ{k}": I[2, 2],
                         f"MX{k}": m * c[0], f"MY{k}": m * c[1], f"MZ{k}": m * c[2], f"M{k}": m})
-    selected = base != tree.root or tip is not None
-    chain_text = f"chain '{base}' -> '{chain_links[-1]}'"
-    robot = Robot(name=root.get("name") or path.stem, joints=robot_joints,
-                  gravity=np.array([0.0, 0.0, -9.81]), source=str(path),
-                  description=f"read from URDF {path.name}" + (f", {chain_text}" if selected else ""))
-    robot.apriori = {k: float(v) for k, v in apriori.items()}
-    robot.provenance = {"kinematics": f"URDF {path.name}" + (f", {chain_text}" if selected else ""),
-                        "apriori": f"URDF {path.name} inertials and <dynamics>"}
-    robot.notices = _notices(tree, base, chain, left_out, robot_joints, chain_text)
-    return robot
+    return apriori
 
 
 def _limits(joint, j, path):

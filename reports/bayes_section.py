@@ -14,13 +14,10 @@ as ``extra_sections`` to :func:`dynid.reports.html.render_idim_report` or to
   with another parameter, and its caption says which and why.
 * ``<prefix>-convergence``: τ, ESS, split R̂ per parameter, acceptance, the
   rule and the τ estimate against chain length / 50.
-* ``<prefix>-gravity`` (nonlinear gravity model only): the posterior of
-  (k, q_off) against the delta-method 95 % and 99.9 % ellipses, and the
-  marginal 95 % intervals of both methods.
 """
 from __future__ import annotations
 
-import math
+from dataclasses import dataclass
 
 import matplotlib
 import numpy as np
@@ -33,7 +30,7 @@ from dynid.reports import figures as F
 from dynid.reports import tables as T
 from dynid.reports.html import Section, join, kv_list, para
 
-__all__ = ["bayes_sections", "corner_figure", "gravity_figure", "tau_history_figure",
+__all__ = ["bayes_sections", "corner_figure", "tau_history_figure",
            "posterior_table", "diagnostics_table", "corner_selection", "status_markup"]
 
 MAX_CORNER = 8
@@ -108,21 +105,13 @@ def corner_figure(result, *, indices=None, note="", key="fig-posterior-corner", 
     ls = result.ls_value[indices]
     lcov = None if result.ls_cov is None else result.ls_cov[np.ix_(indices, indices)]
     truth = result.truth or {}
-    sel = _thin_index(S.shape[0])
+    c = _Corner(S=S, names=names, ls=ls, lcov=lcov, truth=truth, sel=_thin_index(S.shape[0]),
+                lims=_corner_limits(S, ls, truth, names), ci95=[result.ci95[i] for i in indices])
     with matplotlib.rc_context(F.STYLE):
         size = min(11.0, 1.35 * k + 0.6)
         fig = Figure(figsize=(size, size))
         axes = fig.subplots(k, k, squeeze=False)
         fig.subplots_adjust(left=0.09, bottom=0.09, right=0.985, top=0.985, wspace=0.08, hspace=0.08)
-        lims = []
-        for i in range(k):
-            lo, hi = np.quantile(S[:, i], [0.001, 0.999])
-            span = hi - lo if hi > lo else max(abs(hi), 1.0) * 1e-6
-            lo, hi = lo - 0.08 * span, hi + 0.08 * span
-            for v in (ls[i], truth.get(names[i], np.nan)):
-                if np.isfinite(v):
-                    lo, hi = min(lo, v - 0.02 * span), max(hi, v + 0.02 * span)
-            lims.append((lo, hi))
         for i in range(k):
             for j in range(k):
                 ax = axes[i, j]
@@ -131,122 +120,106 @@ def corner_figure(result, *, indices=None, note="", key="fig-posterior-corner", 
                     continue
                 ax.grid(False)
                 if i == j:
-                    ax.hist(S[:, i], bins=30, range=lims[i], color="#c8d3e8", edgecolor="#8fa3c8",
-                            linewidth=0.4, histtype="stepfilled")
-                    lo95, hi95 = result.ci95[indices[i]]
-                    ax.axvline(lo95, color=F.BLUE, ls=":", lw=0.8)
-                    ax.axvline(hi95, color=F.BLUE, ls=":", lw=0.8)
-                    if np.isfinite(ls[i]):
-                        ax.axvline(ls[i], color=F.RED, ls="--", lw=0.9)
-                    if names[i] in truth:
-                        ax.axvline(truth[names[i]], color=F.GREEN, lw=0.9)
-                    ax.set_yticks([])
-                    ax.set_xlim(lims[i])
+                    _corner_diagonal(ax, c, i)
                 else:
-                    x, y = S[:, j], S[:, i]
-                    ax.plot(x[sel], y[sel], ".", ms=1.0, color="#8fa3c8", alpha=0.5, rasterized=True)
-                    H, xe, ye = np.histogram2d(x, y, bins=24, range=[lims[j], lims[i]])
-                    levels = _hdr_levels(H)
-                    if len(levels) >= 1 and np.count_nonzero(H) > 3:
-                        xc, yc = 0.5 * (xe[1:] + xe[:-1]), 0.5 * (ye[1:] + ye[:-1])
-                        try:
-                            ax.contour(xc, yc, H.T, levels=levels, colors=F.BLUE, linewidths=0.7)
-                        except ValueError:
-                            pass
-                    if np.isfinite(ls[i]) and np.isfinite(ls[j]):
-                        ax.plot(ls[j], ls[i], "+", color=F.RED, ms=6, mew=1.0)
-                        if lcov is not None:
-                            e = _ellipse(np.array([ls[j], ls[i]]), lcov[np.ix_([j, i], [j, i])], 0.95)
-                            if e is not None:
-                                ax.plot(e[:, 0], e[:, 1], color=F.RED, lw=0.7, ls="--")
-                    if names[i] in truth and names[j] in truth:
-                        ax.plot(truth[names[j]], truth[names[i]], "x", color=F.GREEN, ms=5)
-                    ax.set_xlim(lims[j])
-                    ax.set_ylim(lims[i])
-                if i == k - 1:
-                    ax.set_xlabel(F._plain(names[j]))
-                    ax.tick_params(axis="x", labelrotation=45, labelsize=6)
-                else:
-                    ax.set_xticklabels([])
-                if j == 0 and i > 0:
-                    ax.set_ylabel(F._plain(names[i]))
-                    ax.tick_params(axis="y", labelsize=6)
-                elif i != j:
-                    ax.set_yticklabels([])
+                    _corner_pair(ax, c, i, j)
+                _corner_labels(ax, names, i, j, k)
     if caption is None:
-        caption = ("Posterior corner plot: marginal histograms (diagonal; dotted blue: 95 % credible "
-                   "interval), pairwise draws with contours enclosing 39 % and 86 % of the posterior "
-                   f"mass (below); red: {result.ls_label} estimate (+, dashed line) and its 95 % "
-                   "ellipse")
-        if truth:
-            caption += "; green: true value"
-        if note:
-            caption += f". {note}: {', '.join(names)}"
+        caption = _corner_caption(result, truth, note, names)
     return F.render_figure(fig, key, caption, fmt="png")
 
 
-def gravity_figure(result, *, key="fig-posterior-gravity", caption=None):
-    """(k, q_off): posterior draws and contours against the delta-method ellipses; marginals."""
-    ik, iq = result.index("k"), result.index("q_off")
-    S = result.samples[:, [ik, iq]]
-    ls = result.ls_value[[ik, iq]]
-    C = result.ls_cov[np.ix_([ik, iq], [ik, iq])]
-    sd = np.sqrt(np.diag(C))
-    truth = result.truth or {}
-    sel = _thin_index(S.shape[0], 3000)
-    with matplotlib.rc_context(F.STYLE):
-        fig = Figure(figsize=(8.6, 3.2), layout="constrained")
-        ax0, ax1, ax2 = fig.subplots(1, 3, width_ratios=[1.3, 1, 1])
-        ax0.plot(S[sel, 0], S[sel, 1], ".", ms=1.2, color="#8fa3c8", alpha=0.6, rasterized=True,
-                 label="posterior draws")
-        lims = [np.quantile(S[:, c], [0.0005, 0.9995]) for c in range(2)]
-        for c in range(2):
-            lo = min(lims[c][0], ls[c] - 3.5 * sd[c])
-            hi = max(lims[c][1], ls[c] + 3.5 * sd[c])
-            lims[c] = (lo, hi)
-        H, xe, ye = np.histogram2d(S[:, 0], S[:, 1], bins=30, range=lims)
-        levels = _hdr_levels(H, (0.95,))
-        if levels:
-            xc, yc = 0.5 * (xe[1:] + xe[:-1]), 0.5 * (ye[1:] + ye[:-1])
-            try:
-                ax0.contour(xc, yc, H.T, levels=levels, colors=F.BLUE, linewidths=1.0)
-            except ValueError:
-                pass
-        ax0.plot([], [], color=F.BLUE, lw=1.0, label="posterior 95 % region")
-        for level, ls_ in ((0.95, "-"), (0.999, ":")):
-            e = _ellipse(ls, C, level)
+@dataclass
+class _Corner:
+    """What every panel of the corner plot draws from."""
+
+    S: np.ndarray          # draws of the plotted parameters
+    names: list
+    ls: np.ndarray         # least-squares estimate
+    lcov: np.ndarray       # its covariance, or None
+    truth: dict
+    sel: np.ndarray        # thinned draws shown as points
+    lims: list             # axis range per parameter
+    ci95: list             # 95 % credible interval per parameter
+
+
+def _corner_limits(S, ls, truth, names):
+    """Axis range of each parameter: its draws' 0.1-99.9 % range, widened to show LS and truth."""
+    lims = []
+    for i in range(S.shape[1]):
+        lo, hi = np.quantile(S[:, i], [0.001, 0.999])
+        span = hi - lo if hi > lo else max(abs(hi), 1.0) * 1e-6
+        lo, hi = lo - 0.08 * span, hi + 0.08 * span
+        for v in (ls[i], truth.get(names[i], np.nan)):
+            if np.isfinite(v):
+                lo, hi = min(lo, v - 0.02 * span), max(hi, v + 0.02 * span)
+        lims.append((lo, hi))
+    return lims
+
+
+def _corner_diagonal(ax, c, i):
+    """Marginal histogram with the 95 % interval, the LS estimate and the true value."""
+    ax.hist(c.S[:, i], bins=30, range=c.lims[i], color="#c8d3e8", edgecolor="#8fa3c8",
+            linewidth=0.4, histtype="stepfilled")
+    lo95, hi95 = c.ci95[i]
+    ax.axvline(lo95, color=F.BLUE, ls=":", lw=0.8)
+    ax.axvline(hi95, color=F.BLUE, ls=":", lw=0.8)
+    if np.isfinite(c.ls[i]):
+        ax.axvline(c.ls[i], color=F.RED, ls="--", lw=0.9)
+    if c.names[i] in c.truth:
+        ax.axvline(c.truth[c.names[i]], color=F.GREEN, lw=0.9)
+    ax.set_yticks([])
+    ax.set_xlim(c.lims[i])
+
+
+def _corner_pair(ax, c, i, j):
+    """Pairwise draws with density contours, the LS estimate and its 95 % ellipse, the true value."""
+    ls, names, truth = c.ls, c.names, c.truth
+    x, y = c.S[:, j], c.S[:, i]
+    ax.plot(x[c.sel], y[c.sel], ".", ms=1.0, color="#8fa3c8", alpha=0.5, rasterized=True)
+    H, xe, ye = np.histogram2d(x, y, bins=24, range=[c.lims[j], c.lims[i]])
+    levels = _hdr_levels(H)
+    if len(levels) >= 1 and np.count_nonzero(H) > 3:
+        xc, yc = 0.5 * (xe[1:] + xe[:-1]), 0.5 * (ye[1:] + ye[:-1])
+        try:
+            ax.contour(xc, yc, H.T, levels=levels, colors=F.BLUE, linewidths=0.7)
+        except ValueError:
+            pass
+    if np.isfinite(ls[i]) and np.isfinite(ls[j]):
+        ax.plot(ls[j], ls[i], "+", color=F.RED, ms=6, mew=1.0)
+        if c.lcov is not None:
+            e = _ellipse(np.array([ls[j], ls[i]]), c.lcov[np.ix_([j, i], [j, i])], 0.95)
             if e is not None:
-                ax0.plot(e[:, 0], e[:, 1], color=F.RED, lw=1.0, ls=ls_,
-                         label=f"delta method {100 * level:g} %")
-        ax0.plot(ls[0], ls[1], "+", color=F.RED, ms=8, mew=1.2, label="NLS estimate")
-        if "k" in truth and "q_off" in truth:
-            ax0.plot(truth["k"], truth["q_off"], "x", color=F.GREEN, ms=6, mew=1.2, label="true value")
-        ax0.set_xlim(lims[0])
-        ax0.set_ylim(lims[1])
-        ax0.set_xlabel("k [N m]")
-        ax0.set_ylabel("q_off [rad]")
-        ax0.legend(loc="best", frameon=False, fontsize=6)
-        for ax, c, label in ((ax1, 0, "k [N m]"), (ax2, 1, "q_off [rad]")):
-            ax.hist(S[:, c], bins=40, range=lims[c], density=True, color="#c8d3e8", edgecolor="#8fa3c8",
-                    linewidth=0.4, label="posterior")
-            x = np.linspace(*lims[c], 200)
-            ax.plot(x, stats.norm.pdf(x, ls[c], sd[c]), color=F.RED, lw=1.0, label="delta method")
-            j = [ik, iq][c]
-            for v in result.ci95[j]:
-                ax.axvline(v, color=F.BLUE, ls=":", lw=0.8)
-            name = ["k", "q_off"][c]
-            if name in truth:
-                ax.axvline(truth[name], color=F.GREEN, lw=0.9)
-            ax.set_yticks([])
-            ax.grid(False)
-            ax.set_xlabel(label)
-        ax1.legend(loc="upper right", frameon=False, fontsize=6)
-    if caption is None:
-        caption = ("Gravity parameters (k, q_off) of τ = k sin(q + q_off) + friction: posterior draws and "
-                   "95 % region (blue) against the delta-method 95 % (solid) and 99.9 % (dotted) "
-                   "ellipses of the nonlinear LS fit (red); right: marginals, posterior histogram "
-                   "with its 95 % interval (dotted) against the delta-method normal density")
-    return F.render_figure(fig, key, caption, fmt="png")
+                ax.plot(e[:, 0], e[:, 1], color=F.RED, lw=0.7, ls="--")
+    if names[i] in truth and names[j] in truth:
+        ax.plot(truth[names[j]], truth[names[i]], "x", color=F.GREEN, ms=5)
+    ax.set_xlim(c.lims[j])
+    ax.set_ylim(c.lims[i])
+
+
+def _corner_labels(ax, names, i, j, k):
+    if i == k - 1:
+        ax.set_xlabel(F._plain(names[j]))
+        ax.tick_params(axis="x", labelrotation=45, labelsize=6)
+    else:
+        ax.set_xticklabels([])
+    if j == 0 and i > 0:
+        ax.set_ylabel(F._plain(names[i]))
+        ax.tick_params(axis="y", labelsize=6)
+    elif i != j:
+        ax.set_yticklabels([])
+
+
+def _corner_caption(result, truth, note, names):
+    caption = ("Posterior corner plot: marginal histograms (diagonal; dotted blue: 95 % credible "
+               "interval), pairwise draws with contours enclosing 39 % and 86 % of the posterior "
+               f"mass (below); red: {result.ls_label} estimate (+, dashed line) and its 95 % "
+               "ellipse")
+    if truth:
+        caption += "; green: true value"
+    if note:
+        caption += f". {note}: {', '.join(names)}"
+    return caption
 
 
 def tau_history_figure(result, *, key="fig-posterior-tau", caption=None):
@@ -378,44 +351,4 @@ def bayes_sections(result, *, prefix: str = "posterior", title: str | None = Non
                    figures=[tau_history_figure(result, key=f"fig-{prefix}-tau")],
                    tables=[diagnostics_table(result, key=f"tab-{prefix}-diagnostics")],
                    tables_first=True)
-    sections = [main, conv]
-    if "k" in result.names and "q_off" in result.names and result.ls_cov is not None:
-        sections.append(_gravity_section(result, prefix, flag))
-    return sections
-
-
-def _gravity_section(result, prefix, flag):
-    ik, iq = result.index("k"), result.index("q_off")
-    ref = result.reference
-    rows = []
-    for i, name in ((ik, "k"), (iq, "q_off")):
-        sd = math.sqrt(result.ls_cov[i, i])
-        if ref is not None and hasattr(ref, "interval"):
-            lo_d, hi_d = ref.interval(0.95)[i]
-        else:
-            lo_d, hi_d = result.ls_value[i] - 1.96 * sd, result.ls_value[i] + 1.96 * sd
-        lo_p, hi_p = result.ci95[i]
-        rows.append({"parameter": name, "ls_value": result.ls_value[i], "delta_low": lo_d,
-                     "delta_high": hi_d, "post_low": lo_p, "post_high": hi_p,
-                     "width_ratio": (hi_p - lo_p) / (hi_d - lo_d),
-                     "asymmetry": (hi_p - result.ls_value[i]) / (result.ls_value[i] - lo_p)
-                     if result.ls_value[i] > lo_p else np.nan,
-                     "skewness": float(stats.skew(result.samples[:, i]))})
-    df = pd.DataFrame(rows).set_index("parameter")
-    tab = T.make_table(df, f"tab-{prefix}-gravity", "95 % intervals of (k, q_off): posterior vs delta method",
-                       labels={"ls_value": "NLS value", "delta_low": "delta 95 % low",
-                               "delta_high": "delta 95 % high", "post_low": "posterior 95 % low",
-                               "post_high": "posterior 95 % high",
-                               "width_ratio": "width ratio post./delta",
-                               "asymmetry": "(high \u2212 NLS) / (NLS \u2212 low)",
-                               "skewness": "posterior skewness"},
-                       note=("Where q spans a wide range the posterior is close to Gaussian: width ratio "
-                             "\u2248 1, asymmetry \u2248 1, skewness \u2248 0. A narrow range of q makes "
-                             "k sin(q + q_off) nearly collinear with the offset and the linear terms; the "
-                             "posterior then departs from the delta-method ellipse."))
-    body = join(para("The gravity model is nonlinear in (k, q_off). The delta-method region linearises "
-                     "it at the NLS estimate (cov = s\u00b2 (J\u1d40J)\u207b\u00b9); the posterior does not."),
-                para(result.settings.get("linear_parameters", ""), cls="hint"))
-    return Section(f"{prefix}-gravity", "Gravity parameters: posterior vs delta method" + flag, body,
-                   figures=[gravity_figure(result, key=f"fig-{prefix}-gravity")], tables=[tab],
-                   tables_first=False)
+    return [main, conv]

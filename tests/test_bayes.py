@@ -1,4 +1,4 @@
-"""Tests of the Bayesian posterior (dynid.analysis.sampling.posterior), its convergence rule (dynid.analysis.sampling.convergence)
+"""Tests of the Bayesian posterior (dynid.analysis.sampling.posterior; the gravity model: tests/gravity_posterior.py), its convergence rule (dynid.analysis.sampling.convergence)
 and its report sections (dynid.reports.bayes_section).
 
 Every statistical test compares emcee's draws with a closed form or with the truth of
@@ -16,6 +16,7 @@ from dynid.analysis.estimators import least_squares as lsq
 from dynid.analysis.sampling import posterior as bayes
 from dynid.analysis.sampling.convergence import ConvergenceCriteria, diagnose, integrated_time, split_rhat
 from dynid.provenance import dumps_json
+from tests import gravity_posterior as gravity
 
 
 # ----------------------------------------------------------------------------- fixtures
@@ -225,9 +226,9 @@ def test_calibration_of_credible_intervals():
 def gravity_runs():
     out = {}
     for label, amp in (("good", 1.5), ("poor", 0.15)):
-        q, qd, tau, truth = bayes.simulate_gravity_joint(400, q_amplitude=amp, sigma=0.3, seed=3)
-        ls = bayes.fit_gravity_ls(q, qd, tau)
-        res = bayes.sample_gravity(q, qd, tau, ls=ls, seed=1, truth=truth)
+        q, qd, tau, truth = gravity.simulate_gravity_joint(400, q_amplitude=amp, sigma=0.3, seed=3)
+        ls = gravity.fit_gravity_ls(q, qd, tau)
+        res = gravity.sample_gravity(q, qd, tau, ls=ls, seed=1, truth=truth)
         out[label] = (q, qd, tau, truth, ls, res)
     return out
 
@@ -262,7 +263,7 @@ def test_gravity_posterior_vs_delta_method(gravity_runs):
 def test_gravity_marginalised_equals_joint_sampling(gravity_runs):
     """Analytic marginalisation of friction and σ gives the same posterior as sampling them."""
     q, qd, tau, truth, ls, marg = gravity_runs["good"]
-    joint = bayes.sample_gravity(q, qd, tau, ls=ls, seed=2, marginalize=False)
+    joint = gravity.sample_gravity(q, qd, tau, ls=ls, seed=2, marginalize=False)
     assert joint.converged, joint.reason
     assert joint.names == marg.names
     se = np.sqrt(marg.mc_stderr() ** 2 + joint.mc_stderr() ** 2)
@@ -273,8 +274,8 @@ def test_gravity_marginalised_equals_joint_sampling(gravity_runs):
 
 
 def test_fit_gravity_ls_normalises_sign_and_matches_linear_fit():
-    q, qd, tau, truth = bayes.simulate_gravity_joint(300, k=-5.0, q_off=0.3, seed=4)
-    ls = bayes.fit_gravity_ls(q, qd, tau)
+    q, qd, tau, truth = gravity.simulate_gravity_joint(300, k=-5.0, q_off=0.3, seed=4)
+    ls = gravity.fit_gravity_ls(q, qd, tau)
     assert ls.value[0] > 0 and -math.pi < ls.value[1] <= math.pi
     assert ls.value[0] == pytest.approx(5.0, rel=0.05)
     assert math.remainder(ls.value[1] - (0.3 + math.pi), 2 * math.pi) == pytest.approx(0, abs=0.05)
@@ -366,8 +367,9 @@ def test_optional_exports_are_clear_about_missing_packages(tmp_path):
 
 
 def test_report_sections_for_linear_and_gravity(tx40_known_noise, gravity_runs):
-    from dynid.reports.bayes_section import bayes_sections, corner_selection
+    from dynid.reports.bayes_section import corner_selection
     from dynid.reports.html import render_sections
+    from tests.gravity_posterior import bayes_sections  # the library's sections + the gravity one
 
     res = tx40_known_noise[0]
     idx, note = corner_selection(res)

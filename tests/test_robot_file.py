@@ -435,3 +435,61 @@ def test_a_folder_named_like_a_bundled_robot_does_not_hide_it(tmp_path, monkeypa
     monkeypatch.chdir(tmp_path)
     assert load_robot("panda").n_joints == 7
     assert load_robot("tx40").n_joints == 6
+
+
+# ------------------------------------------------------------------ issue 31: degrees, 1e154, negative ki
+
+def _joint_edit(k, **fields):
+    return _tx40_doc(lambda d: d["joints"][k].update(fields))
+
+
+@pytest.mark.parametrize("key, value, fields", [
+    ("alpha", 90, ["joints[2].alpha", "90", "joint 'j2'", "radians", "degrees", "1.5708"]),
+    ("theta", 180, ["joints[2].theta", "180", "joint 'j2'", "radians", "degrees", "3.14159"]),
+    ("alpha", -90.0, ["joints[2].alpha", "-90", "joint 'j2'", "degrees", "-1.5708"]),
+    ("alpha", 1e154, ["joints[2].alpha", "1e+154", "joint 'j2'", "radians"]),
+    ("theta", -1e300, ["joints[2].theta", "joint 'j2'", "radians"]),
+])
+def test_dh_angles_beyond_one_turn_are_refused(key, value, fields):
+    """Before: alpha = 90 (degrees) and alpha = 1e154 gave a robot; angles are in radians."""
+    msg = _bad_doc(_joint_edit(1, **{key: value}), *fields)
+    assert "6.283 rad" in msg
+
+
+def test_dh_angles_within_one_turn_still_load():
+    robot = robot_from_dict(_joint_edit(1, alpha=-math.pi, theta=2 * math.pi), "ok.toml")
+    assert robot.joints[1].mdh[0] == -math.pi and robot.joints[1].mdh[2] == 2 * math.pi
+
+
+def _pid_doc(ki):
+    return _tx40_doc(lambda d: d["controller"].update(kind="pid", ki=ki))
+
+
+def test_negative_pid_integral_gain_is_refused():
+    """Before: a negative PID ki was accepted (an unstable integral action)."""
+    _bad_doc(_pid_doc([1.0, 1.0, -5.0, 1.0, 1.0, 1.0]), "controller.ki[3]", "-5", "joint 'j3'", "negative")
+    _bad_doc(_pid_doc(-1.0), "controller.ki[1]", "negative")
+    robot = robot_from_dict(_pid_doc([0.0, 1.0, 2.0, 0.0, 0.0, 3.0]), "ok.toml")
+    assert list(robot.controller.ki) == [0.0, 1.0, 2.0, 0.0, 0.0, 3.0]
+
+
+def test_angle_refusal_from_a_file_names_the_file(tmp_path):
+    path = tmp_path / "degrees.toml"
+    path.write_text(tx40_with(("alpha = -1.5707963267948966", "alpha = -90")), encoding="utf-8")
+    with pytest.raises(RobotFileError) as exc:
+        load_robot(path)
+    assert_helpful(exc, "degrees.toml", ".alpha = -90", "degrees")
+
+
+@pytest.mark.parametrize("key, value, fields", [
+    ("tau_max", 1e300, ["joints[1].tau_max", "1e+300", "joint 'j1'", "1e+07"]),
+    ("qd_max", 1e300, ["joints[1].qd_max", "1e+300", "1e+04"]),
+    ("qdd_max", 1e300, ["joints[1].qdd_max", "1e+06"]),
+    ("q_limits", [-1e300, 1.0], ["joints[1].q_limits", "1e+04"]),
+])
+def test_finite_limits_beyond_any_robot_are_refused(key, value, fields):
+    """Issue 31: limits of 1e300 made excite write an all-zero trajectory; infinity still means no limit."""
+    _bad_doc(_joint_edit(0, **{key: value}), *fields)
+    robot = robot_from_dict(_joint_edit(0, tau_max=math.inf, qd_max=math.inf, q_limits=[-math.inf, math.inf]),
+                            "ok.toml")
+    assert robot.joints[0].tau_max == math.inf and robot.joints[0].q_limits == (-math.inf, math.inf)

@@ -211,3 +211,29 @@ def test_every_method_gives_a_verdict(tmp_path, method):
     assert block and block.group(1) == v["status"]
     assert sorted(block.group(2).split()) == above
     assert block.start() == text.index("<section")              # the first section of the page
+
+
+def test_a_check_is_one_function_in_the_list():
+    """Adding a check is appending one function: its finding, reason and JSON block appear, the others stay."""
+    from dynid.analysis.demo import demo_data
+    from dynid.analysis.estimators.idim import identify_idim
+    from dynid.analysis.statistics.verdict import CHECKS, CheckOutcome, verdict
+
+    robot, bp, _, ident, _ = demo_data(1, 5.0)
+    res = identify_idim(ident, robot, bp=bp)
+    base = verdict(res)
+
+    def check_planted(x):
+        return CheckOutcome(findings=[{"level": "warn", "key": "planted", "text": f"{x.n} joints seen."}],
+                            reasons=["planted"], fields={"planted": {"n": x.n}})
+
+    v = verdict(res, checks=[*CHECKS, check_planted])
+    assert v.findings[:-1] == base.findings and v.findings[-1]["text"] == "6 joints seen."
+    assert v.reasons == base.reasons + ["planted"] and v.status != "identified"
+    d, d0 = v.to_dict(), base.to_dict()
+    assert d.pop("planted") == {"n": 6} and "planted" not in d0
+    d0.pop("findings"), d0.pop("reasons"), d0.pop("status"), d.pop("findings"), d.pop("reasons"), d.pop("status")
+    assert d == d0
+    # a failing check makes the model "not identified"
+    v = verdict(res, checks=[*CHECKS, lambda x: CheckOutcome(fail=True)])
+    assert v.status == "not identified" and not v.identified

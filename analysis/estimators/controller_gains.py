@@ -58,9 +58,13 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.linalg import block_diag
+from scipy.signal import bilinear, lfilter
 
+from dynid.analysis.processing.signals import default_settings, derivatives, lowpass_filtfilt
 from dynid.analysis.results import ParameterResults
 from dynid.errors import DataError, InputError
+from dynid.provenance import json_safe
 
 __all__ = ["GainsResult", "identify_gains"]
 
@@ -123,7 +127,6 @@ class GainsResult(ParameterResults):
         return "\n".join(lines)
 
     def to_dict(self) -> dict:
-        from dynid.provenance import json_safe
         return json_safe({"method": self.method, "source": self.source, "feedforward": self.feedforward,
                           "integral": self.integral, "n_rows": self.n_rows,
                           "parameters": [{"name": n, "value": v, "std": s, "rel_std_percent": r}
@@ -143,7 +146,6 @@ def _noise_moments(fs, fc, *, N, T):
     f_b, and ``E[S_k^2] = T^2 ((k+1) r(0) + 2 sum_{m=1..k} (k+1-m) r(m))``, r the
     autocorrelation of H. Exact where the filter is away from the ends.
     """
-    from dynid.analysis.processing.signals import derivatives
     L = int(8 * fs / fc) + 8
     impulse = np.zeros((2 * L + 1, 1))
     impulse[L] = 1.0
@@ -166,7 +168,6 @@ def _noise_moments(fs, fc, *, N, T):
 
 def _whitening_filter(Kp, Kd, Ki, fs):
     """Discrete (bilinear) ``F(s) = 1 / K(s)``, K = Kp + Kd s (+ Ki / s): (b, a) for lfilter."""
-    from scipy.signal import bilinear
     if Ki > 0:
         return bilinear([1.0, 0.0], [Kd, Kp, Ki], fs)
     return bilinear([1.0], [Kd, Kp], fs)
@@ -174,7 +175,6 @@ def _whitening_filter(Kp, Kd, Ki, fs):
 
 def _whitened_gram(mom, cols, n_rows, ba, settle) -> np.ndarray:
     """E[X_n' X_n] of the columns built from unit encoder noise, after the whitening filter."""
-    from scipy.signal import lfilter
     base = dict(mom["filters"], Ki=mom["integral"])
     f = {}
     for c in cols:
@@ -229,7 +229,6 @@ def position_noise_level(q, fs) -> np.ndarray:
     The estimator (power above fs/4 after dynid's zero-phase low-pass) is
     calibrated on unit white noise, so it is unbiased for white noise.
     """
-    from dynid.analysis.processing.signals import lowpass_filtfilt
     q = np.asarray(q, dtype=float)
     f1 = 0.25 * fs
     cut = max(20, q.shape[0] // 100)
@@ -239,100 +238,82 @@ def position_noise_level(q, fs) -> np.ndarray:
     return np.sqrt(np.mean(high ** 2, axis=0) / np.mean(unit ** 2))
 
 
-def identify_gains(experiment, robot, *, feedforward="auto", integral="auto", fc=None,
-                   noise_q="auto", velocity_lag=True,
-                   whiten=True) -> GainsResult:
-    """Gains ``Kp, Kd (, Ki)`` of every joint from ``experiment`` (needs ``qr``); see the module doc.
+def _check_noise_q(noise_q, n):
+    """The encoder noise given (rad, per joint), or None to estimate it."""
+    if noise_q is None or (isinstance(noise_q, str) and noise_q == "auto"):
+        return None
+    if isinstance(noise_q, (str, bool)):
+        raise InputError(f"noise_q must be 'auto', 0 or the encoder noise in rad, not {noise_q!r}")
+    sigma_q = np.broadcast_to(np.asarray(noise_q, dtype=float), (n,))
+    if not np.all(np.isfinite(sigma_q)) or np.any(sigma_q < 0):
+        raise InputError(f"noise_q must be finite and >= 0 (rad), got {noise_q!r}")
+    return sigma_q
 
-    ``feedforward``: True, False or ``"auto"`` (both columns fitted; the reference
-    velocity is fed forward when its coefficient is closer to Kd than to 0).
-    ``integral``: True, False or ``"auto"`` (the robot file's controller kind, pid or pd).
-    ``fc``: cut-off (Hz) of the parallel zero-phase filter (default: dynid's
-    position filter for these data). ``noise_q``: encoder noise (rad, scalar or per
-    joint), ``"auto"`` or None (estimated) or 0 (plain least squares).
-    ``velocity_lag``: fit the lag of the controller's velocity (column qdd).
-    ``whiten``: second, generalised least-squares pass through ``1 / K(s)``.
-    """
-    from dynid.analysis.processing.signals import default_settings, derivatives, lowpass_filtfilt
-    if robot.controller is None:
-        raise InputError(f"robot '{robot.name}' ({robot.source}) has no [controller] table: the gains "
-                         "are identified for a known controller structure; add one")
-    if experiment.qr is None:
-        raise DataError(f"{experiment.source}: no reference column (qr1..qr{robot.n_joints}): the controller "
-                        "gains cannot be identified without the reference the controller tracked; DIDIM "
-                        "then depends on the gains assumed in the robot file")
-    if not (noise_q is None or (isinstance(noise_q, str) and noise_q == "auto")):
-        if isinstance(noise_q, (str, bool)):
-            raise InputError(f"noise_q must be 'auto', 0 or the encoder noise in rad, not {noise_q!r}")
-        sigma_q = np.broadcast_to(np.asarray(noise_q, dtype=float), (robot.n_joints,))
-        if not np.all(np.isfinite(sigma_q)) or np.any(sigma_q < 0):
-            raise InputError(f"noise_q must be finite and >= 0 (rad), got {noise_q!r}")
-    else:
-        sigma_q = None
-    n, fs, T = robot.n_joints, float(experiment.fs), 1.0 / float(experiment.fs)
-    if integral == "auto":
-        integral = robot.controller.kind == "pid"
-    fc = default_settings(fs, experiment.q)["fc_position"] if fc is None else float(fc)
-    # Parallel filtering: q, qr and tau through the same zero-phase low-pass. The law is linear
-    # and time-invariant, so it holds between the filtered signals exactly, while the encoder
-    # noise above fc leaves the regressors (noise in a regressor biases its gain towards zero)
-    # and no loop dynamics are lost from one side only.
-    q_f, qd, qdd = derivatives(experiment.q, fs, fc)
-    qr_f, qdr, _ = derivatives(experiment.qr, fs, fc)
-    tau_f = lowpass_filtfilt(experiment.tau, fs, fc)
-    e = qr_f - q_f
-    tau = experiment.tau
-    if sigma_q is None:
-        sigma_q = position_noise_level(experiment.q, fs)
-    moments = _noise_moments(fs, fc, N=experiment.q.shape[0], T=T)
-    N = tau.shape[0]
-    edge = max(10, int(4 * fs / fc))
-    hac_lags = max(_hac_lags(N), 2 * edge)
-    keep = np.zeros(N, bool)
-    keep[edge:N - edge] = True
-    tau_max = np.array([jt.tau_max if jt.tau_max else np.inf for jt in robot.joints], dtype=float)
-    notices = []
-    sat = np.abs(tau) >= 0.999 * tau_max
-    if sat.any():
-        notices.append(f"{int(sat.any(axis=1).sum())} saturated samples left out")
-    def fit(j, mode, wf=None):
-        rows = keep & ~sat[:, j]
-        if rows.sum() < 50:
-            raise DataError(f"{experiment.source}: joint {j + 1} has only {int(rows.sum())} unsaturated "
-                            "samples away from the ends; the gains cannot be identified")
-        cols = {"Kp": e[:, j]}
-        if velocity_lag:
+
+@dataclass
+class _GainsFit:
+    """The filtered signals of one recording and what every per-joint fit of the control law shares."""
+
+    e: np.ndarray                # qr - q, filtered
+    qd: np.ndarray
+    qdd: np.ndarray
+    qdr: np.ndarray
+    tau_f: np.ndarray            # torque, filtered
+    T: float                     # controller period (s)
+    keep: np.ndarray             # rows away from the filter transients at both ends
+    sat: np.ndarray              # saturated samples (per joint)
+    sigma_q: np.ndarray          # encoder noise (rad, per joint)
+    moments: object              # _noise_moments of the processing
+    edge: int
+    hac_lags: int
+    integral: bool
+    velocity_lag: bool
+    source: str
+
+    def columns(self, j, mode):
+        """The regressors of joint j's control law; mode "free", True (fed forward) or False."""
+        N = self.e.shape[0]
+        cols = {"Kp": self.e[:, j]}
+        if self.velocity_lag:
             # the controller's velocity lags the central derivative of q by some delta (a
             # backward difference T/2, a semi-implicit integrator's h/2, an observer):
             # Kd qd(t - delta) = Kd qd - Kd delta qdd, linear in Ka = Kd delta
-            cols["Ka"] = qdd[:, j]
+            cols["Ka"] = self.qdd[:, j]
         if mode == "free":             # feedforward coefficient fitted on its own, to decide
-            cols["Kd"], cols["ff"] = -qd[:, j], qdr[:, j]
+            cols["Kd"], cols["ff"] = -self.qd[:, j], self.qdr[:, j]
         else:
-            cols["Kd"] = (qdr[:, j] - qd[:, j]) if mode else -qd[:, j]
-        if integral:
-            cols["Ki"] = np.cumsum(e[:, j]) * T
+            cols["Kd"] = (self.qdr[:, j] - self.qd[:, j]) if mode else -self.qd[:, j]
+        if self.integral:
+            cols["Ki"] = np.cumsum(self.e[:, j]) * self.T
             cols["b"] = np.ones(N)
+        return cols
+
+    def fit(self, j, mode, wf=None):
+        """Corrected least squares of joint j's law (`wf`: the whitening filter and its settling)."""
+        rows = self.keep & ~self.sat[:, j]
+        if rows.sum() < 50:
+            raise DataError(f"{self.source}: joint {j + 1} has only {int(rows.sum())} unsaturated "
+                            "samples away from the ends; the gains cannot be identified")
+        cols = self.columns(j, mode)
         if wf is None:
             X = np.column_stack(list(cols.values()))[rows]
-            y = tau_f[rows, j]
+            y = self.tau_f[rows, j]
             # the same columns built from the noise alone (its part of e, -qd and I; none in qr)
-            G = sigma_q[j] ** 2 * _noise_gram(moments, list(cols), rows)
+            G = self.sigma_q[j] ** 2 * _noise_gram(self.moments, list(cols), rows)
         else:
             # Generalised least squares: the equation error is the controller applied to the
             # encoder noise, K(s) n, whose power grows as (Kd w)^2; the law filtered by
             # F = 1 / K(s) of the first estimate still holds exactly (LTI) and its error is
             # about n, white below fc. The integral column becomes stationary and the
             # integral's initial state b dies out with F's transient.
-            from scipy.signal import lfilter
             ba, settle = wf
             cols.pop("b", None)
             Xf = lfilter(*ba, np.column_stack(list(cols.values())), axis=0)
-            yf = lfilter(*ba, tau_f[:, j])
+            yf = lfilter(*ba, self.tau_f[:, j])
             rows = rows.copy()
-            rows[:edge + settle] = False
+            rows[:self.edge + settle] = False
             X, y = Xf[rows], yf[rows]
-            G = sigma_q[j] ** 2 * _whitened_gram(moments, list(cols), float(rows.sum()), ba, settle)
+            G = self.sigma_q[j] ** 2 * _whitened_gram(self.moments, list(cols), float(rows.sum()), ba, settle)
         A = np.linalg.inv(X.T @ X - G)
         beta = A @ (X.T @ y)
         # Sandwich covariance of the corrected estimating equation X'(y - X beta) + G beta = 0:
@@ -342,33 +323,122 @@ def identify_gains(experiment, robot, *, feedforward="auto", integral="auto", fc
         u = y - X @ beta
         psi = X * u[:, None]
         psi -= psi.mean(axis=0)
-        cov = A @ _newey_west(psi, hac_lags + (0 if wf is None else 2 * wf[1])) @ A
+        cov = A @ _newey_west(psi, self.hac_lags + (0 if wf is None else 2 * wf[1])) @ A
         return list(cols), beta, cov, float(np.linalg.norm(y - X @ beta) / np.linalg.norm(y))
 
-    use_ff = feedforward
-    if feedforward == "auto":
-        # fed forward when the reference velocity's coefficient is nearer Kd than 0 on most joints
-        votes = []
-        for j in range(n):
-            cols, beta, _, _ = fit(j, "free")
-            kd, ff = beta[cols.index("Kd")], beta[cols.index("ff")]
-            votes.append(abs(ff - kd) < abs(ff))
-        use_ff = sum(votes) > n / 2
+
+def _prepare(experiment, robot, fc, sigma_q, integral, velocity_lag):
+    """Parallel filtering, the rows kept and the noise moments: the shared part of every fit."""
+    fs, T = float(experiment.fs), 1.0 / float(experiment.fs)
+    # Parallel filtering: q, qr and tau through the same zero-phase low-pass. The law is linear
+    # and time-invariant, so it holds between the filtered signals exactly, while the encoder
+    # noise above fc leaves the regressors (noise in a regressor biases its gain towards zero)
+    # and no loop dynamics are lost from one side only.
+    q_f, qd, qdd = derivatives(experiment.q, fs, fc)
+    qr_f, qdr, _ = derivatives(experiment.qr, fs, fc)
+    tau_f = lowpass_filtfilt(experiment.tau, fs, fc)
+    tau = experiment.tau
+    if sigma_q is None:
+        sigma_q = position_noise_level(experiment.q, fs)
+    moments = _noise_moments(fs, fc, N=experiment.q.shape[0], T=T)
+    N = tau.shape[0]
+    edge = max(10, int(4 * fs / fc))
+    keep = np.zeros(N, bool)
+    keep[edge:N - edge] = True
+    tau_max = np.array([jt.tau_max if jt.tau_max else np.inf for jt in robot.joints], dtype=float)
+    return _GainsFit(e=qr_f - q_f, qd=qd, qdd=qdd, qdr=qdr, tau_f=tau_f, T=T, keep=keep,
+                     sat=np.abs(tau) >= 0.999 * tau_max, sigma_q=sigma_q, moments=moments, edge=edge,
+                     hac_lags=max(_hac_lags(N), 2 * edge), integral=bool(integral),
+                     velocity_lag=velocity_lag, source=experiment.source)
+
+
+def _feedforward_vote(problem, n):
+    """Fed forward when the reference velocity's coefficient is nearer Kd than 0 on most joints."""
+    votes = []
+    for j in range(n):
+        cols, beta, _, _ = problem.fit(j, "free")
+        kd, ff = beta[cols.index("Kd")], beta[cols.index("ff")]
+        votes.append(abs(ff - kd) < abs(ff))
+    return sum(votes) > n / 2
+
+
+def _fit_joint(problem, j, use_ff, whiten, fs):
+    """Joint j's first pass, then the whitened pass when it applies; (cols, beta, cov, r, whitened)."""
+    cols, beta, cov, r = problem.fit(j, bool(use_ff))
+    gains = {c: beta[cols.index(c)] for c in ("Kp", "Kd", "Ki") if c in cols}
+    if not (whiten and not problem.sat[:, j].any() and gains["Kp"] > 0 and gains["Kd"] > 0
+            and gains.get("Ki", 0) >= 0):
+        return cols, beta, cov, r, not whiten
+    # settle: ten time constants of F's slowest pole
+    ba = _whitening_filter(gains["Kp"], gains["Kd"], gains.get("Ki", 0.0), fs)
+    slowest = np.max(np.abs(np.roots(ba[1])))
+    settle = int(10 / max(1e-12, -math.log(min(slowest, 1 - 1e-12)))) + 1
+    if settle >= problem.e.shape[0] // 4:
+        return cols, beta, cov, r, False
+    # r stays the first pass's: the relative error of the law on the torque itself
+    cols, beta, cov, _ = problem.fit(j, bool(use_ff), (ba, settle))
+    return cols, beta, cov, r, True
+
+
+def identify_gains(experiment, robot, *, feedforward="auto", integral="auto", fc=None,
+                   noise_q="auto", velocity_lag=True,
+                   whiten=True) -> GainsResult:
+    """Gains Kp, Kd (, Ki) of every joint from `experiment` (needs `qr`); see the module docstring.
+
+    Parameters
+    ----------
+    experiment : Experiment
+        A closed-loop recording with the reference `qr`.
+    robot : Robot
+        With a [controller] table.
+    feedforward : True, False or "auto"
+        "auto": both columns fitted; the reference velocity is fed forward when
+        its coefficient is closer to Kd than to 0.
+    integral : True, False or "auto"
+        "auto": the robot file's controller kind, pid or pd.
+    fc : float, optional
+        Cut-off (Hz) of the parallel zero-phase filter (default: dynid's
+        position filter for these data).
+    noise_q : "auto", None, 0 or float or array
+        Encoder noise (rad, scalar or per joint); "auto" or None: estimated;
+        0: plain least squares.
+    velocity_lag : bool
+        Fit the lag of the controller's velocity (column qdd).
+    whiten : bool
+        Second, generalised least-squares pass through 1 / K(s).
+
+    Returns
+    -------
+    GainsResult
+
+    Raises
+    ------
+    InputError
+        No [controller] table, or a bad `noise_q`.
+    DataError
+        No reference column, or too few unsaturated samples on a joint.
+    """
+    if robot.controller is None:
+        raise InputError(f"robot '{robot.name}' ({robot.source}) has no [controller] table: the gains "
+                         "are identified for a known controller structure; add one")
+    if experiment.qr is None:
+        raise DataError(f"{experiment.source}: no reference column (qr1..qr{robot.n_joints}): the controller "
+                        "gains cannot be identified without the reference the controller tracked; DIDIM "
+                        "then depends on the gains assumed in the robot file")
+    sigma_q = _check_noise_q(noise_q, robot.n_joints)
+    n, fs = robot.n_joints, float(experiment.fs)
+    if integral == "auto":
+        integral = robot.controller.kind == "pid"
+    fc = default_settings(fs, experiment.q)["fc_position"] if fc is None else float(fc)
+    problem = _prepare(experiment, robot, fc, sigma_q, integral, velocity_lag)
+    notices = []
+    if problem.sat.any():
+        notices.append(f"{int(problem.sat.any(axis=1).sum())} saturated samples left out")
+    use_ff = _feedforward_vote(problem, n) if feedforward == "auto" else feedforward
     out_names, out_vals, blocks, rel, lag, plain = [], [], [], [], [], []
     for j in range(n):
-        cols, beta, cov, r = fit(j, bool(use_ff))
-        gains = {c: beta[cols.index(c)] for c in ("Kp", "Kd", "Ki") if c in cols}
-        if whiten and not sat[:, j].any() and gains["Kp"] > 0 and gains["Kd"] > 0 and gains.get("Ki", 0) >= 0:
-            # settle: ten time constants of F's slowest pole
-            ba = _whitening_filter(gains["Kp"], gains["Kd"], gains.get("Ki", 0.0), fs)
-            slowest = np.max(np.abs(np.roots(ba[1])))
-            settle = int(10 / max(1e-12, -math.log(min(slowest, 1 - 1e-12)))) + 1
-            if settle < N // 4:
-                # r stays the first pass's: the relative error of the law on the torque itself
-                cols, beta, cov, _ = fit(j, bool(use_ff), (ba, settle))
-            else:
-                plain.append(j + 1)
-        elif whiten:
+        cols, beta, cov, r, whitened = _fit_joint(problem, j, use_ff, whiten, fs)
+        if whiten and not whitened:
             plain.append(j + 1)
         if "Ka" in cols:
             lag.append(beta[cols.index("Ka")] / beta[cols.index("Kd")])
@@ -386,7 +456,6 @@ def identify_gains(experiment, robot, *, feedforward="auto", integral="auto", fc
     if lag:
         notices.append("velocity lag of the controller against the central derivative of q (us): "
                        + ", ".join(f"{1e6 * x:.1f}" for x in lag))
-    from scipy.linalg import block_diag
     return GainsResult(names=out_names, chi=np.array(out_vals), cov=block_diag(*blocks), n_joints=n,
                        feedforward=bool(use_ff), integral=bool(integral), rel_error=np.array(rel),
-                       n_rows=int(keep.sum()), source=str(experiment.source), notices=notices)
+                       n_rows=int(problem.keep.sum()), source=str(experiment.source), notices=notices)

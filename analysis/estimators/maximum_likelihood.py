@@ -71,6 +71,7 @@ from scipy import optimize
 
 from dynid.analysis.processing.signals import velocity_dead_zone
 from dynid.analysis.results import ParameterResults, _fmt, _fmt_pct
+from dynid.dynamics.base_parameters import base_parameters, base_regressor
 from dynid.errors import ConvergenceError, InputError
 from dynid.provenance import data_hash, json_safe, versions
 
@@ -121,8 +122,6 @@ def linear_model(regressor, names, description="linear in the parameters"):
 
 def robot_model(robot, bp=None):
     """The rigid-body model of a dynid robot in its base parameters (eq. (9))."""
-    from dynid.dynamics.base_parameters import base_parameters, base_regressor
-
     bp = base_parameters(robot) if bp is None else bp
     return linear_model(lambda q, qd, qdd: base_regressor(robot, bp, q, qd, qdd), bp.names,
                         description=f"rigid-body base-parameter model of '{robot.name}'")
@@ -476,47 +475,17 @@ def maximum_likelihood(t, q, tau, model, *, f0, n_harmonics=None, sigma_q=None, 
     t0 = time.perf_counter()
     t, q, tau = _check(t, q, tau)
     N, n = q.shape
-    try:
-        f0 = float(f0)
-    except (TypeError, ValueError):
-        raise InputError(f"f0 must be a frequency in Hz, got {f0!r}") from None
-    if not (np.isfinite(f0) and f0 > 0):
-        raise InputError(f"f0 must be a positive frequency in Hz, got {f0!r}")
-    if t.size < 8:
-        raise InputError(f"{t.size} samples are too few for the likelihood of eq. (13)")
+    f0 = _check_f0(f0, t)
     notices = []
-    if n_harmonics is None:
-        K, per_joint, _ = select_harmonics(t, q, f0)
-        K = max(K, 1)
-        notices.append(f"latent trajectory: K = {K} harmonics (BIC on q; per joint {per_joint})")
-    else:
-        K = int(n_harmonics)
-        if K < 1 or K != n_harmonics:
-            raise InputError(f"n_harmonics must be a positive integer, got {n_harmonics!r}")
+    K = _harmonics(t, q, f0, n_harmonics, notices)
     m = 2 * K + 1
     p = model.n_params
     if N <= m + p:
         raise InputError(f"{N} samples are too few for {p} parameters and {m} Fourier coefficients per joint")
-    B, Bd, Bdd = fourier_basis(t, f0, K)
-    C0, res, rank, _ = np.linalg.lstsq(B, q, rcond=None)
-    if rank < m:
-        raise InputError(f"the recording cannot separate {K} harmonics of f0 = {f0:g} Hz (rank {rank} < {m}); "
-                         "record at least one full period or lower n_harmonics")
-    resid_q = q - B @ C0
-    if sigma_q is None:
-        sq = np.sqrt(np.sum(resid_q ** 2, axis=0) / (N - m))
-        if not np.all(sq > 0):
-            raise InputError("q is exactly a Fourier series: sigma_q cannot be estimated; pass sigma_q")
-    else:
-        sq = _sig(sigma_q, n, "sigma_q")
+    B, Bd, Bdd, C0 = _fourier_start(t, q, f0, K)
+    sq = _sigma_q(q, B, C0, sigma_q, m)
     qf, qdf, qddf = B @ C0, Bd @ C0, Bdd @ C0
-    keep = ~velocity_dead_zone(qdf, qd_threshold, fraction=ML_DEAD_ZONE_FRACTION)
-    if reversal_guard == "auto":
-        reversal_guard = 1.0 / (4.0 * K * f0)
-    keep &= _reversal_guard(t, qdf, float(reversal_guard))
-    if np.any(keep.sum(axis=0) < 2 * p):
-        raise InputError(f"the velocity dead zone (qd_threshold={qd_threshold!r}) leaves "
-                         f"{int(keep.sum(axis=0).min())} torque equations on some joint; lower it")
+    keep = _kept_equations(t, qdf, qd_threshold, reversal_guard, K, f0, p)
     rows = keep.all(axis=1)
     th0 = model.initial(qf[rows], qdf[rows], qddf[rows], tau[rows]) if theta0 is None else np.asarray(theta0, dtype=float)
     if th0.shape != (p,) or not np.all(np.isfinite(th0)):
@@ -529,23 +498,11 @@ def maximum_likelihood(t, q, tau, model, *, f0, n_harmonics=None, sigma_q=None, 
     if not np.all(st > 0):
         raise InputError("the torque residual is exactly zero: sigma_tau cannot be estimated; pass sigma_tau")
     x = np.concatenate([th0, C0.T.ravel()])
-    n_eval = 0
     passes = 1 if (given or not refine_sigma_tau) else 2
-    for it in range(passes):
-        prob = _Problem(model, t, q, tau, f0, K, sq, st, keep)
-        sol = optimize.least_squares(prob.residual, x, jac=prob.jacobian, method="trf",
-                                     x_scale="jac", max_nfev=max_nfev, xtol=1e-10, ftol=1e-10)
-        n_eval += sol.nfev
-        if not np.all(np.isfinite(sol.x)):
-            raise ConvergenceError("maximum likelihood: the optimiser returned non-finite parameters")
-        x = sol.x
-        if it + 1 < passes:
-            th, C = prob.split(x)
-            ql, qdl, qddl = prob.kin(C)
-            rt = keep * (tau - model.predict(th, ql, qdl, qddl))
-            st = np.sqrt(np.sum(rt ** 2, axis=0) / dof_tau)
+    sol, prob, st, n_eval = _optimise(model, t, q, tau, f0, K, sq, st, keep, x, passes, max_nfev, dof_tau)
     if sol.status <= 0:
         notices.append(f"least_squares stopped without convergence: {sol.message}")
+    x = sol.x
     th, C = prob.split(x)
     ql, qdl, qddl = prob.kin(C)
     J = prob.jacobian(x)
@@ -573,3 +530,85 @@ def maximum_likelihood(t, q, tau, model, *, f0, n_harmonics=None, sigma_q=None, 
                     rms_q=np.sqrt(np.mean(rq ** 2, axis=0)), rms_tau=np.sqrt(np.sum(rt ** 2, axis=0) / n_tau),
                     elapsed=time.perf_counter() - t0, model=model.description, settings=cfg,
                     notices=notices, data_hash=data_hash(t, q, tau))
+
+
+def _check_f0(f0, t):
+    try:
+        f0 = float(f0)
+    except (TypeError, ValueError):
+        raise InputError(f"f0 must be a frequency in Hz, got {f0!r}") from None
+    if not (np.isfinite(f0) and f0 > 0):
+        raise InputError(f"f0 must be a positive frequency in Hz, got {f0!r}")
+    if t.size < 8:
+        raise InputError(f"{t.size} samples are too few for the likelihood of eq. (13)")
+    return f0
+
+
+def _harmonics(t, q, f0, n_harmonics, notices):
+    """K of the latent trajectory: given, or chosen by BIC on q (said in `notices`)."""
+    if n_harmonics is None:
+        K, per_joint, _ = select_harmonics(t, q, f0)
+        K = max(K, 1)
+        notices.append(f"latent trajectory: K = {K} harmonics (BIC on q; per joint {per_joint})")
+        return K
+    K = int(n_harmonics)
+    if K < 1 or K != n_harmonics:
+        raise InputError(f"n_harmonics must be a positive integer, got {n_harmonics!r}")
+    return K
+
+
+def _fourier_start(t, q, f0, K):
+    """The Fourier basis and its derivatives, and the least-squares coefficients of q (the start)."""
+    m = 2 * K + 1
+    B, Bd, Bdd = fourier_basis(t, f0, K)
+    C0, res, rank, _ = np.linalg.lstsq(B, q, rcond=None)
+    if rank < m:
+        raise InputError(f"the recording cannot separate {K} harmonics of f0 = {f0:g} Hz (rank {rank} < {m}); "
+                         "record at least one full period or lower n_harmonics")
+    return B, Bd, Bdd, C0
+
+
+def _sigma_q(q, B, C0, sigma_q, m):
+    """sigma_q given, or from the residual of the Fourier fit of q."""
+    N, n = q.shape
+    if sigma_q is not None:
+        return _sig(sigma_q, n, "sigma_q")
+    resid_q = q - B @ C0
+    sq = np.sqrt(np.sum(resid_q ** 2, axis=0) / (N - m))
+    if not np.all(sq > 0):
+        raise InputError("q is exactly a Fourier series: sigma_q cannot be estimated; pass sigma_q")
+    return sq
+
+
+def _kept_equations(t, qdf, qd_threshold, reversal_guard, K, f0, p):
+    """Torque equations outside the velocity dead zone and away from velocity reversals."""
+    keep = ~velocity_dead_zone(qdf, qd_threshold, fraction=ML_DEAD_ZONE_FRACTION)
+    if reversal_guard == "auto":
+        reversal_guard = 1.0 / (4.0 * K * f0)
+    keep &= _reversal_guard(t, qdf, float(reversal_guard))
+    if np.any(keep.sum(axis=0) < 2 * p):
+        raise InputError(f"the velocity dead zone (qd_threshold={qd_threshold!r}) leaves "
+                         f"{int(keep.sum(axis=0).min())} torque equations on some joint; lower it")
+    return keep
+
+
+def _optimise(model, t, q, tau, f0, K, sq, st, keep, x, passes, max_nfev, dof_tau):
+    """Minimise eq. (13); between passes sigma_tau is re-estimated from the torque residual.
+
+    Returns the last solution, its problem, sigma_tau and the number of evaluations.
+    """
+    n_eval = 0
+    for it in range(passes):
+        prob = _Problem(model, t, q, tau, f0, K, sq, st, keep)
+        sol = optimize.least_squares(prob.residual, x, jac=prob.jacobian, method="trf",
+                                     x_scale="jac", max_nfev=max_nfev, xtol=1e-10, ftol=1e-10)
+        n_eval += sol.nfev
+        if not np.all(np.isfinite(sol.x)):
+            raise ConvergenceError("maximum likelihood: the optimiser returned non-finite parameters")
+        x = sol.x
+        if it + 1 < passes:
+            th, C = prob.split(x)
+            ql, qdl, qddl = prob.kin(C)
+            rt = keep * (tau - model.predict(th, ql, qdl, qddl))
+            st = np.sqrt(np.sum(rt ** 2, axis=0) / dof_tau)
+    return sol, prob, st, n_eval

@@ -35,15 +35,26 @@ Status: ``"not identified"`` when the held-out error on all samples exceeds
 are not identified or a parameter is physically impossible; ``"identified
 with reservations"`` when anything else is flagged; ``"identified"``
 otherwise.
+
+Each check is one function of `VerdictInputs` returning a `CheckOutcome`
+(findings, reasons, failure, the `Verdict` fields it owns); `CHECKS` lists
+them in the order their findings are shown, and `verdict` only composes them.
+Adding a check is appending one function to `CHECKS`.
 """
 from __future__ import annotations
 
 import re
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
-__all__ = ["Verdict", "verdict", "parameter_unit", "must_be_nonnegative", "NONNEGATIVE_KINDS"]
+from dynid.analysis.statistics.residuals import analyze_residuals, residual_analysis
+from dynid.dynamics.base_parameters import base_parameters
+from dynid.dynamics.excitation import apriori_parameters
+from dynid.provenance import json_safe
+
+__all__ = ["Verdict", "verdict", "CHECKS", "VerdictInputs", "CheckOutcome", "parameter_unit", "must_be_nonnegative", "NONNEGATIVE_KINDS"]
 
 #: standard-parameter kinds that are never negative (see the module docstring)
 NONNEGATIVE_KINDS = ("M", "XX", "YY", "ZZ", "Ia", "Fv", "Fc", "Fvm", "Fcm")
@@ -100,6 +111,7 @@ class Verdict:
     apriori: dict = None                                  # k, compared, flagged
     data_quality: list = field(default_factory=list)      # {"level", "text"}
     findings: list = field(default_factory=list)          # {"level", "text"}: the list shown first
+    extra: dict = field(default_factory=dict)             # JSON blocks of checks added later
 
     @property
     def flagged_parameters(self):
@@ -110,14 +122,13 @@ class Verdict:
         return [] if not self.validation else list(self.validation["flagged_joints"])
 
     def to_dict(self):
-        from dynid.provenance import json_safe
         return json_safe({
             "status": self.status, "identified": self.identified, "reasons": self.reasons,
             "validation": self.validation, "rel_std_threshold_percent": self.rel_std_threshold,
             "not_identified": self.not_identified, "parameters": self.parameters,
             "whiteness": self.whiteness, "normality": self.normality,
             "implausible": self.implausible, "apriori": self.apriori,
-            "data_quality": self.data_quality, "findings": self.findings,
+            "data_quality": self.data_quality, "findings": self.findings, **self.extra,
         })
 
     def summary(self):
@@ -168,7 +179,6 @@ def _fitted_residual(result):
     have no such residual of the torque equation alone (their noise model is
     another), so their whiteness is not judged here.
     """
-    from dynid.analysis.statistics.residuals import analyze_residuals, residual_analysis
     if getattr(result, "observation", None) is not None:
         e, _ = identification_residual(result)
         return residual_analysis(result.observation, e)
@@ -188,7 +198,6 @@ def _base(result, robot):
     """The base parameters the estimate is expressed in (None if they cannot be told)."""
     bp = getattr(result, "base", None)
     if bp is None and robot is not None:
-        from dynid.dynamics.base_parameters import base_parameters
         bp = base_parameters(robot)
     names = list(getattr(_estimate(result), "names", []) or [])
     if bp is None or not set(names) <= set(bp.names):
@@ -216,23 +225,318 @@ def _fitted_mask(result):
     return None
 
 
-def verdict(idim_result, validation=None, *, robot=None, diagnosis=None, residuals=None,
-            rel_std_threshold=10.0, joint_error_threshold=0.20, warn_rel_error=0.10,
-            fail_rel_error=0.30, apriori_k=3.0, alpha=0.05, cond_threshold=1000.0) -> Verdict:
-    """The verdict of an identification (see the module docstring for every rule).
+@dataclass
+class VerdictInputs:
+    """What every check reads: the result judged, its context and the thresholds.
 
-    ``idim_result``: any result with the :class:`~dynid.analysis.results.ParameterResults`
-    interface: IDIM and DIDIM are judged on their essential model; the
-    Projection Method and maximum likelihood on their estimate, without the
-    residual whiteness (see :func:`_fitted_residual`).
-    ``validation``: a :class:`~dynid.analysis.statistics.validation.ValidationResult`;
-    ``diagnosis``: a :class:`~dynid.analysis.diagnosis.selection.DiagnosisResult`
-    (only its conclusion is quoted); ``residuals``: a precomputed
-    :class:`~dynid.analysis.statistics.residuals.ResidualAnalysis` of the
-    identification residual (computed here otherwise). Thresholds:
-    ``rel_std_threshold`` in percent, the error thresholds as fractions.
+    Built once by `verdict`; a check never modifies it. `params` is the
+    table of the judged parameters (name, value, std, unit, %σ, flagged),
+    shared by the checks that compare parameter values.
     """
-    result = idim_result
+
+    result: object
+    validation: object
+    robot: object
+    diagnosis: object
+    residuals: object
+    estimate: object
+    names: list              # joint names, one per joint
+    n: int                   # number of joints
+    kind: str                # "essential" or "base"
+    params: list
+    rel_std_threshold: float
+    joint_error_threshold: float
+    warn_rel_error: float
+    fail_rel_error: float
+    apriori_k: float
+    alpha: float
+    cond_threshold: float
+
+    @cached_property
+    def base(self):
+        return _base(self.result, self.robot)
+
+
+@dataclass
+class CheckOutcome:
+    """What one check adds to the verdict.
+
+    `findings` ({"level", "key", "text"}) are shown in the order of `CHECKS`;
+    `reasons` say why the model is not plainly "identified"; `fail` makes it
+    "not identified"; `fields` sets the `Verdict` attributes the check owns
+    (a name that is not a `Verdict` attribute goes to `Verdict.extra`, hence
+    to the JSON under that name).
+    """
+
+    findings: list = field(default_factory=list)
+    reasons: list = field(default_factory=list)
+    fail: bool = False
+    fields: dict = field(default_factory=dict)
+
+
+def _parameter_table(m, rel_std_threshold):
+    """One row per judged parameter: name, value, std, unit, %σ and whether %σ is above the threshold."""
+    params = []
+    for name, v, s, r in zip(m.names, m.chi, m.sigma, m.rel_sigma):
+        bad = not (float(r) <= rel_std_threshold)
+        params.append({"name": name, "value": float(v), "std": float(s), "unit": parameter_unit(name),
+                       "rel_std_percent": float(r), "flagged": bool(bad)})
+    return params
+
+
+def check_validation(x: VerdictInputs) -> CheckOutcome:
+    """Held-out error on all samples, per joint; the worst joint and those above the threshold."""
+    validation, names, n = x.validation, x.names, x.n
+    if validation is None:
+        return _no_validation(x)
+    jrel = np.asarray(validation.joint_rel_error, dtype=float)
+    flagged_j = [names[j] for j in range(n) if jrel[j] > x.joint_error_threshold]
+    worst = int(np.nanargmax(jrel))
+    vinfo = {"rel_error": float(validation.rel_error),
+             "joint_rel_error": [float(v) for v in jrel],
+             "joints": names, "flagged_joints": flagged_j, "worst_joint": names[worst],
+             "joint_error_threshold": x.joint_error_threshold,
+             "moving_rel_error": float(getattr(validation, "moving_rel_error", np.nan)),
+             "excluded_fraction": float(getattr(validation, "excluded_fraction", 0.0)),
+             "n_samples": int(len(validation.t))}
+    rel = validation.rel_error
+    level = ("bad" if rel > x.fail_rel_error else
+             "ok" if rel <= x.warn_rel_error and not flagged_j else "warn")
+    per = ", ".join(f"{nm} {_pct(v)}" for nm, v in zip(names, jrel))
+    text = (f"Held-out error on all {len(validation.t)} samples: {_pct(rel)} "
+            f"(per joint {per}); worst {names[worst]}")
+    if flagged_j:
+        text += f"; above {_pct(x.joint_error_threshold)}: {', '.join(flagged_j)}"
+    text += (f". On the moving samples only: {_pct(vinfo['moving_rel_error'])} "
+             f"({_pct(vinfo['excluded_fraction'])} excluded: Coulomb friction's sign is "
+             f"undetermined at rest).")
+    out = CheckOutcome(findings=[{"level": level, "text": text, "key": "validation"}],
+                       fields={"validation": vinfo})
+    if rel > x.fail_rel_error:
+        out.fail = True
+        out.reasons.append(f"held-out error {_pct(rel)} > {_pct(x.fail_rel_error)}")
+    elif rel > x.warn_rel_error:
+        out.reasons.append(f"held-out error {_pct(rel)} > {_pct(x.warn_rel_error)}")
+    if flagged_j:
+        out.reasons.append(f"joints with held-out error > {_pct(x.joint_error_threshold)}: "
+                           + ", ".join(flagged_j))
+    return out
+
+
+def _no_validation(x: VerdictInputs) -> CheckOutcome:
+    """No held-out data: say so, with the option that supplies it."""
+    fitted = x.residuals is not None and np.isfinite(float(getattr(x.estimate, "rel_error", np.nan)))
+    text = ("No held-out data: the model was not tested on data it was not "
+            + (f"fitted to (identification error {_pct(x.estimate.rel_error)} on the fitted rows); "
+               if fitted else "fitted to; ")
+            + ("use --holdout or --validation." if hasattr(x.result, "observation") else
+               "the held-out check is IDIM's: dynid identify --holdout, or dynid "
+               "report --holdout for every method at once."))
+    return CheckOutcome(findings=[{"level": "warn", "key": "validation", "text": text}],
+                        reasons=["no validation data"])
+
+
+def check_parameters(x: VerdictInputs) -> CheckOutcome:
+    """The judged parameters and their %σ; more than half above the threshold fails."""
+    m, thr = x.estimate, x.rel_std_threshold
+    flagged = [p["name"] for p in x.params if p["flagged"]]
+    out = CheckOutcome(fields={"parameters": x.params, "not_identified": flagged})
+    if flagged:
+        out.findings.append({"level": "warn", "key": "parameters",
+                             "text": f"{len(flagged)} of {len(m.names)} {x.kind} parameters not identified "
+                                     f"(%\u03c3 > {thr:g} %): {', '.join(flagged)}."})
+        out.reasons.append(f"%\u03c3 > {thr:g} %: {', '.join(flagged)}")
+        out.fail = len(flagged) > len(m.names) / 2
+    else:
+        out.findings.append({"level": "ok", "key": "parameters",
+                             "text": f"All {len(m.names)} {x.kind} parameters have %\u03c3 \u2264 {thr:g} %."})
+    return out
+
+
+def _whiteness(x: VerdictInputs) -> dict:
+    """Ljung-Box on the fitted residual, with what the diagnosis found (if it ran)."""
+    names, n, alpha, diagnosis = x.names, x.n, x.alpha, x.diagnosis
+    lb = x.residuals.ljung_box
+    lb_p = [float(v) for v in lb["p_value"]]
+    corr = [names[j] for j in range(n) if np.isfinite(lb_p[j]) and lb_p[j] < alpha]
+    white = {"test": "Ljung-Box", "lag": int(lb["lag"].iloc[0]),
+             "statistic": [float(v) for v in lb["statistic"]], "p_value": lb_p,
+             "correlated_joints": corr, "alpha": alpha,
+             "residual": "identification, fitted (moving) rows"}
+    diag_text = ""
+    if diagnosis is not None:
+        sel = [f"{s.name} (joint {s.joint})" if getattr(s, "joint", None) else str(s.name)
+               for s in diagnosis.selected]
+        white["diagnosis_selected"] = sel
+        diag_text = (f" The diagnosis added {', '.join(sel)}." if sel else
+                     " The diagnosis found no missing effect among the candidates it tested: the "
+                     "correlation comes from the filtering and decimation, or from an effect it "
+                     "does not model.")
+    if corr:
+        white["text"] = ("The residual is correlated in time (Ljung-Box at lag "
+                         f"{white['lag']}: " + ", ".join(f"{names[j]} p = {_fmt_p(lb_p[j])}"
+                                                         for j in range(n) if names[j] in corr)
+                         + "): %\u03c3 counts the samples as independent and is optimistic; "
+                         + ("see the diagnosis." + diag_text if diagnosis is not None else
+                            "whether an effect is missing is what the diagnosis tests (dynid diagnose, "
+                            "or the full report)."))
+    else:
+        white["text"] = (f"The residual is white (Ljung-Box at lag {white['lag']}, every p \u2265 {alpha:g})."
+                         + diag_text)
+    return white
+
+
+def _normality(x: VerdictInputs) -> dict:
+    """Jarque-Bera and Shapiro-Wilk on the fitted residual, per joint."""
+    names, n, alpha = x.names, x.n, x.alpha
+    nm_tab = x.residuals.normality
+    jb = [float(v) for v in nm_tab["jarque_bera_p"]]
+    sw = [float(v) for v in nm_tab["shapiro_p"]]
+    nongauss = [names[j] for j in range(n) if np.isfinite(jb[j]) and jb[j] < alpha]
+    normal = {"jarque_bera_p": jb, "shapiro_p": sw,
+              "excess_kurtosis": [float(v) for v in nm_tab["excess_kurtosis"]],
+              "non_gaussian_joints": nongauss, "alpha": alpha,
+              "residual": "identification, fitted (moving) rows"}
+    normal["text"] = ("Residual not Gaussian (Jarque-Bera p < " + f"{alpha:g}) on "
+                      + ", ".join(f"{names[j]} (p = {_fmt_p(jb[j])})" for j in range(n)
+                                  if names[j] in nongauss) + "."
+                      if nongauss else f"Residual Gaussian on every joint (Jarque-Bera p \u2265 {alpha:g}).")
+    return normal
+
+
+def check_residual(x: VerdictInputs) -> CheckOutcome:
+    """Whiteness and normality of the identification residual on the fitted rows (not a verdict of its own)."""
+    if x.residuals is None:
+        why = (f"{getattr(x.result, 'method', 'this method')}: no residual of the torque equation alone "
+               "on fitted rows (its noise model is another); whiteness and normality are not judged here.")
+        return CheckOutcome(
+            findings=[{"level": "info", "key": "whiteness", "text": why}],
+            fields={"whiteness": {"test": None, "text": why, "residual": None, "correlated_joints": []},
+                    "normality": {"test": None, "text": why, "residual": None, "non_gaussian_joints": []}})
+    white, normal = _whiteness(x), _normality(x)
+    return CheckOutcome(
+        findings=[{"level": "warn" if white["correlated_joints"] else "ok", "key": "whiteness",
+                   "text": white["text"]},
+                  {"level": "warn" if normal["non_gaussian_joints"] else "ok", "key": "normality",
+                   "text": normal["text"]}],
+        fields={"whiteness": white, "normality": normal})
+
+
+def check_plausibility(x: VerdictInputs) -> CheckOutcome:
+    """A parameter that must not be negative and is (see `must_be_nonnegative`) fails."""
+    bp = x.base
+    std_names = list(getattr(x.robot, "standard_names", []) or []) if x.robot is not None else []
+    implausible = []
+    if std_names and bp is not None:
+        index = {nm: k for k, nm in enumerate(bp.names)}
+        for p in x.params:
+            k = index.get(p["name"])
+            if k is not None and p["value"] < 0 and must_be_nonnegative(bp, std_names, k):
+                implausible.append({"name": p["name"], "value": p["value"], "unit": p["unit"],
+                                    "n_sigma": abs(p["value"]) / p["std"] if p["std"] > 0 else np.inf,
+                                    "relation": bp.relations[k]})
+    out = CheckOutcome(fields={"implausible": implausible})
+    if implausible:
+        out.fail = True
+        out.findings.append({"level": "bad", "key": "plausibility",
+                             "text": "Physically impossible (negative mass, inertia or friction): "
+                                     + ", ".join(f"{q['name']} = {q['value']:.4g} {q['unit']}".strip()
+                                                 for q in implausible) + "."})
+        out.reasons.append("negative " + ", ".join(q["name"] for q in implausible))
+    else:
+        out.findings.append({"level": "ok", "key": "plausibility",
+                             "text": "No identified mass, diagonal or rotor inertia, or friction "
+                                     "coefficient is negative."})
+    return out
+
+
+def _apriori_comparison(x: VerdictInputs, bp) -> dict:
+    """Each judged parameter with an a-priori value: its distance in σ, flagged beyond `apriori_k`."""
+    k_sigma = x.apriori_k
+    try:
+        _, beta, missing = apriori_parameters(x.robot, bp)
+    except Exception as exc:          # a-priori values that do not map: say so, no verdict
+        return {"k": k_sigma, "compared": [], "flagged": [], "error": str(exc)}
+    index = {nm: k for k, nm in enumerate(bp.names)}
+    compared, far = [], []
+    for p in x.params:
+        if p["name"] in missing or p["name"] not in index:
+            continue
+        a = float(beta[index[p["name"]]])
+        ns = abs(p["value"] - a) / p["std"] if p["std"] > 0 else np.inf
+        compared.append({"name": p["name"], "value": p["value"], "apriori": a,
+                         "n_sigma": ns, "unit": p["unit"], "flagged": bool(ns > k_sigma)})
+        if ns > k_sigma:
+            far.append(p["name"])
+    return {"k": k_sigma, "compared": compared, "flagged": far,
+            "source": str((getattr(x.robot, "provenance", {}) or {}).get("apriori", ""))}
+
+
+def check_apriori(x: VerdictInputs) -> CheckOutcome:
+    """Parameters far from the robot file's a-priori values (information, never a failure)."""
+    bp = x.base
+    if x.robot is None or bp is None or not getattr(x.robot, "apriori", None):
+        return CheckOutcome(fields={"apriori": None})
+    ap = _apriori_comparison(x, bp)
+    out = CheckOutcome(fields={"apriori": ap})
+    if ap.get("compared"):
+        far, k, n_cmp = ap["flagged"], x.apriori_k, len(ap["compared"])
+        out.findings.append({"level": "info" if far else "ok", "key": "apriori",
+                             "text": (f"{len(far)} of {n_cmp} {x.kind} parameters with an "
+                                      f"a-priori value are more than {k:g} \u03c3 from it: "
+                                      + ", ".join(far) + "." if far else
+                                      f"All {n_cmp} {x.kind} parameters with an a-priori "
+                                      f"value are within {k:g} \u03c3 of it.")})
+    return out
+
+
+def _conditioning(ls_fit, cond_threshold):
+    cs = float(getattr(ls_fit, "cond_scaled", np.nan))
+    c = float(ls_fit.cond)
+    return {"level": "warn" if cs > cond_threshold else "ok",
+            "text": f"cond(W) = {c:.3g} ({cs:.3g} with unit columns"
+                    + (f", above {cond_threshold:g}: poorly exciting data" if cs > cond_threshold else "")
+                    + ")."}
+
+
+def _dead_zone(mask, validation):
+    dz = 1.0 - float(mask.mean()) if mask is not None else 0.0
+    vz = float(validation.excluded_fraction) if validation is not None else 0.0
+    parts = []
+    if mask is not None:
+        parts.append(f"{_pct(dz)} of the decimated identification equations are left out "
+                     "(velocity dead zone, not fitted)")
+    if validation is not None:
+        parts.append(f"{_pct(vz)} of the held-out ones" if mask is not None else
+                     f"{_pct(vz)} of the held-out equations are in the velocity dead zone")
+    return {"level": "warn" if max(dz, vz) > 0.3 else "ok",
+            "text": "; ".join(parts) + (": the moving-sample error leaves out much of the motion"
+                                        if max(dz, vz) > 0.3 else "") + "."}
+
+
+def check_data_quality(x: VerdictInputs) -> CheckOutcome:
+    """Saturation notices, cond(W) and the fraction of equations in the velocity dead zone."""
+    notices = (list(getattr(x.result, "notices", []) or [])
+               + list(getattr(x.validation, "notices", []) or []))
+    sat = [s for s in notices if "saturat" in s.lower()]
+    dq = [{"level": "warn", "text": s} for s in dict.fromkeys(sat)]
+    ls_fit = _least_squares(x.result)
+    if ls_fit is not None:
+        dq.append(_conditioning(ls_fit, x.cond_threshold))
+    mask = _fitted_mask(x.result)
+    if mask is not None or x.validation is not None:
+        dq.append(_dead_zone(mask, x.validation))
+    return CheckOutcome(findings=[dict(d, key="data") for d in dq],
+                        reasons=["saturation"] if sat else [], fields={"data_quality": dq})
+
+
+#: the checks, in the order their findings are shown; a new check is one
+#: function `VerdictInputs -> CheckOutcome` appended here
+CHECKS = [check_validation, check_parameters, check_residual, check_plausibility, check_apriori,
+          check_data_quality]
+
+
+def _inputs(result, validation, robot, diagnosis, residuals, **thresholds) -> VerdictInputs:
     robot = robot if robot is not None else getattr(result, "robot", None)
     m = _estimate(result)
     if residuals is None:
@@ -240,214 +544,57 @@ def verdict(idim_result, validation=None, *, robot=None, diagnosis=None, residua
     n = (residuals.normality.shape[0] if residuals is not None else
          len(validation.joint_rel_error) if validation is not None else
          int(getattr(robot, "n_joints", 0) or getattr(result, "n_joints", 0) or 0))
-    names = _joint_names(robot, n)
-    kind = "essential" if getattr(result, "essential", None) is not None else "base"
-    findings, reasons = [], []
-    fail = False
+    return VerdictInputs(
+        result=result, validation=validation, robot=robot, diagnosis=diagnosis, residuals=residuals,
+        estimate=m, names=_joint_names(robot, n), n=n,
+        kind="essential" if getattr(result, "essential", None) is not None else "base",
+        params=_parameter_table(m, thresholds["rel_std_threshold"]), **thresholds)
 
-    # --- held-out error on all samples
-    vinfo = None
-    if validation is not None:
-        jrel = np.asarray(validation.joint_rel_error, dtype=float)
-        flagged_j = [names[j] for j in range(n) if jrel[j] > joint_error_threshold]
-        worst = int(np.nanargmax(jrel))
-        vinfo = {"rel_error": float(validation.rel_error),
-                 "joint_rel_error": [float(x) for x in jrel],
-                 "joints": names, "flagged_joints": flagged_j, "worst_joint": names[worst],
-                 "joint_error_threshold": joint_error_threshold,
-                 "moving_rel_error": float(getattr(validation, "moving_rel_error", np.nan)),
-                 "excluded_fraction": float(getattr(validation, "excluded_fraction", 0.0)),
-                 "n_samples": int(len(validation.t))}
-        level = ("bad" if validation.rel_error > fail_rel_error else
-                 "ok" if validation.rel_error <= warn_rel_error and not flagged_j else "warn")
-        per = ", ".join(f"{nm} {_pct(x)}" for nm, x in zip(names, jrel))
-        text = (f"Held-out error on all {len(validation.t)} samples: {_pct(validation.rel_error)} "
-                f"(per joint {per}); worst {names[worst]}")
-        if flagged_j:
-            text += f"; above {_pct(joint_error_threshold)}: {', '.join(flagged_j)}"
-        text += (f". On the moving samples only: {_pct(vinfo['moving_rel_error'])} "
-                 f"({_pct(vinfo['excluded_fraction'])} excluded: Coulomb friction's sign is "
-                 f"undetermined at rest).")
-        findings.append({"level": level, "text": text, "key": "validation"})
-        if validation.rel_error > fail_rel_error:
-            fail = True
-            reasons.append(f"held-out error {_pct(validation.rel_error)} > {_pct(fail_rel_error)}")
-        elif validation.rel_error > warn_rel_error:
-            reasons.append(f"held-out error {_pct(validation.rel_error)} > {_pct(warn_rel_error)}")
-        if flagged_j:
-            reasons.append(f"joints with held-out error > {_pct(joint_error_threshold)}: "
-                           + ", ".join(flagged_j))
-    else:
-        findings.append({"level": "warn", "key": "validation",
-                         "text": "No held-out data: the model was not tested on data it was not "
-                                 + (f"fitted to (identification error {_pct(m.rel_error)} on the fitted "
-                                    "rows); " if residuals is not None and np.isfinite(float(getattr(m, "rel_error", np.nan))) else
-                                    "fitted to; ")
-                                 + ("use --holdout or --validation." if hasattr(result, "observation") else
-                                    "the held-out check is IDIM's: dynid identify --holdout, or dynid "
-                                    "report --holdout for every method at once.")})
-        reasons.append("no validation data")
 
-    # --- essential parameters and their %σ
-    params, flagged = [], []
-    for name, v, s, r in zip(m.names, m.chi, m.sigma, m.rel_sigma):
-        bad = not (float(r) <= rel_std_threshold)
-        params.append({"name": name, "value": float(v), "std": float(s), "unit": parameter_unit(name),
-                       "rel_std_percent": float(r), "flagged": bool(bad)})
-        if bad:
-            flagged.append(name)
-    if flagged:
-        findings.append({"level": "warn", "key": "parameters",
-                         "text": f"{len(flagged)} of {len(m.names)} {kind} parameters not identified "
-                                 f"(%\u03c3 > {rel_std_threshold:g} %): {', '.join(flagged)}."})
-        reasons.append(f"%\u03c3 > {rel_std_threshold:g} %: {', '.join(flagged)}")
-        if len(flagged) > len(m.names) / 2:
-            fail = True
-    else:
-        findings.append({"level": "ok", "key": "parameters",
-                         "text": f"All {len(m.names)} {kind} parameters have %\u03c3 \u2264 "
-                                 f"{rel_std_threshold:g} %."})
+def verdict(idim_result, validation=None, *, robot=None, diagnosis=None, residuals=None,
+            rel_std_threshold=10.0, joint_error_threshold=0.20, warn_rel_error=0.10,
+            fail_rel_error=0.30, apriori_k=3.0, alpha=0.05, cond_threshold=1000.0,
+            checks=None) -> Verdict:
+    """The verdict of an identification (see the module docstring for every rule).
 
-    # --- whiteness and normality of the identification residual (fitted rows)
-    if residuals is not None:
-        lb = residuals.ljung_box
-        lb_p = [float(x) for x in lb["p_value"]]
-        corr = [names[j] for j in range(n) if np.isfinite(lb_p[j]) and lb_p[j] < alpha]
-        white = {"test": "Ljung-Box", "lag": int(lb["lag"].iloc[0]),
-                 "statistic": [float(x) for x in lb["statistic"]], "p_value": lb_p,
-                 "correlated_joints": corr, "alpha": alpha,
-                 "residual": "identification, fitted (moving) rows"}
-        diag_text = ""
-        if diagnosis is not None:
-            sel = [f"{s.name} (joint {s.joint})" if getattr(s, "joint", None) else str(s.name)
-                   for s in diagnosis.selected]
-            white["diagnosis_selected"] = sel
-            diag_text = (f" The diagnosis added {', '.join(sel)}." if sel else
-                         " The diagnosis found no missing effect among the candidates it tested: the "
-                         "correlation comes from the filtering and decimation, or from an effect it "
-                         "does not model.")
-        if corr:
-            white["text"] = ("The residual is correlated in time (Ljung-Box at lag "
-                             f"{white['lag']}: " + ", ".join(f"{names[j]} p = {_fmt_p(lb_p[j])}"
-                                                             for j in range(n) if names[j] in corr)
-                             + "): %\u03c3 counts the samples as independent and is optimistic; "
-                             + ("see the diagnosis." + diag_text if diagnosis is not None else
-                                "whether an effect is missing is what the diagnosis tests (dynid diagnose, "
-                                "or the full report)."))
-        else:
-            white["text"] = (f"The residual is white (Ljung-Box at lag {white['lag']}, every p \u2265 {alpha:g})."
-                             + diag_text)
-        nm_tab = residuals.normality
-        jb = [float(x) for x in nm_tab["jarque_bera_p"]]
-        sw = [float(x) for x in nm_tab["shapiro_p"]]
-        nongauss = [names[j] for j in range(n) if np.isfinite(jb[j]) and jb[j] < alpha]
-        normal = {"jarque_bera_p": jb, "shapiro_p": sw,
-                  "excess_kurtosis": [float(x) for x in nm_tab["excess_kurtosis"]],
-                  "non_gaussian_joints": nongauss, "alpha": alpha,
-                  "residual": "identification, fitted (moving) rows"}
-        normal["text"] = ("Residual not Gaussian (Jarque-Bera p < " + f"{alpha:g}) on "
-                          + ", ".join(f"{names[j]} (p = {_fmt_p(jb[j])})" for j in range(n)
-                                      if names[j] in nongauss) + "."
-                          if nongauss else f"Residual Gaussian on every joint (Jarque-Bera p \u2265 {alpha:g}).")
-        findings.append({"level": "warn" if corr else "ok", "key": "whiteness", "text": white["text"]})
-        findings.append({"level": "warn" if nongauss else "ok", "key": "normality", "text": normal["text"]})
-    else:
-        why = (f"{getattr(result, 'method', 'this method')}: no residual of the torque equation alone "
-               "on fitted rows (its noise model is another); whiteness and normality are not judged here.")
-        white = {"test": None, "text": why, "residual": None, "correlated_joints": []}
-        normal = {"test": None, "text": why, "residual": None, "non_gaussian_joints": []}
-        findings.append({"level": "info", "key": "whiteness", "text": why})
+    Parameters
+    ----------
+    idim_result : ParameterResults
+        IDIM and DIDIM are judged on their essential model; the Projection
+        Method and maximum likelihood on their estimate, without the residual
+        whiteness (see `_fitted_residual`).
+    validation : ValidationResult, optional
+        The held-out validation.
+    robot : Robot, optional
+        Defaults to the result's robot.
+    diagnosis : DiagnosisResult, optional
+        Only its conclusion is quoted.
+    residuals : ResidualAnalysis, optional
+        A precomputed analysis of the identification residual (computed here otherwise).
+    rel_std_threshold : float
+        In percent; the error thresholds are fractions.
+    checks : list of callables, optional
+        The checks to run, `CHECKS` by default.
 
-    # --- physical plausibility
-    bp = _base(result, robot)
-    std_names = list(getattr(robot, "standard_names", []) or []) if robot is not None else []
-    implausible = []
-    if std_names and bp is not None:
-        index = {nm: k for k, nm in enumerate(bp.names)}
-        for p in params:
-            k = index.get(p["name"])
-            if k is not None and p["value"] < 0 and must_be_nonnegative(bp, std_names, k):
-                implausible.append({"name": p["name"], "value": p["value"], "unit": p["unit"],
-                                    "n_sigma": abs(p["value"]) / p["std"] if p["std"] > 0 else np.inf,
-                                    "relation": bp.relations[k]})
-    if implausible:
-        fail = True
-        findings.append({"level": "bad", "key": "plausibility",
-                         "text": "Physically impossible (negative mass, inertia or friction): "
-                                 + ", ".join(f"{q['name']} = {q['value']:.4g} {q['unit']}".strip()
-                                             for q in implausible) + "."})
-        reasons.append("negative " + ", ".join(q["name"] for q in implausible))
-    else:
-        findings.append({"level": "ok", "key": "plausibility",
-                         "text": "No identified mass, diagonal or rotor inertia, or friction "
-                                 "coefficient is negative."})
-
-    # --- a-priori values
-    ap = None
-    if robot is not None and bp is not None and getattr(robot, "apriori", None):
-        try:
-            from dynid.dynamics.excitation import apriori_parameters
-            _, beta, missing = apriori_parameters(robot, bp)
-        except Exception as exc:          # a-priori values that do not map: say so, no verdict
-            ap = {"k": apriori_k, "compared": [], "flagged": [], "error": str(exc)}
-        else:
-            index = {nm: k for k, nm in enumerate(bp.names)}
-            compared, far = [], []
-            for p in params:
-                if p["name"] in missing or p["name"] not in index:
-                    continue
-                a = float(beta[index[p["name"]]])
-                ns = abs(p["value"] - a) / p["std"] if p["std"] > 0 else np.inf
-                compared.append({"name": p["name"], "value": p["value"], "apriori": a,
-                                 "n_sigma": ns, "unit": p["unit"], "flagged": bool(ns > apriori_k)})
-                if ns > apriori_k:
-                    far.append(p["name"])
-            ap = {"k": apriori_k, "compared": compared, "flagged": far,
-                  "source": str((getattr(robot, "provenance", {}) or {}).get("apriori", ""))}
-        if ap.get("compared"):
-            far = ap["flagged"]
-            findings.append({"level": "info" if far else "ok", "key": "apriori",
-                             "text": (f"{len(far)} of {len(ap['compared'])} {kind} parameters with an "
-                                      f"a-priori value are more than {apriori_k:g} \u03c3 from it: "
-                                      + ", ".join(far) + "." if far else
-                                      f"All {len(ap['compared'])} {kind} parameters with an a-priori "
-                                      f"value are within {apriori_k:g} \u03c3 of it.")})
-
-    # --- data quality
-    dq = []
-    sat = [x for x in list(getattr(result, "notices", []) or []) + list(getattr(validation, "notices", []) or [])
-           if "saturat" in x.lower()]
-    for x in dict.fromkeys(sat):
-        dq.append({"level": "warn", "text": x})
-    ls_fit = _least_squares(result)
-    if ls_fit is not None:
-        cs = float(getattr(ls_fit, "cond_scaled", np.nan))
-        c = float(ls_fit.cond)
-        dq.append({"level": "warn" if cs > cond_threshold else "ok",
-                   "text": f"cond(W) = {c:.3g} ({cs:.3g} with unit columns"
-                           + (f", above {cond_threshold:g}: poorly exciting data" if cs > cond_threshold else "")
-                           + ")."})
-    mask = _fitted_mask(result)
-    dz = 1.0 - float(mask.mean()) if mask is not None else 0.0
-    vz = float(validation.excluded_fraction) if validation is not None else 0.0
-    if mask is not None or validation is not None:
-        parts = []
-        if mask is not None:
-            parts.append(f"{_pct(dz)} of the decimated identification equations are left out "
-                         "(velocity dead zone, not fitted)")
-        if validation is not None:
-            parts.append(f"{_pct(vz)} of the held-out ones" if mask is not None else
-                         f"{_pct(vz)} of the held-out equations are in the velocity dead zone")
-        dq.append({"level": "warn" if max(dz, vz) > 0.3 else "ok",
-                   "text": "; ".join(parts) + (": the moving-sample error leaves out much of the motion"
-                                               if max(dz, vz) > 0.3 else "") + "."})
-    for d in dq:
-        findings.append(dict(d, key="data"))
-    if sat:
-        reasons.append("saturation")
-
+    Returns
+    -------
+    Verdict
+        Status, reasons and findings in the order of the checks.
+    """
+    x = _inputs(idim_result, validation, robot, diagnosis, residuals,
+                rel_std_threshold=rel_std_threshold, joint_error_threshold=joint_error_threshold,
+                warn_rel_error=warn_rel_error, fail_rel_error=fail_rel_error, apriori_k=apriori_k,
+                alpha=alpha, cond_threshold=cond_threshold)
+    findings, reasons, fields, fail = [], [], {}, False
+    for check in (CHECKS if checks is None else checks):
+        out = check(x)
+        findings += out.findings
+        reasons += out.reasons
+        fields.update(out.fields)
+        fail = fail or out.fail
+    own = set(Verdict.__dataclass_fields__)
     status = "not identified" if fail else ("identified with reservations" if reasons else "identified")
-    return Verdict(status=status, identified=not fail, reasons=reasons, validation=vinfo,
-                   rel_std_threshold=float(rel_std_threshold), parameters=params,
-                   not_identified=flagged, whiteness=white, normality=normal,
-                   implausible=implausible, apriori=ap, data_quality=dq, findings=findings)
+    return Verdict(status=status, identified=not fail, reasons=reasons,
+                   rel_std_threshold=float(rel_std_threshold), findings=findings,
+                   extra={k: v for k, v in fields.items() if k not in own},
+                   **{k: v for k, v in fields.items() if k in own})

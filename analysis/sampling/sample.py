@@ -1,0 +1,188 @@
+"""Sampling the posterior of a linear model, and of an IDIM result's parameters (emcee).
+
+`sample_linear` runs the ensemble sampler on the log-posterior of
+dynid.analysis.sampling.linear; `sample_idim` feeds it an IDIM result's
+decimated observation, optionally restricted to the physically consistent set.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from dynid.analysis.estimators import least_squares as lsq
+from dynid.analysis.estimators.physical import PhysicalSupport, pc_wls
+from dynid.analysis.sampling.convergence import run_until_converged
+from dynid.analysis.sampling.ensemble import (
+    criteria_from,
+    describe_moves,
+    initial_ball,
+    make_sampler,
+    n_walkers_for,
+    rng_from_seed,
+)
+from dynid.analysis.sampling.linear import LinearPosterior
+from dynid.analysis.sampling.result import PosteriorResult
+from dynid.analysis.sampling.sufficient import SufficientStats, sufficient_statistics
+from dynid.errors import InputError
+from dynid.provenance import data_hash
+
+
+def sample_linear(W3, tau, names, *, row_mask=None, ls=None, sigma=None, prior=None, seed=0,
+                  n_walkers=None, criteria=None, max_steps=None, max_seconds=None, moves="de",
+                  init_scale: float = 0.1, method_label: str = "linear model", truth=None,
+                  suff_stats: SufficientStats | None = None, progress=None, support=None,
+                  start=None) -> PosteriorResult:
+    """Posterior of χ (and σ_j) of Y = Wχ + ρ by emcee; see the module docstring.
+
+    Parameters
+    ----------
+    W3, tau, names, row_mask
+        As :func:`dynid.analysis.estimators.least_squares.wls` (decimated system, eq. (9)).
+    ls : IdentificationResult, optional
+        LS estimate to start from and to report beside the posterior (its
+        χ̂, σ and %σ; its ``joint_sigma`` for the σ_j). Default: WLS of these
+        data (with ``sigma`` as fixed weights when given).
+    sigma : (n,) array, optional
+        Known noise standard deviations: then only χ is sampled.
+    prior : GaussianPrior, optional
+        Gaussian prior on (some of) χ; default flat.
+    seed : int or numpy.random.Generator
+        Seeds the initial ball and emcee's RandomState.
+    n_walkers : int, optional
+        Default max(32, 2·ndim + 2), even.
+    criteria : ConvergenceCriteria or dict, optional
+        The convergence rule (≥ 50 τ etc.); ``max_steps`` and ``max_seconds``
+        override its limits.
+    moves : "de" (default, emcee DEMove), "de-snooker", "stretch" or emcee moves.
+    init_scale : float
+        Walkers start at the LS estimate + init_scale · N(0, cov_LS) (for
+        log σ_j the variance is 1/(2 r_j)).
+    suff_stats : SufficientStats, optional
+        Precomputed statistics (then W3/tau are only used for ``ls`` if needed).
+    progress : callable, optional
+        ``progress(n_steps, required_steps)`` after each batch of the sampler.
+    support : callable, optional
+        ``support(chi)`` (K, b) -> bool (K,): the prior is restricted to where it is true
+        (log p = −inf elsewhere), e.g. the physically consistent set
+        (:class:`dynid.analysis.estimators.physical.PhysicalSupport`).
+    start : (b,) array, optional
+        Centre of the initial ball instead of the LS estimate (it must be in ``support``).
+    """
+    rng = rng_from_seed(seed)
+    if ls is None:
+        ls = lsq.wls(W3, tau, names, row_mask=row_mask, joint_sigma=sigma)
+    if list(ls.names) != [str(x) for x in names]:
+        raise InputError("ls must be a result on the same parameters, in the same order, as names")
+    st = suff_stats
+    if st is None:
+        st = sufficient_statistics(W3, tau, names, row_mask=row_mask, ref=ls.chi)
+        st.data_hash = data_hash(np.asarray(W3), np.asarray(tau),
+                                    None if row_mask is None else np.asarray(row_mask))
+    model = LinearPosterior(st, sigma=sigma, prior=prior)
+    d = model.ndim
+    b = st.n_params
+    nw = n_walkers_for(n_walkers, d)
+    centre = np.empty(d)
+    centre[:b] = ls.chi if start is None else np.asarray(start, dtype=float)
+    log_prob = model.log_prob
+    if support is not None:
+        def log_prob(X, _lp=model.log_prob):
+            lp = _lp(X)
+            X = np.atleast_2d(X)
+            fin = np.isfinite(lp)
+            inside = np.zeros(lp.shape, dtype=bool)
+            inside[fin] = support(X[fin, :b])
+            return np.where(inside, lp, -np.inf)
+    cov = np.zeros((d, d))
+    cov[:b, :b] = ls.cov
+    if sigma is None:
+        act = model.active
+        js = getattr(ls, "joint_sigma", None)
+        if js is None or not np.all(np.isfinite(np.asarray(js)[act])):
+            js = np.sqrt(st.s / np.maximum(st.rows - b, 1))
+        centre[b:] = np.log(np.asarray(js, dtype=float)[act])
+        cov[b:, b:] = np.diag(1.0 / (2.0 * st.rows[act]))
+    crit = criteria_from(criteria, max_steps=max_steps, max_seconds=max_seconds)
+    p0 = initial_ball(log_prob, centre, cov, nw, init_scale, rng)
+    sampler = make_sampler(log_prob, nw, d, moves, rng)
+    run = run_until_converged(sampler, p0, crit, progress=progress)
+    chain = model.to_output(run.kept())
+    ls_value = np.full(d, np.nan)
+    ls_std = np.full(d, np.nan)
+    ls_value[:b] = ls.chi
+    ls_std[:b] = ls.sigma
+    if sigma is None and getattr(ls, "joint_sigma", None) is not None:
+        ls_value[b:] = np.asarray(ls.joint_sigma)[model.active]
+    ls_cov = np.full((d, d), np.nan)
+    ls_cov[:b, :b] = ls.cov
+    noise = ("known σ_j = " + ", ".join(f"{v:.4g}" for v in model.sigma[model.active])) if sigma is not None \
+        else "one σ_j per joint, Jeffreys prior p(σ_j) ∝ 1/σ_j, sampled as log σ_j"
+    settings = {
+        "model": method_label,
+        "likelihood": "Gaussian, independent rows, per-joint σ_j (eqs. (9), (10), (16))",
+        "noise": noise,
+        "prior_chi": "flat" if prior is None else {"gaussian": prior.to_dict()},
+        "linear_parameters": "sampled jointly with the noise parameters (not marginalised)",
+        "sampler": "emcee.EnsembleSampler(vectorize=True)",
+        "moves": describe_moves(moves),
+        "n_walkers": nw,
+        "init": f"LS estimate + {init_scale:g} x N(0, cov_LS); log sigma_j variance 1/(2 r_j)",
+        "seed": seed if isinstance(seed, (int, np.integer)) else "numpy Generator",
+        "rows_per_joint": st.rows,
+        "n_samples": st.n_samples,
+        "sufficient_statistics": "per joint W'W, W'(Y - W chi_ref), |Y - W chi_ref|^2, r_j; chi_ref = LS",
+        "support": "all of R^b" if support is None else getattr(support, "description", "restricted"),
+    }
+    return PosteriorResult(
+        method="emcee", model=method_label, names=model.names, chain=chain,
+        diagnostics=run.diagnostics, ls_value=ls_value, ls_std=ls_std, ls_cov=ls_cov,
+        ls_label=getattr(ls, "method", "LS"), settings=settings, truth=truth,
+        data_hash=st.data_hash or getattr(ls, "data_hash", None),
+        coords=model.coords)
+
+
+def sample_idim(idim_result, *, which: str = "essential", physical: bool = False, robot=None,
+                **kwargs) -> PosteriorResult:
+    """Posterior of the essential (default) or base parameters of an :class:`IDIMResult`.
+
+    Uses its decimated observation (W, tau, row_mask) and its WLS estimate
+    as the starting point and LS reference. Other arguments: :func:`sample_linear`.
+
+    ``physical=True`` (base parameters only): the posterior's support is the physically
+    consistent set (:class:`~dynid.analysis.estimators.physical.PhysicalSupport`: some
+    standard set with PSD pseudo-inertias and Ia, Fv, Fc >= 0 gives these base parameters),
+    i.e. the flat prior restricted to it; the walkers start around the PC-WLS estimate.
+    ``robot`` defaults to the result's.
+    """
+    obs = idim_result.observation
+    if which == "essential":
+        ls = idim_result.essential.result
+    elif which == "base":
+        ls = idim_result.wls
+    else:
+        raise InputError(f"which must be 'essential' or 'base', not {which!r}")
+    cols = idim_result.columns(ls.names)
+    W = obs.W[:, :, cols]
+    truth = None
+    if idim_result.truth:
+        truth = {k: v for k, v in idim_result.truth.items() if k in ls.names}
+    kwargs.setdefault("method_label", f"IDIM {which} parameters of {idim_result.robot_name}"
+                      + (", physically consistent support" if physical else ""))
+    if physical:
+        if which != "base":
+            raise InputError("the physically consistent posterior is over the base parameters: "
+                             "use which='base' (--which base)")
+        robot = robot if robot is not None else getattr(idim_result, "robot", None)
+        if robot is None:
+            raise InputError("physical=True needs the robot of the identification")
+        pc = pc_wls(robot, idim_result.base, ls.chi, ls.cov, n_boot=0)
+        support = PhysicalSupport(robot, idim_result.base, ls.names, reference=pc.standard)
+        support.description = ("physically consistent set: some standard set with every link's "
+                               "pseudo-inertia PSD and Ia, Fv, Fc >= 0 gives these base parameters "
+                               "(feasibility SDP per point, cvxpy + Clarabel)")
+        kwargs["support"] = support
+        kwargs["start"] = pc.chi
+    res = sample_linear(W, obs.tau, ls.names, row_mask=obs.row_mask, ls=ls, truth=truth, **kwargs)
+    res.data_hash = idim_result.data_hash or res.data_hash
+    return res
+
+
