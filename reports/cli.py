@@ -749,48 +749,10 @@ def check_input_paths(args):
 
 def check_output_paths(args):
     """Before any computation: every output's folder exists and is writable; '-' only for --json;
-    no output is an input or another output; names are valid file names."""
-    from dynid.errors import InputError
+    no output is an input or another output; names are valid file names (dynid.outputs.check_outputs)."""
+    from dynid.outputs import check_outputs
     check_input_paths(args)
-    inputs = _input_files(args)
-    seen = []
-    for opt in OUTPUT_OPTIONS:
-        path = getattr(args, opt, None)
-        if not path:
-            continue
-        if path == "-":
-            if opt != "json":
-                raise InputError(f"--{opt} -: only --json can be written to stdout")
-            continue
-        if "\0" in path:
-            raise InputError(f"--{opt} {path!r}: the name contains a NUL byte, which no file name can; "
-                             f"give --{opt} a plain file name")
-        folder = os.path.dirname(os.path.abspath(path)) or "."
-        name = os.path.basename(os.path.abspath(path))
-        try:
-            name_max = os.pathconf(folder, "PC_NAME_MAX")
-        except (OSError, ValueError):
-            name_max = NAME_MAX
-        if len(os.fsencode(name)) > name_max:
-            raise InputError(f"--{opt} {name[:40]}...: the file name is {len(os.fsencode(name))} bytes "
-                             f"long, more than the {name_max} the file system allows; give --{opt} a "
-                             f"shorter name")
-        if not os.path.isdir(folder):
-            raise InputError(f"--{opt} {path}: the folder {folder} does not exist")
-        if not os.access(folder, os.W_OK):
-            raise InputError(f"--{opt} {path}: the folder {folder} is not writable")
-        if os.path.isdir(path):
-            raise InputError(f"--{opt} {path} is a folder; give a file name")
-        for what, p in inputs:
-            if "\0" not in p and os.path.exists(p) and _same_file(path, p):
-                how = "" if os.path.abspath(path) == os.path.abspath(p) else " (through a link)"
-                raise InputError(f"--{opt} {path} is {what} {p}{how}: writing it would destroy the "
-                                 f"input; give --{opt} another path")
-        for other, q in seen:
-            if _same_file(path, q):
-                raise InputError(f"--{other} {q} and --{opt} {path} are the same file: one would "
-                                 f"overwrite the other; give each its own path")
-        seen.append((opt, path))
+    check_outputs([(f"--{opt}", getattr(args, opt, None)) for opt in OUTPUT_OPTIONS], _input_files(args))
     _check_stdout(args)
 
 
@@ -1314,22 +1276,26 @@ def cmd_fleet(args, say):
     with say.progress("identifying") as bar:
         run = fleet.run(args.catalogue, args.store, scheduler=args.scheduler, workers=args.workers,
                         diagnose=args.diagnose, parameters=params,
-                        false_alarm_rate=args.false_alarm_rate or DEFAULT_FALSE_ALARM_RATE,
-                        n_baseline=args.baseline or DEFAULT_BASELINE, report=args.report,
+                        false_alarm_rate=DEFAULT_FALSE_ALARM_RATE if args.false_alarm_rate is None
+                        else args.false_alarm_rate,
+                        n_baseline=DEFAULT_BASELINE if args.baseline is None else args.baseline, report=args.report,
                         json=None if args.json in (None, "-") else args.json,
                         progress=lambda done, total: bar.update(done / total))
-    say(f"{run.n_recordings} recordings: {run.n_computed} identified, {run.n_skipped} already in the store, "
-        f"{len(run.errors)} failed ({run.wall_seconds:.1f} s)")
+    say(run.summary_line())
     for rid, path, msg in run.errors:
         say(f"  failed: {rid} {path}: {msg}")
     for a in run.health.alarms:
         say(f"  ALARM {a.robot_id} joint {a.joint} {a.parameter}: {a.direction} of {100 * a.rel_size:+.1f} % "
             f"since {a.onset_day} (alarm {a.alarm_day})")
     if not run.health.alarms:
-        say("  no alarm")
+        say("  " + run.health.status_line())
     if args.json == "-":
         from dynid.reports.fleet_report import fleet_json
         print(_json.dumps(fleet_json(run, fleet.read_store(args.store), run.health), indent=1))
+    if run.errors:              # the rest is stored and reported, but the run is not a success
+        print(f"dynid fleet: error: {run.n_failed} of {run.n_computed} recordings could not be identified "
+              f"(listed above and in the store); fix or remove them from the catalogue", file=sys.stderr)
+        return EXIT_INPUT
     return EXIT_OK
 
 

@@ -302,8 +302,10 @@ def test_scheduler_address_cli_and_api_give_the_serial_results(small_fleet, smal
     clients = len(tcp_cluster.scheduler.clients)
     rc = main(["fleet", catalogue, "--out", str(tmp_path / "cli"), "--scheduler", address, "--baseline", "3"])
     err = capsys.readouterr().err
-    assert rc == 0, err
-    assert f"on {address}" in err and "3 recordings: 3 identified, 0 already in the store, 1 failed" in err
+    # issue 31: a failed recording is counted as failed, not identified, and the run exits 2 (the rest is stored)
+    assert rc == 2, err
+    assert f"on {address}" in err and "3 recordings: 2 identified, 0 already in the store, 1 failed" in err
+    assert "1 of 3 recordings could not be identified" in err
     api = run(catalogue, tmp_path / "api", scheduler=address, n_baseline=3)
     assert (api.n_computed, api.workers, len(api.errors)) == (3, 1, 1)
     # the tasks ran on that scheduler (under the engine's keys), and its clients were closed after

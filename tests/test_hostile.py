@@ -92,10 +92,12 @@ class Run:
 
 
 OUTPUT_FLAGS = {"--json", "--report", "--csv", "--out", "--urdf", "--mjcf"}
-#: dynid's temporary files beside the target (dynid.outputs): ".dynid-<pid>-<12 hex>.tmp", and
-#: ".dynid-<pid>-<12 hex>.bak" (hard-linked backups of old outputs); the older layout's
-#: ".<target>.<12 hex>.tmp" is matched too
-DYNID_TEMP = re.compile(r"^\.dynid-\d+-[0-9a-f]{12}\.(tmp|bak)$|^\..+\.[0-9a-f]{12}\.tmp$")
+#: dynid's temporary files beside the target (dynid.outputs): a writer's lease lock
+#: ".dynid-<host>-<pid>-<16 hex>.lock" (".new" before it is published), its temporary files
+#: "<same>-<n>.tmp" and hard-linked backups "<same>-<n>.bak"; the older layouts
+#: ".dynid-<pid>-<12 hex>.tmp|bak" and ".<target>.<12 hex>.tmp" are matched too
+DYNID_TEMP = re.compile(r"^\.dynid-[A-Za-z0-9.-]*-\d+-[0-9a-f]{16}(-\d+\.(tmp|bak)|\.lock|\.new)$"
+                        r"|^\.dynid-\d+-[0-9a-f]{12}\.(tmp|bak)$|^\..+\.[0-9a-f]{12}\.tmp$")
 
 
 def _dead_pid():
@@ -629,22 +631,46 @@ def test_g3_sigterm_between_renames(tmp_path, data, monkeypatch, capsys):
     _assert_all_or_none(out, run)
 
 
+_LEASE_HOLDER = """
+import os, sys, time
+from dynid.outputs import staged_path
+with staged_path(sys.argv[1]) as tmp:
+    open(tmp, "w").write('{"half": ')
+    print("staged", flush=True)
+    time.sleep(float(sys.argv[2]))
+"""
+
+
+def _hold_lease(target, seconds):
+    """A process writing `target` through dynid.outputs, paused mid-write (its lease held)."""
+    proc = subprocess.Popen([sys.executable, "-c", _LEASE_HOLDER, str(target), str(seconds)],
+                            stdout=subprocess.PIPE, text=True)
+    assert proc.stdout.readline().strip() == "staged"
+    return proc
+
+
 def test_g3_stale_temp_files_of_a_killed_run_are_cleaned(tmp_path):
-    dead = _dead_pid()                  # temporary files name the process that wrote them
-    stale = [tmp_path / f".dynid-{dead}-0123456789ab.tmp", tmp_path / f".dynid-{dead}-fedcba987654.tmp"]
-    for p in stale:
-        p.write_text('{"half": ')
-        os.utime(p, (time.time() - 86400, time.time() - 86400))       # a day old
-    keep = [tmp_path / "notes.tmp", tmp_path / ".other.tmp",                # not dynid's naming
-            tmp_path / f".dynid-{os.getpid()}-00112233aabb.tmp"]            # a running process's
-    for p in keep:
-        p.write_text("mine")
-    run = run_dynid("robot", "planar2", "--json", "out.json", "--quiet", cwd=tmp_path, timeout=30)
-    assert_clean(run)
-    assert run.rc == 0, str(run)
-    assert all(p.exists() for p in keep), "removed files that are not stale dynid temporary files"
-    left = [p.name for p in stale if p.exists()]
-    assert not left, f"stale temporary files of a killed run are still there: {left}"
+    killed = _hold_lease(tmp_path / "old.json", 60)
+    killed.kill()                       # SIGKILL mid-write: its lease lock is released by the kernel
+    killed.wait()
+    stale = temp_files(tmp_path)
+    assert any(n.endswith(".tmp") for n in stale) and any(n.endswith(".lock") for n in stale), stale
+    live = _hold_lease(tmp_path / "other.json", 60)        # a running writer's files stay
+    try:
+        live_files = set(temp_files(tmp_path)) - set(stale)
+        keep = [tmp_path / "notes.tmp", tmp_path / ".other.tmp",                # not dynid's naming
+                tmp_path / f".dynid-{_dead_pid()}-00112233aabb.tmp"]          # no lease: not provably stale
+        for p in keep:
+            p.write_text("mine")
+        run = run_dynid("robot", "planar2", "--json", "out.json", "--quiet", cwd=tmp_path, timeout=30)
+        assert run.rc == 0, str(run)
+        assert all(p.exists() for p in keep), "removed files that are not provably stale dynid files"
+        assert live_files and live_files <= set(temp_files(tmp_path)), "removed a running writer's files"
+        left = [n for n in stale if (tmp_path / n).exists()]
+        assert not left, f"temporary files of a killed run are still there: {left}"
+    finally:
+        live.kill()
+        live.wait()
 
 
 # =============================================================================================
@@ -1056,3 +1082,202 @@ def test_g9_escape_sequences_in_a_column_name(tmp_path, frame):
     for stream, text in (("stdout", run.out), ("stderr", run.err)):
         bad = sorted(set(CONTROL.findall(text)))
         assert not bad, f"control characters {bad!r} printed on {stream}\n{run!r}"
+
+
+# =============================================================================================
+# 10. Issue 31: the fleet and the newer options (groups g10 data loss ... g14 messages)
+# =============================================================================================
+_VICTIM = """
+import os, sys, time
+import dynid.outputs as outputs
+folder, ready, go = sys.argv[1:4]
+real_replace = os.replace
+calls = []
+def paused_replace(src, dst):
+    calls.append(dst)
+    if len(calls) == 2:             # the first output renamed, the second not yet: the backups matter now
+        open(ready, "w").close()
+        t0 = time.time()
+        while not os.path.exists(go) and time.time() - t0 < 30:
+            time.sleep(0.02)
+    return real_replace(src, dst)
+os.replace = paused_replace
+try:
+    outputs.write_all([(os.path.join(folder, "a.json"), "new json"), (os.path.join(folder, "a.csv"), "new csv")])
+except Exception as exc:
+    print(f"victim: {exc}", file=sys.stderr)
+    sys.exit(3)
+"""
+
+_CLEANER = """
+import os, sys
+import dynid.outputs as outputs
+outputs.write_all([(os.path.join(sys.argv[1], "c.txt"), "another run")])
+"""
+
+
+def _unshare_available():
+    if shutil.which("unshare") is None:
+        return False
+    try:
+        return subprocess.run(["unshare", "--pid", "--fork", "true"], capture_output=True, timeout=10).returncode == 0
+    except (OSError, subprocess.TimeoutExpired):
+        return False
+
+
+def test_g10_commit_survives_a_writer_in_another_pid_namespace(tmp_path):
+    """Two dynid processes in two PID namespaces write into one folder (two containers on a
+    shared volume): the second must not take the first's backups for a dead process's."""
+    if not _unshare_available():
+        pytest.skip("unshare --pid is not available (needs root or user namespaces)")
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "a.json").write_text("old json")
+    (out / "a.csv").write_text("old csv")
+    ready, go = tmp_path / "ready", tmp_path / "go"
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    # sh stays pid 1 of the victim's namespace, Python is pid 2: a pid that the cleaner's own
+    # namespace (where it is pid 1, alone) does not have
+    victim = subprocess.Popen(["unshare", "--pid", "--fork", "sh", "-c", '"$0" -c "$1" "$2" "$3" "$4"; exit $?',
+                               sys.executable, _VICTIM, str(out), str(ready), str(go)],
+                              env=env, stderr=subprocess.PIPE, text=True)
+    try:
+        t0 = time.time()
+        while not ready.exists():
+            assert victim.poll() is None, f"the writer ended early: {victim.stderr.read()}"
+            assert time.time() - t0 < 60, "the writer never reached its second rename"
+            time.sleep(0.02)
+        cleaner = subprocess.run(["unshare", "--pid", "--fork", sys.executable, "-c", _CLEANER, str(out)],
+                                 env=env, capture_output=True, text=True, timeout=60)
+        assert cleaner.returncode == 0, cleaner.stderr
+    finally:
+        go.touch()
+        _, err = victim.communicate(timeout=60)
+    contents = ((out / "a.json").read_text(), (out / "a.csv").read_text())
+    assert contents in (("new json", "new csv"), ("old json", "old csv")), (
+        f"all-or-none broken by the other process: a.json={contents[0]!r}, a.csv={contents[1]!r}; {err}")
+    assert victim.returncode == 0 and contents == ("new json", "new csv"), (
+        f"the writer failed (exit {victim.returncode}): {err}")
+    assert (out / "c.txt").read_text() == "another run"
+    assert_no_temp(out)
+
+
+# ---- g10: data loss in the fleet ------------------------------------------------------------
+def fleet_catalogue(folder, recording, n=2, robot="planar2", extra_rows="", temperature=None):
+    """`cat.csv` listing `n` recordings: `recording` less its last k rows (distinct files, not copies)."""
+    folder = Path(folder)
+    lines = ["robot_id,timestamp,path,robot" + (",temperature" if temperature is not None else "")]
+    for k in range(n):
+        rec = folder / f"rec{k}.csv"
+        rec.write_text("".join(recording.read_text().splitlines(keepends=True)[:-(k + 1)]))
+        lines.append(f"R1,2026-03-0{k + 1}T08:00:00Z,{rec.name},{robot}"
+                     + (f",{temperature}" if temperature is not None else ""))
+    cat = folder / "cat.csv"
+    cat.write_text("\n".join(lines) + "\n" + extra_rows)
+    return cat
+
+
+def fleet_inputs(folder):
+    """Fingerprints of every file of the fleet's folder (the catalogue, recordings, robot files)."""
+    return fingerprint(*[p for p in sorted(Path(folder).iterdir()) if p.is_file() and not DYNID_TEMP.match(p.name)])
+
+
+def assert_fleet_refused(run, before, folder, *names):
+    assert_input_error(run, *names)
+    assert fleet_inputs(folder) == before, f"an input changed\n{run}"
+    assert not (Path(folder) / "store").exists(), f"the store was created before the refusal\n{run}"
+
+
+@pytest.mark.parametrize("option", ["--json", "--report"])
+def test_g10_fleet_output_onto_its_catalogue(tmp_path, recording, option):
+    fleet_catalogue(tmp_path, recording)
+    before = fleet_inputs(tmp_path)
+    run = run_dynid("fleet", "cat.csv", "--out", "store", option, "cat.csv", cwd=tmp_path, timeout=60)
+    assert_fleet_refused(run, before, tmp_path, "cat.csv", "catalogue")
+
+
+@pytest.mark.parametrize("how", ["symlink", "hardlink", "dotdot"])
+def test_g10_fleet_output_onto_a_recording_or_robot_file(tmp_path, recording, how):
+    robot = planar2_toml(tmp_path, name="arm.toml")
+    fleet_catalogue(tmp_path, recording, robot=robot.name)
+    (tmp_path / "sub").mkdir()
+    if how == "symlink":
+        os.symlink(tmp_path / "rec1.csv", tmp_path / "sub" / "out.json")
+        args, names = ("--json", "sub/out.json"), ("rec1.csv", "recording")
+    elif how == "hardlink":
+        os.link(robot, tmp_path / "sub" / "out.html")
+        args, names = ("--report", "sub/out.html"), ("arm.toml", "robot file")
+    else:
+        args, names = ("--json", "sub/../rec0.csv"), ("rec0.csv", "recording")
+    before = fleet_inputs(tmp_path)
+    run = run_dynid("fleet", "cat.csv", "--out", "store", *args, cwd=tmp_path, timeout=60)
+    assert_fleet_refused(run, before, tmp_path, *names)
+
+
+def test_g10_python_fleet_run_refuses_too(tmp_path, recording):
+    import dynid.fleet
+    from dynid.errors import InputError
+    cat = fleet_catalogue(tmp_path, recording)
+    before = fleet_inputs(tmp_path)
+    with pytest.raises(InputError, match="rec0.csv.*recording"):
+        dynid.fleet.run(cat, tmp_path / "store", report=tmp_path / "rec0.csv")
+    assert fleet_inputs(tmp_path) == before and not (tmp_path / "store").exists()
+
+
+@pytest.mark.parametrize("value,why", [("", "empty"), ("x.json/", "folder")])
+def test_g10_json_name_that_writes_nothing_or_elsewhere(tmp_path, data, value, why):
+    run = run_dynid(*identify_args("in.csv", "--json", value), cwd=tmp_path)
+    assert_input_error(run, "--json", why)
+    assert not (tmp_path / "x.json").exists(), f"wrote x.json for --json x.json/\n{run}"
+
+
+def test_g10_json_to_closed_stdout_is_refused(tmp_path, data):
+    run = run_dynid(*identify_args("in.csv", "--json", "-"), cwd=tmp_path, close_stdout=True)
+    assert_input_error(run, "--json", "stdout")
+
+
+# ---- g11: silently wrong fleet values -------------------------------------------------------
+def test_g11_fleet_same_recording_through_a_symlink(tmp_path, recording):
+    os.symlink("rec0.csv", tmp_path / "alias.csv")
+    fleet_catalogue(tmp_path, recording, extra_rows="R1,2026-03-09T08:00:00Z,alias.csv,planar2\n")
+    before = fleet_inputs(tmp_path)
+    run = run_dynid("fleet", "cat.csv", "--out", "store", cwd=tmp_path, timeout=60)
+    assert_fleet_refused(run, before, tmp_path, "cat.csv", "row 3", "alias.csv|rec0.csv", "once")
+
+
+def test_g11_fleet_byte_identical_copy_of_a_recording(tmp_path, recording):
+    fleet_catalogue(tmp_path, recording, extra_rows="R2,2026-03-09T08:00:00Z,copy.csv,planar2\n")
+    shutil.copyfile(tmp_path / "rec1.csv", tmp_path / "copy.csv")
+    before = fleet_inputs(tmp_path)
+    run = run_dynid("fleet", "cat.csv", "--out", "store", cwd=tmp_path, timeout=60)
+    assert_fleet_refused(run, before, tmp_path, "copy.csv", "rec1.csv", "same bytes")
+
+
+@pytest.mark.parametrize("option,value", [("--false-alarm-rate", "0"), ("--false-alarm-rate", "nan"),
+                                          ("--baseline", "0"), ("--baseline", "1000000000")])
+def test_g11_fleet_monitoring_option_out_of_range(tmp_path, recording, option, value):
+    fleet_catalogue(tmp_path, recording)
+    before = fleet_inputs(tmp_path)
+    run = run_dynid("fleet", "cat.csv", "--out", "store", option, value, cwd=tmp_path, timeout=60)
+    assert_fleet_refused(run, before, tmp_path, option)
+
+
+@pytest.mark.parametrize("value", ["inf", "1e308", "-300"])
+def test_g11_fleet_temperature_out_of_range(tmp_path, recording, value):
+    fleet_catalogue(tmp_path, recording, temperature=value)
+    before = fleet_inputs(tmp_path)
+    run = run_dynid("fleet", "cat.csv", "--out", "store", cwd=tmp_path, timeout=60)
+    assert_fleet_refused(run, before, tmp_path, "cat.csv", "column temperature, row 1", "Celsius")
+
+
+def test_g11_fleet_failed_recordings_fail_the_run(tmp_path, recording):
+    """Every recording broken: exit 2, counted as failed (not identified), no TypeError from the monitor."""
+    fleet_catalogue(tmp_path, recording, robot="panda")          # 7 joints: the 2-joint data cannot fit
+    before = fleet_inputs(tmp_path)
+    run = run_dynid("fleet", "cat.csv", "--out", "store", "--workers", "1", "--json", "f.json",
+                    cwd=tmp_path, timeout=180)
+    assert_input_error(run, "2 of 2 recordings could not be identified", "0 identified", "not monitored")
+    after = fleet_inputs(tmp_path)
+    assert {p: after.get(p) for p in before} == before, "an input changed"
+    doc = json.loads((tmp_path / "f.json").read_text())
+    assert doc["n_failed"] == 2 and doc["n_identified"] == 0
