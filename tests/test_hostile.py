@@ -1281,3 +1281,99 @@ def test_g11_fleet_failed_recordings_fail_the_run(tmp_path, recording):
     assert {p: after.get(p) for p in before} == before, "an input changed"
     doc = json.loads((tmp_path / "f.json").read_text())
     assert doc["n_failed"] == 2 and doc["n_identified"] == 0
+
+
+def test_g11_torques_in_kNm(tmp_path, frame):
+    frame[["tau1", "tau2"]] /= 1000.0
+    write_csv(tmp_path / "in.csv", frame)
+    run = run_dynid(*identify_args("in.csv", "--json", "o.json"), cwd=tmp_path)
+    assert_input_error(run, "in.csv", r"tau[12]", "kN·m")
+    assert not (tmp_path / "o.json").exists()
+
+
+def _toml_of_npz(folder, name="rec.npz", **options):
+    lines = ["[experiment]", f'file = "{name}"'] + [f"{k} = {v}" for k, v in options.items()]
+    lines += ["[time]", 'key = "t"', "[positions]", 'key = "q"', "[torques]", 'key = "tau"']
+    p = Path(folder) / "exp.toml"
+    p.write_text("\n".join(lines) + "\n")
+    return p
+
+
+def _npz_from(frame, path, t=None):
+    np.savez(path, t=frame["t"].to_numpy() if t is None else t, q=frame[["q1", "q2"]].to_numpy(),
+             tau=frame[["tau1", "tau2"]].to_numpy())
+
+
+def test_g11_time_tolerance_1e9_is_refused(tmp_path, frame):
+    t = frame["t"].to_numpy().copy()
+    t[len(t) // 2:] += 0.1                                   # a 100 ms gap
+    _npz_from(frame, tmp_path / "rec.npz", t)
+    _toml_of_npz(tmp_path, time_tolerance="1e9")
+    run = run_dynid(*identify_args("exp.toml", "--json", "o.json"), cwd=tmp_path)
+    assert_input_error(run, "exp.toml", "time_tolerance", "0.25")
+    assert not (tmp_path / "o.json").exists()
+
+
+# ---- g12: hangs and unbounded memory --------------------------------------------------------
+@pytest.mark.parametrize("kind", ["fifo", "dev_zero"])
+def test_g12_fleet_recording_that_is_not_a_regular_file(tmp_path, recording, kind):
+    cat = fleet_catalogue(tmp_path, recording, n=1)
+    if kind == "fifo":
+        os.mkfifo(tmp_path / "special.csv")
+        target = "special.csv"
+    else:
+        target = "/dev/zero"
+    cat.write_text(cat.read_text() + f"R1,2026-03-05T08:00:00Z,{target},planar2\n")
+    before = fleet_inputs(tmp_path)
+    run = run_dynid("fleet", "cat.csv", "--out", "store", cwd=tmp_path, timeout=30)
+    assert_fleet_refused(run, before, tmp_path, "cat.csv", "row 2", target, "not a regular file")
+
+
+def test_g12_experiment_toml_over_the_size_cap(tmp_path, data):
+    p = tmp_path / "exp.toml"
+    with open(p, "w") as fh:
+        fh.write('[experiment]\nfile = "in.csv"\nname = "')
+        fh.write("x" * (2 << 20))
+        fh.write('"\n')
+    run = run_dynid(*identify_args("exp.toml", "--json", "o.json"), cwd=tmp_path, timeout=30)
+    assert_input_error(run, "exp.toml", "MiB")
+    assert not (tmp_path / "o.json").exists()
+
+
+def test_g12_npz_zip_bomb_is_refused_before_loading(tmp_path):
+    import zipfile
+    n = 10_000_000                                            # 80 MB of zeros per member, ~80 kB compressed
+    with zipfile.ZipFile(tmp_path / "bomb.npz", "w", zipfile.ZIP_DEFLATED) as zf:
+        for name, shape in (("t", (n,)), ("q", (n // 2, 2)), ("tau", (n // 2, 2))):
+            with zf.open(f"{name}.npy", "w", force_zip64=True) as fh:
+                np.lib.format.write_array_header_1_0(fh, {"descr": "<f8", "fortran_order": False, "shape": shape})
+                block = bytes(1 << 20)
+                for _ in range(8 * n // len(block)):
+                    fh.write(block)
+    run = run_dynid(*identify_args("bomb.npz", "--json", "o.json"), cwd=tmp_path, timeout=60)
+    assert_input_error(run, "bomb.npz", "zip bomb|expand")
+    assert not (tmp_path / "o.json").exists()
+
+
+def test_g12_npz_with_a_forged_shape_is_refused(tmp_path):
+    import io
+    import zipfile
+    buf = io.BytesIO()
+    np.lib.format.write_array(buf, np.zeros(10))
+    forged = buf.getvalue().replace(b"(10,)", b"(10000000000,)")
+    with zipfile.ZipFile(tmp_path / "forged.npz", "w") as zf:
+        for name in ("t", "q", "tau"):
+            zf.writestr(f"{name}.npy", forged)
+    run = run_dynid(*identify_args("forged.npz", "--json", "o.json"), cwd=tmp_path, timeout=60)
+    assert_input_error(run, "forged.npz", "declares shape")
+
+
+def test_g12_resampling_across_a_huge_gap_is_refused(tmp_path, frame):
+    t = frame["t"].to_numpy().copy()
+    t[len(t) // 2:] += 1e5                                   # a day-long gap: 1e8 grid points at 1 ms
+    t[3] += 0.3 * (t[4] - t[3])                              # irregular, so that it resamples
+    _npz_from(frame, tmp_path / "rec.npz", t)
+    _toml_of_npz(tmp_path, resample="true")
+    run = run_dynid(*identify_args("exp.toml", "--json", "o.json"), cwd=tmp_path, timeout=60)
+    assert_input_error(run, "rec.npz", "gap", "Split the recording")
+    assert not (tmp_path / "o.json").exists()

@@ -415,7 +415,7 @@ def _assemble(
     _plaus.check_spikes(signals, rows, cols_of, source, notices)
     if time_col is not None:
         if _check_time(t, time_col, rows, opts, notices):
-            t, signals = _resample(t, signals, notices)
+            t, signals = _resample(t, signals, notices, time_col.where)
             meta["resampled"] = True
         if opts.sampling_rate is not None:
             fs_file = 1.0 / float(np.median(np.diff(t)))

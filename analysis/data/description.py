@@ -107,6 +107,11 @@ _TIME_KEYS = {"file", "key", "column", "scale"}
 _TRANSMISSION_KEYS = {"gear_ratios", "couplings", "position_offsets"}
 #: Largest accepted ``sampling_rate`` (Hz): far above any robot controller's rate.
 MAX_SAMPLING_RATE = 1e6
+#: Largest accepted ``time_tolerance``: a step 25 % off the median is no longer uniform
+#: sampling (steps 1.5x the median are gaps); irregular logs take ``resample = true``.
+MAX_TIME_TOLERANCE = 0.25
+#: Largest experiment TOML read (bytes): it names files and columns, the data live elsewhere.
+MAX_TOML_BYTES = 1 << 20
 
 
 class _Toml:
@@ -174,6 +179,7 @@ class _Toml:
 
 
 def _load_toml(path: Path, label: str, robot, n_joints) -> Experiment:
+    _refuse_large(path, label)
     data = _read_bytes(path, label)
     try:
         doc = tomllib.loads(data.decode("utf-8-sig"))
@@ -230,6 +236,13 @@ def _load_toml(path: Path, label: str, robot, n_joints) -> Experiment:
             S,
             f"sampling_rate = {opts.sampling_rate:g} Hz is out of range: give the rate in Hz, "
             f"at most {MAX_SAMPLING_RATE:g} (robot controllers log at 100 Hz … 10 kHz).",
+        )
+    if opts.time_tolerance > MAX_TIME_TOLERANCE:
+        raise tk.err(
+            S,
+            f"time_tolerance = {opts.time_tolerance:g} is out of range: it is the allowed relative "
+            f"deviation of a time step from the median, at most {MAX_TIME_TOLERANCE:g} (default "
+            f"{TIME_STEP_TOLERANCE:g}); for irregular time stamps set resample = true instead.",
         )
     if not isinstance(opts.resample, bool):
         raise tk.err(S, f"resample must be true or false, got {opts.resample!r}.")
@@ -536,6 +549,20 @@ def _load_toml(path: Path, label: str, robot, n_joints) -> Experiment:
         shift_where=f"{label}, [reference]",
         robot=robot, cols_of=cols_of,
     )
+
+
+def _refuse_large(path: Path, label: str) -> None:
+    """Refuse an experiment TOML over MAX_TOML_BYTES before reading it (parsing takes ~2x its size)."""
+    try:
+        size = path.stat().st_size
+    except OSError:
+        return                      # the reader says what is wrong
+    if size > MAX_TOML_BYTES:
+        raise DataError(
+            f"{label} is {size / 2**20:.1f} MiB, more than the {MAX_TOML_BYTES // 2**20} MiB an experiment "
+            "TOML may have: it names data files and columns, the samples belong in the data file "
+            "(.csv, .parquet, .npz, .mat) it refers to."
+        )
 
 
 def _read_referenced(p: Path, plabel: str, where: str) -> _RawFile:

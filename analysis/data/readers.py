@@ -9,6 +9,7 @@ the row-numbering convention used in messages. Turning raw columns into signals 
 from __future__ import annotations
 
 import csv
+import math
 import os
 import re
 import stat
@@ -24,6 +25,12 @@ from dynid.errors import DataError
 # --------------------------------------------------------------------------------------
 # Raw file readers
 # --------------------------------------------------------------------------------------
+
+#: Compressed data (npz members, Parquet) may expand at most this many times the file's
+#: size: recorded signals compress 1.5 .. 10x; a zip bomb expands 1000x.
+MAX_EXPANSION = 50
+#: ... unless the expanded data stay below this (small files of constant columns compress well).
+EXPANSION_FREE_BYTES = 64 << 20
 
 
 class _RawFile:
@@ -410,6 +417,7 @@ def _read_parquet(path: Path, label: str) -> _RawFile:
         raise DataError(
             f"{label}: reading Parquet needs pandas and pyarrow: pip install pandas pyarrow"
         ) from None
+    _check_parquet_size(path, label)
     try:
         df = pd.read_parquet(path)
     except ImportError:
@@ -451,6 +459,17 @@ def _read_parquet(path: Path, label: str) -> _RawFile:
     return raw
 
 
+def _check_parquet_size(path: Path, label: str) -> None:
+    """Before loading: the row groups' uncompressed size (from the footer) against the file's."""
+    try:
+        import pyarrow.parquet as pq
+        meta = pq.ParquetFile(path).metadata
+        expanded = sum(meta.row_group(k).total_byte_size for k in range(meta.num_row_groups))
+    except Exception:  # noqa: BLE001 - the reader reports a bad file
+        return
+    _check_expansion(label, expanded, path.stat().st_size, "its columns")
+
+
 def _read_npz(path: Path, label: str) -> _RawFile:
     _check_file(path, label)
     try:
@@ -471,6 +490,7 @@ def _read_npz(path: Path, label: str) -> _RawFile:
             f"files written by numpy.savez{text}. Save the data with "
             "numpy.savez(path, t=..., q=..., tau=...)."
         )
+    _check_npz_sizes(path, label)
     try:
         f = np.load(path, allow_pickle=False)
     except Exception as e:  # noqa: BLE001
@@ -495,6 +515,49 @@ def _read_npz(path: Path, label: str) -> _RawFile:
     if not raw.arrays and not raw.unreadable:
         raise DataError(f"{label} holds no arrays. Save the data with numpy.savez.")
     return raw
+
+
+def _check_expansion(label: str, expanded: int, size: int, what: str) -> None:
+    if expanded > EXPANSION_FREE_BYTES and expanded > MAX_EXPANSION * max(size, 1):
+        raise DataError(
+            f"{label}: {what} expand to {expanded / 2**20:.0f} MiB from a {size / 2**20:.2g} MiB file, "
+            f"more than the {MAX_EXPANSION}x that recorded signals compress to (a zip bomb or a corrupted "
+            "file); it was not loaded. Save the recording uncompressed (numpy.savez) if it is genuine."
+        )
+
+
+def _check_npz_sizes(path: Path, label: str) -> None:
+    """Before loading: each member's declared array size against its stored size, and the
+    archive's expanded size against its file size (np.load allocates what a header declares)."""
+    import zipfile
+    try:
+        zf = zipfile.ZipFile(path)
+    except (zipfile.BadZipFile, OSError, ValueError):
+        return                      # np.load reports the broken archive
+    size = path.stat().st_size
+    with zf:
+        infos = zf.infolist()
+        _check_expansion(label, sum(i.file_size for i in infos), size, "its arrays")
+        for info in infos:
+            if not info.filename.endswith(".npy"):
+                continue
+            try:
+                with zf.open(info) as fh:
+                    version = np.lib.format.read_magic(fh)
+                    read_header = {(1, 0): np.lib.format.read_array_header_1_0,
+                                   (2, 0): np.lib.format.read_array_header_2_0}.get(version)
+                    if read_header is None:
+                        continue
+                    shape, _, dtype = read_header(fh)
+            except Exception:  # noqa: BLE001 - np.load reports a bad member
+                continue
+            declared = dtype.itemsize * math.prod(shape) if dtype.itemsize else 0
+            if declared > info.file_size:
+                raise DataError(
+                    f"{label}: array '{info.filename[:-4]}' declares shape {shape} ({declared / 2**20:.0f} MiB) "
+                    f"but holds {info.file_size / 2**20:.2g} MiB: a corrupted or forged archive; it was not "
+                    "loaded. Save the data again with numpy.savez."
+                )
 
 
 def _read_mat(path: Path, label: str) -> _RawFile:
