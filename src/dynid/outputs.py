@@ -195,7 +195,7 @@ def check_outputs(outputs, inputs=()) -> None:
         path = os.fspath(path)
         if path == "-":
             if "json" not in label:
-                raise InputError(f"{label} -: only the JSON can be written to stdout")
+                raise InputError(f"{label} -: only --json (json=) can be written to stdout")
             continue
         _check_one_output(label, path)
         for what, p in inputs:
