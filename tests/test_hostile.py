@@ -1377,3 +1377,33 @@ def test_g12_resampling_across_a_huge_gap_is_refused(tmp_path, frame):
     run = run_dynid(*identify_args("exp.toml", "--json", "o.json"), cwd=tmp_path, timeout=60)
     assert_input_error(run, "rec.npz", "gap", "Split the recording")
     assert not (tmp_path / "o.json").exists()
+
+
+@pytest.mark.parametrize("args,option", [
+    (("--nd", "10000000000"), "--nd"), (("--nd", "100000000"), "--nd"),
+    (("--method", "didim", "--v-s", "1e-9"), "--v-s"),
+    (("--physical", "--bootstrap", "1000000000"), "--bootstrap")])
+def test_g12_option_far_out_of_range_is_refused_fast(tmp_path, data, args, option):
+    run = run_dynid(*identify_args("in.csv", *args, "--json", "o.json"), cwd=tmp_path, timeout=60)
+    assert_input_error(run, option, "out of range")
+    assert run.elapsed < 30, f"took {run.elapsed:.0f} s to refuse\n{run}"
+    assert not (tmp_path / "o.json").exists()
+
+
+# ---- g13: tracebacks and internal errors ----------------------------------------------------
+@pytest.mark.parametrize("args,option", [
+    (("--physical", "--prior", "apriori", "--prior-weight", "1e300"), "--prior-weight"),
+    (("--method", "didim", "--v-s", "1e-300"), "--v-s")])
+def test_g13_extreme_option_is_an_input_error_not_a_crash(tmp_path, data, args, option):
+    run = run_dynid(*identify_args("in.csv", *args, "--json", "o.json"), cwd=tmp_path, timeout=120)
+    assert_input_error(run, option)
+    assert not (tmp_path / "o.json").exists()
+
+
+def test_g13_python_api_refuses_the_same_ranges():
+    from dynid.errors import InputError
+    from dynid.ranges import check_range
+    for name, bad in (("nd", 10**10), ("n_boot", 10**9), ("v_s", 1e-300), ("prior_weight", 1e300),
+                      ("v_s", float("nan")), ("nd", 2.5)):
+        with pytest.raises(InputError, match="out of range"):
+            check_range(name, bad)

@@ -18,6 +18,7 @@ from scipy import ndimage, signal
 
 from dynid.analysis.processing.decimation import DecimationFilter
 from dynid.errors import InputError
+from dynid.ranges import check_range
 
 #: Samples at each end whose derivatives come from one-sided formulas.
 DIFFERENCE_EDGE = 2
@@ -325,7 +326,7 @@ def default_settings(
                 nd = _nice_below(nd)
     if isinstance(nd, bool) or not isinstance(nd, (int, np.integer)) or nd < 1:
         raise InputError(f"decimation factor nd must be an integer >= 1, got {nd!r}.")
-    nd = int(nd)
+    nd = check_range("nd", nd)      # before the decimation filter is built (its size grows with nd)
 
     if f_decimation_cutoff is None:
         f_decimation_cutoff = 0.8 * fs / (2.0 * nd)
