@@ -419,44 +419,62 @@ def _read_parquet(path: Path, label: str) -> _RawFile:
         ) from None
     _check_parquet_size(path, label)
     try:
-        df = pd.read_parquet(path)
+        names, n_rows = _parquet_layout(path)
+        raw = _RawFile(path, label, "parquet")
+        # one column at a time: the peak is the arrays kept plus one column, not the
+        # Arrow table, the DataFrame and the arrays at once (issue 31: 10x the file)
+        for c, name in enumerate(names):
+            series = pd.read_parquet(path, columns=[name]).iloc[:, 0]
+            _add_parquet_column(raw, label, c, name, series, pd)
     except ImportError:
         raise DataError(
             f"{label}: reading Parquet files needs pyarrow. Install it with "
             "`pip install pyarrow`, or export the data as CSV."
         ) from None
+    except DataError:
+        raise
     except Exception as e:  # noqa: BLE001 - any reader failure is a bad file
         raise DataError(
             f"{label} is not a readable Parquet file ({type(e).__name__}: "
             f"{str(e).splitlines()[0] if str(e) else ''}). Export it again."
         ) from None
-    raw = _RawFile(path, label, "parquet")
-    for c, name in enumerate(df.columns):
-        sname = str(name).strip()
-        s = df.iloc[:, c]
-        if sname == "":
-            raw.notices.append(f"{label}: column {c + 1} has no name; ignored")
-            continue
-        if sname in raw.arrays:
-            raise DataError(
-                f"{label}: the column name '{sname}' appears twice. Rename or delete one "
-                "of them."
-            )
-        if isinstance(s.dtype, pd.DatetimeTZDtype):
-            s = s.dt.tz_convert(None)
-        kind = s.dtype.kind if isinstance(s.dtype, np.dtype) else None
-        if kind in ("M", "m"):
-            raw.arrays[sname] = s.to_numpy()
-        elif pd.api.types.is_numeric_dtype(s.dtype) and not pd.api.types.is_bool_dtype(s.dtype):
-            try:
-                raw.arrays[sname] = s.to_numpy(dtype=float, na_value=np.nan)
-            except (TypeError, ValueError):
-                raw.arrays[sname] = s.to_numpy(dtype=object)
-        else:
-            raw.arrays[sname] = s.to_numpy(dtype=object)
-    if len(df) == 0:
+    if n_rows == 0:
         raise DataError(f"{label} has columns but no rows. Export the recording again.")
     return raw
+
+
+def _parquet_layout(path: Path):
+    """(column names in order, less the pandas index columns as pandas.read_parquet; rows)."""
+    import pyarrow.parquet as pq
+    pf = pq.ParquetFile(path)
+    schema = pf.schema_arrow
+    meta = schema.pandas_metadata or {}
+    index = {c for c in meta.get("index_columns", []) if isinstance(c, str)}
+    return [n for n in schema.names if n not in index], pf.metadata.num_rows
+
+
+def _add_parquet_column(raw: _RawFile, label: str, c: int, name, s, pd) -> None:
+    sname = str(name).strip()
+    if sname == "":
+        raw.notices.append(f"{label}: column {c + 1} has no name; ignored")
+        return
+    if sname in raw.arrays:
+        raise DataError(
+            f"{label}: the column name '{sname}' appears twice. Rename or delete one "
+            "of them."
+        )
+    if isinstance(s.dtype, pd.DatetimeTZDtype):
+        s = s.dt.tz_convert(None)
+    kind = s.dtype.kind if isinstance(s.dtype, np.dtype) else None
+    if kind in ("M", "m"):
+        raw.arrays[sname] = s.to_numpy()
+    elif pd.api.types.is_numeric_dtype(s.dtype) and not pd.api.types.is_bool_dtype(s.dtype):
+        try:
+            raw.arrays[sname] = s.to_numpy(dtype=float, na_value=np.nan)
+        except (TypeError, ValueError):
+            raw.arrays[sname] = s.to_numpy(dtype=object)
+    else:
+        raw.arrays[sname] = s.to_numpy(dtype=object)
 
 
 def _check_parquet_size(path: Path, label: str) -> None:

@@ -39,9 +39,9 @@ RANGES = {
     "v_s": OptionRange("--v-s", "settings['v_s']", 1e-3, 10.0, "rad/s",
                        why="a narrower smoothing makes the simulated friction stiff: the simulation's "
                            "steps shrink without end"),
-    "prior_weight": OptionRange("--prior-weight", "prior_weight", 0.0, 1e6,
-                                why="beyond 1e6 times the data the a-priori term alone decides, and the "
-                                    "SDP solver loses its precision"),
+    "prior_weight": OptionRange("--prior-weight", "prior_weight", 0.0, 1e15,
+                                why="beyond 1e15 the data vanish below double precision beside the "
+                                    "a-priori term and the SDP solver fails"),
 }
 
 
