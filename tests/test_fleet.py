@@ -344,3 +344,11 @@ def test_cli_fleet_bad_catalogue_is_an_input_error(tmp_path, capsys):
     from dynid.reports.cli import main
     rc = main(["fleet", str(tmp_path / "nope.csv"), "--out", str(tmp_path / "store")])
     assert rc == 2 and "nope.csv: fleet catalogue not found" in capsys.readouterr().err
+
+
+def test_store_reads_with_pandas_as_the_docs_say(small_store):
+    """docs/formats.md: the folder names repeat robot_id and day, so a generic reader turns off
+    Hive partitioning discovery (else pyarrow cannot merge the two robot_id types)."""
+    frame = pd.read_parquet(small_store.root, partitioning=None)
+    ours = small_store.read()
+    assert len(frame) == len(ours) and set(frame.columns) == set(ours.columns)

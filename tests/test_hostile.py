@@ -1407,3 +1407,36 @@ def test_g13_python_api_refuses_the_same_ranges():
                       ("v_s", float("nan")), ("nd", 2.5)):
         with pytest.raises(InputError, match="out of range"):
             check_range(name, bad)
+
+
+def test_g13_fleet_scheduler_that_is_not_an_address(tmp_path, recording):
+    fleet_catalogue(tmp_path, recording, n=1)
+    before = fleet_inputs(tmp_path)
+    run = run_dynid("fleet", "cat.csv", "--out", "store", "--scheduler", "not a url", cwd=tmp_path, timeout=60)
+    assert_input_error(run, "--scheduler", "not a url")
+    assert fleet_inputs(tmp_path) == before
+
+
+def test_g13_fleet_store_under_a_file(tmp_path, recording):
+    fleet_catalogue(tmp_path, recording, n=1)
+    (tmp_path / "afile").write_text("x")
+    before = fleet_inputs(tmp_path)
+    run = run_dynid("fleet", "cat.csv", "--out", "afile/store", cwd=tmp_path, timeout=60)
+    assert_input_error(run, "--out", "afile/store", "cannot be written")
+    assert fleet_inputs(tmp_path) == before
+
+
+def test_g13_fleet_store_on_a_read_only_file_system(tmp_path, recording):
+    """A read-only mount (root, a private mount namespace): one message, no Dask traceback."""
+    if not _unshare_available() or subprocess.run(["unshare", "-m", "true"], capture_output=True).returncode:
+        pytest.skip("unshare -m is not available")
+    fleet_catalogue(tmp_path, recording, n=1)
+    (tmp_path / "ro").mkdir()
+    before = fleet_inputs(tmp_path)
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    cmd = 'mount --bind -o ro ro ro && exec "$0" -c "$1" fleet cat.csv --out ro/store'
+    res = subprocess.run(["unshare", "-m", "sh", "-c", cmd, sys.executable, DYNID_CODE], cwd=tmp_path, env=env,
+                         capture_output=True, text=True, timeout=120)
+    assert res.returncode == 2, res.stderr
+    assert "Traceback" not in res.stderr and "ro/store" in res.stderr and "Read-only" in res.stderr, res.stderr
+    assert fleet_inputs(tmp_path) == before

@@ -153,6 +153,9 @@ def start_client(scheduler=None, workers=None):
         except OSError as exc:
             raise InputError(f"cannot reach the Dask scheduler at {scheduler} ({exc}); start one with "
                              f"`dask scheduler` or leave --scheduler out for a local cluster") from None
+        except (ValueError, TypeError) as exc:      # not an address at all
+            raise InputError(f"--scheduler (scheduler=) {scheduler!r} is not a Dask scheduler address ({exc}); "
+                             f"give one such as tcp://host:8786, or leave it out for a local cluster") from None
     n = int(workers or os.cpu_count() or 1)
     if n < 1:
         raise InputError(f"--workers must be at least 1, got {workers}")
@@ -209,6 +212,7 @@ def identify_fleet(catalogue, store, *, scheduler=None, workers=None, client=Non
     own = None
     n_workers = 0
     if todo:
+        store.check_writable()          # before the cluster starts: the workers write into it
         created = client is None
         if created:
             client, own = start_client(scheduler, workers)
