@@ -1440,3 +1440,16 @@ def test_g13_fleet_store_on_a_read_only_file_system(tmp_path, recording):
     assert res.returncode == 2, res.stderr
     assert "Traceback" not in res.stderr and "ro/store" in res.stderr and "Read-only" in res.stderr, res.stderr
     assert fleet_inputs(tmp_path) == before
+
+
+# ---- g14: advice the user can follow from where they are -----------------------------------
+def test_g14_motionless_recording_gives_command_line_advice(tmp_path, frame):
+    frame[["q1", "q2"]] = 0.1                     # no motion: the bandwidth cannot be estimated
+    frame = frame.drop(columns=["qr1", "qr2"])
+    write_csv(tmp_path / "in.csv", frame)
+    run = run_dynid(*identify_args("in.csv", "--json", "o.json"), cwd=tmp_path)
+    if run.rc == 2 and "bandwidth" in run.err:
+        assert_input_error(run, "bandwidth", "command line")
+    else:                                        # refused earlier (no motion at all): still clean
+        assert_input_error(run, "in.csv|q1|motion|move")
+    assert not (tmp_path / "o.json").exists()

@@ -218,8 +218,10 @@ def estimate_bandwidth(q, fs, energy=0.99) -> float:
     if not moving.any():
         raise InputError(
             "no joint moves clearly above the measurement noise, so the motion "
-            "bandwidth cannot be estimated; check the position columns or give the "
-            "bandwidth explicitly (default_settings(..., bandwidth=...))."
+            "bandwidth cannot be estimated: check that the position columns hold the motion "
+            "(the right columns, in rad) and that the recording covers it (several periods of "
+            "the excitation). In Python the settings key 'bandwidth' (Hz) gives it; the command "
+            "line has no option for it."
         )
     reached = cumulative[:, moving] >= energy * total[moving]
     return float(f[np.argmax(reached, axis=0)].max())
