@@ -283,23 +283,41 @@ def _read_csv_precise(path: Path, label: str) -> _RawFile:
     """Python's csv module and one text cell per value; every malformed-input message
     (file, line, data row, column) comes from here. Slow and memory-hungry (a Python
     string per cell), so used only when :func:`_read_csv_fast` declines the file."""
-    data = _read_bytes(path, label)
+    text = _csv_text(_read_bytes(path, label), label)
+    raw = _RawFile(path, label, "csv")
+    header, header_line, rows, line_of_row, blank = _csv_rows(text, label)
+    _check_csv_header(header, header_line, label)
+    _blank_line_notice(raw, blank, line_of_row, label)
+    if not rows:
+        raise DataError(
+            f"{label} has a header line but no data rows. Export the recording again."
+        )
+    _check_csv_widths(rows, header, line_of_row, label)
+    raw.line_of_row = line_of_row
+    _add_csv_columns(raw, header, header_line, list(zip(*rows, strict=True)), label)
+    return raw
+
+
+def _csv_text(data: bytes, label: str) -> str:
+    """The file's text: no NUL bytes, UTF-8 (a BOM dropped)."""
     if b"\0" in data:
         raise DataError(
             f"{label} is not a text file (it contains NUL bytes). Export the data as a "
             "comma-separated text file, or use the matching extension (.parquet, .npz, .mat)."
         )
     try:
-        text = data.decode("utf-8-sig")
+        return data.decode("utf-8-sig")
     except UnicodeDecodeError as e:
         line = data[: e.start].count(b"\n") + 1
         raise DataError(
             f"{label}: line {line} is not valid UTF-8 text (byte {e.start}). "
             "Save the file as UTF-8 CSV."
         ) from None
-    raw = _RawFile(path, label, "csv")
-    lines = re.split(r"\r\n|\r|\n", text)
-    reader = csv.reader(lines)
+
+
+def _csv_rows(text: str, label: str):
+    """(header, its line, data rows, the line of each row, blank lines after the header)."""
+    reader = csv.reader(re.split(r"\r\n|\r|\n", text))
     header: list[str] | None = None
     header_line = 0
     rows: list[list[str]] = []
@@ -329,6 +347,11 @@ def _read_csv_precise(path: Path, label: str) -> _RawFile:
         raise DataError(f"{label} is empty. Export the recording again.")
     while header and header[-1] == "":
         header.pop()
+    return header, header_line, rows, line_of_row, blank
+
+
+def _check_csv_header(header: list[str], header_line: int, label: str) -> None:
+    """The first line names columns, separated by commas."""
     if not header:
         raise DataError(
             f"{label}, file line {header_line}: the header line has no column names. "
@@ -348,24 +371,25 @@ def _read_csv_precise(path: Path, label: str) -> _RawFile:
             "names. Add a header line naming the columns (t, q1..qn, tau1..taun; "
             f"{_CONVENTION}), or describe the file in an experiment TOML."
         )
+
+
+def _blank_line_notice(raw: _RawFile, blank: list[int], line_of_row: list[int], label: str) -> None:
     # blank lines at the very end are normal; others are reported
-    if blank and rows:
-        last = line_of_row[-1]
-        inner = [b for b in blank if b < last]
+    if blank and line_of_row:
+        inner = [b for b in blank if b < line_of_row[-1]]
         if inner:
             raw.notices.append(
                 f"{label}: skipped {len(inner)} blank line(s) among the data (file line(s) "
                 f"{_short_list(inner)})"
             )
-    if not rows:
-        raise DataError(
-            f"{label} has a header line but no data rows. Export the recording again."
-        )
+
+
+def _check_csv_widths(rows: list[list[str]], header: list[str], line_of_row: list[int], label: str) -> None:
+    """Every row as wide as the header (empty trailing cells dropped)."""
     h = len(header)
     for k, row in enumerate(rows):
         if len(row) > h:
-            extra = row[h:]
-            if all(not c.strip() for c in extra):
+            if all(not c.strip() for c in row[h:]):
                 del row[h:]
             else:
                 raise DataError(
@@ -379,8 +403,9 @@ def _read_csv_precise(path: Path, label: str) -> _RawFile:
                 f"names {h} columns: the row is truncated (column '{header[len(row)]}' and "
                 "after are missing). Complete or delete that line."
             )
-    raw.line_of_row = line_of_row
-    columns = list(zip(*rows, strict=True))
+
+
+def _add_csv_columns(raw: _RawFile, header: list[str], header_line: int, columns, label: str) -> None:
     first_pos: dict[str, int] = {}
     for c, name in enumerate(header):
         if name == "":
@@ -394,7 +419,6 @@ def _read_csv_precise(path: Path, label: str) -> _RawFile:
             )
         first_pos[name] = c
         raw.arrays[name] = np.array(columns[c], dtype=object)
-    return raw
 
 
 def _csv_row(line_of_row: list[int], k: int) -> str:
