@@ -132,7 +132,7 @@ def _check_tau_too_small(tau, robot, w) -> None:
     if not ratios or tau.shape[0] < 10:
         return
     top, j, tmax = max(ratios)
-    if top < TAU_SMALL_FACTOR:
+    if 0 < top < TAU_SMALL_FACTOR:      # (all zero: a dead channel, reported as such later)
         p99 = top * tmax
         raise DataError(
             f"{w.name('tau', j)}: the largest joint torque, tau{j + 1}, reaches only {_g(p99)} N·m (99th "

@@ -132,8 +132,12 @@ def _resample(t: np.ndarray, signals: dict[str, np.ndarray], notices: list[str],
     grid = t[0] + med * np.arange(k + 1)
     grid = grid[grid <= t[-1]]
     out = {}
-    for s, a in signals.items():
-        out[s] = np.column_stack([np.interp(grid, t, a[:, j]) for j in range(a.shape[1])])
+    for s in list(signals):
+        a = signals.pop(s)          # the caller's copy goes as its resampled one is made
+        out[s] = np.empty((grid.size, a.shape[1]))
+        for j in range(a.shape[1]):
+            out[s][:, j] = np.interp(grid, t, a[:, j])
+        del a
     notices.append(
         f"resampled {t.size} samples with irregular time steps onto a uniform grid of "
         f"{grid.size} samples at the median step {_fmt(med * 1e3)} ms "
