@@ -111,6 +111,26 @@ class _Col:
         return int(self.data.shape[0])
 
 
+_RELEASED = np.empty(0)
+
+
+def _release(raws, cols) -> None:
+    """Drop the raw arrays once the signals are stacked: messages after that need only the
+    columns' names and row numbers, and the raw copy would be a third of the peak memory."""
+    for raw in raws:
+        raw.arrays = dict.fromkeys(raw.arrays, _RELEASED)
+    for c in cols:
+        if c is not None:
+            c.data = _RELEASED
+
+
+def _release_columns(raw, cols) -> None:
+    for c in cols:
+        if c.name in raw.arrays:
+            raw.arrays[c.name] = _RELEASED
+        c.data = _RELEASED
+
+
 def _cell(v) -> float:
     if isinstance(v, str):
         s = v.strip()
@@ -564,8 +584,11 @@ def _from_columns(raw: _RawFile, robot, n_joints, opts: _Options, source: str,
     t, values = _column_values(tcol, used, robot, notices)
     signals, cols_of = {}, {}
     for s, idx in present.items():
+        stem_cols = [cols[by_stem[s][k]] for k in idx]
         signals[s] = np.column_stack([values.pop((s, k)) for k in idx])
-        cols_of["tau" if s == "i" else s] = [cols[by_stem[s][k]] for k in idx]
+        cols_of["tau" if s == "i" else s] = stem_cols
+        _release_columns(raw, stem_cols)       # signal by signal: the peak holds one raw copy less
+    _release([raw], cols.values())
     if "tau" not in signals:
         g, origin = _drive_gains(robot, n, raw.label)
         signals["tau"] = signals.pop("i") * g

@@ -82,6 +82,7 @@ from dynid.analysis.data.columns import (
     _Col,
     _drive_gains,
     _from_columns,
+    _release,
     _robot_joints,
     _time_values,
     _to_float,
@@ -316,6 +317,7 @@ class _Description:
                 self._gains(s, table, values, n)
         self._transmission(tables, sections, sides, values, n)
         self._unused_notice()
+        _release(self.raws.values(), [time_col] + [c for cols in section_cols.values() for c in cols])
         signals = {_SECTIONS[s]: v for s, v in values.items()}
         if "i" in signals:
             signals["tau"] = signals.pop("i")

@@ -450,6 +450,8 @@ def _read_parquet(path: Path, label: str) -> _RawFile:
         for c, name in enumerate(names):
             series = pd.read_parquet(path, columns=[name]).iloc[:, 0]
             _add_parquet_column(raw, label, c, name, series, pd)
+            del series
+            _release_arrow_memory()
     except ImportError:
         raise DataError(
             f"{label}: reading Parquet files needs pyarrow. Install it with "
@@ -465,6 +467,16 @@ def _read_parquet(path: Path, label: str) -> _RawFile:
     if n_rows == 0:
         raise DataError(f"{label} has columns but no rows. Export the recording again.")
     return raw
+
+
+def _release_arrow_memory() -> None:
+    # Arrow's allocator (mimalloc, jemalloc) keeps freed buffers for reuse: hand them back,
+    # or each column read leaves its decoded copy in the process's memory
+    try:
+        import pyarrow as pa
+        pa.default_memory_pool().release_unused()
+    except (ImportError, AttributeError):
+        pass
 
 
 def _parquet_layout(path: Path):
