@@ -506,7 +506,9 @@ def _add_parquet_column(raw: _RawFile, label: str, c: int, name, s, pd) -> None:
         raw.arrays[sname] = s.to_numpy()
     elif pd.api.types.is_numeric_dtype(s.dtype) and not pd.api.types.is_bool_dtype(s.dtype):
         try:
-            raw.arrays[sname] = s.to_numpy(dtype=float, na_value=np.nan)
+            # a copy of numpy's own: the Arrow buffer under the Series is freed now, not held
+            # (and counted) until the whole recording is assembled
+            raw.arrays[sname] = np.array(s.to_numpy(dtype=float, na_value=np.nan), dtype=float, copy=True)
         except (TypeError, ValueError):
             raw.arrays[sname] = s.to_numpy(dtype=object)
     else:
