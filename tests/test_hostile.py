@@ -31,6 +31,22 @@ Groups (test names start with the group's prefix):
 8. ``test_g8_*`` messages that point the wrong way.
 9. ``test_g9_*`` terminal escape sequences in names.
 
+Issue 31 (the fleet and the newer options):
+
+10. ``test_g10_*`` data loss: a fleet output onto its catalogue, a recording or a robot
+    file (directly, through a symlink, a hard link or ``..``), from the CLI and Python;
+    ``--json ""``, ``--json x.json/``, a closed stdout; the all-or-none commit with a
+    second writer in another PID namespace (``unshare``; skipped where unavailable).
+11. ``test_g11_*`` silently wrong values: fleet duplicates (symlink, byte-identical copy),
+    monitoring options and temperatures out of range, failed recordings that must fail
+    the run, torques in kN·m, ``time_tolerance = 1e9``.
+12. ``test_g12_*`` hangs and memory: FIFO and /dev/zero catalogue entries, an oversized
+    TOML, an npz zip bomb and a forged npz shape, resampling across a huge gap, ``--nd``,
+    ``--v-s`` and ``--bootstrap`` far out of range.
+13. ``test_g13_*`` internal errors: ``--prior-weight 1e300``, ``--v-s 1e-300``, a
+    scheduler that is not an address, an unwritable or read-only store.
+14. ``test_g14_*`` advice the user can follow from the command line.
+
 ``pytest -m "not slow"`` leaves out the cases over 20 s. The CLI is run in one place, :func:`run_dynid` (subprocess), and imported in one
 place, :func:`dynid_main` (in-process, group 3 and NUL-byte paths): when the package
 moves to ``dynid.reports.cli`` only ``DYNID_MODULE`` changes.
@@ -1275,12 +1291,13 @@ def test_g11_fleet_failed_recordings_fail_the_run(tmp_path, recording):
     fleet_catalogue(tmp_path, recording, robot="panda")          # 7 joints: the 2-joint data cannot fit
     before = fleet_inputs(tmp_path)
     run = run_dynid("fleet", "cat.csv", "--out", "store", "--workers", "1", "--json", "f.json",
-                    cwd=tmp_path, timeout=180)
+                    "--report", "f.html", cwd=tmp_path, timeout=180)
     assert_input_error(run, "2 of 2 recordings could not be identified", "0 identified", "not monitored")
     after = fleet_inputs(tmp_path)
     assert {p: after.get(p) for p in before} == before, "an input changed"
     doc = json.loads((tmp_path / "f.json").read_text())
     assert doc["n_failed"] == 2 and doc["n_identified"] == 0
+    assert "Recordings that failed" in (tmp_path / "f.html").read_text()
 
 
 def test_g11_torques_in_kNm(tmp_path, frame):
