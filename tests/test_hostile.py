@@ -1470,3 +1470,11 @@ def test_g14_motionless_recording_gives_command_line_advice(tmp_path, frame):
     else:                                        # refused earlier (no motion at all): still clean
         assert_input_error(run, "in.csv|q1|motion|move")
     assert not (tmp_path / "o.json").exists()
+
+
+def test_g10_fleet_json_to_closed_stdout_is_refused_first(tmp_path, recording):
+    fleet_catalogue(tmp_path, recording, n=1)
+    before = fleet_inputs(tmp_path)
+    run = run_dynid("fleet", "cat.csv", "--out", "store", "--json", "-", cwd=tmp_path, close_stdout=True,
+                    timeout=60)
+    assert_fleet_refused(run, before, tmp_path, "--json", "stdout")
