@@ -1478,3 +1478,31 @@ def test_g10_fleet_json_to_closed_stdout_is_refused_first(tmp_path, recording):
     run = run_dynid("fleet", "cat.csv", "--out", "store", "--json", "-", cwd=tmp_path, close_stdout=True,
                     timeout=60)
     assert_fleet_refused(run, before, tmp_path, "--json", "stdout")
+
+
+def test_g11_python_fleet_options_refused_before_work(tmp_path, recording):
+    import dynid.fleet
+    from dynid.errors import InputError
+    cat = fleet_catalogue(tmp_path, recording)
+    before = fleet_inputs(tmp_path)
+    for kwargs, name in (({"false_alarm_rate": 0}, "false_alarm_rate"), ({"n_baseline": 0}, "n_baseline"),
+                         ({"n_baseline": 10**9}, "n_baseline"), ({"parameters": "Fv"}, "parameters")):
+        with pytest.raises(InputError, match=name):
+            dynid.fleet.run(cat, tmp_path / "store", **kwargs)
+    assert fleet_inputs(tmp_path) == before and not (tmp_path / "store").exists()
+
+
+def test_g10_check_outputs_sees_hard_links_and_dotdot(tmp_path):
+    from dynid.errors import InputError
+    from dynid.outputs import check_outputs
+    src = tmp_path / "in.csv"
+    src.write_text("t\n0\n")
+    (tmp_path / "d").mkdir()
+    os.link(src, tmp_path / "d" / "hard.json")
+    for out in (tmp_path / "d" / "hard.json", tmp_path / "d" / ".." / "in.csv"):
+        with pytest.raises(InputError, match="in.csv"):
+            check_outputs([("--json", out)], [("the data file", src)])
+    with pytest.raises(InputError, match="same file"):
+        check_outputs([("--json", tmp_path / "a.json"), ("--report", tmp_path / "d" / ".." / "a.json")])
+    check_outputs([("--json", tmp_path / "new.json")], [("the data file", src)])     # a fresh name passes
+    assert src.read_text() == "t\n0\n"
