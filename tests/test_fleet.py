@@ -352,3 +352,17 @@ def test_store_reads_with_pandas_as_the_docs_say(small_store):
     frame = pd.read_parquet(small_store.root, partitioning=None)
     ours = small_store.read()
     assert len(frame) == len(ours) and set(frame.columns) == set(ours.columns)
+
+
+def test_monitor_unknown_parameter_or_nothing_identified_is_an_input_error_not_a_crash():
+    """Issue 31: these raised a TypeError from inside pandas."""
+    frame = _synthetic_store(np.random.default_rng(1), n_robots=3, n_days=12)
+    with pytest.raises(InputError, match=r"--parameters.*Xx is not a base parameter.*Fv1, Fv2"):
+        health.monitor(frame, ["Xx"])
+    with pytest.raises(InputError, match=r"Fv9 is not a base parameter"):
+        health.monitor(frame, ["Fv", "Fv9"])
+    failed = frame.assign(status="error", parameter="")
+    h = health.monitor(failed)
+    assert h.alarms == [] and h.n_monitored == 0 and "no recording was identified" in h.status_line()
+    h = health.monitor(frame, n_baseline=12)          # every robot's history is its baseline
+    assert h.n_monitored == 0 and "not monitored" in h.status_line() and "--baseline" in h.status_line()

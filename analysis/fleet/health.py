@@ -294,7 +294,9 @@ def monitor(frame: pd.DataFrame, parameters=DEFAULT_PARAMETERS, *, false_alarm_r
     if unknown and (len(unknown) == len(parameters) or any(re.search(r"\d$", str(p)) for p in unknown)):
         raise InputError(f"parameters (--parameters, parameters=): {', '.join(map(str, unknown))} is not a base "
                          f"parameter of the identified recordings; they have {', '.join(names)}")
-    settings["n_identified"] = int(frame.loc[frame["status"] == "ok", "key"].nunique()) if "key" in frame else 0
+    ok_rows = frame[frame["status"] == "ok"]
+    by = next((c for c in ("key", "recording") if c in frame), None)
+    settings["n_identified"] = int(ok_rows[by].nunique()) if by else len(ok_rows)
     if hist.empty:              # every recording failed: nothing to watch
         settings["n_monitored"] = 0
         return FleetHealth(history=_empty_history(hist), alarms=[], temperature_coefficients={}, threshold=h,
