@@ -1,7 +1,10 @@
 """Writing outputs so that no run leaves a half-written file or loses one.
 
 Every file dynid writes goes through :func:`write_all` (several files, all or
-none) or :func:`atomic_write_text` / :func:`atomic_open` (one file):
+none) or :func:`atomic_write_text` / :func:`atomic_open` (one file), after
+`check_outputs` has refused, before any work, an output that is one of the run's
+inputs (the same file through a symlink, a hard link or `..`), two outputs on one
+file, an empty name or one ending in '/':
 
 * each file is first written to a temporary file in its target's folder, then
   renamed over the target (an atomic rename on POSIX);
@@ -26,7 +29,6 @@ from __future__ import annotations
 
 import contextlib
 import errno
-import fcntl
 import os
 import re
 import secrets
@@ -39,6 +41,11 @@ from collections.abc import Iterator
 from typing import IO
 
 from dynid.errors import InputError, OutputError
+
+try:
+    import fcntl
+except ImportError:             # not POSIX: no advisory locks, so nothing is ever proven abandoned
+    fcntl = None
 
 __all__ = ["write_all", "atomic_open", "atomic_write_text", "atomic_write_bytes", "resolve_target",
            "check_outputs", "same_file"]
@@ -70,7 +77,8 @@ class _Lease:
             reason = "the disk is full" if exc.errno == errno.ENOSPC else (exc.strerror or str(exc))
             raise OutputError(f"cannot write in the folder {folder}: {reason}") from None
         try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            if fcntl is not None:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:             # no locks on this file system: nothing of ours can be proven abandoned
             pass
         # published locked: another process never sees this lease's lock file unlocked
@@ -106,6 +114,8 @@ def _leases(folders):
 
 def _abandoned(lock_path: str) -> bool:
     """Whether the writer of a lease is gone: its lock can be taken (then released again)."""
+    if fcntl is None:
+        return False
     try:
         fd = os.open(lock_path, os.O_RDONLY)
     except OSError:
