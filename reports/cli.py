@@ -181,15 +181,10 @@ def cmd_demo(args, say):
 
 
 def cmd_fleet(args, say):
-    """dynid fleet CATALOGUE --out STORE: identify on Dask, store, monitor, report.
-
-    The steps of dynid.fleet.run, called here from their own modules: the command line does
-    not import the top-level dynid.fleet, which imports the reports layer (no import circle).
-    """
-    from dynid.analysis.fleet.engine import identify_fleet  # Dask (dynid[fleet]) on first use
-    from dynid.analysis.fleet.health import DEFAULT_BASELINE, DEFAULT_FALSE_ALARM_RATE, monitor
-    from dynid.analysis.fleet.store import ResultStore
-    from dynid.reports.fleet_report import fleet_json, write_fleet_outputs
+    """dynid fleet CATALOGUE --out STORE: identify on Dask, store, monitor, report (dynid.fleet.run)."""
+    from dynid.analysis.fleet.health import DEFAULT_BASELINE, DEFAULT_FALSE_ALARM_RATE
+    from dynid.reports import fleet_run  # Dask (dynid[fleet]) on first use
+    from dynid.reports.fleet_report import fleet_json
     if args.workers is not None and args.workers < 1:
         raise InputError(f"--workers must be at least 1, got {args.workers}")
     if os.path.exists(args.store) and not os.path.isdir(args.store):
@@ -200,25 +195,27 @@ def cmd_fleet(args, say):
     say(f"fleet: {args.catalogue} -> {args.store}"
         + (f" on {args.scheduler}" if args.scheduler else f" on a local cluster of {args.workers or os.cpu_count()} workers"))
     with say.progress("identifying") as bar:
-        run = identify_fleet(args.catalogue, args.store, scheduler=args.scheduler, workers=args.workers,
-                             diagnose=args.diagnose, progress=lambda done, total: bar.update(done / total))
-    frame = ResultStore(args.store).read()
-    run = dataclasses.replace(run, health=monitor(frame, params, false_alarm_rate=args.false_alarm_rate or DEFAULT_FALSE_ALARM_RATE,
-                         n_baseline=args.baseline or DEFAULT_BASELINE))
-    json_path = None if args.json in (None, "-") else args.json
-    if args.report is not None or json_path is not None:
-        write_fleet_outputs(run, frame, html=args.report, json_path=json_path)
-    say(f"{run.n_recordings} recordings: {run.n_computed} identified, {run.n_skipped} already in the store, "
-        f"{len(run.errors)} failed ({run.wall_seconds:.1f} s)")
+        run = fleet_run.run(args.catalogue, args.store, scheduler=args.scheduler, workers=args.workers,
+                            diagnose=args.diagnose, parameters=params,
+                            false_alarm_rate=DEFAULT_FALSE_ALARM_RATE if args.false_alarm_rate is None
+                            else args.false_alarm_rate,
+                            n_baseline=DEFAULT_BASELINE if args.baseline is None else args.baseline,
+                            report=args.report, json=None if args.json in (None, "-") else args.json,
+                            progress=lambda done, total: bar.update(done / total))
+    say(run.summary_line())
     for rid, path, msg in run.errors:
         say(f"  failed: {rid} {path}: {msg}")
     for a in run.health.alarms:
         say(f"  ALARM {a.robot_id} joint {a.joint} {a.parameter}: {a.direction} of {100 * a.rel_size:+.1f} % "
             f"since {a.onset_day} (alarm {a.alarm_day})")
     if not run.health.alarms:
-        say("  no alarm")
+        say("  " + run.health.status_line())
     if args.json == "-":
-        print(json.dumps(fleet_json(run, ResultStore(args.store).read(), run.health), indent=1))
+        print(json.dumps(fleet_json(run, fleet_run.read_store(args.store), run.health), indent=1))
+    if run.errors:              # the rest is stored and reported, but the run is not a success
+        print(f"dynid fleet: error: {run.n_failed} of {run.n_computed} recordings could not be identified "
+              f"(listed above and in the store); fix or remove them from the catalogue", file=sys.stderr)
+        return EXIT_INPUT
     return EXIT_OK
 
 

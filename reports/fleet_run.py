@@ -9,9 +9,11 @@ from __future__ import annotations
 
 import os
 
+from dynid.analysis.fleet.catalogue import input_files
 from dynid.analysis.fleet.engine import FleetRun, identify_fleet
-from dynid.analysis.fleet.health import DEFAULT_BASELINE, DEFAULT_FALSE_ALARM_RATE, monitor
+from dynid.analysis.fleet.health import DEFAULT_BASELINE, DEFAULT_FALSE_ALARM_RATE, check_monitor_options, monitor
 from dynid.analysis.fleet.store import ResultStore
+from dynid.outputs import check_outputs
 
 __all__ = ["run", "read_store"]
 
@@ -33,7 +35,13 @@ def run(catalogue, store, *, scheduler: str | None = None, workers: int | None =
     ``client`` (a ``distributed.Client``) is used. ``parameters``: the base parameters to
     monitor, by family (``Fv`` = every joint's) or by name (``Fv2``). ``report``/``json``:
     write the fleet report. Returns the :class:`FleetRun`, its ``health`` the alarms.
+
+    Before any work: the monitoring options are range-checked, and no output may be
+    an input (the catalogue, a recording, a robot file; through links or `..` too).
     """
+    check_monitor_options(parameters, false_alarm_rate, n_baseline)
+    if report is not None or json is not None:
+        check_outputs([("report", report), ("json", json)], input_files(catalogue))
     result = identify_fleet(catalogue, store, scheduler=scheduler, workers=workers, client=client,
                             settings=settings, diagnose=diagnose, progress=progress)
     frame = ResultStore(store).read()

@@ -8,7 +8,7 @@ import sys
 import tomllib
 
 from dynid.errors import InputError
-from dynid.outputs import write_all
+from dynid.outputs import check_outputs, write_all
 from dynid.reports.progress import clean_text
 
 EXIT_OK, EXIT_INPUT = 0, 2
@@ -100,47 +100,9 @@ def check_input_paths(args):
 
 def check_output_paths(args):
     """Before any computation: every output's folder exists and is writable; '-' only for --json;
-    no output is an input or another output; names are valid file names."""
+    no output is an input or another output; names are valid file names (dynid.outputs.check_outputs)."""
     check_input_paths(args)
-    inputs = _input_files(args)
-    seen = []
-    for opt in OUTPUT_OPTIONS:
-        path = getattr(args, opt, None)
-        if not path:
-            continue
-        if path == "-":
-            if opt != "json":
-                raise InputError(f"--{opt} -: only --json can be written to stdout")
-            continue
-        if "\0" in path:
-            raise InputError(f"--{opt} {path!r}: the name contains a NUL byte, which no file name can; "
-                             f"give --{opt} a plain file name")
-        folder = os.path.dirname(os.path.abspath(path)) or "."
-        name = os.path.basename(os.path.abspath(path))
-        try:
-            name_max = os.pathconf(folder, "PC_NAME_MAX")
-        except (OSError, ValueError):
-            name_max = NAME_MAX
-        if len(os.fsencode(name)) > name_max:
-            raise InputError(f"--{opt} {name[:40]}...: the file name is {len(os.fsencode(name))} bytes "
-                             f"long, more than the {name_max} the file system allows; give --{opt} a "
-                             f"shorter name")
-        if not os.path.isdir(folder):
-            raise InputError(f"--{opt} {path}: the folder {folder} does not exist")
-        if not os.access(folder, os.W_OK):
-            raise InputError(f"--{opt} {path}: the folder {folder} is not writable")
-        if os.path.isdir(path):
-            raise InputError(f"--{opt} {path} is a folder; give a file name")
-        for what, p in inputs:
-            if "\0" not in p and os.path.exists(p) and _same_file(path, p):
-                how = "" if os.path.abspath(path) == os.path.abspath(p) else " (through a link)"
-                raise InputError(f"--{opt} {path} is {what} {p}{how}: writing it would destroy the "
-                                 f"input; give --{opt} another path")
-        for other, q in seen:
-            if _same_file(path, q):
-                raise InputError(f"--{other} {q} and --{opt} {path} are the same file: one would "
-                                 f"overwrite the other; give each its own path")
-        seen.append((opt, path))
+    check_outputs([(f"--{opt}", getattr(args, opt, None)) for opt in OUTPUT_OPTIONS], _input_files(args))
     _check_stdout(args)
 
 

@@ -304,8 +304,10 @@ def test_scheduler_address_cli_and_api_give_the_serial_results(small_fleet, smal
     clients = len(tcp_cluster.scheduler.clients)
     rc = main(["fleet", catalogue, "--out", str(tmp_path / "cli"), "--scheduler", address, "--baseline", "3"])
     err = capsys.readouterr().err
-    assert rc == 0, err
-    assert f"on {address}" in err and "3 recordings: 3 identified, 0 already in the store, 1 failed" in err
+    # issue 31: a failed recording is counted as failed, not identified, and the run exits 2 (the rest is stored)
+    assert rc == 2, err
+    assert f"on {address}" in err and "3 recordings: 2 identified, 0 already in the store, 1 failed" in err
+    assert "1 of 3 recordings could not be identified" in err
     api = run(catalogue, tmp_path / "api", scheduler=address, n_baseline=3)
     assert (api.n_computed, api.workers, len(api.errors)) == (3, 1, 1)
     # the tasks ran on that scheduler (under the engine's keys), and its clients were closed after
@@ -344,3 +346,25 @@ def test_cli_fleet_bad_catalogue_is_an_input_error(tmp_path, capsys):
     from dynid.reports.cli import main
     rc = main(["fleet", str(tmp_path / "nope.csv"), "--out", str(tmp_path / "store")])
     assert rc == 2 and "nope.csv: fleet catalogue not found" in capsys.readouterr().err
+
+
+def test_store_reads_with_pandas_as_the_docs_say(small_store):
+    """docs/formats.md: the folder names repeat robot_id and day, so a generic reader turns off
+    Hive partitioning discovery (else pyarrow cannot merge the two robot_id types)."""
+    frame = pd.read_parquet(small_store.root, partitioning=None)
+    ours = small_store.read()
+    assert len(frame) == len(ours) and set(frame.columns) == set(ours.columns)
+
+
+def test_monitor_unknown_parameter_or_nothing_identified_is_an_input_error_not_a_crash():
+    """Issue 31: these raised a TypeError from inside pandas."""
+    frame = _synthetic_store(np.random.default_rng(1), n_robots=3, n_days=12)
+    with pytest.raises(InputError, match=r"--parameters.*Xx is not a base parameter.*Fv1, Fv2"):
+        health.monitor(frame, ["Xx"])
+    with pytest.raises(InputError, match=r"Fv9 is not a base parameter"):
+        health.monitor(frame, ["Fv", "Fv9"])
+    failed = frame.assign(status="error", parameter="")
+    h = health.monitor(failed)
+    assert h.alarms == [] and h.n_monitored == 0 and "no recording was identified" in h.status_line()
+    h = health.monitor(frame, n_baseline=12)          # every robot's history is its baseline
+    assert h.n_monitored == 0 and "not monitored" in h.status_line() and "--baseline" in h.status_line()

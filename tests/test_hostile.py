@@ -31,6 +31,22 @@ Groups (test names start with the group's prefix):
 8. ``test_g8_*`` messages that point the wrong way.
 9. ``test_g9_*`` terminal escape sequences in names.
 
+Issue 31 (the fleet and the newer options):
+
+10. ``test_g10_*`` data loss: a fleet output onto its catalogue, a recording or a robot
+    file (directly, through a symlink, a hard link or ``..``), from the CLI and Python;
+    ``--json ""``, ``--json x.json/``, a closed stdout; the all-or-none commit with a
+    second writer in another PID namespace (``unshare``; skipped where unavailable).
+11. ``test_g11_*`` silently wrong values: fleet duplicates (symlink, byte-identical copy),
+    monitoring options and temperatures out of range, failed recordings that must fail
+    the run, torques in kN·m, ``time_tolerance = 1e9``.
+12. ``test_g12_*`` hangs and memory: FIFO and /dev/zero catalogue entries, an oversized
+    TOML, an npz zip bomb and a forged npz shape, resampling across a huge gap, ``--nd``,
+    ``--v-s`` and ``--bootstrap`` far out of range.
+13. ``test_g13_*`` internal errors: ``--prior-weight 1e300``, ``--v-s 1e-300``, a
+    scheduler that is not an address, an unwritable or read-only store.
+14. ``test_g14_*`` advice the user can follow from the command line.
+
 ``pytest -m "not slow"`` leaves out the cases over 20 s. The CLI is run in one place, :func:`run_dynid` (subprocess), and imported in one
 place, :func:`dynid_main` (in-process, group 3 and NUL-byte paths): when the package
 moves to ``dynid.reports.cli`` only ``DYNID_MODULE`` changes.
@@ -92,10 +108,12 @@ class Run:
 
 
 OUTPUT_FLAGS = {"--json", "--report", "--csv", "--out", "--urdf", "--mjcf"}
-#: dynid's temporary files beside the target (dynid.outputs): ".dynid-<pid>-<12 hex>.tmp", and
-#: ".dynid-<pid>-<12 hex>.bak" (hard-linked backups of old outputs); the older layout's
-#: ".<target>.<12 hex>.tmp" is matched too
-DYNID_TEMP = re.compile(r"^\.dynid-\d+-[0-9a-f]{12}\.(tmp|bak)$|^\..+\.[0-9a-f]{12}\.tmp$")
+#: dynid's temporary files beside the target (dynid.outputs): a writer's lease lock
+#: ".dynid-<host>-<pid>-<16 hex>.lock" (".new" before it is published), its temporary files
+#: "<same>-<n>.tmp" and hard-linked backups "<same>-<n>.bak"; the older layouts
+#: ".dynid-<pid>-<12 hex>.tmp|bak" and ".<target>.<12 hex>.tmp" are matched too
+DYNID_TEMP = re.compile(r"^\.dynid-[A-Za-z0-9.-]*-\d+-[0-9a-f]{16}(-\d+\.(tmp|bak)|\.lock|\.new)$"
+                        r"|^\.dynid-\d+-[0-9a-f]{12}\.(tmp|bak)$|^\..+\.[0-9a-f]{12}\.tmp$")
 
 
 def _dead_pid():
@@ -629,22 +647,46 @@ def test_g3_sigterm_between_renames(tmp_path, data, monkeypatch, capsys):
     _assert_all_or_none(out, run)
 
 
+_LEASE_HOLDER = """
+import os, sys, time
+from dynid.outputs import staged_path
+with staged_path(sys.argv[1]) as tmp:
+    open(tmp, "w").write('{"half": ')
+    print("staged", flush=True)
+    time.sleep(float(sys.argv[2]))
+"""
+
+
+def _hold_lease(target, seconds):
+    """A process writing `target` through dynid.outputs, paused mid-write (its lease held)."""
+    proc = subprocess.Popen([sys.executable, "-c", _LEASE_HOLDER, str(target), str(seconds)],
+                            stdout=subprocess.PIPE, text=True)
+    assert proc.stdout.readline().strip() == "staged"
+    return proc
+
+
 def test_g3_stale_temp_files_of_a_killed_run_are_cleaned(tmp_path):
-    dead = _dead_pid()                  # temporary files name the process that wrote them
-    stale = [tmp_path / f".dynid-{dead}-0123456789ab.tmp", tmp_path / f".dynid-{dead}-fedcba987654.tmp"]
-    for p in stale:
-        p.write_text('{"half": ')
-        os.utime(p, (time.time() - 86400, time.time() - 86400))       # a day old
-    keep = [tmp_path / "notes.tmp", tmp_path / ".other.tmp",                # not dynid's naming
-            tmp_path / f".dynid-{os.getpid()}-00112233aabb.tmp"]            # a running process's
-    for p in keep:
-        p.write_text("mine")
-    run = run_dynid("robot", "planar2", "--json", "out.json", "--quiet", cwd=tmp_path, timeout=30)
-    assert_clean(run)
-    assert run.rc == 0, str(run)
-    assert all(p.exists() for p in keep), "removed files that are not stale dynid temporary files"
-    left = [p.name for p in stale if p.exists()]
-    assert not left, f"stale temporary files of a killed run are still there: {left}"
+    killed = _hold_lease(tmp_path / "old.json", 60)
+    killed.kill()                       # SIGKILL mid-write: its lease lock is released by the kernel
+    killed.wait()
+    stale = temp_files(tmp_path)
+    assert any(n.endswith(".tmp") for n in stale) and any(n.endswith(".lock") for n in stale), stale
+    live = _hold_lease(tmp_path / "other.json", 60)        # a running writer's files stay
+    try:
+        live_files = set(temp_files(tmp_path)) - set(stale)
+        keep = [tmp_path / "notes.tmp", tmp_path / ".other.tmp",                # not dynid's naming
+                tmp_path / f".dynid-{_dead_pid()}-00112233aabb.tmp"]          # no lease: not provably stale
+        for p in keep:
+            p.write_text("mine")
+        run = run_dynid("robot", "planar2", "--json", "out.json", "--quiet", cwd=tmp_path, timeout=30)
+        assert run.rc == 0, str(run)
+        assert all(p.exists() for p in keep), "removed files that are not provably stale dynid files"
+        assert live_files and live_files <= set(temp_files(tmp_path)), "removed a running writer's files"
+        left = [n for n in stale if (tmp_path / n).exists()]
+        assert not left, f"temporary files of a killed run are still there: {left}"
+    finally:
+        live.kill()
+        live.wait()
 
 
 # =============================================================================================
@@ -1056,3 +1098,411 @@ def test_g9_escape_sequences_in_a_column_name(tmp_path, frame):
     for stream, text in (("stdout", run.out), ("stderr", run.err)):
         bad = sorted(set(CONTROL.findall(text)))
         assert not bad, f"control characters {bad!r} printed on {stream}\n{run!r}"
+
+
+# =============================================================================================
+# 10. Issue 31: the fleet and the newer options (groups g10 data loss ... g14 messages)
+# =============================================================================================
+_VICTIM = """
+import os, sys, time
+import dynid.outputs as outputs
+folder, ready, go = sys.argv[1:4]
+real_replace = os.replace
+calls = []
+def paused_replace(src, dst):
+    calls.append(dst)
+    if len(calls) == 2:             # the first output renamed, the second not yet: the backups matter now
+        open(ready, "w").close()
+        t0 = time.time()
+        while not os.path.exists(go) and time.time() - t0 < 30:
+            time.sleep(0.02)
+    return real_replace(src, dst)
+os.replace = paused_replace
+try:
+    outputs.write_all([(os.path.join(folder, "a.json"), "new json"), (os.path.join(folder, "a.csv"), "new csv")])
+except Exception as exc:
+    print(f"victim: {exc}", file=sys.stderr)
+    sys.exit(3)
+"""
+
+_CLEANER = """
+import os, sys
+import dynid.outputs as outputs
+outputs.write_all([(os.path.join(sys.argv[1], "c.txt"), "another run")])
+"""
+
+
+def _unshare_available():
+    if shutil.which("unshare") is None:
+        return False
+    try:
+        return subprocess.run(["unshare", "--pid", "--fork", "true"], capture_output=True, timeout=10).returncode == 0
+    except (OSError, subprocess.TimeoutExpired):
+        return False
+
+
+def test_g10_commit_survives_a_writer_in_another_pid_namespace(tmp_path):
+    """Two dynid processes in two PID namespaces write into one folder (two containers on a
+    shared volume): the second must not take the first's backups for a dead process's."""
+    if not _unshare_available():
+        pytest.skip("unshare --pid is not available (needs root or user namespaces)")
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "a.json").write_text("old json")
+    (out / "a.csv").write_text("old csv")
+    ready, go = tmp_path / "ready", tmp_path / "go"
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    # sh stays pid 1 of the victim's namespace, Python is pid 2: a pid that the cleaner's own
+    # namespace (where it is pid 1, alone) does not have
+    victim = subprocess.Popen(["unshare", "--pid", "--fork", "sh", "-c", '"$0" -c "$1" "$2" "$3" "$4"; exit $?',
+                               sys.executable, _VICTIM, str(out), str(ready), str(go)],
+                              env=env, stderr=subprocess.PIPE, text=True)
+    try:
+        t0 = time.time()
+        while not ready.exists():
+            assert victim.poll() is None, f"the writer ended early: {victim.stderr.read()}"
+            assert time.time() - t0 < 60, "the writer never reached its second rename"
+            time.sleep(0.02)
+        cleaner = subprocess.run(["unshare", "--pid", "--fork", sys.executable, "-c", _CLEANER, str(out)],
+                                 env=env, capture_output=True, text=True, timeout=60)
+        assert cleaner.returncode == 0, cleaner.stderr
+    finally:
+        go.touch()
+        _, err = victim.communicate(timeout=60)
+    contents = ((out / "a.json").read_text(), (out / "a.csv").read_text())
+    assert contents in (("new json", "new csv"), ("old json", "old csv")), (
+        f"all-or-none broken by the other process: a.json={contents[0]!r}, a.csv={contents[1]!r}; {err}")
+    assert victim.returncode == 0 and contents == ("new json", "new csv"), (
+        f"the writer failed (exit {victim.returncode}): {err}")
+    assert (out / "c.txt").read_text() == "another run"
+    assert_no_temp(out)
+
+
+# ---- g10: data loss in the fleet ------------------------------------------------------------
+def fleet_catalogue(folder, recording, n=2, robot="planar2", extra_rows="", temperature=None):
+    """`cat.csv` listing `n` recordings: `recording` less its last k rows (distinct files, not copies)."""
+    folder = Path(folder)
+    lines = ["robot_id,timestamp,path,robot" + (",temperature" if temperature is not None else "")]
+    for k in range(n):
+        rec = folder / f"rec{k}.csv"
+        rec.write_text("".join(recording.read_text().splitlines(keepends=True)[:-(k + 1)]))
+        lines.append(f"R1,2026-03-0{k + 1}T08:00:00Z,{rec.name},{robot}"
+                     + (f",{temperature}" if temperature is not None else ""))
+    cat = folder / "cat.csv"
+    cat.write_text("\n".join(lines) + "\n" + extra_rows)
+    return cat
+
+
+def fleet_inputs(folder):
+    """Fingerprints of every file of the fleet's folder (the catalogue, recordings, robot files)."""
+    return fingerprint(*[p for p in sorted(Path(folder).iterdir()) if p.is_file() and not DYNID_TEMP.match(p.name)])
+
+
+def assert_fleet_refused(run, before, folder, *names):
+    assert_input_error(run, *names)
+    assert fleet_inputs(folder) == before, f"an input changed\n{run}"
+    assert not (Path(folder) / "store").exists(), f"the store was created before the refusal\n{run}"
+
+
+@pytest.mark.parametrize("option", ["--json", "--report"])
+def test_g10_fleet_output_onto_its_catalogue(tmp_path, recording, option):
+    fleet_catalogue(tmp_path, recording)
+    before = fleet_inputs(tmp_path)
+    run = run_dynid("fleet", "cat.csv", "--out", "store", option, "cat.csv", cwd=tmp_path, timeout=60)
+    assert_fleet_refused(run, before, tmp_path, "cat.csv", "catalogue")
+
+
+@pytest.mark.parametrize("how", ["symlink", "hardlink", "dotdot"])
+def test_g10_fleet_output_onto_a_recording_or_robot_file(tmp_path, recording, how):
+    robot = planar2_toml(tmp_path, name="arm.toml")
+    fleet_catalogue(tmp_path, recording, robot=robot.name)
+    (tmp_path / "sub").mkdir()
+    if how == "symlink":
+        os.symlink(tmp_path / "rec1.csv", tmp_path / "sub" / "out.json")
+        args, names = ("--json", "sub/out.json"), ("rec1.csv", "recording")
+    elif how == "hardlink":
+        os.link(robot, tmp_path / "sub" / "out.html")
+        args, names = ("--report", "sub/out.html"), ("arm.toml", "robot file")
+    else:
+        args, names = ("--json", "sub/../rec0.csv"), ("rec0.csv", "recording")
+    before = fleet_inputs(tmp_path)
+    run = run_dynid("fleet", "cat.csv", "--out", "store", *args, cwd=tmp_path, timeout=60)
+    assert_fleet_refused(run, before, tmp_path, *names)
+
+
+def test_g10_python_fleet_run_refuses_too(tmp_path, recording):
+    import dynid.fleet
+    from dynid.errors import InputError
+    cat = fleet_catalogue(tmp_path, recording)
+    before = fleet_inputs(tmp_path)
+    with pytest.raises(InputError, match="rec0.csv.*recording"):
+        dynid.fleet.run(cat, tmp_path / "store", report=tmp_path / "rec0.csv")
+    assert fleet_inputs(tmp_path) == before and not (tmp_path / "store").exists()
+
+
+@pytest.mark.parametrize("value,why", [("", "empty"), ("x.json/", "folder")])
+def test_g10_json_name_that_writes_nothing_or_elsewhere(tmp_path, data, value, why):
+    run = run_dynid(*identify_args("in.csv", "--json", value), cwd=tmp_path)
+    assert_input_error(run, "--json", why)
+    assert not (tmp_path / "x.json").exists(), f"wrote x.json for --json x.json/\n{run}"
+
+
+def test_g10_json_to_closed_stdout_is_refused(tmp_path, data):
+    run = run_dynid(*identify_args("in.csv", "--json", "-"), cwd=tmp_path, close_stdout=True)
+    assert_input_error(run, "--json", "stdout")
+
+
+# ---- g11: silently wrong fleet values -------------------------------------------------------
+def test_g11_fleet_same_recording_through_a_symlink(tmp_path, recording):
+    os.symlink("rec0.csv", tmp_path / "alias.csv")
+    fleet_catalogue(tmp_path, recording, extra_rows="R1,2026-03-09T08:00:00Z,alias.csv,planar2\n")
+    before = fleet_inputs(tmp_path)
+    run = run_dynid("fleet", "cat.csv", "--out", "store", cwd=tmp_path, timeout=60)
+    assert_fleet_refused(run, before, tmp_path, "cat.csv", "row 3", "alias.csv|rec0.csv", "once")
+
+
+def test_g11_fleet_byte_identical_copy_of_a_recording(tmp_path, recording):
+    fleet_catalogue(tmp_path, recording, extra_rows="R2,2026-03-09T08:00:00Z,copy.csv,planar2\n")
+    shutil.copyfile(tmp_path / "rec1.csv", tmp_path / "copy.csv")
+    before = fleet_inputs(tmp_path)
+    run = run_dynid("fleet", "cat.csv", "--out", "store", cwd=tmp_path, timeout=60)
+    assert_fleet_refused(run, before, tmp_path, "copy.csv", "rec1.csv", "same bytes")
+
+
+@pytest.mark.parametrize("option,value", [("--false-alarm-rate", "0"), ("--false-alarm-rate", "nan"),
+                                          ("--baseline", "0"), ("--baseline", "1000000000")])
+def test_g11_fleet_monitoring_option_out_of_range(tmp_path, recording, option, value):
+    fleet_catalogue(tmp_path, recording)
+    before = fleet_inputs(tmp_path)
+    run = run_dynid("fleet", "cat.csv", "--out", "store", option, value, cwd=tmp_path, timeout=60)
+    assert_fleet_refused(run, before, tmp_path, option)
+
+
+@pytest.mark.parametrize("value", ["inf", "1e308", "-300"])
+def test_g11_fleet_temperature_out_of_range(tmp_path, recording, value):
+    fleet_catalogue(tmp_path, recording, temperature=value)
+    before = fleet_inputs(tmp_path)
+    run = run_dynid("fleet", "cat.csv", "--out", "store", cwd=tmp_path, timeout=60)
+    assert_fleet_refused(run, before, tmp_path, "cat.csv", "column temperature, row 1", "Celsius")
+
+
+def test_g11_fleet_failed_recordings_fail_the_run(tmp_path, recording):
+    """Every recording broken: exit 2, counted as failed (not identified), no TypeError from the monitor."""
+    fleet_catalogue(tmp_path, recording, robot="panda")          # 7 joints: the 2-joint data cannot fit
+    before = fleet_inputs(tmp_path)
+    run = run_dynid("fleet", "cat.csv", "--out", "store", "--workers", "1", "--json", "f.json",
+                    "--report", "f.html", cwd=tmp_path, timeout=180)
+    assert_input_error(run, "2 of 2 recordings could not be identified", "0 identified", "not monitored")
+    after = fleet_inputs(tmp_path)
+    assert {p: after.get(p) for p in before} == before, "an input changed"
+    doc = json.loads((tmp_path / "f.json").read_text())
+    assert doc["n_failed"] == 2 and doc["n_identified"] == 0
+    assert "Recordings that failed" in (tmp_path / "f.html").read_text()
+
+
+def test_g11_torques_in_kNm(tmp_path, frame):
+    frame[["tau1", "tau2"]] /= 1000.0
+    write_csv(tmp_path / "in.csv", frame)
+    run = run_dynid(*identify_args("in.csv", "--json", "o.json"), cwd=tmp_path)
+    assert_input_error(run, "in.csv", r"tau[12]", "kN·m")
+    assert not (tmp_path / "o.json").exists()
+
+
+def _toml_of_npz(folder, name="rec.npz", **options):
+    lines = ["[experiment]", f'file = "{name}"'] + [f"{k} = {v}" for k, v in options.items()]
+    lines += ["[time]", 'key = "t"', "[positions]", 'key = "q"', "[torques]", 'key = "tau"']
+    p = Path(folder) / "exp.toml"
+    p.write_text("\n".join(lines) + "\n")
+    return p
+
+
+def _npz_from(frame, path, t=None):
+    np.savez(path, t=frame["t"].to_numpy() if t is None else t, q=frame[["q1", "q2"]].to_numpy(),
+             tau=frame[["tau1", "tau2"]].to_numpy())
+
+
+def test_g11_time_tolerance_1e9_is_refused(tmp_path, frame):
+    t = frame["t"].to_numpy().copy()
+    t[len(t) // 2:] += 0.1                                   # a 100 ms gap
+    _npz_from(frame, tmp_path / "rec.npz", t)
+    _toml_of_npz(tmp_path, time_tolerance="1e9")
+    run = run_dynid(*identify_args("exp.toml", "--json", "o.json"), cwd=tmp_path)
+    assert_input_error(run, "exp.toml", "time_tolerance", "0.25")
+    assert not (tmp_path / "o.json").exists()
+
+
+# ---- g12: hangs and unbounded memory --------------------------------------------------------
+@pytest.mark.parametrize("kind", ["fifo", "dev_zero"])
+def test_g12_fleet_recording_that_is_not_a_regular_file(tmp_path, recording, kind):
+    cat = fleet_catalogue(tmp_path, recording, n=1)
+    if kind == "fifo":
+        os.mkfifo(tmp_path / "special.csv")
+        target = "special.csv"
+    else:
+        target = "/dev/zero"
+    cat.write_text(cat.read_text() + f"R1,2026-03-05T08:00:00Z,{target},planar2\n")
+    before = fleet_inputs(tmp_path)
+    run = run_dynid("fleet", "cat.csv", "--out", "store", cwd=tmp_path, timeout=30)
+    assert_fleet_refused(run, before, tmp_path, "cat.csv", "row 2", target, "not a regular file")
+
+
+def test_g12_experiment_toml_over_the_size_cap(tmp_path, data):
+    p = tmp_path / "exp.toml"
+    with open(p, "w") as fh:
+        fh.write('[experiment]\nfile = "in.csv"\nname = "')
+        fh.write("x" * (2 << 20))
+        fh.write('"\n')
+    run = run_dynid(*identify_args("exp.toml", "--json", "o.json"), cwd=tmp_path, timeout=30)
+    assert_input_error(run, "exp.toml", "MiB")
+    assert not (tmp_path / "o.json").exists()
+
+
+def test_g12_npz_zip_bomb_is_refused_before_loading(tmp_path):
+    import zipfile
+    n = 10_000_000                                            # 80 MB of zeros per member, ~80 kB compressed
+    with zipfile.ZipFile(tmp_path / "bomb.npz", "w", zipfile.ZIP_DEFLATED) as zf:
+        for name, shape in (("t", (n,)), ("q", (n // 2, 2)), ("tau", (n // 2, 2))):
+            with zf.open(f"{name}.npy", "w", force_zip64=True) as fh:
+                np.lib.format.write_array_header_1_0(fh, {"descr": "<f8", "fortran_order": False, "shape": shape})
+                block = bytes(1 << 20)
+                for _ in range(8 * n // len(block)):
+                    fh.write(block)
+    run = run_dynid(*identify_args("bomb.npz", "--json", "o.json"), cwd=tmp_path, timeout=60)
+    assert_input_error(run, "bomb.npz", "zip bomb|expand")
+    assert not (tmp_path / "o.json").exists()
+
+
+def test_g12_npz_with_a_forged_shape_is_refused(tmp_path):
+    import io
+    import zipfile
+    buf = io.BytesIO()
+    np.lib.format.write_array(buf, np.zeros(10))
+    forged = buf.getvalue().replace(b"(10,)", b"(10000000000,)")
+    with zipfile.ZipFile(tmp_path / "forged.npz", "w") as zf:
+        for name in ("t", "q", "tau"):
+            zf.writestr(f"{name}.npy", forged)
+    run = run_dynid(*identify_args("forged.npz", "--json", "o.json"), cwd=tmp_path, timeout=60)
+    assert_input_error(run, "forged.npz", "declares shape")
+
+
+def test_g12_resampling_across_a_huge_gap_is_refused(tmp_path, frame):
+    t = frame["t"].to_numpy().copy()
+    t[len(t) // 2:] += 1e5                                   # a day-long gap: 1e8 grid points at 1 ms
+    t[3] += 0.3 * (t[4] - t[3])                              # irregular, so that it resamples
+    _npz_from(frame, tmp_path / "rec.npz", t)
+    _toml_of_npz(tmp_path, resample="true")
+    run = run_dynid(*identify_args("exp.toml", "--json", "o.json"), cwd=tmp_path, timeout=60)
+    assert_input_error(run, "rec.npz", "gap", "Split the recording")
+    assert not (tmp_path / "o.json").exists()
+
+
+@pytest.mark.parametrize("args,option", [
+    (("--nd", "10000000000"), "--nd"), (("--nd", "100000000"), "--nd"),
+    (("--method", "didim", "--v-s", "1e-9"), "--v-s"),
+    (("--physical", "--bootstrap", "1000000000"), "--bootstrap")])
+def test_g12_option_far_out_of_range_is_refused_fast(tmp_path, data, args, option):
+    run = run_dynid(*identify_args("in.csv", *args, "--json", "o.json"), cwd=tmp_path, timeout=60)
+    assert_input_error(run, option, "out of range")
+    assert run.elapsed < 30, f"took {run.elapsed:.0f} s to refuse\n{run}"
+    assert not (tmp_path / "o.json").exists()
+
+
+# ---- g13: tracebacks and internal errors ----------------------------------------------------
+@pytest.mark.parametrize("args,option", [
+    (("--physical", "--prior", "apriori", "--prior-weight", "1e300"), "--prior-weight"),
+    (("--method", "didim", "--v-s", "1e-300"), "--v-s")])
+def test_g13_extreme_option_is_an_input_error_not_a_crash(tmp_path, data, args, option):
+    run = run_dynid(*identify_args("in.csv", *args, "--json", "o.json"), cwd=tmp_path, timeout=120)
+    assert_input_error(run, option)
+    assert not (tmp_path / "o.json").exists()
+
+
+def test_g13_python_api_refuses_the_same_ranges():
+    from dynid.errors import InputError
+    from dynid.ranges import check_range
+    for name, bad in (("nd", 10**10), ("n_boot", 10**9), ("v_s", 1e-300), ("prior_weight", 1e300),
+                      ("v_s", float("nan")), ("nd", 2.5)):
+        with pytest.raises(InputError, match="out of range"):
+            check_range(name, bad)
+
+
+def test_g13_fleet_scheduler_that_is_not_an_address(tmp_path, recording):
+    fleet_catalogue(tmp_path, recording, n=1)
+    before = fleet_inputs(tmp_path)
+    run = run_dynid("fleet", "cat.csv", "--out", "store", "--scheduler", "not a url", cwd=tmp_path, timeout=60)
+    assert_input_error(run, "--scheduler", "not a url")
+    assert fleet_inputs(tmp_path) == before
+
+
+def test_g13_fleet_store_under_a_file(tmp_path, recording):
+    fleet_catalogue(tmp_path, recording, n=1)
+    (tmp_path / "afile").write_text("x")
+    before = fleet_inputs(tmp_path)
+    run = run_dynid("fleet", "cat.csv", "--out", "afile/store", cwd=tmp_path, timeout=60)
+    assert_input_error(run, "--out", "afile/store", "cannot be written")
+    assert fleet_inputs(tmp_path) == before
+
+
+def test_g13_fleet_store_on_a_read_only_file_system(tmp_path, recording):
+    """A read-only mount (root, a private mount namespace): one message, no Dask traceback."""
+    if not _unshare_available() or subprocess.run(["unshare", "-m", "true"], capture_output=True).returncode:
+        pytest.skip("unshare -m is not available")
+    fleet_catalogue(tmp_path, recording, n=1)
+    (tmp_path / "ro").mkdir()
+    before = fleet_inputs(tmp_path)
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    cmd = 'mount --bind -o ro ro ro && exec "$0" -c "$1" fleet cat.csv --out ro/store'
+    res = subprocess.run(["unshare", "-m", "sh", "-c", cmd, sys.executable, DYNID_CODE], cwd=tmp_path, env=env,
+                         capture_output=True, text=True, timeout=120)
+    assert res.returncode == 2, res.stderr
+    assert "Traceback" not in res.stderr and "ro/store" in res.stderr and "Read-only" in res.stderr, res.stderr
+    assert fleet_inputs(tmp_path) == before
+
+
+# ---- g14: advice the user can follow from where they are -----------------------------------
+def test_g14_motionless_recording_gives_command_line_advice(tmp_path, frame):
+    frame[["q1", "q2"]] = 0.1                     # no motion: the bandwidth cannot be estimated
+    frame = frame.drop(columns=["qr1", "qr2"])
+    write_csv(tmp_path / "in.csv", frame)
+    run = run_dynid(*identify_args("in.csv", "--json", "o.json"), cwd=tmp_path)
+    if run.rc == 2 and "bandwidth" in run.err:
+        assert_input_error(run, "bandwidth", "command line")
+    else:                                        # refused earlier (no motion at all): still clean
+        assert_input_error(run, "in.csv|q1|motion|move")
+    assert not (tmp_path / "o.json").exists()
+
+
+def test_g10_fleet_json_to_closed_stdout_is_refused_first(tmp_path, recording):
+    fleet_catalogue(tmp_path, recording, n=1)
+    before = fleet_inputs(tmp_path)
+    run = run_dynid("fleet", "cat.csv", "--out", "store", "--json", "-", cwd=tmp_path, close_stdout=True,
+                    timeout=60)
+    assert_fleet_refused(run, before, tmp_path, "--json", "stdout")
+
+
+def test_g11_python_fleet_options_refused_before_work(tmp_path, recording):
+    import dynid.fleet
+    from dynid.errors import InputError
+    cat = fleet_catalogue(tmp_path, recording)
+    before = fleet_inputs(tmp_path)
+    for kwargs, name in (({"false_alarm_rate": 0}, "false_alarm_rate"), ({"n_baseline": 0}, "n_baseline"),
+                         ({"n_baseline": 10**9}, "n_baseline"), ({"parameters": "Fv"}, "parameters")):
+        with pytest.raises(InputError, match=name):
+            dynid.fleet.run(cat, tmp_path / "store", **kwargs)
+    assert fleet_inputs(tmp_path) == before and not (tmp_path / "store").exists()
+
+
+def test_g10_check_outputs_sees_hard_links_and_dotdot(tmp_path):
+    from dynid.errors import InputError
+    from dynid.outputs import check_outputs
+    src = tmp_path / "in.csv"
+    src.write_text("t\n0\n")
+    (tmp_path / "d").mkdir()
+    os.link(src, tmp_path / "d" / "hard.json")
+    for out in (tmp_path / "d" / "hard.json", tmp_path / "d" / ".." / "in.csv"):
+        with pytest.raises(InputError, match="in.csv"):
+            check_outputs([("--json", out)], [("the data file", src)])
+    with pytest.raises(InputError, match="same file"):
+        check_outputs([("--json", tmp_path / "a.json"), ("--report", tmp_path / "d" / ".." / "a.json")])
+    check_outputs([("--json", tmp_path / "new.json")], [("the data file", src)])     # a fresh name passes
+    assert src.read_text() == "t\n0\n"

@@ -111,6 +111,26 @@ class _Col:
         return int(self.data.shape[0])
 
 
+_RELEASED = np.empty(0)
+
+
+def _release(raws, cols) -> None:
+    """Drop the raw arrays once the signals are stacked: messages after that need only the
+    columns' names and row numbers, and the raw copy would be a third of the peak memory."""
+    for raw in raws:
+        raw.arrays = dict.fromkeys(raw.arrays, _RELEASED)
+    for c in cols:
+        if c is not None:
+            c.data = _RELEASED
+
+
+def _release_columns(raw, cols) -> None:
+    for c in cols:
+        if c.name in raw.arrays:
+            raw.arrays[c.name] = _RELEASED
+        c.data = _RELEASED
+
+
 def _cell(v) -> float:
     if isinstance(v, str):
         s = v.strip()
@@ -415,7 +435,7 @@ def _assemble(
     _plaus.check_spikes(signals, rows, cols_of, source, notices)
     if time_col is not None:
         if _check_time(t, time_col, rows, opts, notices):
-            t, signals = _resample(t, signals, notices)
+            t, signals = _resample(t, signals, notices, time_col.where)
             meta["resampled"] = True
         if opts.sampling_rate is not None:
             fs_file = 1.0 / float(np.median(np.diff(t)))
@@ -553,15 +573,45 @@ def _bad_index(raw: _RawFile, name: str) -> None:
 
 def _from_columns(raw: _RawFile, robot, n_joints, opts: _Options, source: str,
                   notices: list[str], meta: dict) -> Experiment:
+    """An Experiment from a file in dynid's column format (t, q1..qn, tau1..taun ...)."""
     notices.extend(raw.notices)
     cols = _collect_columns(raw, notices)
+    by_stem, present = _by_stem(cols)
+    n = _joint_columns(raw, present, robot, n_joints)
+    _required_signals(raw, cols, present, opts, notices)
+    used = [(s, k, cols[by_stem[s][k]]) for s, idx in present.items() for k in idx]
+    tcol = _check_sample_counts(raw, cols.get("t"), used)
+    t, values = _column_values(tcol, used, robot, notices)
+    signals, cols_of = {}, {}
+    for s, idx in present.items():
+        stem_cols = [cols[by_stem[s][k]] for k in idx]
+        signals[s] = np.column_stack([values.pop((s, k)) for k in idx])
+        cols_of["tau" if s == "i" else s] = stem_cols
+        _release_columns(raw, stem_cols)       # signal by signal: the peak holds one raw copy less
+    _release([raw], cols.values())
+    if "tau" not in signals:
+        g, origin = _drive_gains(robot, n, raw.label)
+        signals["tau"] = signals.pop("i") * g
+        notices.append(
+            f"{raw.label}: tau computed as drive gain × current (tau_j = g_j · i_j, "
+            f"g = [{', '.join(_fmt(x) for x in g)}], {origin})"
+        )
+    return _assemble(t=t, time_col=tcol, signals=signals, opts=opts, notices=notices,
+                     source=source, meta=meta, robot=robot, cols_of=cols_of)
+
+
+def _by_stem(cols: dict) -> tuple[dict, dict]:
+    """({stem: {joint: column name}}, {stem: sorted joints} of the stems present)."""
     by_stem: dict[str, dict[int, str]] = {s: {} for s in _STEMS}
     for name in cols:
         m = _COLUMN_RE.match(name)
         if m.group(2):
             by_stem[m.group(2)][int(m.group(3))] = name
-    present = {s: sorted(d) for s, d in by_stem.items() if d}
-    # gaps
+    return by_stem, {s: sorted(d) for s, d in by_stem.items() if d}
+
+
+def _joint_columns(raw: _RawFile, present: dict, robot, n_joints) -> int | None:
+    """The number of joints: every signal numbered 1..n without gaps, all with one n, the robot's."""
     for s, idx in present.items():
         missing = sorted(set(range(1, idx[-1] + 1)) - set(idx))
         if missing:
@@ -590,7 +640,11 @@ def _from_columns(raw: _RawFile, robot, n_joints, opts: _Options, source: str,
             f"{who} but {raw.label} has {_span(first, present[first])}. Load the data with "
             "the robot it was recorded on, or remove the extra columns."
         )
-    # required signals
+    return n
+
+
+def _required_signals(raw: _RawFile, cols: dict, present: dict, opts: _Options, notices: list[str]) -> None:
+    """Time (or a sampling rate), torques (or currents) and positions; tau wins over i."""
     problems = []
     if "t" not in cols and opts.sampling_rate is None:
         problems.append(
@@ -613,13 +667,11 @@ def _from_columns(raw: _RawFile, robot, n_joints, opts: _Options, source: str,
             f"{_span('i', present['i'])} ignored"
         )
         del present["i"]
-    # values
-    used: list[tuple[str, int, _Col]] = []
-    for s, idx in present.items():
-        for k in idx:
-            used.append((s, k, cols[by_stem[s][k]]))
+
+
+def _check_sample_counts(raw: _RawFile, tcol, used) -> _Col | None:
+    """Every column (and t) with one length of at least 2; returns the time column."""
     lengths = {len(c) for _, _, c in used}
-    tcol = cols.get("t")
     if tcol is not None:
         if tcol.data.ndim != 1:
             raise DataError(f"{tcol.where} must be 1-D.")
@@ -637,6 +689,11 @@ def _from_columns(raw: _RawFile, robot, n_joints, opts: _Options, source: str,
             f"{raw.label} has {n_rows} sample(s); at least 2 are needed. Export the whole "
             "recording."
         )
+    return tcol
+
+
+def _column_values(tcol, used, robot, notices: list[str]):
+    """(t or None, {(stem, joint): float values}), checked finite and of plausible magnitude."""
     values = {}
     items = []
     t = None
@@ -651,18 +708,4 @@ def _from_columns(raw: _RawFile, robot, n_joints, opts: _Options, source: str,
         items.append((c, v))
     _check_finite(items)
     _plaus.check_magnitude([(c, v) for c, v in items if c is not tcol], robot)
-    signals = {}
-    cols_of = {}
-    for s, idx in present.items():
-        signals[s] = np.column_stack([values[(s, k)] for k in idx])
-        cols_of["tau" if s == "i" else s] = [cols[by_stem[s][k]] for k in idx]
-    if "tau" not in signals:
-        g, origin = _drive_gains(robot, n, raw.label)
-        signals["tau"] = signals.pop("i") * g
-        notices.append(
-            f"{raw.label}: tau computed as drive gain × current (tau_j = g_j · i_j, "
-            f"g = [{', '.join(_fmt(x) for x in g)}], {origin})"
-        )
-    return _assemble(t=t, time_col=tcol, signals=signals, opts=opts, notices=notices,
-                     source=source, meta=meta, robot=robot, cols_of=cols_of)
-
+    return t, values

@@ -67,6 +67,7 @@ from __future__ import annotations
 
 import math
 import tomllib
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -81,6 +82,7 @@ from dynid.analysis.data.columns import (
     _Col,
     _drive_gains,
     _from_columns,
+    _release,
     _robot_joints,
     _time_values,
     _to_float,
@@ -96,8 +98,6 @@ if TYPE_CHECKING:
 # TOML experiment descriptions
 # --------------------------------------------------------------------------------------
 
-_EXPERIMENT_KEYS = {"name", "file", "sampling_rate", "start_time", "start_offset",
-                    "resample", "time_tolerance"}
 _SECTIONS = {"positions": "q", "reference": "qr", "velocities": "qd",
              "accelerations": "qdd", "torques": "tau", "currents": "i"}
 _SECTION_KEYS = {"file", "key", "columns", "side", "scale"}
@@ -107,6 +107,43 @@ _TIME_KEYS = {"file", "key", "column", "scale"}
 _TRANSMISSION_KEYS = {"gear_ratios", "couplings", "position_offsets"}
 #: Largest accepted ``sampling_rate`` (Hz): far above any robot controller's rate.
 MAX_SAMPLING_RATE = 1e6
+#: Largest accepted ``time_tolerance``: a step 25 % off the median is no longer uniform
+#: sampling (steps 1.5x the median are gaps); irregular logs take ``resample = true``.
+MAX_TIME_TOLERANCE = 0.25
+#: Largest experiment TOML read (bytes): it names files and columns, the data live elsewhere.
+MAX_TOML_BYTES = 1 << 20
+
+
+@dataclass(frozen=True)
+class _Field:
+    """One key of a TOML table: its type, default and range (the range's message names the fix)."""
+
+    kind: str                           # "string" | "number" | "integer" | "bool"
+    default: object = None
+    positive: bool = False
+    minimum: int | None = None
+    maximum: float | None = None
+    too_large: str = ""                 # message when above maximum; {v} is the value
+
+
+#: The [experiment] table (also allowed at the top level), in the order it is checked.
+_EXPERIMENT_FIELDS = {
+    "name": _Field("string", ""),
+    "sampling_rate": _Field(
+        "number", positive=True, maximum=MAX_SAMPLING_RATE,
+        too_large=f"sampling_rate = {{v:g}} Hz is out of range: give the rate in Hz, at most "
+                  f"{MAX_SAMPLING_RATE:g} (robot controllers log at 100 Hz … 10 kHz)."),
+    "start_time": _Field("number", 0.0),
+    "start_offset": _Field("integer", 0, minimum=0),
+    "time_tolerance": _Field(
+        "number", TIME_STEP_TOLERANCE, positive=True, maximum=MAX_TIME_TOLERANCE,
+        too_large=f"time_tolerance = {{v:g}} is out of range: it is the allowed relative deviation "
+                  f"of a time step from the median, at most {MAX_TIME_TOLERANCE:g} (default "
+                  f"{TIME_STEP_TOLERANCE:g}); for irregular time stamps set resample = true instead."),
+    "resample": _Field("bool", False),
+    "file": _Field("string"),
+}
+_EXPERIMENT_KEYS = set(_EXPERIMENT_FIELDS)
 
 
 class _Toml:
@@ -130,6 +167,22 @@ class _Toml:
                 f"{', '.join(sorted(allowed))} (see docs/formats.md, section "
                 "'Experiment description (TOML)').",
             )
+
+    def field(self, section: str, table: dict, key: str, f: _Field):
+        """The value of `key` checked against its field description `f`."""
+        if f.kind == "string":
+            return self.string(section, table, key, f.default)
+        if f.kind == "integer":
+            return self.integer(section, table, key, f.default, minimum=f.minimum)
+        if f.kind == "bool":
+            v = table.get(key, f.default)
+            if not isinstance(v, bool):
+                raise self.err(section, f"{key} must be true or false, got {v!r}.")
+            return v
+        v = self.number(section, table, key, f.default, positive=f.positive)
+        if v is not None and f.maximum is not None and v > f.maximum:
+            raise self.err(section, f.too_large.format(v=v))
+        return v
 
     def string(self, section, table, key, default=None):
         v = table.get(key, default)
@@ -173,10 +226,11 @@ class _Toml:
         return np.asarray(v, dtype=float)
 
 
-def _load_toml(path: Path, label: str, robot, n_joints) -> Experiment:
+def _parse_toml(path: Path, label: str) -> dict:
+    _refuse_large(path, label)
     data = _read_bytes(path, label)
     try:
-        doc = tomllib.loads(data.decode("utf-8-sig"))
+        return tomllib.loads(data.decode("utf-8-sig"))
     except UnicodeDecodeError:
         raise DataError(f"{label} is not UTF-8 text. Save it as UTF-8.") from None
     except tomllib.TOMLDecodeError as e:
@@ -186,10 +240,10 @@ def _load_toml(path: Path, label: str, robot, n_joints) -> Experiment:
             f"{label}: arrays or tables are nested too deeply to read. An experiment TOML "
             "needs no nesting beyond lists of numbers or names; fix the file."
         ) from None
-    tk = _Toml(label)
-    base = path.parent
 
-    # --- [experiment], optionally at the top level
+
+def _split_tables(doc: dict, tk: _Toml) -> tuple[dict, dict]:
+    """(the [experiment] keys, merged with the top-level ones; the tables), unknown names refused."""
     top = {k: v for k, v in doc.items() if not isinstance(v, dict)}
     tables = {k: v for k, v in doc.items() if isinstance(v, dict)}
     allowed_tables = {"experiment", "time", "transmission"} | set(_SECTIONS)
@@ -215,38 +269,72 @@ def _load_toml(path: Path, label: str, robot, n_joints) -> Experiment:
             None, f"{', '.join(both)} given both at the top and in [experiment]; keep one."
         )
     exp.update(top)
-    S = "experiment"
-    opts = _Options(
-        name=tk.string(S, exp, "name", "") or path.stem,
-        sampling_rate=tk.number(S, exp, "sampling_rate", positive=True),
-        start_time=tk.number(S, exp, "start_time", 0.0),
-        start_offset=tk.integer(S, exp, "start_offset", 0, minimum=0),
-        resample=exp.get("resample", False),
-        time_tolerance=tk.number(S, exp, "time_tolerance", TIME_STEP_TOLERANCE, positive=True),
-        where=f"{label}, [experiment]",
-    )
-    if opts.sampling_rate is not None and opts.sampling_rate > MAX_SAMPLING_RATE:
-        raise tk.err(
-            S,
-            f"sampling_rate = {opts.sampling_rate:g} Hz is out of range: give the rate in Hz, "
-            f"at most {MAX_SAMPLING_RATE:g} (robot controllers log at 100 Hz … 10 kHz).",
+    return exp, tables
+
+
+def _experiment_options(exp: dict, tk: _Toml, path: Path, label: str) -> tuple[_Options, str | None]:
+    """The [experiment] options (declarative: _EXPERIMENT_FIELDS) and the default data file."""
+    v = {key: tk.field("experiment", exp, key, f) for key, f in _EXPERIMENT_FIELDS.items()}
+    opts = _Options(name=v["name"] or path.stem, sampling_rate=v["sampling_rate"],
+                    start_time=v["start_time"], start_offset=v["start_offset"], resample=v["resample"],
+                    time_tolerance=v["time_tolerance"], where=f"{label}, [experiment]")
+    return opts, v["file"]
+
+
+def _load_toml(path: Path, label: str, robot, n_joints) -> Experiment:
+    """An Experiment from an experiment description (see the module's docstring)."""
+    return _Description(path, label, robot, n_joints).load()
+
+
+class _Description:
+    """One experiment TOML being loaded: its data files, the sections read, the notices."""
+
+    def __init__(self, path: Path, label: str, robot, n_joints):
+        self.path, self.label, self.robot, self.n_joints = path, label, robot, n_joints
+        self.tk = _Toml(label)
+        self.notices: list[str] = []
+        self.raws: dict[str, _RawFile] = {}
+        self.used_names: dict[str, set[str]] = {}
+        self.default_file: str | None = None
+
+    # --- the steps, in order
+    def load(self) -> Experiment:
+        tk, label = self.tk, self.label
+        exp, tables = _split_tables(_parse_toml(self.path, label), tk)
+        opts, self.default_file = _experiment_options(exp, tk, self.path, label)
+        meta: dict = {"description": label}
+        sections = {s: tables[s] for s in _SECTIONS if s in tables}
+        if not sections and "time" not in tables:
+            return self._column_format(tables, opts, meta)
+        time_col, t = self._time(tables, opts)
+        _check_required(sections, tk)
+        values, sides, section_cols = self._signals(sections)
+        n = self._joint_count(values, section_cols)
+        self._check_lengths(values, section_cols, time_col, t)
+        for s, table in sections.items():
+            self._scale(s, table, values, n)
+            if s in ("torques", "currents"):
+                self._gains(s, table, values, n)
+        self._transmission(tables, sections, sides, values, n)
+        self._unused_notice()
+        _release(self.raws.values(), [time_col] + [c for cols in section_cols.values() for c in cols])
+        signals = {_SECTIONS[s]: v for s, v in values.items()}
+        if "i" in signals:
+            signals["tau"] = signals.pop("i")
+        shift, min_shift, max_shift = _reference_shift(sections, tk)
+        cols_of = {("tau" if _SECTIONS[s] == "i" else _SECTIONS[s]):
+                   (None if sides[s] == "motor" else section_cols[s]) for s in sections}
+        return _assemble(
+            t=t, time_col=time_col, signals=signals, opts=opts, notices=self.notices,
+            source=f"{label} (data: {', '.join(self.raws)})", meta=meta, shift=shift,
+            max_shift=max_shift, min_shift=min_shift, shift_where=f"{label}, [reference]",
+            robot=self.robot, cols_of=cols_of,
         )
-    if not isinstance(opts.resample, bool):
-        raise tk.err(S, f"resample must be true or false, got {opts.resample!r}.")
-    default_file = tk.string(S, exp, "file")
-    notices: list[str] = []
-    meta: dict = {"description": label}
 
-    def resolve(f: str) -> tuple[Path, str]:
-        p = Path(f)
-        if not p.is_absolute():
-            p = base / p
-        return p, str(p)
-
-    sections = {s: tables[s] for s in _SECTIONS if s in tables}
-    if not sections and "time" not in tables:
-        # the data file is in dynid's column format
-        if default_file is None:
+    def _column_format(self, tables, opts, meta) -> Experiment:
+        """No signal section: [experiment] file is in dynid's column format."""
+        tk = self.tk
+        if self.default_file is None:
             raise tk.err(
                 None,
                 "describes no data. Give [experiment] file = \"...\" (a file in dynid's "
@@ -258,107 +346,239 @@ def _load_toml(path: Path, label: str, robot, n_joints) -> Experiment:
                 "applies to [positions] / [torques] sections with side = \"motor\"; this "
                 "file has none.",
             )
-        p, plabel = resolve(default_file)
+        p, plabel = self._resolve(self.default_file)
         if p.suffix.lower() == ".toml":
-            raise tk.err(S, "file must be a data file, not another TOML.")
-        raw = _read_referenced(p, plabel, f"{label}, [experiment]")
-        return _from_columns(raw, robot, n_joints, opts, f"{label} (data: {plabel})", notices, meta)
+            raise tk.err("experiment", "file must be a data file, not another TOML.")
+        raw = _read_referenced(p, plabel, f"{self.label}, [experiment]")
+        return _from_columns(raw, self.robot, self.n_joints, opts, f"{self.label} (data: {plabel})",
+                             self.notices, meta)
 
-    # --- signal sections
-    raws: dict[str, _RawFile] = {}
-    used_names: dict[str, set[str]] = {}
-
-    def raw_for(section: str, table: dict) -> _RawFile:
-        f = tk.string(section, table, "file", default_file)
-        if f is None:
-            raise tk.err(section, "no data file: give file = \"...\" here or in [experiment].")
-        p, plabel = resolve(f)
-        if plabel not in raws:
-            raws[plabel] = _read_referenced(p, plabel, f"{label}, [{section}]")
-            used_names[plabel] = set()
-            notices.extend(raws[plabel].notices)
-        return raws[plabel]
-
-    def available(raw: _RawFile) -> str:
-        names = list(raw.arrays)
-        return _short_list([f"'{x}'" for x in names], 15)
-
-    def select(section: str, table: dict, single: bool = False) -> list[_Col]:
-        raw = raw_for(section, table)
-        key = table.get("key")
-        cols = table.get("columns")
-        if single:
-            key2 = table.get("column")
-            if key is not None and key2 is not None:
-                raise tk.err(section, "give either key or column, not both.")
-            key = key if key is not None else key2
-            if key is None:
-                raise tk.err(section, "name the time column: column = \"...\" (or key = \"...\").")
-            if not isinstance(key, str):
-                raise tk.err(section, f"column must be a string, got {key!r}.")
-        else:
-            if (key is None) == (cols is None):
-                raise tk.err(
-                    section,
-                    "give exactly one of columns = [\"...\", ...] (one column per joint) "
-                    "or key = \"...\" (a 2-D array of shape (N, n) in an npz/mat file).",
+    def _time(self, tables, opts):
+        """(the time column, its values in s) from [time], or (None, None) with a sampling_rate."""
+        if "time" not in tables:
+            if opts.sampling_rate is None:
+                raise self.tk.err(
+                    None,
+                    "no time: give [experiment] sampling_rate = ... (Hz) or a [time] section naming "
+                    "the time column.",
                 )
+            return None, None
+        tt = tables["time"]
+        self.tk.check_keys("time", tt, _TIME_KEYS)
+        time_col = self._select_single("time", tt)
+        t, note = _time_values(time_col)
+        if note:
+            self.notices.append(note)
+        _check_finite([(time_col, t)])
+        tscale = self.tk.number("time", tt, "scale", 1.0, positive=True)
+        if tscale != 1.0:
+            t = t * tscale
+            self.notices.append(f"time scaled by {_fmt(tscale)} ([time] scale)")
+        return time_col, t
+
+    def _signals(self, sections):
+        """(values (N, n) per section, side per section, the columns of each section)."""
+        values: dict[str, np.ndarray] = {}
+        sides: dict[str, str] = {}
+        section_cols: dict[str, list[_Col]] = {}
+        for s, table in sections.items():
+            self.tk.check_keys(s, table, _SECTION_KEYS | _EXTRA_KEYS.get(s, set()))
+            cols = self._select(s, table)
+            items = [(c, _to_float(c)) for c in cols]
+            _check_finite(items)
+            _plaus.check_magnitude(items, self.robot)
+            values[s] = np.column_stack([v for _, v in items])
+            section_cols[s] = cols
+            side = self.tk.string(s, table, "side", "joint")
+            if side not in ("joint", "motor"):
+                raise self.tk.err(s, f"side must be \"joint\" or \"motor\", got {side!r}.")
+            sides[s] = side
+        return values, sides, section_cols
+
+    def _joint_count(self, values, section_cols) -> int:
+        ns = {s: v.shape[1] for s, v in values.items()}
+        if len(set(ns.values())) > 1:
+            raise self.tk.err(
+                None,
+                "the sections disagree on the number of joints: "
+                + ", ".join(f"[{s}] has {k}" for s, k in ns.items())
+                + ". Give one column per joint in every section.",
+            )
+        n = next(iter(ns.values()))
+        expected, who = _robot_joints(self.robot, self.n_joints)
+        if expected is not None and n != expected:
+            s0 = next(iter(values))
+            raise DataError(
+                f"{who} but {self.label} gives {n} columns in [{s0}] ({section_cols[s0][0].raw.label}). "
+                "Load the data with the robot it was recorded on, or fix the column lists."
+            )
+        return n
+
+    def _check_lengths(self, values, section_cols, time_col, t) -> None:
+        lens = {s: v.shape[0] for s, v in values.items()}
+        if time_col is not None:
+            lens["time"] = t.size
+        if len(set(lens.values())) > 1:
+            raise self.tk.err(
+                None,
+                "the sections have different numbers of samples: "
+                + ", ".join(
+                    f"[{s}] {k} ({(time_col if s == 'time' else section_cols[s][0]).raw.label})"
+                    for s, k in lens.items()
+                )
+                + ". Every signal needs one value per sample.",
+            )
+        if next(iter(lens.values())) < 2:
+            raise self.tk.err(None, "the data have fewer than 2 samples.")
+
+    def _scale(self, s, table, values, n) -> None:
+        sc = table.get("scale")
+        if sc is None:
+            return
+        sc = self.tk.numbers(s, table, "scale", n) if isinstance(sc, list) else self.tk.number(s, table, "scale")
+        zero = np.flatnonzero(np.atleast_1d(sc) == 0)
+        if zero.size:
+            which = "scale" if np.isscalar(sc) else f"scale[{int(zero[0])}] (joint {int(zero[0]) + 1})"
+            raise self.tk.err(
+                s,
+                f"{which} = 0 would make every value of the signal 0. Give the factor "
+                "that converts the file's values to SI units (1 if they are already), "
+                "or remove scale.",
+            )
+        values[s] = values[s] * sc
+        self.notices.append(f"[{s}] scaled by {sc if np.isscalar(sc) else list(sc)}")
+
+    def _gains(self, s, table, values, n) -> None:
+        g = self.tk.numbers(s, table, "drive_gains", n)
+        if g is not None and np.any(g == 0):
+            j = int(np.flatnonzero(g == 0)[0])
+            raise self.tk.err(
+                s,
+                f"drive_gains[{j}] = 0 (joint {j + 1}) would make that joint's torque 0 "
+                "throughout. Give the gain that converts the signal to N·m (the motor's "
+                "torque constant × gear ratio for a current), or 1 if the column already "
+                "holds torques.",
+            )
+        if g is None and s == "currents":
+            g, origin = _drive_gains(self.robot, n, self.label)
+            self.notices.append(
+                f"[currents]: torque = drive gain × current, g = "
+                f"[{', '.join(_fmt(x) for x in g)}] ({origin})"
+            )
+        elif g is not None:
+            self.notices.append(
+                f"[{s}]: drive gains [{', '.join(_fmt(x) for x in g)}] applied "
+                "(signal → torque)"
+            )
+        if g is not None:
+            values[s] = values[s] * g
+
+    def _transmission(self, tables, sections, sides, values, n) -> None:
+        motor = [s for s in sections if sides[s] == "motor"]
+        R = offsets = None
+        if "transmission" in tables:
+            R, offsets = _reduction(tables["transmission"], self.tk, n)
+            if not motor:
+                self.notices.append(
+                    f"{self.label}: [transmission] given but no section has side = \"motor\"; unused"
+                )
+        if motor and R is None:
+            raise self.tk.err(
+                motor[0],
+                "side = \"motor\" needs a [transmission] section (gear_ratios, couplings, "
+                "position_offsets) to convert to the joint side.",
+            )
+        for s in motor:
+            values[s], how = _to_joint_side(s, values[s], R, offsets)
+            self.notices.append(f"[{s}]: motor side converted to joint side, {how}")
+
+    def _unused_notice(self) -> None:
+        for plabel, raw in self.raws.items():
+            unused = [k for k in raw.arrays if k not in self.used_names[plabel]]
+            unused += [k for k in raw.unreadable]
+            if unused:
+                self.notices.append(
+                    f"{plabel}: not used by {self.label}: {_short_list([repr(u) for u in unused])}"
+                )
+
+    # --- data files and their columns
+    def _resolve(self, f: str) -> tuple[Path, str]:
+        p = Path(f)
+        if not p.is_absolute():
+            p = self.path.parent / p
+        return p, str(p)
+
+    def _raw_for(self, section: str, table: dict) -> _RawFile:
+        f = self.tk.string(section, table, "file", self.default_file)
+        if f is None:
+            raise self.tk.err(section, "no data file: give file = \"...\" here or in [experiment].")
+        p, plabel = self._resolve(f)
+        if plabel not in self.raws:
+            self.raws[plabel] = _read_referenced(p, plabel, f"{self.label}, [{section}]")
+            self.used_names[plabel] = set()
+            self.notices.extend(self.raws[plabel].notices)
+        return self.raws[plabel]
+
+    def _lookup(self, raw: _RawFile, name: str, section: str, one_d: bool) -> _Col:
+        col = _lookup(raw, name, section, self.tk, _available, one_d=one_d)
+        self.used_names[raw.label].add(name)
+        return col
+
+    def _select_single(self, section: str, table: dict) -> _Col:
+        """The one column [time] names (column = ... or key = ...)."""
+        raw = self._raw_for(section, table)
+        key, key2 = table.get("key"), table.get("column")
+        if key is not None and key2 is not None:
+            raise self.tk.err(section, "give either key or column, not both.")
+        key = key if key is not None else key2
+        if key is None:
+            raise self.tk.err(section, "name the time column: column = \"...\" (or key = \"...\").")
+        if not isinstance(key, str):
+            raise self.tk.err(section, f"column must be a string, got {key!r}.")
+        return self._lookup(raw, key, section, one_d=True)
+
+    def _select(self, section: str, table: dict) -> list[_Col]:
+        """The joint columns of a signal section: columns = [...] or key = a 2-D array."""
+        raw = self._raw_for(section, table)
+        key, cols = table.get("key"), table.get("columns")
+        if (key is None) == (cols is None):
+            raise self.tk.err(
+                section,
+                "give exactly one of columns = [\"...\", ...] (one column per joint) "
+                "or key = \"...\" (a 2-D array of shape (N, n) in an npz/mat file).",
+            )
         if cols is not None:
             if not isinstance(cols, list) or not cols or not all(isinstance(c, str) for c in cols):
-                raise tk.err(section, f"columns must be a non-empty list of names, got {cols!r}.")
+                raise self.tk.err(section, f"columns must be a non-empty list of names, got {cols!r}.")
             dup = sorted({c for c in cols if cols.count(c) > 1})
             if dup:
-                raise tk.err(section, f"columns lists {', '.join(map(repr, dup))} twice.")
-            out = []
-            for c in cols:
-                out.append(_lookup(raw, c, section, tk, available, one_d=True))
-                used_names[raw.label].add(c)
-            return out
+                raise self.tk.err(section, f"columns lists {', '.join(map(repr, dup))} twice.")
+            return [self._lookup(raw, c, section, one_d=True) for c in cols]
         if not isinstance(key, str):
-            raise tk.err(section, f"key must be a string, got {key!r}.")
-        if raw.tabular and not single:
-            raise tk.err(
+            raise self.tk.err(section, f"key must be a string, got {key!r}.")
+        if raw.tabular:
+            raise self.tk.err(
                 section,
                 f"key = {key!r}: {raw.label} is a table; name its columns with "
                 "columns = [\"...\", ...], one per joint.",
             )
-        col = _lookup(raw, key, section, tk, available, one_d=single)
-        used_names[raw.label].add(key)
-        if single:
-            return [col]
-        a = col.data
+        a = self._lookup(raw, key, section, one_d=False).data
         if a.ndim == 1:
             a = a[:, None]
         if a.ndim != 2:
-            raise tk.err(
+            raise self.tk.err(
                 section,
                 f"array '{key}' of {raw.label} has shape {a.shape}; expected (N, n), one row "
                 "per sample and one column per joint.",
             )
         return [_Col(raw, key, j, a[:, j]) for j in range(a.shape[1])]
 
-    # time
-    time_col = None
-    t = None
-    if "time" in tables:
-        tt = tables["time"]
-        tk.check_keys("time", tt, _TIME_KEYS)
-        time_col = select("time", tt, single=True)[0]
-        t, note = _time_values(time_col)
-        if note:
-            notices.append(note)
-        _check_finite([(time_col, t)])
-        tscale = tk.number("time", tt, "scale", 1.0, positive=True)
-        if tscale != 1.0:
-            t = t * tscale
-            notices.append(f"time scaled by {_fmt(tscale)} ([time] scale)")
-    elif opts.sampling_rate is None:
-        raise tk.err(
-            None,
-            "no time: give [experiment] sampling_rate = ... (Hz) or a [time] section naming "
-            "the time column.",
-        )
 
+def _available(raw: _RawFile) -> str:
+    return _short_list([f"'{x}'" for x in raw.arrays], 15)
+
+
+def _check_required(sections: dict, tk: _Toml) -> None:
     if "torques" not in sections and "currents" not in sections:
         raise tk.err(None, "no [torques] (or [currents]) section: torques are required.")
     if "torques" in sections and "currents" in sections:
@@ -366,176 +586,63 @@ def _load_toml(path: Path, label: str, robot, n_joints) -> Experiment:
     if "positions" not in sections and "reference" not in sections:
         raise tk.err(None, "no [positions] (or [reference]) section: positions are required.")
 
-    values: dict[str, np.ndarray] = {}
-    sides: dict[str, str] = {}
-    section_cols: dict[str, list[_Col]] = {}
-    for s, table in sections.items():
-        tk.check_keys(s, table, _SECTION_KEYS | _EXTRA_KEYS.get(s, set()))
-        cols = select(s, table)
-        items = [(c, _to_float(c)) for c in cols]
-        _check_finite(items)
-        _plaus.check_magnitude(items, robot)
-        values[s] = np.column_stack([v for _, v in items])
-        section_cols[s] = cols
-        side = tk.string(s, table, "side", "joint")
-        if side not in ("joint", "motor"):
-            raise tk.err(s, f"side must be \"joint\" or \"motor\", got {side!r}.")
-        sides[s] = side
 
-    # joint counts
-    ns = {s: v.shape[1] for s, v in values.items()}
-    if len(set(ns.values())) > 1:
+def _reduction(tr: dict, tk: _Toml, n: int):
+    """(R, position offsets or None) of a [transmission] table."""
+    tk.check_keys("transmission", tr, _TRANSMISSION_KEYS)
+    if "gear_ratios" not in tr:
+        raise tk.err("transmission", "gear_ratios is required (one per joint).")
+    ratios = tk.numbers("transmission", tr, "gear_ratios", n)
+    couplings = tr.get("couplings", [])
+    if not isinstance(couplings, list):
+        raise tk.err("transmission", f"couplings must be a list, got {couplings!r}.")
+    try:
+        R = _tr.reduction_matrix(list(ratios), couplings)
+    except DataError as e:
+        raise tk.err("transmission", str(e)) from None
+    return R, tk.numbers("transmission", tr, "position_offsets", n)
+
+
+def _to_joint_side(s: str, values, R, offsets):
+    """(the joint-side signal, how it was converted) of a motor-side section."""
+    if s in ("positions", "reference"):
+        how = "q = R⁻¹·q_motor" + (" + position_offsets" if offsets is not None else "")
+        return _tr.joint_from_motor_positions(values, R, offsets), how
+    if s in ("velocities", "accelerations"):
+        return _tr.joint_from_motor_velocities(values, R), "R⁻¹·(motor signal)"
+    return _tr.joint_from_motor_torques(values, R), "tau = Rᵀ·tau_motor"
+
+
+def _reference_shift(sections: dict, tk: _Toml):
+    """(shift or None, min_shift, max_shift) of the [reference] section."""
+    if "reference" not in sections:
+        return None, None, None
+    rt = sections["reference"]
+    shift = rt.get("shift", 0)
+    if not (shift == "estimate" or (isinstance(shift, int) and not isinstance(shift, bool))):
         raise tk.err(
-            None,
-            "the sections disagree on the number of joints: "
-            + ", ".join(f"[{s}] has {k}" for s, k in ns.items())
-            + ". Give one column per joint in every section.",
+            "reference",
+            f"shift must be a whole number of samples or \"estimate\", got {shift!r}.",
         )
-    n = next(iter(ns.values()))
-    expected, who = _robot_joints(robot, n_joints)
-    if expected is not None and n != expected:
-        s0 = next(iter(values))
+    max_shift = tk.integer("reference", rt, "max_shift", None)
+    min_shift = tk.integer("reference", rt, "min_shift", None)
+    if min_shift is not None and max_shift is not None and min_shift > max_shift:
+        raise tk.err("reference", f"min_shift = {min_shift} exceeds max_shift = {max_shift}.")
+    return (None if shift == 0 else shift), min_shift, max_shift
+
+
+def _refuse_large(path: Path, label: str) -> None:
+    """Refuse an experiment TOML over MAX_TOML_BYTES before reading it (parsing takes ~2x its size)."""
+    try:
+        size = path.stat().st_size
+    except OSError:
+        return                      # the reader says what is wrong
+    if size > MAX_TOML_BYTES:
         raise DataError(
-            f"{who} but {label} gives {n} columns in [{s0}] ({section_cols[s0][0].raw.label}). "
-            "Load the data with the robot it was recorded on, or fix the column lists."
+            f"{label} is {size / 2**20:.1f} MiB, more than the {MAX_TOML_BYTES // 2**20} MiB an experiment "
+            "TOML may have: it names data files and columns, the samples belong in the data file "
+            "(.csv, .parquet, .npz, .mat) it refers to."
         )
-    # lengths
-    lens = {s: v.shape[0] for s, v in values.items()}
-    if time_col is not None:
-        lens["time"] = t.size
-    if len(set(lens.values())) > 1:
-        raise tk.err(
-            None,
-            "the sections have different numbers of samples: "
-            + ", ".join(
-                f"[{s}] {k} ({(time_col if s == 'time' else section_cols[s][0]).raw.label})"
-                for s, k in lens.items()
-            )
-            + ". Every signal needs one value per sample.",
-        )
-    if next(iter(lens.values())) < 2:
-        raise tk.err(None, "the data have fewer than 2 samples.")
-
-    # scale and gains
-    for s, table in sections.items():
-        sc = table.get("scale")
-        if sc is not None:
-            if isinstance(sc, list):
-                sc = tk.numbers(s, table, "scale", n)
-            else:
-                sc = tk.number(s, table, "scale")
-            zero = np.flatnonzero(np.atleast_1d(sc) == 0)
-            if zero.size:
-                which = "scale" if np.isscalar(sc) else f"scale[{int(zero[0])}] (joint {int(zero[0]) + 1})"
-                raise tk.err(
-                    s,
-                    f"{which} = 0 would make every value of the signal 0. Give the factor "
-                    "that converts the file's values to SI units (1 if they are already), "
-                    "or remove scale.",
-                )
-            values[s] = values[s] * sc
-            notices.append(f"[{s}] scaled by {sc if np.isscalar(sc) else list(sc)}")
-        if s in ("torques", "currents"):
-            g = tk.numbers(s, table, "drive_gains", n)
-            if g is not None and np.any(g == 0):
-                j = int(np.flatnonzero(g == 0)[0])
-                raise tk.err(
-                    s,
-                    f"drive_gains[{j}] = 0 (joint {j + 1}) would make that joint's torque 0 "
-                    "throughout. Give the gain that converts the signal to N·m (the motor's "
-                    "torque constant × gear ratio for a current), or 1 if the column already "
-                    "holds torques.",
-                )
-            if g is None and s == "currents":
-                g, origin = _drive_gains(robot, n, label)
-                notices.append(
-                    f"[currents]: torque = drive gain × current, g = "
-                    f"[{', '.join(_fmt(x) for x in g)}] ({origin})"
-                )
-            elif g is not None:
-                notices.append(
-                    f"[{s}]: drive gains [{', '.join(_fmt(x) for x in g)}] applied "
-                    "(signal → torque)"
-                )
-            if g is not None:
-                values[s] = values[s] * g
-
-    # transmission
-    motor = [s for s in sections if sides[s] == "motor"]
-    R = offsets = None
-    if "transmission" in tables:
-        tr = tables["transmission"]
-        tk.check_keys("transmission", tr, _TRANSMISSION_KEYS)
-        if "gear_ratios" not in tr:
-            raise tk.err("transmission", "gear_ratios is required (one per joint).")
-        ratios = tk.numbers("transmission", tr, "gear_ratios", n)
-        couplings = tr.get("couplings", [])
-        if not isinstance(couplings, list):
-            raise tk.err("transmission", f"couplings must be a list, got {couplings!r}.")
-        try:
-            R = _tr.reduction_matrix(list(ratios), couplings)
-        except DataError as e:
-            raise tk.err("transmission", str(e)) from None
-        offsets = tk.numbers("transmission", tr, "position_offsets", n)
-        if not motor:
-            notices.append(
-                f"{label}: [transmission] given but no section has side = \"motor\"; unused"
-            )
-    if motor and R is None:
-        raise tk.err(
-            motor[0],
-            "side = \"motor\" needs a [transmission] section (gear_ratios, couplings, "
-            "position_offsets) to convert to the joint side.",
-        )
-    for s in motor:
-        if s in ("positions", "reference"):
-            values[s] = _tr.joint_from_motor_positions(values[s], R, offsets)
-            how = "q = R⁻¹·q_motor" + (" + position_offsets" if offsets is not None else "")
-        elif s in ("velocities", "accelerations"):
-            values[s] = _tr.joint_from_motor_velocities(values[s], R)
-            how = "R⁻¹·(motor signal)"
-        else:
-            values[s] = _tr.joint_from_motor_torques(values[s], R)
-            how = "tau = Rᵀ·tau_motor"
-        notices.append(f"[{s}]: motor side converted to joint side, {how}")
-
-    # unused data
-    for plabel, raw in raws.items():
-        unused = [k for k in raw.arrays if k not in used_names[plabel]]
-        unused += [k for k in raw.unreadable]
-        if unused:
-            notices.append(
-                f"{plabel}: not used by {label}: {_short_list([repr(u) for u in unused])}"
-            )
-
-    signals = {_SECTIONS[s]: v for s, v in values.items()}
-    if "i" in signals:
-        signals["tau"] = signals.pop("i")
-    shift = max_shift = min_shift = None
-    if "reference" in sections:
-        rt = sections["reference"]
-        shift = rt.get("shift", 0)
-        if not (shift == "estimate" or (isinstance(shift, int) and not isinstance(shift, bool))):
-            raise tk.err(
-                "reference",
-                f"shift must be a whole number of samples or \"estimate\", got {shift!r}.",
-            )
-        max_shift = tk.integer("reference", rt, "max_shift", None)
-        min_shift = tk.integer("reference", rt, "min_shift", None)
-        if min_shift is not None and max_shift is not None and min_shift > max_shift:
-            raise tk.err("reference", f"min_shift = {min_shift} exceeds max_shift = {max_shift}.")
-        if shift == 0:
-            shift = None
-    files = ", ".join(raws)
-    cols_of = {("tau" if _SECTIONS[s] == "i" else _SECTIONS[s]):
-               (None if sides[s] == "motor" else section_cols[s]) for s in sections}
-    return _assemble(
-        t=t, time_col=time_col, signals=signals, opts=opts, notices=notices,
-        source=f"{label} (data: {files})", meta=meta, shift=shift, max_shift=max_shift,
-        min_shift=min_shift,
-        shift_where=f"{label}, [reference]",
-        robot=robot, cols_of=cols_of,
-    )
 
 
 def _read_referenced(p: Path, plabel: str, where: str) -> _RawFile:

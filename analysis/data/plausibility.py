@@ -35,6 +35,9 @@ TAU_ERROR_FACTOR = 20.0
 #: A sample farther than this × the column's robust scale (1.4826 × MAD) from the median
 #: of its 4 neighbours, which agree among themselves, is an isolated spike.
 SPIKE_FACTOR = 20.0
+#: every joint's 99th-percentile |tau_j| below this × its tau_max: an error (kN·m?). A moving arm
+#: needs a few % of tau_max on some joint; 1000x too small data (kN·m) sit at 1e-4 .. 1e-3.
+TAU_SMALL_FACTOR = 2e-3
 #: Sampling rates below this (Hz) are implausible for dynamic identification.
 LOW_RATE = 10.0
 #: ... and an error when every joint's 99th-percentile speed is below this × qd_max.
@@ -118,6 +121,27 @@ class _Where:
         return c.raw.row(int(self.rows[k]))
 
 
+def _check_tau_too_small(tau, robot, w) -> None:
+    """Every joint's torque a tiny fraction of its tau_max: torques in kN·m (the mirror of mN·m)."""
+    ratios = []
+    for j in range(tau.shape[1]):
+        tmax = _positive(_joint_value(robot, j, "tau_max"))
+        if tmax is None:
+            return                  # a joint without tau_max: nothing to compare against
+        ratios.append((float(np.percentile(np.abs(tau[:, j]), 99)) / tmax, j, tmax))
+    if not ratios or tau.shape[0] < 10:
+        return
+    top, j, tmax = max(ratios)
+    if 0 < top < TAU_SMALL_FACTOR:      # (all zero: a dead channel, reported as such later)
+        p99 = top * tmax
+        raise DataError(
+            f"{w.name('tau', j)}: the largest joint torque, tau{j + 1}, reaches only {_g(p99)} N·m (99th "
+            f"percentile), {top:.2g}× the robot's tau_max {_g(tmax)} N·m, and every other joint less: are "
+            "the torques in kN·m (or is the drive gain wrong)? Convert the columns to N·m (in an "
+            "experiment TOML: [torques] scale = 1000), or correct tau_max in the robot file."
+        )
+
+
 def check_limits(signals: dict, rows, robot, cols_of, source: str, notices: list[str]) -> None:
     """Torques against tau_max and positions against q_limits (see the module doc)."""
     if robot is None:
@@ -125,6 +149,7 @@ def check_limits(signals: dict, rows, robot, cols_of, source: str, notices: list
     w = _Where(cols_of, rows, source)
     tau = signals.get("tau")
     if tau is not None:
+        _check_tau_too_small(tau, robot, w)
         for j in range(tau.shape[1]):
             tmax = _positive(_joint_value(robot, j, "tau_max"))
             if tmax is None:

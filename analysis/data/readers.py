@@ -9,6 +9,7 @@ the row-numbering convention used in messages. Turning raw columns into signals 
 from __future__ import annotations
 
 import csv
+import math
 import os
 import re
 import stat
@@ -24,6 +25,12 @@ from dynid.errors import DataError
 # --------------------------------------------------------------------------------------
 # Raw file readers
 # --------------------------------------------------------------------------------------
+
+#: Compressed data (npz members, Parquet) may expand at most this many times the file's
+#: size: recorded signals compress 1.5 .. 10x; a zip bomb expands 1000x.
+MAX_EXPANSION = 50
+#: ... unless the expanded data stay below this (small files of constant columns compress well).
+EXPANSION_FREE_BYTES = 64 << 20
 
 
 class _RawFile:
@@ -276,23 +283,41 @@ def _read_csv_precise(path: Path, label: str) -> _RawFile:
     """Python's csv module and one text cell per value; every malformed-input message
     (file, line, data row, column) comes from here. Slow and memory-hungry (a Python
     string per cell), so used only when :func:`_read_csv_fast` declines the file."""
-    data = _read_bytes(path, label)
+    text = _csv_text(_read_bytes(path, label), label)
+    raw = _RawFile(path, label, "csv")
+    header, header_line, rows, line_of_row, blank = _csv_rows(text, label)
+    _check_csv_header(header, header_line, label)
+    _blank_line_notice(raw, blank, line_of_row, label)
+    if not rows:
+        raise DataError(
+            f"{label} has a header line but no data rows. Export the recording again."
+        )
+    _check_csv_widths(rows, header, line_of_row, label)
+    raw.line_of_row = line_of_row
+    _add_csv_columns(raw, header, header_line, list(zip(*rows, strict=True)), label)
+    return raw
+
+
+def _csv_text(data: bytes, label: str) -> str:
+    """The file's text: no NUL bytes, UTF-8 (a BOM dropped)."""
     if b"\0" in data:
         raise DataError(
             f"{label} is not a text file (it contains NUL bytes). Export the data as a "
             "comma-separated text file, or use the matching extension (.parquet, .npz, .mat)."
         )
     try:
-        text = data.decode("utf-8-sig")
+        return data.decode("utf-8-sig")
     except UnicodeDecodeError as e:
         line = data[: e.start].count(b"\n") + 1
         raise DataError(
             f"{label}: line {line} is not valid UTF-8 text (byte {e.start}). "
             "Save the file as UTF-8 CSV."
         ) from None
-    raw = _RawFile(path, label, "csv")
-    lines = re.split(r"\r\n|\r|\n", text)
-    reader = csv.reader(lines)
+
+
+def _csv_rows(text: str, label: str):
+    """(header, its line, data rows, the line of each row, blank lines after the header)."""
+    reader = csv.reader(re.split(r"\r\n|\r|\n", text))
     header: list[str] | None = None
     header_line = 0
     rows: list[list[str]] = []
@@ -322,6 +347,11 @@ def _read_csv_precise(path: Path, label: str) -> _RawFile:
         raise DataError(f"{label} is empty. Export the recording again.")
     while header and header[-1] == "":
         header.pop()
+    return header, header_line, rows, line_of_row, blank
+
+
+def _check_csv_header(header: list[str], header_line: int, label: str) -> None:
+    """The first line names columns, separated by commas."""
     if not header:
         raise DataError(
             f"{label}, file line {header_line}: the header line has no column names. "
@@ -341,24 +371,25 @@ def _read_csv_precise(path: Path, label: str) -> _RawFile:
             "names. Add a header line naming the columns (t, q1..qn, tau1..taun; "
             f"{_CONVENTION}), or describe the file in an experiment TOML."
         )
+
+
+def _blank_line_notice(raw: _RawFile, blank: list[int], line_of_row: list[int], label: str) -> None:
     # blank lines at the very end are normal; others are reported
-    if blank and rows:
-        last = line_of_row[-1]
-        inner = [b for b in blank if b < last]
+    if blank and line_of_row:
+        inner = [b for b in blank if b < line_of_row[-1]]
         if inner:
             raw.notices.append(
                 f"{label}: skipped {len(inner)} blank line(s) among the data (file line(s) "
                 f"{_short_list(inner)})"
             )
-    if not rows:
-        raise DataError(
-            f"{label} has a header line but no data rows. Export the recording again."
-        )
+
+
+def _check_csv_widths(rows: list[list[str]], header: list[str], line_of_row: list[int], label: str) -> None:
+    """Every row as wide as the header (empty trailing cells dropped)."""
     h = len(header)
     for k, row in enumerate(rows):
         if len(row) > h:
-            extra = row[h:]
-            if all(not c.strip() for c in extra):
+            if all(not c.strip() for c in row[h:]):
                 del row[h:]
             else:
                 raise DataError(
@@ -372,8 +403,9 @@ def _read_csv_precise(path: Path, label: str) -> _RawFile:
                 f"names {h} columns: the row is truncated (column '{header[len(row)]}' and "
                 "after are missing). Complete or delete that line."
             )
-    raw.line_of_row = line_of_row
-    columns = list(zip(*rows, strict=True))
+
+
+def _add_csv_columns(raw: _RawFile, header: list[str], header_line: int, columns, label: str) -> None:
     first_pos: dict[str, int] = {}
     for c, name in enumerate(header):
         if name == "":
@@ -387,7 +419,6 @@ def _read_csv_precise(path: Path, label: str) -> _RawFile:
             )
         first_pos[name] = c
         raw.arrays[name] = np.array(columns[c], dtype=object)
-    return raw
 
 
 def _csv_row(line_of_row: list[int], k: int) -> str:
@@ -410,45 +441,89 @@ def _read_parquet(path: Path, label: str) -> _RawFile:
         raise DataError(
             f"{label}: reading Parquet needs pandas and pyarrow: pip install pandas pyarrow"
         ) from None
+    _check_parquet_size(path, label)
     try:
-        df = pd.read_parquet(path)
+        names, n_rows = _parquet_layout(path)
+        raw = _RawFile(path, label, "parquet")
+        # one column at a time: the peak is the arrays kept plus one column, not the
+        # Arrow table, the DataFrame and the arrays at once (issue 31: 10x the file)
+        for c, name in enumerate(names):
+            series = pd.read_parquet(path, columns=[name]).iloc[:, 0]
+            _add_parquet_column(raw, label, c, name, series, pd)
+            del series
+            _release_arrow_memory()
     except ImportError:
         raise DataError(
             f"{label}: reading Parquet files needs pyarrow. Install it with "
             "`pip install pyarrow`, or export the data as CSV."
         ) from None
+    except DataError:
+        raise
     except Exception as e:  # noqa: BLE001 - any reader failure is a bad file
         raise DataError(
             f"{label} is not a readable Parquet file ({type(e).__name__}: "
             f"{str(e).splitlines()[0] if str(e) else ''}). Export it again."
         ) from None
-    raw = _RawFile(path, label, "parquet")
-    for c, name in enumerate(df.columns):
-        sname = str(name).strip()
-        s = df.iloc[:, c]
-        if sname == "":
-            raw.notices.append(f"{label}: column {c + 1} has no name; ignored")
-            continue
-        if sname in raw.arrays:
-            raise DataError(
-                f"{label}: the column name '{sname}' appears twice. Rename or delete one "
-                "of them."
-            )
-        if isinstance(s.dtype, pd.DatetimeTZDtype):
-            s = s.dt.tz_convert(None)
-        kind = s.dtype.kind if isinstance(s.dtype, np.dtype) else None
-        if kind in ("M", "m"):
-            raw.arrays[sname] = s.to_numpy()
-        elif pd.api.types.is_numeric_dtype(s.dtype) and not pd.api.types.is_bool_dtype(s.dtype):
-            try:
-                raw.arrays[sname] = s.to_numpy(dtype=float, na_value=np.nan)
-            except (TypeError, ValueError):
-                raw.arrays[sname] = s.to_numpy(dtype=object)
-        else:
-            raw.arrays[sname] = s.to_numpy(dtype=object)
-    if len(df) == 0:
+    if n_rows == 0:
         raise DataError(f"{label} has columns but no rows. Export the recording again.")
     return raw
+
+
+def _release_arrow_memory() -> None:
+    # Arrow's allocator (mimalloc, jemalloc) keeps freed buffers for reuse: hand them back,
+    # or each column read leaves its decoded copy in the process's memory
+    try:
+        import pyarrow as pa
+        pa.default_memory_pool().release_unused()
+    except (ImportError, AttributeError):
+        pass
+
+
+def _parquet_layout(path: Path):
+    """(column names in order, less the pandas index columns as pandas.read_parquet; rows)."""
+    import pyarrow.parquet as pq
+    pf = pq.ParquetFile(path)
+    schema = pf.schema_arrow
+    meta = schema.pandas_metadata or {}
+    index = {c for c in meta.get("index_columns", []) if isinstance(c, str)}
+    return [n for n in schema.names if n not in index], pf.metadata.num_rows
+
+
+def _add_parquet_column(raw: _RawFile, label: str, c: int, name, s, pd) -> None:
+    sname = str(name).strip()
+    if sname == "":
+        raw.notices.append(f"{label}: column {c + 1} has no name; ignored")
+        return
+    if sname in raw.arrays:
+        raise DataError(
+            f"{label}: the column name '{sname}' appears twice. Rename or delete one "
+            "of them."
+        )
+    if isinstance(s.dtype, pd.DatetimeTZDtype):
+        s = s.dt.tz_convert(None)
+    kind = s.dtype.kind if isinstance(s.dtype, np.dtype) else None
+    if kind in ("M", "m"):
+        raw.arrays[sname] = s.to_numpy()
+    elif pd.api.types.is_numeric_dtype(s.dtype) and not pd.api.types.is_bool_dtype(s.dtype):
+        try:
+            # a copy of numpy's own: the Arrow buffer under the Series is freed now, not held
+            # (and counted) until the whole recording is assembled
+            raw.arrays[sname] = np.array(s.to_numpy(dtype=float, na_value=np.nan), dtype=float, copy=True)
+        except (TypeError, ValueError):
+            raw.arrays[sname] = s.to_numpy(dtype=object)
+    else:
+        raw.arrays[sname] = s.to_numpy(dtype=object)
+
+
+def _check_parquet_size(path: Path, label: str) -> None:
+    """Before loading: the row groups' uncompressed size (from the footer) against the file's."""
+    try:
+        import pyarrow.parquet as pq
+        meta = pq.ParquetFile(path).metadata
+        expanded = sum(meta.row_group(k).total_byte_size for k in range(meta.num_row_groups))
+    except Exception:  # noqa: BLE001 - the reader reports a bad file
+        return
+    _check_expansion(label, expanded, path.stat().st_size, "its columns")
 
 
 def _read_npz(path: Path, label: str) -> _RawFile:
@@ -471,6 +546,7 @@ def _read_npz(path: Path, label: str) -> _RawFile:
             f"files written by numpy.savez{text}. Save the data with "
             "numpy.savez(path, t=..., q=..., tau=...)."
         )
+    _check_npz_sizes(path, label)
     try:
         f = np.load(path, allow_pickle=False)
     except Exception as e:  # noqa: BLE001
@@ -495,6 +571,49 @@ def _read_npz(path: Path, label: str) -> _RawFile:
     if not raw.arrays and not raw.unreadable:
         raise DataError(f"{label} holds no arrays. Save the data with numpy.savez.")
     return raw
+
+
+def _check_expansion(label: str, expanded: int, size: int, what: str) -> None:
+    if expanded > EXPANSION_FREE_BYTES and expanded > MAX_EXPANSION * max(size, 1):
+        raise DataError(
+            f"{label}: {what} expand to {expanded / 2**20:.0f} MiB from a {size / 2**20:.2g} MiB file, "
+            f"more than the {MAX_EXPANSION}x that recorded signals compress to (a zip bomb or a corrupted "
+            "file); it was not loaded. Save the recording uncompressed (numpy.savez) if it is genuine."
+        )
+
+
+def _check_npz_sizes(path: Path, label: str) -> None:
+    """Before loading: each member's declared array size against its stored size, and the
+    archive's expanded size against its file size (np.load allocates what a header declares)."""
+    import zipfile
+    try:
+        zf = zipfile.ZipFile(path)
+    except (zipfile.BadZipFile, OSError, ValueError):
+        return                      # np.load reports the broken archive
+    size = path.stat().st_size
+    with zf:
+        infos = zf.infolist()
+        _check_expansion(label, sum(i.file_size for i in infos), size, "its arrays")
+        for info in infos:
+            if not info.filename.endswith(".npy"):
+                continue
+            try:
+                with zf.open(info) as fh:
+                    version = np.lib.format.read_magic(fh)
+                    read_header = {(1, 0): np.lib.format.read_array_header_1_0,
+                                   (2, 0): np.lib.format.read_array_header_2_0}.get(version)
+                    if read_header is None:
+                        continue
+                    shape, _, dtype = read_header(fh)
+            except Exception:  # noqa: BLE001 - np.load reports a bad member
+                continue
+            declared = dtype.itemsize * math.prod(shape) if dtype.itemsize else 0
+            if declared > info.file_size:
+                raise DataError(
+                    f"{label}: array '{info.filename[:-4]}' declares shape {shape} ({declared / 2**20:.0f} MiB) "
+                    f"but holds {info.file_size / 2**20:.2g} MiB: a corrupted or forged archive; it was not "
+                    "loaded. Save the data again with numpy.savez."
+                )
 
 
 def _read_mat(path: Path, label: str) -> _RawFile:

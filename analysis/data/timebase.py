@@ -111,14 +111,33 @@ def _check_time(t: np.ndarray, col: _Col, rows: np.ndarray, opts: _Options,
     )
 
 
-def _resample(t: np.ndarray, signals: dict[str, np.ndarray], notices: list[str]):
-    med = float(np.median(np.diff(t)))
-    k = int(math.floor((t[-1] - t[0]) / med * (1 + 1e-12)))
+#: resampling may make at most this many times the recorded samples: more means a gap
+#: (interpolating across it would invent the data and could take any amount of memory)
+MAX_RESAMPLE_GROWTH = 2.0
+
+
+def _resample(t: np.ndarray, signals: dict[str, np.ndarray], notices: list[str], where: str = "the time column"):
+    dt = np.diff(t)
+    med = float(np.median(dt))
+    span = (t[-1] - t[0]) / med
+    if not span <= MAX_RESAMPLE_GROWTH * t.size:
+        k = int(np.argmax(dt))
+        raise DataError(
+            f"{where}: resampling at the median step {_fmt(med * 1e3)} ms would make {span:.3g} samples from "
+            f"{t.size} (at most {MAX_RESAMPLE_GROWTH:g}x): the longest step, {_fmt(dt[k])} s after sample "
+            f"{k + 1}, is a gap in the recording, not jitter. Split the recording at its gaps and load "
+            "the parts as separate recordings."
+        )
+    k = int(math.floor(span * (1 + 1e-12)))
     grid = t[0] + med * np.arange(k + 1)
     grid = grid[grid <= t[-1]]
     out = {}
-    for s, a in signals.items():
-        out[s] = np.column_stack([np.interp(grid, t, a[:, j]) for j in range(a.shape[1])])
+    for s in list(signals):
+        a = signals.pop(s)          # the caller's copy goes as its resampled one is made
+        out[s] = np.empty((grid.size, a.shape[1]))
+        for j in range(a.shape[1]):
+            out[s][:, j] = np.interp(grid, t, a[:, j])
+        del a
     notices.append(
         f"resampled {t.size} samples with irregular time steps onto a uniform grid of "
         f"{grid.size} samples at the median step {_fmt(med * 1e3)} ms "

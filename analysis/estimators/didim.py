@@ -136,6 +136,7 @@ from dynid.dynamics.dynamic_model import inverse_dynamics, mass_matrix
 from dynid.dynamics.simulation import friction_stiffness, simulate_closed_loop
 from dynid.errors import DataError, DynidError, InputError
 from dynid.provenance import json_safe, versions
+from dynid.ranges import check_range
 
 __all__ = ["identify_didim", "DIDIMResult", "initial_parameters", "initial_standard",
            "DIDIM_SETTINGS_HELP", "resolve_didim_settings"]
@@ -687,6 +688,12 @@ def identify_didim(experiment, robot, *, settings=None, chi0=None, tol=DEFAULT_T
     t = np.asarray(experiment.t, dtype=float)
     s, more = resolve_didim_settings(experiment, robot, ctrl, qr, settings)
     notices += more
+    # ranges first (dynid.ranges): a tiny v_s makes the simulation stiff without end
+    if s["v_s"] != "auto":
+        s["v_s"] = check_range("v_s", s["v_s"])
+    if physical:
+        check_range("prior_weight", prior_weight)
+        check_range("n_boot", n_boot)
     if isinstance(update_gains, (bool, np.bool_)):
         update_gains = bool(update_gains)
     if not (isinstance(update_gains, bool) or update_gains == "initial"):

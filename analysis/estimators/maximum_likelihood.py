@@ -587,8 +587,13 @@ def _kept_equations(t, qdf, qd_threshold, reversal_guard, K, f0, p):
         reversal_guard = 1.0 / (4.0 * K * f0)
     keep &= _reversal_guard(t, qdf, float(reversal_guard))
     if np.any(keep.sum(axis=0) < 2 * p):
-        raise InputError(f"the velocity dead zone (qd_threshold={qd_threshold!r}) leaves "
-                         f"{int(keep.sum(axis=0).min())} torque equations on some joint; lower it")
+        # say what removed the equations: the dead zone, the guard around reversals, or a short record
+        j = int(np.argmin(keep.sum(axis=0)))
+        in_dead = int((~velocity_dead_zone(qdf, qd_threshold, fraction=ML_DEAD_ZONE_FRACTION))[:, j].sum())
+        raise InputError(f"maximum likelihood keeps {int(keep[:, j].sum())} of {keep.shape[0]} torque equations "
+                         f"of joint {j + 1} (the velocity dead zone leaves {in_dead}, the guard around velocity "
+                         f"reversals takes the rest) but needs at least {2 * p}: give a longer recording "
+                         f"(more periods of the excitation), or use IDIM (--method idim, method='idim')")
     return keep
 
 

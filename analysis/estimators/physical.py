@@ -127,6 +127,7 @@ from dynid.analysis.results import ParameterResults, _check_alpha
 from dynid.dynamics.urdf_writer import consistency, inertial_slice, pseudo_inertia_basis
 from dynid.errors import InputError
 from dynid.provenance import json_safe, versions
+from dynid.ranges import check_range
 
 __all__ = ["PhysicalResult", "PhysicalSupport", "pc_wls", "identify_physical", "require_cvxpy", "TIE_BREAK",
            "apriori_pseudo_inertias"]
@@ -377,8 +378,8 @@ def pc_wls(robot, bp, beta_wls, cov_wls, *, prior=None, prior_weight=1.0, mass_t
         w = math.nan
     if not (math.isfinite(w) and w >= 0):
         raise InputError(f"prior_weight must be a number >= 0, got {prior_weight!r}")
-    if int(n_boot) < 0:
-        raise InputError(f"n_boot must be >= 0, got {n_boot!r}")
+    check_range("prior_weight", prior_weight)
+    n_boot = check_range("n_boot", n_boot)
     beta_wls = np.asarray(beta_wls, dtype=float)
     cov_wls = np.asarray(cov_wls, dtype=float)
     if beta_wls.shape != (bp.n_base,) or cov_wls.shape != (bp.n_base, bp.n_base):

@@ -18,6 +18,9 @@ from dynid.errors import InputError
 
 REQUIRED = ("robot_id", "timestamp", "path", "robot")
 _TEMP = re.compile(r"^temperature(\d*)$")
+#: accepted joint temperatures, degrees Celsius: a gearbox's lubricant works from -40 to ~150 degC;
+#: the margin takes sensors in the cold and a motor winding's hot spot
+MIN_TEMPERATURE, MAX_TEMPERATURE = -100.0, 300.0
 #: characters a robot_id may hold: it names a folder of the store
 _ID_OK = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 
@@ -93,12 +96,64 @@ def read_catalogue(catalogue) -> pd.DataFrame:
             k = int(np.argmax(bad.to_numpy()))
             raise InputError(f"{label}: column {col}, row {k + 1}: {frame[col].iloc[k]!r} is not a "
                              f"temperature in degrees Celsius (leave it empty when not logged)")
+        out_of_range = ~(values.isna() | ((values >= MIN_TEMPERATURE) & (values <= MAX_TEMPERATURE)))
+        if out_of_range.any():
+            k = int(np.argmax(out_of_range.to_numpy()))
+            raise InputError(f"{label}: column {col}, row {k + 1}: {frame[col].iloc[k]!r} is not a joint "
+                             f"temperature in degrees Celsius (accepted: {MIN_TEMPERATURE:g} to "
+                             f"{MAX_TEMPERATURE:g}; leave it empty when not logged)")
         frame[col] = values.astype(float)
     frame["path"] = [p if os.path.isabs(p) else os.path.normpath(os.path.join(folder, p))
                      for p in frame["path"]]
-    dup = frame.duplicated(["robot_id", "path"])
+    real = frame["path"].map(os.path.realpath)
+    dup = real.duplicated()
     if dup.any():
         k = int(np.argmax(dup.to_numpy()))
-        raise InputError(f"{label}: row {k + 1} repeats robot {frame['robot_id'].iloc[k]!r} and recording "
-                         f"{frame['path'].iloc[k]!r}; each recording is listed once")
+        first = int(np.argmax((real == real.iloc[k]).to_numpy()))
+        how = "" if frame["path"].iloc[k] == frame["path"].iloc[first] else \
+            f" (as {frame['path'].iloc[first]!r} in row {first + 1}, through a link)"
+        raise InputError(f"{label}: row {k + 1} repeats the recording {frame['path'].iloc[k]!r}{how}; each "
+                         f"recording is listed once (stored twice, it would count twice in the wear monitor)")
     return frame.sort_values(["robot_id", "timestamp"], kind="stable").reset_index(drop=True)
+
+
+#: the largest recording TOML read for the data file it refers to
+_TOML_PEEK_BYTES = 1 << 20
+
+
+def _referenced(path: str) -> list:
+    """Files an experiment TOML names (`file`, `urdf`), relative to its folder."""
+    if not path.lower().endswith(".toml"):
+        return []
+    try:
+        if not os.path.isfile(path) or os.path.getsize(path) > _TOML_PEEK_BYTES:
+            return []
+        import tomllib
+        with open(path, "rb") as fh:
+            doc = tomllib.load(fh)
+    except Exception:           # noqa: BLE001 - the task reports a bad file properly later
+        return []
+    tables = [doc] + [v for k, v in doc.items() if k == "experiment" and isinstance(v, dict)]
+    return [os.path.join(os.path.dirname(path), t[key]) for t in tables for key in ("file", "urdf")
+            if isinstance(t.get(key), str) and t[key] and "\0" not in t[key]]
+
+
+def input_files(catalogue, frame=None) -> list:
+    """`(what, path)` of every file a fleet run reads: the catalogue, each recording (and the
+    data file a recording TOML names) and each robot file; for the output guard."""
+    out = []
+    if not isinstance(catalogue, pd.DataFrame):
+        out.append(("the catalogue", os.fspath(catalogue)))
+        folder = os.path.dirname(os.path.abspath(os.fspath(catalogue)))
+    else:
+        folder = os.getcwd()
+    frame = read_catalogue(catalogue) if frame is None else frame
+    for path in dict.fromkeys(frame["path"]):
+        out.append(("the recording", path))
+        out += [(f"the data file of {path}", ref) for ref in _referenced(path)]
+    for robot in dict.fromkeys(frame["robot"]):
+        for cand in dict.fromkeys([robot, os.path.join(folder, robot)]):
+            if os.path.isfile(cand):
+                out.append(("the robot file", cand))
+                out += [(f"the file named by {cand}", ref) for ref in _referenced(cand)]
+    return out

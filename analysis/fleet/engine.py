@@ -51,9 +51,24 @@ class FleetRun:
     workers: int = 0
     health: object = None        # FleetHealth, when monitored
 
+    @property
+    def n_failed(self) -> int:
+        """Recordings of this run that could not be identified."""
+        return len(self.errors)
+
+    @property
+    def n_identified(self) -> int:
+        """Recordings of this run identified (computed and not failed)."""
+        return self.n_computed - self.n_failed
+
+    def summary_line(self) -> str:
+        return (f"{self.n_recordings} recordings: {self.n_identified} identified, {self.n_skipped} already in "
+                f"the store, {self.n_failed} failed ({self.wall_seconds:.1f} s)")
+
     def to_dict(self) -> dict:
         from dynid.provenance import json_safe
         out = {"store": self.store, "n_recordings": self.n_recordings, "n_computed": self.n_computed,
+               "n_identified": self.n_identified, "n_failed": self.n_failed,
                "n_skipped": self.n_skipped, "n_errors": len(self.errors),
                "errors": [{"robot_id": r, "recording": p, "error": m} for r, p, m in self.errors],
                "wall_seconds": self.wall_seconds, "workers": self.workers}
@@ -71,11 +86,8 @@ def plan(catalogue, store: ResultStore, *, settings=None, diagnose=False, max_sa
                "max_samples": int(max_samples)}
     have = store.keys()
     specs = []
-    for row in frame.to_dict("records"):
-        try:
-            h = file_hash(row["path"])
-        except OSError as exc:            # the task will report it; a rerun retries once it exists
-            h = f"unreadable:{exc.strerror}"
+    hashes = _data_hashes(frame, catalogue)
+    for row, h in zip(frame.to_dict("records"), hashes):
         n_temps = max([int(c[11:]) for c in row if c.startswith("temperature") and c[11:].isdigit()] or [0])
         temps = [joint_temperature(row, j) for j in range(1, n_temps + 1)]
         if not temps and "temperature" in row:
@@ -88,6 +100,40 @@ def plan(catalogue, store: ResultStore, *, settings=None, diagnose=False, max_sa
                       "temperatures": temps, "settings": settings, "diagnose": bool(diagnose),
                       "max_samples": int(max_samples), "shared_temperature": "temperature" in row})
     return specs, [s for s in specs if s["key"] not in have]
+
+
+def _label(catalogue):
+    return "the catalogue" if not isinstance(catalogue, (str, os.PathLike)) else os.fspath(catalogue)
+
+
+def _data_hashes(frame, catalogue) -> list:
+    """The data hash of each row; refuses non-regular files (before reading them: a FIFO or
+    /dev/zero would never end) and byte-identical copies of one recording."""
+    import stat
+    label = _label(catalogue)
+    hashes, first = [], {}
+    for k, path in enumerate(frame["path"]):
+        try:
+            mode = os.stat(path).st_mode
+        except OSError as exc:            # the task will report it; a rerun retries once it exists
+            hashes.append(f"unreadable:{exc.strerror}")
+            continue
+        if not stat.S_ISREG(mode):
+            raise InputError(f"{label}: row {k + 1}: the recording {path} is not a regular file (a FIFO, a "
+                             f"device or a folder); give the file the data was saved to")
+        try:
+            h = file_hash(path)
+        except OSError as exc:
+            hashes.append(f"unreadable:{exc.strerror}")
+            continue
+        if h in first:
+            j = first[h]
+            raise InputError(f"{label}: row {k + 1}: the recording {path} has the same bytes as row {j + 1}'s "
+                             f"{frame['path'].iloc[j]}: a copy of one recording would be stored and counted "
+                             f"twice by the wear monitor; list each recording once")
+        first[h] = k
+        hashes.append(h)
+    return hashes
 
 
 def _expand_shared(spec, result):
@@ -107,6 +153,9 @@ def start_client(scheduler=None, workers=None):
         except OSError as exc:
             raise InputError(f"cannot reach the Dask scheduler at {scheduler} ({exc}); start one with "
                              f"`dask scheduler` or leave --scheduler out for a local cluster") from None
+        except (ValueError, TypeError) as exc:      # not an address at all
+            raise InputError(f"--scheduler (scheduler=) {scheduler!r} is not a Dask scheduler address ({exc}); "
+                             f"give one such as tcp://host:8786, or leave it out for a local cluster") from None
     n = int(workers or os.cpu_count() or 1)
     if n < 1:
         raise InputError(f"--workers must be at least 1, got {workers}")
@@ -163,6 +212,7 @@ def identify_fleet(catalogue, store, *, scheduler=None, workers=None, client=Non
     own = None
     n_workers = 0
     if todo:
+        store.check_writable()          # before the cluster starts: the workers write into it
         created = client is None
         if created:
             client, own = start_client(scheduler, workers)

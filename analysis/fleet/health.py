@@ -46,6 +46,39 @@ DEFAULT_ALLOWANCE = 1.5
 DEFAULT_BASELINE = 8
 #: false alarms accepted per monitored series and recording (ARL0 = 1 / rate)
 DEFAULT_FALSE_ALARM_RATE = 1e-4
+#: the largest baseline: 1000 recordings is years of daily logs; beyond it no robot is ever monitored
+MAX_BASELINE = 1000
+#: the smallest accepted false-alarm rate: below it the threshold exceeds any change a
+#: friction parameter can show within a fleet's history
+MIN_FALSE_ALARM_RATE = 1e-12
+
+
+def check_monitor_options(parameters=DEFAULT_PARAMETERS, false_alarm_rate=DEFAULT_FALSE_ALARM_RATE,
+                          n_baseline=DEFAULT_BASELINE) -> None:
+    """Refuse monitoring options outside their range, before any work.
+
+    Raises
+    ------
+    InputError
+        Naming the option (`false_alarm_rate` / `--false-alarm-rate`, `n_baseline` /
+        `--baseline`, `parameters` / `--parameters`) and its range.
+    """
+    try:
+        rate = float(false_alarm_rate)
+    except (TypeError, ValueError):
+        rate = float("nan")
+    if not (MIN_FALSE_ALARM_RATE <= rate < 0.5):
+        raise InputError(f"false-alarm rate (--false-alarm-rate, false_alarm_rate=) {false_alarm_rate!r}: "
+                         f"give a probability per recording in [{MIN_FALSE_ALARM_RATE:g}, 0.5), "
+                         f"default {DEFAULT_FALSE_ALARM_RATE:g}")
+    if isinstance(n_baseline, bool) or not isinstance(n_baseline, (int, np.integer, float)) \
+            or not (3 <= n_baseline <= MAX_BASELINE) or int(n_baseline) != n_baseline:
+        raise InputError(f"baseline (--baseline, n_baseline=) {n_baseline!r}: give a whole number of "
+                         f"recordings from 3 to {MAX_BASELINE}, default {DEFAULT_BASELINE}")
+    if isinstance(parameters, str) or not list(parameters):
+        raise InputError(f"parameters (--parameters, parameters=) {parameters!r}: give a list of "
+                         f"base-parameter names (Fv2) or families (Fv)")
+    _matcher(parameters)
 
 
 @dataclass
@@ -77,6 +110,22 @@ class FleetHealth:
     threshold: float             # CUSUM threshold h (units of the scatter)
     settings: dict = field(default_factory=dict)
     scatter_ratio: dict = field(default_factory=dict)   # parameter -> day-to-day scatter / model sigma
+
+    @property
+    def n_monitored(self) -> int:
+        """Series (robot x parameter) with recordings after their baseline: the ones watched."""
+        return int(self.settings.get("n_monitored", 0))
+
+    def status_line(self) -> str:
+        """One line for the terminal: the alarms' count, or why there can be none."""
+        if self.alarms:
+            return f"{len(self.alarms)} alarm(s) on {len(self.alarming_robots())} robot(s)"
+        if not self.settings.get("n_identified", 1):
+            return "not monitored: no recording was identified, so no alarm can be raised"
+        if not self.n_monitored:
+            return (f"not monitored: no robot has more than the {self.settings.get('n_baseline')} baseline "
+                    f"recordings of an identified parameter (--baseline, n_baseline=), so no alarm can be raised")
+        return f"no alarm ({self.n_monitored} series monitored)"
 
     def alarming_robots(self) -> dict:
         """robot_id -> day of its first alarm onset."""
@@ -214,6 +263,12 @@ def temperature_coefficients(history: pd.DataFrame, n_baseline: int = DEFAULT_BA
     return out
 
 
+def _empty_history(hist):
+    extra = ["compensated", "compensated_sigma", "baseline", "baseline_value", "baseline_count", "scatter", "z",
+             "cusum_up", "cusum_down"]
+    return hist.assign(**{c: pd.Series(dtype=float) for c in extra})
+
+
 def monitor(frame: pd.DataFrame, parameters=DEFAULT_PARAMETERS, *, false_alarm_rate: float = DEFAULT_FALSE_ALARM_RATE,
             allowance: float = DEFAULT_ALLOWANCE, n_baseline: int = DEFAULT_BASELINE,
             compensate: bool = True) -> FleetHealth:
@@ -226,11 +281,26 @@ def monitor(frame: pd.DataFrame, parameters=DEFAULT_PARAMETERS, *, false_alarm_r
     its reference value and (pooled over the fleet) the scatter and the temperature
     coefficient. Series with fewer recordings are reported without alarms.
     """
+    check_monitor_options(parameters, false_alarm_rate, n_baseline)
     n_baseline = int(n_baseline)
-    if n_baseline < 3:
-        raise InputError(f"the baseline needs at least 3 recordings per robot, got {n_baseline}")
     h = cusum_threshold(false_alarm_rate / 2, allowance, n_baseline)
+    settings = {"parameters": list(parameters), "false_alarm_rate": false_alarm_rate, "allowance": allowance,
+                "n_baseline": n_baseline, "compensate": compensate, "T_ref": T_REF}
     hist = parameter_history(frame, parameters)
+    names = sorted(set(frame.loc[frame["status"] == "ok", "parameter"]) - {""})
+    unknown = [p for p in parameters if names and not any(_matcher([p])(n) for n in names)]
+    # a family the model lacks (Fc of a robot with viscous friction only) is fine beside others;
+    # a parameter named in full, or nothing at all to watch, is a mistake
+    if unknown and (len(unknown) == len(parameters) or any(re.search(r"\d$", str(p)) for p in unknown)):
+        raise InputError(f"parameters (--parameters, parameters=): {', '.join(map(str, unknown))} is not a base "
+                         f"parameter of the identified recordings; they have {', '.join(names)}")
+    ok_rows = frame[frame["status"] == "ok"]
+    by = next((c for c in ("key", "recording") if c in frame), None)
+    settings["n_identified"] = int(ok_rows[by].nunique()) if by else len(ok_rows)
+    if hist.empty:              # every recording failed: nothing to watch
+        settings["n_monitored"] = 0
+        return FleetHealth(history=_empty_history(hist), alarms=[], temperature_coefficients={}, threshold=h,
+                           settings=settings, scatter_ratio={})
     coeffs = temperature_coefficients(hist, n_baseline) if compensate else {}
     c = hist["parameter"].map(lambda n: coeffs.get(n, float("nan"))).to_numpy(dtype=float)
     T = hist["temperature"].to_numpy(dtype=float)
@@ -271,10 +341,12 @@ def monitor(frame: pd.DataFrame, parameters=DEFAULT_PARAMETERS, *, false_alarm_r
     hist["cusum_up"] = np.nan
     hist["cusum_down"] = np.nan
     alarms = []
+    n_monitored = 0
     for (rid, name), idx in hist.groupby(["robot_id", "parameter"]).groups.items():
         sub = hist.loc[idx]
-        if int(sub["count"].iloc[0]) < n_baseline:
-            continue
+        if int(sub["count"].iloc[0]) < n_baseline or len(sub) <= n_baseline:
+            continue                # no recording after the baseline: nothing to watch yet
+        n_monitored += 1
         z = np.where(sub["baseline"].to_numpy(), 0.0, sub["z"].to_numpy())
         up, down, alarm = cusum(z, allowance, h)
         hist.loc[idx, "cusum_up"], hist.loc[idx, "cusum_down"] = up, down
@@ -291,7 +363,6 @@ def monitor(frame: pd.DataFrame, parameters=DEFAULT_PARAMETERS, *, false_alarm_r
                             statistic=float(up[t] if side > 0 else down[t])))
     hist = hist.rename(columns={"mean": "baseline_value", "count": "baseline_count"}).drop(columns="sigma_ref")
     alarms.sort(key=lambda a: (a.robot_id, a.joint, a.parameter))
-    settings = {"parameters": list(parameters), "false_alarm_rate": false_alarm_rate, "allowance": allowance,
-                "n_baseline": n_baseline, "compensate": compensate, "T_ref": T_REF}
+    settings["n_monitored"] = n_monitored
     return FleetHealth(history=hist, alarms=alarms, temperature_coefficients=coeffs, threshold=h,
                        settings=settings, scatter_ratio=ratios)

@@ -84,6 +84,19 @@ class ResultStore:
         if os.path.exists(self.root) and not os.path.isdir(self.root):
             raise InputError(f"{self.root}: the fleet store must be a folder, and this is a file")
 
+    def check_writable(self) -> None:
+        """InputError naming the store when a file cannot be created in it (read-only, no space ...)."""
+        import tempfile
+        try:
+            os.makedirs(self.root, exist_ok=True)
+            fd, probe = tempfile.mkstemp(dir=self.root, prefix=".dynid-probe-")
+            os.close(fd)
+            os.unlink(probe)
+        except OSError as exc:
+            raise InputError(f"--out (store=) {self.root}: the results store cannot be written "
+                             f"({exc.strerror or exc}); give a folder this user can write on a "
+                             f"writable file system") from None
+
     def _files(self):
         return glob.glob(os.path.join(glob.escape(self.root), "robot_id=*", "day=*", "*.parquet"))
 

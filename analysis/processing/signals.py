@@ -18,6 +18,7 @@ from scipy import ndimage, signal
 
 from dynid.analysis.processing.decimation import DecimationFilter
 from dynid.errors import InputError
+from dynid.ranges import check_range
 
 #: Samples at each end whose derivatives come from one-sided formulas.
 DIFFERENCE_EDGE = 2
@@ -217,8 +218,10 @@ def estimate_bandwidth(q, fs, energy=0.99) -> float:
     if not moving.any():
         raise InputError(
             "no joint moves clearly above the measurement noise, so the motion "
-            "bandwidth cannot be estimated; check the position columns or give the "
-            "bandwidth explicitly (default_settings(..., bandwidth=...))."
+            "bandwidth cannot be estimated: check that the position columns hold the motion "
+            "(the right columns, in rad) and that the recording covers it (several periods of "
+            "the excitation). In Python the settings key 'bandwidth' (Hz) gives it; the command "
+            "line has no option for it."
         )
     reached = cumulative[:, moving] >= energy * total[moving]
     return float(f[np.argmax(reached, axis=0)].max())
@@ -325,7 +328,7 @@ def default_settings(
                 nd = _nice_below(nd)
     if isinstance(nd, bool) or not isinstance(nd, (int, np.integer)) or nd < 1:
         raise InputError(f"decimation factor nd must be an integer >= 1, got {nd!r}.")
-    nd = int(nd)
+    nd = check_range("nd", nd)      # before the decimation filter is built (its size grows with nd)
 
     if f_decimation_cutoff is None:
         f_decimation_cutoff = 0.8 * fs / (2.0 * nd)

@@ -1,7 +1,10 @@
 """Writing outputs so that no run leaves a half-written file or loses one.
 
 Every file dynid writes goes through :func:`write_all` (several files, all or
-none) or :func:`atomic_write_text` / :func:`atomic_open` (one file):
+none) or :func:`atomic_write_text` / :func:`atomic_open` (one file), after
+`check_outputs` has refused, before any work, an output that is one of the run's
+inputs (the same file through a symlink, a hard link or `..`), two outputs on one
+file, an empty name or one ending in '/':
 
 * each file is first written to a temporary file in its target's folder, then
   renamed over the target (an atomic rename on POSIX);
@@ -13,9 +16,14 @@ none) or :func:`atomic_write_text` / :func:`atomic_open` (one file):
   target keeps its permission bits; a target that is not a regular file (a
   character device such as ``/dev/null``, a FIFO) is written directly, never
   renamed over;
-* temporary files carry this process's id (``.dynid-<pid>-<hex>.tmp``): those of
-  a process that is no longer running (killed mid-write) are removed the next
-  time dynid writes into that folder.
+* temporary files belong to a *lease*: a lock file ``.dynid-<host>-<pid>-<token>.lock``
+  on which the writer holds an advisory lock (flock; over NFS the kernel maps it
+  to a POSIX lock the server arbitrates) for as long as it writes; its temporary
+  and backup files are ``.dynid-<host>-<pid>-<token>-<n>.tmp|.bak``. A later run
+  removes them only when it can take that lock itself: the writer is then proven
+  gone (killed mid-write), whatever host, container or PID namespace it ran in.
+  A process id alone proves nothing across PID namespaces or hosts (issue 31: a
+  second container on a shared volume deleted a running dynid's backups).
 """
 from __future__ import annotations
 
@@ -25,21 +33,191 @@ import os
 import re
 import secrets
 import signal
+import socket
 import stat
 import sys
+import time
 from collections.abc import Iterator
 from typing import IO
 
 from dynid.errors import InputError, OutputError
 
-__all__ = ["write_all", "atomic_open", "atomic_write_text", "atomic_write_bytes", "resolve_target"]
+try:
+    import fcntl
+except ImportError:             # not POSIX: no advisory locks, so nothing is ever proven abandoned
+    fcntl = None
 
-_TEMP_RE = re.compile(r"^\.dynid-(\d+)-[0-9a-f]{12}\.(tmp|bak)$")
+__all__ = ["write_all", "atomic_open", "atomic_write_text", "atomic_write_bytes", "resolve_target",
+           "check_outputs", "same_file"]
+
+#: a lease's lock file, and its temporary / backup files (the lease's base name, then -<n>)
+_LOCK_RE = re.compile(r"^(\.dynid-(?P<host>[A-Za-z0-9.-]*)-(?P<pid>\d+)-[0-9a-f]{16})\.lock$")
+_PENDING_RE = re.compile(r"^\.dynid-[A-Za-z0-9.-]*-\d+-[0-9a-f]{16}\.new$")
+#: a lock file not yet published (the few microseconds between its creation and its lock)
+#: is left alone for this long
+_PENDING_GRACE_SECONDS = 60.0
+
+
+def _host() -> str:
+    name = re.sub(r"[^A-Za-z0-9.-]", "-", socket.gethostname() or "host")[:40]
+    return name or "host"
+
+
+class _Lease:
+    """This process's claim on the temporary files it writes in one folder (see the module's notes)."""
+
+    def __init__(self, folder: str):
+        self.base = os.path.join(folder, f".dynid-{_host()}-{os.getpid()}-{secrets.token_hex(8)}")
+        self.n = 0
+        self.fd = None
+        pending = self.base + ".new"
+        try:
+            fd = os.open(pending, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+        except OSError as exc:
+            reason = "the disk is full" if exc.errno == errno.ENOSPC else (exc.strerror or str(exc))
+            raise OutputError(f"cannot write in the folder {folder}: {reason}") from None
+        try:
+            if fcntl is not None:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:             # no locks on this file system: nothing of ours can be proven abandoned
+            pass
+        # published locked: another process never sees this lease's lock file unlocked
+        os.rename(pending, self.base + ".lock")
+        self.fd = fd
+
+    def path(self, kind: str) -> str:
+        self.n += 1
+        return f"{self.base}-{self.n}.{kind}"
+
+    def release(self) -> None:
+        if self.fd is None:
+            return
+        with contextlib.suppress(OSError):
+            os.unlink(self.base + ".lock")
+        os.close(self.fd)
+        self.fd = None
+
+
+@contextlib.contextmanager
+def _leases(folders):
+    """A lease per folder (stale temporaries of dead writers cleaned first), released at the end."""
+    leases = {}
+    try:
+        for folder in folders:
+            remove_stale_temporaries(folder)
+            leases[folder] = _Lease(folder)
+        yield leases
+    finally:
+        for lease in leases.values():
+            lease.release()
+
+
+def _abandoned(lock_path: str) -> bool:
+    """Whether the writer of a lease is gone: its lock can be taken (then released again)."""
+    if fcntl is None:
+        return False
+    try:
+        fd = os.open(lock_path, os.O_RDONLY)
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:                 # held (EWOULDBLOCK), or unknown: not proven
+        return False
+    finally:
+        os.close(fd)
+    return True
 
 
 def resolve_target(path) -> str:
     """The file a write to ``path`` lands in: symlinks followed, made absolute."""
     return os.path.realpath(os.fspath(path))
+
+
+#: longest file name (bytes) when the file system does not say
+NAME_MAX = 255
+
+
+def same_file(a, b) -> bool:
+    """Whether paths `a` and `b` are one file: symlinks and `..` resolved, hard links too."""
+    try:
+        if os.path.realpath(a) == os.path.realpath(b):
+            return True
+        return os.path.samefile(a, b)
+    except (OSError, ValueError):
+        return False
+
+
+def _check_one_output(label: str, path: str) -> None:
+    """A single output name: not empty, a file name (no trailing '/'), its folder writable."""
+    if path == "":
+        raise InputError(f"{label} '': the file name is empty, so nothing would be written; "
+                         f"give {label} a file name")
+    if "\0" in path:
+        raise InputError(f"{label} {path!r}: the name contains a NUL byte, which no file name can; "
+                         f"give {label} a plain file name")
+    if path.endswith(os.sep) or (os.altsep and path.endswith(os.altsep)):
+        raise InputError(f"{label} {path}: the name ends with '{os.sep}', which names a folder; "
+                         f"give {label} a file name (without the trailing '{os.sep}')")
+    folder = os.path.dirname(os.path.abspath(path)) or "."
+    name = os.path.basename(os.path.abspath(path))
+    try:
+        name_max = os.pathconf(folder, "PC_NAME_MAX")
+    except (OSError, ValueError):
+        name_max = NAME_MAX
+    if len(os.fsencode(name)) > name_max:
+        raise InputError(f"{label} {name[:40]}...: the file name is {len(os.fsencode(name))} bytes "
+                         f"long, more than the {name_max} the file system allows; give {label} a "
+                         f"shorter name")
+    if not os.path.isdir(folder):
+        raise InputError(f"{label} {path}: the folder {folder} does not exist")
+    if not os.access(folder, os.W_OK):
+        raise InputError(f"{label} {path}: the folder {folder} is not writable")
+    if os.path.isdir(path):
+        raise InputError(f"{label} {path} is a folder; give a file name")
+
+
+def check_outputs(outputs, inputs=()) -> None:
+    """Refuse, before any work, outputs that would destroy an input or each other.
+
+    Parameters
+    ----------
+    outputs : iterable of (label, path)
+        The outputs to be written; `label` names the option (`--json`, `json=`).
+        A path `None` is not written and skipped; `-` means stdout (allowed for a
+        label containing "json" only).
+    inputs : iterable of (what, path)
+        Every file the run reads (`what` as the message should name it: "the
+        catalogue", "the recording").
+
+    Raises
+    ------
+    InputError
+        An empty name, a name ending in '/', a missing or read-only folder, a folder
+        given as a file, an output that is an input (the same file through a symlink,
+        a hard link or `..`), or two outputs on one file.
+    """
+    inputs = [(what, os.fspath(p)) for what, p in inputs if p is not None]
+    seen = []
+    for label, path in outputs:
+        if path is None:
+            continue
+        path = os.fspath(path)
+        if path == "-":
+            if "json" not in label:
+                raise InputError(f"{label} -: only --json (json=) can be written to stdout")
+            continue
+        _check_one_output(label, path)
+        for what, p in inputs:
+            if "\0" not in p and os.path.exists(p) and same_file(path, p):
+                how = "" if os.path.abspath(path) == os.path.abspath(p) else " (the same file under another name)"
+                raise InputError(f"{label} {path} is {what} {p}{how}: writing it would destroy the "
+                                 f"input; give {label} another path")
+        for other, q in seen:
+            if same_file(path, q) or os.path.abspath(path) == os.path.abspath(q):
+                raise InputError(f"{other} {q} and {label} {path} are the same file: one would "
+                                 f"overwrite the other; give each its own path")
+        seen.append((label, path))
 
 
 def _is_regular_or_missing(target: str) -> bool:
@@ -49,32 +227,39 @@ def _is_regular_or_missing(target: str) -> bool:
         return True
 
 
-def _temp_name(folder: str, kind: str = "tmp") -> str:
-    return os.path.join(folder, f".dynid-{os.getpid()}-{secrets.token_hex(6)}.{kind}")
-
-
-def _alive(pid: int) -> bool:
-    if pid == os.getpid():
-        return True
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
-
-
 def remove_stale_temporaries(folder: str) -> list:
-    """Remove dynid's temporary files in ``folder`` left by processes that no longer run."""
+    """Remove dynid's temporary and backup files in `folder` whose writer is proven gone.
+
+    Proof: the writer's lease lock can be taken (see the module's notes). Files of this
+    process, of a live writer anywhere, or without a lease are left alone.
+    """
     removed = []
-    with contextlib.suppress(OSError):
-        for name in os.listdir(folder):
-            m = _TEMP_RE.match(name)
-            if m and not _alive(int(m.group(1))):
-                with contextlib.suppress(OSError):
-                    os.unlink(os.path.join(folder, name))
+    try:
+        names = os.listdir(folder)
+    except OSError:
+        return removed
+    me = (_host(), str(os.getpid()))
+    for name in names:
+        path = os.path.join(folder, name)
+        if _PENDING_RE.match(name):
+            with contextlib.suppress(OSError):
+                old = os.stat(path).st_mtime < time.time() - _PENDING_GRACE_SECONDS
+                if old and _abandoned(path):
+                    os.unlink(path)
                     removed.append(name)
+            continue
+        m = _LOCK_RE.match(name)
+        if not m or (m.group("host"), m.group("pid")) == me or not _abandoned(path):
+            continue
+        prefix = m.group(1) + "-"
+        for other in names:
+            if other.startswith(prefix) and other.endswith((".tmp", ".bak")):
+                with contextlib.suppress(OSError):
+                    os.unlink(os.path.join(folder, other))
+                    removed.append(other)
+        with contextlib.suppress(OSError):      # last: until then a crash here leaves the proof
+            os.unlink(path)
+            removed.append(name)
     return removed
 
 
@@ -83,10 +268,9 @@ def _write_error(path, exc: OSError) -> OutputError:
     return OutputError(f"cannot write {path}: {reason}")
 
 
-def _stage(target: str, data: bytes, label) -> str:
-    """Write ``data`` to a new temporary file beside ``target``; returns its path."""
-    folder = os.path.dirname(target)
-    tmp = _temp_name(folder)
+def _stage(target: str, data: bytes, label, lease: _Lease) -> str:
+    """Write `data` to a new temporary file of `lease` beside `target`; returns its path."""
+    tmp = lease.path("tmp")
     try:
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
         with os.fdopen(fd, "wb") as fh:
@@ -155,20 +339,35 @@ def write_all(outputs, say=None) -> list:
         if target in seen:
             raise InputError(f"two outputs are the same file: {seen[target]} and {path}; give each its own path")
         seen[target] = path
-    for folder in {os.path.dirname(t) for _, t, _ in files}:
-        remove_stale_temporaries(folder)
     direct = [(p, t, d) for p, t, d in files if not _is_regular_or_missing(t)]
     staged_files = [(p, t, d) for p, t, d in files if _is_regular_or_missing(t)]
+    with _leases(sorted({os.path.dirname(t) for _, t, _ in staged_files})) as leases:
+        _commit(staged_files, leases)
+    for path, target, data in direct:
+        _write_direct(target, data, path)
+    written = [p for p, _, _ in files]
+    if say is not None:
+        for p in written:
+            say(f"wrote {p}")
+    for data in to_stdout:
+        text = data if isinstance(data, str) else data.decode("utf-8")
+        sys.stdout.write(text if text.endswith("\n") else text + "\n")
+        sys.stdout.flush()
+    return written
+
+
+def _commit(staged_files, leases) -> None:
+    """Stage every `(path, target, data)`, then rename them all or none (backups kept meanwhile)."""
     staged, backups, replaced = [], [], []
     try:
         for path, target, data in staged_files:
-            staged.append((_stage(target, data, path), target, path))
+            staged.append((_stage(target, data, path, leases[os.path.dirname(target)]), target, path))
         with _signals_held():
             path = None                                     # the output being committed
             try:
                 for _, target, path in staged:              # noqa: B007 (path: for the message)
                     if os.path.exists(target):
-                        bak = _temp_name(os.path.dirname(target), "bak")
+                        bak = leases[os.path.dirname(target)].path("bak")
                         os.link(target, bak)
                         backups.append((bak, target))
                 for tmp, target, path in staged:            # noqa: B007 (path: for the message)
@@ -197,17 +396,6 @@ def write_all(outputs, say=None) -> list:
         for tmp, _, _ in staged:
             with contextlib.suppress(OSError):
                 os.unlink(tmp)
-    for path, target, data in direct:
-        _write_direct(target, data, path)
-    written = [p for p, _, _ in files]
-    if say is not None:
-        for p in written:
-            say(f"wrote {p}")
-    for data in to_stdout:
-        text = data if isinstance(data, str) else data.decode("utf-8")
-        sys.stdout.write(text if text.endswith("\n") else text + "\n")
-        sys.stdout.flush()
-    return written
 
 
 @contextlib.contextmanager
@@ -239,18 +427,18 @@ def staged_path(path) -> Iterator[str]:
     """
     target = resolve_target(path)
     folder = os.path.dirname(target)
-    remove_stale_temporaries(folder)
-    tmp = _temp_name(folder)
-    try:
-        yield tmp
-        with contextlib.suppress(FileNotFoundError):
-            os.chmod(tmp, stat.S_IMODE(os.stat(target).st_mode))
-        with _signals_held():
-            os.replace(tmp, target)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
+    with _leases([folder]) as leases:
+        tmp = leases[folder].path("tmp")
+        try:
+            yield tmp
+            with contextlib.suppress(FileNotFoundError):
+                os.chmod(tmp, stat.S_IMODE(os.stat(target).st_mode))
+            with _signals_held():
+                os.replace(tmp, target)
+        except BaseException:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+            raise
 
 
 def atomic_write_text(path, text: str, *, encoding: str = "utf-8") -> None:
