@@ -20,6 +20,9 @@ from dynid.analysis.results import ModelResults
 from dynid.dynamics.base_parameters import base_parameters
 from dynid.provenance import data_hash, json_safe, versions
 
+#: The covariance identify_idim reports unless told otherwise (see benchmarks/uncertainty.py).
+DEFAULT_UNCERTAINTY = "classic"
+
 
 @dataclass(eq=False)
 class IDIMResult(ModelResults):
@@ -43,6 +46,7 @@ class IDIMResult(ModelResults):
     source: str = ""
     truth: dict = None           # true base-parameter values, for simulated data
     robot: object = None         # the Robot identified (for validate() and predictions)
+    uncertainty: str = "classic"  # the covariance reported (least_squares.UNCERTAINTY)
 
     @property
     def model(self):
@@ -72,6 +76,8 @@ class IDIMResult(ModelResults):
                  f"  base parameters: {self.base.n_base}, essential: {len(self.model.names)}",
                  f"  relative error ||Y - W chi|| / ||Y||: OLS {self.ols.rel_error:.4f}, "
                  f"WLS {self.wls.rel_error:.4f}, essential {self.model.rel_error:.4f}",
+                 f"  uncertainty: {self.uncertainty} "
+                 f"({self.model.settings.get('least_squares', {}).get('uncertainty', {}).get('covariance', '')})",
                  ""]
         lines.append(self.essential.result.summary())
         if self.notices:
@@ -84,6 +90,7 @@ class IDIMResult(ModelResults):
                     for n, v, s, r in zip(res.names, res.chi, res.sigma, res.rel_sigma)]
         return json_safe({
             "method": "IDIM",
+            "uncertainty": self.uncertainty,
             "robot": self.robot_name,
             "source": self.source,
             "settings": self.settings,
@@ -106,24 +113,31 @@ class IDIMResult(ModelResults):
 
 
 def identify_idim(experiment, robot, *, settings=None, bp=None, max_error_growth=0.02,
-                  progress=None):
+                  progress=None, uncertainty: str = DEFAULT_UNCERTAINTY):
     """Identify the base and essential parameters of ``robot`` from ``experiment`` (IDIM-LS/WLS).
 
     ``experiment`` may be a list of recordings: their observation systems are
     stacked (processed with the settings derived from the first one).
+    ``uncertainty`` ("classic", "hac" or "bootstrap") is the covariance of the
+    OLS, WLS and essential estimates (see
+    dynid.analysis.estimators.least_squares.ols); the estimates do not depend on it.
     """
+    ls.check_uncertainty(uncertainty)
     bp = base_parameters(robot) if bp is None else bp
     experiments = list(experiment) if isinstance(experiment, (list, tuple)) else [experiment]
     # settings derived from the first recording apply to all, so every row of the
     # stacked system is processed alike
     first = observe(experiments[0], robot, bp, settings, progress=progress)
-    obs = concatenate([first] + [observe(e, robot, bp, first.settings) for e in experiments[1:]])
+    parts = [first] + [observe(e, robot, bp, first.settings) for e in experiments[1:]]
+    obs = concatenate(parts)
+    groups = np.repeat(np.arange(len(parts)), [p.n_samples for p in parts])
     names = list(bp.names)
     info = {k: v for k, v in obs.settings.items()}
-    r_ols = ls.ols(obs.W, obs.tau, names, row_mask=obs.row_mask, settings=info)
-    r_wls = ls.wls(obs.W, obs.tau, names, row_mask=obs.row_mask, settings=info)
+    unc = {"uncertainty": uncertainty, "groups": groups}
+    r_ols = ls.ols(obs.W, obs.tau, names, row_mask=obs.row_mask, settings=info, **unc)
+    r_wls = ls.wls(obs.W, obs.tau, names, row_mask=obs.row_mask, settings=info, **unc)
     ess = essential_parameters(obs.W, obs.tau, names, ls.wls, max_error_growth=max_error_growth,
-                               row_mask=obs.row_mask, settings=info)
+                               row_mask=obs.row_mask, settings=info, **unc)
     h = (experiments[0].data_hash() if len(experiments) == 1 else
          data_hash(*[np.frombuffer(e.data_hash().encode(), dtype=np.uint8) for e in experiments]))
     for r in (r_ols, r_wls, ess.result, ess.base):
@@ -131,4 +145,5 @@ def identify_idim(experiment, robot, *, settings=None, bp=None, max_error_growth
     notices = [n for e in experiments for n in getattr(e, "notices", [])] + obs.notices
     return IDIMResult(robot_name=robot.name, base=bp, ols=r_ols, wls=r_wls, essential=ess,
                       observation=obs, settings=obs.settings, notices=notices, data_hash=h,
-                      source=" + ".join(str(e.source) for e in experiments), robot=robot)
+                      source=" + ".join(str(e.source) for e in experiments), robot=robot,
+                      uncertainty=uncertainty)
