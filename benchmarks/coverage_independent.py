@@ -77,6 +77,7 @@ def truth(robot, bp):
 
 def run_seed(seed):
     import independent_plant as ip
+
     from dynid.analysis.data.experiment import Experiment
     from dynid.analysis.estimators.idim import identify_idim
     from dynid.dynamics.base_parameters import base_parameters

@@ -66,6 +66,7 @@ def _segment_tau2(res):
 def _identifiable(W3, mask):
     """Columns of W3 a row subset identifies: pivoted QR of the unit-norm stacked columns."""
     import scipy.linalg as sla
+
     from dynid.analysis.estimators.least_squares import RANK_RTOL
     X = np.where(mask[:, :, None], W3, 0.0).transpose(1, 0, 2).reshape(-1, W3.shape[2])
     norms = np.linalg.norm(X, axis=0)
