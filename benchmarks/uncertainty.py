@@ -63,19 +63,6 @@ def _segment_tau2(res):
     return random_effects(chis, sig)["tau"] ** 2
 
 
-def _identifiable(W3, mask):
-    """Columns of W3 a row subset identifies: pivoted QR of the unit-norm stacked columns."""
-    import scipy.linalg as sla
-
-    from dynid.analysis.estimators.least_squares import RANK_RTOL
-    X = np.where(mask[:, :, None], W3, 0.0).transpose(1, 0, 2).reshape(-1, W3.shape[2])
-    norms = np.linalg.norm(X, axis=0)
-    nz = np.flatnonzero(norms > 0)
-    _, R, piv = sla.qr(X[:, nz] / norms[nz], mode="economic", pivoting=True)
-    d = np.abs(np.diag(R))
-    return np.sort(nz[piv[: int(np.count_nonzero(d > RANK_RTOL * d[0]))]])
-
-
 def segment_fits(obs, names, k, opt):
     """WLS of each of k contiguous segments of one observation system, with option ``opt``.
 
@@ -86,7 +73,7 @@ def segment_fits(obs, names, k, opt):
     from dynid.analysis.statistics.agreement import segments
     out = []
     for m in segments(obs.n_samples, obs.row_mask, k):
-        cols = _identifiable(obs.W, m)
+        cols = ls.identifiable_columns(obs.W, m)
         r = ls.wls(obs.W[:, :, cols], obs.tau, [names[c] for c in cols], row_mask=m, uncertainty=opt)
         chi, sig = np.full(len(names), np.nan), np.full(len(names), np.nan)
         chi[cols], sig[cols] = r.chi, r.sigma

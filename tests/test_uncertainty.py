@@ -156,3 +156,35 @@ def test_equality_test_and_random_effects():
     assert "do NOT agree" in line and "chi2" in line
     b = ag.agreement(same, sig, [np.diag(s**2) for s in sig], ["a", "b", "c"])
     assert "agree within" in ag.agreement_verdict(b) or b["within_95"] < 0.9
+
+
+def test_recording_agreement_segments_and_recordings():
+    from types import SimpleNamespace
+
+    from dynid.analysis.estimators.idim import recording_agreement
+    rng = np.random.default_rng(8)
+    W3, tau, _ = _system(rng, N=600)
+    obs = SimpleNamespace(W=W3, tau=tau, row_mask=np.ones(tau.shape, bool), n_samples=600)
+    names = ["a", "b", "c"]
+    a, why = recording_agreement(obs, names, np.zeros(600, int), None)
+    assert why == "" and a["kind"] == "segments" and a["k"] == 3 and a["dof"] == 6
+    # white noise, the right model: the segments agree
+    assert a["p_value"] > 1e-3
+    b, _ = recording_agreement(obs, names, np.repeat([0, 1], 300), None, "hac")
+    assert b["kind"] == "recordings" and b["k"] == 2 and b["uncertainty"] == "hac"
+    # a recording whose segments excite nothing in common: skipped with a notice
+    W = W3.copy()
+    W[:200, :, 2] = 0.0
+    obs2 = SimpleNamespace(W=W, tau=tau, row_mask=np.ones(tau.shape, bool), n_samples=600)
+    c, why = recording_agreement(obs2, ["a", "b", "c"], np.zeros(600, int), None)
+    assert c is not None and c["left_out"] == ["c"]
+
+
+def test_agreement_figure_renders_the_figures():
+    from dynid.reports.agreement_figure import agreement_figure
+    rng = np.random.default_rng(9)
+    chis = 5 + rng.normal(size=(3, 10))
+    sig = np.full((3, 10), 0.2)
+    a = ag.agreement(chis, sig, [np.diag(s**2) for s in sig], [f"p{k}" for k in range(10)])
+    f = agreement_figure(a)
+    assert f.kind == "svg" and f"{a['pairs']} pairs" in str(f.markup)

@@ -17,7 +17,9 @@ from dynid.analysis.estimators import least_squares as ls
 from dynid.analysis.estimators.essential import essential_parameters
 from dynid.analysis.processing.observation import Observation, concatenate, observe
 from dynid.analysis.results import ModelResults
+from dynid.analysis.statistics.agreement import agreement, agreement_verdict, segments
 from dynid.dynamics.base_parameters import base_parameters
+from dynid.errors import IdentificationError
 from dynid.provenance import data_hash, json_safe, versions
 
 #: The covariance identify_idim reports unless told otherwise (see benchmarks/uncertainty.py).
@@ -47,6 +49,7 @@ class IDIMResult(ModelResults):
     truth: dict = None           # true base-parameter values, for simulated data
     robot: object = None         # the Robot identified (for validate() and predictions)
     uncertainty: str = "classic"  # the covariance reported (least_squares.UNCERTAINTY)
+    agreement: dict = None        # cross-recording (or cross-segment) check, see recording_agreement
 
     @property
     def model(self):
@@ -80,6 +83,8 @@ class IDIMResult(ModelResults):
                  f"({self.model.settings.get('least_squares', {}).get('uncertainty', {}).get('covariance', '')})",
                  ""]
         lines.append(self.essential.result.summary())
+        if self.agreement is not None:
+            lines += ["", agreement_verdict(self.agreement)]
         if self.notices:
             lines += ["", "Notices:"] + [f"  - {n}" for n in self.notices]
         return "\n".join(lines)
@@ -108,6 +113,8 @@ class IDIMResult(ModelResults):
             "data_hash": self.data_hash,
             "notices": self.notices,
             "true_values": self.truth,
+            "agreement": None if self.agreement is None else {
+                **self.agreement, "verdict": agreement_verdict(self.agreement)},
         })
 
 
@@ -143,7 +150,53 @@ def identify_idim(experiment, robot, *, settings=None, bp=None, max_error_growth
     for r in (r_ols, r_wls, ess.result, ess.base):
         r.data_hash = h
     notices = [n for e in experiments for n in getattr(e, "notices", [])] + obs.notices
+    agr, why = recording_agreement(obs, names, groups, r_wls.joint_sigma, uncertainty)
+    if why:
+        notices.append(why)
     return IDIMResult(robot_name=robot.name, base=bp, ols=r_ols, wls=r_wls, essential=ess,
                       observation=obs, settings=obs.settings, notices=notices, data_hash=h,
                       source=" + ".join(str(e.source) for e in experiments), robot=robot,
-                      uncertainty=uncertainty)
+                      uncertainty=uncertainty, agreement=agr)
+
+
+def recording_agreement(obs, names, groups, joint_sigma, uncertainty="classic", n_segments=3):
+    """Identify each recording alone (or each of ``n_segments`` contiguous segments of one) and compare.
+
+    Every part is a WLS of the base parameters with the weights 1/σ_j of the whole
+    (eq. (16)) and the covariance ``uncertainty``; only the parameters every part
+    identifies are compared (dynid.analysis.statistics.agreement.agreement: pairwise
+    z, χ² test of equal parameters, DerSimonian-Laird pooling).
+
+    Returns
+    -------
+    (dict or None, str)
+        The agreement and "" , or None and the notice saying why there is none.
+    """
+    parts = np.unique(groups)
+    if parts.size > 1:
+        masks = [np.where((groups == g)[:, None], obs.row_mask, False) for g in parts]
+        kind = "recordings"
+    else:
+        masks = segments(obs.n_samples, obs.row_mask, n_segments)
+        kind = "segments"
+    cols = None
+    for m in masks:
+        c = set(ls.identifiable_columns(obs.W, m).tolist())
+        cols = c if cols is None else cols & c
+    cols = np.array(sorted(cols), dtype=int)
+    if cols.size < max(1, len(names) // 2):
+        return None, (f"cross-{kind[:-1]} agreement skipped: the {len(masks)} {kind} identify only "
+                      f"{cols.size} of the {len(names)} base parameters together (too little excitation "
+                      f"in each; record longer or richer {kind}).")
+    fits = []
+    try:
+        for m in masks:
+            fits.append(ls.wls(obs.W[:, :, cols], obs.tau, [names[c] for c in cols], row_mask=m,
+                               joint_sigma=joint_sigma, uncertainty=uncertainty))
+    except IdentificationError as exc:
+        return None, f"cross-{kind[:-1]} agreement skipped: {str(exc).splitlines()[0]}"
+    out = agreement([f.chi for f in fits], [f.sigma for f in fits], [f.cov for f in fits],
+                    [names[c] for c in cols], kind=kind)
+    out["uncertainty"] = uncertainty
+    out["left_out"] = [n for k, n in enumerate(names) if k not in set(cols.tolist())]
+    return out, ""

@@ -33,7 +33,7 @@ from dynid.analysis.statistics import hac
 from dynid.errors import IdentificationError, InputError
 from dynid.provenance import data_hash, json_safe
 
-__all__ = ["stack", "ols", "wls", "RANK_RTOL", "UNCERTAINTY", "check_uncertainty", "Reduction", "reduce_system", "ols_reduced", "wls_reduced"]
+__all__ = ["stack", "ols", "wls", "RANK_RTOL", "UNCERTAINTY", "check_uncertainty", "identifiable_columns", "Reduction", "reduce_system", "ols_reduced", "wls_reduced"]
 
 #: Default relative tolerance of the rank check: a column-normalised W whose
 #: pivoted-QR diagonal falls below RANK_RTOL * |R_11| is declared rank-deficient.
@@ -442,6 +442,25 @@ def _rank_error(system, cols, nonzero, R, piv, rank, rank_rtol, Ms) -> Identific
         f"these data (column-scaled pivoted QR, relative tolerance {rank_rtol:.2g}).\n"
         + "\n".join(lines)
     )
+
+
+def identifiable_columns(W3, mask=None, rank_rtol: float = RANK_RTOL) -> np.ndarray:
+    """Indices of the columns of W3 that the rows ``mask`` (N, n) identify together.
+
+    Column-scaled pivoted QR of the stacked rows (the rank check of :func:`ols`): the
+    columns pivoted before the rank drop, in increasing order; zero columns and
+    columns dependent on earlier pivots are left out.
+    """
+    W3 = np.asarray(W3, dtype=float)
+    mask = np.ones(W3.shape[:2], bool) if mask is None else np.asarray(mask, bool)
+    X = np.where(mask[:, :, None], W3, 0.0).transpose(1, 0, 2).reshape(-1, W3.shape[2])
+    norms = np.linalg.norm(X, axis=0)
+    nz = np.flatnonzero(norms > 0)
+    if not nz.size:
+        return nz
+    _, R, piv = sla.qr(X[:, nz] / norms[nz], mode="economic", pivoting=True, check_finite=False)
+    d = np.abs(np.diag(R))
+    return np.sort(nz[piv[: int(np.count_nonzero(d > rank_rtol * d[0]))]])
 
 
 def _raw_norms(system: _System, cols) -> np.ndarray:

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import warnings
 
 import numpy as np
 from scipy import stats
@@ -115,7 +116,9 @@ def random_effects(chis, sigmas) -> dict:
     for k in range(chis.shape[1]):
         if not np.all(var[:, k] > 0):
             continue
-        r = combine_effects(chis[:, k], var[:, k], method_re="dl")
+        with warnings.catch_warnings():   # its Knapp-Hartung extras (unused) warn for K = 2
+            warnings.simplefilter("ignore", RuntimeWarning)
+            r = combine_effects(chis[:, k], var[:, k], method_re="dl")
         out["pooled"][k], out["std"][k] = r.mean_effect_re, r.sd_eff_w_re
         out["fixed"][k], out["fixed_std"][k] = r.mean_effect_fe, r.sd_eff_w_fe
         out["tau"][k], out["i2"][k] = math.sqrt(max(r.tau2, 0.0)), r.i2
