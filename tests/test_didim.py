@@ -377,3 +377,25 @@ def test_v_s_auto_on_a_wide_friction(pin_data, idim, nominal):
             off.append(f"{name} {100 * (d - i) / abs(i):+.1f} %")
     print("off:", off)
     assert off == []
+
+
+@needs_pin
+def test_a_start_that_cannot_be_simulated_is_projected_on_the_physical_set(pin_data, short):
+    """Issue 26: an initial estimate whose M(q) is not positive definite (a negative wrist
+    rotor inertia, as an IDIM estimate on closed-loop data can give) used to stop DIDIM
+    ("cannot simulate the initial estimate chi0"); it now starts from its projection on the
+    physically consistent set, and says so."""
+    pytest.importorskip("cvxpy")
+    robot, bp = pin_data["robot"], pin_data["bp"]
+    beta0 = pin_data["beta"].copy()
+    k = bp.names.index("Ia6")
+    beta0[k] = -0.5
+    chi = bp.to_standard(beta0, "zero")
+    assert np.linalg.eigvalsh(mass_matrix(robot, chi, short.qr[::500]))[:, 0].min() < 0
+    res = identify_didim(short, robot, bp=bp, chi0=beta0, max_iter=1, essential=False,
+                         settings={"v_s": V_S})
+    assert any("projection on the physically consistent set" in n for n in res.notices)
+    assert "projected" in res.settings["initialisation"]
+    M = mass_matrix(robot, bp.to_standard(res.initial, "zero"), short.qr[::500])
+    assert np.linalg.eigvalsh(M)[:, 0].min() > 0
+    assert np.all(np.isfinite(res.chi))
