@@ -159,6 +159,8 @@ DIDIM_SETTINGS_HELP = {
     "max_step_halvings": ("when an estimate cannot be simulated (M(q) not positive definite, "
                           "diverging simulation), simulate it moved back towards the previous one "
                           "by halving its step at most this many times (0 = stop at once)"),
+    "descent_test": ("also halve a step whose simulated estimate raises the output error "
+                     "||tau - W(q_s) chi|| (always on for PC-DIDIM); default false (today's iteration)"),
 }
 #: IDIM's position-filter settings: accepted, ignored (the simulated derivatives are exact).
 IGNORED_SETTINGS = ("fc_position", "order", "edge")
@@ -441,6 +443,7 @@ def resolve_didim_settings(experiment, robot, controller, qr, overrides=None):
         "j_rate": _positive(overrides.pop("j_rate", DEFAULT_J_RATE), "j_rate"),
         "max_step_halvings": _count(overrides.pop("max_step_halvings", DEFAULT_HALVINGS),
                                     "max_step_halvings"),
+        "descent_test": _bool(overrides.pop("descent_test", False), "descent_test"),
     }
     return s, notices
 
@@ -745,7 +748,7 @@ def _simulate_step(L, k, beta0, beta_sim, beta_ls, configs, physical, out_prev):
             first_failure = first_failure or str(exc)
             continue
         failure = None
-        if physical and out_prev is not None and lam > 0.5 ** max_halvings:
+        if (physical or L.s["descent_test"]) and out_prev is not None and lam > 0.5 ** max_halvings:
             # PC-DIDIM: the projected step is a Gauss-Newton step of the linearised problem
             # only; a projected Gauss-Newton needs a descent test on the nonlinear one (the
             # output error). Halved steps stay physical: the set is convex and both ends are in it.
@@ -766,8 +769,9 @@ def _physical_start(L, beta0, failure):
 
     An initial estimate whose M(q) is not positive definite cannot be simulated
     (e.g. an IDIM estimate with a slightly negative rotor inertia); its projection on
-    the physically consistent set (pc_wls; metric: 10 % of each
-    |chi0_k|, at least 10 % of the median |chi0|) can, and the iteration starts there.
+    the physically consistent set (pc_wls; metric: 10 % of each |chi0_k|, at least
+    10 % of the median |chi0|), moved 1 % towards eq. (31)'s start, can, and the
+    iteration starts there.
     Needs the optional cvxpy + Clarabel; without them the original error stands.
     """
     from dynid.analysis.estimators.physical import pc_wls, require_cvxpy
@@ -780,9 +784,13 @@ def _physical_start(L, beta0, failure):
     floor = 0.1 * max(float(np.median(b[b > 0])) if np.any(b > 0) else 1.0, 1e-12)
     cov = np.diag(np.maximum(0.1 * b, floor) ** 2)
     pc = pc_wls(L.robot, L.bp, beta0, cov, n_boot=0)
+    # The projection lies on the boundary of the set, where M(q) can be singular (a massless
+    # wrist with Ia6 = 0); 1 % of the way towards eq. (31)'s start (M = I but for the coupled
+    # wrist, strictly positive definite) puts it inside: M is linear in the parameters.
+    start = 0.99 * np.asarray(pc.chi, dtype=float) + 0.01 * initial_parameters(L.robot, L.bp)
     L.s["initialisation"] = f"{L.s.get('initialisation', '')}; projected on the physically consistent set"
-    moved = float(np.max(np.abs(pc.chi - beta0) / np.maximum(b, floor)))
-    return np.asarray(pc.chi, dtype=float), (
+    moved = float(np.max(np.abs(start - beta0) / np.maximum(b, floor)))
+    return start, (
         f"the initial estimate chi0 cannot be simulated ({failure}): DIDIM starts from its projection on "
         f"the physically consistent set (PC-WLS, largest change {100 * moved:.3g} % of a parameter's scale)")
 
