@@ -188,3 +188,13 @@ def test_agreement_figure_renders_the_figures():
     a = ag.agreement(chis, sig, [np.diag(s**2) for s in sig], [f"p{k}" for k in range(10)])
     f = agreement_figure(a)
     assert f.kind == "svg" and f"{a['pairs']} pairs" in str(f.markup)
+
+
+def test_bootstrap_without_the_per_sample_matrices_is_the_same(monkeypatch):
+    rng = np.random.default_rng(10)
+    W3, tau, _ = _system(rng, phi=0.5)
+    names = ["a", "b", "c"]
+    held = ls.wls(W3, tau, names, uncertainty="bootstrap", n_boot=60)
+    monkeypatch.setattr(hac, "MAX_BOOT_BYTES", 0)
+    summed = ls.wls(W3, tau, names, uncertainty="bootstrap", n_boot=60)
+    np.testing.assert_allclose(summed.cov, held.cov, rtol=1e-8)

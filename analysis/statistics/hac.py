@@ -27,6 +27,9 @@ import math
 import numpy as np
 from statsmodels.stats.sandwich_covariance import S_hac_simple
 
+#: Largest memory (bytes) the bootstrap spends on the per-sample information matrices.
+MAX_BOOT_BYTES = 256 * 2**20
+
 __all__ = ["sample_scores", "andrews_bandwidth", "block_length", "hac_covariance",
            "bootstrap_covariance", "score_ar1"]
 
@@ -171,7 +174,9 @@ def bootstrap_covariance(W3, tau, mask, chi, weights, *, groups=None, n_boot: in
         block = block_length(g)
     w = np.where(mask, np.asarray(weights, dtype=float)[None, :], 0.0)
     yt = np.where(mask, tau, 0.0) * w
-    A = np.einsum("tjs,tjk->tsk", Wt, Wt)
+    # per-sample information A_t, held when it fits in MAX_BOOT_BYTES (else summed per replicate)
+    N, s = g.shape
+    A = np.einsum("tjs,tjk->tsk", Wt, Wt) if N * s * s * 8 <= MAX_BOOT_BYTES else None
     c = np.einsum("tjs,tj->ts", Wt, yt)
     parts = _groups(g.shape[0], groups)
     draws, failed = [], 0
@@ -183,7 +188,7 @@ def bootstrap_covariance(W3, tau, mask, chi, weights, *, groups=None, n_boot: in
             starts = rng.integers(0, T, size=math.ceil(T / b))
             pos = (starts[:, None] + np.arange(b)[None, :]).reshape(-1)[:T] % T
             np.add.at(counts, idx[pos], 1.0)
-        As = np.tensordot(counts, A, axes=1)
+        As = np.tensordot(counts, A, axes=1) if A is not None else np.einsum("tjs,t,tjk->sk", Wt, counts, Wt)
         cs = counts @ c
         d = np.sqrt(np.diag(As))
         if not np.all(d > 0):
