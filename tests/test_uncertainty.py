@@ -198,3 +198,20 @@ def test_bootstrap_without_the_per_sample_matrices_is_the_same(monkeypatch):
     monkeypatch.setattr(hac, "MAX_BOOT_BYTES", 0)
     summed = ls.wls(W3, tau, names, uncertainty="bootstrap", n_boot=60)
     np.testing.assert_allclose(summed.cov, held.cov, rtol=1e-8)
+
+
+def test_bootstrap_falls_back_to_hac_when_blocks_cannot_identify(monkeypatch):
+    # too few replicates refitted (a parameter excited by a handful of samples): the sandwich
+    # stands in, and the result says so
+    def refuse(*args, **kwargs):
+        raise ValueError("only 3 of 50 bootstrap replicates could be refitted")
+
+    monkeypatch.setattr(hac, "bootstrap_covariance", refuse)
+    rng = np.random.default_rng(12)
+    W3, tau, _ = _system(rng, N=300)
+    r = ls.ols(W3, tau, ["a", "b", "c"], uncertainty="bootstrap", n_boot=50)
+    unc = r.settings["least_squares"]["uncertainty"]
+    assert unc["uncertainty"] == "hac" and unc["requested"] == "bootstrap"
+    assert any("was asked for" in n and "3 of 50" in n for n in r.notices)
+    h = ls.ols(W3, tau, ["a", "b", "c"], uncertainty="hac")
+    np.testing.assert_allclose(r.cov, h.cov)

@@ -515,8 +515,14 @@ def _robust(system, fit, weights, uncertainty, groups, n_boot, seed):
             cov, info = hac.bootstrap_covariance(sub, system.tau, system.mask, fit.chi, w, groups=groups,
                                                  n_boot=n_boot, seed=seed)
         except ValueError as exc:
-            raise IdentificationError(f"uncertainty='bootstrap': {exc}; the resampled data do not "
-                                      "identify every parameter: use uncertainty='hac'.") from None
+            # too few samples for blocks that keep every parameter identified: the sandwich
+            # needs no refit, so it stands in (and the result says so)
+            cov, info = hac.hac_covariance(sub, system.tau, system.mask, fit.chi, w, fit.cov_unscaled,
+                                           groups=groups)
+            return cov, {"uncertainty": "hac", "covariance": _UNCERTAINTY_LABEL["hac"], **info,
+                         "requested": "bootstrap",
+                         "fallback": f"bootstrap impossible ({exc}): the resampled data do not identify "
+                                     "every parameter"}
     return cov, {"uncertainty": uncertainty, "covariance": _UNCERTAINTY_LABEL[uncertainty], **info}
 
 
@@ -680,7 +686,10 @@ def _unc_notice(unc: dict) -> list[str]:
         return []
     extra = (f"bandwidth {unc['bandwidth']:.3g} samples" if unc["uncertainty"] == "hac"
              else f"blocks of {unc['block']} samples, {unc['n_boot'] - unc['failed']} replicates")
-    return [f"sigma is the {unc['uncertainty']} covariance ({extra}), not the classic eq. (14)."]
+    note = f"sigma is the {unc['uncertainty']} covariance ({extra}), not the classic eq. (14)."
+    if "fallback" in unc:
+        note += f" The {unc['requested']} covariance was asked for: {unc['fallback']}."
+    return [note]
 
 
 def _joint_sigma(system: _System, rank_rtol: float) -> np.ndarray:
