@@ -377,3 +377,48 @@ def test_v_s_auto_on_a_wide_friction(pin_data, idim, nominal):
             off.append(f"{name} {100 * (d - i) / abs(i):+.1f} %")
     print("off:", off)
     assert off == []
+
+
+def test_a_start_that_cannot_be_simulated_is_projected_on_the_physical_set(tx40):
+    """Issue 26: an initial estimate whose M(q) is not positive definite (a slightly negative
+    wrist rotor inertia, as IDIM on closed-loop data gave: Ia6 = -0.025) used to stop DIDIM
+    ("cannot simulate the initial estimate chi0"); it now starts from its projection on the
+    physically consistent set, and says so. (dynid-simulated data, stiff loop: a robustness
+    check of the start, not an accuracy test.)"""
+    pytest.importorskip("cvxpy")
+    from dynid.dynamics.simulation import simulate_closed_loop
+    robot, bp, beta = tx40
+    ctrl = dataclasses.replace(robot.controller, wn=np.full(6, WN))
+    robot = dataclasses.replace(robot, controller=ctrl)
+    rng = np.random.default_rng(11)
+    traj = random_fourier_trajectory(robot, 0.5, 6, rng)
+    t = np.arange(10_000) / FS
+    qr, qdr, _ = traj.evaluate(t)
+    sim = simulate_closed_loop(robot, bp.to_standard(beta), t, qr, qdr, v_s=V_S, feedforward=True,
+                               saturate=False)
+    exp = Experiment(t=t, qr=qr, tau=sim.tau + 0.2 * rng.normal(size=sim.tau.shape), fs=FS,
+                     source="dynid simulation, wn = 400 rad/s")
+    beta0 = beta.copy()
+    beta0[bp.names.index("Ia6")] = -0.025
+    assert np.linalg.eigvalsh(mass_matrix(robot, bp.to_standard(beta0, "zero"), qr[::500]))[:, 0].min() < 0
+    res = identify_didim(exp, robot, bp=bp, chi0=beta0, max_iter=1, essential=False, update_gains=False,
+                         settings={"v_s": V_S})
+    assert any("projection on the physically consistent set" in n for n in res.notices)
+    assert "projected" in res.settings["initialisation"]
+    M = mass_matrix(robot, bp.to_standard(res.initial, "zero"), qr[::500])
+    assert np.linalg.eigvalsh(M)[:, 0].min() > 0
+    assert np.all(np.isfinite(res.chi))
+
+
+def test_descent_test_keeps_the_output_error_from_growing(pin_data, short):
+    """settings descent_test: a step is halved while its simulated estimate raises the
+    output error ||tau - W(q_s) chi|| (the smallest step is taken as is)."""
+    res = identify_didim(short, pin_data["robot"], bp=pin_data["bp"], max_iter=3, essential=False,
+                         settings={"v_s": V_S, "descent_test": True})
+    h = res.history
+    smallest = 0.5 ** res.settings["max_step_halvings"]
+    for k in range(1, len(h)):
+        assert h["output_error"].iloc[k] <= h["output_error"].iloc[k - 1] or h["step_length"].iloc[k] == smallest
+    assert res.settings["descent_test"] is True
+    with pytest.raises(InputError, match="descent_test"):
+        identify_didim(short, pin_data["robot"], bp=pin_data["bp"], settings={"descent_test": "yes"})

@@ -160,6 +160,8 @@ DIDIM_SETTINGS_HELP = {
     "max_step_halvings": ("when an estimate cannot be simulated (M(q) not positive definite, "
                           "diverging simulation), simulate it moved back towards the previous one "
                           "by halving its step at most this many times (0 = stop at once)"),
+    "descent_test": ("also halve a step whose simulated estimate raises the output error "
+                     "||tau - W(q_s) chi|| (always on for PC-DIDIM); default false (today's iteration)"),
 }
 #: IDIM's position-filter settings: accepted, ignored (the simulated derivatives are exact).
 IGNORED_SETTINGS = ("fc_position", "order", "edge")
@@ -442,6 +444,7 @@ def resolve_didim_settings(experiment, robot, controller, qr, overrides=None):
         "j_rate": _positive(overrides.pop("j_rate", DEFAULT_J_RATE), "j_rate"),
         "max_step_halvings": _count(overrides.pop("max_step_halvings", DEFAULT_HALVINGS),
                                     "max_step_halvings"),
+        "descent_test": _bool(overrides.pop("descent_test", False), "descent_test"),
     }
     return s, notices
 
@@ -609,6 +612,298 @@ def _masked_norm(r, mask):
 
 # ----------------------------------------------------------------------------- DIDIM
 
+def _controller_of(robot, controller):
+    """The controller DIDIM simulates (``controller`` or the robot's), checked."""
+    ctrl = controller if controller is not None else robot.controller
+    if ctrl is None:
+        raise InputError(f"DIDIM needs the controller of robot '{robot.name}': add a [controller] "
+                         "table (kind, rate, wn, zeta, J_ap, g_ap) to its description or pass "
+                         "controller=Controller(...)")
+    if ctrl.J_ap is None or ctrl.wn is None or ctrl.zeta is None:
+        raise InputError(f"the controller of robot '{robot.name}' needs wn, zeta and J_ap for DIDIM")
+    return ctrl
+
+
+def _check_iteration(tol, max_iter, update_gains):
+    """tol_I, max_iter and update_gains, checked."""
+    try:
+        tol = float(tol)
+    except (TypeError, ValueError):
+        raise InputError(f"tol must be a number, got {tol!r}") from None
+    if not (math.isfinite(tol) and tol > 0):
+        raise InputError(f"tol must be a positive number, got {tol!r}")
+    if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
+        raise InputError(f"max_iter must be a positive integer, got {max_iter!r}")
+    if isinstance(update_gains, (bool, np.bool_)):
+        update_gains = bool(update_gains)
+    return tol, int(max_iter), update_gains
+
+
+def _reference_of(experiment, robot, reference):
+    """The reference positions (N, n) the simulated robot tracks, and the notices about it."""
+    if reference not in ("qr", "q"):
+        raise InputError(f"reference must be 'qr' or 'q', got {reference!r}")
+    qr = experiment.qr if reference == "qr" else experiment.q
+    if qr is None:
+        raise DataError(f"{experiment.source}: DIDIM needs the reference positions qr1..qrn (and "
+                        "the torques); the data have none"
+                        + (" (pass reference='q' to track the measured positions instead)"
+                           if experiment.q is not None and reference == "qr" else ""))
+    notes = []
+    if reference == "q":
+        notes.append("the measured positions q are used as the reference qr (the logged reference "
+                     "is not available): the simulated robot tracks the actual motion")
+    qr = np.ascontiguousarray(qr, dtype=float)
+    if qr.shape[1] != robot.n_joints:
+        raise DataError(f"{experiment.source}: robot '{robot.name}' has {robot.n_joints} joints "
+                        f"but the reference has {qr.shape[1]}")
+    return qr, notes
+
+
+@dataclass
+class _Loop:
+    """What every Gauss-Newton step of DIDIM shares (fixed before the first one)."""
+
+    robot: object
+    bp: object
+    ctrl: object
+    s: dict
+    t: np.ndarray
+    qr: np.ndarray
+    qdr: np.ndarray
+    tau_k: np.ndarray             # torques after the transient
+    n0: int                       # samples dropped as the closed-loop transient
+    thr: np.ndarray               # velocity dead-zone thresholds
+    guard: int
+    j_stride: int
+    J_ap: np.ndarray
+    update_gains: object
+    names: list
+    info: dict
+    workers: int
+    max_iter: int
+    progress: object = None
+
+    def system(self, q_s, qd_s, qdd_s, k=None):
+        """The decimated system (Wd, taud, mask, idx) of one simulation, after the transient."""
+        sl = slice(self.n0, None)
+        dead = None
+        if np.any(self.thr > 0):
+            dead = velocity_dead_zone(qd_s[sl], self.thr, guard=self.guard, couplings=self.robot.couplings)
+        progress, max_iter = self.progress, self.max_iter
+
+        def inner(f):
+            if progress is not None and k is not None:
+                progress(min(1.0, (k - 1 + f) / max_iter))
+
+        return _decimated_system(self.robot, self.bp, q_s[sl], qd_s[sl], qdd_s[sl], self.tau_k, dead,
+                                 self.s, self.workers, inner)
+
+
+def _prepare_loop(robot, bp, ctrl, s, t, qr, tau, update_gains, workers, max_iter, progress):
+    """The :class:`_Loop` of an identification and the notice describing the simulation."""
+    fs = s["fs"]
+    n0 = int(math.ceil(s["transient"] * fs - 1e-9))
+    qdr = np.gradient(qr, t, axis=0, edge_order=2)
+    # 'auto' from the reference speed, so the thresholds stay fixed over the iterations
+    thr = dead_zone_thresholds(qdr[n0:], s["qd_threshold"])
+    s["qd_threshold"] = [float(v) for v in thr]
+    loop = _Loop(robot=robot, bp=bp, ctrl=ctrl, s=s, t=t, qr=qr, qdr=qdr, tau_k=tau[n0:], n0=n0, thr=thr,
+                 guard=int(round(s["dead_zone_guard"] * fs)), j_stride=max(1, int(round(fs / s["j_rate"]))),
+                 J_ap=np.broadcast_to(np.asarray(ctrl.J_ap, dtype=float), (robot.n_joints,)),
+                 update_gains=update_gains, names=list(bp.names), info=dict(s), workers=workers,
+                 max_iter=max_iter, progress=progress)
+    notice = (f"DIDIM: closed-loop simulation at {s['rate']:g} Hz from (qr(0), qdr(0)); first "
+              f"{n0} samples ({s['transient']:.3g} s) dropped as the closed-loop transient; "
+              f"parallel decimation by nd = {s['nd']} (low-pass {s['f_decimation_cutoff']:.3g} Hz)"
+              + {True: "; derivative gains updated with J_j / J_ap_j (eq. (27)) at every step",
+                 "initial": "; derivative gains updated with J_j / J_ap_j (eq. (27)) for the "
+                            "simulation of chi^0 only, the actual gains (kd_scale = 1) after",
+                 False: "; derivative gains NOT updated (kd_scale = 1)"}[update_gains])
+    return loop, notice
+
+
+def _simulate_step(L, k, beta0, beta_sim, beta_ls, configs, physical, out_prev):
+    """Simulate step k's estimate, halving the step from the last simulated one when needed.
+
+    Candidates: beta0 at step 1, else beta_sim + 0.5^h (beta_ls - beta_sim), h = 0..
+    max_step_halvings. A candidate fails when it cannot be simulated, or (PC-DIDIM) when
+    it raises the output error (the descent test). Returns (lam, cand, sim_out, system,
+    failure, first_failure) with ``failure`` the last candidate's error when none worked.
+    """
+    max_halvings = L.s["max_step_halvings"]
+    if k == 1:
+        candidates = [(1.0, beta0)]
+    else:
+        step = beta_ls - beta_sim
+        candidates = [(0.5 ** h, beta_sim + 0.5 ** h * step) for h in range(max_halvings + 1)]
+    failure = first_failure = None
+    system = sim_out = None
+    for lam, cand in candidates:  # noqa: B007 (lam, cand: the step taken, returned)
+        try:
+            sim_out = _simulate_checked(
+                L.robot, L.bp, cand, L.ctrl, L.t, L.qr, L.qdr, L.s, configs, L.J_ap,
+                L.update_gains is True or (L.update_gains == "initial" and k == 1))
+        except DynidError as exc:
+            failure = exc
+            first_failure = first_failure or str(exc)
+            continue
+        failure = None
+        if (physical or L.s["descent_test"]) and out_prev is not None and lam > 0.5 ** max_halvings:
+            # PC-DIDIM: the projected step is a Gauss-Newton step of the linearised problem
+            # only; a projected Gauss-Newton needs a descent test on the nonlinear one (the
+            # output error). Halved steps stay physical: the set is convex and both ends are in it.
+            q_s, qd_s, qdd_s = sim_out[:3]
+            system = L.system(q_s, qd_s, qdd_s)
+            oe = _masked_norm(system[1] - system[0] @ cand, system[2])
+            if oe > out_prev:
+                first_failure = first_failure or (f"the output error grew ({oe:.4g} > "
+                                                  f"{out_prev:.4g})")
+                system = None
+                continue
+        break
+    return lam, cand, sim_out, system, failure, first_failure
+
+
+def _physical_start(L, beta0, failure):
+    """The physically consistent base vector nearest chi0 (PC-WLS projection), and a notice.
+
+    An initial estimate whose M(q) is not positive definite cannot be simulated
+    (e.g. an IDIM estimate with a slightly negative rotor inertia); its projection on
+    the physically consistent set (pc_wls; metric: 10 % of each |chi0_k|, at least
+    10 % of the median |chi0|), moved 1 % towards eq. (31)'s start, can, and the
+    iteration starts there.
+    Needs the optional cvxpy + Clarabel; without them the original error stands.
+    """
+    from dynid.analysis.estimators.physical import pc_wls, require_cvxpy
+    try:
+        require_cvxpy()
+    except InputError as exc:
+        raise InputError(f"DIDIM cannot simulate the initial estimate chi0: {failure}; projecting it on "
+                         f"the physically consistent set needs cvxpy: {exc}") from None
+    b = np.abs(np.asarray(beta0, dtype=float))
+    floor = 0.1 * max(float(np.median(b[b > 0])) if np.any(b > 0) else 1.0, 1e-12)
+    cov = np.diag(np.maximum(0.1 * b, floor) ** 2)
+    pc = pc_wls(L.robot, L.bp, beta0, cov, n_boot=0)
+    # The projection lies on the boundary of the set, where M(q) can be singular (a massless
+    # wrist with Ia6 = 0); 1 % of the way towards eq. (31)'s start (M = I but for the coupled
+    # wrist, strictly positive definite) puts it inside: M is linear in the parameters.
+    start = 0.99 * np.asarray(pc.chi, dtype=float) + 0.01 * initial_parameters(L.robot, L.bp)
+    L.s["initialisation"] = f"{L.s.get('initialisation', '')}; projected on the physically consistent set"
+    moved = float(np.max(np.abs(start - beta0) / np.maximum(b, floor)))
+    return start, (
+        f"the initial estimate chi0 cannot be simulated ({failure}): DIDIM starts from its projection on "
+        f"the physically consistent set (PC-WLS, largest change {100 * moved:.3g} % of a parameter's scale)")
+
+
+def _history_row(L, k, lam, res, rho, rel_change, out_err, beta_sim, q_s, substeps, kd):
+    """One row of DIDIMResult.history."""
+    d = res.chi - beta_sim
+    with np.errstate(divide="ignore", invalid="ignore"):
+        good = res.rel_sigma <= WELL_IDENTIFIED
+        max_rel = float(np.max(np.abs(d[good]) / np.abs(res.chi[good]))) if good.any() else np.nan
+        max_sig = float(np.max(np.abs(d) / res.sigma))
+    sl = slice(L.n0, None)
+    track = np.sqrt(np.mean((L.qr[sl] - q_s[sl]) ** 2, axis=0))
+    row = {"iteration": k, "step_length": lam, "rho_norm": rho, "rel_change": rel_change,
+           "output_error": out_err, "rel_error": res.rel_error, "max_rel_param_change": max_rel,
+           "max_change_sigma": max_sig, "substeps": int(substeps), "v_s": float(L.s["v_s"])}
+    for j in range(L.robot.n_joints):
+        row[f"track_rms_{j + 1}"] = float(track[j])
+    for j in range(L.robot.n_joints):
+        row[f"kd_scale_{j + 1}"] = float(kd[j])
+    return row
+
+
+def _gauss_newton(L, beta0, tol, physical, pc_options, notices):
+    """DIDIM's iteration (eqs. (22)-(26)): simulate, build the system, solve by WLS, repeat.
+
+    Appends its remarks to ``notices``; returns (history, timings, last, converged, stop_reason).
+    """
+    history, timings = [], []
+    configs = L.qr[::L.j_stride]
+    rho_prev = None
+    converged = False
+    stop_reason = ""
+    last = None
+    beta_sim = beta0            # the last simulated estimate (always simulatable)
+    beta_ls = None              # the last least-squares solution
+    max_halvings = L.s["max_step_halvings"]
+    out_prev = None             # output error of the last simulated estimate (PC-DIDIM's descent test)
+    max_iter = L.max_iter
+    for k in range(1, max_iter + 1):
+        t_start = time.perf_counter()
+        lam, cand, sim_out, system, failure, first_failure = _simulate_step(
+            L, k, beta0, beta_sim, beta_ls, configs, physical, out_prev)
+        if failure is not None and k == 1 and "not positive definite" in str(failure):
+            beta0, note = _physical_start(L, beta0, failure)
+            notices.append(note)
+            beta_sim = beta0
+            lam, cand, sim_out, system, failure, first_failure = _simulate_step(
+                L, k, beta0, beta_sim, beta_ls, configs, physical, out_prev)
+        if failure is not None:
+            if k == 1:
+                raise InputError(f"DIDIM cannot simulate the initial estimate chi0: {failure}") from None
+            stop_reason = (f"step {k}: the estimate of step {k - 1} cannot be simulated, even moved "
+                           f"back to 1/{2 ** max_halvings} of its step from the last simulated one: "
+                           f"{failure}")
+            break
+        q_s, qd_s, qdd_s, tau_ddm, substeps, sim, kd = sim_out
+        if lam < 1.0:
+            what = ("did not lower the output error" if first_failure.startswith("the output error grew")
+                    else "could not be simulated")
+            notices.append(f"step {k}: the estimate of step {k - 1} {what} "
+                           f"({first_failure}); simulated {lam:g} of its step from the previous "
+                           "simulated estimate instead")
+        beta_sim = cand
+        for note in sim.notes:
+            if note not in notices:
+                notices.append(note)
+        t_sim = time.perf_counter() - t_start
+        configs = q_s[::L.j_stride]
+        Wd, taud, mask, idx = system if system is not None else L.system(q_s, qd_s, qdd_s, k)
+        res = ls.wls(Wd, taud, L.names, row_mask=mask, settings=L.info)
+        rho = _masked_norm(res.residual, mask)
+        out_err = _masked_norm(taud - Wd @ beta_sim, mask)
+        out_prev = out_err
+        rel_change = abs(rho - rho_prev) / rho_prev if rho_prev is not None and rho_prev > 0 else np.nan
+        history.append(_history_row(L, k, lam, res, rho, rel_change, out_err, beta_sim, q_s, substeps, kd))
+        timings.append({"iteration": k, "simulation_s": t_sim,
+                        "total_s": time.perf_counter() - t_start})
+        last = dict(res=res, Wd=Wd, taud=taud, mask=mask, idx=idx, q=q_s, qd=qd_s, qdd=qdd_s,
+                    tau_ddm=tau_ddm, kd=kd.copy(), start=beta0)
+        beta_ls = res.chi
+        if physical:
+            from dynid.analysis.estimators.physical import pc_wls
+            last["physical"] = pc_wls(L.robot, L.bp, res.chi, res.cov, n_boot=0, **pc_options)
+            beta_ls = last["physical"].chi
+        if L.progress is not None:
+            L.progress(min(1.0, k / max_iter))
+        if rho_prev is not None and rel_change <= tol and lam == 1.0:
+            converged = True
+            stop_reason = (f"|(||rho_{k}|| - ||rho_{k - 1}||)| / ||rho_{k - 1}|| = {rel_change:.3g} "
+                           f"<= tol_I = {tol:g}")
+            break
+        rho_prev = rho
+    else:
+        stop_reason = (f"max_iter = {max_iter} steps without meeting the criterion: last relative "
+                       f"change of ||rho|| {history[-1]['rel_change']:.3g} > tol_I = {tol:g}"
+                       if max_iter > 1 else
+                       "max_iter = 1: one step cannot test the criterion (it compares two steps)")
+    return history, timings, last, converged, stop_reason
+
+
+def _convergence_notices(history, converged, stop_reason):
+    if not converged:
+        return [f"DIDIM did not converge: {stop_reason}"]
+    if history[-1]["max_change_sigma"] > MOVING_SIGMA:
+        return [f"the residual norm met the criterion, but the last step still moved a "
+                f"parameter by {history[-1]['max_change_sigma']:.3g} standard deviations: the "
+                "estimate is not a fixed point of the iteration (e.g. the simulated loop does not "
+                "reproduce the actual one; see the gain update in the documentation)"]
+    return []
+
+
 def identify_didim(experiment, robot, *, settings=None, chi0=None, tol=DEFAULT_TOL,
                    max_iter=DEFAULT_MAX_ITER, update_gains=True, essential=True, progress=None,
                    bp=None, controller=None, reference="qr", max_error_growth=0.02,
@@ -650,40 +945,16 @@ def identify_didim(experiment, robot, *, settings=None, chi0=None, tol=DEFAULT_T
 
     Returns a :class:`DIDIMResult`; ``converged`` is False when ``max_iter`` steps
     did not meet the criterion or a simulation failed (``stop_reason`` says which).
+    The work is split: inputs (_controller_of, _check_iteration, _reference_of), the
+    shared state (_prepare_loop), the iteration (_gauss_newton: _simulate_step, the WLS,
+    _history_row) and the result (_didim_result).
     """
     bp = base_parameters(robot) if bp is None else bp
-    ctrl = controller if controller is not None else robot.controller
-    if ctrl is None:
-        raise InputError(f"DIDIM needs the controller of robot '{robot.name}': add a [controller] "
-                         "table (kind, rate, wn, zeta, J_ap, g_ap) to its description or pass "
-                         "controller=Controller(...)")
-    if ctrl.J_ap is None or ctrl.wn is None or ctrl.zeta is None:
-        raise InputError(f"the controller of robot '{robot.name}' needs wn, zeta and J_ap for DIDIM")
-    try:
-        tol = float(tol)
-    except (TypeError, ValueError):
-        raise InputError(f"tol must be a number, got {tol!r}") from None
-    if not (math.isfinite(tol) and tol > 0):
-        raise InputError(f"tol must be a positive number, got {tol!r}")
-    if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
-        raise InputError(f"max_iter must be a positive integer, got {max_iter!r}")
-    max_iter = int(max_iter)
+    ctrl = _controller_of(robot, controller)
+    tol, max_iter, update_gains = _check_iteration(tol, max_iter, update_gains)
     notices = list(getattr(experiment, "notices", []) or [])
-    if reference not in ("qr", "q"):
-        raise InputError(f"reference must be 'qr' or 'q', got {reference!r}")
-    qr = experiment.qr if reference == "qr" else experiment.q
-    if qr is None:
-        raise DataError(f"{experiment.source}: DIDIM needs the reference positions qr1..qrn (and "
-                        "the torques); the data have none"
-                        + (" (pass reference='q' to track the measured positions instead)"
-                           if experiment.q is not None and reference == "qr" else ""))
-    if reference == "q":
-        notices.append("the measured positions q are used as the reference qr (the logged reference "
-                       "is not available): the simulated robot tracks the actual motion")
-    qr = np.ascontiguousarray(qr, dtype=float)
-    if qr.shape[1] != robot.n_joints:
-        raise DataError(f"{experiment.source}: robot '{robot.name}' has {robot.n_joints} joints "
-                        f"but the reference has {qr.shape[1]}")
+    qr, more = _reference_of(experiment, robot, reference)
+    notices += more
     tau = np.ascontiguousarray(experiment.tau, dtype=float)
     t = np.asarray(experiment.t, dtype=float)
     s, more = resolve_didim_settings(experiment, robot, ctrl, qr, settings)
@@ -694,8 +965,6 @@ def identify_didim(experiment, robot, *, settings=None, chi0=None, tol=DEFAULT_T
     if physical:
         check_range("prior_weight", prior_weight)
         check_range("n_boot", n_boot)
-    if isinstance(update_gains, (bool, np.bool_)):
-        update_gains = bool(update_gains)
     if not (isinstance(update_gains, bool) or update_gains == "initial"):
         raise InputError(f"update_gains must be True, False or 'initial', got {update_gains!r}")
     if s["v_s"] == "auto":
@@ -711,154 +980,21 @@ def identify_didim(experiment, robot, *, settings=None, chi0=None, tol=DEFAULT_T
     beta0, init_note = _initial_beta(robot, bp, chi0)
     s["initialisation"] = init_note
     workers = 1 if workers is None else max(1, min(int(workers), os.cpu_count() or 1))
+    L, notice = _prepare_loop(robot, bp, ctrl, s, t, qr, tau, update_gains, workers, max_iter, progress)
+    notices.append(notice)
+    pc_options = dict(prior=prior, prior_weight=prior_weight, mass_tolerance=mass_tolerance)
+    history, timings, last, converged, stop_reason = _gauss_newton(L, beta0, tol, physical, pc_options,
+                                                                   notices)
+    notices += _convergence_notices(history, converged, stop_reason)
+    return _didim_result(L, experiment, beta0, tau, history, timings, last, converged, stop_reason, notices,
+                         essential=essential, max_error_growth=max_error_growth, physical=physical,
+                         n_boot=n_boot, pc_options=pc_options)
 
-    fs = s["fs"]
-    n0 = int(math.ceil(s["transient"] * fs - 1e-9))
-    qdr = np.gradient(qr, t, axis=0, edge_order=2)
-    # 'auto' from the reference speed, so the thresholds stay fixed over the iterations
-    thr = dead_zone_thresholds(qdr[n0:], s["qd_threshold"])
-    s["qd_threshold"] = [float(v) for v in thr]
-    guard = int(round(s["dead_zone_guard"] * fs))
-    j_stride = max(1, int(round(fs / s["j_rate"])))
-    J_ap = np.broadcast_to(np.asarray(ctrl.J_ap, dtype=float), (robot.n_joints,))
-    notices.append(f"DIDIM: closed-loop simulation at {s['rate']:g} Hz from (qr(0), qdr(0)); first "
-                   f"{n0} samples ({s['transient']:.3g} s) dropped as the closed-loop transient; "
-                   f"parallel decimation by nd = {s['nd']} (low-pass {s['f_decimation_cutoff']:.3g} Hz)"
-                   + {True: "; derivative gains updated with J_j / J_ap_j (eq. (27)) at every step",
-                      "initial": "; derivative gains updated with J_j / J_ap_j (eq. (27)) for the "
-                                 "simulation of chi^0 only, the actual gains (kd_scale = 1) after",
-                      False: "; derivative gains NOT updated (kd_scale = 1)"}[update_gains])
 
-    names = list(bp.names)
-    info = {k: v for k, v in s.items()}
-    tau_k = tau[n0:]
-    history, timings = [], []
-    configs = qr[::j_stride]
-    rho_prev = None
-    converged = False
-    stop_reason = ""
-    last = None
-    kd = np.ones(robot.n_joints)
-    beta_sim = beta0            # the last simulated estimate (always simulatable)
-    beta_ls = None              # the last least-squares solution
-    max_halvings = s["max_step_halvings"]
-    out_prev = None             # output error of the last simulated estimate (PC-DIDIM's descent test)
-
-    def _system_of(q_s, qd_s, qdd_s, k=None):
-        """The decimated system (Wd, taud, mask, idx) of one simulation, after the transient."""
-        sl = slice(n0, None)
-        dead = None
-        if np.any(thr > 0):
-            dead = velocity_dead_zone(qd_s[sl], thr, guard=guard, couplings=robot.couplings)
-
-        def inner(f):
-            if progress is not None and k is not None:
-                progress(min(1.0, (k - 1 + f) / max_iter))
-
-        return _decimated_system(robot, bp, q_s[sl], qd_s[sl], qdd_s[sl], tau_k, dead, s, workers, inner)
-
-    for k in range(1, max_iter + 1):
-        t_start = time.perf_counter()
-        if k == 1:
-            candidates = [(1.0, beta0)]
-        else:
-            step = beta_ls - beta_sim
-            candidates = [(0.5 ** h, beta_sim + 0.5 ** h * step) for h in range(max_halvings + 1)]
-        failure = first_failure = None
-        system = None
-        for lam, cand in candidates:  # noqa: B007 (lam: the step taken, used after the loop)
-            try:
-                q_s, qd_s, qdd_s, tau_ddm, substeps, sim, kd = _simulate_checked(
-                    robot, bp, cand, ctrl, t, qr, qdr, s, configs, J_ap,
-                    update_gains is True or (update_gains == "initial" and k == 1))
-            except DynidError as exc:
-                failure = exc
-                first_failure = first_failure or str(exc)
-                continue
-            failure = None
-            if physical and out_prev is not None and lam > 0.5 ** max_halvings:
-                # PC-DIDIM: the projected step is a Gauss-Newton step of the linearised problem
-                # only; a projected Gauss-Newton needs a descent test on the nonlinear one (the
-                # output error). Halved steps stay physical: the set is convex and both ends are in it.
-                system = _system_of(q_s, qd_s, qdd_s)
-                oe = _masked_norm(system[1] - system[0] @ cand, system[2])
-                if oe > out_prev:
-                    first_failure = first_failure or (f"the output error grew ({oe:.4g} > "
-                                                      f"{out_prev:.4g})")
-                    system = None
-                    continue
-            break
-        if failure is not None:
-            if k == 1:
-                raise InputError(f"DIDIM cannot simulate the initial estimate chi0: {failure}") from None
-            stop_reason = (f"step {k}: the estimate of step {k - 1} cannot be simulated, even moved "
-                           f"back to 1/{2 ** max_halvings} of its step from the last simulated one: "
-                           f"{failure}")
-            break
-        if lam < 1.0:
-            what = ("did not lower the output error" if first_failure.startswith("the output error grew")
-                    else "could not be simulated")
-            notices.append(f"step {k}: the estimate of step {k - 1} {what} "
-                           f"({first_failure}); simulated {lam:g} of its step from the previous "
-                           "simulated estimate instead")
-        beta_sim = cand
-        for note in sim.notes:
-            if note not in notices:
-                notices.append(note)
-        t_sim = time.perf_counter() - t_start
-        configs = q_s[::j_stride]
-        sl = slice(n0, None)
-        Wd, taud, mask, idx = system if system is not None else _system_of(q_s, qd_s, qdd_s, k)
-        res = ls.wls(Wd, taud, names, row_mask=mask, settings=info)
-        rho = _masked_norm(res.residual, mask)
-        out_err = _masked_norm(taud - Wd @ beta_sim, mask)
-        out_prev = out_err
-        rel_change = abs(rho - rho_prev) / rho_prev if rho_prev is not None and rho_prev > 0 else np.nan
-        d = res.chi - beta_sim
-        with np.errstate(divide="ignore", invalid="ignore"):
-            good = res.rel_sigma <= WELL_IDENTIFIED
-            max_rel = float(np.max(np.abs(d[good]) / np.abs(res.chi[good]))) if good.any() else np.nan
-            max_sig = float(np.max(np.abs(d) / res.sigma))
-        track = np.sqrt(np.mean((qr[sl] - q_s[sl]) ** 2, axis=0))
-        row = {"iteration": k, "step_length": lam, "rho_norm": rho, "rel_change": rel_change,
-               "output_error": out_err, "rel_error": res.rel_error, "max_rel_param_change": max_rel,
-               "max_change_sigma": max_sig, "substeps": int(substeps), "v_s": float(s["v_s"])}
-        for j in range(robot.n_joints):
-            row[f"track_rms_{j + 1}"] = float(track[j])
-        for j in range(robot.n_joints):
-            row[f"kd_scale_{j + 1}"] = float(kd[j])
-        history.append(row)
-        timings.append({"iteration": k, "simulation_s": t_sim,
-                        "total_s": time.perf_counter() - t_start})
-        last = dict(res=res, Wd=Wd, taud=taud, mask=mask, idx=idx, q=q_s, qd=qd_s, qdd=qdd_s,
-                    tau_ddm=tau_ddm, kd=kd.copy())
-        beta_ls = res.chi
-        if physical:
-            from dynid.analysis.estimators.physical import pc_wls
-            pc_options = dict(prior=prior, prior_weight=prior_weight, mass_tolerance=mass_tolerance)
-            last["physical"] = pc_wls(robot, bp, res.chi, res.cov, n_boot=0, **pc_options)
-            beta_ls = last["physical"].chi
-        if progress is not None:
-            progress(min(1.0, k / max_iter))
-        if rho_prev is not None and rel_change <= tol and lam == 1.0:
-            converged = True
-            stop_reason = (f"|(||rho_{k}|| - ||rho_{k - 1}||)| / ||rho_{k - 1}|| = {rel_change:.3g} "
-                           f"<= tol_I = {tol:g}")
-            break
-        rho_prev = rho
-    else:
-        stop_reason = (f"max_iter = {max_iter} steps without meeting the criterion: last relative "
-                       f"change of ||rho|| {history[-1]['rel_change']:.3g} > tol_I = {tol:g}"
-                       if max_iter > 1 else
-                       "max_iter = 1: one step cannot test the criterion (it compares two steps)")
-    if not converged:
-        notices.append(f"DIDIM did not converge: {stop_reason}")
-    elif history[-1]["max_change_sigma"] > MOVING_SIGMA:
-        notices.append(f"the residual norm met the criterion, but the last step still moved a "
-                       f"parameter by {history[-1]['max_change_sigma']:.3g} standard deviations: the "
-                       "estimate is not a fixed point of the iteration (e.g. the simulated loop does not "
-                       "reproduce the actual one; see the gain update in the documentation)")
-
+def _didim_result(L, experiment, beta0, tau, history, timings, last, converged, stop_reason, notices, *,
+                  essential, max_error_growth, physical, n_boot, pc_options):
+    """The DIDIMResult of the last step: essential set, simulated torques, provenance."""
+    robot, bp, names = L.robot, L.bp, L.names
     res = last["res"]
     if physical and n_boot:
         from dynid.analysis.estimators.physical import pc_wls
@@ -869,16 +1005,17 @@ def identify_didim(experiment, robot, *, settings=None, chi0=None, tol=DEFAULT_T
     if essential:
         ess = essential_parameters(last["Wd"], last["taud"], names, ls.wls,
                                    max_error_growth=max_error_growth, row_mask=last["mask"],
-                                   settings=info)
+                                   settings=L.info)
         for r in (ess.result, ess.base):
             r.data_hash = h
     chi_final = bp.to_standard(res.chi, "zero")
     tau_sim = inverse_dynamics(robot, chi_final, last["q"], last["qd"], last["qdd"])
     hist = pd.DataFrame(history)
+    t, n0 = L.t, L.n0
     return DIDIMResult(
         robot_name=robot.name, base=bp, result=res, essential=ess, history=hist,
-        converged=converged, stop_reason=stop_reason, settings=s, initial=np.asarray(beta0),
-        kd_scale=last["kd"], t=t, q_sim=last["q"], qr=qr, tau=tau, tau_sim=tau_sim,
+        converged=converged, stop_reason=stop_reason, settings=L.s, initial=np.asarray(last['start']),
+        kd_scale=last["kd"], t=t, q_sim=last["q"], qr=L.qr, tau=tau, tau_sim=tau_sim,
         tau_ddm=last["tau_ddm"], t_dec=t[n0:][last["idx"]], tau_dec=last["taud"],
         tau_est_dec=last["Wd"] @ res.chi, W_dec=last["Wd"], row_mask=last["mask"],
         transient_samples=n0, notices=notices, data_hash=h, source=str(experiment.source),

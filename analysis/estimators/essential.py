@@ -217,8 +217,32 @@ def essential_parameters(
     simply called on the remaining columns at every step.
     """
     crit = _check_criteria(max_error_growth, target_rel_std, rel_std_ratio)
+    # The search ranks parameters by the classic %σ of eq. (15) whatever covariance is
+    # reported, so the essential set and its estimate do not depend on that choice.
+    robust = {k: estimator_kwargs.pop(k) for k in ("uncertainty", "groups", "n_boot", "seed")
+              if k in estimator_kwargs}
+    if robust.get("uncertainty", "classic") != "classic":
+        ls.check_uncertainty(robust["uncertainty"])
     if isinstance(W3, ls.Reduction):
+        if robust.get("uncertainty", "classic") != "classic":
+            raise InputError("essential_parameters of a Reduction reports the classic covariance only: "
+                             "the robust ones need the samples.")
         return _essential_reduced(W3, estimator, crit, estimator_kwargs)
+    out = _essential_samples(W3, tau, names, estimator, crit, estimator_kwargs)
+    if robust.get("uncertainty", "classic") == "classic":
+        return out
+    kw = {**estimator_kwargs, **robust}
+    if estimator is ls.wls and "joint_sigma" not in kw:
+        kw["joint_sigma"] = out.base.joint_sigma
+    cols = [out.base.names.index(n) for n in out.essential]
+    out.base = estimator(W3, tau, out.base.names, **kw)
+    kw["settings"] = out.result.settings
+    kw["settings"] = {k: v for k, v in kw["settings"].items() if k != "least_squares"}
+    out.result = estimator(np.asarray(W3)[:, :, cols], tau, out.essential, **kw)
+    return out
+
+
+def _essential_samples(W3, tau, names, estimator, crit, estimator_kwargs):
     base = estimator(W3, tau, names, **estimator_kwargs)
     names = list(base.names)
     fixed_kwargs = dict(estimator_kwargs)

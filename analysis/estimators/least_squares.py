@@ -29,10 +29,11 @@ import numpy as np
 import scipy.linalg as sla
 
 from dynid.analysis.results import IdentificationResult
+from dynid.analysis.statistics import hac
 from dynid.errors import IdentificationError, InputError
 from dynid.provenance import data_hash, json_safe
 
-__all__ = ["stack", "ols", "wls", "RANK_RTOL", "Reduction", "reduce_system", "ols_reduced", "wls_reduced"]
+__all__ = ["stack", "ols", "wls", "RANK_RTOL", "UNCERTAINTY", "check_uncertainty", "identifiable_columns", "Reduction", "reduce_system", "ols_reduced", "wls_reduced"]
 
 #: Default relative tolerance of the rank check: a column-normalised W whose
 #: pivoted-QR diagonal falls below RANK_RTOL * |R_11| is declared rank-deficient.
@@ -443,13 +444,90 @@ def _rank_error(system, cols, nonzero, R, piv, rank, rank_rtol, Ms) -> Identific
     )
 
 
+def identifiable_columns(W3, mask=None, rank_rtol: float = RANK_RTOL) -> np.ndarray:
+    """Indices of the columns of W3 that the rows ``mask`` (N, n) identify together.
+
+    Column-scaled pivoted QR of the stacked rows (the rank check of :func:`ols`): the
+    columns pivoted before the rank drop, in increasing order; zero columns and
+    columns dependent on earlier pivots are left out.
+    """
+    W3 = np.asarray(W3, dtype=float)
+    mask = np.ones(W3.shape[:2], bool) if mask is None else np.asarray(mask, bool)
+    X = np.where(mask[:, :, None], W3, 0.0).transpose(1, 0, 2).reshape(-1, W3.shape[2])
+    norms = np.linalg.norm(X, axis=0)
+    nz = np.flatnonzero(norms > 0)
+    if not nz.size:
+        return nz
+    _, R, piv = sla.qr(X[:, nz] / norms[nz], mode="economic", pivoting=True, check_finite=False)
+    d = np.abs(np.diag(R))
+    return np.sort(nz[piv[: int(np.count_nonzero(d > rank_rtol * d[0]))]])
+
+
 def _raw_norms(system: _System, cols) -> np.ndarray:
     B = system.blocks[:, :, cols]
     return np.sqrt(np.einsum("ijk,ijk->k", B, B))
 
 
 # ------------------------------------------------------------------- results
-def _make_result(method, system, fit, sigma_rho, joint_sigma, settings, notices) -> IdentificationResult:
+#: The covariances an estimate can carry (option ``uncertainty``).
+UNCERTAINTY = ("classic", "hac", "bootstrap")
+
+_UNCERTAINTY_LABEL = {
+    "classic": "classic: sigma_rho^2 (W'W)^-1 of eqs. (13)-(14), samples counted as independent",
+    "hac": "hac: Newey-West sandwich, Bartlett kernel, Andrews (1991) bandwidth, scores summed over joints per sample",
+    "bootstrap": "bootstrap: circular block bootstrap of the decimated samples (Politis & Romano 1992)",
+}
+
+
+def check_uncertainty(uncertainty) -> str:
+    """The name of a covariance option, checked (one of :data:`UNCERTAINTY`)."""
+    if uncertainty not in UNCERTAINTY:
+        raise InputError(
+            f"uncertainty must be one of {', '.join(UNCERTAINTY)}, got {uncertainty!r}: 'classic' is "
+            "eq. (14) of Gautier et al. (independent samples), 'hac' a Newey-West sandwich, "
+            "'bootstrap' a block bootstrap over time."
+        )
+    return uncertainty
+
+
+def _robust(system, fit, weights, uncertainty, groups, n_boot, seed):
+    """Covariance and description of ``uncertainty`` for the fit (None for classic)."""
+    if uncertainty == "classic":
+        return None, {"uncertainty": "classic", "covariance": _UNCERTAINTY_LABEL["classic"]}
+    if system.reduced:
+        raise InputError(
+            f"uncertainty={uncertainty!r} needs the samples (a time series of scores); a Reduction "
+            "holds only the triangles: use uncertainty='classic' or pass W3 and tau."
+        )
+    full = fit.cols.size == system.n_params and np.array_equal(fit.cols, np.arange(system.n_params))
+    sub = system.W3 if full else system.W3[:, :, fit.cols]
+    w = np.where(system.rows > 0, np.asarray(weights, dtype=float), 0.0)
+    if groups is not None:
+        groups = np.asarray(groups).reshape(-1)
+        if groups.size != system.n_samples:
+            raise InputError(f"groups has {groups.size} entries for {system.n_samples} samples: give the "
+                             "recording of every sample.")
+    if uncertainty == "hac":
+        cov, info = hac.hac_covariance(sub, system.tau, system.mask, fit.chi, w, fit.cov_unscaled,
+                                       groups=groups)
+    else:
+        try:
+            cov, info = hac.bootstrap_covariance(sub, system.tau, system.mask, fit.chi, w, groups=groups,
+                                                 n_boot=n_boot, seed=seed)
+        except ValueError as exc:
+            # too few samples for blocks that keep every parameter identified: the sandwich
+            # needs no refit, so it stands in (and the result says so)
+            cov, info = hac.hac_covariance(sub, system.tau, system.mask, fit.chi, w, fit.cov_unscaled,
+                                           groups=groups)
+            return cov, {"uncertainty": "hac", "covariance": _UNCERTAINTY_LABEL["hac"], **info,
+                         "requested": "bootstrap",
+                         "fallback": f"bootstrap impossible ({exc}): the resampled data do not identify "
+                                     "every parameter"}
+    return cov, {"uncertainty": uncertainty, "covariance": _UNCERTAINTY_LABEL[uncertainty], **info}
+
+
+def _make_result(method, system, fit, sigma_rho, joint_sigma, settings, notices,
+                 robust_cov=None) -> IdentificationResult:
     names = [system.names[c] for c in fit.cols]
     W3, tau, mask = system.W3, system.tau, system.mask
     if system.reduced:
@@ -473,7 +551,7 @@ def _make_result(method, system, fit, sigma_rho, joint_sigma, settings, notices)
         method=method,
         names=names,
         chi=fit.chi,
-        cov=sigma_rho**2 * fit.cov_unscaled,
+        cov=sigma_rho**2 * fit.cov_unscaled if robust_cov is None else robust_cov,
         sigma_rho=float(sigma_rho),
         residual=residual,
         rel_error=rel_error,
@@ -523,7 +601,8 @@ def _solver_settings(method: str, rank_rtol: float, row_mask, joints) -> dict:
     }
 
 
-def ols(W3, tau, names, *, row_mask=None, joints=None, rank_rtol: float = RANK_RTOL, settings=None) -> IdentificationResult:
+def ols(W3, tau, names, *, row_mask=None, joints=None, rank_rtol: float = RANK_RTOL, settings=None,
+        uncertainty: str = "classic", groups=None, n_boot: int = 300, seed: int = 0) -> IdentificationResult:
     """Ordinary least squares χ̂ = W⁺Y of eq. (11) with the statistics of eqs. (13)-(15).
 
     Parameters
@@ -543,12 +622,26 @@ def ols(W3, tau, names, *, row_mask=None, joints=None, rank_rtol: float = RANK_R
     settings : dict, optional
         JSON-safe settings to record with the result (e.g. filter cut-offs);
         the estimator adds its own under ``"least_squares"``.
+    uncertainty : {"classic", "hac", "bootstrap"}
+        The covariance reported. "classic": eq. (14), the samples counted as
+        independent (the papers' σ). "hac": a Newey-West sandwich whose
+        scores sum the joints of each sample (residual correlated in time and
+        across joints; bandwidth of Andrews 1991). "bootstrap": a circular
+        block bootstrap of the decimated samples (block length from the
+        scores' correlation). The estimate is the same for all three; the
+        choice is recorded in ``settings["least_squares"]["uncertainty"]``
+        and in a notice.
+    groups : array (N,), optional
+        Recording of each sample, for "hac" and "bootstrap": no lag and no
+        block crosses from one recording to the next.
+    n_boot, seed : int
+        Replicates and seed of the "bootstrap" option.
 
     Returns
     -------
     IdentificationResult
-        σ̂_ρ² = ‖Y − Wχ̂‖²/(r − b) (eq. (13)), cov = σ̂_ρ² (WᵀW)⁻¹ (eq. (14)),
-        %σ = 100 σ/|χ̂| (eq. (15)).
+        σ̂_ρ² = ‖Y − Wχ̂‖²/(r − b) (eq. (13)), cov = σ̂_ρ² (WᵀW)⁻¹ (eq. (14))
+        or the robust covariance, %σ = 100 σ/|χ̂| (eq. (15)).
 
     Raises
     ------
@@ -558,8 +651,10 @@ def ols(W3, tau, names, *, row_mask=None, joints=None, rank_rtol: float = RANK_R
         W is (nearly) rank-deficient: the message names the parameters and
         what to do; or there are not more rows than parameters.
     """
+    check_uncertainty(uncertainty)
     system = _build_system(W3, tau, names, row_mask, joints)
-    return _ols_system(system, rank_rtol, settings, row_mask, joints)
+    return _ols_system(system, rank_rtol, settings, row_mask, joints,
+                       (uncertainty, groups, n_boot, seed))
 
 
 def ols_reduced(reduction: Reduction, *, rank_rtol: float = RANK_RTOL, settings=None) -> IdentificationResult:
@@ -571,15 +666,30 @@ def ols_reduced(reduction: Reduction, *, rank_rtol: float = RANK_RTOL, settings=
     return _ols_system(reduction.system(), rank_rtol, settings, None, None)
 
 
-def _ols_system(system, rank_rtol, settings, row_mask, joints) -> IdentificationResult:
+def _ols_system(system, rank_rtol, settings, row_mask, joints,
+                robust=("classic", None, 0, 0)) -> IdentificationResult:
     rtol = _check_rtol(rank_rtol)
     user = _check_settings(settings)
     b = system.n_params
     fit = _fit(system, np.arange(b), np.ones(system.n_joints), rtol)
     r = int(system.rows.sum())
     sigma_rho = math.sqrt(fit.ss_weighted / (r - b))  # eq. (13)
-    cfg = {**user, "least_squares": _solver_settings("OLS", rtol, row_mask, joints)}
-    return _make_result("OLS", system, fit, sigma_rho, None, cfg, _row_notices(system))
+    weights = np.ones(system.n_joints)
+    cov, unc = _robust(system, fit, weights, *robust)
+    cfg = {**user, "least_squares": {**_solver_settings("OLS", rtol, row_mask, joints), "uncertainty": unc}}
+    return _make_result("OLS", system, fit, sigma_rho, None, cfg, _row_notices(system) + _unc_notice(unc),
+                        cov)
+
+
+def _unc_notice(unc: dict) -> list[str]:
+    if unc["uncertainty"] == "classic":
+        return []
+    extra = (f"bandwidth {unc['bandwidth']:.3g} samples" if unc["uncertainty"] == "hac"
+             else f"blocks of {unc['block']} samples, {unc['n_boot'] - unc['failed']} replicates")
+    note = f"sigma is the {unc['uncertainty']} covariance ({extra}), not the classic eq. (14)."
+    if "fallback" in unc:
+        note += f" The {unc['requested']} covariance was asked for: {unc['fallback']}."
+    return [note]
 
 
 def _joint_sigma(system: _System, rank_rtol: float) -> np.ndarray:
@@ -661,6 +771,10 @@ def wls(
     joint_sigma=None,
     rank_rtol: float = RANK_RTOL,
     settings=None,
+    uncertainty: str = "classic",
+    groups=None,
+    n_boot: int = 300,
+    seed: int = 0,
 ) -> IdentificationResult:
     """Weighted least squares with per-joint weights 1/σ_j (eq. (16), Gautier 1997).
 
@@ -680,10 +794,14 @@ def wls(
     ``residual``) are in the original, unweighted units. ``cond`` is that of
     the weighted W. Other arguments as in :func:`ols`; ``joint_sigma`` (n,)
     fixes the σ_j instead of estimating them (``nan`` allowed for joints
-    without equations).
+    without equations); ``uncertainty``, ``groups``, ``n_boot`` and ``seed``
+    choose the covariance as in :func:`ols` (the sandwich and the bootstrap
+    keep the weights 1/σ_j fixed).
     """
+    check_uncertainty(uncertainty)
     system = _build_system(W3, tau, names, row_mask, joints)
-    return _wls_system(system, joint_sigma, rank_rtol, settings, row_mask, joints)
+    return _wls_system(system, joint_sigma, rank_rtol, settings, row_mask, joints,
+                       (uncertainty, groups, n_boot, seed))
 
 
 def wls_reduced(reduction: Reduction, *, joint_sigma=None, rank_rtol: float = RANK_RTOL,
@@ -697,7 +815,8 @@ def wls_reduced(reduction: Reduction, *, joint_sigma=None, rank_rtol: float = RA
     return _wls_system(reduction.system(), joint_sigma, rank_rtol, settings, None, None)
 
 
-def _wls_system(system, joint_sigma, rank_rtol, settings, row_mask, joints) -> IdentificationResult:
+def _wls_system(system, joint_sigma, rank_rtol, settings, row_mask, joints,
+                robust=("classic", None, 0, 0)) -> IdentificationResult:
     rtol = _check_rtol(rank_rtol)
     user = _check_settings(settings)
     b, n = system.n_params, system.n_joints
@@ -713,5 +832,8 @@ def _wls_system(system, joint_sigma, rank_rtol, settings, row_mask, joints) -> I
     fit = _fit(system, cols, weights, rtol)
     r = int(system.rows.sum())
     sigma_rho = math.sqrt(fit.ss_weighted / (r - b))  # eq. (13) on the weighted system
-    cfg = {**user, "least_squares": {**_solver_settings("WLS", rtol, row_mask, joints), "joint_sigma": source}}
-    return _make_result("WLS", system, fit, sigma_rho, sig, cfg, _row_notices(system))
+    cov, unc = _robust(system, fit, weights, *robust)
+    cfg = {**user, "least_squares": {**_solver_settings("WLS", rtol, row_mask, joints), "joint_sigma": source,
+                                     "uncertainty": unc}}
+    return _make_result("WLS", system, fit, sigma_rho, sig, cfg, _row_notices(system) + _unc_notice(unc),
+                        cov)

@@ -1,0 +1,168 @@
+"""Do several recordings (or time segments of one) find the same parameters within their intervals?
+
+The covariance of one recording (classic eq. (14) of Gautier et al. 2010, or a
+HAC / bootstrap one) describes the noise of that recording only. Model error
+(torque the model does not describe: springs, tilt, friction shape, elasticity)
+biases the estimate differently on different trajectories; the only way to see
+it is to identify the same model on different data and compare.
+
+* :func:`pairwise_agreement`: for every pair of recordings and every parameter
+  both call identified (%σ ≤ ``rel_max``), z = (χa − χb)/√(σa² + σb²); the
+  fraction with |z| ≤ 1.96 (95 % expected) and the median |z| (0.67 expected).
+* :func:`equality_test`: χ² test that all recordings share one parameter vector,
+  overall (full covariances) and per parameter (Cochran's Q).
+* :func:`random_effects`: the pooled estimate of each parameter whose standard
+  error includes the between-recording variance τ² (DerSimonian & Laird 1986,
+  statsmodels' combine_effects).
+* :func:`segments`: contiguous time segments of one recording (≥ 3, each
+  identifying every parameter), for the same checks when there is one recording.
+* :func:`agreement_verdict`: the verdict line.
+
+Plain functions on numpy arrays.
+"""
+from __future__ import annotations
+
+import itertools
+import math
+import warnings
+
+import numpy as np
+from scipy import stats
+
+__all__ = ["pairwise_agreement", "equality_test", "random_effects", "segments", "agreement_verdict",
+           "agreement"]
+
+
+def pairwise_agreement(chis, sigmas, *, rel_max: float = 10.0, names=None) -> dict:
+    """Pairwise z-scores of K estimates of the same parameters.
+
+    Parameters
+    ----------
+    chis, sigmas : sequences of K arrays (p,)
+        Estimates and their standard deviations, one per recording (same parameter order).
+    rel_max : float
+        A parameter enters a pair only if its %σ (eq. (15)) is ≤ rel_max in both runs.
+    names : list of p str, optional
+        Parameter names, for the ``z`` records.
+
+    Returns
+    -------
+    dict
+        ``pairs`` (count), ``within_95`` (fraction with |z| ≤ 1.96, NaN without pairs),
+        ``median_abs_z``, ``beyond_5`` (fraction with |z| > 5), ``z`` (list of
+        {a, b, name, z}).
+    """
+    chis = [np.asarray(c, dtype=float) for c in chis]
+    sigmas = [np.asarray(s, dtype=float) for s in sigmas]
+    names = names if names is not None else [str(k) for k in range(chis[0].size)]
+    rec = []
+    for a, b in itertools.combinations(range(len(chis)), 2):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ok = (100 * sigmas[a] / np.abs(chis[a]) <= rel_max) & (100 * sigmas[b] / np.abs(chis[b]) <= rel_max)
+            z = (chis[a] - chis[b]) / np.hypot(sigmas[a], sigmas[b])
+        rec += [{"a": a, "b": b, "name": names[k], "z": float(z[k])} for k in np.flatnonzero(ok)]
+    az = np.abs([r["z"] for r in rec])
+    return {"pairs": len(rec),
+            "within_95": float(np.mean(az <= 1.96)) if az.size else math.nan,
+            "median_abs_z": float(np.median(az)) if az.size else math.nan,
+            "beyond_5": float(np.mean(az > 5)) if az.size else math.nan,
+            "rel_max": rel_max, "z": rec}
+
+
+def equality_test(chis, covs) -> dict:
+    """χ² test of H0: every recording has the same parameter vector.
+
+    Overall: χ̄ = (Σ V_k⁻¹)⁻¹ Σ V_k⁻¹ χ_k and Q = Σ_k (χ_k − χ̄)ᵀ V_k⁻¹ (χ_k − χ̄),
+    χ² with (K − 1) p degrees of freedom under H0. Per parameter: Cochran's Q
+    with the variances alone, K − 1 degrees of freedom.
+
+    Returns
+    -------
+    dict
+        ``chi2``, ``dof``, ``p_value`` (overall) and ``per_parameter``: arrays
+        ``q`` and ``p_value`` (p,).
+    """
+    chis = np.asarray(chis, dtype=float)
+    covs = np.asarray(covs, dtype=float)
+    K, p = chis.shape
+    # pseudo-inverses: a robust covariance may be singular to rounding
+    P = np.array([np.linalg.pinv(0.5 * (C + C.T)) for C in covs])
+    mean = np.linalg.solve(P.sum(axis=0), np.einsum("kij,kj->i", P, chis))
+    d = chis - mean
+    q_all = float(np.einsum("ki,kij,kj->", d, P, d))
+    dof = (K - 1) * p
+    v = np.array([np.diag(C) for C in covs])
+    w = 1.0 / v
+    mu = (w * chis).sum(axis=0) / w.sum(axis=0)
+    q = (w * (chis - mu) ** 2).sum(axis=0)
+    return {"chi2": q_all, "dof": dof, "p_value": float(stats.chi2.sf(q_all, dof)),
+            "per_parameter": {"q": q, "p_value": stats.chi2.sf(q, K - 1)}}
+
+
+def random_effects(chis, sigmas) -> dict:
+    """DerSimonian–Laird random-effects pooling of each parameter over K recordings.
+
+    Returns
+    -------
+    dict of arrays (p,)
+        ``pooled`` (random-effects mean), ``std`` (its standard error, with τ²),
+        ``tau`` (between-recording standard deviation, √τ²), ``fixed`` and
+        ``fixed_std`` (the inverse-variance pooling without τ²), ``i2``.
+    """
+    from statsmodels.stats.meta_analysis import combine_effects
+    chis = np.asarray(chis, dtype=float)
+    var = np.asarray(sigmas, dtype=float) ** 2
+    out = {k: np.full(chis.shape[1], np.nan) for k in ("pooled", "std", "tau", "fixed", "fixed_std", "i2")}
+    for k in range(chis.shape[1]):
+        if not np.all(var[:, k] > 0):
+            continue
+        with warnings.catch_warnings():   # its Knapp-Hartung extras (unused) warn for K = 2
+            warnings.simplefilter("ignore", RuntimeWarning)
+            r = combine_effects(chis[:, k], var[:, k], method_re="dl")
+        out["pooled"][k], out["std"][k] = r.mean_effect_re, r.sd_eff_w_re
+        out["fixed"][k], out["fixed_std"][k] = r.mean_effect_fe, r.sd_eff_w_fe
+        out["tau"][k], out["i2"][k] = math.sqrt(max(r.tau2, 0.0)), r.i2
+    return out
+
+
+def segments(n_samples: int, mask, k: int = 3) -> list[np.ndarray]:
+    """k contiguous, equal segments of the samples (boolean masks (N, n) of the rows to use)."""
+    mask = np.asarray(mask, dtype=bool)
+    out = []
+    for idx in np.array_split(np.arange(n_samples), k):
+        m = np.zeros_like(mask)
+        m[idx] = mask[idx]
+        out.append(m)
+    return out
+
+
+def agreement(chis, sigmas, covs, names, *, kind: str = "recordings", rel_max: float = 10.0) -> dict:
+    """Pairwise figures, χ² tests and random-effects pooling of K estimates (JSON-safe arrays as lists)."""
+    pw = pairwise_agreement(chis, sigmas, rel_max=rel_max, names=names)
+    eq = equality_test(chis, covs)
+    re = random_effects(chis, sigmas)
+    return {"kind": kind, "k": len(chis), "names": list(names),
+            "pairs": pw["pairs"], "within_95": pw["within_95"], "median_abs_z": pw["median_abs_z"],
+            "beyond_5": pw["beyond_5"], "z": pw["z"], "rel_max": rel_max,
+            "chi2": eq["chi2"], "dof": eq["dof"], "p_value": eq["p_value"],
+            "per_parameter_p_value": [float(x) for x in eq["per_parameter"]["p_value"]],
+            "pooled": [float(x) for x in re["pooled"]], "pooled_std": [float(x) for x in re["std"]],
+            "between_std": [float(x) for x in re["tau"]]}
+
+
+def agreement_verdict(a: dict) -> str:
+    """One verdict line: do the recordings (segments) agree within their intervals?
+
+    ``a`` is the dict of :func:`agreement`.
+    """
+    what = a["kind"]
+    if not a["pairs"]:
+        return (f"Agreement across {a['k']} {what}: no parameter has %sigma <= {a['rel_max']:g} % in two "
+                f"{what}; nothing to compare.")
+    ok = a["within_95"] >= 0.9 and a["p_value"] >= 0.01
+    head = "agree within their intervals" if ok else "do NOT agree within their intervals"
+    tail = ("" if ok else "; the intervals of one recording are optimistic: model error differs between "
+            f"{what} (use the pooled estimate and its between-{what[:-1]} spread)")
+    return (f"The {a['k']} {what} {head}: {100 * a['within_95']:.0f} % of {a['pairs']} pairwise differences "
+            f"within their 95 % interval (95 % expected), median |z| {a['median_abs_z']:.2f} (0.67 expected); "
+            f"chi2 test of equal parameters {a['chi2']:.4g} on {a['dof']} dof, p = {a['p_value']:.2g}{tail}.")

@@ -1,0 +1,210 @@
+"""Do dynid's intervals contain what the next recording finds? (issue 26)
+
+Real data only; each recording (or segment) is identified alone with dynid's default
+IDIM processing, once per covariance option (``classic``: eqs. (14)-(15) of Gautier
+et al.; ``hac``; ``bootstrap``); the estimates are identical across options, only
+σ changes. For the per-joint WLS estimates of every pair of runs, the parameters with
+%σ ≤ 10 % in both runs give z = (χa − χb)/√(σa² + σb²): the fraction with |z| ≤ 1.96
+(95 % expected), the count of pairs and the median |z| (0.67 expected).
+
+* KUKA LWR4+: recordings 1, 2 and 3 (examples/kuka_lwr4/recording_N.toml), robot kuka_lwr4.
+* Staubli TX40: the 9 s log (examples/staubli_tx40/experiment.toml), its decimated
+  system built once with the default settings, then cut into three 3 s segments (row
+  masks), each fitted alone (WLS, its own σ_j); a parameter a segment cannot identify
+  (Fcm6 in the last 3 s) is left out of that segment's pairs.
+* Franka Panda: the log (shared data folder, GPL-3.0, converted on the fly to a temporary
+  folder) with the example's settings (fc 45 Hz, nd 20, cut-off 4 Hz), cut into halves
+  the same way.
+
+Beside the options, ``+segments`` adds to the option's variance the between-segment
+variance τ² (DerSimonian-Laird) of three contiguous segments of the same run, each
+fitted with the run's weights (what one recording can say about its own model
+error), and ``+segments/K`` adds τ²/3 (the variance of the average of three
+independent segment biases). The cross-recording random-effects pooling and χ² test
+of equal parameters are printed for each data set.
+
+Run from the repository root (about 2 min on a shared 2-core machine):
+
+    python benchmarks/uncertainty.py [--no-panda]
+
+The last line is a JSON object with the headline figures.
+"""
+from __future__ import annotations
+
+import os
+
+for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_v, "1")
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+OPTIONS = ("classic", "hac", "bootstrap")
+N_SEG = 3
+
+
+def _segment_tau2(res):
+    """Between-segment variance τ² (DL) of the run's WLS, from N_SEG contiguous segments."""
+    from dynid.analysis.estimators import least_squares as ls
+    from dynid.analysis.statistics.agreement import random_effects, segments
+    obs = res.observation
+    chis, sig = [], []
+    for m in segments(obs.n_samples, obs.row_mask, N_SEG):
+        r = ls.wls(obs.W, obs.tau, list(res.base.names), row_mask=m, joint_sigma=res.wls.joint_sigma)
+        chis.append(r.chi)
+        sig.append(r.sigma)
+    return random_effects(chis, sig)["tau"] ** 2
+
+
+def segment_fits(obs, names, k, opt):
+    """WLS of each of k contiguous segments of one observation system, with option ``opt``.
+
+    A segment that cannot identify a parameter (e.g. the TX40's Fcm6 in its last 3 s)
+    leaves it out: NaN, never compared.
+    """
+    from dynid.analysis.estimators import least_squares as ls
+    from dynid.analysis.statistics.agreement import segments
+    out = []
+    for m in segments(obs.n_samples, obs.row_mask, k):
+        cols = ls.identifiable_columns(obs.W, m)
+        r = ls.wls(obs.W[:, :, cols], obs.tau, [names[c] for c in cols], row_mask=m, uncertainty=opt)
+        chi, sig = np.full(len(names), np.nan), np.full(len(names), np.nan)
+        chi[cols], sig[cols] = r.chi, r.sigma
+        cov = np.full((len(names), len(names)), np.nan)
+        cov[np.ix_(cols, cols)] = r.cov
+        out.append((chi, sig, cov))
+    return out
+
+
+def runs_of(dataset, panda_dir=None):
+    """(robot, [(label, Experiment)], settings) of a data set."""
+    from dynid.analysis.data.experiment import load_experiment
+    from dynid.dynamics.robot_file import load_robot
+    if dataset == "lwr4":
+        robot = load_robot("kuka_lwr4")
+        return robot, [(f"recording {k}", load_experiment(ROOT / f"examples/kuka_lwr4/recording_{k}.toml", robot))
+                       for k in (1, 2, 3)], None
+    if dataset == "tx40":
+        robot = load_robot("tx40")
+        return robot, [("9 s log", load_experiment(ROOT / "examples/staubli_tx40/experiment.toml", robot))], None
+    if dataset == "panda":
+        sys.path.insert(0, str(ROOT / "examples/franka_panda"))
+        import run as panda_run
+        robot = load_robot("panda")
+        toml = panda_run.prepare(panda_dir, tempfile.mkdtemp(prefix="dynid_panda_"))
+        return robot, [("21 s log", load_experiment(toml, robot))], dict(panda_run.SETTINGS)
+    raise ValueError(dataset)
+
+
+def evaluate_segments(dataset, panda_dir=None):
+    """One recording, its observation system built once, its k segments fitted alone."""
+    from dynid.analysis.estimators.idim import identify_idim
+    from dynid.analysis.statistics.agreement import agreement, agreement_verdict, pairwise_agreement
+    robot, runs, settings = runs_of(dataset, panda_dir)
+    exp = runs[0][1]
+    res = identify_idim(exp, robot, settings=settings)
+    names = list(res.base.names)
+    k = 3 if dataset == "tx40" else 2
+    rows, fits = {}, {}
+    for opt in OPTIONS:
+        fits[opt] = segment_fits(res.observation, names, k, opt)
+        rows[opt] = pairwise_agreement([f[0] for f in fits[opt]], [f[1] for f in fits[opt]], names=names)
+    both = np.all([np.isfinite(f[0]) for f in fits["classic"]], axis=0)
+    cl = fits["classic"]
+    agr = agreement([f[0][both] for f in cl], [f[1][both] for f in cl], [f[2][np.ix_(both, both)] for f in cl],
+                    [n for n, b in zip(names, both) if b], kind="segments")
+    labels = [f"segment {j + 1} of {k}" for j in range(k)]
+    return rows, agr, agreement_verdict(agr), labels
+
+
+def evaluate(dataset, panda_dir=None):
+    from dynid.analysis.estimators.idim import identify_idim
+    from dynid.analysis.statistics.agreement import agreement, agreement_verdict, pairwise_agreement
+    if dataset != "lwr4":
+        return evaluate_segments(dataset, panda_dir)
+    robot, runs, settings = runs_of(dataset, panda_dir)
+    fits = {opt: [] for opt in OPTIONS}
+    tau2 = []
+    names = None
+    for label, exp in runs:
+        for opt in OPTIONS:
+            r = identify_idim(exp, robot, settings=settings, uncertainty=opt)
+            fits[opt].append(r)
+            names = list(r.base.names)
+        ref = fits["classic"][-1]
+        for opt in OPTIONS[1:]:
+            assert np.array_equal(fits[opt][-1].wls.chi, ref.wls.chi), "the option changed the estimate"
+        try:
+            tau2.append(_segment_tau2(ref))
+        except Exception as exc:   # a segment that does not identify every parameter
+            print(f"  {dataset} {label}: segments skipped ({str(exc).splitlines()[0]})")
+            tau2.append(None)
+    rows = {}
+    for opt in OPTIONS:
+        chis = [r.wls.chi for r in fits[opt]]
+        sig = [r.wls.sigma for r in fits[opt]]
+        rows[opt] = pairwise_agreement(chis, sig, names=names)
+        if all(t is not None for t in tau2):
+            rows[f"{opt}+segments"] = pairwise_agreement(
+                chis, [np.sqrt(s**2 + t) for s, t in zip(sig, tau2)], names=names)
+            rows[f"{opt}+segments/K"] = pairwise_agreement(
+                chis, [np.sqrt(s**2 + t / N_SEG) for s, t in zip(sig, tau2)], names=names)
+    cl = fits["classic"]
+    agr = agreement([r.wls.chi for r in cl], [r.wls.sigma for r in cl], [r.wls.cov for r in cl], names,
+                    kind="recordings" if dataset == "lwr4" else "segments")
+    return rows, agr, agreement_verdict(agr), [label for label, _ in runs]
+
+
+def main(argv=None):
+    sys.path.insert(0, str(ROOT))
+    from dynid.analysis.estimators.idim import DEFAULT_UNCERTAINTY
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--no-panda", action="store_true")
+    ap.add_argument("--panda-data", default=None, help="Gaz et al.'s folder (default: the shared data folder)")
+    a = ap.parse_args(argv)
+    t0 = time.time()
+    sets = ["lwr4", "tx40"]
+    panda_dir = a.panda_data
+    if not a.no_panda:
+        if panda_dir is None:
+            for p in [ROOT, *ROOT.parents]:
+                if (p / "shared/data/franka-panda-gaz").is_dir():
+                    panda_dir = p / "shared/data/franka-panda-gaz"
+                    break
+        if panda_dir is not None:
+            sets.append("panda")
+        else:
+            print("Panda: data folder not found (pass --panda-data): skipped")
+    out = {"default_uncertainty": DEFAULT_UNCERTAINTY}
+    for ds in sets:
+        rows, agr, verdict, labels = evaluate(ds, panda_dir)
+        print(f"\n{ds}: {', '.join(labels)} each alone; per-joint WLS, pairs with %sigma <= 10 % in both runs")
+        print(f"  {'sigma':<22}{'pairs':>6}{'within 95 %':>13}{'median |z|':>12}{'beyond 5':>10}")
+        for opt, r in rows.items():
+            print(f"  {opt:<22}{r['pairs']:>6}{100 * r['within_95']:>12.0f}%{r['median_abs_z']:>12.2f}"
+                  f"{100 * r['beyond_5']:>9.0f}%")
+        print(f"  verdict (classic): {verdict}")
+        pooled = [(n, p, s, t) for n, p, s, t in zip(agr["names"], agr["pooled"], agr["pooled_std"],
+                                                    agr["between_std"]) if t > 0]
+        print(f"  random effects (DerSimonian-Laird): between-run spread > 0 for {len(pooled)} of "
+              f"{len(agr['names'])} parameters; chi2 {agr['chi2']:.4g} on {agr['dof']} dof, p = {agr['p_value']:.2g}")
+        d = rows[DEFAULT_UNCERTAINTY]
+        out[f"{ds}_pairs"] = d["pairs"]
+        out[f"{ds}_pairs_within_95"] = d["within_95"]
+        out[f"{ds}_median_abs_z"] = d["median_abs_z"]
+        for opt, r in rows.items():
+            out[f"{ds}_{opt}"] = [r["pairs"], round(r["within_95"], 3), round(r["median_abs_z"], 3)]
+        out[f"{ds}_chi2_p_value"] = agr["p_value"]
+    out["seconds"] = round(time.time() - t0, 1)
+    print(json.dumps(out))
+
+
+if __name__ == "__main__":
+    main()

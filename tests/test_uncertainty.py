@@ -1,0 +1,217 @@
+"""The covariance options of IDIM (classic / HAC / block bootstrap) and the cross-recording agreement."""
+import numpy as np
+import pytest
+import statsmodels.api as sm
+
+from dynid.analysis.estimators import least_squares as ls
+from dynid.analysis.estimators.essential import essential_parameters
+from dynid.analysis.statistics import agreement as ag
+from dynid.analysis.statistics import hac
+from dynid.errors import InputError
+
+
+def _ar1(rng, shape, phi):
+    e = rng.standard_normal(shape)
+    x = np.empty(shape)
+    x[0] = e[0] / np.sqrt(1 - phi**2)
+    for k in range(1, shape[0]):
+        x[k] = phi * x[k - 1] + e[k]
+    return x * np.sqrt(1 - phi**2)
+
+
+def _system(rng, N=400, phi=0.0, smooth=True):
+    """Two joints, three parameters; regressors smooth in time (as decimated robot data)."""
+    t = np.arange(N) / 50.0
+    W3 = np.zeros((N, 2, 3))
+    W3[:, 0, 0] = np.sin(2.1 * t + rng.uniform(0, 6))
+    W3[:, 0, 1] = np.cos(0.7 * t) if smooth else rng.standard_normal(N)
+    W3[:, 1, 1] = np.sin(1.3 * t + 1.0)
+    W3[:, 1, 2] = 1.0 + 0.5 * np.cos(3.1 * t)
+    chi = np.array([1.0, -2.0, 0.5])
+    tau = W3 @ chi + _ar1(rng, (N, 2), phi) * np.array([0.1, 0.3])
+    return W3, tau, chi
+
+
+def test_hac_is_statsmodels_newey_west_for_one_joint():
+    # oracle: statsmodels' OLS with cov_type HAC, same lags, small-sample correction
+    rng = np.random.default_rng(1)
+    W3, tau, _ = _system(rng, phi=0.7)
+    X, y = W3[:, 0, :2], tau[:, 0]
+    fit = sm.OLS(y, X).fit(cov_type="HAC", cov_kwds={"maxlags": 6, "use_correction": True})
+    chi = np.linalg.lstsq(X, y, rcond=None)[0]
+    cov, info = hac.hac_covariance(X[:, None, :], y[:, None], np.ones((X.shape[0], 1), bool), chi,
+                                   np.ones(1), np.linalg.inv(X.T @ X), bandwidth=7.0)
+    assert info["nlags"] == 6
+    np.testing.assert_allclose(cov, fit.cov_params(), rtol=1e-10)
+
+
+def test_options_keep_the_estimate_and_record_their_name():
+    rng = np.random.default_rng(2)
+    W3, tau, _ = _system(rng, phi=0.8)
+    names = ["a", "b", "c"]
+    ref = ls.wls(W3, tau, names)
+    for opt in ("hac", "bootstrap"):
+        r = ls.wls(W3, tau, names, uncertainty=opt)
+        np.testing.assert_array_equal(r.chi, ref.chi)
+        assert r.settings["least_squares"]["uncertainty"]["uncertainty"] == opt
+        assert any(opt in n for n in r.notices)
+        assert not np.allclose(r.sigma, ref.sigma)
+    assert ref.settings["least_squares"]["uncertainty"]["uncertainty"] == "classic"
+
+
+def test_bad_option_and_reduction_are_clear_errors():
+    rng = np.random.default_rng(3)
+    W3, tau, _ = _system(rng)
+    with pytest.raises(InputError, match="uncertainty must be one of"):
+        ls.ols(W3, tau, ["a", "b", "c"], uncertainty="robust")
+    with pytest.raises(InputError, match="needs the samples"):
+        red = ls.reduce_system(W3, tau, ["a", "b", "c"])
+        ls._ols_system(red.system(), ls.RANK_RTOL, None, None, None, ("hac", None, 100, 0))
+
+
+def test_essential_set_does_not_depend_on_the_option():
+    rng = np.random.default_rng(4)
+    W3, tau, _ = _system(rng, phi=0.8)
+    W3 = np.concatenate([W3, 1e-3 * rng.standard_normal(W3.shape[:2] + (2,))], axis=2)
+    names = ["a", "b", "c", "d", "e"]
+    ref = essential_parameters(W3, tau, names, ls.wls)
+    for opt in ("hac", "bootstrap"):
+        e = essential_parameters(W3, tau, names, ls.wls, uncertainty=opt)
+        assert e.essential == ref.essential
+        np.testing.assert_array_equal(e.result.chi, ref.result.chi)
+        assert e.result.settings["least_squares"]["uncertainty"]["uncertainty"] == opt
+
+
+def test_coverage_with_ar1_noise_hac_and_bootstrap_beat_classic():
+    # 150 replicates of AR(1) noise (phi 0.8, smooth regressors): classic is too narrow
+    hits = {o: 0 for o in ls.UNCERTAINTY}
+    n = 0
+    for seed in range(150):
+        rng = np.random.default_rng(100 + seed)
+        W3, tau, chi = _system(rng, phi=0.8)
+        for o in ls.UNCERTAINTY:
+            r = ls.wls(W3, tau, ["a", "b", "c"], uncertainty=o, n_boot=150, seed=seed)
+            hits[o] += int(np.sum(np.abs(r.chi - chi) <= 1.96 * r.sigma))
+        n += 3
+    cover = {o: h / n for o, h in hits.items()}
+    assert cover["classic"] < 0.80
+    assert 0.85 <= cover["hac"] <= 0.99
+    assert 0.85 <= cover["bootstrap"] <= 0.99
+
+
+def test_groups_keep_lags_inside_each_recording():
+    rng = np.random.default_rng(5)
+    W3, tau, _ = _system(rng, phi=0.8)
+    names = ["a", "b", "c"]
+    one = ls.wls(W3, tau, names, uncertainty="hac")
+    two = ls.wls(W3, tau, names, uncertainty="hac", groups=np.repeat([0, 1], 200))
+    assert not np.allclose(one.sigma, two.sigma)
+    with pytest.raises(InputError, match="groups"):
+        ls.wls(W3, tau, names, uncertainty="hac", groups=np.zeros(3))
+
+
+def test_andrews_bandwidth_grows_with_correlation():
+    rng = np.random.default_rng(6)
+    white = rng.standard_normal((500, 2))
+    red = _ar1(rng, (500, 2), 0.9)
+    assert hac.andrews_bandwidth(white) < 3 < hac.andrews_bandwidth(red)
+    assert hac.block_length(white) <= 3 < 10 < hac.block_length(red)
+
+
+# ------------------------------------------------------------------ agreement
+def test_pairwise_agreement_counts_by_hand():
+    chis = [np.array([1.0, 10.0, 0.0]), np.array([1.1, 10.0, 0.0]), np.array([1.0, 12.0, 0.0])]
+    sig = [np.array([0.05, 0.5, 1.0])] * 3
+    a = ag.pairwise_agreement(chis, sig, names=["x", "y", "z"])
+    # z is never identified (%sigma inf); x: 0.1/0.0707 = 1.41, 0, 1.41; y: 0, 2.83, 2.83
+    assert a["pairs"] == 6
+    assert a["within_95"] == pytest.approx(4 / 6)
+    assert a["median_abs_z"] == pytest.approx(np.sqrt(2))
+
+
+def test_equality_test_and_random_effects():
+    rng = np.random.default_rng(7)
+    K, p = 4, 3
+    truth = np.array([1.0, 2.0, 3.0])
+    sig = np.full((K, p), 0.1)
+    same = truth + 0.1 * rng.standard_normal((K, p))
+    eq = ag.equality_test(same, [np.diag(s**2) for s in sig])
+    assert eq["dof"] == 9 and eq["p_value"] > 0.001
+    spread = same + np.array([[0.0], [1.0], [-1.0], [0.5]])
+    eq2 = ag.equality_test(spread, [np.diag(s**2) for s in sig])
+    assert eq2["p_value"] < 1e-6
+    re = ag.random_effects(spread, sig)
+    # DerSimonian-Laird by hand for parameter 0
+    x, v = spread[:, 0], sig[:, 0] ** 2
+    w = 1 / v
+    mu = (w * x).sum() / w.sum()
+    Q = (w * (x - mu) ** 2).sum()
+    t2 = max(0.0, (Q - (K - 1)) / (w.sum() - (w**2).sum() / w.sum()))
+    ws = 1 / (v + t2)
+    assert re["tau"][0] == pytest.approx(np.sqrt(t2))
+    assert re["pooled"][0] == pytest.approx((ws * x).sum() / ws.sum())
+    assert re["std"][0] == pytest.approx(np.sqrt(1 / ws.sum()))
+    a = ag.agreement(spread, sig, [np.diag(s**2) for s in sig], ["a", "b", "c"])
+    line = ag.agreement_verdict(a)
+    assert "do NOT agree" in line and "chi2" in line
+    b = ag.agreement(same, sig, [np.diag(s**2) for s in sig], ["a", "b", "c"])
+    assert "agree within" in ag.agreement_verdict(b) or b["within_95"] < 0.9
+
+
+def test_recording_agreement_segments_and_recordings():
+    from types import SimpleNamespace
+
+    from dynid.analysis.estimators.idim import recording_agreement
+    rng = np.random.default_rng(8)
+    W3, tau, _ = _system(rng, N=600)
+    obs = SimpleNamespace(W=W3, tau=tau, row_mask=np.ones(tau.shape, bool), n_samples=600)
+    names = ["a", "b", "c"]
+    a, why = recording_agreement(obs, names, np.zeros(600, int), None)
+    assert why == "" and a["kind"] == "segments" and a["k"] == 3 and a["dof"] == 6
+    # white noise, the right model: the segments agree
+    assert a["p_value"] > 1e-3
+    b, _ = recording_agreement(obs, names, np.repeat([0, 1], 300), None, "hac")
+    assert b["kind"] == "recordings" and b["k"] == 2 and b["uncertainty"] == "hac"
+    # a recording whose segments excite nothing in common: skipped with a notice
+    W = W3.copy()
+    W[:200, :, 2] = 0.0
+    obs2 = SimpleNamespace(W=W, tau=tau, row_mask=np.ones(tau.shape, bool), n_samples=600)
+    c, why = recording_agreement(obs2, ["a", "b", "c"], np.zeros(600, int), None)
+    assert c is not None and c["left_out"] == ["c"]
+
+
+def test_agreement_figure_renders_the_figures():
+    from dynid.reports.agreement_figure import agreement_figure
+    rng = np.random.default_rng(9)
+    chis = 5 + rng.normal(size=(3, 10))
+    sig = np.full((3, 10), 0.2)
+    a = ag.agreement(chis, sig, [np.diag(s**2) for s in sig], [f"p{k}" for k in range(10)])
+    f = agreement_figure(a)
+    assert f.kind == "svg" and f"{a['pairs']} pairs" in str(f.markup)
+
+
+def test_bootstrap_without_the_per_sample_matrices_is_the_same(monkeypatch):
+    rng = np.random.default_rng(10)
+    W3, tau, _ = _system(rng, phi=0.5)
+    names = ["a", "b", "c"]
+    held = ls.wls(W3, tau, names, uncertainty="bootstrap", n_boot=60)
+    monkeypatch.setattr(hac, "MAX_BOOT_BYTES", 0)
+    summed = ls.wls(W3, tau, names, uncertainty="bootstrap", n_boot=60)
+    np.testing.assert_allclose(summed.cov, held.cov, rtol=1e-8)
+
+
+def test_bootstrap_falls_back_to_hac_when_blocks_cannot_identify(monkeypatch):
+    # too few replicates refitted (a parameter excited by a handful of samples): the sandwich
+    # stands in, and the result says so
+    def refuse(*args, **kwargs):
+        raise ValueError("only 3 of 50 bootstrap replicates could be refitted")
+
+    monkeypatch.setattr(hac, "bootstrap_covariance", refuse)
+    rng = np.random.default_rng(12)
+    W3, tau, _ = _system(rng, N=300)
+    r = ls.ols(W3, tau, ["a", "b", "c"], uncertainty="bootstrap", n_boot=50)
+    unc = r.settings["least_squares"]["uncertainty"]
+    assert unc["uncertainty"] == "hac" and unc["requested"] == "bootstrap"
+    assert any("was asked for" in n and "3 of 50" in n for n in r.notices)
+    h = ls.ols(W3, tau, ["a", "b", "c"], uncertainty="hac")
+    np.testing.assert_allclose(r.cov, h.cov)
