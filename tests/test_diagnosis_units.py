@@ -123,7 +123,7 @@ def test_chi2_log_tail_stays_finite_and_ordered_where_scipy_underflows():
 
 def test_coulomb_onset_rule_by_dead_zone_and_by_peak_speed():
     from dynid.analysis.diagnosis.effects import make_candidate
-    from dynid.analysis.diagnosis.selection import _onset
+    from dynid.analysis.diagnosis.notes import onset_note as _onset
     c = make_candidate("stribeck", 2, vs=0.029)
     settings = {"qd_threshold": 0.012}
     # Fs < 0 at v_s = 2.4 dead zones: an onset once the joint reaches 1 rad/s (2.9 % of it)
