@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["onset_note", "physics_note", "ONSET_VS_FACTOR", "ONSET_PEAK_FRACTION"]
+__all__ = ["onset_note", "physics_note", "effect_title", "ONSET_VS_FACTOR", "ONSET_PEAK_FRACTION"]
 
 #: a Stribeck term with Fs < 0 whose v_s is at most this many dead-zone widths, or at most
 #: this fraction of the joint's peak speed, is a Coulomb onset
@@ -56,8 +56,7 @@ def physics_note(cand, values):
     v = np.asarray(values, dtype=float)
     if cand.name == "stribeck" and v[0] < 0:
         return ("Fs < 0: at low speed the friction is below the Coulomb + viscous line and rises "
-                "to it over about v_s (a wide, smooth Coulomb onset or a curved viscous law), "
-                "not a Stribeck dip")
+                "to it over about v_s (a wide, smooth Coulomb onset or a curved viscous law)")
     if cand.name == "time_delay":
         return (f"torque samples {abs(1e3 * v[0]):.3g} ms {'late' if v[0] > 0 else 'early'} against "
                 "the positions (the model is re-fitted on W(t - d))")
@@ -68,3 +67,18 @@ def physics_note(cand, values):
     return ""
 
 
+
+
+def effect_title(name, values):
+    """The name an added effect is reported under: the fitted sign decides what it is.
+
+    A `stribeck` term with Fs < 0 is a friction that *rises* to its Coulomb level at low
+    speed, the opposite of a Stribeck dip: it is reported as a low-speed friction rise,
+    so that no note contradicts the name.
+    """
+    v = np.asarray(values, dtype=float)
+    if name == "stribeck" and v.size and v[0] < 0:
+        return "low-speed friction rise (Stribeck form, Fs < 0)"
+    if name == "stribeck":
+        return "Stribeck friction (low-speed dip)"
+    return name

@@ -117,7 +117,8 @@ class SelectedEffect:
                 "parameters": [{"name": p, "value": v, "std": s, "rel_std_percent": r}
                                for p, v, s, r in zip(self.params, self.values, self.sigma,
                                                      self.rel_sigma)],
-                "note": self.note or None, "kind": self.kind,
+                "note": self.note or None, "kind": self.kind, "title": self.title or self.name,
+                "label": self.label,
                 "torque_rms_per_joint": None if self.torque_rms is None else list(self.torque_rms)}
 
 
@@ -165,6 +166,9 @@ class DiagnosisResult(Exportable):
     path: list = field(default_factory=list)   # errors after each step (see diagnose)
     structure: object = None       # StructureResult: catalogue-free tests of the final residual
     hidden_tests: list = field(default_factory=list)   # HiddenEffect: a-priori prior tests (hidden.py)
+    findings: list = field(default_factory=list)   # Finding: named, not added (findings.py)
+    cut: list = field(default_factory=list)        # RankedEffect passing the rule, cut by max_effects
+    rest: object = None            # RestPhases: held-out error at rest, before/after (rest.py)
 
     @property
     def hidden(self):
@@ -227,6 +231,13 @@ class DiagnosisResult(Exportable):
             "structure": None if self.structure is None else self.structure.to_dict(),
             "hidden": [h.to_dict() for h in self.hidden],
             "hidden_tests": [h.to_dict() for h in self.hidden_tests],
+            "findings": [f.to_dict() for f in self.findings],
+            "cut_by_max_effects": [dict(r.to_dict(), label=r.label,
+                                        include_with=f"--max-effects {self.settings['max_effects'] + k + 1}")
+                                   for k, r in enumerate(self.cut)],
+            "flagged": [{"joint": u.joint, "hypothesis": u.hypothesis, "mechanism": u.mechanism}
+                        for u in self.unexplained],
+            "rest_phases": None if self.rest is None else self.rest.to_dict(),
         })
 
 

@@ -108,8 +108,10 @@ from dynid.analysis.diagnosis.effects import (
     candidate_set,
     signals_from_observation,
 )
+from dynid.analysis.diagnosis.findings import cut_effects, findings_not_added
 from dynid.analysis.diagnosis.hidden import hidden_effects, physical_effects
-from dynid.analysis.diagnosis.notes import onset_note, physics_note
+from dynid.analysis.diagnosis.hypotheses import gear_ratios_of, name_flags
+from dynid.analysis.diagnosis.notes import effect_title, onset_note, physics_note
 from dynid.analysis.diagnosis.problem import (
     Problem,
     analyse_residual,
@@ -125,6 +127,7 @@ from dynid.analysis.diagnosis.problem import (
     without_parameters,
 )
 from dynid.analysis.diagnosis.refine import refine_candidate
+from dynid.analysis.diagnosis.rest import rest_phases
 from dynid.analysis.diagnosis.results import (
     DiagnosisResult,
     DiagnosisStep,
@@ -164,7 +167,8 @@ def diagnose(experiment, robot, *, validation=None, idim_result=None, settings=N
              max_effects=3, rng=None, alpha=0.01, folds=5, gap="auto", exclude_parameters=None,
              joints=None, residual_analysis=True, confirm_on_validation=True, max_error_growth=0.02,
              progress=None, structure_tests=True, start_model="essential", base_guard=True,
-             max_tries=5, hidden_tests=True, physical_tests=True, reselect_essential=True):
+             max_tries=5, hidden_tests=True, physical_tests=True, reselect_essential=True,
+             gear_ratios=None, rest_phases=True):
     """Find what the identified model of ``robot`` lacks in ``experiment``.
 
     Parameters
@@ -227,6 +231,11 @@ def diagnose(experiment, robot, *, validation=None, idim_result=None, settings=N
         pattern that holds in that recording only (on the real TX40, a 4th effect passes
         the rule but raises the error on the held-out 3 s). The validation errors after
         are then no longer independent of the selection; ``False`` keeps them so.
+    gear_ratios : gear ratios of the joints' motors: a flagged line at a harmonic of the motor
+        turn is named as such (default: the data description's ``[transmission]``).
+    rest_phases : with validation data, choose the friction at rest per joint on the
+        identification's rest rows and report the held-out error on all samples before/after
+        and its rest-phase share (:mod:`dynid.analysis.diagnosis.rest`).
 
     Returns
     -------
@@ -239,7 +248,8 @@ def diagnose(experiment, robot, *, validation=None, idim_result=None, settings=N
         confirm_on_validation=confirm_on_validation, max_error_growth=max_error_growth,
         structure_tests=structure_tests, start_model=start_model, base_guard=base_guard,
         max_tries=max_tries, hidden_tests=hidden_tests, physical_tests=physical_tests,
-        reselect_essential=reselect_essential, processing=settings)
+        reselect_essential=reselect_essential, processing=settings, gear_ratios=gear_ratios,
+        rest_phases=rest_phases)
     return run_diagnosis(experiment, robot, opts, validation=validation, idim_result=idim_result,
                          progress=progress)
 
@@ -288,6 +298,7 @@ class Setup:
     gap: int
     vprob: Problem | None
     notices: list = field(default_factory=list)
+    validation: object = None    # the validation data as given
 
 
 def prepare(experiment, robot, opts, *, validation=None, idim_result=None):
@@ -315,7 +326,7 @@ def prepare(experiment, robot, opts, *, validation=None, idim_result=None):
                                    model=model0)
     return Setup(eobs=eobs, idim_result=idim_result, model0=model0, model_text=model_text,
                  cols0=np.asarray(cols0), names0=names0, cands=cands, problem=problem, qd_peak=peak,
-                 folds=folds, gap=gap, vprob=vprob, notices=notices)
+                 folds=folds, gap=gap, vprob=vprob, notices=notices, validation=validation)
 
 
 def _identification(experiment, robot, opts, idim_result, notices):
@@ -572,9 +583,18 @@ def assemble(experiment, robot, setup, opts, sel):
         cfg["structure_rule"] = structure.rule
         cfg["structure_model"] = ("full base model" if test_state is not state else "final model") + (
             " plus the selected effects" if state["effects"] else "")
+        gear = opts.gear_ratios
+        if gear is None and not isinstance(experiment, EffectObservation):
+            gear = gear_ratios_of(experiment)
+        structure.hypotheses = name_flags(structure, setup.eobs, gear_ratios=gear,
+                                          model_names=list(test_fit.names), model_values=test_fit.chi)
     hidden = _hidden(robot, setup, opts, state, test_state, test_fit)
+    ranking = _final_ranking(sel)
+    cut = cut_effects(sel.steps, opts.max_effects)
     return DiagnosisResult(hidden_tests=hidden, robot_name=robot.name, source=setup.eobs.source,
-                           ranking=_final_ranking(sel), steps=sel.steps, structure=structure,
+                           ranking=ranking, steps=sel.steps, structure=structure,
+                           findings=findings_not_added(setup.problem, state, ranking, cut), cut=cut,
+                           rest=_rest(experiment, robot, setup, opts),
                            selected=_selected_effects(setup, state, sel.selected),
                            model_before=setup.model0, model_after=model_after,
                            errors=errors, settings=cfg, idim=setup.idim_result, residuals=residuals,
@@ -603,7 +623,8 @@ def _selected_effects(setup, state, selected):
                                   params=list(params), values=np.asarray(values),
                                   sigma=np.asarray(sigmas), step=step, candidate=cand, torque_rms=rms,
                                   note=onset or physics_note(cand, values),
-                                  kind="coulomb_onset" if onset else "effect"))
+                                  kind="coulomb_onset" if onset else "effect",
+                                  title=effect_title(cand.name, values)))
     return out
 
 
@@ -672,6 +693,16 @@ def _settings_record(setup, opts):
             "ranking": "chi2_k tail of the LR statistic with n_eff (most significant first)",
             "max_tries": opts.max_tries,
             "drift_time_origin_s": setup.eobs.t_start, "drift_time_scale_s": setup.eobs.duration}
+
+
+def _rest(experiment, robot, setup, opts):
+    """The friction at rest (rest.py): with validation recordings given as data, else None."""
+    if not opts.rest_phases or setup.vprob is None or isinstance(experiment, EffectObservation) \
+            or isinstance(setup.validation, EffectObservation):
+        return None
+    ir = setup.idim_result
+    return rest_phases(experiment, setup.validation, robot, ir.base, ir.settings, setup.cols0,
+                       setup.model0.chi, list(setup.names0), setup.eobs, setup.vprob.eobs)
 
 
 # ======================================================================= stage 5: tests of the final model

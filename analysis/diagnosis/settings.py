@@ -34,6 +34,9 @@ class DiagnosisSettings:
     max_tries : passing candidates tried per step until one is kept.
     reselect_essential : re-select the essential set on the torque less the selected effects.
     processing : processing overrides of the identification (identify_idim's settings).
+    gear_ratios : (n,) gear ratios of the joints' motors, to name a line at a harmonic of the
+        motor turn (None: from the data description's [transmission], when there is one).
+    rest_phases : with validation data, score the friction-at-rest candidates (rest.py).
     """
 
     effects: tuple | None = None
@@ -54,6 +57,8 @@ class DiagnosisSettings:
     physical_tests: bool = True
     reselect_essential: bool = True
     processing: dict | None = None
+    gear_ratios: tuple | None = None
+    rest_phases: bool = True
 
     def checked(self) -> DiagnosisSettings:
         """These settings with the effect names checked and expanded.

@@ -176,11 +176,16 @@ class Unexplained:
     also: list = field(default_factory=list)
     curve: tuple | None = None     # (x, mean residual) for a figure: x in the variable's unit
     curve_label: str = ""
+    hypothesis: str = ""           # the mechanism it points to (hypotheses.py)
+    mechanism: str = ""
+    reason: str = ""               # why the flag is not raised (alias, too small)
 
     def to_dict(self):
         return {"joint": self.joint, "depends_on": self.depends_on, "rms": self.rms,
                 "p_value": self.p_value, "test": self.test, "noise_rms": self.noise_rms,
-                "variable": self.variable, "period_rad": self.period, "also": list(self.also)}
+                "variable": self.variable, "period_rad": self.period, "also": list(self.also),
+                "hypothesis": self.hypothesis or None, "mechanism": self.mechanism or None,
+                "not_raised_because": self.reason or None}
 
     def sentence(self):
         if self.test == "line":
@@ -198,7 +203,8 @@ class Unexplained:
             what = f"the residual depends on {self.variable}"
         size = ("excess" if self.test == "noise_floor" else "structure") + f" RMS {self.rms:.3g} N m"
         rest = "floor" if self.test == "noise_floor" else "rest"
-        return (f"joint {self.joint}: {what} ({size} vs {rest} {self.noise_rms:.3g} N m, "
+        head = f"joint {self.joint}: " + (f"{self.hypothesis}. Evidence: " if self.hypothesis else "")
+        return (f"{head}{what} ({size} vs {rest} {self.noise_rms:.3g} N m, "
                 f"p = {self.p_value:.2g}); no candidate explains it")
 
 
@@ -212,6 +218,8 @@ class StructureResult:
     block_length: int
     rule: str
     whiteness: np.ndarray | None = None    # var(d3 tau) / var(d2 tau) per joint (white: 3.33)
+    dropped: list = field(default_factory=list)      # Unexplained not raised (alias, too small)
+    hypotheses: list = field(default_factory=list)   # Hypothesis per flagged joint (hypotheses.py)
 
     @property
     def floor_known(self):
@@ -223,6 +231,8 @@ class StructureResult:
                 "noise_floor_rms": [float(x) if np.isfinite(x) else None for x in self.noise_floor],
                 "whiteness_d3_d2": None if self.whiteness is None else list(map(float, self.whiteness)),
                 "rule": self.rule,
+                "not_raised": [u.to_dict() for u in self.dropped],
+                "hypotheses": [h.to_dict() for h in self.hypotheses],
                 "tests": [t.to_dict() for t in self.tests if t.flagged or t.p_value < 0.05]}
 
 

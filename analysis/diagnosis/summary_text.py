@@ -8,7 +8,7 @@ import numpy as np
 
 from dynid.analysis.diagnosis.effects import order_text
 
-__all__ = ["diagnosis_summary", "fmt_p", "nonlinear_text"]
+__all__ = ["diagnosis_summary", "overview_lines", "verdict_lines", "fmt_p", "nonlinear_text"]
 
 
 def fmt_p(p):
@@ -40,11 +40,41 @@ def nonlinear_text(nl, *, prose=False):
 
 def diagnosis_summary(res):
     """The text of `DiagnosisResult.summary()`."""
-    lines = _header(res) + _steps(res) + _ranking(res) + _selected(res) + _errors(res)
-    lines += _structure(res) + _hidden(res)
+    lines = _header(res) + overview_lines(res) + [""] + _steps(res) + _ranking(res) + _selected(res)
+    lines += _errors(res) + _structure(res) + _hidden(res)
     if res.notices:
         lines += ["", "  Notices:"] + [f"    - {n}" for n in res.notices]
     return "\n".join(lines)
+
+
+def overview_lines(res):
+    """The first screen: effects added, findings, flagged joints with their hypothesis, effects
+    cut by max_effects, errors before/after (also the verdict's diagnosis lines)."""
+    eff = res.effects
+    lines = [f"  DIAGNOSIS: {len(eff)} effect(s) added, {len(res.findings)} finding(s) named but not "
+             f"added, {len(res.unexplained)} joint(s) flagged, {len(res.cut)} effect(s) cut by max_effects"]
+    lines += [f"    added: {e.label}" for e in eff]
+    onsets = [e for e in res.selected if e.kind != "effect"]
+    lines += [f"    kept in the model as a Coulomb onset (not an effect of the robot): {e.label}" for e in onsets]
+    lines += [f"    finding (not added): {f.sentence()}" for f in res.findings]
+    lines += [f"    flagged joint {u.joint}: {u.hypothesis or u.depends_on}" for u in res.unexplained]
+    st = res.structure
+    for u in ([] if st is None else st.dropped):
+        lines.append(f"    not raised on joint {u.joint}: {u.hypothesis or u.depends_on} ({u.reason})")
+    if res.cut:
+        k = res.settings["max_effects"]
+        lines.append(f"    cut: {len(res.cut)} effect(s) pass the rule but max_effects = {k} were added "
+                     f"already; include them with --max-effects {k + len(res.cut)} "
+                     f"(Python: diagnose(..., max_effects={k + len(res.cut)})):")
+        lines += [f"      {r.label}: CV gain {100 * r.cv_gain:.2f} %, LR {r.statistic:.1f}, "
+                  f"p_adj {fmt_p(r.p_value)}" for r in res.cut]
+    v = res.errors.get("validation")
+    if v is not None:
+        lines.append(f"    held-out error (moving samples): {100 * v['before'].rel_error:.2f} % -> "
+                     f"{100 * v['after'].rel_error:.2f} %")
+    if res.rest is not None:
+        lines += ["    " + x for x in res.rest.lines()]
+    return lines
 
 
 def _header(res):
@@ -97,7 +127,7 @@ def _selected(res):
         return ["", "  No effect selected: nothing the candidates describe is missing from the model."]
     lines = ["", "  Selected effects:"]
     for e in res.selected:
-        lines.append(f"    {e.candidate.label}:")
+        lines.append(f"    {e.label}:")
         for p, v, sd, r in zip(e.params, e.values, e.sigma, e.rel_sigma):
             lines.append(f"      {p:<10} = {v: .5g} +- {sd:.3g} ({r:.1f} %)")
         if e.note:
@@ -161,3 +191,22 @@ def _hidden(res):
                  f"gravity-shaped spring explains it (best joint {best.joint}, "
                  f"p = {best.p_value:.2g})")
     return lines
+
+
+def verdict_lines(res):
+    """The verdict's lines on what the diagnosis found but did not add (issue 27 item 2):
+    findings named with their size, flagged joints with their hypothesis, effects cut by
+    max_effects. Empty when there is none of these."""
+    out = []
+    if res.findings:
+        out.append("Named but not added to the model: "
+                   + "; ".join(f"{f.label}: {f.size}" for f in res.findings) + ".")
+    if res.unexplained:
+        out.append("Structure no effect explains: "
+                   + "; ".join(f"joint {u.joint}: {u.hypothesis or u.depends_on}" for u in res.unexplained) + ".")
+    if res.cut:
+        k = res.settings["max_effects"]
+        out.append(f"{len(res.cut)} effect(s) pass the rule but were cut by max_effects = {k} ("
+                   + ", ".join(f"{r.label}, CV gain {100 * r.cv_gain:.1f} %" for r in res.cut)
+                   + f"); include them with --max-effects {k + len(res.cut)}.")
+    return out
