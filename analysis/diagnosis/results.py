@@ -105,7 +105,16 @@ class SelectedEffect:
     candidate: Candidate
     torque_rms: np.ndarray = None    # RMS of its torque per joint (identification rows)
     note: str = ""                   # when the fitted sign contradicts the effect's name
-    kind: str = "effect"             # or "coulomb_onset" (see :func:`onset_note`)
+    kind: str = "effect"             # or "coulomb_onset" (see notes.onset_note)
+    title: str = ""                  # the name it is reported under (notes.effect_title)
+
+    @property
+    def label(self):
+        """The candidate's label under the effect's title (a Stribeck form with Fs < 0 is a rise)."""
+        lab = self.candidate.label
+        if self.title and self.title != self.name and lab.startswith(self.name):
+            return self.title + lab[len(self.name):]
+        return lab
 
     @property
     def rel_sigma(self):
