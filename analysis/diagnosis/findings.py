@@ -71,7 +71,8 @@ def findings_not_added(problem, state, ranking, cut):
     for r in ranking:
         if r.name not in TIME_VARYING or r.selected or not r.passes:
             continue
-        why = ("cut: max_effects reached" if id(r) in cut_ids else
+        why = ("cut by max_effects; a change during this recording would not predict another "
+               "recording either" if id(r) in cut_ids else
                "a change during this recording cannot lower the error on another recording")
         change, rel, size = _drift_size(problem, state, r.candidate)
         out.append(Finding(name=r.name, joint=r.joint, label=r.label, size=size, change=change,
@@ -89,14 +90,23 @@ def _drift_size(problem, state, cand):
     params = list(cand.active_params)
     vals = {p: float(fit.chi[len(fit.names) - len(params) + k]) for k, p in enumerate(params)}
     j = cand.joint
+    # the drift's torque on the identification rows: its size against the joint's torque
+    tq = problem.decimated([cand])[0] @ np.array([vals[p] for p in params])
+    m = problem.mask[:, j - 1]
+    rms = float(np.sqrt(np.mean(tq[m, j - 1] ** 2))) if m.any() else float("nan")
     if cand.nonlinear.get("shape") == "friction":
-        # columns s qd_j, s sign(qd_j) with s = (t - t0) / T from 0 to 1: the Coulomb level changes
-        # by the second coefficient over the recording
-        change = vals.get(f"Dc{j}", float("nan"))
-        fc = dict(zip(fit.names, fit.chi)).get(f"Fc{j}")
+        # columns s qd_j, s sign(qd_j) with s = (t - t0) / T from 0 to 1: the Coulomb level and
+        # the viscous coefficient change by the two coefficients over the recording
+        named = dict(zip(fit.names, fit.chi))
+        change = vals.get(f"Dc{j}", 0.0)
+        dv = vals.get(f"Dv{j}", 0.0)
+        fc, fv = named.get(f"Fc{j}"), named.get(f"Fv{j}")
         rel = abs(change / fc) if fc else None
-        size = (f"friction level changes by {change:+.3g} N m over the recording"
-                + (f" ({100 * rel:.0f} % of Fc{j} = {fc:.3g} N m)" if rel is not None else ""))
+        parts = [f"Coulomb level {change:+.3g} N m" + (f" ({100 * rel:.0f} % of Fc{j})" if rel is not None else ""),
+                 f"viscous coefficient {dv:+.3g} N m s/rad" + (f" ({100 * abs(dv / fv):.0f} % of Fv{j})" if fv else "")]
+        size = (f"friction changes over the recording: {', '.join(parts)}; the drift's torque "
+                f"{rms:.3g} N m RMS on joint {j}")
         return change, rel, size
     change = float(np.sum(list(vals.values())))
-    return change, None, f"torque level changes by {change:+.3g} N m over the recording"
+    return change, None, (f"torque level changes by {change:+.3g} N m over the recording ({rms:.3g} N m "
+                          f"RMS on joint {j})")
