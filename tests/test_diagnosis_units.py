@@ -191,7 +191,7 @@ def test_line_at_a_motor_harmonic_is_named_with_its_harmonic():
     assert "48th harmonic of motor 1" in hs[0].text
     assert hs[1].mechanism == "position_ripple" and hs[1].harmonic is None
     assert [u.joint for u in st.unexplained] == [1, 3]
-    assert "48th harmonic" in st.unexplained[0].sentence()
+    assert "Hypothesis: motor-side cogging/gear ripple, 48th harmonic" in st.unexplained[0].sentence()
 
 
 def test_line_above_nyquist_is_not_a_mechanism():

@@ -203,9 +203,9 @@ class Unexplained:
             what = f"the residual depends on {self.variable}"
         size = ("excess" if self.test == "noise_floor" else "structure") + f" RMS {self.rms:.3g} N m"
         rest = "floor" if self.test == "noise_floor" else "rest"
-        head = f"joint {self.joint}: " + (f"{self.hypothesis}. Evidence: " if self.hypothesis else "")
-        return (f"{head}{what} ({size} vs {rest} {self.noise_rms:.3g} N m, "
-                f"p = {self.p_value:.2g}); no candidate explains it")
+        return (f"joint {self.joint}: {what} ({size} vs {rest} {self.noise_rms:.3g} N m, "
+                f"p = {self.p_value:.2g}); no candidate explains it"
+                + (f". Hypothesis: {self.hypothesis}" if self.hypothesis else ""))
 
 
 @dataclass
