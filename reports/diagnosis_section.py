@@ -35,9 +35,9 @@ from dynid.reports import figures as F
 from dynid.reports import tables as T
 from dynid.reports.html import Section, bullets, join, kv_list, para
 
-__all__ = ["diagnosis_sections", "SECTION_IDS"]
+__all__ = ["diagnosis_sections", "diagnosis_title", "SECTION_IDS"]
 
-SECTION_IDS = ("diagnosis", "diagnosis-effects", "diagnosis-errors", "diagnosis-residuals")
+SECTION_IDS = ("diagnosis-summary", "diagnosis", "diagnosis-effects", "diagnosis-errors", "diagnosis-residuals")
 MAX_RANKED_ROWS = 30
 
 
@@ -57,26 +57,63 @@ def _nl_text(nl):
 
 
 # ------------------------------------------------------------------ sections
-def _overview_section(res):
-    s = res.settings
-    pairs = [
-        ("Model", s.get("model", "")),
-        ("Candidates", f"{s['n_candidates']} (effects: {', '.join(s['effects'])}; every joint; "
-                       "grid of each nonlinear parameter)"),
-        ("Selection rule", f"blocked cross-validation in {s['folds']} contiguous blocks "
-                           f"(guard {s['gap']} decimated samples on each side of the held-out "
-                           f"block): held-out error lower in at least {s['folds'] - 1} blocks; and "
-                           f"likelihood-ratio test with the effective sample size, Bonferroni over "
-                           f"the candidates, \u03b1 = {s['alpha']:g}"),
-        ("Effects selected", ", ".join(e.candidate.label for e in res.selected) or "none"),
-    ]
-    if getattr(res, "structure", None) is not None:
-        un = res.unexplained
-        pairs.append(("Unexplained structure",
-                      "; ".join(f"joint {u.joint}: {u.depends_on} ({u.rms:.3g} N m, "
-                                f"p = {F.format_p(u.p_value)})" for u in un) if un else
-                      "none (no joint's final residual has significant structure large against "
-                      "its noise)"))
+def diagnosis_title(result):
+    """The title of a diagnosis report (the report is the diagnosis, not the identification)."""
+    return f"Residual diagnosis of {result.robot_name}: {_verdict_words(result)}"
+
+
+def _verdict_words(res):
+    if not res.effects and not res.unexplained and not res.findings and not res.hidden:
+        return "nothing missing found"
+    parts = []
+    if res.effects:
+        parts.append(f"{len(res.effects)} effect(s) added")
+    if res.findings:
+        parts.append(f"{len(res.findings)} finding(s) named")
+    if res.unexplained:
+        parts.append(f"{len(res.unexplained)} joint(s) flagged")
+    if res.hidden:
+        parts.append(f"{len(res.hidden)} effect(s) hidden in the parameters")
+    return ", ".join(parts)
+
+
+def _first_screen_section(res):
+    """Verdict, effects added, findings, flagged joints with their hypothesis, effects cut,
+    errors before/after on all samples and while moving."""
+    pairs = [("Verdict", _verdict_words(res)),
+             ("Effects added", ", ".join(e.label for e in res.effects) or "none")]
+    if res.findings:
+        pairs.append(("Findings (named, not added)", "; ".join(f.sentence() for f in res.findings)))
+    pairs.append(("Joints flagged", "; ".join(f"joint {u.joint}: {u.hypothesis or u.depends_on}"
+                                              for u in res.unexplained) or "none"))
+    st = getattr(res, "structure", None)
+    if st is not None and st.dropped:
+        pairs.append(("Not raised", "; ".join(f"joint {u.joint}: {u.hypothesis or u.depends_on} "
+                                              f"({u.reason})" for u in st.dropped)))
+    if res.cut:
+        k = res.settings["max_effects"]
+        pairs.append(("Cut by max_effects", "; ".join(
+            f"{r.label} (CV gain {100 * r.cv_gain:.2f} %, LR {r.statistic:.1f})" for r in res.cut)
+            + f": they pass the rule; include them with --max-effects {k + len(res.cut)} "
+              f"(Python: diagnose(..., max_effects={k + len(res.cut)}))"))
+    v = res.errors.get("validation")
+    if v is not None:
+        pairs.append(("Held-out error, moving samples", f"{_pct(v['before'].rel_error)} \u2192 "
+                                                        f"{_pct(v['after'].rel_error)}"))
+    rest = getattr(res, "rest", None)
+    if rest is not None:
+        pairs.append(("Held-out error, all samples", f"{_pct(rest.rel_error_before)} \u2192 "
+                      f"{_pct(rest.rel_error_after)} (friction at rest chosen per joint: "
+                      + ", ".join(f"j{j + 1} {m}" for j, m in enumerate(rest.model)) + ")"))
+        pairs.append(("Share of the all-samples error from rest phases", ", ".join(
+            f"j{j + 1} {100 * b:.0f} \u2192 {100 * a:.0f} % ({100 * f:.0f} % of the rows at rest)"
+            for j, (b, a, f) in enumerate(zip(rest.rest_share_before, rest.rest_share_after,
+                                               rest.rest_fraction)))))
+    return Section("diagnosis-summary", "Diagnosis", kv_list(pairs))
+
+
+def _step_texts(res):
+    """One sentence per greedy step: winner, outcome, aliases, runner-up."""
     steps = []
     for st in res.steps:
         w = st.winner
@@ -95,6 +132,30 @@ def _overview_section(res):
                      f"{100 * st.gap:.2f} points; the winner predicts the held-out block better in "
                      f"{100 * st.confidence:.0f} % of the blocks.")
         steps.append(text)
+    return steps
+
+
+def _overview_section(res):
+    s = res.settings
+    pairs = [
+        ("Model", s.get("model", "")),
+        ("Candidates", f"{s['n_candidates']} (effects: {', '.join(s['effects'])}; every joint; "
+                       "grid of each nonlinear parameter)"),
+        ("Selection rule", f"blocked cross-validation in {s['folds']} contiguous blocks "
+                           f"(guard {s['gap']} decimated samples on each side of the held-out "
+                           f"block): held-out error lower in at least {s['folds'] - 1} blocks; and "
+                           f"likelihood-ratio test with the effective sample size, Bonferroni over "
+                           f"the candidates, \u03b1 = {s['alpha']:g}"),
+        ("Effects selected", ", ".join(e.label for e in res.selected) or "none"),
+    ]
+    if getattr(res, "structure", None) is not None:
+        un = res.unexplained
+        pairs.append(("Unexplained structure",
+                      "; ".join(f"joint {u.joint}: {u.hypothesis or u.depends_on} ({u.rms:.3g} N m, "
+                                f"p = {F.format_p(u.p_value)})" for u in un) if un else
+                      "none (no joint's final residual has significant structure large against "
+                      "its noise)"))
+    steps = _step_texts(res)
     body = join(kv_list(pairs), Markup("<h3>Greedy selection</h3>"), bullets(steps),
                 para("Ranked from most to least likely: the selected effects in the order they were "
                      "added, then the others by their score against the final model. CV gain: "
@@ -155,7 +216,7 @@ def _effects_section(res):
                          "nonlinear": _nl_text(e.nonlinear), "value": float(v), "std": float(sd),
                          "rel_std_percent": float(r), "step": e.step})
         if e.note:
-            notes.append(f"{e.candidate.label}: {e.note}")
+            notes.append(f"{e.label}: {e.note}")
     df = pd.DataFrame(rows).set_index("parameter")
     tab = T.make_table(df, "diag-effect-parameters",
                        "Parameters of the selected effects (WLS with the essential parameters; "
@@ -409,5 +470,6 @@ def diagnosis_sections(result, robot=None):
     """The report sections of a :class:`dynid.analysis.diagnosis.selection.DiagnosisResult`."""
     n = result.model_before.n_joints
     names = _names(robot, n)
-    return [_overview_section(result), _effects_section(result), _errors_section(result, names),
+    return [_first_screen_section(result), _overview_section(result), _effects_section(result),
+            _errors_section(result, names),
             _residual_section(result, names)]

@@ -123,7 +123,7 @@ def test_chi2_log_tail_stays_finite_and_ordered_where_scipy_underflows():
 
 def test_coulomb_onset_rule_by_dead_zone_and_by_peak_speed():
     from dynid.analysis.diagnosis.effects import make_candidate
-    from dynid.analysis.diagnosis.selection import _onset
+    from dynid.analysis.diagnosis.notes import onset_note as _onset
     c = make_candidate("stribeck", 2, vs=0.029)
     settings = {"qd_threshold": 0.012}
     # Fs < 0 at v_s = 2.4 dead zones: an onset once the joint reaches 1 rad/s (2.9 % of it)
@@ -153,3 +153,86 @@ def test_spectral_line_confirmed_across_halves_only_when_it_is_a_function_of_pos
                for s in range(5)]
     assert p_line < 1e-8, p_line
     assert min(p_noise) > 1e-3, p_noise
+
+
+# ------------------------------------------------------------------ hypotheses (issue 27)
+def _flag(joint, test, depends_on, rms, rest, **detail):
+    from dynid.analysis.diagnosis.structure import StructureTest
+    t = StructureTest(joint, test, depends_on, 0.0, 1e-9, p_value=1e-9, rms=rms, noise_rms=rest,
+                      ratio=rms / rest, large=True, flagged=True, detail=detail)
+    return t
+
+
+def _structure(tests):
+    from dynid.analysis.diagnosis.structure import StructureResult, Unexplained
+    un = [Unexplained(joint=t.joint, depends_on=t.depends_on, rms=t.rms, p_value=t.p_value,
+                      test=t.test, noise_rms=t.noise_rms, period=t.detail.get("period_rad"))
+          for t in tests]
+    return StructureResult(tests=tests, unexplained=un, alpha=0.01, n_tests=len(tests),
+                           noise_floor=np.zeros(3), block_length=8, rule="")
+
+
+class _Eobs:
+    def __init__(self, qd, fs, thr=0.01):
+        self.qd = qd
+        self.fs = fs
+        self.obs = type("O", (), {"settings": {"qd_threshold": [thr] * qd.shape[1]}})()
+
+
+def test_line_at_a_motor_harmonic_is_named_with_its_harmonic():
+    """Real TX40 joint 1: period 0.00409 rad = 2 pi / (32 x 48): the 48th harmonic of motor 1."""
+    from dynid.analysis.diagnosis.hypotheses import name_flags
+    qd = np.full((1000, 3), 0.5)
+    per = 2 * np.pi / (32 * 48)
+    st = _structure([_flag(1, "line", "q1", 1.8, 1.3, period_rad=per),
+                     _flag(3, "line", "q3", 0.5, 0.3, period_rad=0.205)])
+    hs = name_flags(st, _Eobs(qd, 5000.0), gear_ratios=[32, 32, 45])
+    assert hs[0].mechanism == "motor_ripple" and hs[0].harmonic == 48
+    assert "48th harmonic of motor 1" in hs[0].text
+    assert hs[1].mechanism == "position_ripple" and hs[1].harmonic is None
+    assert [u.joint for u in st.unexplained] == [1, 3]
+    assert "Hypothesis: motor-side cogging/gear ripple, 48th harmonic" in st.unexplained[0].sentence()
+
+
+def test_line_above_nyquist_is_not_a_mechanism():
+    """250 Hz data: a 0.003 rad period at 0.44 rad/s is ~145 Hz, above the 125 Hz Nyquist."""
+    from dynid.analysis.diagnosis.hypotheses import name_flags
+    qd = np.full((1000, 3), 0.44)
+    st = _structure([_flag(2, "line", "q2", 1.0, 0.5, period_rad=0.003)])
+    hs = name_flags(st, _Eobs(qd, 250.0), gear_ratios=None)
+    assert not hs[0].raised and hs[0].frequency_hz >= hs[0].nyquist_hz
+    assert st.unexplained == [] and st.dropped[0].joint == 2
+
+
+def test_small_structure_is_not_raised_and_coupling_is_named():
+    from dynid.analysis.diagnosis.hypotheses import MIN_SHARE, name_flags
+    qd = np.full((1000, 3), 0.5)
+    small = _flag(1, "dependence", "q3", 0.013, 0.020)          # 30 % of the residual variance
+    big = _flag(2, "dependence", "qd3", 0.05, 0.02)
+    assert small.rms ** 2 / (small.rms ** 2 + small.noise_rms ** 2) < MIN_SHARE
+    st = _structure([small, big])
+    hs = name_flags(st, _Eobs(qd, 5000.0))
+    assert not hs[0].raised and hs[1].raised
+    assert hs[1].mechanism == "coupling" and "coupling from qd3" in hs[1].text
+    assert [u.joint for u in st.unexplained] == [2]
+
+
+def test_ordinal():
+    from dynid.analysis.diagnosis.hypotheses import ordinal
+    assert [ordinal(k) for k in (1, 2, 3, 4, 11, 12, 13, 21, 48, 51)] == \
+        ["1st", "2nd", "3rd", "4th", "11th", "12th", "13th", "21st", "48th", "51st"]
+
+
+def test_last_motion_sign_holds_through_rest():
+    from dynid.analysis.diagnosis.rest import _last_motion
+    s = np.array([0.0, 1, 1, -1, 1, -1, -1, 1, 1])
+    dead = np.array([True, False, False, True, True, False, True, True, False])
+    assert list(_last_motion(s, dead)) == [0, 1, 1, 1, 1, -1, -1, -1, 1]
+
+
+def test_stribeck_with_negative_fs_is_not_called_a_dip():
+    from dynid.analysis.diagnosis.effects import Candidate
+    from dynid.analysis.diagnosis.notes import effect_title, physics_note
+    c = Candidate("stribeck", 2, ["Fs2"], {"vs": 1.0})
+    assert "rise" in effect_title("stribeck", [-4.4]) and "dip" not in physics_note(c, [-4.4])
+    assert "dip" in effect_title("stribeck", [2.0])

@@ -118,12 +118,14 @@ largest structure RMS.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import stats
 
+from dynid.analysis.processing.observation import observe
 from dynid.analysis.statistics.residuals import effective_sample_size
 
 __all__ = ["residual_structure", "StructureResult", "StructureTest", "Unexplained",
@@ -174,11 +176,16 @@ class Unexplained:
     also: list = field(default_factory=list)
     curve: tuple | None = None     # (x, mean residual) for a figure: x in the variable's unit
     curve_label: str = ""
+    hypothesis: str = ""           # the mechanism it points to (hypotheses.py)
+    mechanism: str = ""
+    reason: str = ""               # why the flag is not raised (alias, too small)
 
     def to_dict(self):
         return {"joint": self.joint, "depends_on": self.depends_on, "rms": self.rms,
                 "p_value": self.p_value, "test": self.test, "noise_rms": self.noise_rms,
-                "variable": self.variable, "period_rad": self.period, "also": list(self.also)}
+                "variable": self.variable, "period_rad": self.period, "also": list(self.also),
+                "hypothesis": self.hypothesis or None, "mechanism": self.mechanism or None,
+                "not_raised_because": self.reason or None}
 
     def sentence(self):
         if self.test == "line":
@@ -197,7 +204,8 @@ class Unexplained:
         size = ("excess" if self.test == "noise_floor" else "structure") + f" RMS {self.rms:.3g} N m"
         rest = "floor" if self.test == "noise_floor" else "rest"
         return (f"joint {self.joint}: {what} ({size} vs {rest} {self.noise_rms:.3g} N m, "
-                f"p = {self.p_value:.2g}); no candidate explains it")
+                f"p = {self.p_value:.2g}); no candidate explains it"
+                + (f". Hypothesis: {self.hypothesis}" if self.hypothesis else ""))
 
 
 @dataclass
@@ -210,6 +218,8 @@ class StructureResult:
     block_length: int
     rule: str
     whiteness: np.ndarray | None = None    # var(d3 tau) / var(d2 tau) per joint (white: 3.33)
+    dropped: list = field(default_factory=list)      # Unexplained not raised (alias, too small)
+    hypotheses: list = field(default_factory=list)   # Hypothesis per flagged joint (hypotheses.py)
 
     @property
     def floor_known(self):
@@ -221,6 +231,8 @@ class StructureResult:
                 "noise_floor_rms": [float(x) if np.isfinite(x) else None for x in self.noise_floor],
                 "whiteness_d3_d2": None if self.whiteness is None else list(map(float, self.whiteness)),
                 "rule": self.rule,
+                "not_raised": [u.to_dict() for u in self.dropped],
+                "hypotheses": [h.to_dict() for h in self.hypotheses],
                 "tests": [t.to_dict() for t in self.tests if t.flagged or t.p_value < 0.05]}
 
 
@@ -298,9 +310,6 @@ def position_noise_residual(experiment, robot, eobs, cols, chi, seed=0, n_draws=
     2e-5 rad): joint 2 residual 0.0395 N m with the recorded positions, 0.0134 with the true
     ones (torque-noise floor 0.0124), delta 0.0388 N m RMS.
     """
-    import dataclasses
-
-    from dynid.analysis.processing.observation import observe
     sigma_q, _ = position_noise(experiment.q)
     if not np.any(sigma_q > 0):
         return None, sigma_q
@@ -465,125 +474,162 @@ def residual_structure(eobs, residual, mask, *, names=None, alpha=0.01, n_perm=N
                        seed=0, min_ratio=MIN_RATIO, floor_ratio=FLOOR_RATIO, bins=BINS,
                        explained=None, full_residual=None, full_mask=None, full_block=None,
                        position_delta=None):
-    """Structure tests of ``residual`` (M, n) over the rows ``mask`` (M, n): :class:`StructureResult`.
+    """Structure tests of `residual` (M, n) over the rows `mask` (M, n): `StructureResult`.
 
-    ``eobs``: the :class:`EffectObservation` (decimated t, q, qd, qdd in
-    ``eobs.obs``; full-rate torque and decimation for the noise floor).
-    ``explained``: labels of the selected effects (only reported).
-    ``full_residual`` (N, n): the residual at the full rate (``eobs.tau`` minus the
-    final model's full-rate torque), rows ``full_mask``: the spectral-line test
+    `eobs`: the `EffectObservation` (decimated t, q, qd, qdd in
+    `eobs.obs`; full-rate torque and decimation for the noise floor).
+    `explained`: labels of the selected effects (only reported).
+    `full_residual` (N, n): the residual at the full rate (`eobs.tau` minus the
+    final model's full-rate torque), rows `full_mask`: the spectral-line test
     runs on it (the decimation filter removes high position orders at speed);
-    without it the line test is skipped. ``full_block``: its permutation block
-    length in samples (default ``fs / f_decimation_cutoff``).
-    ``position_delta`` ((k,) M, n): draws of the position noise's contribution to the decimated residual
-    (:func:`position_noise_residual`); the noise floor is that of the torque noise plus it.
+    without it the line test is skipped. `full_block`: its permutation block
+    length in samples (default `fs / f_decimation_cutoff`).
+    `position_delta` ((k,) M, n): draws of the position noise's contribution to the decimated residual
+    (`position_noise_residual`); the noise floor is that of the torque noise plus it.
     """
-    obs = eobs.obs
-    t = np.asarray(obs.t, dtype=float)
-    q, qd, qdd = (np.asarray(getattr(obs, a), dtype=float) for a in ("q", "qd", "qdd"))
     R = np.asarray(residual, dtype=float)
-    mask = np.asarray(mask, dtype=bool)
-    M, n = R.shape
-    thr = np.atleast_1d(np.asarray(obs.settings.get("qd_threshold") or 0.0, dtype=float))
+    n = R.shape[1]
+    thr = np.atleast_1d(np.asarray(eobs.obs.settings.get("qd_threshold") or 0.0, dtype=float))
     thr = np.broadcast_to(thr if thr.size == n else thr[:1], (n,))
-    mask = mask & ~(np.abs(qd) < EDGE_FACTOR * thr)        # the dead-zone edge (module docstring)
+    mask = np.asarray(mask, dtype=bool) & ~(np.abs(np.asarray(eobs.obs.qd, dtype=float))
+                                            < EDGE_FACTOR * thr)   # the dead-zone edge (module docstring)
     rng = np.random.default_rng(seed)
+    floor, tau_noise, white = _noise_floors(eobs, R, mask, seed, position_delta)
+    L = int(max(8, 2 * gap, math.ceil(3 * np.max(tau_noise))))
+    tests, data = [], {}
+    for j in range(n):
+        u = mask[:, j]
+        nu = int(u.sum())
+        if nu < 60:
+            continue
+        e = R[u, j] - R[u, j].mean()
+        perms = _block_perms(nu, int(min(L, max(2, nu // 30))), n_perm, rng)
+        data[j] = _variables(eobs.obs, u, j, e)
+        tests += _dependence_tests(j, data[j]["vars"], e, perms, int(max(4, min(bins, nu // 15))))
+        if full_residual is not None:
+            lt, full = _full_rate_line(eobs, j, full_residual, full_mask, thr[j], full_block, n_perm,
+                                       rng, float(np.sqrt(np.mean(e ** 2))))
+            if lt is not None:
+                tests.append(lt)
+                data[j]["full"] = full
+        tests.append(_step_test(j, data[j]["t"], e, perms))
+        if np.isfinite(floor[j]) and floor[j] > 0:
+            tests.append(_floor_test(j, e, floor[j], tau_noise[j]))
+    m = max(1, len(tests))
+    for tt in tests:
+        tt.p_value = float(min(1.0, m * tt.p_raw))
+        tt.large = tt.ratio >= (floor_ratio if tt.test == "noise_floor" else min_ratio)
+        tt.flagged = bool(tt.p_value < alpha and tt.large)
+    return StructureResult(tests=tests, unexplained=_unexplained(tests, data, n), alpha=alpha, n_tests=m,
+                           noise_floor=floor, block_length=L, rule=RULE, whiteness=white)
+
+
+def _noise_floors(eobs, R, mask, seed, position_delta):
+    """(floor (n,), tau_noise (n,), whiteness (n,)): the decimated noise floor of each joint, the
+    integrated autocorrelation time of that noise, and var(d3 tau)/var(d2 tau)."""
+    n = R.shape[1]
     sigma_full, Dn = noise_floor(eobs, seed=seed)
     white = whiteness(eobs.tau)
     floor = np.zeros(n)
     tau_noise = np.ones(n)
     for j in range(n):
         u = mask[:, j]
-        if u.sum() > 10:
-            # the noise the residual of the true model has: torque noise through the decimation,
-            # plus the position noise through the model (errors in variables)
-            nz = sigma_full[j] * Dn[u, j]
-            var_q = 0.0
-            if position_delta is not None:
-                pdl = np.asarray(position_delta, dtype=float).reshape((-1,) + R.shape)
-                var_q = float(np.mean([np.var(d_[u, j]) for d_ in pdl]))
-                nz = nz + pdl[0][u, j]
-            floor[j] = math.sqrt(float(np.var(sigma_full[j] * Dn[u, j])) + var_q)
-            tau_noise[j] = float(effective_sample_size(nz)[1])
-            if white[j] < WHITE_MIN:       # filtered upstream: floor unknown (module docstring)
-                floor[j] = np.nan
-                tau_noise[j] = max(tau_noise[j], float(effective_sample_size(R[u, j])[1]))
-    L = int(max(8, 2 * gap, math.ceil(3 * np.max(tau_noise))))
-    tests = []
-    data = {}
-    for j in range(n):
-        u = mask[:, j]
-        nu = int(u.sum())
-        if nu < 60:
+        if u.sum() <= 10:
             continue
-        nbins = int(max(4, min(bins, nu // 15)))
-        e = R[u, j] - R[u, j].mean()
-        Lj = int(min(L, max(2, nu // 30)))
-        perms = _block_perms(nu, Lj, n_perm, rng)
-        var_e = float(np.mean(e ** 2))
-        variables = [(f"q{j + 1}", q[u, j], e), (f"qd{j + 1}", qd[u, j], e),
-                     (f"qdd{j + 1}", qdd[u, j], e), ("t", t[u], e),
-                     (f"t*sign(qd{j + 1})", t[u], e * np.sign(qd[u, j]))]
-        for i in range(n):
-            if i != j:
-                variables += [(f"q{i + 1}", q[u, i], e), (f"qd{i + 1}", qd[u, i], e)]
-        data[j] = {"vars": {k_: (x_, y_) for k_, x_, y_ in variables}, "t": t[u], "e": e}
-        for key, x, y in variables:
-            ranks = np.argsort(np.argsort(x, kind="stable"), kind="stable")
-            b = np.minimum((ranks * nbins) // nu, nbins - 1)
-            S = _binned_stat(b, nbins, y)
-            null = np.array([_binned_stat(b, nbins, y[p]) for p in perms])
-            p = _satterthwaite_p(S, null)
-            struct2 = max(0.0, (S - float(np.mean(null))) / nu)
-            rms = math.sqrt(struct2)
-            rest = math.sqrt(max(var_e - struct2, 1e-300))
-            tests.append(StructureTest(j + 1, "dependence", key, S, p, rms=rms, noise_rms=rest,
-                                       ratio=rms / rest))
-        # spectral lines against q_j, on the full-rate residual
-        if full_residual is not None:
-            fu = np.ones(full_residual.shape[0], bool) if full_mask is None else full_mask[:, j]
-            fu = fu & ~(np.abs(np.asarray(eobs.qd, float)[:, j]) < EDGE_FACTOR * thr[j])
-            ef = full_residual[fu, j] - full_residual[fu, j].mean()
-            Lf = full_block or int(max(20, math.ceil(eobs.fs / float(eobs.settings.get(
-                "f_decimation_cutoff") or eobs.fs / 100))))
-            Lf = int(min(Lf, max(2, ef.size // 50)))
-            lt = _line_test(j, np.asarray(eobs.q, float)[fu, j], ef, Lf, n_perm, rng,
-                            math.sqrt(var_e))
-            if lt is not None:
-                tests.append(lt)
-                data[j]["full"] = (np.asarray(eobs.q, float)[fu, j], ef)
-        # step in time
-        C, kstep = _cusum(e)
-        null = np.array([_cusum(e[p])[0] for p in perms])
-        scale = float(np.mean(null)) / 0.8687
-        p = float(stats.kstwobign.sf(C / scale)) if scale > 0 else 1.0
-        f = min(max((kstep + 1) / nu, 1.0 / nu), 1.0 - 1.0 / nu)
-        d = float(e[kstep + 1:].mean() - e[:kstep + 1].mean()) if kstep + 1 < nu else 0.0
-        # |cusum| at the step = nu f (1 - f) |d|; the step's RMS is |d| sqrt(f (1 - f))
-        struct2 = max(0.0, (C * C - float(np.mean(null ** 2))) / (nu * nu * f * (1 - f)))
+        # the noise the residual of the true model has: torque noise through the decimation,
+        # plus the position noise through the model (errors in variables)
+        nz = sigma_full[j] * Dn[u, j]
+        var_q = 0.0
+        if position_delta is not None:
+            pdl = np.asarray(position_delta, dtype=float).reshape((-1,) + R.shape)
+            var_q = float(np.mean([np.var(d_[u, j]) for d_ in pdl]))
+            nz = nz + pdl[0][u, j]
+        floor[j] = math.sqrt(float(np.var(sigma_full[j] * Dn[u, j])) + var_q)
+        tau_noise[j] = float(effective_sample_size(nz)[1])
+        if white[j] < WHITE_MIN:       # filtered upstream: floor unknown (module docstring)
+            floor[j] = np.nan
+            tau_noise[j] = max(tau_noise[j], float(effective_sample_size(R[u, j])[1]))
+    return floor, tau_noise, white
+
+
+def _variables(obs, u, j, e):
+    """The variables the residual of joint j is tested against (key, x, y), on rows u."""
+    t = np.asarray(obs.t, dtype=float)
+    q, qd, qdd = (np.asarray(getattr(obs, a), dtype=float) for a in ("q", "qd", "qdd"))
+    variables = [(f"q{j + 1}", q[u, j], e), (f"qd{j + 1}", qd[u, j], e),
+                 (f"qdd{j + 1}", qdd[u, j], e), ("t", t[u], e),
+                 (f"t*sign(qd{j + 1})", t[u], e * np.sign(qd[u, j]))]
+    for i in range(q.shape[1]):
+        if i != j:
+            variables += [(f"q{i + 1}", q[u, i], e), (f"qd{i + 1}", qd[u, i], e)]
+    return {"vars": {k_: (x_, y_) for k_, x_, y_ in variables}, "t": t[u], "e": e}
+
+
+def _dependence_tests(j, variables, e, perms, nbins):
+    """Binned-means tests of the residual against each variable (block-permutation null)."""
+    nu = e.size
+    var_e = float(np.mean(e ** 2))
+    out = []
+    for key, (x, y) in variables.items():
+        ranks = np.argsort(np.argsort(x, kind="stable"), kind="stable")
+        b = np.minimum((ranks * nbins) // nu, nbins - 1)
+        S = _binned_stat(b, nbins, y)
+        null = np.array([_binned_stat(b, nbins, y[p]) for p in perms])
+        p = _satterthwaite_p(S, null)
+        struct2 = max(0.0, (S - float(np.mean(null))) / nu)
         rms = math.sqrt(struct2)
         rest = math.sqrt(max(var_e - struct2, 1e-300))
-        tests.append(StructureTest(j + 1, "step", "t (step)", C, p, rms=rms, noise_rms=rest,
-                                   ratio=rms / rest, detail={"t_step": float(t[u][min(kstep + 1, nu - 1)]),
-                                                             "step_nm": d}))
-        # excess over the noise floor
-        if np.isfinite(floor[j]) and floor[j] > 0:
-            neff = max(1.0, nu / tau_noise[j])
-            ratio2 = var_e / floor[j] ** 2
-            p = float(stats.chi2.sf(neff * ratio2, neff))
-            excess = math.sqrt(max(0.0, var_e - floor[j] ** 2))
-            tests.append(StructureTest(j + 1, "noise_floor", "time (coloured residual)", ratio2, p,
-                                       rms=excess, noise_rms=float(floor[j]),
-                                       ratio=math.sqrt(ratio2), detail={"residual_rms": math.sqrt(var_e)}))
-    m = max(1, len(tests))
-    for tt in tests:
-        tt.p_value = float(min(1.0, m * tt.p_raw))
-        if tt.test == "noise_floor":
-            tt.large = tt.ratio >= floor_ratio
-        else:
-            tt.large = tt.ratio >= min_ratio
-        tt.flagged = bool(tt.p_value < alpha and tt.large)
-    unexplained = []
+        out.append(StructureTest(j + 1, "dependence", key, S, p, rms=rms, noise_rms=rest,
+                                 ratio=rms / rest))
+    return out
+
+
+def _full_rate_line(eobs, j, full_residual, full_mask, thr_j, full_block, n_perm, rng, rest_rms):
+    """(StructureTest or None, (q, e) at the full rate): the spectral line against q_j."""
+    fu = np.ones(full_residual.shape[0], bool) if full_mask is None else full_mask[:, j]
+    fu = fu & ~(np.abs(np.asarray(eobs.qd, float)[:, j]) < EDGE_FACTOR * thr_j)
+    ef = full_residual[fu, j] - full_residual[fu, j].mean()
+    Lf = full_block or int(max(20, math.ceil(eobs.fs / float(eobs.settings.get(
+        "f_decimation_cutoff") or eobs.fs / 100))))
+    Lf = int(min(Lf, max(2, ef.size // 50)))
+    x = np.asarray(eobs.q, float)[fu, j]
+    return _line_test(j, x, ef, Lf, n_perm, rng, rest_rms), (x, ef)
+
+
+def _step_test(j, t, e, perms):
+    """A step in time: the CUSUM's largest excursion against its block-permutation null."""
+    nu = e.size
+    var_e = float(np.mean(e ** 2))
+    C, kstep = _cusum(e)
+    null = np.array([_cusum(e[p])[0] for p in perms])
+    scale = float(np.mean(null)) / 0.8687
+    p = float(stats.kstwobign.sf(C / scale)) if scale > 0 else 1.0
+    f = min(max((kstep + 1) / nu, 1.0 / nu), 1.0 - 1.0 / nu)
+    d = float(e[kstep + 1:].mean() - e[:kstep + 1].mean()) if kstep + 1 < nu else 0.0
+    # |cusum| at the step = nu f (1 - f) |d|; the step's RMS is |d| sqrt(f (1 - f))
+    struct2 = max(0.0, (C * C - float(np.mean(null ** 2))) / (nu * nu * f * (1 - f)))
+    rms = math.sqrt(struct2)
+    rest = math.sqrt(max(var_e - struct2, 1e-300))
+    return StructureTest(j + 1, "step", "t (step)", C, p, rms=rms, noise_rms=rest,
+                         ratio=rms / rest, detail={"t_step": float(t[min(kstep + 1, nu - 1)]),
+                                                   "step_nm": d})
+
+
+def _floor_test(j, e, floor_j, tau_noise_j):
+    """Excess of the residual variance over the noise floor (chi2 with n_eff)."""
+    var_e = float(np.mean(e ** 2))
+    neff = max(1.0, e.size / tau_noise_j)
+    ratio2 = var_e / floor_j ** 2
+    p = float(stats.chi2.sf(neff * ratio2, neff))
+    excess = math.sqrt(max(0.0, var_e - floor_j ** 2))
+    return StructureTest(j + 1, "noise_floor", "time (coloured residual)", ratio2, p,
+                         rms=excess, noise_rms=float(floor_j),
+                         ratio=math.sqrt(ratio2), detail={"residual_rms": math.sqrt(var_e)})
+
+
+def _unexplained(tests, data, n):
+    """`Unexplained` per joint with a flagged test: the flagged variable test of largest RMS."""
+    out = []
     for j in range(1, n + 1):
         fl = [tt for tt in tests if tt.joint == j and tt.flagged]
         var_fl = [tt for tt in fl if tt.test != "noise_floor"]
@@ -591,13 +637,12 @@ def residual_structure(eobs, residual, mask, *, names=None, alpha=0.01, n_perm=N
             continue
         best = max(var_fl or fl, key=lambda tt: (tt.rms, -tt.p_value))
         variable = {"line": f"q{j}", "step": "t", "noise_floor": "t"}.get(best.test, best.depends_on)
-        unexplained.append(Unexplained(
+        out.append(Unexplained(
             joint=j, depends_on=best.depends_on, rms=best.rms, p_value=best.p_value, test=best.test,
             noise_rms=best.noise_rms, variable=variable, period=best.detail.get("period_rad"),
             also=[tt.depends_on for tt in fl if tt is not best]))
         try:
-            unexplained[-1].curve, unexplained[-1].curve_label = _curve(best, data.get(j - 1, {}))
+            out[-1].curve, out[-1].curve_label = _curve(best, data.get(j - 1, {}))
         except Exception:          # a figure aid only
             pass
-    return StructureResult(tests=tests, unexplained=unexplained, alpha=alpha, n_tests=m,
-                           noise_floor=floor, block_length=L, rule=RULE, whiteness=white)
+    return out

@@ -1,0 +1,140 @@
+"""The robot at rest: what the friction does when a joint is still (issue 27 item 4).
+
+dynid's friction is `Fc sign(qd)`. At rest `qd` is velocity noise, so the model's
+friction takes a random sign there; the velocity dead zone keeps those rows out of
+the fit, but the held-out error on all samples (the headline figure) scores them, and
+on the real TX40 they dominate it (15.6 % on all held-out samples against 6.6 % on the
+moving ones, 56.6 % of the held-out equations at rest).
+
+Candidates for the friction at rest of joint j, in the full-rate signal the Coulomb
+column is built from (then decimated exactly as the regressor):
+
+* `sign(qd)`: the model as identified;
+* `zero`: no Coulomb friction while the joint is in the dead zone;
+* `last motion`: sticking (hysteresis): at rest the friction keeps the sign of the last
+  motion, at the identified Coulomb level (the static friction that holds the joint
+  against the torque it last moved with).
+
+The choice is made per joint on the *identification* recording's rest rows, which the
+fit never used (the dead zone drops them), by their squared error, the way the blocked
+CV chooses among the other candidates: on data the parameters were not fitted to. No
+parameter is refitted, no sample is left out: the held-out error is scored on all
+samples before and after, and its rest-phase share reported per joint.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from dynid.analysis.diagnosis.effect_observation import observe_effects
+from dynid.errors import DynidError
+
+__all__ = ["RestPhases", "rest_phases", "REST_MODELS"]
+
+REST_MODELS = ("sign(qd)", "zero", "last motion")
+
+
+@dataclass
+class RestPhases:
+    """Held-out error on all samples with the friction at rest as identified and as chosen."""
+
+    model: list                   # chosen rest model per joint
+    rest_fraction: np.ndarray     # held-out decimated rows at rest per joint
+    rel_error_before: float       # all held-out samples, all joints
+    rel_error_after: float
+    joint_rel_error_before: np.ndarray
+    joint_rel_error_after: np.ndarray
+    rest_share_before: np.ndarray  # share of the joint's held-out squared error on rest rows
+    rest_share_after: np.ndarray
+    id_rest_sse: dict             # {model: (n,) identification rest-row SSE}
+
+    def lines(self):
+        js = range(len(self.model))
+        return [f"held-out error on all samples: {100 * self.rel_error_before:.2f} % -> "
+                f"{100 * self.rel_error_after:.2f} % with the friction at rest chosen per joint "
+                f"({', '.join(f'j{j + 1} {self.model[j]}' for j in js)})",
+                "  per joint, all samples before -> after (share of the squared error from rest "
+                "phases; fraction of rows at rest): "
+                + "; ".join(f"j{j + 1} {100 * self.joint_rel_error_before[j]:.1f} -> "
+                            f"{100 * self.joint_rel_error_after[j]:.1f} % "
+                            f"({100 * self.rest_share_before[j]:.0f} -> {100 * self.rest_share_after[j]:.0f} %; "
+                            f"{100 * self.rest_fraction[j]:.0f} %)" for j in js)]
+
+    def to_dict(self):
+        return {"rest_models": list(REST_MODELS), "chosen": list(self.model),
+                "chosen_on": "identification rows at rest (not fitted), squared error",
+                "rest_fraction": list(map(float, self.rest_fraction)),
+                "all_samples_rel_error": {"before": self.rel_error_before, "after": self.rel_error_after},
+                "joint_rel_error": {"before": list(map(float, self.joint_rel_error_before)),
+                                    "after": list(map(float, self.joint_rel_error_after))},
+                "rest_share_of_squared_error": {"before": list(map(float, self.rest_share_before)),
+                                                "after": list(map(float, self.rest_share_after))},
+                "identification_rest_sse": {k: list(map(float, v)) for k, v in self.id_rest_sse.items()}}
+
+
+def rest_phases(identification, validation, robot, bp, settings, cols, chi, names, id_eobs, val_eobs):
+    """`RestPhases` of the model (`cols`, `chi`, `names`) or None (no Coulomb term, no data).
+
+    Parameters
+    ----------
+    identification, validation : Experiment of the identification and the held-out data.
+    robot, bp, settings : as the identification (resolved settings with the dead zone).
+    cols, chi, names : the model's base-regressor columns, values and names.
+    id_eobs, val_eobs : EffectObservation (dead zone on) of both recordings.
+    """
+    fc = {j: names.index(f"Fc{j + 1}") for j in range(robot.n_joints) if f"Fc{j + 1}" in names}
+    if not fc or id_eobs.dead is None or val_eobs.dead is None:
+        return None
+    try:
+        ident = _all_samples(identification, robot, bp, settings, cols, chi, id_eobs, fc)
+        held = _all_samples(validation, robot, bp, settings, cols, chi, val_eobs, fc)
+    except DynidError:
+        return None
+    n = robot.n_joints
+    sse = {m: np.array([np.sum(np.where(ident["rest"][:, j], ident["res"][m][:, j], 0.0) ** 2)
+                        for j in range(n)]) for m in REST_MODELS}
+    chosen = [min(REST_MODELS, key=lambda m: (sse[m][j], REST_MODELS.index(m))) for j in range(n)]
+    before = held["res"]["sign(qd)"]
+    after = np.column_stack([held["res"][chosen[j]][:, j] for j in range(n)])
+    tau, rest = held["tau"], held["rest"]
+    return RestPhases(model=chosen, rest_fraction=rest.mean(axis=0),
+                      rel_error_before=float(np.linalg.norm(before) / np.linalg.norm(tau)),
+                      rel_error_after=float(np.linalg.norm(after) / np.linalg.norm(tau)),
+                      joint_rel_error_before=np.linalg.norm(before, axis=0) / np.linalg.norm(tau, axis=0),
+                      joint_rel_error_after=np.linalg.norm(after, axis=0) / np.linalg.norm(tau, axis=0),
+                      rest_share_before=_share(before, rest), rest_share_after=_share(after, rest),
+                      id_rest_sse=sse)
+
+
+def _share(res, rest):
+    tot = np.sum(res ** 2, axis=0)
+    return np.sum(np.where(rest, res, 0.0) ** 2, axis=0) / np.where(tot > 0, tot, 1.0)
+
+
+def _all_samples(experiment, robot, bp, settings, cols, chi, eobs_dz, fc):
+    """Residuals (M, n) on all samples for each rest model, the torque and the rest rows."""
+    e0 = observe_effects(experiment, robot, bp, dict(settings, qd_threshold=0.0))
+    W, tau = e0.obs.W, e0.obs.tau
+    if tau.shape != eobs_dz.obs.tau.shape or e0.n_full != eobs_dz.n_full:
+        raise DynidError("the all-samples and dead-zone systems have different rows")
+    pred = W[:, :, np.asarray(cols, dtype=int)] @ np.asarray(chi, dtype=float)[:len(cols)]
+    rest = ~np.asarray(eobs_dz.obs.row_mask, dtype=bool)
+    res = {m: tau - pred for m in REST_MODELS}
+    qd = np.asarray(eobs_dz.qd, dtype=float)
+    for j, k in fc.items():
+        dead = np.asarray(eobs_dz.dead[:, j], dtype=bool)
+        s = np.sign(qd[:, j])
+        cur = e0.decimate(s, joint=j)[:, j, 0]
+        for m, alt in (("zero", np.where(dead, 0.0, s)), ("last motion", _last_motion(s, dead))):
+            d = e0.decimate(alt, joint=j)[:, j, 0] - cur
+            res[m][:, j] = res[m][:, j] - chi[k] * d
+    return {"res": res, "tau": tau, "rest": rest}
+
+
+def _last_motion(s, dead):
+    """sign(qd) while moving; at rest the sign of the last motion (0 before the first)."""
+    idx = np.where(~dead, np.arange(s.size), -1)
+    idx = np.maximum.accumulate(idx)
+    out = np.where(idx >= 0, s[np.maximum(idx, 0)], 0.0)
+    return np.where(dead, out, s)

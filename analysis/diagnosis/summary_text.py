@@ -1,0 +1,212 @@
+"""The terminal text of a residual diagnosis (`DiagnosisResult.summary`), one function per
+section, and the small formatters it shares with the report."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from dynid.analysis.diagnosis.effects import order_text
+
+__all__ = ["diagnosis_summary", "overview_lines", "verdict_lines", "fmt_p", "nonlinear_text"]
+
+
+def fmt_p(p):
+    """A p-value as text (two significant digits, exponent below 1e-3, "-" if not finite)."""
+    p = float(p)
+    if not math.isfinite(p):
+        return "-"
+    return f"{p:.2g}" if p >= 1e-3 else f"{p:.1e}"
+
+
+def nonlinear_text(nl, *, prose=False):
+    """The nonlinear parameter of an effect as text: compact for tables of the
+    summary (`v_s=0.1 rad/s`), or `prose` for reports (`v_s = 0.1 rad/s`)."""
+    eq = " = " if prose else "="
+    if not nl:
+        return ""
+    if "vs" in nl:
+        return f"v_s{eq}{nl['vs']:.3g} rad/s"
+    if "d" in nl:
+        return f"d{eq}{1e3 * nl['d']:.3g} ms"
+    if "signal" in nl:
+        return f"{'from ' if prose else ''}{nl['signal']}{nl['source']}"
+    if nl.get("shape") == "friction":
+        return "friction level" if prose else "friction lvl"
+    if "order" in nl:
+        return f"order {order_text(nl['order'])}"
+    return ", ".join(f"{k}{eq}{v}" for k, v in nl.items())
+
+
+def diagnosis_summary(res):
+    """The text of `DiagnosisResult.summary()`."""
+    lines = _header(res) + overview_lines(res) + [""] + _steps(res) + _ranking(res) + _selected(res)
+    lines += _errors(res) + _structure(res) + _hidden(res)
+    if res.notices:
+        lines += ["", "  Notices:"] + [f"    - {n}" for n in res.notices]
+    return "\n".join(lines)
+
+
+def overview_lines(res):
+    """The first screen: effects added, findings, flagged joints with their hypothesis, effects
+    cut by max_effects, errors before/after (also the verdict's diagnosis lines)."""
+    eff = res.effects
+    lines = [f"  DIAGNOSIS: {len(eff)} effect(s) added, {len(res.findings)} finding(s) named but not "
+             f"added, {len(res.unexplained)} joint(s) flagged, {len(res.cut)} effect(s) cut by max_effects"]
+    lines += [f"    added: {e.label}" for e in eff]
+    onsets = [e for e in res.selected if e.kind != "effect"]
+    lines += [f"    kept in the model as a Coulomb onset (not an effect of the robot): {e.label}" for e in onsets]
+    lines += [f"    finding (not added): {f.sentence()}" for f in res.findings]
+    lines += [f"    flagged joint {u.joint}: {u.hypothesis or u.depends_on}" for u in res.unexplained]
+    st = res.structure
+    for u in ([] if st is None else st.dropped):
+        lines.append(f"    not raised on joint {u.joint}: {u.hypothesis or u.depends_on} ({u.reason})")
+    if res.cut:
+        k = res.settings["max_effects"]
+        lines.append(f"    cut: {len(res.cut)} effect(s) pass the rule but max_effects = {k} were added "
+                     f"already; include them with --max-effects {k + len(res.cut)} "
+                     f"(Python: diagnose(..., max_effects={k + len(res.cut)})):")
+        lines += [f"      {r.label}: CV gain {100 * r.cv_gain:.2f} %, LR {r.statistic:.1f}, "
+                  f"p_adj {fmt_p(r.p_value)}" for r in res.cut]
+    v = res.errors.get("validation")
+    if v is not None:
+        lines.append(f"    held-out error (moving samples): {100 * v['before'].rel_error:.2f} % -> "
+                     f"{100 * v['after'].rel_error:.2f} %")
+    if res.rest is not None:
+        lines += ["    " + x for x in res.rest.lines()]
+    return lines
+
+
+def _header(res):
+    s = res.settings
+    return [f"Residual diagnosis of {res.source} (robot '{res.robot_name}')",
+            f"  model: {len(res.model_before.names)} parameters ({s.get('model', 'essential WLS')}); "
+            f"{s['n_candidates']} candidates ({len(s['effects'])} effects x joints x grid)",
+            f"  rule: blocked CV in {s['folds']} contiguous blocks (guard {s['gap']} samples) "
+            f"and Bonferroni LR test with n_eff, alpha = {s['alpha']:g}", ""]
+
+
+def _steps(res):
+    lines = []
+    for st in res.steps:
+        w = st.winner
+        if w is None:
+            lines.append(f"  step {st.step}: no candidate to score")
+            continue
+        lines.append(f"  step {st.step}: best {w.label}: CV gain {100 * w.cv_gain:.2f} %, "
+                     f"{w.folds_better}/{w.n_folds} blocks, LR {w.statistic:.1f} "
+                     f"(n_eff {w.n_eff:.0f}), p_adj {fmt_p(w.p_value)} -> "
+                     f"{'SELECTED' if st.accepted else 'not selected: ' + st.reason}")
+        if w.aliases:
+            lines.append(f"          same columns on these data (indistinguishable): "
+                         f"{', '.join(w.aliases)}")
+        if st.runner_up is not None:
+            lines.append(f"          runner-up {st.runner_up.label}: CV gain "
+                         f"{100 * st.runner_up.cv_gain:.2f} %; gap {100 * st.gap:.2f} points; "
+                         f"the winner predicts better in {100 * st.confidence:.0f} % of the blocks")
+    return lines
+
+
+def _ranking(res):
+    lines = ["", "  Ranking (most to least likely):",
+             "  rank  effect               joint  nonlinear            CV gain %  blocks   "
+             "LR        p_adj      dBIC(n_eff)  sel"]
+    for k, r in enumerate(res.ranking[:15], 1):
+        j = "all" if r.joint is None else str(r.joint)
+        nl = nonlinear_text(r.nonlinear)
+        lines.append(f"  {k:4d}  {r.name:<20} {j:>5}  {nl:<20} {100 * r.cv_gain:9.3f}  "
+                     f"{r.folds_better}/{r.n_folds}    {r.statistic:8.1f}  {fmt_p(r.p_value):>9}  "
+                     f"{r.ic_gain:11.1f}  {'yes' if r.selected else ''}")
+    if len(res.ranking) > 15:
+        lines.append(f"  ... {len(res.ranking) - 15} more")
+    return lines
+
+
+def _selected(res):
+    if not res.selected:
+        return ["", "  No effect selected: nothing the candidates describe is missing from the model."]
+    lines = ["", "  Selected effects:"]
+    for e in res.selected:
+        lines.append(f"    {e.label}:")
+        for p, v, sd, r in zip(e.params, e.values, e.sigma, e.rel_sigma):
+            lines.append(f"      {p:<10} = {v: .5g} +- {sd:.3g} ({r:.1f} %)")
+        if e.note:
+            lines.append(f"      note: {e.note}")
+    return lines
+
+
+def _errors(res):
+    lines = ["", "  Errors before -> after (relative error norm; RMS per joint [N m]):"]
+    for key in ("identification", "validation"):
+        e = res.errors.get(key)
+        if e is None:
+            continue
+        b, a = e["before"], e["after"]
+        lines.append(f"    {key:<14}: {100 * b.rel_error:.3f} % -> {100 * a.rel_error:.3f} %   "
+                     f"RMS " + " ".join(f"{x:.4g}->{y:.4g}" for x, y in zip(b.rms, a.rms)))
+    if len(res.path) > 1:
+        lines += ["", "  Relative error after each step (identification / validation):"]
+        for p in res.path:
+            v = p["validation"]
+            lines.append(f"    {p['step']}: {p['added'] or 'IDIM model':<45} "
+                         f"{100 * p['identification'].rel_error:.3f} %"
+                         + ("" if v is None else f" / {100 * v.rel_error:.3f} %"))
+    return lines
+
+
+def _structure(res):
+    st = res.structure
+    if st is None:
+        return []
+    lines = ["", f"  Structure left in the final residual ({st.n_tests} catalogue-free tests, "
+                 f"Bonferroni alpha = {st.alpha:g}; noise floor RMS "
+                 + " ".join(f"{x:.3g}" if np.isfinite(x) else "unknown" for x in st.noise_floor)
+                 + " N m):"]
+    unknown = [j + 1 for j, k in enumerate(st.floor_known) if not k]
+    if unknown:
+        lines.append(f"    noise floor unknown on joint(s) {', '.join(map(str, unknown))}: the "
+                     f"torque's full-rate increments are not white (var(d3)/var(d2) "
+                     + ", ".join(f"{st.whiteness[j - 1]:.2g}" for j in unknown)
+                     + ", white noise 3.33): it was low-pass filtered before it was "
+                     "recorded, so the excess-over-floor test is not run")
+    if not st.unexplained:
+        lines.append("    none: no joint's residual has significant structure large against "
+                     "its noise")
+    for u in st.unexplained:
+        lines.append(f"    UNEXPLAINED {u.sentence()}")
+        if u.also:
+            lines.append(f"      also significant and large: {', '.join(u.also[:6])}")
+    return lines
+
+
+def _hidden(res):
+    if not res.hidden_tests:
+        return []
+    lines = ["", "  Effects hidden in the parameters (prior fit toward the a-priori values):"]
+    if res.hidden:
+        return lines + [f"    HIDDEN {h.sentence()}" for h in res.hidden]
+    best = res.hidden_tests[0]
+    lines.append(f"    none: the parameters contradict the a-priori values "
+                 f"({', '.join(a for a, *_ in best.contradicted[:3])}), but no "
+                 f"gravity-shaped spring explains it (best joint {best.joint}, "
+                 f"p = {best.p_value:.2g})")
+    return lines
+
+
+def verdict_lines(res):
+    """The verdict's lines on what the diagnosis found but did not add (issue 27 item 2):
+    findings named with their size, flagged joints with their hypothesis, effects cut by
+    max_effects. Empty when there is none of these."""
+    out = []
+    if res.findings:
+        out.append("Named but not added to the model: "
+                   + "; ".join(f"{f.label}: {f.size}" for f in res.findings) + ".")
+    if res.unexplained:
+        out.append("Structure no effect explains: "
+                   + "; ".join(f"joint {u.joint}: {u.hypothesis or u.depends_on}" for u in res.unexplained) + ".")
+    if res.cut:
+        k = res.settings["max_effects"]
+        out.append(f"{len(res.cut)} effect(s) pass the rule but were cut by max_effects = {k} ("
+                   + ", ".join(f"{r.label}, CV gain {100 * r.cv_gain:.1f} %" for r in res.cut)
+                   + f"); include them with --max-effects {k + len(res.cut)}.")
+    return out
