@@ -2,7 +2,7 @@
 
 Each seed: a random payload (1-5 kg, centre of mass 2-15 cm off the flange, a full inertia
 tensor: tests/payload_plant.py) on the TX40 plant of tests/independent_plant.py (Pinocchio,
-FIGAROH's URDF, its friction law and a PID loop at 1 kHz, position noise 2e-5 rad, torque
+FIGAROH's URDF, its friction law and a PID loop at 2 kHz (``--rate``), position noise 2e-5 rad, torque
 noise 0.2 N m). Two closed-loop recordings: 20 s without the payload, 10 s with it, the wrist
 swept at 0.4 Hz. dynid's model is the tx40 robot file without its wrist coupling (the URDF
 plant has none).
@@ -37,7 +37,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 
-def recordings(seed, rate=1000.0, unloaded_s=20.0, loaded_s=10.0):
+def recordings(seed, rate=2000.0, unloaded_s=20.0, loaded_s=10.0):
     import numpy as np
 
     from dynid.analysis.data.experiment import Experiment
@@ -59,6 +59,7 @@ def main():
     ap.add_argument("--start", type=int, default=0)
     ap.add_argument("--com", action="store_true", help="drive gains with the known centre of mass too")
     ap.add_argument("--no-gains", action="store_true")
+    ap.add_argument("--rate", type=float, default=2000.0, help="controller and log rate, Hz (default 2000)")
     args = ap.parse_args()
     import numpy as np
 
@@ -69,7 +70,7 @@ def main():
     robot = dataclasses.replace(dynid.load_robot("tx40"), couplings=[])
     rows = []
     for seed in range(args.start, args.start + args.seeds):
-        params, parts, eu, el = recordings(seed)
+        params, parts, eu, el = recordings(seed, rate=args.rate)
         r0 = dynid.identify(eu, robot)
         t0 = time.perf_counter()
         dynid.identify(el, robot)
@@ -101,7 +102,7 @@ def main():
         rows.append(row)
         print(json.dumps(row), flush=True)
     out = {"seeds": [args.start, args.start + args.seeds - 1], "n_seeds": len(rows),
-           "recordings": "20 s unloaded + 10 s loaded, 1 kHz, TX40 URDF plant (Pinocchio)"}
+           "recordings": f"20 s unloaded + 10 s loaded, {args.rate:g} Hz, TX40 URDF plant (Pinocchio)"}
     for key in ("fixed", "global"):
         out[key] = {"mass_rel_error_max": max(r[key]["mass_rel_error"] for r in rows),
                     "com_error_mm_max": max(r[key]["com_error_mm"] for r in rows),

@@ -275,6 +275,7 @@ def build_parser():
               report    everything at once: IDIM, DIDIM, posterior and diagnosis in one report
               demo      simulate the TX40, identify it and write an HTML report
               fleet     identify a fleet's recordings on Dask, store them, raise friction-wear alarms
+              payload   identify the payload (mass, centre of mass, inertia), or the drive gains
 
             --json - writes the machine-readable result to stdout (the summary then goes to stderr)
 
@@ -508,6 +509,7 @@ def build_parser():
                    help="DIDIM's derivative-gain update (see identify --help); default initial: "
                         "the paper's every-step update oscillated on the demo data")
     _add_fleet_parser(sub, common)
+    _add_payload_parser(sub, common)
     return parser
 
 
@@ -1333,9 +1335,86 @@ def cmd_fleet(args, say):
     return EXIT_OK
 
 
+# ------------------------------------------------------------------ payload (issue 28): one block
+def _add_payload_parser(sub, common):
+    """The `payload` command: the payload's ten inertial parameters, or the drive gains."""
+    p = sub.add_parser("payload", parents=[common], help="identify the payload (or the drive gains with a known one)",
+                       description="Identify the payload a robot carries (mass, first moments, inertia about "
+                                   "--frame) from a recording with it and either an identified robot "
+                                   "(--model, the robot-fixed route) or recordings without it (--unloaded, "
+                                   "the global route). With --gains, identify the drive gains instead, "
+                                   "from --unloaded and a payload of known --mass. Guide: docs/payload.md.",
+                       epilog=textwrap.dedent("""\
+                           examples:
+                             dynid payload --robot tx40 --loaded loaded.toml --model identified.json
+                             dynid payload --robot tx40 --loaded loaded.toml --unloaded empty.toml --physical
+                             dynid payload --robot tx40 --loaded loaded.toml --unloaded empty.toml --mass 2.5 --gains
+                           """), formatter_class=argparse.RawDescriptionHelpFormatter)
+    _add_robot_options(p)
+    p.add_argument("--loaded", dest="data", nargs="+", required=True, metavar="FILE",
+                   help="recording(s) with the payload (.toml description or data file)")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--model", metavar="JSON", help="the identified robot: dynid identify --json output")
+    src.add_argument("--unloaded", nargs="+", metavar="FILE", help="recording(s) without the payload")
+    p.add_argument("--frame", default="flange",
+                   help="link carrying the payload: flange (last link, default), a joint name or a link number")
+    p.add_argument("--mass", type=float, metavar="KG", help="the payload's known mass (kg), for --gains")
+    p.add_argument("--com", metavar="X,Y,Z", help="--gains: its known centre of mass in the frame (m)")
+    p.add_argument("--gains", nargs="?", const="all", metavar="JOINTS",
+                   help="identify the drive gains (all joints, or e.g. 1,2,3) from --unloaded and --mass")
+    p.add_argument("--physical", action="store_true", help="also the physically consistent payload (SDP)")
+    p.add_argument("--com-box", metavar="X0,Y0,Z0,X1,Y1,Z1", help="--physical: box holding the centre of mass (m)")
+    p.add_argument("--json", metavar="PATH", help="write the result as JSON ('-': stdout)")
+    p.add_argument("--report", metavar="PATH", help="write the result as an HTML section")
+
+
+def _floats(text, k, option):
+    from dynid.errors import InputError
+    try:
+        vals = [float(v) for v in text.split(",")]
+    except ValueError:
+        vals = []
+    if len(vals) != k:
+        raise InputError(f"{option} {text}: give {k} comma-separated numbers")
+    return vals
+
+
+def cmd_payload(args, say):
+    """dynid payload: parse, call identify_payload / identify_drive_gains, print and write."""
+    from dynid.analysis.estimators.drive_gains import identify_drive_gains
+    from dynid.analysis.estimators.payload import identify_payload
+    from dynid.errors import InputError
+    from dynid.outputs import atomic_write_text
+    from dynid.provenance import dumps_json
+    from dynid.reports.payload_section import payload_html
+    robot = _robot(args)
+    if args.gains is not None:
+        if args.mass is None or args.unloaded is None:
+            raise InputError("--gains needs --mass KG (the payload's known mass) and --unloaded FILE")
+        joints = None if args.gains == "all" else [int(v) for v in _floats(args.gains, len(args.gains.split(",")), "--gains")]
+        com = None if args.com is None else _floats(args.com, 3, "--com")
+        result = identify_drive_gains(args.unloaded, args.data, robot, mass=args.mass, com=com, joints=joints,
+                                      frame=args.frame)
+    else:
+        if args.mass is not None or args.com is not None:
+            raise InputError("--mass and --com are the known payload of --gains; the payload itself is "
+                             "identified without them")
+        box = None if args.com_box is None else (lambda v: (v[:3], v[3:]))(_floats(args.com_box, 6, "--com-box"))
+        result = identify_payload(args.data, robot, model=args.model, unloaded=args.unloaded,
+                                  frame=args.frame, physical=args.physical, com_box=box)
+    if args.json and args.json != "-":
+        atomic_write_text(args.json, dumps_json(result.to_dict()))
+    if args.report:
+        atomic_write_text(args.report, payload_html(result))
+    if args.json == "-":
+        print(dumps_json(result.to_dict()))
+    _show(args, result.summary())
+    return EXIT_OK
+
+
 COMMANDS = {"robot": cmd_robot, "simulate": cmd_simulate, "excite": cmd_excite, "identify": cmd_identify,
             "sample": cmd_sample, "diagnose": cmd_diagnose, "report": cmd_report, "demo": cmd_demo,
-            "fleet": cmd_fleet}
+            "fleet": cmd_fleet, "payload": cmd_payload}
 
 
 def _terminate(signum, frame):

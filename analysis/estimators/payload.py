@@ -73,6 +73,10 @@ UNITS = ("kg m^2",) * 6 + ("kg m",) * 3 + ("kg",)
 #: a payload direction whose column-scaled singular value is below this fraction of the largest
 #: is not identified: its sigma would be over 1e3 times that of the best-seen direction
 RANK_RTOL = 1e-3
+#: a parameter whose 95 % half-width exceeds this fraction of its scale (inertia entries: half the
+#: trace of the inertia about the frame; first moments: |m c|, at least m x 1 cm; mass: m) is
+#: not identified by the recording
+MAX_REL_HALFWIDTH = 0.25
 _Z95 = 1.959963984540054
 
 
@@ -279,6 +283,27 @@ def _wrist_motion(robot, obs_list, link):
     rng = np.degrees(q.max(axis=0) - q.min(axis=0))
     first = max(0, link - 2)
     return ", ".join(f"q{j + 1} {rng[j]:.3g} deg" for j in range(first, link + 1))
+
+
+def _poorly_identified(chi, cov, limit):
+    """Parameters whose 95 % half-width exceeds ``limit`` times their scale (MAX_REL_HALFWIDTH)."""
+    m = max(abs(chi[9]), 1e-12)
+    s_I = max(0.5 * (abs(chi[0]) + abs(chi[3]) + abs(chi[5])), 1e-12)
+    s_h = max(float(np.linalg.norm(chi[6:9])), 0.01 * m)
+    scale = np.r_[np.full(6, s_I), np.full(3, s_h), m]
+    half = _Z95 * np.sqrt(np.maximum(np.diag(cov), 0.0))
+    return [(PAYLOAD_NAMES[k], half[k], half[k] / scale[k]) for k in np.flatnonzero(half > limit * scale)]
+
+
+def _refuse_poor(poor, robot, obs_list, link, limit):
+    names = ", ".join(f"{nm} (95 % half-width {h:.2g}, {100 * r:.0f} % of its scale)" for nm, h, r in poor)
+    raise IdentificationError(
+        f"the recording does not identify the payload parameters {names}: their 95 % intervals are wider "
+        f"than {100 * limit:.0f} % of the payload's own size (inertia: half the trace of its inertia; first "
+        f"moments: |m c|; mass: m). Why: the payload's inertia is seen only through the rotation of its "
+        f"link; the joints that turn it moved over {_wrist_motion(robot, obs_list, link)}. Record with the "
+        f"wrist rotating about three axes (wide, fast motion of the last three joints; docs/payload.md), "
+        f"longer, or with a heavier excitation.")
 
 
 def _refuse(directions, robot, obs_list, link, rtol):
@@ -617,7 +642,8 @@ def physical_payload(chi, cov, *, com_box=None):
 
 # ------------------------------------------------------------------------------- entry point
 def identify_payload(loaded, robot, *, model=None, unloaded=None, frame="flange", offset=None,
-                     settings=None, physical=False, com_box=None, rank_rtol=RANK_RTOL):
+                     settings=None, physical=False, com_box=None, rank_rtol=RANK_RTOL,
+                     max_rel_halfwidth=MAX_REL_HALFWIDTH):
     """Identify the payload's ten inertial parameters (module doc), robot fixed or global.
 
     Parameters
@@ -642,7 +668,10 @@ def identify_payload(loaded, robot, *, model=None, unloaded=None, frame="flange"
     com_box : ((3,), (3,)), optional
         With ``physical``: a box holding the centre of mass (payload frame, m).
     rank_rtol : float
-        Identifiability threshold (:data:`RANK_RTOL`).
+        Identifiability threshold of the columns (RANK_RTOL).
+    max_rel_halfwidth : float
+        A parameter whose 95 % half-width exceeds this fraction of its scale is refused
+        (MAX_REL_HALFWIDTH; ``inf`` turns the check off).
 
     Returns
     -------
@@ -723,6 +752,9 @@ def identify_payload(loaded, robot, *, model=None, unloaded=None, frame="flange"
             n_joints=fit.n_joints, n_rows=fit.n_rows, joint_sigma=fit.joint_sigma)
         method = "payload-global"
     cov = 0.5 * (cov + cov.T)
+    poor = _poorly_identified(chi, cov, max_rel_halfwidth)
+    if poor:
+        _refuse_poor(poor, robot, obs_l, link, max_rel_halfwidth)
     res = PayloadResult(method=method, names=names, chi=chi, cov=cov, robot_name=robot.name, link=link,
                         frame=str(frame if frame is not None else "flange"), R=R, p=p, T=T,
                         joint_sigma=fit.joint_sigma, rel_error=fit.rel_error, n_rows=fit.n_rows,
