@@ -331,6 +331,19 @@ def _as_experiment(x, robot):
     raise InputError(f"a recording must be a data file path or an Experiment, not {type(x).__name__}")
 
 
+def _robot_hac(wls, obs):
+    """The HAC covariance of the robot's WLS when its observation is at hand (an IDIM result),
+    else None: the robot's residual is as correlated as the payload's."""
+    if obs is None or getattr(wls, "joint_sigma", None) is None or getattr(wls, "residual", None) is None:
+        return None
+    if obs.W.shape[2] != len(wls.names) or wls.residual.shape != obs.tau.shape:
+        return None
+    sig = np.asarray(wls.joint_sigma, dtype=float)
+    sig = np.where(np.isfinite(sig) & (sig > 0), sig, np.inf)
+    cov = _sandwich(obs.W, wls.residual, obs.row_mask, sig, _hac_lags(wls.residual, obs.row_mask))
+    return 0.5 * (cov + cov.T)
+
+
 def _model_vector(model, robot, bp):
     """(beta (b,), cov (b, b), source) of an identified robot: a dynid result, its dict or JSON file."""
     if isinstance(model, (str, os.PathLike)):
@@ -360,11 +373,13 @@ def _model_vector(model, robot, bp):
     else:
         # the WLS of every base parameter, when the result keeps it: the essential model sets the
         # parameters it dropped to 0, and the payload would take up what they carry
+        obs = getattr(model, "observation", None)
         model = getattr(model, "wls", None) or model
+        hac = _robot_hac(model, obs)
         try:
             names = list(model.names)
             values = np.asarray(model.chi if hasattr(model, "chi") else model.params, dtype=float)
-            cov = np.asarray(model.cov, dtype=float)
+            cov = np.asarray(model.cov, dtype=float) if hac is None else hac
         except AttributeError:
             raise InputError("model must be a dynid identification result (e.g. from dynid.identify), "
                              f"its to_dict() or the path of its JSON, not {type(model).__name__}") from None
