@@ -512,6 +512,12 @@ class PayloadResult(ParameterResults):
         """Inertia tensor about the centre of mass, payload-frame axes (kg m^2), (3, 3)."""
         return _inertia_at_com(self.chi)
 
+    def as_link(self, name="payload", constrained=True) -> dict:
+        """The ``payload=`` argument of urdf_text / mjcf_text: the (constrained, if fitted) payload
+        about its link's frame, ``{"link": 1-based, "values": (10,), "name": name}``."""
+        chi = self.physical.chi if (constrained and self.physical is not None) else self.chi
+        return {"link": self.link + 1, "values": self.T @ chi, "name": name}
+
     def verdict(self) -> str:
         m, sm = self.mass
         c, sc = self.com, self.com_std
