@@ -2,7 +2,7 @@
 
 Each seed: a random payload (1-5 kg, centre of mass 2-15 cm off the flange, a full inertia
 tensor: tests/payload_plant.py) on the TX40 plant of tests/independent_plant.py (Pinocchio,
-FIGAROH's URDF, its friction law and a PID loop at 2 kHz (``--rate``), position noise 2e-5 rad, torque
+FIGAROH's URDF, its friction law and a PID loop at 2 kHz (`--rate`), position noise 2e-5 rad, torque
 noise 0.2 N m). Two closed-loop recordings: 20 s without the payload, 10 s with it, the wrist
 swept at 0.4 Hz. dynid's model is the tx40 robot file without its wrist coupling (the URDF
 plant has none).
@@ -10,7 +10,7 @@ plant has none).
 * robot fixed: IDIM on the unloaded recording, then identify_payload(model=...);
 * global: identify_payload(unloaded=...);
 * drive gains: both recordings' torques divided by per-joint factors k in U(0.9, 1.1) (a
-  current logged with wrong gains), identify_drive_gains with the known mass (``--com``: and
+  current logged with wrong gains), identify_drive_gains with the known mass (`--com`: and
   centre of mass), error of each identified factor.
 
 Figures: largest mass error (%), centre-of-mass error (mm), inertia error (largest entry of

@@ -120,8 +120,8 @@ def mjcf_text(robot, chi_st, *, name=None, comment="", springs=None, payload=Non
     ``springs``: ``{joint (1-based): Ks}`` [N m/rad, N/m for a prismatic joint], the
     linear springs ``Ks_j q_j`` fitted with that rigid body, written as the joint's
     ``stiffness`` with ``springref`` 0.
-    ``payload``: an identified payload written as a child body of its link without a joint
-    (welded), ``{"link": 1-based, "values": ten values about the link frame, "name": ...}``.
+    `payload`: an identified payload written as a child body of its link without a joint
+    (welded), `{"link": 1-based, "values": ten values about the link frame, "name": ...}`.
     """
     springs = _springs(robot, springs)
     pay = None if payload is None else payload_argument(robot, payload, "mjcf_text")

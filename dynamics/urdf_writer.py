@@ -143,10 +143,10 @@ def urdf_unrepresentable(robot) -> list:
 
 
 def payload_argument(robot, payload, where):
-    """``(link index, ten values about that link's frame, name)`` of a ``payload`` argument, checked.
+    """`(link index, ten values about that link's frame, name)` of a `payload` argument, checked.
 
-    ``payload``: ``{"link": 1-based link, "values": ten values XX..M about the link frame,
-    "name": optional}`` (dynid.analysis.estimators.payload.payload_link_values gives the values).
+    `payload`: `{"link": 1-based link, "values": ten values XX..M about the link frame,
+    "name": optional}` (dynid.analysis.estimators.payload.payload_link_values gives the values).
     """
     try:
         j = int(payload["link"]) - 1
@@ -176,8 +176,8 @@ def _inertial_element(parent, m, h, I_o):
 def urdf_text(robot, chi_st, *, name=None, comment="", link_names=None, payload=None) -> str:
     """The URDF of ``robot`` with the standard parameters ``chi_st``.
 
-    ``payload``: an identified payload written as one more link, fixed to its link by a
-    ``fixed`` joint at the link frame (see :func:`payload_argument`).
+    `payload`: an identified payload written as one more link, fixed to its link by a
+    `fixed` joint at the link frame (see `payload_argument`).
     ``link_names``: names of the n moving links (default ``<robot>_link<j>``);
     the root link is ``base_link``. Gravity must be along an axis of the base
     frame or not: a fixed ``world -> base_link`` joint turns the base so that

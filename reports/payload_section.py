@@ -1,6 +1,6 @@
 """The HTML section of a payload identification or a drive-gain identification (issue 28).
 
-``payload_html(result)`` turns a PayloadResult or a DriveGainResult into one standalone HTML
+`payload_html(result)` turns a PayloadResult or a DriveGainResult into one standalone HTML
 page holding one section: the verdict, the parameter table with units and 95 % intervals and,
 for a payload, the constrained fit beside the free one.
 """
@@ -58,7 +58,7 @@ def payload_section(result) -> str:
 
 
 def payload_html(result) -> str:
-    """A standalone HTML page with :func:`payload_section`."""
+    """A standalone HTML page with `payload_section`."""
     return ("<!DOCTYPE html>\n<html><head><meta charset='utf-8'><title>dynid payload</title>"
             "<style>body{font-family:sans-serif;max-width:60em;margin:auto}table{border-collapse:collapse}"
             "td,th{border:1px solid #ccc;padding:2px 8px;text-align:right}</style></head><body>\n"

@@ -1,8 +1,8 @@
 """Drive gains identified with the dynamic parameters, from a payload of known mass.
 
-Many arms log motor currents (or control signals) ``u``, not torques: ``tau_j = g_j u_j``
-with ``g_j`` the drive gain (torque constant times gear ratio), known only roughly. A
-recording without a payload fixes the parameters only up to one scale per joint: ``g_j``
+Many arms log motor currents (or control signals) `u`, not torques: `tau_j = g_j u_j`
+with `g_j` the drive gain (torque constant times gear ratio), known only roughly. A
+recording without a payload fixes the parameters only up to one scale per joint: `g_j`
 times the parameters is all the data see. A payload of known mass fixes the scale
 (Gautier & Briot, "Global identification of joint drive gains and dynamic parameters of
 robots", 2014): stack the recordings without and with the payload and move the known
@@ -11,25 +11,28 @@ part of the payload's torque to the right-hand side,
     W_b beta + W_pu pi_u - diag(tau_log) k  =  - W_pk pi_k          (loaded rows)
     W_b beta             - diag(tau_log) k  =  0                    (unloaded rows)
 
-``tau_log`` the torque the recording holds (computed with the robot file's gains
-``g_file``: ``tau_log = g_file u``), ``k_j = g_j / g_file_j`` the correction of joint
-``j``'s gain (a column ``-tau_log_j`` on that joint's rows), ``pi_k`` the payload's known
-parameters (its mass; with ``com`` also its first moments ``m c``) and ``pi_u`` the rest.
-The system is linear and solved by the per-joint weighted least squares and HAC
-covariance of :mod:`dynid.analysis.estimators.payload` (eq. (16) of Gautier, Janot &
-Vandanjon 2010; the logged torque in a column is an errors-in-variables regressor, whose
-bias ``sigma_u^2 / E[u^2]`` the parallel decimation makes negligible). A joint whose gain
-is not identified keeps its logged torque on the right-hand side.
+`tau_log` the torque the recording holds (computed with the robot file's gains
+`g_file`: `tau_log = g_file u`), `k_j = g_j / g_file_j` the correction of joint
+`j`'s gain (a column `-tau_log_j` on that joint's rows), `pi_k` the payload's known
+parameters (its mass; with `com` also its first moments `m c`) and `pi_u` the rest.
+Solved as written, least squares would shrink `k`: the noisy logged torque sits in a
+regressor column and the unloaded rows are homogeneous (errors in variables; Gautier & Briot
+use total least squares for it). Here the same model is written with the logged torque as the
+dependent variable, `tau_log_j = a_j (W_bj beta + W_puj pi_u + W_pkj pi_k)`, `a_j = 1 / k_j`
+(1 on the joints whose gain is not identified), and solved by Gauss-Newton from the fit with the
+file's gains, each step the per-joint weighted least squares of eq. (16) (Gautier, Janot &
+Vandanjon 2010); the covariance is the HAC sandwich of `dynid.analysis.estimators.payload`
+at the solution, `k` and its standard deviation by the delta method.
 
 What the known mass identifies: a mass at the wrist centre (where the last three axes
 meet, as on the TX40) loads joints 1-3 only, so with the mass alone the wrist gains rest on
 the inertial coupling through the shared parameters, weakly; the known centre of mass
-(``com``) gives the wrist joints a known gravity torque. The rank check names the gains
+(`com`) gives the wrist joints a known gravity torque. The rank check names the gains
 the data cannot fix.
 
-The experiment description's ``[currents]`` section gives the gains the torque column is
+The experiment description's `[currents]` section gives the gains the torque column is
 computed with (the robot file's by default); which gains to identify is the argument
-``joints`` here (the description has no field for it yet).
+`joints` here (the description has no field for it yet).
 """
 from __future__ import annotations
 
@@ -42,6 +45,7 @@ from dynid.analysis.estimators import least_squares as ls
 from dynid.analysis.estimators.payload import (
     PAYLOAD_NAMES,
     _as_experiment,
+    _as_robot,
     _hac_lags,
     _observe,
     _sandwich,
@@ -58,10 +62,10 @@ __all__ = ["DriveGainResult", "identify_drive_gains"]
 
 @dataclass(eq=False)
 class DriveGainResult(ParameterResults):
-    """Identified drive gains ``g1..gn`` (N m per unit of the logged signal) and the rest.
+    """Identified drive gains `g1..gn` (N m per unit of the logged signal) and the rest.
 
-    ``chi``/``cov`` are the gains of the joints in ``joints`` (1-based); ``factor`` the
-    correction ``k = g / g_file``; ``g_file`` the robot file's gains; ``other`` the names,
+    `chi`/`cov` are the gains of the joints in `joints` (1-based); `factor` the
+    correction `k = g / g_file`; `g_file` the robot file's gains; `other` the names,
     values and standard deviations of the robot's base parameters and the payload's unknown
     parameters identified with them (scaled to the identified gains).
     """
@@ -130,8 +134,8 @@ def _fmt(v):
 
 
 def _gauss_newton(X, tau, known_tau, gcol, names, mask, max_iter=30, tol=1e-10):
-    """Least squares of ``tau_j = a_j (X_j theta + known_j)`` (``a_j = 1 / k_j`` on the joints
-    ``gcol``, 1 elsewhere), the noise on the logged torque (the dependent variable).
+    """Least squares of `tau_j = a_j (X_j theta + known_j)` (`a_j = 1 / k_j` on the joints
+    `gcol`, 1 elsewhere), the noise on the logged torque (the dependent variable).
 
     The linear form of the module doc puts the noisy logged torque in a regressor column, and
     least squares then shrinks k (errors in variables: the unloaded rows are homogeneous); in
@@ -179,7 +183,7 @@ def identify_drive_gains(unloaded, loaded, robot, *, mass, com=None, joints=None
     ----------
     unloaded, loaded : path, Experiment, or a list of them
         Recordings without and with the payload; their torques computed with the robot
-        file's gains (a ``[currents]`` description) or logged as the signal itself (gain 1).
+        file's gains (a `[currents]` description) or logged as the signal itself (gain 1).
     robot : Robot, bundled name or robot file
     mass : float
         The payload's mass, kg (> 0).
@@ -202,8 +206,7 @@ def identify_drive_gains(unloaded, loaded, robot, *, mass, com=None, joints=None
     IdentificationError
         The data cannot fix some gains or parameters (named).
     """
-    from dynid.analysis.identify import as_robot
-    robot = as_robot(robot)
+    robot = _as_robot(robot)
     try:
         mass = float(mass)
     except (TypeError, ValueError):

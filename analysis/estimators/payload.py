@@ -1,25 +1,25 @@
 """Payload identification: the ten inertial parameters of what the robot carries.
 
-A payload rigidly fixed to link ``k`` (the last one by default) adds its ten
-inertial parameters to that link's: with ``pi_L`` the payload's parameters in
-a frame ``L`` fixed to the link (the flange, or the link frame moved by a
-placement the user gives), the torque it costs is ``W_k(q, qd, qdd) T pi_L``,
-``W_k`` the link's ten columns of the standard regressor of eq. (2) (XX XY XZ
-YY YZ ZZ MX MY MZ M about the link frame, modified DH) and ``T`` the linear
-map of a rigid change of frame (parallel axes, :func:`transform_matrix`).
+A payload rigidly fixed to link `k` (the last one by default) adds its ten
+inertial parameters to that link's: with `pi_L` the payload's parameters in
+a frame `L` fixed to the link (the flange, or the link frame moved by a
+placement the user gives), the torque it costs is `W_k(q, qd, qdd) T pi_L`,
+`W_k` the link's ten columns of the standard regressor of eq. (2) (XX XY XZ
+YY YZ ZZ MX MY MZ M about the link frame, modified DH) and `T` the linear
+map of a rigid change of frame (parallel axes, `transform_matrix`).
 The names follow Gautier & Briot (2014): XXL XYL XZL YYL YZL ZZL MXL MYL MZL ML.
 
 Two routes (the observation is IDIM's: zero-phase filter of q, central
 differences, parallel decimation, eqs. (8)-(9) of Gautier, Janot &
 Vandanjon 2010):
 
-* robot fixed (``identify_payload(loaded, robot, model=...)``): the robot is
+* robot fixed (`identify_payload(loaded, robot, model=...)`): the robot is
   an identified model (a dynid result or its JSON); the loaded recording's
   torque minus the model's prediction is regressed on the payload's ten
   columns, per-joint weighted (eq. (16)). The uncertainty of the robot's
-  parameters is propagated (``cov += G cov_beta G^T``, ``G`` the payload
+  parameters is propagated (`cov += G cov_beta G^T`, `G` the payload
   estimate's sensitivity to the robot's parameters).
-* global (``identify_payload(loaded, robot, unloaded=...)``): the unloaded
+* global (`identify_payload(loaded, robot, unloaded=...)`): the unloaded
   and the loaded recordings are stacked, the robot's base parameters active
   on every row, the payload's ten columns on the loaded rows only; both are
   identified together.
@@ -27,20 +27,20 @@ Vandanjon 2010):
 Correlated residuals. After filtering and decimation the residual of a
 recording is not white (the model's friction and the robot's parameter errors
 follow the trajectory), so the covariance of eq. (14) is too small. The
-covariance here is the sandwich ``A S A`` with ``A = (W^T Om W)^-1`` and
-``S`` the Newey-West (Bartlett) long-run covariance of the weighted scores
-``sum_j W_tj e_tj / sigma_j^2`` (statsmodels' ``S_hac_simple``), its window
+covariance here is the sandwich `A S A` with `A = (W^T Om W)^-1` and
+`S` the Newey-West (Bartlett) long-run covariance of the weighted scores
+`sum_j W_tj e_tj / sigma_j^2` (statsmodels' `S_hac_simple`), its window
 the residual's correlation length.
 
 Which parameters the data identify is decided by the wrist's motion: the
 payload's ten columns must be independent on the recording. They are checked
-(column-scaled singular values, :data:`RANK_RTOL`); a direction the data do not
+(column-scaled singular values, `RANK_RTOL`); a direction the data do not
 see is refused with the parameters it involves and the wrist's motion.
 
-Physically consistent payload (:func:`physical_payload`): the payload's
+Physically consistent payload (`physical_payload`): the payload's
 pseudo-inertia positive semidefinite (Wensing, Kim & Slotine 2017), mass >
 0 and optionally the centre of mass in a box, one SDP solved by Clarabel as
-the physical fits of :mod:`dynid.analysis.estimators.physical`; it minimises
+the physical fits of `dynid.analysis.estimators.physical`; it minimises
 the distance to the free estimate in the metric of its covariance.
 """
 from __future__ import annotations
@@ -98,7 +98,7 @@ def _to_link(values, R, p):
 
 
 def transform_matrix(R=None, p=None) -> np.ndarray:
-    """T (10, 10) with ``pi_link = T pi_F``: a frame F with axes ``R`` and origin ``p`` (link frame).
+    """T (10, 10) with `pi_link = T pi_F`: a frame F with axes `R` and origin `p` (link frame).
 
     Parameters
     ----------
@@ -118,22 +118,22 @@ def transform_matrix(R=None, p=None) -> np.ndarray:
 
 
 def payload_frame(robot, frame="flange", offset=None):
-    """``(link index, R, p)`` of the payload frame: a link of ``robot`` and a placement in it.
+    """`(link index, R, p)` of the payload frame: a link of `robot` and a placement in it.
 
     Parameters
     ----------
     robot : Robot
     frame : str or int
-        ``"flange"`` (the last link's frame), a joint name of the robot (the link it
+        `"flange"` (the last link's frame), a joint name of the robot (the link it
         moves) or a 1-based link number.
     offset : dict, optional
-        ``{"xyz": (3,), "rpy": (3,)}``: the payload frame in that link's frame (m, rad;
+        `{"xyz": (3,), "rpy": (3,)}`: the payload frame in that link's frame (m, rad;
         URDF's roll-pitch-yaw).
 
     Raises
     ------
     InputError
-        ``frame`` is not a link of the robot, or ``offset`` is malformed.
+        `frame` is not a link of the robot, or `offset` is malformed.
     """
     names = robot.joint_names
     if isinstance(frame, (int, np.integer)) and not isinstance(frame, bool):
@@ -286,7 +286,7 @@ def _wrist_motion(robot, obs_list, link):
 
 
 def _poorly_identified(chi, cov, limit):
-    """Parameters whose 95 % half-width exceeds ``limit`` times their scale (MAX_REL_HALFWIDTH)."""
+    """Parameters whose 95 % half-width exceeds `limit` times their scale (MAX_REL_HALFWIDTH)."""
     m = max(abs(chi[9]), 1e-12)
     s_I = max(0.5 * (abs(chi[0]) + abs(chi[3]) + abs(chi[5])), 1e-12)
     s_h = max(float(np.linalg.norm(chi[6:9])), 0.01 * m)
@@ -322,6 +322,13 @@ def _refuse(directions, robot, obs_list, link, rtol):
 
 
 # ------------------------------------------------------------------------------- robot model
+def _as_robot(robot):
+    """A Robot from a Robot, a bundled name or a robot file (as dynid.identify takes it)."""
+    from dynid.dynamics.robot import Robot
+    from dynid.dynamics.robot_file import load_robot
+    return robot if isinstance(robot, Robot) else load_robot(robot)
+
+
 def _as_experiment(x, robot):
     from dynid.analysis.data.experiment import Experiment, load_experiment
     if isinstance(x, Experiment):
@@ -416,12 +423,12 @@ def _inertia_at_com(chi):
 
 @dataclass(eq=False)
 class PhysicalPayload(ParameterResults):
-    """The physically consistent payload: the SDP of :func:`physical_payload`.
+    """The physically consistent payload: the SDP of `physical_payload`.
 
-    ``chi`` the constrained estimate, ``cov`` the free estimate's (the constrained one's
-    uncertainty is no larger where no constraint is active), ``delta`` the growth of the
+    `chi` the constrained estimate, `cov` the free estimate's (the constrained one's
+    uncertainty is no larger where no constraint is active), `delta` the growth of the
     weighted squared residual in units of the free estimate's covariance (a chi^2 value:
-    large means the data want a non-physical payload), ``active`` the constraints that bind.
+    large means the data want a non-physical payload), `active` the constraints that bind.
     """
 
     method = "payload-physical"
@@ -454,17 +461,17 @@ class PayloadResult(ParameterResults):
     Attributes
     ----------
     method : str
-        ``"payload-fixed"`` (robot fixed) or ``"payload-global"``.
+        `"payload-fixed"` (robot fixed) or `"payload-global"`.
     names : list[str]
         XXL XYL XZL YYL YZL ZZL (kg m^2, about the payload frame's origin), MXL MYL MZL
         (kg m), ML (kg).
     chi, cov : ndarray
         Estimate and its HAC covariance (module doc).
     link : int
-        0-based link carrying the payload; ``R``, ``p`` the payload frame in it, ``T`` the
-        map to the link frame (:func:`transform_matrix`).
+        0-based link carrying the payload; `R`, `p` the payload frame in it, `T` the
+        map to the link frame (`transform_matrix`).
     physical : PhysicalPayload or None
-        The physically consistent estimate (``physical=True``).
+        The physically consistent estimate (`physical=True`).
     robot_params : IdentificationResult or None
         The robot's base parameters of the global route.
     """
@@ -513,8 +520,8 @@ class PayloadResult(ParameterResults):
         return _inertia_at_com(self.chi)
 
     def as_link(self, name="payload", constrained=True) -> dict:
-        """The ``payload=`` argument of urdf_text / mjcf_text: the (constrained, if fitted) payload
-        about its link's frame, ``{"link": 1-based, "values": (10,), "name": name}``."""
+        """The `payload=` argument of urdf_text / mjcf_text: the (constrained, if fitted) payload
+        about its link's frame, `{"link": 1-based, "values": (10,), "name": name}`."""
         chi = self.physical.chi if (constrained and self.physical is not None) else self.chi
         return {"link": self.link + 1, "values": self.T @ chi, "name": name}
 
@@ -595,9 +602,9 @@ def _vec3(v):
 def physical_payload(chi, cov, *, com_box=None):
     """The physically consistent payload nearest the free estimate: one SDP (Clarabel).
 
-    minimise ``||R (x - chi)||^2`` (``R^T R = cov^-1``) subject to the payload's
+    minimise `||R (x - chi)||^2` (`R^T R = cov^-1`) subject to the payload's
     pseudo-inertia positive semidefinite (Wensing, Kim & Slotine 2017), mass > 0 and,
-    with ``com_box``, ``lo <= c <= hi`` written linearly as ``m lo <= h <= m hi``.
+    with `com_box`, `lo <= c <= hi` written linearly as `m lo <= h <= m hi`.
 
     Parameters
     ----------
@@ -675,24 +682,24 @@ def identify_payload(loaded, robot, *, model=None, unloaded=None, frame="flange"
     model : identification result, its dict, or the path of its JSON, optional
         The identified robot (its base parameters): the robot-fixed route.
     unloaded : path, Experiment, or a list of them, optional
-        Recording(s) without the payload: the global route. Exactly one of ``model``
-        and ``unloaded``.
+        Recording(s) without the payload: the global route. Exactly one of `model`
+        and `unloaded`.
     frame : str or int
-        The link carrying the payload: ``"flange"`` (last link, default), a joint name
+        The link carrying the payload: `"flange"` (last link, default), a joint name
         or a 1-based link number.
     offset : dict, optional
-        ``{"xyz": ..., "rpy": ...}`` of the payload frame in that link's frame.
+        `{"xyz": ..., "rpy": ...}` of the payload frame in that link's frame.
     settings : dict, optional
         IDIM's processing overrides (fc_position, nd, ...), taken for every recording.
     physical : bool
-        Also the physically consistent payload (:func:`physical_payload`).
+        Also the physically consistent payload (`physical_payload`).
     com_box : ((3,), (3,)), optional
-        With ``physical``: a box holding the centre of mass (payload frame, m).
+        With `physical`: a box holding the centre of mass (payload frame, m).
     rank_rtol : float
         Identifiability threshold of the columns (RANK_RTOL).
     max_rel_halfwidth : float
         A parameter whose 95 % half-width exceeds this fraction of its scale is refused
-        (MAX_REL_HALFWIDTH; ``inf`` turns the check off).
+        (MAX_REL_HALFWIDTH; `inf` turns the check off).
 
     Returns
     -------
@@ -701,7 +708,7 @@ def identify_payload(loaded, robot, *, model=None, unloaded=None, frame="flange"
     Raises
     ------
     InputError
-        Not exactly one of ``model`` / ``unloaded``; a frame that is not a link.
+        Not exactly one of `model` / `unloaded`; a frame that is not a link.
     IdentificationError
         The recordings do not identify every payload parameter (names them and says why).
 
@@ -710,8 +717,7 @@ def identify_payload(loaded, robot, *, model=None, unloaded=None, frame="flange"
     >>> r = identify_payload("loaded.toml", "tx40", model="identified.json")  # doctest: +SKIP
     >>> r.mass, r.com, r.conf_int()                                           # doctest: +SKIP
     """
-    from dynid.analysis.identify import as_robot
-    robot = as_robot(robot)
+    robot = _as_robot(robot)
     if (model is None) == (unloaded is None):
         raise InputError("give either model= (an identified robot: the robot-fixed route, --model) or "
                          "unloaded= (recordings without the payload: the global route, --unloaded), "
