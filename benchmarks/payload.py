@@ -64,6 +64,8 @@ def main():
                          "(the machine is shared: one timing can be another process's)")
     ap.add_argument("--gains-only", action="store_true", help="only the drive gains (no payload routes)")
     ap.add_argument("--speed-only", action="store_true", help="only the speed ratio (no global route, no gains)")
+    ap.add_argument("--unloaded-s", type=float, default=20.0, help="unloaded recording, s (default 20)")
+    ap.add_argument("--loaded-s", type=float, default=10.0, help="loaded recording, s (default 10)")
     ap.add_argument("--rate", type=float, default=2000.0, help="controller and log rate, Hz (default 2000)")
     args = ap.parse_args()
     import numpy as np
@@ -75,7 +77,8 @@ def main():
     robot = dataclasses.replace(dynid.load_robot("tx40"), couplings=[])
     rows = []
     for seed in range(args.start, args.start + args.seeds):
-        params, parts, eu, el = recordings(seed, rate=args.rate)
+        params, parts, eu, el = recordings(seed, rate=args.rate, unloaded_s=args.unloaded_s,
+                                           loaded_s=args.loaded_s)
         if args.gains_only:
             kt = np.random.default_rng(seed + 7).uniform(0.9, 1.1, 6)
             rd = identify_drive_gains(Experiment(t=eu.t, q=eu.q, tau=eu.tau / kt, fs=eu.fs, source=eu.source),
@@ -125,6 +128,7 @@ def main():
         print(json.dumps(row), flush=True)
     if args.gains_only:
         print(json.dumps({"seeds": [args.start, args.start + args.seeds - 1], "n_seeds": len(rows),
+                          "recordings": f"{args.unloaded_s:g} s unloaded + {args.loaded_s:g} s loaded, {args.rate:g} Hz",
                           "drive_gain_known": "mass and centre of mass" if args.com else "mass",
                           "drive_gain_rel_error_max": max(max(r["gains"]["rel_error"]) for r in rows),
                           "drive_gain_coverage_95": sum(r["gains"]["covered"] for r in rows) / (6 * len(rows))}))
@@ -136,7 +140,8 @@ def main():
                           "speed_ratio_fixed_over_idim_median": float(np.median(ratios))}))
         return
     out = {"seeds": [args.start, args.start + args.seeds - 1], "n_seeds": len(rows),
-           "recordings": f"20 s unloaded + 10 s loaded, {args.rate:g} Hz, TX40 URDF plant (Pinocchio)"}
+           "recordings": f"{args.unloaded_s:g} s unloaded + {args.loaded_s:g} s loaded, {args.rate:g} Hz, "
+                          "TX40 URDF plant (Pinocchio)"}
     for key in ("fixed", "global"):
         out[key] = {"mass_rel_error_max": max(r[key]["mass_rel_error"] for r in rows),
                     "com_error_mm_max": max(r[key]["com_error_mm"] for r in rows),
