@@ -196,3 +196,12 @@ def test_cli_payload_runs_and_refuses_a_bad_frame(plant_data, tmp_path, monkeypa
     rc = main(["payload", "--robot", "tx40", "--loaded", str(paths["el"]), "--unloaded", str(paths["eu"]),
                "--frame", "tool0", "--quiet"])
     assert rc == 2
+
+
+def test_cli_refuses_a_mass_that_is_not_positive(capsys):
+    from dynid.reports.cli import main
+    rc = main(["payload", "--robot", "tx40", "--loaded", "l.csv", "--unloaded", "u.csv", "--mass", "0", "--gains"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "mass must be > 0 kg" in err and "Traceback" not in err
+    rc = main(["payload", "--robot", "tx40", "--loaded", "l.csv", "--unloaded", "u.csv", "--gains"])
+    assert rc == 2 and "--mass" in capsys.readouterr().err
