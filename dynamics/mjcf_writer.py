@@ -48,7 +48,7 @@ import xml.etree.ElementTree as ET
 
 import numpy as np
 
-from dynid.dynamics.urdf_writer import _f, _vec, inertial_slice, link_inertial
+from dynid.dynamics.urdf_writer import _f, _vec, inertial_slice, link_inertial, payload_argument
 from dynid.errors import InputError
 
 __all__ = ["mjcf_text", "mjcf_unrepresentable", "SOLIMP_FRICTION"]
@@ -111,7 +111,7 @@ def _springs(robot, springs):
     return dict(sorted(out.items()))
 
 
-def mjcf_text(robot, chi_st, *, name=None, comment="", springs=None) -> str:
+def mjcf_text(robot, chi_st, *, name=None, comment="", springs=None, payload=None) -> str:
     """The MJCF of ``robot`` with the standard parameters ``chi_st`` (see the module doc).
 
     Every link must be physically consistent with positive mass (MuJoCo's
@@ -120,8 +120,11 @@ def mjcf_text(robot, chi_st, *, name=None, comment="", springs=None) -> str:
     ``springs``: ``{joint (1-based): Ks}`` [N m/rad, N/m for a prismatic joint], the
     linear springs ``Ks_j q_j`` fitted with that rigid body, written as the joint's
     ``stiffness`` with ``springref`` 0.
+    `payload`: an identified payload written as a child body of its link without a joint
+    (welded), `{"link": 1-based, "values": ten values about the link frame, "name": ...}`.
     """
     springs = _springs(robot, springs)
+    pay = None if payload is None else payload_argument(robot, payload, "mjcf_text")
     chi_st = np.asarray(chi_st, dtype=float)
     if chi_st.shape != (robot.n_standard,):
         raise InputError(f"mjcf_text: {chi_st.size} values given, robot '{robot.name}' has "
@@ -188,6 +191,14 @@ def mjcf_text(robot, chi_st, *, name=None, comment="", springs=None) -> str:
         ET.SubElement(body, "inertial", {
             "pos": _vec(c), "mass": _f(m),
             "fullinertia": _vec([I_c[0, 0], I_c[1, 1], I_c[2, 2], I_c[0, 1], I_c[0, 2], I_c[1, 2]])})
+        if pay is not None and pay[0] == j:
+            pm, ph, pI = link_inertial(pay[1])
+            pc = ph / pm
+            pIc = pI - pm * (pc @ pc * np.eye(3) - np.outer(pc, pc))
+            pb = ET.SubElement(body, "body", {"name": pay[2], "pos": "0 0 0"})
+            ET.SubElement(pb, "inertial", {
+                "pos": _vec(pc), "mass": _f(pm),
+                "fullinertia": _vec([pIc[0, 0], pIc[1, 1], pIc[2, 2], pIc[0, 1], pIc[0, 2], pIc[1, 2]])})
         parent = body
     if tendons:
         ten = ET.SubElement(root, "tendon")

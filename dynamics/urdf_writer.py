@@ -144,9 +144,42 @@ def urdf_unrepresentable(robot) -> list:
     return _extra_names(robot)
 
 
-def urdf_text(robot, chi_st, *, name=None, comment="", link_names=None) -> str:
+def payload_argument(robot, payload, where):
+    """`(link index, ten values about that link's frame, name)` of a `payload` argument, checked.
+
+    `payload`: `{"link": 1-based link, "values": ten values XX..M about the link frame,
+    "name": optional}` (dynid.analysis.estimators.payload.payload_link_values gives the values).
+    """
+    try:
+        j = int(payload["link"]) - 1
+        values = np.asarray(payload["values"], dtype=float).reshape(10)
+    except (KeyError, TypeError, ValueError):
+        raise InputError(f"{where}: payload must be {{'link': 1..{robot.n_joints}, 'values': ten numbers "
+                         f"XX..M about the link frame}}, got {payload!r}") from None
+    if not 0 <= j < robot.n_joints:
+        raise InputError(f"{where}: payload link {j + 1} is not a link of robot '{robot.name}' "
+                         f"(1..{robot.n_joints})")
+    if not np.all(np.isfinite(values)) or not values[9] > 0:
+        raise InputError(f"{where}: the payload needs finite values and a positive mass, got mass {values[9]:g}")
+    return j, values, str(payload.get("name") or "payload")
+
+
+def _inertial_element(parent, m, h, I_o):
+    c = h / m if m != 0.0 else np.zeros(3)
+    I_c = I_o - m * (c @ c * np.eye(3) - np.outer(c, c))
+    inertial = ET.SubElement(parent, "inertial")
+    ET.SubElement(inertial, "origin", {"xyz": _vec(c), "rpy": "0 0 0"})
+    ET.SubElement(inertial, "mass", {"value": _f(m)})
+    ET.SubElement(inertial, "inertia", {
+        "ixx": _f(I_c[0, 0]), "ixy": _f(I_c[0, 1]), "ixz": _f(I_c[0, 2]),
+        "iyy": _f(I_c[1, 1]), "iyz": _f(I_c[1, 2]), "izz": _f(I_c[2, 2])})
+
+
+def urdf_text(robot, chi_st, *, name=None, comment="", link_names=None, payload=None) -> str:
     """The URDF of ``robot`` with the standard parameters ``chi_st``.
 
+    `payload`: an identified payload written as one more link, fixed to its link by a
+    `fixed` joint at the link frame (see `payload_argument`).
     ``link_names``: names of the n moving links (default ``<robot>_link<j>``);
     the root link is ``base_link``. Gravity must be along an axis of the base
     frame or not: a fixed ``world -> base_link`` joint turns the base so that
@@ -208,6 +241,13 @@ def urdf_text(robot, chi_st, *, name=None, comment="", link_names=None) -> str:
                 "ixx": _f(I_c[0, 0]), "ixy": _f(I_c[0, 1]), "ixz": _f(I_c[0, 2]),
                 "iyy": _f(I_c[1, 1]), "iyz": _f(I_c[1, 2]), "izz": _f(I_c[2, 2])})
         parent = links[j]
+    if payload is not None:
+        jp, pv, pname = payload_argument(robot, payload, "urdf_text")
+        el = ET.SubElement(root, "joint", {"name": f"{pname}_joint", "type": "fixed"})
+        ET.SubElement(el, "origin", {"xyz": "0 0 0", "rpy": "0 0 0"})
+        ET.SubElement(el, "parent", {"link": links[jp]})
+        ET.SubElement(el, "child", {"link": pname})
+        _inertial_element(ET.SubElement(root, "link", {"name": pname}), *link_inertial(pv))
     extras = _extra_names(robot)
     if extras:
         ext = ET.SubElement(root, f"{{{DYNID_NS}}}parameters")

@@ -219,10 +219,56 @@ def cmd_fleet(args, say):
     return EXIT_OK
 
 
+def _floats(text, k, option):
+    """k comma-separated numbers of a payload option."""
+    try:
+        vals = [float(v) for v in text.split(",")]
+    except ValueError:
+        vals = []
+    if len(vals) != k:
+        raise InputError(f"{option} {text}: give {k} comma-separated numbers")
+    return vals
+
+
+def cmd_payload(args, say):
+    """dynid payload: parse, call identify_payload / identify_drive_gains, print and write."""
+    from dynid.analysis import run as steps
+    from dynid.analysis.estimators.drive_gains import identify_drive_gains
+    from dynid.analysis.estimators.payload import identify_payload
+    from dynid.provenance import dumps_json
+    from dynid.reports.payload_section import payload_html
+    robot = steps.as_robot(args.robot, base=args.base, tip=args.tip)
+    if args.gains is not None:
+        if args.mass is None or args.unloaded is None:
+            raise InputError("--gains needs --mass KG (the payload's known mass) and --unloaded FILE")
+        joints = None if args.gains == "all" else [int(v) for v in _floats(args.gains, len(args.gains.split(",")),
+                                                                             "--gains")]
+        com = None if args.com is None else _floats(args.com, 3, "--com")
+        result = identify_drive_gains(args.unloaded, args.data, robot, mass=args.mass, com=com, joints=joints,
+                                      frame=args.frame)
+    else:
+        if args.mass is not None or args.com is not None:
+            raise InputError("--mass and --com are the known payload of --gains; the payload itself is "
+                             "identified without them")
+        box = None if args.com_box is None else (lambda v: (v[:3], v[3:]))(_floats(args.com_box, 6, "--com-box"))
+        result = identify_payload(args.data, robot, model=args.model, unloaded=args.unloaded,
+                                  frame=args.frame, physical=args.physical, com_box=box)
+    outputs = []
+    if args.json and args.json != "-":
+        outputs.append((args.json, dumps_json(result.to_dict())))
+    if args.report:
+        outputs.append((args.report, payload_html(result)))
+    commit_outputs(outputs, say)
+    if args.json == "-":
+        print(dumps_json(result.to_dict()))
+    show(args, result.summary())
+    return EXIT_OK
+
+
 #: the subcommands; a new one (e.g. payload) adds its parser in reports.cli_options and its function here
 COMMANDS = {"robot": cmd_robot, "simulate": cmd_simulate, "excite": cmd_excite, "identify": cmd_identify,
             "sample": cmd_sample, "diagnose": cmd_diagnose, "report": cmd_report, "demo": cmd_demo,
-            "fleet": cmd_fleet}
+            "fleet": cmd_fleet, "payload": cmd_payload}
 
 
 def _terminate(signum, frame):

@@ -307,7 +307,42 @@ def build_parser(full=False):
     _add_diagnose_parser(sub, common, full)
     _add_report_parsers(sub, common, full)
     _add_fleet_parser(sub, common)
+    _add_payload_parser(sub, common, full)
     return parser
+
+
+def _add_payload_parser(sub, common, full):
+    p = _sub(sub, common, "payload", "identify the payload (or the drive gains with a known one)",
+             "Identify the payload a robot carries (mass, first moments, inertia about --frame) from a "
+             "recording with it and either an identified robot (--model, the robot-fixed route) or "
+             "recordings without it (--unloaded, the global route). With --gains, identify the drive "
+             "gains instead, from --unloaded and a payload of known --mass. Guide: docs/payload.md.",
+             textwrap.dedent("""\
+                 examples:
+                   dynid payload --robot tx40 --loaded loaded.toml --model identified.json
+                   dynid payload --robot tx40 --loaded loaded.toml --unloaded empty.toml --physical
+                   dynid payload --robot tx40 --loaded loaded.toml --unloaded empty.toml --mass 2.5 --gains
+                 """))
+    g, adv = _groups(p, full)
+    g["data"].add_argument("--loaded", dest="data", nargs="+", required=True, metavar="FILE",
+                           help="recording(s) with the payload (.toml description or data file)")
+    _add_robot_options(g, adv)
+    src = g["data"].add_mutually_exclusive_group(required=True)
+    src.add_argument("--model", metavar="JSON", help="the identified robot: dynid identify --json output")
+    src.add_argument("--unloaded", nargs="+", metavar="FILE", help="recording(s) without the payload")
+    m = g["method"]
+    m.add_argument("--frame", default="flange",
+                   help="link carrying the payload: flange (last link), a joint name or a link number")
+    m.add_argument("--gains", nargs="?", const="all", metavar="JOINTS",
+                   help="identify the drive gains (all joints, or e.g. 1,2,3) from --unloaded and --mass")
+    m.add_argument("--mass", type=float, metavar="KG", help="the payload's known mass (kg), for --gains")
+    m.add_argument("--com", metavar="X,Y,Z", help="--gains: its known centre of mass in the frame (m)")
+    m.add_argument("--physical", action="store_true", help="also the physically consistent payload (SDP)")
+    m.add_argument("--com-box", metavar="X0,Y0,Z0,X1,Y1,Z1",
+                   help="--physical: box holding the centre of mass (m)")
+    o = g["outputs"]
+    o.add_argument("--json", metavar="PATH", help=JSON_HELP)
+    o.add_argument("--report", metavar="PATH", help="write the result as an HTML section")
 
 
 def _add_identify_parser(sub, common, full):

@@ -83,6 +83,7 @@ MINIMAL_ARGS = {
     "simulate": ["--robot", "tx40", "--out", "x.csv"],
     "excite": ["--robot", "tx40", "--f0", "0.1", "--harmonics", "5"],
     "fleet": ["catalogue.csv", "--out", "store"],
+    "payload": ["--robot", "tx40", "--loaded", "x", "--model", "m.json"],
 }
 
 

@@ -48,7 +48,8 @@ def recording(tmp_path_factory):
 
 
 def test_every_subcommand_is_covered_here():
-    covered = {"robot", "simulate", "excite", "identify", "sample", "diagnose", "report", "demo", "fleet"}
+    # payload's CLI == API test is in tests/test_payload.py (it needs the payload plant's recordings)
+    covered = {"robot", "simulate", "excite", "identify", "sample", "diagnose", "report", "demo", "fleet", "payload"}
     assert set(COMMANDS) == covered, "a new subcommand needs its CLI == API test in this file"
 
 
@@ -222,8 +223,9 @@ def test_demo(tmp_path):
 @pytest.mark.slow
 def test_fleet(tmp_path):
     pytest.importorskip("distributed")
-    import dynid.fleet
     from simulated_fleet import simulate_fleet
+
+    import dynid.fleet
     cat = simulate_fleet(tmp_path / "fleet", 2, 5, seed=5, n_corrupted=0).catalogue
     js = tmp_path / "fleet.json"
     assert main(["fleet", str(cat), "--out", str(tmp_path / "cli"), "--workers", "1", "--baseline", "3",

@@ -51,6 +51,9 @@ _LAZY = {
     "load_robot": "dynid.dynamics.robot_file", "FullReport": "dynid.reports.pipeline",
     "demo": "dynid.reports.pipeline", "report": "dynid.reports.pipeline", "run": "dynid.reports.pipeline",
     "Settings": "dynid.analysis.run", "Identification": "dynid.analysis.run",
+    "identify_payload": "dynid.analysis.estimators.payload", "PayloadResult": "dynid.analysis.estimators.payload",
+    "identify_drive_gains": "dynid.analysis.estimators.drive_gains",
+    "DriveGainResult": "dynid.analysis.estimators.drive_gains",
 }
 # subpackage-like modules loaded on first use: `dynid.fleet.run(...)` after a plain `import dynid`
 _LAZY_MODULES = {"fleet": "dynid.fleet"}
@@ -95,6 +98,7 @@ __all__ = [
     "__version__",
     "load_robot", "load_experiment", "holdout_split", "identify", "validate", "sample", "diagnose",
     "simulate", "excite", "report", "demo", "run", "verdict", "simulate_campaign", "identify_campaign",
+    "identify_payload", "identify_drive_gains", "PayloadResult", "DriveGainResult",
     "Robot", "Experiment", "ParameterResults", "FullReport", "Settings", "Identification",
     "DynidError", "InputError", "DataError", "RobotFileError", "OutputError", "IdentificationError", "ConvergenceError",
 ]

@@ -1,0 +1,278 @@
+"""Drive gains identified with the dynamic parameters, from a payload of known mass.
+
+Many arms log motor currents (or control signals) `u`, not torques: `tau_j = g_j u_j`
+with `g_j` the drive gain (torque constant times gear ratio), known only roughly. A
+recording without a payload fixes the parameters only up to one scale per joint: `g_j`
+times the parameters is all the data see. A payload of known mass fixes the scale
+(Gautier & Briot, "Global identification of joint drive gains and dynamic parameters of
+robots", 2014): stack the recordings without and with the payload and move the known
+part of the payload's torque to the right-hand side,
+
+    W_b beta + W_pu pi_u - diag(tau_log) k  =  - W_pk pi_k          (loaded rows)
+    W_b beta             - diag(tau_log) k  =  0                    (unloaded rows)
+
+`tau_log` the torque the recording holds (computed with the robot file's gains
+`g_file`: `tau_log = g_file u`), `k_j = g_j / g_file_j` the correction of joint
+`j`'s gain (a column `-tau_log_j` on that joint's rows), `pi_k` the payload's known
+parameters (its mass; with `com` also its first moments `m c`) and `pi_u` the rest.
+Solved as written, least squares would shrink `k`: the noisy logged torque sits in a
+regressor column and the unloaded rows are homogeneous (errors in variables; Gautier & Briot
+use total least squares for it). Here the same model is written with the logged torque as the
+dependent variable, `tau_log_j = a_j (W_bj beta + W_puj pi_u + W_pkj pi_k)`, `a_j = 1 / k_j`
+(1 on the joints whose gain is not identified), and solved by Gauss-Newton from the fit with the
+file's gains, each step the per-joint weighted least squares of eq. (16) (Gautier, Janot &
+Vandanjon 2010); the covariance is the HAC sandwich of `dynid.analysis.estimators.payload`
+at the solution, `k` and its standard deviation by the delta method.
+
+What the known mass identifies: a mass at the wrist centre (where the last three axes
+meet, as on the TX40) loads joints 1-3 only, so with the mass alone the wrist gains rest on
+the inertial coupling through the shared parameters, weakly; the known centre of mass
+(`com`) gives the wrist joints a known gravity torque. The rank check names the gains
+the data cannot fix.
+
+The experiment description's `[currents]` section gives the gains the torque column is
+computed with (the robot file's by default); which gains to identify is the argument
+`joints` here (the description has no field for it yet).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from dynid.analysis.estimators import least_squares as ls
+from dynid.analysis.estimators.payload import (
+    PAYLOAD_NAMES,
+    _as_experiment,
+    _as_robot,
+    _hac_lags,
+    _observe,
+    _sandwich,
+    payload_frame,
+    transform_matrix,
+)
+from dynid.analysis.results import ParameterResults
+from dynid.dynamics.base_parameters import base_parameters
+from dynid.errors import IdentificationError, InputError
+from dynid.provenance import json_safe, versions
+
+__all__ = ["DriveGainResult", "identify_drive_gains"]
+
+
+@dataclass(eq=False)
+class DriveGainResult(ParameterResults):
+    """Identified drive gains `g1..gn` (N m per unit of the logged signal) and the rest.
+
+    `chi`/`cov` are the gains of the joints in `joints` (1-based); `factor` the
+    correction `k = g / g_file`; `g_file` the robot file's gains; `other` the names,
+    values and standard deviations of the robot's base parameters and the payload's unknown
+    parameters identified with them (scaled to the identified gains).
+    """
+
+    method = "drive-gains"
+    names: list
+    chi: np.ndarray
+    cov: np.ndarray
+    joints: list
+    g_file: np.ndarray
+    factor: np.ndarray
+    factor_std: np.ndarray
+    known: dict
+    other: dict
+    robot_name: str
+    sources: list
+    rel_error: float
+    hac_lags: int
+    notices: list = field(default_factory=list)
+
+    @property
+    def moved_percent(self):
+        """How far each gain moved from the robot file's value, % (100 (k - 1))."""
+        return 100.0 * (self.factor - 1.0)
+
+    def verdict(self) -> str:
+        worst = int(np.argmax(np.abs(self.moved_percent)))
+        return (f"{len(self.joints)} drive gain(s) identified with a known payload "
+                f"({', '.join(self.known)}); the largest change from the robot file is joint "
+                f"{self.joints[worst]}: {self.moved_percent[worst]:+.2f} % "
+                f"(+- {100 * self.factor_std[worst]:.2f} %)")
+
+    def summary(self) -> str:
+        lines = [f"Drive gains of robot '{self.robot_name}' (Gautier & Briot 2014, known payload)".center(78),
+                 "=" * 78, f"recordings: {' + '.join(self.sources)}",
+                 "known payload: " + ", ".join(f"{k} = {_fmt(v)}" for k, v in self.known.items()),
+                 f"HAC window {self.hac_lags} decimated samples; rel. error {self.rel_error:.4g}", "-" * 78,
+                 f"{'joint':<7}{'file gain':>14}{'identified':>14}{'sigma':>12}{'moved %':>12}{'95 % interval':>19}",
+                 "-" * 78]
+        ci = self.conf_int().to_numpy()
+        for k, j in enumerate(self.joints):
+            lines.append(f"{j:<7}{self.g_file[k]:>14.6g}{self.chi[k]:>14.6g}{self.bse.iloc[k]:>12.3g}"
+                         f"{self.moved_percent[k]:>12.3f}{ci[k, 0]:>10.5g}{ci[k, 1]:>10.5g}")
+        lines += ["=" * 78, "Verdict: " + self.verdict()]
+        if self.notices:
+            lines += ["Notices:"] + [f"[{i}] {t}" for i, t in enumerate(self.notices, 1)]
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict:
+        ci = self.conf_int().to_numpy()
+        return json_safe({
+            "method": self.method, "robot": self.robot_name, "sources": self.sources,
+            "known_payload": self.known,
+            "gains": [{"joint": j, "name": nm, "file": gf, "value": v, "std": s, "factor": f,
+                       "factor_std": fs, "moved_percent": mp, "lower_95": lo, "upper_95": hi}
+                      for j, nm, gf, v, s, f, fs, mp, (lo, hi) in
+                      zip(self.joints, self.names, self.g_file, self.chi, self.bse.to_numpy(), self.factor,
+                          self.factor_std, self.moved_percent, ci)],
+            "covariance": self.cov, "other_parameters": self.other, "rel_error": self.rel_error,
+            "hac_lags": self.hac_lags, "verdict": self.verdict(), "notices": self.notices,
+            "versions": versions()})
+
+
+def _fmt(v):
+    return ", ".join(f"{x:.4g}" for x in np.atleast_1d(v))
+
+
+def _gauss_newton(X, tau, known_tau, gcol, names, mask, max_iter=30, tol=1e-10):
+    """Least squares of `tau_j = a_j (X_j theta + known_j)` (`a_j = 1 / k_j` on the joints
+    `gcol`, 1 elsewhere), the noise on the logged torque (the dependent variable).
+
+    The linear form of the module doc puts the noisy logged torque in a regressor column, and
+    least squares then shrinks k (errors in variables: the unloaded rows are homogeneous); in
+    this form the noise is where least squares expects it. Gauss-Newton from the fit with
+    the file's gains (a = 1); per-joint weights from the residual, HAC covariance at the
+    solution. Returns (theta and a, cov, last step's IdentificationResult, HAC window).
+    """
+    M, n, p = X.shape
+    g = len(gcol)
+    gn = list(names) + [f"a{j + 1}" for j in gcol]
+    a = np.ones(n)
+    fit = ls.ols(X, tau - known_tau, names, row_mask=mask)
+    theta = fit.chi
+
+    def jac_res(theta, a):
+        base = X @ theta + known_tau                        # (M, n)
+        J = np.zeros((M, n, p + g))
+        J[:, :, :p] = X * a[None, :, None]
+        J[:, gcol, p + np.arange(g)] = base[:, gcol]
+        return J, tau - a[None, :] * base
+
+    for _ in range(max_iter):
+        J, r = jac_res(theta, a)
+        e = np.where(mask, r, 0.0)
+        sig = np.sqrt((e ** 2).sum(axis=0) / np.maximum(mask.sum(axis=0) - 1, 1))
+        step = ls.wls(J, r, gn, row_mask=mask, joint_sigma=sig)
+        theta = theta + step.chi[:p]
+        a[gcol] = a[gcol] + step.chi[p:]
+        if np.max(np.abs(step.chi[p:])) < tol:
+            break
+    J, r = jac_res(theta, a)
+    e = np.where(mask, r, 0.0)
+    sig = np.sqrt((e ** 2).sum(axis=0) / np.maximum(mask.sum(axis=0) - 1, 1))
+    lags = _hac_lags(r, mask)
+    cov = _sandwich(J, r, mask, sig, lags)
+    fit = ls.wls(J, r, gn, row_mask=mask, joint_sigma=sig)   # statistics of the final residual
+    return np.concatenate([theta, a[gcol]]), 0.5 * (cov + cov.T), fit, lags
+
+
+def identify_drive_gains(unloaded, loaded, robot, *, mass, com=None, joints=None, frame="flange",
+                         offset=None, settings=None):
+    """Identify the drive gains with the dynamic parameters from a payload of known mass (module doc).
+
+    Parameters
+    ----------
+    unloaded, loaded : path, Experiment, or a list of them
+        Recordings without and with the payload; their torques computed with the robot
+        file's gains (a `[currents]` description) or logged as the signal itself (gain 1).
+    robot : Robot, bundled name or robot file
+    mass : float
+        The payload's mass, kg (> 0).
+    com : (3,) array, optional
+        Its centre of mass in the payload frame, m: fixes the wrist gains too.
+    joints : list of int, optional
+        1-based joints whose gain is identified (default all).
+    frame, offset : as in identify_payload (the link carrying the payload and its frame).
+    settings : dict, optional
+        IDIM's processing overrides.
+
+    Returns
+    -------
+    DriveGainResult
+
+    Raises
+    ------
+    InputError
+        mass <= 0, a malformed com or joint list, a frame that is not a link.
+    IdentificationError
+        The data cannot fix some gains or parameters (named).
+    """
+    robot = _as_robot(robot)
+    try:
+        mass = float(mass)
+    except (TypeError, ValueError):
+        raise InputError(f"payload mass must be a number in kg, got {mass!r} (--mass)") from None
+    if not (math.isfinite(mass) and mass > 0):
+        raise InputError(f"payload mass must be > 0 kg, got {mass!r} (--mass): the known mass is what "
+                         "fixes the scale of the drive gains")
+    n = robot.n_joints
+    joints = list(range(1, n + 1)) if joints is None else [int(j) for j in joints]
+    if not joints or any(not 1 <= j <= n for j in joints) or len(set(joints)) != len(joints):
+        raise InputError(f"joints must list distinct 1-based joints 1..{n} whose gain is identified, "
+                         f"got {joints!r}")
+    known = {"ML": mass}
+    if com is not None:
+        c = np.asarray(com, dtype=float).reshape(-1)
+        if c.shape != (3,) or not np.all(np.isfinite(c)):
+            raise InputError(f"com must be the payload's centre of mass [x, y, z] in m, got {com!r}")
+        known.update({"MXL": mass * c[0], "MYL": mass * c[1], "MZL": mass * c[2]})
+    link, R, p = payload_frame(robot, frame, offset)
+    T = transform_matrix(R, p)
+    bp = base_parameters(robot)
+    exps_u = [_as_experiment(x, robot) for x in (unloaded if isinstance(unloaded, (list, tuple)) else [unloaded])]
+    exps_l = [_as_experiment(x, robot) for x in (loaded if isinstance(loaded, (list, tuple)) else [loaded])]
+    first = _observe(exps_l[0], robot, bp, link, T, settings)
+    obs_l = [first] + [_observe(e, robot, bp, link, T, first.settings) for e in exps_l[1:]]
+    obs_u = [_observe(e, robot, bp, link, T, first.settings) for e in exps_u]
+    kidx = [PAYLOAD_NAMES.index(k) for k in known]
+    uidx = [k for k in range(10) if k not in kidx]
+    pi_k = np.array([known[PAYLOAD_NAMES[k]] for k in kidx])
+    gcol = np.array(joints) - 1
+
+    Wb = np.concatenate([o.Wb for o in obs_u + obs_l])
+    Wp = np.concatenate([o.Wp for o in obs_u + obs_l])
+    tau = np.concatenate([o.tau for o in obs_u + obs_l])
+    mask = np.concatenate([o.mask for o in obs_u + obs_l])
+    on = np.zeros(tau.shape[0], dtype=bool)
+    on[sum(o.tau.shape[0] for o in obs_u):] = True          # loaded rows
+    Wpu = Wp[:, :, uidx] * on[:, None, None]
+    known_tau = (Wp[:, :, kidx] @ pi_k) * on[:, None]
+    X = np.concatenate([Wb, Wpu], axis=2)
+    names = list(bp.names) + [PAYLOAD_NAMES[k] for k in uidx]
+    try:
+        est, cov, fit, lags = _gauss_newton(X, tau, known_tau, gcol, names, mask)
+    except IdentificationError as e:
+        hint = "" if com is not None else (" With the mass alone a payload at the wrist centre gives the wrist "
+                                           "joints no known torque: give its centre of mass too (com=, --com).")
+        raise IdentificationError(f"the recordings with and without the payload do not identify the drive "
+                                  f"gains with the dynamic parameters: {e}{hint}") from None
+    gnames = [f"g{j}" for j in joints]
+    names = names + [f"a{j}" for j in joints]
+    g = len(joints)
+    # a = 1 / k: k = 1 / a, its covariance by the delta method
+    a = est[-g:]
+    k = 1.0 / a
+    Jk = np.diag(-1.0 / a ** 2)
+    cov_k = Jk @ cov[-g:, -g:] @ Jk.T
+    g_file = robot.drive_gains[gcol]
+    D = np.diag(g_file)
+    other = {"names": names[:-g], "values": est[:-g], "std": np.sqrt(np.maximum(np.diag(cov)[:-g], 0.0)),
+             "note": "the robot's base parameters and the payload's unknown ones in the units of the "
+                     "logged torque times a (tau_j = a_j (W_j theta + known_j))"}
+    notices = [n for e in exps_u + exps_l for n in getattr(e, "notices", [])]
+    notices.append("the gains to identify are given as an argument (joints=): the experiment description "
+                   "has no field marking a current column's gain as unknown")
+    return DriveGainResult(names=gnames, chi=g_file * k, cov=D @ cov_k @ D, joints=joints, g_file=g_file,
+                           factor=k, factor_std=np.sqrt(np.maximum(np.diag(cov_k), 0.0)), known=known,
+                           other=other, robot_name=robot.name,
+                           sources=[f"{e.source} (unloaded)" for e in exps_u] + [str(e.source) for e in exps_l],
+                           rel_error=fit.rel_error, hac_lags=lags, notices=notices)
