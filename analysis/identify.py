@@ -1,24 +1,24 @@
-"""``identify``: one entry point for every estimator of the two papers.
+"""`identify`: one entry point for every estimator of the two papers.
 
-``identify(data, robot, method=...)`` loads what it is given (a path, an
-:class:`~dynid.analysis.data.experiment.Experiment` or a list of them, a robot
-name, file or :class:`~dynid.dynamics.robot.Robot`) and runs
+`identify(data, robot, method=...)` loads what it is given (a path, an
+`Experiment` or a list of them, a robot
+name, file or `Robot`) and runs
 
-* ``"idim"``: IDIM with OLS, per-joint WLS and essential parameters (Gautier,
+* `"idim"`: IDIM with OLS, per-joint WLS and essential parameters (Gautier,
   Janot & Vandanjon 2010, section 2, eqs. (9)-(16));
-* ``"didim"``: the closed-loop output error of section 3 (eqs. (25)-(30));
-* ``"projection"``: the Projection Method of Bona & Curatella (2005), eqs. (10)-(12);
-* ``"ml"``: errors-in-variables maximum likelihood, eqs. (13)-(16) (needs ``f0``).
+* `"didim"`: the closed-loop output error of section 3 (eqs. (25)-(30));
+* `"projection"`: the Projection Method of Bona & Curatella (2005), eqs. (10)-(12);
+* `"ml"`: errors-in-variables maximum likelihood, eqs. (13)-(16) (needs `f0`).
 
-With ``physical=True`` (IDIM; DIDIM refits every Gauss-Newton step the same way) the WLS of all base parameters is refitted
+With `physical=True` (IDIM; DIDIM refits every Gauss-Newton step the same way) the WLS of all base parameters is refitted
 under physical consistency (every link's pseudo-inertia positive
 semidefinite, Ia, Fv, Fc >= 0; Wensing, Kim & Slotine 2017), an SDP:
-:func:`~dynid.analysis.estimators.physical.identify_physical`; the result is a
-:class:`~dynid.analysis.estimators.physical.PhysicalResult` whose ``idim``
+`identify_physical`; the result is a
+`PhysicalResult` whose `idim`
 holds the unconstrained identification.
 
 Every method returns a result with the interface of
-:class:`~dynid.analysis.results.ParameterResults`.
+`ParameterResults`.
 """
 from __future__ import annotations
 
@@ -33,7 +33,7 @@ ML_MAX_VALUES = 200_000
 
 
 def as_robot(robot):
-    """A :class:`Robot` from a Robot, a bundled name or a robot file path."""
+    """A `Robot` from a Robot, a bundled name or a robot file path."""
     from dynid.dynamics.robot import Robot
     from dynid.dynamics.robot_file import load_robot
     return robot if isinstance(robot, Robot) else load_robot(robot)
@@ -61,46 +61,46 @@ def identify(data, robot, method: str = "idim", *, settings=None, max_error_grow
              max_iter: int | None = None, update_gains=True, gains: str = "assumed", progress=None,
              physical: bool = False, prior: str | None = None, prior_weight: float = 1.0,
              mass_tolerance: float | None = None, n_boot: int = 100, physical_set: str = "base"):
-    """Identify the dynamic parameters of ``robot`` from ``data`` with ``method``.
+    """Identify the dynamic parameters of `robot` from `data` with `method`.
 
     Parameters
     ----------
     data : path, Experiment, or a list of them
         The identification recording(s). IDIM stacks several recordings; the
         other methods take one.
-    robot : Robot, bundled name (``"tx40"``) or path to a ``.toml`` / ``.urdf``
-    method : ``"idim"`` (default), ``"didim"``, ``"projection"`` or ``"ml"``
+    robot : Robot, bundled name (`"tx40"`) or path to a `.toml` / `.urdf`
+    method : `"idim"` (default), `"didim"`, `"projection"` or `"ml"`
     settings : dict, optional
-        Processing overrides (``fc_position``, ``nd``, ``decimation_cutoff``,
-        ``qd_threshold``); the defaults come from the data.
+        Processing overrides (`fc_position`, `nd`, `decimation_cutoff`,
+        `qd_threshold`); the defaults come from the data.
     max_error_growth : float
         Essential-parameter rule: stop removing parameters before the relative
         error grows by more than this fraction (IDIM, DIDIM).
     f0, ml_harmonics : ML only: fundamental frequency (Hz) of the periodic
         excitation and the number of harmonics of the latent trajectory.
-    reference : DIDIM only: ``"qr"`` (the logged reference, default when logged) or ``"q"``.
-    max_iter, update_gains : DIDIM only (eq. (27) gain update: True, ``"initial"`` or False).
-    gains : DIDIM only. ``"assumed"``: the controller gains of the robot file, as the
-        paper does. ``"identify"``: the gains are identified from the logged reference,
-        position and torque first (:func:`~dynid.analysis.estimators.controller_gains.identify_gains`),
+    reference : DIDIM only: `"qr"` (the logged reference, default when logged) or `"q"`.
+    max_iter, update_gains : DIDIM only (eq. (27) gain update: True, `"initial"` or False).
+    gains : DIDIM only. `"assumed"`: the controller gains of the robot file, as the
+        paper does. `"identify"`: the gains are identified from the logged reference,
+        position and torque first (`identify_gains`),
         DIDIM simulates with them and no gain update (they are the real loop's); the
-        result's ``gains`` holds them with their %σ. Without a logged reference the
+        result's `gains` holds them with their %σ. Without a logged reference the
         gains cannot be identified: the result says what its parameters depend on.
     progress : callable(fraction), optional
     physical : IDIM: return the physically consistent WLS (PC-WLS) instead. DIDIM: PC-DIDIM,
-        each Gauss-Newton step's WLS refitted under physical consistency (``result.physical``
-        is the last step's PC fit; ``prior``, ``prior_weight`` and ``mass_tolerance`` apply to
-        every step, ``n_boot`` to the last one).
-    prior, prior_weight : physical only: ``"apriori"`` adds ``prior_weight`` times the
-        squared scaled distance to the robot file's a-priori values, ``"geometric"`` the
+        each Gauss-Newton step's WLS refitted under physical consistency (`result.physical`
+        is the last step's PC fit; `prior`, `prior_weight` and `mass_tolerance` apply to
+        every step, `n_boot` to the last one).
+    prior, prior_weight : physical only: `"apriori"` adds `prior_weight` times the
+        squared scaled distance to the robot file's a-priori values, `"geometric"` the
         entropic divergence of each link's pseudo-inertia from its a-priori one (Lee, Wensing
-        & Park 2020; :func:`~dynid.analysis.estimators.physical.pc_wls`) (default: none,
+        & Park 2020; `pc_wls`) (default: none,
         the a-priori values only break ties).
     mass_tolerance : physical only: keep each link mass within this fraction of its
         a-priori value.
     n_boot : physical only: parametric-bootstrap refits for the uncertainty.
-    physical_set : IDIM physical only: ``"base"`` (the WLS of all base parameters, default) or
-        ``"essential"`` (the essential WLS) is constrained.
+    physical_set : IDIM physical only: `"base"` (the WLS of all base parameters, default) or
+        `"essential"` (the essential WLS) is constrained.
     """
     if method not in METHODS:
         raise InputError(f"method must be one of {', '.join(METHODS)}, got {method!r}")

@@ -1,8 +1,8 @@
 """Compiled inner loops (numba) for the regressor.
 
 The same Newton-Euler-in-the-parameters algorithm as the NumPy code in
-``regressor.py``, written per sample with scalars so nothing is allocated in
-the loop. It is the default backend; ``backend="numpy"`` keeps the vectorised
+`regressor.py`, written per sample with scalars so nothing is allocated in
+the loop. It is the default backend; `backend="numpy"` keeps the vectorised
 NumPy path (tests check both against Pinocchio).
 """
 from __future__ import annotations
@@ -17,7 +17,7 @@ except ImportError:  # pragma: no cover - numba is a declared dependency
 
 
 def _inertial_columns(Rp, pp, sigma, gravity, q, qd, qdd, out):
-    """Fill the 10 inertial columns of every link, for every sample, into ``out``.
+    """Fill the 10 inertial columns of every link, for every sample, into `out`.
 
     out: (N, n, Ns) with link j's columns at 14*j ... 14*j+9. Other columns untouched.
     """

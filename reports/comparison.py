@@ -1,27 +1,27 @@
 """dynid's TX40 estimates beside FIGAROH's published results and Table 2 of the DIDIM paper.
 
-``comparison_frame(idim, reference_dir, didim=None)`` returns one row per
+`comparison_frame(idim, reference_dir, didim=None)` returns one row per
 compared quantity, every value with its %σ in each source:
 
 * dynid IDIM: OLS, per-joint WLS, and the essential WLS model;
 * dynid DIDIM (optional): the last Gauss-Newton step's WLS on all base parameters;
-* FIGAROH (``reference_results/TX40_bp_5.csv``: OLS and WLS of the 60 base
-  parameters; ``TX40_ep_5.csv``: WLS of their 25 essential ones), the FIGAROH
+* FIGAROH (`reference_results/TX40_bp_5.csv`: OLS and WLS of the 60 base
+  parameters; `TX40_ep_5.csv`: WLS of their 25 essential ones), the FIGAROH
   authors' identification on the same recording;
-* Table 2 of Gautier, Janot, Vandanjon (2010), :data:`dynid.reports.paper.DIDIM_TX40_TABLE2`:
+* Table 2 of Gautier, Janot, Vandanjon (2010), `dynid.reports.paper.DIDIM_TX40_TABLE2`:
   DIDIM on another recording of a TX40 (section 5 of the paper).
 
 Mapping. FIGAROH's base parameters have the same regrouping relations as
-dynid's (checked in ``tests/test_base_parameters.py``) except at the coupled
-wrist, which FIGAROH parametrises differently: its ``fv5``, ``fv6`` include
+dynid's (checked in `tests/test_base_parameters.py`) except at the coupled
+wrist, which FIGAROH parametrises differently: its `fv5`, `fv6` include
 the diagonal part of the motor-6 viscous friction, so they are compared with
-dynid's ``Fv5 + Fvm6`` and ``Fv6 + Fvm6`` (value and σ of the sum, from the
-covariance); its ``Iam6`` is only the off-diagonal part of dynid's ``Ia6`` and
+dynid's `Fv5 + Fvm6` and `Fv6 + Fvm6` (value and σ of the sum, from the
+covariance); its `Iam6` is only the off-diagonal part of dynid's `Ia6` and
 has no counterpart. Table 2 uses dynid's (the paper's) parametrisation:
-``Fv5``, ``Fv6``, ``Fvm6`` separately.
+`Fv5`, `Fv6`, `Fvm6` separately.
 
-``comparison_section(frame, reading=...)`` makes a report Section of it
-with counts of agreement computed from the numbers; ``reading`` is the
+`comparison_section(frame, reading=...)` makes a report Section of it
+with counts of agreement computed from the numbers; `reading` is the
 hand-written interpretation (a list of paragraphs).
 """
 from __future__ import annotations
@@ -127,7 +127,7 @@ def comparison_frame(idim, reference_dir, didim=None, table2=DIDIM_TX40_TABLE2) 
 
 
 def comparison_summary(df, well=WELL_IDENTIFIED) -> dict:
-    """Counts of agreement computed from :func:`comparison_frame` (JSON-safe numbers)."""
+    """Counts of agreement computed from `comparison_frame` (JSON-safe numbers)."""
     both = df[(df["dynid_wls_rel_std"] < well) & (df["fig_wls_rel_std"] < well)]
     agree = both[(both["wls_diff_sigma"].abs() <= 3) | (both["wls_diff_percent"].abs() <= 5)]
     t2 = df[df["table2"].notna()]
@@ -172,7 +172,7 @@ _LABELS = {
 
 def comparison_section(df, *, reading=(), id="comparison",
                        title="Comparison with FIGAROH and Table 2 of the DIDIM paper"):
-    """A report Section of :func:`comparison_frame` with the agreement counts and ``reading``."""
+    """A report Section of `comparison_frame` with the agreement counts and `reading`."""
     from dynid.reports import tables as T
     from dynid.reports.html import Section, bullets, join, para
     s = comparison_summary(df)

@@ -1,24 +1,24 @@
-"""Report sections of a residual diagnosis (:func:`dynid.analysis.diagnosis.selection.diagnose`).
+"""Report sections of a residual diagnosis (`dynid.analysis.diagnosis.selection.diagnose`).
 
-``diagnosis_sections(result, robot=None)`` returns :class:`dynid.reports.html.Section`
-objects to append to an IDIM report (``render_idim_report(...,
-extra_sections=...)``) or to render on their own
-(``render_sections(sections, title=...)``):
+`diagnosis_sections(result, robot=None)` returns `dynid.reports.html.Section`
+objects to append to an IDIM report (`render_idim_report(...,
+extra_sections=...)`) or to render on their own
+(`render_sections(sections, title=...)`):
 
-* ``diagnosis``: the selection rule, each greedy step (winner, runner-up,
+* `diagnosis`: the selection rule, each greedy step (winner, runner-up,
   gap, how often the winner predicts the held-out blocks better), the
   ranked table of effects, and the error after each step;
-* ``diagnosis-effects``: the selected effects and their identified parameters;
-* ``diagnosis-errors``: relative error and per-joint RMS before/after, on the
+* `diagnosis-effects`: the selected effects and their identified parameters;
+* `diagnosis-errors`: relative error and per-joint RMS before/after, on the
   identification data and on the validation data;
-* ``diagnosis-residuals``: the residual before (red) and after (blue) the
+* `diagnosis-residuals`: the residual before (red) and after (blue) the
   effects, binned against velocity (the friction signature), position and
   time, and its PDF per joint; the catalogue-free structure tests of the final
   residual (joints whose residual has structure no candidate explains: the
   variable it depends on, its size and p-value, and a figure of the residual
   against that variable).
 
-Ids of sections, figures and tables all start with ``diagnosis`` or ``diag-``
+Ids of sections, figures and tables all start with `diagnosis` or `diag-`
 so that they never clash with those of the IDIM report.
 """
 from __future__ import annotations
@@ -406,7 +406,7 @@ def _unexplained_figure(unexplained):
 
 
 def diagnosis_sections(result, robot=None):
-    """The report sections of a :class:`dynid.analysis.diagnosis.selection.DiagnosisResult`."""
+    """The report sections of a `dynid.analysis.diagnosis.selection.DiagnosisResult`."""
     n = result.model_before.n_joints
     names = _names(robot, n)
     return [_overview_section(result), _effects_section(result), _errors_section(result, names),

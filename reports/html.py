@@ -1,22 +1,22 @@
 """Self-contained HTML reports.
 
-A report is a list of :class:`Section` rendered by ``templates/report.html.j2``
+A report is a list of `Section` rendered by `templates/report.html.j2`
 into ONE HTML file: inline CSS, inline SVG (or base64 PNG) figures, every
-table downloadable as CSV through a ``data:`` URI, no external fonts, scripts
+table downloadable as CSV through a `data:` URI, no external fonts, scripts
 or URLs, a print stylesheet. Identical inputs give byte-identical files (no
 timestamps; deterministic figures).
 
 Escaping: the Jinja2 environment autoescapes everything. Trusted markup is
-marked by its *type*: :class:`markupsafe.Markup` (figures we drew, bodies
-built with :func:`para`, :func:`kv_list`, :func:`bullets`, which escape their
-arguments). A plain ``str`` anywhere — a file name, a robot or joint name, a
-column label, even a section's ``html_body`` — is escaped. The template never
-uses ``|safe``.
+marked by its *type*: `markupsafe.Markup` (figures we drew, bodies
+built with `para`, `kv_list`, `bullets`, which escape their
+arguments). A plain `str` anywhere — a file name, a robot or joint name, a
+column label, even a section's `html_body` — is escaped. The template never
+uses `|safe`.
 
 Extending: later analyses (DIDIM convergence, Bona tables, posterior,
-diagnosis) build their own ``Section`` objects and pass them as
-``extra_sections`` to :func:`render_idim_report`, or call
-:func:`render_sections` with a list of their own.
+diagnosis) build their own `Section` objects and pass them as
+`extra_sections` to `render_idim_report`, or call
+`render_sections` with a list of their own.
 """
 from __future__ import annotations
 
@@ -52,14 +52,14 @@ SECTION_IDS = ("run", "model", "base-parameters", "table2", "essential-path", "t
 
 @dataclass
 class Section:
-    """One section of a report: ``<section id=…><h2>title</h2>`` body, figures, tables.
+    """One section of a report: `<section id=…><h2>title</h2>` body, figures, tables.
 
-    ``html_body`` is escaped unless it is :class:`markupsafe.Markup` (build it
-    with :func:`para`, :func:`kv_list`, :func:`bullets`, :func:`join`).
-    ``figures`` are :class:`dynid.reports.figures.FigureMarkup`, ``tables``
-    :class:`dynid.reports.tables.Table`. With ``tables_first`` the tables come
-    before the figures. ``details`` are tables shown collapsed (a ``<details>``
-    element titled ``details_summary``): setup tables that are not results.
+    `html_body` is escaped unless it is `markupsafe.Markup` (build it
+    with `para`, `kv_list`, `bullets`, `join`).
+    `figures` are `dynid.reports.figures.FigureMarkup`, `tables`
+    `dynid.reports.tables.Table`. With `tables_first` the tables come
+    before the figures. `details` are tables shown collapsed (a `<details>`
+    element titled `details_summary`): setup tables that are not results.
     """
 
     id: str
@@ -74,7 +74,7 @@ class Section:
 
 # ------------------------------------------------------------------ body helpers
 def para(*parts, cls: str = "") -> Markup:
-    """``<p>`` of the concatenated parts (each escaped unless Markup)."""
+    """`<p>` of the concatenated parts (each escaped unless Markup)."""
     inner = Markup("").join(escape(p) for p in parts)
     if cls:
         return Markup('<p class="{}">{}</p>').format(cls, inner)
@@ -86,13 +86,13 @@ def code(text) -> Markup:
 
 
 def kv_list(pairs, cls: str = "kv") -> Markup:
-    """A ``<dl>`` of (label, value) pairs; values may be Markup (e.g. :func:`code`)."""
+    """A `<dl>` of (label, value) pairs; values may be Markup (e.g. `code`)."""
     items = Markup("").join(Markup("<dt>{}</dt><dd>{}</dd>").format(k, v) for k, v in pairs)
     return Markup('<dl class="{}">{}</dl>').format(cls, items)
 
 
 def bullets(items, cls: str = "") -> Markup:
-    """A ``<ul>`` of the items (escaped unless Markup)."""
+    """A `<ul>` of the items (escaped unless Markup)."""
     lis = Markup("").join(Markup("<li>{}</li>").format(i) for i in items)
     if cls:
         return Markup('<ul class="{}">{}</ul>').format(cls, lis)
@@ -111,7 +111,7 @@ TEMPLATE_PACKAGE = "dynid.templates"
 def environment() -> jinja2.Environment:
     """The Jinja2 environment of the reports (autoescape on, strict undefined).
 
-    Templates are package data of ``dynid.templates`` (the repository's ``templates/``),
+    Templates are package data of `dynid.templates` (the repository's `templates/`),
     found through the import system, so they work installed, editable or zipped.
     """
     return jinja2.Environment(
@@ -142,11 +142,11 @@ def _check_sections(sections):
 
 
 def render_sections(sections, *, title, subtitle="", highlights=(), footer=(), verdict=None) -> str:
-    """The HTML page of ``sections`` (a list of :class:`Section`).
+    """The HTML page of `sections` (a list of `Section`).
 
-    ``highlights``: (label, value) pairs shown under the title; ``footer``:
-    lines of text at the bottom; ``verdict``: a :class:`VerdictBlock` (see
-    :func:`verdict_block`) shown first, above the sections.
+    `highlights`: (label, value) pairs shown under the title; `footer`:
+    lines of text at the bottom; `verdict`: a `VerdictBlock` (see
+    `verdict_block`) shown first, above the sections.
     """
     sections = list(sections)
     _check_sections(sections)
@@ -158,7 +158,7 @@ def render_sections(sections, *, title, subtitle="", highlights=(), footer=(), v
 
 
 def write_report(path, html: str) -> None:
-    """Write ``html`` to ``path`` atomically (all or nothing, never half a file)."""
+    """Write `html` to `path` atomically (all or nothing, never half a file)."""
     atomic_write_text(path, html)
 
 
@@ -184,7 +184,7 @@ class VerdictBlock:
 
 
 def verdict_block(v) -> VerdictBlock:
-    """The :class:`VerdictBlock` of a :class:`dynid.analysis.statistics.verdict.Verdict`."""
+    """The `VerdictBlock` of a `dynid.analysis.statistics.verdict.Verdict`."""
     level = STATUS_LEVEL.get(v.status, "warn")
     findings = [(LEVELS.get(f["level"], LEVELS["info"])[0], LEVELS.get(f["level"], LEVELS["info"])[1],
                  f["text"]) for f in v.findings]
@@ -529,10 +529,10 @@ def _validation_section(res, robot, validation):
 
 
 def idim_sections(idim_result, robot, experiment=None, validation=None, *, reference="auto"):
-    """The sections of an IDIM report (ids :data:`SECTION_IDS`; ``validation`` only if given).
+    """The sections of an IDIM report (ids `SECTION_IDS`; `validation` only if given).
 
-    ``reference``: a :class:`dynid.reports.paper.ReferenceTable`, ``None``, or
-    ``"auto"`` (the published table for this robot, if any).
+    `reference`: a `dynid.reports.paper.ReferenceTable`, `None`, or
+    `"auto"` (the published table for this robot, if any).
     """
     if isinstance(reference, str) and reference == "auto":
         reference = reference_for(robot)
@@ -553,10 +553,10 @@ def render_idim_report(idim_result, robot, experiment=None, validation=None, *, 
                        extra_sections=None, reference="auto", verdict=None) -> str:
     """One self-contained HTML page reporting an IDIM identification.
 
-    ``extra_sections`` (list of :class:`Section`) are appended after the
-    standard ones. ``verdict``: a :class:`dynid.analysis.statistics.verdict.Verdict`
+    `extra_sections` (list of `Section`) are appended after the
+    standard ones. `verdict`: a `dynid.analysis.statistics.verdict.Verdict`
     (computed from the result and the validation if not given), shown first.
-    Returns the HTML text; write it with :func:`write_report`.
+    Returns the HTML text; write it with `write_report`.
     """
     if verdict is None:
         from dynid.analysis.statistics.verdict import verdict as _verdict

@@ -1,4 +1,4 @@
-"""The full pipeline behind ``dynid report`` and ``dynid demo``: everything in one report.
+"""The full pipeline behind `dynid report` and `dynid demo`: everything in one report.
 
 IDIM (Gautier, Janot & Vandanjon 2010, section 2) on the identification data,
 validation on held-out data, then DIDIM (section 3), the Bayesian posterior of
@@ -23,7 +23,7 @@ REPORT_GAIN_UPDATE = "initial"
 
 @dataclass(eq=False)
 class FullReport:
-    """What :func:`report` produced: the results, the HTML and the JSON document."""
+    """What `report` produced: the results, the HTML and the JSON document."""
 
     result: object                       # IDIMResult
     robot: object
@@ -39,7 +39,7 @@ class FullReport:
 
     @property
     def verdict(self):
-        """The :class:`dynid.analysis.statistics.verdict.Verdict` of this report (computed once)."""
+        """The `dynid.analysis.statistics.verdict.Verdict` of this report (computed once)."""
         if self._verdict is None:
             from dynid.analysis.statistics.verdict import verdict
             residuals = None
@@ -75,13 +75,13 @@ class FullReport:
         return self.summary()
 
     def write(self, path) -> None:
-        """Write the HTML report to ``path`` atomically."""
+        """Write the HTML report to `path` atomically."""
         from dynid.outputs import atomic_write_text
         atomic_write_text(path, self.html)
 
 
 def check_parts(skip) -> set:
-    """The set of parts to skip, checked against :data:`REPORT_PARTS`."""
+    """The set of parts to skip, checked against `REPORT_PARTS`."""
     skip = {x.strip() for x in (skip or ()) if x.strip()}
     unknown = skip - set(REPORT_PARTS)
     if unknown:
@@ -107,10 +107,10 @@ def run_diagnosis(experiment, robot, validation, idim_result, *, settings=None, 
 def further_analyses(out: FullReport, valid, *, skip=(), settings=None, seed=1, max_seconds=300.0,
                      gain_update=REPORT_GAIN_UPDATE, max_iter=15, max_error_growth=0.02,
                      diagnosis_options=None, say=None) -> FullReport:
-    """DIDIM, posterior and diagnosis after the IDIM result of ``out`` (in place).
+    """DIDIM, posterior and diagnosis after the IDIM result of `out` (in place).
 
     A part that does not apply (no controller, several recordings) is skipped
-    with a notice; one that does not converge is listed in ``out.problems``.
+    with a notice; one that does not converge is listed in `out.problems`.
     """
     from dynid.reports.bayes_section import bayes_sections
     from dynid.reports.diagnosis_section import diagnosis_sections
@@ -157,16 +157,16 @@ def further_analyses(out: FullReport, valid, *, skip=(), settings=None, seed=1, 
 def report(data, robot, path=None, *, holdout=None, validation=None, skip=(), settings=None, seed=1,
            max_seconds=300.0, max_error_growth=0.02, gain_update=REPORT_GAIN_UPDATE, max_iter=15,
            diagnosis_options=None, say=None) -> FullReport:
-    """IDIM, validation, DIDIM, posterior and diagnosis of ``data`` in one report.
+    """IDIM, validation, DIDIM, posterior and diagnosis of `data` in one report.
 
     Parameters
     ----------
     data : path, Experiment or a list of them (identification recordings)
     robot : Robot, bundled name or robot file
-    path : where to write the HTML report (optional; :attr:`FullReport.html` has it)
+    path : where to write the HTML report (optional; `FullReport.html` has it)
     holdout : seconds at the end of a single recording held out for validation
-    validation : a held-out recording (path or Experiment), instead of ``holdout``
-    skip : parts of :data:`REPORT_PARTS` not to run
+    validation : a held-out recording (path or Experiment), instead of `holdout`
+    skip : parts of `REPORT_PARTS` not to run
     """
     from dynid.analysis.data.split import holdout_split
     from dynid.analysis.estimators.idim import identify_idim

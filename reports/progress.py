@@ -12,7 +12,7 @@ _CONTROL = re.compile(r"[\x00-\x08\x0b-\x1f\x7f-\x9f]")
 
 
 def clean_text(text) -> str:
-    """``text`` with every control character but tab and newline shown escaped (``\\x1b``).
+    """`text` with every control character but tab and newline shown escaped (`\\x1b`).
 
     Names read from files (robot names, column names) reach messages; printed raw, an
     escape sequence in one could retitle or clear the user's terminal.
@@ -49,10 +49,10 @@ class Progress:
 
 
 class Reporter:
-    """Human messages and progress bars on stderr; silent when ``quiet``.
+    """Human messages and progress bars on stderr; silent when `quiet`.
 
-    Long pipelines take one: ``say("message")`` and ``with say.progress(label) as bar:
-    bar.update(fraction)``. The library's default is a quiet one.
+    Long pipelines take one: `say("message")` and `with say.progress(label) as bar:
+    bar.update(fraction)`. The library's default is a quiet one.
     """
 
     def __init__(self, quiet=True):

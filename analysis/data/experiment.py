@@ -1,18 +1,18 @@
-"""Experiment data: the :class:`Experiment` record and :func:`load_experiment`.
+"""Experiment data: the `Experiment` record and `load_experiment`.
 
-:func:`load_experiment` reads one recorded robot trajectory, checks it and returns an
-:class:`Experiment`. The file formats, column names, units and the experiment TOML
+`load_experiment` reads one recorded robot trajectory, checks it and returns an
+`Experiment`. The file formats, column names, units and the experiment TOML
 schema are documented in docs/formats.md. The loader is split by concept:
 
-* :mod:`dynid.analysis.data.readers`: CSV / Parquet / npz / MAT file → raw named columns;
-* :mod:`dynid.analysis.data.columns`: column names, parsing to numbers, finite /
+* `dynid.analysis.data.readers`: CSV / Parquet / npz / MAT file → raw named columns;
+* `dynid.analysis.data.columns`: column names, parsing to numbers, finite /
   joint-count / saturation checks, assembling an Experiment;
-* :mod:`dynid.analysis.data.timebase`: time checks, resampling, :func:`estimate_shift`;
-* :mod:`dynid.analysis.data.description`: the TOML experiment description schema;
-* :mod:`dynid.analysis.data.transmission`: motor side → joint side.
+* `dynid.analysis.data.timebase`: time checks, resampling, `estimate_shift`;
+* `dynid.analysis.data.description`: the TOML experiment description schema;
+* `dynid.analysis.data.transmission`: motor side → joint side.
 
-Every failure is a :class:`dynid.errors.DataError` whose message names the file, the
-column and the row; non-fatal findings go to :attr:`Experiment.notices`.
+Every failure is a `dynid.errors.DataError` whose message names the file, the
+column and the row; non-fatal findings go to `Experiment.notices`.
 """
 
 from __future__ import annotations
@@ -57,13 +57,13 @@ class Experiment:
     q, qr, qd, qdd : (N, n) or None, measured / reference positions, velocities,
         accelerations.
     tau : (N, n) joint torques (computed as drive gain × current when the file had
-        only ``i*``).
+        only `i*`).
     fs : sampling rate in Hz, 1 / median time step.
     source : the file(s) the data came from.
     notices : what the loader ignored, converted, dropped or noticed.
-    name : a name for reports (from a TOML ``[experiment] name``, else the file stem).
-    meta : loader facts, e.g. ``reference_shift`` (samples), ``reference_shift_rms``
-        (rad), ``start_offset``, ``resampled``, ``time_from``.
+    name : a name for reports (from a TOML `[experiment] name`, else the file stem).
+    meta : loader facts, e.g. `reference_shift` (samples), `reference_shift_rms`
+        (rad), `start_offset`, `resampled`, `time_from`.
     """
 
     t: np.ndarray
@@ -120,7 +120,7 @@ class Experiment:
     # ---- sizes -----------------------------------------------------------------------
     @property
     def n_joints(self) -> int:
-        """Number of joints n (columns of ``tau``)."""
+        """Number of joints n (columns of `tau`)."""
         return int(self.tau.shape[1])
 
     @property
@@ -130,7 +130,7 @@ class Experiment:
 
     @property
     def duration(self) -> float:
-        """Time span ``t[-1] - t[0]`` in s."""
+        """Time span `t[-1] - t[0]` in s."""
         return float(self.t[-1] - self.t[0])
 
     @property
@@ -140,10 +140,10 @@ class Experiment:
 
     # ---- operations ------------------------------------------------------------------
     def segment(self, t_start: float | None = None, t_end: float | None = None) -> Experiment:
-        """The samples with ``t_start <= t < t_end`` as a new Experiment.
+        """The samples with `t_start <= t < t_end` as a new Experiment.
 
-        ``None`` means the start / end of the record. The window is half-open, so
-        ``segment(None, a)`` and ``segment(a, None)`` split the record without overlap
+        `None` means the start / end of the record. The window is half-open, so
+        `segment(None, a)` and `segment(a, None)` split the record without overlap
         (e.g. identification and held-out validation data).
         """
         lo = -math.inf if t_start is None else float(t_start)
@@ -265,12 +265,12 @@ def load_experiment(path, robot=None, *, n_joints: int | None = None) -> Experim
     Parameters
     ----------
     path:
-        ``.csv``, ``.parquet``, ``.npz`` or ``.mat`` in dynid's column format, or a
-        ``.toml`` experiment description (schema in docs/formats.md, section
-        "Experiment description (TOML)", and :mod:`dynid.analysis.data.description`).
+        `.csv`, `.parquet`, `.npz` or `.mat` in dynid's column format, or a
+        `.toml` experiment description (schema in docs/formats.md, section
+        "Experiment description (TOML)", and `dynid.analysis.data.description`).
     robot:
-        Optional robot; only ``n_joints``, ``name`` and ``drive_gains`` are used (the
-        joint count is checked; currents ``i*`` become torques through the gains).
+        Optional robot; only `n_joints`, `name` and `drive_gains` are used (the
+        joint count is checked; currents `i*` become torques through the gains).
     n_joints:
         Expected joint count when no robot is given.
 

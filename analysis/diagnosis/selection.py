@@ -1,10 +1,10 @@
 """Residual diagnosis: which unmodelled effect explains what an identified model leaves.
 
 Starting from an IDIM identification (the essential WLS model of section 2 of
-Gautier, Janot & Vandanjon 2010), every effect of :mod:`dynid.analysis.diagnosis.effects` on
+Gautier, Janot & Vandanjon 2010), every effect of `dynid.analysis.diagnosis.effects` on
 every joint and at every value of its nonlinear parameter is a *candidate*:
 extra regressor columns built at full rate and decimated with W
-(:mod:`dynid.analysis.diagnosis.effect_observation`), or, for ``time_delay``, the model
+(`dynid.analysis.diagnosis.effect_observation`), or, for `time_delay`, the model
 re-fitted on the regressor of the motion shifted by d. Greedy forward
 selection:
 
@@ -14,18 +14,18 @@ selection:
    CV gain, which favours effects on quiet joints and candidates scored
    against another baseline, such as time_delay's full base model);
 3. take the best-ranked candidate that passes the selection rule and, with
-   ``base_guard``, is also significant against the *full base model* (so a
+   `base_guard`, is also significant against the *full base model* (so a
    rigid-body parameter the essential reduction dropped never returns as a
    "missing effect"); add it (its nonlinear parameter refined by a 1-D search:
    Stribeck's v_s, the delay d), re-identify by WLS (the starting model +
    the effects selected so far); with validation data and
-   ``confirm_on_validation``, keep it only if the validation error falls,
-   otherwise try the next candidate that passes (up to ``max_tries``);
-4. stop when none passes (or none is confirmed), or after ``max_effects``.
+   `confirm_on_validation`, keep it only if the validation error falls,
+   otherwise try the next candidate that passes (up to `max_tries`);
+4. stop when none passes (or none is confirmed), or after `max_effects`.
 
 After the selection, catalogue-free tests of the final residual
-(:mod:`dynid.analysis.diagnosis.structure`) report the joints whose residual
-still has structure no selected effect explains (``result.unexplained``).
+(`dynid.analysis.diagnosis.structure`) report the joints whose residual
+still has structure no selected effect explains (`result.unexplained`).
 
 Selection rule (why it does not fool itself)
 --------------------------------------------
@@ -36,28 +36,28 @@ too optimistic, and with ~200 candidates the best of them always looks
 "significant". Two checks, both required:
 
 * **Blocked cross-validation** (the ranking statistic). The decimated
-  samples are cut into ``folds`` (5) contiguous time blocks. For each block
+  samples are cut into `folds` (5) contiguous time blocks. For each block
   the model, and the model + candidate, are fitted on the other blocks minus
-  a guard of ``gap`` samples on each side of the held-out block (the
+  a guard of `gap` samples on each side of the held-out block (the
   decimation filter's half length: rows closer than that share full-rate
-  samples), and predict the held-out block. ``cv_gain`` is the fraction of
+  samples), and predict the held-out block. `cv_gain` is the fraction of
   the held-out (WLS-weighted) squared error the candidate removes; the
-  candidate must lower the held-out error in at least ``folds - 1`` blocks
+  candidate must lower the held-out error in at least `folds - 1` blocks
   (it is not carried by one segment).
 * **Likelihood-ratio test with the effective sample size, Bonferroni over
-  the candidates.** ``LR = Σ_j n_eff,j (SSE0_j - SSE1_j) / SSE1_j``, with
-  ``n_eff,j = n_j / tau_int,j`` the effective sample size of the candidate
-  model's residual on joint j (:func:`dynid.analysis.statistics.residuals.effective_sample_size`):
+  the candidates.** `LR = Σ_j n_eff,j (SSE0_j - SSE1_j) / SSE1_j`, with
+  `n_eff,j = n_j / tau_int,j` the effective sample size of the candidate
+  model's residual on joint j (`dynid.analysis.statistics.residuals.effective_sample_size`):
   the χ² statistic of adding k parameters, divided by the integrated
   autocorrelation time. Under "nothing is missing" LR is (conservatively)
   χ²_k; the p-value is multiplied by the number m of candidates scored at
   that step (Bonferroni, valid for correlated candidates) and must be below
-  ``alpha`` (0.01 by default), so the chance of adding *anything* to a
+  `alpha` (0.01 by default), so the chance of adding *anything* to a
   complete model is at most about alpha per step, whatever the number of
   candidates.
 
 Measured false-alarm rate (simulated TX40 with nothing missing, 12 s + 5 s at
-5 kHz, ``benchmarks/diagnosis_campaign.py``). With alpha = 0.05: 2 of 50 runs
+5 kHz, `benchmarks/diagnosis_campaign.py`). With alpha = 0.05: 2 of 50 runs
 (seeds 1-50) and 1 of 100 (seeds 51-150) selected an effect, 2 % overall,
 within the design level but one alarm from the benchmark's 5 % limit; the
 step-1 winner's Bonferroni p was below 0.1 in 4 % of the runs (the test is
@@ -67,7 +67,7 @@ default alpha = 0.01 was chosen after that measurement. With it: 1 of 50
 effect of the campaign (2-10 % of its joint's torque RMS) is still found, its
 smallest likelihood ratio (48, a 2-4 % spring) far above the threshold (~16).
 
-Also reported: ``ic_gain`` = LR - k ln(n_eff) (BIC computed with the effective
+Also reported: `ic_gain` = LR - k ln(n_eff) (BIC computed with the effective
 sample size; positive favours the candidate).
 
 Time delay. A delay is tested within the *full base model* (all base
@@ -82,11 +82,11 @@ Candidates that explain the same thing are told apart by their shape: the
 report ranks them by cv_gain and gives the gap between the winner and the
 runner-up (the best candidate of another effect or joint) and the fraction
 of held-out blocks in which the winner predicts better than the runner-up.
-Candidates with the same columns on these data (``offset`` and
-``asymmetric_coulomb`` of one joint: see :mod:`dynid.analysis.diagnosis.effects`) cannot be
+Candidates with the same columns on these data (`offset` and
+`asymmetric_coulomb` of one joint: see `dynid.analysis.diagnosis.effects`) cannot be
 told apart by any data of a moving joint; they are reported as aliases.
 A candidate whose columns are already in the span of the model (e.g.
-``offset`` where the model has ``Off_j``) is skipped.
+`offset` where the model has `Off_j`) is skipped.
 """
 from __future__ import annotations
 
@@ -135,10 +135,10 @@ RULE = ("blocked CV (contiguous folds, guard gap): cv_gain > 0 and held-out erro
 
 # ======================================================================= models
 def without_parameters(bp: BaseParameters, drop) -> BaseParameters:
-    """A base-parameter set without some parameters (e.g. ``("Off",)``: a model without offsets).
+    """A base-parameter set without some parameters (e.g. `("Off",)`: a model without offsets).
 
-    ``drop`` lists base-parameter names or prefixes followed by the joint
-    number (``"Off"`` drops Off1..Offn; ``"Off3"`` only Off3). The dropped
+    `drop` lists base-parameter names or prefixes followed by the joint
+    number (`"Off"` drops Off1..Offn; `"Off3"` only Off3). The dropped
     parameters are taken as zero: their columns leave the regressor.
     """
     import re
@@ -159,11 +159,11 @@ def without_parameters(bp: BaseParameters, drop) -> BaseParameters:
 
 
 def identify_from_observation(eobs: EffectObservation, robot, *, max_error_growth=0.02):
-    """IDIM (OLS, WLS, essential WLS) from a prepared :class:`EffectObservation`.
+    """IDIM (OLS, WLS, essential WLS) from a prepared `EffectObservation`.
 
-    The same estimators as :func:`dynid.analysis.estimators.idim.identify_idim`, without
+    The same estimators as `dynid.analysis.estimators.idim.identify_idim`, without
     building the observation system again (e.g. when only the torque changed:
-    :meth:`EffectObservation.with_torque`).
+    `EffectObservation.with_torque`).
     """
     from dynid.analysis.estimators.idim import IDIMResult
     obs = eobs.obs
@@ -307,7 +307,7 @@ def _errors(tau, tau_hat, mask):
 
 @dataclass
 class DiagnosisResult(Exportable):
-    """What :func:`diagnose` found. ``ranking`` is from most to least likely."""
+    """What `diagnose` found. `ranking` is from most to least likely."""
 
     robot_name: str
     source: str
@@ -330,20 +330,20 @@ class DiagnosisResult(Exportable):
     @property
     def hidden(self):
         """Effects the base parameters absorbed, found through the a-priori values (list of
-        reported :class:`~dynid.analysis.diagnosis.hidden.HiddenEffect`)."""
+        reported `HiddenEffect`)."""
         return [h for h in self.hidden_tests if h.reported]
 
     @property
     def unexplained(self):
         """Joints whose final residual has structure no selected effect explains (list of
-        :class:`~dynid.analysis.diagnosis.structure.Unexplained`)."""
+        `Unexplained`)."""
         return [] if self.structure is None else list(self.structure.unexplained)
 
     @property
     def effects(self):
-        """The selected effects that are effects of the robot (``kind == "effect"``): without the
+        """The selected effects that are effects of the robot (`kind == "effect"`): without the
         Coulomb onsets, which are kept in the model but say the velocity dead zone is narrower
-        than the friction's smooth onset (:func:`_onset`)."""
+        than the friction's smooth onset (`_onset`)."""
         return [e for e in self.selected if e.kind == "effect"]
 
     @property
@@ -495,7 +495,7 @@ def _fmt_p(p):
 
 def nonlinear_text(nl, *, prose=False):
     """The nonlinear parameter of an effect as text: compact for tables of the
-    summary (``v_s=0.1 rad/s``), or ``prose`` for reports (``v_s = 0.1 rad/s``)."""
+    summary (`v_s=0.1 rad/s`), or `prose` for reports (`v_s = 0.1 rad/s`)."""
     eq = " = " if prose else "="
     if not nl:
         return ""
@@ -650,7 +650,7 @@ class _Problem:
 
     The model's design for a state (delay d, effects) is the decimated base
     regressor of the model's columns, of the motion shifted by d (W(t - d),
-    :meth:`EffectObservation.shifted_regressor`), followed by the effects'
+    `EffectObservation.shifted_regressor`), followed by the effects'
     decimated columns.
     """
 
@@ -685,7 +685,7 @@ class _Problem:
         return [self._cache[self._key(c)] for c in cands]
 
     def base(self, delay=0.0, cache=True, cols=None):
-        """Decimated base-regressor columns ``cols`` (default the model's), motion shifted by ``delay`` s."""
+        """Decimated base-regressor columns `cols` (default the model's), motion shifted by `delay` s."""
         cols = self.cols if cols is None else np.asarray(cols, dtype=int)
         if not delay:
             return self.eobs.obs.W[:, :, cols]
@@ -706,7 +706,7 @@ class _Problem:
         return list(names) + [p for c in effects for p in c.active_params]
 
     def essential(self, delay, max_error_growth=0.02):
-        """Essential parameters (names, base columns) re-selected on the motion shifted by ``delay``."""
+        """Essential parameters (names, base columns) re-selected on the motion shifted by `delay`."""
         X = self.base(delay, cols=self.all_cols)
         ess = essential_parameters(X, self.Y, self.all_names, ls.wls,
                                    max_error_growth=max_error_growth, row_mask=self.mask)
@@ -772,19 +772,19 @@ def diagnose(experiment, robot, *, validation=None, idim_result=None, settings=N
              joints=None, residual_analysis=True, confirm_on_validation=True, max_error_growth=0.02,
              progress=None, structure_tests=True, start_model="essential", base_guard=True,
              max_tries=5, hidden_tests=True, physical_tests=True, reselect_essential=True):
-    """Find what the identified model of ``robot`` lacks in ``experiment``.
+    """Find what the identified model of `robot` lacks in `experiment`.
 
     Parameters
     ----------
-    experiment : Experiment, or the :class:`EffectObservation` of one (to reuse its full-rate work)
+    experiment : Experiment, or the `EffectObservation` of one (to reuse its full-rate work)
     robot : Robot
     validation : Experiment or EffectObservation, optional
         Data the model was not fitted to: errors before/after are reported on it too.
     idim_result : IDIMResult, optional
-        The identification to start from (default: :func:`dynid.analysis.estimators.idim.identify_idim`
-        of ``experiment``, or of its observation).
-    settings : processing overrides for that identification (as ``identify_idim``).
-    effects : names of the effects to consider (default all of :data:`EFFECT_NAMES`).
+        The identification to start from (default: `dynid.analysis.estimators.idim.identify_idim`
+        of `experiment`, or of its observation).
+    settings : processing overrides for that identification (as `identify_idim`).
+    effects : names of the effects to consider (default all of `EFFECT_NAMES`).
     max_effects : most effects added (greedy forward selection).
     rng : accepted for API stability; the procedure is deterministic (contiguous folds).
     alpha : family-wise level of the LR test at each step (Bonferroni over the candidates);
@@ -792,48 +792,48 @@ def diagnose(experiment, robot, *, validation=None, idim_result=None, settings=N
     folds, gap : blocked cross-validation: number of contiguous blocks, and
         guard in decimated samples dropped from training on each side of the
         held-out block ("auto": the decimation filter's half length).
-    exclude_parameters : base parameters (names or prefixes, e.g. ``("Off",)``) removed
-        from the model before identifying (only when ``idim_result`` is None).
+    exclude_parameters : base parameters (names or prefixes, e.g. `("Off",)`) removed
+        from the model before identifying (only when `idim_result` is None).
     joints : 1-based joints whose effects are considered (default all).
     residual_analysis : compute the residual analyses before/after (for reports).
     max_error_growth : essential-parameter criterion of that identification (when
-        ``idim_result`` is None).
+        `idim_result` is None).
     progress : callable(fraction in [0, 1]) after each selection step (at most
-        ``max_effects + 1`` steps, so the fraction is an upper bound of the work left).
+        `max_effects + 1` steps, so the fraction is an upper bound of the work left).
     structure_tests : run the catalogue-free tests of the final residual
-        (:mod:`dynid.analysis.diagnosis.structure`); joints with structure no selected
-        effect explains are in ``result.unexplained``.
-    hidden_tests : when the identified parameters contradict ``robot.apriori``, fit with the
+        (`dynid.analysis.diagnosis.structure`); joints with structure no selected
+        effect explains are in `result.unexplained`.
+    hidden_tests : when the identified parameters contradict `robot.apriori`, fit with the
         a-priori values as a prior and test gravity-shaped springs the base parameters
-        absorbed (:mod:`dynid.analysis.diagnosis.hidden`); found ones are in ``result.hidden``.
-    reselect_essential : with ``start_model="essential"`` and effects selected, re-select the
+        absorbed (`dynid.analysis.diagnosis.hidden`); found ones are in `result.hidden`.
+    reselect_essential : with `start_model="essential"` and effects selected, re-select the
         essential parameters on the torque less those effects (kept if the validation error
         does not grow); the reduction of the identification ran with their torque in the residual.
     physical_tests : when no a-priori test found one and PC-WLS (cvxpy) says the data want a model
         no rigid body has, test the same springs on the physically consistent fit
-        (:func:`dynid.analysis.diagnosis.hidden.physical_effects`); found ones are in
-        ``result.hidden`` too (``route="physical"``).
-    start_model : the model the selection starts from: ``"essential"`` (default: the
-        essential WLS of the identification), ``"base"`` (all base parameters, WLS), or a
+        (`dynid.analysis.diagnosis.hidden.physical_effects`); found ones are in
+        `result.hidden` too (`route="physical"`).
+    start_model : the model the selection starts from: `"essential"` (default: the
+        essential WLS of the identification), `"base"` (all base parameters, WLS), or a
         list of base-parameter names (the set the user chose).
     base_guard : a candidate is added only if it is also significant (LR with n_eff,
         Bonferroni, alpha) against the *full base model* plus the effects so far, so that a
         rigid-body parameter the essential reduction dropped never comes back as a
         "missing effect" (e.g. a coupling from qdd restoring a dropped inertia term).
-        Why not ``start_model="base"`` by default: measured on the independent plant (8 s,
+        Why not `start_model="base"` by default: measured on the independent plant (8 s,
         179 decimated samples, 60 base parameters) the blocked CV of the full base model is
         dominated by the held-out variance of its poorly excited parameters (an injected
         4 N m Stribeck friction: CV gain -1.4 %, LR 345), while the guard keeps the
         essential model's CV and still rejects what the dropped parameters explain.
     max_tries : at each step, how many candidates that pass the rule are tried, best
-        ranked first, until one lowers the validation error (with ``confirm_on_validation``).
-    confirm_on_validation : with ``validation``, keep an effect that passes the rule only if
+        ranked first, until one lowers the validation error (with `confirm_on_validation`).
+    confirm_on_validation : with `validation`, keep an effect that passes the rule only if
         it also lowers the relative error norm on the validation data; otherwise the next
-        candidate that passes the rule is tried (up to ``max_tries``), and the selection
+        candidate that passes the rule is tried (up to `max_tries`), and the selection
         stops when none does. Blocked cross-validation inside one recording cannot see a
         pattern that holds in that recording only (on the real TX40, a 4th effect passes
         the rule but raises the error on the held-out 3 s). The validation errors after
-        are then no longer independent of the selection; ``False`` keeps them so.
+        are then no longer independent of the selection; `False` keeps them so.
 
     Returns
     -------
@@ -1286,14 +1286,14 @@ ONSET_PEAK_FRACTION = 0.05
 def _onset(cand, values, settings, qd_peak=None):
     """Note (or "") when a selected Stribeck term is the friction's smooth Coulomb onset.
 
-    dynid's friction model has ``Fc sign(qd)``; a real (or simulated) friction rises to
-    its Coulomb level over a small speed range (the independent plant: ``Fc tanh(qd /
-    0.01)``). The velocity dead zone (default 1 % of the peak speed) exists to drop the
+    dynid's friction model has `Fc sign(qd)`; a real (or simulated) friction rises to
+    its Coulomb level over a small speed range (the independent plant: `Fc tanh(qd /
+    0.01)`). The velocity dead zone (default 1 % of the peak speed) exists to drop the
     rows where that matters; when the onset is wider than the dead zone the rows just
-    outside it carry the mismatch and a Stribeck term with ``Fs < 0`` and a small ``v_s``
+    outside it carry the mismatch and a Stribeck term with `Fs < 0` and a small `v_s`
     takes it (measured on the clean plant, TX40 joint 2, default dead zone 0.02 rad/s:
-    Fs < 0, v_s 0.016 rad/s, CV gain 14 %). "Small" is within ``ONSET_VS_FACTOR``
-    dead-zone widths or ``ONSET_PEAK_FRACTION`` of the joint's peak speed: ``Fs < 0``
+    Fs < 0, v_s 0.016 rad/s, CV gain 14 %). "Small" is within `ONSET_VS_FACTOR`
+    dead-zone widths or `ONSET_PEAK_FRACTION` of the joint's peak speed: `Fs < 0`
     says the friction is *below* its Coulomb level at low speed, which over a
     twentieth of the speed range is the onset of Coulomb friction, not a law over the
     motion (a curved viscous law shows at a v_s comparable to the speeds the joint
@@ -1445,8 +1445,8 @@ def _by_base_evidence(problem, guard, passing, m):
     53.2 % CV gain, the spring 52.4 %; the essential set had dropped Off4, which the
     spring's rest position needs). Against the full base model neither the spring nor
     the ripple has anything to lean on: the candidates that pass are ordered by the LR
-    test there (log chi2 tail, as :func:`_rank`), ties by the original order, and
-    each gets its Bonferroni p against that model (``base_p``). time_delay is
+    test there (log chi2 tail, as `_rank`), ties by the original order, and
+    each gets its Bonferroni p against that model (`base_p`). time_delay is
     already scored within the full base model and keeps its own statistic.
     """
     need = [w for w in passing if cand_needs_guard(w)]
@@ -1485,7 +1485,7 @@ def _refine(problem, scorer, cand, state, weights):
 
     v_s and d: a bounded 1-D search of the weighted residual sum of squares over
     log|value| within a factor 2 of the best grid value (sign kept). A ripple's
-    order: :func:`_refine_order`.
+    order: `_refine_order`.
     """
     if cand.name == "position_ripple":
         return _refine_order(problem, scorer, cand)
@@ -1524,12 +1524,12 @@ ORDER_SCAN_PHASE = 0.2
 def _refine_order(problem, scorer, cand):
     """The ripple order the residual shows, between the grid's neighbours of the best one.
 
-    The grid (:data:`RIPPLE_ORDERS`) only brackets the order: a ripple of order 7 scored
+    The grid (`RIPPLE_ORDERS`) only brackets the order: a ripple of order 7 scored
     at 6 and 8 leaves most of itself in the residual, and the selection then adds 8, 6
     and 5 in turn (TX40 plant, joint 3), three families where there is one. The
     weighted residual sum of squares of the candidate is scanned over the orders
     between the grid's neighbours (or half and 1.5 times the order at the ends), in
-    steps that move the ripple's phase by at most :data:`ORDER_SCAN_PHASE` across the
+    steps that move the ripple's phase by at most `ORDER_SCAN_PHASE` across the
     joint's range of motion (the SSE is multimodal in k on a coarser scan), and the best
     scan point is polished by a bounded 1-D search within one step.
     """
@@ -1567,14 +1567,14 @@ def evaluate_effects(data, robot, idim_result, candidates, fit=None, *, signals_
                      signals_T=None):
     """Errors of the model before/after effects on a recording (validation), or a fit on it.
 
-    ``data``: Experiment or EffectObservation of the recording (processed with
-    ``idim_result.settings``); ``candidates``: the effects (columns built on
+    `data`: Experiment or EffectObservation of the recording (processed with
+    `idim_result.settings`); `candidates`: the effects (columns built on
     this recording with the identification's model torque and time scale; a
-    ``time_delay`` shifts the model's regressor); ``fit``: the
+    `time_delay` shifts the model's regressor); `fit`: the
     IdentificationResult of the essential model + effects (columns in that
-    order). ``signals_t0``/``signals_T``: the drift time scale (default this
+    order). `signals_t0`/`signals_T`: the drift time scale (default this
     recording's; pass the identification's for validation data). Returns a
-    dict with ``before``/``after`` :class:`Errors`, the predictions, the
+    dict with `before`/`after` `Errors`, the predictions, the
     design X and the EffectObservation.
     """
     prob = _validation_problem(data, robot, idim_result, signals_t0, signals_T)
@@ -1613,7 +1613,7 @@ def fit_effects(data, robot, idim_result, candidates):
     effect with its true nonlinear parameter, linear parameters fitted).
     Effect columns already in the span of the model (and of the effects
     before them) are dropped, as in the diagnosis; the candidates passed are
-    updated in place (``active``).
+    updated in place (`active`).
     """
     prob = _validation_problem(data, robot, idim_result, None, None)
     delay, effects = _split(candidates)
@@ -1648,7 +1648,7 @@ def _new_columns(X, C, mask, weights):
 
 
 def _independent(Bperp, norms):
-    """Columns of Bperp (projected candidate columns) that are independent, relative to ``norms``."""
+    """Columns of Bperp (projected candidate columns) that are independent, relative to `norms`."""
     nz = norms > 0
     if not nz.any():
         return []

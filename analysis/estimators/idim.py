@@ -1,6 +1,6 @@
 """IDIM: the inverse dynamic identification model identified by least squares (section 2).
 
-``identify_idim(experiment, robot)`` runs the whole of section 2 of Gautier,
+`identify_idim(experiment, robot)` runs the whole of section 2 of Gautier,
 Janot, Vandanjon (2010): filtering and differentiation of q, the base
 regressor, parallel decimation (eqs. (8)-(9)), OLS (eqs. (11)-(15)),
 per-joint WLS (eq. (16)), and the essential parameters (Pham & Gautier 1991)
@@ -25,8 +25,8 @@ from dynid.provenance import data_hash, json_safe, versions
 class IDIMResult(ModelResults):
     """Everything an IDIM identification produced.
 
-    Its parameters (``params``, ``bse``, ``conf_int()`` ...) are those of :attr:`model`,
-    the essential WLS estimate; ``ols``, ``wls`` and ``essential`` keep the others.
+    Its parameters (`params`, `bse`, `conf_int()` ...) are those of `model`,
+    the essential WLS estimate; `ols`, `wls` and `essential` keep the others.
     """
 
     method = "IDIM"
@@ -107,9 +107,9 @@ class IDIMResult(ModelResults):
 
 def identify_idim(experiment, robot, *, settings=None, bp=None, max_error_growth=0.02,
                   progress=None):
-    """Identify the base and essential parameters of ``robot`` from ``experiment`` (IDIM-LS/WLS).
+    """Identify the base and essential parameters of `robot` from `experiment` (IDIM-LS/WLS).
 
-    ``experiment`` may be a list of recordings: their observation systems are
+    `experiment` may be a list of recordings: their observation systems are
     stacked (processed with the settings derived from the first one).
     """
     bp = base_parameters(robot) if bp is None else bp

@@ -2,15 +2,15 @@
 
 A 1-hour recording at 5 kHz of a 6-joint robot is 18 million samples; its
 full-rate base regressor would take 52 GB. Here the recording arrives in
-chunks (any iterable of ``(q, tau)`` pairs); the zero-phase position filter
-runs on overlapping blocks, each padded on both sides by ``margin`` samples
+chunks (any iterable of `(q, tau)` pairs); the zero-phase position filter
+runs on overlapping blocks, each padded on both sides by `margin` samples
 (the filter's transient, where its impulse response has decayed below 1e-5
-of its peak: see :func:`dynid.analysis.processing.signals.transient_samples`), so each block's
+of its peak: see `dynid.analysis.processing.signals.transient_samples`), so each block's
 centre equals the whole-record filtfilt to that tolerance. The centre then
 goes through the same regressor -> dead zone -> parallel decimation as
-:func:`dynid.analysis.processing.observation.observe`. Memory: a few blocks of q and tau plus
+`dynid.analysis.processing.observation.observe`. Memory: a few blocks of q and tau plus
 one regressor chunk, plus the decimated system (n_d times smaller than the
-recording); :func:`reduce_stream` does not keep even that: each decimated chunk
+recording); `reduce_stream` does not keep even that: each decimated chunk
 is reduced to its per-joint triangles and added up.
 """
 from __future__ import annotations
@@ -29,7 +29,7 @@ def observe_stream(chunks, fs, robot, bp, *, fc_position, nd, f_decimation_cutof
                    qd_threshold, order=4, block=200_000, progress=None):
     """Decimated (W, tau) of a chunked recording; settings must be explicit.
 
-    ``qd_threshold`` must be numbers (per joint or one): 'auto' would need the
+    `qd_threshold` must be numbers (per joint or one): 'auto' would need the
     whole record's peak speed before the first block is processed.
     """
     parts = []
@@ -48,13 +48,13 @@ def reduce_stream(chunks, fs, robot, bp, *, fc_position, nd, f_decimation_cutoff
                   qd_threshold, order=4, block=200_000, progress=None) -> StreamedReduction:
     """The observation system of a chunked recording reduced as it streams, W never held.
 
-    The same decimated rows as :func:`observe_stream` (same arguments), but each
+    The same decimated rows as `observe_stream` (same arguments), but each
     decimated part is reduced at once to its per-joint triangles
-    (:func:`dynid.analysis.estimators.least_squares.reduce_system`: WᵀW, WᵀY and ‖Y‖²
+    (`dynid.analysis.estimators.least_squares.reduce_system`: WᵀW, WᵀY and ‖Y‖²
     in factored form) and added to the running total, so memory is a few blocks
     of q and tau whatever the recording's length. Rows are selected as there
     (decimated rows that kept at least half their samples). Solve the result
-    with ``ls.wls_reduced`` / ``essential_parameters(reduction, None, None, ls.wls)``.
+    with `ls.wls_reduced` / `essential_parameters(reduction, None, None, ls.wls)`.
     """
     from dynid.analysis.estimators import least_squares as ls
     total = []
@@ -79,7 +79,7 @@ def reduce_stream(chunks, fs, robot, bp, *, fc_position, nd, f_decimation_cutoff
 
 @dataclass
 class StreamedReduction:
-    """What :func:`reduce_stream` returns: the summed :class:`~ls.Reduction` and its settings."""
+    """What `reduce_stream` returns: the summed `Reduction` and its settings."""
 
     reduction: object
     settings: dict
@@ -90,7 +90,7 @@ class StreamedReduction:
 
 def _stream(sink, chunks, fs, robot, bp, *, fc_position, nd, f_decimation_cutoff, qd_threshold,
             order, block, progress):
-    """Push every block through filter, regressor, dead zone and decimator; ``sink`` each part.
+    """Push every block through filter, regressor, dead zone and decimator; `sink` each part.
 
     Returns (settings, decimator, margin, samples read).
     """

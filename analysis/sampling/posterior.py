@@ -10,7 +10,7 @@ the WLS of eq. (16).
 
    Likelihood: ρ^j ~ N(0, σ_j² I_{r_j}) independently per joint.
    Priors: Jeffreys p(σ_j) ∝ 1/σ_j on each σ_j; flat on χ, or a Gaussian
-   N(μ₀, P₀) on some or all of χ (:class:`GaussianPrior`, e.g. from a-priori
+   N(μ₀, P₀) on some or all of χ (`GaussianPrior`, e.g. from a-priori
    values or from a previous identification).
 
    χ and the σ_j are sampled JOINTLY (nothing is marginalised for the linear
@@ -20,30 +20,30 @@ the WLS of eq. (16).
        log p(χ, u | Y) = Σ_j [ −r_j u_j − S_j(χ) e^{−2 u_j} / 2 ] + log p(χ) + const
        S_j(χ) = ‖Y^j − W^j χ‖²  (rows of joint j kept by the row_mask)
 
-   With known σ_j (``sigma=``) only χ is sampled: log p = −Σ_j S_j/(2σ_j²) + log p(χ).
+   With known σ_j (`sigma=`) only χ is sampled: log p = −Σ_j S_j/(2σ_j²) + log p(χ).
 
    Cost: S_j is evaluated from sufficient statistics computed ONCE after
-   decimation (:func:`sufficient_statistics`): G_j = W^jᵀW^j, and, about a
+   decimation (`sufficient_statistics`): G_j = W^jᵀW^j, and, about a
    reference χ_ref (the LS estimate), g_j = W^jᵀ(Y^j − W^jχ_ref),
    s_j = ‖Y^j − W^jχ_ref‖² and the row count r_j (plus the raw W^jᵀY^j and
    Y^jᵀY^j for the record). With δ = χ − χ_ref,
    S_j(χ) = s_j − 2 δᵀg_j + δᵀG_jδ: exact, cost O(n b²) per evaluation
    whatever the number of samples, and free of the cancellation of
    YᵀY − 2χᵀWᵀY + χᵀWᵀWχ. The log-probability is vectorised over walkers
-   (emcee ``vectorize=True``): K positions cost one (K, b)·(b, n b) product.
+   (emcee `vectorize=True`): K positions cost one (K, b)·(b, n b) product.
 
    Analytic results for checking:
 
    (a) known σ_j, flat or Gaussian prior: χ | Y ~ N(m, Λ⁻¹) with
        Λ = Σ_j G_j/σ_j² + P₀⁻¹ and m = χ_ref + Λ⁻¹ (Σ_j g_j/σ_j² + P₀⁻¹(μ₀ − χ_ref))
-       (:func:`known_noise_posterior`).
+       (`known_noise_posterior`).
    (b) a single joint, unknown σ, flat prior on χ, Jeffreys on σ:
        p(χ | Y) ∝ S(χ)^{−r/2}, a multivariate Student t. The marginal of χ_i is
        χ_i = χ̂_i + s √[(WᵀW)⁻¹]_ii · T_ν,  T_ν ~ Student t with ν = r − b,
        χ̂ = (WᵀW)⁻¹WᵀY (OLS), s² = ‖Y − Wχ̂‖² / (r − b) (eq. (13)); and
        σ² | Y ~ ‖Y − Wχ̂‖² / χ²_ν (scaled inverse χ²), i.e. the LS interval
        χ̂_i ± t_ν s √[(WᵀW)⁻¹]_ii is exactly the credible interval
-       (:func:`student_t_posterior`).
+       (`student_t_posterior`).
 
 2. Nonlinear per-joint gravity model (Bona & Curatella 2005, eq. (23), with
    the friction of their eq. (22)):
@@ -59,23 +59,23 @@ the WLS of eq. (16).
    (a, c, β) of the Gram matrix of [sin q, cos q, q̇, sign q̇, 1, τ] —
    computed once, whatever the number of samples.
 
-   ``marginalize=True`` (default, implemented): β and σ are integrated out
+   `marginalize=True` (default, implemented): β and σ are integrated out
    analytically; emcee samples only (k, q_off) from
    p(k, q_off | Y) ∝ RSS_β(k, q_off)^{−(r − p)/2} (p = number of friction
    terms, RSS_β the residual minimised over β), and for each kept state β
    and σ are drawn exactly from their conditionals
    σ² | k, q_off, Y ~ RSS_β / χ²_{r−p},  β | σ, k, q_off, Y ~ N(β̂(k, q_off), σ² (ΦᵀΦ)⁻¹).
-   ``marginalize=False``: (k, q_off, β, log σ) are sampled jointly.
+   `marginalize=False`: (k, q_off, β, log σ) are sampled jointly.
    The delta-method interval of a nonlinear LS fit
-   (:func:`fit_gravity_ls`, scipy.optimize.least_squares with the analytic
+   (`fit_gravity_ls`, scipy.optimize.least_squares with the analytic
    Jacobian J, cov = s² (JᵀJ)⁻¹) is given for comparison.
 
-Outputs: :class:`PosteriorResult` (samples after burn-in and thinning,
+Outputs: `PosteriorResult` (samples after burn-in and thinning,
 summaries, intervals beside the LS values, convergence diagnostics from
-:mod:`dynid.analysis.sampling.convergence`; ``converged=False`` with the reason whenever the
-rule was not met). Runs are seeded: the same ``seed`` gives the same chain,
-the same :meth:`PosteriorResult.to_dict` and the same CSV, byte for byte
-(unless a ``max_seconds`` limit stopped the run).
+`dynid.analysis.sampling.convergence`; `converged=False` with the reason whenever the
+rule was not met). Runs are seeded: the same `seed` gives the same chain,
+the same `PosteriorResult.to_dict` and the same CSV, byte for byte
+(unless a `max_seconds` limit stopped the run).
 """
 from __future__ import annotations
 
@@ -114,9 +114,9 @@ class MissingDependencyError(ImportError):
 class SufficientStats:
     """Per-joint sufficient statistics of a linear model (see the module docstring).
 
-    Attributes: ``names`` (b,), ``G`` (n, b, b) = W^jᵀW^j, ``g`` (n, b) =
-    W^jᵀ(Y^j − W^jχ_ref), ``s`` (n,) = ‖Y^j − W^jχ_ref‖², ``rows`` (n,) r_j,
-    ``ref`` (b,) χ_ref, ``WtY`` (n, b) and ``YtY`` (n,) raw, ``n_samples`` N.
+    Attributes: `names` (b,), `G` (n, b, b) = W^jᵀW^j, `g` (n, b) =
+    W^jᵀ(Y^j − W^jχ_ref), `s` (n,) = ‖Y^j − W^jχ_ref‖², `rows` (n,) r_j,
+    `ref` (b,) χ_ref, `WtY` (n, b) and `YtY` (n,) raw, `n_samples` N.
     """
 
     names: list
@@ -144,7 +144,7 @@ class SufficientStats:
         return np.flatnonzero(self.rows > 0)
 
     def rss(self, X) -> np.ndarray:
-        """S_j(χ) for every row χ of ``X`` (K, b): array (K, n)."""
+        """S_j(χ) for every row χ of `X` (K, b): array (K, n)."""
         X = np.atleast_2d(np.asarray(X, dtype=float))
         D = X - self.ref
         n, b = self.n_joints, self.n_params
@@ -174,11 +174,11 @@ def _cho(A, names, what):
 
 
 def sufficient_statistics(W3, tau, names=None, *, row_mask=None, ref=None, chunk: int = 65536) -> SufficientStats:
-    """Per-joint W^jᵀW^j, W^jᵀ(Y^j − W^jχ_ref), ‖Y^j − W^jχ_ref‖², r_j of the rows in ``row_mask``.
+    """Per-joint W^jᵀW^j, W^jᵀ(Y^j − W^jχ_ref), ‖Y^j − W^jχ_ref‖², r_j of the rows in `row_mask`.
 
-    ``W3`` (N, n, b), ``tau`` (N, n), ``row_mask`` (N,) or (N, n) bool
-    (True = use); ``ref`` (b,) defaults to 0 (then g = WᵀY and s = YᵀY).
-    One pass over the data in chunks of ``chunk`` samples (BLAS products);
+    `W3` (N, n, b), `tau` (N, n), `row_mask` (N,) or (N, n) bool
+    (True = use); `ref` (b,) defaults to 0 (then g = WᵀY and s = YᵀY).
+    One pass over the data in chunks of `chunk` samples (BLAS products);
     masked rows may hold NaN.
     """
     W3 = np.asarray(W3, dtype=float)
@@ -229,7 +229,7 @@ def sufficient_statistics(W3, tau, names=None, *, row_mask=None, ref=None, chunk
 # ============================================================ priors
 @dataclass(eq=False)
 class GaussianPrior:
-    """Gaussian prior N(mean, cov) on the parameters ``names`` (others stay flat)."""
+    """Gaussian prior N(mean, cov) on the parameters `names` (others stay flat)."""
 
     names: list
     mean: np.ndarray
@@ -282,8 +282,8 @@ class LinearPosterior:
     """The log-posterior of a linear model (see the module docstring), vectorised over walkers.
 
     Sampled coordinates: χ (b,), then u_j = log σ_j for each joint with rows
-    (unless ``sigma`` is given). :attr:`names` are the reported names
-    (σ_j as ``sigma<j>``, 1-based); :attr:`coords` the sampled ones.
+    (unless `sigma` is given). `names` are the reported names
+    (σ_j as `sigma<j>`, 1-based); `coords` the sampled ones.
     """
 
     def __init__(self, stats: SufficientStats, sigma=None, prior: GaussianPrior | None = None):
@@ -332,7 +332,7 @@ class LinearPosterior:
         return -0.5 * np.einsum("ki,ij,kj->k", E, self._pprec, E)
 
     def log_prob(self, X) -> np.ndarray:
-        """log p (up to a constant) of each row of ``X`` (K, ndim); −inf outside the support."""
+        """log p (up to a constant) of each row of `X` (K, ndim); −inf outside the support."""
         X = np.atleast_2d(np.asarray(X, dtype=float))
         chi = X[:, : self.b]
         D = chi - self.stats.ref
@@ -401,7 +401,7 @@ class StudentTPosterior:
         return self.rss / self.df
 
     def marginal(self, i):
-        """scipy.stats frozen t distribution of parameter ``i`` (index or name)."""
+        """scipy.stats frozen t distribution of parameter `i` (index or name)."""
         if isinstance(i, str):
             i = self.names.index(i)
         return stats.t(df=self.df, loc=self.loc[i], scale=self.scale[i])
@@ -411,7 +411,7 @@ class StudentTPosterior:
         return stats.invgamma(a=self.df / 2.0, scale=self.rss / 2.0)
 
     def sigma(self):
-        """Frozen-like object with ``cdf``/``ppf`` of σ | Y."""
+        """Frozen-like object with `cdf`/`ppf` of σ | Y."""
         d = self.sigma2()
 
         class _Sigma:
@@ -427,7 +427,7 @@ class StudentTPosterior:
 def student_t_posterior(stats: SufficientStats, joint: int | None = None) -> StudentTPosterior:
     """Formula (b) of the module docstring, for the rows of one joint.
 
-    ``joint`` (0-based) selects the joint; by default the statistics must
+    `joint` (0-based) selects the joint; by default the statistics must
     have exactly one joint with rows.
     """
     act = stats.active
@@ -541,11 +541,11 @@ def sample_linear(W3, tau, names, *, row_mask=None, ls=None, sigma=None, prior=N
     Parameters
     ----------
     W3, tau, names, row_mask
-        As :func:`dynid.analysis.estimators.least_squares.wls` (decimated system, eq. (9)).
+        As `dynid.analysis.estimators.least_squares.wls` (decimated system, eq. (9)).
     ls : IdentificationResult, optional
         LS estimate to start from and to report beside the posterior (its
-        χ̂, σ and %σ; its ``joint_sigma`` for the σ_j). Default: WLS of these
-        data (with ``sigma`` as fixed weights when given).
+        χ̂, σ and %σ; its `joint_sigma` for the σ_j). Default: WLS of these
+        data (with `sigma` as fixed weights when given).
     sigma : (n,) array, optional
         Known noise standard deviations: then only χ is sampled.
     prior : GaussianPrior, optional
@@ -555,22 +555,22 @@ def sample_linear(W3, tau, names, *, row_mask=None, ls=None, sigma=None, prior=N
     n_walkers : int, optional
         Default max(32, 2·ndim + 2), even.
     criteria : ConvergenceCriteria or dict, optional
-        The convergence rule (≥ 50 τ etc.); ``max_steps`` and ``max_seconds``
+        The convergence rule (≥ 50 τ etc.); `max_steps` and `max_seconds`
         override its limits.
     moves : "de" (default, emcee DEMove), "de-snooker", "stretch" or emcee moves.
     init_scale : float
         Walkers start at the LS estimate + init_scale · N(0, cov_LS) (for
         log σ_j the variance is 1/(2 r_j)).
     suff_stats : SufficientStats, optional
-        Precomputed statistics (then W3/tau are only used for ``ls`` if needed).
+        Precomputed statistics (then W3/tau are only used for `ls` if needed).
     progress : callable, optional
-        ``progress(n_steps, required_steps)`` after each batch of the sampler.
+        `progress(n_steps, required_steps)` after each batch of the sampler.
     support : callable, optional
-        ``support(chi)`` (K, b) -> bool (K,): the prior is restricted to where it is true
+        `support(chi)` (K, b) -> bool (K,): the prior is restricted to where it is true
         (log p = −inf elsewhere), e.g. the physically consistent set
-        (:class:`dynid.analysis.estimators.physical.PhysicalSupport`).
+        (`dynid.analysis.estimators.physical.PhysicalSupport`).
     start : (b,) array, optional
-        Centre of the initial ball instead of the LS estimate (it must be in ``support``).
+        Centre of the initial ball instead of the LS estimate (it must be in `support`).
     """
     from dynid.analysis.estimators import least_squares as lsq
 
@@ -649,16 +649,16 @@ def sample_linear(W3, tau, names, *, row_mask=None, ls=None, sigma=None, prior=N
 
 def sample_idim(idim_result, *, which: str = "essential", physical: bool = False, robot=None,
                 **kwargs) -> PosteriorResult:
-    """Posterior of the essential (default) or base parameters of an :class:`IDIMResult`.
+    """Posterior of the essential (default) or base parameters of an `IDIMResult`.
 
     Uses its decimated observation (W, tau, row_mask) and its WLS estimate
-    as the starting point and LS reference. Other arguments: :func:`sample_linear`.
+    as the starting point and LS reference. Other arguments: `sample_linear`.
 
-    ``physical=True`` (base parameters only): the posterior's support is the physically
-    consistent set (:class:`~dynid.analysis.estimators.physical.PhysicalSupport`: some
+    `physical=True` (base parameters only): the posterior's support is the physically
+    consistent set (`PhysicalSupport`: some
     standard set with PSD pseudo-inertias and Ia, Fv, Fc >= 0 gives these base parameters),
     i.e. the flat prior restricted to it; the walkers start around the PC-WLS estimate.
-    ``robot`` defaults to the result's.
+    `robot` defaults to the result's.
     """
     obs = idim_result.observation
     if which == "essential":
@@ -725,7 +725,7 @@ def _gravity_inputs(q, qd, tau, row_mask, friction):
 class GravityLSResult:
     """Nonlinear LS fit of τ = k sin(q + q_off) + friction, and its delta-method statistics.
 
-    ``cov = s² (JᵀJ)⁻¹`` with J the Jacobian of the residual at the solution
+    `cov = s² (JᵀJ)⁻¹` with J the Jacobian of the residual at the solution
     (scipy.optimize.least_squares), s² = RSS / (r − p_total). Intervals are
     value ± t_{dof, 1−α/2} · std (Student t with dof = r − p_total, which is
     the normal interval for large r).
@@ -888,7 +888,7 @@ class GravityPosterior:
     __call__ = log_prob
 
     def complete(self, X, rng) -> np.ndarray:
-        """Reported parameters (k, q_off, friction, σ) for sampled states ``X`` (..., ndim).
+        """Reported parameters (k, q_off, friction, σ) for sampled states `X` (..., ndim).
 
         Marginalised model: σ and β drawn exactly from their conditionals.
         """
@@ -919,11 +919,11 @@ def sample_gravity(q, qd, tau, *, row_mask=None, friction=("Fv", "Fc", "offset")
                    truth=None, joint_label: str = "joint") -> PosteriorResult:
     """Posterior of (k, q_off, friction, σ) of the per-joint gravity model (module docstring).
 
-    ``marginalize=True`` samples (k, q_off) only and draws the friction terms
+    `marginalize=True` samples (k, q_off) only and draws the friction terms
     and σ exactly from their conditionals at every stored state (so they also
     get τ and R̂; the convergence rule is applied to the sampled (k, q_off)).
-    Returns a :class:`PosteriorResult` whose LS columns are the delta-method
-    values of :func:`fit_gravity_ls` (``ls_cov`` holds its covariance).
+    Returns a `PosteriorResult` whose LS columns are the delta-method
+    values of `fit_gravity_ls` (`ls_cov` holds its covariance).
     """
     rng = _rng(seed)
     qm, qdm, taum, friction = _gravity_inputs(q, qd, tau, row_mask, friction)
@@ -996,7 +996,7 @@ def simulate_gravity_joint(n: int = 400, *, q_centre: float = 0.0, q_amplitude: 
 
     q(t) = q_centre + q_amplitude · sin(2π cycles t / T) (+ a small second
     harmonic), qd its derivative, tau = k sin(q + q_off) + Fv qd + Fc sign(qd)
-    + offset + N(0, σ²). A small ``q_amplitude`` gives the poorly excited case.
+    + offset + N(0, σ²). A small `q_amplitude` gives the poorly excited case.
     """
     rng = np.random.default_rng(seed)
     t = np.linspace(0.0, 1.0, n, endpoint=False) + 0.5 / n
@@ -1016,11 +1016,11 @@ class PosteriorResult(ParameterResults):
     Attributes
     ----------
     names : list[str]
-        Reported parameters (σ_j as ``sigma<j>``).
+        Reported parameters (σ_j as `sigma<j>`).
     chain : ndarray (n_walkers, n_draws, d)
         Draws after burn-in, thinned by ≈ τ/2 (diagnostics.burn_in, .thin).
     samples : ndarray (n_walkers · n_draws, d)
-        ``chain`` flattened (walker-major).
+        `chain` flattened (walker-major).
     mean, median, std : (d,)
     ci95, ci999 : (d, 2)
         Equal-tailed 95 % and 99.9 % credible intervals (sample quantiles).
@@ -1110,11 +1110,11 @@ class PosteriorResult(ParameterResults):
             raise KeyError(f"no parameter {name!r}; parameters: {', '.join(self.names)}") from None
 
     def __getitem__(self, name: str) -> np.ndarray:
-        """Samples of parameter ``name``."""
+        """Samples of parameter `name`."""
         return self.samples[:, self.index(name)]
 
     def interval(self, level: float) -> np.ndarray:
-        """(d, 2) equal-tailed credible intervals at ``level``."""
+        """(d, 2) equal-tailed credible intervals at `level`."""
         a = (1.0 - level) / 2.0
         return np.quantile(self.samples, [a, 1.0 - a], axis=0).T
 
@@ -1134,7 +1134,7 @@ class PosteriorResult(ParameterResults):
         return np.atleast_2d(np.cov(self.samples, rowvar=False, ddof=1))
 
     def conf_int(self, alpha: float = 0.05) -> pd.DataFrame:
-        """Equal-tailed (1 − alpha) credible interval from the draws: columns ``lower``, ``upper``."""
+        """Equal-tailed (1 − alpha) credible interval from the draws: columns `lower`, `upper`."""
         _check_alpha(alpha)
         lo, hi = np.quantile(self.samples, [alpha / 2.0, 1.0 - alpha / 2.0], axis=0)
         return pd.DataFrame({"lower": lo, "upper": hi}, index=self._index())

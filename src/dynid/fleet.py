@@ -6,7 +6,7 @@
     run = dynid.fleet.run("catalogue.csv", "store/", workers=2, report="fleet.html")
     run.health.alarms          # robot, joint, parameter, day of onset, size of the change
 
-Needs the ``fleet`` extra (``pip install "dynid[fleet]"``: Dask distributed and
+Needs the `fleet` extra (`pip install "dynid[fleet]"`: Dask distributed and
 pyarrow). The catalogue and store formats are in docs/formats.md; the method
 (IDIM per recording, Page's CUSUM on the temperature-compensated friction) in
 docs/guide.md, "Fleets".
@@ -35,13 +35,13 @@ def run(catalogue, store, *, scheduler: str | None = None, workers: int | None =
         false_alarm_rate: float = DEFAULT_FALSE_ALARM_RATE, n_baseline: int = DEFAULT_BASELINE,
         report: str | os.PathLike | None = None, json: str | os.PathLike | None = None,
         progress=None) -> FleetRun:
-    """Identify every new or changed recording of ``catalogue`` into ``store``, then monitor the fleet.
+    """Identify every new or changed recording of `catalogue` into `store`, then monitor the fleet.
 
-    ``scheduler``: address of a running Dask scheduler (``tcp://host:8786``); without one a
-    LocalCluster of ``workers`` processes (default: this machine's cores) is started, or
-    ``client`` (a ``distributed.Client``) is used. ``parameters``: the base parameters to
-    monitor, by family (``Fv`` = every joint's) or by name (``Fv2``). ``report``/``json``:
-    write the fleet report. Returns the :class:`FleetRun`, its ``health`` the alarms.
+    `scheduler`: address of a running Dask scheduler (`tcp://host:8786`); without one a
+    LocalCluster of `workers` processes (default: this machine's cores) is started, or
+    `client` (a `distributed.Client`) is used. `parameters`: the base parameters to
+    monitor, by family (`Fv` = every joint's) or by name (`Fv2`). `report`/`json`:
+    write the fleet report. Returns the `FleetRun`, its `health` the alarms.
     """
     result = identify_fleet(catalogue, store, scheduler=scheduler, workers=workers, client=client,
                             settings=settings, diagnose=diagnose, progress=progress)

@@ -1,7 +1,7 @@
 """Writing outputs so that no run leaves a half-written file or loses one.
 
-Every file dynid writes goes through :func:`write_all` (several files, all or
-none) or :func:`atomic_write_text` / :func:`atomic_open` (one file):
+Every file dynid writes goes through `write_all` (several files, all or
+none) or `atomic_write_text` / `atomic_open` (one file):
 
 * each file is first written to a temporary file in its target's folder, then
   renamed over the target (an atomic rename on POSIX);
@@ -11,9 +11,9 @@ none) or :func:`atomic_write_text` / :func:`atomic_open` (one file):
   SIGINT and SIGTERM are held back during the renames (they are short);
 * a symlinked target is written through the link (the link stays); an existing
   target keeps its permission bits; a target that is not a regular file (a
-  character device such as ``/dev/null``, a FIFO) is written directly, never
+  character device such as `/dev/null`, a FIFO) is written directly, never
   renamed over;
-* temporary files carry this process's id (``.dynid-<pid>-<hex>.tmp``): those of
+* temporary files carry this process's id (`.dynid-<pid>-<hex>.tmp`): those of
   a process that is no longer running (killed mid-write) are removed the next
   time dynid writes into that folder.
 """
@@ -38,7 +38,7 @@ _TEMP_RE = re.compile(r"^\.dynid-(\d+)-[0-9a-f]{12}\.(tmp|bak)$")
 
 
 def resolve_target(path) -> str:
-    """The file a write to ``path`` lands in: symlinks followed, made absolute."""
+    """The file a write to `path` lands in: symlinks followed, made absolute."""
     return os.path.realpath(os.fspath(path))
 
 
@@ -66,7 +66,7 @@ def _alive(pid: int) -> bool:
 
 
 def remove_stale_temporaries(folder: str) -> list:
-    """Remove dynid's temporary files in ``folder`` left by processes that no longer run."""
+    """Remove dynid's temporary files in `folder` left by processes that no longer run."""
     removed = []
     with contextlib.suppress(OSError):
         for name in os.listdir(folder):
@@ -84,7 +84,7 @@ def _write_error(path, exc: OSError) -> OutputError:
 
 
 def _stage(target: str, data: bytes, label) -> str:
-    """Write ``data`` to a new temporary file beside ``target``; returns its path."""
+    """Write `data` to a new temporary file beside `target`; returns its path."""
     folder = os.path.dirname(target)
     tmp = _temp_name(folder)
     try:
@@ -142,9 +142,9 @@ def _signals_held():
 
 
 def write_all(outputs, say=None) -> list:
-    """Write ``(path, text_or_bytes)`` pairs all or none; the path ``-`` means stdout, written last.
+    """Write `(path, text_or_bytes)` pairs all or none; the path `-` means stdout, written last.
 
-    Returns the paths written. Raises :class:`~dynid.errors.OutputError` naming the
+    Returns the paths written. Raises `OutputError` naming the
     file when one cannot be written; the folder is then as it was before.
     """
     to_stdout = [data for path, data in outputs if os.fspath(path) == "-"]
@@ -212,10 +212,10 @@ def write_all(outputs, say=None) -> list:
 
 @contextlib.contextmanager
 def atomic_open(path, mode: str = "w", *, encoding: str | None = "utf-8") -> Iterator[IO]:
-    """Open a temporary file beside ``path``; when the ``with`` body succeeds, it replaces ``path``.
+    """Open a temporary file beside `path`; when the `with` body succeeds, it replaces `path`.
 
-    If the body raises, the temporary file is removed and ``path`` is untouched.
-    ``mode`` is ``'w'`` (text, no newline translation) or ``'wb'``.
+    If the body raises, the temporary file is removed and `path` is untouched.
+    `mode` is `'w'` (text, no newline translation) or `'wb'`.
     """
     if mode not in ("w", "wb"):
         raise ValueError(f"atomic_open: mode must be 'w' or 'wb', not {mode!r}")
@@ -232,9 +232,9 @@ def atomic_open(path, mode: str = "w", *, encoding: str | None = "utf-8") -> Ite
 
 @contextlib.contextmanager
 def staged_path(path) -> Iterator[str]:
-    """A temporary path beside ``path`` for a writer that wants a file name (netCDF ...).
+    """A temporary path beside `path` for a writer that wants a file name (netCDF ...).
 
-    On success it is renamed over ``path`` (symlinks followed, permissions kept);
+    On success it is renamed over `path` (symlinks followed, permissions kept);
     on failure it is removed.
     """
     target = resolve_target(path)
@@ -254,10 +254,10 @@ def staged_path(path) -> Iterator[str]:
 
 
 def atomic_write_text(path, text: str, *, encoding: str = "utf-8") -> None:
-    """Write ``text`` to ``path`` atomically (no newline translation)."""
+    """Write `text` to `path` atomically (no newline translation)."""
     write_all([(path, text.encode(encoding))])
 
 
 def atomic_write_bytes(path, data: bytes) -> None:
-    """Write ``data`` to ``path`` atomically."""
+    """Write `data` to `path` atomically."""
     write_all([(path, data)])
