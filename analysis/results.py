@@ -86,7 +86,13 @@ class ParameterResults(Exportable):
         return pd.Series(values, index=self._index(), name="rel_std_percent")
 
     def cov_params(self) -> pd.DataFrame:
-        """The covariance as a labelled table (statsmodels' name)."""
+        """The covariance as a labelled table (statsmodels' name).
+
+        Returns
+        -------
+        pandas.DataFrame
+            (p, p) covariance, rows and columns labelled by parameter name.
+        """
         index = self._index()
         return pd.DataFrame(np.asarray(self.cov, dtype=float), index=index, columns=list(index))
 
@@ -95,19 +101,37 @@ class ParameterResults(Exportable):
         return float(stats.norm.ppf(1.0 - alpha / 2.0))
 
     def conf_int(self, alpha: float = 0.05) -> pd.DataFrame:
-        """Two-sided (1 − alpha) interval per parameter: columns `lower` and `upper`."""
+        """Two-sided (1 − alpha) interval per parameter: columns `lower` and `upper`.
+
+        Returns
+        -------
+        pandas.DataFrame
+            One row per parameter, columns `lower` and `upper` (the parameter's unit).
+        """
         _check_alpha(alpha)
         half = self._interval_quantile(alpha) * self.bse.to_numpy()
         value = self._estimate()
         return pd.DataFrame({"lower": value - half, "upper": value + half}, index=self._index())
 
     def to_frame(self) -> pd.DataFrame:
-        """Table of the parameters: index = names, columns value, std, rel_std_percent."""
+        """Table of the parameters: index = names, columns value, std, rel_std_percent.
+
+        Returns
+        -------
+        pandas.DataFrame
+            One row per parameter, columns `value`, `std` and `rel_std_percent`.
+        """
         return pd.DataFrame({"value": self._estimate(), "std": self.bse.to_numpy(),
                              "rel_std_percent": self.rel_std.to_numpy()}, index=self._index())
 
     def to_csv(self, path: str | os.PathLike) -> None:
-        """Write `to_frame` as CSV to `path` atomically (all or nothing)."""
+        """Write `to_frame` as CSV to `path` atomically (all or nothing).
+
+        Returns
+        -------
+        None
+            The file is written whole or not at all.
+        """
         text = self.to_frame().to_csv(lineterminator="\n")
         atomic_write_text(path, text)
 

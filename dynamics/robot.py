@@ -159,7 +159,14 @@ class Robot:
         return len(self.standard_names)
 
     def standard_vector(self, values: dict, default: float = 0.0) -> np.ndarray:
-        """Standard-parameter vector from a `{name: value}` mapping."""
+        """Standard-parameter vector from a `{name: value}` mapping.
+
+        Returns
+        -------
+        numpy.ndarray
+            (10 n + extras,) values in the order of `standard_names`, `default` where the
+            mapping has none.
+        """
         names = self.standard_names
         unknown = sorted(set(values) - set(names))
         if unknown:
@@ -167,7 +174,13 @@ class Robot:
         return np.array([values.get(nm, default) for nm in names], dtype=float)
 
     def limits(self):
-        """Arrays (q_min, q_max, qd_max, qdd_max, tau_max), one entry per joint."""
+        """Arrays (q_min, q_max, qd_max, qdd_max, tau_max), one entry per joint.
+
+        Returns
+        -------
+        tuple of numpy.ndarray
+            `(q_min, q_max, qd_max, qdd_max, tau_max)`, each (n,), in SI units (rad or m, N m or N).
+        """
         q_min = np.array([j.q_limits[0] for j in self.joints], dtype=float)
         q_max = np.array([j.q_limits[1] for j in self.joints], dtype=float)
         return (q_min, q_max,
@@ -176,7 +189,13 @@ class Robot:
                 np.array([j.tau_max for j in self.joints], dtype=float))
 
     def dh_table(self):
-        """Rows (j, sigma, alpha, d, theta, r) for joints given in MDH, else None."""
+        """Rows (j, sigma, alpha, d, theta, r) for joints given in MDH, else None.
+
+        Returns
+        -------
+        list of tuple or None
+            `(j, sigma, alpha, d, theta, r)` per joint (rad, m); None for a URDF robot.
+        """
         if any(j.mdh is None for j in self.joints):
             return None
         return [(k + 1, j.sigma) + tuple(j.mdh) for k, j in enumerate(self.joints)]

@@ -75,7 +75,13 @@ class FullReport:
         return self.summary()
 
     def write(self, path) -> None:
-        """Write the HTML report to `path` atomically."""
+        """Write the HTML report to `path` atomically.
+
+        Returns
+        -------
+        None
+            The file is written whole or not at all.
+        """
         from dynid.outputs import atomic_write_text
         atomic_write_text(path, self.html)
 
@@ -167,6 +173,12 @@ def report(data, robot, path=None, *, holdout=None, validation=None, skip=(), se
     holdout : seconds at the end of a single recording held out for validation
     validation : a held-out recording (path or Experiment), instead of `holdout`
     skip : parts of `REPORT_PARTS` not to run
+
+    Returns
+    -------
+    FullReport
+        The results of every stage run, the verdict and the HTML (written to `path`
+        when given).
     """
     from dynid.analysis.data.split import holdout_split
     from dynid.analysis.estimators.idim import identify_idim
@@ -204,7 +216,14 @@ def report(data, robot, path=None, *, holdout=None, validation=None, skip=(), se
 
 
 def demo(*, seed=1, duration=20.0, skip=(), max_seconds=300.0, path=None, say=None) -> FullReport:
-    """The demo: a simulated TX40 (Table 2 of the DIDIM paper) through the whole pipeline."""
+    """The demo: a simulated TX40 (Table 2 of the DIDIM paper) through the whole pipeline.
+
+    Returns
+    -------
+    FullReport
+        The results, the verdict and the HTML report of the simulated TX40 (written to
+        `path` when given).
+    """
     from dynid.analysis.demo import run_demo
     say = say or Reporter()
     skip = check_parts(skip)

@@ -71,7 +71,7 @@ def page_problems(page: str, name: str = "page") -> list[str]:
             problems.append(f"{name}: private name documented: {ident}")
         if kind in ("function", "method"):
             signature = re.search(r'<div class="doc-signature.*?</code>', block, flags=re.S)
-            returns_none = signature is not None and re.search(r"-&gt;\s*None\s*$", _text(signature.group(0)).strip())
+            returns_none = signature is not None and re.search(r"->\s*None$", _text(signature.group(0)).strip())
             if not returns_none and not re.search(r'doc-section-title">(Returns|Yields):', block):
                 problems.append(f"{name}: {kind} {ident} has no Returns section")
         if kind in ("function", "class") and ident.count(".") >= 1:

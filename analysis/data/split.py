@@ -15,6 +15,13 @@ def holdout_split(experiment, seconds: float):
     The split is at `t[-1] - seconds`; the identification part is `t < t_split`
     and the held-out part `t >= t_split` (`Experiment.segment`), so no
     sample is in both.
+
+    Returns
+    -------
+    identification : Experiment
+        The samples with `t < t[-1] - seconds`.
+    held_out : Experiment
+        The last `seconds`.
     """
     try:
         seconds = float(seconds)

@@ -169,7 +169,13 @@ class SimulatedRecording:
     noise_tau: float
 
     def to_dict(self) -> dict:
-        """Settings, reference coefficients and true parameters (JSON-safe)."""
+        """Settings, reference coefficients and true parameters (JSON-safe).
+
+        Returns
+        -------
+        dict
+            JSON-safe.
+        """
         from dynid.dynamics.base_parameters import base_parameters
         from dynid.provenance import json_safe
         bp = base_parameters(self.robot)
@@ -193,6 +199,12 @@ def simulate(robot, duration: float = 20.0, *, seed: int = 1, f0: float = 0.1, h
     `harmonics` harmonics, Bona & Curatella eqs. (17)-(19)); the robot runs
     under the controller of its robot file; q and tau get white Gaussian noise of
     standard deviation `noise_q` (rad) and `noise_tau` (N m).
+
+    Returns
+    -------
+    SimulatedRecording
+        The recording (`experiment`) with the trajectory, the simulated parameters and
+        the noise levels that produced it.
     """
     from dynid.analysis.identify import as_robot
     from dynid.dynamics.base_parameters import base_parameters

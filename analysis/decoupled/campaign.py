@@ -116,7 +116,14 @@ class DecoupledIdentification(ParameterResults):
 
 def simulate_campaign(n_repetitions=25, seed=0, *, torque_noise=None, position_noise=None,
                       rate=C.RATE, substeps=2) -> DecoupledCampaign:
-    """Simulate the campaign on the COMAU of `dynid.dynamics.comau_decoupled` (module doc)."""
+    """Simulate the campaign on the COMAU of `dynid.dynamics.comau_decoupled` (module doc).
+
+    Returns
+    -------
+    DecoupledCampaign
+        The sweep, bang-bang, excitation and validation recordings of each joint, the
+        controller and the true parameters.
+    """
     n = C.N_JOINTS
     tn = C.TORQUE_NOISE if torque_noise is None else torque_noise
     pn = C.POSITION_NOISE if position_noise is None else position_noise
@@ -143,7 +150,14 @@ def simulate_campaign(n_repetitions=25, seed=0, *, torque_noise=None, position_n
 def identify_campaign(c: DecoupledCampaign, *, confidence=DEFAULT_CONFIDENCE, validate=True,
                       use_truth=True) -> DecoupledIdentification:
     """Tables 1, 2, 3 (in the paper's order, each compensating with the previous means) and the
-    validation of section 3.5. `use_truth`: attach the true values (coverage check)."""
+    validation of section 3.5. `use_truth`: attach the true values (coverage check).
+
+    Returns
+    -------
+    DecoupledIdentification
+        Gravity, friction and inertia estimates over the repetitions (Tables 1-3) and
+        the validation.
+    """
     t0 = time.perf_counter()
     truth = c.truth if use_truth else None
     n = c.sweep.q.shape[2]

@@ -125,7 +125,13 @@ class GravityTiltResult(Exportable):
         return "\n".join(lines)
 
     def sentence(self) -> str:
-        """The estimate in one sentence (for a report paragraph)."""
+        """The estimate in one sentence (for a report paragraph).
+
+        Returns
+        -------
+        str
+            One sentence with the tilt angles [mrad] and their standard deviations.
+        """
         t, s = 1e3 * self.theta, 1e3 * self.sigma
         return (f"Tilt {t[0]:+.2f} \u00b1 {s[0]:.2f} mrad about the base x axis and {t[1]:+.2f} \u00b1 "
                 f"{s[1]:.2f} mrad about the base y axis; gravity (" + ", ".join(f"{v:+.4f}" for v in self.gravity)

@@ -50,7 +50,13 @@ class IDIMResult(ModelResults):
         return self.essential.result
 
     def parameter_table(self):
-        """One row per base parameter: relation, OLS and WLS value and %σ, essential flag."""
+        """One row per base parameter: relation, OLS and WLS value and %σ, essential flag.
+
+        Returns
+        -------
+        pandas.DataFrame
+            One row per base parameter.
+        """
         rows = []
         ess = dict(zip(self.model.names, zip(self.model.chi, self.model.rel_sigma)))
         for k, name in enumerate(self.base.names):

@@ -258,7 +258,13 @@ class MLResult(ParameterResults):
         return float(self.theta[i]), float(self.sigma[i])
 
     def trajectory(self, t):
-        """Latent (q, qd, qdd) at times t, each (len(t), n)."""
+        """Latent (q, qd, qdd) at times t, each (len(t), n).
+
+        Returns
+        -------
+        q, qd, qdd : numpy.ndarray
+            Each (len(t), n): rad, rad/s, rad/s^2.
+        """
         B, Bd, Bdd = fourier_basis(t, self.f0, self.n_harmonics)
         C = self.coefficients.T
         return B @ C, Bd @ C, Bdd @ C

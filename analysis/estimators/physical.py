@@ -374,7 +374,13 @@ class PhysicalResult(ParameterResults):
     def conf_int(self, alpha: float = 0.05) -> pd.DataFrame:
         """(1 - alpha) intervals: hull of the bootstrap percentiles and `chi +- z sigma_wls`,
         cut at the physical lower bound (module doc); without a bootstrap (or with fewer
-        than 20 refits) the WLS half-width alone, cut the same way."""
+        than 20 refits) the WLS half-width alone, cut the same way.
+
+        Returns
+        -------
+        pandas.DataFrame
+            One row per parameter, columns `lower` and `upper`.
+        """
         from dynid.analysis.results import _check_alpha
         _check_alpha(alpha)
         half = self._interval_quantile(alpha) * np.sqrt(np.maximum(np.diag(self.wls_cov), 0.0))
@@ -390,7 +396,13 @@ class PhysicalResult(ParameterResults):
                             index=pd.Index(self.standard_names, name="parameter"))
 
     def comparison(self) -> pd.DataFrame:
-        """Per base parameter: WLS value and sigma, PC value and sigma (interval_covariance), shift in WLS sigma."""
+        """Per base parameter: WLS value and sigma, PC value and sigma (interval_covariance), shift in WLS sigma.
+
+        Returns
+        -------
+        pandas.DataFrame
+            One row per base parameter.
+        """
         s_wls = np.sqrt(np.maximum(np.diag(self.wls_cov), 0))
         with np.errstate(divide="ignore", invalid="ignore"):
             return pd.DataFrame({"wls": self.wls_chi, "wls_std": s_wls,
@@ -401,7 +413,13 @@ class PhysicalResult(ParameterResults):
 
     def to_standard_set(self):
         """The PC standard set as a `StandardSet`
-        (what the URDF export writes), its targets the unconstrained WLS values."""
+        (what the URDF export writes), its targets the unconstrained WLS values.
+
+        Returns
+        -------
+        StandardSet
+            The standard parameters of every link, physically consistent.
+        """
         from dynid.analysis.estimators.standard_set import REPRODUCE_CHI2, StandardSet
         sig = np.sqrt(np.maximum(np.diag(self.wls_cov), 0.0))
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -423,14 +441,26 @@ class PhysicalResult(ParameterResults):
 
     def predict(self, W_base):
         """Torques (N, n) from a base regressor (N, n, b) (its essential columns for the
-        PC fit of the essential set)."""
+        PC fit of the essential set).
+
+        Returns
+        -------
+        numpy.ndarray
+            (N, n) joint torques [N m].
+        """
         W = np.asarray(W_base)
         return (W if self.columns is None else W[..., self.columns]) @ self.chi
 
     def held_out_block(self, experiment, robot) -> dict:
         """Held-out relative error ||tau - tau_hat|| / ||tau|| and per-joint RMS [N m] of this fit and
         of the unconstrained WLS it constrains, on all decimated samples of `experiment` (no dead
-        zone, as `dynid.analysis.statistics.validation.validate`), with the gap in points."""
+        zone, as `dynid.analysis.statistics.validation.validate`), with the gap in points.
+
+        Returns
+        -------
+        dict
+            JSON-safe: relative errors and per-joint RMS [N m] of both fits.
+        """
         from dynid.analysis.processing.observation import observe
         from dynid.analysis.statistics.validation import prediction_errors
         if self.idim is None:
@@ -444,7 +474,13 @@ class PhysicalResult(ParameterResults):
                 "rms_pc": [float(x) for x in rms_pc], "gap_points": 100.0 * (e_pc - e_wls)}
 
     def physical_block(self) -> dict:
-        """The JSON block `"physical"` of `dynid identify --physical`."""
+        """The JSON block `"physical"` of `dynid identify --physical`.
+
+        Returns
+        -------
+        dict
+            JSON-safe.
+        """
         from dynid.provenance import json_safe
         return json_safe({
             "model": self.model,

@@ -366,7 +366,13 @@ class ProjectionResult(ParameterResults):
         return df
 
     def joint_table(self):
-        """Per joint: M1, M2, rank of the lag space, corr(û, ũ), max cross-correlation."""
+        """Per joint: M1, M2, rank of the lag space, corr(û, ũ), max cross-correlation.
+
+        Returns
+        -------
+        pandas.DataFrame
+            One row per joint.
+        """
         n = len(self.m1)
         return pd.DataFrame({"M1": self.m1, "M2": self.m2, "fir_rank": self.fir_rank,
                              "corr_uhat_utilde": self.corr, "max_xcorr": self.max_xcorr,

@@ -225,6 +225,11 @@ def monitor(frame: pd.DataFrame, parameters=DEFAULT_PARAMETERS, *, false_alarm_r
     `n_baseline`: the first recordings of each robot, taken as healthy, that fix
     its reference value and (pooled over the fleet) the scatter and the temperature
     coefficient. Series with fewer recordings are reported without alarms.
+
+    Returns
+    -------
+    FleetHealth
+        Per robot and parameter: the history, the compensated series and the alarms.
     """
     n_baseline = int(n_baseline)
     if n_baseline < 3:

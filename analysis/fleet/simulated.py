@@ -127,6 +127,12 @@ def simulate_fleet(folder, n_robots: int = 20, n_days: int = 30, *, seed: int = 
     `client`: a Dask client to simulate on (the recordings are independent), else serial.
     `write=False`: only the plan and the truth (the recordings of an earlier call with the
     same arguments are reused).
+
+    Returns
+    -------
+    SimulatedFleet
+        The plan of the recordings, the true parameters (with wear) and the paths
+        written.
     """
     from dynid.analysis.fleet.task import _robot
     os.makedirs(folder, exist_ok=True)

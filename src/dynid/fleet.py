@@ -26,7 +26,13 @@ __all__ = ["run", "read_store", "monitor", "simulate_fleet", "read_catalogue", "
 
 
 def read_store(store):
-    """Every row of a results store, as a DataFrame (one row per recording and parameter)."""
+    """Every row of a results store, as a DataFrame (one row per recording and parameter).
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per recording and parameter.
+    """
     return ResultStore(store).read()
 
 
@@ -42,6 +48,12 @@ def run(catalogue, store, *, scheduler: str | None = None, workers: int | None =
     `client` (a `distributed.Client`) is used. `parameters`: the base parameters to
     monitor, by family (`Fv` = every joint's) or by name (`Fv2`). `report`/`json`:
     write the fleet report. Returns the `FleetRun`, its `health` the alarms.
+
+    Returns
+    -------
+    FleetRun
+        What was identified, skipped or failed, the store's rows and the fleet's
+        health (alarms per robot and parameter).
     """
     result = identify_fleet(catalogue, store, scheduler=scheduler, workers=workers, client=client,
                             settings=settings, diagnose=diagnose, progress=progress)
