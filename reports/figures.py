@@ -175,8 +175,48 @@ def _count_vertices(fig) -> int:
     return total
 
 
+def _labels_overlap(labels, renderer, pad=2.0) -> bool:
+    boxes = [t.get_window_extent(renderer) for t in labels if t.get_visible() and t.get_text()]
+    boxes.sort(key=lambda b: b.x0)
+    return any(b.x0 < a.x1 + pad for a, b in zip(boxes, boxes[1:]))
+
+
+def thin_overlapping_ticks(fig, min_bins: int = 2, max_width_in: float = 4.0) -> None:
+    """Fewer numeric x ticks on every axes whose x tick labels overlap.
+
+    Narrow panels (one per joint, a few centimetres wide) get as many ticks from
+    matplotlib's automatic locator as a full-width plot, and their labels run into each
+    other. Only automatic locators are thinned: named ticks (parameter names) are kept.
+    """
+    from matplotlib.ticker import AutoLocator, MaxNLocator
+    # only narrow panels crowd (a full-width plot is left alone, and costs no extra layout pass)
+    axes = [ax for ax in fig.get_axes() if ax.get_visible()
+            and ax.get_position().width * fig.get_figwidth() < max_width_in
+            and isinstance(ax.xaxis.get_major_locator(), (AutoLocator, MaxNLocator))]
+    if not axes:
+        return
+    FigureCanvasAgg(fig)
+    renderer = fig.canvas.get_renderer()
+    fig.draw_without_rendering()
+    for nbins in (5, 4, 3, min_bins):
+        crowded = [ax for ax in axes if _labels_overlap(ax.xaxis.get_ticklabels(), renderer)]
+        if not crowded:
+            return
+        for ax in crowded:
+            ax.xaxis.set_major_locator(MaxNLocator(nbins=nbins, steps=[1, 2, 2.5, 5, 10]))
+        fig.draw_without_rendering()          # one layout pass for all the thinned axes
+
+
 def render_figure(fig, key: str, caption: str, *, fmt: str = "auto") -> FigureMarkup:
-    """Serialise `fig` to a `FigureMarkup` (SVG, or PNG when dense / asked)."""
+    """Serialise `fig` to a `FigureMarkup` (SVG, or PNG when dense / asked).
+
+    Returns
+    -------
+    FigureMarkup
+        The figure as trusted HTML, with its key and caption; x tick labels that
+        would overlap are thinned first.
+    """
+    thin_overlapping_ticks(fig)
     if fmt == "auto":
         fmt = "png" if _count_vertices(fig) > SVG_MAX_VERTICES else "svg"
     label = escape(caption)

@@ -377,14 +377,18 @@ def _base_section(res):
 
 
 def _table2_section(res, reference):
+    # The papers' Table 2 layout only where a published table exists to set beside it; any other
+    # robot gets its essential parameters under their own name (same anchor, same figure).
     m = res.model
+    published = reference is not None
     tab = T.table2_layout(m.names, m.chi, m.rel_sigma, reference, res.base.names, key="tab-table2",
-                          caption="Essential parameters (WLS) in the layout of Table 2",
+                          caption=("Essential parameters (WLS) in the layout of Table 2" if published else
+                                   "Essential parameters (WLS): value and %\u03c3"),
                           ours_label="dynid WLS")
-    ref_map = reference.rel_std_map() if reference is not None else None
+    ref_map = reference.rel_std_map() if published else None
     fig = F.rel_std_bar_figure(m.names, m.rel_sigma, ref_map, key="fig-rel-std",
                                ours_label="dynid WLS")
-    if reference is not None:
+    if published:
         common = [n for n in m.names if n in reference]
         body = join(
             para(f"The {len(m.names)} essential parameters identified by WLS, beside the published "
@@ -393,10 +397,9 @@ def _table2_section(res, reference):
             para(reference.citation, ". ", reference.note, cls="hint"),
         )
     else:
-        body = para(f"The {len(m.names)} essential parameters identified by WLS. No published "
-                    f"reference is known for robot {res.robot_name!r}.")
-    return Section("table2", "Essential parameters (Table 2)", body, figures=[fig],
-                   tables=[tab], tables_first=True)
+        body = para(f"The {len(m.names)} essential parameters identified by WLS, with their %\u03c3.")
+    return Section("table2", "Essential parameters (Table 2)" if published else "Essential parameters",
+                   body, figures=[fig], tables=[tab], tables_first=True)
 
 
 def _path_section(res):
@@ -549,14 +552,51 @@ def idim_sections(idim_result, robot, experiment=None, validation=None, *, refer
     return sections
 
 
+#: what a report is, from the sections it carries beyond IDIM's: its title names it
+REPORT_TITLES = {
+    "identification": "Identification of {robot}",
+    "diagnosis": "Residual diagnosis of {robot}",
+    "posterior": "Posterior of the parameters of {robot}",
+    "didim": "DIDIM identification of {robot}",
+    "full": "Full report on {robot}: identification, validation and beyond",
+}
+
+
+def report_kind(extra_sections) -> str:
+    """What a report with these extra sections is (a key of `REPORT_TITLES`).
+
+    Returns
+    -------
+    str
+        `"identification"` without extra sections, `"diagnosis"`, `"posterior"` or
+        `"didim"` with the sections of one of them, `"full"` with several.
+    """
+    kinds = set()
+    for sec in extra_sections or ():
+        sid = getattr(sec, "id", "")
+        for kind in ("diagnosis", "posterior", "didim"):
+            if sid == kind or sid.startswith(kind + "-"):
+                kinds.add(kind)
+    if len(kinds) > 1:
+        return "full"
+    return kinds.pop() if kinds else "identification"
+
+
 def render_idim_report(idim_result, robot, experiment=None, validation=None, *, title=None,
-                       extra_sections=None, reference="auto", verdict=None) -> str:
+                       extra_sections=None, reference="auto", verdict=None, kind=None) -> str:
     """One self-contained HTML page reporting an IDIM identification.
 
     `extra_sections` (list of `Section`) are appended after the
     standard ones. `verdict`: a `dynid.analysis.statistics.verdict.Verdict`
     (computed from the result and the validation if not given), shown first.
-    Returns the HTML text; write it with `write_report`.
+    `kind`: what the report is (a key of `REPORT_TITLES`: `"full"` for the
+    pipeline's report); by default read from the extra sections (`report_kind`).
+    The title says it unless `title` is given.
+
+    Returns
+    -------
+    str
+        The HTML text; write it with `write_report`.
     """
     if verdict is None:
         from dynid.analysis.statistics.verdict import verdict as _verdict
@@ -582,7 +622,7 @@ def render_idim_report(idim_result, robot, experiment=None, validation=None, *, 
         footer.append(f"Reference values: {reference.citation}, {reference.title}.")
     return render_sections(
         sections,
-        title=title or f"IDIM identification of {idim_result.robot_name}",
+        title=title or REPORT_TITLES[kind or report_kind(extra_sections)].format(robot=idim_result.robot_name),
         subtitle=str(idim_result.source),
         highlights=highlights,
         footer=footer,
