@@ -175,18 +175,24 @@ def _count_vertices(fig) -> int:
     return total
 
 
-def _labels_overlap(labels, renderer, pad=2.0) -> bool:
+def _labels_overlap(axis, renderer, pad=2.0) -> bool:
+    """Whether the drawn major tick labels of `axis` run into each other."""
+    lo, hi = sorted(axis.get_view_interval())
+    span = (hi - lo) * 1e-9
+    labels = [t for loc, t in zip(axis.get_majorticklocs(), axis.get_ticklabels())
+              if lo - span <= loc <= hi + span]      # ticks outside the view are not drawn
     boxes = [t.get_window_extent(renderer) for t in labels if t.get_visible() and t.get_text()]
     boxes.sort(key=lambda b: b.x0)
     return any(b.x0 < a.x1 + pad for a, b in zip(boxes, boxes[1:]))
 
 
 def thin_overlapping_ticks(fig, min_bins: int = 2, max_width_in: float = 4.0) -> None:
-    """Fewer numeric x ticks on every axes whose x tick labels overlap.
+    """Fewer numeric x ticks on every narrow axes whose x tick labels overlap.
 
-    Narrow panels (one per joint, a few centimetres wide) get as many ticks from
-    matplotlib's automatic locator as a full-width plot, and their labels run into each
-    other. Only automatic locators are thinned: named ticks (parameter names) are kept.
+    Narrow panels (one per joint, a few centimetres wide) with long tick labels
+    (-0.00025) run the labels into each other. The ticks are thinned (automatic locators
+    only: named ticks such as parameter names are kept); labels still overlapping at two
+    ticks are slanted.
     """
     from matplotlib.ticker import AutoLocator, MaxNLocator
     # only narrow panels crowd (a full-width plot is left alone, and costs no extra layout pass)
@@ -198,9 +204,16 @@ def thin_overlapping_ticks(fig, min_bins: int = 2, max_width_in: float = 4.0) ->
     FigureCanvasAgg(fig)
     renderer = fig.canvas.get_renderer()
     fig.draw_without_rendering()
-    for nbins in (5, 4, 3, min_bins):
-        crowded = [ax for ax in axes if _labels_overlap(ax.xaxis.get_ticklabels(), renderer)]
+    for nbins in (5, 4, 3, min_bins, None):
+        crowded = [ax for ax in axes if _labels_overlap(ax.xaxis, renderer)]
         if not crowded:
+            return
+        if nbins is None:                     # long labels even at two ticks: slant them
+            for ax in crowded:
+                ax.tick_params(axis="x", labelrotation=35)
+                for label in ax.xaxis.get_ticklabels():
+                    label.set_horizontalalignment("right")
+                    label.set_rotation_mode("anchor")
             return
         for ax in crowded:
             ax.xaxis.set_major_locator(MaxNLocator(nbins=nbins, steps=[1, 2, 2.5, 5, 10]))
