@@ -70,9 +70,10 @@ def identify(data, robot, method: str = "idim", *, settings=None, max_error_grow
         other methods take one.
     robot : Robot, str or path
         A Robot, a bundled name (`"tx40"`) or the path of a `.toml` / `.urdf` file.
-    method : {"idim", "didim", "projection", "ml"}
-        IDIM (Gautier et al. 2010, eqs. (9)-(16)), DIDIM (eqs. (25)-(30)), the
-        Projection Method or maximum likelihood (Bona & Curatella 2005).
+    method : str
+        `"idim"` (default), `"didim"`, `"projection"` or `"ml"`: IDIM (Gautier et al.
+        2010, eqs. (9)-(16)), DIDIM (eqs. (25)-(30)), the Projection Method or maximum
+        likelihood (Bona & Curatella 2005).
     settings : dict, optional
         Processing overrides (`fc_position`, `nd`, `decimation_cutoff`,
         `qd_threshold`); the defaults come from the data.
@@ -83,15 +84,15 @@ def identify(data, robot, method: str = "idim", *, settings=None, max_error_grow
         ML only: fundamental frequency (Hz) of the periodic excitation. Required by ML.
     ml_harmonics : int, optional
         ML only: number of harmonics of the latent trajectory.
-    reference : {"qr", "q"}, optional
+    reference : str, optional
         DIDIM only: the reference the simulated loop tracks; default `"qr"` (the
         logged reference) when logged, else `"q"`.
     max_iter : int, optional
         DIDIM only: maximum Gauss-Newton iterations.
-    update_gains : bool or "initial"
+    update_gains : bool or str
         DIDIM only: the gain update of eq. (27): every step (True), the first
         step only (`"initial"`) or never (False).
-    gains : {"assumed", "identify"}
+    gains : str
         DIDIM only. `"assumed"`: the controller gains of the robot file, as the
         paper does. `"identify"`: the gains are first identified from the logged
         reference, position and torque, and DIDIM simulates with them (no gain
@@ -105,7 +106,7 @@ def identify(data, robot, method: str = "idim", *, settings=None, max_error_grow
         Slotine 2017) instead. DIDIM: PC-DIDIM, each Gauss-Newton step's WLS refitted
         under physical consistency (`result.physical` is the last step's fit).
         Needs `pip install "dynid[physical]"`.
-    prior : {"apriori", "geometric"}, optional
+    prior : str, optional
         Physical only: `"apriori"` adds `prior_weight` times the squared scaled
         distance to the robot file's a-priori values, `"geometric"` the entropic
         divergence of each link's pseudo-inertia from its a-priori one (Lee, Wensing
@@ -116,7 +117,7 @@ def identify(data, robot, method: str = "idim", *, settings=None, max_error_grow
         Physical only: keep each link mass within this fraction of its a-priori value.
     n_boot : int
         Physical only: parametric-bootstrap refits for the uncertainty.
-    physical_set : {"base", "essential"}
+    physical_set : str
         IDIM physical only: constrain the WLS of all base parameters (default) or
         the essential WLS.
 
