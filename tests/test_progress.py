@@ -60,3 +60,18 @@ def test_short_work_stays_silent(caplog):
     with P.task("quick", delay=60.0, log_every=0.0, stream=io.StringIO()) as progress:
         progress(1.0)
     assert not caplog.records
+
+
+def test_the_pipelines_default_reporter_logs_progress_and_quiet_silences_it(caplog, monkeypatch):
+    """`dynid.report(...)` in Python (its default Reporter) says it is alive; --quiet does not."""
+    from dynid.reports.progress import Reporter
+    caplog.set_level(logging.INFO, logger="dynid.progress")
+    clock = iter(range(0, 1000, 5))                       # five seconds between calls
+    monkeypatch.setattr(P.time, "monotonic", lambda: float(next(clock)))
+    with Reporter().progress("diagnosis") as bar:
+        bar.update(0.5)
+    assert any("diagnosis: 50 %" in r.getMessage() for r in caplog.records)
+    caplog.clear()
+    with Reporter(quiet=True).progress("diagnosis") as bar:
+        bar.update(0.5)
+    assert not caplog.records
