@@ -1,9 +1,9 @@
-"""The `dynid` command line.
+"""The ``dynid`` command line.
 
 Exit codes: 0 ok; 1 internal error (a bug: please report it); 2 bad input
 (data, robot file, options); 3 an iterative method did not converge;
 130 interrupted. Errors are printed as one message, never a traceback
-(`--debug` shows it).
+(``--debug`` shows it).
 """
 from __future__ import annotations
 
@@ -590,7 +590,7 @@ def cmd_robot(args, say):
 
 
 def _verdict(args, result, validation=None, **kw):
-    """The verdict of `result` (`dynid.analysis.statistics.verdict.verdict`), shown first."""
+    """The verdict of ``result`` (:func:`dynid.analysis.statistics.verdict.verdict`), shown first."""
     from dynid.analysis.statistics.verdict import verdict
     v = verdict(result, validation, **kw)
     _show(args, v.summary())
@@ -659,7 +659,7 @@ def _write_outputs(args, say, result, robot, experiment, validation, asym=None, 
 
 
 def commit_outputs(outputs, say):
-    """Write `(path, text)` pairs all or none (`dynid.outputs.write_all`)."""
+    """Write ``(path, text)`` pairs all or none (:func:`dynid.outputs.write_all`)."""
     from dynid.outputs import write_all
     write_all(outputs, say)
 
@@ -672,7 +672,7 @@ _TOML_PEEK_BYTES = 1 << 20
 
 
 def _same_file(a, b) -> bool:
-    """Whether paths `a` and `b` are one file (symlinks followed, hard links too)."""
+    """Whether paths ``a`` and ``b`` are one file (symlinks followed, hard links too)."""
     try:
         if os.path.realpath(a) == os.path.realpath(b):
             return True
@@ -682,7 +682,7 @@ def _same_file(a, b) -> bool:
 
 
 def _referenced_files(path):
-    """Files a robot or experiment TOML refers to (`urdf`, `file`), relative to its folder."""
+    """Files a robot or experiment TOML refers to (``urdf``, ``file``), relative to its folder."""
     try:
         if not path.lower().endswith(".toml") or not os.path.isfile(path) \
                 or os.path.getsize(path) > _TOML_PEEK_BYTES:
@@ -703,7 +703,7 @@ def _referenced_files(path):
 
 
 def _input_files(args):
-    """`(what, path)` of every input file the options name (data, validation, robot file)."""
+    """``(what, path)`` of every input file the options name (data, validation, robot file)."""
     out = []
     data = getattr(args, "data", None)
     for p in [data] if isinstance(data, str) else (data or []):
@@ -839,7 +839,7 @@ def _stdout_failed(args):
 
 
 def _show_clean(args, *texts):
-    """`_show` with control characters escaped (names read from files reach summaries)."""
+    """:func:`_show` with control characters escaped (names read from files reach summaries)."""
     _show(args, *(clean_text(t) if t else t for t in texts))
 
 
@@ -965,7 +965,7 @@ def cmd_identify(args, say):
 
 
 def _effect_candidates(args, robot):
-    """The candidates of `--effects` (None without it), refused early with the options they
+    """The candidates of ``--effects`` (None without it), refused early with the options they
     do not combine with."""
     from dynid.errors import InputError
     if not getattr(args, "effects", None):
@@ -995,7 +995,7 @@ def _effect_candidates(args, robot):
 
 
 def _write_method_outputs(args, say, result, frame, sections, title, robot=None):
-    """Verdict and summary, then JSON / CSV (`frame`) / HTML (`sections`) of a DIDIM, PM or ML result."""
+    """Verdict and summary, then JSON / CSV (``frame``) / HTML (``sections``) of a DIDIM, PM or ML result."""
     from dynid.provenance import dumps_json
     from dynid.reports.html import render_sections, verdict_block
     the_verdict = _verdict(args, result, robot=robot)
