@@ -2,8 +2,8 @@
 
 The simulated robot's essential parameters are the values of Table 2 of
 Gautier, Janot, Vandanjon (2010); the rest of its base parameters are zero
-except Ia6 (see :mod:`dynid.analysis.data.synthetic`). It tracks a random Fourier-series
-reference under the PD controller of ``tx40.toml`` at 5 kHz; the recorded q
+except Ia6 (see `dynid.analysis.data.synthetic`). It tracks a random Fourier-series
+reference under the PD controller of `tx40.toml` at 5 kHz; the recorded q
 and tau carry white noise. A second, different reference serves for
 validation.
 """

@@ -1,24 +1,24 @@
-"""``identify``: one entry point for every estimator of the two papers.
+"""`identify`: one entry point for every estimator of the two papers.
 
-``identify(data, robot, method=...)`` loads what it is given (a path, an
-:class:`~dynid.analysis.data.experiment.Experiment` or a list of them, a robot
-name, file or :class:`~dynid.dynamics.robot.Robot`) and runs
+`identify(data, robot, method=...)` loads what it is given (a path, an
+`Experiment` or a list of them, a robot
+name, file or `Robot`) and runs
 
-* ``"idim"``: IDIM with OLS, per-joint WLS and essential parameters (Gautier,
+* `"idim"`: IDIM with OLS, per-joint WLS and essential parameters (Gautier,
   Janot & Vandanjon 2010, section 2, eqs. (9)-(16));
-* ``"didim"``: the closed-loop output error of section 3 (eqs. (25)-(30));
-* ``"projection"``: the Projection Method of Bona & Curatella (2005), eqs. (10)-(12);
-* ``"ml"``: errors-in-variables maximum likelihood, eqs. (13)-(16) (needs ``f0``).
+* `"didim"`: the closed-loop output error of section 3 (eqs. (25)-(30));
+* `"projection"`: the Projection Method of Bona & Curatella (2005), eqs. (10)-(12);
+* `"ml"`: errors-in-variables maximum likelihood, eqs. (13)-(16) (needs `f0`).
 
-With ``physical=True`` (IDIM; DIDIM refits every Gauss-Newton step the same way) the WLS of all base parameters is refitted
+With `physical=True` (IDIM; DIDIM refits every Gauss-Newton step the same way) the WLS of all base parameters is refitted
 under physical consistency (every link's pseudo-inertia positive
 semidefinite, Ia, Fv, Fc >= 0; Wensing, Kim & Slotine 2017), an SDP:
-:func:`~dynid.analysis.estimators.physical.identify_physical`; the result is a
-:class:`~dynid.analysis.estimators.physical.PhysicalResult` whose ``idim``
+`identify_physical`; the result is a
+`PhysicalResult` whose `idim`
 holds the unconstrained identification.
 
 Every method returns a result with the interface of
-:class:`~dynid.analysis.results.ParameterResults`.
+`ParameterResults`.
 """
 from __future__ import annotations
 

@@ -1,16 +1,16 @@
 """Results of an identification, modelled on statsmodels' results classes.
 
-:class:`ParameterResults` is the one interface every estimator's result has
+`ParameterResults` is the one interface every estimator's result has
 (IDIM, DIDIM, the Projection Method, maximum likelihood, the posterior, the
-per-joint models): ``method``, ``names``, ``params`` (a pandas Series),
-``bse``, ``rel_std`` (%σ, eq. (15)), ``cov``, ``conf_int(alpha)``,
-``summary()``, ``to_frame()``, ``to_dict()``, ``to_json(path)`` and
-``to_csv(path)``. Method-specific extras stay attributes of each class.
+per-joint models): `method`, `names`, `params` (a pandas Series),
+`bse`, `rel_std` (%σ, eq. (15)), `cov`, `conf_int(alpha)`,
+`summary()`, `to_frame()`, `to_dict()`, `to_json(path)` and
+`to_csv(path)`. Method-specific extras stay attributes of each class.
 
-:class:`IdentificationResult` holds the estimate χ̂ (eq. (11)), its covariance
+`IdentificationResult` holds the estimate χ̂ (eq. (11)), its covariance
 (eq. (14)), standard deviations and relative standard deviations (eq. (15)),
 and the residual statistics, and knows how to print, tabulate and save itself.
-Estimators in :mod:`dynid.analysis.estimators.least_squares` build it; users only read it.
+Estimators in `dynid.analysis.estimators.least_squares` build it; users only read it.
 """
 
 from __future__ import annotations
@@ -32,10 +32,10 @@ _WIDTH = 78
 
 
 class Exportable:
-    """``to_json(path)`` and ``str()`` of any result with ``to_dict()`` and ``summary()``."""
+    """`to_json(path)` and `str()` of any result with `to_dict()` and `summary()`."""
 
     def to_json(self, path: str | os.PathLike) -> None:
-        """Write :meth:`to_dict` as JSON to ``path`` atomically (all or nothing)."""
+        """Write `to_dict` as JSON to `path` atomically (all or nothing)."""
         # Serialise first: a failure here must not even create the temporary file.
         text = dumps_json(self.to_dict())
         atomic_write_text(path, text)
@@ -47,11 +47,11 @@ class Exportable:
 class ParameterResults(Exportable):
     """The interface shared by every result (a mixin; it holds no data of its own).
 
-    A class using it has ``method`` (str), ``names`` (list of parameter names),
-    ``cov`` (ndarray (p, p), the covariance of the estimate), ``summary()`` and
-    ``to_dict()``, and says what its estimate is by :meth:`_estimate`
-    (default: the attribute ``chi``). Intervals are normal by default;
-    :meth:`_interval_quantile` and :meth:`conf_int` are overridden where the
+    A class using it has `method` (str), `names` (list of parameter names),
+    `cov` (ndarray (p, p), the covariance of the estimate), `summary()` and
+    `to_dict()`, and says what its estimate is by `_estimate`
+    (default: the attribute `chi`). Intervals are normal by default;
+    `_interval_quantile` and `conf_int` are overridden where the
     estimate's distribution is another (Student for repeated experiments,
     sample quantiles for a posterior).
     """
@@ -86,7 +86,13 @@ class ParameterResults(Exportable):
         return pd.Series(values, index=self._index(), name="rel_std_percent")
 
     def cov_params(self) -> pd.DataFrame:
-        """The covariance as a labelled table (statsmodels' name)."""
+        """The covariance as a labelled table (statsmodels' name).
+
+        Returns
+        -------
+        pandas.DataFrame
+            (p, p) covariance, rows and columns labelled by parameter name.
+        """
         index = self._index()
         return pd.DataFrame(np.asarray(self.cov, dtype=float), index=index, columns=list(index))
 
@@ -95,29 +101,47 @@ class ParameterResults(Exportable):
         return float(stats.norm.ppf(1.0 - alpha / 2.0))
 
     def conf_int(self, alpha: float = 0.05) -> pd.DataFrame:
-        """Two-sided (1 − alpha) interval per parameter: columns ``lower`` and ``upper``."""
+        """Two-sided (1 − alpha) interval per parameter: columns `lower` and `upper`.
+
+        Returns
+        -------
+        pandas.DataFrame
+            One row per parameter, columns `lower` and `upper` (the parameter's unit).
+        """
         _check_alpha(alpha)
         half = self._interval_quantile(alpha) * self.bse.to_numpy()
         value = self._estimate()
         return pd.DataFrame({"lower": value - half, "upper": value + half}, index=self._index())
 
     def to_frame(self) -> pd.DataFrame:
-        """Table of the parameters: index = names, columns value, std, rel_std_percent."""
+        """Table of the parameters: index = names, columns value, std, rel_std_percent.
+
+        Returns
+        -------
+        pandas.DataFrame
+            One row per parameter, columns `value`, `std` and `rel_std_percent`.
+        """
         return pd.DataFrame({"value": self._estimate(), "std": self.bse.to_numpy(),
                              "rel_std_percent": self.rel_std.to_numpy()}, index=self._index())
 
     def to_csv(self, path: str | os.PathLike) -> None:
-        """Write :meth:`to_frame` as CSV to ``path`` atomically (all or nothing)."""
+        """Write `to_frame` as CSV to `path` atomically (all or nothing).
+
+        Returns
+        -------
+        None
+            The file is written whole or not at all.
+        """
         text = self.to_frame().to_csv(lineterminator="\n")
         atomic_write_text(path, text)
 
 
 class ModelResults(ParameterResults):
-    """A result whose parameters are those of its :attr:`model` (an IdentificationResult).
+    """A result whose parameters are those of its `model` (an IdentificationResult).
 
-    IDIM and DIDIM identify every base parameter (``base``) and then keep a model (the
-    essential parameters): ``params``, ``bse``, ``conf_int()`` and :meth:`predict` are the
-    model's. The class using it defines ``model`` and ``base``.
+    IDIM and DIDIM identify every base parameter (`base`) and then keep a model (the
+    essential parameters): `params`, `bse`, `conf_int()` and `predict` are the
+    model's. The class using it defines `model` and `base`.
     """
 
     @property
@@ -132,13 +156,13 @@ class ModelResults(ParameterResults):
         return self.model.chi
 
     def columns(self, names=None):
-        """Indices of ``names`` (default: the model's) among the base parameters."""
+        """Indices of `names` (default: the model's) among the base parameters."""
         names = self.model.names if names is None else names
         index = {n: k for k, n in enumerate(self.base.names)}
         return [index[n] for n in names]
 
     def predict(self, W_base):
-        """Torques (N, n) of :attr:`model` from a base regressor (N, n, b)."""
+        """Torques (N, n) of `model` from a base regressor (N, n, b)."""
         return np.asarray(W_base)[:, :, self.columns()] @ self.model.chi
 
 
@@ -154,7 +178,7 @@ class IdentificationResult(ParameterResults):
     Attributes
     ----------
     method : str
-        Estimator, e.g. ``"OLS"`` or ``"WLS"``.
+        Estimator, e.g. `"OLS"` or `"WLS"`.
     names : list[str]
         Parameter names, in the order of the columns of W.
     chi : ndarray (b,)
@@ -165,13 +189,13 @@ class IdentificationResult(ParameterResults):
         Standard deviations σ_χ̂i = sqrt(cov[i, i]) (computed, not passed).
     rel_sigma : ndarray (b,)
         Relative standard deviations %σ = 100 σ / |χ̂|, eq. (15) (computed):
-        ``inf`` when χ̂_i = 0 < σ_i, ``nan`` when both are 0.
+        `inf` when χ̂_i = 0 < σ_i, `nan` when both are 0.
     sigma_rho : float
         σ̂_ρ of eq. (13). For WLS it is that of the weighted system
         (dimensionless, close to 1 when the joint weights are consistent).
     joint_sigma : ndarray (n,) or None
         Per-joint error standard deviations σ_j used as WLS weights 1/σ_j
-        (original units); ``None`` for OLS; ``nan`` for a joint without rows.
+        (original units); `None` for OLS; `nan` for a joint without rows.
     residual : ndarray (N, n)
         τ − W3 χ̂ in original units, for every sample (also excluded ones).
     rel_error : float
@@ -195,7 +219,7 @@ class IdentificationResult(ParameterResults):
     notices : list[str]
         Remarks the estimator wants the user to read.
     data_hash : str or None
-        SHA-256 of the input data (see :func:`dynid.provenance.data_hash`).
+        SHA-256 of the input data (see `dynid.provenance.data_hash`).
     """
 
     method: str
@@ -250,7 +274,7 @@ class IdentificationResult(ParameterResults):
         return self.n_rows - self.n_params
 
     def __getitem__(self, name: str) -> tuple[float, float]:
-        """``(value, std)`` of parameter ``name``."""
+        """`(value, std)` of parameter `name`."""
         try:
             i = self.names.index(name)
         except ValueError:
@@ -266,7 +290,7 @@ class IdentificationResult(ParameterResults):
         )
 
     def predict(self, W3) -> np.ndarray:
-        """Torques W3 χ̂, shape (N, n), for a regressor ``W3`` of shape (N, n, b)."""
+        """Torques W3 χ̂, shape (N, n), for a regressor `W3` of shape (N, n, b)."""
         W3 = np.asarray(W3, dtype=float)
         if W3.ndim != 3 or W3.shape[2] != self.n_params or W3.shape[1] != self.n_joints:
             raise InputError(
@@ -321,7 +345,7 @@ class IdentificationResult(ParameterResults):
         return "\n".join(lines)
 
     def to_dict(self) -> dict:
-        """JSON-safe dict (NaN and infinities become ``None``), deterministic."""
+        """JSON-safe dict (NaN and infinities become `None`), deterministic."""
         out = {
             "method": self.method,
             "settings": self.settings,

@@ -1,8 +1,8 @@
 """Compiled inner loops (numba) for the regressor.
 
 The same Newton-Euler-in-the-parameters algorithm as the NumPy code in
-``regressor.py``, written per sample with scalars so nothing is allocated in
-the loop. It is the default backend; ``backend="numpy"`` keeps the vectorised
+`regressor.py`, written per sample with scalars so nothing is allocated in
+the loop. It is the default backend; `backend="numpy"` keeps the vectorised
 NumPy path (tests check both against Pinocchio).
 """
 from __future__ import annotations
@@ -17,12 +17,12 @@ except ImportError:  # pragma: no cover - numba is a declared dependency
 
 
 def _inertial_columns(Rp, pp, sigma, gravity, q, qd, qdd, out, whole_rows):
-    """Fill the 10 inertial columns of every link, for every sample, into ``out``.
+    """Fill the 10 inertial columns of every link, for every sample, into `out`.
 
-    out: (N, n, Ns) with link j's columns at 14*j ... 14*j+9. With ``whole_rows``
+    out: (N, n, Ns) with link j's columns at 14*j ... 14*j+9. With `whole_rows`
     False the other columns are untouched; with True every column of a sample is
     written here (zeros, and Ia, Fv, Fc, Off on the diagonal as in
-    ``regressor._actuator_columns``), while that sample's rows are still in cache:
+    `regressor._actuator_columns`), while that sample's rows are still in cache:
     a separate zeroing pass and a separate actuator pass over W cost two more
     trips through memory than the kernel itself.
     """

@@ -2,15 +2,15 @@
 
 Numerical method of Gautier (1991): stack the standard regressor IDM_st over
 random samples and take its QR decomposition without pivoting. A column whose
-``|R_ii|`` is negligible next to the column's own norm is a linear
+`|R_ii|` is negligible next to the column's own norm is a linear
 combination of the columns before it; its parameter is *regrouped* into
 those earlier parameters. With the standard order (link 1 to n, and
-``XX ... M Ia Fv Fc Off`` within a link) this keeps the parameters the
-literature keeps: ``ZZ1R = ZZ1 + Ia1 + YY2 + ...``, ``MX2R = MX2 + d3 M3 + ...``.
+`XX ... M Ia Fv Fc Off` within a link) this keeps the parameters the
+literature keeps: `ZZ1R = ZZ1 + Ia1 + YY2 + ...`, `MX2R = MX2 + d3 M3 + ...`.
 
-With ``W_st = [W_1 W_2] P`` (independent columns first) and ``W_2 = W_1 K``:
-``W_st chi_st = W_1 (chi_1 + K chi_2) = W_1 beta``. The relation is exact;
-``K`` is cleaned of rounding noise and checked on fresh samples.
+With `W_st = [W_1 W_2] P` (independent columns first) and `W_2 = W_1 K`:
+`W_st chi_st = W_1 (chi_1 + K chi_2) = W_1 beta`. The relation is exact;
+`K` is cleaned of rounding noise and checked on fresh samples.
 """
 from __future__ import annotations
 
@@ -63,11 +63,11 @@ class BaseParameters:
         return self.matrix @ np.asarray(chi_st, dtype=float)
 
     def to_standard(self, beta, method="zero") -> np.ndarray:
-        """One standard-parameter set with the same dynamics as ``beta``.
+        """One standard-parameter set with the same dynamics as `beta`.
 
-        ``method="zero"`` sets every regrouped parameter to zero (chi_1 = beta),
-        the classic choice; ``"least_norm"`` returns the minimum-norm chi_st with
-        ``P chi_st = beta``. Both give exactly the same torques; neither is the
+        `method="zero"` sets every regrouped parameter to zero (chi_1 = beta),
+        the classic choice; `"least_norm"` returns the minimum-norm chi_st with
+        `P chi_st = beta`. Both give exactly the same torques; neither is the
         physical robot, which the data cannot single out.
         """
         beta = np.asarray(beta, dtype=float)
@@ -110,7 +110,7 @@ def random_samples(robot, n_samples, rng):
 
 
 def base_parameters(robot, n_samples=None, seed=_SEED) -> BaseParameters:
-    """Compute the base parameters of ``robot`` (Gautier 1991, numerical QR)."""
+    """Compute the base parameters of `robot` (Gautier 1991, numerical QR)."""
     ns = robot.n_standard
     n = robot.n_joints
     if n_samples is None:

@@ -2,37 +2,37 @@
 
 Provenance: B. Bona, A. Curatella, "Closed-loop rigid model identification of
 an industrial robot", IFAC 2005, section 3 (file
-``/work/shared/papers/bona-curatella-2005-closed-loop-comau.txt``). The paper
+`/work/shared/papers/bona-curatella-2005-closed-loop-comau.txt`). The paper
 estimated these values on the real robot; dynid's simulated robot uses them
 as its *true* values, so that dynid's estimates can be checked against them.
 Units: the paper gives units only in Table 3; Table 2 is taken as N m s/rad
-(viscous) and N m (Coulomb), Table 1's ``k`` in N m; angles are stored in rad
+(viscous) and N m (Coulomb), Table 1's `k` in N m; angles are stored in rad
 (Table 1 prints degrees).
 
-* Table 1 (gravity, eq. (23), joints 2 and 3): ``k2 = -0.7823`` N m,
-  ``qoff2 = 7.5 deg``; ``k3 = 0.4097`` N m, ``qoff3 = 25 deg``.
-* Table 2 (friction, eq. (2)): ``Fv+``, ``Fv-`` (beta^{v+}, beta^{v-}),
-  ``Fc+``, ``Fc-`` (beta^{c+}, beta^{c-}), joints 1-6.
-* Table 3 (eq. (21)): ``ZZ`` (Gamma^zz, the equivalent inertia M_i), joints 1-6,
-  ``MX``, ``MY`` (mx, my), joints 2-6.
+* Table 1 (gravity, eq. (23), joints 2 and 3): `k2 = -0.7823` N m,
+  `qoff2 = 7.5 deg`; `k3 = 0.4097` N m, `qoff3 = 25 deg`.
+* Table 2 (friction, eq. (2)): `Fv+`, `Fv-` (beta^{v+}, beta^{v-}),
+  `Fc+`, `Fc-` (beta^{c+}, beta^{c-}), joints 1-6.
+* Table 3 (eq. (21)): `ZZ` (Gamma^zz, the equivalent inertia M_i), joints 1-6,
+  `MX`, `MY` (mx, my), joints 2-6.
 
 Two set-ups. Tables 1 and 3 cannot describe the same gravity: Table 3's
 first moments of joint 2 give a gravity torque of amplitude
-``g0 |(MX2, MY2)| = 397`` N m, Table 1 gives ``|k2| = 0.78`` N m. The simulated
+`g0 |(MX2, MY2)| = 397` N m, Table 1 gives `|k2| = 0.78` N m. The simulated
 robot therefore has the gravity of the *set-up* of each experiment:
 
-* ``"sweep"`` (sections 3.2.1-3.2.2, constant-velocity and bang-bang
+* `"sweep"` (sections 3.2.1-3.2.2, constant-velocity and bang-bang
   experiments): joints 1, 4, 5, 6 with their axes parallel to gravity (no
   gravity torque, as the paper arranges), joints 2 and 3 with eq. (23) and
   Table 1;
-* ``"identification"`` (sections 3.4-3.5, excitation and validation): gravity
-  ``g0 (MX cos q - MY sin q)`` from Table 3 for joints 2-6 (axis horizontal),
+* `"identification"` (sections 3.4-3.5, excitation and validation): gravity
+  `g0 (MX cos q - MY sin q)` from Table 3 for joints 2-6 (axis horizontal),
   none for joint 1 (vertical axis, no first moments in Table 3).
 
 Inertia and friction are the same in both.
 
 Sensor noise and controller are dynid's choices (the paper gives neither):
-:data:`TORQUE_NOISE`, :data:`POSITION_NOISE`, :data:`CONTROL_BANDWIDTH_HZ`,
+`TORQUE_NOISE`, `POSITION_NOISE`, `CONTROL_BANDWIDTH_HZ`,
 sampling at 1 kHz as in section 3.3.
 """
 from __future__ import annotations
@@ -92,7 +92,7 @@ def _column(table, k, n=N_JOINTS):
 
 
 def true_model(setup="identification") -> JointModel:
-    """The simulated robot's :class:`JointModel` in ``setup`` ("sweep" or "identification")."""
+    """The simulated robot's `JointModel` in `setup` ("sweep" or "identification")."""
     fr = [_column(TABLE2, k) for k in range(4)]
     inertia = _column(TABLE3, 0)
     if setup == "sweep":
@@ -107,8 +107,8 @@ def true_model(setup="identification") -> JointModel:
 
 
 def true_values() -> dict:
-    """Parameter name -> true value, with dynid's names (``k2``, ``qoff2`` [rad], ``Fv+1`` ...,
-    ``ZZ1``, ``MX2``, ``MY2``)."""
+    """Parameter name -> true value, with dynid's names (`k2`, `qoff2` [rad], `Fv+1` ...,
+    `ZZ1`, `MX2`, `MY2`)."""
     out = {}
     for j, (k, qoff) in TABLE1.items():
         out[f"k{j}"], out[f"qoff{j}"] = k, qoff

@@ -1,44 +1,44 @@
 """Per-sample rigid-body dynamics from a standard-parameter vector, compiled with numba.
 
 The inverse dynamic model of eq. (1) of Gautier, Janot, Vandanjon 2010,
-``tau = M(q) qdd + N(q, qd)``, and the direct dynamic model of eq. (17),
-``qdd = M(q)^-1 (tau - N(q, qd))``, evaluated from the standard parameters
-``chi_st`` (``robot.standard_names``) rather than through the regressor, so the
-closed-loop simulator (:mod:`dynid.dynamics.simulation`) can call them millions of
+`tau = M(q) qdd + N(q, qd)`, and the direct dynamic model of eq. (17),
+`qdd = M(q)^-1 (tau - N(q, qd))`, evaluated from the standard parameters
+`chi_st` (`robot.standard_names`) rather than through the regressor, so the
+closed-loop simulator (`dynid.dynamics.simulation`) can call them millions of
 times without Python in the loop.
 
 Algorithms
 ----------
 * **RNEA** (recursive Newton-Euler, Khalil & Dombre 2002, §9.5): forward
-  recursion of ``w, dw, dv`` in the link frames, link wrench about the link
-  origin from the ten inertial parameters ``XX XY XZ YY YZ ZZ MX MY MZ M``
-  (``F = M dv + dw x MS + w x (w x MS)``, ``N = I dw + w x (I w) + MS x dv``),
+  recursion of `w, dw, dv` in the link frames, link wrench about the link
+  origin from the ten inertial parameters `XX XY XZ YY YZ ZZ MX MY MZ M`
+  (`F = M dv + dw x MS + w x (w x MS)`, `N = I dw + w x (I w) + MS x dv`),
   backward recursion of the wrenches, projection on the joint axes.
-* **Mass matrix**: ``n`` RNEA passes with ``qd = 0``, ``g = 0`` and
-  ``qdd = e_k`` (column ``k``), sharing the link transforms computed once per
-  configuration; the pass for column ``k`` starts its forward recursion at link
-  ``k`` (the links before it are at rest). This is the "numerical" route of
+* **Mass matrix**: `n` RNEA passes with `qd = 0`, `g = 0` and
+  `qdd = e_k` (column `k`), sharing the link transforms computed once per
+  configuration; the pass for column `k` starts its forward recursion at link
+  `k` (the links before it are at rest). This is the "numerical" route of
   section 4 of the paper ("M and N are numerically calculated using the IDM for
   special values of q, qd, qdd"); it costs O(n^2) per configuration, like the
   CRBA, and is exactly symmetric (the upper triangle is mirrored). A CRBA was
   not needed: a 6-dof M takes well under a microsecond.
-* **Actuator terms**: the armature matrix ``A`` (``diag(Ia)`` plus the coupling
-  off-diagonals ``A[k, l] += c_k c_l / c_m^2 Ia_motor``, ``k != l``, eq. (33)),
-  viscous ``Fv qd``, Coulomb ``Fc s(qd)``, offset ``Off``, and the coupling
-  friction ``tau_k += c_k (Fvm w + Fcm s(w))``, ``w = sum_k c_k qd_k``.
-* **Direct dynamics**: Cholesky factorisation of ``M + A`` (it must be positive
+* **Actuator terms**: the armature matrix `A` (`diag(Ia)` plus the coupling
+  off-diagonals `A[k, l] += c_k c_l / c_m^2 Ia_motor`, `k != l`, eq. (33)),
+  viscous `Fv qd`, Coulomb `Fc s(qd)`, offset `Off`, and the coupling
+  friction `tau_k += c_k (Fvm w + Fcm s(w))`, `w = sum_k c_k qd_k`.
+* **Direct dynamics**: Cholesky factorisation of `M + A` (it must be positive
   definite; an error tells the caller when the parameters make it indefinite).
 
 Coulomb friction and the smooth sign
 ------------------------------------
-``s(x) = tanh(x / v_s)`` when ``v_s > 0``, the exact ``sign(x)`` (with
-``sign(0) = 0``) when ``v_s = 0``. The inverse-dynamics wrappers default to
-``v_s = 0`` (they then equal the regressor route ``W(q, qd, qdd) chi_st``, kept as the
-test oracle ``dynid.dynamics.regressor._inverse_dynamics_via_regressor``); the
-simulator defaults to ``v_s = DEFAULT_V_S = 0.01`` rad/s (m/s for a prismatic
+`s(x) = tanh(x / v_s)` when `v_s > 0`, the exact `sign(x)` (with
+`sign(0) = 0`) when `v_s = 0`. The inverse-dynamics wrappers default to
+`v_s = 0` (they then equal the regressor route `W(q, qd, qdd) chi_st`, kept as the
+test oracle `dynid.dynamics.regressor._inverse_dynamics_via_regressor`); the
+simulator defaults to `v_s = DEFAULT_V_S = 0.01` rad/s (m/s for a prismatic
 joint), so an explicit integrator is not facing a discontinuous right-hand
-side. Near ``qd = 0`` the smooth sign adds the viscous slope ``Fc / v_s``;
-see :mod:`dynid.dynamics.simulation` for what that means for the step size.
+side. Near `qd = 0` the smooth sign adds the viscous slope `Fc / v_s`;
+see `dynid.dynamics.simulation` for what that means for the step size.
 """
 from __future__ import annotations
 
@@ -67,7 +67,7 @@ class ModelArrays(NamedTuple):
     gravity (3,); inertial (n,10): XX XY XZ YY YZ ZZ MX MY MZ M of each link
     (about its joint frame origin, in its frame); A (n,n): armature matrix
     (diag(Ia) + coupling off-diagonals); Ia, Fv, Fc, Off (n,); C (nc,n): the
-    coupling coefficient rows (rotor velocity ``w = C qd``); Fvm, Fcm (nc,):
+    coupling coefficient rows (rotor velocity `w = C qd`); Fvm, Fcm (nc,):
     coupling friction (0 for a coupling declared without friction).
     """
 
@@ -96,7 +96,7 @@ class ModelArrays(NamedTuple):
 
 
 def check_parameters(robot, chi_st) -> np.ndarray:
-    """chi_st as a finite float vector of length ``robot.n_standard``, else InputError."""
+    """chi_st as a finite float vector of length `robot.n_standard`, else InputError."""
     try:
         chi = np.asarray(chi_st, dtype=float)
     except (TypeError, ValueError):
@@ -113,7 +113,7 @@ def check_parameters(robot, chi_st) -> np.ndarray:
 
 
 def model_arrays(robot, chi_st) -> ModelArrays:
-    """Pack the robot's placements and the parameters ``chi_st`` for the kernels."""
+    """Pack the robot's placements and the parameters `chi_st` for the kernels."""
     chi = check_parameters(robot, chi_st)
     n = robot.n_joints
     Rp = np.ascontiguousarray([j.R for j in robot.joints], dtype=float).reshape(n, 3, 3)
@@ -162,7 +162,7 @@ def _workspace(n):
 
 @njit(cache=True, nogil=True)
 def _transforms(Rp, pp, sigma, q, R, P):
-    """Frame j in frame j-1: ``R[j] = Rp[j] Rot(z, q_j)`` or ``P[j] = pp[j] + q_j Rp[j] z``."""
+    """Frame j in frame j-1: `R[j] = Rp[j] Rot(z, q_j)` or `P[j] = pp[j] + q_j Rp[j] z`."""
     n = q.shape[0]
     for j in range(n):
         if sigma[j] == 0:
@@ -182,11 +182,11 @@ def _transforms(Rp, pp, sigma, q, R, P):
 
 @njit(cache=True, nogil=True)
 def _rnea_pass(R, P, sigma, inertial, gx, gy, gz, qd, qdd, unit, W, DW, DV, F, NM, tau):
-    """Rigid-body RNEA torques into ``tau`` for the transforms R, P.
+    """Rigid-body RNEA torques into `tau` for the transforms R, P.
 
-    ``unit < 0``: velocities ``qd``, accelerations ``qdd``, gravity ``g``.
-    ``unit = k >= 0``: ``qd = 0``, ``qdd = e_k`` (``qd``, ``qdd`` are not read), and
-    the caller passes ``g = 0``; the forward recursion starts at link ``k``.
+    `unit < 0`: velocities `qd`, accelerations `qdd`, gravity `g`.
+    `unit = k >= 0`: `qd = 0`, `qdd = e_k` (`qd`, `qdd` are not read), and
+    the caller passes `g = 0`; the forward recursion starts at link `k`.
     """
     n = R.shape[0]
     start = 0 if unit < 0 else unit
@@ -278,7 +278,7 @@ def _rnea_pass(R, P, sigma, inertial, gx, gy, gz, qd, qdd, unit, W, DW, DV, F, N
 
 @njit(cache=True, nogil=True)
 def _ssign(x, v_s):
-    """Smooth sign ``tanh(x / v_s)``; the exact sign when ``v_s <= 0``."""
+    """Smooth sign `tanh(x / v_s)`; the exact sign when `v_s <= 0`."""
     if v_s > 0.0:
         return np.tanh(x / v_s)
     if x > 0.0:
@@ -290,7 +290,7 @@ def _ssign(x, v_s):
 
 @njit(cache=True, nogil=True)
 def _mass(model, ws, q, with_transforms):
-    """M(q) + A into ws[7] (transforms recomputed when ``with_transforms``)."""
+    """M(q) + A into ws[7] (transforms recomputed when `with_transforms`)."""
     Rp, pp, sigma, g, inertial, A, Fv, Fc, Off, C, Fvm, Fcm = model
     R, P, W, DW, DV, F, NM, M, h, col = ws
     n = q.shape[0]
@@ -462,11 +462,11 @@ def _v_s(v_s):
 def inverse_dynamics(robot, chi_st, q, qd, qdd, *, v_s=0.0):
     """tau = (M(q) + A) qdd + N(q, qd) of eq. (1), from chi_st; (n,) or (N, n).
 
-    With ``v_s = 0`` (default) Coulomb friction uses the exact sign and the result
-    equals the regressor route ``regressor(robot, q, qd, qdd) @ chi_st`` (the test oracle
-    ``dynid.dynamics.regressor._inverse_dynamics_via_regressor``). dynid's one
+    With `v_s = 0` (default) Coulomb friction uses the exact sign and the result
+    equals the regressor route `regressor(robot, q, qd, qdd) @ chi_st` (the test oracle
+    `dynid.dynamics.regressor._inverse_dynamics_via_regressor`). dynid's one
     implementation of the inverse dynamics, also importable from
-    :mod:`dynid.dynamics.regressor`.
+    `dynid.dynamics.regressor`.
     """
     ma = model_arrays(robot, chi_st)
     (q, qd, qdd), single = _samples(robot, q=q, qd=qd, qdd=qdd)

@@ -1,93 +1,93 @@
 """Optimal excitation: Fourier coefficients that minimise cond(W) (Bona & Curatella 2005).
 
 Eq. (20) of Bona & Curatella 2005 (after Presse & Gautier 1993 and Swevers et
-al. 1997): choose, for every joint ``i``, the ``2 N + 1`` parameters
-``delta_i = [a_i(1..N), b_i(1..N), q_i0]`` of the finite Fourier series of
-eqs. (17)-(19) (:class:`dynid.dynamics.trajectories.FourierTrajectory`) so that the
-base regressor ``W`` stacked over one period is as well conditioned as the
+al. 1997): choose, for every joint `i`, the `2 N + 1` parameters
+`delta_i = [a_i(1..N), b_i(1..N), q_i0]` of the finite Fourier series of
+eqs. (17)-(19) (`dynid.dynamics.trajectories.FourierTrajectory`) so that the
+base regressor `W` stacked over one period is as well conditioned as the
 limits allow::
 
     delta = argmin cond(W(q(t), qd(t), qdd(t)))
     s.t.  |q - q_mid| <= margin (q_max - q_min) / 2,  |qd| <= margin qd_max,
           |qdd| <= margin qdd_max,  |tau(q, qd, qdd; chi)| <= margin tau_max
 
-The fundamental ``f0`` and the number of harmonics ``N`` are *given*: they fix
-the period (``1 / f0``, a whole number of periods avoids leakage and allows
-period averaging, section 2.3) and the bandwidth ``N f0`` (kept below the first
+The fundamental `f0` and the number of harmonics `N` are *given*: they fix
+the period (`1 / f0`, a whole number of periods avoids leakage and allows
+period averaging, section 2.3) and the bandwidth `N f0` (kept below the first
 resonance, section 3.3: 0.1 Hz and 5 harmonics on the COMAU Smart-3 S2).
 
 Which condition number
 ----------------------
-``cond(W)`` in SI units (``cond_raw``) depends on the units of the parameters
+`cond(W)` in SI units (`cond_raw`) depends on the units of the parameters
 (kg m^2 vs g mm^2 changes it by orders of magnitude) and is dominated by the
 ratio of the largest to the smallest column norm. dynid therefore reports and,
-by default, minimises the condition number of ``W S^-1`` where ``S`` is a
-*fixed* diagonal of column scales (``scaling="envelope"``): the RMS of each
+by default, minimises the condition number of `W S^-1` where `S` is a
+*fixed* diagonal of column scales (`scaling="envelope"`): the RMS of each
 base-regressor column over random states drawn uniformly inside the robot's
-limit box (``q`` in its range, ``|qd| <= qd_max``, ``|qdd| <= qdd_max``; a fixed
-seed, so ``S`` depends on the robot only). That is the regressor in units where
+limit box (`q` in its range, `|qd| <= qd_max`, `|qdd| <= qdd_max`; a fixed
+seed, so `S` depends on the robot only). That is the regressor in units where
 every parameter contributes O(1) torque at full-range motion: the number is
 independent of the parameters' units, and still rewards a trajectory that
-excites a weak column more (unlike the column-normalised ``cond_unit``, where
-every column of ``W`` is scaled to unit norm *for that trajectory*, a pure
-collinearity measure, also reported). ``scaling="none"`` reproduces the paper's
-``kappa(Phi)`` in SI units, ``"columns"`` optimises ``cond_unit``. A-priori
+excites a weak column more (unlike the column-normalised `cond_unit`, where
+every column of `W` is scaled to unit norm *for that trajectory*, a pure
+collinearity measure, also reported). `scaling="none"` reproduces the paper's
+`kappa(Phi)` in SI units, `"columns"` optimises `cond_unit`. A-priori
 magnitudes were not used as scales: most base parameters (36 of the TX40's 60)
-have no a-priori value. With ``criterion="logdet"`` (D-optimality, Swevers
-1997) ``-log det(W_s^T W_s) / b`` is minimised instead; it does not depend on the
+have no a-priori value. With `criterion="logdet"` (D-optimality, Swevers
+1997) `-log det(W_s^T W_s) / b` is minimised instead; it does not depend on the
 column scales (they add a constant) and the three condition numbers are still
 reported.
 
-``W`` is sampled on ``samples_per_harmonic`` (default 20) points per period of
-the highest harmonic, uniformly over one period (``20 N`` samples; 100 for
-``N = 5``). Every condition number reported is computed on that grid.
+`W` is sampled on `samples_per_harmonic` (default 20) points per period of
+the highest harmonic, uniformly over one period (`20 N` samples; 100 for
+`N = 5`). Every condition number reported is computed on that grid.
 
 Constraints and their check
 ---------------------------
-Positions, velocities and accelerations are linear in ``delta``: the limits
-are imposed as linear inequalities on ``n_constraint`` points per period
-(default ``max(200, 40 N)``), tightened by the factor ``1 - (pi N / m)^2 / 2``.
-For ``qd`` and ``qdd`` (trigonometric polynomials of degree ``N`` without a
+Positions, velocities and accelerations are linear in `delta`: the limits
+are imposed as linear inequalities on `n_constraint` points per period
+(default `max(200, 40 N)`), tightened by the factor `1 - (pi N / m)^2 / 2`.
+For `qd` and `qdd` (trigonometric polynomials of degree `N` without a
 constant) that is Bernstein's bound, so those limits hold at every time, not
-only on the grid; for ``q`` (whose constant ``q0`` is free) it is the same
+only on the grid; for `q` (whose constant `q0` is free) it is the same
 tightening without that guarantee. Torques are computed with a-priori
-parameters (``chi``; default the robot's ``[apriori]`` values mapped to base
-parameters, unknown ones zero, see :func:`apriori_parameters`) by the compiled
+parameters (`chi`; default the robot's `[apriori]` values mapped to base
+parameters, unknown ones zero, see `apriori_parameters`) by the compiled
 inverse dynamics and imposed on the same grid with the same tightening; the
 torque is not band-limited (Coulomb friction jumps), so between grid points it
-can exceed ``margin tau_max`` by a fraction of a percent (0.3 % seen with tight
+can exceed `margin tau_max` by a fraction of a percent (0.3 % seen with tight
 TX40 torque limits) -- never the limit itself, which the dense check enforces. Every candidate is then checked
-against the *actual* limits on a dense grid (``n_check``, default 20 000
+against the *actual* limits on a dense grid (`n_check`, default 20 000
 points per period, offset by half a step, torque included):
-:attr:`ExcitationResult.margins`; a candidate that fails the check is
-discarded. ``margin`` (default 0.95) leaves 5 % of every limit for the
+`ExcitationResult.margins`; a candidate that fails the check is
+discarded. `margin` (default 0.95) leaves 5 % of every limit for the
 tracking error of the controller and for the a-priori torque model's error.
 
 Optimiser
 ---------
 SLSQP (scipy) on variables normalised by the velocity limits and the joint
-half-ranges, from ``n_starts`` random feasible starts
-(:func:`dynid.dynamics.trajectories.random_fourier_trajectory` with the same
-``margin``; a start whose torque is out of bounds is shrunk towards ``q0``);
-the best feasible result is kept. The objective is ``log cond`` (half the log
-of the ratio of the extreme eigenvalues of ``W_s^T W_s``). Gradients are
-analytic in the Fourier basis (chain rule through ``q, qd, qdd``) with the
-partial derivatives of the regressor with respect to ``q_j``, ``qd_j``,
-``qdd_j`` taken by finite differences of the compiled regressor, all samples
-at once (``5 n + 1`` regressor evaluations of the grid per gradient instead of
-``n (2 N + 1)``; line-search points cost one evaluation). The velocity
-difference is one-sided away from zero, so the Coulomb ``sign(qd)`` column
+half-ranges, from `n_starts` random feasible starts
+(`dynid.dynamics.trajectories.random_fourier_trajectory` with the same
+`margin`; a start whose torque is out of bounds is shrunk towards `q0`);
+the best feasible result is kept. The objective is `log cond` (half the log
+of the ratio of the extreme eigenvalues of `W_s^T W_s`). Gradients are
+analytic in the Fourier basis (chain rule through `q, qd, qdd`) with the
+partial derivatives of the regressor with respect to `q_j`, `qd_j`,
+`qdd_j` taken by finite differences of the compiled regressor, all samples
+at once (`5 n + 1` regressor evaluations of the grid per gradient instead of
+`n (2 N + 1)`; line-search points cost one evaluation). The velocity
+difference is one-sided away from zero, so the Coulomb `sign(qd)` column
 never jumps inside a difference. SLSQP can end on an infeasible point
 ("Inequality constraints incompatible"); the best grid-feasible iterate seen
 is kept instead.
 
 What to expect
 --------------
-``cond`` is not smooth where the extreme singular values cross, and SLSQP
+`cond` is not smooth where the extreme singular values cross, and SLSQP
 stops at such a kink. On the TX40 (f0 = 0.1 Hz, 5 harmonics, margin 0.95; 4
 starts, 5-10 s) the design reaches an envelope-scaled cond of 8.3-9.2 (seeds
 0-3), a floor set by the bandwidth: at 0.5 Hz the accelerations cannot exceed
-about ``2 pi N f0 qd_max``, a third of ``qdd_max``, so the inertia columns stay
+about `2 pi N f0 qd_max`, a third of `qdd_max`, so the inertia columns stay
 weak next to the friction columns (an epigraph formulation constraining the 20
 smallest eigenvalues reached 8.8-9.0 at ten times the cost; 8 starts give
 8.4-9.1). Random feasible trajectories of the same class have envelope-scaled
@@ -131,13 +131,13 @@ _H_QD = 1e-6                         # rad/s step of the velocity derivative
 
 # ----------------------------------------------------------------------------- helpers
 def apriori_parameters(robot, bp=None):
-    """Standard parameters ``chi_st`` built from ``robot.apriori`` (for torque limits).
+    """Standard parameters `chi_st` built from `robot.apriori` (for torque limits).
 
-    Keys of ``robot.apriori`` may be base-parameter names (``ZZ1R``) or standard
-    names. When every key is a standard name, ``beta = P chi`` maps them to the
+    Keys of `robot.apriori` may be base-parameter names (`ZZ1R`) or standard
+    names. When every key is a standard name, `beta = P chi` maps them to the
     base parameters; otherwise base names are read directly (a standard name that
-    is also a base name, such as ``Fv1``, counts as both). Parameters without an
-    a-priori value are zero. Returns ``(chi_st, beta, missing)`` with ``missing``
+    is also a base name, such as `Fv1`, counts as both). Parameters without an
+    a-priori value are zero. Returns `(chi_st, beta, missing)` with `missing`
     the base parameters that had no value.
     """
     bp = base_parameters(robot) if bp is None else bp
@@ -163,11 +163,11 @@ def apriori_parameters(robot, bp=None):
 
 
 def column_scales(robot, bp, scaling="envelope"):
-    """Fixed column scales ``S`` (b,) of the base regressor (see the module docstring).
+    """Fixed column scales `S` (b,) of the base regressor (see the module docstring).
 
-    ``"envelope"``: RMS of each column over states uniform in the limit box (an
+    `"envelope"`: RMS of each column over states uniform in the limit box (an
     infinite position range is replaced by [-pi, pi], an infinite velocity or
-    acceleration limit by 1); ``"none"``: ones. ``"columns"`` has no fixed scale
+    acceleration limit by 1); `"none"`: ones. `"columns"` has no fixed scale
     (the columns are normalised per trajectory): ones are returned.
     """
     if scaling not in SCALINGS:
@@ -196,11 +196,11 @@ def _cond(s):
 
 def regressor_conditioning(robot, bp, trajectory, *, samples_per_harmonic=DEFAULT_SAMPLES_PER_HARMONIC,
                            scales=None):
-    """Condition numbers of the base regressor of ``trajectory`` over one period.
+    """Condition numbers of the base regressor of `trajectory` over one period.
 
-    Returns ``{"cond": cond(W S^-1) (envelope scales unless ``scales`` given),
+    Returns `{"cond": cond(W S^-1) (envelope scales unless `scales` given),
     "cond_raw": cond(W) in SI units, "cond_unit": cond of W with unit-norm columns,
-    "logdet": log det(W_s^T W_s) / b / (samples), "n_samples": ...}``.
+    "logdet": log det(W_s^T W_s) / b / (samples), "n_samples": ...}`.
     """
     scales = column_scales(robot, bp) if scales is None else np.asarray(scales, dtype=float)
     G = int(samples_per_harmonic) * trajectory.harmonics
@@ -219,13 +219,13 @@ def regressor_conditioning(robot, bp, trajectory, *, samples_per_harmonic=DEFAUL
 
 
 def limit_margins(robot, trajectory, chi_st=None, *, n_check=DEFAULT_N_CHECK, bp=None):
-    """Relative distance of ``trajectory`` to every limit, per joint, on a dense grid.
+    """Relative distance of `trajectory` to every limit, per joint, on a dense grid.
 
     Columns (1 = untouched, 0 = on the limit, negative = violated):
-    ``q_low = (min q - q_min) / half range``, ``q_high = (q_max - max q) / half range``,
-    ``qd = 1 - max|qd| / qd_max``, ``qdd = 1 - max|qdd| / qdd_max`` and, with
-    ``chi_st``, ``tau = 1 - max|tau| / tau_max`` (NaN where a limit is infinite),
-    plus the peak values. The grid is ``n_check`` points over one period (offset
+    `q_low = (min q - q_min) / half range`, `q_high = (q_max - max q) / half range`,
+    `qd = 1 - max|qd| / qd_max`, `qdd = 1 - max|qdd| / qdd_max` and, with
+    `chi_st`, `tau = 1 - max|tau| / tau_max` (NaN where a limit is infinite),
+    plus the peak values. The grid is `n_check` points over one period (offset
     by half a step from t = 0).
     """
     import pandas as pd  # slow to import; the dynamics layer needs it only for this table
@@ -252,14 +252,14 @@ def limit_margins(robot, trajectory, chi_st=None, *, n_check=DEFAULT_N_CHECK, bp
 
 
 def spectrum_check(trajectory, fs=None, *, rel_tol=1e-9):
-    """FFT of one period of the reference positions: lines only at ``k f0``, ``k <= N``?
+    """FFT of one period of the reference positions: lines only at `k f0`, `k <= N`?
 
-    One whole period sampled at ``fs`` (default ``50 N f0``, at least 64 samples
-    per period) puts harmonic ``k`` exactly in FFT bin ``k``. Returns a dict:
-    ``freqs`` (Hz) and ``amplitude`` (n, bins) of the one-sided amplitude spectrum
-    of ``q - q0``, ``lines`` (frequencies of the bins above ``rel_tol`` times the
-    largest line), ``off_grid`` (largest amplitude outside bins 1..N relative to
-    the largest line), ``bandwidth`` (N f0) and ``ok``.
+    One whole period sampled at `fs` (default `50 N f0`, at least 64 samples
+    per period) puts harmonic `k` exactly in FFT bin `k`. Returns a dict:
+    `freqs` (Hz) and `amplitude` (n, bins) of the one-sided amplitude spectrum
+    of `q - q0`, `lines` (frequencies of the bins above `rel_tol` times the
+    largest line), `off_grid` (largest amplitude outside bins 1..N relative to
+    the largest line), `bandwidth` (N f0) and `ok`.
     """
     N = trajectory.harmonics
     if fs is None:
@@ -573,15 +573,15 @@ _BLAS_API = (("openblas_get_num_threads", "openblas_set_num_threads"),
 
 @contextlib.contextmanager
 def limit_blas_threads(n):
-    """Limit the OpenBLAS libraries loaded in this process to ``n`` threads, then restore.
+    """Limit the OpenBLAS libraries loaded in this process to `n` threads, then restore.
 
     The optimisation makes thousands of small BLAS calls (60 x 60 Gram
     matrices, SLSQP's least-squares steps); a multithreaded OpenBLAS spends
     more time synchronising than computing on them, worst on a busy machine
     (15x slower measured on 2 loaded cores). Finds the OpenBLAS copies of numpy
-    and scipy through ``/proc/self/maps`` (Linux) and calls their
-    ``*_set_num_threads``; a no-op where that is not possible (other systems:
-    set ``OPENBLAS_NUM_THREADS=1`` in the environment instead). ``n=None``: no
+    and scipy through `/proc/self/maps` (Linux) and calls their
+    `*_set_num_threads`; a no-op where that is not possible (other systems:
+    set `OPENBLAS_NUM_THREADS=1` in the environment instead). `n=None`: no
     change.
     """
     restore = []
@@ -648,13 +648,13 @@ def _feasible(margins, tol=0.0):
 class ExcitationResult:
     """An optimised excitation trajectory and the evidence that it is one.
 
-    ``cond_result`` / ``cond_start``: the reported condition number (see
-    ``cond_name``: ``cond`` = envelope-scaled W unless ``scaling`` says otherwise)
-    of the result and of the best random start (the lowest of ``cond_starts``).
-    ``conditioning`` / ``start_conditioning``: all the variants (raw, scaled,
-    unit columns, log det) for the result and that best start. ``margins``:
-    :func:`limit_margins` of the result on the dense grid; ``spectrum``:
-    :func:`spectrum_check`. ``runs``: one dict per start (start and final cond,
+    `cond_result` / `cond_start`: the reported condition number (see
+    `cond_name`: `cond` = envelope-scaled W unless `scaling` says otherwise)
+    of the result and of the best random start (the lowest of `cond_starts`).
+    `conditioning` / `start_conditioning`: all the variants (raw, scaled,
+    unit columns, log det) for the result and that best start. `margins`:
+    `limit_margins` of the result on the dense grid; `spectrum`:
+    `spectrum_check`. `runs`: one dict per start (start and final cond,
     iterations, time, optimiser message, feasible).
     """
 
@@ -699,9 +699,9 @@ class ExcitationResult:
         return _feasible(self.margins)
 
     def to_frame(self, fs, n_periods=1):
-        """Reference ``t, qr1..n, qdr1..n, qddr1..n`` at the controller rate ``fs`` (Hz).
+        """Reference `t, qr1..n, qdr1..n, qddr1..n` at the controller rate `fs` (Hz).
 
-        ``n_periods`` whole periods, ``round(n_periods fs / f0)`` samples from t = 0
+        `n_periods` whole periods, `round(n_periods fs / f0)` samples from t = 0
         (the end point, equal to the start, is not repeated).
         """
         fs = float(fs)
@@ -712,7 +712,7 @@ class ExcitationResult:
         return self.trajectory.to_frame(t)
 
     def to_csv(self, path, fs, n_periods=1):
-        """Write :meth:`to_frame` to ``path`` atomically (full precision)."""
+        """Write `to_frame` to `path` atomically (full precision)."""
         atomic_write_text(path, self.to_frame(fs, n_periods).to_csv(index=False, lineterminator="\n",
                                                                     float_format="%.17g"))
 
@@ -770,14 +770,14 @@ def design_excitation(robot, f0, n_harmonics, *, n_starts=4, criterion="cond", c
                       samples_per_harmonic=DEFAULT_SAMPLES_PER_HARMONIC, n_constraint=None,
                       n_check=DEFAULT_N_CHECK, bp=None, ftol=1e-7, blas_threads=1,
                       progress=None) -> ExcitationResult:
-    """Optimise a Fourier excitation (eq. (20)) of ``robot``; see the module docstring.
+    """Optimise a Fourier excitation (eq. (20)) of `robot`; see the module docstring.
 
-    ``chi``: standard parameters for the torque limits (default
-    :func:`apriori_parameters`); ``chi=False`` ignores the torque limits.
-    ``rng``: Generator or seed of the random starts. ``max_iter``: SLSQP
-    iterations per start. ``blas_threads``: OpenBLAS threads during the design
-    (default 1, see :func:`limit_blas_threads`; None leaves them alone).
-    ``progress(fraction)`` is called after each start.
+    `chi`: standard parameters for the torque limits (default
+    `apriori_parameters`); `chi=False` ignores the torque limits.
+    `rng`: Generator or seed of the random starts. `max_iter`: SLSQP
+    iterations per start. `blas_threads`: OpenBLAS threads during the design
+    (default 1, see `limit_blas_threads`; None leaves them alone).
+    `progress(fraction)` is called after each start.
     """
     with limit_blas_threads(blas_threads):
         return _design(robot, f0, n_harmonics, n_starts=n_starts, criterion=criterion, chi=chi,

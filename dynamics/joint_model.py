@@ -1,6 +1,6 @@
 """Decoupled per-joint robot model and its closed-loop simulation (Bona & Curatella 2005, sec. 3).
 
-Each joint ``i`` is the 1-DOF model of eqs. (21)-(22)::
+Each joint `i` is the 1-DOF model of eqs. (21)-(22)::
 
     M_i qdd_i = tau_i - g_i(q_i) - f_i(qd_i)
 
@@ -10,7 +10,7 @@ with the friction of eq. (2), asymmetric in the sign of the velocity::
               0                   qd = 0
               Fv-_i qd - Fc-_i    qd < 0
 
-All four coefficients are positive magnitudes. The paper prints ``+ beta^{c-}``
+All four coefficients are positive magnitudes. The paper prints `+ beta^{c-}`
 in the third line; with the positive values of its Table 2 that would make
 Coulomb friction push a joint moving backwards, so the physical sign (friction
 opposes the motion) is used.
@@ -20,21 +20,21 @@ Gravity is a sinusoid of the joint's own position, eq. (23)::
     g_i(q) = k_i sin(q + q_off_i) = gs_i sin q + gc_i cos q,
     gs_i = k_i cos q_off_i,  gc_i = k_i sin q_off_i.
 
-For a link with first moments ``(MX_i, MY_i)`` about a horizontal axis (x of
-the previous frame horizontal) ``g_i(q) = g0 (MX_i cos q - MY_i sin q)``, i.e.
-``gs = -g0 MY``, ``gc = g0 MX`` (:meth:`JointModel.from_first_moments`).
+For a link with first moments `(MX_i, MY_i)` about a horizontal axis (x of
+the previous frame horizontal) `g_i(q) = g0 (MX_i cos q - MY_i sin q)`, i.e.
+`gs = -g0 MY`, `gc = g0 MX` (`JointModel.from_first_moments`).
 
-Closed loop (:func:`simulate_joints`): a sampled PID per joint at rate ``1/T``
+Closed loop (`simulate_joints`): a sampled PID per joint at rate `1/T`
 on the *measured* position (true position plus encoder noise), velocity by the
 backward difference of the measured position, torque held over the period
-(zero-order hold). Between samples the plant is integrated with ``substeps``
+(zero-order hold). Between samples the plant is integrated with `substeps`
 steps of a trapezoidal rule whose velocity update is implicit in the friction::
 
     J v' + (h/2) Fv(v') v' + h Fc(v') = J v + h (u - g(q + h v / 2) - (h/2) Fv(v) v)
 
 solved in closed form (try v' > 0, then v' < 0, else stick at 0), so the
 Coulomb discontinuity needs no smoothing and no stiff step: sticking is exact
-and the smooth part is second-order. ``tests/test_decoupled.py`` checks it
+and the smooth part is second-order. `tests/test_decoupled.py` checks it
 against the exact zero-order-hold discretisation (matrix exponential) of the
 linear case.
 
@@ -71,9 +71,9 @@ def _vec(x, n, name, *, positive=False, nonneg=False):
 class JointModel:
     """Per-joint parameters of eqs. (2), (21)-(23); every field is an (n,) array in SI units.
 
-    ``inertia`` M_i [kg m^2]; ``fv_pos``, ``fv_neg`` [N m s/rad]; ``fc_pos``,
-    ``fc_neg`` [N m] (positive magnitudes); ``gs``, ``gc`` [N m]: gravity
-    ``gs sin q + gc cos q``.
+    `inertia` M_i [kg m^2]; `fv_pos`, `fv_neg` [N m s/rad]; `fc_pos`,
+    `fc_neg` [N m] (positive magnitudes); `gs`, `gc` [N m]: gravity
+    `gs sin q + gc cos q`.
     """
 
     inertia: np.ndarray
@@ -99,13 +99,13 @@ class JointModel:
 
     @staticmethod
     def gravity_from_sinusoid(k, q_off):
-        """``(gs, gc)`` of ``k sin(q + q_off)``, eq. (23)."""
+        """`(gs, gc)` of `k sin(q + q_off)`, eq. (23)."""
         k, q_off = np.asarray(k, dtype=float), np.asarray(q_off, dtype=float)
         return k * np.cos(q_off), k * np.sin(q_off)
 
     @staticmethod
     def gravity_from_first_moments(mx, my, g0=G0):
-        """``(gs, gc)`` of ``g0 (MX cos q - MY sin q)`` (horizontal joint axis)."""
+        """`(gs, gc)` of `g0 (MX cos q - MY sin q)` (horizontal joint axis)."""
         return -g0 * np.asarray(my, dtype=float), g0 * np.asarray(mx, dtype=float)
 
     def gravity(self, q):
@@ -124,11 +124,11 @@ class JointModel:
 
 @dataclass(eq=False)
 class JointPID:
-    """Sampled PID per joint: ``u = kp e + ki sum(e) T - kd v_meas`` (derivative on the measurement,
+    """Sampled PID per joint: `u = kp e + ki sum(e) T - kd v_meas` (derivative on the measurement,
     so a reference step does not kick the torque); gains (n,) in N m/rad, N m/(rad s), N m s/rad.
 
-    ``v_meas``: backward difference of the measured position, through a first-order low-pass
-    at ``velocity_filter_hz`` when given (``v += a (dq/T - v)``, ``a = 1 - exp(-2 pi f T)``)."""
+    `v_meas`: backward difference of the measured position, through a first-order low-pass
+    at `velocity_filter_hz` when given (`v += a (dq/T - v)`, `a = 1 - exp(-2 pi f T)`)."""
 
     kp: np.ndarray
     kd: np.ndarray
@@ -137,8 +137,8 @@ class JointPID:
 
     @classmethod
     def triple_pole(cls, inertia, bandwidth_hz=3.0, velocity_filter_hz=None):
-        """Gains placing the three poles of ``J s^3 + kd s^2 + kp s + ki`` at ``-w``, ``w = 2 pi
-        bandwidth``: ``kd = 3 J w``, ``kp = 3 J w^2``, ``ki = J w^3``."""
+        """Gains placing the three poles of `J s^3 + kd s^2 + kp s + ki` at `-w`, `w = 2 pi
+        bandwidth`: `kd = 3 J w`, `kp = 3 J w^2`, `ki = J w^3`."""
         J = np.asarray(inertia, dtype=float)
         w = 2 * np.pi * float(bandwidth_hz)
         return cls(kp=3 * J * w ** 2, kd=3 * J * w, ki=J * w ** 3, velocity_filter_hz=velocity_filter_hz)
@@ -146,10 +146,10 @@ class JointPID:
 
 @dataclass(eq=False)
 class JointSimulation:
-    """Samples at the controller times: ``t`` (N,), the rest (R, N, n).
+    """Samples at the controller times: `t` (N,), the rest (R, N, n).
 
-    ``q``, ``qd``: true state; ``tau``: torque applied over ``[t_k, t_k+1)``;
-    ``q_meas``, ``tau_meas``: with sensor noise (what a log holds); ``qr``: the
+    `q`, `qd`: true state; `tau`: torque applied over `[t_k, t_k+1)`;
+    `q_meas`, `tau_meas`: with sensor noise (what a log holds); `qr`: the
     reference (N, n).
     """
 
@@ -183,13 +183,13 @@ def _step(model, q, v, u, h):
 
 def simulate_joints(model: JointModel, t, qr, controller: JointPID, *, repetitions=1, q0=None,
                     q_noise=0.0, tau_noise=0.0, substeps=2, tau_max=None, seed=None) -> JointSimulation:
-    """Closed-loop simulation of the decoupled joints tracking ``qr`` (N, n) sampled at ``t`` (N,).
+    """Closed-loop simulation of the decoupled joints tracking `qr` (N, n) sampled at `t` (N,).
 
-    ``t`` must be uniformly spaced (the controller period). ``q0`` (n,) initial
-    position (default ``qr[0]``), at rest. ``q_noise``, ``tau_noise``: standard
+    `t` must be uniformly spaced (the controller period). `q0` (n,) initial
+    position (default `qr[0]`), at rest. `q_noise`, `tau_noise`: standard
     deviations (scalar or (n,)) of the white Gaussian noise of the position
     sensor (fed back to the controller and logged) and of the torque log.
-    ``repetitions``: R independent noise realisations, simulated together.
+    `repetitions`: R independent noise realisations, simulated together.
     """
     t = np.asarray(t, dtype=float)
     qr = np.asarray(qr, dtype=float)

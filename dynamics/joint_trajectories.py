@@ -1,17 +1,17 @@
 """Reference trajectories of the per-joint experiments of Bona & Curatella 2005, section 3.
 
-* :func:`sweep_reference`: two constant-velocity slopes of opposite sign over a
+* `sweep_reference`: two constant-velocity slopes of opposite sign over a
   position range (section 3.2.1, gravity: Table 1, Fig. 2);
-* :func:`bang_bang_reference`: bang-bang acceleration, velocity triangles of both
+* `bang_bang_reference`: bang-bang acceleration, velocity triangles of both
   signs (section 3.2.2, friction: Table 2, Fig. 3);
-* :func:`excitation_reference`: finite Fourier series, eqs. (17)-(19), f0 = 0.1 Hz
+* `excitation_reference`: finite Fourier series, eqs. (17)-(19), f0 = 0.1 Hz
   and 5 harmonics by default (section 3.3, inertia: Table 3), chosen per joint
   by a random search of eq. (20) on the decoupled regressor;
-* :func:`trapezoid_reference`: trapezoidal velocity moves (section 3.5, validation).
+* `trapezoid_reference`: trapezoidal velocity moves (section 3.5, validation).
 
 The first, second and fourth are piecewise-constant accelerations with the same
 breakpoints for every joint (the amplitudes differ), integrated exactly by
-:func:`piecewise_acceleration`. Each returns :class:`Reference` (t, q, qd, qdd).
+`piecewise_acceleration`. Each returns `Reference` (t, q, qd, qdd).
 """
 from __future__ import annotations
 
@@ -29,7 +29,7 @@ __all__ = ["Reference", "piecewise_acceleration", "sweep_reference", "bang_bang_
 
 
 class Reference(NamedTuple):
-    """Reference samples: ``t`` (N,), ``q``, ``qd``, ``qdd`` (N, n)."""
+    """Reference samples: `t` (N,), `q`, `qd`, `qdd` (N, n)."""
 
     t: np.ndarray
     q: np.ndarray
@@ -48,8 +48,8 @@ def _positive(x, name):
 
 
 def piecewise_acceleration(durations, accel, fs, q0) -> Reference:
-    """Exact samples at ``k / fs`` of the motion with acceleration ``accel[m]`` (m, n) held over
-    ``durations[m]`` (m,) seconds, starting at rest at ``q0`` (n,)."""
+    """Exact samples at `k / fs` of the motion with acceleration `accel[m]` (m, n) held over
+    `durations[m]` (m,) seconds, starting at rest at `q0` (n,)."""
     durations = np.asarray(durations, dtype=float)
     accel = np.atleast_2d(np.asarray(accel, dtype=float))
     q0 = np.atleast_1d(np.asarray(q0, dtype=float))
@@ -72,10 +72,10 @@ def piecewise_acceleration(durations, accel, fs, q0) -> Reference:
 
 
 def sweep_reference(q_low, q_high, *, cruise_time=8.0, accel_time=0.5, pause=0.5, fs=1000.0):
-    """From ``q_low`` up to ``q_high`` and back (n,), each at a constant velocity for ``cruise_time``.
+    """From `q_low` up to `q_high` and back (n,), each at a constant velocity for `cruise_time`.
 
-    Speed per joint ``(q_high - q_low) / (cruise_time + accel_time)``, reached
-    in ``accel_time``; rests of ``pause`` at the start, between and at the end.
+    Speed per joint `(q_high - q_low) / (cruise_time + accel_time)`, reached
+    in `accel_time`; rests of `pause` at the start, between and at the end.
     """
     lo, hi = np.atleast_1d(np.asarray(q_low, float)), np.atleast_1d(np.asarray(q_high, float))
     if lo.shape != hi.shape or np.any(hi <= lo):
@@ -90,10 +90,10 @@ def sweep_reference(q_low, q_high, *, cruise_time=8.0, accel_time=0.5, pause=0.5
 
 
 def bang_bang_reference(q0, peak_velocity, *, accel_time=1.0, cycles=2, pause=0.5, fs=1000.0):
-    """Bang-bang acceleration about ``q0`` (n,): per cycle +A for ``accel_time``, -A for twice
+    """Bang-bang acceleration about `q0` (n,): per cycle +A for `accel_time`, -A for twice
     that, +A again, so the velocity runs 0 -> +peak -> -peak -> 0 and the position returns.
 
-    ``A = peak_velocity / accel_time``; the excursion is ``A accel_time^2`` each way.
+    `A = peak_velocity / accel_time`; the excursion is `A accel_time^2` each way.
     """
     q0 = np.atleast_1d(np.asarray(q0, float))
     vp = np.broadcast_to(np.asarray(peak_velocity, float), q0.shape)
@@ -115,7 +115,7 @@ def bang_bang_reference(q0, peak_velocity, *, accel_time=1.0, cycles=2, pause=0.
 
 
 def trapezoid_reference(q_start, q_end, *, move_time=4.0, accel_time=1.0, pause=1.0, fs=1000.0):
-    """Trapezoidal-velocity move ``q_start -> q_end`` (n,) in ``move_time`` and back (section 3.5)."""
+    """Trapezoidal-velocity move `q_start -> q_end` (n,) in `move_time` and back (section 3.5)."""
     qs, qe = np.atleast_1d(np.asarray(q_start, float)), np.atleast_1d(np.asarray(q_end, float))
     T, ta, tp = (_positive(move_time, "move_time"), _positive(accel_time, "accel_time"),
                  _positive(pause, "pause"))
@@ -142,11 +142,11 @@ def excitation_reference(q_mid, q_half, qd_max, qdd_max, *, first_moments=None, 
                          harmonics=5, candidates=200, seed=0, g0=G0):
     """A per-joint Fourier excitation (eqs. (17)-(19)) scaled to the limits, eq. (20) by random search.
 
-    For each joint, ``candidates`` random coefficient sets are scaled to
-    ``|q - q_mid| <= q_half``, ``|qd| <= qd_max``, ``|qdd| <= qdd_max`` (n,),
+    For each joint, `candidates` random coefficient sets are scaled to
+    `|q - q_mid| <= q_half`, `|qd| <= qd_max`, `|qdd| <= qdd_max` (n,),
     and the one with the lowest condition number of the unit-column regressor
-    ``[qdd, g0 cos q, -g0 sin q]`` (just ``[qdd]`` where ``first_moments`` is
-    False) over one period is kept. Returns the :class:`FourierTrajectory`.
+    `[qdd, g0 cos q, -g0 sin q]` (just `[qdd]` where `first_moments` is
+    False) over one period is kept. Returns the `FourierTrajectory`.
     """
     q_mid = np.atleast_1d(np.asarray(q_mid, float))
     n = q_mid.size

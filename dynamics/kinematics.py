@@ -1,6 +1,6 @@
 """Forward kinematics and the Newton-Euler forward recursion, vectorised over samples.
 
-All arrays carry the samples on axis 0. ``q``, ``qd``, ``qdd`` are ``(N, n)``.
+All arrays carry the samples on axis 0. `q`, `qd`, `qdd` are `(N, n)`.
 """
 from __future__ import annotations
 
@@ -34,7 +34,7 @@ def _mat_t_vec(R, v):
 def link_transforms(robot, q):
     """Orientation and origin of each joint frame relative to its predecessor.
 
-    Returns lists ``R[j]`` (N, 3, 3) (frame j in frame j-1) and ``P[j]`` (N, 3)
+    Returns lists `R[j]` (N, 3, 3) (frame j in frame j-1) and `P[j]` (N, 3)
     (origin of frame j in frame j-1).
     """
     N = q.shape[0]
@@ -54,7 +54,7 @@ def link_transforms(robot, q):
 def forward_kinematics(robot, q, transforms=None):
     """Orientation (N,3,3) and origin (N,3) of every joint frame in the base frame.
 
-    ``transforms`` reuses the output of :func:`link_transforms`.
+    `transforms` reuses the output of `link_transforms`.
     """
     Rs, Ps = link_transforms(robot, q) if transforms is None else transforms
     R0 = np.broadcast_to(np.eye(3), (q.shape[0], 3, 3))
@@ -73,7 +73,7 @@ def newton_euler_forward(robot, q, qd, qdd, gravity=None):
 
     The forward recursion of the Newton-Euler algorithm (Khalil & Dombre 2002,
     ch. 9), in each link's own frame. Gravity enters as an upward acceleration
-    of the base, ``v̇_0 = -g``, so the link forces include the weights.
+    of the base, `v̇_0 = -g`, so the link forces include the weights.
     """
     N, n = q.shape
     g = robot.gravity if gravity is None else np.asarray(gravity, dtype=float)

@@ -1,44 +1,44 @@
 """Writing a robot and a standard-parameter set as MuJoCo MJCF.
 
-Per link a ``<body>`` placed like dynid's joint frame (``pos``/``quat`` of
-the joint placement, then a ``hinge`` -- or ``slide`` -- joint along its z
-axis, as :mod:`dynid.dynamics.urdf_writer` does), its ``<inertial>`` (mass,
+Per link a `<body>` placed like dynid's joint frame (`pos`/`quat` of
+the joint placement, then a `hinge` -- or `slide` -- joint along its z
+axis, as `dynid.dynamics.urdf_writer` does), its `<inertial>` (mass,
 centre of mass, full inertia about the centre of mass), and per joint
 
-* ``armature`` = Ia (rotor inertia reflected to the joint: MuJoCo adds it to
+* `armature` = Ia (rotor inertia reflected to the joint: MuJoCo adds it to
   the diagonal of the joint-space inertia, exactly dynid's Ia qdd);
-* ``damping`` = Fv (MuJoCo's passive force -Fv qd, dynid's Fv qd);
-* ``frictionloss`` = Fc. This is *not* dynid's Coulomb term Fc sign(qd):
+* `damping` = Fv (MuJoCo's passive force -Fv qd, dynid's Fv qd);
+* `frictionloss` = Fc. This is *not* dynid's Coulomb term Fc sign(qd):
   MuJoCo makes dry friction a soft constraint solved with the other
   constraints, a force of magnitude at most Fc that opposes the motion
   without the sign discontinuity (near qd = 0 it is smaller than Fc, it
   holds a joint at rest against a load below Fc, and the soft-constraint
-  parameters ``solreffriction``/``solimpfriction`` set how quickly it
-  saturates). The file sets ``solimpfriction`` near-hard (:data:`SOLIMP_FRICTION`)
-  so that inverse dynamics (``mj_inverse``) of a moving joint give Fc sign(qd).
+  parameters `solreffriction`/`solimpfriction` set how quickly it
+  saturates). The file sets `solimpfriction` near-hard (`SOLIMP_FRICTION`)
+  so that inverse dynamics (`mj_inverse`) of a moving joint give Fc sign(qd).
 
 A coupled rotor (the TX40 wrist: rotor 6 turns with q5 + q6; section 4 of
-Gautier, Janot & Vandanjon 2010, eq. (33)) is a fixed ``<tendon>`` over the
-joints it turns with, coefficients ``c_k / c_motor``: its ``armature`` Ia_motor
+Gautier, Janot & Vandanjon 2010, eq. (33)) is a fixed `<tendon>` over the
+joints it turns with, coefficients `c_k / c_motor`: its `armature` Ia_motor
 adds Ia_motor c c^T / c_motor^2 to M, so the joints' own armatures are
 lowered by the diagonal part dynid already counts in their Ia; its
-``damping`` and ``frictionloss`` are the motor friction ``Fvm``, ``Fcm`` (times
+`damping` and `frictionloss` are the motor friction `Fvm`, `Fcm` (times
 c_motor, as the tendon's velocity is w / c_motor). What MJCF has no field for:
-the torque offset ``Off`` (a constant added to the measured torque, not a
+the torque offset `Off` (a constant added to the measured torque, not a
 property of the arm); it is listed in a comment and is in the JSON.
 
-``springs`` (the ``spring`` effect of :mod:`dynid.analysis.diagnosis.effects`, fitted
-beside the rigid body by :mod:`dynid.analysis.diagnosis.physical_fit`): dynid's
-column is ``+q_j`` in the joint torque, the drive gives ``Ks_j q_j``; MuJoCo's joint
-spring is the passive force ``-stiffness (q - springref)``, which the drive must
-balance, so ``stiffness = Ks_j`` and ``springref = 0`` (a spring ``k (q_j - q0)``
-is ``Ks q_j`` plus a constant, which dynid puts in ``Off``). MuJoCo's compiler
+`springs` (the `spring` effect of `dynid.analysis.diagnosis.effects`, fitted
+beside the rigid body by `dynid.analysis.diagnosis.physical_fit`): dynid's
+column is `+q_j` in the joint torque, the drive gives `Ks_j q_j`; MuJoCo's joint
+spring is the passive force `-stiffness (q - springref)`, which the drive must
+balance, so `stiffness = Ks_j` and `springref = 0` (a spring `k (q_j - q0)`
+is `Ks q_j` plus a constant, which dynid puts in `Off`). MuJoCo's compiler
 keeps a negative stiffness and its passive force applies it with its sign
-(``mj_inverse`` gives ``+stiffness q``, ``mj_step`` follows the anti-spring;
-checked with MuJoCo 3.3.0 and 4.0.0, and by ``tests/test_replay.py``), so a
-negative ``Ks`` is written as it is and the file's comment says so.
-Gravity is MJCF's ``<option gravity>``, in dynid's base frame (MuJoCo's world).
-One ``<motor>`` actuator per joint (gear 1, unbounded) drives it with torque.
+(`mj_inverse` gives `+stiffness q`, `mj_step` follows the anti-spring;
+checked with MuJoCo 3.3.0 and 4.0.0, and by `tests/test_replay.py`), so a
+negative `Ks` is written as it is and the file's comment says so.
+Gravity is MJCF's `<option gravity>`, in dynid's base frame (MuJoCo's world).
+One `<motor>` actuator per joint (gear 1, unbounded) drives it with torque.
 Bodies get no geometry: the model is for dynamics, not for contact.
 """
 from __future__ import annotations
@@ -86,7 +86,7 @@ def _quat(R):
 
 
 def mjcf_unrepresentable(robot) -> list:
-    """Standard parameters of ``robot`` an MJCF has no field for (Off, coupled-rotor friction)."""
+    """Standard parameters of `robot` an MJCF has no field for (Off, coupled-rotor friction)."""
     per_joint = {f"{s}{j + 1}" for j in range(robot.n_joints) for s in ("Ia", "Fv", "Fc")}
     per_joint |= {nm for c in robot.couplings for nm in c.parameter_names}
     inertial = {nm for j in range(robot.n_joints) for nm in robot.standard_names[inertial_slice(robot, j)]}
@@ -94,7 +94,7 @@ def mjcf_unrepresentable(robot) -> list:
 
 
 def _springs(robot, springs):
-    """``{joint (1-based): Ks}`` checked: whole joint numbers of ``robot``, finite values."""
+    """`{joint (1-based): Ks}` checked: whole joint numbers of `robot`, finite values."""
     out = {}
     for j, k in dict(springs or {}).items():
         if isinstance(j, bool) or not isinstance(j, (int, np.integer)) or not 1 <= j <= robot.n_joints:
@@ -112,14 +112,14 @@ def _springs(robot, springs):
 
 
 def mjcf_text(robot, chi_st, *, name=None, comment="", springs=None, payload=None) -> str:
-    """The MJCF of ``robot`` with the standard parameters ``chi_st`` (see the module doc).
+    """The MJCF of `robot` with the standard parameters `chi_st` (see the module doc).
 
     Every link must be physically consistent with positive mass (MuJoCo's
     compiler rejects others): export a PC-WLS solution
-    (:mod:`dynid.analysis.estimators.physical`), not an unconstrained fit.
-    ``springs``: ``{joint (1-based): Ks}`` [N m/rad, N/m for a prismatic joint], the
-    linear springs ``Ks_j q_j`` fitted with that rigid body, written as the joint's
-    ``stiffness`` with ``springref`` 0.
+    (`dynid.analysis.estimators.physical`), not an unconstrained fit.
+    `springs`: `{joint (1-based): Ks}` [N m/rad, N/m for a prismatic joint], the
+    linear springs `Ks_j q_j` fitted with that rigid body, written as the joint's
+    `stiffness` with `springref` 0.
     `payload`: an identified payload written as a child body of its link without a joint
     (welded), `{"link": 1-based, "values": ten values about the link frame, "name": ...}`.
     """

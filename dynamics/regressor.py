@@ -1,17 +1,17 @@
 """The standard inverse-dynamics regressor IDM_st(q, qd, qdd) of eq. (2).
 
-``tau = IDM_st(q, qd, qdd) chi_st`` with chi_st the standard parameters of
+`tau = IDM_st(q, qd, qdd) chi_st` with chi_st the standard parameters of
 eq. (3) (plus coupling parameters). The columns are built by the Newton-Euler
 algorithm written linearly in the parameters (Khalil & Dombre 2002, §12.4),
 for all samples at once: no Python loop runs over samples.
 
-How: the forward recursion gives each link's ``w, dw, dv`` in its own frame;
-the wrench of link ``j`` about its origin is linear in its ten inertial
-parameters, ``f = M dv + (dw x + w x w x) MS``,
-``n = I dw + w x (I w) + MS x dv``. The torque that this wrench loads joint
-``i <= j`` with is ``u_ij . n + v_ij . f``, where ``u_ij`` is joint ``i``'s
-axis and ``v_ij = z_i x (O_j - O_i)``, both expressed in frame ``j`` (for a
-prismatic joint ``i`` only ``z_i . f`` counts). That projection costs far less
+How: the forward recursion gives each link's `w, dw, dv` in its own frame;
+the wrench of link `j` about its origin is linear in its ten inertial
+parameters, `f = M dv + (dw x + w x w x) MS`,
+`n = I dw + w x (I w) + MS x dv`. The torque that this wrench loads joint
+`i <= j` with is `u_ij . n + v_ij . f`, where `u_ij` is joint `i`'s
+axis and `v_ij = z_i x (O_j - O_i)`, both expressed in frame `j` (for a
+prismatic joint `i` only `z_i . f` counts). That projection costs far less
 than propagating full wrenches back link by link.
 """
 from __future__ import annotations
@@ -79,10 +79,10 @@ def _robot_arrays(robot):
 
 
 def _fill_chunk(robot, q, qd, qdd, out, gravity=None, backend="numba"):
-    """Write IDM_st for one chunk of samples into ``out`` (N, n, Ns).
+    """Write IDM_st for one chunk of samples into `out` (N, n, Ns).
 
-    The numba backend writes every column itself, so ``out`` may hold anything;
-    the NumPy backend needs ``out`` zeroed.
+    The numba backend writes every column itself, so `out` may hold anything;
+    the NumPy backend needs `out` zeroed.
     """
     if backend == "numba" and _kernels.HAVE_NUMBA:
         g = robot.gravity if gravity is None else np.asarray(gravity, dtype=float)
@@ -158,10 +158,10 @@ def regressor(robot, q, qd, qdd, *, columns=None, chunk=DEFAULT_CHUNK, gravity=N
               backend="numba"):
     """IDM_st(q, qd, qdd) of eq. (2): array (N, n, Ns), or (N, n, len(columns)).
 
-    ``columns`` selects standard-parameter columns (indices), e.g. the
+    `columns` selects standard-parameter columns (indices), e.g. the
     independent ones of the base parameters, so only those are kept in memory.
-    Samples are processed ``chunk`` at a time to bound temporary memory.
-    ``backend`` is ``"numba"`` (compiled, default) or ``"numpy"`` (vectorised
+    Samples are processed `chunk` at a time to bound temporary memory.
+    `backend` is `"numba"` (compiled, default) or `"numpy"` (vectorised
     reference implementation).
     """
     q, qd, qdd = _as_samples(robot, q, qd, qdd)
@@ -188,7 +188,7 @@ def regressor(robot, q, qd, qdd, *, columns=None, chunk=DEFAULT_CHUNK, gravity=N
 
 
 def regressor_chunks(robot, q, qd, qdd, *, columns=None, chunk=DEFAULT_CHUNK):
-    """Yield ``(slice, W_chunk)`` over the recording, for bounded memory."""
+    """Yield `(slice, W_chunk)` over the recording, for bounded memory."""
     q, qd, qdd = _as_samples(robot, q, qd, qdd)
     for start in range(0, q.shape[0], chunk):
         sl = slice(start, min(q.shape[0], start + chunk))

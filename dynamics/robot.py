@@ -1,18 +1,18 @@
 """The robot description: kinematic chain, joints, couplings, controller.
 
-A robot is a serial chain of ``n`` joints. Each joint ``j`` has a fixed
-*placement* (rotation ``R`` and translation ``p``) from frame ``j-1`` to the
-frame of joint ``j`` at ``q_j = 0``, followed by a rotation about (revolute,
-``sigma = 0``) or a translation along (prismatic, ``sigma = 1``) the local
-``z`` axis. The modified Denavit-Hartenberg row of Khalil-Kleinfinger,
-``Rot(x, alpha) Trans(x, d) Rot(z, theta) Trans(z, r)``, is one way of giving
-that placement; a URDF joint origin (with its axis aligned to ``z``) another.
+A robot is a serial chain of `n` joints. Each joint `j` has a fixed
+*placement* (rotation `R` and translation `p`) from frame `j-1` to the
+frame of joint `j` at `q_j = 0`, followed by a rotation about (revolute,
+`sigma = 0`) or a translation along (prismatic, `sigma = 1`) the local
+`z` axis. The modified Denavit-Hartenberg row of Khalil-Kleinfinger,
+`Rot(x, alpha) Trans(x, d) Rot(z, theta) Trans(z, r)`, is one way of giving
+that placement; a URDF joint origin (with its axis aligned to `z`) another.
 
 Standard parameters (eq. (3) of Gautier, Janot, Vandanjon 2010), per joint::
 
     XX XY XZ YY YZ ZZ MX MY MZ M Ia Fv Fc Off
 
-followed by the extra parameters of the couplings (``Fvm6``, ``Fcm6`` for the
+followed by the extra parameters of the couplings (`Fvm6`, `Fcm6` for the
 TX40 wrist).
 """
 from __future__ import annotations
@@ -27,7 +27,7 @@ PER_JOINT = INERTIAL + ACTUATOR
 
 
 def mdh_placement(alpha, d, theta, r):
-    """Rotation and translation of ``Rot(x,alpha) Trans(x,d) Rot(z,theta) Trans(z,r)``."""
+    """Rotation and translation of `Rot(x,alpha) Trans(x,d) Rot(z,theta) Trans(z,r)`."""
     ca, sa = np.cos(alpha), np.sin(alpha)
     ct, st = np.cos(theta), np.sin(theta)
     R = np.array([[ct, -st, 0.0],
@@ -65,11 +65,11 @@ class Joint:
 class Coupling:
     """A motor whose rotor turns with several joints (the TX40 wrist).
 
-    The rotor's joint-side velocity is ``sum_k c_k qd_k``. Its inertia's diagonal
-    terms are absorbed into the joints' own ``Ia``; the off-diagonal terms
-    ``M[k, l] += c_k c_l Ia_motor`` use the motor joint's ``Ia`` (section 4 of the
-    DIDIM paper, eq. (33)). Its friction adds the parameters ``Fvm<motor>`` and
-    ``Fcm<motor>``: ``tau_k += c_k (Fvm w + Fcm sign(w))`` with ``w`` the rotor
+    The rotor's joint-side velocity is `sum_k c_k qd_k`. Its inertia's diagonal
+    terms are absorbed into the joints' own `Ia`; the off-diagonal terms
+    `M[k, l] += c_k c_l Ia_motor` use the motor joint's `Ia` (section 4 of the
+    DIDIM paper, eq. (33)). Its friction adds the parameters `Fvm<motor>` and
+    `Fcm<motor>`: `tau_k += c_k (Fvm w + Fcm sign(w))` with `w` the rotor
     velocity.
     """
 
@@ -87,9 +87,9 @@ class Coupling:
 class Controller:
     """Joint controller of the robot (Figs. 3-4 of the DIDIM paper).
 
-    Per joint: desired closed-loop natural frequency ``wn`` (rad/s) and damping
-    ``zeta`` give ``kp = wn / (2 zeta)`` and ``kv = 2 zeta wn`` (eq. (30)) of the
-    normalised double integrator; ``J_ap`` and ``g_ap`` are the a-priori inertia
+    Per joint: desired closed-loop natural frequency `wn` (rad/s) and damping
+    `zeta` give `kp = wn / (2 zeta)` and `kv = 2 zeta wn` (eq. (30)) of the
+    normalised double integrator; `J_ap` and `g_ap` are the a-priori inertia
     and drive gain the control signal is scaled with.
     """
 
@@ -159,7 +159,14 @@ class Robot:
         return len(self.standard_names)
 
     def standard_vector(self, values: dict, default: float = 0.0) -> np.ndarray:
-        """Standard-parameter vector from a ``{name: value}`` mapping."""
+        """Standard-parameter vector from a `{name: value}` mapping.
+
+        Returns
+        -------
+        numpy.ndarray
+            (10 n + extras,) values in the order of `standard_names`, `default` where the
+            mapping has none.
+        """
         names = self.standard_names
         unknown = sorted(set(values) - set(names))
         if unknown:
@@ -167,7 +174,13 @@ class Robot:
         return np.array([values.get(nm, default) for nm in names], dtype=float)
 
     def limits(self):
-        """Arrays (q_min, q_max, qd_max, qdd_max, tau_max), one entry per joint."""
+        """Arrays (q_min, q_max, qd_max, qdd_max, tau_max), one entry per joint.
+
+        Returns
+        -------
+        tuple of numpy.ndarray
+            `(q_min, q_max, qd_max, qdd_max, tau_max)`, each (n,), in SI units (rad or m, N m or N).
+        """
         q_min = np.array([j.q_limits[0] for j in self.joints], dtype=float)
         q_max = np.array([j.q_limits[1] for j in self.joints], dtype=float)
         return (q_min, q_max,
@@ -176,7 +189,13 @@ class Robot:
                 np.array([j.tau_max for j in self.joints], dtype=float))
 
     def dh_table(self):
-        """Rows (j, sigma, alpha, d, theta, r) for joints given in MDH, else None."""
+        """Rows (j, sigma, alpha, d, theta, r) for joints given in MDH, else None.
+
+        Returns
+        -------
+        list of tuple or None
+            `(j, sigma, alpha, d, theta, r)` per joint (rad, m); None for a URDF robot.
+        """
         if any(j.mdh is None for j in self.joints):
             return None
         return [(k + 1, j.sigma) + tuple(j.mdh) for k, j in enumerate(self.joints)]

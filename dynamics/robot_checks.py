@@ -53,7 +53,7 @@ _TEXT_CONTROL = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\x7f-\x9f\u200e\u200f\u20
 
 
 def shown(text):
-    """``text`` with its control characters escaped, safe to print in a message."""
+    """`text` with its control characters escaped, safe to print in a message."""
     return _CONTROL.sub(lambda m: m.group().encode("unicode_escape").decode("ascii"), str(text))
 
 
@@ -81,7 +81,7 @@ def check_text(text, where, path):
 
 
 def read_limited(path, what="robot file"):
-    """The bytes of a robot file: a regular file of at most ``MAX_FILE_BYTES``, checked before reading."""
+    """The bytes of a robot file: a regular file of at most `MAX_FILE_BYTES`, checked before reading."""
     path = Path(path)
     try:
         st = os.stat(path)

@@ -1,6 +1,6 @@
 """Reading robot descriptions: TOML files, URDF files and bundled robots by name.
 
-TOML schema (see ``dynamics/robots/tx40.toml`` for a complete example)::
+TOML schema (see `dynamics/robots/tx40.toml` for a complete example)::
 
     name = "tx40"
     gravity = [0.0, 0.0, -9.81]        # base frame, m/s^2
@@ -37,15 +37,15 @@ TOML schema (see ``dynamics/robots/tx40.toml`` for a complete example)::
     [provenance]                       # free text per topic
     kinematics = "Table 1 of ..."
 
-When ``urdf`` is given, the ``[[joints]]`` tables may only add limits, drive
+When `urdf` is given, the `[[joints]]` tables may only add limits, drive
 gains and names of existing joints (matched by order); the kinematics and
-inertials come from the URDF. ``base = "link"`` and ``tip = "link"`` beside
-``urdf`` select one chain of a branched URDF (see :func:`dynid.dynamics.urdf.read_urdf`).
+inertials come from the URDF. `base = "link"` and `tip = "link"` beside
+`urdf` select one chain of a branched URDF (see `dynid.dynamics.urdf.read_urdf`).
 
 Every value is checked against the bounds below; names (robot, joints) must
 not hold control characters (they are printed on terminals); a-priori names
 must be standard parameters of this robot or base names (a standard name
-followed by ``R``); a-priori masses and inertia diagonals must not be negative.
+followed by `R`); a-priori masses and inertia diagonals must not be negative.
 The fields, their units and ranges are the tables `JOINT_FIELDS` and
 `CONTROLLER_FIELDS`; the shared checks live in `robot_checks`.
 """
@@ -139,10 +139,10 @@ def bundled_path(name):
 
 
 def load_robot(spec, base=None, tip=None):
-    """A robot from a bundled name (``"tx40"``), a ``.toml`` or a ``.urdf`` path.
+    """A robot from a bundled name (`"tx40"`), a `.toml` or a `.urdf` path.
 
-    ``base``, ``tip``: link names selecting one chain of a URDF (the ``.urdf``
-    given, or the ``urdf`` of a TOML file); see :func:`dynid.dynamics.urdf.read_urdf`.
+    `base`, `tip`: link names selecting one chain of a URDF (the `.urdf`
+    given, or the `urdf` of a TOML file); see `dynid.dynamics.urdf.read_urdf`.
     """
     if isinstance(spec, Robot):
         if base is not None or tip is not None:
@@ -171,7 +171,7 @@ def load_robot(spec, base=None, tip=None):
 
 
 def read_toml(path, base=None, tip=None):
-    """Read and validate a robot description in TOML (``base``/``tip``: chain of its URDF)."""
+    """Read and validate a robot description in TOML (`base`/`tip`: chain of its URDF)."""
     path = Path(path)
     data = read_limited(path, "robot file")
     try:

@@ -1,12 +1,12 @@
 """Closed-loop simulation of a robot under its joint controller (DIDIM's simulated robot).
 
 Figs. 3-4 and eqs. (25)-(30) of Gautier, Janot, Vandanjon 2010: each joint is
-controlled as the normalised double integrator ``1/s^2`` with the gains
-``kp = wn / (2 zeta)``, ``kv = 2 zeta wn`` (eq. (30)), the control signal being
+controlled as the normalised double integrator `1/s^2` with the gains
+`kp = wn / (2 zeta)`, `kv = 2 zeta wn` (eq. (30)), the control signal being
 scaled by the a-priori inertia over the a-priori drive gain.
 
-Control law, per joint ``j``, at the controller samples ``t_k`` (rate
-``robot.controller.rate``, or ``rate=``)::
+Control law, per joint `j`, at the controller samples `t_k` (rate
+`robot.controller.rate`, or `rate=`)::
 
     e      = qr_j(t_k) - q_j(t_k)
     u      = kv_j * (kp_j * e - qd_j [+ qdr_j(t_k)])        # [...] with feedforward=True
@@ -14,46 +14,46 @@ Control law, per joint ``j``, at the controller samples ``t_k`` (rate
     v_j    = (J_ap_j / g_ap_j) * kd_scale_j * u              # control signal (Fig. 3)
     tau_j  = clip(g_j * v_j, -tau_max_j, tau_max_j)          # g_j = robot.joints[j].drive_gain
 
-* ``kd_scale`` multiplies the derivative gain ``kv J_ap / g_ap`` (the factor
-  ``J_hat_j^k / J_ap_j`` of section 3.2 that keeps the simulated loop equal to the
-  actual one when the simulated inertia is ``J_hat``). ``kp`` sits inside it, so
+* `kd_scale` multiplies the derivative gain `kv J_ap / g_ap` (the factor
+  `J_hat_j^k / J_ap_j` of section 3.2 that keeps the simulated loop equal to the
+  actual one when the simulated inertia is `J_hat`). `kp` sits inside it, so
   the proportional action scales too, exactly as in Fig. 4. For the PID the
   integral path is scaled by the same factor, so the normalised loop
-  ``s^3 + kv s^2 + kv kp s + ki`` is kept (stable for ``ki < kv^2 kp``).
-* PID: ``I_k = clip(I_{k-1} + T e_k, -I_max, I_max)`` (rectangle rule, ``T`` the
-  controller period, updated before ``u`` is formed). Anti-windup by clamping:
-  ``I_max = tau_max / |g ki J_ap kd_scale / g_ap|``, so the integral term alone
-  never asks for more than ``tau_max``. ``ki`` comes from ``controller.ki``
+  `s^3 + kv s^2 + kv kp s + ki` is kept (stable for `ki < kv^2 kp`).
+* PID: `I_k = clip(I_{k-1} + T e_k, -I_max, I_max)` (rectangle rule, `T` the
+  controller period, updated before `u` is formed). Anti-windup by clamping:
+  `I_max = tau_max / |g ki J_ap kd_scale / g_ap|`, so the integral term alone
+  never asks for more than `tau_max`. `ki` comes from `controller.ki`
   (normalised units, rad/s^3 per rad).
 * The velocity fed back is the simulated joint velocity (the state).
 * The torque is held constant between controller samples (zero-order hold).
 
-Plant: ``qdd = M(q)^-1 (tau - N(q, qd))`` (eq. (17)) with the actuator terms,
-from :mod:`dynid.dynamics.dynamic_model`; Coulomb friction with the smooth sign
-``tanh(qd / v_s)``, ``v_s = 0.01`` rad/s by default. Integrated by the classical
-fixed-step Runge-Kutta 4 with ``substeps`` steps per controller period
-(``h = T / substeps``, default 1). The whole loop runs in one numba function.
+Plant: `qdd = M(q)^-1 (tau - N(q, qd))` (eq. (17)) with the actuator terms,
+from `dynid.dynamics.dynamic_model`; Coulomb friction with the smooth sign
+`tanh(qd / v_s)`, `v_s = 0.01` rad/s by default. Integrated by the classical
+fixed-step Runge-Kutta 4 with `substeps` steps per controller period
+(`h = T / substeps`, default 1). The whole loop runs in one numba function.
 
-Output at each controller sample ``t_k``: the state ``q_k, qd_k``, the torque
-``tau_k`` computed there and held over ``[t_k, t_k+1)``, and ``qdd_k`` the
-acceleration of the plant at ``(q_k, qd_k, tau_k)`` (the first RK4 stage).
+Output at each controller sample `t_k`: the state `q_k, qd_k`, the torque
+`tau_k` computed there and held over `[t_k, t_k+1)`, and `qdd_k` the
+acceleration of the plant at `(q_k, qd_k, tau_k)` (the first RK4 stage).
 
-Accuracy (measured by ``tests/test_simulation.py``, TX40 with Table-2-like
+Accuracy (measured by `tests/test_simulation.py`, TX40 with Table-2-like
 parameters tracking a 5-harmonic Fourier reference at 5 kHz, 5 s, v_s = 0.05):
 the RK4 step of one controller period differs from a 4x finer step by
 4e-9 rad in q (7e-6 rad/s in qd, 1e-5 N m in tau, mostly at velocity
 reversals where the smoothed friction is steepest); a Pinocchio-based loop with
 the same controller, hold and RK4 step agrees to ~1e-15 rad (same arithmetic).
-With ``v_s = 0.01`` and ``substeps = 3`` the 4x-finer difference is ~6e-10 rad.
+With `v_s = 0.01` and `substeps = 3` the 4x-finer difference is ~6e-10 rad.
 
-Stiffness. Near ``qd = 0`` the smooth sign acts as a viscous friction of slope
-``Fc / v_s``; with a small inertia ``J`` the plant eigenvalue ``-Fc / (v_s J)``
-times the step ``h`` must stay below ~2.8 (RK4's real stability interval) and
+Stiffness. Near `qd = 0` the smooth sign acts as a viscous friction of slope
+`Fc / v_s`; with a small inertia `J` the plant eigenvalue `-Fc / (v_s J)`
+times the step `h` must stay below ~2.8 (RK4's real stability interval) and
 below ~1 for accuracy. Example: the TX40 wrist with the Table 2 frictions
-(``Fc6 + Fcm6 = 2.5`` N m, ``J6 ~ 0.012`` kg m^2) at 5 kHz and ``v_s = 0.01``
-gives ``h lambda ~ 4``: use ``substeps >= 3`` or ``v_s >= 0.03``. The simulator
-estimates ``h lambda`` at the start (``SimulationResult.stiffness``) and warns
-when it exceeds 2.5, with the substeps and ``v_s`` that fix it.
+(`Fc6 + Fcm6 = 2.5` N m, `J6 ~ 0.012` kg m^2) at 5 kHz and `v_s = 0.01`
+gives `h lambda ~ 4`: use `substeps >= 3` or `v_s >= 0.03`. The simulator
+estimates `h lambda` at the start (`SimulationResult.stiffness`) and warns
+when it exceeds 2.5, with the substeps and `v_s` that fix it.
 """
 from __future__ import annotations
 
@@ -91,13 +91,13 @@ class SimulationError(DynidError):
 
 @dataclass(eq=False)
 class SimulationResult:
-    """Samples of a simulation at the controller (or input) times ``t``.
+    """Samples of a simulation at the controller (or input) times `t`.
 
     q, qd, qdd, tau: (N, n) state, acceleration at the sample and the torque held
-    over ``[t_k, t_k+1)``. qr, qdr: the reference on the same grid (None in open
-    loop). ``saturation``: fraction of samples where each joint's torque was
-    clipped at tau_max. ``stiffness``: the estimated ``h lambda`` of the
-    friction (see the module doc). ``notes``: what the simulator did on its own
+    over `[t_k, t_k+1)`. qr, qdr: the reference on the same grid (None in open
+    loop). `saturation`: fraction of samples where each joint's torque was
+    clipped at tau_max. `stiffness`: the estimated `h lambda` of the
+    friction (see the module doc). `notes`: what the simulator did on its own
     (resampling, derived qdr, ...).
     """
 
@@ -183,7 +183,7 @@ def _rk4_step(model, ws, stg, q, qd, tau, a1, h, v_s):
 
 @njit(cache=True, nogil=True)
 def _integrate_interval(model, ws, stg, q, qd, tau, a1, dt, substeps, v_s):
-    """Advance (q, qd) over dt with ``substeps`` RK4 steps; a1 holds qdd at the start."""
+    """Advance (q, qd) over dt with `substeps` RK4 steps; a1 holds qdd at the start."""
     n = q.shape[0]
     h = dt / substeps
     for s in range(substeps):
@@ -348,11 +348,11 @@ def _v_s(v_s):
 
 
 def friction_stiffness(robot, chi_st, q0, h, v_s):
-    """Estimated ``h * lambda_max`` of the friction near ``qd = 0`` at ``q0``.
+    """Estimated `h * lambda_max` of the friction near `qd = 0` at `q0`.
 
-    ``lambda`` are the generalised eigenvalues of (D, M(q0)) with D the friction
-    slope at rest: ``diag(Fv + Fc / v_s) + sum_c c c^T (Fvm + Fcm / v_s)``. For
-    ``v_s = 0`` only the viscous part counts (the sign has no slope).
+    `lambda` are the generalised eigenvalues of (D, M(q0)) with D the friction
+    slope at rest: `diag(Fv + Fc / v_s) + sum_c c c^T (Fvm + Fcm / v_s)`. For
+    `v_s = 0` only the viscous part counts (the sign has no slope).
     """
     ma = model_arrays(robot, chi_st)
     inv = 1.0 / v_s if v_s > 0 else 0.0
@@ -409,28 +409,28 @@ def _controller_of(robot, controller):
 def simulate_closed_loop(robot, chi_st, t, qr, qdr=None, *, q0=None, qd0=None, controller=None,
                          kd_scale=None, substeps=1, v_s=DEFAULT_V_S, feedforward=False,
                          rate=None, saturate=True, progress=None) -> SimulationResult:
-    """Simulate the robot with parameters ``chi_st`` tracking ``qr`` under its controller.
+    """Simulate the robot with parameters `chi_st` tracking `qr` under its controller.
 
     Parameters
     ----------
-    t : (N,) increasing times of the reference samples (s). When ``t`` is uniform with
-        the controller period ``1/rate`` it is used as the controller grid as is;
-        otherwise the controller runs on ``t[0] + k/rate`` up to ``t[-1]`` and the
+    t : (N,) increasing times of the reference samples (s). When `t` is uniform with
+        the controller period `1/rate` it is used as the controller grid as is;
+        otherwise the controller runs on `t[0] + k/rate` up to `t[-1]` and the
         reference is linearly interpolated onto it (a note says so).
     qr : (N, n) reference positions, or a trajectory object with
-        ``evaluate(t) -> (q, qd, qdd)`` (e.g. :class:`dynid.dynamics.trajectories.FourierTrajectory`),
-        evaluated on the controller grid (its velocity becomes ``qdr``).
+        `evaluate(t) -> (q, qd, qdd)` (e.g. `dynid.dynamics.trajectories.FourierTrajectory`),
+        evaluated on the controller grid (its velocity becomes `qdr`).
     qdr : (N, n) reference velocities (feedforward, initial velocity). When
-        missing it is the second-order finite difference of ``qr`` (a note says so).
-    q0, qd0 : initial state; default ``qr(t0)``, ``qdr(t0)`` (section 3.2).
-    controller : a :class:`dynid.dynamics.robot.Controller` replacing ``robot.controller``.
-    kd_scale : per-joint factor on the derivative gain (DIDIM's ``J_hat^k / J_ap``);
+        missing it is the second-order finite difference of `qr` (a note says so).
+    q0, qd0 : initial state; default `qr(t0)`, `qdr(t0)` (section 3.2).
+    controller : a `dynid.dynamics.robot.Controller` replacing `robot.controller`.
+    kd_scale : per-joint factor on the derivative gain (DIDIM's `J_hat^k / J_ap`);
         scalar or (n,), positive; default 1.
     substeps : RK4 steps per controller period (>= 1).
     v_s : smooth-sign velocity of Coulomb friction (rad/s); 0 = exact sign.
-    feedforward : add the reference velocity ``kv qdr`` to the PD.
-    rate : controller rate in Hz, overriding ``controller.rate``.
-    saturate : clip the torque at the joints' ``tau_max`` (default True).
+    feedforward : add the reference velocity `kv qdr` to the PD.
+    rate : controller rate in Hz, overriding `controller.rate`.
+    saturate : clip the torque at the joints' `tau_max` (default True).
     progress : callable(fraction in [0, 1]) called as the simulation advances.
     """
     c = _controller_of(robot, controller)
@@ -531,8 +531,8 @@ def simulate_closed_loop(robot, chi_st, t, qr, qdr=None, *, q0=None, qd0=None, c
 
 
 def simulate_torque(robot, chi_st, t, tau, q0, qd0, *, substeps=1, v_s=DEFAULT_V_S) -> SimulationResult:
-    """Open-loop simulation: ``tau`` (N, n) held over ``[t_k, t_k+1)`` (zero-order hold),
-    RK4 with ``substeps`` steps per interval (``t`` may be non-uniform)."""
+    """Open-loop simulation: `tau` (N, n) held over `[t_k, t_k+1)` (zero-order hold),
+    RK4 with `substeps` steps per interval (`t` may be non-uniform)."""
     n = robot.n_joints
     chi = check_parameters(robot, chi_st)
     ma = model_arrays(robot, chi)

@@ -1,12 +1,12 @@
 """Exciting trajectories: finite Fourier series (Swevers et al. 1997; Bona & Curatella 2005).
 
-Eqs. (17)-(19) of Bona & Curatella 2005, joint ``i``, ``w = 2 pi f0``::
+Eqs. (17)-(19) of Bona & Curatella 2005, joint `i`, `w = 2 pi f0`::
 
     q_i(t)   = sum_k  a_ik / (w k) sin(w k t) - b_ik / (w k) cos(w k t)  + q_i0
     qd_i(t)  = sum_k  a_ik cos(w k t) + b_ik sin(w k t)
     qdd_i(t) = sum_k -a_ik w k sin(w k t) + b_ik w k cos(w k t)
 
-The trajectory is periodic with period ``1 / f0``; ``q_i0`` is the mean
+The trajectory is periodic with period `1 / f0`; `q_i0` is the mean
 position over a period. Velocity and acceleration are analytic: no numerical
 differentiation of the reference is needed.
 """
@@ -43,7 +43,7 @@ def check_harmonics(n_harmonics) -> int:
 
 
 class FourierTrajectory:
-    """Finite Fourier series of ``n`` joints and ``N`` harmonics of ``f0`` (Hz).
+    """Finite Fourier series of `n` joints and `N` harmonics of `f0` (Hz).
 
     a, b: (n, N) coefficients (velocity amplitudes, rad/s or m/s); q0: (n,) offsets.
     """
@@ -88,7 +88,7 @@ class FourierTrajectory:
         return self.harmonics * self.f0
 
     def evaluate(self, t):
-        """(q, qd, qdd) at times ``t``: each (len(t), n) for an array, (n,) for a scalar."""
+        """(q, qd, qdd) at times `t`: each (len(t), n) for an array, (n,) for a scalar."""
         try:
             t_arr = np.asarray(t, dtype=float)
         except (TypeError, ValueError):
@@ -111,7 +111,7 @@ class FourierTrajectory:
     __call__ = evaluate
 
     def sample(self, fs, duration=None, t0=0.0):
-        """Times ``t0 + k / fs`` over ``duration`` (default one period), and (q, qd, qdd)."""
+        """Times `t0 + k / fs` over `duration` (default one period), and (q, qd, qdd)."""
         fs = float(fs)
         if not np.isfinite(fs) or fs <= 0:
             raise InputError(f"fs must be a positive sampling rate in Hz, got {fs!r}")
@@ -126,7 +126,7 @@ class FourierTrajectory:
         return np.arange(m) * (self.period / m)
 
     def to_frame(self, t, derivatives=True):
-        """pandas DataFrame with columns t, qr1..qrn and, with ``derivatives``, qdr1..qdrn,
+        """pandas DataFrame with columns t, qr1..qrn and, with `derivatives`, qdr1..qdrn,
         qddr1..qddrn (the reference of an experiment)."""
         import pandas as pd  # slow to import; the dynamics layer needs it only for this export
 
@@ -155,19 +155,19 @@ def _rng(rng):
 def random_fourier_trajectory(robot, f0, n_harmonics, rng=None, margin=0.9, *, n_check=None):
     """A random Fourier trajectory inside the robot's limits.
 
-    Coefficients ``a, b`` are drawn standard normal, then each joint's series is
+    Coefficients `a, b` are drawn standard normal, then each joint's series is
     scaled by the largest factor that keeps, on a dense grid of one period
-    (``n_check`` points, default ``max(4000, 200 N)``):
+    (`n_check` points, default `max(4000, 200 N)`):
 
-    * ``q`` inside ``q_mid +- margin * (q_max - q_min) / 2`` with ``q0 = q_mid``
-      the centre of the joint range (``q0 = 0`` and no position bound when a limit
+    * `q` inside `q_mid +- margin * (q_max - q_min) / 2` with `q0 = q_mid`
+      the centre of the joint range (`q0 = 0` and no position bound when a limit
       is infinite),
-    * ``|qd| <= margin * qd_max`` and ``|qdd| <= margin * qdd_max``.
+    * `|qd| <= margin * qd_max` and `|qdd| <= margin * qdd_max`.
 
-    Scaling the coefficients scales ``q - q0``, ``qd`` and ``qdd`` alike, so one
+    Scaling the coefficients scales `q - q0`, `qd` and `qdd` alike, so one
     factor per joint meets all three limits. Between grid points a trigonometric
     polynomial of degree N can exceed its grid maximum, by at most a relative
-    ``(pi N / n_check)^2 / 2`` (Bernstein's inequality); the factor is reduced by
+    `(pi N / n_check)^2 / 2` (Bernstein's inequality); the factor is reduced by
     that much, so the limits hold at every time, and the binding one is reached
     to within that relative amount (~1e-5). A joint with no finite limit at all
     is an error.

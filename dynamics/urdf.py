@@ -1,41 +1,41 @@
 """URDF reader for serial chains.
 
-Each moving joint's frame is the URDF joint frame rotated so that its ``z``
-axis is the joint axis (dynid's regressor turns and slides about ``z``): for
-``axis = (0, -1, 0)`` that is a rotation of +90 deg about ``x``. Link
+Each moving joint's frame is the URDF joint frame rotated so that its `z`
+axis is the joint axis (dynid's regressor turns and slides about `z`): for
+`axis = (0, -1, 0)` that is a rotation of +90 deg about `x`. Link
 inertials (mass, centre of mass and inertia about the centre of mass in the
-``<inertial>`` frame) are converted to dynid's standard parameters of that
+`<inertial>` frame) are converted to dynid's standard parameters of that
 joint frame: inertia about the frame origin (parallel-axis theorem) and first
-moments ``M c``. Fixed joints are merged: their placement folds into the next
+moments `M c`. Fixed joints are merged: their placement folds into the next
 moving joint, the inertia of a fixed child link into its parent link.
 
-Chains. dynid models one serial chain. Without ``base``/``tip`` the moving
+Chains. dynid models one serial chain. Without `base`/`tip` the moving
 joints of the whole file must form one chain from the root link (fixed side
 branches -- sensors, tool frames -- are merged); a file whose moving joints
 branch (a two-armed robot, a gripper with two fingers) is refused, naming the
-first moving joint of each branch. ``base``/``tip`` (link names, as in KDL's
-``getChain(base, tip)``) select the chain from ``base`` down to ``tip``:
+first moving joint of each branch. `base`/`tip` (link names, as in KDL's
+`getChain(base, tip)`) select the chain from `base` down to `tip`:
 
-* ``base`` (default: the root link) is fixed to the ground; what hangs from
+* `base` (default: the root link) is fixed to the ground; what hangs from
   it, or from links fixed to it, does not change the chain's dynamics and is
   left out, as is everything above it.
 * Fixed children of the chain's links (and of the tip) are merged as above:
   their inertia folds into the moving link they are fixed to.
 * Moving subtrees off the chain (fingers below the tip, a second arm) are
   left out **with their mass**: the model is the chain alone. Each such
-  omission is described in ``robot.notices`` (with the mass left out).
+  omission is described in `robot.notices` (with the mass left out).
 
-Checks (each a :class:`RobotFileError` naming the file and the element):
+Checks (each a `RobotFileError` naming the file and the element):
 XML entity declarations and external references (defusedxml); duplicated
 link or joint names; names with control characters; a link with two parents,
-loops, several roots; more than ``MAX_URDF_LINKS`` links or ``MAX_JOINTS``
-moving joints in the chain; ``<mimic>``, floating and planar joints on the
-chain; ``lower > upper`` (or equal) limits and negative velocity/effort limits
+loops, several roots; more than `MAX_URDF_LINKS` links or `MAX_JOINTS`
+moving joints in the chain; `<mimic>`, floating and planar joints on the
+chain; `lower > upper` (or equal) limits and negative velocity/effort limits
 (0 means "not given", as URDF exporters write it);
-origins beyond ``MAX_LENGTH``; link inertials with negative mass, mass above
-``MAX_MASS``, inertia entries above ``MAX_INERTIA``, inertia about the centre
+origins beyond `MAX_LENGTH`; link inertials with negative mass, mass above
+`MAX_MASS`, inertia entries above `MAX_INERTIA`, inertia about the centre
 of mass not positive semi-definite or violating the triangle inequality
-(``I1 + I2 >= I3`` for the principal moments; both to 1e-4 of the trace, the
+(`I1 + I2 >= I3` for the principal moments; both to 1e-4 of the trace, the
 rounding of inertias printed to 4-5 digits), and
 mass 0 with a nonzero inertia. A massless frame (mass 0, inertia 0) is legal.
 A point mass or a thin rod (a zero principal moment) is a legal limiting case.
@@ -305,7 +305,7 @@ class _Tree:
         return j.find("parent").get("link")
 
     def below(self, link):
-        """Links of the subtree of ``link``, breadth first (``link`` first)."""
+        """Links of the subtree of `link`, breadth first (`link` first)."""
         out, queue = [], deque([link])
         while queue:
             l = queue.popleft()
@@ -314,7 +314,7 @@ class _Tree:
         return out
 
     def first_moving(self, joint):
-        """The moving joints nearest the top of the branch that starts with ``joint``."""
+        """The moving joints nearest the top of the branch that starts with `joint`."""
         out, queue = [], deque([joint])
         while queue:
             j = queue.popleft()
@@ -345,7 +345,7 @@ class _Tree:
                              f"of its links, e.g. {_few(self.links)}")
 
     def chain(self, base, tip):
-        """The joints from ``base`` down to ``tip`` (or down the only moving chain)."""
+        """The joints from `base` down to `tip` (or down the only moving chain)."""
         path = self.path
         if base is None:
             base = self.root
@@ -625,7 +625,7 @@ def _subtree_mass(tree, joint):
 
 
 def _notices(tree, base, chain, left_out, robot_joints, chain_text):
-    """What was left out of the URDF, for ``robot.notices``."""
+    """What was left out of the URDF, for `robot.notices`."""
     name = tree.path.name
     notes = []
     loaded = [(k, o) for k, o in left_out if o is not None]

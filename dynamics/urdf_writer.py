@@ -1,21 +1,21 @@
 """Writing a robot and a standard-parameter set as a URDF, and checking physical consistency.
 
 The URDF holds what URDF can hold: per link the mass, centre of mass and
-inertia about the centre of mass (``<inertial>``), per joint its placement,
-axis, limits and ``<dynamics damping friction>`` (dynid's ``Fv``, ``Fc``).
-Standard parameters URDF has no field for -- actuator inertia ``Ia``, torque
-offset ``Off``, the friction of a coupled motor (``Fvm6``, ``Fcm6``) -- go
-into a ``<dynid:parameters>`` element in dynid's XML namespace, which URDF
+inertia about the centre of mass (`<inertial>`), per joint its placement,
+axis, limits and `<dynamics damping friction>` (dynid's `Fv`, `Fc`).
+Standard parameters URDF has no field for -- actuator inertia `Ia`, torque
+offset `Off`, the friction of a coupled motor (`Fvm6`, `Fcm6`) -- go
+into a `<dynid:parameters>` element in dynid's XML namespace, which URDF
 parsers ignore; a model that needs them (rotor inertia is Pinocchio's
-``armature``) must take them from there or from the JSON written beside.
+`armature`) must take them from there or from the JSON written beside.
 
-Each moving joint of the written URDF has axis ``0 0 1`` and its link frame
-is dynid's joint frame, so :func:`dynid.dynamics.urdf.read_urdf` reads back the
+Each moving joint of the written URDF has axis `0 0 1` and its link frame
+is dynid's joint frame, so `dynid.dynamics.urdf.read_urdf` reads back the
 same placements and standard parameters (to rounding of the written
 decimals: 17 significant digits, i.e. exactly).
 
 Physical consistency of a link (Wensing, Kim, Slotine 2017): the pseudo-inertia
-``J = [[tr(I)/2 1 - I, h], [h^T, m]]`` (``I`` about the frame origin, ``h = m c``)
+`J = [[tr(I)/2 1 - I, h], [h^T, m]]` (`I` about the frame origin, `h = m c`)
 is positive definite. That is the same as: mass > 0, inertia about the centre
 of mass positive definite, and its principal moments obeying the triangle
 inequality (each at most the sum of the other two), i.e. a non-negative mass
@@ -54,7 +54,7 @@ def pseudo_inertia(values) -> np.ndarray:
 
 
 def pseudo_inertia_basis():
-    """E_k (10 of 4x4) with J = sum_k value_k E_k, in the order of :data:`dynid.dynamics.robot.INERTIAL`."""
+    """E_k (10 of 4x4) with J = sum_k value_k E_k, in the order of `dynid.dynamics.robot.INERTIAL`."""
     E = []
     for k in range(10):
         v = np.zeros(10)
@@ -93,7 +93,7 @@ def inertial_slice(robot, j):
 
 
 def consistency(robot, chi_st, *, tol=0.0) -> list:
-    """:func:`link_consistency` of every link of ``robot`` (list, link 1 first)."""
+    """`link_consistency` of every link of `robot` (list, link 1 first)."""
     chi_st = np.asarray(chi_st, dtype=float)
     out = []
     for j in range(robot.n_joints):
@@ -105,7 +105,7 @@ def consistency(robot, chi_st, *, tol=0.0) -> list:
 
 # ------------------------------------------------------------------ writing
 def rpy_from_matrix(R):
-    """URDF roll-pitch-yaw of a rotation (inverse of :func:`dynid.dynamics.urdf.rpy_matrix`)."""
+    """URDF roll-pitch-yaw of a rotation (inverse of `dynid.dynamics.urdf.rpy_matrix`)."""
     R = np.asarray(R, dtype=float)
     sp = -R[2, 0]
     if abs(sp) < 1.0 - 1e-12:
@@ -140,7 +140,7 @@ def _extra_names(robot):
 
 
 def urdf_unrepresentable(robot) -> list:
-    """Standard parameters of ``robot`` a URDF has no field for (Ia, Off, coupling friction)."""
+    """Standard parameters of `robot` a URDF has no field for (Ia, Off, coupling friction)."""
     return _extra_names(robot)
 
 
@@ -176,14 +176,14 @@ def _inertial_element(parent, m, h, I_o):
 
 
 def urdf_text(robot, chi_st, *, name=None, comment="", link_names=None, payload=None) -> str:
-    """The URDF of ``robot`` with the standard parameters ``chi_st``.
+    """The URDF of `robot` with the standard parameters `chi_st`.
 
     `payload`: an identified payload written as one more link, fixed to its link by a
     `fixed` joint at the link frame (see `payload_argument`).
-    ``link_names``: names of the n moving links (default ``<robot>_link<j>``);
-    the root link is ``base_link``. Gravity must be along an axis of the base
-    frame or not: a fixed ``world -> base_link`` joint turns the base so that
-    gravity is along -z of ``world``, as URDF consumers assume.
+    `link_names`: names of the n moving links (default `<robot>_link<j>`);
+    the root link is `base_link`. Gravity must be along an axis of the base
+    frame or not: a fixed `world -> base_link` joint turns the base so that
+    gravity is along -z of `world`, as URDF consumers assume.
     """
     chi_st = np.asarray(chi_st, dtype=float)
     if chi_st.shape != (robot.n_standard,):
@@ -258,7 +258,7 @@ def urdf_text(robot, chi_st, *, name=None, comment="", link_names=None, payload=
 
 
 def read_extra_parameters(path) -> dict:
-    """The ``<dynid:parameters>`` of a URDF written by :func:`urdf_text` (name -> value)."""
+    """The `<dynid:parameters>` of a URDF written by `urdf_text` (name -> value)."""
     root = ET.parse(path).getroot()
     out = {}
     for ext in root.findall(f"{{{DYNID_NS}}}parameters"):

@@ -1,1 +1,1 @@
-"""Tables, figures, HTML reports and the ``dynid`` command line."""
+"""Tables, figures, HTML reports and the `dynid` command line."""

@@ -1,6 +1,6 @@
 """Report figure of the cross-recording (or cross-segment) agreement (issue 26).
 
-``agreement_figure(a)`` draws the pairwise z-scores of dynid.analysis.statistics.agreement
+`agreement_figure(a)` draws the pairwise z-scores of dynid.analysis.statistics.agreement
 (`agreement(...)` or `IDIMResult.agreement`) against N(0, 1): left, their normal Q-Q
 plot with the ±1.96 band; right, the histogram of z with the N(0, 1) density. The
 title carries the fraction within ±1.96, the count of pairs and the χ² test of equal
@@ -17,13 +17,13 @@ __all__ = ["agreement_figure"]
 
 
 def agreement_figure(a: dict, *, key: str = "fig-agreement", caption: str | None = None, fmt: str = "auto"):
-    """FigureMarkup of the z-scores of ``a`` (dict of `agreement`) against N(0, 1).
+    """FigureMarkup of the z-scores of `a` (dict of `agreement`) against N(0, 1).
 
     Parameters
     ----------
     a : dict
-        ``z`` (list of {a, b, name, z}), ``within_95``, ``pairs``, ``median_abs_z``,
-        ``chi2``, ``dof``, ``p_value``, ``kind``, optionally ``uncertainty``.
+        `z` (list of {a, b, name, z}), `within_95`, `pairs`, `median_abs_z`,
+        `chi2`, `dof`, `p_value`, `kind`, optionally `uncertainty`.
     key, caption, fmt
         As for dynid.reports.figures.render_figure.
 

@@ -1,18 +1,18 @@
-"""Report sections for a Bayesian posterior (:class:`dynid.analysis.sampling.posterior.PosteriorResult`).
+"""Report sections for a Bayesian posterior (`dynid.analysis.sampling.posterior.PosteriorResult`).
 
-:func:`bayes_sections` returns :class:`dynid.reports.html.Section` objects to pass
-as ``extra_sections`` to :func:`dynid.reports.html.render_idim_report` or to
-:func:`dynid.reports.html.render_sections`:
+`bayes_sections` returns `dynid.reports.html.Section` objects to pass
+as `extra_sections` to `dynid.reports.html.render_idim_report` or to
+`dynid.reports.html.render_sections`:
 
-* ``<prefix>``: the convergence verdict first and prominently (a run that did
+* `<prefix>`: the convergence verdict first and prominently (a run that did
   not converge says so in the section title and in a red box, with the
   reason), the posterior table beside the LS value and %σ, and a corner plot
   drawn here with matplotlib (histograms on the diagonal, scatter and
   39 % / 86 % highest-density contours below it, the LS estimate and its
-  95 % ellipse in red). With more than ``max_corner`` (8) parameters the
-  plot shows the ``max_corner`` with the largest |posterior correlation|
+  95 % ellipse in red). With more than `max_corner` (8) parameters the
+  plot shows the `max_corner` with the largest |posterior correlation|
   with another parameter, and its caption says which and why.
-* ``<prefix>-convergence``: τ, ESS, split R̂ per parameter, acceptance, the
+* `<prefix>-convergence`: τ, ESS, split R̂ per parameter, acceptance, the
   rule and the τ estimate against chain length / 50.
 """
 from __future__ import annotations
@@ -45,8 +45,8 @@ def _noise(name: str) -> bool:
 def corner_selection(result, max_params: int = MAX_CORNER, include_noise: bool = False):
     """(indices, note): the parameters of the corner plot and, if some were left out, why.
 
-    The model parameters (without the noise σ's unless ``include_noise`` or
-    nothing else is left); if more than ``max_params``, those with the largest
+    The model parameters (without the noise σ's unless `include_noise` or
+    nothing else is left); if more than `max_params`, those with the largest
     max_j |corr_ij| (j ≠ i), in their original order.
     """
     idx = [i for i, n in enumerate(result.names) if include_noise or not _noise(n)]
@@ -307,7 +307,7 @@ def _fmt(x, digits=4):
 
 def bayes_sections(result, *, prefix: str = "posterior", title: str | None = None,
                    max_corner: int = MAX_CORNER):
-    """The report sections of ``result`` (see the module docstring)."""
+    """The report sections of `result` (see the module docstring)."""
     dg = result.diagnostics
     flag = "" if result.converged else " \u2014 NOT CONVERGED"
     st = result.settings

@@ -1,18 +1,18 @@
 """Report sections of the Bona & Curatella (2005) analyses: excitation and noise PDFs.
 
-:func:`excitation_section` shows an optimised excitation
-(:class:`dynid.dynamics.excitation.ExcitationResult`): the trajectory over one
-period normalised by the limits, its spectrum (lines at ``k f0`` only, section
+`excitation_section` shows an optimised excitation
+(`dynid.dynamics.excitation.ExcitationResult`): the trajectory over one
+period normalised by the limits, its spectrum (lines at `k f0` only, section
 3.3), the condition numbers before and after the optimisation (eq. (20)), the
-limit margins and the Fourier coefficients. :func:`noise_section` shows the
+limit margins and the Fourier coefficients. `noise_section` shows the
 noise PDFs of period-averaged data (section 3.4, Fig. 5): per joint, the
 histogram of the torque noise (and of the position noise, side by side as in
 Fig. 5) with the fitted normal density and a KDE, the normality tests, the
 torque-vs-position comparison and, when given, the averaging's numbers.
 
-Both return :class:`dynid.reports.html.Section` objects for
-:func:`dynid.reports.html.render_sections` or the ``extra_sections`` of
-:func:`dynid.reports.html.render_idim_report`.
+Both return `dynid.reports.html.Section` objects for
+`dynid.reports.html.render_sections` or the `extra_sections` of
+`dynid.reports.html.render_idim_report`.
 """
 from __future__ import annotations
 
@@ -144,14 +144,14 @@ def _cond_figure(res, key):
 
 
 def excitation_figures(res, robot, *, prefix="fig-excitation"):
-    """The three figures of :func:`excitation_section` (trajectory, spectrum, cond)."""
+    """The three figures of `excitation_section` (trajectory, spectrum, cond)."""
     return [_trajectory_figure(res, robot, f"{prefix}-trajectory"),
             _spectrum_figure(res, robot, f"{prefix}-spectrum"),
             _cond_figure(res, f"{prefix}-cond")]
 
 
 def excitation_section(res, robot, *, id="excitation", title="Optimal excitation (Bona & Curatella 2005)"):
-    """A :class:`Section` for an :class:`~dynid.dynamics.excitation.ExcitationResult`."""
+    """A `Section` for an `ExcitationResult`."""
     tr = res.trajectory
     pairs = [
         ("Trajectory", f"finite Fourier series, eqs. (17)\u2013(19): f0 = {_fmt(tr.f0)} Hz, "
@@ -222,7 +222,7 @@ def _pdf_axes(ax, pdf, color, unit):
 def noise_pdf_figure(tau_tests, q_tests=None, *, joint_names=None, key="fig-noise-pdf", caption=None):
     """Fig. 5 layout: per joint a row, torque noise PDF left and position noise PDF right.
 
-    Without ``q_tests``, a grid of torque-noise panels. Each panel: histogram,
+    Without `q_tests`, a grid of torque-noise panels. Each panel: histogram,
     fitted normal (red), KDE (blue dashed); the primary test's p-value in the title.
     """
     names = joint_names or tau_tests.names
@@ -281,10 +281,10 @@ def _tests_table(tests, key):
 
 def noise_section(tau_tests, q_tests=None, *, comparison=None, averaging=None, joint_names=None,
                   id="noise", title="Measurement noise PDFs (Bona & Curatella 2005, Fig. 5)"):
-    """A :class:`Section` for :class:`~dynid.analysis.statistics.noise.NoiseTests` of torque (and position) noise.
+    """A `Section` for `NoiseTests` of torque (and position) noise.
 
-    ``comparison``: :class:`~dynid.analysis.statistics.noise.NoiseComparison`; ``averaging``:
-    :class:`~dynid.analysis.processing.averaging.AveragedPeriods` (its M, P and sigma table are shown).
+    `comparison`: `NoiseComparison`; `averaging`:
+    `AveragedPeriods` (its M, P and sigma table are shown).
     """
     names = joint_names or tau_tests.names
     body = []

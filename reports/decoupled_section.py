@@ -1,9 +1,9 @@
 """Report sections of the per-joint identification of Bona & Curatella (2005), section 3.
 
-:func:`decoupled_sections` turns an
-:class:`dynid.analysis.decoupled.campaign.DecoupledIdentification` (or the three
-:class:`dynid.analysis.decoupled.repeated.RepeatedEstimate` and a validation) into
-:class:`dynid.reports.html.Section` objects: Tables 1, 2 and 3 in the paper's layout
+`decoupled_sections` turns an
+`dynid.analysis.decoupled.campaign.DecoupledIdentification` (or the three
+`dynid.analysis.decoupled.repeated.RepeatedEstimate` and a validation) into
+`dynid.reports.html.Section` objects: Tables 1, 2 and 3 in the paper's layout
 (Table 1: parameters by axis; Table 2: axes by β^{v+}, β^{v−}, β^{c+}, β^{c−};
 Table 3: axis, parameter, θ̄, σ, t_γ σ/√(n−1)), each entry with dynid's
 mean, σ (1/n), 99.9 % half-width and, for simulated data, the true value and
@@ -43,7 +43,7 @@ def _entry(res, name, scale=1.0):
 
 
 def _grouped(rows, index, groups, index_name):
-    """A frame with flat columns ``group: stat`` and the group header spans."""
+    """A frame with flat columns `group: stat` and the group header spans."""
     cols, spans = {}, []
     for g in groups:
         stats = [k for k in rows[0][g]]
@@ -183,7 +183,7 @@ def validation_section(val, *, joint_names=None, id="validation-fig8",
 
 
 def decoupled_sections(ident, *, joint_names=None):
-    """The sections of a :class:`~dynid.analysis.decoupled.campaign.DecoupledIdentification`."""
+    """The sections of a `DecoupledIdentification`."""
     out = [gravity_section(ident.gravity), friction_section(ident.friction),
            inertia_section(ident.inertia)]
     if ident.validation is not None:

@@ -1,24 +1,24 @@
-"""Report sections of a residual diagnosis (:func:`dynid.analysis.diagnosis.selection.diagnose`).
+"""Report sections of a residual diagnosis (`dynid.analysis.diagnosis.selection.diagnose`).
 
-``diagnosis_sections(result, robot=None)`` returns :class:`dynid.reports.html.Section`
-objects to append to an IDIM report (``render_idim_report(...,
-extra_sections=...)``) or to render on their own
-(``render_sections(sections, title=...)``):
+`diagnosis_sections(result, robot=None)` returns `dynid.reports.html.Section`
+objects to append to an IDIM report (`render_idim_report(...,
+extra_sections=...)`) or to render on their own
+(`render_sections(sections, title=...)`):
 
-* ``diagnosis``: the selection rule, each greedy step (winner, runner-up,
+* `diagnosis`: the selection rule, each greedy step (winner, runner-up,
   gap, how often the winner predicts the held-out blocks better), the
   ranked table of effects, and the error after each step;
-* ``diagnosis-effects``: the selected effects and their identified parameters;
-* ``diagnosis-errors``: relative error and per-joint RMS before/after, on the
+* `diagnosis-effects`: the selected effects and their identified parameters;
+* `diagnosis-errors`: relative error and per-joint RMS before/after, on the
   identification data and on the validation data;
-* ``diagnosis-residuals``: the residual before (red) and after (blue) the
+* `diagnosis-residuals`: the residual before (red) and, when effects were added, after (blue) the
   effects, binned against velocity (the friction signature), position and
   time, and its PDF per joint; the catalogue-free structure tests of the final
   residual (joints whose residual has structure no candidate explains: the
   variable it depends on, its size and p-value, and a figure of the residual
   against that variable).
 
-Ids of sections, figures and tables all start with ``diagnosis`` or ``diag-``
+Ids of sections, figures and tables all start with `diagnosis` or `diag-`
 so that they never clash with those of the IDIM report.
 """
 from __future__ import annotations
@@ -347,26 +347,30 @@ def _residual_section(res, names):
             "Residual analysis was not computed (diagnose(..., residual_analysis=False))."), [], [])
         return Section("diagnosis-residuals", "Residuals before and after", body, figures=figs,
                        tables=tables)
+    def drawn(after, what="before (red) and after (blue) the effects"):
+        # a caption names only the curves drawn: without a selected effect there is no "after"
+        return what if after is not None else "of the identified model (red; no effect was added)"
+
     figs = [
         _binned_figure("diag-fig-velocity", "Identification data: mean residual in equal-count "
-                       "velocity bins (\u00b1 standard error), before (red) and after (blue) the "
-                       "effects: the friction signature", b, a, "velocity", "qd [rad/s]", names),
+                       f"velocity bins (\u00b1 standard error), {drawn(a)}: the friction signature",
+                       b, a, "velocity", "qd [rad/s]", names),
         _binned_figure("diag-fig-position", "Identification data: mean residual against joint "
-                       "position, before (red) and after (blue)", b, a, "position", "q [rad]", names),
-        _binned_figure("diag-fig-time", "Identification data: mean residual over the recording, "
-                       "before (red) and after (blue)", b, a, "time", "t [s]", names),
-        _pdf_figure("diag-fig-pdf", "Identification data: residual PDF before (red) and after "
-                    "(blue), with fitted normal densities; Jarque-Bera p in the titles", b, a, names),
+                       f"position, {drawn(a)}", b, a, "position", "q [rad]", names),
+        _binned_figure("diag-fig-time", f"Identification data: mean residual over the recording, {drawn(a)}",
+                       b, a, "time", "t [s]", names),
+        _pdf_figure("diag-fig-pdf", f"Identification data: residual PDF {drawn(a)}, with fitted normal "
+                    "densities; Jarque-Bera p in the titles", b, a, names),
     ]
     vb, va = r.get("validation_before"), r.get("validation_after")
     if not res.selected:
         va = None
     if vb is not None:
         figs.append(_binned_figure("diag-fig-velocity-validation", "Validation data: mean residual "
-                                   "against velocity, before (red) and after (blue)", vb, va,
+                                   f"against velocity, {drawn(va)}", vb, va,
                                    "velocity", "qd [rad/s]", names))
-        figs.append(_pdf_figure("diag-fig-pdf-validation", "Validation data: residual PDF before "
-                                "(red) and after (blue)", vb, va, names))
+        figs.append(_pdf_figure("diag-fig-pdf-validation", f"Validation data: residual PDF {drawn(va)}",
+                                vb, va, names))
     rows = []
     for label, an in (("before", b), ("after", a)):
         if an is None:
@@ -467,7 +471,7 @@ def _unexplained_figure(unexplained):
 
 
 def diagnosis_sections(result, robot=None):
-    """The report sections of a :class:`dynid.analysis.diagnosis.selection.DiagnosisResult`."""
+    """The report sections of a `dynid.analysis.diagnosis.selection.DiagnosisResult`."""
     n = result.model_before.n_joints
     names = _names(robot, n)
     return [_first_screen_section(result), _overview_section(result), _effects_section(result),

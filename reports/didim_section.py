@@ -1,22 +1,22 @@
 """HTML report sections of a DIDIM identification (section 3 and 5 of the DIDIM paper).
 
-``didim_sections(didim_result, idim_result=None)`` returns
-:class:`dynid.reports.html.Section` objects to pass as ``extra_sections`` to
-:func:`dynid.reports.html.render_idim_report`, or to
-:func:`dynid.reports.html.render_sections` on their own:
+`didim_sections(didim_result, idim_result=None)` returns
+`dynid.reports.html.Section` objects to pass as `extra_sections` to
+`dynid.reports.html.render_idim_report`, or to
+`dynid.reports.html.render_sections` on their own:
 
-* ``didim-convergence``: ||rho|| and its relative change per Gauss-Newton
+* `didim-convergence`: ||rho|| and its relative change per Gauss-Newton
   step, the stop rule, the history table (step length, output error,
   tracking error and derivative-gain factors per joint);
-* ``didim-table2``: the DIDIM estimate in the layout of Table 2 beside the
-  paper's values, with the %σ bars;
-* ``didim-torques``: actual torque Y(tau) vs the torque of the identified model
+* `didim-table2`: the DIDIM estimate with the %σ bars (in the layout of
+  Table 2 beside the paper's values when a published table exists);
+* `didim-torques`: actual torque Y(tau) vs the torque of the identified model
   on the simulated motion, W_delta chi_hat, at the decimated rate (Fig. 6);
-* ``didim-trajectories``: the last simulation's joint positions against the
+* `didim-trajectories`: the last simulation's joint positions against the
   reference, and the tracking error (Fig. 7);
-* ``didim-vs-idim`` (with ``idim_result``): the two estimates side by side.
+* `didim-vs-idim` (with `idim_result`): the two estimates side by side.
 
-All ids are prefixed ``didim-`` / ``fig-didim-`` / ``tab-didim-`` so they never
+All ids are prefixed `didim-` / `fig-didim-` / `tab-didim-` so they never
 clash with the IDIM report's.
 """
 from __future__ import annotations
@@ -98,7 +98,7 @@ def convergence_figure(history, tol, *, key="fig-didim-convergence", caption=Non
 def trajectory_figure(t, reference, simulated, joint_names, *, key="fig-didim-trajectories",
                       caption=None, fmt="auto", error=False):
     """Reference (red) and simulated (black) joint positions per joint (layout of Fig. 7);
-    with ``error=True`` the tracking error ``reference - simulated`` instead."""
+    with `error=True` the tracking error `reference - simulated` instead."""
     t = np.asarray(t, dtype=float)
     reference = np.asarray(reference, dtype=float)
     simulated = np.asarray(simulated, dtype=float)
@@ -218,9 +218,11 @@ def _model_of(res):
 def _table2_section(res, reference):
     m = _model_of(res)
     which = "essential" if res.essential is not None else "base"
+    published = reference is not None      # the Table 2 layout only beside a published table
     tab = T.table2_layout(m.names, m.chi, m.rel_sigma, reference, res.base.names,
                           key="tab-didim-table2",
-                          caption=f"DIDIM {which} parameters in the layout of Table 2",
+                          caption=(f"DIDIM {which} parameters in the layout of Table 2" if published else
+                                   f"DIDIM {which} parameters: value and %\u03c3"),
                           ours_label="dynid DIDIM")
     ref_map = reference.rel_std_map() if reference is not None else None
     fig = F.rel_std_bar_figure(m.names, m.rel_sigma, ref_map, key="fig-didim-rel-std",
@@ -232,10 +234,9 @@ def _table2_section(res, reference):
             para(reference.citation, ". ", reference.note, cls="hint"),
         )
     else:
-        body = para(f"The {len(m.names)} {which} parameters of the last DIDIM step (per-joint WLS). No "
-                    f"published reference is known for robot {res.robot_name!r}.")
-    return Section("didim-table2", "DIDIM parameters (Table 2)", body, figures=[fig], tables=[tab],
-                   tables_first=True)
+        body = para(f"The {len(m.names)} {which} parameters of the last DIDIM step (per-joint WLS).")
+    return Section("didim-table2", "DIDIM parameters (Table 2)" if published else "DIDIM parameters", body,
+                   figures=[fig], tables=[tab], tables_first=True)
 
 
 def _torque_section(res, reference):
@@ -320,11 +321,11 @@ def _comparison_section(res, idim):
 
 
 def didim_sections(didim_result, idim_result=None, *, reference="auto"):
-    """Report sections of a :class:`dynid.analysis.estimators.didim.DIDIMResult` (ids :data:`SECTION_IDS`).
+    """Report sections of a `dynid.analysis.estimators.didim.DIDIMResult` (ids `SECTION_IDS`).
 
-    ``idim_result`` (an :class:`dynid.analysis.estimators.idim.IDIMResult` of the same recording) adds
-    the DIDIM-vs-IDIM table. ``reference``: a :class:`dynid.reports.paper.ReferenceTable`,
-    ``None``, or ``"auto"`` (the published table for the robot, if any).
+    `idim_result` (an `dynid.analysis.estimators.idim.IDIMResult` of the same recording) adds
+    the DIDIM-vs-IDIM table. `reference`: a `dynid.reports.paper.ReferenceTable`,
+    `None`, or `"auto"` (the published table for the robot, if any).
     """
     if isinstance(reference, str) and reference == "auto":
         reference = reference_for(didim_result.robot_name)

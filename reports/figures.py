@@ -1,18 +1,18 @@
 """Figures of the HTML reports, as inline SVG (or base64 PNG for dense plots).
 
-Every figure is drawn on a :class:`matplotlib.figure.Figure` of its own (no
+Every figure is drawn on a `matplotlib.figure.Figure` of its own (no
 pyplot, no global figure registry) under a fixed style, and serialised to a
 string the report embeds directly:
 
-* SVG by default, with a fixed ``svg.hashsalt`` and no date so that the same
+* SVG by default, with a fixed `svg.hashsalt` and no date so that the same
   input gives byte-identical output; the XML prologue, metadata, comments and
   namespace declarations are dropped (inline SVG in HTML needs none of them),
   and element ids are prefixed with the figure's key so that several figures
   in one page never share an id;
-* PNG (Agg, base64 ``data:`` URI) when a plot has too many points for a
+* PNG (Agg, base64 `data:` URI) when a plot has too many points for a
   compact SVG.
 
-Time series with more than :data:`MAX_POINTS` samples are decimated for
+Time series with more than `MAX_POINTS` samples are decimated for
 plotting only (every k-th sample); the caption says so.
 """
 from __future__ import annotations
@@ -74,7 +74,7 @@ STYLE = {
 
 @dataclass
 class FigureMarkup:
-    """A rendered figure: ``markup`` is trusted HTML (SVG element or <img>)."""
+    """A rendered figure: `markup` is trusted HTML (SVG element or <img>)."""
 
     key: str
     caption: str
@@ -91,7 +91,7 @@ class FigureMarkup:
 
 # ------------------------------------------------------------------ helpers
 def joint_label(j: int, name: str) -> str:
-    """``joint 3`` for default names (``j3``, ``joint3``, ``3``), else ``joint 3 (name)``."""
+    """`joint 3` for default names (`j3`, `joint3`, `3`), else `joint 3 (name)`."""
     name = str(name)
     if name.lower().replace("_", "").replace(" ", "") in (f"j{j + 1}", f"joint{j + 1}", f"{j + 1}", ""):
         return f"joint {j + 1}"
@@ -99,12 +99,12 @@ def joint_label(j: int, name: str) -> str:
 
 
 def _plain(text) -> str:
-    """User text for matplotlib: no mathtext (``$`` escaped)."""
+    """User text for matplotlib: no mathtext (`$` escaped)."""
     return str(text).replace("$", r"\$")
 
 
 def decimate_for_plot(n: int, max_points: int = MAX_POINTS):
-    """``(index, step)``: every ``step``-th of ``n`` samples, at most ``max_points`` of them."""
+    """`(index, step)`: every `step`-th of `n` samples, at most `max_points` of them."""
     step = max(1, math.ceil(n / max_points)) if max_points else 1
     return np.arange(0, n, step), step
 
@@ -175,8 +175,61 @@ def _count_vertices(fig) -> int:
     return total
 
 
+def _labels_overlap(axis, renderer, pad=2.0) -> bool:
+    """Whether the drawn major tick labels of `axis` run into each other."""
+    lo, hi = sorted(axis.get_view_interval())
+    span = (hi - lo) * 1e-9
+    labels = [t for loc, t in zip(axis.get_majorticklocs(), axis.get_ticklabels())
+              if lo - span <= loc <= hi + span]      # ticks outside the view are not drawn
+    boxes = [t.get_window_extent(renderer) for t in labels if t.get_visible() and t.get_text()]
+    boxes.sort(key=lambda b: b.x0)
+    return any(b.x0 < a.x1 + pad for a, b in zip(boxes, boxes[1:]))
+
+
+def thin_overlapping_ticks(fig, min_bins: int = 2, max_width_in: float = 4.0) -> None:
+    """Fewer numeric x ticks on every narrow axes whose x tick labels overlap.
+
+    Narrow panels (one per joint, a few centimetres wide) with long tick labels
+    (-0.00025) run the labels into each other. The ticks are thinned (automatic locators
+    only: named ticks such as parameter names are kept); labels still overlapping at two
+    ticks are slanted.
+    """
+    from matplotlib.ticker import AutoLocator, MaxNLocator
+    # only narrow panels crowd (a full-width plot is left alone, and costs no extra layout pass)
+    axes = [ax for ax in fig.get_axes() if ax.get_visible()
+            and ax.get_position().width * fig.get_figwidth() < max_width_in
+            and isinstance(ax.xaxis.get_major_locator(), (AutoLocator, MaxNLocator))]
+    if not axes:
+        return
+    FigureCanvasAgg(fig)
+    renderer = fig.canvas.get_renderer()
+    fig.draw_without_rendering()
+    for nbins in (5, 4, 3, min_bins, None):
+        crowded = [ax for ax in axes if _labels_overlap(ax.xaxis, renderer)]
+        if not crowded:
+            return
+        if nbins is None:                     # long labels even at two ticks: slant them
+            for ax in crowded:
+                ax.tick_params(axis="x", labelrotation=35)
+                for label in ax.xaxis.get_ticklabels():
+                    label.set_horizontalalignment("right")
+                    label.set_rotation_mode("anchor")
+            return
+        for ax in crowded:
+            ax.xaxis.set_major_locator(MaxNLocator(nbins=nbins, steps=[1, 2, 2.5, 5, 10]))
+        fig.draw_without_rendering()          # one layout pass for all the thinned axes
+
+
 def render_figure(fig, key: str, caption: str, *, fmt: str = "auto") -> FigureMarkup:
-    """Serialise ``fig`` to a :class:`FigureMarkup` (SVG, or PNG when dense / asked)."""
+    """Serialise `fig` to a `FigureMarkup` (SVG, or PNG when dense / asked).
+
+    Returns
+    -------
+    FigureMarkup
+        The figure as trusted HTML, with its key and caption; x tick labels that
+        would overlap are thinned first.
+    """
+    thin_overlapping_ticks(fig)
     if fmt == "auto":
         fmt = "png" if _count_vertices(fig) > SVG_MAX_VERTICES else "svg"
     label = escape(caption)
@@ -207,7 +260,7 @@ def grid_shape(n: int, max_cols: int = 3):
 
 # ------------------------------------------------------------------ figures
 def masked(values, mask):
-    """``values`` with the samples outside ``mask`` set to NaN (drawn as gaps, never as zeros)."""
+    """`values` with the samples outside `mask` set to NaN (drawn as gaps, never as zeros)."""
     values = np.asarray(values, dtype=float)
     if mask is None:
         return values
@@ -237,10 +290,10 @@ def torque_figure(t, measured, estimated, joint_names, *, key="fig-torque", capt
                   shade=None, shade_label="velocity dead zone"):
     """Measured (red) vs estimated (blue) torque, one small subplot per joint (Fig. 6).
 
-    ``mask`` (N, n): samples NOT in it (e.g. the velocity dead zone, zeroed
+    `mask` (N, n): samples NOT in it (e.g. the velocity dead zone, zeroed
     for the fit) are drawn as gaps in both curves on a grey band, never as
-    zeros. NaN samples are gaps too. ``shade`` (N, n): samples drawn normally but
-    on a grey band labelled ``shade_label`` (e.g. the dead zone of held-out data,
+    zeros. NaN samples are gaps too. `shade` (N, n): samples drawn normally but
+    on a grey band labelled `shade_label` (e.g. the dead zone of held-out data,
     predicted but left out of the moving-sample error).
     """
     t = np.asarray(t, dtype=float)
@@ -356,7 +409,7 @@ def essential_path_figure(path, *, base_rel_error, base_max_rel_std=None, error_
                           key="fig-essential-path", caption=None, fmt="auto"):
     """Relative error and max %σ of the remaining set vs elimination step; stop step marked.
 
-    ``path`` is :attr:`EssentialResult.path`; step 0 is the full base model.
+    `path` is `EssentialResult.path`; step 0 is the full base model.
     """
     steps = np.concatenate([[0], np.asarray(path["step"], dtype=float)])
     err = np.concatenate([[base_rel_error], np.asarray(path["rel_error"], dtype=float)])
@@ -396,7 +449,7 @@ def rel_std_bar_figure(names, rel_sigma, reference=None, *, key="fig-rel-std",
                        caption=None, fmt="auto", ours_label="dynid"):
     """Bars of the %σ of the essential parameters, beside the paper's %σ where names match.
 
-    ``reference``: ``{name: %σ}`` of the paper (or ``None``).
+    `reference`: `{name: %σ}` of the paper (or `None`).
     """
     names = [str(n) for n in names]
     rs = np.asarray(rel_sigma, dtype=float)

@@ -1,6 +1,6 @@
 """The fleet report: which robots alarm and since when, their friction trends, and every result.
 
-One self-contained HTML page through the project's template (``reports/html.py``):
+One self-contained HTML page through the project's template (`reports/html.py`):
 a fleet overview (robots in alarm with the day of onset, failed recordings), the
 alarms table, per-robot trend plots (the temperature-compensated parameter, its
 ±2σ band of day-to-day scatter, the baseline, the alarm's onset and day marked)
@@ -137,7 +137,7 @@ def fleet_json(run, frame, health) -> dict:
 
 
 def write_fleet_outputs(run, frame, *, html=None, json_path=None) -> list:
-    """Write the fleet report (``html``) and/or its JSON (``json_path``) atomically; returns the paths."""
+    """Write the fleet report (`html`) and/or its JSON (`json_path`) atomically; returns the paths."""
     health = run.health
     outputs = []
     if html is not None:

@@ -28,13 +28,13 @@ def run(catalogue, store, *, scheduler: str | None = None, workers: int | None =
         false_alarm_rate: float = DEFAULT_FALSE_ALARM_RATE, n_baseline: int = DEFAULT_BASELINE,
         report: str | os.PathLike | None = None, json: str | os.PathLike | None = None,
         progress=None) -> FleetRun:
-    """Identify every new or changed recording of ``catalogue`` into ``store``, then monitor the fleet.
+    """Identify every new or changed recording of `catalogue` into `store`, then monitor the fleet.
 
-    ``scheduler``: address of a running Dask scheduler (``tcp://host:8786``); without one a
-    LocalCluster of ``workers`` processes (default: this machine's cores) is started, or
-    ``client`` (a ``distributed.Client``) is used. ``parameters``: the base parameters to
-    monitor, by family (``Fv`` = every joint's) or by name (``Fv2``). ``report``/``json``:
-    write the fleet report. Returns the :class:`FleetRun`, its ``health`` the alarms.
+    `scheduler`: address of a running Dask scheduler (`tcp://host:8786`); without one a
+    LocalCluster of `workers` processes (default: this machine's cores) is started, or
+    `client` (a `distributed.Client`) is used. `parameters`: the base parameters to
+    monitor, by family (`Fv` = every joint's) or by name (`Fv2`). `report`/`json`:
+    write the fleet report. Returns the `FleetRun`, its `health` the alarms.
 
     Before any work: the monitoring options are range-checked, and no output may be
     an input (the catalogue, a recording, a robot file; through links or `..` too).

@@ -1,4 +1,4 @@
-"""Report section of :class:`dynid.analysis.diagnosis.asymmetric_friction.AsymmetricFrictionResult`."""
+"""Report section of `dynid.analysis.diagnosis.asymmetric_friction.AsymmetricFrictionResult`."""
 from __future__ import annotations
 
 from dynid.reports import tables as T

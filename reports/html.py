@@ -1,22 +1,22 @@
 """Self-contained HTML reports.
 
-A report is a list of :class:`Section` rendered by ``templates/report.html.j2``
+A report is a list of `Section` rendered by `templates/report.html.j2`
 into ONE HTML file: inline CSS, inline SVG (or base64 PNG) figures, every
-table downloadable as CSV through a ``data:`` URI, no external fonts, scripts
+table downloadable as CSV through a `data:` URI, no external fonts, scripts
 or URLs, a print stylesheet. Identical inputs give byte-identical files (no
 timestamps; deterministic figures).
 
 Escaping: the Jinja2 environment autoescapes everything. Trusted markup is
-marked by its *type*: :class:`markupsafe.Markup` (figures we drew, bodies
-built with :func:`para`, :func:`kv_list`, :func:`bullets`, which escape their
-arguments). A plain ``str`` anywhere — a file name, a robot or joint name, a
-column label, even a section's ``html_body`` — is escaped. The template never
-uses ``|safe``.
+marked by its *type*: `markupsafe.Markup` (figures we drew, bodies
+built with `para`, `kv_list`, `bullets`, which escape their
+arguments). A plain `str` anywhere — a file name, a robot or joint name, a
+column label, even a section's `html_body` — is escaped. The template never
+uses `|safe`.
 
 Extending: later analyses (DIDIM convergence, Bona tables, posterior,
-diagnosis) build their own ``Section`` objects and pass them as
-``extra_sections`` to :func:`render_idim_report`, or call
-:func:`render_sections` with a list of their own.
+diagnosis) build their own `Section` objects and pass them as
+`extra_sections` to `render_idim_report`, or call
+`render_sections` with a list of their own.
 """
 from __future__ import annotations
 
@@ -52,14 +52,14 @@ SECTION_IDS = ("run", "model", "base-parameters", "table2", "essential-path", "t
 
 @dataclass
 class Section:
-    """One section of a report: ``<section id=…><h2>title</h2>`` body, figures, tables.
+    """One section of a report: `<section id=…><h2>title</h2>` body, figures, tables.
 
-    ``html_body`` is escaped unless it is :class:`markupsafe.Markup` (build it
-    with :func:`para`, :func:`kv_list`, :func:`bullets`, :func:`join`).
-    ``figures`` are :class:`dynid.reports.figures.FigureMarkup`, ``tables``
-    :class:`dynid.reports.tables.Table`. With ``tables_first`` the tables come
-    before the figures. ``details`` are tables shown collapsed (a ``<details>``
-    element titled ``details_summary``): setup tables that are not results.
+    `html_body` is escaped unless it is `markupsafe.Markup` (build it
+    with `para`, `kv_list`, `bullets`, `join`).
+    `figures` are `dynid.reports.figures.FigureMarkup`, `tables`
+    `dynid.reports.tables.Table`. With `tables_first` the tables come
+    before the figures. `details` are tables shown collapsed (a `<details>`
+    element titled `details_summary`): setup tables that are not results.
     """
 
     id: str
@@ -74,7 +74,7 @@ class Section:
 
 # ------------------------------------------------------------------ body helpers
 def para(*parts, cls: str = "") -> Markup:
-    """``<p>`` of the concatenated parts (each escaped unless Markup)."""
+    """`<p>` of the concatenated parts (each escaped unless Markup)."""
     inner = Markup("").join(escape(p) for p in parts)
     if cls:
         return Markup('<p class="{}">{}</p>').format(cls, inner)
@@ -86,13 +86,13 @@ def code(text) -> Markup:
 
 
 def kv_list(pairs, cls: str = "kv") -> Markup:
-    """A ``<dl>`` of (label, value) pairs; values may be Markup (e.g. :func:`code`)."""
+    """A `<dl>` of (label, value) pairs; values may be Markup (e.g. `code`)."""
     items = Markup("").join(Markup("<dt>{}</dt><dd>{}</dd>").format(k, v) for k, v in pairs)
     return Markup('<dl class="{}">{}</dl>').format(cls, items)
 
 
 def bullets(items, cls: str = "") -> Markup:
-    """A ``<ul>`` of the items (escaped unless Markup)."""
+    """A `<ul>` of the items (escaped unless Markup)."""
     lis = Markup("").join(Markup("<li>{}</li>").format(i) for i in items)
     if cls:
         return Markup('<ul class="{}">{}</ul>').format(cls, lis)
@@ -111,7 +111,7 @@ TEMPLATE_PACKAGE = "dynid.templates"
 def environment() -> jinja2.Environment:
     """The Jinja2 environment of the reports (autoescape on, strict undefined).
 
-    Templates are package data of ``dynid.templates`` (the repository's ``templates/``),
+    Templates are package data of `dynid.templates` (the repository's `templates/`),
     found through the import system, so they work installed, editable or zipped.
     """
     return jinja2.Environment(
@@ -142,11 +142,11 @@ def _check_sections(sections):
 
 
 def render_sections(sections, *, title, subtitle="", highlights=(), footer=(), verdict=None) -> str:
-    """The HTML page of ``sections`` (a list of :class:`Section`).
+    """The HTML page of `sections` (a list of `Section`).
 
-    ``highlights``: (label, value) pairs shown under the title; ``footer``:
-    lines of text at the bottom; ``verdict``: a :class:`VerdictBlock` (see
-    :func:`verdict_block`) shown first, above the sections.
+    `highlights`: (label, value) pairs shown under the title; `footer`:
+    lines of text at the bottom; `verdict`: a `VerdictBlock` (see
+    `verdict_block`) shown first, above the sections.
     """
     sections = list(sections)
     _check_sections(sections)
@@ -158,7 +158,7 @@ def render_sections(sections, *, title, subtitle="", highlights=(), footer=(), v
 
 
 def write_report(path, html: str) -> None:
-    """Write ``html`` to ``path`` atomically (all or nothing, never half a file)."""
+    """Write `html` to `path` atomically (all or nothing, never half a file)."""
     atomic_write_text(path, html)
 
 
@@ -184,7 +184,7 @@ class VerdictBlock:
 
 
 def verdict_block(v) -> VerdictBlock:
-    """The :class:`VerdictBlock` of a :class:`dynid.analysis.statistics.verdict.Verdict`."""
+    """The `VerdictBlock` of a `dynid.analysis.statistics.verdict.Verdict`."""
     level = STATUS_LEVEL.get(v.status, "warn")
     findings = [(LEVELS.get(f["level"], LEVELS["info"])[0], LEVELS.get(f["level"], LEVELS["info"])[1],
                  f["text"]) for f in v.findings]
@@ -377,14 +377,18 @@ def _base_section(res):
 
 
 def _table2_section(res, reference):
+    # The papers' Table 2 layout only where a published table exists to set beside it; any other
+    # robot gets its essential parameters under their own name (same anchor, same figure).
     m = res.model
+    published = reference is not None
     tab = T.table2_layout(m.names, m.chi, m.rel_sigma, reference, res.base.names, key="tab-table2",
-                          caption="Essential parameters (WLS) in the layout of Table 2",
+                          caption=("Essential parameters (WLS) in the layout of Table 2" if published else
+                                   "Essential parameters (WLS): value and %\u03c3"),
                           ours_label="dynid WLS")
-    ref_map = reference.rel_std_map() if reference is not None else None
+    ref_map = reference.rel_std_map() if published else None
     fig = F.rel_std_bar_figure(m.names, m.rel_sigma, ref_map, key="fig-rel-std",
                                ours_label="dynid WLS")
-    if reference is not None:
+    if published:
         common = [n for n in m.names if n in reference]
         body = join(
             para(f"The {len(m.names)} essential parameters identified by WLS, beside the published "
@@ -393,10 +397,9 @@ def _table2_section(res, reference):
             para(reference.citation, ". ", reference.note, cls="hint"),
         )
     else:
-        body = para(f"The {len(m.names)} essential parameters identified by WLS. No published "
-                    f"reference is known for robot {res.robot_name!r}.")
-    return Section("table2", "Essential parameters (Table 2)", body, figures=[fig],
-                   tables=[tab], tables_first=True)
+        body = para(f"The {len(m.names)} essential parameters identified by WLS, with their %\u03c3.")
+    return Section("table2", "Essential parameters (Table 2)" if published else "Essential parameters",
+                   body, figures=[fig], tables=[tab], tables_first=True)
 
 
 def _path_section(res):
@@ -529,10 +532,10 @@ def _validation_section(res, robot, validation):
 
 
 def idim_sections(idim_result, robot, experiment=None, validation=None, *, reference="auto"):
-    """The sections of an IDIM report (ids :data:`SECTION_IDS`; ``validation`` only if given).
+    """The sections of an IDIM report (ids `SECTION_IDS`; `validation` only if given).
 
-    ``reference``: a :class:`dynid.reports.paper.ReferenceTable`, ``None``, or
-    ``"auto"`` (the published table for this robot, if any).
+    `reference`: a `dynid.reports.paper.ReferenceTable`, `None`, or
+    `"auto"` (the published table for this robot, if any).
     """
     if isinstance(reference, str) and reference == "auto":
         reference = reference_for(robot)
@@ -549,14 +552,51 @@ def idim_sections(idim_result, robot, experiment=None, validation=None, *, refer
     return sections
 
 
+#: what a report is, from the sections it carries beyond IDIM's: its title names it
+REPORT_TITLES = {
+    "identification": "Identification of {robot}",
+    "diagnosis": "Residual diagnosis of {robot}",
+    "posterior": "Posterior of the parameters of {robot}",
+    "didim": "DIDIM identification of {robot}",
+    "full": "Full report on {robot}: identification, validation and beyond",
+}
+
+
+def report_kind(extra_sections) -> str:
+    """What a report with these extra sections is (a key of `REPORT_TITLES`).
+
+    Returns
+    -------
+    str
+        `"identification"` without extra sections, `"diagnosis"`, `"posterior"` or
+        `"didim"` with the sections of one of them, `"full"` with several.
+    """
+    kinds = set()
+    for sec in extra_sections or ():
+        sid = getattr(sec, "id", "")
+        for kind in ("diagnosis", "posterior", "didim"):
+            if sid == kind or sid.startswith(kind + "-"):
+                kinds.add(kind)
+    if len(kinds) > 1:
+        return "full"
+    return kinds.pop() if kinds else "identification"
+
+
 def render_idim_report(idim_result, robot, experiment=None, validation=None, *, title=None,
-                       extra_sections=None, reference="auto", verdict=None) -> str:
+                       extra_sections=None, reference="auto", verdict=None, kind=None) -> str:
     """One self-contained HTML page reporting an IDIM identification.
 
-    ``extra_sections`` (list of :class:`Section`) are appended after the
-    standard ones. ``verdict``: a :class:`dynid.analysis.statistics.verdict.Verdict`
+    `extra_sections` (list of `Section`) are appended after the
+    standard ones. `verdict`: a `dynid.analysis.statistics.verdict.Verdict`
     (computed from the result and the validation if not given), shown first.
-    Returns the HTML text; write it with :func:`write_report`.
+    `kind`: what the report is (a key of `REPORT_TITLES`: `"full"` for the
+    pipeline's report); by default read from the extra sections (`report_kind`).
+    The title says it unless `title` is given.
+
+    Returns
+    -------
+    str
+        The HTML text; write it with `write_report`.
     """
     if verdict is None:
         from dynid.analysis.statistics.verdict import verdict as _verdict
@@ -582,7 +622,7 @@ def render_idim_report(idim_result, robot, experiment=None, validation=None, *, 
         footer.append(f"Reference values: {reference.citation}, {reference.title}.")
     return render_sections(
         sections,
-        title=title or f"IDIM identification of {idim_result.robot_name}",
+        title=title or REPORT_TITLES[kind or report_kind(extra_sections)].format(robot=idim_result.robot_name),
         subtitle=str(idim_result.source),
         highlights=highlights,
         footer=footer,

@@ -5,11 +5,11 @@ essential parameters of the Stäubli TX40 after 2 steps, value and relative
 standard deviation %σ (eq. (15)), in the units of the paper (SI: kg m², kg m,
 N m s/rad, N m). Section 5 of the same paper gives the processing settings and
 headline numbers (60 base parameters, relative error norm below 3 %) listed in
-:data:`DIDIM_TX40_SETTINGS`.
+`DIDIM_TX40_SETTINGS`.
 
-The names are dynid's base-parameter names (``ZZ1R``, ``Fvm6``…), which
-follow the paper's notation with the subscripts written inline; ``label``
-keeps the paper's own spelling (``fv_m6``) for display.
+The names are dynid's base-parameter names (`ZZ1R`, `Fvm6`…), which
+follow the paper's notation with the subscripts written inline; `label`
+keeps the paper's own spelling (`fv_m6`) for display.
 """
 from __future__ import annotations
 
@@ -67,18 +67,18 @@ class ReferenceTable:
         return len(self.values)
 
     def get(self, name, default=None):
-        """The :class:`PublishedValue` called ``name``, or ``default``."""
+        """The `PublishedValue` called `name`, or `default`."""
         for v in self.values:
             if v.name == name:
                 return v
         return default
 
     def value_map(self) -> dict:
-        """``{name: value}`` of every parameter."""
+        """`{name: value}` of every parameter."""
         return {v.name: v.value for v in self.values}
 
     def rel_std_map(self) -> dict:
-        """``{name: %σ}`` of every parameter."""
+        """`{name: %σ}` of every parameter."""
         return {v.name: v.rel_std_percent for v in self.values}
 
     def to_frame(self):
@@ -139,10 +139,10 @@ def _normalise(name: str) -> str:
 
 
 def reference_for(robot):
-    """The published reference table for ``robot`` (a Robot or a name), or ``None``.
+    """The published reference table for `robot` (a Robot or a name), or `None`.
 
-    Matches dynid's robot name, ignoring case and punctuation (``TX-40`` and
-    ``tx40`` are the same robot).
+    Matches dynid's robot name, ignoring case and punctuation (`TX-40` and
+    `tx40` are the same robot).
     """
     name = getattr(robot, "name", robot)
     key = _normalise(name)

@@ -1,5 +1,5 @@
-"""Report sections of a PC-WLS fit (:class:`dynid.analysis.estimators.physical.PhysicalResult`) and of
-effects fitted beside the rigid body (``--effects``).
+"""Report sections of a PC-WLS fit (`dynid.analysis.estimators.physical.PhysicalResult`) and of
+effects fitted beside the rigid body (`--effects`).
 
 What the constraints are, which are active at the solution, what they cost
 (chi^2 and its p-value bound against the unconstrained WLS), the base
@@ -84,7 +84,7 @@ def physical_section(result, *, id="physical", fmt="auto"):
 
 
 def effects_section(fit, *, id="effects"):
-    """Effects fitted beside the rigid body (:class:`~dynid.analysis.diagnosis.physical_fit.EffectsFit`):
+    """Effects fitted beside the rigid body (`EffectsFit`):
     their values and sigma (unconstrained and PC), the errors of both fits of that model."""
     pc = fit.physical is not None
     text = (f"Effects fitted with the rigid body ({fit.spec}): the unconstrained WLS of the base "

@@ -218,7 +218,7 @@ class FullReport:
     @property
     def html(self) -> str:
         return _render().render_idim_report(self.result, self.robot, self.experiments[0], self.validation,
-                                            extra_sections=self.sections, verdict=self.verdict)
+                                            extra_sections=self.sections, verdict=self.verdict, kind="full")
 
     def to_dict(self) -> dict:
         doc = self.result.to_dict()

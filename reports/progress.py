@@ -1,5 +1,9 @@
-"""A minimal progress bar on stderr (no dependency): shown only on a terminal,
-only for work that lasts more than a second, silent with --quiet."""
+"""Messages and progress of the command line and of the pipeline (`dynid.report`, `dynid.demo`).
+
+Progress goes through `dynid.progress`: a bar on a terminal, `logging` records (logger
+`dynid.progress`) elsewhere, for work that lasts more than a second; nothing with --quiet
+or after `dynid.progress.silence()`. `Progress` is the bar itself, kept for callers that
+draw one directly."""
 from __future__ import annotations
 
 import re
@@ -12,7 +16,7 @@ _CONTROL = re.compile(r"[\x00-\x08\x0b-\x1f\x7f-\x9f]")
 
 
 def clean_text(text) -> str:
-    """``text`` with every control character but tab and newline shown escaped (``\\x1b``).
+    """`text` with every control character but tab and newline shown escaped (`\\x1b`).
 
     Names read from files (robot names, column names) reach messages; printed raw, an
     escape sequence in one could retitle or clear the user's terminal.
@@ -48,19 +52,50 @@ class Progress:
         return False
 
 
-class Reporter:
-    """Human messages and progress bars on stderr; silent when ``quiet``.
+_LIBRARY_DEFAULT = object()
 
-    Long pipelines take one: ``say("message")`` and ``with say.progress(label) as bar:
-    bar.update(fraction)``. The library's default is a quiet one.
+
+class _TaskProgress:
+    """`with reporter.progress(label) as bar: bar.update(fraction)` over `dynid.progress.task`."""
+
+    def __init__(self, label):
+        from dynid.progress import task
+        self._context = task(clean_text(label))
+        self._call = None
+
+    def update(self, fraction, total=None):
+        self._call(fraction, total)
+
+    __call__ = update
+
+    def __enter__(self):
+        self._call = self._context.__enter__()
+        return self
+
+    def __exit__(self, *exc):
+        return self._context.__exit__(*exc)
+
+
+class Reporter:
+    """Human messages and progress bars on stderr.
+
+    Long pipelines take one: `say("message")` and `with say.progress(label) as bar:
+    bar.update(fraction)`. `Reporter(quiet=True)` (the command line's --quiet) shows
+    nothing; `Reporter(quiet=False)` shows both. The library's default, `Reporter()`,
+    prints no messages but reports progress through `dynid.progress` (a bar on a
+    terminal, logging records elsewhere; `dynid.progress.silence()` turns it off), so a
+    minutes-long `dynid.report(...)` in Python is not silent.
     """
 
-    def __init__(self, quiet=True):
-        self.quiet = quiet
+    def __init__(self, quiet=_LIBRARY_DEFAULT):
+        self.library = quiet is _LIBRARY_DEFAULT
+        self.quiet = True if self.library else bool(quiet)
 
     def __call__(self, msg):
         if not self.quiet:
             print(clean_text(msg), file=sys.stderr, flush=True)
 
     def progress(self, label):
-        return Progress(label, quiet=self.quiet)
+        if self.quiet and not self.library:
+            return Progress(label, quiet=True)
+        return _TaskProgress(label)

@@ -1,12 +1,12 @@
 """Report section of the closed-loop methods of Bona & Curatella (2005): PM and ML.
 
-:func:`projection_section` shows a :class:`dynid.analysis.estimators.projection.ProjectionResult`
-(eqs. (10)-(12)) and, when given, an :class:`dynid.analysis.estimators.maximum_likelihood.MLResult`
+`projection_section` shows a `dynid.analysis.estimators.projection.ProjectionResult`
+(eqs. (10)-(12)) and, when given, an `dynid.analysis.estimators.maximum_likelihood.MLResult`
 (eqs. (13)-(16)): a table of the estimates with %σ next to plain LS (and the
 true values of simulated data), the per-joint FIR windows with the
 correlation between û and u − û that the paper asks to be ≈ 0, and a figure
-of û against u − û. Returns a :class:`dynid.reports.html.Section` for
-:func:`dynid.reports.html.render_sections`.
+of û against u − û. Returns a `dynid.reports.html.Section` for
+`dynid.reports.html.render_sections`.
 """
 from __future__ import annotations
 
@@ -62,9 +62,9 @@ def _scatter_figure(pm, key):
 def projection_section(pm, ml=None, *, truth=None, id="projection",
                        title="Closed-loop identification: Projection Method and maximum likelihood "
                              "(Bona & Curatella 2005)"):
-    """A :class:`Section` for a Projection Method result, optionally with an ML result.
+    """A `Section` for a Projection Method result, optionally with an ML result.
 
-    ``truth``: true parameter values (dict by name, or array in ``pm.names``
+    `truth`: true parameter values (dict by name, or array in `pm.names`
     order) for simulated data.
     """
     body = [para("Stage 1 fits, per joint, the non-causal FIR filter u(t) = c + Σ s_k r(t−k), "
@@ -99,7 +99,7 @@ def projection_section(pm, ml=None, *, truth=None, id="projection",
 
 def ml_section(ml, *, id="maximum-likelihood",
                title="Maximum likelihood with noise on q and τ (Bona & Curatella 2005, eqs. (13)–(16))"):
-    """A :class:`Section` for an :class:`dynid.analysis.estimators.maximum_likelihood.MLResult` on its own."""
+    """A `Section` for an `dynid.analysis.estimators.maximum_likelihood.MLResult` on its own."""
     body = [para("The positions are measured with noise too: the likelihood of eq. (13) is maximised "
                  "over the parameters and a latent trajectory (a Fourier series in the excitation's "
                  "fundamental), with one noise level per signal and joint; the covariance is the "

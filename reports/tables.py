@@ -1,12 +1,12 @@
 """Tables for the HTML reports: formatted, template-ready rows and CSV downloads.
 
-A :class:`Table` is what the template renders: column labels, rows of
-:class:`Cell` (text already formatted, plus a CSS class), optional column
-groups, and the *unformatted* data as a ``data:text/csv`` URI so that every
+A `Table` is what the template renders: column labels, rows of
+`Cell` (text already formatted, plus a CSS class), optional column
+groups, and the *unformatted* data as a `data:text/csv` URI so that every
 table of a report can be downloaded with full precision from the page itself.
 
-Formatting rules (:func:`format_value`): numbers with 4 significant digits,
-%σ with 1 decimal, ``inf`` → "∞", NaN / missing → "—". All texts stay plain
+Formatting rules (`format_value`): numbers with 4 significant digits,
+%σ with 1 decimal, `inf` → "∞", NaN / missing → "—". All texts stay plain
 strings: the template escapes them.
 """
 from __future__ import annotations
@@ -38,7 +38,7 @@ _SLUG = re.compile(r"[^a-z0-9]+")
 
 @dataclass
 class Cell:
-    """One formatted table cell; ``cls`` is a CSS class (``num``, ``text``, ``flag``…)."""
+    """One formatted table cell; `cls` is a CSS class (`num`, `text`, `flag`…)."""
 
     text: str
     cls: str = ""
@@ -80,7 +80,7 @@ def _signed(text: str) -> str:
 
 
 def format_number(x, digits: int = 4) -> str:
-    """``x`` with ``digits`` significant digits; ∞ and — for non-finite values."""
+    """`x` with `digits` significant digits; ∞ and — for non-finite values."""
     if _is_missing(x):
         return MISSING
     x = float(x)
@@ -139,11 +139,11 @@ def infer_kind(series: pd.Series, name: str = "") -> str:
 
 
 def format_value(x, kind: str = "auto") -> Cell:
-    """A :class:`Cell` for value ``x`` of formatting ``kind``.
+    """A `Cell` for value `x` of formatting `kind`.
 
-    Kinds: ``num`` (4 significant digits), ``pct`` (1 decimal), ``int``,
-    ``bool`` ("✓" or empty), ``angle`` (multiples of π), ``text``, ``code``
-    (monospace text), ``auto`` (from the Python type).
+    Kinds: `num` (4 significant digits), `pct` (1 decimal), `int`,
+    `bool` ("✓" or empty), `angle` (multiples of π), `text`, `code`
+    (monospace text), `auto` (from the Python type).
     """
     if kind == "auto":
         if isinstance(x, (bool, np.bool_)):
@@ -178,11 +178,11 @@ def format_value(x, kind: str = "auto") -> Cell:
 
 def frame_rows(df: pd.DataFrame, formats: dict | None = None, *, index: bool = True,
                labels: dict | None = None):
-    """``(columns, rows, column_classes)`` of ``df`` formatted for the template.
+    """`(columns, rows, column_classes)` of `df` formatted for the template.
 
-    ``formats`` maps column name → kind (see :func:`format_value`); other
-    columns get :func:`infer_kind`. ``labels`` renames columns for display.
-    With ``index=True`` the index comes first (its name as label).
+    `formats` maps column name → kind (see `format_value`); other
+    columns get `infer_kind`. `labels` renames columns for display.
+    With `index=True` the index comes first (its name as label).
     """
     formats = dict(formats or {})
     labels = dict(labels or {})
@@ -201,23 +201,23 @@ def frame_rows(df: pd.DataFrame, formats: dict | None = None, *, index: bool = T
 
 # ------------------------------------------------------------------------------ CSV
 def csv_text(df: pd.DataFrame, *, index: bool = True) -> str:
-    """The CSV of ``df``: full precision, ``\\n`` line ends, deterministic."""
+    """The CSV of `df`: full precision, `\\n` line ends, deterministic."""
     return df.to_csv(index=index, lineterminator="\n")
 
 
 def csv_data_uri(df_or_text, *, index: bool = True) -> str:
-    """``data:text/csv;charset=utf-8,...`` URI of a DataFrame (or of CSV text).
+    """`data:text/csv;charset=utf-8,...` URI of a DataFrame (or of CSV text).
 
     Everything but unreserved characters is percent-encoded (UTF-8), so the
     URI is safe inside an HTML attribute and decodes with
-    :func:`urllib.parse.unquote`.
+    `urllib.parse.unquote`.
     """
     text = df_or_text if isinstance(df_or_text, str) else csv_text(df_or_text, index=index)
     return "data:text/csv;charset=utf-8," + urllib.parse.quote(text, safe="", encoding="utf-8")
 
 
 def slug(text: str) -> str:
-    """A lower-case identifier made of ``[a-z0-9-]``."""
+    """A lower-case identifier made of `[a-z0-9-]`."""
     s = _SLUG.sub("-", str(text).lower()).strip("-")
     return s or "table"
 
@@ -226,9 +226,9 @@ def make_table(df: pd.DataFrame, key: str, caption: str, *, formats: dict | None
                labels: dict | None = None, index: bool = True, note: str = "",
                csv_frame: pd.DataFrame | None = None, csv_index: bool | None = None,
                csv_name: str | None = None, cls: str = "") -> Table:
-    """A :class:`Table` of ``df`` with its CSV download.
+    """A `Table` of `df` with its CSV download.
 
-    The CSV holds ``csv_frame`` (default ``df``) unformatted.
+    The CSV holds `csv_frame` (default `df`) unformatted.
     """
     columns, rows, classes = frame_rows(df, formats, index=index, labels=labels)
     data = df if csv_frame is None else csv_frame
@@ -243,10 +243,10 @@ def make_table(df: pd.DataFrame, key: str, caption: str, *, formats: dict | None
 def table2_frame(names, chi, rel_sigma, reference=None, base_order=None) -> pd.DataFrame:
     """One row per parameter of dynid's essential set or of the reference table.
 
-    Columns: ``value``, ``rel_std_percent`` (dynid), ``paper_value``,
-    ``paper_rel_std_percent`` (NaN when absent), ``status``: ``both``,
-    ``not_essential`` (in the paper, not in dynid's essential set) or
-    ``not_in_paper``. Rows follow ``base_order`` (the base parameters' order),
+    Columns: `value`, `rel_std_percent` (dynid), `paper_value`,
+    `paper_rel_std_percent` (NaN when absent), `status`: `both`,
+    `not_essential` (in the paper, not in dynid's essential set) or
+    `not_in_paper`. Rows follow `base_order` (the base parameters' order),
     then parameters known to neither order.
     """
     ours = {n: (float(c), float(r)) for n, c, r in zip(names, chi, rel_sigma)}
@@ -285,7 +285,7 @@ def table2_layout(names, chi, rel_sigma, reference=None, base_order=None, *,
                   ours_label="dynid") -> Table:
     """Two side-by-side blocks of Parameter | χ̂ | %σ (| paper χ̂ | paper %σ), like Table 2.
 
-    With a ``reference`` (:class:`dynid.reports.paper.ReferenceTable`) the paper's
+    With a `reference` (`dynid.reports.paper.ReferenceTable`) the paper's
     value and %σ stand beside dynid's; a parameter of the paper missing from
     dynid's essential set is marked † (and dynid's cells are "—"), one of
     dynid's essential set absent from the paper is marked +.

@@ -26,7 +26,7 @@ _TOML_PEEK_BYTES = 1 << 20
 
 
 def _same_file(a, b) -> bool:
-    """Whether paths ``a`` and ``b`` are one file (symlinks followed, hard links too)."""
+    """Whether paths `a` and `b` are one file (symlinks followed, hard links too)."""
     try:
         if os.path.realpath(a) == os.path.realpath(b):
             return True
@@ -36,7 +36,7 @@ def _same_file(a, b) -> bool:
 
 
 def _referenced_files(path):
-    """Files a robot or experiment TOML refers to (``urdf``, ``file``), relative to its folder."""
+    """Files a robot or experiment TOML refers to (`urdf`, `file`), relative to its folder."""
     try:
         if not path.lower().endswith(".toml") or not os.path.isfile(path) \
                 or os.path.getsize(path) > _TOML_PEEK_BYTES:
@@ -56,7 +56,7 @@ def _referenced_files(path):
 
 
 def _input_files(args):
-    """``(what, path)`` of every input file the options name (data, validation, robot file)."""
+    """`(what, path)` of every input file the options name (data, validation, robot file)."""
     out = []
     data = getattr(args, "data", None)
     for p in [data] if isinstance(data, str) else (data or []):
@@ -150,7 +150,7 @@ def stdout_failed(args):
 
 
 def show_clean(args, *texts):
-    """:func:`_show` with control characters escaped (names read from files reach summaries)."""
+    """`_show` with control characters escaped (names read from files reach summaries)."""
     show(args, *(clean_text(t) if t else t for t in texts))
 
 

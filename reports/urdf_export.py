@@ -1,10 +1,10 @@
 """URDF export of an identified model.
 
-``export_urdf(result, robot)`` chooses one physically consistent
+`export_urdf(result, robot)` chooses one physically consistent
 standard-parameter set for the identified base parameters
-(:func:`dynid.analysis.estimators.standard_set.choose_standard_set`: closest to the
+(`dynid.analysis.estimators.standard_set.choose_standard_set`: closest to the
 identified values in the metric of their covariance, then closest to the
-a-priori values), writes it as URDF text (:mod:`dynid.dynamics.urdf_writer`), reads
+a-priori values), writes it as URDF text (`dynid.dynamics.urdf_writer`), reads
 that text back with dynid's own URDF reader and checks that it gives the
 same base parameters, and reports how the chosen set predicts the
 identification data next to the identified model.
@@ -17,18 +17,18 @@ Use::
     exp.section()                             # a report Section (id "urdf-export")
 
 The set is the global optimum of a semidefinite program (cvxpy + Clarabel,
-``dynid[physical]``; the log-Cholesky local search without it). With
-``physical=`` a PC-WLS result (:mod:`dynid.analysis.estimators.physical`), its
-standard set is written instead. :func:`mjcf_of` gives the same set as MuJoCo
-MJCF (:mod:`dynid.dynamics.mjcf_writer`). With ``effects=`` a PC fit of the rigid body
-with linear springs (:func:`dynid.analysis.diagnosis.physical_fit.identify_physical_effects`,
-``spring`` effects only: :func:`effect_springs`), the MJCF holds the springs too, as
-joint ``stiffness``; a URDF has no field for them.
+`dynid[physical]`; the log-Cholesky local search without it). With
+`physical=` a PC-WLS result (`dynid.analysis.estimators.physical`), its
+standard set is written instead. `mjcf_of` gives the same set as MuJoCo
+MJCF (`dynid.dynamics.mjcf_writer`). With `effects=` a PC fit of the rigid body
+with linear springs (`dynid.analysis.diagnosis.physical_fit.identify_physical_effects`,
+`spring` effects only: `effect_springs`), the MJCF holds the springs too, as
+joint `stiffness`; a URDF has no field for them.
 
-For the command line: ``dynid identify ... --urdf PATH [--mjcf PATH] [--physical]``
-calls ``export_urdf(result, robot, physical=...)`` and writes the texts with the
-other outputs; ``dynid identify ... --physical --effects spring:all --mjcf PATH``
-calls ``export_urdf(result, robot, physical=effects.physical, effects=effects)``.
+For the command line: `dynid identify ... --urdf PATH [--mjcf PATH] [--physical]`
+calls `export_urdf(result, robot, physical=...)` and writes the texts with the
+other outputs; `dynid identify ... --physical --effects spring:all --mjcf PATH`
+calls `export_urdf(result, robot, physical=effects.physical, effects=effects)`.
 """
 from __future__ import annotations
 
@@ -137,7 +137,7 @@ class UrdfExport:
 
 
 def mjcf_of(export, robot) -> str:
-    """The MJCF text of the standard set of ``export`` and its springs (:mod:`dynid.dynamics.mjcf_writer`)."""
+    """The MJCF text of the standard set of `export` and its springs (`dynid.dynamics.mjcf_writer`)."""
     with_springs = " with the linear joint springs fitted with it" if export.springs else ""
     return mjcf_text(robot, export.standard_set.chi, springs=export.springs,
                      comment=f"dynid identification of {robot.name}: physically consistent standard set "
@@ -145,12 +145,12 @@ def mjcf_of(export, robot) -> str:
 
 
 def effect_springs(effects) -> dict:
-    """``{joint (1-based): Ks}`` of the PC fit ``effects`` (an
-    :class:`~dynid.analysis.diagnosis.physical_fit.EffectsFit`): the springs an MJCF can hold.
+    """`{joint (1-based): Ks}` of the PC fit `effects` (an
+    `EffectsFit`): the springs an MJCF can hold.
 
-    Every effect must be a ``spring`` (MuJoCo's joint stiffness); any other has no MJCF field
+    Every effect must be a `spring` (MuJoCo's joint stiffness); any other has no MJCF field
     and is refused, and so is a fit without its physically consistent part (the springs go
-    with the PC rigid body, ``theta_pc`` of eq. (2) there).
+    with the PC rigid body, `theta_pc` of eq. (2) there).
     """
     if effects.physical is None:
         raise InputError("the springs of --effects are written with the physically consistent rigid "
@@ -186,7 +186,7 @@ def _identified(result, which):
 
 
 def round_trip(text, robot, bp):
-    """Base parameters (b,) of a URDF text written by :func:`urdf_text`, read back by dynid."""
+    """Base parameters (b,) of a URDF text written by `urdf_text`, read back by dynid."""
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "model.urdf"
         path.write_text(text)
@@ -202,17 +202,17 @@ def round_trip(text, robot, bp):
 
 def export_urdf(result, robot, *, which="essential", max_nfev=400, comment=None, physical=None,
                 effects=None) -> UrdfExport:
-    """A URDF of ``robot`` holding a physically consistent standard set for ``result``.
+    """A URDF of `robot` holding a physically consistent standard set for `result`.
 
-    ``result``: an :class:`dynid.analysis.estimators.idim.IDIMResult` (or a DIDIM result);
-    ``which``: reproduce the ``"essential"`` model (default; the others at 0,
-    where consistency allows) or all ``"base"`` parameters of the WLS; the set
-    is the SDP's global optimum (:func:`choose_standard_set`).
-    ``physical``: a :class:`dynid.analysis.estimators.physical.PhysicalResult` of
-    ``result``: its standard set is written (the PC-WLS fit itself, ``which`` = "physical").
-    ``effects``: the :class:`~dynid.analysis.diagnosis.physical_fit.EffectsFit` whose PC fit
-    ``physical`` is (springs only, :func:`effect_springs`): its springs go into the MJCF
-    (:func:`mjcf_of`), not the URDF, and the prediction gains the set with them.
+    `result`: an `dynid.analysis.estimators.idim.IDIMResult` (or a DIDIM result);
+    `which`: reproduce the `"essential"` model (default; the others at 0,
+    where consistency allows) or all `"base"` parameters of the WLS; the set
+    is the SDP's global optimum (`choose_standard_set`).
+    `physical`: a `dynid.analysis.estimators.physical.PhysicalResult` of
+    `result`: its standard set is written (the PC-WLS fit itself, `which` = "physical").
+    `effects`: the `EffectsFit` whose PC fit
+    `physical` is (springs only, `effect_springs`): its springs go into the MJCF
+    (`mjcf_of`), not the URDF, and the prediction gains the set with them.
     """
     springs = {}
     if effects is not None:

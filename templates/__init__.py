@@ -1,1 +1,1 @@
-"""Jinja2 templates of the HTML reports (package data of ``dynid.templates``)."""
+"""Jinja2 templates of the HTML reports (package data of `dynid.templates`)."""

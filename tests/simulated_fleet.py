@@ -6,18 +6,18 @@ benchmarks/chunked_memory.py (which put tests/ on the path).
 N robots x D days, one recording a day at a random hour: the robot repeats its
 cell's pick-and-place cycle (trapezoidal-velocity moves between a few poses with
 dwells, as production programs do, not an excitation trajectory), simulated in
-closed loop by :func:`dynid.dynamics.simulation.simulate_closed_loop` with the
-sensor model of :func:`dynid.analysis.data.synthetic.simulate_experiment`
+closed loop by `dynid.dynamics.simulation.simulate_closed_loop` with the
+sensor model of `dynid.analysis.data.synthetic.simulate_experiment`
 (integrating torque sensor, white noise on q and tau).
 
 What varies: each robot's parameters (inertial +-5 %, friction +-20 %); the
 temperature (a daily cycle plus the robot's place in the hall) acting on the
-friction as ``F (1 + c (T - 25))``, c = -0.8 %/K; wear on one joint of a fraction
+friction as `F (1 + c (T - 25))`, c = -0.8 %/K; wear on one joint of a fraction
 of the robots: Fv and Fc of that joint rise from a random day on, linearly over
-``ramp_days`` to +20 .. +40 %; and a few corrupted logs (non-finite torques, a
+`ramp_days` to +20 .. +40 %; and a few corrupted logs (non-finite torques, a
 torn file, a missing column).
 
-Default robot: ``planar2`` at 200 Hz, 9 s per recording: one simulation takes
+Default robot: `planar2` at 200 Hz, 9 s per recording: one simulation takes
 about 50 ms and one identification 30 ms on one core, so 200 x 30 recordings fit
 in a few minutes on 2 cores, while the friction parameters are still identified
 to 2-3 % (a 20 % change is 7 sigma).
@@ -74,7 +74,7 @@ def _cycle(rng, poses, fs, n_moves):
 
 
 def simulate_recording(job: dict) -> str:
-    """Simulate and write one recording (a job of :func:`simulate_fleet`); returns its path."""
+    """Simulate and write one recording (a job of `simulate_fleet`); returns its path."""
     from dynid.analysis.data.synthetic import apriori_parameters
     from dynid.analysis.fleet.task import _robot
     from dynid.dynamics.simulation import simulate_closed_loop
@@ -125,11 +125,17 @@ def simulate_recording(job: dict) -> str:
 def simulate_fleet(folder, n_robots: int = 20, n_days: int = 30, *, seed: int = 1, robot: str = "planar2",
                    fs: float = 200.0, moves: int = 6, wear_fraction: float = 0.3, n_corrupted: int = 3,
                    ramp_days: int = 2, client=None, write: bool = True) -> SimulatedFleet:
-    """Write a simulated fleet's recordings and ``catalogue.csv`` to ``folder``.
+    """Write a simulated fleet's recordings and `catalogue.csv` to `folder`.
 
-    ``client``: a Dask client to simulate on (the recordings are independent), else serial.
-    ``write=False``: only the plan and the truth (the recordings of an earlier call with the
+    `client`: a Dask client to simulate on (the recordings are independent), else serial.
+    `write=False`: only the plan and the truth (the recordings of an earlier call with the
     same arguments are reused).
+
+    Returns
+    -------
+    SimulatedFleet
+        The plan of the recordings, the true parameters (with wear) and the paths
+        written.
     """
     from dynid.analysis.fleet.task import _robot
     os.makedirs(folder, exist_ok=True)

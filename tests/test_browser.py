@@ -146,3 +146,78 @@ def test_verdict_block_matches_the_json(tmp_path, which):
     for name in vd["not_identified"]:
         assert name in got["text"]
     assert f"{100 * doc['validation']['all_samples']['rel_error']:.1f} %" in got["text"]
+
+
+# ------------------------------------------------------------------ screenshots of first screens
+def _first_screen(url, path, *, full_page=False):
+    """Screenshot of what a reader sees first at `url` (1280 x 900), and the page's text."""
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=ARGS)
+        page = browser.new_page(viewport={"width": 1280, "height": 900})
+        errors = []
+        page.on("pageerror", lambda e: errors.append(str(e)))
+        requests = []
+        page.on("request", lambda r: requests.append(r.url))
+        page.goto(url)
+        page.wait_for_load_state("load")
+        page.wait_for_timeout(300)              # the theme's scripts place the page at the anchor
+        page.screenshot(path=str(path), full_page=full_page)
+        text = page.inner_text("body")
+        browser.close()
+    assert errors == [] and path.stat().st_size > 10_000
+    local = ("file://", "data:", "http://127.0.0.1")
+    assert [u for u in requests if not u.startswith(local)] == []     # nothing fetched from elsewhere
+    return text
+
+
+@pytest.fixture(scope="module")
+def shots(tmp_path_factory):
+    """Where the screenshots go (a temporary folder; pytest --basetemp=DIR keeps them to look at)."""
+    return tmp_path_factory.mktemp("screenshots")
+
+
+def test_screenshot_api_page_of_identify(shots, tmp_path):
+    pytest.importorskip("mkdocs")
+    from test_docs import build
+    site = tmp_path / "site"
+    proc = build(site, tmp_path)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    # served over HTTP as a reader's server would (the search worker is refused on file://)
+    import functools
+    import http.server
+    import threading
+    class Quiet(http.server.SimpleHTTPRequestHandler):
+        def log_message(self, *args):
+            pass
+    handler = functools.partial(Quiet, directory=str(site))
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    try:
+        url = f"http://127.0.0.1:{server.server_address[1]}/api/#dynid.identify"
+        text = _first_screen(url, shots / "api-identify.png")
+    finally:
+        server.shutdown()
+    assert ":func:" not in text and "``" not in text
+    assert "Parameters:" in text and "Returns:" in text
+
+
+def test_screenshot_demo_report_first_screen(shots, tmp_path):
+    from dynid.reports.cli import main
+    report = tmp_path / "demo.html"
+    assert main(["demo", "--duration", "8", "--skip", "sample", "--report", str(report), "--quiet"]) == 0
+    text = _first_screen(report.resolve().as_uri(), shots / "demo-first-screen.png")
+    assert "Full report on tx40" in text and "IDENTIFIED" in text.upper()
+
+
+def test_screenshot_diagnosis_report_first_screen(shots, tmp_path):
+    from dynid.reports.cli import main
+    run = tmp_path / "run.csv"
+    assert main(["simulate", "--robot", "planar2", "--duration", "8", "--seed", "2", "--out", str(run),
+                 "--quiet"]) == 0
+    report = tmp_path / "diag.html"
+    assert main(["diagnose", str(run), "--robot", "planar2", "--holdout", "2", "--report", str(report),
+                 "--quiet"]) == 0
+    text = _first_screen(report.resolve().as_uri(), shots / "diagnosis-first-screen.png")
+    assert "Residual diagnosis of planar2" in text
+    # the structure plots further down, whole, for a look at their axes
+    _first_screen(report.resolve().as_uri(), shots / "diagnosis-full.png", full_page=True)

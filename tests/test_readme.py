@@ -42,7 +42,7 @@ def test_readme_main_command_in_fresh_venv(tmp_path):
     proc = subprocess.run(["bash", "-c", cmd], cwd=ROOT, capture_output=True, text=True, timeout=900)
     assert proc.returncode == 0, proc.stderr[-3000:]
     html = report.read_text()
-    assert "IDIM identification of tx40" in html and 'id="table2"' in html
+    assert "Full report on tx40" in html and 'id="table2"' in html
 
 
 def test_installed_distribution_is_the_dynid_namespace_alone(tmp_path):

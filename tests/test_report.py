@@ -44,7 +44,7 @@ TX40_DATA = (Path(__file__).resolve().parents[1] / "examples" / "staubli_tx40"  
              else SHARED_DATA / "staubli-tx40-figaroh")
 
 TITLES = {"run": "Run and data", "model": "Model", "base-parameters": "Base parameters",
-          "table2": "Essential parameters (Table 2)", "essential-path": "Elimination path",
+          "table2": "Essential parameters", "essential-path": "Elimination path",
           "torques": "Measured vs estimated torque", "validation": "Validation"}
 SECTIONS_WITH_FIGURES = ("table2", "essential-path", "torques", "validation")
 
@@ -213,6 +213,32 @@ def test_write_report_is_atomic(tmp_path, monkeypatch, planar_html):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["report.html"]  # no temporary left
 
 
+def test_a_robot_without_a_published_table_has_no_table2_section(planar_html):
+    """planar2 has no published reference: its essential parameters are not put in the layout
+    of the papers' Table 2, and the report does not apologise for a missing reference."""
+    t2 = _section(planar_html, "table2")
+    assert "Table 2" not in t2 and "No published reference" not in t2
+    assert "Table 2" not in planar_html
+
+
+def test_report_title_says_what_the_report_is(planar):
+    robot, ident, res, val = planar
+    from dynid.reports.html import REPORT_TITLES, report_kind
+
+    def title(html):
+        return re.search(r"<h1>(.*?)</h1>", html, flags=re.S).group(1)
+    assert title(render_idim_report(res, robot, ident, val)) == "Identification of planar2"
+    diag = [Section("diagnosis", "Residual diagnosis", para("x")), Section("diagnosis-errors", "E", para("y"))]
+    post = [Section("posterior", "Posterior (emcee)", para("z"))]
+    assert report_kind(diag) == "diagnosis" and report_kind(post) == "posterior"
+    assert report_kind(diag + post) == "full"
+    assert title(render_idim_report(res, robot, ident, val, extra_sections=diag)) == "Residual diagnosis of planar2"
+    assert title(render_idim_report(res, robot, ident, val, extra_sections=post)).startswith("Posterior")
+    assert title(render_idim_report(res, robot, ident, val, extra_sections=post, kind="full")) == \
+        REPORT_TITLES["full"].format(robot="planar2")
+    assert "IDIM identification of" not in render_idim_report(res, robot, ident, val, extra_sections=diag + post)
+
+
 def test_extra_sections_plug_in(planar):
     robot, ident, res, val = planar
     extra = [Section("diagnosis", "Diagnosis <draft>", "<b>plain text is escaped</b>"),
@@ -281,6 +307,7 @@ position_offsets = [0.0, -1.5707963267948966, 1.5707963267948966, 0.0, 0.0, 3.14
     html = render_idim_report(res, robot, e.segment(None, 6.0), val)
     t2 = _section(html, "table2")
     assert "paper" in t2 and "1.3" in t2 and "8.71" in t2          # the paper's values
+    assert "Essential parameters (Table 2)" in t2                   # a published table: its layout, named
     csv = pd.read_csv(io.StringIO(_csv_links(html)["tab-table2"]), index_col=0)
     assert set(DIDIM_TX40_TABLE2.names) <= set(csv.index)
     assert set(res.model.names) <= set(csv.index)
@@ -395,3 +422,27 @@ def test_no_excluded_sample_is_drawn_at_zero(planar, monkeypatch):
     assert zeros == 0, f"{zeros} plotted samples are exactly zero (excluded rows drawn as measurements)"
     # the held-out figures show every sample: nothing there is NaN
     assert np.all(np.isfinite(val.tau)) and np.all(np.isfinite(val.tau_hat))
+
+
+def test_tick_labels_of_narrow_panels_do_not_overlap():
+    """One panel per joint, a few centimetres wide (the diagnosis' structure plots), with long tick
+    labels: they overlap as matplotlib draws them; render_figure thins them, or slants them."""
+    import matplotlib
+    with matplotlib.rc_context(F.STYLE):
+        fig = F.Figure(figsize=(3.0, 2.2), layout="constrained")
+        axes = fig.subplots(1, 3)
+        for ax in axes:
+            x = np.linspace(1.2e-5, 4.67e-4, 50)        # long labels: -0.00025 0.00000 ...
+            ax.plot(x, np.sin(1e4 * x))
+    F.FigureCanvasAgg(fig)
+    renderer = fig.canvas.get_renderer()
+    fig.draw_without_rendering()
+    assert any(F._labels_overlap(ax.xaxis, renderer) for ax in axes)   # the fault, as drawn
+    F.render_figure(fig, "fig-narrow", "narrow panels")
+    F.FigureCanvasAgg(fig)
+    renderer = fig.canvas.get_renderer()
+    fig.draw_without_rendering()
+    for ax in axes:
+        slanted = all(t.get_rotation() > 0 for t in ax.xaxis.get_ticklabels())
+        assert slanted or not F._labels_overlap(ax.xaxis, renderer)
+        assert len([t for t in ax.xaxis.get_ticklabels() if t.get_text()]) >= 2

@@ -2,8 +2,8 @@
 
 Holds the column convention, parsing cells to numbers (messages name the file, the
 column and the row), the finite / joint-count / time-column / saturation checks, and
-:func:`_assemble` (start_offset → reference shift → time checks / resampling →
-saturation → :class:`~dynid.analysis.data.experiment.Experiment`).
+`_assemble` (start_offset → reference shift → time checks / resampling →
+saturation → `Experiment`).
 
 Column format (docs/formats.md, section "Experiment data")
 ----------------------------------------------------------
@@ -16,35 +16,35 @@ A table with one row per sample and the columns
     qdd1 … qddn       measured accelerations, if logged
     tau1 … taun       joint torques (N·m) or forces (N)
     i1 … in           motor currents / control signals instead of torques;
-                      tau = drive gain × i (the robot's ``drive_gains``)
+                      tau = drive gain × i (the robot's `drive_gains`)
 
-read by :func:`load_experiment` from ``.csv``, ``.parquet``, ``.npz`` or ``.mat``.
-In ``.npz`` and ``.mat`` files a key is either one column (``t``, ``q3``) or a 2-D
-array ``q``, ``qr``, ``qd``, ``qdd``, ``tau`` or ``i`` of shape (N, n) that stands for
+read by `load_experiment` from `.csv`, `.parquet`, `.npz` or `.mat`.
+In `.npz` and `.mat` files a key is either one column (`t`, `q3`) or a 2-D
+array `q`, `qr`, `qd`, `qdd`, `tau` or `i` of shape (N, n) that stands for
 its n columns (an (n, N) array is transposed, with a notice). Names are case-sensitive.
-Joints are numbered from 1 without gaps or leading zeros (``q0`` or ``q01`` is an
+Joints are numbered from 1 without gaps or leading zeros (`q0` or `q01` is an
 error, not a silently ignored column).
 
-Rules checked on load (every failure is a :class:`dynid.errors.DataError` whose
+Rules checked on load (every failure is a `dynid.errors.DataError` whose
 message names the file, the column and the row, and says what to do):
 
 * the file exists, is readable, is not empty and has a supported extension;
-* ``t`` is present (unless an experiment TOML gives ``sampling_rate``), ``tau*`` or
-  ``i*`` is present, and ``q*`` or ``qr*`` is present;
+* `t` is present (unless an experiment TOML gives `sampling_rate`), `tau*` or
+  `i*` is present, and `q*` or `qr*` is present;
 * no column name appears twice; every signal has the same joints 1..n without gaps,
-  and n equals ``robot.n_joints`` (or ``n_joints``) when given;
+  and n equals `robot.n_joints` (or `n_joints`) when given;
 * every used cell is a number (no text), finite (no empty cell, NaN or inf);
-* ``t`` is strictly increasing and uniform: no time step differs from the median step
-  by more than :data:`TIME_STEP_TOLERANCE` (1 %) of it. Steps longer than
-  :data:`GAP_FACTOR` (1.5) × the median are reported as dropped samples or clock
-  jumps. Irregular data must be resampled, e.g. with ``resample = true`` in a TOML.
+* `t` is strictly increasing and uniform: no time step differs from the median step
+  by more than `TIME_STEP_TOLERANCE` (1 %) of it. Steps longer than
+  `GAP_FACTOR` (1.5) × the median are reported as dropped samples or clock
+  jumps. Irregular data must be resampled, e.g. with `resample = true` in a TOML.
 
-Non-fatal findings go to :attr:`Experiment.notices`: ignored columns (anything not in
-the convention, ``i*`` when ``tau*`` is also present), conversions (``tau = g·i``,
+Non-fatal findings go to `Experiment.notices`: ignored columns (anything not in
+the convention, `i*` when `tau*` is also present), conversions (`tau = g·i`,
 motor → joint side, scaling), skipped / dropped samples, resampling, the estimated
-reference shift, and torque saturation (a joint whose ``|tau|`` sits at its maximum,
-within a relative 1e-6, for at least :data:`SATURATION_FRACTION` (0.5 %) of the
-samples in runs of at least :data:`SATURATION_MIN_RUN` (3) samples).
+reference shift, and torque saturation (a joint whose `|tau|` sits at its maximum,
+within a relative 1e-6, for at least `SATURATION_FRACTION` (0.5 %) of the
+samples in runs of at least `SATURATION_MIN_RUN` (3) samples).
 
 Row numbers in messages: for CSV, "data row k (file line L)": k counts the data rows
 from 1 (the first line after the header is data row 1; blank lines are skipped) and L
@@ -359,7 +359,7 @@ def _assemble(
     """start_offset → reference shift → plausibility (robot limits, spikes) → time checks /
     resampling → rate check → saturation.
 
-    ``cols_of``: signal → the joint columns (:class:`_Col`) it came from, or None, for
+    `cols_of`: signal → the joint columns (`_Col`) it came from, or None, for
     naming the column and row in messages.
     """
     n_raw = next(iter(signals.values())).shape[0]

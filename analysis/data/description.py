@@ -1,62 +1,62 @@
-"""The experiment description (``.toml``): schema, checks and loading.
+"""The experiment description (`.toml`): schema, checks and loading.
 
 Reference: docs/formats.md, section "Experiment description (TOML)". In short:
 
 For logs that are not in dynid's column format. Paths are relative to the TOML file.
 All sections and keys are checked; an unknown key is an error (typos do not pass).
 
-``[experiment]`` (these keys may also be written at the top of the file)
-    ``name``            str, optional.
-    ``file``            default data file for every section below. With no signal
+`[experiment]` (these keys may also be written at the top of the file)
+    `name`            str, optional.
+    `file`            default data file for every section below. With no signal
                         section at all, this file is read in dynid's column format and
                         the options below apply to it.
-    ``sampling_rate``   Hz; required when there is no time column ([time] / ``t``),
+    `sampling_rate`   Hz; required when there is no time column ([time] / `t`),
                         t = start_time + k / sampling_rate. With a time column it is
                         checked against the median step (1 %).
-    ``start_time``      s, default 0, used with ``sampling_rate``.
-    ``start_offset``    samples to skip at the start (default 0).
-    ``resample``        bool (default false): linear interpolation of every signal onto
+    `start_time`      s, default 0, used with `sampling_rate`.
+    `start_offset`    samples to skip at the start (default 0).
+    `resample`        bool (default false): linear interpolation of every signal onto
                         a uniform grid at the median time step, for irregular time
-                        stamps. Done last, after ``start_offset`` and the reference shift.
-    ``time_tolerance``  allowed relative deviation of a time step from the median
+                        stamps. Done last, after `start_offset` and the reference shift.
+    `time_tolerance`  allowed relative deviation of a time step from the median
                         (default 0.01).
 
-``[time]``: ``file``, ``column`` (or ``key``) naming a 1-D column/array in s,
-``scale`` (e.g. 0.001 for ms).
+`[time]`: `file`, `column` (or `key`) naming a 1-D column/array in s,
+`scale` (e.g. 0.001 for ms).
 
-Signal sections ``[positions]`` (q), ``[reference]`` (qr), ``[velocities]`` (qd),
-``[accelerations]`` (qdd), ``[torques]`` (tau), ``[currents]`` (i → tau), keys:
-    ``file``            data file (.csv, .parquet, .npz, .mat); default [experiment].file.
-    ``columns``         list of n column names (CSV/Parquet), or of n 1-D arrays
+Signal sections `[positions]` (q), `[reference]` (qr), `[velocities]` (qd),
+`[accelerations]` (qdd), `[torques]` (tau), `[currents]` (i → tau), keys:
+    `file`            data file (.csv, .parquet, .npz, .mat); default [experiment].file.
+    `columns`         list of n column names (CSV/Parquet), or of n 1-D arrays
                         (npz/mat), one per joint in joint order; or
-    ``key``             one 2-D array of shape (N, n) in an npz/mat file.
-    ``side``            "joint" (default) or "motor": motor-side signals are converted
+    `key`             one 2-D array of shape (N, n) in an npz/mat file.
+    `side`            "joint" (default) or "motor": motor-side signals are converted
                         through [transmission]: q = R⁻¹·q_m + position_offsets,
                         qd = R⁻¹·qd_m, qdd = R⁻¹·qdd_m, tau = Rᵀ·tau_m.
-    ``scale``           number or list of n numbers multiplying the signal (default 1),
+    `scale`           number or list of n numbers multiplying the signal (default 1),
                         applied before the transmission.
-    ``drive_gains``     ([torques], [currents]) list of n gains, signal → (motor)
+    `drive_gains`     ([torques], [currents]) list of n gains, signal → (motor)
                         torque, applied before the transmission. Default for
-                        [currents]: ``robot.drive_gains``; for [torques]: 1.
-    ``shift``           ([reference] only) 0 (default), an integer L, or "estimate":
+                        [currents]: `robot.drive_gains`; for [torques]: 1.
+    `shift`           ([reference] only) 0 (default), an integer L, or "estimate":
                         pair measured q[i + L] with reference[i]. "estimate" picks the L
                         that minimises the mean square of q[i + L] − reference[i] over all
                         joints and overlapping samples, searching min_shift ≤ L ≤
                         max_shift (see below). For L > 0 the first L measured samples and the last L
                         reference samples have no partner and are dropped (for L < 0,
                         the reverse). L is recorded in the notices and in
-                        ``meta["reference_shift"]``. The shift is applied to the raw
-                        samples (after ``start_offset``, before resampling).
-    ``min_shift``, ``max_shift``  ([reference] only) search range in samples,
+                        `meta["reference_shift"]`. The shift is applied to the raw
+                        samples (after `start_offset`, before resampling).
+    `min_shift`, `max_shift`  ([reference] only) search range in samples,
                         defaults 0 and N // 4 (N after start_offset). L ≥ 0 by default
                         because the measurement follows the command. Keep the range below
                         one period of a periodic excitation: a shift by ± one period fits
                         as well (the KUKA trajectories repeat every ~1257 / ~2513 samples).
 
-``[transmission]``  (only needed for ``side = "motor"``; see :mod:`dynid.analysis.data.transmission`)
-    ``gear_ratios``     n numbers, the diagonal of R (q_motor = R · q_joint).
-    ``couplings``       list of {motor = m, joint = j, ratio = r} (1-based): R[m, j] += r.
-    ``position_offsets`` n numbers (rad) added to q (and a motor-side qr) after R⁻¹.
+`[transmission]`  (only needed for `side = "motor"`; see `dynid.analysis.data.transmission`)
+    `gear_ratios`     n numbers, the diagonal of R (q_motor = R · q_joint).
+    `couplings`       list of {motor = m, joint = j, ratio = r} (1-based): R[m, j] += r.
+    `position_offsets` n numbers (rad) added to q (and a motor-side qr) after R⁻¹.
 
 Examples (the Stäubli TX40 and KUKA LWR4+ recordings): docs/formats.md, same section.
 

@@ -1,19 +1,19 @@
-"""Experiment data: the :class:`Experiment` record and :func:`load_experiment`.
+"""Experiment data: the `Experiment` record and `load_experiment`.
 
-:func:`load_experiment` reads one recorded robot trajectory, checks it and returns an
-:class:`Experiment`. The file formats, column names, units and the experiment TOML
+`load_experiment` reads one recorded robot trajectory, checks it and returns an
+`Experiment`. The file formats, column names, units and the experiment TOML
 schema are documented in docs/formats.md. The loader is split by concept:
 
-* :mod:`dynid.analysis.data.record`: the :class:`Experiment` record itself (re-exported here);
-* :mod:`dynid.analysis.data.readers`: CSV / Parquet / npz / MAT file → raw named columns;
-* :mod:`dynid.analysis.data.columns`: column names, parsing to numbers, finite /
+* `dynid.analysis.data.record`: the `Experiment` record itself (re-exported here);
+* `dynid.analysis.data.readers`: CSV / Parquet / npz / MAT file → raw named columns;
+* `dynid.analysis.data.columns`: column names, parsing to numbers, finite /
   joint-count / saturation checks, assembling an Experiment;
-* :mod:`dynid.analysis.data.timebase`: time checks, resampling, :func:`estimate_shift`;
-* :mod:`dynid.analysis.data.description`: the TOML experiment description schema;
-* :mod:`dynid.analysis.data.transmission`: motor side → joint side.
+* `dynid.analysis.data.timebase`: time checks, resampling, `estimate_shift`;
+* `dynid.analysis.data.description`: the TOML experiment description schema;
+* `dynid.analysis.data.transmission`: motor side → joint side.
 
-Every failure is a :class:`dynid.errors.DataError` whose message names the file, the
-column and the row; non-fatal findings go to :attr:`Experiment.notices`.
+Every failure is a `dynid.errors.DataError` whose message names the file, the
+column and the row; non-fatal findings go to `Experiment.notices`.
 """
 
 from __future__ import annotations
@@ -50,12 +50,12 @@ def load_experiment(path, robot=None, *, n_joints: int | None = None) -> Experim
     Parameters
     ----------
     path:
-        ``.csv``, ``.parquet``, ``.npz`` or ``.mat`` in dynid's column format, or a
-        ``.toml`` experiment description (schema in docs/formats.md, section
-        "Experiment description (TOML)", and :mod:`dynid.analysis.data.description`).
+        `.csv`, `.parquet`, `.npz` or `.mat` in dynid's column format, or a
+        `.toml` experiment description (schema in docs/formats.md, section
+        "Experiment description (TOML)", and `dynid.analysis.data.description`).
     robot:
-        Optional robot; only ``n_joints``, ``name`` and ``drive_gains`` are used (the
-        joint count is checked; currents ``i*`` become torques through the gains).
+        Optional robot; only `n_joints`, `name` and `drive_gains` are used (the
+        joint count is checked; currents `i*` become torques through the gains).
     n_joints:
         Expected joint count when no robot is given.
 

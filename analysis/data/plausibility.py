@@ -1,21 +1,21 @@
 """Plausibility of loaded data: magnitudes, robot limits, units, spikes.
 
-Checks run by :func:`dynid.analysis.data.columns._assemble` (and, for magnitudes,
+Checks run by `dynid.analysis.data.columns._assemble` (and, for magnitudes,
 right after the cells are parsed). They catch silent nonsense that parses fine:
 
-* :func:`check_magnitude` (robot given): a signal cell with ``|value| > MAGNITUDE_LIMIT`` (1e12) is
+* `check_magnitude` (robot given): a signal cell with `|value| > MAGNITUDE_LIMIT` (1e12) is
   refused (no torque, position or current in SI units gets there; it is a corrupted
   cell or an overflow), naming the column and the row.
-* :func:`check_limits` (robot given): the joint torques against ``tau_max``, the
-  positions against ``q_limits``; wrong units (mN·m, degrees) and single impossible
+* `check_limits` (robot given): the joint torques against `tau_max`, the
+  positions against `q_limits`; wrong units (mN·m, degrees) and single impossible
   samples are errors, milder excess is a notice.
-* :func:`check_spikes`: isolated spikes (one sample far from its neighbours' median,
+* `check_spikes`: isolated spikes (one sample far from its neighbours' median,
   measured in the column's robust scale) are a notice naming the column and the row.
-* :func:`check_rate` (robot given): a sampling rate below ``LOW_RATE`` with joint
-  speeds far below ``qd_max`` (time in ms), or speeds far above ``qd_max``.
+* `check_rate` (robot given): a sampling rate below `LOW_RATE` with joint
+  speeds far below `qd_max` (time in ms), or speeds far above `qd_max`.
 
 Thresholds are generous: the Stäubli TX40, KUKA LWR4+ and Panda recordings and
-``dynid simulate`` data raise nothing.
+`dynid simulate` data raise nothing.
 """
 
 from __future__ import annotations
@@ -53,7 +53,7 @@ def _g(x: float) -> str:
 
 
 def check_magnitude(items, robot) -> None:
-    """DataError for the first cell with |value| > MAGNITUDE_LIMIT in ``items`` [(col, values)].
+    """DataError for the first cell with |value| > MAGNITUDE_LIMIT in `items` [(col, values)].
 
     Only with a robot (the data are then meant as a recording of it, in SI units);
     without one the loader reads any finite number."""
@@ -208,7 +208,7 @@ def check_limits(signals: dict, rows, robot, cols_of, source: str, notices: list
 
 
 def _isolated_spikes(x: np.ndarray):
-    """Indices of isolated spikes of ``x`` and the column's robust scale."""
+    """Indices of isolated spikes of `x` and the column's robust scale."""
     n = x.size
     if n < 9:
         return np.array([], dtype=int), 0.0

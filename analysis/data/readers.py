@@ -1,9 +1,9 @@
 """Readers: one data file (CSV, Parquet, npz, MAT) → its named raw columns.
 
-Each reader returns a :class:`_RawFile`: the file's arrays by name (CSV cells as text
+Each reader returns a `_RawFile`: the file's arrays by name (CSV cells as text
 until a column is used, or float64 columns when the fast CSV path succeeded), plus
 the row-numbering convention used in messages. Turning raw columns into signals is
-:mod:`dynid.analysis.data.columns`' job.
+`dynid.analysis.data.columns`' job.
 """
 
 from __future__ import annotations
@@ -150,7 +150,7 @@ _BOOL_WORDS = (b"rue", b"RUE", b"alse", b"ALSE")
 
 def _scan_csv(path: Path) -> str | None:
     """Check a CSV (in chunks, at memchr speed) for what pandas would read differently
-    from :func:`_read_csv_precise`; the header line, or None.
+    from `_read_csv_precise`; the header line, or None.
 
     Refused: a first line that is blank or quoted, quotes, NUL bytes, a CR that does not
     end a line, and boolean words (pandas reads "True" as 1.0)."""
@@ -200,10 +200,10 @@ def _scan_csv(path: Path) -> str | None:
 def _read_csv_fast(path: Path, label: str) -> _RawFile | None:
     """The whole CSV parsed by pandas' C reader into float64 columns (text for columns
     outside the dynid convention, exactly as the precise path keeps them), or None
-    when anything is unusual and :func:`_read_csv_precise` must read (and judge) it.
+    when anything is unusual and `_read_csv_precise` must read (and judge) it.
 
-    The values are bit-identical to Python's ``float()`` of each cell (pandas ≥ 3 parses
-    floats exactly; pandas 2 does with ``float_precision="round_trip"``). Cells the
+    The values are bit-identical to Python's `float()` of each cell (pandas ≥ 3 parses
+    floats exactly; pandas 2 does with `float_precision="round_trip"`). Cells the
     precise path would reject or read differently (text, empty cells, NaN, booleans,
     '_' digit separators, Unicode digits) make pandas fail, and the precise path
     then names the file, column, data row and file line."""
@@ -282,7 +282,7 @@ def _count_commas(path: Path) -> int | None:
 def _read_csv_precise(path: Path, label: str) -> _RawFile:
     """Python's csv module and one text cell per value; every malformed-input message
     (file, line, data row, column) comes from here. Slow and memory-hungry (a Python
-    string per cell), so used only when :func:`_read_csv_fast` declines the file."""
+    string per cell), so used only when `_read_csv_fast` declines the file."""
     text = _csv_text(_read_bytes(path, label), label)
     raw = _RawFile(path, label, "csv")
     header, header_line, rows, line_of_row, blank = _csv_rows(text, label)

@@ -1,8 +1,8 @@
-"""The :class:`Experiment` record: one recorded trajectory, uniformly sampled, in joint space.
+"""The `Experiment` record: one recorded trajectory, uniformly sampled, in joint space.
 
 Only the record (its checks, sizes, segments, hash and summary): the loader that
-builds it from files is :mod:`dynid.analysis.data.experiment`, which re-exports it.
-Kept apart so that the column parser (:mod:`dynid.analysis.data.columns`) can build an
+builds it from files is `dynid.analysis.data.experiment`, which re-exports it.
+Kept apart so that the column parser (`dynid.analysis.data.columns`) can build an
 Experiment without importing the loader that imports it.
 """
 
@@ -33,13 +33,13 @@ class Experiment:
     q, qr, qd, qdd : (N, n) or None, measured / reference positions, velocities,
         accelerations.
     tau : (N, n) joint torques (computed as drive gain × current when the file had
-        only ``i*``).
+        only `i*`).
     fs : sampling rate in Hz, 1 / median time step.
     source : the file(s) the data came from.
     notices : what the loader ignored, converted, dropped or noticed.
-    name : a name for reports (from a TOML ``[experiment] name``, else the file stem).
-    meta : loader facts, e.g. ``reference_shift`` (samples), ``reference_shift_rms``
-        (rad), ``start_offset``, ``resampled``, ``time_from``.
+    name : a name for reports (from a TOML `[experiment] name`, else the file stem).
+    meta : loader facts, e.g. `reference_shift` (samples), `reference_shift_rms`
+        (rad), `start_offset`, `resampled`, `time_from`.
     """
 
     t: np.ndarray
@@ -96,7 +96,7 @@ class Experiment:
     # ---- sizes -----------------------------------------------------------------------
     @property
     def n_joints(self) -> int:
-        """Number of joints n (columns of ``tau``)."""
+        """Number of joints n (columns of `tau`)."""
         return int(self.tau.shape[1])
 
     @property
@@ -106,7 +106,7 @@ class Experiment:
 
     @property
     def duration(self) -> float:
-        """Time span ``t[-1] - t[0]`` in s."""
+        """Time span `t[-1] - t[0]` in s."""
         return float(self.t[-1] - self.t[0])
 
     @property
@@ -116,10 +116,10 @@ class Experiment:
 
     # ---- operations ------------------------------------------------------------------
     def segment(self, t_start: float | None = None, t_end: float | None = None) -> Experiment:
-        """The samples with ``t_start <= t < t_end`` as a new Experiment.
+        """The samples with `t_start <= t < t_end` as a new Experiment.
 
-        ``None`` means the start / end of the record. The window is half-open, so
-        ``segment(None, a)`` and ``segment(a, None)`` split the record without overlap
+        `None` means the start / end of the record. The window is half-open, so
+        `segment(None, a)` and `segment(a, None)` split the record without overlap
         (e.g. identification and held-out validation data).
         """
         lo = -math.inf if t_start is None else float(t_start)

@@ -10,11 +10,18 @@ from dynid.errors import InputError
 
 
 def holdout_split(experiment, seconds: float):
-    """``(identification, held_out)``: the last ``seconds`` of ``experiment`` are held out.
+    """`(identification, held_out)`: the last `seconds` of `experiment` are held out.
 
-    The split is at ``t[-1] - seconds``; the identification part is ``t < t_split``
-    and the held-out part ``t >= t_split`` (:meth:`Experiment.segment`), so no
+    The split is at `t[-1] - seconds`; the identification part is `t < t_split`
+    and the held-out part `t >= t_split` (`Experiment.segment`), so no
     sample is in both.
+
+    Returns
+    -------
+    identification : Experiment
+        The samples with `t < t[-1] - seconds`.
+    held_out : Experiment
+        The last `seconds`.
     """
     try:
         seconds = float(seconds)
@@ -31,9 +38,9 @@ def holdout_split(experiment, seconds: float):
 
 @dataclass(frozen=True)
 class Fold:
-    """One fold of :func:`blocked_folds`: ``block`` (0-based), the scored time ``span``
-    ``[start, end)``, the ``test`` recording (the span widened by the margin) and the
-    ``train`` recordings (the rest of the record, ``gap`` away from ``test``)."""
+    """One fold of `blocked_folds`: `block` (0-based), the scored time `span`
+    `[start, end)`, the `test` recording (the span widened by the margin) and the
+    `train` recordings (the rest of the record, `gap` away from `test`)."""
 
     block: int
     span: tuple
@@ -44,17 +51,17 @@ class Fold:
 def blocked_folds(experiment, k: int, *, margin: float = 0.0, gap: float = 0.0) -> list:
     """Blocked (h-block) cross-validation folds of one recording, cut in time.
 
-    The time that processing keeps, ``[t0 + margin, t_end - margin]`` (``margin``: what the
+    The time that processing keeps, `[t0 + margin, t_end - margin]` (`margin`: what the
     position filter and the decimation drop at each end of a recording, in s), is cut into
-    ``k`` blocks of equal duration. Fold ``i`` predicts block ``i`` from the rest: its test
-    recording holds the samples of ``[c_i - margin, c_(i+1) + margin)`` (the whole record's
+    `k` blocks of equal duration. Fold `i` predicts block `i` from the rest: its test
+    recording holds the samples of `[c_i - margin, c_(i+1) + margin)` (the whole record's
     start / end for the first / last block), so that once processed its samples are those of
-    block ``i``; its training recordings are the contiguous parts of the record that end
-    ``gap`` seconds before the test recording starts or start ``gap`` after it ends. No raw
-    sample is in both, and ``gap`` keeps samples that a filter applied before the recording
+    block `i`; its training recordings are the contiguous parts of the record that end
+    `gap` seconds before the test recording starts or start `gap` after it ends. No raw
+    sample is in both, and `gap` keeps samples that a filter applied before the recording
     (e.g. by a recording script) couples out of the training data (the h-block
     cross-validation of Burman, Chow & Nolan 1994, Biometrika 81(2), 351-358, for
-    dependent data). A training part no longer than ``2 margin`` (nothing left once
+    dependent data). A training part no longer than `2 margin` (nothing left once
     processed) is left out.
     """
     if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 2:

@@ -28,9 +28,9 @@ MAX_HARMONICS = 1000
 
 
 def sample_count(duration, fs, *, option="--duration", what="the controller rate") -> int:
-    """Samples of ``duration`` s at ``fs`` Hz, refused (InputError naming ``option``) if unbounded.
+    """Samples of `duration` s at `fs` Hz, refused (InputError naming `option`) if unbounded.
 
-    ``fs`` is ``what`` (the controller rate of the robot file by default).
+    `fs` is `what` (the controller rate of the robot file by default).
     """
     import math
 
@@ -84,8 +84,8 @@ def tx40_true_parameters(robot, bp):
 def apriori_parameters(robot, bp):
     """Standard parameters from the robot file's a-priori values (standard or base names).
 
-    Base values (``ZZ1R``...) become a standard set through ``bp.to_standard``;
-    standard values (``ZZ1``...) are taken as they are. Missing ones are zero.
+    Base values (`ZZ1R`...) become a standard set through `bp.to_standard`;
+    standard values (`ZZ1`...) are taken as they are. Missing ones are zero.
     """
     from dynid.errors import InputError
     values = dict(robot.apriori)
@@ -107,7 +107,7 @@ def apriori_parameters(robot, bp):
 
 
 def experiment_from_simulation(sim, name: str = "simulation") -> Experiment:
-    """An :class:`Experiment` of a simulation's q, qr, qd, qdd, tau (noise-free, as simulated)."""
+    """An `Experiment` of a simulation's q, qr, qd, qdd, tau (noise-free, as simulated)."""
     fs = None if sim.rate is None else float(sim.rate)
     return Experiment(t=sim.t.copy(), q=sim.q.copy(),
                       qr=None if sim.qr is None else sim.qr.copy(),
@@ -119,13 +119,13 @@ def experiment_from_simulation(sim, name: str = "simulation") -> Experiment:
 def simulate_experiment(robot, chi_st, trajectory, duration, *, rng, tau_noise, q_noise,
                         fs=None, name="simulated", v_s=0.01, substeps=4, feedforward=True,
                         progress=None):
-    """Closed-loop run of ``trajectory`` for ``duration`` s, as a noisy Experiment.
+    """Closed-loop run of `trajectory` for `duration` s, as a noisy Experiment.
 
     The controller of the robot description (with velocity feedforward by
     default, as industrial controllers have) runs at its rate (the sampling
-    rate ``fs`` by default); measured q and tau get white Gaussian noise of standard
-    deviation ``q_noise`` (rad) and ``tau_noise`` (N m), scalars or per joint.
-    ``progress(fraction)`` is passed to the simulation.
+    rate `fs` by default); measured q and tau get white Gaussian noise of standard
+    deviation `q_noise` (rad) and `tau_noise` (N m), scalars or per joint.
+    `progress(fraction)` is passed to the simulation.
     """
     fs = float(robot.controller.rate if fs is None else fs)
     check_noise(q_noise, "--noise-q")
@@ -158,7 +158,7 @@ def simulate_experiment(robot, chi_st, trajectory, duration, *, rng, tau_noise, 
 
 @dataclass(eq=False)
 class SimulatedRecording:
-    """A simulated recording (:attr:`experiment`) with what produced it."""
+    """A simulated recording (`experiment`) with what produced it."""
 
     experiment: Experiment
     robot: object
@@ -170,7 +170,13 @@ class SimulatedRecording:
     noise_tau: float
 
     def to_dict(self) -> dict:
-        """Settings, reference coefficients and true parameters (JSON-safe)."""
+        """Settings, reference coefficients and true parameters (JSON-safe).
+
+        Returns
+        -------
+        dict
+            JSON-safe.
+        """
         from dynid.dynamics.base_parameters import base_parameters
         from dynid.provenance import json_safe
         bp = base_parameters(self.robot)
@@ -188,12 +194,18 @@ class SimulatedRecording:
 
 def simulate(robot, duration: float = 20.0, *, seed: int = 1, f0: float = 0.1, harmonics: int = 10,
              noise_q: float = 4e-5, noise_tau: float = 0.5, progress=None) -> SimulatedRecording:
-    """Simulate ``robot`` (its a-priori parameters) tracking a random Fourier reference.
+    """Simulate `robot` (its a-priori parameters) tracking a random Fourier reference.
 
-    The reference is a random feasible finite Fourier series (fundamental ``f0`` Hz,
-    ``harmonics`` harmonics, Bona & Curatella eqs. (17)-(19)); the robot runs
+    The reference is a random feasible finite Fourier series (fundamental `f0` Hz,
+    `harmonics` harmonics, Bona & Curatella eqs. (17)-(19)); the robot runs
     under the controller of its robot file; q and tau get white Gaussian noise of
-    standard deviation ``noise_q`` (rad) and ``noise_tau`` (N m).
+    standard deviation `noise_q` (rad) and `noise_tau` (N m).
+
+    Returns
+    -------
+    SimulatedRecording
+        The recording (`experiment`) with the trajectory, the simulated parameters and
+        the noise levels that produced it.
     """
     from dynid.dynamics.base_parameters import base_parameters
     from dynid.dynamics.trajectories import random_fourier_trajectory

@@ -1,12 +1,12 @@
 """The time base of an experiment: time-column checks, resampling and reference shift.
 
-* :func:`_check_time`: ``t`` strictly increasing and uniform within
-  :data:`TIME_STEP_TOLERANCE` of the median step; steps longer than :data:`GAP_FACTOR` ×
+* `_check_time`: `t` strictly increasing and uniform within
+  `TIME_STEP_TOLERANCE` of the median step; steps longer than `GAP_FACTOR` ×
   the median are named as dropped samples or clock jumps.
-* :func:`_resample`: linear interpolation onto a uniform grid at the median step
-  (``resample = true`` in an experiment TOML).
-* :func:`estimate_shift`: the integer sample shift between measured and reference
-  positions, by least squares (``shift = "estimate"`` in ``[reference]``).
+* `_resample`: linear interpolation onto a uniform grid at the median step
+  (`resample = true` in an experiment TOML).
+* `estimate_shift`: the integer sample shift between measured and reference
+  positions, by least squares (`shift = "estimate"` in `[reference]`).
 
 The rules are described in docs/formats.md, section "Experiment data".
 """
@@ -148,18 +148,18 @@ def _resample(t: np.ndarray, signals: dict[str, np.ndarray], notices: list[str],
 
 def estimate_shift(measured, reference, max_shift: int | None = None,
                    min_shift: int = 0) -> tuple[int, float]:
-    """Integer sample shift L with ``measured[i + L] ≈ reference[i]``, by least squares.
+    """Integer sample shift L with `measured[i + L] ≈ reference[i]`, by least squares.
 
     Minimises the mean over joints and overlapping samples of
-    ``(measured[i + L] − reference[i])²`` for ``min_shift ≤ L ≤ max_shift``.
-    Defaults: ``min_shift = 0`` (causal: the measurement follows the command, never
-    precedes it) and ``max_shift = N // 4`` (at least three quarters of the record
+    `(measured[i + L] − reference[i])²` for `min_shift ≤ L ≤ max_shift`.
+    Defaults: `min_shift = 0` (causal: the measurement follows the command, never
+    precedes it) and `max_shift = N // 4` (at least three quarters of the record
     overlap). Both are capped at ±(N − 2). The range matters for periodic excitation
     trajectories: a shift by a whole period (or minus one) fits about as well, so keep
     the range below one period. Ties go to the smallest |L|. The cross terms are
     computed by FFT; the best candidates are re-evaluated directly.
 
-    Returns ``(L, rms)``: the shift in samples and the RMS difference at that shift.
+    Returns `(L, rms)`: the shift in samples and the RMS difference at that shift.
     """
     m = np.asarray(measured, dtype=float)
     r = np.asarray(reference, dtype=float)

@@ -2,14 +2,14 @@
 
 Many drive logs record what the motors see: motor encoder angles and motor torques
 (current × torque constant). The dynamic model works on the joint side. The two are
-related by the reduction matrix ``R`` (n × n):
+related by the reduction matrix `R` (n × n):
 
     q_motor   = R · q_joint          (positions, velocities, accelerations)
     tau_joint = Rᵀ · tau_motor       (torques; from equal power  tau_mᵀ·qd_m = tau_jᵀ·qd_j)
 
-``R`` is ``diag(gear_ratios)`` plus one off-diagonal term per mechanical coupling:
-a coupling ``(motor=m, joint=j, ratio=r)`` (1-based) adds ``r`` to ``R[m-1, j-1]``,
-meaning that motor ``m`` also turns when joint ``j`` moves. Example, the Stäubli TX40
+`R` is `diag(gear_ratios)` plus one off-diagonal term per mechanical coupling:
+a coupling `(motor=m, joint=j, ratio=r)` (1-based) adds `r` to `R[m-1, j-1]`,
+meaning that motor `m` also turns when joint `j` moves. Example, the Stäubli TX40
 wrist, where motor 6 also drives through joint 5::
 
     R = reduction_matrix([32, 32, 45, -48, 45, 32], couplings=[(6, 5, 32)])
@@ -19,7 +19,7 @@ wrist, where motor 6 also drives through joint 5::
 Position offsets (the joint angle at which the motor encoder reads zero) are added
 *after* applying R⁻¹. They apply to positions only, not to velocities or accelerations.
 
-Errors are raised as :class:`dynid.errors.DataError` with a message that says which
+Errors are raised as `dynid.errors.DataError` with a message that says which
 entry is wrong; callers that know the file add it to the message.
 """
 
@@ -63,17 +63,17 @@ def reduction_matrix(
     gear_ratios: Sequence[float],
     couplings: Iterable[Mapping | Sequence] = (),
 ) -> np.ndarray:
-    """Build the reduction matrix ``R`` with ``q_motor = R · q_joint``.
+    """Build the reduction matrix `R` with `q_motor = R · q_joint`.
 
     Parameters
     ----------
     gear_ratios:
-        n gear ratios, the diagonal of ``R`` (motor turns per joint turn, sign included).
+        n gear ratios, the diagonal of `R` (motor turns per joint turn, sign included).
         None of them may be zero.
     couplings:
-        Off-diagonal terms, each either a mapping ``{"motor": m, "joint": j, "ratio": r}``
-        or a sequence ``(m, j, r)``, with 1-based ``m != j``. Each adds ``r`` to
-        ``R[m-1, j-1]``. A pair (m, j) may appear only once.
+        Off-diagonal terms, each either a mapping `{"motor": m, "joint": j, "ratio": r}`
+        or a sequence `(m, j, r)`, with 1-based `m != j`. Each adds `r` to
+        `R[m-1, j-1]`. A pair (m, j) may appear only once.
 
     Returns
     -------
@@ -82,7 +82,7 @@ def reduction_matrix(
     Raises
     ------
     DataError
-        Zero or non-numeric ratios, bad indices, duplicated couplings or a singular ``R``.
+        Zero or non-numeric ratios, bad indices, duplicated couplings or a singular `R`.
     """
     if isinstance(gear_ratios, (str, bytes)) or not isinstance(gear_ratios, Iterable):
         raise DataError(f"gear_ratios must be a list of numbers, got {gear_ratios!r}.")
@@ -155,11 +155,11 @@ def _check(values, R: np.ndarray, what: str) -> tuple[np.ndarray, bool]:
 
 
 def joint_from_motor_positions(q_motor, R, offsets=None) -> np.ndarray:
-    """Joint positions from motor positions: ``q = R⁻¹ · q_motor + offsets``.
+    """Joint positions from motor positions: `q = R⁻¹ · q_motor + offsets`.
 
-    ``q_motor`` has shape (N, n) (one row per sample) or (n,). ``offsets`` (n,) are added
-    after the inverse reduction (default zeros). Pass ``offsets=None`` for velocities and
-    accelerations (see :func:`joint_from_motor_velocities`).
+    `q_motor` has shape (N, n) (one row per sample) or (n,). `offsets` (n,) are added
+    after the inverse reduction (default zeros). Pass `offsets=None` for velocities and
+    accelerations (see `joint_from_motor_velocities`).
     """
     x, one = _check(q_motor, R, "q_motor")
     q = np.linalg.solve(np.asarray(R, dtype=float), x.T).T
@@ -174,14 +174,14 @@ def joint_from_motor_positions(q_motor, R, offsets=None) -> np.ndarray:
 
 
 def joint_from_motor_velocities(qd_motor, R) -> np.ndarray:
-    """Joint velocities (or accelerations) from motor ones: ``qd = R⁻¹ · qd_motor``."""
+    """Joint velocities (or accelerations) from motor ones: `qd = R⁻¹ · qd_motor`."""
     return joint_from_motor_positions(qd_motor, R, offsets=None)
 
 
 def joint_from_motor_torques(tau_motor, R) -> np.ndarray:
-    """Joint torques from motor torques: ``tau = Rᵀ · tau_motor``.
+    """Joint torques from motor torques: `tau = Rᵀ · tau_motor`.
 
-    ``tau_motor`` has shape (N, n) or (n,), in motor-side torque units (drive gains,
+    `tau_motor` has shape (N, n) or (n,), in motor-side torque units (drive gains,
     i.e. torque constants, already applied).
     """
     x, one = _check(tau_motor, R, "tau_motor")
@@ -190,7 +190,7 @@ def joint_from_motor_torques(tau_motor, R) -> np.ndarray:
 
 
 def motor_from_joint_positions(q, R, offsets=None) -> np.ndarray:
-    """Inverse of :func:`joint_from_motor_positions`: ``q_motor = R · (q − offsets)``."""
+    """Inverse of `joint_from_motor_positions`: `q_motor = R · (q − offsets)`."""
     x, one = _check(q, R, "q")
     if offsets is not None:
         x = x - np.asarray(offsets, dtype=float).reshape(1, -1)
@@ -199,7 +199,7 @@ def motor_from_joint_positions(q, R, offsets=None) -> np.ndarray:
 
 
 def motor_from_joint_torques(tau, R) -> np.ndarray:
-    """Inverse of :func:`joint_from_motor_torques`: ``tau_motor = R⁻ᵀ · tau``."""
+    """Inverse of `joint_from_motor_torques`: `tau_motor = R⁻ᵀ · tau`."""
     x, one = _check(tau, R, "tau")
     tm = np.linalg.solve(np.asarray(R, dtype=float).T, x.T).T
     return tm[0] if one else tm

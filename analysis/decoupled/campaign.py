@@ -1,7 +1,7 @@
 """The whole per-joint campaign of Bona & Curatella (2005), section 3, on the simulated COMAU.
 
-:func:`simulate_campaign` records the experiments on the simulated decoupled
-COMAU Smart-3 S2 of :mod:`dynid.dynamics.comau_decoupled` (true values: the paper's
+`simulate_campaign` records the experiments on the simulated decoupled
+COMAU Smart-3 S2 of `dynid.dynamics.comau_decoupled` (true values: the paper's
 Tables 1-3), n repetitions each with fresh sensor noise:
 
 * constant-velocity sweeps of +-1.2 rad in the "sweep" set-up (Table 1),
@@ -10,9 +10,9 @@ Tables 1-3), n repetitions each with fresh sensor noise:
   lead-in, "identification" set-up (Table 3),
 * one trapezoidal-velocity run for the validation (section 3.5).
 
-:func:`identify_campaign` runs the three estimators in the paper's order
+`identify_campaign` runs the three estimators in the paper's order
 (gravity -> friction with gravity compensation -> inertia with friction
-compensation) and the validation, and returns a :class:`DecoupledIdentification`.
+compensation) and the validation, and returns a `DecoupledIdentification`.
 """
 from __future__ import annotations
 
@@ -42,7 +42,7 @@ __all__ = ["DecoupledCampaign", "DecoupledIdentification", "simulate_campaign", 
 
 @dataclass(eq=False)
 class DecoupledCampaign:
-    """Recordings of the simulated campaign (each a :class:`JointSimulation`)."""
+    """Recordings of the simulated campaign (each a `JointSimulation`)."""
 
     sweep: JointSimulation
     bang_bang: JointSimulation
@@ -55,7 +55,7 @@ class DecoupledCampaign:
 
 @dataclass(eq=False)
 class DecoupledIdentification(ParameterResults):
-    """Tables 1-3 (:class:`RepeatedEstimate`) and the validation of section 3.5."""
+    """Tables 1-3 (`RepeatedEstimate`) and the validation of section 3.5."""
 
     gravity: RepeatedEstimate
     friction: RepeatedEstimate
@@ -114,7 +114,14 @@ class DecoupledIdentification(ParameterResults):
 
 def simulate_campaign(n_repetitions=25, seed=0, *, torque_noise=None, position_noise=None,
                       rate=C.RATE, substeps=2) -> DecoupledCampaign:
-    """Simulate the campaign on the COMAU of :mod:`dynid.dynamics.comau_decoupled` (module doc)."""
+    """Simulate the campaign on the COMAU of `dynid.dynamics.comau_decoupled` (module doc).
+
+    Returns
+    -------
+    DecoupledCampaign
+        The sweep, bang-bang, excitation and validation recordings of each joint, the
+        controller and the true parameters.
+    """
     n = C.N_JOINTS
     tn = C.TORQUE_NOISE if torque_noise is None else torque_noise
     pn = C.POSITION_NOISE if position_noise is None else position_noise
@@ -141,7 +148,14 @@ def simulate_campaign(n_repetitions=25, seed=0, *, torque_noise=None, position_n
 def identify_campaign(c: DecoupledCampaign, *, confidence=DEFAULT_CONFIDENCE, validate=True,
                       use_truth=True) -> DecoupledIdentification:
     """Tables 1, 2, 3 (in the paper's order, each compensating with the previous means) and the
-    validation of section 3.5. ``use_truth``: attach the true values (coverage check)."""
+    validation of section 3.5. `use_truth`: attach the true values (coverage check).
+
+    Returns
+    -------
+    DecoupledIdentification
+        Gravity, friction and inertia estimates over the repetitions (Tables 1-3) and
+        the validation.
+    """
     t0 = time.perf_counter()
     truth = c.truth if use_truth else None
     n = c.sweep.q.shape[2]

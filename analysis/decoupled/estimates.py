@@ -5,48 +5,48 @@ One joint moves at a time, the others are still; each joint follows eq. (21)::
     tau = M qdd + g(q) + f(qd),   g(q) = k sin(q + q_off) (eq. 23),   f: eq. (2)
 
 Three steps, each repeated over n experiments and summarised by
-:class:`dynid.analysis.decoupled.repeated.RepeatedEstimate` (mean, σ, 99.9 % Student half-width):
+`dynid.analysis.decoupled.repeated.RepeatedEstimate` (mean, σ, 99.9 % Student half-width):
 
-:func:`estimate_gravity` (Table 1)
+`estimate_gravity` (Table 1)
     Two constant-velocity slopes of the same speed and opposite sign. On them
     the inertia torque vanishes and friction is a constant c+ (up) or c-
-    (down), so ``tau = a sin q + b cos q + c±``. The least-squares fit of that
+    (down), so `tau = a sin q + b cos q + c±`. The least-squares fit of that
     model is the paper's half-sum / half-difference: (c+ + c-)/2 is the offset
     left in the half-sum, (c+ - c-)/2 the friction at the sweep speed, and
-    ``a = k cos q_off``, ``b = k sin q_off``. ``q_off`` is reported in
-    (-π/2, π/2] with the sign of ``k`` following (Table 1: k2 < 0).
-:func:`estimate_friction` (Table 2, Fig. 3)
+    `a = k cos q_off`, `b = k sin q_off`. `q_off` is reported in
+    (-π/2, π/2] with the sign of `k` following (Table 1: k2 < 0).
+`estimate_friction` (Table 2, Fig. 3)
     Bang-bang accelerations after gravity compensation with the *mean*
     gravity parameters (as the paper uses Table 1). The inertia ("hysteresis"
     of Fig. 3: +M A accelerating, -M A decelerating at the same speed) is a
-    nuisance column, so ``tau - g(q) = M qdd + Fv± qd ± Fc±`` gives
-    ``Fv+, Fv-, Fc+, Fc-`` by least squares on the samples with
-    ``|qd| > v_min`` away from the acceleration switches.
-:func:`estimate_inertia` (Table 3)
+    nuisance column, so `tau - g(q) = M qdd + Fv± qd ± Fc±` gives
+    `Fv+, Fv-, Fc+, Fc-` by least squares on the samples with
+    `|qd| > v_min` away from the acceleration switches.
+`estimate_inertia` (Table 3)
     On the excitation, after friction compensation with the mean Table 2
-    values (section 3.4): ``tau - f(qd) = ZZ qdd + MX g0 cos q - MY g0 sin q``
-    (``[qdd]`` only for a joint with a vertical axis).
+    values (section 3.4): `tau - f(qd) = ZZ qdd + MX g0 cos q - MY g0 sin q`
+    (`[qdd]` only for a joint with a vertical axis).
 
 Velocity and acceleration come from the measured position by a
-Savitzky-Golay filter (cubic, ``window`` s); the torque is smoothed by the
+Savitzky-Golay filter (cubic, `window` s); the torque is smoothed by the
 same filter so that both sides of the regression see the same filtering.
-``zoh=True`` (default) takes the logged torque for a command held over the
+`zoh=True` (default) takes the logged torque for a command held over the
 next sample period, as a controller's log (and dynid's simulator) has it, and
-centres it on the position samples (:func:`_centred_torque`); pass
-``zoh=False`` for torques sampled at the position instants.
+centres it on the position samples (`_centred_torque`); pass
+`zoh=False` for torques sampled at the position instants.
 
 Chaining. The gravity compensation of the friction step and the friction
 compensation of the inertia step use, for repetition k, the previous step's
-estimate from repetition k (``per_repetition=True``, default, when both have
+estimate from repetition k (`per_repetition=True`, default, when both have
 the same number of repetitions): each repetition is then a complete
 gravity -> friction -> inertia chain, and the spread over repetitions, hence
 the Student interval, includes the uncertainty the previous step passes on.
-With the means of the previous table (``per_repetition=False``, the paper's
+With the means of the previous table (`per_repetition=False`, the paper's
 literal "using the friction parameters in Table 2") that uncertainty is
 common to all repetitions and not in the interval: on the simulated COMAU it
 put MX3 1.2 half-widths from its true value.
-Arrays: ``t`` (N,), ``q``, ``tau`` (R, N, n) (repetitions, samples, joints),
-``qr`` (N, n) the reference; joints are numbered from 1.
+Arrays: `t` (N,), `q`, `tau` (R, N, n) (repetitions, samples, joints),
+`qr` (N, n) the reference; joints are numbered from 1.
 """
 from __future__ import annotations
 
@@ -124,14 +124,14 @@ def _reference_derivatives(t, qr):
 
 
 def _since_change(t, changed):
-    """Time since the last True of ``changed`` (N, n) (inf before the first)."""
+    """Time since the last True of `changed` (N, n) (inf before the first)."""
     idx = np.where(changed, np.arange(t.size)[:, None], -1)
     last = np.maximum.accumulate(idx, axis=0)
     return np.where(last >= 0, t[:, None] - t[np.maximum(last, 0)], np.inf)
 
 
 def _away_from_reversals(t, v, vlim, guard):
-    """``|v| > vlim`` and at least ``guard`` s from any sample with ``|v| <= vlim``; v (R, N).
+    """`|v| > vlim` and at least `guard` s from any sample with `|v| <= vlim`; v (R, N).
 
     At a velocity reversal a joint with Coulomb friction sticks until its
     controller builds up the break-away torque, then jumps: a transient at the
@@ -148,9 +148,9 @@ def _away_from_reversals(t, v, vlim, guard):
 def _centred_torque(tau, zoh):
     """The torque acting around each position sample.
 
-    A controller log holds the command ``tau_k`` over ``[t_k, t_k + T)``, half a
-    sample after the position ``q_k``; the mean of ``tau_k-1`` and ``tau_k`` is
-    centred on ``t_k``. Uncorrected, the friction slope times T/2 leaks into the
+    A controller log holds the command `tau_k` over `[t_k, t_k + T)`, half a
+    sample after the position `q_k`; the mean of `tau_k-1` and `tau_k` is
+    centred on `t_k`. Uncorrected, the friction slope times T/2 leaks into the
     inertia (Fv T / 2 = 0.0015 kg m^2 = 0.5 % of ZZ4 of the COMAU at 1 kHz).
     """
     if not zoh:
@@ -175,10 +175,10 @@ def _batched_lstsq(X, y, w):
 # ------------------------------------------------------------------ Table 1
 def estimate_gravity(t, q, tau, qr, *, joints=(2, 3), settle=0.5, confidence=DEFAULT_CONFIDENCE,
                      truth=None) -> RepeatedEstimate:
-    """Table 1: ``k``, ``q_off`` of eq. (23) per repetition from two constant-velocity slopes.
+    """Table 1: `k`, `q_off` of eq. (23) per repetition from two constant-velocity slopes.
 
-    ``settle`` s after the reference reaches its constant speed are skipped
-    (the loop's transient). ``truth``: optional dict name -> true value.
+    `settle` s after the reference reaches its constant speed are skipped
+    (the loop's transient). `truth`: optional dict name -> true value.
     """
     what = "gravity (Table 1)"
     t, q, tau, qr = _inputs(t, q, tau, qr, what)
@@ -219,7 +219,7 @@ def estimate_gravity(t, q, tau, qr, *, joints=(2, 3), settle=0.5, confidence=DEF
 
 
 def _values(result: RepeatedEstimate | None, names, R, per_repetition):
-    """(R, len(names)): each repetition's own estimates when ``per_repetition`` and the result
+    """(R, len(names)): each repetition's own estimates when `per_repetition` and the result
     has R repetitions, else the means repeated; 0 for names the result lacks."""
     out = np.zeros((R, len(names)))
     if result is None:
@@ -233,7 +233,7 @@ def _values(result: RepeatedEstimate | None, names, R, per_repetition):
 
 
 def gravity_coefficients(gravity: RepeatedEstimate | None, n: int, R=1, per_repetition=False):
-    """``(gs, gc)`` (R, n) of the gravity parameters (zero for joints without); see :func:`_values`."""
+    """`(gs, gc)` (R, n) of the gravity parameters (zero for joints without); see `_values`."""
     k = _values(gravity, [f"k{j}" for j in range(1, n + 1)], R, per_repetition)
     qoff = _values(gravity, [f"qoff{j}" for j in range(1, n + 1)], R, per_repetition)
     return JointModel.gravity_from_sinusoid(k, qoff)
@@ -243,11 +243,11 @@ def gravity_coefficients(gravity: RepeatedEstimate | None, n: int, R=1, per_repe
 def estimate_friction(t, q, tau, qr, *, gravity=None, joints=None, settle=0.3, v_min=0.05,
                       guard=0.2, window=WINDOW, zoh=True, per_repetition=True,
                       confidence=DEFAULT_CONFIDENCE, truth=None) -> RepeatedEstimate:
-    """Table 2: ``Fv+, Fv-, Fc+, Fc-`` per joint and repetition from bang-bang accelerations.
+    """Table 2: `Fv+, Fv-, Fc+, Fc-` per joint and repetition from bang-bang accelerations.
 
-    ``gravity``: the Table 1 result used for gravity compensation (module doc: chaining).
-    Samples with ``|qd| <= v_min`` times the joint's peak reference speed, closer
-    than ``guard`` s to such a sample, or within ``settle`` s of an acceleration
+    `gravity`: the Table 1 result used for gravity compensation (module doc: chaining).
+    Samples with `|qd| <= v_min` times the joint's peak reference speed, closer
+    than `guard` s to such a sample, or within `settle` s of an acceleration
     switch of the reference, are left out.
     """
     what = "friction (Table 2)"
@@ -300,7 +300,7 @@ def estimate_friction(t, q, tau, qr, *, gravity=None, joints=None, settle=0.3, v
 
 
 def _friction_arrays(friction: RepeatedEstimate | None, n: int, R=1, per_repetition=False):
-    """[Fv+, Fv-, Fc+, Fc-], each (R, n); see :func:`_values`."""
+    """[Fv+, Fv-, Fc+, Fc-], each (R, n); see `_values`."""
     return [_values(friction, [f"{s}{j}" for j in range(1, n + 1)], R, per_repetition)
             for s in FRICTION_SYMBOLS]
 
@@ -310,12 +310,12 @@ def estimate_inertia(t, q, tau, *, friction=None, first_moments=(2, 3, 4, 5, 6),
                      skip=1.0, v_min=0.05, guard=0.2, window=WINDOW, g0=G0, zoh=True,
                      per_repetition=True, confidence=DEFAULT_CONFIDENCE,
                      truth=None) -> RepeatedEstimate:
-    """Table 3: ``ZZ`` and, for the joints in ``first_moments``, ``MX``, ``MY`` per repetition.
+    """Table 3: `ZZ` and, for the joints in `first_moments`, `MX`, `MY` per repetition.
 
-    ``friction``: the Table 2 result that compensates the friction (module doc: chaining).
-    The first ``skip`` s (the loop's start-up transient), the samples with
-    ``|qd| <= v_min`` times the joint's peak speed and those closer than
-    ``guard`` s to one (see :func:`_away_from_reversals`) are left out.
+    `friction`: the Table 2 result that compensates the friction (module doc: chaining).
+    The first `skip` s (the loop's start-up transient), the samples with
+    `|qd| <= v_min` times the joint's peak speed and those closer than
+    `guard` s to one (see `_away_from_reversals`) are left out.
     """
     what = "inertia (Table 3)"
     t, q, tau, _ = _inputs(t, q, tau, None, what)
@@ -355,7 +355,7 @@ def estimate_inertia(t, q, tau, *, friction=None, first_moments=(2, 3, 4, 5, 6),
 
 def identified_model(friction: RepeatedEstimate, inertia: RepeatedEstimate, n: int, *, g0=G0,
                      name="identified") -> JointModel:
-    """The :class:`JointModel` of the mean Table 2 and Table 3 values (for validation, sec. 3.5)."""
+    """The `JointModel` of the mean Table 2 and Table 3 values (for validation, sec. 3.5)."""
     zz = np.array([inertia.value(f"ZZ{j}", np.nan) for j in range(1, n + 1)])
     if np.any(~np.isfinite(zz)):
         raise InputError(f"the inertia result has no ZZ for joint(s) "

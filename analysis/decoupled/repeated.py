@@ -3,15 +3,15 @@
 The paper reports per parameter the mean θ̄ over the n repetitions, the
 standard deviation σ, and the half amplitude of the 99.9 % confidence
 interval "with t_γ found using the Student distribution with (n − 1) DoF",
-printed as ``t_γ σ / √(n − 1)``. dynid implements exactly that::
+printed as `t_γ σ / √(n − 1)`. dynid implements exactly that::
 
     θ̄ = (1/n) Σ θ_k
     σ  = sqrt((1/n) Σ (θ_k − θ̄)²)                  (1/n, the sample's own spread)
     half_width = t_γ σ / √(n − 1),  t_γ = t_{n−1}^{-1}((1 + γ) / 2)   (two-sided, γ = 0.999)
 
-With σ computed with 1/n, ``σ / √(n − 1)`` equals ``s / √n`` with the unbiased
-``s`` (1/(n − 1)): the interval is the textbook Student interval of the mean,
-``θ̄ ± t_γ s / √n``, which covers the true mean with probability γ. (With σ
+With σ computed with 1/n, `σ / √(n − 1)` equals `s / √n` with the unbiased
+`s` (1/(n − 1)): the interval is the textbook Student interval of the mean,
+`θ̄ ± t_γ s / √n`, which covers the true mean with probability γ. (With σ
 computed with 1/(n − 1) the printed formula would be slightly too narrow.)
 
 Check against the paper: in every row of its Table 3 half-width / σ = 0.6795,
@@ -40,7 +40,7 @@ DEFAULT_CONFIDENCE = 0.999
 
 
 def student_half_width(std_1n, n, confidence=DEFAULT_CONFIDENCE):
-    """``t_γ σ / √(n − 1)`` with σ the 1/n standard deviation (module doc); returns (half, t_γ)."""
+    """`t_γ σ / √(n − 1)` with σ the 1/n standard deviation (module doc); returns (half, t_γ)."""
     t_g = float(stats.t.ppf(0.5 * (1.0 + confidence), n - 1))
     return t_g * np.asarray(std_1n, dtype=float) / math.sqrt(n - 1), t_g
 
@@ -49,11 +49,11 @@ def student_half_width(std_1n, n, confidence=DEFAULT_CONFIDENCE):
 class RepeatedEstimate(ParameterResults):
     """Parameters estimated once per repetition, and their statistics (module doc).
 
-    ``estimates`` (n, p): one row per repetition; ``names`` (p,) dynid names
-    (``ZZ2``, ``Fv+3``, ``k2`` ...); ``symbols`` the paper's symbols;
-    ``units`` SI units; ``joints`` 1-based joint of each parameter; ``truth``
+    `estimates` (n, p): one row per repetition; `names` (p,) dynid names
+    (`ZZ2`, `Fv+3`, `k2` ...); `symbols` the paper's symbols;
+    `units` SI units; `joints` 1-based joint of each parameter; `truth`
     (p,) the true values when known (simulation), else None. Computed:
-    ``mean``, ``std`` (1/n), ``half_width``, ``t_gamma``, ``inside``.
+    `mean`, `std` (1/n), `half_width`, `t_gamma`, `inside`.
     """
 
     kind: str
@@ -129,7 +129,7 @@ class RepeatedEstimate(ParameterResults):
         return None if self.truth is None else bool(np.all(self.inside))
 
     def __getitem__(self, name):
-        """``(mean, half_width)`` of parameter ``name``."""
+        """`(mean, half_width)` of parameter `name`."""
         try:
             i = self.names.index(name)
         except ValueError:

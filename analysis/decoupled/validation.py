@@ -3,12 +3,12 @@
 The identified model (Table 2 friction, Table 3 inertia and first moments) is
 simulated in closed loop under the robot's controller on the reference the
 robot followed (trapezoidal velocity moves), and compared with the
-measurements: position error ``q_meas - q_sim`` and torque error
-``tau_meas - tau_sim``. As in the paper the measurements are first filtered by
+measurements: position error `q_meas - q_sim` and torque error
+`tau_meas - tau_sim`. As in the paper the measurements are first filtered by
 an 8th-order Chebyshev (type I, 0.5 dB ripple, unit gain at DC) low-pass,
-here zero-phase at ``fc`` (default 80 Hz, the cut-off of section 3.4). The error PDFs are
-compared with a Gaussian by :func:`dynid.analysis.statistics.noise.noise_pdf_tests`, on the
-error resampled at ``test_rate`` (200 Hz, section 3.4) so that neighbouring
+here zero-phase at `fc` (default 80 Hz, the cut-off of section 3.4). The error PDFs are
+compared with a Gaussian by `dynid.analysis.statistics.noise.noise_pdf_tests`, on the
+error resampled at `test_rate` (200 Hz, section 3.4) so that neighbouring
 samples of the filtered error are not counted as independent.
 """
 from __future__ import annotations
@@ -104,8 +104,8 @@ def _chebyshev(x, fs, fc, order=8, ripple_db=0.5):
 
 def validate_decoupled(model: JointModel, controller: JointPID, t, qr, q_meas, tau_meas, *,
                        fc=80.0, test_rate=200.0, substeps=2, alpha=0.05) -> DecoupledValidation:
-    """Simulate ``model`` under ``controller`` on ``qr`` (N, n) and compare with one measured run
-    ``q_meas``, ``tau_meas`` (N, n) at times ``t`` (module doc)."""
+    """Simulate `model` under `controller` on `qr` (N, n) and compare with one measured run
+    `q_meas`, `tau_meas` (N, n) at times `t` (module doc)."""
     t = np.asarray(t, dtype=float)
     qr, q_meas, tau_meas = (np.asarray(x, dtype=float) for x in (qr, q_meas, tau_meas))
     n = model.n_joints

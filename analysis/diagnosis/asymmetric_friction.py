@@ -6,22 +6,22 @@ depend on the sign of the velocity::
     tau_f = beta_v+ qd + beta_c+          (qd > 0)
     tau_f = beta_v- qd - beta_c-          (qd < 0)
 
-(with positive ``beta_c-`` the friction opposes the motion; the paper prints
-``+beta_c-``). dynid's symmetric model ``Fv qd + Fc sign(qd) + Off`` plus one
-column ``|qd|`` (coefficient ``dFv``) spans exactly the same functions, so the
+(with positive `beta_c-` the friction opposes the motion; the paper prints
+`+beta_c-`). dynid's symmetric model `Fv qd + Fc sign(qd) + Off` plus one
+column `|qd|` (coefficient `dFv`) spans exactly the same functions, so the
 asymmetric coefficients are linear combinations of identified parameters::
 
     beta_v+ = Fv + dFv      beta_v- = Fv - dFv
     beta_c+ = Fc + c        beta_c- = Fc - c
 
-where ``c`` is the torque offset ``Off_j`` when the model has it (a constant
-and ``|sign(qd)|`` are the same column outside the velocity dead zone: the
-offset *is* the Coulomb asymmetry), else an extra column ``|sign(qd)|``
-(``dFc``). Their standard deviations follow from the covariance of the fit
-(``a^T C a`` for each combination), so no second identification is needed.
+where `c` is the torque offset `Off_j` when the model has it (a constant
+and `|sign(qd)|` are the same column outside the velocity dead zone: the
+offset *is* the Coulomb asymmetry), else an extra column `|sign(qd)|`
+(`dFc`). Their standard deviations follow from the covariance of the fit
+(`a^T C a` for each combination), so no second identification is needed.
 
 The extra columns are added to the essential model of an IDIM result by
-:func:`dynid.analysis.diagnosis.selection.fit_effects` on the same decimated system (same
+`dynid.analysis.diagnosis.selection.fit_effects` on the same decimated system (same
 filters, decimation and dead zone).
 """
 from __future__ import annotations
@@ -87,8 +87,8 @@ class AsymmetricFrictionResult:
 def asymmetric_friction(experiment, robot, idim_result, *, joints=None) -> AsymmetricFrictionResult:
     """Asymmetric viscous and Coulomb coefficients of every joint (see the module docstring).
 
-    ``experiment``: the recording ``idim_result`` was identified on (one
-    recording); ``joints``: 1-based joints (default all).
+    `experiment`: the recording `idim_result` was identified on (one
+    recording); `joints`: 1-based joints (default all).
     """
     n = robot.n_joints
     joints = list(range(1, n + 1)) if joints is None else [int(j) for j in joints]

@@ -4,16 +4,16 @@ An unmodelled effect is tested by adding regressor columns to W. Those
 columns must be *built at full rate* from the same (q_hat, qd_hat, qdd_hat, t)
 as W and go through the *same* processing as W and Y: zeroed in the velocity
 dead zone, then low-pass filtered and down-sampled by the same parallel
-decimation. Only then does ``decimate(W) chi + decimate(C) theta`` stand for
-``decimate(W chi + C theta)`` row by row (the filter is linear).
+decimation. Only then does `decimate(W) chi + decimate(C) theta` stand for
+`decimate(W chi + C theta)` row by row (the filter is linear).
 
-:func:`observe_effects` repeats :func:`dynid.analysis.processing.observation.observe` step by
+`observe_effects` repeats `dynid.analysis.processing.observation.observe` step by
 step (same settings, filter, edges, dead zone, decimator; its decimated W and
 tau are identical, a test checks it) and keeps the full-rate kept samples
 (q_hat, qd_hat, qdd_hat, t, tau, dead zone), plus the full-rate standard
-regressor columns of the last link's mass and first moments (the ``payload``
-effect). :meth:`EffectObservation.decimate` then pushes any full-rate columns
-through the same dead zone and decimation. With ``cache_regressor`` the
+regressor columns of the last link's mass and first moments (the `payload`
+effect). `EffectObservation.decimate` then pushes any full-rate columns
+through the same dead zone and decimation. With `cache_regressor` the
 full-rate base regressor is kept too (memory N x n x b x 8 bytes), so the
 model torque of any parameter vector is cheap; otherwise it is rebuilt chunk
 by chunk when asked for.
@@ -48,12 +48,12 @@ def payload_parameter_names(robot):
 class EffectObservation:
     """A recording prepared for effect columns: the decimated system and its full-rate sources.
 
-    ``obs`` is the decimated observation system exactly as :func:`observe`
+    `obs` is the decimated observation system exactly as `observe`
     builds it. The full-rate arrays cover the kept samples (the recording
-    without the position filter's edges): ``t`` (N,), ``q``, ``qd``, ``qdd``
-    (N, n), ``tau`` (N, n), ``dead`` (N, n) the velocity dead zone (None if
-    off), ``payload`` (N, n, 4) the standard-regressor columns of the last
-    link's M, MX, MY, MZ. ``keep`` is the slice of the recording they come from.
+    without the position filter's edges): `t` (N,), `q`, `qd`, `qdd`
+    (N, n), `tau` (N, n), `dead` (N, n) the velocity dead zone (None if
+    off), `payload` (N, n, 4) the standard-regressor columns of the last
+    link's M, MX, MY, MZ. `keep` is the slice of the recording they come from.
     """
 
     obs: Observation
@@ -101,9 +101,9 @@ class EffectObservation:
     def decimate(self, columns, joint=None):
         """Decimated version of full-rate columns, with the dead zone and decimation of W.
 
-        ``columns`` is (N, n, k) (a column per joint row), or (N, k) together
-        with ``joint`` (0-based): columns that act on that joint only (zero on
-        the others). Returns (M, n, k) aligned with ``obs.W``.
+        `columns` is (N, n, k) (a column per joint row), or (N, k) together
+        with `joint` (0-based): columns that act on that joint only (zero on
+        the others). Returns (M, n, k) aligned with `obs.W`.
         """
         C = np.asarray(columns, dtype=float)
         if C.shape[0] != self.n_full:
@@ -135,7 +135,7 @@ class EffectObservation:
     def decimate_joint_blocks(self, blocks):
         """Decimate many single-joint column blocks at once.
 
-        ``blocks`` is a list of ``(columns (N, k), joint (0-based))``; the
+        `blocks` is a list of `(columns (N, k), joint (0-based))`; the
         blocks of one joint are stacked and decimated in one pass. Returns a
         list of (M, n, k) arrays in the order given.
         """
@@ -160,7 +160,7 @@ class EffectObservation:
 
     # ------------------------------------------------------------- model torque
     def regressor_chunks(self):
-        """Yield ``(slice, W_base chunk (n_chunk, n, b))`` over the kept samples, full rate."""
+        """Yield `(slice, W_base chunk (n_chunk, n, b))` over the kept samples, full rate."""
         if self.W_full is not None:
             for start in range(0, self.n_full, CHUNK):
                 sl = slice(start, min(self.n_full, start + CHUNK))
@@ -175,9 +175,9 @@ class EffectObservation:
             yield sl, W
 
     def model_torque(self, columns, chi, *, exclude=None):
-        """Full-rate torque (N, n) of the model ``W_base[:, :, columns] @ chi``.
+        """Full-rate torque (N, n) of the model `W_base[:, :, columns] @ chi`.
 
-        ``exclude``: a boolean (len(columns),) of parameters left out (e.g. the
+        `exclude`: a boolean (len(columns),) of parameters left out (e.g. the
         friction terms, for the torque the transmission carries).
         """
         cols = np.asarray(columns, dtype=int)
@@ -191,11 +191,11 @@ class EffectObservation:
         return tau
 
     def shifted_regressor(self, columns, d):
-        """Decimated base-regressor columns of the motion shifted by ``d`` s: W(t - d).
+        """Decimated base-regressor columns of the motion shifted by `d` s: W(t - d).
 
         The full-rate columns are shifted by linear interpolation (ends
         held), zeroed in the (unshifted) velocity dead zone like the torque,
-        and decimated, chunk by chunk. ``d > 0``: the torque samples are late
+        and decimated, chunk by chunk. `d > 0`: the torque samples are late
         against the positions. Returns (M, n, len(columns)).
         """
         cols = np.asarray(columns, dtype=int)
@@ -237,9 +237,9 @@ class EffectObservation:
     def with_base(self, bp_sub):
         """The same data for a base-parameter set that is a subset of this one's.
 
-        E.g. ``dynid.analysis.diagnosis.selection.without_parameters(bp, ("Off",))``: a model
+        E.g. `dynid.analysis.diagnosis.selection.without_parameters(bp, ("Off",))`: a model
         without torque offsets. W (decimated and cached full-rate) keeps the
-        columns of ``bp_sub`` only.
+        columns of `bp_sub` only.
         """
         pos = {int(c): k for k, c in enumerate(np.asarray(self.bp.independent))}
         try:
@@ -269,13 +269,13 @@ class EffectObservation:
 
 def observe_effects(experiment, robot, bp, settings=None, *, cache_regressor="auto",
                     progress=None) -> EffectObservation:
-    """:func:`dynid.analysis.processing.observation.observe`, keeping what effect columns are built from.
+    """`dynid.analysis.processing.observation.observe`, keeping what effect columns are built from.
 
-    Same steps and settings as ``observe`` (its decimated W, tau, q, qd, qdd,
-    t and row mask are reproduced exactly); ``settings`` are overrides or a
+    Same steps and settings as `observe` (its decimated W, tau, q, qd, qdd,
+    t and row mask are reproduced exactly); `settings` are overrides or a
     resolved settings dict (e.g. an identification's, for validation data).
-    ``cache_regressor``: True, False or "auto" (keep the full-rate base
-    regressor if it takes less than :data:`CACHE_LIMIT_BYTES`).
+    `cache_regressor`: True, False or "auto" (keep the full-rate base
+    regressor if it takes less than `CACHE_LIMIT_BYTES`).
     """
     q_meas = experiment.q
     if q_meas is None:

@@ -5,61 +5,61 @@ regressor columns from the filtered motion (q_hat, qd_hat, qdd_hat), the time
 and, for two of them, the current model's torque. Each is linear in its
 parameters, or a small family over one nonlinear parameter that the
 diagnosis searches on a grid. The columns then go through the same velocity
-dead zone and parallel decimation as W (:mod:`dynid.analysis.diagnosis.effect_observation`).
+dead zone and parallel decimation as W (`dynid.analysis.diagnosis.effect_observation`).
 
 =====================  ===========================================  ====================  ===============
 name                   columns (joint j, 1-based in names)          parameters            nonlinear
 =====================  ===========================================  ====================  ===============
-``offset``             1                                            ``Off{j}``            --
-``asymmetric_coulomb`` abs(sign(qd_j)): Fcp = Fc + dFc, Fcn = Fc - dFc ``dFc{j}``          --
-``asymmetric_viscous`` abs(qd_j): Fvp = Fv + dFv, Fvn = Fv - dFv     ``dFv{j}``            --
-``stribeck``           sign(qd_j) exp(-(qd_j / v_s)^2)              ``Fs{j}``             v_s (log grid)
-``position_ripple``    cos(k q_j), sin(k q_j)                       ``Rc{j}k{k}``,        order k (grid,
-                                                                    ``Rs{j}k{k}``         then refined)
-``spring``             q_j                                          ``Ks{j}``             --
-``coupling``           qd_i or qdd_i of another joint i, on j       ``Cv{j}_{i}`` /       (i, signal)
-                                                                    ``Ca{j}_{i}``
-``time_delay``         none: W(t - d) replaces W(t), all joints     (d)                   d [s] (± log grid)
-``drift``              s, s^2 with s = (t - t0) / T  (per joint)    ``Dr{j}_1``, ...      order 1 or 2
-                       or the friction level: s qd_j, s sign(qd_j)  ``Dv{j}``, ``Dc{j}`` shape "friction"
-``load_friction``      abs(tau_load_j) sign(qd_j)                   ``Fl{j}``             --
-``payload``            standard-regressor columns of the last       ``dM{n}``, ``dMX{n}``, --
-                       link's M, MX, MY, MZ, on every joint         ``dMY{n}``, ``dMZ{n}``
+`offset`             1                                            `Off{j}`            --
+`asymmetric_coulomb` abs(sign(qd_j)): Fcp = Fc + dFc, Fcn = Fc - dFc `dFc{j}`          --
+`asymmetric_viscous` abs(qd_j): Fvp = Fv + dFv, Fvn = Fv - dFv     `dFv{j}`            --
+`stribeck`           sign(qd_j) exp(-(qd_j / v_s)^2)              `Fs{j}`             v_s (log grid)
+`position_ripple`    cos(k q_j), sin(k q_j)                       `Rc{j}k{k}`,        order k (grid,
+                                                                    `Rs{j}k{k}`         then refined)
+`spring`             q_j                                          `Ks{j}`             --
+`coupling`           qd_i or qdd_i of another joint i, on j       `Cv{j}_{i}` /       (i, signal)
+                                                                    `Ca{j}_{i}`
+`time_delay`         none: W(t - d) replaces W(t), all joints     (d)                   d [s] (± log grid)
+`drift`              s, s^2 with s = (t - t0) / T  (per joint)    `Dr{j}_1`, ...      order 1 or 2
+                       or the friction level: s qd_j, s sign(qd_j)  `Dv{j}`, `Dc{j}` shape "friction"
+`load_friction`      abs(tau_load_j) sign(qd_j)                   `Fl{j}`             --
+`payload`            standard-regressor columns of the last       `dM{n}`, `dMX{n}`, --
+                       link's M, MX, MY, MZ, on every joint         `dMY{n}`, `dMZ{n}`
 =====================  ===========================================  ====================  ===============
 
 Notes on the definitions:
 
-* ``offset`` and ``asymmetric_coulomb``: outside the velocity dead zone
-  ``abs(sign(qd))`` is 1, so the two have *the same column* there. A Coulomb
+* `offset` and `asymmetric_coulomb`: outside the velocity dead zone
+  `abs(sign(qd))` is 1, so the two have *the same column* there. A Coulomb
   friction that differs with the sign of the velocity, Fcp for qd > 0 and
-  -Fcn for qd < 0, is ``(Fcp+Fcn)/2 sign(qd) + (Fcp-Fcn)/2`` while the joint
+  -Fcn for qd < 0, is `(Fcp+Fcn)/2 sign(qd) + (Fcp-Fcn)/2` while the joint
   moves: exactly a symmetric Coulomb term plus an offset. Data of a moving
   joint cannot tell them apart (only data at rest could); the diagnosis
   reports them as aliases of each other.
-* ``time_delay``: torque samples recorded ``d`` late (d < 0: early),
+* `time_delay`: torque samples recorded `d` late (d < 0: early),
   tau_meas(t) = tau(t - d) = W(t - d) chi. Not an added column: the model is
   re-fitted on the base regressor of the motion shifted by d
-  (:meth:`EffectObservation.shifted_regressor`), one nonlinear degree of
+  (`EffectObservation.shifted_regressor`), one nonlinear degree of
   freedom. (A column built from the current model's torque, d dtau_model/dt,
   does not work: the model identified from delayed data has already absorbed
   part of the delay into biased parameters, measured in the campaign.)
-* ``load_friction``: a friction proportional to the torque the transmission
-  carries, ``mu abs(tau_load) sign(qd)``, with tau_load the current model's
+* `load_friction`: a friction proportional to the torque the transmission
+  carries, `mu abs(tau_load) sign(qd)`, with tau_load the current model's
   torque without its friction and offset terms.
-* ``drift``: ``t0`` and ``T`` are the start and duration of the identification
+* `drift`: `t0` and `T` are the start and duration of the identification
   recording, so a validation recording (or a held-out later segment) uses the
-  same time scale. ``shape="friction"`` (nonlinear ``{"order": 1, "shape":
-  "friction"}``) is a friction whose level changes over the recording (grease
-  warm-up, temperature): Fv and Fc scaled by ``1 + a s``, i.e. the columns
-  ``s qd_j`` and ``s sign(qd_j)`` (a first-order drift of the friction
+  same time scale. `shape="friction"` (nonlinear `{"order": 1, "shape":
+  "friction"}`) is a friction whose level changes over the recording (grease
+  warm-up, temperature): Fv and Fc scaled by `1 + a s`, i.e. the columns
+  `s qd_j` and `s sign(qd_j)` (a first-order drift of the friction
   parameters); an additive drift has zero mean over a back-and-forth motion
   and cannot describe it.
-* ``payload``: the columns of the standard regressor of the last link's mass
+* `payload`: the columns of the standard regressor of the last link's mass
   and first moments (a point-like extra mass); those already in the span of
   the model (regrouped into identified base parameters) are dropped by the
   diagnosis' rank check.
-* ``spring``: a linear spring k (q_j - q0) is ``Ks q_j`` plus a constant; the
-  constant is an offset (``Off{j}`` of the base model, or the ``offset``
+* `spring`: a linear spring k (q_j - q0) is `Ks q_j` plus a constant; the
+  constant is an offset (`Off{j}` of the base model, or the `offset`
   effect).
 """
 from __future__ import annotations
@@ -113,11 +113,11 @@ FRICTION_PREFIXES = ("Fvm", "Fcm", "Fv", "Fc", "Off")
 class EffectSignals:
     """Full-rate signals effect columns are built from (kept samples of one recording).
 
-    ``t`` (N,); ``q``, ``qd``, ``qdd`` (N, n) filtered motion; ``tau_model``
-    the current model's torque, ``tau_load`` the same without friction and
-    offset terms, ``tau_rate`` d tau_model / dt (all (N, n), optional);
-    ``payload`` (N, n, 4) the last link's M, MX, MY, MZ standard columns;
-    ``t0``, ``T``: origin and scale of the drift polynomials; ``sigma`` the
+    `t` (N,); `q`, `qd`, `qdd` (N, n) filtered motion; `tau_model`
+    the current model's torque, `tau_load` the same without friction and
+    offset terms, `tau_rate` d tau_model / dt (all (N, n), optional);
+    `payload` (N, n, 4) the last link's M, MX, MY, MZ standard columns;
+    `t0`, `T`: origin and scale of the drift polynomials; `sigma` the
     joint types (1 = prismatic).
     """
 
@@ -142,12 +142,12 @@ class EffectSignals:
 
 def signals_from_observation(eobs, model_columns=None, chi=None, model_names=None, *, t0=None,
                              T=None, robot=None):
-    """:class:`EffectSignals` of an :class:`~dynid.analysis.diagnosis.effect_observation.EffectObservation`.
+    """`EffectSignals` of an `EffectObservation`.
 
-    ``model_columns`` (indices into the base parameters) and ``chi`` give the
-    current model, whose full-rate torque feeds ``time_delay`` and
-    ``load_friction`` (``model_names`` tells its friction terms apart).
-    ``t0``/``T`` default to this recording's start and duration (the drift
+    `model_columns` (indices into the base parameters) and `chi` give the
+    current model, whose full-rate torque feeds `time_delay` and
+    `load_friction` (`model_names` tells its friction terms apart).
+    `t0`/`T` default to this recording's start and duration (the drift
     polynomials of a validation recording must use the identification's).
     """
     fs = eobs.fs
@@ -231,12 +231,12 @@ def payload_columns(s):
 # ----------------------------------------------------------------- candidates
 @dataclass
 class Candidate:
-    """One effect on one joint (or on all: ``joint=None``) at one value of its nonlinear parameter.
+    """One effect on one joint (or on all: `joint=None`) at one value of its nonlinear parameter.
 
-    ``joint`` is 1-based as in the CONVENTIONS. ``params`` names its linear
-    parameters, ``nonlinear`` its nonlinear parameter (``{}`` if none, e.g.
-    ``{"vs": 0.12}`` rad/s, ``{"order": 3}``, ``{"source": 2, "signal": "qd"}``).
-    ``active`` (set by the diagnosis' rank check) lists the columns kept.
+    `joint` is 1-based as in the CONVENTIONS. `params` names its linear
+    parameters, `nonlinear` its nonlinear parameter (`{}` if none, e.g.
+    `{"vs": 0.12}` rad/s, `{"order": 3}`, `{"source": 2, "signal": "qd"}`).
+    `active` (set by the diagnosis' rank check) lists the columns kept.
     """
 
     name: str
@@ -285,7 +285,7 @@ class Candidate:
         return f"{self.name} ({where}{nl})"
 
     def columns(self, s: EffectSignals):
-        """Full-rate columns: (N, k) for a one-joint effect, (N, n, k) for ``joint=None``."""
+        """Full-rate columns: (N, k) for a one-joint effect, (N, n, k) for `joint=None`."""
         j = None if self.joint is None else self.joint - 1
         nl = self.nonlinear
         name = self.name
@@ -378,7 +378,7 @@ def order_text(k):
 
 
 def make_candidate(name, joint=None, last_link=6, **nonlinear):
-    """One :class:`Candidate` (parameter names from the effect table)."""
+    """One `Candidate` (parameter names from the effect table)."""
     if name not in EFFECT_NAMES:
         raise InputError(f"unknown effect {name!r}; the effects are {', '.join(EFFECT_NAMES)}")
     if name in ("time_delay", "payload"):
@@ -407,12 +407,12 @@ def candidate_set(s: EffectSignals, effects=None, *, joints=None, qd_peak=None,
                   delay_grid=DELAY_GRID, friction_drift=True):
     """All candidates: every effect x joint x value of its nonlinear parameter.
 
-    ``effects``: names (default all); ``joints``: 1-based joints (default
-    all); ``qd_peak`` (n,): peak |qd_j| the Stribeck grid scales with (default
-    from ``s``). Position ripple is skipped on prismatic joints (an order in
-    periods per radian means nothing there); ``time_delay`` and
-    ``load_friction`` need the model torque in ``s``. ``friction_drift``: also the
-    friction-level drift (``drift`` with ``shape="friction"``) on every joint.
+    `effects`: names (default all); `joints`: 1-based joints (default
+    all); `qd_peak` (n,): peak |qd_j| the Stribeck grid scales with (default
+    from `s`). Position ripple is skipped on prismatic joints (an order in
+    periods per radian means nothing there); `time_delay` and
+    `load_friction` need the model torque in `s`. `friction_drift`: also the
+    friction-level drift (`drift` with `shape="friction"`) on every joint.
     """
     effects = check_effect_names(effects)
     n = s.n_joints
@@ -461,9 +461,9 @@ def candidate_set(s: EffectSignals, effects=None, *, joints=None, qd_peak=None,
 
 
 def effect_torque(candidate: Candidate, s: EffectSignals, values):
-    """Torque (N, n) of an effect with parameter ``values`` along the signals ``s``.
+    """Torque (N, n) of an effect with parameter `values` along the signals `s`.
 
-    The same columns as the diagnosis fits, so injecting ``effect_torque`` into
+    The same columns as the diagnosis fits, so injecting `effect_torque` into
     a recording tests exactly the shape the diagnosis looks for.
     """
     values = np.asarray(values, dtype=float).reshape(-1)

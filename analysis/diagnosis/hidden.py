@@ -3,42 +3,42 @@ robot file's a-priori values.
 
 An effect whose torque lies (almost) in the span of the base regressor leaves no
 residual: the least-squares fit moves the parameters instead. The classic case is
-a weight-compensation spring on a shoulder joint, ``tau_j = k sin(q_j + phi)``,
+a weight-compensation spring on a shoulder joint, `tau_j = k sin(q_j + phi)`,
 shaped like the link's gravity torque: the first moments of that link take it
 (measured on the independent plant: a 20 N m spring on TX40 joint 2 moves MX2R
 from 2.11 to ~4.1 and the residual stays at the noise floor). The only signature
 is in the parameters, which then contradict the a-priori (CAD, or a previous
 identification) values.
 
-Test (issue 13, item 5). Let ``beta0_i`` be the a-priori values of the model's
-base parameters that have one (``robot.apriori`` through
-:func:`dynid.dynamics.excitation.apriori_parameters`), with a prior standard
-deviation ``s_i = PRIOR_REL |beta0_i|`` (the a-priori values are trusted to
-``PRIOR_REL`` = 10 %; a floor of ``PRIOR_ABS`` for values near zero). The prior fit
+Test (issue 13, item 5). Let `beta0_i` be the a-priori values of the model's
+base parameters that have one (`robot.apriori` through
+`dynid.dynamics.excitation.apriori_parameters`), with a prior standard
+deviation `s_i = PRIOR_REL |beta0_i|` (the a-priori values are trusted to
+`PRIOR_REL` = 10 %; a floor of `PRIOR_ABS` for values near zero). The prior fit
 minimises
 
     J(beta, c) = sum_rows w_j^2 (y - X beta - E c)^2 / tau_j + sum_i ((beta_i - beta0_i) / s_i)^2   (1)
 
-with ``w_j = 1 / sigma_j`` the joint weights of the WLS fit, ``tau_j`` the
+with `w_j = 1 / sigma_j` the joint weights of the WLS fit, `tau_j` the
 integrated autocorrelation time of joint j's residual (so the data term counts
-effective samples, like the selection's LR), and ``E`` the decimated columns of a
+effective samples, like the selection's LR), and `E` the decimated columns of a
 candidate (none for the reference fit). For a Gaussian linear model with a Gaussian
-prior the drop ``Delta = J_min(no E) - J_min(E)`` is a likelihood-ratio statistic,
-``chi2(k)`` under "the a-priori values hold and no effect is missing" (k the
+prior the drop `Delta = J_min(no E) - J_min(E)` is a likelihood-ratio statistic,
+`chi2(k)` under "the a-priori values hold and no effect is missing" (k the
 candidate's columns). The candidates are the gravity-shaped springs
-``E_j = [cos q_j, sin q_j]`` on each joint j (k = 2), Bonferroni over the joints.
+`E_j = [cos q_j, sin q_j]` on each joint j (k = 2), Bonferroni over the joints.
 
 Gate. The test runs only when the identified parameters contradict the a-priori
-values, ``|beta_hat_i - beta0_i| > APRIORI_K sqrt(sigma_i^2 + s_i^2)`` for some i
+values, `|beta_hat_i - beta0_i| > APRIORI_K sqrt(sigma_i^2 + s_i^2)` for some i
 (APRIORI_K = 3, as the verdict's a-priori check): without a contradiction there is
 nothing hidden to explain.
 
-Rule. A candidate is reported (``hidden``) when its Bonferroni p < alpha, its
-amplitude ``sqrt(c1^2 + c2^2)`` is at least ``MIN_AMPLITUDE_SIGMA`` (5) of its
+Rule. A candidate is reported (`hidden`) when its Bonferroni p < alpha, its
+amplitude `sqrt(c1^2 + c2^2)` is at least `MIN_AMPLITUDE_SIGMA` (5) of its
 standard deviation, it explains most of the contradiction (the a-priori
 deviation term of (1) falls by at least half), and the prior fit with it predicts
 the held-out (validation) recording as well as the diagnosis' final model, within
-``HELDOUT_TOL`` (5 %) of its relative error. Why a tolerance and not "lower": an
+`HELDOUT_TOL` (5 %) of its relative error. Why a tolerance and not "lower": an
 exactly aliased effect changes the fit's span by nothing, so it cannot lower the
 held-out error (measured on the independent plant, 20 N m spring on TX40 joint 2:
 0.1586 % before, 0.1601 % after with the prior holding all the a-priori parameters
@@ -47,7 +47,7 @@ held-out data: the diagnosis' final model (before) and the prior fit with the
 effect (after).
 
 Limits. The a-priori values carry the whole burden: a CAD model off by more than
-``PRIOR_REL`` on a gravity parameter looks like a hidden spring of that shape
+`PRIOR_REL` on a gravity parameter looks like a hidden spring of that shape
 (the report names the parameters it contradicts so a user can judge which).
 Robots without a-priori values get no test.
 """
@@ -143,13 +143,13 @@ def _prior_fit(A, y, P, b0, s, E=None):
 
 def hidden_effects(eobs, X, Y, mask, names, chi, sigma, robot, *, weights, alpha=0.01,
                    validation=None, prior_rel=PRIOR_REL):
-    """Gravity-shaped springs the base parameters absorbed: list of :class:`HiddenEffect`
+    """Gravity-shaped springs the base parameters absorbed: list of `HiddenEffect`
     (the reported ones first; empty when the robot has no a-priori values or the
     parameters do not contradict them).
 
-    ``X`` (M, n, p), ``Y``, ``mask``: the decimated design of the final model (base
-    parameters ``names[:nb]`` then effect parameters), ``chi``, ``sigma`` its WLS fit,
-    ``weights`` (n,) ``1 / sigma_j``. ``validation``: ``(Xv, Yv, maskv, eobs_v)`` of the
+    `X` (M, n, p), `Y`, `mask`: the decimated design of the final model (base
+    parameters `names[:nb]` then effect parameters), `chi`, `sigma` its WLS fit,
+    `weights` (n,) `1 / sigma_j`. `validation`: `(Xv, Yv, maskv, eobs_v)` of the
     held-out recording, same columns.
     """
     if robot is None or not getattr(robot, "apriori", None):
@@ -207,8 +207,8 @@ def hidden_effects(eobs, X, Y, mask, names, chi, sigma, robot, *, weights, alpha
 
 def _effective_rows(X, Y, mask, chi, weights):
     """Whitened rows (eq. (1)) counted in effective samples: each joint's rows are divided by
-    the integrated autocorrelation time of its residual ``Y - X chi`` (the rows of the
-    decimated residual are correlated). Returns ``(A, y, scale)``."""
+    the integrated autocorrelation time of its residual `Y - X chi` (the rows of the
+    decimated residual are correlated). Returns `(A, y, scale)`."""
     res = np.where(mask, Y - X @ chi, 0.0)
     tau = np.ones(Y.shape[1])
     for j in range(Y.shape[1]):
@@ -221,7 +221,7 @@ def _effective_rows(X, Y, mask, chi, weights):
 
 
 def _spring_columns(eobs, j):
-    """The decimated columns ``[cos q_j, sin q_j]`` of a gravity-shaped spring on joint j: (M, n, 2)."""
+    """The decimated columns `[cos q_j, sin q_j]` of a gravity-shaped spring on joint j: (M, n, 2)."""
     q = np.asarray(eobs.q, float)[:, j]
     return eobs.decimate(np.stack([np.cos(q), np.sin(q)], axis=1), joint=j)
 
@@ -234,32 +234,32 @@ def _rel(Y, Yh, mask):
 def physical_effects(eobs, X, Y, mask, n_base, chi, robot, *, weights, alpha=0.01, validation=None,
                      min_amplitude_sigma=MIN_AMPLITUDE_SIGMA):
     """Gravity-shaped springs found through the physical constraints (issue 13 item 5, issue 15
-    item 3): list of :class:`HiddenEffect` with ``route="physical"`` (empty when the data do not
+    item 3): list of `HiddenEffect` with `route="physical"` (empty when the data do not
     want a non-physical model).
 
-    ``X`` (M, n, n_base + k): the decimated design of the *full* base model (all base
-    parameters, in ``eobs.bp`` order) followed by the selected effects' columns; ``chi`` its WLS
-    fit; ``weights`` (n,) ``1 / sigma_j``. ``validation``: ``(Xv, Yv, maskv, eobs_v)``, same
+    `X` (M, n, n_base + k): the decimated design of the *full* base model (all base
+    parameters, in `eobs.bp` order) followed by the selected effects' columns; `chi` its WLS
+    fit; `weights` (n,) `1 / sigma_j`. `validation`: `(Xv, Yv, maskv, eobs_v)`, same
     columns.
 
     Rows whitened as in eq. (1) (weights, and the residual's integrated autocorrelation time, so
-    the sums count effective samples). Let ``SSE(E)`` be the weighted squared residual of the
-    unconstrained fit with the extra columns E (none, or a candidate ``[cos q_j, sin q_j]``),
-    and ``C(E)`` the growth of it that the physical constraints cost: PC-WLS
-    (:func:`dynid.analysis.estimators.physical.pc_wls`) of the base parameters with E profiled
+    the sums count effective samples). Let `SSE(E)` be the weighted squared residual of the
+    unconstrained fit with the extra columns E (none, or a candidate `[cos q_j, sin q_j]`),
+    and `C(E)` the growth of it that the physical constraints cost: PC-WLS
+    (`dynid.analysis.estimators.physical.pc_wls`) of the base parameters with E profiled
     out (their marginal estimate and covariance). Then
 
         Delta_j = (SSE(0) + C(0)) - (SSE(E_j) + C(E_j))                         (2)
 
     is the drop of the physically consistent fit's weighted residual when the candidate is
-    added: a likelihood-ratio statistic, ``chi2(2)`` under "a physical model without it
+    added: a likelihood-ratio statistic, `chi2(2)` under "a physical model without it
     holds" (conservatively: the constraint part is a chi-bar-squared bound). Gate: PC-WLS of
     the model without a candidate has p < alpha (the chi-bar-squared bound of physical.py): the
     data really want a model no rigid body has. Rule: Bonferroni p of Delta_j < alpha, the
-    constraint cost falls by at least half (``C(E_j) <= C(0) / 2``: the candidate explains
-    the contradiction), amplitude >= ``min_amplitude_sigma`` of its (conditional) standard
+    constraint cost falls by at least half (`C(E_j) <= C(0) / 2`: the candidate explains
+    the contradiction), amplitude >= `min_amplitude_sigma` of its (conditional) standard
     deviation, and the PC fit with the candidate predicts the held-out data within
-    ``HELDOUT_TOL`` of the final model.
+    `HELDOUT_TOL` of the final model.
 
     The amplitude is that of the PC fit with the candidate: the least spring that makes the base
     parameters those of a rigid body, so a lower bound of the true one when the constraint stays
@@ -267,7 +267,7 @@ def physical_effects(eobs, X, Y, mask, n_base, chi, robot, *, weights, alpha=0.0
     10 N m spring is found at 7.9 N m). Measured on the independent TX40 plant, whose robot
     file bounds no mass: a 20 N m spring on joint 2 leaves the fit physical (PC-WLS chi2 13.0
     on 14 active constraints, p = 0.53), so this route does not see it and the a-priori route
-    of :func:`hidden_effects` does.
+    of `hidden_effects` does.
     """
     from dynid.analysis.estimators.physical import pc_wls
     bp = eobs.bp

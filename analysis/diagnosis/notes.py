@@ -15,14 +15,14 @@ ONSET_PEAK_FRACTION = 0.05
 def onset_note(cand, values, settings, qd_peak=None):
     """Note (or "") when a selected Stribeck term is the friction's smooth Coulomb onset.
 
-    dynid's friction model has ``Fc sign(qd)``; a real (or simulated) friction rises to
-    its Coulomb level over a small speed range (the independent plant: ``Fc tanh(qd /
-    0.01)``). The velocity dead zone (default 1 % of the peak speed) exists to drop the
+    dynid's friction model has `Fc sign(qd)`; a real (or simulated) friction rises to
+    its Coulomb level over a small speed range (the independent plant: `Fc tanh(qd /
+    0.01)`). The velocity dead zone (default 1 % of the peak speed) exists to drop the
     rows where that matters; when the onset is wider than the dead zone the rows just
-    outside it carry the mismatch and a Stribeck term with ``Fs < 0`` and a small ``v_s``
+    outside it carry the mismatch and a Stribeck term with `Fs < 0` and a small `v_s`
     takes it (measured on the clean plant, TX40 joint 2, default dead zone 0.02 rad/s:
-    Fs < 0, v_s 0.016 rad/s, CV gain 14 %). "Small" is within ``ONSET_VS_FACTOR``
-    dead-zone widths or ``ONSET_PEAK_FRACTION`` of the joint's peak speed: ``Fs < 0``
+    Fs < 0, v_s 0.016 rad/s, CV gain 14 %). "Small" is within `ONSET_VS_FACTOR`
+    dead-zone widths or `ONSET_PEAK_FRACTION` of the joint's peak speed: `Fs < 0`
     says the friction is *below* its Coulomb level at low speed, which over a
     twentieth of the speed range is the onset of Coulomb friction, not a law over the
     motion (a curved viscous law shows at a v_s comparable to the speeds the joint

@@ -1,30 +1,30 @@
 """PC-WLS of a model with effect columns: the rigid body constrained, the effects free.
 
 The residual diagnosis names effects a rigid-body model lacks (springs, position
-ripple, ...; :mod:`dynid.analysis.diagnosis.effects`). When the unconstrained fit is not
+ripple, ...; `dynid.analysis.diagnosis.effects`). When the unconstrained fit is not
 physical because the base parameters absorb such an effect, the physically consistent
-fit must be made *with* the effect: the base parameters ``beta`` constrained as in
-:mod:`dynid.analysis.estimators.physical`, the effect parameters ``theta`` free.
+fit must be made *with* the effect: the base parameters `beta` constrained as in
+`dynid.analysis.estimators.physical`, the effect parameters `theta` free.
 
 Why the base parameters' marginal covariance is the right target. The WLS of the stacked
-design ``[W, C]`` (same per-joint weights, eq. (16)) gives ``x_hat = (beta_hat, theta_hat)``
-and ``cov``; the weighted squared residual of any ``(beta, theta)`` is
-``const + (x - x_hat)^T cov^-1 (x - x_hat)`` (in units of sigma_rho^2). Minimising over
-``theta`` for a given ``beta`` leaves
+design `[W, C]` (same per-joint weights, eq. (16)) gives `x_hat = (beta_hat, theta_hat)`
+and `cov`; the weighted squared residual of any `(beta, theta)` is
+`const + (x - x_hat)^T cov^-1 (x - x_hat)` (in units of sigma_rho^2). Minimising over
+`theta` for a given `beta` leaves
 
     (beta - beta_hat)^T cov_bb^-1 (beta - beta_hat),                                  (1)
     theta(beta) = theta_hat + cov_tb cov_bb^-1 (beta - beta_hat)                        (2)
 
-(Schur complement of the information matrix: its inverse's ``bb`` block is ``cov_bb``). So
-PC-WLS of ``(beta_hat, cov_bb)`` (:func:`~dynid.analysis.estimators.physical.pc_wls`) followed
+(Schur complement of the information matrix: its inverse's `bb` block is `cov_bb`). So
+PC-WLS of `(beta_hat, cov_bb)` (`pc_wls`) followed
 by (2) is the constrained minimum of the whole weighted residual, one SDP as without effects.
 
-The effect parameters' uncertainty at the PC solution is eq. (3) of :func:`profile_physical`:
+The effect parameters' uncertainty at the PC solution is eq. (3) of `profile_physical`:
 the covariance of the base parameters' bootstrap refits carried through (2), plus the part of theta that
-the base parameters do not explain. From the command line: ``dynid identify EXP --robot R
---effects spring:all [--physical] [--validation V]`` (JSON block ``"effects"``).
+the base parameters do not explain. From the command line: `dynid identify EXP --robot R
+--effects spring:all [--physical] [--validation V]` (JSON block `"effects"`).
 
-Measured on the KUKA LWR4+ (``benchmarks/physical.py``, ``examples/kuka_lwr4/README.md``):
+Measured on the KUKA LWR4+ (`benchmarks/physical.py`, `examples/kuka_lwr4/README.md`):
 a linear spring on every joint and the first position harmonic on joint 7 take the negative
 ZZ1R, Ia3 and Ia7 the unconstrained fit wanted.
 """
@@ -49,10 +49,10 @@ def _integer(text, what, item):
 
 
 def effect_candidates(spec, n_joints):
-    """Candidates from a short text: ``"spring:all,position_ripple:7:1"``.
+    """Candidates from a short text: `"spring:all,position_ripple:7:1"`.
 
-    Items ``name:joint[:order]``, ``joint`` 1-based or ``all``; ``order`` for
-    ``position_ripple`` (harmonic k of cos k q_j, sin k q_j). Only the effects whose columns
+    Items `name:joint[:order]`, `joint` 1-based or `all`; `order` for
+    `position_ripple` (harmonic k of cos k q_j, sin k q_j). Only the effects whose columns
     need nothing but the motion: offset, asymmetric_coulomb, asymmetric_viscous, spring,
     position_ripple. An effect named twice on one joint is refused (its columns would repeat).
     """
@@ -88,11 +88,11 @@ def effect_candidates(spec, n_joints):
 
 
 def effect_design(experiment, robot, bp, settings, candidates):
-    """Decimated ``[W, C]`` of one recording: (M, n, b + k), tau (M, n), row mask (M, n), names.
+    """Decimated `[W, C]` of one recording: (M, n, b + k), tau (M, n), row mask (M, n), names.
 
-    ``C`` are the candidates' columns built at full rate from the same filtered motion as W
+    `C` are the candidates' columns built at full rate from the same filtered motion as W
     and pushed through the same dead zone and parallel decimation
-    (:meth:`~dynid.analysis.diagnosis.effect_observation.EffectObservation.decimate`).
+    (`decimate`).
     """
     eo = observe_effects(experiment, robot, bp, settings)
     s = signals_from_observation(eo, robot=robot)
@@ -107,12 +107,12 @@ def effect_design(experiment, robot, bp, settings, candidates):
 
 @dataclass
 class EffectsFit:
-    """The WLS of ``[W, C]`` and, when asked, its physically consistent counterpart.
+    """The WLS of `[W, C]` and, when asked, its physically consistent counterpart.
 
-    ``cov_effects_pc``: sampling covariance of the PC effect parameters, eq. (3) (the reported
-    sigma is floored at the unconstrained one, :meth:`effects`); ``rel_error_*``:
-    ||Y - W x|| / ||Y|| on the identification rows; ``validation``: the held-out errors of
-    :func:`held_out_errors` when a validation recording was given (None otherwise).
+    `cov_effects_pc`: sampling covariance of the PC effect parameters, eq. (3) (the reported
+    sigma is floored at the unconstrained one, `effects`); `rel_error_*`:
+    ||Y - W x|| / ||Y|| on the identification rows; `validation`: the held-out errors of
+    `held_out_errors` when a validation recording was given (None otherwise).
     """
 
     names: list            # base parameters then effect parameters
@@ -161,7 +161,7 @@ class EffectsFit:
         return out
 
     def to_dict(self) -> dict:
-        """The JSON block of the effects: ``spec``, per-parameter values and sigma (unconstrained
+        """The JSON block of the effects: `spec`, per-parameter values and sigma (unconstrained
         and, with the physical fit, PC), the errors on the identification data and held out."""
         from dynid.provenance import json_safe
         return json_safe({
@@ -199,19 +199,19 @@ class EffectsFit:
 def profile_physical(robot, bp, x_hat, cov, n_base, **pc_options):
     """PC-WLS of the base parameters with the effect parameters profiled out: eqs. (1)-(3).
 
-    ``x_hat`` (b + k,), ``cov`` (b + k, b + k): the WLS of the stacked design. Returns
-    ``(PhysicalResult, theta_pc, cov_theta_pc)``. With ``K = cov_tb cov_bb^-1``, eq. (2) reads
-    ``theta_pc = u + K beta_pc`` where ``u = theta_hat - K beta_hat`` is uncorrelated with
-    ``beta_hat`` (so independent, Gaussian errors) and ``beta_pc`` depends on ``beta_hat``
+    `x_hat` (b + k,), `cov` (b + k, b + k): the WLS of the stacked design. Returns
+    `(PhysicalResult, theta_pc, cov_theta_pc)`. With `K = cov_tb cov_bb^-1`, eq. (2) reads
+    `theta_pc = u + K beta_pc` where `u = theta_hat - K beta_hat` is uncorrelated with
+    `beta_hat` (so independent, Gaussian errors) and `beta_pc` depends on `beta_hat`
     alone; hence
 
         cov(theta_pc) = (cov_tt - K cov_bt) + K cov(beta_pc) K^T,                         (3)
 
-    with ``cov(beta_pc)`` the covariance of the PC fit's bootstrap refits (``boot_cov``: the
-    sampling covariance if the truth sat on the active constraints; ``cov_bb`` itself when
-    ``n_boot = 0``, which gives back ``cov_tt``). The sigma reported for theta
-    (:meth:`EffectsFit.effects`) is never below the unconstrained one, the rule of the base
-    parameters' (:func:`~dynid.analysis.estimators.physical.interval_covariance`).
+    with `cov(beta_pc)` the covariance of the PC fit's bootstrap refits (`boot_cov`: the
+    sampling covariance if the truth sat on the active constraints; `cov_bb` itself when
+    `n_boot = 0`, which gives back `cov_tt`). The sigma reported for theta
+    (`EffectsFit.effects`) is never below the unconstrained one, the rule of the base
+    parameters' (`interval_covariance`).
     """
     from dynid.analysis.estimators.physical import pc_wls
     b = int(n_base)
@@ -232,10 +232,10 @@ def _rel_error(tau, W, x, mask):
 
 def identify_physical_effects(experiments, robot, result, candidates, *, physical=True, validation=None,
                               spec="", **pc_options) -> EffectsFit:
-    """WLS and (``physical=True``) PC-WLS of the base model of ``result`` (an IDIM result on
-    ``experiments``) plus ``candidates``' columns, with ``result``'s processing settings; the
-    per-joint sigma_j are re-estimated on the stacked design (eq. (16)). ``validation``: a
-    held-out recording, whose errors (:func:`held_out_errors`) go into the result."""
+    """WLS and (`physical=True`) PC-WLS of the base model of `result` (an IDIM result on
+    `experiments`) plus `candidates`' columns, with `result`'s processing settings; the
+    per-joint sigma_j are re-estimated on the stacked design (eq. (16)). `validation`: a
+    held-out recording, whose errors (`held_out_errors`) go into the result."""
     from dynid.analysis.estimators import least_squares as ls
     if not isinstance(experiments, (list, tuple)):
         experiments = [experiments]
@@ -274,9 +274,9 @@ def _culprit(message):
 
 
 def held_out_errors(fit: EffectsFit, experiment, robot, bp, *, detail=False):
-    """Relative error ||tau - tau_hat|| / ||tau|| on all decimated samples of ``experiment`` (no
-    dead zone, as :func:`dynid.analysis.statistics.validation.validate`): ``{"wls", "pc"}``
-    ("pc" only with the physical fit). ``detail=True``: the block of the JSON instead, with the
+    """Relative error ||tau - tau_hat|| / ||tau|| on all decimated samples of `experiment` (no
+    dead zone, as `dynid.analysis.statistics.validation.validate`): `{"wls", "pc"}`
+    ("pc" only with the physical fit). `detail=True`: the block of the JSON instead, with the
     per-joint RMS [N m] and the gap PC - WLS in points."""
     from dynid.analysis.statistics.validation import prediction_errors
     W, tau, _, _ = effect_design(experiment, robot, bp, dict(fit.settings, qd_threshold=0.0), fit.candidates)

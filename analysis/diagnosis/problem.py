@@ -27,10 +27,10 @@ __all__ = ["without_parameters", "identify_from_observation", "Problem", "fit_wl
 
 # ======================================================================= models
 def without_parameters(bp: BaseParameters, drop) -> BaseParameters:
-    """A base-parameter set without some parameters (e.g. ``("Off",)``: a model without offsets).
+    """A base-parameter set without some parameters (e.g. `("Off",)`: a model without offsets).
 
-    ``drop`` lists base-parameter names or prefixes followed by the joint
-    number (``"Off"`` drops Off1..Offn; ``"Off3"`` only Off3). The dropped
+    `drop` lists base-parameter names or prefixes followed by the joint
+    number (`"Off"` drops Off1..Offn; `"Off3"` only Off3). The dropped
     parameters are taken as zero: their columns leave the regressor.
     """
     drop = [drop] if isinstance(drop, str) else list(drop)
@@ -50,11 +50,11 @@ def without_parameters(bp: BaseParameters, drop) -> BaseParameters:
 
 
 def identify_from_observation(eobs: EffectObservation, robot, *, max_error_growth=0.02):
-    """IDIM (OLS, WLS, essential WLS) from a prepared :class:`EffectObservation`.
+    """IDIM (OLS, WLS, essential WLS) from a prepared `EffectObservation`.
 
-    The same estimators as :func:`dynid.analysis.estimators.idim.identify_idim`, without
+    The same estimators as `dynid.analysis.estimators.idim.identify_idim`, without
     building the observation system again (e.g. when only the torque changed:
-    :meth:`EffectObservation.with_torque`).
+    `EffectObservation.with_torque`).
     """
     obs = eobs.obs
     names = list(eobs.bp.names)
@@ -75,7 +75,7 @@ class Problem:
 
     The model's design for a state (delay d, effects) is the decimated base
     regressor of the model's columns, of the motion shifted by d (W(t - d),
-    :meth:`EffectObservation.shifted_regressor`), followed by the effects'
+    `EffectObservation.shifted_regressor`), followed by the effects'
     decimated columns.
     """
 
@@ -110,7 +110,7 @@ class Problem:
         return [self._cache[self._key(c)] for c in cands]
 
     def base(self, delay=0.0, cache=True, cols=None):
-        """Decimated base-regressor columns ``cols`` (default the model's), motion shifted by ``delay`` s."""
+        """Decimated base-regressor columns `cols` (default the model's), motion shifted by `delay` s."""
         cols = self.cols if cols is None else np.asarray(cols, dtype=int)
         if not delay:
             return self.eobs.obs.W[:, :, cols]
@@ -131,7 +131,7 @@ class Problem:
         return list(names) + [p for c in effects for p in c.active_params]
 
     def essential(self, delay, max_error_growth=0.02):
-        """Essential parameters (names, base columns) re-selected on the motion shifted by ``delay``."""
+        """Essential parameters (names, base columns) re-selected on the motion shifted by `delay`."""
         X = self.base(delay, cols=self.all_cols)
         ess = essential_parameters(X, self.Y, self.all_names, ls.wls,
                                    max_error_growth=max_error_growth, row_mask=self.mask)
@@ -235,14 +235,14 @@ def evaluate_effects(data, robot, idim_result, candidates, fit=None, *, signals_
                      signals_T=None):
     """Errors of the model before/after effects on a recording (validation), or a fit on it.
 
-    ``data``: Experiment or EffectObservation of the recording (processed with
-    ``idim_result.settings``); ``candidates``: the effects (columns built on
+    `data`: Experiment or EffectObservation of the recording (processed with
+    `idim_result.settings`); `candidates`: the effects (columns built on
     this recording with the identification's model torque and time scale; a
-    ``time_delay`` shifts the model's regressor); ``fit``: the
+    `time_delay` shifts the model's regressor); `fit`: the
     IdentificationResult of the essential model + effects (columns in that
-    order). ``signals_t0``/``signals_T``: the drift time scale (default this
+    order). `signals_t0`/`signals_T`: the drift time scale (default this
     recording's; pass the identification's for validation data). Returns a
-    dict with ``before``/``after`` :class:`Errors`, the predictions, the
+    dict with `before`/`after` `Errors`, the predictions, the
     design X and the EffectObservation.
     """
     prob = validation_problem(data, robot, idim_result, signals_t0, signals_T)
@@ -281,7 +281,7 @@ def fit_effects(data, robot, idim_result, candidates):
     effect with its true nonlinear parameter, linear parameters fitted).
     Effect columns already in the span of the model (and of the effects
     before them) are dropped, as in the diagnosis; the candidates passed are
-    updated in place (``active``).
+    updated in place (`active`).
     """
     prob = validation_problem(data, robot, idim_result, None, None)
     delay, effects = split_delay(candidates)

@@ -16,7 +16,7 @@ def refine_candidate(problem, scorer, cand, state, weights):
 
     v_s and d: a bounded 1-D search of the weighted residual sum of squares over
     log|value| within a factor 2 of the best grid value (sign kept). A ripple's
-    order: :func:`refine_order`.
+    order: `refine_order`.
     """
     if cand.name == "position_ripple":
         return refine_order(problem, scorer, cand)
@@ -55,12 +55,12 @@ ORDER_SCAN_PHASE = 0.2
 def refine_order(problem, scorer, cand):
     """The ripple order the residual shows, between the grid's neighbours of the best one.
 
-    The grid (:data:`RIPPLE_ORDERS`) only brackets the order: a ripple of order 7 scored
+    The grid (`RIPPLE_ORDERS`) only brackets the order: a ripple of order 7 scored
     at 6 and 8 leaves most of itself in the residual, and the selection then adds 8, 6
     and 5 in turn (TX40 plant, joint 3), three families where there is one. The
     weighted residual sum of squares of the candidate is scanned over the orders
     between the grid's neighbours (or half and 1.5 times the order at the ends), in
-    steps that move the ripple's phase by at most :data:`ORDER_SCAN_PHASE` across the
+    steps that move the ripple's phase by at most `ORDER_SCAN_PHASE` across the
     joint's range of motion (the SSE is multimodal in k on a coarser scan), and the best
     scan point is polished by a bounded 1-D search within one step.
     """

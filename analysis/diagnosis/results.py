@@ -156,7 +156,7 @@ def errors_of(tau, tau_hat, mask):
 
 @dataclass
 class DiagnosisResult(Exportable):
-    """What :func:`diagnose` found. ``ranking`` is from most to least likely."""
+    """What `diagnose` found. `ranking` is from most to least likely."""
 
     robot_name: str
     source: str
@@ -182,20 +182,20 @@ class DiagnosisResult(Exportable):
     @property
     def hidden(self):
         """Effects the base parameters absorbed, found through the a-priori values (list of
-        reported :class:`~dynid.analysis.diagnosis.hidden.HiddenEffect`)."""
+        reported `HiddenEffect`)."""
         return [h for h in self.hidden_tests if h.reported]
 
     @property
     def unexplained(self):
         """Joints whose final residual has structure no selected effect explains (list of
-        :class:`~dynid.analysis.diagnosis.structure.Unexplained`)."""
+        `Unexplained`)."""
         return [] if self.structure is None else list(self.structure.unexplained)
 
     @property
     def effects(self):
-        """The selected effects that are effects of the robot (``kind == "effect"``): without the
+        """The selected effects that are effects of the robot (`kind == "effect"`): without the
         Coulomb onsets, which are kept in the model but say the velocity dead zone is narrower
-        than the friction's smooth onset (:func:`onset_note`)."""
+        than the friction's smooth onset (`onset_note`)."""
         return [e for e in self.selected if e.kind == "effect"]
 
     @property

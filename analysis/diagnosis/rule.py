@@ -116,8 +116,8 @@ def by_base_evidence(problem, guard, passing, m):
     53.2 % CV gain, the spring 52.4 %; the essential set had dropped Off4, which the
     spring's rest position needs). Against the full base model neither the spring nor
     the ripple has anything to lean on: the candidates that pass are ordered by the LR
-    test there (log chi2 tail, as :func:`rank_candidates`), ties by the original order, and
-    each gets its Bonferroni p against that model (``base_p``). time_delay is
+    test there (log chi2 tail, as `rank_candidates`), ties by the original order, and
+    each gets its Bonferroni p against that model (`base_p`). time_delay is
     already scored within the full base model and keeps its own statistic.
     """
     need = [w for w in passing if cand_needs_guard(w)]

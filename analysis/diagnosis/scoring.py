@@ -217,7 +217,7 @@ def new_columns(X, C, mask, weights):
 
 
 def independent_columns(Bperp, norms):
-    """Columns of Bperp (projected candidate columns) that are independent, relative to ``norms``."""
+    """Columns of Bperp (projected candidate columns) that are independent, relative to `norms`."""
     nz = norms > 0
     if not nz.any():
         return []

@@ -1,10 +1,10 @@
 """Residual diagnosis: which unmodelled effect explains what an identified model leaves.
 
 Starting from an IDIM identification (the essential WLS model of section 2 of
-Gautier, Janot & Vandanjon 2010), every effect of :mod:`dynid.analysis.diagnosis.effects` on
+Gautier, Janot & Vandanjon 2010), every effect of `dynid.analysis.diagnosis.effects` on
 every joint and at every value of its nonlinear parameter is a *candidate*:
 extra regressor columns built at full rate and decimated with W
-(:mod:`dynid.analysis.diagnosis.effect_observation`), or, for ``time_delay``, the model
+(`dynid.analysis.diagnosis.effect_observation`), or, for `time_delay`, the model
 re-fitted on the regressor of the motion shifted by d. Greedy forward
 selection:
 
@@ -14,18 +14,18 @@ selection:
    CV gain, which favours effects on quiet joints and candidates scored
    against another baseline, such as time_delay's full base model);
 3. take the best-ranked candidate that passes the selection rule and, with
-   ``base_guard``, is also significant against the *full base model* (so a
+   `base_guard`, is also significant against the *full base model* (so a
    rigid-body parameter the essential reduction dropped never returns as a
    "missing effect"); add it (its nonlinear parameter refined by a 1-D search:
    Stribeck's v_s, the delay d), re-identify by WLS (the starting model +
    the effects selected so far); with validation data and
-   ``confirm_on_validation``, keep it only if the validation error falls,
-   otherwise try the next candidate that passes (up to ``max_tries``);
-4. stop when none passes (or none is confirmed), or after ``max_effects``.
+   `confirm_on_validation`, keep it only if the validation error falls,
+   otherwise try the next candidate that passes (up to `max_tries`);
+4. stop when none passes (or none is confirmed), or after `max_effects`.
 
 After the selection, catalogue-free tests of the final residual
-(:mod:`dynid.analysis.diagnosis.structure`) report the joints whose residual
-still has structure no selected effect explains (``result.unexplained``).
+(`dynid.analysis.diagnosis.structure`) report the joints whose residual
+still has structure no selected effect explains (`result.unexplained`).
 
 Selection rule (why it does not fool itself)
 --------------------------------------------
@@ -36,28 +36,28 @@ too optimistic, and with ~200 candidates the best of them always looks
 "significant". Two checks, both required:
 
 * **Blocked cross-validation** (the ranking statistic). The decimated
-  samples are cut into ``folds`` (5) contiguous time blocks. For each block
+  samples are cut into `folds` (5) contiguous time blocks. For each block
   the model, and the model + candidate, are fitted on the other blocks minus
-  a guard of ``gap`` samples on each side of the held-out block (the
+  a guard of `gap` samples on each side of the held-out block (the
   decimation filter's half length: rows closer than that share full-rate
-  samples), and predict the held-out block. ``cv_gain`` is the fraction of
+  samples), and predict the held-out block. `cv_gain` is the fraction of
   the held-out (WLS-weighted) squared error the candidate removes; the
-  candidate must lower the held-out error in at least ``folds - 1`` blocks
+  candidate must lower the held-out error in at least `folds - 1` blocks
   (it is not carried by one segment).
 * **Likelihood-ratio test with the effective sample size, Bonferroni over
-  the candidates.** ``LR = Σ_j n_eff,j (SSE0_j - SSE1_j) / SSE1_j``, with
-  ``n_eff,j = n_j / tau_int,j`` the effective sample size of the candidate
-  model's residual on joint j (:func:`dynid.analysis.statistics.residuals.effective_sample_size`):
+  the candidates.** `LR = Σ_j n_eff,j (SSE0_j - SSE1_j) / SSE1_j`, with
+  `n_eff,j = n_j / tau_int,j` the effective sample size of the candidate
+  model's residual on joint j (`dynid.analysis.statistics.residuals.effective_sample_size`):
   the χ² statistic of adding k parameters, divided by the integrated
   autocorrelation time. Under "nothing is missing" LR is (conservatively)
   χ²_k; the p-value is multiplied by the number m of candidates scored at
   that step (Bonferroni, valid for correlated candidates) and must be below
-  ``alpha`` (0.01 by default), so the chance of adding *anything* to a
+  `alpha` (0.01 by default), so the chance of adding *anything* to a
   complete model is at most about alpha per step, whatever the number of
   candidates.
 
 Measured false-alarm rate (simulated TX40 with nothing missing, 12 s + 5 s at
-5 kHz, ``benchmarks/diagnosis_campaign.py``). With alpha = 0.05: 2 of 50 runs
+5 kHz, `benchmarks/diagnosis_campaign.py`). With alpha = 0.05: 2 of 50 runs
 (seeds 1-50) and 1 of 100 (seeds 51-150) selected an effect, 2 % overall,
 within the design level but one alarm from the benchmark's 5 % limit; the
 step-1 winner's Bonferroni p was below 0.1 in 4 % of the runs (the test is
@@ -67,7 +67,7 @@ default alpha = 0.01 was chosen after that measurement. With it: 1 of 50
 effect of the campaign (2-10 % of its joint's torque RMS) is still found, its
 smallest likelihood ratio (48, a 2-4 % spring) far above the threshold (~16).
 
-Also reported: ``ic_gain`` = LR - k ln(n_eff) (BIC computed with the effective
+Also reported: `ic_gain` = LR - k ln(n_eff) (BIC computed with the effective
 sample size; positive favours the candidate).
 
 Time delay. A delay is tested within the *full base model* (all base
@@ -82,11 +82,11 @@ Candidates that explain the same thing are told apart by their shape: the
 report ranks them by cv_gain and gives the gap between the winner and the
 runner-up (the best candidate of another effect or joint) and the fraction
 of held-out blocks in which the winner predicts better than the runner-up.
-Candidates with the same columns on these data (``offset`` and
-``asymmetric_coulomb`` of one joint: see :mod:`dynid.analysis.diagnosis.effects`) cannot be
+Candidates with the same columns on these data (`offset` and
+`asymmetric_coulomb` of one joint: see `dynid.analysis.diagnosis.effects`) cannot be
 told apart by any data of a moving joint; they are reported as aliases.
 A candidate whose columns are already in the span of the model (e.g.
-``offset`` where the model has ``Off_j``) is skipped.
+`offset` where the model has `Off_j`) is skipped.
 
 Code layout (one job per module): the candidate set (effects.py, effect_observation.py),
 the data and model fits (problem.py), scoring (scoring.py), the selection rule (rule.py),
@@ -169,19 +169,19 @@ def diagnose(experiment, robot, *, validation=None, idim_result=None, settings=N
              progress=None, structure_tests=True, start_model="essential", base_guard=True,
              max_tries=5, hidden_tests=True, physical_tests=True, reselect_essential=True,
              gear_ratios=None, rest_phases=True):
-    """Find what the identified model of ``robot`` lacks in ``experiment``.
+    """Find what the identified model of `robot` lacks in `experiment`.
 
     Parameters
     ----------
-    experiment : Experiment, or the :class:`EffectObservation` of one (to reuse its full-rate work)
+    experiment : Experiment, or the `EffectObservation` of one (to reuse its full-rate work)
     robot : Robot
     validation : Experiment or EffectObservation, optional
         Data the model was not fitted to: errors before/after are reported on it too.
     idim_result : IDIMResult, optional
-        The identification to start from (default: :func:`dynid.analysis.estimators.idim.identify_idim`
-        of ``experiment``, or of its observation).
-    settings : processing overrides for that identification (as ``identify_idim``).
-    effects : names of the effects to consider (default all of :data:`EFFECT_NAMES`).
+        The identification to start from (default: `dynid.analysis.estimators.idim.identify_idim`
+        of `experiment`, or of its observation).
+    settings : processing overrides for that identification (as `identify_idim`).
+    effects : names of the effects to consider (default all of `EFFECT_NAMES`).
     max_effects : most effects added (greedy forward selection).
     rng : accepted for API stability; the procedure is deterministic (contiguous folds).
     alpha : family-wise level of the LR test at each step (Bonferroni over the candidates);
@@ -189,53 +189,53 @@ def diagnose(experiment, robot, *, validation=None, idim_result=None, settings=N
     folds, gap : blocked cross-validation: number of contiguous blocks, and
         guard in decimated samples dropped from training on each side of the
         held-out block ("auto": the decimation filter's half length).
-    exclude_parameters : base parameters (names or prefixes, e.g. ``("Off",)``) removed
-        from the model before identifying (only when ``idim_result`` is None).
+    exclude_parameters : base parameters (names or prefixes, e.g. `("Off",)`) removed
+        from the model before identifying (only when `idim_result` is None).
     joints : 1-based joints whose effects are considered (default all).
     residual_analysis : compute the residual analyses before/after (for reports).
     max_error_growth : essential-parameter criterion of that identification (when
-        ``idim_result`` is None).
+        `idim_result` is None).
     progress : callable(fraction in [0, 1]) after each selection step (at most
-        ``max_effects + 1`` steps, so the fraction is an upper bound of the work left).
+        `max_effects + 1` steps, so the fraction is an upper bound of the work left).
     structure_tests : run the catalogue-free tests of the final residual
-        (:mod:`dynid.analysis.diagnosis.structure`); joints with structure no selected
-        effect explains are in ``result.unexplained``.
-    hidden_tests : when the identified parameters contradict ``robot.apriori``, fit with the
+        (`dynid.analysis.diagnosis.structure`); joints with structure no selected
+        effect explains are in `result.unexplained`.
+    hidden_tests : when the identified parameters contradict `robot.apriori`, fit with the
         a-priori values as a prior and test gravity-shaped springs the base parameters
-        absorbed (:mod:`dynid.analysis.diagnosis.hidden`); found ones are in ``result.hidden``.
-    reselect_essential : with ``start_model="essential"`` and effects selected, re-select the
+        absorbed (`dynid.analysis.diagnosis.hidden`); found ones are in `result.hidden`.
+    reselect_essential : with `start_model="essential"` and effects selected, re-select the
         essential parameters on the torque less those effects (kept if the validation error
         does not grow); the reduction of the identification ran with their torque in the residual.
     physical_tests : when no a-priori test found one and PC-WLS (cvxpy) says the data want a model
         no rigid body has, test the same springs on the physically consistent fit
-        (:func:`dynid.analysis.diagnosis.hidden.physical_effects`); found ones are in
-        ``result.hidden`` too (``route="physical"``).
-    start_model : the model the selection starts from: ``"essential"`` (default: the
-        essential WLS of the identification), ``"base"`` (all base parameters, WLS), or a
+        (`dynid.analysis.diagnosis.hidden.physical_effects`); found ones are in
+        `result.hidden` too (`route="physical"`).
+    start_model : the model the selection starts from: `"essential"` (default: the
+        essential WLS of the identification), `"base"` (all base parameters, WLS), or a
         list of base-parameter names (the set the user chose).
     base_guard : a candidate is added only if it is also significant (LR with n_eff,
         Bonferroni, alpha) against the *full base model* plus the effects so far, so that a
         rigid-body parameter the essential reduction dropped never comes back as a
         "missing effect" (e.g. a coupling from qdd restoring a dropped inertia term).
-        Why not ``start_model="base"`` by default: measured on the independent plant (8 s,
+        Why not `start_model="base"` by default: measured on the independent plant (8 s,
         179 decimated samples, 60 base parameters) the blocked CV of the full base model is
         dominated by the held-out variance of its poorly excited parameters (an injected
         4 N m Stribeck friction: CV gain -1.4 %, LR 345), while the guard keeps the
         essential model's CV and still rejects what the dropped parameters explain.
     max_tries : at each step, how many candidates that pass the rule are tried, best
-        ranked first, until one lowers the validation error (with ``confirm_on_validation``).
-    confirm_on_validation : with ``validation``, keep an effect that passes the rule only if
+        ranked first, until one lowers the validation error (with `confirm_on_validation`).
+    confirm_on_validation : with `validation`, keep an effect that passes the rule only if
         it also lowers the relative error norm on the validation data; otherwise the next
-        candidate that passes the rule is tried (up to ``max_tries``), and the selection
+        candidate that passes the rule is tried (up to `max_tries`), and the selection
         stops when none does. Blocked cross-validation inside one recording cannot see a
         pattern that holds in that recording only (on the real TX40, a 4th effect passes
         the rule but raises the error on the held-out 3 s). The validation errors after
-        are then no longer independent of the selection; ``False`` keeps them so.
+        are then no longer independent of the selection; `False` keeps them so.
     gear_ratios : gear ratios of the joints' motors: a flagged line at a harmonic of the motor
-        turn is named as such (default: the data description's ``[transmission]``).
+        turn is named as such (default: the data description's `[transmission]`).
     rest_phases : with validation data, choose the friction at rest per joint on the
         identification's rest rows and report the held-out error on all samples before/after
-        and its rest-phase share (:mod:`dynid.analysis.diagnosis.rest`).
+        and its rest-phase share (`dynid.analysis.diagnosis.rest`).
 
     Returns
     -------
@@ -420,7 +420,7 @@ def select_effects(setup, opts, progress=None):
 
 
 def _score_pool(setup, state, pool, weights, step, alpha):
-    """Score every candidate of ``pool`` against the model ``state``: (scorer, ranking, skipped, m)."""
+    """Score every candidate of `pool` against the model `state`: (scorer, ranking, skipped, m)."""
     problem, folds, gap = setup.problem, setup.folds, setup.gap
     col_pool = [c for c in pool if c.name != "time_delay"]
     shift_pool = [c for c in pool if c.name == "time_delay"]
@@ -445,7 +445,7 @@ def _score_pool(setup, state, pool, weights, step, alpha):
 
 def _decide_step(setup, opts, sel, st, scorer, weights, m):
     """Apply the selection rule to a scored step: (winner, candidate, new state, note) or None
-    (the selection stops; ``st.reason`` says why)."""
+    (the selection stops; `st.reason` says why)."""
     ranking, alpha, folds = st.ranking, opts.alpha, setup.folds
     if not ranking:
         st.reason = "no candidate outside the model's span"
@@ -492,7 +492,7 @@ def _decide_step(setup, opts, sel, st, scorer, weights, m):
 
 
 def _trial(setup, opts, sel, scorer, weights, w):
-    """Add the passing candidate ``w`` (nonlinear parameter refined) and refit; with validation
+    """Add the passing candidate `w` (nonlinear parameter refined) and refit; with validation
     data keep it only if the validation error falls: (w, candidate, state, note) or None."""
     problem, state, vprob = setup.problem, sel.state, setup.vprob
     st = sel.steps[-1]
@@ -679,7 +679,7 @@ def _final_ranking(sel):
 
 
 def _settings_record(setup, opts):
-    """The settings as reported (``result.settings``)."""
+    """The settings as reported (`result.settings`)."""
     return {"alpha": opts.alpha, "folds": setup.folds, "gap": setup.gap, "max_effects": opts.max_effects,
             "effects": list(opts.effects), "n_candidates": len(setup.cands), "rule": RULE,
             "alias_rtol": ALIAS_RTOL, "joints": opts.joints,

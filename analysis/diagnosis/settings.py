@@ -66,7 +66,7 @@ class DiagnosisSettings:
         Raises
         ------
         InputError
-            An unknown effect name, ``max_effects < 0``, ``alpha`` outside (0, 1) or
+            An unknown effect name, `max_effects < 0`, `alpha` outside (0, 1) or
             fewer than 3 folds.
         """
         effects = check_effect_names(self.effects)

@@ -1,6 +1,6 @@
 """Catalogue-free tests of the final residual: structure that no selected effect explains.
 
-After the forward selection (:func:`dynid.analysis.diagnosis.selection.diagnose`) the
+After the forward selection (`dynid.analysis.diagnosis.selection.diagnose`) the
 residual of each joint j (decimated, fitted rows) is tested for structure of any
 shape, without a candidate list. The residual is that of the *full* base model plus the
 selected effects (issue 13 item 1): what the essential reduction dropped is explained by
@@ -9,14 +9,14 @@ joint 1: the 24-parameter essential model left 5.6 x the noise floor on wrist jo
 and 6, whose parameters it had dropped because joint 1's large residual dominated the
 error criterion; the full base model leaves them at the floor). The tests:
 
-* **dependence** on a variable x: ``q_j``, ``qd_j``, ``qdd_j``, ``t``, the friction
-  level over time (``e_j sign(qd_j)`` against ``t``: a friction whose level
+* **dependence** on a variable x: `q_j`, `qd_j`, `qdd_j`, `t`, the friction
+  level over time (`e_j sign(qd_j)` against `t`: a friction whose level
   drifts changes sign with the velocity, so its time means are zero) and the
-  other joints' ``q_i``, ``qd_i``. Statistic: ``S = sum_b n_b m_b^2`` of the
-  binned means ``m_b`` of the residual in ``BINS`` equal-count bins of x;
+  other joints' `q_i`, `qd_i`. Statistic: `S = sum_b n_b m_b^2` of the
+  binned means `m_b` of the residual in `BINS` equal-count bins of x;
 * **spectral lines against position**: the residual resampled on a uniform grid
-  of ``q_j`` (sums per bin) and Fourier transformed: ``F(k) = sum_i e_i
-  exp(-i k q_i)``, every order k the grid resolves (high orders too: a k = 50
+  of `q_j` (sums per bin) and Fourier transformed: `F(k) = sum_i e_i
+  exp(-i k q_i)`, every order k the grid resolves (high orders too: a k = 50
   motor ripple has a period of 0.13 rad);
 * **a step in time**: the largest excursion of the cumulative sum of the
   (centred) residual (CUSUM);
@@ -24,27 +24,27 @@ error criterion; the full base model leaves them at the floor). The tests:
   variance against the variance that the recording's own torque noise has
   after the same dead zone and decimation filter (the noise's standard
   deviation from the second differences of the full-rate torque,
-  ``var(d2 tau) / 6``; a white sequence of that variance passed through
-  :meth:`EffectObservation.decimate`). The residual of even a correct model is
+  `var(d2 tau) / 6`; a white sequence of that variance passed through
+  `EffectObservation.decimate`). The residual of even a correct model is
   coloured by the decimation filter, so a Ljung-Box test on it always rejects;
   comparing with the noise the data show does not.
   The floor is only estimated where the full-rate torque's increments are white:
-  ``r = var(d3 tau) / var(d2 tau)`` is 20/6 = 3.33 for white noise (measured
+  `r = var(d3 tau) / var(d2 tau)` is 20/6 = 3.33 for white noise (measured
   3.31-3.37 on the independent plant) and far below 1 for a torque low-pass
   filtered upstream (0.001-0.003 on the KUKA LWR4+ recordings of examples/,
   filtered at 2 Hz by their source; 0.012 on plant data filtered at 100 Hz). Below
-  ``WHITE_MIN`` (2) the joint's floor is unknown: its noise-floor test is not run
+  `WHITE_MIN` (2) the joint's floor is unknown: its noise-floor test is not run
   (a filtered torque's second differences hold almost no noise, so the floor
   would come out 100-1000 x too low and flag every joint), and its permutation
   block length uses the residual's own autocorrelation time too (the noise left
   after an upstream filter below the decimation cutoff is more correlated than
   white noise through the decimation filter).
   The floor also holds the **position noise carried through the model** (errors in
-  variables: ``M(q) dqdd + dg/dq dq + ...``, the noise after the position filter and
-  the differentiation): :func:`position_noise_residual` adds one more white sequence of
+  variables: `M(q) dqdd + dg/dq dq + ...`, the noise after the position filter and
+  the differentiation): `position_noise_residual` adds one more white sequence of
   the recording's own position-noise level (from the third differences of the full-rate
-  positions, ``var(d3 q) / 20``, only where their increments are white: ``var(d4 q) /
-  var(d3 q)`` ~ 3.5) and processes the recording again; the change of the residual is
+  positions, `var(d3 q) / 20`, only where their increments are white: `var(d4 q) /
+  var(d3 q)` ~ 3.5) and processes the recording again; the change of the residual is
   that noise's contribution. Measured on the independent plant (2e-5 rad position noise):
   clean KUKA LWR4+ joint 2, residual 0.0395 N m, 0.0134 with the plant's true positions,
   torque-noise floor alone 0.0124 (ratio 3.2, flagged "coloured" before), position-noise
@@ -55,38 +55,38 @@ not produce alarms). The residual's rows are serially correlated, and the
 variables are smooth functions of time, so counting rows as independent would
 flag everything. Each dependence/line/step statistic is compared with its
 distribution under **block permutation** of the residual (contiguous blocks
-of ``L`` rows moved together, the variables kept in place: the residual's own
+of `L` rows moved together, the variables kept in place: the residual's own
 autocorrelation within a block is kept, its alignment with the motion
-destroyed). ``L`` is at least three integrated autocorrelation times of the
+destroyed). `L` is at least three integrated autocorrelation times of the
 decimated noise and at least twice the decimation guard. With
-``N_PERM`` permutations the tail is extrapolated from the permutation moments:
-a scaled chi-square matched to the mean and variance for ``S``
+`N_PERM` permutations the tail is extrapolated from the permutation moments:
+a scaled chi-square matched to the mean and variance for `S`
 (Satterthwaite), the Kolmogorov distribution scaled by its mean for the
-CUSUM, and for the spectral line ``p = K exp(-P(k) / P_null(k))`` (the
+CUSUM, and for the spectral line `p = K exp(-P(k) / P_null(k))` (the
 periodogram ordinate over its permutation mean is ~ Exp(1); K orders). The
-noise-floor test uses ``chi2(n_eff)`` with the effective sample size of the
+noise-floor test uses `chi2(n_eff)` with the effective sample size of the
 decimated noise. p-values are Bonferroni-adjusted over all tests and joints.
 
 Rows at the dead-zone edge. The tests leave out the decimated rows with
-``|qd_j| < EDGE_FACTOR x qd_threshold_j`` (EDGE_FACTOR = 3): dynid's friction model
-has ``Fc sign(qd)``, a real friction rises to its Coulomb level over a small speed
+`|qd_j| < EDGE_FACTOR x qd_threshold_j` (EDGE_FACTOR = 3): dynid's friction model
+has `Fc sign(qd)`, a real friction rises to its Coulomb level over a small speed
 range, and where that range is wider than the dead zone (dynid's default, 1 % of the
 peak speed) the rows just outside it carry the mismatch the dead zone exists to
-drop. Measured on the independent plant (``Fc tanh(qd / 0.01)``), default dead
+drop. Measured on the independent plant (`Fc tanh(qd / 0.01)`), default dead
 zone: the clean KUKA LWR4+ joint 2 residual is 2.1 x its noise floor with those rows
 (flagged "coloured"), at the floor without them. An effect that lives only below
 three dead-zone widths is thereby not tested; every effect of the campaign reaches
 well beyond (a Stribeck v_s of 0.2 rad/s against dead zones of 0.01-0.02 rad/s).
 
 Rule for "unexplained" (documented choice). A joint is reported as
-**unexplained** when some test on it has a Bonferroni p below ``alpha``
+**unexplained** when some test on it has a Bonferroni p below `alpha`
 (0.01) **and** the structure is large against the noise:
 
 * dependence, line, step: the structure's RMS (binned means, line amplitude
-  or step, minus its permutation-null expectation) is at least ``MIN_RATIO``
+  or step, minus its permutation-null expectation) is at least `MIN_RATIO`
   (0.5) times the RMS of the rest of the residual (it carries >= 20 % of the
   residual variance);
-* noise floor: the residual RMS is at least ``FLOOR_RATIO`` (2) times the
+* noise floor: the residual RMS is at least `FLOOR_RATIO` (2) times the
   torque-noise floor, and no variable explains it ("time (coloured residual)").
 
 Why both. Significance alone flags tiny, harmless mismatches on long
@@ -98,7 +98,7 @@ residual RMS is 1.0-1.3 x the torque-noise floor (0.011-0.013 N m) and no joint
 is flagged; a 1.5 N m order-50 ripple on joint 3 (outside the catalogue) is
 flagged on joint 3 alone, period 0.126-0.128 rad (true 0.1257), RMS ~1 N m,
 Bonferroni p ~1e-19-1e-24; a friction warm-up (25 %, time constant 3 s) on
-joints 1 and 2 is named (``drift``, friction level) and what the linear drift
+joints 1 and 2 is named (`drift`, friction level) and what the linear drift
 leaves of the exponential is flagged on those two joints only. The 2 x floor
 threshold leaves a margin over the clean 1.3 x; a smooth Coulomb onset that the
 model's sign(qd) lacks (the plant's tanh(qd / 0.01)) reaches 3 x on joint 2
@@ -113,7 +113,7 @@ decimation removes). A line at an order the decimation filter removes at the
 recorded speeds is still reported: the torque has it, the decimated model
 cannot see it (on the real TX40 recording of examples/, joints 1 and 2 show a
 line of period 0.0041 rad, ~1.8 and ~0.5 N m, in the full-rate torque).
-The reported ``depends_on`` is the variable of the flagged test with the
+The reported `depends_on` is the variable of the flagged test with the
 largest structure RMS.
 """
 from __future__ import annotations
@@ -247,7 +247,7 @@ def noise_floor(eobs, seed=0):
     """(floor_rms (n,), decimated unit noise (M, n)): torque-noise RMS after the decimation.
 
     The full-rate torque noise std per joint is estimated from second
-    differences (``var(d2 tau)/6`` for white noise; the smooth closed-loop torque
+    differences (`var(d2 tau)/6` for white noise; the smooth closed-loop torque
     contributes little at the full rate). A white sequence of unit variance goes
     through the same dead zone and decimation as the torque.
     """
@@ -263,7 +263,7 @@ def noise_floor(eobs, seed=0):
 
 
 def whiteness(tau):
-    """``var(d3 tau) / var(d2 tau)`` per joint (robust variances, MAD): 20/6 = 3.33 for white
+    """`var(d3 tau) / var(d2 tau)` per joint (robust variances, MAD): 20/6 = 3.33 for white
     noise, << 1 when the torque was low-pass filtered before it was recorded."""
     tau = np.asarray(tau, dtype=float)
 
@@ -277,9 +277,9 @@ def whiteness(tau):
 
 def position_noise(q):
     """(sigma_q (n,), ratio (n,)): position-noise std per joint from the third differences of
-    the full-rate positions (``var(d3 q) = 20 sigma^2`` for white noise; robust variances, MAD),
-    and ``var(d4 q) / var(d3 q)`` (70/20 = 3.5 for white noise). Where the ratio is below
-    :data:`WHITE_Q_MIN` the third differences are not noise (positions filtered or quantised
+    the full-rate positions (`var(d3 q) = 20 sigma^2` for white noise; robust variances, MAD),
+    and `var(d4 q) / var(d3 q)` (70/20 = 3.5 for white noise). Where the ratio is below
+    `WHITE_Q_MIN` the third differences are not noise (positions filtered or quantised
     upstream, or too smooth to show it): sigma_q is 0 there."""
     q = np.asarray(q, dtype=float)
 
@@ -295,15 +295,15 @@ def position_noise(q):
 
 def position_noise_residual(experiment, robot, eobs, cols, chi, seed=0, n_draws=2):
     """(delta (n_draws, M, n) or None, sigma_q (n,)): what the recording's own position noise does
-    to the decimated residual of the model ``(cols, chi)`` (base-regressor columns of ``eobs.obs.W`` and
+    to the decimated residual of the model `(cols, chi)` (base-regressor columns of `eobs.obs.W` and
     their values).
 
     The residual of even the true model carries the position noise through the regressor
-    (errors in variables: ``M(q) dqdd + dg/dq dq + ...`` with ``dq`` the noise after the
+    (errors in variables: `M(q) dqdd + dg/dq dq + ...` with `dq` the noise after the
     position filter and the differentiation), on top of the torque noise. One more white
-    sequence of std sigma_q (:func:`position_noise`) is added to the recorded positions and
+    sequence of std sigma_q (`position_noise`) is added to the recorded positions and
     the recording processed again with the same settings (filter, differentiation, dead
-    zone, decimation); ``delta`` is the change of the residual ``tau - W chi``, one per draw
+    zone, decimation); `delta` is the change of the residual `tau - W chi`, one per draw
     (its RMS varies between draws: 0.029-0.039 N m below, the dead-zone rows that flip make it
     spiky). To first order in the noise it has the distribution of the position noise's
     contribution (the dead-zone rows that flip are part of it). Measured on the independent plant (KUKA LWR4+, clean,
@@ -416,7 +416,7 @@ def _line_confirmation(gi, e, sel, L, n_perm, rng):
     0.0017 rad on joint 1 at p = 0.008, in every case of that seed. A line of the robot
     is a function of position, so it is the same in both halves of the recording. The
     order is searched in one half (in time) and the ordinate at that order (and the
-    bins beside it) is tested in the other, without a search: ``p = 3 exp(-z)``; both
+    bins beside it) is tested in the other, without a search: `p = 3 exp(-z)`; both
     directions, the smaller p times 2. The line must pass both this and the full-data
     test (the larger p is kept).
     """

@@ -2,23 +2,23 @@
 
 DIDIM (Gautier, Janot & Vandanjon 2010, section 3) simulates the robot under its
 controller; the paper assumes the gains are known. When the controller's
-*structure* is known but not its gains, and the reference ``qr`` is logged, the
+*structure* is known but not its gains, and the reference `qr` is logged, the
 gains follow from the control law itself, which is linear in them. Per joint
-``j``, at the controller samples (the law of :mod:`dynid.dynamics.simulation`)::
+`j`, at the controller samples (the law of `dynid.dynamics.simulation`)::
 
     tau_j = Kp_j e_j + Kd_j (c qdr_j - qd_j) + Ki_j I_j + b_j,   e = qr - q,  I_k = T sum_{i<=k} e_i
 
-with ``c = 1`` when the controller feeds the reference velocity forward and 0
-otherwise, and ``b_j`` the unknown initial state of the integral (PID only).
+with `c = 1` when the controller feeds the reference velocity forward and 0
+otherwise, and `b_j` the unknown initial state of the integral (PID only).
 The controller's velocity is rarely the central derivative of q: a backward
 difference lags it by T/2, a semi-implicit integrator's state by half a step, an
-observer by its delay ``delta``. ``Kd qd(t - delta) = Kd qd - Kd delta qdd``, so a
-column ``qdd`` with coefficient ``Ka = Kd delta`` absorbs the lag (without it, a lag
+observer by its delay `delta`. `Kd qd(t - delta) = Kd qd - Kd delta qdd`, so a
+column `qdd` with coefficient `Ka = Kd delta` absorbs the lag (without it, a lag
 of 25 us biased Kp1 by +1 % on the TX40 plant, noise-free).
 In dynid's normalised form (eq. (30)) they are
-``kv = Kd g_ap / (g J_ap)``, ``kp = Kp / Kd``, ``wn = sqrt(kp kv)``,
-``zeta = kv / (2 wn)``, ``ki = Ki g_ap / (g J_ap)``, with the robot file's ``J_ap``,
-``g_ap`` and drive gain ``g``: only the products are determined, which is all
+`kv = Kd g_ap / (g J_ap)`, `kp = Kp / Kd`, `wn = sqrt(kp kv)`,
+`zeta = kv / (2 wn)`, `ki = Ki g_ap / (g J_ap)`, with the robot file's `J_ap`,
+`g_ap` and drive gain `g`: only the products are determined, which is all
 the simulation uses.
 
 q, qr and tau go through the same zero-phase low-pass (parallel filtering: the
@@ -26,20 +26,20 @@ law, linear and time-invariant, holds between the filtered signals exactly).
 Encoder noise in q is noise in the regressors e, qd and I, which biases least
 squares towards zero gains (errors in variables; on a stiff joint whose velocity
 error is small, Kd by tens of %). The bias is removed by corrected least squares
-(Fuller 1987, ch. 2): ``(X'X - X_n'X_n) beta = X'y``, with ``X_n'X_n`` the Gram
+(Fuller 1987, ch. 2): `(X'X - X_n'X_n) beta = X'y`, with `X_n'X_n` the Gram
 matrix of the regressors built from white noise of the encoder noise level
 (estimated from the band above fs/4, where the motion has nothing, unless
-``noise_q`` is given) through the same processing.
+`noise_q` is given) through the same processing.
 
-Samples where the torque is within 0.1 % of ``tau_max`` (saturation) and the
+Samples where the torque is within 0.1 % of `tau_max` (saturation) and the
 filter transients at both ends are left out.
 
 The equation error of that fit is the controller applied to the encoder noise,
-``K(s) n``, whose power grows as ``(Kd w)^2``: Kd is drawn from the band where the
+`K(s) n`, whose power grows as `(Kd w)^2`: Kd is drawn from the band where the
 noise is strongest. The second pass is generalised least squares: the law and its
-columns filtered by ``F = 1 / K(s)`` of the first pass (bilinear, causal; the law,
-LTI, still holds), whose error is about ``n``, with the noise Gram recomputed through
-F. The integral column becomes stationary and the initial state ``b`` dies out with
+columns filtered by `F = 1 / K(s)` of the first pass (bilinear, causal; the law,
+LTI, still holds), whose error is about `n`, with the noise Gram recomputed through
+F. The integral column becomes stationary and the initial state `b` dies out with
 F's transient (skipped on a joint with saturated samples, where F would smear the
 samples where the law does not hold). On the TX40 plant this took the sigma of Kd1
 from 1.3-2 % to 0.3-0.55 %.
@@ -71,7 +71,7 @@ __all__ = ["GainsResult", "identify_gains"]
 
 @dataclass(eq=False)
 class GainsResult(ParameterResults):
-    """Identified controller gains per joint (``Kp1, Kd1[, Ki1], ...``), physical units."""
+    """Identified controller gains per joint (`Kp1, Kd1[, Ki1], ...`), physical units."""
 
     names: list
     chi: np.ndarray
@@ -87,7 +87,7 @@ class GainsResult(ParameterResults):
     method = "controller gains (LS on the control law)"
 
     def gain(self, kind: str) -> np.ndarray:
-        """``Kp``, ``Kd`` or ``Ki`` of every joint (zeros for ``Ki`` of a PD)."""
+        """`Kp`, `Kd` or `Ki` of every joint (zeros for `Ki` of a PD)."""
         out = np.zeros(self.n_joints)
         for j in range(self.n_joints):
             name = f"{kind}{j + 1}"
@@ -138,12 +138,12 @@ def _noise_moments(fs, fc, *, N, T):
     """Second moments of the regressor columns built from unit white encoder noise, per sample.
 
     White noise n of unit variance enters the columns through stationary filters: e as
-    ``-H n``, the velocity column as ``-D H n``, the acceleration column as ``+D^2 H n``
+    `-H n`, the velocity column as `-D H n`, the acceleration column as `+D^2 H n`
     (H dynid's zero-phase low-pass, D its central difference), and the integral column
-    as the running sum ``S = -T sum_{i<=k} H n_i``. For two stationary columns with
-    impulse responses f_a, f_b, ``E[x_a x_b] = sum f_a f_b``; with the integral,
-    ``E[S_k x_b,k] = T sum_{m<=k} R(m)``, R the cross-correlation of the filter of e and
-    f_b, and ``E[S_k^2] = T^2 ((k+1) r(0) + 2 sum_{m=1..k} (k+1-m) r(m))``, r the
+    as the running sum `S = -T sum_{i<=k} H n_i`. For two stationary columns with
+    impulse responses f_a, f_b, `E[x_a x_b] = sum f_a f_b`; with the integral,
+    `E[S_k x_b,k] = T sum_{m<=k} R(m)`, R the cross-correlation of the filter of e and
+    f_b, and `E[S_k^2] = T^2 ((k+1) r(0) + 2 sum_{m=1..k} (k+1-m) r(m))`, r the
     autocorrelation of H. Exact where the filter is away from the ends.
     """
     L = int(8 * fs / fc) + 8
@@ -167,7 +167,7 @@ def _noise_moments(fs, fc, *, N, T):
 
 
 def _whitening_filter(Kp, Kd, Ki, fs):
-    """Discrete (bilinear) ``F(s) = 1 / K(s)``, K = Kp + Kd s (+ Ki / s): (b, a) for lfilter."""
+    """Discrete (bilinear) `F(s) = 1 / K(s)`, K = Kp + Kd s (+ Ki / s): (b, a) for lfilter."""
     if Ki > 0:
         return bilinear([1.0, 0.0], [Kd, Kp, Ki], fs)
     return bilinear([1.0], [Kd, Kp], fs)
@@ -186,7 +186,7 @@ def _whitened_gram(mom, cols, n_rows, ba, settle) -> np.ndarray:
 
 
 def _noise_gram(mom, cols, rows) -> np.ndarray:
-    """E[X_n' X_n] over ``rows`` for the columns ``cols`` built from unit encoder noise."""
+    """E[X_n' X_n] over `rows` for the columns `cols` built from unit encoder noise."""
     # ff and b hold no noise (the reference is exact; b is the integral's initial state)
     n_rows = float(np.count_nonzero(rows))
     filt = mom["filters"]
@@ -204,7 +204,7 @@ def _noise_gram(mom, cols, rows) -> np.ndarray:
 
 
 def _newey_west(psi, lags) -> np.ndarray:
-    """Newey-West long-run covariance ``sum_|l|<=L w_l sum_k psi_k+l psi_k'``, Bartlett weights.
+    """Newey-West long-run covariance `sum_|l|<=L w_l sum_k psi_k+l psi_k'`, Bartlett weights.
 
     The lagged sums come from one FFT cross-correlation of the columns (the window spans
     the filters' memory, hundreds to thousands of samples).
@@ -224,7 +224,7 @@ def _hac_lags(n_rows: int) -> int:
 
 
 def position_noise_level(q, fs) -> np.ndarray:
-    """Per-joint standard deviation of white noise on ``q``, from its content above fs/4.
+    """Per-joint standard deviation of white noise on `q`, from its content above fs/4.
 
     The estimator (power above fs/4 after dynid's zero-phase low-pass) is
     calibrated on unit white noise, so it is unbiased for white noise.

@@ -4,7 +4,7 @@ Gautier, Janot, Vandanjon (2010), *Dynamic identification of a 6 dof
 industrial robot without joint position data*, section 3. DIDIM is a
 closed-loop output-error method: the robot is simulated in closed loop under
 the same control law and with the same reference as the actual robot, and the
-parameters minimise ``||Y(tau) - Y_s(tau_ddm)||``. The Gauss-Newton step is
+parameters minimise `||Y(tau) - Y_s(tau_ddm)||`. The Gauss-Newton step is
 an IDIM least-squares problem (eqs. (18)-(24)) whose regressor is built from
 the *simulated* states::
 
@@ -19,41 +19,41 @@ the *simulated* states::
       3. per-joint WLS: chi^k and rho_k = Y - W_k chi^k;
       4. stop when |(||rho_k|| - ||rho_{k-1}||)| / ||rho_{k-1}|| <= tol_I.
 
-So ``k`` counts least-squares solves ("steps"). The paper's TX40 needs 1 step
+So `k` counts least-squares solves ("steps"). The paper's TX40 needs 1 step
 for the optimum and a second one to see that the residual no longer changes
 (Table 2 is "after 2 steps"). The result reports the estimate of the last
 step, with the statistics of its WLS (eqs. (13)-(16)); optionally the
 essential parameters (Pham & Gautier) by the same backward elimination as
 IDIM, on the last step's W.
 
-Documented choices (all in ``DIDIMResult.settings``, all overridable through
-``settings=``):
+Documented choices (all in `DIDIMResult.settings`, all overridable through
+`settings=`):
 
-* **Initialisation** (eqs. (31)-(32)): chi^0 = 0 except ``Ia_j = 1``. A motor
-  ``m`` coupled with joints ``k != m`` with coefficients ``c`` (rotor speed
-  ``sum c_k qd_k``) adds ``Ia_m c_k c_l / c_m^2`` off the diagonal of M; dynid
-  absorbs its diagonal share ``(c_k / c_m)^2 Ia_m`` into ``Ia_k``. So joint
-  ``k`` gets ``Ia_k = 1 + (c_k / c_m)^2``: the rotor of ``k`` keeps a unit
+* **Initialisation** (eqs. (31)-(32)): chi^0 = 0 except `Ia_j = 1`. A motor
+  `m` coupled with joints `k != m` with coefficients `c` (rotor speed
+  `sum c_k qd_k`) adds `Ia_m c_k c_l / c_m^2` off the diagonal of M; dynid
+  absorbs its diagonal share `(c_k / c_m)^2 Ia_m` into `Ia_k`. So joint
+  `k` gets `Ia_k = 1 + (c_k / c_m)^2`: the rotor of `k` keeps a unit
   inertia of its own and the coupled rotor adds the positive semi-definite
-  ``c c^T / c_m^2``, so ``M(q, chi^0) = I + c c^T / c_m^2`` (restricted to the
-  coupled joints) is positive definite. With ``Ia_k = 1`` instead the TX40
-  wrist block would be ``[[1, 1], [1, 1]]``, singular. For the TX40
-  (``c = (1, 1)``, motor 6) this gives the paper's ``Ia5 = 2`` and the wrist
-  block ``[[2, 1], [1, 1]]`` (eigenvalues 0.38 and 2.62); all other joints see
-  ``M = I``. (The per-joint gain update sees only the diagonal, 2 and 1, so the
+  `c c^T / c_m^2`, so `M(q, chi^0) = I + c c^T / c_m^2` (restricted to the
+  coupled joints) is positive definite. With `Ia_k = 1` instead the TX40
+  wrist block would be `[[1, 1], [1, 1]]`, singular. For the TX40
+  (`c = (1, 1)`, motor 6) this gives the paper's `Ia5 = 2` and the wrist
+  block `[[2, 1], [1, 1]]` (eigenvalues 0.38 and 2.62); all other joints see
+  `M = I`. (The per-joint gain update sees only the diagonal, 2 and 1, so the
   two wrist modes of the first simulation run at 0.59 and 3.4 times the
   designed loop gain: fine at 5 kHz, unstable at 1 kHz with wn = 400 rad/s.)
-* **Gain update** (section 3.2, ``update_gains``): before simulating with
-  chi^{k-1}, ``kd_scale_j = J_j / J_ap_j`` with ``J_j = max_q M_jj(q,
-  chi^{k-1})`` (eq. (27): dynid's M already contains ``ZZ_j + Ia_j``, so J_j is
+* **Gain update** (section 3.2, `update_gains`): before simulating with
+  chi^{k-1}, `kd_scale_j = J_j / J_ap_j` with `J_j = max_q M_jj(q,
+  chi^{k-1})` (eq. (27): dynid's M already contains `ZZ_j + Ia_j`, so J_j is
   the largest diagonal inertia), the maximum taken over the configurations of
-  the previous simulation (of the reference ``qr`` for the first one), sampled
-  every ``1 / j_rate`` s (1 ms). ``True`` (the paper, default): at every step.
-  ``False``: never (``kd_scale = 1``, the controller as described).
-  ``"initial"``: only for the simulation of chi^0.
+  the previous simulation (of the reference `qr` for the first one), sampled
+  every `1 / j_rate` s (1 ms). `True` (the paper, default): at every step.
+  `False`: never (`kd_scale = 1`, the controller as described).
+  `"initial"`: only for the simulation of chi^0.
 
   What the update does: the simulated loop becomes the *designed* one
-  (``wn``, ``zeta`` of the normalised double integrator) whatever chi^k is;
+  (`wn`, `zeta` of the normalised double integrator) whatever chi^k is;
   that equals the actual loop when the actual controller's a-priori J_ap is
   right (J_ap = max_q M_jj of the real robot). Measured on Pinocchio data of
   the TX40 (tests/test_didim.py): with the actual loop as designed, the update
@@ -62,56 +62,56 @@ Documented choices (all in ``DIDIMResult.settings``, all overridable through
   1.5 % low). When instead the *actual* controller runs with
   a wrong J_ap, the update makes the simulated loop differ from the actual one
   at every step and biases the estimate (Ia6 +20 % on the TX40 at wn = 200
-  rad/s); ``"initial"`` or ``False`` are then exact, since at convergence the
+  rad/s); `"initial"` or `False` are then exact, since at convergence the
   simulated robot with the actual gains is the actual robot. With a soft loop
-  (wn = 60 rad/s, the assumed gains of ``tx40.toml``) the update also slows the
+  (wn = 60 rad/s, the assumed gains of `tx40.toml`) the update also slows the
   iteration down (it makes the simulated tracking error depend on the ratio
   of the estimated friction to the estimated inertia).
-* **Step safeguard**: an estimate whose ``M(q)`` is not positive definite at
+* **Step safeguard**: an estimate whose `M(q)` is not positive definite at
   the previous simulation's configurations, or whose simulation fails, is
   moved back towards the last simulated estimate by halving its step (at most
-  ``max_step_halvings`` times; history column ``step_length``). The paper's
+  `max_step_halvings` times; history column `step_length`). The paper's
   iteration would stop there; a damped step is simulated instead, and
-  convergence is only declared after a full step. PC-DIDIM (``physical=True``)
+  convergence is only declared after a full step. PC-DIDIM (`physical=True`)
   also halves a step that raises the output error ||tau - tau_sim|| above the
   last simulated estimate's (a projected Gauss-Newton step needs that descent
   test; the halved steps stay physical, the set being convex); the smallest
   step is taken untested.
-* **Initial state and transient**: the simulation starts at ``(qr(0),
-  qdr(0))``; the first ``transient`` seconds (default ``5 / min(wn)``, the
+* **Initial state and transient**: the simulation starts at `(qr(0),
+  qdr(0))`; the first `transient` seconds (default `5 / min(wn)`, the
   text after eq. (32)) are dropped from the identification data.
-* **Simulation**: the robot's controller (``robot.controller`` or
-  ``controller=``) with velocity feedforward by default (``feedforward``, as
-  :mod:`dynid.analysis.data.synthetic` records its data), no torque saturation for the
-  simulated robot (``saturate=False``: the initial robot ``M = I`` needs far more
+* **Simulation**: the robot's controller (`robot.controller` or
+  `controller=`) with velocity feedforward by default (`feedforward`, as
+  `dynid.analysis.data.synthetic` records its data), no torque saturation for the
+  simulated robot (`saturate=False`: the initial robot `M = I` needs far more
   torque than the real one; the actual drive's limits say nothing about it),
-  Coulomb friction smoothed over ``v_s`` rad/s, and as many RK4
-  substeps as keep ``h * lambda_friction <= 1.5`` (``substeps="auto"``). The
-  reference velocity is the second-order finite difference of ``qr``.
-* **Coulomb smoothing** ``v_s`` (default ``"auto"``): chosen from the data by the
-  output error DIDIM minimises (see :func:`_identify_auto_v_s`): converge at 0.05 rad/s,
+  Coulomb friction smoothed over `v_s` rad/s, and as many RK4
+  substeps as keep `h * lambda_friction <= 1.5` (`substeps="auto"`). The
+  reference velocity is the second-order finite difference of `qr`.
+* **Coulomb smoothing** `v_s` (default `"auto"`): chosen from the data by the
+  output error DIDIM minimises (see `_identify_auto_v_s`): converge at 0.05 rad/s,
   walk a factor-2 grid while the residual ||rho|| falls by more than tol_I, refine once
   at a parabola's vertex in log v_s, converge again at the best. A robot whose friction is
   sharper than the simulated one is another robot near the velocity reversals (Ia3 +3 to
-  +6 % on the independent plant at 0.05). ``settings["v_s"]`` is the value used,
-  ``settings["v_s_choice"]`` how it was chosen (``"given"`` for a number), and
-  ``settings["v_s_scan"]`` the candidates with their ||rho||; ``history["v_s"]`` the
+  +6 % on the independent plant at 0.05). `settings["v_s"]` is the value used,
+  `settings["v_s_choice"]` how it was chosen (`"given"` for a number), and
+  `settings["v_s_scan"]` the candidates with their ||rho||; `history["v_s"]` the
   width each step simulated. If DIDIM does not converge at 0.05, v_s is not searched.
-* **Decimation and dead zone**: ``nd`` and the low-pass cut-off as IDIM
-  derives them from the data (:func:`dynid.analysis.processing.signals.default_settings` on
-  ``qr``; the paper's 100 and 20 Hz at 5 kHz); the velocity dead zone of
-  :func:`dynid.analysis.processing.signals.velocity_dead_zone` (``qd_threshold``, default ``"auto"`` = 1 % of
+* **Decimation and dead zone**: `nd` and the low-pass cut-off as IDIM
+  derives them from the data (`dynid.analysis.processing.signals.default_settings` on
+  `qr`; the paper's 100 and 20 Hz at 5 kHz); the velocity dead zone of
+  `dynid.analysis.processing.signals.velocity_dead_zone` (`qd_threshold`, default `"auto"` = 1 % of
   each joint's peak *reference* speed, so the thresholds stay fixed over the
   iterations) applied to the simulated velocities, widened by
-  ``dead_zone_guard`` s on each side (default 5 ms: the simulated and the
+  `dead_zone_guard` s on each side (default 5 ms: the simulated and the
   actual velocity cross zero at slightly different times).
-* ``fc_position``, ``order`` and ``edge`` (IDIM's position filter) do not
+* `fc_position`, `order` and `edge` (IDIM's position filter) do not
   apply: the simulated derivatives are exact. They are accepted and ignored
   with a notice so that IDIM's processing settings can be passed as they are.
 
-Convergence: ``converged`` is True only when the criterion was met within
-``max_iter`` steps; otherwise (or when a simulation fails) the result says
-why in ``stop_reason`` and never pretends to have converged (the command line
+Convergence: `converged` is True only when the criterion was met within
+`max_iter` steps; otherwise (or when a simulation fails) the result says
+why in `stop_reason` and never pretends to have converged (the command line
 maps that to exit code 3).
 """
 from __future__ import annotations
@@ -188,15 +188,15 @@ CHUNK = 10_000
 class DIDIMResult(ModelResults):
     """Everything a DIDIM identification produced.
 
-    ``result`` is the per-joint WLS of the last Gauss-Newton step on all base
-    parameters (the DIDIM estimate); ``essential`` the essential parameters
-    found from it (or None). ``history`` has one row per step (see
-    :func:`identify_didim`). Full-rate arrays of the last simulation (for
-    Fig. 7): ``t``, ``q_sim``, ``qr``, ``tau`` (measured), ``tau_sim`` (=
+    `result` is the per-joint WLS of the last Gauss-Newton step on all base
+    parameters (the DIDIM estimate); `essential` the essential parameters
+    found from it (or None). `history` has one row per step (see
+    `identify_didim`). Full-rate arrays of the last simulation (for
+    Fig. 7): `t`, `q_sim`, `qr`, `tau` (measured), `tau_sim` (=
     IDM(q_sim, qd_sim, qdd_sim) chi_hat, the final model on the simulated
-    motion) and ``tau_ddm`` (the torque the simulated controller applied). The
-    decimated system of the last step (for Fig. 6): ``t_dec``, ``tau_dec`` (Y),
-    ``tau_est_dec`` (W_delta chi_hat), ``W_dec``, ``row_mask``.
+    motion) and `tau_ddm` (the torque the simulated controller applied). The
+    decimated system of the last step (for Fig. 6): `t_dec`, `tau_dec` (Y),
+    `tau_est_dec` (W_delta chi_hat), `W_dec`, `row_mask`.
     """
 
     robot_name: str
@@ -312,9 +312,9 @@ class DIDIMResult(ModelResults):
     def to_dict(self) -> dict:
         """JSON-safe, deterministic dict (no timings).
 
-        Laid out like :meth:`dynid.analysis.estimators.idim.IDIMResult.to_dict`: ``parameters``,
-        ``rel_error`` and ``rms_per_joint`` are those of :attr:`model` (the essential
-        parameters when they were computed, ``model`` says which); ``wls`` holds the
+        Laid out like `dynid.analysis.estimators.idim.IDIMResult.to_dict`: `parameters`,
+        `rel_error` and `rms_per_joint` are those of `model` (the essential
+        parameters when they were computed, `model` says which); `wls` holds the
         last step's WLS on all base parameters (the DIDIM estimate).
         """
         def params(res):
@@ -388,10 +388,10 @@ def _count(value, name):
 
 
 def resolve_didim_settings(experiment, robot, controller, qr, overrides=None):
-    """DIDIM's settings for this recording (data-derived defaults, then ``overrides``).
+    """DIDIM's settings for this recording (data-derived defaults, then `overrides`).
 
-    Returns ``(settings, notices)``; ``qd_threshold`` is still ``"auto"`` or the
-    user's value here (it becomes numbers in :func:`identify_didim`).
+    Returns `(settings, notices)`; `qd_threshold` is still `"auto"` or the
+    user's value here (it becomes numbers in `identify_didim`).
     """
     overrides = dict(overrides or {})
     notices = []
@@ -452,9 +452,9 @@ def resolve_didim_settings(experiment, robot, controller, qr, overrides=None):
 # ----------------------------------------------------------------------------- initialisation
 
 def initial_standard(robot) -> np.ndarray:
-    """chi^0 of eq. (31) as standard parameters: 0 except ``Ia_j = 1``, plus the coupled
-    rotors' diagonal share ``(c_k / c_m)^2`` on the other joints ``k`` of a coupling with
-    motor ``m`` (the TX40's ``Ia5 = 2``; see the module docstring)."""
+    """chi^0 of eq. (31) as standard parameters: 0 except `Ia_j = 1`, plus the coupled
+    rotors' diagonal share `(c_k / c_m)^2` on the other joints `k` of a coupling with
+    motor `m` (the TX40's `Ia5 = 2`; see the module docstring)."""
     n = robot.n_joints
     chi = np.zeros(robot.n_standard)
     ia = np.ones(n)
@@ -471,7 +471,7 @@ def initial_standard(robot) -> np.ndarray:
 
 
 def initial_parameters(robot, bp) -> np.ndarray:
-    """chi^0 of eq. (31) as base parameters (``bp.from_standard(initial_standard(robot))``)."""
+    """chi^0 of eq. (31) as base parameters (`bp.from_standard(initial_standard(robot))`)."""
     return bp.from_standard(initial_standard(robot))
 
 
@@ -524,11 +524,11 @@ def _simulate(robot, bp, beta, ctrl, t, qr, qdr, s, kd_scale):
 
 
 def _simulate_checked(robot, bp, beta, ctrl, t, qr, qdr, s, configs, J_ap, update_gains):
-    """Check that ``beta`` can be simulated, set the derivative gains, simulate.
+    """Check that `beta` can be simulated, set the derivative gains, simulate.
 
-    M(q, chi) must be positive definite at ``configs`` (the previous simulation's
-    configurations) and, with the gain update, ``kd_scale = J / J_ap`` with
-    ``J_j = max M_jj`` (eq. (27)). Raises a DynidError when it cannot be simulated.
+    M(q, chi) must be positive definite at `configs` (the previous simulation's
+    configurations) and, with the gain update, `kd_scale = J / J_ap` with
+    `J_j = max M_jj` (eq. (27)). Raises a DynidError when it cannot be simulated.
     """
     chi = bp.to_standard(beta, "zero")
     M = mass_matrix(robot, chi, configs)
@@ -561,7 +561,7 @@ def _build_chunk(robot, bp, q, qd, qdd, tau, dead):
 def _decimated_system(robot, bp, q, qd, qdd, tau, dead, s, workers, progress=None):
     """Base regressor of the simulated states, decimated in parallel with tau (eq. (24)).
 
-    The regressor chunks are built by ``workers`` threads (the compiled kernel
+    The regressor chunks are built by `workers` threads (the compiled kernel
     releases the GIL) and pushed through the decimator in order.
     """
     n_kept = q.shape[0]
@@ -613,7 +613,7 @@ def _masked_norm(r, mask):
 # ----------------------------------------------------------------------------- DIDIM
 
 def _controller_of(robot, controller):
-    """The controller DIDIM simulates (``controller`` or the robot's), checked."""
+    """The controller DIDIM simulates (`controller` or the robot's), checked."""
     ctrl = controller if controller is not None else robot.controller
     if ctrl is None:
         raise InputError(f"DIDIM needs the controller of robot '{robot.name}': add a [controller] "
@@ -701,7 +701,7 @@ class _Loop:
 
 
 def _prepare_loop(robot, bp, ctrl, s, t, qr, tau, update_gains, workers, max_iter, progress):
-    """The :class:`_Loop` of an identification and the notice describing the simulation."""
+    """The `_Loop` of an identification and the notice describing the simulation."""
     fs = s["fs"]
     n0 = int(math.ceil(s["transient"] * fs - 1e-9))
     qdr = np.gradient(qr, t, axis=0, edge_order=2)
@@ -729,7 +729,7 @@ def _simulate_step(L, k, beta0, beta_sim, beta_ls, configs, physical, out_prev):
     Candidates: beta0 at step 1, else beta_sim + 0.5^h (beta_ls - beta_sim), h = 0..
     max_step_halvings. A candidate fails when it cannot be simulated, or (PC-DIDIM) when
     it raises the output error (the descent test). Returns (lam, cand, sim_out, system,
-    failure, first_failure) with ``failure`` the last candidate's error when none worked.
+    failure, first_failure) with `failure` the last candidate's error when none worked.
     """
     max_halvings = L.s["max_step_halvings"]
     if k == 1:
@@ -818,7 +818,7 @@ def _history_row(L, k, lam, res, rho, rel_change, out_err, beta_sim, q_s, subste
 def _gauss_newton(L, beta0, tol, physical, pc_options, notices):
     """DIDIM's iteration (eqs. (22)-(26)): simulate, build the system, solve by WLS, repeat.
 
-    Appends its remarks to ``notices``; returns (history, timings, last, converged, stop_reason).
+    Appends its remarks to `notices`; returns (history, timings, last, converged, stop_reason).
     """
     history, timings = [], []
     configs = L.qr[::L.j_stride]
@@ -909,14 +909,14 @@ def identify_didim(experiment, robot, *, settings=None, chi0=None, tol=DEFAULT_T
                    bp=None, controller=None, reference="qr", max_error_growth=0.02,
                    workers=None, physical=False, prior=None, prior_weight=1.0, mass_tolerance=None,
                    n_boot=100) -> DIDIMResult:
-    """Identify the base (and essential) parameters of ``robot`` by DIDIM (section 3).
+    """Identify the base (and essential) parameters of `robot` by DIDIM (section 3).
 
     Parameters
     ----------
-    experiment : :class:`dynid.analysis.data.experiment.Experiment` with ``t``, ``qr`` (the
-        reference the actual robot tracked) and ``tau``. Measured ``q`` is not used.
-    robot : the robot, with its controller (``robot.controller`` or ``controller=``).
-    settings : overrides of :data:`DIDIM_SETTINGS_HELP` (see the module docstring).
+    experiment : `dynid.analysis.data.experiment.Experiment` with `t`, `qr` (the
+        reference the actual robot tracked) and `tau`. Measured `q` is not used.
+    robot : the robot, with its controller (`robot.controller` or `controller=`).
+    settings : overrides of `DIDIM_SETTINGS_HELP` (see the module docstring).
     chi0 : initial parameters: None (eq. (31)), a base or standard vector, or a dict of
         base or standard names.
     tol : tol_I, the relative change of ||rho|| between two steps that stops the
@@ -925,26 +925,26 @@ def identify_didim(experiment, robot, *, settings=None, chi0=None, tol=DEFAULT_T
         than sqrt(2e-3) ~ 4.5 % of the residual norm, i.e. well inside the noise.
     max_iter : most Gauss-Newton steps (least-squares solves).
     update_gains : True (paper: derivative gains times J_j / J_ap_j at every step),
-        ``"initial"`` (only for the simulation of chi^0) or False (see the module doc).
+        `"initial"` (only for the simulation of chi^0) or False (see the module doc).
     essential : also compute the essential parameters from the last step.
     progress : callable(fraction in [0, 1]) called while the steps run.
     bp : base parameters of the robot (computed if None).
     physical : PC-DIDIM: each Gauss-Newton step's WLS is refitted under physical consistency
-        (:func:`dynid.analysis.estimators.physical.pc_wls`), and the next step simulates that
-        physically consistent estimate; ``result.physical`` is the last step's PC fit.
-    prior, prior_weight, mass_tolerance : of each step's PC fit (``pc_wls``).
+        (`dynid.analysis.estimators.physical.pc_wls`), and the next step simulates that
+        physically consistent estimate; `result.physical` is the last step's PC fit.
+    prior, prior_weight, mass_tolerance : of each step's PC fit (`pc_wls`).
     n_boot : physical=True: parametric-bootstrap refits of the last step's PC fit (its sigma
         and intervals, as for PC-WLS; the steps before it need none). The bootstrap is that
         of the last Gauss-Newton step's linear problem, the simulated regressor held fixed:
         the uncertainty DIDIM's own sigma (eq. (16) on that step) describes.
-    reference : ``"qr"`` (default) or ``"q"``: track the measured positions instead
+    reference : `"qr"` (default) or `"q"`: track the measured positions instead
         (only when the reference was not logged; a notice says so).
     max_error_growth : criterion of the essential-parameter search.
     workers : threads building the regressor chunks (default 1; the compiled kernel
         releases the GIL, but on a busy 2-core machine 2 threads were slower).
 
-    Returns a :class:`DIDIMResult`; ``converged`` is False when ``max_iter`` steps
-    did not meet the criterion or a simulation failed (``stop_reason`` says which).
+    Returns a `DIDIMResult`; `converged` is False when `max_iter` steps
+    did not meet the criterion or a simulation failed (`stop_reason` says which).
     The work is split: inputs (_controller_of, _check_iteration, _reference_of), the
     shared state (_prepare_loop), the iteration (_gauss_newton: _simulate_step, the WLS,
     _history_row) and the result (_didim_result).
@@ -1035,28 +1035,28 @@ def _parabola_vertex(f_lo, f_mid, f_hi):
 
 def _identify_auto_v_s(experiment, robot, *, settings, chi0, tol, max_iter, update_gains, essential,
                        progress, **kw):
-    """DIDIM with the smooth-sign width ``v_s`` of the simulated Coulomb friction chosen from the data.
+    """DIDIM with the smooth-sign width `v_s` of the simulated Coulomb friction chosen from the data.
 
-    ``v_s`` is a parameter of the simulated model like the others, but it enters the
+    `v_s` is a parameter of the simulated model like the others, but it enters the
     simulation nonlinearly, so it is chosen by the output-error criterion DIDIM itself
-    minimises (section 3: ``||Y - Y_s||``), profiled over the linear parameters: for each
+    minimises (section 3: `||Y - Y_s||`), profiled over the linear parameters: for each
     candidate, one Gauss-Newton step warm-started from the best estimate so far, and its
-    least-squares residual ``||rho||`` (eq. (30)) as the candidate's score. The steps:
+    least-squares residual `||rho||` (eq. (30)) as the candidate's score. The steps:
 
-    1. DIDIM to convergence at ``V_S_START`` (0.05 rad/s, the former default);
-    2. a walk on the factor-2 grid from there, downwards first (halving ``v_s``), upwards
-       if the first halving does not help, for as long as ``||rho||`` falls by more than
-       ``tol`` (tol_I: a smaller change is inside the noise, as for the stopping rule),
-       within ``[V_S_MIN, V_S_MAX]``;
-    3. one candidate at the vertex of the parabola in ``log v_s`` through the best grid
+    1. DIDIM to convergence at `V_S_START` (0.05 rad/s, the former default);
+    2. a walk on the factor-2 grid from there, downwards first (halving `v_s`), upwards
+       if the first halving does not help, for as long as `||rho||` falls by more than
+       `tol` (tol_I: a smaller change is inside the noise, as for the stopping rule),
+       within `[V_S_MIN, V_S_MAX]`;
+    3. one candidate at the vertex of the parabola in `log v_s` through the best grid
        point and its two neighbours;
-    4. DIDIM from the best candidate's estimate at its ``v_s`` to convergence.
+    4. DIDIM from the best candidate's estimate at its `v_s` to convergence.
 
-    Measured on the independent Pinocchio TX40 (``tests/independent_plant.py``, friction
-    ``tanh(qd / 0.01)``, development seeds): ``||rho||`` falls by a factor of 4-5 from 0.05 to
+    Measured on the independent Pinocchio TX40 (`tests/independent_plant.py`, friction
+    `tanh(qd / 0.01)`, development seeds): `||rho||` falls by a factor of 4-5 from 0.05 to
     0.0125 rad/s and is flat within ~10 % between 0.005 and 0.0125. The candidates cost one
-    closed-loop simulation each, more substeps the smaller ``v_s``
-    (:func:`dynid.dynamics.simulation.friction_stiffness`).
+    closed-loop simulation each, more substeps the smaller `v_s`
+    (`dynid.dynamics.simulation.friction_stiffness`).
     """
     base = dict(settings or {})
     # PC-DIDIM: only the final run's PC fit is bootstrapped (the candidates are scored by ||rho||)

@@ -28,7 +28,7 @@ _PATH_COLUMNS = ["step", "removed", "rel_std_removed", "max_rel_std_remaining", 
 
 @dataclass(eq=False)
 class EssentialResult(ParameterResults):
-    """Outcome of :func:`essential_parameters`.
+    """Outcome of `essential_parameters`.
 
     Attributes
     ----------
@@ -41,12 +41,12 @@ class EssentialResult(ParameterResults):
     removed : list[str]
         Removed parameters, in removal order.
     path : pandas.DataFrame
-        One row per removal: ``step`` (1, 2, ...), ``removed``,
-        ``rel_std_removed`` (its %σ just before removal), ``max_rel_std_remaining``
-        (max %σ of the re-estimated remaining set), ``rel_error`` (relative error
-        norm after removal), ``n_remaining``.
+        One row per removal: `step` (1, 2, ...), `removed`,
+        `rel_std_removed` (its %σ just before removal), `max_rel_std_remaining`
+        (max %σ of the re-estimated remaining set), `rel_error` (relative error
+        norm after removal), `n_remaining`.
     stop_rule : str
-        ``"error_growth"``, ``"target_rel_std"``, ``"rel_std_ratio"`` or ``"last_parameter"``.
+        `"error_growth"`, `"target_rel_std"`, `"rel_std_ratio"` or `"last_parameter"`.
     stop_reason : str
         Human-readable explanation of why the search stopped.
     criteria : dict
@@ -102,7 +102,7 @@ class EssentialResult(ParameterResults):
         return self.summary()
 
     def to_dict(self) -> dict:
-        """JSON-safe dict (NaN and infinities become ``None``)."""
+        """JSON-safe dict (NaN and infinities become `None`)."""
         return json_safe(
             {
                 "criteria": self.criteria,
@@ -166,18 +166,18 @@ def essential_parameters(
     ----------
     W3, tau, names
         Base-parameter regressor (N, n, b), torques (N, n), names, as for
-        :func:`dynid.analysis.estimators.least_squares.ols`.
-        Or ``W3`` a :class:`~dynid.analysis.estimators.least_squares.Reduction`
-        (a recording reduced chunk by chunk) with ``tau`` and ``names`` None:
+        `dynid.analysis.estimators.least_squares.ols`.
+        Or `W3` a `Reduction`
+        (a recording reduced chunk by chunk) with `tau` and `names` None:
         the same search on its triangles, the same result to rounding.
     estimator : callable
-        :func:`~dynid.analysis.estimators.least_squares.ols` or :func:`~dynid.analysis.estimators.least_squares.wls`
+        `ols` or `wls`
         (or any function with the same signature returning an
-        :class:`IdentificationResult`).
+        `IdentificationResult`).
     max_error_growth : float or None
         Largest accepted relative growth of the relative error norm over the
         full base model: a removal is refused if err_k > (1 + max_error_growth)·err_0.
-        Default 0.02, i.e. 2 %. ``None`` disables this rule.
+        Default 0.02, i.e. 2 %. `None` disables this rule.
     target_rel_std : float or None
         Stop as soon as max %σ of the current set is ≤ this value (all the
         remaining parameters are then well identified).
@@ -185,16 +185,16 @@ def essential_parameters(
         The "%σ ratio criterion": stop as soon as max %σ / min %σ of the current
         set is below this value.
     **estimator_kwargs
-        Passed to ``estimator`` at every step (``row_mask``, ``joints``,
-        ``rank_rtol``, ``settings``, ``joint_sigma``...).
+        Passed to `estimator` at every step (`row_mask`, `joints`,
+        `rank_rtol`, `settings`, `joint_sigma`...).
 
     Stopping rule
     -------------
     At each step, before removing anything: stop if one parameter is left,
-    if max %σ ≤ ``target_rel_std``, or if max %σ / min %σ < ``rel_std_ratio``.
+    if max %σ ≤ `target_rel_std`, or if max %σ / min %σ < `rel_std_ratio`.
     Otherwise the parameter with the largest %σ is removed and the model
     re-estimated; if that makes the relative error norm exceed
-    (1 + ``max_error_growth``)·err_0, the removal is undone and the search stops.
+    (1 + `max_error_growth`)·err_0, the removal is undone and the search stops.
 
     Why 2 % of cumulative growth: removing a parameter whose true value is zero
     increases ‖ρ‖² by about σ_ρ² (one χ²₁ draw), i.e. ‖ρ‖ by a relative
@@ -208,10 +208,10 @@ def essential_parameters(
 
     Re-estimation and weights
     -------------------------
-    For ``ols`` and ``wls`` the re-estimates reuse the per-joint QR compression
-    of :mod:`dynid.analysis.estimators.least_squares` (exact: same solution and residual norms
+    For `ols` and `wls` the re-estimates reuse the per-joint QR compression
+    of `dynid.analysis.estimators.least_squares` (exact: same solution and residual norms
     as re-solving the full system), so each step costs a b x b solve. With
-    ``wls`` the weights 1/σ_j are fixed to those of the full base model (from
+    `wls` the weights 1/σ_j are fixed to those of the full base model (from
     its OLS residual), so every step minimises the same weighted criterion and
     the error norms along the path are comparable. Any other estimator is
     simply called on the remaining columns at every step.
@@ -264,7 +264,7 @@ def _essential_samples(W3, tau, names, estimator, crit, estimator_kwargs):
 
 
 def _essential_reduced(reduction, estimator, crit, estimator_kwargs):
-    """The search of :func:`essential_parameters` on a :class:`~ls.Reduction` (chunked recordings)."""
+    """The search of `essential_parameters` on a `Reduction` (chunked recordings)."""
     reduced = {ls.ols: ls.ols_reduced, ls.wls: ls.wls_reduced}.get(estimator, estimator)
     if reduced not in (ls.ols_reduced, ls.wls_reduced):
         raise InputError("essential_parameters of a Reduction needs estimator=ls.ols or ls.wls "
@@ -357,7 +357,7 @@ def _search(base, names, step_fit, final, crit, fixed_kwargs, estimator_kwargs):
 def _compressed_stepper(system, base, kwargs):
     """Step function re-estimating a column subset on the compressed system.
 
-    Returns (chi, rel_sigma, rel_error, None); ``None`` tells the caller that
+    Returns (chi, rel_sigma, rel_error, None); `None` tells the caller that
     no full IdentificationResult was built for the step.
     """
     rtol = ls._check_rtol(kwargs.get("rank_rtol", ls.RANK_RTOL))

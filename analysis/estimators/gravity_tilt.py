@@ -1,28 +1,28 @@
 """The direction of gravity (a base tilt) identified with the IDIM base parameters.
 
-A robot file gives the gravity vector ``g0`` in the base frame; a base mounted a few
-mrad off level makes the true vector ``g(theta) = R(theta) g0``, ``R`` the rotation
-by the rotation vector ``(theta_x, theta_y, 0)`` about the base x and y axes (|g|
-kept). The IDIM model ``Y = W(g) chi + rho`` (eq. (9) of Gautier, Janot, Vandanjon
+A robot file gives the gravity vector `g0` in the base frame; a base mounted a few
+mrad off level makes the true vector `g(theta) = R(theta) g0`, `R` the rotation
+by the rotation vector `(theta_x, theta_y, 0)` about the base x and y axes (|g|
+kept). The IDIM model `Y = W(g) chi + rho` (eq. (9) of Gautier, Janot, Vandanjon
 2010) is then a separable nonlinear least-squares problem: linear in the base
-parameters ``chi``, nonlinear in the two angles. It is solved by Gauss-Newton on the
-joint problem in ``(chi, theta)``: each step is the per-joint WLS (eq. (16)) of the
-system augmented with the two columns ``J_i chi = (dW/dtheta_i) chi``, whose last two
-coefficients are the step in ``theta``; at convergence the covariance of those two
+parameters `chi`, nonlinear in the two angles. It is solved by Gauss-Newton on the
+joint problem in `(chi, theta)`: each step is the per-joint WLS (eq. (16)) of the
+system augmented with the two columns `J_i chi = (dW/dtheta_i) chi`, whose last two
+coefficients are the step in `theta`; at convergence the covariance of those two
 coefficients (eq. (14) of that augmented WLS) is the covariance of the separable
 nonlinear LS with the base parameters profiled out (Golub & Pereyra 1973; Seber &
 Wild 1989, sec. 14.7).
 
-The regressor is affine in ``g`` (Newton-Euler with the base acceleration ``-g``),
-and so is the decimated, dead-zoned observation, so ``W(g) = W(0) + sum_k g_k G_k``
-with ``G_k = W(e_k) - W(0)``: four observations per recording, then every step and
+The regressor is affine in `g` (Newton-Euler with the base acceleration `-g`),
+and so is the decimated, dead-zoned observation, so `W(g) = W(0) + sum_k g_k G_k`
+with `G_k = W(e_k) - W(0)`: four observations per recording, then every step and
 its Jacobian are exact and cheap.
 
 The base parameters are those of the robot with a tilted gravity (what IDIM uses
-afterwards with :attr:`GravityTiltResult.robot`). With a vertical first axis a tilt
-makes the first moments of link 1 (``MX1``, ``MY1R``) identifiable, which a level
-gravity hides; the test of "no tilt" therefore has ``2 + (those parameters)``
-degrees of freedom: the likelihood ratio of the WLS, ``(S0 - S1) / sigma_rho1^2``
+afterwards with `GravityTiltResult.robot`). With a vertical first axis a tilt
+makes the first moments of link 1 (`MX1`, `MY1R`) identifiable, which a level
+gravity hides; the test of "no tilt" therefore has `2 + (those parameters)`
+degrees of freedom: the likelihood ratio of the WLS, `(S0 - S1) / sigma_rho1^2`
 (weighted residual sums with the final weights), against chi-square.
 """
 from __future__ import annotations
@@ -50,12 +50,12 @@ _PROBE = (0.3, 0.2)
 
 
 def tilted_gravity(g0, theta):
-    """``R(theta) g0``: ``g0`` rotated by the rotation vector ``(theta_x, theta_y, 0)`` [rad]."""
+    """`R(theta) g0`: `g0` rotated by the rotation vector `(theta_x, theta_y, 0)` [rad]."""
     return Rotation.from_rotvec([float(theta[0]), float(theta[1]), 0.0]).apply(np.asarray(g0, float))
 
 
 def _dg_dtheta(g0, theta, h=1e-7):
-    """(3, 2) derivative of :func:`tilted_gravity` in ``theta`` (central differences of a
+    """(3, 2) derivative of `tilted_gravity` in `theta` (central differences of a
     3-vector: exact to ~1e-9 relative)."""
     out = np.zeros((3, 2))
     for i in range(2):
@@ -69,8 +69,8 @@ def _dg_dtheta(g0, theta, h=1e-7):
 class GravityTiltResult(Exportable):
     """The gravity tilt of the base and the fits of the level and tilted models.
 
-    ``theta`` [rad]: rotation about the base x and y axes of the robot file's
-    gravity ``gravity0``; ``cov`` (2, 2) its covariance (separable nonlinear LS,
+    `theta` [rad]: rotation about the base x and y axes of the robot file's
+    gravity `gravity0`; `cov` (2, 2) its covariance (separable nonlinear LS,
     base parameters profiled: the tilt block of the augmented WLS at convergence).
     """
 
@@ -125,7 +125,13 @@ class GravityTiltResult(Exportable):
         return "\n".join(lines)
 
     def sentence(self) -> str:
-        """The estimate in one sentence (for a report paragraph)."""
+        """The estimate in one sentence (for a report paragraph).
+
+        Returns
+        -------
+        str
+            One sentence with the tilt angles [mrad] and their standard deviations.
+        """
         t, s = 1e3 * self.theta, 1e3 * self.sigma
         return (f"Tilt {t[0]:+.2f} \u00b1 {s[0]:.2f} mrad about the base x axis and {t[1]:+.2f} \u00b1 "
                 f"{s[1]:.2f} mrad about the base y axis; gravity (" + ", ".join(f"{v:+.4f}" for v in self.gravity)
@@ -152,7 +158,7 @@ class GravityTiltResult(Exportable):
 
 
 def _observations(experiments, robot, bp, settings):
-    """Decimated observations of ``W(0)`` and ``G_k = W(e_k) - W(0)``, k = x, y, z."""
+    """Decimated observations of `W(0)` and `G_k = W(e_k) - W(0)`, k = x, y, z."""
     def obs_at(g, s):
         r = dataclasses.replace(robot, gravity=np.asarray(g, float))
         first = observe(experiments[0], r, bp, s)
@@ -165,9 +171,9 @@ def _observations(experiments, robot, bp, settings):
 def gravity_tilt(experiments, robot, *, settings=None, max_iter=20, tol=1e-3):
     """Estimate the base tilt (see the module docstring) from IDIM recordings.
 
-    ``experiments``: a recording or a list (stacked as by IDIM); ``settings``: the
-    processing overrides of IDIM. Gauss-Newton stops when the step is below ``tol``
-    standard deviations of each angle. Raises :class:`InputError` when the tilt is
+    `experiments`: a recording or a list (stacked as by IDIM); `settings`: the
+    processing overrides of IDIM. Gauss-Newton stops when the step is below `tol`
+    standard deviations of each angle. Raises `InputError` when the tilt is
     not identifiable from these data with this robot (e.g. a single vertical axis:
     its torque does not see gravity's direction apart from link 1's first moments).
     """

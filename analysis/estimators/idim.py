@@ -1,6 +1,6 @@
 """IDIM: the inverse dynamic identification model identified by least squares (section 2).
 
-``identify_idim(experiment, robot)`` runs the whole of section 2 of Gautier,
+`identify_idim(experiment, robot)` runs the whole of section 2 of Gautier,
 Janot, Vandanjon (2010): filtering and differentiation of q, the base
 regressor, parallel decimation (eqs. (8)-(9)), OLS (eqs. (11)-(15)),
 per-joint WLS (eq. (16)), and the essential parameters (Pham & Gautier 1991)
@@ -39,8 +39,8 @@ DEFAULT_UNCERTAINTY = "bootstrap"
 class IDIMResult(ModelResults):
     """Everything an IDIM identification produced.
 
-    Its parameters (``params``, ``bse``, ``conf_int()`` ...) are those of :attr:`model`,
-    the essential WLS estimate; ``ols``, ``wls`` and ``essential`` keep the others.
+    Its parameters (`params`, `bse`, `conf_int()` ...) are those of `model`,
+    the essential WLS estimate; `ols`, `wls` and `essential` keep the others.
     """
 
     method = "IDIM"
@@ -130,11 +130,11 @@ class IDIMResult(ModelResults):
 
 def identify_idim(experiment, robot, *, settings=None, bp=None, max_error_growth=0.02,
                   progress=None, uncertainty: str = "classic"):
-    """Identify the base and essential parameters of ``robot`` from ``experiment`` (IDIM-LS/WLS).
+    """Identify the base and essential parameters of `robot` from `experiment` (IDIM-LS/WLS).
 
-    ``experiment`` may be a list of recordings: their observation systems are
+    `experiment` may be a list of recordings: their observation systems are
     stacked (processed with the settings derived from the first one).
-    ``uncertainty`` ("classic", "hac" or "bootstrap") is the covariance of the
+    `uncertainty` ("classic", "hac" or "bootstrap") is the covariance of the
     OLS, WLS and essential estimates (see
     dynid.analysis.estimators.least_squares.ols); the estimates do not depend on it.
     """
@@ -169,10 +169,10 @@ def identify_idim(experiment, robot, *, settings=None, bp=None, max_error_growth
 
 
 def recording_agreement(obs, names, groups, joint_sigma, uncertainty="classic", n_segments=3):
-    """Identify each recording alone (or each of ``n_segments`` contiguous segments of one) and compare.
+    """Identify each recording alone (or each of `n_segments` contiguous segments of one) and compare.
 
     Every part is a WLS of the base parameters with the weights 1/σ_j of the whole
-    (eq. (16)) and the covariance ``uncertainty``; only the parameters every part
+    (eq. (16)) and the covariance `uncertainty`; only the parameters every part
     identifies are compared (dynid.analysis.statistics.agreement.agreement: pairwise
     z, χ² test of equal parameters, DerSimonian-Laird pooling).
 

@@ -6,15 +6,15 @@ joint grouped together (eq. (10)), its LS solution (eq. (11)), the unbiased
 error variance (eq. (13)), the covariance (eq. (14)), the relative standard
 deviations (eq. (15)) and the per-joint weighting (eq. (16)).
 
-Data convention: the regressor is ``W3`` of shape (N, n, b) (samples, joints,
-parameters) and the torques ``tau`` are (N, n). Joints are indexed from 0 in
-arguments (``joints=[0, 2]``) and numbered from 1 in messages, as in the paper.
+Data convention: the regressor is `W3` of shape (N, n, b) (samples, joints,
+parameters) and the torques `tau` are (N, n). Joints are indexed from 0 in
+arguments (`joints=[0, 2]`) and numbered from 1 in messages, as in the paper.
 
 Numerics. The normal equations are never formed. Each joint's block
 [W^j | Y^j] is first reduced by a QR factorisation to a (b+1) x (b+1)
 triangle; since Q^j has orthonormal columns, ‖Y^j − W^j_S x‖ is preserved
 for every column subset S and every joint weight, so OLS, WLS and the
-essential-parameter search (:mod:`dynid.analysis.estimators.essential`) all solve the small
+essential-parameter search (`dynid.analysis.estimators.essential`) all solve the small
 stacked triangles exactly instead of the r x b system. The small system is
 then solved by a column-scaled, column-pivoted QR (scipy.linalg.qr), which
 also performs the rank check; the covariance uses R⁻¹, never (WᵀW)⁻¹.
@@ -70,8 +70,8 @@ def _check_arrays(W3, tau) -> tuple[np.ndarray, np.ndarray]:
 def stack(W3, tau) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Stack the per-joint equations as in eq. (10): Y = [Y^1; ...; Y^n], W likewise.
 
-    Returns ``(W, Y, joint_of_row)`` with W of shape (n*N, b), Y of shape (n*N,)
-    and ``joint_of_row`` (n*N,) the 0-based joint of each row (joint-major).
+    Returns `(W, Y, joint_of_row)` with W of shape (n*N, b), Y of shape (n*N,)
+    and `joint_of_row` (n*N,) the 0-based joint of each row (joint-major).
     """
     W3, tau = _check_arrays(W3, tau)
     N, n, b = W3.shape
@@ -162,7 +162,7 @@ def _check_settings(settings) -> dict:
 class _System:
     """The stacked system (eq. (10)) compressed joint by joint.
 
-    ``blocks[j]`` is the (b+1) x (b+1) triangle R of the QR factorisation of
+    `blocks[j]` is the (b+1) x (b+1) triangle R of the QR factorisation of
     [W^j | Y^j] over the included rows of joint j: columns 0..b-1 stand for
     W^j, column b for Y^j. Any least-squares problem on a column subset and
     with per-joint weights has the same solution and the same per-joint
@@ -191,7 +191,7 @@ class _System:
 
     @property
     def reduced(self) -> bool:
-        """True when only the triangles are held (built from a :class:`Reduction`, no W3)."""
+        """True when only the triangles are held (built from a `Reduction`, no W3)."""
         return self.W3 is None
 
 
@@ -226,16 +226,16 @@ def _build_system(W3, tau, names, row_mask=None, joints=None) -> _System:
 class Reduction:
     """The stacked system of eq. (10) reduced to what OLS, WLS and the essential set need.
 
-    Per joint j, ``blocks[j]`` is a (b+1) x (b+1) upper triangle R^j with
+    Per joint j, `blocks[j]` is a (b+1) x (b+1) upper triangle R^j with
     R^jᵀR^j = [W^j | Y^j]ᵀ[W^j | Y^j]: it holds W^jᵀW^j, W^jᵀY^j and ‖Y^j‖²
     (the normal equations and the residual sum of squares of every fit,
     ‖Y^j − W^j x‖² = ‖R^j [x; −1]‖²) without squaring the condition number of W
     as forming WᵀW would. Reductions of consecutive chunks of one recording add
-    up (``a + b``: the two triangles stacked and factorised again, the tall-skinny
+    up (`a + b`: the two triangles stacked and factorised again, the tall-skinny
     QR of Demmel et al. 2012), so a recording is identified chunk by chunk with
     memory independent of its length; the result equals that of the whole system
-    to rounding. ``rows``: r_j; ``y_ss``: ‖Y^j‖²; ``support``: the columns non-zero
-    in joint j's rows; ``n_samples``, ``n_equations``: N and n·N of every chunk.
+    to rounding. `rows`: r_j; `y_ss`: ‖Y^j‖²; `support`: the columns non-zero
+    in joint j's rows; `n_samples`, `n_equations`: N and n·N of every chunk.
     """
 
     names: list
@@ -267,7 +267,7 @@ class Reduction:
                          self.n_equations + other.n_equations)
 
     def columns(self, cols) -> Reduction:
-        """The reduction of the model restricted to the parameters ``cols`` (indices)."""
+        """The reduction of the model restricted to the parameters `cols` (indices)."""
         cols = np.asarray(cols, dtype=int)
         b = len(self.names)
         keep = np.append(cols, b)
@@ -285,7 +285,7 @@ class Reduction:
 
 
 def reduce_system(W3, tau, names, *, row_mask=None, joints=None) -> Reduction:
-    """The :class:`Reduction` of one chunk (W3 (N, n, b), tau (N, n)); add the chunks' reductions."""
+    """The `Reduction` of one chunk (W3 (N, n, b), tau (N, n)); add the chunks' reductions."""
     s = _build_system(W3, tau, names, row_mask, joints)
     return Reduction(s.names, s.blocks, s.rows, s.y_ss, s.support, s.n_samples, s.n_equations)
 
@@ -305,7 +305,7 @@ class _Fit:
 def _fit(system: _System, cols: np.ndarray, weights: np.ndarray, rank_rtol: float) -> _Fit:
     """Weighted LS of eq. (11) on the compressed system, with rank check.
 
-    ``weights`` (n,) multiply the rows of each joint (1 for OLS, 1/σ_j for WLS).
+    `weights` (n,) multiply the rows of each joint (1 for OLS, 1/σ_j for WLS).
     """
     cols = np.asarray(cols, dtype=int)
     s, n, b = cols.size, system.n_joints, system.n_params
@@ -445,9 +445,9 @@ def _rank_error(system, cols, nonzero, R, piv, rank, rank_rtol, Ms) -> Identific
 
 
 def identifiable_columns(W3, mask=None, rank_rtol: float = RANK_RTOL) -> np.ndarray:
-    """Indices of the columns of W3 that the rows ``mask`` (N, n) identify together.
+    """Indices of the columns of W3 that the rows `mask` (N, n) identify together.
 
-    Column-scaled pivoted QR of the stacked rows (the rank check of :func:`ols`): the
+    Column-scaled pivoted QR of the stacked rows (the rank check of `ols`): the
     columns pivoted before the rank drop, in increasing order; zero columns and
     columns dependent on earlier pivots are left out.
     """
@@ -480,7 +480,7 @@ _UNCERTAINTY_LABEL = {
 
 
 def check_uncertainty(uncertainty) -> str:
-    """The name of a covariance option, checked (one of :data:`UNCERTAINTY`)."""
+    """The name of a covariance option, checked (one of `UNCERTAINTY`)."""
     if uncertainty not in UNCERTAINTY:
         raise InputError(
             f"uncertainty must be one of {', '.join(UNCERTAINTY)}, got {uncertainty!r}: 'classic' is "
@@ -491,7 +491,7 @@ def check_uncertainty(uncertainty) -> str:
 
 
 def _robust(system, fit, weights, uncertainty, groups, n_boot, seed):
-    """Covariance and description of ``uncertainty`` for the fit (None for classic)."""
+    """Covariance and description of `uncertainty` for the fit (None for classic)."""
     if uncertainty == "classic":
         return None, {"uncertainty": "classic", "covariance": _UNCERTAINTY_LABEL["classic"]}
     if system.reduced:
@@ -612,16 +612,16 @@ def ols(W3, tau, names, *, row_mask=None, joints=None, rank_rtol: float = RANK_R
     tau : array (N, n)
         Measured joint torques.
     names : sequence of b str
-        Parameter names, e.g. ``"ZZ1R"``, ``"Fv1"``.
+        Parameter names, e.g. `"ZZ1R"`, `"Fv1"`.
     row_mask : bool array (N,) or (N, n), optional
         True for the equations to use; (N,) selects samples for every joint.
     joints : sequence of int, optional
         0-based joints whose equations are used (default: all).
     rank_rtol : float
-        Relative tolerance of the rank check (see :data:`RANK_RTOL`).
+        Relative tolerance of the rank check (see `RANK_RTOL`).
     settings : dict, optional
         JSON-safe settings to record with the result (e.g. filter cut-offs);
-        the estimator adds its own under ``"least_squares"``.
+        the estimator adds its own under `"least_squares"`.
     uncertainty : {"classic", "hac", "bootstrap"}
         The covariance reported. "classic": eq. (14), the samples counted as
         independent (the papers' σ). "hac": a Newey-West sandwich whose
@@ -629,7 +629,7 @@ def ols(W3, tau, names, *, row_mask=None, joints=None, rank_rtol: float = RANK_R
         across joints; bandwidth of Andrews 1991). "bootstrap": a circular
         block bootstrap of the decimated samples (block length from the
         scores' correlation). The estimate is the same for all three; the
-        choice is recorded in ``settings["least_squares"]["uncertainty"]``
+        choice is recorded in `settings["least_squares"]["uncertainty"]`
         and in a notice.
     groups : array (N,), optional
         Recording of each sample, for "hac" and "bootstrap": no lag and no
@@ -658,10 +658,10 @@ def ols(W3, tau, names, *, row_mask=None, joints=None, rank_rtol: float = RANK_R
 
 
 def ols_reduced(reduction: Reduction, *, rank_rtol: float = RANK_RTOL, settings=None) -> IdentificationResult:
-    """:func:`ols` of a system given by its :class:`Reduction` (chunked recordings).
+    """`ols` of a system given by its `Reduction` (chunked recordings).
 
-    Same estimate, covariance and residual statistics as :func:`ols` on the whole
-    W3 to rounding; ``residual`` is empty (the samples are not held).
+    Same estimate, covariance and residual statistics as `ols` on the whole
+    W3 to rounding; `residual` is empty (the samples are not held).
     """
     return _ols_system(reduction.system(), rank_rtol, settings, None, None)
 
@@ -778,24 +778,24 @@ def wls(
 ) -> IdentificationResult:
     """Weighted least squares with per-joint weights 1/σ_j (eq. (16), Gautier 1997).
 
-    1. Unless ``joint_sigma`` is given, estimate σ_j as the standard deviation
+    1. Unless `joint_sigma` is given, estimate σ_j as the standard deviation
        of the error of the OLS solution of joint j's equations (eq. (16)):
        σ_j² = ‖ρ^j‖² / (r_j − b_j), with r_j the rows of joint j and b_j the
        numerical rank of W^j, i.e. the number of parameters with a non-zero
        column in joint j's rows that joint j's equations can separate
-       (degrees-of-freedom choice and reasons in :func:`_joint_sigma`).
+       (degrees-of-freedom choice and reasons in `_joint_sigma`).
     2. Divide the rows of W^j and Y^j by σ_j and solve the weighted system by LS.
-    3. σ̂² of the weighted residual by eq. (13) (reported as ``sigma_rho``,
+    3. σ̂² of the weighted residual by eq. (13) (reported as `sigma_rho`,
        dimensionless, ≈ 1), covariance σ̂² (WᵀΣ⁻¹W)⁻¹ by eq. (14) applied to the
        weighted system. Keeping the factor σ̂² (instead of assuming the σ_j
        exact, cov = (WᵀΣ⁻¹W)⁻¹) absorbs a common scale error in the σ_j.
 
-    Residual statistics (``rel_error``, ``rms``, ``joint_rel_error``,
-    ``residual``) are in the original, unweighted units. ``cond`` is that of
-    the weighted W. Other arguments as in :func:`ols`; ``joint_sigma`` (n,)
-    fixes the σ_j instead of estimating them (``nan`` allowed for joints
-    without equations); ``uncertainty``, ``groups``, ``n_boot`` and ``seed``
-    choose the covariance as in :func:`ols` (the sandwich and the bootstrap
+    Residual statistics (`rel_error`, `rms`, `joint_rel_error`,
+    `residual`) are in the original, unweighted units. `cond` is that of
+    the weighted W. Other arguments as in `ols`; `joint_sigma` (n,)
+    fixes the σ_j instead of estimating them (`nan` allowed for joints
+    without equations); `uncertainty`, `groups`, `n_boot` and `seed`
+    choose the covariance as in `ols` (the sandwich and the bootstrap
     keep the weights 1/σ_j fixed).
     """
     check_uncertainty(uncertainty)
@@ -806,11 +806,11 @@ def wls(
 
 def wls_reduced(reduction: Reduction, *, joint_sigma=None, rank_rtol: float = RANK_RTOL,
                 settings=None) -> IdentificationResult:
-    """:func:`wls` of a system given by its :class:`Reduction` (chunked recordings).
+    """`wls` of a system given by its `Reduction` (chunked recordings).
 
     The σ_j of eq. (16), the weighted solution and its statistics need only the
-    per-joint triangles, so they equal :func:`wls` on the whole W3 to rounding;
-    ``residual`` is empty (the samples are not held).
+    per-joint triangles, so they equal `wls` on the whole W3 to rounding;
+    `residual` is empty (the samples are not held).
     """
     return _wls_system(reduction.system(), joint_sigma, rank_rtol, settings, None, None)
 

@@ -1,16 +1,16 @@
 """Maximum likelihood with errors in variables (Bona & Curatella 2005, eqs. (13)-(16)).
 
 Both the positions and the torques are measured with white Gaussian noise,
-of standard deviations ``sigma_q`` and ``sigma_tau`` per joint. Eq. (13)
+of standard deviations `sigma_q` and `sigma_tau` per joint. Eq. (13)
 minimises, over the parameters theta and the unknown true values phi of every
-observation, ``1/2 sum (x - phi)^T sigma^-2 (x - phi)`` subject to the model
-``G(theta, phi) = 0`` (eq. (14)). Eqs. (15)-(16) eliminate phi to first order
+observation, `1/2 sum (x - phi)^T sigma^-2 (x - phi)` subject to the model
+`G(theta, phi) = 0` (eq. (14)). Eqs. (15)-(16) eliminate phi to first order
 (the "effective variance" of each equation); here phi is kept exact but its
 dimension is reduced, which a periodic excitation allows:
 
 * The true positions are a finite Fourier series of the excitation's
-  fundamental f0 (eq. (17)): ``q_j(t) = c_j0 + sum_k c_jk cos(2 pi k f0 t) +
-  d_jk sin(2 pi k f0 t)``, k = 1..K, with velocity and acceleration its
+  fundamental f0 (eq. (17)): `q_j(t) = c_j0 + sum_k c_jk cos(2 pi k f0 t) +
+  d_jk sin(2 pi k f0 t)`, k = 1..K, with velocity and acceleration its
   analytic derivatives (eqs. (18)-(19)). A robot tracking a periodic reference
   in closed loop moves periodically (once the transient is over), so this
   loses nothing but the harmonics above K; K is chosen by BIC on the measured
@@ -18,7 +18,7 @@ dimension is reduced, which a periodic excitation allows:
   and gravity put some in the tracking error). The unknowns are theta and
   n (2K + 1) coefficients instead of theta and n N positions.
 * The true torques are eliminated exactly by the constraint (14):
-  ``tau_true = G(theta, q, qd, qdd)`` is the model's torque along the latent
+  `tau_true = G(theta, q, qd, qdd)` is the model's torque along the latent
   trajectory.
 
 So the negative log-likelihood (eq. (13) with the constraint (14) solved) is
@@ -26,7 +26,7 @@ So the negative log-likelihood (eq. (13) with the constraint (14) solved) is
     1/2 sum_j ||q_j - B c_j||^2 / sigma_qj^2 + ||tau_j - G_j(theta, Bc, B'c, B''c)||^2 / sigma_tauj^2
 
 plus the log-determinant terms, a nonlinear least-squares problem solved by
-``scipy.optimize.least_squares`` (trust-region reflective) from the LS start:
+`scipy.optimize.least_squares` (trust-region reflective) from the LS start:
 theta by OLS of tau on the model's regressor along the LS Fourier fit of q.
 Jacobian: exact for the q part (-B / sigma_q) and for theta when the model
 gives its regressor; the torque's sensitivity to the latent q, qd, qdd is a
@@ -39,23 +39,23 @@ Noise levels. sigma_q is identified by the Fourier fit itself (the residual
 of q around its K-harmonic fit, dof N - 2K - 1); sigma_tau, when not given, is
 re-estimated from the torque residual and the problem solved again (one
 alternation of the concentrated likelihood; the estimate moves little after
-that). Given values (e.g. from :func:`dynid.analysis.processing.averaging.average_periods`)
+that). Given values (e.g. from `dynid.analysis.processing.averaging.average_periods`)
 are used as they are.
 
 Covariance. The inverse Fisher information of the Gaussian likelihood, which
 for a least-squares likelihood with known sigmas is the inverse Gauss-Newton
-Hessian ``(J^T J)^-1`` of the weighted residual vector; the theta block of the
+Hessian `(J^T J)^-1` of the weighted residual vector; the theta block of the
 full inverse (trajectory coefficients included), so the uncertainty of the
-latent trajectory is propagated. ``tests/test_maximum_likelihood.py`` checks it
+latent trajectory is propagated. `tests/test_maximum_likelihood.py` checks it
 against the spread of estimates over noise seeds. With estimated sigmas, the
 uncertainty of sigma is not propagated (a second-order effect for N >> p).
 
-Models. A model is an :class:`EIVModel`: the torque ``predict(theta, q, qd,
-qdd) -> (N, n)``, optionally its regressor (linear models), and an LS start.
-:func:`robot_model` gives the rigid-body base-parameter model of any dynid
-robot; :func:`joint_model` the single-joint model
-``tau = J qdd + Fv qd + Fc sign(qd) + k sin(q + q_off) + Off`` (nonlinear in
-q_off); :func:`linear_model` wraps any regressor function.
+Models. A model is an `EIVModel`: the torque `predict(theta, q, qd,
+qdd) -> (N, n)`, optionally its regressor (linear models), and an LS start.
+`robot_model` gives the rigid-body base-parameter model of any dynid
+robot; `joint_model` the single-joint model
+`tau = J qdd + Fv qd + Fc sign(qd) + k sin(q + q_off) + Off` (nonlinear in
+q_off); `linear_model` wraps any regressor function.
 """
 from __future__ import annotations
 
@@ -84,12 +84,12 @@ _WIDTH = 78
 # ----------------------------------------------------------------------- models
 @dataclass
 class EIVModel:
-    """A dynamic model for :func:`maximum_likelihood`.
+    """A dynamic model for `maximum_likelihood`.
 
-    ``predict(theta, q, qd, qdd)`` returns the torques (N, n) for samples (N, n).
-    ``regressor(q, qd, qdd)`` (linear models only) returns W3 (N, n, p) with
-    ``predict = W3 @ theta``; it makes the theta Jacobian exact and gives the
-    LS start. ``start(q, qd, qdd, tau)`` returns an initial theta for
+    `predict(theta, q, qd, qdd)` returns the torques (N, n) for samples (N, n).
+    `regressor(q, qd, qdd)` (linear models only) returns W3 (N, n, p) with
+    `predict = W3 @ theta`; it makes the theta Jacobian exact and gives the
+    LS start. `start(q, qd, qdd, tau)` returns an initial theta for
     nonlinear models (default: OLS on the regressor).
     """
 
@@ -114,7 +114,7 @@ class EIVModel:
 
 
 def linear_model(regressor, names, description="linear in the parameters"):
-    """An :class:`EIVModel` from a regressor function ``(q, qd, qdd) -> W3 (N, n, p)``."""
+    """An `EIVModel` from a regressor function `(q, qd, qdd) -> W3 (N, n, p)`."""
     names = list(names)
     return EIVModel(names=names, predict=lambda th, q, qd, qdd: regressor(q, qd, qdd) @ th,
                     regressor=regressor, description=description)
@@ -128,11 +128,11 @@ def robot_model(robot, bp=None):
 
 
 def joint_model(joint=1, *, gravity=True, offset=True):
-    """Single-joint model of section 3.1: ``J qdd + Fv qd + Fc sign(qd) [+ k sin(q + q_off)] [+ Off]``.
+    """Single-joint model of section 3.1: `J qdd + Fv qd + Fc sign(qd) [+ k sin(q + q_off)] [+ Off]`.
 
     Eqs. (21)-(23) of the paper (gravity as the inverted pendulum of eq. (23)).
-    Parameters ``J{j} Fv{j} Fc{j} [k{j} qoff{j}] [Off{j}]``. The LS start fits
-    ``a sin q + b cos q`` linearly and converts to ``k, q_off``.
+    Parameters `J{j} Fv{j} Fc{j} [k{j} qoff{j}] [Off{j}]`. The LS start fits
+    `a sin q + b cos q` linearly and converts to `k, q_off`.
     """
     j = int(joint)
     names = [f"J{j}", f"Fv{j}", f"Fc{j}"] + ([f"k{j}", f"qoff{j}"] if gravity else []) + \
@@ -257,7 +257,13 @@ class MLResult(ParameterResults):
         return float(self.theta[i]), float(self.sigma[i])
 
     def trajectory(self, t):
-        """Latent (q, qd, qdd) at times t, each (len(t), n)."""
+        """Latent (q, qd, qdd) at times t, each (len(t), n).
+
+        Returns
+        -------
+        q, qd, qdd : numpy.ndarray
+            Each (len(t), n): rad, rad/s, rad/s^2.
+        """
         B, Bd, Bdd = fourier_basis(t, self.f0, self.n_harmonics)
         C = self.coefficients.T
         return B @ C, Bd @ C, Bdd @ C
@@ -416,7 +422,7 @@ ML_DEAD_ZONE_FRACTION = 0.05
 
 
 def _reversal_guard(t, qd, guard):
-    """False within ``guard`` s of a sign change of each joint's qd."""
+    """False within `guard` s of a sign change of each joint's qd."""
     keep = np.ones(qd.shape, dtype=bool)
     if guard <= 0:
         return keep
@@ -450,16 +456,16 @@ def maximum_likelihood(t, q, tau, model, *, f0, n_harmonics=None, sigma_q=None, 
     Parameters
     ----------
     t : (N,) sample times, s.  q : (N, n) measured positions, rad.  tau : (N, n) torques, N m.
-    model : :class:`EIVModel` (:func:`robot_model`, :func:`joint_model`, :func:`linear_model`).
+    model : `EIVModel` (`robot_model`, `joint_model`, `linear_model`).
     f0 : fundamental frequency of the periodic excitation, Hz.
-    n_harmonics : K of the latent trajectory; None = BIC on q (:func:`select_harmonics`).
+    n_harmonics : K of the latent trajectory; None = BIC on q (`select_harmonics`).
     sigma_q, sigma_tau : noise standard deviations (one or per joint); None = estimated
         (sigma_q from the Fourier fit of q, sigma_tau from the torque residual).
     theta0 : start; default the model's LS start along the Fourier-fitted q.
     qd_threshold : torque equations where the Fourier-fitted |qd_j| is below this
         (rad/s; one value or per joint) are left out, as IDIM's velocity dead zone:
         sign(qd) is the wrong model while a joint reverses or sticks. 'auto' =
-        ``ML_DEAD_ZONE_FRACTION`` (5 %) x max |qd_j|; 0 keeps all. Fixed from the start, so
+        `ML_DEAD_ZONE_FRACTION` (5 %) x max |qd_j|; 0 keeps all. Fixed from the start, so
         the objective stays smooth.
     reversal_guard : torque equations within this time (s) of a velocity
         reversal of the latent trajectory are left out too. At a reversal the
@@ -469,7 +475,7 @@ def maximum_likelihood(t, q, tau, model, *, f0, n_harmonics=None, sigma_q=None, 
         data do not have (measured: Fc biased by -12 to -19 % without the
         guard). 'auto' = 1/(4 K f0); 0 disables it.
 
-    Returns :class:`MLResult`. Raises InputError on bad input, ConvergenceError
+    Returns `MLResult`. Raises InputError on bad input, ConvergenceError
     when the optimiser fails.
     """
     t0 = time.perf_counter()

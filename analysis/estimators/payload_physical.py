@@ -12,7 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dynid.analysis.estimators.physical import J_MARGIN, _whitening, require_cvxpy
+from dynid.analysis.estimators.sdp import J_MARGIN, require_cvxpy
+from dynid.analysis.estimators.sdp import whitening as _whitening
 from dynid.analysis.results import ParameterResults
 from dynid.dynamics.robot import INERTIAL
 from dynid.dynamics.urdf_writer import pseudo_inertia_basis

@@ -1,41 +1,41 @@
 """Physically consistent weighted least squares (PC-WLS): an SDP over the standard parameters.
 
-The unconstrained WLS of :mod:`dynid.analysis.estimators.least_squares`
+The unconstrained WLS of `dynid.analysis.estimators.least_squares`
 (Gautier, Janot & Vandanjon 2010, eq. (16)) fits the base parameters
-``beta`` freely; nothing keeps them those of a rigid body. PC-WLS minimises
-the *same* weighted residual over the standard parameters ``chi``
-(``beta = P chi``, :mod:`dynid.dynamics.base_parameters`), subject to
+`beta` freely; nothing keeps them those of a rigid body. PC-WLS minimises
+the *same* weighted residual over the standard parameters `chi`
+(`beta = P chi`, `dynid.dynamics.base_parameters`), subject to
 
-* every link's pseudo-inertia ``J_l(chi)`` positive semidefinite (Wensing,
+* every link's pseudo-inertia `J_l(chi)` positive semidefinite (Wensing,
   Kim & Slotine 2017, "Linear matrix inequalities for physically consistent
   inertial parameter identification", IEEE RA-L 3(1)): mass >= 0, centre of
   mass where a non-negative density can put it, triangle inequalities;
-* actuator inertia ``Ia >= 0``, viscous ``Fv >= 0`` and Coulomb ``Fc >= 0``
+* actuator inertia `Ia >= 0`, viscous `Fv >= 0` and Coulomb `Fc >= 0`
   friction (also those of a coupled motor);
 * optionally each mass within a fraction of its a-priori value
-  (``mass_tolerance``).
+  (`mass_tolerance`).
 
 Why the objective is written in base-parameter space. With the per-joint
 weights 1/sigma_j of the WLS kept fixed, the weighted squared residual of
-any beta is ``||W~ beta - Y~||^2 = ||W~ beta_wls - Y~||^2 + ||R (beta -
-beta_wls)||^2`` with ``R^T R = W~^T W~`` (Pythagoras on the range of W~). So
+any beta is `||W~ beta - Y~||^2 = ||W~ beta_wls - Y~||^2 + ||R (beta -
+beta_wls)||^2` with `R^T R = W~^T W~` (Pythagoras on the range of W~). So
 
     minimise   ||R_c (P chi - beta_wls)||^2  +  w * sum_i ((chi_i - chi_ap_i) / s_i)^2
     subject to the constraints above,               R_c^T R_c = cov_wls^-1,
 
 has the PC-WLS solution, and its first term (call it Delta) is the growth of
 the weighted squared residual in units of the WLS error variance
-sigma_rho^2 (eq. (13)): a chi^2 statistic. ``chi_ap`` are the robot file's
-a-priori values and ``s_i`` per-parameter scales (as in
-:mod:`dynid.analysis.estimators.standard_set`). The second term is the
-Euclidean regularisation toward the a-priori values (``prior="apriori"``); ``w``
-is reported. With ``prior=None`` it is only a tie-break (``w = 1e-8``): the data
+sigma_rho^2 (eq. (13)): a chi^2 statistic. `chi_ap` are the robot file's
+a-priori values and `s_i` per-parameter scales (as in
+`dynid.analysis.estimators.standard_set`). The second term is the
+Euclidean regularisation toward the a-priori values (`prior="apriori"`); `w`
+is reported. With `prior=None` it is only a tie-break (`w = 1e-8`): the data
 see the base parameters only, and among the standard sets with the same fit the
 one closest to the a-priori values is returned.
 
-The geometric prior (``prior="geometric"``; Lee, Wensing & Park 2020, "Geometric
+The geometric prior (`prior="geometric"`; Lee, Wensing & Park 2020, "Geometric
 robot dynamic identification: a convex programming approach", IEEE T-RO 36(2),
-the entropic divergence; the authors' reference code, ``ID_Entropic.m``
+the entropic divergence; the authors' reference code, `ID_Entropic.m`
 of Geometric-Robot-DynID, minimises the same -log det J + tr(J0^-1 J)). For the
 ten inertial parameters of link l the Euclidean term is replaced by the Bregman
 divergence of -log det on the pseudo-inertias (twice the Kullback-Leibler
@@ -43,15 +43,15 @@ divergence of zero-mean Gaussians of covariances J_l and J0_l),
 
     d(J_l || J0_l) = -log det(J0_l^-1 J_l) + tr(J0_l^-1 J_l) - 4,
 
-with ``J0_l`` the a-priori link's pseudo-inertia (it must be positive definite:
+with `J0_l` the a-priori link's pseudo-inertia (it must be positive definite:
 a robot file without a-priori inertials is refused). d is convex in J_l, zero
 only at J_l = J0_l, and invariant under a rigid change of the link's frame
 (J -> T J T^T, T a homogeneous transform, applied to J and J0), which no
 per-parameter Euclidean distance is: the pull no longer depends on where the
-link frame sits or on the scales s_i. Near J0 it is ``||J0^-1/2 dJ J0^-1/2||_F^2 / 2``,
-a relative change like the scaled Euclidean term, so the same weight ``w``
+link frame sits or on the scales s_i. Near J0 it is `||J0^-1/2 dJ J0^-1/2||_F^2 / 2`,
+a relative change like the scaled Euclidean term, so the same weight `w`
 means about the same strength. The parameters that have no pseudo-inertia (Ia,
-Fv, Fc, Off, motor couplings) keep the Euclidean term with the same ``w``.
+Fv, Fc, Off, motor couplings) keep the Euclidean term with the same `w`.
 The SDP gains one log-det (exponential and PSD cones, Clarabel) per link. This
 is the paper's entropic divergence, not its constant-pullback distance (the
 quadratic form of the affine-invariant metric at J0).
@@ -60,18 +60,18 @@ The test "the data want a non-physical model". Under the hypothesis that
 the true parameters are physically consistent, Delta is a chi-bar-squared
 variable (a mixture of chi^2_0 .. chi^2_k over the k active constraint
 directions; Shapiro 1985, Kodde & Palm 1986), and P(chi-bar^2 > c) <=
-P(chi^2_k > c). The reported ``p_value`` is that bound with k the number of
-active scalar constraints (``r (r + 1) / 2`` for a pseudo-inertia of nullity
+P(chi^2_k > c). The reported `p_value` is that bound with k the number of
+active scalar constraints (`r (r + 1) / 2` for a pseudo-inertia of nullity
 r, 1 per bound), so it is conservative: a small p-value means the data
 really want a non-physical model (a modelling error worth diagnosing), a
 large one that the constraint costs nothing worth noticing.
 
-Uncertainty: a parametric bootstrap of the constrained fit (``n_boot``
-draws). The PC fit depends on the data only through ``beta_wls``, whose
+Uncertainty: a parametric bootstrap of the constrained fit (`n_boot`
+draws). The PC fit depends on the data only through `beta_wls`, whose
 distribution under Gaussian errors is N(beta, cov_wls); so draws beta* ~
 N(P chi_pc, cov_wls), centred on the constrained fit, are exactly the WLS
 estimates of data simulated from the fitted physical model, and each is
-re-fitted under the constraints. The intervals (``conf_int``) are the hull of
+re-fitted under the constraints. The intervals (`conf_int`) are the hull of
 the bootstrap percentile interval and the estimate plus or minus z sigma_wls, cut at the
 physical bound of a base parameter that is a lone Ia, Fv or Fc (>= 0):
 
@@ -88,17 +88,17 @@ only non-physical values; it makes the data no more informative elsewhere,
 so the interval keeps the unconstrained half-width on each side and is
 one-sided only where the physical bound itself cuts it (the truth is
 physical, so the cut never removes it: the coverage is at least that of the
-WLS interval). The standard errors (``bse``, %sigma) are the half-width of the
+WLS interval). The standard errors (`bse`, %sigma) are the half-width of the
 wider side of that 95 % interval (before the cut) over 1.96, with the correlations
-of the refits (:func:`interval_covariance`): ``beta_pc +- 1.96 sigma`` contains
-``conf_int``. The refits' own spread (``boot_std``) is not reported as sigma: normal
+of the refits (`interval_covariance`): `beta_pc +- 1.96 sigma` contains
+`conf_int`. The refits' own spread (`boot_std`) is not reported as sigma: normal
 intervals on it under-covered. Measured on 50 + 50 simulated Panda seeds near the
-constraints in ``benchmarks/physical_seeds.py --coverage``; see the CHANGELOG.
+constraints in `benchmarks/physical_seeds.py --coverage`; see the CHANGELOG.
 
 Solved with cvxpy and the Clarabel interior-point solver (optional extra
-``dynid[physical]``). The problem is convex, so the solution is a global
+`dynid[physical]`). The problem is convex, so the solution is a global
 optimum, unlike the log-Cholesky local search of
-:func:`dynid.analysis.estimators.standard_set.choose_standard_set`.
+`dynid.analysis.estimators.standard_set.choose_standard_set`.
 """
 from __future__ import annotations
 
@@ -147,14 +147,14 @@ PRIORS = (None, "apriori", "geometric")
 
 @dataclass(eq=False)
 class PhysicalResult(ParameterResults):
-    """A physically consistent WLS estimate (the :class:`ParameterResults` interface).
+    """A physically consistent WLS estimate (the `ParameterResults` interface).
 
-    ``names``/``params``/``bse``/``cov``: all base parameters, ``beta = P chi``;
-    ``conf_int``: the hull of the bootstrap percentiles and the WLS half-width, cut at
-    the physical bound (module doc); ``bse`` (and %sigma) the half-width of the wider side of
-    that 95 % interval over 1.96, so ``params +- 1.96 bse`` contains it
-    (:func:`interval_covariance`); ``boot_std``: the spread of the bootstrap refits.
-    ``standard``: the standard set (what a URDF or MJCF holds).
+    `names`/`params`/`bse`/`cov`: all base parameters, `beta = P chi`;
+    `conf_int`: the hull of the bootstrap percentiles and the WLS half-width, cut at
+    the physical bound (module doc); `bse` (and %sigma) the half-width of the wider side of
+    that 95 % interval over 1.96, so `params +- 1.96 bse` contains it
+    (`interval_covariance`); `boot_std`: the spread of the bootstrap refits.
+    `standard`: the standard set (what a URDF or MJCF holds).
     """
 
     method = "PC-WLS"
@@ -223,12 +223,12 @@ class PhysicalResult(ParameterResults):
     @property
     def boot_std(self):
         """The standard deviation of the bootstrap refits (None without a bootstrap): the
-        estimator's spread if the truth sat on the active constraints; smaller than ``bse``
-        there (see :func:`interval_covariance`)."""
+        estimator's spread if the truth sat on the active constraints; smaller than `bse`
+        there (see `interval_covariance`)."""
         return None if self.boot_cov is None else np.sqrt(np.maximum(np.diag(self.boot_cov), 0.0))
 
     def conf_int(self, alpha: float = 0.05) -> pd.DataFrame:
-        """(1 - alpha) intervals: hull of the bootstrap percentiles and ``chi +- z sigma_wls``,
+        """(1 - alpha) intervals: hull of the bootstrap percentiles and `chi +- z sigma_wls`,
         cut at the physical lower bound (module doc); without a bootstrap (or with fewer
         than 20 refits) the WLS half-width alone, cut the same way."""
         _check_alpha(alpha)
@@ -255,7 +255,7 @@ class PhysicalResult(ParameterResults):
                                 index=self._index())
 
     def to_standard_set(self):
-        """The PC standard set as a :class:`~dynid.analysis.estimators.standard_set.StandardSet`
+        """The PC standard set as a `StandardSet`
         (what the URDF export writes), its targets the unconstrained WLS values."""
         sig = np.sqrt(np.maximum(np.diag(self.wls_cov), 0.0))
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -283,8 +283,8 @@ class PhysicalResult(ParameterResults):
 
     def held_out_block(self, experiment, robot) -> dict:
         """Held-out relative error ||tau - tau_hat|| / ||tau|| and per-joint RMS [N m] of this fit and
-        of the unconstrained WLS it constrains, on all decimated samples of ``experiment`` (no dead
-        zone, as :func:`dynid.analysis.statistics.validation.validate`), with the gap in points."""
+        of the unconstrained WLS it constrains, on all decimated samples of `experiment` (no dead
+        zone, as `dynid.analysis.statistics.validation.validate`), with the gap in points."""
         if self.idim is None:
             raise InputError("held_out_block: this PC fit does not carry the IDIM result it came from")
         full = observe(experiment, robot, self.idim.base, dict(self.settings, qd_threshold=0.0))
@@ -296,7 +296,7 @@ class PhysicalResult(ParameterResults):
                 "rms_pc": [float(x) for x in rms_pc], "gap_points": 100.0 * (e_pc - e_wls)}
 
     def physical_block(self) -> dict:
-        """The JSON block ``"physical"`` of ``dynid identify --physical``."""
+        """The JSON block `"physical"` of `dynid identify --physical`."""
         return json_safe({
             "model": self.model,
             "consistent": self.consistent, "active": self.active, "chi2": self.chi2, "dof": self.dof,
@@ -357,16 +357,16 @@ class PhysicalResult(ParameterResults):
 
 def pc_wls(robot, bp, beta_wls, cov_wls, *, prior=None, prior_weight=1.0, mass_tolerance=None,
            n_boot=100, seed=0, apriori=None) -> PhysicalResult:
-    """PC-WLS from an unconstrained WLS estimate ``beta_wls`` (b,) and its covariance (b, b).
+    """PC-WLS from an unconstrained WLS estimate `beta_wls` (b,) and its covariance (b, b).
 
-    ``prior``: None (a-priori values only break ties), ``"apriori"`` (add
-    ``prior_weight * sum(((chi - chi_ap) / s)^2)``, Euclidean, to the chi^2) or
-    ``"geometric"`` (add ``prior_weight`` times the entropic divergence of each link's
+    `prior`: None (a-priori values only break ties), `"apriori"` (add
+    `prior_weight * sum(((chi - chi_ap) / s)^2)`, Euclidean, to the chi^2) or
+    `"geometric"` (add `prior_weight` times the entropic divergence of each link's
     pseudo-inertia from its a-priori one, Lee, Wensing & Park 2020, and the Euclidean term
-    of the other parameters; module doc). ``apriori``: standard values to use instead of
+    of the other parameters; module doc). `apriori`: standard values to use instead of
     the robot file's.
-    ``mass_tolerance``: keep each link mass within this fraction of its
-    a-priori value (default: the robot file's ``[apriori] mass_tolerance``, else none). ``n_boot``: parametric-bootstrap refits for the
+    `mass_tolerance`: keep each link mass within this fraction of its
+    a-priori value (default: the robot file's `[apriori] mass_tolerance`, else none). `n_boot`: parametric-bootstrap refits for the
     uncertainty (0: the WLS covariance is reported, with a notice).
     """
     if prior not in PRIORS:
@@ -442,22 +442,22 @@ def pc_wls(robot, bp, beta_wls, cov_wls, *, prior=None, prior_weight=1.0, mass_t
 
 
 def interval_covariance(beta, cov_wls, boot=None, boot_cov=None):
-    """The reported covariance of a PC fit: standard deviations that make ``beta +- 1.96 sigma``
-    contain the 95 % interval of :meth:`PhysicalResult.conf_int` (before its cut at a bound),
+    """The reported covariance of a PC fit: standard deviations that make `beta +- 1.96 sigma`
+    contain the 95 % interval of `PhysicalResult.conf_int` (before its cut at a bound),
 
         sigma_i = max(sigma_wls_i, (q97.5_i - beta_i) / 1.96, (beta_i - q2.5_i) / 1.96),
 
-    with the correlations of the bootstrap refits ``boot`` (K, b; ``boot_cov`` their covariance,
-    computed when not given) (those of ``cov_wls``
-    without a bootstrap or with fewer than 20 refits, where ``sigma_i`` is the larger of
-    ``sigma_wls_i`` and the refits' spread).
+    with the correlations of the bootstrap refits `boot` (K, b; `boot_cov` their covariance,
+    computed when not given) (those of `cov_wls`
+    without a bootstrap or with fewer than 20 refits, where `sigma_i` is the larger of
+    `sigma_wls_i` and the refits' spread).
 
     Why not the bootstrap spread itself: it is the spread of the estimator *if the truth is
     on the constraint*, smaller than the WLS one wherever a constraint cuts it, and normal
     intervals built on it under-covered (91.7-92.4 % on the simulated seeds of
-    ``benchmarks/physical_seeds.py --coverage``, nominal 95 %). %sigma (eq. (15)) read as
+    `benchmarks/physical_seeds.py --coverage`, nominal 95 %). %sigma (eq. (15)) read as
     +-1.96 sigma must be an interval that covers; the bootstrap's spread stays available as
-    :attr:`PhysicalResult.boot_std`.
+    `PhysicalResult.boot_std`.
     """
     sd_wls = np.sqrt(np.maximum(np.diag(cov_wls), 0.0))
     if boot is not None and len(boot) >= 20:
@@ -510,7 +510,7 @@ def _wls_standard_consistent(robot, bp, beta_wls):
 
 
 class _Rows:
-    """The base parameters ``names`` of ``bp`` alone (the essential set): rows of P."""
+    """The base parameters `names` of `bp` alone (the essential set): rows of P."""
 
     def __init__(self, bp, names):
         self.names = list(names)
@@ -521,16 +521,16 @@ class _Rows:
 
 def identify_physical(result, robot, *, prior=None, prior_weight=1.0, mass_tolerance=None,
                       n_boot=100, seed=0, which="base") -> PhysicalResult:
-    """PC-WLS of an IDIM result: its WLS of all base parameters (``which="base"``) or its
-    essential WLS (``which="essential"``), constrained.
+    """PC-WLS of an IDIM result: its WLS of all base parameters (`which="base"`) or its
+    essential WLS (`which="essential"`), constrained.
 
     The base regressor, the decimation and the per-joint weights 1/sigma_j are
-    those of ``result`` (:func:`dynid.analysis.estimators.idim.identify_idim`).
+    those of `result` (`dynid.analysis.estimators.idim.identify_idim`).
 
     The essential set: the same SDP with the essential WLS estimate and covariance as the
-    target and ``beta_e = P_e chi`` (the essential rows of P). The parameters the essential
+    target and `beta_e = P_e chi` (the essential rows of P). The parameters the essential
     model dropped are not in its torques, so they are free in the SDP: the standard set
-    gives them whatever values consistency needs (reported in ``standard``; a URDF of that
+    gives them whatever values consistency needs (reported in `standard`; a URDF of that
     set predicts them too, a small difference by the essential rule's construction).
     """
     wls = getattr(result, "wls", None)
@@ -568,14 +568,14 @@ def identify_physical(result, robot, *, prior=None, prior_weight=1.0, mass_toler
 class PhysicalSupport:
     """Indicator of the physically consistent set in base-parameter space (the posterior's support).
 
-    ``beta`` (base parameters, or a subset ``names`` of them with the others zero, as an
-    essential model) is physical when some standard set ``chi`` has ``P chi = beta``, every
+    `beta` (base parameters, or a subset `names` of them with the others zero, as an
+    essential model) is physical when some standard set `chi` has `P chi = beta`, every
     link's pseudo-inertia PSD and Ia, Fv, Fc >= 0 (the constraints of PC-WLS, without the
     margin or the mass bounds): a feasibility SDP, compiled once and re-solved per point.
     Cheap tests first: a base parameter that is a lone Ia, Fv or Fc (its own column, nothing
-    regrouped into it) must be >= 0 (necessary); and with ``reference`` (a consistent standard
+    regrouped into it) must be >= 0 (necessary); and with `reference` (a consistent standard
     set, e.g. the PC-WLS one) the standard set keeping its regrouped parameters and taking the
-    independent ones from ``beta`` is checked by eigenvalues (sufficient when it passes). The
+    independent ones from `beta` is checked by eigenvalues (sufficient when it passes). The
     SDP decides only the points between the two.
     """
 

@@ -4,18 +4,18 @@ Forssell & Ljung's two-stage method, as section 2.2 of the paper applies it:
 
 1. **Sensitivity** (eq. (10)). Per joint, the torque (or control signal) u is
    fitted by least squares with a non-causal FIR filter of the reference r,
-   ``u(t) = c + sum_{k=-M1}^{M2} s_k r(t-k)``; the fit gives the estimated
-   torque ``u_hat = S_hat r`` (eq. (11)), the part of u that the reference
+   `u(t) = c + sum_{k=-M1}^{M2} s_k r(t-k)`; the fit gives the estimated
+   torque `u_hat = S_hat r` (eq. (11)), the part of u that the reference
    explains. Noise fed back through the controller is independent of r, so it
-   stays in ``u_tilde = u - u_hat``. A constant c is fitted too: gravity's mean
+   stays in `u_tilde = u - u_hat`. A constant c is fitted too: gravity's mean
    and torque offsets are not a linear response to r, and without c the DC gain
    of the filter would have to absorb them.
 2. **Open-loop identification with u_hat** (eq. (12)). The parameters are
    identified by IDIM least squares with u_hat in place of the measured torque.
 
 Which regressor in stage 2, and why. The paper's eq. (12) is a forward model
-``y = G u_hat`` identified by an open-loop method; dynid's open-loop method is
-the inverse model (IDIM), ``u = W(q, qd, qdd) chi``. Regressing u_hat on W
+`y = G u_hat` identified by an open-loop method; dynid's open-loop method is
+the inverse model (IDIM), `u = W(q, qd, qdd) chi`. Regressing u_hat on W
 built from the *measured* q is biased: W then holds the noise-driven part of
 the motion (the controller's reaction to the noise moves the robot), which
 u_hat, being a function of r alone, lacks; the estimate is attenuated like an
@@ -23,10 +23,10 @@ errors-in-variables fit. Building W from the *reference* is noise-free but
 wrong by the tracking error, a bias that does not shrink with more data
 (measured: 600 standard errors on the 1-DOF test case). So stage 2 projects
 the regressor with the same filter space as the torque: each column of W^j is
-replaced by its LS projection ``W_hat^j = P_j W^j`` on the lagged reference
-of joint j, and ``u_hat^j = P_j u^j = W_hat^j chi + P_j e^j`` is solved by OLS
-(:func:`dynid.analysis.estimators.least_squares.ols`). This is two-stage least squares with the
-lagged reference as instruments: ``chi_hat = (W^T P W)^-1 W^T P u``, consistent
+replaced by its LS projection `W_hat^j = P_j W^j` on the lagged reference
+of joint j, and `u_hat^j = P_j u^j = W_hat^j chi + P_j e^j` is solved by OLS
+(`dynid.analysis.estimators.least_squares.ols`). This is two-stage least squares with the
+lagged reference as instruments: `chi_hat = (W^T P W)^-1 W^T P u`, consistent
 whenever the noise e is independent of r, whatever its colour and whether or
 not the controller feeds it back. The paper's own implementation (FFT lines of
 the excitation only, section 3.4) is the special case of a periodic r, whose
@@ -37,29 +37,29 @@ zeroed in W and u *before* both are projected, as IDIM zeroes them before
 decimation: the projection spreads every row over the whole recording, so a
 sign error near a velocity reversal would otherwise reach every row.
 
-Choice of M1, M2. Candidates form the nested family ``(M1, M2) = (0, 0),
-(1, 0), (1, 1), (2, 1), ...`` (columns ordered c, r(t), r(t+1), r(t-1),
+Choice of M1, M2. Candidates form the nested family `(M1, M2) = (0, 0),
+(1, 0), (1, 1), (2, 1), ...` (columns ordered c, r(t), r(t+1), r(t-1),
 r(t+2), ...), so one column-pivot-free QR of the largest lag matrix gives the
 residual sum of squares of every candidate (the squared tail of Q^T u). The
-chosen order minimises BIC ``N log(RSS/N) + p log N`` (or AIC, ``2 p``) on the
+chosen order minimises BIC `N log(RSS/N) + p log N` (or AIC, `2 p`) on the
 rows common to all candidates, with p the numerical rank of the candidate's
 lag matrix (a periodic r with H harmonics has rank <= 2H + 1 whatever the
 number of lags, so wider windows cost nothing once the harmonics are spanned).
 Residual noise is coloured (the H2 e term of eq. (10)), so BIC tends to pick
 slightly large windows; that costs variance, not bias. Asymmetric windows can
-be given explicitly (``m1=``, ``m2=``).
+be given explicitly (`m1=`, `m2=`).
 
 Paper's diagnostic. Eq. (11) asks M1, M2 "to avoid correlation between u_hat
 and u_tilde". Their lag-0 correlation is zero by construction of LS (the paper
 reports 2.9e-14); the result also gives the largest normalised
-cross-correlation over lags |l| <= ``xcorr_lags``, which is what a too-short
+cross-correlation over lags |l| <= `xcorr_lags`, which is what a too-short
 window leaves behind.
 
 Standard deviations. The stage-2 OLS residual is P e, far smaller than e, so
 the OLS covariance of eq. (14) would be badly optimistic. The covariance is
-the IV sandwich ``(W_hat^T W_hat)^-1 S (W_hat^T W_hat)^-1`` with ``S`` the
-Newey-West (Bartlett) long-run covariance of the scores ``W_hat_t^T e_t``,
-``e = u - W chi_hat`` the structural residual: the noise here is coloured by
+the IV sandwich `(W_hat^T W_hat)^-1 S (W_hat^T W_hat)^-1` with `S` the
+Newey-West (Bartlett) long-run covariance of the scores `W_hat_t^T e_t`,
+`e = u - W chi_hat` the structural residual: the noise here is coloured by
 construction. Its bandwidth is twice the lag at which the residual's
 autocorrelation first falls below 2/sqrt(N), capped at N/10.
 """
@@ -114,10 +114,10 @@ def _check_orders(m1, m2):
 def lag_matrix(r, m1, m2, *, intercept=True):
     """Rows and columns of the FIR regression of eq. (10).
 
-    ``r``: (N,) or (N, m) references. Returns ``(rows, R)``: ``rows`` the
-    sample indices t = M2 .. N-1-M1 where every lag exists, ``R`` of shape
-    (len(rows), [1 +] m (M1 + M2 + 1)) with columns ``[1,] r(t+M1), ...,
-    r(t), ..., r(t-M2)`` (reference by reference).
+    `r`: (N,) or (N, m) references. Returns `(rows, R)`: `rows` the
+    sample indices t = M2 .. N-1-M1 where every lag exists, `R` of shape
+    (len(rows), [1 +] m (M1 + M2 + 1)) with columns `[1,] r(t+M1), ...,
+    r(t), ..., r(t-M2)` (reference by reference).
     """
     m1, m2 = _check_orders(m1, m2)
     r = _array("r", r, (1, 2), "(N,) or (N, m)")
@@ -143,7 +143,7 @@ def _nested_lags(m_max):
 
 
 def _orders_of(n_lags):
-    """(M1, M2) of the candidate made of the first ``n_lags`` lags of :func:`_nested_lags`."""
+    """(M1, M2) of the candidate made of the first `n_lags` lags of `_nested_lags`."""
     m1 = n_lags // 2
     m2 = (n_lags - 1) // 2
     return m1, m2
@@ -167,8 +167,8 @@ class OrderSelection:
 def select_fir_order(r, u, *, max_lag=None, criterion="bic", rank_rtol=RANK_RTOL):
     """Choose (M1, M2) of eq. (10) for one joint by BIC (or AIC) over the nested family.
 
-    ``r``: (N,) reference (or (N, m) several references, all lagged alike),
-    ``u``: (N,) torque. ``max_lag`` (default ``min(50, N // 20)``) bounds M1 and M2.
+    `r`: (N,) reference (or (N, m) several references, all lagged alike),
+    `u`: (N,) torque. `max_lag` (default `min(50, N // 20)`) bounds M1 and M2.
     All candidates are compared on the same rows (those of the widest window).
     """
     u = _array("u", u, (1,), "(N,)")
@@ -272,7 +272,7 @@ def _xcorr(a, b, max_lag):
 def fit_fir(r, u, m1, m2, *, rows=None, rank_rtol=RANK_RTOL, xcorr_lags=None):
     """Stage 1 of the Projection Method for one joint: eqs. (10)-(11).
 
-    ``r``: (N,) reference (or (N, m) several); ``u``: (N,) torque. ``rows``
+    `r`: (N,) reference (or (N, m) several); `u`: (N,) torque. `rows`
     restricts the fit to a subset of the valid rows (default: all of them,
     t = M2..N-1-M1). The coefficients s_k are the minimum-norm LS solution
     (the lag matrix of a periodic reference is rank-deficient; u_hat is unique
@@ -312,11 +312,11 @@ def fit_fir(r, u, m1, m2, *, rows=None, rank_rtol=RANK_RTOL, xcorr_lags=None):
 class ProjectionResult(ParameterResults):
     """Parameters identified by the Projection Method, with stage 1's diagnostics.
 
-    ``chi``, ``cov`` (IV sandwich, see the module doc), ``sigma``, ``rel_sigma``
-    (%σ = 100 σ/|χ̂|, eq. (15) of Gautier et al.); ``m1``, ``m2`` per joint;
-    ``corr`` (lag-0 corr(û, ũ), eq. (11)) and ``max_xcorr`` per joint;
-    ``stage2`` the OLS of û on the projected regressor (its own covariance is
-    not the one to use); ``ls`` plain OLS of u on the unprojected W, for
+    `chi`, `cov` (IV sandwich, see the module doc), `sigma`, `rel_sigma`
+    (%σ = 100 σ/|χ̂|, eq. (15) of Gautier et al.); `m1`, `m2` per joint;
+    `corr` (lag-0 corr(û, ũ), eq. (11)) and `max_xcorr` per joint;
+    `stage2` the OLS of û on the projected regressor (its own covariance is
+    not the one to use); `ls` plain OLS of u on the unprojected W, for
     comparison (None if not computed).
     """
 
@@ -368,7 +368,13 @@ class ProjectionResult(ParameterResults):
         return df
 
     def joint_table(self):
-        """Per joint: M1, M2, rank of the lag space, corr(û, ũ), max cross-correlation."""
+        """Per joint: M1, M2, rank of the lag space, corr(û, ũ), max cross-correlation.
+
+        Returns
+        -------
+        pandas.DataFrame
+            One row per joint.
+        """
         n = len(self.m1)
         return pd.DataFrame({"M1": self.m1, "M2": self.m2, "fir_rank": self.fir_rank,
                              "corr_uhat_utilde": self.corr, "max_xcorr": self.max_xcorr,
@@ -485,17 +491,17 @@ def projection_method(W3, tau, r, names, *, m1=None, m2=None, criterion="bic", m
     W3 : (N, n, b) regressor built from the measured (filtered) positions.
     tau : (N, n) measured torques or control signals u.
     r : (N, n) reference positions qr, sampled with tau.
-    names : b parameter names (``ZZ1R``, ``Fv1``, ...).
+    names : b parameter names (`ZZ1R`, `Fv1`, ...).
     m1, m2 : FIR window of eq. (10), in samples: one value or one per joint;
-        ``None`` chooses it by ``criterion`` ('bic' or 'aic') up to ``max_lag``.
+        `None` chooses it by `criterion` ('bic' or 'aic') up to `max_lag`.
     references : 'own' (joint j's u is filtered from r_j only, as in the
         paper) or 'all' (from every joint's reference: the multivariable
         sensitivity, for coupled joints).
     row_mask : bool (N,) or (N, n); False rows (e.g. the velocity dead zone)
         are zeroed in W and tau before the projection.
-    compare_ls : also run plain OLS of tau on W (same rows), kept as ``.ls``.
+    compare_ls : also run plain OLS of tau on W (same rows), kept as `.ls`.
 
-    Returns a :class:`ProjectionResult`. Raises InputError on bad shapes,
+    Returns a `ProjectionResult`. Raises InputError on bad shapes,
     non-finite values or too few samples for the FIR order.
     """
     W3 = _array("W3", W3, (3,), "(N samples, n joints, b parameters)")
@@ -576,13 +582,13 @@ def projection_method(W3, tau, r, names, *, m1=None, m2=None, criterion="bic", m
 
 
 def identify_projection(experiment, robot, *, bp=None, settings=None, **kwargs) -> ProjectionResult:
-    """The Projection Method on a recording (needs ``t``, ``q``, ``qr``, ``tau``).
+    """The Projection Method on a recording (needs `t`, `q`, `qr`, `tau`).
 
-    The regressor is built as IDIM builds it (:func:`dynid.analysis.processing.observation.observe`:
+    The regressor is built as IDIM builds it (`dynid.analysis.processing.observation.observe`:
     zero-phase filtered q, central differences, velocity dead zone) but without
     decimation, because the FIR of eq. (10) runs on the recorded samples; the
     rows of the dead zone are masked. Other keyword arguments go to
-    :func:`projection_method`.
+    `projection_method`.
     """
 
     if getattr(experiment, "qr", None) is None:

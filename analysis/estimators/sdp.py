@@ -1,6 +1,6 @@
 """The SDP of the physically consistent fit: its constraints, objective and active set.
 
-The problem of :mod:`dynid.analysis.estimators.physical` (its docstring gives the
+The problem of `dynid.analysis.estimators.physical` (its docstring gives the
 method): minimise ||R (P chi - beta_target)||^2 plus a weighted pull toward the a-priori
 values, over the standard parameters chi, subject to every link's pseudo-inertia
 positive semidefinite (Wensing, Kim & Slotine 2017), Ia, Fv, Fc >= 0 and optional
@@ -110,10 +110,10 @@ def apriori_pseudo_inertias(robot, chi_ap):
 
 def build_sdp(robot, bp, R, chi_ap, s, weight, mass_tolerance, nonneg_kinds=NONNEG_KINDS, zero_kinds=(),
               prior=None):
-    """The SDP; ``zero_kinds`` (e.g. ``("Ia",)``) fixes those standard parameters at 0 (a
+    """The SDP; `zero_kinds` (e.g. `("Ia",)`) fixes those standard parameters at 0 (a
     model without them, such as no rotor inertia behind a link-side torque sensor).
-    ``prior="geometric"``: the inertial parameters' a-priori term is the entropic divergence
-    of the module doc, the others' stays Euclidean (same ``weight``)."""
+    `prior="geometric"`: the inertial parameters' a-priori term is the entropic divergence
+    of the module doc, the others' stays Euclidean (same `weight`)."""
     cp = require_cvxpy()
     J0 = apriori_pseudo_inertias(robot, chi_ap) if prior == "geometric" else None
     names = list(robot.standard_names)

@@ -1,7 +1,7 @@
 """Choosing one standard-parameter set for identified base parameters.
 
-Base parameters are combinations of standard ones (``ZZ1R = ZZ1 + Ia1 + YY2
-+ ...``): the data fix the combinations, not the standard values. A URDF (or
+Base parameters are combinations of standard ones (`ZZ1R = ZZ1 + Ia1 + YY2
++ ...`): the data fix the combinations, not the standard values. A URDF (or
 any simulator) needs standard values, so one set has to be *chosen*. The
 choice made here:
 
@@ -9,48 +9,48 @@ choice made here:
     over physically consistent chi: for every link the pseudo-inertia J_l is positive
     definite, and every actuator inertia Ia_j >= 0
 
-* ``beta_hat``: the identified base parameters (an essential model: its
-  values, 0 for the parameters it removed); ``P``: the regrouping matrix
-  (beta = P chi); ``R^T R = cov^-1`` with ``cov`` the WLS covariance of all
+* `beta_hat`: the identified base parameters (an essential model: its
+  values, 0 for the parameters it removed); `P`: the regrouping matrix
+  (beta = P chi); `R^T R = cov^-1` with `cov` the WLS covariance of all
   base parameters. The first term is then a chi^2: how much the weighted
   squared torque residual of the identification data grows, in units of the
   noise variance. It accounts for correlations: two parameters the data only
   see together may move together at no cost.
-* ``chi_ap``: the a-priori standard set of the robot file (URDF inertials,
-  ``<dynamics>`` friction; 0 where there is none), ``s_i`` a scale per
-  parameter (its a-priori magnitude, floored per kind). ``lam`` is tiny
+* `chi_ap`: the a-priori standard set of the robot file (URDF inertials,
+  `<dynamics>` friction; 0 where there is none), `s_i` a scale per
+  parameter (its a-priori magnitude, floored per kind). `lam` is tiny
   (1e-8): the second term only picks a point along the directions the data
-  cannot see (how ``ZZ1R`` splits into ``ZZ1``, ``Ia1``, ``YY2``, every mass
+  cannot see (how `ZZ1R` splits into `ZZ1`, `Ia1`, `YY2`, every mass
   no base parameter fixes, ...).
-* A positive-definite ``J_l`` (Wensing, Kim, Slotine 2017) means mass > 0,
+* A positive-definite `J_l` (Wensing, Kim, Slotine 2017) means mass > 0,
   inertia about the centre of mass positive definite, and the triangle
   inequality: a non-negative mass density can have these ten numbers.
 
 When a consistent set reproduces the identified values (chi^2 ~ 0), that set
 is found, and among such sets the one closest to the a-priori values. When
 none does -- the identified values are not those of any rigid body, e.g. a
-negative ``ZZ1R`` -- the result is the consistent set closest to them in the
-metric above; ``reproduces`` is False, ``chi2`` says what it costs and the
+negative `ZZ1R` -- the result is the consistent set closest to them in the
+metric above; `reproduces` is False, `chi2` says what it costs and the
 notices list the base parameters that moved most, in standard deviations.
 
 Actuator inertias have no URDF field: their scale is tiny, so a rotor inertia
-is used only where no link inertia can carry it (``Ia1`` goes into ``ZZ1``;
-``Ia3`` of the TX40 or of the KUKA is a base parameter of its own and stays,
-written to the URDF's ``<dynid:parameters>``).
+is used only where no link inertia can carry it (`Ia1` goes into `ZZ1`;
+`Ia3` of the TX40 or of the KUKA is a base parameter of its own and stays,
+written to the URDF's `<dynid:parameters>`).
 
 How (default): the problem is convex -- a quadratic objective, J_l in the
 positive-semidefinite cone, linear bounds -- and is solved as an SDP by cvxpy
-and Clarabel (:mod:`dynid.analysis.estimators.physical`), a global optimum;
+and Clarabel (`dynid.analysis.estimators.physical`), a global optimum;
 the KUKA figures below are those of the local search it replaced. Without the
-optional cvxpy (``pip install "dynid[physical]"``) or with
-``solver="log-cholesky"``: consistency is built into the parametrisation (log-Cholesky, Rucker &
-Wensing 2022: ``J_l = U U^T`` with U upper triangular and an exponentiated
-diagonal; ``Ia_j = g_j^2``), so the problem is an unconstrained nonlinear
-least squares, solved by ``scipy.optimize.least_squares`` (analytic
+optional cvxpy (`pip install "dynid[physical]"`) or with
+`solver="log-cholesky"`: consistency is built into the parametrisation (log-Cholesky, Rucker &
+Wensing 2022: `J_l = U U^T` with U upper triangular and an exponentiated
+diagonal; `Ia_j = g_j^2`), so the problem is an unconstrained nonlinear
+least squares, solved by `scipy.optimize.least_squares` (analytic
 Jacobian) from the a-priori set (eigenvalues floored where it is not
 consistent). Where the answer lies on the boundary of consistency (a link
 that must be as thin as a rod) this parametrisation approaches it slowly:
-``max_nfev`` bounds the work, and the message says when it stopped there.
+`max_nfev` bounds the work, and the message says when it stopped there.
 Measured on the KUKA recordings 2 + 3: chi^2 1806, 1562, 1431 after 100,
 300, 2000 evaluations, relative torque error of the set 2.14 %, 2.08 %,
 2.05 % (identified model: 1.66 %) -- the remaining gain is small. An ADMM
@@ -216,17 +216,17 @@ def choose_standard_set(robot, bp, target, cov, *, target_names=None, apriori=No
                         max_nfev=400, solver="sdp") -> StandardSet:
     """A physically consistent standard set for identified base parameters (see the module doc).
 
-    ``target`` (b,): the identified base-parameter vector to reproduce, in the
-    order of ``bp.names`` (an essential model: its values, 0 elsewhere).
-    ``cov`` (b, b): the covariance the distance is measured with -- the WLS
+    `target` (b,): the identified base-parameter vector to reproduce, in the
+    order of `bp.names` (an essential model: its values, 0 elsewhere).
+    `cov` (b, b): the covariance the distance is measured with -- the WLS
     covariance of all base parameters, so that ||R (beta - target)||^2 (R^T R
     = cov^-1) is how much the weighted squared torque residual of the
     identification data grows, in units of its noise variance (a chi^2).
-    ``target_names``: the parameters listed in the result's table (default all).
-    ``solver``: ``"sdp"`` (default) solves the convex problem above exactly, a
-    global optimum (:mod:`dynid.analysis.estimators.physical`, cvxpy + Clarabel,
+    `target_names`: the parameters listed in the result's table (default all).
+    `solver`: `"sdp"` (default) solves the convex problem above exactly, a
+    global optimum (`dynid.analysis.estimators.physical`, cvxpy + Clarabel,
     with J_l positive semidefinite plus a 1e-9 margin and Fv, Fc >= 0 as well);
-    without cvxpy, or with ``"log-cholesky"``, the local search of the module doc.
+    without cvxpy, or with `"log-cholesky"`, the local search of the module doc.
     """
     names = list(robot.standard_names)
     chi_ap = apriori_standard(robot) if apriori is None else np.asarray(apriori, dtype=float)

@@ -1,9 +1,9 @@
 """Least squares on a recording too long for memory: its observation system reduced as it streams.
 
-:func:`dynid.analysis.processing.streaming.stream_blocks` filters, builds the base
+`dynid.analysis.processing.streaming.stream_blocks` filters, builds the base
 regressor and decimates the recording block by block; here each decimated chunk is
 reduced at once to its per-joint triangles (WᵀW, WᵀY and ‖Y‖² in factored form,
-:class:`dynid.analysis.estimators.least_squares.Reduction`), which add up. OLS, WLS and
+`dynid.analysis.estimators.least_squares.Reduction`), which add up. OLS, WLS and
 the essential set are solved on the sum (Gautier, Janot & Vandanjon 2010, eqs. (9)-(13)).
 """
 from __future__ import annotations
@@ -21,13 +21,13 @@ def reduce_stream(chunks, fs, robot, bp, *, fc_position, nd, f_decimation_cutoff
     """The observation system of a chunked recording reduced as it streams, W never held.
 
     The same decimated rows as
-    :func:`dynid.analysis.processing.streaming.observe_stream` (same arguments), but each
+    `dynid.analysis.processing.streaming.observe_stream` (same arguments), but each
     decimated part is reduced at once to its per-joint triangles
-    (:func:`dynid.analysis.estimators.least_squares.reduce_system`: WᵀW, WᵀY and ‖Y‖²
+    (`dynid.analysis.estimators.least_squares.reduce_system`: WᵀW, WᵀY and ‖Y‖²
     in factored form) and added to the running total, so memory is a few blocks
     of q and tau whatever the recording's length. Rows are selected as there
     (decimated rows that kept at least half their samples). Solve the result
-    with ``ls.wls_reduced`` / ``essential_parameters(reduction, None, None, ls.wls)``.
+    with `ls.wls_reduced` / `essential_parameters(reduction, None, None, ls.wls)`.
     """
     total = []
     names = list(bp.names)
@@ -51,7 +51,7 @@ def reduce_stream(chunks, fs, robot, bp, *, fc_position, nd, f_decimation_cutoff
 
 @dataclass
 class StreamedReduction:
-    """What :func:`reduce_stream` returns: the summed :class:`~ls.Reduction` and its settings."""
+    """What `reduce_stream` returns: the summed `Reduction` and its settings."""
 
     reduction: object
     settings: dict

@@ -1,10 +1,10 @@
 """The fleet catalogue: one row per recording (docs/formats.md, "Fleet catalogue").
 
-Columns: ``robot_id`` (text), ``timestamp`` (ISO 8601, UTC when no zone is given),
-``path`` (the recording, relative paths are relative to the catalogue's folder),
-``robot`` (bundled name such as ``tx40`` or a robot file) and optionally the
-temperatures logged with the recording: ``temperature`` (one value for every
-joint) or ``temperature1`` .. ``temperatureN`` (degrees Celsius, per joint).
+Columns: `robot_id` (text), `timestamp` (ISO 8601, UTC when no zone is given),
+`path` (the recording, relative paths are relative to the catalogue's folder),
+`robot` (bundled name such as `tx40` or a robot file) and optionally the
+temperatures logged with the recording: `temperature` (one value for every
+joint) or `temperature1` .. `temperatureN` (degrees Celsius, per joint).
 """
 from __future__ import annotations
 
@@ -26,13 +26,13 @@ _ID_OK = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 
 
 def temperature_columns(frame) -> list:
-    """The catalogue's temperature columns, ``temperature`` first then by joint number."""
+    """The catalogue's temperature columns, `temperature` first then by joint number."""
     cols = [c for c in frame.columns if _TEMP.match(str(c))]
     return sorted(cols, key=lambda c: int(_TEMP.match(c).group(1) or 0))
 
 
 def joint_temperature(row, joint: int):
-    """Temperature of ``joint`` (1-based) in a catalogue row: its own column, else ``temperature``."""
+    """Temperature of `joint` (1-based) in a catalogue row: its own column, else `temperature`."""
     for col in (f"temperature{joint}", "temperature"):
         if col in row and row[col] is not None and np.isfinite(row[col]):
             return float(row[col])
@@ -40,10 +40,10 @@ def joint_temperature(row, joint: int):
 
 
 def read_catalogue(catalogue) -> pd.DataFrame:
-    """The validated catalogue (a DataFrame) from a ``.csv`` / ``.parquet`` path or a DataFrame.
+    """The validated catalogue (a DataFrame) from a `.csv` / `.parquet` path or a DataFrame.
 
     Paths become absolute (relative to the catalogue's folder), timestamps UTC,
-    and a ``day`` column (``YYYY-MM-DD``, UTC) is added. Errors name the file,
+    and a `day` column (`YYYY-MM-DD`, UTC) is added. Errors name the file,
     the column and the row (1-based data row).
     """
     if isinstance(catalogue, pd.DataFrame):

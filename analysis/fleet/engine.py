@@ -1,11 +1,11 @@
 """The fleet engine: plan the tasks, run them on Dask distributed, store each result as it arrives.
 
 Dask is the scheduler (no process pool of dynid's own): with no address a
-``LocalCluster`` of worker *processes* with one thread each is started on this
+`LocalCluster` of worker *processes* with one thread each is started on this
 machine (the kernels are NumPy and numba: processes, not threads, scale them);
-with an address (``tcp://host:8786``) the run uses that cluster. One task per
+with an address (`tcp://host:8786`) the run uses that cluster. One task per
 recording, submitted with its store key as the Dask key; a task whose worker
-dies is rescheduled by Dask on another worker (``distributed.scheduler.allowed-failures``
+dies is rescheduled by Dask on another worker (`distributed.scheduler.allowed-failures`
 times), and since each task writes its result under its deterministic file
 name, a retried task can neither be lost nor stored twice.
 
@@ -29,7 +29,7 @@ INSTALL_HINT = 'pip install "dynid[fleet]"'
 
 
 def import_distributed():
-    """The ``distributed`` module, or an InputError saying how to install it."""
+    """The `distributed` module, or an InputError saying how to install it."""
     try:
         import distributed
     except ImportError:
@@ -78,7 +78,7 @@ class FleetRun:
 
 
 def plan(catalogue, store: ResultStore, *, settings=None, diagnose=False, max_samples=MAX_SAMPLES):
-    """(all task specs, the specs not yet in ``store``) of a catalogue."""
+    """(all task specs, the specs not yet in `store`) of a catalogue."""
     from dynid.provenance import versions
     version = versions().get("dynid", "?")
     frame = read_catalogue(catalogue)
@@ -145,7 +145,7 @@ def _expand_shared(spec, result):
 
 
 def start_client(scheduler=None, workers=None):
-    """(client, cluster or None): a Client of ``scheduler``, or of a new LocalCluster of ``workers``."""
+    """(client, cluster or None): a Client of `scheduler`, or of a new LocalCluster of `workers`."""
     distributed = import_distributed()
     if scheduler:
         try:
@@ -172,7 +172,7 @@ def identify_and_store(spec: dict, store_root: str) -> dict:
 
 
 def execute(specs, store: ResultStore, client, *, progress=None):
-    """Run ``specs`` on ``client``; each task writes its result to ``store`` as it completes.
+    """Run `specs` on `client`; each task writes its result to `store` as it completes.
 
     Returns (summaries, errors): per task its key, status, error and times. A task
     that keeps killing its workers ends as an error of its recording (written by
@@ -205,7 +205,7 @@ def execute(specs, store: ResultStore, client, *, progress=None):
 
 def identify_fleet(catalogue, store, *, scheduler=None, workers=None, client=None, settings=None,
                    diagnose=False, max_samples=MAX_SAMPLES, progress=None) -> FleetRun:
-    """Identify every recording of ``catalogue`` not yet in ``store`` (the store is updated)."""
+    """Identify every recording of `catalogue` not yet in `store` (the store is updated)."""
     t0 = time.perf_counter()
     store = store if isinstance(store, ResultStore) else ResultStore(store)
     specs, todo = plan(catalogue, store, settings=settings, diagnose=diagnose, max_samples=max_samples)

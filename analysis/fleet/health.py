@@ -2,9 +2,9 @@
 
 From the results store (one identified value and σ per recording and base
 parameter) this module builds, per robot and joint, the history of the friction
-parameters (``Fv``, ``Fc`` by default, plus any base parameter named),
+parameters (`Fv`, `Fc` by default, plus any base parameter named),
 compensates the temperature where one was logged, and runs a two-sided CUSUM
-(Page 1954) on the standardised parameter. The CUSUM's threshold ``h`` comes
+(Page 1954) on the standardised parameter. The CUSUM's threshold `h` comes
 from the accepted false-alarm rate through Siegmund's approximation of the
 in-control average run length (Siegmund 1985, eq. (2.57); Basseville &
 Nikiforov 1993, section 5.2); the onset is the last time the statistic left
@@ -13,8 +13,8 @@ maximum-likelihood estimates of Basseville & Nikiforov section 2.2).
 
 Temperature: viscous and Coulomb friction of a gearbox fall as its lubricant
 warms (Bittencourt & Gunnarsson 2012, on an industrial arm), which would
-hide or mimic wear. The model is ``p(T) = p_ref (1 + c (T - T_ref))``
-with one coefficient ``c`` per parameter, identified across the fleet's
+hide or mimic wear. The model is `p(T) = p_ref (1 + c (T - T_ref))`
+with one coefficient `c` per parameter, identified across the fleet's
 history: the within-robot regression of p / mean(p) on T - mean(T) over every
 robot's baseline window (where no wear is assumed), whose slope c / (1 + c d)
 (d: mean temperature - T_ref) is converted back to c.
@@ -102,7 +102,7 @@ class Alarm:
 
 @dataclass
 class FleetHealth:
-    """What :func:`monitor` found: the histories, the compensation and the alarms."""
+    """What `monitor` found: the histories, the compensation and the alarms."""
 
     history: pd.DataFrame        # one row per (robot, parameter, recording)
     alarms: list                 # Alarm, sorted by robot, joint, parameter
@@ -154,11 +154,11 @@ def _arl(h, k, mu=0.0):
 
 def cusum_threshold(false_alarm_rate: float, allowance: float = DEFAULT_ALLOWANCE,
                     n_baseline: int | None = None) -> float:
-    """One-sided CUSUM threshold h whose false-alarm rate per recording is ``false_alarm_rate``.
+    """One-sided CUSUM threshold h whose false-alarm rate per recording is `false_alarm_rate`.
 
     Siegmund's approximation ARL(mu) = (exp(-2 D b) + 2 D b - 1) / (2 D^2), D = mu - k,
     b = h + 1.166 (Siegmund 1985; Basseville & Nikiforov 1993, eq. (5.2.44)). With
-    ``n_baseline`` the reference value is a mean of that many recordings, so the
+    `n_baseline` the reference value is a mean of that many recordings, so the
     in-control data are N(e, 1) with a persistent error e ~ N(0, 1/n): the rate
     1/ARL is averaged over e (Gauss-Hermite), which is what makes a baseline of a
     week safe (Jones, Champ & Rigdon 2004 show the ARL0 collapsing otherwise).
@@ -187,10 +187,10 @@ def cusum_threshold(false_alarm_rate: float, allowance: float = DEFAULT_ALLOWANC
 
 
 def cusum(z, allowance: float, threshold: float):
-    """Two-sided CUSUM of standardised values ``z`` (Page 1954).
+    """Two-sided CUSUM of standardised values `z` (Page 1954).
 
     Returns (s_up, s_down, alarm) with alarm = None or (index, side, onset index):
-    the first index where one side exceeds ``threshold``, ``side`` +1 or -1, and the
+    the first index where one side exceeds `threshold`, `side` +1 or -1, and the
     onset, the index after the last time that side was zero.
     """
     z = np.asarray(z, dtype=float)
@@ -225,7 +225,7 @@ def _matcher(parameters):
 
 
 def parameter_history(frame: pd.DataFrame, parameters=DEFAULT_PARAMETERS) -> pd.DataFrame:
-    """The rows of the store (:meth:`ResultStore.read`) of the monitored parameters, by robot and time."""
+    """The rows of the store (`ResultStore.read`) of the monitored parameters, by robot and time."""
     match = _matcher(parameters)
     ok = frame[(frame["status"] == "ok") & frame["parameter"].map(lambda n: bool(n) and match(n))]
     cols = ["robot_id", "joint", "parameter", "timestamp", "day", "recording", "value", "sigma", "temperature"]
@@ -272,14 +272,19 @@ def _empty_history(hist):
 def monitor(frame: pd.DataFrame, parameters=DEFAULT_PARAMETERS, *, false_alarm_rate: float = DEFAULT_FALSE_ALARM_RATE,
             allowance: float = DEFAULT_ALLOWANCE, n_baseline: int = DEFAULT_BASELINE,
             compensate: bool = True) -> FleetHealth:
-    """Histories, temperature compensation and CUSUM alarms of the store's rows ``frame``.
+    """Histories, temperature compensation and CUSUM alarms of the store's rows `frame`.
 
-    ``false_alarm_rate``: accepted probability of a false alarm per monitored series
+    `false_alarm_rate`: accepted probability of a false alarm per monitored series
     (robot x parameter) and recording, split over the two sides of the CUSUM.
-    ``allowance``: the CUSUM's k in units of the scatter (tuned to shifts of 2 k).
-    ``n_baseline``: the first recordings of each robot, taken as healthy, that fix
+    `allowance`: the CUSUM's k in units of the scatter (tuned to shifts of 2 k).
+    `n_baseline`: the first recordings of each robot, taken as healthy, that fix
     its reference value and (pooled over the fleet) the scatter and the temperature
     coefficient. Series with fewer recordings are reported without alarms.
+
+    Returns
+    -------
+    FleetHealth
+        Per robot and parameter: the history, the compensated series and the alarms.
     """
     check_monitor_options(parameters, false_alarm_rate, n_baseline)
     n_baseline = int(n_baseline)

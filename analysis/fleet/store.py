@@ -1,11 +1,11 @@
 """The fleet results store: Parquet files partitioned by robot and day (docs/formats.md, "Fleet store").
 
-Layout: ``STORE/robot_id=<id>/day=<YYYY-MM-DD>/<recording id>__<key>.parquet``, one
-file per task, written to a temporary name and renamed (:func:`dynid.outputs.staged_path`),
+Layout: `STORE/robot_id=<id>/day=<YYYY-MM-DD>/<recording id>__<key>.parquet`, one
+file per task, written to a temporary name and renamed (`dynid.outputs.staged_path`),
 so a reader sees a task's result whole or not at all, and a task retried after a
-worker died writes the same file again instead of a second one. ``<key>``
+worker died writes the same file again instead of a second one. `<key>`
 hashes (robot, recording, data hash, dynid version, options): a rerun computes
-only the tasks whose key has no file. ``<recording id>`` hashes (robot,
+only the tasks whose key has no file. `<recording id>` hashes (robot,
 recording): when a recording's data changes, its new result replaces the old.
 """
 from __future__ import annotations
@@ -50,7 +50,7 @@ def _joint_of(name: str) -> int:
 
 
 def result_frame(result: dict) -> pd.DataFrame:
-    """The store rows of one task result (see :func:`dynid.analysis.fleet.task.identify_recording`)."""
+    """The store rows of one task result (see `dynid.analysis.fleet.task.identify_recording`)."""
     temps = result.get("temperatures") or []
     common = {"key": result["key"], "robot_id": result["robot_id"], "recording": result["path"],
               "robot": result["robot"], "timestamp": pd.Timestamp(result["timestamp"]), "day": result["day"],
@@ -77,7 +77,7 @@ def result_frame(result: dict) -> pd.DataFrame:
 
 
 class ResultStore:
-    """The Parquet results store at ``root`` (created on first write)."""
+    """The Parquet results store at `root` (created on first write)."""
 
     def __init__(self, root):
         self.root = os.path.abspath(os.fspath(root))

@@ -1,16 +1,16 @@
 """One fleet task: one recording -> its identified parameters, or its error (pure, deterministic).
 
 The task reads the recording, runs IDIM (OLS, per-joint WLS, essential set of
-Gautier, Janot & Vandanjon 2010 section 2, exactly as ``dynid identify``
-does through :func:`dynid.analysis.estimators.idim.identify_idim`) and returns a
+Gautier, Janot & Vandanjon 2010 section 2, exactly as `dynid identify`
+does through `dynid.analysis.estimators.idim.identify_idim`) and returns a
 plain dict. Nothing in the result depends on the worker, the clock or the
-order of execution except ``task_seconds`` and ``task_cpu_seconds``, which the comparisons leave out.
+order of execution except `task_seconds` and `task_cpu_seconds`, which the comparisons leave out.
 
-A recording longer than ``max_samples`` (default :data:`MAX_SAMPLES`) is not
-processed whole: :func:`dynid.analysis.estimators.streamed.reduce_stream` filters,
+A recording longer than `max_samples` (default `MAX_SAMPLES`) is not
+processed whole: `dynid.analysis.estimators.streamed.reduce_stream` filters,
 builds the regressor and decimates it block by block, and reduces each decimated
 chunk at once to its per-joint triangles (WᵀW, Wᵀτ and ‖τ‖² in factored form,
-:class:`dynid.analysis.estimators.least_squares.Reduction`), which add up; OLS, WLS
+`dynid.analysis.estimators.least_squares.Reduction`), which add up; OLS, WLS
 and the essential set are solved on the sum. Neither the full-rate nor the
 decimated W is ever held, so the task's memory is a few blocks of q and tau
 beyond the recording itself. The streamed filter differs from the whole-record
@@ -95,9 +95,9 @@ def _identify(exp, robot, bp, settings, max_samples):
 
 
 def identify_recording(spec: dict) -> dict:
-    """Run one task. ``spec``: robot_id, path, robot, timestamp, day, key, data_hash,
-    temperatures, settings, max_samples, diagnose. Returns the result dict (``status``
-    ``"ok"`` with the parameters, or ``"error"`` with the message)."""
+    """Run one task. `spec`: robot_id, path, robot, timestamp, day, key, data_hash,
+    temperatures, settings, max_samples, diagnose. Returns the result dict (`status`
+    `"ok"` with the parameters, or `"error"` with the message)."""
     t0, c0 = time.perf_counter(), time.process_time()
     out = {k: spec[k] for k in ("key", "robot_id", "path", "robot", "timestamp", "day", "data_hash",
                                 "version")}

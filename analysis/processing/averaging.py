@@ -1,48 +1,48 @@
 """Period averaging and harmonic filtering of periodic experiments (Bona & Curatella 2005).
 
 Section 2.3 of Bona & Curatella 2005: a periodic excitation (a finite Fourier
-series of period ``T = 1 / f0``) is repeated and the recorded periods are
+series of period `T = 1 / f0`) is repeated and the recorded periods are
 averaged, which lowers the noise and, by the central limit theorem, makes it
 Gaussian; the period-to-period spread measures the noise itself (section 3.4:
 25 repetitions; the PDF of the noise of Fig. 5). Section 3.4 also keeps, of
 the measured torque, only the FFT lines at the excitation's harmonics
-``k f0, k <= N`` (:func:`harmonic_filter`).
+`k f0, k <= N` (`harmonic_filter`).
 
-:func:`average_periods`
-    * **Cutting.** The recording is cut, from its first sample, into ``M``
-      whole periods of ``P = T fs`` samples (``M = floor(n_samples / P)`` unless
-      ``n_periods`` is given; the samples after the last whole period are
-      dropped and counted). When ``T fs`` is not an integer (within 1e-6), each
-      signal is first resampled by linear interpolation onto ``fs' = ceil(T fs) / T``
+`average_periods`
+    * **Cutting.** The recording is cut, from its first sample, into `M`
+      whole periods of `P = T fs` samples (`M = floor(n_samples / P)` unless
+      `n_periods` is given; the samples after the last whole period are
+      dropped and counted). When `T fs` is not an integer (within 1e-6), each
+      signal is first resampled by linear interpolation onto `fs' = ceil(T fs) / T`
       so that a period is a whole number of samples; the result says so. Linear
-      interpolation at fractional position ``mu`` scales the variance of white
-      noise by ``(1 - mu)^2 + mu^2``; the noise estimates are corrected by the
+      interpolation at fractional position `mu` scales the variance of white
+      noise by `(1 - mu)^2 + mu^2`; the noise estimates are corrected by the
       mean of that factor over the new grid (exact in expectation for white
       noise), and the noise samples themselves are then slightly correlated.
-    * **Alignment** (``align=True``). Each period of the signal ``align_on``
+    * **Alignment** (`align=True`). Each period of the signal `align_on`
       (default: the first key; choose the least noisy one, the measured
-      positions) is compared with the first period by :func:`estimate_period_shift`:
+      positions) is compared with the first period by `estimate_period_shift`:
       the maximum of the circular cross-correlation (the signal is periodic),
-      summed over joints weighted by ``1 / sigma_j^2`` and restricted to the DFT
+      summed over joints weighted by `1 / sigma_j^2` and restricted to the DFT
       bins where the signal's power is 10x the noise's, refined to a fraction
       of a sample by Newton steps on the exact trigonometric correlation. That
-      is the least-squares shift; its standard error ``se`` follows from the
-      signal's derivative and the noise (``sigma_j``: the smaller of
-      ``std(diff(x)) / sqrt(2)`` and the unaligned period-to-period spread). A
-      lag is applied only when it exceeds both ``align_tol`` (default 0.05
-      sample) and ``4 se``: on synchronous periods the estimates are noise and
+      is the least-squares shift; its standard error `se` follows from the
+      signal's derivative and the noise (`sigma_j`: the smaller of
+      `std(diff(x)) / sqrt(2)` and the unaligned period-to-period spread). A
+      lag is applied only when it exceeds both `align_tol` (default 0.05
+      sample) and `4 se`: on synchronous periods the estimates are noise and
       nothing is shifted (a shift below a few standard errors changes the
       average by less than the noise anyway). A period is shifted back by its
       lag, the integer part by a circular roll, the fractional part by a
       linear phase in its DFT (band-limited and variance-preserving).
-      ``lag_estimates``, ``lag_se`` and the applied ``shifts`` are reported.
-    * **Average and noise.** ``mean = (1/M) sum_m x_m`` per sample of the period.
-      The noise samples are ``e_m = (x_m - mean) sqrt(M / (M - 1))``: since
-      ``E sum_m (x_m - mean)^2 = (M - 1) sigma^2`` for white noise of standard
-      deviation ``sigma``, the mean of ``e^2`` over all ``M P`` samples is an
-      unbiased estimate of ``sigma^2`` (``sigma`` below is its square root). The
-      averaged signal's noise has standard deviation ``sigma / sqrt(M)``
-      (``sigma_mean``).
+      `lag_estimates`, `lag_se` and the applied `shifts` are reported.
+    * **Average and noise.** `mean = (1/M) sum_m x_m` per sample of the period.
+      The noise samples are `e_m = (x_m - mean) sqrt(M / (M - 1))`: since
+      `E sum_m (x_m - mean)^2 = (M - 1) sigma^2` for white noise of standard
+      deviation `sigma`, the mean of `e^2` over all `M P` samples is an
+      unbiased estimate of `sigma^2` (`sigma` below is its square root). The
+      averaged signal's noise has standard deviation `sigma / sqrt(M)`
+      (`sigma_mean`).
 """
 from __future__ import annotations
 
@@ -96,7 +96,7 @@ def _sampling_rate(t, fs):
 
 
 def noise_level(x):
-    """Rough per-column noise std of a slowly varying signal: ``std(diff(x)) / sqrt(2)``.
+    """Rough per-column noise std of a slowly varying signal: `std(diff(x)) / sqrt(2)`.
 
     Exact for white noise on a signal that changes little from one sample to
     the next (a band far below fs, as here); an overestimate otherwise.
@@ -110,18 +110,18 @@ SIGNAL_BIN_SNR = 10.0      # a DFT bin is "signal" when its power is 10x the noi
 
 
 def estimate_period_shift(reference, x, sigma=None, *, return_se=False):
-    """Lag (samples, sub-sample) of one period ``x`` behind ``reference``, both (P, n).
+    """Lag (samples, sub-sample) of one period `x` behind `reference`, both (P, n).
 
     Maximum of the weighted circular cross-correlation
-    ``c(tau) = sum_j sum_k Re(conj(R_jk) X_jk exp(i w_k tau)) / sigma_j^2`` over the
-    DFT bins ``k`` where the reference's power is at least ``SIGNAL_BIN_SNR``
-    times the noise's (``P sigma_j^2`` per bin): the least-squares (Gaussian
+    `c(tau) = sum_j sum_k Re(conj(R_jk) X_jk exp(i w_k tau)) / sigma_j^2` over the
+    DFT bins `k` where the reference's power is at least `SIGNAL_BIN_SNR`
+    times the noise's (`P sigma_j^2` per bin): the least-squares (Gaussian
     maximum-likelihood) shift, restricted to the band where the signal is.
-    The integer peak of ``c`` is refined by Newton steps on the exact
-    (trigonometric) ``c(tau)``. ``sigma`` (n,) defaults to :func:`noise_level`
-    of both periods. Positive: ``x`` is ``reference`` delayed by that many
-    samples. With ``return_se`` also the standard error
-    ``sqrt(2 / sum_j sum_t r_j'(t)^2 / sigma_j^2)`` (both periods noisy).
+    The integer peak of `c` is refined by Newton steps on the exact
+    (trigonometric) `c(tau)`. `sigma` (n,) defaults to `noise_level`
+    of both periods. Positive: `x` is `reference` delayed by that many
+    samples. With `return_se` also the standard error
+    `sqrt(2 / sum_j sum_t r_j'(t)^2 / sigma_j^2)` (both periods noisy).
     """
     r = np.asarray(reference, dtype=float)
     y = np.asarray(x, dtype=float)
@@ -164,7 +164,7 @@ def estimate_period_shift(reference, x, sigma=None, *, return_se=False):
 
 
 def _shift(x, lag):
-    """Advance the periodic block x (P, n) by ``lag`` samples (undo a delay of lag)."""
+    """Advance the periodic block x (P, n) by `lag` samples (undo a delay of lag)."""
     P = x.shape[0]
     k = int(np.round(lag))
     frac = lag - k
@@ -178,7 +178,7 @@ def _shift(x, lag):
 
 @dataclass
 class AveragedPeriods:
-    """Result of :func:`average_periods` (see the module docstring)."""
+    """Result of `average_periods` (see the module docstring)."""
 
     period: float
     fs: float
@@ -198,7 +198,7 @@ class AveragedPeriods:
     notices: list = field(default_factory=list)
 
     def periods(self, name):
-        """The noise of ``name`` as (M, P, n): period m minus the mean, scaled by sqrt(M/(M-1))."""
+        """The noise of `name` as (M, P, n): period m minus the mean, scaled by sqrt(M/(M-1))."""
         e = self.noise[name]
         return e.reshape(self.n_periods, self.samples_per_period, -1)
 
@@ -233,12 +233,12 @@ class AveragedPeriods:
 
 def average_periods(t, signals, period, n_periods=None, align=True, *, fs=None, align_on=None,
                     align_tol=0.05) -> AveragedPeriods:
-    """Cut ``signals`` into whole periods, align and average them (module docstring).
+    """Cut `signals` into whole periods, align and average them (module docstring).
 
-    ``signals``: ``{name: (N, n) or (N,)}`` sampled at the times ``t`` (uniform; a 1-D
+    `signals`: `{name: (N, n) or (N,)}` sampled at the times `t` (uniform; a 1-D
     signal is one column, its mean is (P, 1));
-    ``period`` in s; ``n_periods``: how many periods to use (default all whole
-    ones). Returns an :class:`AveragedPeriods`.
+    `period` in s; `n_periods`: how many periods to use (default all whole
+    ones). Returns an `AveragedPeriods`.
     """
     if not isinstance(signals, dict) or not signals:
         raise InputError("signals must be a non-empty dict {name: array (N, n)}")
@@ -330,10 +330,10 @@ def average_periods(t, signals, period, n_periods=None, align=True, *, fs=None, 
 
 
 def whole_periods(n_samples, fs, f0):
-    """``(L, M)``: the longest prefix of ``n_samples`` holding a whole number ``M`` of periods.
+    """`(L, M)`: the longest prefix of `n_samples` holding a whole number `M` of periods.
 
-    ``M`` periods of ``1 / f0`` at ``fs`` must be a whole number of samples
-    (within 1e-6); raises InputError when no ``M >= 1`` fits.
+    `M` periods of `1 / f0` at `fs` must be a whole number of samples
+    (within 1e-6); raises InputError when no `M >= 1` fits.
     """
     P = float(fs) / float(f0)
     for M in range(int(math.floor(n_samples / P + 1e-9)), 0, -1):
@@ -346,13 +346,13 @@ def whole_periods(n_samples, fs, f0):
 
 
 def harmonic_filter(x, fs, f0, n_harmonics, *, keep_dc=True):
-    """Keep only the FFT lines at ``k f0`` (``1 <= k <= n_harmonics``, plus DC) of ``x``.
+    """Keep only the FFT lines at `k f0` (`1 <= k <= n_harmonics`, plus DC) of `x`.
 
     Section 3.4 of Bona & Curatella 2005: the torque's components above the
     excitation's bandwidth (and between its lines) are noise and closed-loop
-    effects. The FFT is taken over the longest whole number ``M`` of periods
-    (:func:`whole_periods`), where harmonic ``k`` falls exactly on bin ``k M``;
-    every other bin is zeroed. ``x``: (N,) or (N, n); the result has the same
+    effects. The FFT is taken over the longest whole number `M` of periods
+    (`whole_periods`), where harmonic `k` falls exactly on bin `k M`;
+    every other bin is zeroed. `x`: (N,) or (N, n); the result has the same
     shape: the filtered whole periods, continued periodically over any trailing
     samples.
     """

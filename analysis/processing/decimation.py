@@ -1,14 +1,14 @@
 """Parallel decimation of eq. (9).
 
 Y_fm and every column of W_fm (eq. (8)) are low-pass filtered with the same
-filter and one sample in ``nd`` is kept, giving eq. (9) (Gautier, Janot &
+filter and one sample in `nd` is kept, giving eq. (9) (Gautier, Janot &
 Vandanjon 2010, section 2; section 5 uses nd = 100 and a cut-off of
 0.8 f_m / (2 nd) = 20 Hz at f_m = 5 kHz).  Because the filter is linear and
 identical for all columns, decimate(W) @ chi == decimate(W @ chi).
 
 Filter
-    Linear-phase FIR (``scipy.signal.firwin``, Kaiser window) designed for
-    ``ATTENUATION_DB`` = 60 dB: its -6 dB point is the cut-off
+    Linear-phase FIR (`scipy.signal.firwin`, Kaiser window) designed for
+    `ATTENUATION_DB` = 60 dB: its -6 dB point is the cut-off
     (default 0.8 fs / (2 nd)), the transition band is symmetric around it,
     half-width min(fs/(2 nd) - cutoff, cutoff/4), so the stop band starts at
     the decimated Nyquist frequency fs / (2 nd) and the pass band (ripple
@@ -18,15 +18,15 @@ Filter
     block of nd samples).
 
 Stages
-    ``nd`` may be split into two stages d1 x d2: the first stage only has to
+    `nd` may be split into two stages d1 x d2: the first stage only has to
     stop what would alias onto [0, fs/(2 nd)], so it is short.  The split (or
     a single stage) is the one with the fewest multiply-adds per input
     sample, counting stages with fewer than 8 polyphase rows twice (small
-    matrix products ran at about half speed when measured, see ``_plan``).
+    matrix products ran at about half speed when measured, see `_plan`).
     For nd = 100 at 5 kHz this picks 25 x 4 (115 + 75 taps, equivalent to
     one FIR of 1965 taps): measured ~1.5x faster than one 1815-tap stage in
-    streaming, about equal in memory.  Pass ``factors=(nd,)`` to
-    ``ParallelDecimator`` to force a single stage.  The cascade is still a
+    streaming, about equal in memory.  Pass `factors=(nd,)` to
+    `ParallelDecimator` to force a single stage.  The cascade is still a
     symmetric FIR centred on the kept samples; its pass-band ripple is
     < 0.2 % (two stages of 0.1 %).
 
@@ -38,9 +38,9 @@ Memory and speed
     on the development machine, so 18 million samples take ~8 s.
 
 Kept samples and edges
-    Kept samples are at multiples of ``nd`` (0, nd, 2 nd, ...) of the input.
+    Kept samples are at multiples of `nd` (0, nd, 2 nd, ...) of the input.
     Those whose filter window would extend past either end of the record are
-    dropped (not computed from padding); ``dropped_start`` / ``dropped_end``
+    dropped (not computed from padding); `dropped_start` / `dropped_end`
     count them so callers can print a notice.  The in-memory function and the
     streaming class share the same code and give the same samples.
 """
@@ -84,7 +84,7 @@ def _kaiser_length(fs: float, f_pass: float, f_stop: float) -> int:
 
 
 def _plan(nd: int, fs: float, f_pass: float, f_stop: float, factors=None):
-    """Return [(taps, down), ...] implementing the decimation by ``nd``.
+    """Return [(taps, down), ...] implementing the decimation by `nd`.
 
     Cost model: multiply-adds per input sample, L1/d1 + L2/(d1 d2), where a
     stage with a small polyphase matrix (taps/down < 8 rows) is counted 2x
@@ -123,9 +123,9 @@ def _weighted(length: int, down: int) -> float:
 
 
 class DecimationFilter:
-    """The FIR cascade and kept-sample grid of a decimation by ``nd``.
+    """The FIR cascade and kept-sample grid of a decimation by `nd`.
 
-    ``fs`` defaults to 1 (then ``cutoff`` is in cycles per sample); ``cutoff``
+    `fs` defaults to 1 (then `cutoff` is in cycles per sample); `cutoff`
     defaults to 0.8 fs / (2 nd) and must be below fs / (2 nd).
     """
 
@@ -174,7 +174,7 @@ class DecimationFilter:
         return self.first_index + self.half_length + 1
 
     def n_outputs(self, n_samples: int) -> int:
-        """Number of decimated samples kept from ``n_samples`` input samples."""
+        """Number of decimated samples kept from `n_samples` input samples."""
         last = n_samples - 1 - self.half_length
         return max(0, (last - self.first_index) // self.nd + 1)
 
@@ -188,7 +188,7 @@ class DecimationFilter:
 
 
 class _Stage:
-    """One FIR + keep-one-in-``down`` stage on a stream, keeping only a tail.
+    """One FIR + keep-one-in-`down` stage on a stream, keeping only a tail.
 
     Several column blocks ("parts", e.g. W and tau) share the index
     bookkeeping but are never concatenated: the bulk of each chunk is read in
@@ -209,7 +209,7 @@ class _Stage:
         self.tails = None
 
     def push(self, parts):
-        """Consume the column blocks ``parts`` (each (n, c_k)); return theirs."""
+        """Consume the column blocks `parts` (each (n, c_k)); return theirs."""
         n = parts[0].shape[0]
         tails = self.tails or [np.empty((0, p.shape[1])) for p in parts]
         n_tail = tails[0].shape[0]
@@ -248,7 +248,7 @@ class _Stage:
 
 
 def _polyphase(buf: np.ndarray, start: int, count: int, poly: np.ndarray, down: int):
-    """``out[i] = sum_j taps[j] * buf[start + i*down + j]`` for i < count."""
+    """`out[i] = sum_j taps[j] * buf[start + i*down + j]` for i < count."""
     rows, n_cols = poly.shape[0], buf.shape[1]
     if count == 0:
         return np.empty((0, n_cols))
@@ -271,23 +271,23 @@ def _polyphase(buf: np.ndarray, start: int, count: int, poly: np.ndarray, down: 
 class ParallelDecimator:
     """Streaming parallel decimation (eq. (9)) with bounded memory.
 
-    ``push(*chunks)`` takes one or several arrays with the same number of
+    `push(*chunks)` takes one or several arrays with the same number of
     samples (time on axis 0, any trailing shape, fixed from the first push),
     e.g. a regressor chunk (n, n_joints, n_params) and a torque chunk
     (n, n_joints), and returns the decimated samples it can already finalise
     (an array, or a tuple of arrays if several were pushed).  All arrays go
-    through one filter, so their kept indices are identical.  ``finish()``
+    through one filter, so their kept indices are identical.  `finish()`
     checks the record and returns what is left (always empty: every output
     is produced as soon as its window is complete).  Concatenating all
-    outputs equals :func:`decimate` on the whole record.
+    outputs equals `decimate` on the whole record.
 
-    Memory held between pushes: the last ~``n_taps + nd`` samples.
+    Memory held between pushes: the last ~`n_taps + nd` samples.
 
-    After ``finish()``: ``indices`` (kept input indices), ``dropped_start``
-    and ``dropped_end`` (grid samples lost to the filter transients).
-    ``n_samples_total``, if given, is checked and lets a too-short record be
-    reported before any work.  ``factors`` forces the stage split, e.g.
-    ``(nd,)`` for a single stage or ``(10, 10)``; by default it is chosen
+    After `finish()`: `indices` (kept input indices), `dropped_start`
+    and `dropped_end` (grid samples lost to the filter transients).
+    `n_samples_total`, if given, is checked and lets a too-short record be
+    reported before any work.  `factors` forces the stage split, e.g.
+    `(nd,)` for a single stage or `(10, 10)`; by default it is chosen
     as described in the module docstring.
     """
 
@@ -389,11 +389,11 @@ class ParallelDecimator:
 
 
 class Decimated(tuple):
-    """``(samples, indices)`` of :func:`decimate`, plus edge information.
+    """`(samples, indices)` of `decimate`, plus edge information.
 
-    Attributes: ``samples``, ``indices`` (into the input samples),
-    ``dropped_start``, ``dropped_end`` (kept-grid samples lost to the filter
-    transient at each end), ``n_taps`` (equivalent FIR length).
+    Attributes: `samples`, `indices` (into the input samples),
+    `dropped_start`, `dropped_end` (kept-grid samples lost to the filter
+    transient at each end), `n_taps` (equivalent FIR length).
     """
 
     def __new__(cls, samples, indices, dropped_start, dropped_end, n_taps):
@@ -419,14 +419,14 @@ class Decimated(tuple):
 def decimate(x, nd, fs=None, cutoff=None) -> Decimated:
     """Parallel decimation of eq. (9) for an in-memory array.
 
-    ``x`` has time on axis 0 and any trailing shape ((N,), (N, n),
+    `x` has time on axis 0 and any trailing shape ((N,), (N, n),
     (N, n, b), ...); every column is filtered by the same zero-phase FIR
-    (module docstring) and one sample in ``nd`` is kept, at input indices
-    that are multiples of ``nd``.  ``fs`` defaults to 1; ``cutoff`` defaults
+    (module docstring) and one sample in `nd` is kept, at input indices
+    that are multiples of `nd`.  `fs` defaults to 1; `cutoff` defaults
     to 0.8 fs / (2 nd).
 
-    Returns :class:`Decimated` ``(samples, indices)``; samples has shape
-    ``(len(indices),) + x.shape[1:]``.  ``.dropped_start`` / ``.dropped_end``
+    Returns `Decimated` `(samples, indices)`; samples has shape
+    `(len(indices),) + x.shape[1:]`.  `.dropped_start` / `.dropped_end`
     count the grid samples dropped at each end (filter transient).
     """
     x = np.asarray(x, dtype=float)

@@ -82,8 +82,8 @@ def resolve_settings(experiment, overrides=None):
 def observe(experiment, robot, bp, settings=None, *, progress=None, reference=False):
     """Build the decimated observation system of eq. (9) from a recording.
 
-    ``settings`` are overrides of :func:`resolve_settings` (or its full output).
-    ``reference=True`` uses the reference ``qr`` instead of ``q`` (analytic
+    `settings` are overrides of `resolve_settings` (or its full output).
+    `reference=True` uses the reference `qr` instead of `q` (analytic
     trajectories, or DIDIM-like checks).
     """
     q_meas = experiment.qr if reference else experiment.q
@@ -153,7 +153,7 @@ def push_chunk(dec, robot, bp, qf, qd, qdd, tau, dead):
 
 
 class FullRate(NamedTuple):
-    """The full-rate signals every observation is built from (see :func:`full_rate`)."""
+    """The full-rate signals every observation is built from (see `full_rate`)."""
 
     settings: dict           # resolved settings, qd_threshold as numbers
     fs: float
@@ -169,12 +169,12 @@ class FullRate(NamedTuple):
 
 
 def full_rate(experiment, robot, q_meas, settings=None) -> FullRate:
-    """Filter and differentiate ``q_meas``, drop the filter's edges, find the dead zone.
+    """Filter and differentiate `q_meas`, drop the filter's edges, find the dead zone.
 
-    The steps :func:`observe`, :func:`dynid.analysis.diagnosis.effect_observation.observe_effects`
-    share before the regressor: settings resolved as :func:`resolve_settings`
+    The steps `observe`, `dynid.analysis.diagnosis.effect_observation.observe_effects`
+    share before the regressor: settings resolved as `resolve_settings`
     (or given in full), zero-phase filter and central differences
-    (:func:`derivatives`), ``edge`` samples dropped at each end, the velocity
+    (`derivatives`), `edge` samples dropped at each end, the velocity
     dead zone widened by fs / fc_position samples.
     """
     if robot.n_joints != q_meas.shape[1]:
@@ -201,10 +201,10 @@ def full_rate(experiment, robot, q_meas, settings=None) -> FullRate:
 def _dead_zone(s, qd, robot, guard=0, whole=True):
     """Full-rate samples (N, n) inside the velocity dead zone, or None; settings with numbers.
 
-    The settings' ``qd_threshold`` resolved by
-    :func:`dynid.analysis.processing.signals.dead_zone_thresholds` and applied, with the
-    robot's couplings and widened by ``guard`` samples on each side, by
-    :func:`dynid.analysis.processing.signals.velocity_dead_zone` (measured: +0.7 % on Ia5 of
+    The settings' `qd_threshold` resolved by
+    `dynid.analysis.processing.signals.dead_zone_thresholds` and applied, with the
+    robot's couplings and widened by `guard` samples on each side, by
+    `dynid.analysis.processing.signals.velocity_dead_zone` (measured: +0.7 % on Ia5 of
     the simulated TX40 without the widening). None when every threshold is 0.
     """
     thr = dead_zone_thresholds(qd, s.get("qd_threshold"))

@@ -13,7 +13,7 @@ __all__ = ["prediction_errors"]
 
 
 def prediction_errors(tau, tau_hat, mask=None):
-    """Relative error norm, per-joint RMS and per-joint relative error (over ``mask`` if given)."""
+    """Relative error norm, per-joint RMS and per-joint relative error (over `mask` if given)."""
     tau = np.asarray(tau, dtype=float)
     res = tau - tau_hat
     if mask is not None:

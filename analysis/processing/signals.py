@@ -5,7 +5,7 @@ joint positions low-pass filtered forward and backward (zero phase), and the
 velocities and accelerations obtained from them by central differences
 (Gautier, Janot & Vandanjon 2010, section 2 and section 5: 50 Hz Butterworth
 at f_m = 5 kHz).  The functions below work on NumPy arrays with time on
-axis 0 (``(N,)`` or ``(N, n_joints)``), in SI units and radians.
+axis 0 (`(N,)` or `(N, n_joints)`), in SI units and radians.
 """
 
 from __future__ import annotations
@@ -40,9 +40,9 @@ TRANSIENT_TOLERANCE = 1e-5
 class Derivatives(NamedTuple):
     """Filtered position and its first two derivatives, time on axis 0.
 
-    Unpacks as ``q_f, qd, qdd``.  The first and last :attr:`edge` samples of
-    ``qd`` and ``qdd`` come from one-sided differences; drop them (use
-    :attr:`interior`) before building the regressor.
+    Unpacks as `q_f, qd, qdd`.  The first and last `edge` samples of
+    `qd` and `qdd` come from one-sided differences; drop them (use
+    `interior`) before building the regressor.
     """
 
     q: np.ndarray
@@ -76,7 +76,7 @@ def _order(order) -> int:
 
 
 def _time_major(x, name: str, min_samples: int = 1) -> np.ndarray:
-    """Return ``x`` as a finite float array with at least ``min_samples`` rows."""
+    """Return `x` as a finite float array with at least `min_samples` rows."""
     x = np.asarray(x, dtype=float)
     if x.ndim == 0:
         raise InputError(f"{name} must be an array with time on axis 0, got a scalar.")
@@ -107,19 +107,19 @@ def _butter_sos(fs: float, fc: float, order: int) -> np.ndarray:
 
 
 def lowpass_filtfilt(x, fs, fc, order=4) -> np.ndarray:
-    """Zero-phase Butterworth low-pass of ``x`` along axis 0.
+    """Zero-phase Butterworth low-pass of `x` along axis 0.
 
-    Forward and reverse filtering (``scipy.signal.sosfiltfilt``) as used for
+    Forward and reverse filtering (`scipy.signal.sosfiltfilt`) as used for
     q_hat in section 5 ("forward and reverse Butterworth filter"), so the
     filtered position has no delay with respect to the torque of eq. (8).
     The magnitude response is that of the Butterworth filter squared: the
-    gain at ``fc`` is 0.5 (-6 dB).
+    gain at `fc` is 0.5 (-6 dB).
 
     Parameters
     ----------
     x : array, shape (N, ...)
     fs : sampling frequency, Hz.
-    fc : cut-off frequency, Hz, ``0 < fc < fs/2``.
+    fc : cut-off frequency, Hz, `0 < fc < fs/2`.
     order : order of the Butterworth prototype (applied twice).
     """
     sos = _butter_sos(fs, fc, order)
@@ -131,22 +131,22 @@ def lowpass_filtfilt(x, fs, fc, order=4) -> np.ndarray:
 
 
 def derivatives(q, fs, fc=None, order=4) -> Derivatives:
-    """Filtered position, velocity and acceleration of ``q`` (section 5).
+    """Filtered position, velocity and acceleration of `q` (section 5).
 
     These are the (q_hat, qd_hat, qdd_hat) of eqs. (6) and (8).
 
-    ``q_f = lowpass_filtfilt(q, fs, fc, order)``; ``qd`` and ``qdd`` are
-    central differences of ``q_f`` with ``dt = 1/fs``:
-    ``qd[k] = (q_f[k+1] - q_f[k-1]) / (2 dt)`` and ``qdd`` is the same
-    central difference applied to ``qd``.  The first and last
-    ``DIFFERENCE_EDGE = 2`` samples use second-order one-sided formulas
-    (``np.gradient(edge_order=2)``); they are flagged by ``result.edge`` /
-    ``result.interior`` and should be dropped.  The filter transient at the
-    ends is longer: see ``default_settings(...)["edge"]``.
+    `q_f = lowpass_filtfilt(q, fs, fc, order)`; `qd` and `qdd` are
+    central differences of `q_f` with `dt = 1/fs`:
+    `qd[k] = (q_f[k+1] - q_f[k-1]) / (2 dt)` and `qdd` is the same
+    central difference applied to `qd`.  The first and last
+    `DIFFERENCE_EDGE = 2` samples use second-order one-sided formulas
+    (`np.gradient(edge_order=2)`); they are flagged by `result.edge` /
+    `result.interior` and should be dropped.  The filter transient at the
+    ends is longer: see `default_settings(...)["edge"]`.
 
-    ``fc=None`` uses the cut-off proposed by :func:`default_settings`.
+    `fc=None` uses the cut-off proposed by `default_settings`.
 
-    Returns a :class:`Derivatives` ``(q_f, qd, qdd)``, each shaped like ``q``.
+    Returns a `Derivatives` `(q_f, qd, qdd)`, each shaped like `q`.
     """
     fs = _positive(fs, "sampling frequency fs")
     if fc is None:
@@ -164,17 +164,17 @@ def derivatives(q, fs, fc=None, order=4) -> Derivatives:
 
 
 def estimate_bandwidth(q, fs, energy=0.99) -> float:
-    """Frequency (Hz) below which ``energy`` of the motion's velocity power lies.
+    """Frequency (Hz) below which `energy` of the motion's velocity power lies.
 
-    For each joint: the velocity ``diff(q) * fs`` is analysed with
-    ``scipy.signal.welch`` (Hann segments of ``WELCH_SEGMENT_SECONDS`` = 4 s,
+    For each joint: the velocity `diff(q) * fs` is analysed with
+    `scipy.signal.welch` (Hann segments of `WELCH_SEGMENT_SECONDS` = 4 s,
     or the whole record if shorter, each segment mean-detrended); the
     returned frequency is the first Welch bin where the cumulative power
-    reaches ``energy`` of the total.  The maximum over joints is returned.
+    reaches `energy` of the total.  The maximum over joints is returned.
 
     Measurement noise on q is taken as white; its velocity spectrum
-    ``s2 * 4 sin^2(pi f / fs)`` rises with frequency and at kHz rates would
-    otherwise own the top 1 %.  ``s2`` is the largest of its fits on the
+    `s2 * 4 sin^2(pi f / fs)` rises with frequency and at kHz rates would
+    otherwise own the top 1 %.  `s2` is the largest of its fits on the
     bands fs/16-fs/8, fs/8-fs/4 and fs/4-fs/2 (where robot motion has no
     power): on a log that was resampled or low-passed before it reached
     dynid (the Panda's, interpolated onto a uniform grid from 4-decimal
@@ -239,7 +239,7 @@ def _nice_floor(value: float) -> int:
 
 
 def _nice_below(nd: int) -> int:
-    """Next 1-2-5 value strictly below ``nd`` (1 stays 1)."""
+    """Next 1-2-5 value strictly below `nd` (1 stays 1)."""
     return 1 if nd <= 1 else _nice_floor(nd - 1)
 
 
@@ -266,20 +266,20 @@ def default_settings(
 ) -> dict:
     """Propose the filtering and decimation settings of eqs. (8)-(9).
 
-    Rules (B = motion bandwidth, :func:`estimate_bandwidth` of ``q`` unless
-    ``bandwidth`` is given):
+    Rules (B = motion bandwidth, `estimate_bandwidth` of `q` unless
+    `bandwidth` is given):
 
-    * ``fc_position`` = 10 B rounded up to a multiple of 5 Hz and clipped to
+    * `fc_position` = 10 B rounded up to a multiple of 5 Hz and clipped to
       [5 Hz, 0.2 fs], and at least 10 x the decimation cut-off (rounded up
       to 5 Hz) so the position filter does not distort the decimated band: the position filter must pass the motion and its
       derivatives' harmonics, but cut the noise that differencing amplifies.
-    * ``nd`` = the largest value of the 1-2-5 series (1, 2, 5, 10, 20, 50,
+    * `nd` = the largest value of the 1-2-5 series (1, 2, 5, 10, 20, 50,
       100, ...) whose decimated cut-off 0.8 fs / (2 nd) is >= 4 B, raised if
-      needed so the cut-off is <= ``fc_position`` (no point decimating above
+      needed so the cut-off is <= `fc_position` (no point decimating above
       the position filter), then lowered until the decimated record (after
-      ``edge`` and the decimation filter) keeps >= 100 samples.
-    * ``f_decimation_cutoff`` = 0.8 fs / (2 nd), the paper's choice.
-    * ``edge`` = :func:`transient_samples` of the position filter (impulse
+      `edge` and the decimation filter) keeps >= 100 samples.
+    * `f_decimation_cutoff` = 0.8 fs / (2 nd), the paper's choice.
+    * `edge` = `transient_samples` of the position filter (impulse
       response above 1e-5 of its peak) + 2 samples of one-sided
       differences: samples to drop at each end of q_f, qd, qdd and tau
       before decimating.  The decimation drops its own transient itself.
@@ -289,10 +289,10 @@ def default_settings(
     FIGAROH 100 Hz on the same robot).
 
     Every keyword overrides the proposal; the others are then derived from
-    it.  ``q`` may be None when ``bandwidth`` is given (no length check).
+    it.  `q` may be None when `bandwidth` is given (no length check).
 
-    Returns a dict with keys ``fc_position``, ``nd``, ``f_decimation_cutoff``,
-    ``edge`` and, for information, ``bandwidth``.
+    Returns a dict with keys `fc_position`, `nd`, `f_decimation_cutoff`,
+    `edge` and, for information, `bandwidth`.
     """
     fs = _positive(fs, "sampling frequency fs")
     n_samples = None
@@ -365,9 +365,9 @@ AUTO_DEAD_ZONE = 0.01
 def dead_zone_thresholds(qd, threshold="auto", *, fraction=AUTO_DEAD_ZONE) -> np.ndarray:
     """The per-joint thresholds (n,) of the velocity dead zone, in rad/s.
 
-    ``threshold`` is a number, one value per joint, ``None`` or 0 (no dead
-    zone), or ``"auto"`` = ``fraction`` x max_t |qd_j| (default
-    :data:`AUTO_DEAD_ZONE`, 1 %) over the samples ``qd`` (N, n) given.
+    `threshold` is a number, one value per joint, `None` or 0 (no dead
+    zone), or `"auto"` = `fraction` x max_t |qd_j| (default
+    `AUTO_DEAD_ZONE`, 1 %) over the samples `qd` (N, n) given.
     Raises InputError for anything else, or for thresholds < 0 or not finite.
     """
     qd = np.asarray(qd, dtype=float)
@@ -396,16 +396,16 @@ def velocity_dead_zone(qd, threshold="auto", *, guard=0, couplings=(),
     The one implementation of dynid's velocity dead zone (IDIM's observation,
     the streaming observation, DIDIM, the residual diagnosis and maximum
     likelihood all call it). Sample t of joint j is in the zone when
-    ``|qd_tj| < threshold_j``: the sign of the Coulomb friction term
-    ``Fc_j sign(qd_j)`` of eq. (3) is undetermined there (noise flips it,
+    `|qd_tj| < threshold_j`: the sign of the Coulomb friction term
+    `Fc_j sign(qd_j)` of eq. (3) is undetermined there (noise flips it,
     stiction is not modelled), so those torque equations are excluded.
 
-    ``threshold``: see :func:`dead_zone_thresholds` (default ``"auto"`` =
-    ``fraction`` = 1 % of each joint's peak |qd_j|). ``couplings``: the
-    robot's motor couplings (``robot.couplings``); a motor turning with
+    `threshold`: see `dead_zone_thresholds` (default `"auto"` =
+    `fraction` = 1 % of each joint's peak |qd_j|). `couplings`: the
+    robot's motor couplings (`robot.couplings`); a motor turning with
     several joints has its own Coulomb sign, sign(sum_k c_k qd_k), so all its
-    joints are in the zone when ``|sum_k c_k qd_k|`` is below the motor's
-    threshold. ``guard``: the zone is widened by this many samples on each
+    joints are in the zone when `|sum_k c_k qd_k|` is below the motor's
+    threshold. `guard`: the zone is widened by this many samples on each
     side (a joint that sticks and slips changes its acceleration abruptly and
     the position filter spreads that over about fs/fc samples of the
     estimated qdd while the torque stays sharp).
@@ -425,11 +425,11 @@ def velocity_dead_zone(qd, threshold="auto", *, guard=0, couplings=(),
 
 
 def low_velocity_mask(qd, thresholds) -> np.ndarray:
-    """Boolean (N,) mask, True where every joint has ``|qd_j| >= threshold_j``.
+    """Boolean (N,) mask, True where every joint has `|qd_j| >= threshold_j`.
 
-    The row view of :func:`velocity_dead_zone` (no couplings, no widening):
-    True where no joint is in the dead zone. ``thresholds`` is a scalar or
-    one value per joint, in rad/s (or ``"auto"``).
+    The row view of `velocity_dead_zone` (no couplings, no widening):
+    True where no joint is in the dead zone. `thresholds` is a scalar or
+    one value per joint, in rad/s (or `"auto"`).
     """
     qd = _time_major(qd, "qd")
     return ~velocity_dead_zone(qd, thresholds).any(axis=1)

@@ -2,16 +2,16 @@
 
 A 1-hour recording at 5 kHz of a 6-joint robot is 18 million samples; its
 full-rate base regressor would take 52 GB. Here the recording arrives in
-chunks (any iterable of ``(q, tau)`` pairs); the zero-phase position filter
-runs on overlapping blocks, each padded on both sides by ``margin`` samples
+chunks (any iterable of `(q, tau)` pairs); the zero-phase position filter
+runs on overlapping blocks, each padded on both sides by `margin` samples
 (the filter's transient, where its impulse response has decayed below 1e-5
-of its peak: see :func:`dynid.analysis.processing.signals.transient_samples`), so each block's
+of its peak: see `dynid.analysis.processing.signals.transient_samples`), so each block's
 centre equals the whole-record filtfilt to that tolerance. The centre then
 goes through the same regressor -> dead zone -> parallel decimation as
-:func:`dynid.analysis.processing.observation.observe`. Memory: a few blocks of q and tau plus
+`dynid.analysis.processing.observation.observe`. Memory: a few blocks of q and tau plus
 one regressor chunk, plus the decimated system (n_d times smaller than the
-recording); :func:`dynid.analysis.estimators.streamed.reduce_stream` does not keep even
-that: it feeds :func:`stream_blocks` a sink that reduces each decimated chunk to its
+recording); `dynid.analysis.estimators.streamed.reduce_stream` does not keep even
+that: it feeds `stream_blocks` a sink that reduces each decimated chunk to its
 per-joint triangles and adds them up.
 """
 from __future__ import annotations
@@ -28,7 +28,7 @@ def observe_stream(chunks, fs, robot, bp, *, fc_position, nd, f_decimation_cutof
                    qd_threshold, order=4, block=200_000, progress=None):
     """Decimated (W, tau) of a chunked recording; settings must be explicit.
 
-    ``qd_threshold`` must be numbers (per joint or one): 'auto' would need the
+    `qd_threshold` must be numbers (per joint or one): 'auto' would need the
     whole record's peak speed before the first block is processed.
     """
     parts = []
@@ -46,10 +46,10 @@ def observe_stream(chunks, fs, robot, bp, *, fc_position, nd, f_decimation_cutof
 
 def stream_blocks(sink, chunks, fs, robot, bp, *, fc_position, nd, f_decimation_cutoff, qd_threshold,
                   order, block, progress):
-    """Push every block through filter, regressor, dead zone and decimator; ``sink`` each part.
+    """Push every block through filter, regressor, dead zone and decimator; `sink` each part.
 
-    Each part is the decimated ``(W, tau, q, qd, qdd, kept)`` of one regressor chunk
-    (``kept``: the fraction of its samples outside the dead zone). Arguments as
+    Each part is the decimated `(W, tau, q, qd, qdd, kept)` of one regressor chunk
+    (`kept`: the fraction of its samples outside the dead zone). Arguments as
     `observe_stream`. Returns (settings, decimator, margin, samples read).
     """
     if isinstance(qd_threshold, str):

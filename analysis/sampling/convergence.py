@@ -1,26 +1,26 @@
 """Convergence of ensemble MCMC runs, decided from the chain and never assumed.
 
-:func:`run_until_converged` drives an :class:`emcee.EnsembleSampler` in
+`run_until_converged` drives an `emcee.EnsembleSampler` in
 batches and stops when the chain is long enough for every sampled parameter,
 or when a step or wall-clock limit is hit. The result carries
-``converged=False`` and the reason whenever the rule was not met; nothing
+`converged=False` and the reason whenever the rule was not met; nothing
 downstream reports such a run as if it had converged.
 
 The rule (all of it must hold, on the *sampled* parameters)
 -----------------------------------------------------------
 1. Integrated autocorrelation time τ_i of every parameter (emcee's
-   :func:`emcee.autocorr.integrated_time` with ``tol=0``, i.e. the estimate
+   `emcee.autocorr.integrated_time` with `tol=0`, i.e. the estimate
    of Goodman & Weare / Sokal with the automatic window c = 5, averaged over
    walkers as emcee does) is finite, and the chain after burn-in is at least
-   ``tau_multiple`` (default 50) times max_i τ_i long.
-2. Burn-in = ``ceil(burn_in_tau * max τ)`` steps (default 5 τ). τ is first
+   `tau_multiple` (default 50) times max_i τ_i long.
+2. Burn-in = `ceil(burn_in_tau * max τ)` steps (default 5 τ). τ is first
    estimated on the whole chain (inflated by the initial transient, hence
    conservative), the burn-in is discarded, and τ is estimated again on the
    rest; rule 1 uses this second estimate.
-3. Split-chain R̂ < ``rhat_max`` (default 1.05) for every parameter, on the
-   chain after burn-in (formula in :func:`split_rhat`).
-4. Mean acceptance fraction ≥ ``min_acceptance`` (default 0.05) and no walker
-   is stuck (acceptance < ``min_walker_acceptance``, default 0.01).
+3. Split-chain R̂ < `rhat_max` (default 1.05) for every parameter, on the
+   chain after burn-in (formula in `split_rhat`).
+4. Mean acceptance fraction ≥ `min_acceptance` (default 0.05) and no walker
+   is stuck (acceptance < `min_walker_acceptance`, default 0.01).
 
 Why R̂ < 1.05 and not 1.01: the "chains" of an ensemble sampler are single
 walkers. A walker of length L (after burn-in) split in halves has about
@@ -29,18 +29,18 @@ sqrt(1 + 2τ/L) − small terms; at L = 50 τ that is ≈ 1.02. A threshold of
 1.01 would therefore demand ~100 τ; 1.05 still flags walkers that disagree
 (a stuck or separated walker gives R̂ ≫ 1.05).
 
-Thinning: thin = max(1, floor(``thin_tau`` * max τ)) steps (default τ / 2),
+Thinning: thin = max(1, floor(`thin_tau` * max τ)) steps (default τ / 2),
 so consecutive kept draws of a walker are still mildly correlated; effective
 sample sizes are computed from τ on the unthinned chain:
 ESS_i = n_walkers · (n_steps − burn_in) / τ_i.
 
-Storage. Positions are kept in a buffer of at most ``max_stored`` steps: when
+Storage. Positions are kept in a buffer of at most `max_stored` steps: when
 it is full, every other stored step is dropped and the storage interval
 doubles (so memory does not grow with the chain length and the spacing stays
 ≤ ~L / (max_stored / 2) ≪ τ at convergence). τ is computed on the stored
 chain and multiplied by the storage interval.
 
-Batches. The first batch is ``first_batch`` steps; after each batch the
+Batches. The first batch is `first_batch` steps; after each batch the
 required length burn-in + 50 τ is re-estimated and the next batch covers it
 with a 10 % margin, but never more than doubles the chain (an early,
 underestimated τ must not decide the stopping point alone) and never less
@@ -48,7 +48,7 @@ than a quarter of it.
 
 Reproducibility. The sampler's random state is seeded by the caller; batch
 sizes depend only on the chain. The same seed gives the same chain bit for
-bit, unless ``max_seconds`` stops the run (then the stopping step depends on
+bit, unless `max_seconds` stops the run (then the stopping step depends on
 the machine; the reason says so).
 """
 from __future__ import annotations
@@ -130,9 +130,9 @@ class ChainDiagnostics:
         parameters. reason : why not (or a one-line confirmation).
     sampled : (d,) bool, the parameters the rule applies to (others are
         derived from them, e.g. drawn from an exact conditional).
-    limit : ``"steps"``, ``"time"`` or ``None`` — the limit that stopped the run.
+    limit : `"steps"`, `"time"` or `None` — the limit that stopped the run.
     history : list of (n_steps, max τ) after each batch.
-    elapsed : wall-clock seconds (not part of :meth:`to_dict`, which must be
+    elapsed : wall-clock seconds (not part of `to_dict`, which must be
         deterministic).
     """
 
@@ -169,7 +169,7 @@ class ChainDiagnostics:
 
     @property
     def chain_over_tau(self) -> float:
-        """(n_steps − burn_in) / max τ: the length the rule compares to ``tau_multiple``."""
+        """(n_steps − burn_in) / max τ: the length the rule compares to `tau_multiple`."""
         t = self.tau_max
         return (self.n_steps - self.burn_in) / t if t > 0 else math.nan
 
@@ -203,9 +203,9 @@ class ChainDiagnostics:
 
 # ----------------------------------------------------------------------- statistics
 def integrated_time(chain: np.ndarray, c: float = 5.0) -> np.ndarray:
-    """τ of each parameter of ``chain`` (n_steps, n_walkers, d), in stored steps.
+    """τ of each parameter of `chain` (n_steps, n_walkers, d), in stored steps.
 
-    emcee's estimator (:func:`emcee.autocorr.integrated_time` with ``tol=0``:
+    emcee's estimator (`emcee.autocorr.integrated_time` with `tol=0`:
     never raises for short chains, the convergence rule judges the length):
     the normalised autocorrelation function of each walker, by FFT, averaged
     over walkers; τ(M) = 1 + 2 Σ_{t=1..M} ρ(t) with the automatic window,
@@ -242,7 +242,7 @@ def integrated_time(chain: np.ndarray, c: float = 5.0) -> np.ndarray:
 def split_rhat(chain: np.ndarray) -> np.ndarray:
     """Split-chain potential scale reduction R̂ of each parameter.
 
-    ``chain`` is (n_steps, n_walkers, d). Each walker's chain is cut in two
+    `chain` is (n_steps, n_walkers, d). Each walker's chain is cut in two
     halves of n = floor(n_steps / 2) draws (the middle draw of an odd length is
     dropped), giving m = 2·n_walkers chains θ_c,t. With chain means θ̄_c,
     grand mean θ̄ and chain variances s_c² (ddof 1)::
@@ -278,11 +278,11 @@ def rank_normalized_rhat(chain: np.ndarray) -> np.ndarray:
     """Rank-normalised split R̂ of each parameter (Vehtari et al. 2021, Bayesian Analysis 16(2)).
 
     The draws of all chains are replaced by their normal scores
-    ``Φ⁻¹((r − 3/8) / (S − 1/4))`` (r the rank among all S draws) and :func:`split_rhat`
+    `Φ⁻¹((r − 3/8) / (S − 1/4))` (r the rank among all S draws) and `split_rhat`
     is taken of those (the bulk R̂), and of the same for the draws folded about their
-    median, ``|θ − median|`` (the tail R̂); the larger is returned. It is robust to heavy
+    median, `|θ − median|` (the tail R̂); the larger is returned. It is robust to heavy
     tails and to chains that differ in scale only, which the classic R̂ misses; ArviZ's
-    ``rhat(method="rank")`` is the same estimator. ``chain`` is (n_steps, n_walkers, d).
+    `rhat(method="rank")` is the same estimator. `chain` is (n_steps, n_walkers, d).
     """
     from scipy.special import ndtri  # Φ⁻¹ without scipy.stats' per-call argument checks (5x)
     from scipy.stats import rankdata
@@ -301,12 +301,12 @@ def rank_normalized_rhat(chain: np.ndarray) -> np.ndarray:
 
 
 def chain_effective_sample_size(n_walkers: int, n_steps: int, tau: np.ndarray) -> np.ndarray:
-    """ESS = n_walkers · n_steps / τ of an ensemble MCMC chain (τ in the same steps as ``n_steps``).
+    """ESS = n_walkers · n_steps / τ of an ensemble MCMC chain (τ in the same steps as `n_steps`).
 
-    τ is the chain's integrated autocorrelation time from :func:`integrated_time`
+    τ is the chain's integrated autocorrelation time from `integrated_time`
     (emcee's estimator: walker-averaged autocorrelation, Sokal's automatic
     window c = 5). Not to be confused with
-    :func:`dynid.analysis.statistics.residuals.effective_sample_size`, the
+    `dynid.analysis.statistics.residuals.effective_sample_size`, the
     effective size of one serially correlated *residual* series, whose τ_int
     sum stops at the first lag inside the white-noise band 2/sqrt(n) (with a
     row mask); the two answer different questions with different truncation
@@ -322,8 +322,8 @@ def diagnose(stored: np.ndarray, interval: int, n_steps: int, accepted: np.ndarr
              history=None, elapsed: float = math.nan, final_burn: bool = True) -> ChainDiagnostics:
     """Apply the convergence rule to a stored chain.
 
-    ``stored`` (L, n_walkers, d) holds every ``interval``-th step of a run of
-    ``n_steps`` steps (stored[i] is step (i + 1)·interval); ``accepted``
+    `stored` (L, n_walkers, d) holds every `interval`-th step of a run of
+    `n_steps` steps (stored[i] is step (i + 1)·interval); `accepted`
     (n_walkers,) counts accepted proposals per walker.
     """
     stored = np.asarray(stored, dtype=float)
@@ -455,13 +455,13 @@ class _Buffer:
 
 def run_until_converged(sampler, p0: np.ndarray, criteria: ConvergenceCriteria | None = None,
                         *, sampled=None, progress=None) -> ChainRun:
-    """Run ``sampler`` (an :class:`emcee.EnsembleSampler`, seeded by the caller) from ``p0``.
+    """Run `sampler` (an `emcee.EnsembleSampler`, seeded by the caller) from `p0`.
 
     Batches as in the module docstring, until the rule holds or a limit is
-    hit. Positions are not stored by emcee (``store=False``); this function
+    hit. Positions are not stored by emcee (`store=False`); this function
     keeps them in its own bounded buffer and counts acceptances per walker
     (a walker moved iff its position changed: proposals are continuous).
-    ``progress(n_steps, required_steps)`` is called after each batch.
+    `progress(n_steps, required_steps)` is called after each batch.
     """
     c = criteria or ConvergenceCriteria()
     p0 = np.asarray(p0, dtype=float)

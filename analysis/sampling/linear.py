@@ -21,7 +21,7 @@ from dynid.provenance import json_safe
 # ============================================================ priors
 @dataclass(eq=False)
 class GaussianPrior:
-    """Gaussian prior N(mean, cov) on the parameters ``names`` (others stay flat)."""
+    """Gaussian prior N(mean, cov) on the parameters `names` (others stay flat)."""
 
     names: list
     mean: np.ndarray
@@ -74,8 +74,8 @@ class LinearPosterior:
     """The log-posterior of a linear model (see the module docstring), vectorised over walkers.
 
     Sampled coordinates: χ (b,), then u_j = log σ_j for each joint with rows
-    (unless ``sigma`` is given). :attr:`names` are the reported names
-    (σ_j as ``sigma<j>``, 1-based); :attr:`coords` the sampled ones.
+    (unless `sigma` is given). `names` are the reported names
+    (σ_j as `sigma<j>`, 1-based); `coords` the sampled ones.
     """
 
     def __init__(self, stats: SufficientStats, sigma=None, prior: GaussianPrior | None = None):
@@ -124,7 +124,7 @@ class LinearPosterior:
         return -0.5 * np.einsum("ki,ij,kj->k", E, self._pprec, E)
 
     def log_prob(self, X) -> np.ndarray:
-        """log p (up to a constant) of each row of ``X`` (K, ndim); −inf outside the support."""
+        """log p (up to a constant) of each row of `X` (K, ndim); −inf outside the support."""
         X = np.atleast_2d(np.asarray(X, dtype=float))
         chi = X[:, : self.b]
         D = chi - self.stats.ref
@@ -193,7 +193,7 @@ class StudentTPosterior:
         return self.rss / self.df
 
     def marginal(self, i):
-        """scipy.stats frozen t distribution of parameter ``i`` (index or name)."""
+        """scipy.stats frozen t distribution of parameter `i` (index or name)."""
         if isinstance(i, str):
             i = self.names.index(i)
         return stats.t(df=self.df, loc=self.loc[i], scale=self.scale[i])
@@ -203,7 +203,7 @@ class StudentTPosterior:
         return stats.invgamma(a=self.df / 2.0, scale=self.rss / 2.0)
 
     def sigma(self):
-        """Frozen-like object with ``cdf``/``ppf`` of σ | Y."""
+        """Frozen-like object with `cdf`/`ppf` of σ | Y."""
         d = self.sigma2()
 
         class _Sigma:
@@ -219,7 +219,7 @@ class StudentTPosterior:
 def student_t_posterior(stats: SufficientStats, joint: int | None = None) -> StudentTPosterior:
     """Formula (b) of the module docstring, for the rows of one joint.
 
-    ``joint`` (0-based) selects the joint; by default the statistics must
+    `joint` (0-based) selects the joint; by default the statistics must
     have exactly one joint with rows.
     """
     act = stats.active

@@ -28,11 +28,11 @@ class PosteriorResult(ParameterResults):
     Attributes
     ----------
     names : list[str]
-        Reported parameters (σ_j as ``sigma<j>``).
+        Reported parameters (σ_j as `sigma<j>`).
     chain : ndarray (n_walkers, n_draws, d)
         Draws after burn-in, thinned by ≈ τ/2 (diagnostics.burn_in, .thin).
     samples : ndarray (n_walkers · n_draws, d)
-        ``chain`` flattened (walker-major).
+        `chain` flattened (walker-major).
     mean, median, std : (d,)
     ci95, ci999 : (d, 2)
         Equal-tailed 95 % and 99.9 % credible intervals (sample quantiles).
@@ -122,11 +122,11 @@ class PosteriorResult(ParameterResults):
             raise KeyError(f"no parameter {name!r}; parameters: {', '.join(self.names)}") from None
 
     def __getitem__(self, name: str) -> np.ndarray:
-        """Samples of parameter ``name``."""
+        """Samples of parameter `name`."""
         return self.samples[:, self.index(name)]
 
     def interval(self, level: float) -> np.ndarray:
-        """(d, 2) equal-tailed credible intervals at ``level``."""
+        """(d, 2) equal-tailed credible intervals at `level`."""
         a = (1.0 - level) / 2.0
         return np.quantile(self.samples, [a, 1.0 - a], axis=0).T
 
@@ -146,7 +146,7 @@ class PosteriorResult(ParameterResults):
         return np.atleast_2d(np.cov(self.samples, rowvar=False, ddof=1))
 
     def conf_int(self, alpha: float = 0.05) -> pd.DataFrame:
-        """Equal-tailed (1 − alpha) credible interval from the draws: columns ``lower``, ``upper``."""
+        """Equal-tailed (1 − alpha) credible interval from the draws: columns `lower`, `upper`."""
         _check_alpha(alpha)
         lo, hi = np.quantile(self.samples, [alpha / 2.0, 1.0 - alpha / 2.0], axis=0)
         return pd.DataFrame({"lower": lo, "upper": hi}, index=self._index())

@@ -36,11 +36,11 @@ def sample_linear(W3, tau, names, *, row_mask=None, ls=None, sigma=None, prior=N
     Parameters
     ----------
     W3, tau, names, row_mask
-        As :func:`dynid.analysis.estimators.least_squares.wls` (decimated system, eq. (9)).
+        As `dynid.analysis.estimators.least_squares.wls` (decimated system, eq. (9)).
     ls : IdentificationResult, optional
         LS estimate to start from and to report beside the posterior (its
-        χ̂, σ and %σ; its ``joint_sigma`` for the σ_j). Default: WLS of these
-        data (with ``sigma`` as fixed weights when given).
+        χ̂, σ and %σ; its `joint_sigma` for the σ_j). Default: WLS of these
+        data (with `sigma` as fixed weights when given).
     sigma : (n,) array, optional
         Known noise standard deviations: then only χ is sampled.
     prior : GaussianPrior, optional
@@ -50,22 +50,22 @@ def sample_linear(W3, tau, names, *, row_mask=None, ls=None, sigma=None, prior=N
     n_walkers : int, optional
         Default max(32, 2·ndim + 2), even.
     criteria : ConvergenceCriteria or dict, optional
-        The convergence rule (≥ 50 τ etc.); ``max_steps`` and ``max_seconds``
+        The convergence rule (≥ 50 τ etc.); `max_steps` and `max_seconds`
         override its limits.
     moves : "de" (default, emcee DEMove), "de-snooker", "stretch" or emcee moves.
     init_scale : float
         Walkers start at the LS estimate + init_scale · N(0, cov_LS) (for
         log σ_j the variance is 1/(2 r_j)).
     suff_stats : SufficientStats, optional
-        Precomputed statistics (then W3/tau are only used for ``ls`` if needed).
+        Precomputed statistics (then W3/tau are only used for `ls` if needed).
     progress : callable, optional
-        ``progress(n_steps, required_steps)`` after each batch of the sampler.
+        `progress(n_steps, required_steps)` after each batch of the sampler.
     support : callable, optional
-        ``support(chi)`` (K, b) -> bool (K,): the prior is restricted to where it is true
+        `support(chi)` (K, b) -> bool (K,): the prior is restricted to where it is true
         (log p = −inf elsewhere), e.g. the physically consistent set
-        (:class:`dynid.analysis.estimators.physical.PhysicalSupport`).
+        (`dynid.analysis.estimators.physical.PhysicalSupport`).
     start : (b,) array, optional
-        Centre of the initial ball instead of the LS estimate (it must be in ``support``).
+        Centre of the initial ball instead of the LS estimate (it must be in `support`).
     """
     rng = rng_from_seed(seed)
     if ls is None:
@@ -142,16 +142,16 @@ def sample_linear(W3, tau, names, *, row_mask=None, ls=None, sigma=None, prior=N
 
 def sample_idim(idim_result, *, which: str = "essential", physical: bool = False, robot=None,
                 **kwargs) -> PosteriorResult:
-    """Posterior of the essential (default) or base parameters of an :class:`IDIMResult`.
+    """Posterior of the essential (default) or base parameters of an `IDIMResult`.
 
     Uses its decimated observation (W, tau, row_mask) and its WLS estimate
-    as the starting point and LS reference. Other arguments: :func:`sample_linear`.
+    as the starting point and LS reference. Other arguments: `sample_linear`.
 
-    ``physical=True`` (base parameters only): the posterior's support is the physically
-    consistent set (:class:`~dynid.analysis.estimators.physical.PhysicalSupport`: some
+    `physical=True` (base parameters only): the posterior's support is the physically
+    consistent set (`PhysicalSupport`: some
     standard set with PSD pseudo-inertias and Ia, Fv, Fc >= 0 gives these base parameters),
     i.e. the flat prior restricted to it; the walkers start around the PC-WLS estimate.
-    ``robot`` defaults to the result's.
+    `robot` defaults to the result's.
     """
     obs = idim_result.observation
     if which == "essential":

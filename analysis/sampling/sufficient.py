@@ -20,9 +20,9 @@ from dynid.errors import IdentificationError, InputError
 class SufficientStats:
     """Per-joint sufficient statistics of a linear model (see the module docstring).
 
-    Attributes: ``names`` (b,), ``G`` (n, b, b) = W^jᵀW^j, ``g`` (n, b) =
-    W^jᵀ(Y^j − W^jχ_ref), ``s`` (n,) = ‖Y^j − W^jχ_ref‖², ``rows`` (n,) r_j,
-    ``ref`` (b,) χ_ref, ``WtY`` (n, b) and ``YtY`` (n,) raw, ``n_samples`` N.
+    Attributes: `names` (b,), `G` (n, b, b) = W^jᵀW^j, `g` (n, b) =
+    W^jᵀ(Y^j − W^jχ_ref), `s` (n,) = ‖Y^j − W^jχ_ref‖², `rows` (n,) r_j,
+    `ref` (b,) χ_ref, `WtY` (n, b) and `YtY` (n,) raw, `n_samples` N.
     """
 
     names: list
@@ -50,7 +50,7 @@ class SufficientStats:
         return np.flatnonzero(self.rows > 0)
 
     def rss(self, X) -> np.ndarray:
-        """S_j(χ) for every row χ of ``X`` (K, b): array (K, n)."""
+        """S_j(χ) for every row χ of `X` (K, b): array (K, n)."""
         X = np.atleast_2d(np.asarray(X, dtype=float))
         D = X - self.ref
         n, b = self.n_joints, self.n_params
@@ -81,11 +81,11 @@ def cholesky(A, names, what):
 
 
 def sufficient_statistics(W3, tau, names=None, *, row_mask=None, ref=None, chunk: int = 65536) -> SufficientStats:
-    """Per-joint W^jᵀW^j, W^jᵀ(Y^j − W^jχ_ref), ‖Y^j − W^jχ_ref‖², r_j of the rows in ``row_mask``.
+    """Per-joint W^jᵀW^j, W^jᵀ(Y^j − W^jχ_ref), ‖Y^j − W^jχ_ref‖², r_j of the rows in `row_mask`.
 
-    ``W3`` (N, n, b), ``tau`` (N, n), ``row_mask`` (N,) or (N, n) bool
-    (True = use); ``ref`` (b,) defaults to 0 (then g = WᵀY and s = YᵀY).
-    One pass over the data in chunks of ``chunk`` samples (BLAS products);
+    `W3` (N, n, b), `tau` (N, n), `row_mask` (N,) or (N, n) bool
+    (True = use); `ref` (b,) defaults to 0 (then g = WᵀY and s = YᵀY).
+    One pass over the data in chunks of `chunk` samples (BLAS products);
     masked rows may hold NaN.
     """
     W3 = np.asarray(W3, dtype=float)

@@ -6,17 +6,17 @@ HAC / bootstrap one) describes the noise of that recording only. Model error
 biases the estimate differently on different trajectories; the only way to see
 it is to identify the same model on different data and compare.
 
-* :func:`pairwise_agreement`: for every pair of recordings and every parameter
-  both call identified (%σ ≤ ``rel_max``), z = (χa − χb)/√(σa² + σb²); the
+* `pairwise_agreement`: for every pair of recordings and every parameter
+  both call identified (%σ ≤ `rel_max`), z = (χa − χb)/√(σa² + σb²); the
   fraction with |z| ≤ 1.96 (95 % expected) and the median |z| (0.67 expected).
-* :func:`equality_test`: χ² test that all recordings share one parameter vector,
+* `equality_test`: χ² test that all recordings share one parameter vector,
   overall (full covariances) and per parameter (Cochran's Q).
-* :func:`random_effects`: the pooled estimate of each parameter whose standard
+* `random_effects`: the pooled estimate of each parameter whose standard
   error includes the between-recording variance τ² (DerSimonian & Laird 1986,
   statsmodels' combine_effects).
-* :func:`segments`: contiguous time segments of one recording (≥ 3, each
+* `segments`: contiguous time segments of one recording (≥ 3, each
   identifying every parameter), for the same checks when there is one recording.
-* :func:`agreement_verdict`: the verdict line.
+* `agreement_verdict`: the verdict line.
 
 Plain functions on numpy arrays.
 """
@@ -43,13 +43,13 @@ def pairwise_agreement(chis, sigmas, *, rel_max: float = 10.0, names=None) -> di
     rel_max : float
         A parameter enters a pair only if its %σ (eq. (15)) is ≤ rel_max in both runs.
     names : list of p str, optional
-        Parameter names, for the ``z`` records.
+        Parameter names, for the `z` records.
 
     Returns
     -------
     dict
-        ``pairs`` (count), ``within_95`` (fraction with |z| ≤ 1.96, NaN without pairs),
-        ``median_abs_z``, ``beyond_5`` (fraction with |z| > 5), ``z`` (list of
+        `pairs` (count), `within_95` (fraction with |z| ≤ 1.96, NaN without pairs),
+        `median_abs_z`, `beyond_5` (fraction with |z| > 5), `z` (list of
         {a, b, name, z}).
     """
     chis = [np.asarray(c, dtype=float) for c in chis]
@@ -79,8 +79,8 @@ def equality_test(chis, covs) -> dict:
     Returns
     -------
     dict
-        ``chi2``, ``dof``, ``p_value`` (overall) and ``per_parameter``: arrays
-        ``q`` and ``p_value`` (p,).
+        `chi2`, `dof`, `p_value` (overall) and `per_parameter`: arrays
+        `q` and `p_value` (p,).
     """
     chis = np.asarray(chis, dtype=float)
     covs = np.asarray(covs, dtype=float)
@@ -105,9 +105,9 @@ def random_effects(chis, sigmas) -> dict:
     Returns
     -------
     dict of arrays (p,)
-        ``pooled`` (random-effects mean), ``std`` (its standard error, with τ²),
-        ``tau`` (between-recording standard deviation, √τ²), ``fixed`` and
-        ``fixed_std`` (the inverse-variance pooling without τ²), ``i2``.
+        `pooled` (random-effects mean), `std` (its standard error, with τ²),
+        `tau` (between-recording standard deviation, √τ²), `fixed` and
+        `fixed_std` (the inverse-variance pooling without τ²), `i2`.
     """
     from statsmodels.stats.meta_analysis import combine_effects
     chis = np.asarray(chis, dtype=float)
@@ -153,7 +153,7 @@ def agreement(chis, sigmas, covs, names, *, kind: str = "recordings", rel_max: f
 def agreement_verdict(a: dict) -> str:
     """One verdict line: do the recordings (segments) agree within their intervals?
 
-    ``a`` is the dict of :func:`agreement`.
+    `a` is the dict of `agreement`.
     """
     what = a["kind"]
     if not a["pairs"]:

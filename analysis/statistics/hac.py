@@ -100,7 +100,7 @@ def block_length(g: np.ndarray) -> int:
     """Circular-block bootstrap block length from the AR(1) plug-in of Politis & White (2004).
 
     For an AR(1) of coefficient ρ, b = (6ρ²/(1−ρ²)²)^(1/3) T^(1/3); the
-    columns' ρ are combined as in :func:`andrews_bandwidth` (median of |ρ|).
+    columns' ρ are combined as in `andrews_bandwidth` (median of |ρ|).
     """
     T = g.shape[0]
     sd = g.std(axis=0)
@@ -126,13 +126,13 @@ def hac_covariance(W3, tau, mask, chi, weights, bread_inv, *, groups=None, bandw
     Parameters
     ----------
     W3, tau, mask, chi, weights
-        As in :func:`sample_scores`.
+        As in `sample_scores`.
     bread_inv : array (s, s)
         (W̃ᵀW̃)⁻¹ of the weighted system (the unscaled covariance of eq. (14)).
     groups : array (N,), optional
         Recording of each sample: lags never cross from one recording to the next.
     bandwidth : float, optional
-        Bartlett lag truncation; default: :func:`andrews_bandwidth` of the scores.
+        Bartlett lag truncation; default: `andrews_bandwidth` of the scores.
     dof : int, optional
         Number of parameters for the small-sample factor r/(r − s) (default s).
 
@@ -140,8 +140,8 @@ def hac_covariance(W3, tau, mask, chi, weights, bread_inv, *, groups=None, bandw
     -------
     cov : array (s, s)
     info : dict
-        ``bandwidth``, ``nlags`` (largest lag with a non-zero weight),
-        ``score_ar1`` (median lag-1 autocorrelation of the scores).
+        `bandwidth`, `nlags` (largest lag with a non-zero weight),
+        `score_ar1` (median lag-1 autocorrelation of the scores).
     """
     g, _ = sample_scores(W3, tau, mask, chi, weights)
     if bandwidth is None:
@@ -166,7 +166,7 @@ def bootstrap_covariance(W3, tau, mask, chi, weights, *, groups=None, n_boot: in
     the per-sample information A_t = Σ_j W̃_tjᵀW̃_tj and c_t = Σ_j W̃_tjᵀỸ_tj
     are summed with the multiplicities of the draw, so a replicate costs one
     s x s solve. Replicates whose information is singular are skipped (counted
-    in ``info["failed"]``).
+    in `info["failed"]`).
     """
     rng = np.random.default_rng(seed)
     g, Wt = sample_scores(W3, tau, mask, chi, weights)

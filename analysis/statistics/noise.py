@@ -1,58 +1,58 @@
 """Noise PDF checks: is the measurement noise Gaussian, and which noise dominates?
 
 Section 3.4 and Fig. 5 of Bona & Curatella 2005: from the period-averaged data
-(:mod:`dynid.analysis.processing.averaging`) the PDF of the measurement noise is computed and
+(`dynid.analysis.processing.averaging`) the PDF of the measurement noise is computed and
 compared with a Gaussian one; the torque noise turns out larger than the
 position noise, so the position noise is neglected. Section 3.5 does the same
 with the validation error. This module gives the numbers behind such a
 figure.
 
-:func:`noise_pdf_tests`
-    Per joint (column): mean, standard deviation, skewness, ``excess_kurtosis``
+`noise_pdf_tests`
+    Per joint (column): mean, standard deviation, skewness, `excess_kurtosis`
     (0 for a Gaussian) and four normality tests (the first two, and the
-    moments, from :func:`normality_row`, the one normality computation that
+    moments, from `normality_row`, the one normality computation that
     validation and the residual analysis use too),
 
-    * Jarque-Bera (``statsmodels.stats.stattools.jarque_bera``; asymptotic
+    * Jarque-Bera (`statsmodels.stats.stattools.jarque_bera`; asymptotic
       chi-square p-value),
-    * Shapiro-Wilk (``scipy.stats.shapiro``). Its p-value is only accurate up
+    * Shapiro-Wilk (`scipy.stats.shapiro`). Its p-value is only accurate up
       to 5000 samples: a longer series is tested on an evenly spaced subsample
-      of at most ``max_shapiro`` (default 5000) samples, every ``ceil(N/5000)``-th
+      of at most `max_shapiro` (default 5000) samples, every `ceil(N/5000)`-th
       one (deterministic; for period-averaging noise it spreads over all
       periods),
-    * Anderson-Darling (``scipy.stats.anderson``, p-value interpolated in the
+    * Anderson-Darling (`scipy.stats.anderson`, p-value interpolated in the
       tables of scipy, so clipped to [0.01, 0.15]),
-    * Lilliefors (``statsmodels.stats.diagnostic.lilliefors``, table p-value).
+    * Lilliefors (`statsmodels.stats.diagnostic.lilliefors`, table p-value).
 
-    **Verdict.** ``gaussian`` is True when the *primary* test does not reject
-    normality at ``alpha`` (default: Shapiro-Wilk). One test at level ``alpha``
-    falsely rejects Gaussian noise with probability ``alpha``; the rule "all
+    **Verdict.** `gaussian` is True when the *primary* test does not reject
+    normality at `alpha` (default: Shapiro-Wilk). One test at level `alpha`
+    falsely rejects Gaussian noise with probability `alpha`; the rule "all
     four tests accept" would reject it up to ~4 alpha (the tests are
     correlated, about 2-3 alpha in practice), which is why it is not the
-    default. ``rule="bonferroni"`` (any test rejects at ``alpha / 4``, size at
-    most alpha, somewhat below it) and ``rule="all"`` are available. The other
-    tests are reported with their own ``reject`` flags for the reader. The
+    default. `rule="bonferroni"` (any test rejects at `alpha / 4`, size at
+    most alpha, somewhat below it) and `rule="all"` are available. The other
+    tests are reported with their own `reject` flags for the reader. The
     tests of the package's suite check the default rule: on 200 seeds of
     Gaussian noise of 2000 samples (one averaged period of the paper: 10 s at
     200 Hz) it rejects 5 % +- 3 %, and on Laplace noise of the same sigma it
     rejects in at least 90 % of the seeds.
 
-:func:`noise_pdf`
+`noise_pdf`
     Histogram (density), fitted normal density and Gaussian KDE
-    (``scipy.stats.gaussian_kde``, Scott's bandwidth) on a common grid, per
+    (`scipy.stats.gaussian_kde`, Scott's bandwidth) on a common grid, per
     joint, for plotting.
 
-:func:`compare_noise`
+`compare_noise`
     Torque noise against position noise (Fig. 5). The two are in different
     units; they are compared either
 
-    * in torque units, when a ``sensitivity`` ``s_j`` (N m per rad, e.g. the
-      stiffness of the position loop, or ``|d tau / d q|`` of the model) is
-      given: ``sigma_q_equiv = s_j sigma_q``, and the larger of ``sigma_tau`` and
-      ``sigma_q_equiv`` dominates; or
+    * in torque units, when a `sensitivity` `s_j` (N m per rad, e.g. the
+      stiffness of the position loop, or `|d tau / d q|` of the model) is
+      given: `sigma_q_equiv = s_j sigma_q`, and the larger of `sigma_tau` and
+      `sigma_q_equiv` dominates; or
     * as signal-to-noise ratios, when the noise-free (e.g. averaged) signals
-      are given: ``SNR = RMS(signal - mean) / sigma`` per joint, in dB
-      ``20 log10``; the noise with the *lower* SNR dominates (it corrupts its
+      are given: `SNR = RMS(signal - mean) / sigma` per joint, in dB
+      `20 log10`; the noise with the *lower* SNR dominates (it corrupts its
       signal relatively more).
 """
 from __future__ import annotations
@@ -110,7 +110,7 @@ def _anderson(e):
 
 
 def shapiro_subsample(e, max_shapiro=MAX_SHAPIRO):
-    """The evenly spaced subsample Shapiro-Wilk is run on: every ``ceil(N / max_shapiro)``-th sample."""
+    """The evenly spaced subsample Shapiro-Wilk is run on: every `ceil(N / max_shapiro)`-th sample."""
     step = int(math.ceil(e.size / max_shapiro)) if e.size else 1
     return e[::max(1, step)]
 
@@ -119,12 +119,12 @@ def normality_row(e, max_shapiro=MAX_SHAPIRO):
     """THE normality computation of dynid, for one residual or noise column.
 
     Non-finite samples (NaN marks a sample that was not fitted or predicted,
-    e.g. a row in the velocity dead zone) are dropped first. Returns ``n``,
-    ``mean``, ``std``, ``skew``, ``excess_kurtosis`` (0 for a Gaussian),
+    e.g. a row in the velocity dead zone) are dropped first. Returns `n`,
+    `mean`, `std`, `skew`, `excess_kurtosis` (0 for a Gaussian),
     Jarque-Bera (statistic and asymptotic p, statsmodels) and Shapiro-Wilk
-    (scipy; on the evenly spaced subsample of :func:`shapiro_subsample`, at
-    most ``max_shapiro`` = 5000 samples, ``shapiro_n`` of them). Validation
-    (:func:`dynid.analysis.statistics.validation.normality`), the residual
+    (scipy; on the evenly spaced subsample of `shapiro_subsample`, at
+    most `max_shapiro` = 5000 samples, `shapiro_n` of them). Validation
+    (`dynid.analysis.statistics.validation.normality`), the residual
     analysis and the noise sections all call it, so one residual always gets
     one set of numbers.
     """
@@ -150,9 +150,9 @@ def normality_row(e, max_shapiro=MAX_SHAPIRO):
 
 
 def normality(residual, names=None, max_shapiro=MAX_SHAPIRO):
-    """Per-joint :func:`normality_row` of ``residual`` (N,) or (N, n); DataFrame indexed by joint.
+    """Per-joint `normality_row` of `residual` (N,) or (N, n); DataFrame indexed by joint.
 
-    The index is ``joint`` = 1..n unless ``names`` are given. NaN samples are
+    The index is `joint` = 1..n unless `names` are given. NaN samples are
     left out (pass the residual with the rows that were not fitted set to NaN).
     """
     a = np.asarray(residual, dtype=float)
@@ -210,7 +210,7 @@ class NoiseTests:
         return self.table["gaussian"].to_numpy()
 
     def pdf(self, **kwargs):
-        """:func:`noise_pdf` of the tested noise."""
+        """`noise_pdf` of the tested noise."""
         return noise_pdf(self.noise, names=self.names, **kwargs)
 
     def rule_text(self) -> str:
@@ -240,7 +240,7 @@ class NoiseTests:
 
 def noise_pdf_tests(noise, alpha=0.05, *, rule="primary", primary="shapiro", names=None,
                     max_shapiro=MAX_SHAPIRO, label="noise", unit="") -> NoiseTests:
-    """Normality tests of ``noise`` (N,) or (N, n), per column; see the module docstring."""
+    """Normality tests of `noise` (N,) or (N, n), per column; see the module docstring."""
     alpha = float(alpha)
     if not 0 < alpha < 1:
         raise InputError(f"alpha must be in (0, 1), got {alpha!r}")
@@ -272,8 +272,8 @@ def noise_pdf_tests(noise, alpha=0.05, *, rule="primary", primary="shapiro", nam
 def noise_pdf(noise, *, names=None, bins=None, n_grid=200):
     """Per column: histogram density, fitted normal and KDE on a common grid.
 
-    Returns a list of dicts ``{name, edges, density, x, normal, kde, mean, std}``;
-    ``bins`` default ``clip(sqrt(N), 8, 60)``. ``kde`` is None when the KDE
+    Returns a list of dicts `{name, edges, density, x, normal, kde, mean, std}`;
+    `bins` default `clip(sqrt(N), 8, 60)`. `kde` is None when the KDE
     cannot be computed (constant data).
     """
     a, names = _columns(noise, names)
@@ -303,7 +303,7 @@ def noise_pdf(noise, *, names=None, bins=None, n_grid=200):
 
 @dataclass
 class NoiseComparison:
-    """Torque noise vs position noise per joint (Fig. 5); see :func:`compare_noise`."""
+    """Torque noise vs position noise per joint (Fig. 5); see `compare_noise`."""
 
     table: pd.DataFrame
     mode: str                      # "sensitivity" or "snr"
@@ -348,11 +348,11 @@ def compare_noise(tau_noise, q_noise, *, sensitivity=None, tau_signal=None, q_si
                   names=None, as_sigma=False) -> NoiseComparison:
     """Which noise dominates, torque or position (Fig. 5)? See the module docstring.
 
-    ``tau_noise``, ``q_noise``: zero-mean noise samples (N,) or (N, n) (e.g.
-    :attr:`AveragedPeriods.noise`; their RMS is the sigma), or, with
-    ``as_sigma=True``, their standard deviations (n,). ``sensitivity``: (n,) or a
-    scalar, N m per rad: compares in torque units; otherwise ``tau_signal`` and
-    ``q_signal`` ((N, n), e.g. the averaged period) give SNRs.
+    `tau_noise`, `q_noise`: zero-mean noise samples (N,) or (N, n) (e.g.
+    `AveragedPeriods.noise`; their RMS is the sigma), or, with
+    `as_sigma=True`, their standard deviations (n,). `sensitivity`: (n,) or a
+    scalar, N m per rad: compares in torque units; otherwise `tau_signal` and
+    `q_signal` ((N, n), e.g. the averaged period) give SNRs.
     """
     st = _sigma(tau_noise, as_sigma, "tau_noise")
     sq = _sigma(q_noise, as_sigma, "q_noise")

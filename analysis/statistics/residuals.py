@@ -1,28 +1,28 @@
 """Residual analysis per joint, after any identification.
 
-What a residual ``e = Y - W chi_hat`` (decimated rows, one column per joint)
+What a residual `e = Y - W chi_hat` (decimated rows, one column per joint)
 says about what the model lacks:
 
-* **vs velocity** (binned means of ``e_j`` against ``qd_j``): the friction
+* **vs velocity** (binned means of `e_j` against `qd_j`): the friction
   signature. A model with the right friction leaves a flat line at zero; a
-  step at ``qd = 0`` is a missing Coulomb asymmetry or offset (the two are the
+  step at `qd = 0` is a missing Coulomb asymmetry or offset (the two are the
   same thing while the joint moves), a V shape an asymmetric viscous term, a
   bump that dies out with speed a Stribeck effect.
-* **vs position** (binned means against ``q_j``): springs (a slope), ripple
+* **vs position** (binned means against `q_j`): springs (a slope), ripple
   (a periodic pattern), gravity errors.
 * **vs time** (binned means over the recording): drift (warm-up, temperature).
-* **spectrum** (``scipy.signal.welch``): a peak at the motion's frequencies is
+* **spectrum** (`scipy.signal.welch`): a peak at the motion's frequencies is
   a model error, a flat spectrum white noise.
-* **autocorrelation** and **Ljung-Box** (``statsmodels``): is the residual
+* **autocorrelation** and **Ljung-Box** (`statsmodels`): is the residual
   white? It is not after filtering and decimation when the model misses
   something, and then every test that counts the samples as independent is
   too optimistic.
-* **PDF vs Gaussian**: :func:`dynid.analysis.statistics.validation.normality` (Jarque-Bera,
+* **PDF vs Gaussian**: `dynid.analysis.statistics.validation.normality` (Jarque-Bera,
   Shapiro-Wilk).
-* **effective sample size** (:func:`effective_sample_size`), the number of
+* **effective sample size** (`effective_sample_size`), the number of
   independent samples the correlated residual is worth.
 
-Rows outside ``mask`` (the velocity dead zone, equations not used) are left
+Rows outside `mask` (the velocity dead zone, equations not used) are left
 out of the bins and of the normality tests; in the autocorrelation they are
 gaps (a lag-k product is counted only where both samples are used), in the
 spectrum they are zeros (after removing the mean).
@@ -46,10 +46,10 @@ __all__ = ["autocorrelation", "effective_sample_size", "binned_means", "Residual
 
 # --------------------------------------------------------------- correlation
 def autocorrelation(e, max_lag, mask=None):
-    """Autocorrelation ρ_0..ρ_max_lag of each column of ``e`` (N,) or (N, n), with gaps.
+    """Autocorrelation ρ_0..ρ_max_lag of each column of `e` (N,) or (N, n), with gaps.
 
     ρ_k = Σ_i e_i e_(i+k) m_i m_(i+k) / c_k  /  (Σ_i e_i² m_i / c_0), with c_k the
-    number of pairs where both samples are used (``mask``) and e the used
+    number of pairs where both samples are used (`mask`) and e the used
     samples minus their mean. Returns (max_lag + 1,) or (max_lag + 1, n);
     lags without any pair give NaN.
     """
@@ -88,22 +88,22 @@ def effective_sample_size(e, mask=None, max_lag=None):
         tau_int = 1 + 2 Σ_{k=1}^{K-1} ρ_k,      n_eff = n / tau_int,
 
     n the number of used samples. Truncation rule: K is the first lag whose
-    ρ_K falls inside the white-noise band ``|ρ| < 2/sqrt(n)`` (or below it),
-    searched up to ``max_lag`` (default min(n/4, 100)); the sum stops before
-    it, since beyond that the estimates are noise. ``tau_int`` is clipped
+    ρ_K falls inside the white-noise band `|ρ| < 2/sqrt(n)` (or below it),
+    searched up to `max_lag` (default min(n/4, 100)); the sum stops before
+    it, since beyond that the estimates are noise. `tau_int` is clipped
     below at 1: a negatively correlated residual is not credited with more
     information than independent samples.
 
-    Why it serves for regression tests: the variance of ``cᵀe`` for a smooth
+    Why it serves for regression tests: the variance of `cᵀe` for a smooth
     regressor column c (its own ρ_c(k) ≈ 1 at these lags) is inflated by
-    ``1 + 2 Σ ρ_c(k) ρ_e(k) <= tau_int``, so dividing a χ² statistic by
-    ``tau_int`` is conservative.
+    `1 + 2 Σ ρ_c(k) ρ_e(k) <= tau_int`, so dividing a χ² statistic by
+    `tau_int` is conservative.
 
-    Returns ``(n_eff, tau_int, K, n)`` as arrays over the columns of ``e``
-    (scalars for a 1-D ``e``).
+    Returns `(n_eff, tau_int, K, n)` as arrays over the columns of `e`
+    (scalars for a 1-D `e`).
 
     Not the MCMC effective sample size: that one
-    (:func:`dynid.analysis.sampling.convergence.chain_effective_sample_size`)
+    (`dynid.analysis.sampling.convergence.chain_effective_sample_size`)
     uses emcee's walker-averaged τ with Sokal's automatic window (c = 5), the
     right rule for a long, smooth chain autocorrelation; a regression residual
     is short next to its correlation structure and masked, and its ρ_k beyond
@@ -137,7 +137,7 @@ def effective_sample_size(e, mask=None, max_lag=None):
 
 
 def binned_means(x, e, bins=15, mask=None):
-    """Equal-count bins of ``x`` (1-D): centre (median), mean of ``e``, its standard error, count."""
+    """Equal-count bins of `x` (1-D): centre (median), mean of `e`, its standard error, count."""
     x = np.asarray(x, dtype=float)
     e = np.asarray(e, dtype=float)
     use = np.isfinite(x) & np.isfinite(e)
@@ -213,13 +213,13 @@ class ResidualAnalysis:
 
 def analyze_residuals(residual, *, t, q, qd, mask=None, fs=None, names=None, bins=15,
                       max_lag=None, lb_lag=None):
-    """Residual diagnostics of ``residual`` (M, n) given the motion at the same samples.
+    """Residual diagnostics of `residual` (M, n) given the motion at the same samples.
 
-    ``t`` (M,), ``q``/``qd`` (M, n) are the (decimated) time, position and
-    velocity of the rows; ``mask`` (M, n) the rows used by the estimator;
-    ``fs`` the rate of the rows (default from ``t``). ``bins`` equal-count
-    bins for the binned means; ``max_lag`` of the autocorrelation (default
-    min(M/4, 40)); ``lb_lag`` of the Ljung-Box test (default min(10, M/5)).
+    `t` (M,), `q`/`qd` (M, n) are the (decimated) time, position and
+    velocity of the rows; `mask` (M, n) the rows used by the estimator;
+    `fs` the rate of the rows (default from `t`). `bins` equal-count
+    bins for the binned means; `max_lag` of the autocorrelation (default
+    min(M/4, 40)); `lb_lag` of the Ljung-Box test (default min(10, M/5)).
     """
     E = np.asarray(residual, dtype=float)
     M_, n = E.shape
@@ -273,7 +273,7 @@ def analyze_residuals(residual, *, t, q, qd, mask=None, fs=None, names=None, bin
 
 
 def residual_analysis(observation, residual, names=None, **kwargs):
-    """:func:`analyze_residuals` on the rows of an :class:`dynid.analysis.processing.observation.Observation`."""
+    """`analyze_residuals` on the rows of an `dynid.analysis.processing.observation.Observation`."""
     fs = None
     s = getattr(observation, "settings", None) or {}
     if "fs" in s and "nd" in s:

@@ -4,20 +4,20 @@ The identified model predicts τ̂ = W χ̂ on data it was not fitted to (a seco
 recording or a held-out time segment), processed with the *same* filter and
 decimation settings.
 
-**All samples first.** The headline numbers (``rel_error``, ``rms``,
-``joint_rel_error``; JSON ``validation.all_samples``) are over ALL held-out
+**All samples first.** The headline numbers (`rel_error`, `rms`,
+`joint_rel_error`; JSON `validation.all_samples`) are over ALL held-out
 decimated samples: the held-out system is built with the velocity dead zone
-OFF (``qd_threshold = 0``), so τ is the measured torque and τ̂ the model's
+OFF (`qd_threshold = 0`), so τ is the measured torque and τ̂ the model's
 prediction everywhere, nothing zeroed. Beside them, the error over the
-*moving* samples (JSON ``validation.moving_samples``): the same system with
+*moving* samples (JSON `validation.moving_samples`): the same system with
 the training dead zone applied (rows where a joint is slow zeroed in W and τ
 before decimation, rows whose window kept < half its samples dropped), scored
 on the rows the estimator would use. Those rows are excluded from the fit
 because Coulomb friction's sign is undetermined at rest; the excluded fraction
 is reported with it.
 
-Per joint the residual's normality (:func:`normality`, the one computation of
-:mod:`dynid.analysis.statistics.noise`) on all samples, and on the moving rows.
+Per joint the residual's normality (`normality`, the one computation of
+`dynid.analysis.statistics.noise`) on all samples, and on the moving rows.
 """
 from __future__ import annotations
 
@@ -39,11 +39,11 @@ DEAD_ZONE_REASON = "Coulomb friction's sign is undetermined at rest"
 
 
 def normality(residual):
-    """Per-joint noise-PDF checks of a residual (N, n), index ``joint`` = 1..n.
+    """Per-joint noise-PDF checks of a residual (N, n), index `joint` = 1..n.
 
     The one normality computation of dynid
-    (:func:`dynid.analysis.statistics.noise.normality`): n, mean, std, skew,
-    ``excess_kurtosis``, Jarque-Bera, Shapiro-Wilk on an evenly spaced
+    (`dynid.analysis.statistics.noise.normality`): n, mean, std, skew,
+    `excess_kurtosis`, Jarque-Bera, Shapiro-Wilk on an evenly spaced
     subsample of at most 5000 samples. NaN samples (not fitted / not
     predicted) are left out.
     """
@@ -141,9 +141,9 @@ class ValidationResult(Exportable):
 
 
 def validate(idim_result, experiment, robot=None):
-    """Predict ``experiment`` with the essential model of ``idim_result``.
+    """Predict `experiment` with the essential model of `idim_result`.
 
-    ``experiment`` may be a path; ``robot`` defaults to the one identified.
+    `experiment` may be a path; `robot` defaults to the one identified.
     The held-out system is built twice with the identification's settings:
     with the dead zone off (all samples: the headline numbers) and with it
     on (moving samples, the rows an estimator would use).

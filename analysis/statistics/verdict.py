@@ -1,39 +1,39 @@
 """The verdict: is the model identified, and how far can it be trusted?
 
-:func:`verdict` gathers, from an IDIM result (and its validation, and a
+`verdict` gathers, from an IDIM result (and its validation, and a
 residual diagnosis if one was run), the few facts a reader needs before any
 table:
 
-* **held-out error on all samples** (``ValidationResult.rel_error``: every
+* **held-out error on all samples** (`ValidationResult.rel_error`: every
   held-out decimated sample, τ̂ = W χ̂, nothing zeroed), per joint; joints
-  whose relative error exceeds ``joint_error_threshold`` (default 20 %) are
+  whose relative error exceeds `joint_error_threshold` (default 20 %) are
   named, and the worst joint always is;
 * **essential parameters not identified**: those with %σ = 100 σ/|χ̂| above
-  ``rel_std_threshold`` (default 10 %);
+  `rel_std_threshold` (default 10 %);
 * **residual whiteness and normality**, stated once, on the identification
   residual over the fitted (moving) rows: Ljung-Box (statistic and p at the
-  lag of :func:`dynid.analysis.statistics.residuals.analyze_residuals`) and
-  Jarque-Bera / Shapiro-Wilk (:func:`dynid.analysis.statistics.noise.normality`).
+  lag of `dynid.analysis.statistics.residuals.analyze_residuals`) and
+  Jarque-Bera / Shapiro-Wilk (`dynid.analysis.statistics.noise.normality`).
   A correlated residual is *not* taken as proof of a missing effect: the
   text points to the diagnosis and says what it found;
 * **physical plausibility**: an identified parameter that must not be
   negative and is. The rule (simple on purpose): a parameter must be ≥ 0 when
   it is, or regroups with non-negative coefficients only, standard
-  parameters of the non-negative kinds — masses ``M``, diagonal inertias
-  ``XX``, ``YY``, ``ZZ``, rotor inertias ``Ia``, viscous and Coulomb friction
-  ``Fv``, ``Fc``, ``Fvm``, ``Fcm``. ``ZZ2R = ZZ2 + Ia2 + 0.05 M3 + ...`` is
-  checked; ``XX2R = XX2 - YY2 - ...`` or anything with a first moment is not;
-* **a-priori values** (``robot.apriori``, mapped to base parameters): an
-  essential parameter more than ``apriori_k`` (default 3) standard
+  parameters of the non-negative kinds — masses `M`, diagonal inertias
+  `XX`, `YY`, `ZZ`, rotor inertias `Ia`, viscous and Coulomb friction
+  `Fv`, `Fc`, `Fvm`, `Fcm`. `ZZ2R = ZZ2 + Ia2 + 0.05 M3 + ...` is
+  checked; `XX2R = XX2 - YY2 - ...` or anything with a first moment is not;
+* **a-priori values** (`robot.apriori`, mapped to base parameters): an
+  essential parameter more than `apriori_k` (default 3) standard
   deviations from its a-priori value is flagged;
 * **data quality**: saturation notices, cond(W) (flagged above
-  ``cond_threshold`` = 1000 for the unit-column scaling), the fraction of the
+  `cond_threshold` = 1000 for the unit-column scaling), the fraction of the
   equations in the velocity dead zone (identification and validation).
 
-Status: ``"not identified"`` when the held-out error on all samples exceeds
-``fail_rel_error`` (default 30 %) or more than half the essential parameters
-are not identified or a parameter is physically impossible; ``"identified
-with reservations"`` when anything else is flagged; ``"identified"``
+Status: `"not identified"` when the held-out error on all samples exceeds
+`fail_rel_error` (default 30 %) or more than half the essential parameters
+are not identified or a parameter is physically impossible; `"identified
+with reservations"` when anything else is flagged; `"identified"`
 otherwise.
 
 Each check is one function of `VerdictInputs` returning a `CheckOutcome`
@@ -67,13 +67,13 @@ _KIND_RE = re.compile(r"^([A-Za-z]+?)(\d+)R?$")
 
 
 def parameter_kind(name: str) -> str:
-    """``ZZ2R`` -> ``ZZ``; ``Fvm6`` -> ``Fvm``; ``M3`` -> ``M``; unknown patterns -> ``""``."""
+    """`ZZ2R` -> `ZZ`; `Fvm6` -> `Fvm`; `M3` -> `M`; unknown patterns -> `""`."""
     m = _KIND_RE.match(str(name))
     return m.group(1) if m else ""
 
 
 def parameter_unit(name: str) -> str:
-    """SI unit of a (standard or regrouped) parameter from its name pattern, ``""`` if unknown.
+    """SI unit of a (standard or regrouped) parameter from its name pattern, `""` if unknown.
 
     XX..ZZ kg m², MX/MY/MZ kg m, M kg, Ia kg m², Fv/Fvm N m s/rad, Fc/Fcm N m,
     Off N m (revolute joints; a prismatic joint's are in N and kg).
@@ -86,7 +86,7 @@ def parameter_unit(name: str) -> str:
 
 
 def must_be_nonnegative(bp, standard_names, k) -> bool:
-    """Whether base parameter ``k`` regroups non-negative kinds with non-negative coefficients."""
+    """Whether base parameter `k` regroups non-negative kinds with non-negative coefficients."""
     row = np.asarray(bp.matrix)[k]
     nz = np.flatnonzero(np.abs(row) > 1e-12)
     if nz.size == 0:
@@ -96,7 +96,7 @@ def must_be_nonnegative(bp, standard_names, k) -> bool:
 
 @dataclass
 class Verdict:
-    """What :func:`verdict` concluded; ``to_dict()`` is the JSON ``"verdict"``."""
+    """What `verdict` concluded; `to_dict()` is the JSON `"verdict"`."""
 
     status: str                                   # identified / identified with reservations / not identified
     identified: bool
@@ -171,7 +171,7 @@ def _estimate(result):
 
 
 def _fitted_residual(result):
-    """``residual_analysis`` of the residual on the rows the method fitted, or None.
+    """`residual_analysis` of the residual on the rows the method fitted, or None.
 
     IDIM: τ − W χ̂ on the decimated identification rows. DIDIM: the measured
     minus the simulated-model torque on its decimated rows, with the simulated

@@ -107,8 +107,14 @@ __all__ = [
 def sample(result: IDIMResult, *, which: str = "essential", seed: int = 1, **kwargs: Any) -> PosteriorResult:
     """Posterior of the essential (default) or base parameters of an IDIM result, by emcee.
 
-    See :func:`dynid.analysis.sampling.posterior.sample_idim` for the options
+    See `dynid.analysis.sampling.posterior.sample_idim` for the options
     (walkers, steps, time limit, priors); convergence is judged from the chains.
+
+    Returns
+    -------
+    PosteriorResult
+        Draws, posterior means, standard deviations and credible intervals of the
+        parameters, with the chains' convergence diagnostics (ESS, R-hat).
     """
     from dynid.analysis.sampling.posterior import sample_idim
     return sample_idim(result, which=which, seed=seed, **kwargs)
@@ -118,10 +124,16 @@ def diagnose(data: str | os.PathLike[str] | Experiment | Sequence[str | os.PathL
              robot: Robot | str | os.PathLike[str], *,
              validation: str | os.PathLike[str] | Experiment | None = None,
              idim_result: IDIMResult | None = None, **kwargs: Any) -> DiagnosisResult:
-    """What does the identified model of ``robot`` lack in ``data``? (residual diagnosis).
+    """What does the identified model of `robot` lack in `data`? (residual diagnosis).
 
-    ``data`` and ``validation`` may be paths or Experiments; the other options are
-    those of :func:`dynid.analysis.diagnosis.selection.diagnose`.
+    `data` and `validation` may be paths or Experiments; the other options are
+    those of `dynid.analysis.diagnosis.selection.diagnose`.
+
+    Returns
+    -------
+    DiagnosisResult
+        The effects the model lacks, each with its estimated size and the evidence
+        for it, and what of the residual is left unexplained.
     """
     from dynid.analysis.diagnosis.selection import diagnose as _diagnose
     from dynid.analysis.identify import as_experiments, as_robot
@@ -132,9 +144,14 @@ def diagnose(data: str | os.PathLike[str] | Experiment | Sequence[str | os.PathL
 
 
 def excite(robot: Robot | str | os.PathLike[str], f0: float, harmonics: int, **kwargs: Any) -> ExcitationResult:
-    """Optimal Fourier excitation of ``robot`` (Bona & Curatella 2005, eq. (20)).
+    """Optimal Fourier excitation of `robot` (Bona & Curatella 2005, eq. (20)).
 
-    See :func:`dynid.dynamics.excitation.design_excitation` for the options.
+    See `dynid.dynamics.excitation.design_excitation` for the options.
+
+    Returns
+    -------
+    ExcitationResult
+        The optimised Fourier trajectory, its condition number and limit margins.
     """
     from dynid.analysis.identify import as_robot
     from dynid.dynamics.excitation import design_excitation

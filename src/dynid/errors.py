@@ -31,7 +31,7 @@ class DataError(InputError):
 class OutputError(InputError, OSError):
     """An output file cannot be written (missing folder, full disk, no permission ...).
 
-    It is an :class:`OSError` too, so code that guards file writes keeps working.
+    It is an `OSError` too, so code that guards file writes keeps working.
     """
 
 

@@ -1,7 +1,7 @@
 """Writing outputs so that no run leaves a half-written file or loses one.
 
-Every file dynid writes goes through :func:`write_all` (several files, all or
-none) or :func:`atomic_write_text` / :func:`atomic_open` (one file), after
+Every file dynid writes goes through `write_all` (several files, all or
+none) or `atomic_write_text` / `atomic_open` (one file), after
 `check_outputs` has refused, before any work, an output that is one of the run's
 inputs (the same file through a symlink, a hard link or `..`), two outputs on one
 file, an empty name or one ending in '/':
@@ -14,12 +14,12 @@ file, an empty name or one ending in '/':
   SIGINT and SIGTERM are held back during the renames (they are short);
 * a symlinked target is written through the link (the link stays); an existing
   target keeps its permission bits; a target that is not a regular file (a
-  character device such as ``/dev/null``, a FIFO) is written directly, never
+  character device such as `/dev/null`, a FIFO) is written directly, never
   renamed over;
-* temporary files belong to a *lease*: a lock file ``.dynid-<host>-<pid>-<token>.lock``
+* temporary files belong to a *lease*: a lock file `.dynid-<host>-<pid>-<token>.lock`
   on which the writer holds an advisory lock (flock; over NFS the kernel maps it
   to a POSIX lock the server arbitrates) for as long as it writes; its temporary
-  and backup files are ``.dynid-<host>-<pid>-<token>-<n>.tmp|.bak``. A later run
+  and backup files are `.dynid-<host>-<pid>-<token>-<n>.tmp|.bak`. A later run
   removes them only when it can take that lock itself: the writer is then proven
   gone (killed mid-write), whatever host, container or PID namespace it ran in.
   A process id alone proves nothing across PID namespaces or hosts (issue 31: a
@@ -130,7 +130,7 @@ def _abandoned(lock_path: str) -> bool:
 
 
 def resolve_target(path) -> str:
-    """The file a write to ``path`` lands in: symlinks followed, made absolute."""
+    """The file a write to `path` lands in: symlinks followed, made absolute."""
     return os.path.realpath(os.fspath(path))
 
 
@@ -326,9 +326,9 @@ def _signals_held():
 
 
 def write_all(outputs, say=None) -> list:
-    """Write ``(path, text_or_bytes)`` pairs all or none; the path ``-`` means stdout, written last.
+    """Write `(path, text_or_bytes)` pairs all or none; the path `-` means stdout, written last.
 
-    Returns the paths written. Raises :class:`~dynid.errors.OutputError` naming the
+    Returns the paths written. Raises `OutputError` naming the
     file when one cannot be written; the folder is then as it was before.
     """
     to_stdout = [data for path, data in outputs if os.fspath(path) == "-"]
@@ -400,10 +400,10 @@ def _commit(staged_files, leases) -> None:
 
 @contextlib.contextmanager
 def atomic_open(path, mode: str = "w", *, encoding: str | None = "utf-8") -> Iterator[IO]:
-    """Open a temporary file beside ``path``; when the ``with`` body succeeds, it replaces ``path``.
+    """Open a temporary file beside `path`; when the `with` body succeeds, it replaces `path`.
 
-    If the body raises, the temporary file is removed and ``path`` is untouched.
-    ``mode`` is ``'w'`` (text, no newline translation) or ``'wb'``.
+    If the body raises, the temporary file is removed and `path` is untouched.
+    `mode` is `'w'` (text, no newline translation) or `'wb'`.
     """
     if mode not in ("w", "wb"):
         raise ValueError(f"atomic_open: mode must be 'w' or 'wb', not {mode!r}")
@@ -420,9 +420,9 @@ def atomic_open(path, mode: str = "w", *, encoding: str | None = "utf-8") -> Ite
 
 @contextlib.contextmanager
 def staged_path(path) -> Iterator[str]:
-    """A temporary path beside ``path`` for a writer that wants a file name (netCDF ...).
+    """A temporary path beside `path` for a writer that wants a file name (netCDF ...).
 
-    On success it is renamed over ``path`` (symlinks followed, permissions kept);
+    On success it is renamed over `path` (symlinks followed, permissions kept);
     on failure it is removed.
     """
     target = resolve_target(path)
@@ -442,10 +442,10 @@ def staged_path(path) -> Iterator[str]:
 
 
 def atomic_write_text(path, text: str, *, encoding: str = "utf-8") -> None:
-    """Write ``text`` to ``path`` atomically (no newline translation)."""
+    """Write `text` to `path` atomically (no newline translation)."""
     write_all([(path, text.encode(encoding))])
 
 
 def atomic_write_bytes(path, data: bytes) -> None:
-    """Write ``data`` to ``path`` atomically."""
+    """Write `data` to `path` atomically."""
     write_all([(path, data)])

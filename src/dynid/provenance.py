@@ -1,9 +1,9 @@
 """Provenance helpers: package versions, data fingerprints and deterministic JSON.
 
-Every result dynid writes should say which code produced it (:func:`versions`)
-and from which data (:func:`data_hash`); :mod:`dynid.outputs` writes it.
-:func:`dumps_json` gives deterministic JSON: the same object always gives the
-same bytes, non-finite floats become ``null``.
+Every result dynid writes should say which code produced it (`versions`)
+and from which data (`data_hash`); `dynid.outputs` writes it.
+`dumps_json` gives deterministic JSON: the same object always gives the
+same bytes, non-finite floats become `null`.
 """
 
 from __future__ import annotations
@@ -40,8 +40,8 @@ def _version(dist: str, default: str) -> str:
 def versions() -> dict[str, str]:
     """Versions of dynid and of its dependencies, in a fixed order.
 
-    dynid's version is ``'0+unknown'`` when it runs from a source tree that is
-    not installed; an absent dependency is reported as ``'not installed'``.
+    dynid's version is `'0+unknown'` when it runs from a source tree that is
+    not installed; an absent dependency is reported as `'not installed'`.
     """
     out = {"dynid": _version("dynid", "0+unknown")}
     for dist in DEPENDENCIES:
@@ -50,11 +50,11 @@ def versions() -> dict[str, str]:
 
 
 def data_hash(*arrays: Any) -> str:
-    """SHA-256 hex digest over the dtypes, shapes and bytes of ``arrays``.
+    """SHA-256 hex digest over the dtypes, shapes and bytes of `arrays`.
 
     Arrays are hashed in little-endian byte order so that the digest does not
-    depend on the machine; ``None`` is allowed and hashed as an explicit
-    "absent" marker, so ``data_hash(a, None)`` differs from ``data_hash(a)``.
+    depend on the machine; `None` is allowed and hashed as an explicit
+    "absent" marker, so `data_hash(a, None)` differs from `data_hash(a)`.
     """
     h = hashlib.sha256(b"dynid.data_hash.v1")
     for i, arr in enumerate(arrays):
@@ -75,11 +75,11 @@ def data_hash(*arrays: Any) -> str:
 
 
 def json_safe(obj: Any, _where: str = "value") -> Any:
-    """Convert ``obj`` to plain JSON types; NaN and infinities become ``None``.
+    """Convert `obj` to plain JSON types; NaN and infinities become `None`.
 
     NumPy scalars and arrays become Python numbers and (nested) lists; tuples
     become lists; dict keys become strings; path-like objects become strings.
-    Raises :class:`TypeError` naming the offending entry for anything else.
+    Raises `TypeError` naming the offending entry for anything else.
     """
     if obj is None or isinstance(obj, (bool, str)):
         return obj
@@ -105,7 +105,7 @@ def json_safe(obj: Any, _where: str = "value") -> Any:
 
 
 def dumps_json(obj: Any) -> str:
-    """Deterministic JSON text of ``obj`` (via :func:`json_safe`), newline-terminated.
+    """Deterministic JSON text of `obj` (via `json_safe`), newline-terminated.
 
     Keys keep their insertion order, floats use Python's shortest round-trip
     representation and the output is pure ASCII, so equal inputs give
