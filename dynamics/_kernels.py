@@ -16,6 +16,36 @@ except ImportError:  # pragma: no cover - numba is a declared dependency
     HAVE_NUMBA = False
 
 
+def _whole_row_start_py(out, s, n, width, qd, qdd):
+    """Sample ``s``'s rows: zeros where the Newton-Euler loop writes nothing (links j < i do
+    not load joint i, the other joints' actuator columns, the coupling columns), and Ia, Fv,
+    Fc, Off on the diagonal as in ``regressor._actuator_columns``."""
+    for i in range(n):
+        for j in range(n):
+            c = 14 * j
+            if j < i:
+                for k in range(10):
+                    out[s, i, c + k] = 0.0
+            if j != i:
+                for k in range(10, 14):
+                    out[s, i, c + k] = 0.0
+        for k in range(14 * n, width):
+            out[s, i, k] = 0.0
+        d = qd[s, i]
+        c = 14 * i
+        out[s, i, c + 10] = qdd[s, i]
+        out[s, i, c + 11] = d
+        # np.sign: 0 at 0, nan at nan
+        out[s, i, c + 12] = 1.0 if d > 0.0 else (-1.0 if d < 0.0 else (0.0 if d == 0.0 else d))
+        out[s, i, c + 13] = 1.0
+
+
+if HAVE_NUMBA:
+    _whole_row_start = numba.njit(cache=True, nogil=True, inline="always")(_whole_row_start_py)
+else:  # pragma: no cover
+    _whole_row_start = _whole_row_start_py
+
+
 def _inertial_columns(Rp, pp, sigma, gravity, q, qd, qdd, out, whole_rows):
     """Fill the 10 inertial columns of every link, for every sample, into `out`.
 
@@ -36,26 +66,7 @@ def _inertial_columns(Rp, pp, sigma, gravity, q, qd, qdd, out, whole_rows):
     m = np.empty((3, 10))
     for s in range(N):
         if whole_rows:
-            for i in range(n):
-                # zeros where nothing below writes: links j < i (they do not load
-                # joint i), the other joints' actuator columns, the coupling columns
-                for j in range(n):
-                    c = 14 * j
-                    if j < i:
-                        for k in range(10):
-                            out[s, i, c + k] = 0.0
-                    if j != i:
-                        for k in range(10, 14):
-                            out[s, i, c + k] = 0.0
-                for k in range(14 * n, width):
-                    out[s, i, k] = 0.0
-                d = qd[s, i]
-                c = 14 * i
-                out[s, i, c + 10] = qdd[s, i]
-                out[s, i, c + 11] = d
-                # np.sign: 0 at 0, nan at nan
-                out[s, i, c + 12] = 1.0 if d > 0.0 else (-1.0 if d < 0.0 else (0.0 if d == 0.0 else d))
-                out[s, i, c + 13] = 1.0
+            _whole_row_start(out, s, n, width, qd, qdd)
         # --- kinematics
         for j in range(n):
             if sigma[j] == 0:
