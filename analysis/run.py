@@ -35,8 +35,8 @@ from pathlib import Path
 
 from dynid.analysis.data.experiment import Experiment, load_experiment
 from dynid.analysis.data.split import holdout_split
-from dynid.analysis.diagnosis.physical_fit import effect_candidates, identify_physical_effects
 from dynid.analysis.diagnosis.asymmetric_friction import asymmetric_friction
+from dynid.analysis.diagnosis.physical_fit import effect_candidates, identify_physical_effects
 from dynid.analysis.estimators.controller_gains import identify_gains
 from dynid.analysis.estimators.didim import DEFAULT_MAX_ITER, identify_didim
 from dynid.analysis.estimators.gravity_tilt import gravity_tilt
@@ -106,6 +106,7 @@ class Settings:
     decimation_cutoff: float | None = None
     qd_threshold: object = None
     max_error_growth: float = 0.02
+    uncertainty: str = "classic"
     f0: float | None = None
     ml_harmonics: int | None = None
     max_iter: int | None = None
@@ -384,9 +385,12 @@ def identify_step(experiments, robot, settings: Settings, progress=None):
         raise InputError(f"method {method} identifies one recording at a time; "
                          f"{len(experiments)} were given")
     if method == "idim":
+        # PC-WLS takes the WLS covariance as its metric and has its own bootstrap sigma:
+        # its estimate must not depend on the IDIM interval option
         res = identify_idim(experiments if len(experiments) > 1 else experiments[0], robot,
                             settings=settings.processing(), max_error_growth=settings.max_error_growth,
-                            progress=progress)
+                            progress=progress,
+                            uncertainty="classic" if settings.physical else settings.uncertainty)
         if not settings.physical:
             return res
         return identify_physical(res, robot, prior=settings.prior, prior_weight=settings.prior_weight,

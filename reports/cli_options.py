@@ -359,6 +359,9 @@ def _add_identify_parser(sub, common, full):
     m.add_argument("--method", choices=["idim", "didim", "projection", "ml"], default="idim",
                    help="idim (q, tau); didim (qr or q, tau, a controller); projection (q, qr, tau); "
                         "ml (periodic: --f0)")
+    g["advanced"].add_argument("--uncertainty", choices=["classic", "hac", "bootstrap"], default="classic",
+                               help=adv("IDIM sigma: classic (eqs. (14)-(15), samples independent), hac "
+                                        "(Newey-West), bootstrap (circular blocks over time)"))
     m.add_argument("--f0", type=positive_float, metavar="HZ", help="ML: fundamental of the excitation")
     a = g["advanced"]
     a.add_argument("--ml-harmonics", type=harmonics_type, metavar="K",

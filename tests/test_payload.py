@@ -194,7 +194,7 @@ def test_cli_payload_runs_and_refuses_a_bad_frame(plant_data, tmp_path, monkeypa
     assert res["method"] == "payload-global" and abs(res["mass_kg"] - d["parts"]["mass"]) < 0.1 * d["parts"]["mass"]
     assert "Verdict" in html.read_text()
     # the command line is identify_payload called on the same files (numbers alike, versions aside)
-    api = identify_payload([str(paths["el"])], _robot(), unloaded=[str(paths["eu"])]).to_dict()
+    api = identify_payload([str(paths["el"])], dynid.load_robot("tx40"), unloaded=[str(paths["eu"])]).to_dict()
     assert [p_["value"] for p_ in res["parameters"]] == [p_["value"] for p_ in api["parameters"]]
     rc = main(["payload", "--robot", "tx40", "--loaded", str(paths["el"]), "--unloaded", str(paths["eu"]),
                "--frame", "tool0", "--quiet"])

@@ -49,6 +49,7 @@ from functools import cached_property
 
 import numpy as np
 
+from dynid.analysis.statistics.agreement import agreement_verdict
 from dynid.analysis.statistics.residuals import analyze_residuals, residual_analysis
 from dynid.dynamics.base_parameters import base_parameters
 from dynid.dynamics.excitation import apriori_parameters
@@ -532,8 +533,21 @@ def check_data_quality(x: VerdictInputs) -> CheckOutcome:
 
 #: the checks, in the order their findings are shown; a new check is one
 #: function `VerdictInputs -> CheckOutcome` appended here
+def check_agreement(x: VerdictInputs) -> CheckOutcome:
+    """Do the recordings (or three segments of one) agree within their intervals (issue 26)?
+
+    Information only: the verdict's status does not change, but a disagreement says the
+    intervals of one recording are optimistic (model error differs between trajectories).
+    """
+    a = getattr(x.result, "agreement", None)
+    if not a:
+        return CheckOutcome()
+    level = "ok" if a["pairs"] and a["within_95"] >= 0.9 and a["p_value"] >= 0.01 else "info"
+    return CheckOutcome(findings=[{"level": level, "key": "agreement", "text": agreement_verdict(a)}])
+
+
 CHECKS = [check_validation, check_parameters, check_residual, check_plausibility, check_apriori,
-          check_data_quality]
+          check_data_quality, check_agreement]
 
 
 def _inputs(result, validation, robot, diagnosis, residuals, **thresholds) -> VerdictInputs:
