@@ -111,6 +111,110 @@ def _springs(robot, springs):
     return dict(sorted(out.items()))
 
 
+def _checked_parameters(robot, chi_st):
+    """`chi_st` as a float array of `robot`'s standard parameters: right length, all finite."""
+    chi_st = np.asarray(chi_st, dtype=float)
+    if chi_st.shape != (robot.n_standard,):
+        raise InputError(f"mjcf_text: {chi_st.size} values given, robot '{robot.name}' has "
+                         f"{robot.n_standard} standard parameters")
+    if not np.all(np.isfinite(chi_st)):
+        raise InputError("mjcf_text: the standard parameters hold NaN or infinite values")
+    return chi_st
+
+
+def _coupled_rotors(robot, value, armature):
+    """Tendons of the coupled rotors `(coupling, coef / c_motor, Ia_motor, damping, frictionloss)`
+    and their note; lowers `armature` (in place) by the share of Ia_motor dynid counts in the joints'."""
+    tendons, note = [], ""
+    for c in robot.couplings:
+        coef = np.asarray(c.coefficients, dtype=float)
+        cm = coef[list(c.joints).index(c.motor)] if c.motor in c.joints else 1.0
+        ia_m = value[f"Ia{c.motor}"]
+        for jn, k in zip(c.joints, coef):
+            armature[jn - 1] -= ia_m * (k / cm) ** 2
+        fv, fc = ((value[f"Fvm{c.motor}"], value[f"Fcm{c.motor}"]) if c.friction else (0.0, 0.0))
+        tendons.append((c, coef / cm, ia_m, fv * cm * cm, fc * abs(cm)))
+        note += (f"; rotor {c.motor} turns joints {list(c.joints)}: tendon {robot.name}_rotor{c.motor}, "
+                 f"joint armatures lowered by the part of Ia{c.motor} it carries")
+    return tendons, note
+
+
+def _clip_armature(robot, armature):
+    """`armature` with negative entries written 0, and the note naming those joints ("" if none)."""
+    clipped = [j + 1 for j in range(robot.n_joints) if armature[j] < 0]
+    if not clipped:
+        return armature, ""
+    return np.maximum(armature, 0.0), ("; armature of joint(s) " + ", ".join(map(str, clipped)) + " would be "
+                                       "negative (joint Ia below the coupled rotor's share) and is written 0")
+
+
+def _springs_note(springs):
+    """The comment's part on the joint springs ("" without springs)."""
+    if not springs:
+        return ""
+    note = ("; joint springs (dynid's Ks q in the drive torque): stiffness = Ks, springref = 0: "
+            + ", ".join(f"Ks{j} = {_f(k)}" for j, k in springs.items()))
+    negative = [j for j, k in springs.items() if k < 0]
+    if negative:
+        note += ("; negative stiffness on joint(s) " + ", ".join(map(str, negative)) + ": a spring "
+                 "pushing away from q = 0, which MuJoCo's passive force applies with its sign")
+    return note
+
+
+def _inertial_attrs(m, h, I_o):
+    """`<inertial>` attributes of a body of mass `m`, first moments `h`, inertia `I_o` about its frame."""
+    c = h / m
+    I_c = I_o - m * (c @ c * np.eye(3) - np.outer(c, c))
+    return {"pos": _vec(c), "mass": _f(m),
+            "fullinertia": _vec([I_c[0, 0], I_c[1, 1], I_c[2, 2], I_c[0, 1], I_c[0, 2], I_c[1, 2]])}
+
+
+def _joint_attrs(joint, k, armature, value, springs):
+    """`<joint>` attributes of joint `k` (1-based)."""
+    attrs = {"name": joint.name, "type": "slide" if joint.sigma == 1 else "hinge",
+             "pos": "0 0 0", "axis": "0 0 1", "armature": _f(armature),
+             "damping": _f(value[f"Fv{k}"]), "frictionloss": _f(value[f"Fc{k}"]),
+             "solimpfriction": SOLIMP_FRICTION}
+    lo, hi = joint.q_limits
+    if math.isfinite(lo) and math.isfinite(hi):
+        attrs["range"] = f"{_f(lo)} {_f(hi)}"
+    if k in springs:
+        attrs.update(stiffness=_f(springs[k]), springref="0")
+    return attrs
+
+
+def _add_links(root, robot, chi_st, armature, value, springs, pay):
+    """The chain of `<body>` elements under `<worldbody>`, the payload welded to its link."""
+    parent = ET.SubElement(root, "worldbody")
+    for j, joint in enumerate(robot.joints):
+        k = j + 1
+        m, h, I_o = link_inertial(chi_st[inertial_slice(robot, j)])
+        if not m > 0:
+            raise InputError(f"mjcf_text: link {k} has mass {m:g}; MuJoCo needs a positive mass on every "
+                             "moving body: export a physically consistent set (--physical)")
+        body = ET.SubElement(parent, "body", {"name": f"{robot.name}_link{k}", "pos": _vec(joint.p),
+                                              "quat": _vec(_quat(joint.R))})
+        ET.SubElement(body, "joint", _joint_attrs(joint, k, armature[j], value, springs))
+        ET.SubElement(body, "inertial", _inertial_attrs(m, h, I_o))
+        if pay is not None and pay[0] == j:
+            pb = ET.SubElement(body, "body", {"name": pay[2], "pos": "0 0 0"})
+            ET.SubElement(pb, "inertial", _inertial_attrs(*link_inertial(pay[1])))
+        parent = body
+
+
+def _add_tendons(root, robot, tendons):
+    """One fixed `<tendon>` per coupled rotor (none without couplings)."""
+    if not tendons:
+        return
+    ten = ET.SubElement(root, "tendon")
+    for c, coef, ia_m, fv, fc in tendons:
+        fixed = ET.SubElement(ten, "fixed", {"name": f"{robot.name}_rotor{c.motor}", "armature": _f(ia_m),
+                                             "damping": _f(fv), "frictionloss": _f(fc),
+                                             "solimpfriction": SOLIMP_FRICTION})
+        for jn, k in zip(c.joints, coef):
+            ET.SubElement(fixed, "joint", {"joint": robot.joints[jn - 1].name, "coef": _f(k)})
+
+
 def mjcf_text(robot, chi_st, *, name=None, comment="", springs=None, payload=None) -> str:
     """The MJCF of `robot` with the standard parameters `chi_st` (see the module doc).
 
@@ -125,12 +229,7 @@ def mjcf_text(robot, chi_st, *, name=None, comment="", springs=None, payload=Non
     """
     springs = _springs(robot, springs)
     pay = None if payload is None else payload_argument(robot, payload, "mjcf_text")
-    chi_st = np.asarray(chi_st, dtype=float)
-    if chi_st.shape != (robot.n_standard,):
-        raise InputError(f"mjcf_text: {chi_st.size} values given, robot '{robot.name}' has "
-                         f"{robot.n_standard} standard parameters")
-    if not np.all(np.isfinite(chi_st)):
-        raise InputError("mjcf_text: the standard parameters hold NaN or infinite values")
+    chi_st = _checked_parameters(robot, chi_st)
     value = dict(zip(robot.standard_names, chi_st))
     root = ET.Element("mujoco", {"model": name or robot.name})
     if comment:
@@ -138,78 +237,17 @@ def mjcf_text(robot, chi_st, *, name=None, comment="", springs=None, payload=Non
     missing = mjcf_unrepresentable(robot)
     note = _FRICTION_NOTE + (", ".join(f"{n} = {_f(value[n])}" for n in missing) or "nothing")
     armature = np.array([value[f"Ia{j + 1}"] for j in range(robot.n_joints)])
-    tendons = []
-    for c in robot.couplings:
-        coef = np.asarray(c.coefficients, dtype=float)
-        cm = coef[list(c.joints).index(c.motor)] if c.motor in c.joints else 1.0
-        ia_m = value[f"Ia{c.motor}"]
-        for jn, k in zip(c.joints, coef):
-            armature[jn - 1] -= ia_m * (k / cm) ** 2
-        fv, fc = ((value[f"Fvm{c.motor}"], value[f"Fcm{c.motor}"]) if c.friction else (0.0, 0.0))
-        tendons.append((c, coef / cm, ia_m, fv * cm * cm, fc * abs(cm)))
-        note += (f"; rotor {c.motor} turns joints {list(c.joints)}: tendon {robot.name}_rotor{c.motor}, "
-                 f"joint armatures lowered by the part of Ia{c.motor} it carries")
-    clipped = [j + 1 for j in range(robot.n_joints) if armature[j] < 0]
-    if clipped:
-        note += ("; armature of joint(s) " + ", ".join(map(str, clipped)) + " would be negative "
-                 "(joint Ia below the coupled rotor's share) and is written 0")
-        armature = np.maximum(armature, 0.0)
-    if springs:
-        note += ("; joint springs (dynid's Ks q in the drive torque): stiffness = Ks, springref = 0: "
-                 + ", ".join(f"Ks{j} = {_f(k)}" for j, k in springs.items()))
-        negative = [j for j, k in springs.items() if k < 0]
-        if negative:
-            note += ("; negative stiffness on joint(s) " + ", ".join(map(str, negative)) + ": a spring "
-                     "pushing away from q = 0, which MuJoCo's passive force applies with its sign")
+    tendons, rotor_note = _coupled_rotors(robot, value, armature)
+    armature, clip_note = _clip_armature(robot, armature)
+    note += rotor_note + clip_note + _springs_note(springs)
     root.append(ET.Comment(" " + note.replace("--", "-") + " "))
     # balanceinertia off: the written inertia is the identified one, never adjusted by the compiler
     ET.SubElement(root, "compiler", {"angle": "radian", "balanceinertia": "false", "autolimits": "true"})
     ET.SubElement(root, "option", {"gravity": _vec(robot.gravity)})
-    parent = ET.SubElement(root, "worldbody")
-    joint_names = []
-    for j, joint in enumerate(robot.joints):
-        k = j + 1
-        m, h, I_o = link_inertial(chi_st[inertial_slice(robot, j)])
-        if not m > 0:
-            raise InputError(f"mjcf_text: link {k} has mass {m:g}; MuJoCo needs a positive mass on every "
-                             "moving body: export a physically consistent set (--physical)")
-        body = ET.SubElement(parent, "body", {"name": f"{robot.name}_link{k}", "pos": _vec(joint.p),
-                                              "quat": _vec(_quat(joint.R))})
-        attrs = {"name": joint.name, "type": "slide" if joint.sigma == 1 else "hinge",
-                 "pos": "0 0 0", "axis": "0 0 1", "armature": _f(armature[j]),
-                 "damping": _f(value[f"Fv{k}"]), "frictionloss": _f(value[f"Fc{k}"]),
-                 "solimpfriction": SOLIMP_FRICTION}
-        lo, hi = joint.q_limits
-        if math.isfinite(lo) and math.isfinite(hi):
-            attrs["range"] = f"{_f(lo)} {_f(hi)}"
-        if k in springs:
-            attrs.update(stiffness=_f(springs[k]), springref="0")
-        ET.SubElement(body, "joint", attrs)
-        joint_names.append(joint.name)
-        c = h / m
-        I_c = I_o - m * (c @ c * np.eye(3) - np.outer(c, c))
-        ET.SubElement(body, "inertial", {
-            "pos": _vec(c), "mass": _f(m),
-            "fullinertia": _vec([I_c[0, 0], I_c[1, 1], I_c[2, 2], I_c[0, 1], I_c[0, 2], I_c[1, 2]])})
-        if pay is not None and pay[0] == j:
-            pm, ph, pI = link_inertial(pay[1])
-            pc = ph / pm
-            pIc = pI - pm * (pc @ pc * np.eye(3) - np.outer(pc, pc))
-            pb = ET.SubElement(body, "body", {"name": pay[2], "pos": "0 0 0"})
-            ET.SubElement(pb, "inertial", {
-                "pos": _vec(pc), "mass": _f(pm),
-                "fullinertia": _vec([pIc[0, 0], pIc[1, 1], pIc[2, 2], pIc[0, 1], pIc[0, 2], pIc[1, 2]])})
-        parent = body
-    if tendons:
-        ten = ET.SubElement(root, "tendon")
-        for c, coef, ia_m, fv, fc in tendons:
-            fixed = ET.SubElement(ten, "fixed", {"name": f"{robot.name}_rotor{c.motor}", "armature": _f(ia_m),
-                                                 "damping": _f(fv), "frictionloss": _f(fc),
-                                                 "solimpfriction": SOLIMP_FRICTION})
-            for jn, k in zip(c.joints, coef):
-                ET.SubElement(fixed, "joint", {"joint": robot.joints[jn - 1].name, "coef": _f(k)})
+    _add_links(root, robot, chi_st, armature, value, springs, pay)
+    _add_tendons(root, robot, tendons)
     act = ET.SubElement(root, "actuator")
-    for nm in joint_names:
-        ET.SubElement(act, "motor", {"name": f"{nm}_motor", "joint": nm, "gear": "1"})
+    for joint in robot.joints:
+        ET.SubElement(act, "motor", {"name": f"{joint.name}_motor", "joint": joint.name, "gear": "1"})
     ET.indent(root, space="  ")
     return ET.tostring(root, encoding="unicode") + "\n"

@@ -175,6 +175,82 @@ def _gauss_newton(X, tau, known_tau, gcol, names, mask, max_iter=30, tol=1e-10):
     return np.concatenate([theta, a[gcol]]), 0.5 * (cov + cov.T), fit, lags
 
 
+def _checked_mass(mass):
+    """The payload's mass as a float, > 0 kg."""
+    try:
+        mass = float(mass)
+    except (TypeError, ValueError):
+        raise InputError(f"payload mass must be a number in kg, got {mass!r} (--mass)") from None
+    if not (math.isfinite(mass) and mass > 0):
+        raise InputError(f"payload mass must be > 0 kg, got {mass!r} (--mass): the known mass is what "
+                         "fixes the scale of the drive gains")
+    return mass
+
+
+def _checked_joints(joints, n):
+    """The 1-based joints whose gain is identified (default all `n`): distinct, in 1..n."""
+    joints = list(range(1, n + 1)) if joints is None else [int(j) for j in joints]
+    if not joints or any(not 1 <= j <= n for j in joints) or len(set(joints)) != len(joints):
+        raise InputError(f"joints must list distinct 1-based joints 1..{n} whose gain is identified, "
+                         f"got {joints!r}")
+    return joints
+
+
+def _known_payload(mass, com):
+    """The payload's known parameters `{name: value}`: its mass, with `com` its first moments too."""
+    known = {"ML": mass}
+    if com is not None:
+        c = np.asarray(com, dtype=float).reshape(-1)
+        if c.shape != (3,) or not np.all(np.isfinite(c)):
+            raise InputError(f"com must be the payload's centre of mass [x, y, z] in m, got {com!r}")
+        known.update({"MXL": mass * c[0], "MYL": mass * c[1], "MZL": mass * c[2]})
+    return known
+
+
+def _experiments(x, robot):
+    """One recording or a list of them, as Experiments."""
+    return [_as_experiment(e, robot) for e in (x if isinstance(x, (list, tuple)) else [x])]
+
+
+def _stacked_model(obs_u, obs_l, known, bp):
+    """The unloaded then loaded rows stacked: regressor `X` (base and unknown payload columns,
+    the latter zero on unloaded rows), logged torque, known payload torque, row mask, names."""
+    kidx = [PAYLOAD_NAMES.index(k) for k in known]
+    uidx = [k for k in range(10) if k not in kidx]
+    pi_k = np.array([known[PAYLOAD_NAMES[k]] for k in kidx])
+    obs = obs_u + obs_l
+    Wb = np.concatenate([o.Wb for o in obs])
+    Wp = np.concatenate([o.Wp for o in obs])
+    tau = np.concatenate([o.tau for o in obs])
+    mask = np.concatenate([o.mask for o in obs])
+    on = np.zeros(tau.shape[0], dtype=bool)
+    on[sum(o.tau.shape[0] for o in obs_u):] = True          # loaded rows
+    Wpu = Wp[:, :, uidx] * on[:, None, None]
+    known_tau = (Wp[:, :, kidx] @ pi_k) * on[:, None]
+    X = np.concatenate([Wb, Wpu], axis=2)
+    names = list(bp.names) + [PAYLOAD_NAMES[k] for k in uidx]
+    return X, tau, known_tau, mask, names
+
+
+def _solve(X, tau, known_tau, gcol, names, mask, com):
+    """`_gauss_newton`, its failure restated for the drive gains (with a hint when `com` is missing)."""
+    try:
+        return _gauss_newton(X, tau, known_tau, gcol, names, mask)
+    except IdentificationError as e:
+        hint = "" if com is not None else (" With the mass alone a payload at the wrist centre gives the wrist "
+                                           "joints no known torque: give its centre of mass too (com=, --com).")
+        raise IdentificationError(f"the recordings with and without the payload do not identify the drive "
+                                  f"gains with the dynamic parameters: {e}{hint}") from None
+
+
+def _gain_factors(est, cov, g):
+    """`k = 1 / a` of the last `g` estimates and its covariance by the delta method."""
+    a = est[-g:]
+    k = 1.0 / a
+    Jk = np.diag(-1.0 / a ** 2)
+    return k, Jk @ cov[-g:, -g:] @ Jk.T
+
+
 def identify_drive_gains(unloaded, loaded, robot, *, mass, com=None, joints=None, frame="flange",
                          offset=None, settings=None):
     """Identify the drive gains with the dynamic parameters from a payload of known mass (module doc).
@@ -207,62 +283,25 @@ def identify_drive_gains(unloaded, loaded, robot, *, mass, com=None, joints=None
         The data cannot fix some gains or parameters (named).
     """
     robot = _as_robot(robot)
-    try:
-        mass = float(mass)
-    except (TypeError, ValueError):
-        raise InputError(f"payload mass must be a number in kg, got {mass!r} (--mass)") from None
-    if not (math.isfinite(mass) and mass > 0):
-        raise InputError(f"payload mass must be > 0 kg, got {mass!r} (--mass): the known mass is what "
-                         "fixes the scale of the drive gains")
-    n = robot.n_joints
-    joints = list(range(1, n + 1)) if joints is None else [int(j) for j in joints]
-    if not joints or any(not 1 <= j <= n for j in joints) or len(set(joints)) != len(joints):
-        raise InputError(f"joints must list distinct 1-based joints 1..{n} whose gain is identified, "
-                         f"got {joints!r}")
-    known = {"ML": mass}
-    if com is not None:
-        c = np.asarray(com, dtype=float).reshape(-1)
-        if c.shape != (3,) or not np.all(np.isfinite(c)):
-            raise InputError(f"com must be the payload's centre of mass [x, y, z] in m, got {com!r}")
-        known.update({"MXL": mass * c[0], "MYL": mass * c[1], "MZL": mass * c[2]})
+    mass = _checked_mass(mass)
+    joints = _checked_joints(joints, robot.n_joints)
+    known = _known_payload(mass, com)
     link, R, p = payload_frame(robot, frame, offset)
     T = transform_matrix(R, p)
     bp = base_parameters(robot)
-    exps_u = [_as_experiment(x, robot) for x in (unloaded if isinstance(unloaded, (list, tuple)) else [unloaded])]
-    exps_l = [_as_experiment(x, robot) for x in (loaded if isinstance(loaded, (list, tuple)) else [loaded])]
+    exps_u = _experiments(unloaded, robot)
+    exps_l = _experiments(loaded, robot)
     first = _observe(exps_l[0], robot, bp, link, T, settings)
     obs_l = [first] + [_observe(e, robot, bp, link, T, first.settings) for e in exps_l[1:]]
     obs_u = [_observe(e, robot, bp, link, T, first.settings) for e in exps_u]
-    kidx = [PAYLOAD_NAMES.index(k) for k in known]
-    uidx = [k for k in range(10) if k not in kidx]
-    pi_k = np.array([known[PAYLOAD_NAMES[k]] for k in kidx])
     gcol = np.array(joints) - 1
 
-    Wb = np.concatenate([o.Wb for o in obs_u + obs_l])
-    Wp = np.concatenate([o.Wp for o in obs_u + obs_l])
-    tau = np.concatenate([o.tau for o in obs_u + obs_l])
-    mask = np.concatenate([o.mask for o in obs_u + obs_l])
-    on = np.zeros(tau.shape[0], dtype=bool)
-    on[sum(o.tau.shape[0] for o in obs_u):] = True          # loaded rows
-    Wpu = Wp[:, :, uidx] * on[:, None, None]
-    known_tau = (Wp[:, :, kidx] @ pi_k) * on[:, None]
-    X = np.concatenate([Wb, Wpu], axis=2)
-    names = list(bp.names) + [PAYLOAD_NAMES[k] for k in uidx]
-    try:
-        est, cov, fit, lags = _gauss_newton(X, tau, known_tau, gcol, names, mask)
-    except IdentificationError as e:
-        hint = "" if com is not None else (" With the mass alone a payload at the wrist centre gives the wrist "
-                                           "joints no known torque: give its centre of mass too (com=, --com).")
-        raise IdentificationError(f"the recordings with and without the payload do not identify the drive "
-                                  f"gains with the dynamic parameters: {e}{hint}") from None
+    X, tau, known_tau, mask, names = _stacked_model(obs_u, obs_l, known, bp)
+    est, cov, fit, lags = _solve(X, tau, known_tau, gcol, names, mask, com)
     gnames = [f"g{j}" for j in joints]
     names = names + [f"a{j}" for j in joints]
     g = len(joints)
-    # a = 1 / k: k = 1 / a, its covariance by the delta method
-    a = est[-g:]
-    k = 1.0 / a
-    Jk = np.diag(-1.0 / a ** 2)
-    cov_k = Jk @ cov[-g:, -g:] @ Jk.T
+    k, cov_k = _gain_factors(est, cov, g)
     g_file = robot.drive_gains[gcol]
     D = np.diag(g_file)
     other = {"names": names[:-g], "values": est[:-g], "std": np.sqrt(np.maximum(np.diag(cov)[:-g], 0.0)),
