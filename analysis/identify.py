@@ -42,66 +42,93 @@ def identify(data, robot, method: str = "idim", *, settings=None, max_error_grow
              **options):
     """Identify the dynamic parameters of `robot` from `data` with `method`.
 
-    Step 3 of the orchestrator (dynid.analysis.run.identify_step); `dynid.run` runs the
-    whole of `dynid identify` (hold-out, tilt, effects, verdict ...).
-
     Parameters
     ----------
     data : path, Experiment, or a list of them
         The identification recording(s). IDIM stacks several recordings; the
         other methods take one.
-    robot : Robot, bundled name ('tx40') or path to a .toml / .urdf
-    method : 'idim' (default), 'didim', 'projection' or 'ml'
-    settings : dict or Settings, optional
-        Processing overrides by the observation's names (fc_position, nd,
-        f_decimation_cutoff, qd_threshold), or a dynid.analysis.run.Settings; the
-        defaults come from the data. The keywords fc, nd, decimation_cutoff,
-        qd_threshold and v_s (the command line's names) do the same.
+    robot : Robot, str or path
+        A Robot, a bundled name (`"tx40"`) or the path of a `.toml` / `.urdf` file.
+    method : str
+        `"idim"` (default), `"didim"`, `"projection"` or `"ml"`: IDIM (Gautier et al.
+        2010, eqs. (9)-(16)), DIDIM (eqs. (25)-(30)), the Projection Method or maximum
+        likelihood (Bona & Curatella 2005).
+    settings : dict, optional
+        Processing overrides (`fc_position`, `nd`, `decimation_cutoff`,
+        `qd_threshold`); the defaults come from the data.
     max_error_growth : float
-        Essential-parameter rule: stop removing parameters before the relative
-        error grows by more than this fraction (IDIM, DIDIM).
-    f0, ml_harmonics : ML only: fundamental frequency (Hz) of the periodic
-        excitation and the number of harmonics of the latent trajectory.
-    reference : DIDIM only: 'qr' (the logged reference, default when logged) or 'q'.
-    max_iter : DIDIM only: the most Gauss-Newton steps.
-    gain_update : DIDIM only: the eq. (27) gain update 'every' step (default), 'initial'
-        (the first simulation only) or 'none'. The old keyword update_gains (True,
-        'initial', False) still works, with a DeprecationWarning.
-    gains : DIDIM only. 'assumed': the controller gains of the robot file, as the
-        paper does. 'identify': the gains are identified from the logged reference,
-        position and torque first (dynid.analysis.estimators.controller_gains.identify_gains),
-        DIDIM simulates with them and no gain update (they are the real loop's); the
-        result's gains holds them with their %sigma. Without a logged reference the
-        gains cannot be identified. Either way the result's notices say which gains
-        DIDIM simulated with.
-    progress : callable(fraction), optional
-    physical : IDIM: return the physically consistent WLS (PC-WLS) instead. DIDIM: PC-DIDIM,
-        each Gauss-Newton step's WLS refitted under physical consistency (result.physical
-        is the last step's PC fit; prior, prior_weight and mass_tolerance apply to
-        every step, bootstrap to the last one).
-    prior, prior_weight : physical only: 'apriori' adds prior_weight times the
-        squared scaled distance to the robot file's a-priori values, 'geometric' the
-        entropic divergence of each link's pseudo-inertia from its a-priori one (Lee, Wensing
-        & Park 2020; dynid.analysis.estimators.physical.pc_wls) (default: none,
-        the a-priori values only break ties).
-    mass_tolerance : physical only: keep each link mass within this fraction of its
-        a-priori value.
-    bootstrap : physical only: parametric-bootstrap refits for the uncertainty (the old
-        keyword n_boot still works, with a DeprecationWarning).
-    physical_set : IDIM physical only: 'base' (the WLS of all base parameters, default) or
-        'essential' (the essential WLS) is constrained.
+        Essential-parameter rule (IDIM, DIDIM): stop removing parameters before the
+        relative error grows by more than this fraction.
+    f0 : float, optional
+        ML only: fundamental frequency (Hz) of the periodic excitation. Required by ML.
+    ml_harmonics : int, optional
+        ML only: number of harmonics of the latent trajectory.
+    reference : str, optional
+        DIDIM only: the reference the simulated loop tracks; default `"qr"` (the
+        logged reference) when logged, else `"q"`.
+    max_iter : int, optional
+        DIDIM only: maximum Gauss-Newton iterations.
+    gain_update : str, optional
+        DIDIM only: the gain update of eq. (27): `"every"` step (default), the first
+        step only (`"initial"`) or `"none"` (the old keyword `update_gains` still works,
+        with a DeprecationWarning).
+    gains : str
+        DIDIM only. `"assumed"`: the controller gains of the robot file, as the
+        paper does. `"identify"`: the gains are first identified from the logged
+        reference, position and torque, and DIDIM simulates with them (no gain
+        update); the result's `gains` holds them with their %σ. Needs a logged
+        reference.
+    progress : callable, optional
+        Called with the fraction done (0 to 1) during long steps.
+    physical : bool
+        IDIM: return the physically consistent WLS (PC-WLS; every link's
+        pseudo-inertia positive semidefinite, Ia, Fv, Fc >= 0; Wensing, Kim &
+        Slotine 2017) instead. DIDIM: PC-DIDIM, each Gauss-Newton step's WLS refitted
+        under physical consistency (`result.physical` is the last step's fit).
+        Needs `pip install "dynid[physical]"`.
+    prior : str, optional
+        Physical only: `"apriori"` adds `prior_weight` times the squared scaled
+        distance to the robot file's a-priori values, `"geometric"` the entropic
+        divergence of each link's pseudo-inertia from its a-priori one (Lee, Wensing
+        & Park 2020). Default: none, the a-priori values only break ties.
+    prior_weight : float
+        Physical only: weight of `prior`.
+    mass_tolerance : float, optional
+        Physical only: keep each link mass within this fraction of its a-priori value.
+    bootstrap : int, optional
+        Physical only: parametric-bootstrap refits for the uncertainty (the old keyword
+        `n_boot` still works, with a DeprecationWarning).
+    physical_set : str
+        IDIM physical only: constrain the WLS of all base parameters (default) or
+        the essential WLS.
     **options
-        fc, nd, decimation_cutoff, qd_threshold, v_s (processing, as on the command line).
+        Any other field of `dynid.Settings`, named as on the command line: `fc`, `nd`,
+        `decimation_cutoff`, `qd_threshold`, `v_s`, `uncertainty` (`"classic"`, `"hac"`
+        or `"bootstrap"`: the covariance of IDIM's estimates) ...
 
     Returns
     -------
     ParameterResults
-        IDIMResult, DIDIMResult, ProjectionResult, the ML result or (physical) PhysicalResult.
+        An `IDIMResult`, `DIDIMResult`, `ProjectionResult`, `MLResult` or, with
+        `physical=True` and IDIM, a `PhysicalResult` (its `idim` holds the
+        unconstrained identification). All have the interface of
+        `ParameterResults`: `params`, `bse`, `rel_std`, `conf_int()`, `summary()`,
+        `to_json()` ...
 
     Raises
     ------
     InputError
-        A bad option, or a method that does not apply (DIDIM without a controller ...).
+        An unknown method, several recordings for a method that takes one, an
+        option the method does not have, DIDIM for a robot without a
+        `[controller]`, ML without `f0` or with too many samples.
+    DataError
+        A recording dynid cannot use (the message names file, column and row).
+
+    Examples
+    --------
+    >>> import dynid
+    >>> r = dynid.identify("examples/staubli_tx40/experiment.toml", "tx40")  # doctest: +SKIP
+    >>> r.params["ZZ1R"], r.rel_std["ZZ1R"]                                  # doctest: +SKIP
     """
     allowed = {"fc", "nd", "decimation_cutoff", "qd_threshold", "v_s", "update_gains", "n_boot"}
     unknown = sorted(set(options) - allowed)

@@ -53,7 +53,7 @@ N_SEG = 3
 def _segment_tau2(res):
     """Between-segment variance τ² (DL) of the run's WLS, from N_SEG contiguous segments."""
     from dynid.analysis.estimators import least_squares as ls
-    from dynid.analysis.statistics.agreement import random_effects, segments
+    from dynid.analysis.estimators.agreement import random_effects, segments
     obs = res.observation
     chis, sig = [], []
     for m in segments(obs.n_samples, obs.row_mask, N_SEG):
@@ -70,7 +70,7 @@ def segment_fits(obs, names, k, opt):
     leaves it out: NaN, never compared.
     """
     from dynid.analysis.estimators import least_squares as ls
-    from dynid.analysis.statistics.agreement import segments
+    from dynid.analysis.estimators.agreement import segments
     out = []
     for m in segments(obs.n_samples, obs.row_mask, k):
         cols = ls.identifiable_columns(obs.W, m)
@@ -105,8 +105,8 @@ def runs_of(dataset, panda_dir=None):
 
 def evaluate_segments(dataset, panda_dir=None):
     """One recording, its observation system built once, its k segments fitted alone."""
+    from dynid.analysis.estimators.agreement import agreement, agreement_verdict, pairwise_agreement
     from dynid.analysis.estimators.idim import identify_idim
-    from dynid.analysis.statistics.agreement import agreement, agreement_verdict, pairwise_agreement
     robot, runs, settings = runs_of(dataset, panda_dir)
     exp = runs[0][1]
     res = identify_idim(exp, robot, settings=settings)
@@ -125,8 +125,8 @@ def evaluate_segments(dataset, panda_dir=None):
 
 
 def evaluate(dataset, panda_dir=None):
+    from dynid.analysis.estimators.agreement import agreement, agreement_verdict, pairwise_agreement
     from dynid.analysis.estimators.idim import identify_idim
-    from dynid.analysis.statistics.agreement import agreement, agreement_verdict, pairwise_agreement
     if dataset != "lwr4":
         return evaluate_segments(dataset, panda_dir)
     robot, runs, settings = runs_of(dataset, panda_dir)

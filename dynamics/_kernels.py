@@ -17,9 +17,9 @@ except ImportError:  # pragma: no cover - numba is a declared dependency
 
 
 def _whole_row_start_py(out, s, n, width, qd, qdd):
-    """Sample ``s``'s rows: zeros where the Newton-Euler loop writes nothing (links j < i do
+    """Sample `s`'s rows: zeros where the Newton-Euler loop writes nothing (links j < i do
     not load joint i, the other joints' actuator columns, the coupling columns), and Ia, Fv,
-    Fc, Off on the diagonal as in ``regressor._actuator_columns``."""
+    Fc, Off on the diagonal as in `regressor._actuator_columns`."""
     for i in range(n):
         for j in range(n):
             c = 14 * j

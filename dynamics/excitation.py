@@ -703,6 +703,11 @@ class ExcitationResult:
 
         `n_periods` whole periods, `round(n_periods fs / f0)` samples from t = 0
         (the end point, equal to the start, is not repeated).
+
+        Returns
+        -------
+        pandas.DataFrame
+            One row per sample.
         """
         fs = float(fs)
         if not np.isfinite(fs) or fs <= 0:
@@ -712,7 +717,13 @@ class ExcitationResult:
         return self.trajectory.to_frame(t)
 
     def to_csv(self, path, fs, n_periods=1):
-        """Write `to_frame` to `path` atomically (full precision)."""
+        """Write `to_frame` to `path` atomically (full precision).
+
+        Returns
+        -------
+        None
+            The file is written whole or not at all.
+        """
         atomic_write_text(path, self.to_frame(fs, n_periods).to_csv(index=False, lineterminator="\n",
                                                                     float_format="%.17g"))
 

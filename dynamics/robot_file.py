@@ -143,6 +143,12 @@ def load_robot(spec, base=None, tip=None):
 
     `base`, `tip`: link names selecting one chain of a URDF (the `.urdf`
     given, or the `urdf` of a TOML file); see `dynid.dynamics.urdf.read_urdf`.
+
+    Returns
+    -------
+    Robot
+        The robot: kinematics, the standard parameter names and a-priori values, the
+        controller, drive gains and limits the file gives.
     """
     if isinstance(spec, Robot):
         if base is not None or tip is not None:

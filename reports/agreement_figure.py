@@ -1,6 +1,6 @@
 """Report figure of the cross-recording (or cross-segment) agreement (issue 26).
 
-`agreement_figure(a)` draws the pairwise z-scores of dynid.analysis.statistics.agreement
+`agreement_figure(a)` draws the pairwise z-scores of dynid.analysis.estimators.agreement
 (`agreement(...)` or `IDIMResult.agreement`) against N(0, 1): left, their normal Q-Q
 plot with the ±1.96 band; right, the histogram of z with the N(0, 1) density. The
 title carries the fraction within ±1.96, the count of pairs and the χ² test of equal

@@ -19,7 +19,13 @@ __all__ = ["run", "read_store"]
 
 
 def read_store(store):
-    """Every row of a results store, as a DataFrame (one row per recording and parameter)."""
+    """Every row of a results store, as a DataFrame (one row per recording and parameter).
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per recording and parameter.
+    """
     return ResultStore(store).read()
 
 
@@ -38,6 +44,11 @@ def run(catalogue, store, *, scheduler: str | None = None, workers: int | None =
 
     Before any work: the monitoring options are range-checked, and no output may be
     an input (the catalogue, a recording, a robot file; through links or `..` too).
+
+    Returns
+    -------
+    FleetRun
+        The recordings identified, skipped and failed, and `health`, the wear monitor's alarms.
     """
     check_monitor_options(parameters, false_alarm_rate, n_baseline)
     if report is not None or json is not None:

@@ -305,7 +305,14 @@ def report(data, robot, path=None, *, settings=None, say=None, **options) -> Ful
 
 
 def demo(*, seed=1, duration=20.0, skip=(), max_seconds=300.0, path=None, say=None) -> FullReport:
-    """The demo: a simulated TX40 (Table 2 of the DIDIM paper) through the whole pipeline."""
+    """The demo: a simulated TX40 (Table 2 of the DIDIM paper) through the whole pipeline.
+
+    Returns
+    -------
+    FullReport
+        The results, the verdict and the HTML report of the simulated TX40 (written to
+        `path` when given).
+    """
     say = say or Reporter()
     s = _report_settings(None, dict(seed=seed, skip=skip, max_seconds=max_seconds, duration=duration))
     if not (isinstance(duration, (int, float)) and duration == duration and abs(duration) != float("inf")

@@ -3,10 +3,10 @@ import numpy as np
 import pytest
 import statsmodels.api as sm
 
+from dynid.analysis.estimators import agreement as ag
+from dynid.analysis.estimators import hac
 from dynid.analysis.estimators import least_squares as ls
 from dynid.analysis.estimators.essential import essential_parameters
-from dynid.analysis.statistics import agreement as ag
-from dynid.analysis.statistics import hac
 from dynid.errors import InputError
 
 

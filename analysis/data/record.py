@@ -121,6 +121,11 @@ class Experiment:
         `None` means the start / end of the record. The window is half-open, so
         `segment(None, a)` and `segment(a, None)` split the record without overlap
         (e.g. identification and held-out validation data).
+
+        Returns
+        -------
+        Experiment
+            The samples in the window, with the same source, notices and meta.
         """
         lo = -math.inf if t_start is None else float(t_start)
         hi = math.inf if t_end is None else float(t_end)
@@ -159,7 +164,13 @@ class Experiment:
     def data_hash(self) -> str:
         """SHA-256 (hex) of the arrays t, q, qr, qd, qdd, tau: names, dtypes, shapes and
         little-endian bytes. Deterministic across runs and platforms; independent of
-        source, notices and meta."""
+        source, notices and meta.
+
+        Returns
+        -------
+        str
+            64 hexadecimal digits.
+        """
         h = hashlib.sha256(b"dynid-experiment-v1\0")
         for name in ("t",) + SIGNALS:
             a = getattr(self, name)
@@ -173,7 +184,13 @@ class Experiment:
         return h.hexdigest()
 
     def to_frame(self):
-        """The data as a pandas DataFrame in the column convention (t, q1.., tau1..)."""
+        """The data as a pandas DataFrame in the column convention (t, q1.., tau1..).
+
+        Returns
+        -------
+        pandas.DataFrame
+            One row per sample; columns `t`, `q1..qn` and the other signals present.
+        """
         import pandas as pd  # slow to import, and loading an experiment does not need it
 
         cols = {"t": self.t}
@@ -185,7 +202,13 @@ class Experiment:
         return pd.DataFrame(cols)
 
     def summary(self) -> str:
-        """A short text: source, N, fs, duration, signals and per-joint ranges."""
+        """A short text: source, N, fs, duration, signals and per-joint ranges.
+
+        Returns
+        -------
+        str
+            A few lines of text.
+        """
         lines = []
         title = f"Experiment '{self.name}'" if self.name else "Experiment"
         lines.append(f"{title} from {self.source or '(memory)'}")

@@ -203,7 +203,14 @@ class DiagnosisResult(Exportable):
         return [(s.name, s.joint) for s in self.selected]
 
     def summary(self):
-        """The diagnosis as text (dynid.analysis.diagnosis.summary_text)."""
+        """The diagnosis as text (dynid.analysis.diagnosis.summary_text).
+
+        Returns
+        -------
+        str
+            The overview first (verdict, effects added, findings, flagged joints, cut
+            effects, errors before and after), then the steps.
+        """
         return diagnosis_summary(self)
 
     def __str__(self):

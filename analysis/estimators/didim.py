@@ -255,7 +255,13 @@ class DIDIMResult(ModelResults):
         return np.sqrt(np.mean(e ** 2, axis=0))
 
     def parameter_table(self):
-        """One row per base parameter: relation, initial value, DIDIM value, std, %σ, essential."""
+        """One row per base parameter: relation, initial value, DIDIM value, std, %σ, essential.
+
+        Returns
+        -------
+        pandas.DataFrame
+            One row per base parameter.
+        """
         rows = []
         ess = {}
         if self.essential is not None:
@@ -316,6 +322,11 @@ class DIDIMResult(ModelResults):
         `rel_error` and `rms_per_joint` are those of `model` (the essential
         parameters when they were computed, `model` says which); `wls` holds the
         last step's WLS on all base parameters (the DIDIM estimate).
+
+        Returns
+        -------
+        dict
+            JSON-safe; the same for the same data and settings.
         """
         def params(res):
             return [{"name": n, "value": v, "std": s, "rel_std_percent": r}

@@ -14,10 +14,10 @@ import numpy as np
 import pandas as pd
 
 from dynid.analysis.estimators import least_squares as ls
+from dynid.analysis.estimators.agreement import agreement, agreement_verdict, segments
 from dynid.analysis.estimators.essential import essential_parameters
 from dynid.analysis.processing.observation import Observation, concatenate, observe
 from dynid.analysis.results import ModelResults
-from dynid.analysis.statistics.agreement import agreement, agreement_verdict, segments
 from dynid.dynamics.base_parameters import base_parameters
 from dynid.errors import IdentificationError
 from dynid.provenance import data_hash, json_safe, versions
@@ -61,12 +61,23 @@ class IDIMResult(ModelResults):
     agreement: dict = None        # cross-recording (or cross-segment) check, see recording_agreement
 
     @property
+    def agreement_line(self) -> str | None:
+        """The verdict's line on the agreement of the recordings (segments), or None."""
+        return None if self.agreement is None else agreement_verdict(self.agreement)
+
+    @property
     def model(self):
         """The identified model users predict with: the essential WLS estimate."""
         return self.essential.result
 
     def parameter_table(self):
-        """One row per base parameter: relation, OLS and WLS value and %σ, essential flag."""
+        """One row per base parameter: relation, OLS and WLS value and %σ, essential flag.
+
+        Returns
+        -------
+        pandas.DataFrame
+            One row per base parameter.
+        """
         rows = []
         ess = dict(zip(self.model.names, zip(self.model.chi, self.model.rel_sigma)))
         for k, name in enumerate(self.base.names):
@@ -173,7 +184,7 @@ def recording_agreement(obs, names, groups, joint_sigma, uncertainty="classic", 
 
     Every part is a WLS of the base parameters with the weights 1/σ_j of the whole
     (eq. (16)) and the covariance `uncertainty`; only the parameters every part
-    identifies are compared (dynid.analysis.statistics.agreement.agreement: pairwise
+    identifies are compared (dynid.analysis.estimators.agreement.agreement: pairwise
     z, χ² test of equal parameters, DerSimonian-Laird pooling).
 
     Returns

@@ -28,8 +28,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg as sla
 
+from dynid.analysis.estimators import hac
 from dynid.analysis.results import IdentificationResult
-from dynid.analysis.statistics import hac
 from dynid.errors import IdentificationError, InputError
 from dynid.provenance import data_hash, json_safe
 

@@ -230,7 +230,13 @@ class PhysicalResult(ParameterResults):
     def conf_int(self, alpha: float = 0.05) -> pd.DataFrame:
         """(1 - alpha) intervals: hull of the bootstrap percentiles and `chi +- z sigma_wls`,
         cut at the physical lower bound (module doc); without a bootstrap (or with fewer
-        than 20 refits) the WLS half-width alone, cut the same way."""
+        than 20 refits) the WLS half-width alone, cut the same way.
+
+        Returns
+        -------
+        pandas.DataFrame
+            One row per parameter, columns `lower` and `upper`.
+        """
         _check_alpha(alpha)
         half = self._interval_quantile(alpha) * np.sqrt(np.maximum(np.diag(self.wls_cov), 0.0))
         lb = np.full(len(self.chi), -np.inf) if self.lower_bound is None else self.lower_bound
@@ -245,7 +251,13 @@ class PhysicalResult(ParameterResults):
                             index=pd.Index(self.standard_names, name="parameter"))
 
     def comparison(self) -> pd.DataFrame:
-        """Per base parameter: WLS value and sigma, PC value and sigma (interval_covariance), shift in WLS sigma."""
+        """Per base parameter: WLS value and sigma, PC value and sigma (interval_covariance), shift in WLS sigma.
+
+        Returns
+        -------
+        pandas.DataFrame
+            One row per base parameter.
+        """
         s_wls = np.sqrt(np.maximum(np.diag(self.wls_cov), 0))
         with np.errstate(divide="ignore", invalid="ignore"):
             return pd.DataFrame({"wls": self.wls_chi, "wls_std": s_wls,
@@ -256,7 +268,13 @@ class PhysicalResult(ParameterResults):
 
     def to_standard_set(self):
         """The PC standard set as a `StandardSet`
-        (what the URDF export writes), its targets the unconstrained WLS values."""
+        (what the URDF export writes), its targets the unconstrained WLS values.
+
+        Returns
+        -------
+        StandardSet
+            The standard parameters of every link, physically consistent.
+        """
         sig = np.sqrt(np.maximum(np.diag(self.wls_cov), 0.0))
         with np.errstate(divide="ignore", invalid="ignore"):
             dev = (self.chi - self.wls_chi) / sig
@@ -277,14 +295,26 @@ class PhysicalResult(ParameterResults):
 
     def predict(self, W_base):
         """Torques (N, n) from a base regressor (N, n, b) (its essential columns for the
-        PC fit of the essential set)."""
+        PC fit of the essential set).
+
+        Returns
+        -------
+        numpy.ndarray
+            (N, n) joint torques [N m].
+        """
         W = np.asarray(W_base)
         return (W if self.columns is None else W[..., self.columns]) @ self.chi
 
     def held_out_block(self, experiment, robot) -> dict:
         """Held-out relative error ||tau - tau_hat|| / ||tau|| and per-joint RMS [N m] of this fit and
         of the unconstrained WLS it constrains, on all decimated samples of `experiment` (no dead
-        zone, as `dynid.analysis.statistics.validation.validate`), with the gap in points."""
+        zone, as `dynid.analysis.statistics.validation.validate`), with the gap in points.
+
+        Returns
+        -------
+        dict
+            JSON-safe: relative errors and per-joint RMS [N m] of both fits.
+        """
         if self.idim is None:
             raise InputError("held_out_block: this PC fit does not carry the IDIM result it came from")
         full = observe(experiment, robot, self.idim.base, dict(self.settings, qd_threshold=0.0))
@@ -296,7 +326,13 @@ class PhysicalResult(ParameterResults):
                 "rms_pc": [float(x) for x in rms_pc], "gap_points": 100.0 * (e_pc - e_wls)}
 
     def physical_block(self) -> dict:
-        """The JSON block `"physical"` of `dynid identify --physical`."""
+        """The JSON block `"physical"` of `dynid identify --physical`.
+
+        Returns
+        -------
+        dict
+            JSON-safe.
+        """
         return json_safe({
             "model": self.model,
             "consistent": self.consistent, "active": self.active, "chi2": self.chi2, "dof": self.dof,

@@ -126,12 +126,24 @@ class PosteriorResult(ParameterResults):
         return self.samples[:, self.index(name)]
 
     def interval(self, level: float) -> np.ndarray:
-        """(d, 2) equal-tailed credible intervals at `level`."""
+        """(d, 2) equal-tailed credible intervals at `level`.
+
+        Returns
+        -------
+        numpy.ndarray
+            (d, 2): lower and upper bound per parameter.
+        """
         a = (1.0 - level) / 2.0
         return np.quantile(self.samples, [a, 1.0 - a], axis=0).T
 
     def mc_stderr(self) -> np.ndarray:
-        """Monte-Carlo standard error of the posterior mean: std / √ESS."""
+        """Monte-Carlo standard error of the posterior mean: std / √ESS.
+
+        Returns
+        -------
+        numpy.ndarray
+            (d,) in the parameters' units.
+        """
         with np.errstate(divide="ignore", invalid="ignore"):
             return self.std / np.sqrt(self.ess)
 
@@ -146,7 +158,13 @@ class PosteriorResult(ParameterResults):
         return np.atleast_2d(np.cov(self.samples, rowvar=False, ddof=1))
 
     def conf_int(self, alpha: float = 0.05) -> pd.DataFrame:
-        """Equal-tailed (1 − alpha) credible interval from the draws: columns `lower`, `upper`."""
+        """Equal-tailed (1 − alpha) credible interval from the draws: columns `lower`, `upper`.
+
+        Returns
+        -------
+        pandas.DataFrame
+            One row per parameter, columns `lower` and `upper`.
+        """
         _check_alpha(alpha)
         lo, hi = np.quantile(self.samples, [alpha / 2.0, 1.0 - alpha / 2.0], axis=0)
         return pd.DataFrame({"lower": lo, "upper": hi}, index=self._index())
@@ -158,7 +176,13 @@ class PosteriorResult(ParameterResults):
 
     # ------------------------------------------------------------ presentation
     def to_frame(self) -> pd.DataFrame:
-        """One row per parameter: posterior summaries, LS value/σ/%σ, τ, ESS, R̂."""
+        """One row per parameter: posterior summaries, LS value/σ/%σ, τ, ESS, R̂.
+
+        Returns
+        -------
+        pandas.DataFrame
+            One row per parameter.
+        """
         dg = self.diagnostics
         sampled = dg.sampled if dg.sampled.size == len(self.names) else np.ones(len(self.names), bool)
         df = pd.DataFrame({
@@ -198,7 +222,13 @@ class PosteriorResult(ParameterResults):
         return "\n".join(lines)
 
     def to_dict(self) -> dict:
-        """JSON-safe and deterministic for a given seed (no timings)."""
+        """JSON-safe and deterministic for a given seed (no timings).
+
+        Returns
+        -------
+        dict
+            JSON-safe.
+        """
         params = []
         for i, n in enumerate(self.names):
             params.append({
@@ -263,7 +293,13 @@ class PosteriorResult(ParameterResults):
             ds.to_netcdf(tmp)
 
     def to_inference_data(self):
-        """An arviz.InferenceData (optional dependency arviz); chains are the walkers."""
+        """An arviz.InferenceData (optional dependency arviz); chains are the walkers.
+
+        Returns
+        -------
+        arviz.InferenceData
+            The posterior group, one chain per walker.
+        """
         try:
             import arviz as az  # optional extra "arviz"
         except ImportError:

@@ -147,6 +147,13 @@ def validate(idim_result, experiment, robot=None):
     The held-out system is built twice with the identification's settings:
     with the dead zone off (all samples: the headline numbers) and with it
     on (moving samples, the rows an estimator would use).
+
+    Returns
+    -------
+    ValidationResult
+        Measured and predicted torques on the held-out samples, the relative error
+        ||tau - tau_hat|| / ||tau|| and per-joint RMS [N m] on all samples and on the
+        moving ones, and the normality tests of the residual.
     """
     if robot is None:
         robot = getattr(idim_result, "robot", None)

@@ -49,7 +49,6 @@ from functools import cached_property
 
 import numpy as np
 
-from dynid.analysis.statistics.agreement import agreement_verdict
 from dynid.analysis.statistics.residuals import analyze_residuals, residual_analysis
 from dynid.dynamics.base_parameters import base_parameters
 from dynid.dynamics.excitation import apriori_parameters
@@ -543,7 +542,7 @@ def check_agreement(x: VerdictInputs) -> CheckOutcome:
     if not a:
         return CheckOutcome()
     level = "ok" if a["pairs"] and a["within_95"] >= 0.9 and a["p_value"] >= 0.01 else "info"
-    return CheckOutcome(findings=[{"level": level, "key": "agreement", "text": agreement_verdict(a)}])
+    return CheckOutcome(findings=[{"level": level, "key": "agreement", "text": x.result.agreement_line}])
 
 
 CHECKS = [check_validation, check_parameters, check_residual, check_plausibility, check_apriori,
