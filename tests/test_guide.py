@@ -161,7 +161,8 @@ def python_blocks():
 
 def test_python_api_blocks_run_in_order(tmp_path):
     blocks = python_blocks()
-    assert len(blocks) == 3 and "dynid.identify(" in blocks[1] and "dynid.report(" in blocks[2]
+    assert len(blocks) == 4 and "dynid.identify(" in blocks[1] and "dynid.report(" in blocks[2]
+    assert "dynid.verdict(dynid.identify(train, robot), held_out)" in blocks[2] and "dynid.run(" in blocks[3]
     assert all(len(b.strip().splitlines()) <= 8 for b in blocks)       # a handful of lines each
     (tmp_path / "examples").symlink_to(ROOT / "examples")
     script = "\n\n".join(blocks)
@@ -169,5 +170,6 @@ def test_python_api_blocks_run_in_order(tmp_path):
                           timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "ZZ1R =" in proc.stdout and "lower" in proc.stdout and "Validation on" in proc.stdout
+    assert proc.stdout.count("Verdict:") >= 2       # dynid.verdict(...) and the run's verdict, printed
     html = (tmp_path / "tx40_report.html").read_text()
     assert 'id="validation"' in html and 'id="diagnosis"' in html
