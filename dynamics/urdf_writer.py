@@ -232,14 +232,7 @@ def urdf_text(robot, chi_st, *, name=None, comment="", link_names=None, payload=
         link = ET.SubElement(root, "link", {"name": links[j]})
         m, h, I_o = link_inertial(chi_st[inertial_slice(robot, j)])
         if m != 0.0 or np.any(h) or np.any(I_o):
-            c = h / m if m != 0.0 else np.zeros(3)
-            I_c = I_o - m * (c @ c * np.eye(3) - np.outer(c, c))
-            inertial = ET.SubElement(link, "inertial")
-            ET.SubElement(inertial, "origin", {"xyz": _vec(c), "rpy": "0 0 0"})
-            ET.SubElement(inertial, "mass", {"value": _f(m)})
-            ET.SubElement(inertial, "inertia", {
-                "ixx": _f(I_c[0, 0]), "ixy": _f(I_c[0, 1]), "ixz": _f(I_c[0, 2]),
-                "iyy": _f(I_c[1, 1]), "iyz": _f(I_c[1, 2]), "izz": _f(I_c[2, 2])})
+            _inertial_element(link, m, h, I_o)
         parent = links[j]
     if payload is not None:
         jp, pv, pname = payload_argument(robot, payload, "urdf_text")

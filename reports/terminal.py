@@ -8,7 +8,7 @@ import sys
 import tomllib
 
 from dynid.errors import InputError
-from dynid.outputs import check_outputs, write_all
+from dynid.outputs import check_outputs, same_file, write_all
 from dynid.reports.progress import clean_text
 
 EXIT_OK, EXIT_INPUT = 0, 2
@@ -19,20 +19,8 @@ def commit_outputs(outputs, say):
 
 
 OUTPUT_OPTIONS = ("json", "report", "csv", "out", "urdf", "mjcf")
-#: longest file name (bytes) when the file system does not say
-NAME_MAX = 255
 #: the largest robot / experiment TOML read for the file names it refers to
 _TOML_PEEK_BYTES = 1 << 20
-
-
-def _same_file(a, b) -> bool:
-    """Whether paths `a` and `b` are one file (symlinks followed, hard links too)."""
-    try:
-        if os.path.realpath(a) == os.path.realpath(b):
-            return True
-        return os.path.samefile(a, b)
-    except (OSError, ValueError):
-        return False
 
 
 def _referenced_files(path):
@@ -85,14 +73,14 @@ def check_input_paths(args):
     data = [p for what, p in inputs if what == "the data file"]
     for i, p in enumerate(data):
         for q in data[:i]:
-            if _same_file(p, q):
+            if same_file(p, q):
                 extra = "" if p == q else f" (as {q} and {p})"
                 raise InputError(f"the data file {p} is given twice{extra}: the same recording counted "
                                  f"twice doubles its weight and proves nothing; give each recording once")
     valid = getattr(args, "validation", None)
     if valid:
         for p in data:
-            if _same_file(valid, p):
+            if same_file(valid, p):
                 raise InputError(f"--validation {valid} is the same file as the data file {p}: validating "
                                  f"on the identification data says nothing about the model; give another "
                                  f"recording, or --holdout SECONDS to hold out the end of this one")
