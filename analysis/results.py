@@ -1,11 +1,22 @@
 """Results of an identification, modelled on statsmodels' results classes.
 
-`ParameterResults` is the one interface every estimator's result has
-(IDIM, DIDIM, the Projection Method, maximum likelihood, the posterior, the
-per-joint models): `method`, `names`, `params` (a pandas Series),
-`bse`, `rel_std` (%σ, eq. (15)), `cov`, `conf_int(alpha)`,
-`summary()`, `to_frame()`, `to_dict()`, `to_json(path)` and
-`to_csv(path)`. Method-specific extras stay attributes of each class.
+`Result` is the base of every result dynid returns (IDIM, DIDIM, the Projection
+Method, maximum likelihood, the physically consistent fit, the posterior, the per-joint
+models, validation, diagnosis, gravity tilt, asymmetric friction, payload, the full
+report): `summary()` (and `str()`), `to_dict()`, `to_json()` and `to_csv()` through
+one serializer (`serialize`), and a one-line `repr()` (method, robot, number of
+parameters, error). Summaries print their parameters with the one table builder,
+`parameter_table` (a Unit column, from `dynid.analysis.units`), their relative errors
+as % (`percent`) and their remarks in one block (`notices_block`); JSON records of
+parameters come from `parameter_records`.
+
+`ParameterResults` adds the interface of a result with parameters: `method`,
+`names`, `params` (a pandas Series), `bse`, `rel_std` (%σ, eq. (15)), `cov`,
+`conf_int(alpha)`, `to_frame()` and `r[name]`, the record of one parameter
+(`Parameter`: unpacks as `(value, std)`). Method-specific extras stay attributes of
+each class. The raw accessors `sigma`, `rel_sigma` and `theta` and the posterior's
+`interval(level)` are deprecated (`deprecated_alias`, a DeprecationWarning) for one
+release: use `bse`, `rel_std`, `params` (or the array `chi`) and `conf_int(alpha)`.
 
 `IdentificationResult` holds the estimate χ̂ (eq. (11)), its covariance
 (eq. (14)), standard deviations and relative standard deviations (eq. (15)),
@@ -17,34 +28,299 @@ from __future__ import annotations
 
 import math
 import os
+import re
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
 
+from dynid.analysis.units import parameter_unit
 from dynid.errors import InputError
 from dynid.outputs import atomic_write_text
 from dynid.provenance import dumps_json, json_safe, versions
 
-__all__ = ["Exportable", "ParameterResults", "ModelResults", "IdentificationResult"]
+__all__ = ["Result", "Exportable", "ParameterResults", "ModelResults", "IdentificationResult", "Parameter",
+           "parameter_records", "parameter_table", "notices_block", "percent", "serialize", "deprecated_alias"]
 
 _WIDTH = 78
 
 
-class Exportable:
-    """`to_json(path)` and `str()` of any result with `to_dict()` and `summary()`."""
+# ---------------------------------------------------------------- the shared pieces
+def parameter_records(names, value, std, rel_std) -> list:
+    """The JSON record of each parameter: `{"name", "value", "std", "rel_std_percent"}`.
 
-    def to_json(self, path: str | os.PathLike) -> None:
-        """Write `to_dict` as JSON to `path` atomically (all or nothing)."""
-        # Serialise first: a failure here must not even create the temporary file.
-        text = dumps_json(self.to_dict())
+    Parameters
+    ----------
+    names : sequence of str
+    value, std, rel_std : sequences of float
+        Estimate, standard deviation and %σ (eq. (15)), in the order of `names`.
+
+    Returns
+    -------
+    list of dict
+        One record per parameter (not yet JSON-safe: pass the document through `json_safe`).
+    """
+    return [{"name": n, "value": v, "std": s, "rel_std_percent": r}
+            for n, v, s, r in zip(names, value, std, rel_std)]
+
+
+def percent(fraction, digits: int = 2) -> str:
+    """A relative error (a fraction) as a percentage: `0.0433888` -> `"4.34 %"`.
+
+    Returns
+    -------
+    str
+        `"nan"` for a missing value.
+    """
+    x = float(fraction)
+    if not math.isfinite(x):
+        return "nan" if math.isnan(x) else "inf"
+    return f"{100.0 * x:.{digits}f} %"
+
+
+def _cell(value, kind) -> str:
+    if kind == "num":
+        return _fmt(value)
+    if kind == "pct":
+        return _fmt_pct(value)
+    if kind == "p":
+        return "nan" if not math.isfinite(float(value)) else f"{float(value):.3g}"
+    if callable(kind):
+        return kind(value)
+    return str(value)
+
+
+def parameter_table(names, columns, *, label: str = "Parameter") -> list:
+    """The one parameter table of every summary: name, unit, then `columns`.
+
+    Parameters
+    ----------
+    names : sequence of str
+        Parameter names; the unit comes from the name (`dynid.analysis.units.parameter_unit`).
+    columns : sequence of (label, values, kind)
+        `kind`: `"num"` (6 significant digits), `"pct"` (a %σ, two decimals), `"p"`
+        (a p-value), `"text"`, or a function of the value giving its text.
+    label : str
+        Heading of the name column.
+
+    Returns
+    -------
+    list of str
+        The heading, a rule, one line per parameter.
+    """
+    names = [str(n) for n in names]
+    units = [parameter_unit(n) or "-" for n in names]
+    cells = [[_cell(v, kind) for v in values] for _, values, kind in columns]
+    nw = max([len(label)] + [len(n) for n in names]) + 2
+    uw = max([4] + [len(u) for u in units]) + 2
+    widths = [max([len(h)] + [len(c) for c in col]) + 2 for (h, _, _), col in zip(columns, cells)]
+    widths = [max(w, 12) for w in widths]
+    head = f"{label:<{nw}}{'unit':<{uw}}" + "".join(f"{h:>{w}}" for (h, _, _), w in zip(columns, widths))
+    lines = [head, "-" * len(head)]
+    for i, (n, u) in enumerate(zip(names, units)):
+        lines.append(f"{n:<{nw}}{u:<{uw}}" + "".join(f"{col[i]:>{w}}" for col, w in zip(cells, widths)))
+    return lines
+
+
+_EXCLUDED_RE = re.compile(r"^(\d+) of (\d+) equations were excluded by row_mask/joints\.$")
+
+
+def _plain(notice: str) -> str:
+    m = _EXCLUDED_RE.match(notice)
+    if m:
+        k, r = int(m.group(1)), int(m.group(2))
+        return (f"{k} of {r} equations ({100.0 * k / r:.1f} %) are left out of the fit (the velocity "
+                f"dead zone, or joints not fitted)")
+    return notice
+
+
+def notices_block(*notice_lists) -> list:
+    """The one block of remarks of a summary, in plain words, each remark once.
+
+    Parameters
+    ----------
+    *notice_lists : lists of str
+        The notices of a result and of the results it contains.
+
+    Returns
+    -------
+    list of str
+        `["Notices:", "  - ...", ...]`, or `[]` when there is nothing to say.
+    """
+    seen, out = set(), []
+    for notices in notice_lists:
+        for text in notices or ():
+            text = _plain(str(text))
+            if text not in seen:
+                seen.add(text)
+                out.append(f"  - {text}")
+    return ["Notices:"] + out if out else []
+
+
+def serialize(result, fmt: str, path: str | os.PathLike | None = None) -> str:
+    """The one serializer of every result: its `to_dict()` as JSON, or its `to_frame()` as CSV.
+
+    Parameters
+    ----------
+    result : Result
+    fmt : {"json", "csv"}
+    path : path, optional
+        Written atomically (all or nothing) when given.
+
+    Returns
+    -------
+    str
+        The text (deterministic: equal results give byte-identical text).
+    """
+    # Serialise first: a failure here must not even create the temporary file.
+    if fmt == "json":
+        text = dumps_json(result.to_dict())
+    elif fmt == "csv":
+        text = result.to_frame().to_csv(lineterminator="\n")
+    else:
+        raise InputError(f"serialize: format must be 'json' or 'csv', got {fmt!r}")
+    if path is not None:
         atomic_write_text(path, text)
+    return text
+
+
+class deprecated_alias:
+    """A deprecated attribute: warns (DeprecationWarning) and returns `get(obj)`.
+
+    Parameters
+    ----------
+    replacement : str
+        What to use instead (shown in the warning).
+    get : callable
+        The value, from the object.
+    """
+
+    def __init__(self, replacement: str, get):
+        self.replacement, self.get = replacement, get
+
+    def __set_name__(self, owner, name):
+        self.name = name
+
+    def __get__(self, obj, owner=None):
+        if obj is None:
+            return self
+        warnings.warn(f"{type(obj).__name__}.{self.name} is deprecated and will be removed in the next "
+                      f"release; use {self.replacement}", DeprecationWarning, stacklevel=2)
+        return self.get(obj)
+
+    def __set__(self, obj, value):
+        raise AttributeError(f"{type(obj).__name__}.{self.name} is read-only (deprecated: use {self.replacement})")
+
+
+def _describe(obj) -> str:
+    """`method, robot 'x': n parameters, rel. error e %` of any result (the parts it has)."""
+    parts = []
+    method = getattr(obj, "method", None)
+    if isinstance(method, str) and method:
+        parts.append(method)
+    robot = getattr(obj, "robot_name", None) or getattr(getattr(obj, "robot", None), "name", None)
+    if isinstance(robot, str) and robot:
+        parts.append(f"robot {robot!r}")
+    head = ", ".join(parts)
+    tail = []
+    try:
+        names = obj.names
+        tail.append(f"{len(names)} parameters")
+    except Exception:                      # noqa: BLE001 - a result without parameters
+        pass
+    err = getattr(obj, "rel_error", None)
+    if err is None and getattr(obj, "model", None) is not None:
+        err = getattr(obj.model, "rel_error", None)
+    if isinstance(err, (int, float, np.floating)):
+        tail.append(f"rel. error {percent(err)}")
+    return head + (": " + ", ".join(tail) if tail else "")
+
+
+class Result:
+    """The base of every result: `str()` is `summary()`, `to_json()`/`to_csv()` come from the
+    one serializer (`serialize`), `repr()` is one line. A class defines `summary()`,
+    `to_dict()` and, for `to_csv`, `to_frame()`."""
+
+    def to_json(self, path: str | os.PathLike | None = None) -> str:
+        """`to_dict` as JSON, written atomically to `path` when given (all or nothing).
+
+        Returns
+        -------
+        str
+            The JSON text.
+        """
+        return serialize(self, "json", path)
+
+    def to_csv(self, path: str | os.PathLike | None = None) -> str:
+        """`to_frame` as CSV, written atomically to `path` when given (all or nothing).
+
+        Returns
+        -------
+        str
+            The CSV text.
+        """
+        return serialize(self, "csv", path)
 
     def __str__(self) -> str:
         return self.summary()
 
+    def __repr__(self) -> str:
+        return f"<{type(self).__name__} {_describe(self)}>"
 
-class ParameterResults(Exportable):
+
+#: the old name of `Result`
+Exportable = Result
+
+
+class Parameter(tuple):
+    """One parameter of a result, `r[name]`: unpacks as `(value, std)`.
+
+    Attributes `name`, `value`, `std`, `rel_std_percent` (%σ, eq. (15)) and `unit`;
+    `p["value"]` reads an attribute by name; `to_dict()` gives all five.
+    """
+
+    def __new__(cls, name, value, std, rel_std_percent=math.nan):
+        self = super().__new__(cls, (float(value), float(std)))
+        self.name, self.rel_std_percent = str(name), float(rel_std_percent)
+        self.unit = parameter_unit(self.name)
+        return self
+
+    @property
+    def value(self) -> float:
+        return self[0]
+
+    @property
+    def std(self) -> float:
+        return self[1]
+
+    def __getitem__(self, key):
+        if isinstance(key, str):
+            if key not in ("name", "value", "std", "rel_std_percent", "unit"):
+                raise KeyError(key)
+            return getattr(self, key)
+        return super().__getitem__(key)
+
+    def to_dict(self) -> dict:
+        """`{"name", "value", "std", "rel_std_percent", "unit"}`.
+
+        Returns
+        -------
+        dict
+            JSON-safe.
+        """
+        return json_safe({"name": self.name, "value": self.value, "std": self.std,
+                          "rel_std_percent": self.rel_std_percent, "unit": self.unit})
+
+    def __repr__(self) -> str:
+        unit = f" {self.unit}" if self.unit else ""
+        return f"<Parameter {self.name} = {self.value:.6g} \u00b1 {self.std:.3g}{unit}>"
+
+    def __getnewargs__(self):
+        return self.name, self.value, self.std, self.rel_std_percent
+
+
+class ParameterResults(Result):
     """The interface shared by every result (a mixin; it holds no data of its own).
 
     A class using it has `method` (str), `names` (list of parameter names),
@@ -85,6 +361,19 @@ class ParameterResults(Exportable):
             values = 100.0 * self.bse.to_numpy() / np.abs(self._estimate())
         return pd.Series(values, index=self._index(), name="rel_std_percent")
 
+    def __getitem__(self, name: str) -> Parameter:
+        """The record of parameter `name` (`Parameter`: unpacks as `(value, std)`)."""
+        names = list(self.names)
+        try:
+            i = names.index(name)
+        except ValueError:
+            raise KeyError(f"no parameter {name!r} in this result; its parameters are "
+                           f"{', '.join(names)}") from None
+        value, std = self._estimate()[i], self.bse.to_numpy()[i]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rel = 100.0 * std / abs(value)
+        return Parameter(name, value, std, rel)
+
     def cov_params(self) -> pd.DataFrame:
         """The covariance as a labelled table (statsmodels' name).
 
@@ -124,16 +413,6 @@ class ParameterResults(Exportable):
         return pd.DataFrame({"value": self._estimate(), "std": self.bse.to_numpy(),
                              "rel_std_percent": self.rel_std.to_numpy()}, index=self._index())
 
-    def to_csv(self, path: str | os.PathLike) -> None:
-        """Write `to_frame` as CSV to `path` atomically (all or nothing).
-
-        Returns
-        -------
-        None
-            The file is written whole or not at all.
-        """
-        text = self.to_frame().to_csv(lineterminator="\n")
-        atomic_write_text(path, text)
 
 
 class ModelResults(ParameterResults):
@@ -171,7 +450,7 @@ def _check_alpha(alpha) -> None:
         raise InputError(f"conf_int: alpha must be between 0 and 1 (0.05 for a 95 % interval), got {alpha!r}")
 
 
-@dataclass(eq=False)
+@dataclass(eq=False, repr=False)
 class IdentificationResult(ParameterResults):
     """Estimated base parameters and their statistics.
 
@@ -185,11 +464,12 @@ class IdentificationResult(ParameterResults):
         Estimate χ̂, eq. (11).
     cov : ndarray (b, b)
         Covariance of χ̂, eq. (14) (for WLS: of the weighted system).
-    sigma : ndarray (b,)
-        Standard deviations σ_χ̂i = sqrt(cov[i, i]) (computed, not passed).
-    rel_sigma : ndarray (b,)
+    bse : pandas.Series (b,)
+        Standard deviations σ_χ̂i = sqrt(cov[i, i]) (computed, not passed; `sigma`,
+        the array, is deprecated).
+    rel_std : pandas.Series (b,)
         Relative standard deviations %σ = 100 σ / |χ̂|, eq. (15) (computed):
-        `inf` when χ̂_i = 0 < σ_i, `nan` when both are 0.
+        `inf` when χ̂_i = 0 < σ_i, `nan` when both are 0 (`rel_sigma` is deprecated).
     sigma_rho : float
         σ̂_ρ of eq. (13). For WLS it is that of the weighted system
         (dimensionless, close to 1 when the joint weights are consistent).
@@ -240,8 +520,9 @@ class IdentificationResult(ParameterResults):
     settings: dict = field(default_factory=dict)
     notices: list = field(default_factory=list)
     data_hash: str | None = None
-    sigma: np.ndarray = field(init=False, repr=False)
-    rel_sigma: np.ndarray = field(init=False, repr=False)
+
+    sigma = deprecated_alias("bse (a pandas Series; .to_numpy() for the array)", lambda r: r._sigma)
+    rel_sigma = deprecated_alias("rel_std (a pandas Series; .to_numpy() for the array)", lambda r: r._rel_sigma)
 
     def __post_init__(self) -> None:
         self.names = [str(n) for n in self.names]
@@ -261,10 +542,20 @@ class IdentificationResult(ParameterResults):
         self.notices = list(self.notices)
         self.settings = dict(self.settings)
         # Rounding can make a diagonal entry of a PSD matrix a hair negative.
-        self.sigma = np.sqrt(np.maximum(np.diag(self.cov), 0.0))
+        self._sigma = np.sqrt(np.maximum(np.diag(self.cov), 0.0))
         with np.errstate(divide="ignore", invalid="ignore"):
             # eq. (15); |χ̂| = 0 gives inf (or nan when σ is 0 too), never an error.
-            self.rel_sigma = 100.0 * self.sigma / np.abs(self.chi)
+            self._rel_sigma = 100.0 * self._sigma / np.abs(self.chi)
+
+    @property
+    def bse(self) -> pd.Series:
+        """Standard errors sqrt(diag(cov)) (rounding below 0 is clipped)."""
+        return pd.Series(self._sigma, index=self._index(), name="std")
+
+    @property
+    def rel_std(self) -> pd.Series:
+        """Relative standard deviations %σ = 100 σ / |χ̂| (eq. (15)); inf where χ̂ = 0 < σ."""
+        return pd.Series(self._rel_sigma, index=self._index(), name="rel_std_percent")
 
     # ------------------------------------------------------------------ access
 
@@ -272,22 +563,6 @@ class IdentificationResult(ParameterResults):
     def dof(self) -> int:
         """Residual degrees of freedom r − b of eq. (13)."""
         return self.n_rows - self.n_params
-
-    def __getitem__(self, name: str) -> tuple[float, float]:
-        """`(value, std)` of parameter `name`."""
-        try:
-            i = self.names.index(name)
-        except ValueError:
-            raise KeyError(
-                f"no parameter {name!r} in this result; its parameters are {', '.join(self.names)}"
-            ) from None
-        return float(self.chi[i]), float(self.sigma[i])
-
-    def __repr__(self) -> str:
-        return (
-            f"<IdentificationResult {self.method}: {self.n_params} parameters, "
-            f"{self.n_rows} rows, rel_error={self.rel_error:.4g}>"
-        )
 
     def predict(self, W3) -> np.ndarray:
         """Torques W3 χ̂, shape (N, n), for a regressor `W3` of shape (N, n, b)."""
@@ -301,8 +576,20 @@ class IdentificationResult(ParameterResults):
         return W3 @ self.chi
 
     # ------------------------------------------------------------ presentation
-    def summary(self) -> str:
-        """Printable report: header block, per-joint residuals, parameter table."""
+    def summary(self, notices: bool = True) -> str:
+        """Printable report: header block, per-joint residuals, parameter table, notices.
+
+        Parameters
+        ----------
+        notices : bool
+            False leaves the notices to the caller (a result that holds this one prints
+            one block of notices for both).
+
+        Returns
+        -------
+        str
+            Relative errors in %, every parameter with its unit.
+        """
         rule, thin = "=" * _WIDTH, "-" * _WIDTH
         title = f"Dynamic identification results ({self.method})"
         left = [
@@ -314,7 +601,7 @@ class IdentificationResult(ParameterResults):
         ]
         sigma_label = "sigma_rho (eq. 13, weighted):" if self.joint_sigma is not None else "sigma_rho (eq. 13):"
         right = [
-            ("Rel. error |Y-Wx|/|Y|:", _fmt(self.rel_error)),
+            ("Rel. error |Y-Wx|/|Y|:", percent(self.rel_error)),
             (sigma_label, _fmt(self.sigma_rho)),
             ("cond(W):", _fmt(self.cond)),
             ("cond(W, unit columns):", _fmt(self.cond_scaled)),
@@ -329,19 +616,16 @@ class IdentificationResult(ParameterResults):
             head += f"{'sigma_j (WLS)':>16}"
         lines.append(head)
         for j in range(self.n_joints):
-            row = f"{j + 1:<8}{_fmt(self.rms[j]):>16}{_fmt(self.joint_rel_error[j]):>14}"
+            row = f"{j + 1:<8}{_fmt(self.rms[j]):>16}{percent(self.joint_rel_error[j]):>14}"
             if self.joint_sigma is not None:
                 row += f"{_fmt(self.joint_sigma[j]):>16}"
             lines.append(row)
         lines.append(thin)
-        lines.append(f"{'Parameter':<20}{'value':>18}{'sigma':>18}{'%sigma':>14}")
-        lines.append(thin)
-        for name, v, s, rs in zip(self.names, self.chi, self.sigma, self.rel_sigma):
-            lines.append(f"{name:<20}{_fmt(v):>18}{_fmt(s):>18}{_fmt_pct(rs):>14}")
+        lines += parameter_table(self.names, [("value", self.chi, "num"), ("sigma", self._sigma, "num"),
+                                              ("%sigma", self._rel_sigma, "pct")])
         lines.append(rule)
-        if self.notices:
-            lines.append("Notices:")
-            lines.extend(f"[{i}] {text}" for i, text in enumerate(self.notices, 1))
+        if notices:
+            lines += notices_block(self.notices)
         return "\n".join(lines)
 
     def to_dict(self) -> dict:
@@ -349,10 +633,7 @@ class IdentificationResult(ParameterResults):
         out = {
             "method": self.method,
             "settings": self.settings,
-            "parameters": [
-                {"name": n, "value": v, "std": s, "rel_std_percent": rs}
-                for n, v, s, rs in zip(self.names, self.chi, self.sigma, self.rel_sigma)
-            ],
+            "parameters": parameter_records(self.names, self.chi, self._sigma, self._rel_sigma),
             "rel_error": self.rel_error,
             "rms_per_joint": self.rms,
             "joint_rel_error": self.joint_rel_error,
@@ -369,6 +650,7 @@ class IdentificationResult(ParameterResults):
             "notices": self.notices,
         }
         return json_safe(out)
+
 
 def _fmt(x: float) -> str:
     x = float(x)

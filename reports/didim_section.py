@@ -219,13 +219,13 @@ def _table2_section(res, reference):
     m = _model_of(res)
     which = "essential" if res.essential is not None else "base"
     published = reference is not None      # the Table 2 layout only beside a published table
-    tab = T.table2_layout(m.names, m.chi, m.rel_sigma, reference, res.base.names,
+    tab = T.table2_layout(m.names, m.chi, m.rel_std.to_numpy(), reference, res.base.names,
                           key="tab-didim-table2",
                           caption=(f"DIDIM {which} parameters in the layout of Table 2" if published else
                                    f"DIDIM {which} parameters: value and %\u03c3"),
                           ours_label="dynid DIDIM")
     ref_map = reference.rel_std_map() if reference is not None else None
-    fig = F.rel_std_bar_figure(m.names, m.rel_sigma, ref_map, key="fig-didim-rel-std",
+    fig = F.rel_std_bar_figure(m.names, m.rel_std.to_numpy(), ref_map, key="fig-didim-rel-std",
                                ours_label="dynid DIDIM")
     if reference is not None:
         body = join(

@@ -381,12 +381,12 @@ def _table2_section(res, reference):
     # robot gets its essential parameters under their own name (same anchor, same figure).
     m = res.model
     published = reference is not None
-    tab = T.table2_layout(m.names, m.chi, m.rel_sigma, reference, res.base.names, key="tab-table2",
+    tab = T.table2_layout(m.names, m.chi, m.rel_std.to_numpy(), reference, res.base.names, key="tab-table2",
                           caption=("Essential parameters (WLS) in the layout of Table 2" if published else
                                    "Essential parameters (WLS): value and %\u03c3"),
                           ours_label="dynid WLS")
     ref_map = reference.rel_std_map() if published else None
-    fig = F.rel_std_bar_figure(m.names, m.rel_sigma, ref_map, key="fig-rel-std",
+    fig = F.rel_std_bar_figure(m.names, m.rel_std.to_numpy(), ref_map, key="fig-rel-std",
                                ours_label="dynid WLS")
     if published:
         common = [n for n in m.names if n in reference]
@@ -416,7 +416,7 @@ def _path_section(res):
     g = ess.criteria.get("max_error_growth")
     limit = ess.base.rel_error * (1 + g) if g is not None else None
     fig = F.essential_path_figure(ess.path, base_rel_error=ess.base.rel_error,
-                                  base_max_rel_std=_max_finite(ess.base.rel_sigma),
+                                  base_max_rel_std=_max_finite(ess.base.rel_std.to_numpy()),
                                   error_limit=limit, key="fig-essential-path")
     path = ess.path.set_index("step")
     tab = T.make_table(path, "tab-essential-path", "Elimination path",

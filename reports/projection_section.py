@@ -26,7 +26,7 @@ def estimates_frame(pm, ml=None, truth=None):
     df = pd.DataFrame(index=pd.Index(pm.names, name="parameter"))
     if pm.ls is not None:
         df["ls"] = pm.ls.chi
-        df["ls_rel_std"] = pm.ls.rel_sigma
+        df["ls_rel_std"] = pm.ls.rel_std.to_numpy()
     df["pm"] = pm.chi
     df["pm_rel_std"] = pm.rel_sigma
     if ml is not None:

@@ -615,7 +615,7 @@ def _selected_effects(setup, state, selected):
         else:
             idx = [model_after.names.index(p) for p in cand.active_params]
             tq = problem.decimated([cand])[0] @ model_after.chi[idx]
-            values, sigmas, params = model_after.chi[idx], model_after.sigma[idx], cand.active_params
+            values, sigmas, params = model_after.chi[idx], model_after.bse.to_numpy()[idx], cand.active_params
         rms = np.sqrt(np.sum(np.where(problem.mask, tq, 0.0) ** 2, axis=0)
                       / np.maximum(problem.mask.sum(axis=0), 1))
         onset = onset_note(cand, values, setup.eobs.obs.settings, setup.qd_peak)
@@ -753,7 +753,7 @@ def _hidden(robot, setup, opts, state, s_test, fit_test):
                      vprob.mask, vprob.eobs)
         X_after = problem.design(state["delay"], state["effects"], cols=state["cols"])
         hidden = hidden_effects(eobs, X_after, problem.Y, problem.mask, list(model_after.names),
-                                model_after.chi, model_after.sigma, robot,
+                                model_after.chi, model_after.bse.to_numpy(), robot,
                                 weights=row_weights(model_after), alpha=opts.alpha, validation=vdata)
     if not opts.physical_tests or any(h.reported for h in hidden):
         return hidden

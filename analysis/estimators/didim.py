@@ -266,12 +266,12 @@ class DIDIMResult(ModelResults):
         ess = {}
         if self.essential is not None:
             m = self.essential.result
-            ess = dict(zip(m.names, zip(m.chi, m.sigma, m.rel_sigma)))
+            ess = dict(zip(m.names, zip(m.chi, m.bse.to_numpy(), m.rel_std.to_numpy())))
         rel = self.base.relations
         for k, name in enumerate(self.base.names):
             row = {"name": name, "relation": rel[k], "initial": self.initial[k],
-                   "value": self.result.chi[k], "std": self.result.sigma[k],
-                   "rel_std_percent": self.result.rel_sigma[k]}
+                   "value": self.result.chi[k], "std": self.result.bse.to_numpy()[k],
+                   "rel_std_percent": self.result.rel_std.to_numpy()[k]}
             if self.essential is not None:
                 e = ess.get(name)
                 row.update({"essential": e is not None,
@@ -811,9 +811,9 @@ def _history_row(L, k, lam, res, rho, rel_change, out_err, beta_sim, q_s, subste
     """One row of DIDIMResult.history."""
     d = res.chi - beta_sim
     with np.errstate(divide="ignore", invalid="ignore"):
-        good = res.rel_sigma <= WELL_IDENTIFIED
+        good = res.rel_std.to_numpy() <= WELL_IDENTIFIED
         max_rel = float(np.max(np.abs(d[good]) / np.abs(res.chi[good]))) if good.any() else np.nan
-        max_sig = float(np.max(np.abs(d) / res.sigma))
+        max_sig = float(np.max(np.abs(d) / res.bse.to_numpy()))
     sl = slice(L.n0, None)
     track = np.sqrt(np.mean((L.qr[sl] - q_s[sl]) ** 2, axis=0))
     row = {"iteration": k, "step_length": lam, "rho_norm": rho, "rel_change": rel_change,

@@ -26,7 +26,7 @@ __all__ = ["essential_parameters", "EssentialResult"]
 _PATH_COLUMNS = ["step", "removed", "rel_std_removed", "max_rel_std_remaining", "rel_error", "n_remaining"]
 
 
-@dataclass(eq=False)
+@dataclass(eq=False, repr=False)
 class EssentialResult(ParameterResults):
     """Outcome of `essential_parameters`.
 
@@ -255,7 +255,7 @@ def _essential_samples(W3, tau, names, estimator, crit, estimator_kwargs):
     else:
         def step_fit(cols):
             res = estimator(np.asarray(W3)[:, :, cols], tau, [names[c] for c in cols], **fixed_kwargs)
-            return res.chi, res.rel_sigma, res.rel_error, res
+            return res.chi, res.rel_std.to_numpy(), res.rel_error, res
 
     def final(cols, essential, kw):
         return estimator(np.asarray(W3)[:, :, cols], tau, essential, **kw)
@@ -287,7 +287,7 @@ def _essential_reduced(reduction, estimator, crit, estimator_kwargs):
 
 def _search(base, names, step_fit, final, crit, fixed_kwargs, estimator_kwargs):
     cols = np.arange(len(names))
-    rel_sigma, err0 = base.rel_sigma, base.rel_error
+    rel_sigma, err0 = base.rel_std.to_numpy(), base.rel_error
     current_result = base
     rows, removed = [], []
     stop_rule, stop_reason = "last_parameter", "one parameter left"

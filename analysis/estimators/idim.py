@@ -17,7 +17,7 @@ from dynid.analysis.estimators import least_squares as ls
 from dynid.analysis.estimators.agreement import agreement, agreement_verdict, segments
 from dynid.analysis.estimators.essential import essential_parameters
 from dynid.analysis.processing.observation import Observation, concatenate, observe
-from dynid.analysis.results import ModelResults
+from dynid.analysis.results import ModelResults, notices_block, parameter_records, percent
 from dynid.dynamics.base_parameters import base_parameters
 from dynid.errors import IdentificationError
 from dynid.provenance import data_hash, json_safe, versions
@@ -35,7 +35,7 @@ from dynid.provenance import data_hash, json_safe, versions
 DEFAULT_UNCERTAINTY = "bootstrap"
 
 
-@dataclass(eq=False)
+@dataclass(eq=False, repr=False)
 class IDIMResult(ModelResults):
     """Everything an IDIM identification produced.
 
@@ -79,13 +79,13 @@ class IDIMResult(ModelResults):
             One row per base parameter.
         """
         rows = []
-        ess = dict(zip(self.model.names, zip(self.model.chi, self.model.rel_sigma)))
+        ess = dict(zip(self.model.names, zip(self.model.chi, self.model.rel_std.to_numpy())))
         for k, name in enumerate(self.base.names):
             rows.append({
                 "name": name,
                 "relation": self.base.relations[k],
-                "ols": self.ols.chi[k], "ols_rel_std": self.ols.rel_sigma[k],
-                "wls": self.wls.chi[k], "wls_rel_std": self.wls.rel_sigma[k],
+                "ols": self.ols.chi[k], "ols_rel_std": self.ols.rel_std.to_numpy()[k],
+                "wls": self.wls.chi[k], "wls_rel_std": self.wls.rel_std.to_numpy()[k],
                 "essential": name in ess,
                 "essential_value": ess[name][0] if name in ess else np.nan,
                 "essential_rel_std": ess[name][1] if name in ess else np.nan,
@@ -97,22 +97,22 @@ class IDIMResult(ModelResults):
                  f"  samples: {self.observation.n_raw} raw -> {self.observation.n_samples} decimated "
                  f"(fc = {self.settings['fc_position']:g} Hz, nd = {self.settings['nd']})",
                  f"  base parameters: {self.base.n_base}, essential: {len(self.model.names)}",
-                 f"  relative error ||Y - W chi|| / ||Y||: OLS {self.ols.rel_error:.4f}, "
-                 f"WLS {self.wls.rel_error:.4f}, essential {self.model.rel_error:.4f}",
+                 f"  relative error ||Y - W chi|| / ||Y||: OLS {percent(self.ols.rel_error)}, "
+                 f"WLS {percent(self.wls.rel_error)}, essential {percent(self.model.rel_error)}",
                  "  uncertainty: " + (self.model.settings.get("least_squares", {}).get("uncertainty", {})
                                       .get("covariance") or self.uncertainty),
                  ""]
-        lines.append(self.essential.result.summary())
+        lines.append(self.essential.result.summary(notices=False))
         if self.agreement is not None:
             lines += ["", agreement_verdict(self.agreement)]
-        if self.notices:
-            lines += ["", "Notices:"] + [f"  - {n}" for n in self.notices]
+        block = notices_block(self.notices, self.model.notices)
+        if block:
+            lines += [""] + block
         return "\n".join(lines)
 
     def to_dict(self):
         def params(res):
-            return [{"name": n, "value": v, "std": s, "rel_std_percent": r}
-                    for n, v, s, r in zip(res.names, res.chi, res.sigma, res.rel_sigma)]
+            return parameter_records(res.names, res.chi, res.bse.to_numpy(), res.rel_std.to_numpy())
         return json_safe({
             "method": "IDIM",
             "uncertainty": self.uncertainty,
@@ -215,7 +215,7 @@ def recording_agreement(obs, names, groups, joint_sigma, uncertainty="classic", 
                                joint_sigma=joint_sigma, uncertainty=uncertainty))
     except IdentificationError as exc:
         return None, f"cross-{kind[:-1]} agreement skipped: {str(exc).splitlines()[0]}"
-    out = agreement([f.chi for f in fits], [f.sigma for f in fits], [f.cov for f in fits],
+    out = agreement([f.chi for f in fits], [f.bse.to_numpy() for f in fits], [f.cov for f in fits],
                     [names[c] for c in cols], kind=kind)
     out["uncertainty"] = uncertainty
     out["left_out"] = [n for k, n in enumerate(names) if k not in set(cols.tolist())]

@@ -551,7 +551,7 @@ class PayloadResult(ParameterResults):
             "physical": None if self.physical is None else self.physical.to_dict(),
             "robot_parameters": None if self.robot_params is None else [
                 {"name": n, "value": v, "std": s} for n, v, s in
-                zip(self.robot_params.names, self.robot_params.chi, self.robot_params.sigma)],
+                zip(self.robot_params.names, self.robot_params.chi, self.robot_params.bse.to_numpy())],
             "joint_sigma": self.joint_sigma, "rel_error": self.rel_error, "n_rows": self.n_rows,
             "hac_lags": self.hac_lags, "singular_ratio": self.singular_ratio,
             "settings": self.settings, "verdict": self.verdict(), "notices": self.notices,

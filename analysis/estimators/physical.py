@@ -262,7 +262,7 @@ class PhysicalResult(ParameterResults):
         with np.errstate(divide="ignore", invalid="ignore"):
             return pd.DataFrame({"wls": self.wls_chi, "wls_std": s_wls,
                                  "wls_rel_std_percent": 100 * s_wls / np.abs(self.wls_chi),
-                                 "pc": self.chi, "pc_std": self.sigma,
+                                 "pc": self.chi, "pc_std": self.bse.to_numpy(),
                                  "shift_sigma": (self.chi - self.wls_chi) / s_wls},
                                 index=self._index())
 
@@ -344,7 +344,7 @@ class PhysicalResult(ParameterResults):
                      "units of its error variance; p_value = P(chi2_dof > chi2), an upper bound of the "
                      "chi-bar-squared p-value with dof = active scalar constraints"),
             "parameters": [{"name": n, "value": v, "std": s, "wls": w}
-                           for n, v, s, w in zip(self.names, self.chi, self.sigma, self.wls_chi)],
+                           for n, v, s, w in zip(self.names, self.chi, self.bse.to_numpy(), self.wls_chi)],
             "standard_parameters": [{"name": n, "value": v, "apriori": a} for n, v, a in
                                     zip(self.standard_names, self.standard, self.apriori)],
             "links": self.links,

@@ -108,10 +108,10 @@ def identify_recording(spec: dict) -> dict:
         exp = load_experiment(spec["path"], robot)
         wls, ess, n_raw = _identify(exp, robot, bp, spec.get("settings"), int(spec.get("max_samples") or MAX_SAMPLES))
         model = ess.result
-        ess_values = dict(zip(model.names, zip(model.chi, model.sigma)))
+        ess_values = dict(zip(model.names, zip(model.chi, model.bse.to_numpy())))
         out.update(status="ok", error="", n_samples=int(n_raw), rel_error=float(model.rel_error),
                    names=list(wls.names), value=[float(v) for v in wls.chi],
-                   sigma=[float(s) for s in wls.sigma],
+                   sigma=[float(s) for s in wls.bse.to_numpy()],
                    essential=[n in ess_values for n in wls.names],
                    essential_value=[float(ess_values[n][0]) if n in ess_values else float("nan")
                                     for n in wls.names],

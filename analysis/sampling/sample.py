@@ -109,7 +109,7 @@ def sample_linear(W3, tau, names, *, row_mask=None, ls=None, sigma=None, prior=N
     ls_value = np.full(d, np.nan)
     ls_std = np.full(d, np.nan)
     ls_value[:b] = ls.chi
-    ls_std[:b] = ls.sigma
+    ls_std[:b] = ls.bse.to_numpy()
     if sigma is None and getattr(ls, "joint_sigma", None) is not None:
         ls_value[b:] = np.asarray(ls.joint_sigma)[model.active]
     ls_cov = np.full((d, d), np.nan)

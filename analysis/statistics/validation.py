@@ -29,7 +29,7 @@ import pandas as pd
 from dynid.analysis.data.experiment import load_experiment
 from dynid.analysis.processing.observation import observe
 from dynid.analysis.processing.prediction import prediction_errors
-from dynid.analysis.results import Exportable
+from dynid.analysis.results import Result, percent
 from dynid.analysis.statistics.noise import normality as _normality
 from dynid.errors import DataError, InputError
 from dynid.provenance import json_safe
@@ -50,8 +50,8 @@ def normality(residual):
     return _normality(residual)
 
 
-@dataclass
-class ValidationResult(Exportable):
+@dataclass(repr=False)
+class ValidationResult(Result):
     """Prediction of a recording by an identified model (all samples first)."""
 
     source: str
@@ -97,18 +97,36 @@ class ValidationResult(Exportable):
         n = self.tau.shape[1]
         return np.zeros(n) if self.mask is None else 1.0 - np.mean(self.mask, axis=0)
 
+    def _moving_joint_rel_error(self):
+        return (self.moving_joint_rel_error if self.moving_joint_rel_error is not None
+                else np.full(self.tau.shape[1], np.nan))
+
+    def to_frame(self) -> pd.DataFrame:
+        """One row per joint: RMS [N m], relative errors (all samples, moving ones), excluded
+        fraction, Jarque-Bera p on all samples.
+
+        Returns
+        -------
+        pandas.DataFrame
+            Index `joint` = 1..n.
+        """
+        return pd.DataFrame({"rms": self.rms, "rel_error": self.joint_rel_error,
+                             "moving_rel_error": self._moving_joint_rel_error(),
+                             "excluded_fraction": self.excluded_per_joint,
+                             "jarque_bera_p": self.noise["jarque_bera_p"].to_numpy()},
+                            index=pd.Index(range(1, self.tau.shape[1] + 1), name="joint"))
+
     def summary(self):
         lines = [f"Validation on {self.source}: {len(self.t)} decimated samples",
-                 f"  all samples: relative error ||tau - tau_hat|| / ||tau|| = {self.rel_error:.4f}",
-                 f"  moving samples only: {self.moving_rel_error:.4f} ({100 * self.excluded_fraction:.1f} % "
+                 f"  all samples: relative error ||tau - tau_hat|| / ||tau|| = {percent(self.rel_error)}",
+                 f"  moving samples only: {percent(self.moving_rel_error)} ({100 * self.excluded_fraction:.1f} % "
                  f"of the equations excluded: {DEAD_ZONE_REASON})",
                  "  joint   RMS [N m]   rel. error (all)   rel. error (moving)   excluded   JB p (all)"]
-        mj = (self.moving_joint_rel_error if self.moving_joint_rel_error is not None
-              else np.full(self.tau.shape[1], np.nan))
+        mj = self._moving_joint_rel_error()
         ex = self.excluded_per_joint
         for j in range(self.tau.shape[1]):
-            lines.append(f"  {j + 1:5d}   {self.rms[j]:9.4g}   {self.joint_rel_error[j]:16.4f}   "
-                         f"{mj[j]:19.4f}   {100 * ex[j]:6.1f} %   "
+            lines.append(f"  {j + 1:5d}   {self.rms[j]:9.4g}   {percent(self.joint_rel_error[j]):>16}   "
+                         f"{percent(mj[j]):>19}   {100 * ex[j]:6.1f} %   "
                          f"{self.noise['jarque_bera_p'].iloc[j]:.3g}")
         return "\n".join(lines)
 

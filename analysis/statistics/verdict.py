@@ -43,13 +43,13 @@ Adding a check is appending one function to `CHECKS`.
 """
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
 
 from dynid.analysis.statistics.residuals import analyze_residuals, residual_analysis
+from dynid.analysis.units import parameter_kind, parameter_unit
 from dynid.dynamics.base_parameters import base_parameters
 from dynid.dynamics.excitation import apriori_parameters
 from dynid.provenance import json_safe
@@ -58,31 +58,6 @@ __all__ = ["Verdict", "verdict", "CHECKS", "VerdictInputs", "CheckOutcome", "par
 
 #: standard-parameter kinds that are never negative (see the module docstring)
 NONNEGATIVE_KINDS = ("M", "XX", "YY", "ZZ", "Ia", "Fv", "Fc", "Fvm", "Fcm")
-
-_UNITS = (("XX", "kg m\u00b2"), ("XY", "kg m\u00b2"), ("XZ", "kg m\u00b2"), ("YY", "kg m\u00b2"),
-          ("YZ", "kg m\u00b2"), ("ZZ", "kg m\u00b2"), ("MX", "kg m"), ("MY", "kg m"), ("MZ", "kg m"),
-          ("Ia", "kg m\u00b2"), ("Fvm", "N m s/rad"), ("Fcm", "N m"), ("Fv", "N m s/rad"),
-          ("Fc", "N m"), ("Off", "N m"), ("M", "kg"))
-_KIND_RE = re.compile(r"^([A-Za-z]+?)(\d+)R?$")
-
-
-def parameter_kind(name: str) -> str:
-    """`ZZ2R` -> `ZZ`; `Fvm6` -> `Fvm`; `M3` -> `M`; unknown patterns -> `""`."""
-    m = _KIND_RE.match(str(name))
-    return m.group(1) if m else ""
-
-
-def parameter_unit(name: str) -> str:
-    """SI unit of a (standard or regrouped) parameter from its name pattern, `""` if unknown.
-
-    XX..ZZ kg m², MX/MY/MZ kg m, M kg, Ia kg m², Fv/Fvm N m s/rad, Fc/Fcm N m,
-    Off N m (revolute joints; a prismatic joint's are in N and kg).
-    """
-    kind = parameter_kind(name)
-    for k, u in _UNITS:
-        if kind == k:
-            return u
-    return ""
 
 
 def must_be_nonnegative(bp, standard_names, k) -> bool:
@@ -277,7 +252,7 @@ class CheckOutcome:
 def _parameter_table(m, rel_std_threshold):
     """One row per judged parameter: name, value, std, unit, %σ and whether %σ is above the threshold."""
     params = []
-    for name, v, s, r in zip(m.names, m.chi, m.sigma, m.rel_sigma):
+    for name, v, s, r in zip(m.names, m.chi, m.bse.to_numpy(), m.rel_std.to_numpy()):
         bad = not (float(r) <= rel_std_threshold)
         params.append({"name": name, "value": float(v), "std": float(s), "unit": parameter_unit(name),
                        "rel_std_percent": float(r), "flagged": bool(bad)})
