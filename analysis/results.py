@@ -223,15 +223,20 @@ def _describe(obj) -> str:
     if isinstance(robot, str) and robot:
         parts.append(f"robot {robot!r}")
     head = ", ".join(parts)
+    # a result holding another (a run, a full report) shows that one's parameters and error
+    inner = getattr(obj, "result", None)
     tail = []
-    try:
-        names = obj.names
-        tail.append(f"{len(names)} parameters")
-    except Exception:                      # noqa: BLE001 - a result without parameters
-        pass
-    err = getattr(obj, "rel_error", None)
-    if err is None and getattr(obj, "model", None) is not None:
-        err = getattr(obj.model, "rel_error", None)
+    for source in (obj, inner):
+        try:
+            tail.append(f"{len(source.names)} parameters")
+            break
+        except Exception:                  # noqa: BLE001 - a result without parameters
+            continue
+    err = None
+    for source in (obj, getattr(obj, "model", None), inner, getattr(inner, "model", None)):
+        err = getattr(source, "rel_error", None)
+        if isinstance(err, (int, float, np.floating)):
+            break
     if isinstance(err, (int, float, np.floating)):
         tail.append(f"rel. error {percent(err)}")
     return head + (": " + ", ".join(tail) if tail else "")
@@ -261,6 +266,18 @@ class Result:
             The CSV text.
         """
         return serialize(self, "csv", path)
+
+    def to_frame(self) -> pd.DataFrame:
+        """The result's table (what `to_csv` writes); a result holding another gives that one's.
+
+        Returns
+        -------
+        pandas.DataFrame
+        """
+        inner = getattr(self, "result", None)
+        if isinstance(inner, Result):
+            return inner.to_frame()
+        raise NotImplementedError(f"{type(self).__name__} has no table to write as CSV")
 
     def __str__(self) -> str:
         return self.summary()

@@ -45,13 +45,12 @@ from dynid.analysis.estimators.maximum_likelihood import maximum_likelihood, rob
 from dynid.analysis.estimators.physical import identify_physical, require_cvxpy
 from dynid.analysis.estimators.projection import identify_projection
 from dynid.analysis.processing.observation import SETTINGS_HELP
+from dynid.analysis.results import Result
 from dynid.analysis.statistics.validation import ValidationResult, validate
 from dynid.analysis.statistics.verdict import verdict
 from dynid.dynamics.robot import Robot
 from dynid.dynamics.robot_file import load_robot
 from dynid.errors import DataError, InputError
-from dynid.outputs import atomic_write_text
-from dynid.provenance import dumps_json
 
 METHODS = ("idim", "didim", "projection", "ml")
 
@@ -575,8 +574,8 @@ def verdict_of(result, held_out=None, *, robot=None, diagnosis=None, residuals=N
 
 # ---------------------------------------------------------------- the run
 
-@dataclass(frozen=True, eq=False)
-class Identification:
+@dataclass(frozen=True, eq=False, repr=False)
+class Identification(Result):
     """What one run of `dynid identify` gives: the identification, its validation and
     verdict, and the optional parts (tilt, asymmetric friction, PC fit, effects, export).
 
@@ -619,13 +618,6 @@ class Identification:
                 doc["physical"]["effects"] = doc["effects"]
         return doc
 
-    def to_json(self, path=None) -> str:
-        """The JSON text of `to_dict()`; written atomically to `path` when given."""
-        text = dumps_json(self.to_dict())
-        if path is not None:
-            atomic_write_text(path, text)
-        return text
-
     def summaries(self) -> list:
         """The printed parts, the verdict first."""
         gains = getattr(self.result, "gains", None)
@@ -641,12 +633,8 @@ class Identification:
     def summary(self) -> str:
         return "\n\n".join(p for p in self.summaries() if p)
 
-    def __str__(self) -> str:
-        return self.summary()
-
     def __repr__(self) -> str:
-        return (f"<Identification {self.method} of {getattr(self.robot, 'name', '?')}: "
-                f"verdict {getattr(self.verdict, 'status', '?')}>")
+        return f"{super().__repr__()[:-1]}; verdict {getattr(self.verdict, 'status', '?')}>"
 
 
 def run(data, robot, settings=None, *, say=None, **options) -> Identification:

@@ -5,7 +5,7 @@ joints; a prismatic joint's are in N and kg). Beside the dynamic model's names, 
 other results: the payload's (`XXL` ... `ML`), the asymmetric friction's (`Fv+1`, `Fc-1`),
 the per-joint gravity of Bona & Curatella (`k1` N m, `qoff1` rad), the gravity tilt
 (`tilt_x`, `tilt_y` rad), a posterior's torque noise (`sigma1` N m) and the drive
-gains (`g1`, N m per unit of the logged signal).
+gains (`g1`, N m per unit of the logged signal) and the controller gains (`Kp1`, `Kd1`, `Ki1`).
 """
 from __future__ import annotations
 
@@ -19,7 +19,8 @@ _UNITS = (("XX", "kg m\u00b2"), ("XY", "kg m\u00b2"), ("XZ", "kg m\u00b2"), ("YY
           ("Fc", "N m"), ("Off", "N m"), ("M", "kg"))
 # names of the other results; consulted only when the dynamic model's table has no unit,
 # so the verdict's units (the JSON) are those of `_UNITS` alone
-_OTHER_UNITS = {"k": "N m", "qoff": "rad", "tilt": "rad", "sigma": "N m", "g": "N m per unit"}
+_OTHER_UNITS = {"k": "N m", "qoff": "rad", "tilt": "rad", "sigma": "N m", "g": "N m per unit",
+                "Kp": "N m/rad", "Kd": "N m s/rad", "Ki": "N m/(rad s)"}
 _KIND_RE = re.compile(r"^([A-Za-z]+?)(\d+)R?$")
 _OTHER_RE = re.compile(r"^([A-Za-z]+?)(?:[+-]|_[xyz])?(\d*)[RL]?$")
 

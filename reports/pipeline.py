@@ -22,6 +22,7 @@ from dynid.analysis import run as steps
 from dynid.analysis.data.synthetic import sample_count
 from dynid.analysis.demo import run_demo
 from dynid.analysis.further import DiagnosisRun
+from dynid.analysis.results import Result
 from dynid.analysis.run import (  # noqa: F401 - REPORT_PARTS: public here since 0.1
     REPORT_GAIN_UPDATE,
     REPORT_PARTS,
@@ -192,8 +193,8 @@ def excitation_outputs(res, robot, fs, periods, *, out=None, json=None, report=N
 
 # ---------------------------------------------------------------- dynid report, dynid demo
 
-@dataclass(eq=False)
-class FullReport:
+@dataclass(eq=False, repr=False)
+class FullReport(Result):
     """What `report` produced: the results, the HTML and the JSON document."""
 
     result: object                       # IDIMResult
@@ -236,8 +237,9 @@ class FullReport:
         parts += [p.summary() for p in (self.didim, self.posterior, self.diagnosis) if p is not None]
         return "\n\n".join(p for p in parts if p)
 
-    def __str__(self) -> str:
-        return self.summary()
+    @property
+    def method(self) -> str:
+        return "full report"
 
     def write(self, path) -> None:
         """Write the HTML report to `path` atomically."""

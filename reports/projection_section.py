@@ -28,9 +28,9 @@ def estimates_frame(pm, ml=None, truth=None):
         df["ls"] = pm.ls.chi
         df["ls_rel_std"] = pm.ls.rel_std.to_numpy()
     df["pm"] = pm.chi
-    df["pm_rel_std"] = pm.rel_sigma
+    df["pm_rel_std"] = pm.rel_std.to_numpy()
     if ml is not None:
-        ml_map = dict(zip(ml.names, zip(ml.theta, ml.rel_sigma)))
+        ml_map = dict(zip(ml.names, zip(ml.chi, ml.rel_std.to_numpy())))
         df["ml"] = [ml_map.get(n, (np.nan, np.nan))[0] for n in pm.names]
         df["ml_rel_std"] = [ml_map.get(n, (np.nan, np.nan))[1] for n in pm.names]
     if truth is not None:

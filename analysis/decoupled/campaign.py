@@ -53,7 +53,7 @@ class DecoupledCampaign:
     settings: dict = field(default_factory=dict)
 
 
-@dataclass(eq=False)
+@dataclass(eq=False, repr=False)
 class DecoupledIdentification(ParameterResults):
     """Tables 1-3 (`RepeatedEstimate`) and the validation of section 3.5."""
 

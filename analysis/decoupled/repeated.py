@@ -28,7 +28,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from dynid.analysis.results import ParameterResults
+from dynid.analysis.results import ParameterResults, parameter_table
 from dynid.errors import InputError
 from dynid.provenance import json_safe
 
@@ -45,7 +45,7 @@ def student_half_width(std_1n, n, confidence=DEFAULT_CONFIDENCE):
     return t_g * np.asarray(std_1n, dtype=float) / math.sqrt(n - 1), t_g
 
 
-@dataclass(eq=False)
+@dataclass(eq=False, repr=False)
 class RepeatedEstimate(ParameterResults):
     """Parameters estimated once per repetition, and their statistics (module doc).
 
@@ -128,14 +128,6 @@ class RepeatedEstimate(ParameterResults):
     def all_inside(self):
         return None if self.truth is None else bool(np.all(self.inside))
 
-    def __getitem__(self, name):
-        """`(mean, half_width)` of parameter `name`."""
-        try:
-            i = self.names.index(name)
-        except ValueError:
-            raise KeyError(f"no parameter {name!r}; parameters: {', '.join(self.names)}") from None
-        return float(self.mean[i]), float(self.half_width[i])
-
     def value(self, name, default=0.0):
         return self[name][0] if name in self.names else default
 
@@ -151,15 +143,13 @@ class RepeatedEstimate(ParameterResults):
     def summary(self) -> str:
         pct = f"{100 * self.confidence:g} %"
         lines = [f"{self.table or self.kind}: {self.n_repetitions} repetitions, {pct} Student "
-                 f"interval, t_gamma = {self.t_gamma:.4f} ({self.n_repetitions - 1} dof)",
-                 f"{'param':<8}{'unit':<10}{'mean':>12}{'sigma':>12}{'t s/sqrt(n-1)':>15}"
-                 + (f"{'true':>12}  inside" if self.truth is not None else "")]
-        for i, name in enumerate(self.names):
-            row = (f"{name:<8}{self.units[i]:<10}{self.mean[i]:12.5g}{self.std[i]:12.4g}"
-                   f"{self.half_width[i]:15.4g}")
-            if self.truth is not None:
-                row += f"{self.truth[i]:12.5g}  {'yes' if self.inside[i] else 'NO'}"
-            lines.append(row)
+                 f"interval, t_gamma = {self.t_gamma:.4f} ({self.n_repetitions - 1} dof)"]
+        columns = [("mean", self.mean, lambda x: f"{x:.5g}"), ("sigma", self.std, lambda x: f"{x:.4g}"),
+                   ("t s/sqrt(n-1)", self.half_width, lambda x: f"{x:.4g}")]
+        if self.truth is not None:
+            columns += [("true", self.truth, lambda x: f"{x:.5g}"),
+                        ("inside", ["yes" if x else "NO" for x in self.inside], "text")]
+        lines += parameter_table(self.names, columns, label="param")
         if self.truth is not None:
             lines.append(f"true value inside: {int(self.inside.sum())} of {len(self.names)}")
         lines += [f"note: {x}" for x in self.notices]

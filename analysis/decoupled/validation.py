@@ -16,8 +16,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+import pandas as pd
 from scipy import signal
 
+from dynid.analysis.results import Result, percent
 from dynid.analysis.statistics.noise import NoiseTests, noise_pdf_tests
 from dynid.dynamics.joint_model import JointModel, JointPID, simulate_joints
 from dynid.errors import InputError
@@ -26,8 +28,8 @@ from dynid.provenance import json_safe
 __all__ = ["DecoupledValidation", "validate_decoupled"]
 
 
-@dataclass(eq=False)
-class DecoupledValidation:
+@dataclass(eq=False, repr=False)
+class DecoupledValidation(Result):
     """Errors between the measured run and the simulated identified model; arrays (N, n)."""
 
     t: np.ndarray
@@ -69,6 +71,19 @@ class DecoupledValidation:
         """‖τ_meas − τ_sim‖ / ‖τ_meas‖ per joint."""
         return np.linalg.norm(self.tau_error, axis=0) / np.linalg.norm(self.tau_meas, axis=0)
 
+    def to_frame(self) -> pd.DataFrame:
+        """One row per joint: the errors of `summary` (degrees, N m, relative).
+
+        Returns
+        -------
+        pandas.DataFrame
+            Index `joint` = 1..n.
+        """
+        return pd.DataFrame({"max_q_error_deg": self.max_q_error_deg, "rms_q_error_deg": self.rms_q_error_deg,
+                             "max_tau_error": self.max_tau_error, "rms_tau_error": self.rms_tau_error,
+                             "rel_tau_error": self.rel_tau_error},
+                            index=pd.Index(range(1, self.q_meas.shape[1] + 1), name="joint"))
+
     def summary(self) -> str:
         lines = ["Model validation by simulation (section 3.5): measured (filtered) minus simulated",
                  "  joint  max|e_q| [deg]  rms e_q [deg]  max|e_tau| [N m]  rms e_tau [N m]  "
@@ -77,7 +92,7 @@ class DecoupledValidation:
         for j in range(self.q_meas.shape[1]):
             lines.append(f"  {j + 1:5d} {self.max_q_error_deg[j]:15.4g} {self.rms_q_error_deg[j]:14.4g} "
                          f"{self.max_tau_error[j]:17.4g} {self.rms_tau_error[j]:16.4g} "
-                         f"{self.rel_tau_error[j]:11.3g}  {'yes' if gq[j] else 'no':>10}  "
+                         f"{percent(self.rel_tau_error[j]):>11}  {'yes' if gq[j] else 'no':>10}  "
                          f"{'yes' if gt[j] else 'no':>12}")
         return "\n".join(lines)
 

@@ -33,6 +33,7 @@ import pandas as pd
 
 from dynid.analysis.diagnosis.effects import make_candidate
 from dynid.analysis.diagnosis.selection import fit_effects
+from dynid.analysis.results import Result, notices_block, parameter_table
 from dynid.errors import InputError
 
 __all__ = ["AsymmetricFrictionResult", "asymmetric_friction"]
@@ -40,8 +41,8 @@ __all__ = ["AsymmetricFrictionResult", "asymmetric_friction"]
 COLUMNS = ("Fv+", "Fv-", "Fc+", "Fc-")
 
 
-@dataclass
-class AsymmetricFrictionResult:
+@dataclass(repr=False)
+class AsymmetricFrictionResult(Result):
     """Per-joint asymmetric friction (eq. (2) of Bona & Curatella) with standard deviations."""
 
     robot_name: str
@@ -62,14 +63,21 @@ class AsymmetricFrictionResult:
             rows[f"joint {j}"] = row
         return pd.DataFrame.from_dict(rows, orient="index")
 
+    @property
+    def rel_error(self) -> float:
+        """Relative error of the model with the asymmetric friction (that of `fit`)."""
+        return self.fit.rel_error
+
     def summary(self) -> str:
         lines = [f"Asymmetric friction of {self.robot_name} (Bona & Curatella 2005, eq. (2)); "
-                 f"relative error {100 * self.rel_error_before:.3f} % -> {100 * self.fit.rel_error:.3f} %",
-                 "  joint " + "".join(f"{c:>22}" for c in COLUMNS)]
-        for k, j in enumerate(self.joints):
-            cells = "".join(f"{self.values[k, c]:>12.5g} ± {self.sigma[k, c]:<7.2g}" for c in range(4))
-            lines.append(f"  {j:>5} {cells}")
-        lines += [f"  note: {m}" for m in self.notices]
+                 f"relative error {100 * self.rel_error_before:.3f} % -> {100 * self.fit.rel_error:.3f} %"]
+        names = [f"{c}{j}" for j in self.joints for c in COLUMNS]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rel = 100.0 * self.sigma.ravel() / np.abs(self.values.ravel())
+        lines += parameter_table(names, [("value", self.values.ravel(), lambda x: f"{x:.5g}"),
+                                         ("sigma", self.sigma.ravel(), lambda x: f"{x:.2g}"),
+                                         ("%sigma", rel, "pct")])
+        lines += notices_block(self.notices)
         return "\n".join(lines)
 
     def to_dict(self) -> dict:

@@ -11,7 +11,7 @@ import numpy as np
 
 from dynid.analysis.diagnosis.effects import Candidate
 from dynid.analysis.diagnosis.summary_text import diagnosis_summary, fmt_p, nonlinear_text
-from dynid.analysis.results import Exportable
+from dynid.analysis.results import Result, parameter_records
 from dynid.provenance import json_safe, versions
 
 __all__ = ["RankedEffect", "DiagnosisStep", "SelectedEffect", "Errors", "errors_of", "DiagnosisResult",
@@ -154,8 +154,8 @@ def errors_of(tau, tau_hat, mask):
                       joint_rel_error=np.linalg.norm(r, axis=0) / np.linalg.norm(y, axis=0))
 
 
-@dataclass
-class DiagnosisResult(Exportable):
+@dataclass(repr=False)
+class DiagnosisResult(Result):
     """What `diagnose` found. `ranking` is from most to least likely."""
 
     robot_name: str
@@ -197,6 +197,29 @@ class DiagnosisResult(Exportable):
         Coulomb onsets, which are kept in the model but say the velocity dead zone is narrower
         than the friction's smooth onset (`onset_note`)."""
         return [e for e in self.selected if e.kind == "effect"]
+
+    @property
+    def method(self) -> str:
+        return "residual diagnosis"
+
+    @property
+    def names(self):
+        """The parameters of the model after the diagnosis (`model_after`)."""
+        return self.model_after.names
+
+    @property
+    def rel_error(self) -> float:
+        return self.model_after.rel_error
+
+    def to_frame(self):
+        """The parameters of the model after the diagnosis (`model_after.to_frame()`).
+
+        Returns
+        -------
+        pandas.DataFrame
+            One row per parameter: value, std, rel_std_percent.
+        """
+        return self.model_after.to_frame()
 
     @property
     def selected_names(self):
@@ -258,5 +281,4 @@ class DiagnosisResult(Exportable):
 
 
 def params_records(res):
-    return [{"name": n, "value": v, "std": s, "rel_std_percent": r}
-            for n, v, s, r in zip(res.names, res.chi, res.sigma, res.rel_sigma)]
+    return parameter_records(res.names, res.chi, res.bse.to_numpy(), res.rel_std.to_numpy())

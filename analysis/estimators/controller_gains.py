@@ -62,14 +62,14 @@ from scipy.linalg import block_diag
 from scipy.signal import bilinear, lfilter
 
 from dynid.analysis.processing.signals import default_settings, derivatives, lowpass_filtfilt
-from dynid.analysis.results import ParameterResults
+from dynid.analysis.results import ParameterResults, notices_block, parameter_records, parameter_table, percent
 from dynid.errors import DataError, InputError
 from dynid.provenance import json_safe
 
 __all__ = ["GainsResult", "identify_gains"]
 
 
-@dataclass(eq=False)
+@dataclass(eq=False, repr=False)
 class GainsResult(ParameterResults):
     """Identified controller gains per joint (`Kp1, Kd1[, Ki1], ...`), physical units."""
 
@@ -117,20 +117,19 @@ class GainsResult(ParameterResults):
     def summary(self) -> str:
         lines = [f"Controller gains identified from {self.source} ({self.n_rows} samples; "
                  f"feedforward {'yes' if self.feedforward else 'no'}, integral {'yes' if self.integral else 'no'})",
-                 f"  {'gain':<8}{'value':>14}{'std':>12}{'%std':>8}"]
-        for n, v, s, r in zip(self.names, self.chi, self.bse, self.rel_std):
-            unit = {"Kp": "N m/rad", "Kd": "N m s/rad", "Ki": "N m/(rad s)"}[n[:2]]
-            lines.append(f"  {n:<8}{v:>14.6g}{s:>12.3g}{r:>8.2f}  {unit}")
-        lines.append("  control-law fit, relative error per joint: "
-                     + ", ".join(f"{x:.3%}" for x in self.rel_error))
-        lines += [f"  note: {x}" for x in self.notices]
+                 ]
+        lines += parameter_table(self.names, [("value", self.chi, lambda x: f"{x:.6g}"),
+                                              ("std", self.bse.to_numpy(), lambda x: f"{x:.3g}"),
+                                              ("%std", self.rel_std.to_numpy(), "pct")], label="gain")
+        lines.append("control-law fit, relative error per joint: "
+                     + ", ".join(percent(x, 3) for x in self.rel_error))
+        lines += notices_block(self.notices)
         return "\n".join(lines)
 
     def to_dict(self) -> dict:
         return json_safe({"method": self.method, "source": self.source, "feedforward": self.feedforward,
                           "integral": self.integral, "n_rows": self.n_rows,
-                          "parameters": [{"name": n, "value": v, "std": s, "rel_std_percent": r}
-                                         for n, v, s, r in zip(self.names, self.chi, self.bse, self.rel_std)],
+                          "parameters": parameter_records(self.names, self.chi, self.bse, self.rel_std),
                           "control_law_rel_error": self.rel_error, "notices": self.notices})
 
 

@@ -130,7 +130,7 @@ from dynid.analysis.estimators import least_squares as ls
 from dynid.analysis.estimators.essential import essential_parameters
 from dynid.analysis.processing.decimation import ParallelDecimator
 from dynid.analysis.processing.signals import dead_zone_thresholds, default_settings, velocity_dead_zone
-from dynid.analysis.results import ModelResults
+from dynid.analysis.results import ModelResults, notices_block, parameter_records, percent
 from dynid.dynamics.base_parameters import base_parameters, base_regressor
 from dynid.dynamics.dynamic_model import inverse_dynamics, mass_matrix
 from dynid.dynamics.simulation import friction_stiffness, simulate_closed_loop
@@ -184,7 +184,7 @@ CHUNK = 10_000
 
 # ----------------------------------------------------------------------------- result
 
-@dataclass(eq=False)
+@dataclass(eq=False, repr=False)
 class DIDIMResult(ModelResults):
     """Everything a DIDIM identification produced.
 
@@ -295,8 +295,8 @@ class DIDIMResult(ModelResults):
                  f"{self.settings['f_decimation_cutoff']:.3g} Hz)",
                  f"  base parameters: {self.base.n_base}"
                  + (f", essential: {len(self.essential.result.names)}" if self.essential else ""),
-                 f"  relative error ||Y - W chi|| / ||Y||: {self.result.rel_error:.4f}"
-                 + (f" (essential model {self.essential.result.rel_error:.4f})"
+                 f"  relative error ||Y - W chi|| / ||Y||: {percent(self.result.rel_error)}"
+                 + (f" (essential model {percent(self.essential.result.rel_error)})"
                     if self.essential else ""),
                  "  tracking RMS of the last simulation (qr - q_sim), rad: "
                  + ", ".join(f"{v:.3g}" for v in self.tracking_rms),
@@ -307,12 +307,13 @@ class DIDIMResult(ModelResults):
                             "max_rel_param_change", "max_change_sigma") if c in h]
         lines.append(h[cols].to_string(index=False, float_format=lambda x: f"{x:.5g}"))
         lines.append("")
-        lines.append((self.essential.result if self.essential is not None else self.result).summary())
+        lines.append(self.model.summary(notices=False))
         if self.physical is not None:
             lines += ["", "PC-DIDIM: the last step's WLS refitted under physical consistency (the "
                       "estimate the loop simulated)", self.physical.summary()]
-        if self.notices:
-            lines += ["", "Notices:"] + [f"  - {n}" for n in self.notices]
+        block = notices_block(self.notices, self.model.notices)
+        if block:
+            lines += [""] + block
         return "\n".join(lines)
 
     def to_dict(self) -> dict:
@@ -329,8 +330,7 @@ class DIDIMResult(ModelResults):
             JSON-safe; the same for the same data and settings.
         """
         def params(res):
-            return [{"name": n, "value": v, "std": s, "rel_std_percent": r}
-                    for n, v, s, r in zip(res.names, res.chi, res.sigma, res.rel_sigma)]
+            return parameter_records(res.names, res.chi, res.bse.to_numpy(), res.rel_std.to_numpy())
         r = self.result
         m = self.model
         return json_safe({

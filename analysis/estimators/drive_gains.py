@@ -52,7 +52,7 @@ from dynid.analysis.estimators.payload import (
     payload_frame,
     transform_matrix,
 )
-from dynid.analysis.results import ParameterResults
+from dynid.analysis.results import ParameterResults, notices_block, parameter_table, percent
 from dynid.dynamics.base_parameters import base_parameters
 from dynid.errors import IdentificationError, InputError
 from dynid.provenance import json_safe, versions
@@ -60,7 +60,7 @@ from dynid.provenance import json_safe, versions
 __all__ = ["DriveGainResult", "identify_drive_gains"]
 
 
-@dataclass(eq=False)
+@dataclass(eq=False, repr=False)
 class DriveGainResult(ParameterResults):
     """Identified drive gains `g1..gn` (N m per unit of the logged signal) and the rest.
 
@@ -102,16 +102,14 @@ class DriveGainResult(ParameterResults):
         lines = [f"Drive gains of robot '{self.robot_name}' (Gautier & Briot 2014, known payload)".center(78),
                  "=" * 78, f"recordings: {' + '.join(self.sources)}",
                  "known payload: " + ", ".join(f"{k} = {_fmt(v)}" for k, v in self.known.items()),
-                 f"HAC window {self.hac_lags} decimated samples; rel. error {self.rel_error:.4g}", "-" * 78,
-                 f"{'joint':<7}{'file gain':>14}{'identified':>14}{'sigma':>12}{'moved %':>12}{'95 % interval':>19}",
-                 "-" * 78]
+                 f"HAC window {self.hac_lags} decimated samples; rel. error {percent(self.rel_error)}", "-" * 78]
         ci = self.conf_int().to_numpy()
-        for k, j in enumerate(self.joints):
-            lines.append(f"{j:<7}{self.g_file[k]:>14.6g}{self.chi[k]:>14.6g}{self.bse.iloc[k]:>12.3g}"
-                         f"{self.moved_percent[k]:>12.3f}{ci[k, 0]:>10.5g}{ci[k, 1]:>10.5g}")
+        lines += parameter_table(self.names, [
+            ("file gain", self.g_file, lambda x: f"{x:.6g}"), ("identified", self.chi, lambda x: f"{x:.6g}"),
+            ("sigma", self.bse.to_numpy(), lambda x: f"{x:.3g}"), ("moved %", self.moved_percent, lambda x: f"{x:.3f}"),
+            ("95 % low", ci[:, 0], lambda x: f"{x:.5g}"), ("95 % high", ci[:, 1], lambda x: f"{x:.5g}")])
         lines += ["=" * 78, "Verdict: " + self.verdict()]
-        if self.notices:
-            lines += ["Notices:"] + [f"[{i}] {t}" for i, t in enumerate(self.notices, 1)]
+        lines += notices_block(self.notices)
         return "\n".join(lines)
 
     def to_dict(self) -> dict:

@@ -37,7 +37,7 @@ from scipy.spatial.transform import Rotation
 
 from dynid.analysis.estimators import least_squares as ls
 from dynid.analysis.processing.observation import concatenate, observe
-from dynid.analysis.results import Exportable
+from dynid.analysis.results import ParameterResults, deprecated_alias
 from dynid.dynamics.base_parameters import base_parameters
 from dynid.errors import IdentificationError, InputError
 from dynid.provenance import json_safe
@@ -65,17 +65,18 @@ def _dg_dtheta(g0, theta, h=1e-7):
     return out
 
 
-@dataclass(eq=False)
-class GravityTiltResult(Exportable):
+@dataclass(eq=False, repr=False)
+class GravityTiltResult(ParameterResults):
     """The gravity tilt of the base and the fits of the level and tilted models.
 
-    `theta` [rad]: rotation about the base x and y axes of the robot file's
-    gravity `gravity0`; `cov` (2, 2) its covariance (separable nonlinear LS,
-    base parameters profiled: the tilt block of the augmented WLS at convergence).
+    `chi` [rad] (`params`, names `tilt_x`, `tilt_y`; `theta` is deprecated): rotation
+    about the base x and y axes of the robot file's gravity `gravity0`; `cov` (2, 2) its
+    covariance (separable nonlinear LS, base parameters profiled: the tilt block of the
+    augmented WLS at convergence).
     """
 
     robot_name: str
-    theta: np.ndarray
+    chi: np.ndarray
     cov: np.ndarray
     gravity0: np.ndarray
     gravity: np.ndarray
@@ -96,17 +97,16 @@ class GravityTiltResult(Exportable):
     method = "gravity tilt"
     names = list(NAMES)
 
-    @property
-    def sigma(self):
-        return np.sqrt(np.maximum(np.diag(self.cov), 0.0))
+    theta = deprecated_alias("params (a pandas Series) or chi (the array)", lambda r: r.chi)
+    sigma = deprecated_alias("bse (a pandas Series; .to_numpy() for the array)", lambda r: r.bse.to_numpy())
 
     @property
     def angle(self):
         """Angle between the robot file's gravity and the estimated one [rad]."""
-        return float(np.hypot(*self.theta))
+        return float(np.hypot(*self.chi))
 
     def summary(self) -> str:
-        t, s = 1e3 * self.theta, 1e3 * self.sigma
+        t, s = 1e3 * self.chi, 1e3 * self.bse.to_numpy()
         verdict = "rejected" if self.p_value < 0.01 else "not rejected"
         lines = [f"Gravity tilt of robot '{self.robot_name}' (Gauss-Newton, base parameters profiled; "
                  f"{self.iterations} steps{'' if self.converged else ', NOT converged'})",
@@ -132,7 +132,7 @@ class GravityTiltResult(Exportable):
         str
             One sentence with the tilt angles [mrad] and their standard deviations.
         """
-        t, s = 1e3 * self.theta, 1e3 * self.sigma
+        t, s = 1e3 * self.chi, 1e3 * self.bse.to_numpy()
         return (f"Tilt {t[0]:+.2f} \u00b1 {s[0]:.2f} mrad about the base x axis and {t[1]:+.2f} \u00b1 "
                 f"{s[1]:.2f} mrad about the base y axis; gravity (" + ", ".join(f"{v:+.4f}" for v in self.gravity)
                 + f") m/s\u00b2; WLS relative error {100 * self.rel_error_before:.3f} % level, "
@@ -143,7 +143,7 @@ class GravityTiltResult(Exportable):
         return json_safe({
             "robot": self.robot_name,
             "model": "g = R(theta) g0, R the rotation vector (theta_x, theta_y, 0) about the base axes",
-            "theta_rad": list(self.theta), "std_rad": list(self.sigma), "cov": self.cov,
+            "theta_rad": list(self.chi), "std_rad": list(self.bse.to_numpy()), "cov": self.cov,
             "angle_rad": self.angle,
             "gravity_file": list(self.gravity0), "gravity": list(self.gravity),
             "rel_error_before": self.rel_error_before, "rel_error_after": self.rel_error_after,
@@ -235,7 +235,7 @@ def gravity_tilt(experiments, robot, *, settings=None, max_iter=20, tol=1e-3):
         theta = theta + step
         chi_full = np.zeros(len(names))
         chi_full[cols] = aug.chi[:-2]
-        if np.all(np.abs(step) <= tol * np.maximum(aug.sigma[-2:], 1e-12)):
+        if np.all(np.abs(step) <= tol * np.maximum(aug.bse.to_numpy()[-2:], 1e-12)):
             converged = True
             break
     # the covariance at the solution (the last step is below tol sigma: the same point)
@@ -252,9 +252,9 @@ def gravity_tilt(experiments, robot, *, settings=None, max_iter=20, tol=1e-3):
     notices = []
     if not converged:
         notices.append(f"Gauss-Newton did not converge in {max_iter} steps; the last step was "
-                       f"{np.abs(step / aug.sigma[-2:]).max():.2g} sigma")
+                       f"{np.abs(step / aug.bse.to_numpy()[-2:]).max():.2g} sigma")
     return GravityTiltResult(
-        robot_name=robot.name, theta=theta, cov=cov, gravity0=g0, gravity=g,
+        robot_name=robot.name, chi=theta, cov=cov, gravity0=g0, gravity=g,
         rel_error_before=float(fit0.rel_error), rel_error_after=float(fit1.rel_error),
         weighted_rss_before=s0, weighted_rss_after=s1, lr_statistic=float(lr), lr_dof=dof,
         p_value=float(stats.chi2.sf(lr, dof)), iterations=steps, converged=converged,

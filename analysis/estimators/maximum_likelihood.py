@@ -70,7 +70,14 @@ import scipy.linalg as sla
 from scipy import optimize
 
 from dynid.analysis.processing.signals import velocity_dead_zone
-from dynid.analysis.results import ParameterResults, _fmt, _fmt_pct
+from dynid.analysis.results import (
+    ParameterResults,
+    _fmt,
+    deprecated_alias,
+    notices_block,
+    parameter_records,
+    parameter_table,
+)
 from dynid.dynamics.base_parameters import base_parameters, base_regressor
 from dynid.errors import ConvergenceError, InputError
 from dynid.provenance import data_hash, json_safe, versions
@@ -210,12 +217,15 @@ def select_harmonics(t, q, f0, *, max_harmonics=None):
 
 
 # ----------------------------------------------------------------------- result
-@dataclass(eq=False)
+@dataclass(eq=False, repr=False)
 class MLResult(ParameterResults):
-    """Maximum-likelihood estimate (eqs. (13)-(16)) with its covariance and the LS start."""
+    """Maximum-likelihood estimate (eqs. (13)-(16)) with its covariance and the LS start.
+
+    `chi` the estimate (`params` the Series; `theta`, its old name, is deprecated).
+    """
 
     names: list
-    theta: np.ndarray
+    chi: np.ndarray
     cov: np.ndarray
     theta_ls: np.ndarray
     sigma_q: np.ndarray
@@ -236,25 +246,16 @@ class MLResult(ParameterResults):
     settings: dict = field(default_factory=dict)
     notices: list = field(default_factory=list)
     data_hash: str = ""
-    sigma: np.ndarray = field(init=False, repr=False)
-    rel_sigma: np.ndarray = field(init=False, repr=False)
 
     method = "ML-EIV"
+    theta = deprecated_alias("params (a pandas Series) or chi (the array)", lambda r: r.chi)
+    sigma = deprecated_alias("bse (a pandas Series; .to_numpy() for the array)", lambda r: r.bse.to_numpy())
+    rel_sigma = deprecated_alias("rel_std (a pandas Series; .to_numpy() for the array)",
+                                 lambda r: r.rel_std.to_numpy())
 
     def __post_init__(self):
-        self.theta = np.asarray(self.theta, dtype=float)
+        self.chi = np.asarray(self.chi, dtype=float)
         self.cov = np.asarray(self.cov, dtype=float)
-        self.sigma = np.sqrt(np.maximum(np.diag(self.cov), 0.0))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            self.rel_sigma = 100.0 * self.sigma / np.abs(self.theta)
-
-    @property
-    def chi(self):
-        return self.theta
-
-    def __getitem__(self, name):
-        i = self.names.index(name)
-        return float(self.theta[i]), float(self.sigma[i])
 
     def trajectory(self, t):
         """Latent (q, qd, qdd) at times t, each (len(t), n).
@@ -269,7 +270,7 @@ class MLResult(ParameterResults):
         return B @ C, Bd @ C, Bdd @ C
 
     def to_frame(self):
-        return pd.DataFrame({"value": self.theta, "std": self.sigma, "rel_std_percent": self.rel_sigma,
+        return pd.DataFrame({"value": self.chi, "std": self.bse.to_numpy(), "rel_std_percent": self.rel_std.to_numpy(),
                              "ls_start": self.theta_ls}, index=pd.Index(self.names, name="parameter"))
 
     def summary(self):
@@ -284,14 +285,12 @@ class MLResult(ParameterResults):
         for j in range(self.n_joints):
             lines.append(f"{j + 1:<8}{_fmt(self.sigma_q[j]):>14}{_fmt(self.rms_q[j]):>14}"
                          f"{_fmt(self.sigma_tau[j]):>14}{_fmt(self.rms_tau[j]):>14}")
-        lines += [thin, f"{'Parameter':<14}{'ML value':>14}{'sigma':>14}{'%sigma':>10}{'LS start':>14}", thin]
-        for k, name in enumerate(self.names):
-            lines.append(f"{name:<14}{_fmt(self.theta[k]):>14}{_fmt(self.sigma[k]):>14}"
-                         f"{_fmt_pct(self.rel_sigma[k]):>10}{_fmt(self.theta_ls[k]):>14}")
+        lines.append(thin)
+        lines += parameter_table(self.names, [("ML value", self.chi, "num"), ("sigma", self.bse.to_numpy(), "num"),
+                                              ("%sigma", self.rel_std.to_numpy(), "pct"),
+                                              ("LS start", self.theta_ls, "num")])
         lines.append(rule)
-        if self.notices:
-            lines.append("Notices:")
-            lines += [f"[{i}] {t}" for i, t in enumerate(self.notices, 1)]
+        lines += notices_block(self.notices)
         return "\n".join(lines)
 
     def to_dict(self):
@@ -299,8 +298,7 @@ class MLResult(ParameterResults):
             "method": "ML-EIV",
             "model": self.model,
             "settings": self.settings,
-            "parameters": [{"name": n, "value": v, "std": s, "rel_std_percent": r}
-                           for n, v, s, r in zip(self.names, self.theta, self.sigma, self.rel_sigma)],
+            "parameters": parameter_records(self.names, self.chi, self.bse.to_numpy(), self.rel_std.to_numpy()),
             "ls_start": [{"name": n, "value": v} for n, v in zip(self.names, self.theta_ls)],
             "sigma_q": self.sigma_q, "sigma_tau": self.sigma_tau,
             "sigma_tau_given": self.sigma_tau_given,
@@ -530,7 +528,7 @@ def maximum_likelihood(t, q, tau, model, *, f0, n_harmonics=None, sigma_q=None, 
             np.asarray(qd_threshold, dtype=float), (n,)).tolist(),
         "sigma_q": "given" if sigma_q is not None else "Fourier-fit residual",
         "sigma_tau": "given" if given else "torque residual (one concentrated-likelihood pass)"}}
-    return MLResult(names=list(model.names), theta=th, cov=cov, theta_ls=th_ls, sigma_q=sq, sigma_tau=st,
+    return MLResult(names=list(model.names), chi=th, cov=cov, theta_ls=th_ls, sigma_q=sq, sigma_tau=st,
                     sigma_tau_given=given, n_harmonics=K, f0=f0, coefficients=C, nll=nll,
                     converged=bool(sol.status > 0), n_evaluations=n_eval, n_samples=N, n_joints=n,
                     rms_q=np.sqrt(np.mean(rq ** 2, axis=0)), rms_tau=np.sqrt(np.sum(rt ** 2, axis=0) / n_tau),

@@ -57,7 +57,7 @@ from dynid.analysis.estimators import least_squares as ls
 from dynid.analysis.estimators.payload_physical import PAYLOAD_NAMES, PhysicalPayload, physical_payload
 from dynid.analysis.processing.decimation import ParallelDecimator
 from dynid.analysis.processing.observation import CHUNK, full_rate
-from dynid.analysis.results import ParameterResults
+from dynid.analysis.results import ParameterResults, notices_block, parameter_table, percent
 from dynid.dynamics.base_parameters import base_parameters
 from dynid.dynamics.regressor import regressor
 from dynid.dynamics.urdf_writer import inertial_slice, link_consistency
@@ -419,7 +419,7 @@ def _inertia_at_com(chi):
     return I_o - m * (c @ c * np.eye(3) - np.outer(c, c))
 
 
-@dataclass(eq=False)
+@dataclass(eq=False, repr=False)
 class PayloadResult(ParameterResults):
     """The identified payload: ten parameters about the payload frame, with their uncertainty.
 
@@ -509,13 +509,12 @@ class PayloadResult(ParameterResults):
         lines = [f"Payload identification ({self.method}) of robot '{self.robot_name}'".center(78), rule,
                  f"recordings: {' + '.join(self.sources)}",
                  f"frame: {self.frame} (link {self.link + 1}; origin {_vec3(self.p)} m in the link frame)",
-                 f"rows: {self.n_rows}, rel. error of the fit {self.rel_error:.4g}, "
-                 f"HAC window {self.hac_lags} decimated samples",
-                 "-" * 78, f"{'Parameter':<12}{'value':>14}{'sigma':>14}{'95 % interval':>28}  unit", "-" * 78]
+                 f"rows: {self.n_rows}, rel. error of the fit {percent(self.rel_error)}, "
+                 f"HAC window {self.hac_lags} decimated samples", "-" * 78]
         ci = self.conf_int().to_numpy()
-        for k, nm in enumerate(self.names):
-            lines.append(f"{nm:<12}{self.chi[k]:>14.6g}{self.bse.iloc[k]:>14.3g}"
-                         f"{ci[k, 0]:>14.5g}{ci[k, 1]:>14.5g}  {UNITS[k]}")
+        lines += parameter_table(self.names, [
+            ("value", self.chi, lambda x: f"{x:.6g}"), ("sigma", self.bse.to_numpy(), lambda x: f"{x:.3g}"),
+            ("95 % low", ci[:, 0], lambda x: f"{x:.5g}"), ("95 % high", ci[:, 1], lambda x: f"{x:.5g}")])
         lines.append("-" * 78)
         c, sc = self.com, self.com_std
         lines.append("centre of mass (m): " + ", ".join(f"{x:.5g} +- {s:.2g}" for x, s in zip(c, sc)))
@@ -529,8 +528,7 @@ class PayloadResult(ParameterResults):
             lines.append(f"chi^2 distance {self.physical.delta:.3g}; active constraints: "
                          f"{', '.join(self.physical.active) or 'none'}")
         lines += [rule, "Verdict: " + self.verdict()]
-        if self.notices:
-            lines += ["Notices:"] + [f"[{i}] {t}" for i, t in enumerate(self.notices, 1)]
+        lines += notices_block(self.notices)
         return "\n".join(lines)
 
     def to_dict(self) -> dict:

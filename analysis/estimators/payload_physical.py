@@ -14,7 +14,7 @@ import numpy as np
 
 from dynid.analysis.estimators.sdp import J_MARGIN, require_cvxpy
 from dynid.analysis.estimators.sdp import whitening as _whitening
-from dynid.analysis.results import ParameterResults
+from dynid.analysis.results import ParameterResults, parameter_table
 from dynid.dynamics.robot import INERTIAL
 from dynid.dynamics.urdf_writer import pseudo_inertia_basis
 from dynid.errors import InputError
@@ -25,7 +25,7 @@ __all__ = ["PAYLOAD_NAMES", "PhysicalPayload", "physical_payload"]
 PAYLOAD_NAMES = tuple(f"{s}L" for s in INERTIAL)
 
 
-@dataclass(eq=False)
+@dataclass(eq=False, repr=False)
 class PhysicalPayload(ParameterResults):
     """The physically consistent payload: the SDP of `physical_payload`.
 
@@ -47,8 +47,7 @@ class PhysicalPayload(ParameterResults):
     def summary(self):
         lines = [f"physically consistent payload (SDP, Clarabel: {self.status}); chi^2 distance to the "
                  f"free estimate {self.delta:.3g}; active: {', '.join(self.active) or 'none'}"]
-        for nm, v in zip(self.names, self.chi):
-            lines.append(f"  {nm:<5}{v:>14.6g}")
+        lines += parameter_table(self.names, [("value", self.chi, lambda x: f"{x:.6g}")])
         return "\n".join(lines)
 
     def to_dict(self):

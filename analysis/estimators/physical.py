@@ -123,7 +123,15 @@ from dynid.analysis.estimators.sdp import (
 from dynid.analysis.estimators.standard_set import REPRODUCE_CHI2, StandardSet, apriori_standard, scales
 from dynid.analysis.processing.observation import observe
 from dynid.analysis.processing.prediction import prediction_errors
-from dynid.analysis.results import ParameterResults, _check_alpha
+from dynid.analysis.results import (
+    ParameterResults,
+    _check_alpha,
+    deprecated_alias,
+    notices_block,
+    parameter_records,
+    parameter_table,
+    percent,
+)
 from dynid.dynamics.urdf_writer import consistency, inertial_slice, pseudo_inertia_basis
 from dynid.errors import InputError
 from dynid.provenance import json_safe, versions
@@ -145,7 +153,7 @@ _build, _whitening, _Problem = build_sdp, whitening, SDPProblem
 PRIORS = (None, "apriori", "geometric")
 
 
-@dataclass(eq=False)
+@dataclass(eq=False, repr=False)
 class PhysicalResult(ParameterResults):
     """A physically consistent WLS estimate (the `ParameterResults` interface).
 
@@ -216,9 +224,7 @@ class PhysicalResult(ParameterResults):
     def robot(self):
         return getattr(self.idim, "robot", None)
 
-    @property
-    def sigma(self):
-        return self.bse.to_numpy()
+    sigma = deprecated_alias("bse (a pandas Series; .to_numpy() for the array)", lambda r: r.bse.to_numpy())
 
     @property
     def boot_std(self):
@@ -353,9 +359,8 @@ class PhysicalResult(ParameterResults):
 
     def to_dict(self) -> dict:
         return json_safe({"method": self.method, "robot": self.robot_name,
-                          "parameters": [{"name": n, "value": v, "std": s, "rel_std_percent": r}
-                                         for n, v, s, r in zip(self.names, self.chi, self.sigma,
-                                                               self.rel_std.to_numpy())],
+                          "parameters": parameter_records(self.names, self.chi, self.bse.to_numpy(),
+                                                          self.rel_std.to_numpy()),
                           "physical": self.physical_block(), "data_hash": self.data_hash,
                           "versions": versions()})
 
@@ -375,19 +380,19 @@ class PhysicalResult(ParameterResults):
                  f"physical: {'yes' if self.wls_consistent else 'no'}",
                  f"  active constraints: {', '.join(self.active) or 'none'}",
                  f"  chi2 = {self.chi2:.4g} (dof {self.dof}), p <= {self.p_value:.3g}: {self.verdict_line()}",
-                 f"  relative error ||Y - W beta|| / ||Y||: PC {self.rel_error:.4f}, WLS {self.wls_rel_error:.4f}",
-                 *([f"  held-out relative error (all samples): PC {self.validation['rel_error_pc']:.4f}, WLS "
-                    f"{self.validation['rel_error_wls']:.4f} (PC - WLS {self.validation['gap_points']:+.3f} points)"]
+                 f"  relative error ||Y - W beta|| / ||Y||: PC {percent(self.rel_error)}, "
+                 f"WLS {percent(self.wls_rel_error)}",
+                 *([f"  held-out relative error (all samples): PC {percent(self.validation['rel_error_pc'])}, WLS "
+                    f"{percent(self.validation['rel_error_wls'])} (PC - WLS "
+                    f"{self.validation['gap_points']:+.3f} points)"]
                    if self.validation else []),
                  f"  a-priori term: {self.prior or 'tie-break only'}, weight {self.prior_weight:g}; "
-                 f"sigma: wider side of the 95 % interval / 1.96 ({self.n_boot} bootstrap refits)",
-                 f"{'Parameter':<14}{'PC':>14}{'sigma':>12}{'%sigma':>9}{'WLS':>14}{'shift [sigma]':>15}"]
-        for name, r in self.comparison().iterrows():
-            rs = 100 * r.pc_std / abs(r.pc) if r.pc else math.inf
-            lines.append(f"{name:<14}{r.pc:>14.6g}{r.pc_std:>12.4g}{rs:>9.2f}{r.wls:>14.6g}"
-                         f"{r.shift_sigma:>15.2f}")
-        if self.notices:
-            lines += ["Notices:"] + [f"  - {n}" for n in self.notices]
+                 f"sigma: wider side of the 95 % interval / 1.96 ({self.n_boot} bootstrap refits)"]
+        c = self.comparison()
+        lines += parameter_table(self.names, [("PC", c["pc"], "num"), ("sigma", c["pc_std"], "num"),
+                                              ("%sigma", self.rel_std.to_numpy(), "pct"), ("WLS", c["wls"], "num"),
+                                              ("shift [sigma]", c["shift_sigma"], lambda x: f"{x:.2f}")])
+        lines += notices_block(self.notices)
         return "\n".join(lines)
 
 

@@ -75,7 +75,14 @@ from statsmodels.stats.sandwich_covariance import S_hac_simple, weights_bartlett
 
 from dynid.analysis.estimators import least_squares as ls
 from dynid.analysis.processing.observation import observe
-from dynid.analysis.results import ParameterResults, _fmt, _fmt_pct
+from dynid.analysis.results import (
+    ParameterResults,
+    deprecated_alias,
+    notices_block,
+    parameter_records,
+    parameter_table,
+    percent,
+)
 from dynid.dynamics.base_parameters import base_parameters
 from dynid.errors import InputError
 from dynid.provenance import data_hash, json_safe, versions
@@ -308,11 +315,11 @@ def fit_fir(r, u, m1, m2, *, rows=None, rank_rtol=RANK_RTOL, xcorr_lags=None):
 
 
 # ----------------------------------------------------------------------- result
-@dataclass(eq=False)
+@dataclass(eq=False, repr=False)
 class ProjectionResult(ParameterResults):
     """Parameters identified by the Projection Method, with stage 1's diagnostics.
 
-    `chi`, `cov` (IV sandwich, see the module doc), `sigma`, `rel_sigma`
+    `chi`, `cov` (IV sandwich, see the module doc), `bse`, `rel_std`
     (%σ = 100 σ/|χ̂|, eq. (15) of Gautier et al.); `m1`, `m2` per joint;
     `corr` (lag-0 corr(û, ũ), eq. (11)) and `max_xcorr` per joint;
     `stage2` the OLS of û on the projected regressor (its own covariance is
@@ -343,28 +350,23 @@ class ProjectionResult(ParameterResults):
     settings: dict = field(default_factory=dict)
     notices: list = field(default_factory=list)
     data_hash: str = ""
-    sigma: np.ndarray = field(init=False, repr=False)
-    rel_sigma: np.ndarray = field(init=False, repr=False)
+
+    sigma = deprecated_alias("bse (a pandas Series; .to_numpy() for the array)", lambda r: r.bse.to_numpy())
+    rel_sigma = deprecated_alias("rel_std (a pandas Series; .to_numpy() for the array)",
+                                 lambda r: r.rel_std.to_numpy())
 
     def __post_init__(self):
         self.chi = np.asarray(self.chi, dtype=float)
         self.cov = np.asarray(self.cov, dtype=float)
-        self.sigma = np.sqrt(np.maximum(np.diag(self.cov), 0.0))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            self.rel_sigma = 100.0 * self.sigma / np.abs(self.chi)
 
     method = "PM"
 
-    def __getitem__(self, name):
-        i = self.names.index(name)
-        return float(self.chi[i]), float(self.sigma[i])
-
     def to_frame(self):
-        df = pd.DataFrame({"value": self.chi, "std": self.sigma, "rel_std_percent": self.rel_sigma},
+        df = pd.DataFrame({"value": self.chi, "std": self.bse.to_numpy(), "rel_std_percent": self.rel_std.to_numpy()},
                           index=pd.Index(self.names, name="parameter"))
         if self.ls is not None:
             df["ls_value"] = self.ls.chi
-            df["ls_rel_std_percent"] = self.ls.rel_sigma
+            df["ls_rel_std_percent"] = self.ls.rel_std.to_numpy()
         return df
 
     def joint_table(self):
@@ -385,32 +387,25 @@ class ProjectionResult(ParameterResults):
         rule, thin = "=" * _WIDTH, "-" * _WIDTH
         lines = ["Projection Method (Bona & Curatella 2005, eqs. (10)-(12))".center(_WIDTH), rule,
                  f"Samples N: {self.n_samples}   rows used: {self.n_rows}   parameters: {self.n_params}",
-                 f"Rel. error |u - W chi|/|u|: {_fmt(self.rel_error)}   "
-                 f"projected |u^ - W^ chi|/|u^|: {_fmt(self.rel_error_projected)}",
+                 f"Rel. error |u - W chi|/|u|: {percent(self.rel_error)}   "
+                 f"projected |u^ - W^ chi|/|u^|: {percent(self.rel_error_projected)}",
                  f"Covariance: IV sandwich, Newey-West with {self.hac_lags} lags", thin,
                  f"{'Joint':<8}{'M1':>5}{'M2':>5}{'rank':>6}{'corr(u^,u~)':>16}{'max |xcorr|':>14}{'at lag':>8}"]
         for j in range(len(self.m1)):
             lines.append(f"{j + 1:<8}{self.m1[j]:>5}{self.m2[j]:>5}{self.fir_rank[j]:>6}"
                          f"{self.corr[j]:>16.2e}{self.max_xcorr[j]:>14.3g}{int(self.max_xcorr_lag[j]):>8}")
         lines.append(thin)
-        head = f"{'Parameter':<14}{'PM value':>14}{'sigma':>14}{'%sigma':>10}"
+        columns = [("PM value", self.chi, "num"), ("sigma", self.bse.to_numpy(), "num"),
+                   ("%sigma", self.rel_std.to_numpy(), "pct")]
         if self.ls is not None:
-            head += f"{'LS value':>14}{'LS %sigma':>11}"
-        lines += [head, thin]
-        for k, name in enumerate(self.names):
-            row = f"{name:<14}{_fmt(self.chi[k]):>14}{_fmt(self.sigma[k]):>14}{_fmt_pct(self.rel_sigma[k]):>10}"
-            if self.ls is not None:
-                row += f"{_fmt(self.ls.chi[k]):>14}{_fmt_pct(self.ls.rel_sigma[k]):>11}"
-            lines.append(row)
+            columns += [("LS value", self.ls.chi, "num"), ("LS %sigma", self.ls.rel_std.to_numpy(), "pct")]
+        lines += parameter_table(self.names, columns)
         lines.append(rule)
-        if self.notices:
-            lines.append("Notices:")
-            lines += [f"[{i}] {t}" for i, t in enumerate(self.notices, 1)]
+        lines += notices_block(self.notices)
         return "\n".join(lines)
 
     def to_dict(self):
-        params = [{"name": n, "value": v, "std": s, "rel_std_percent": r}
-                  for n, v, s, r in zip(self.names, self.chi, self.sigma, self.rel_sigma)]
+        params = parameter_records(self.names, self.chi, self.bse.to_numpy(), self.rel_std.to_numpy())
         out = {
             "method": "PM",
             "settings": self.settings,

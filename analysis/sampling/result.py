@@ -2,12 +2,13 @@
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
 
-from dynid.analysis.results import ParameterResults, _check_alpha
+from dynid.analysis.results import ParameterResults, _check_alpha, notices_block, parameter_table
 from dynid.analysis.sampling.convergence import ChainDiagnostics
 from dynid.outputs import atomic_write_text, staged_path
 from dynid.provenance import json_safe, versions
@@ -121,18 +122,27 @@ class PosteriorResult(ParameterResults):
         except ValueError:
             raise KeyError(f"no parameter {name!r}; parameters: {', '.join(self.names)}") from None
 
-    def __getitem__(self, name: str) -> np.ndarray:
-        """Samples of parameter `name`."""
+    def draws(self, name: str) -> np.ndarray:
+        """The draws of parameter `name` (`r[name]` is its record, as for every result).
+
+        Returns
+        -------
+        numpy.ndarray
+            (n_samples,) in the parameter's unit.
+        """
         return self.samples[:, self.index(name)]
 
     def interval(self, level: float) -> np.ndarray:
-        """(d, 2) equal-tailed credible intervals at `level`.
+        """Deprecated: `conf_int(alpha=1 - level)` (the same equal-tailed quantiles).
 
         Returns
         -------
         numpy.ndarray
             (d, 2): lower and upper bound per parameter.
         """
+        warnings.warn("PosteriorResult.interval(level) is deprecated and will be removed in the next release; "
+                      "use conf_int(alpha=1 - level) (a DataFrame; .to_numpy() for the (d, 2) array)",
+                      DeprecationWarning, stacklevel=2)
         a = (1.0 - level) / 2.0
         return np.quantile(self.samples, [a, 1.0 - a], axis=0).T
 
@@ -208,17 +218,14 @@ class PosteriorResult(ParameterResults):
                  f"max tau {dg.tau_max:.4g} steps   chain/tau {dg.chain_over_tau:.1f} "
                  f"(rule >= {dg.criteria.tau_multiple:g})   max split R-hat {dg.rhat_max:.4f} "
                  f"(< {dg.criteria.rhat_max:g})   acceptance {dg.acceptance_mean:.3f}",
-                 thin,
-                 f"{'Parameter':<12}{'mean':>12}{'std':>11}{'95% low':>12}{'95% high':>12}"
-                 f"{self.ls_label[:11]:>12}{'LS %sig':>9}{'tau':>8}{'R-hat':>8}", thin]
-        for i, n in enumerate(self.names):
-            lines.append(f"{n[:12]:<12}{_g(self.mean[i]):>12}{_g(self.std[i]):>11}{_g(self.ci95[i, 0]):>12}"
-                         f"{_g(self.ci95[i, 1]):>12}{_g(self.ls_value[i]):>12}{_pct(self.ls_rel_std[i]):>9}"
-                         f"{_g(dg.tau[i], 3):>8}{dg.rhat[i]:>8.4f}")
+                 thin]
+        lines += parameter_table(self.names, [
+            ("mean", self.mean, _g), ("std", self.std, _g), ("95% low", self.ci95[:, 0], _g),
+            ("95% high", self.ci95[:, 1], _g), (self.ls_label[:11], self.ls_value, _g),
+            ("LS %sig", self.ls_rel_std, _pct), ("tau", dg.tau, lambda x: _g(x, 3)),
+            ("R-hat", dg.rhat, lambda x: f"{x:.4f}")])
         lines.append(rule)
-        if self.notices:
-            lines.append("Notices:")
-            lines += [f"[{i}] {t}" for i, t in enumerate(self.notices, 1)]
+        lines += notices_block(self.notices)
         return "\n".join(lines)
 
     def to_dict(self) -> dict:
