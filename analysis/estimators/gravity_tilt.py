@@ -37,7 +37,7 @@ from scipy.spatial.transform import Rotation
 
 from dynid.analysis.estimators import least_squares as ls
 from dynid.analysis.processing.observation import concatenate, observe
-from dynid.analysis.results import ParameterResults, deprecated_alias
+from dynid.analysis.results import ParameterResults, deprecated_alias, parameter_table
 from dynid.dynamics.base_parameters import base_parameters
 from dynid.errors import IdentificationError, InputError
 from dynid.provenance import json_safe
@@ -118,6 +118,8 @@ class GravityTiltResult(ParameterResults):
                  f"weighted residual {self.weighted_rss_before:.1f} -> {self.weighted_rss_after:.1f}",
                  f"  likelihood ratio of 'no tilt': chi2 = {self.lr_statistic:.1f}, {self.lr_dof} dof, "
                  f"p = {self.p_value:.3g} ({verdict} at 1 %)"]
+        lines += ["  " + x for x in parameter_table(self.names, [("value", self.chi, "num"),
+                                                                 ("sigma", self.bse.to_numpy(), "num")])]
         if self.added_parameters:
             lines.append(f"  base parameters a tilt makes identifiable: {', '.join(self.added_parameters)} "
                          f"(counted in the dof)")

@@ -1,0 +1,282 @@
+"""One results family: every result class has the base of dynid.analysis.results.
+
+Every result is built here from small arrays (no simulation, no dynamics), so the whole
+file runs in a few seconds: summary() carries a unit on its parameter table, to_json()
+round-trips to_dict(), to_csv() writes the result's table, conf_int(alpha) is the only
+interval (the posterior's too), repr() is one line, r[name] is the parameter's record, and
+the deprecated raw accessors warn.
+"""
+import json
+import math
+import warnings
+from types import SimpleNamespace
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import dynid
+from dynid.analysis.decoupled.campaign import DecoupledIdentification
+from dynid.analysis.decoupled.repeated import RepeatedEstimate
+from dynid.analysis.diagnosis.asymmetric_friction import AsymmetricFrictionResult
+from dynid.analysis.diagnosis.results import DiagnosisResult
+from dynid.analysis.estimators.controller_gains import GainsResult
+from dynid.analysis.estimators.didim import DIDIMResult
+from dynid.analysis.estimators.drive_gains import DriveGainResult
+from dynid.analysis.estimators.essential import essential_parameters
+from dynid.analysis.estimators.gravity_tilt import GravityTiltResult
+from dynid.analysis.estimators.idim import IDIMResult
+from dynid.analysis.estimators.least_squares import ols, wls
+from dynid.analysis.estimators.maximum_likelihood import MLResult
+from dynid.analysis.estimators.payload import PayloadResult
+from dynid.analysis.estimators.payload_physical import PAYLOAD_NAMES, PhysicalPayload
+from dynid.analysis.estimators.physical import PhysicalResult
+from dynid.analysis.estimators.projection import ProjectionResult
+from dynid.analysis.results import Parameter, Result, notices_block, parameter_table
+from dynid.analysis.sampling.sample import sample_linear
+from dynid.analysis.statistics.validation import ValidationResult, normality
+from dynid.analysis.units import parameter_unit
+
+NAMES = ["ZZ1R", "Fv1", "Fc1", "MX2R", "M2", "Off2"]
+TRUE = np.array([1.2, 0.8, 2.5, 0.4, 3.0, -0.3])
+
+
+@pytest.fixture(scope="module")
+def system():
+    rng = np.random.default_rng(7)
+    W3 = rng.normal(size=(300, 2, len(NAMES)))
+    tau = W3 @ TRUE + rng.normal(scale=[0.05, 0.08], size=(300, 2))
+    return W3, tau
+
+
+def _cov(chi, rel=0.02):
+    return np.diag((rel * np.abs(chi) + 1e-3) ** 2)
+
+
+def _idim(system):
+    W3, tau = system
+    o, w = ols(W3, tau, NAMES), wls(W3, tau, NAMES)
+    ess = essential_parameters(W3, tau, NAMES, estimator=wls)
+    base = SimpleNamespace(names=NAMES, n_base=len(NAMES), relations=[f"{n} = {n}" for n in NAMES],
+                           table=lambda: [{"name": n} for n in NAMES])
+    obs = SimpleNamespace(n_raw=3000, n_samples=300)
+    return IDIMResult(robot_name="toy", base=base, ols=o, wls=w, essential=ess, observation=obs,
+                      settings={"fc_position": 20.0, "nd": 10}, notices=["a notice of the run"])
+
+
+def _didim(system):
+    W3, tau = system
+    w = wls(W3, tau, NAMES)
+    idim = _idim(system)
+    history = pd.DataFrame({"iteration": [1, 2], "rel_error": [0.02, 0.01]})
+    z = np.zeros((10, 2))
+    return DIDIMResult(robot_name="toy", base=idim.base, result=w, essential=None, history=history,
+                       converged=True, stop_reason="small step", settings={"fs": 100.0, "nd": 10,
+                       "f_decimation_cutoff": 4.0, "v_s": 0.01}, initial=TRUE, kd_scale=np.ones(2),
+                       t=np.arange(10) / 100, q_sim=z, qr=z, tau=z, tau_sim=z, tau_ddm=z, t_dec=np.arange(2),
+                       tau_dec=z[:2], tau_est_dec=z[:2], W_dec=W3[:2], row_mask=np.ones((2, 2), bool))
+
+
+def _projection(system):
+    W3, tau = system
+    return ProjectionResult(names=NAMES, chi=TRUE, cov=_cov(TRUE), m1=[2, 2], m2=[2, 2], corr=np.zeros(2),
+                            max_xcorr=np.zeros(2), max_xcorr_lag=np.zeros(2), fir_rank=[5, 5], n_samples=300,
+                            n_rows=600, rel_error=0.03, rel_error_projected=0.02, hac_lags=4,
+                            ls=wls(W3, tau, NAMES))
+
+
+def _ml(system):
+    return MLResult(names=NAMES, chi=TRUE, cov=_cov(TRUE), theta_ls=TRUE, sigma_q=np.ones(2),
+                    sigma_tau=np.ones(2), sigma_tau_given=False, n_harmonics=3, f0=0.1,
+                    coefficients=np.zeros((2, 7)), nll=1.0, converged=True, n_evaluations=10, n_samples=300,
+                    n_joints=2, rms_q=np.ones(2), rms_tau=np.ones(2), elapsed=0.1)
+
+
+def _physical(system):
+    c = _cov(TRUE)
+    return PhysicalResult(robot_name="toy", names=NAMES, chi=TRUE, cov=c, standard_names=NAMES, standard=TRUE,
+                          apriori=TRUE, wls_chi=TRUE * 1.01, wls_cov=c, chi2=0.5, dof=1, p_value=0.5,
+                          active=[], links=[], prior=None, prior_weight=0.0, mass_tolerance=None, n_boot=0,
+                          rel_error=0.02, wls_rel_error=0.019)
+
+
+_POSTERIOR = {}
+
+
+def _posterior(system):
+    if "r" not in _POSTERIOR:                          # emcee: sampled once for the module
+        _POSTERIOR["r"] = _sample(system)
+    return _POSTERIOR["r"]
+
+
+def _sample(system):
+    W3, tau = system
+    return sample_linear(W3[:, :1, :2], (tau[:, 0] - W3[:, 0, 2:] @ TRUE[2:])[:, None], NAMES[:2], seed=1, n_walkers=16,
+                         criteria={"first_batch": 300})
+
+
+def _repeated(system):
+    rng = np.random.default_rng(1)
+    names = ["k1", "qoff1", "Fv+1"]
+    return RepeatedEstimate(kind="gravity", names=names, estimates=[1.0, 0.1, 0.5] + 0.01 * rng.normal(size=(5, 3)),
+                            joints=[1, 1, 1])
+
+
+def _per_joint(system):
+    r = _repeated(system)
+    return DecoupledIdentification(gravity=r, friction=r, inertia=r)
+
+
+def _validation(system):
+    W3, tau = system
+    res = tau - W3 @ TRUE
+    return ValidationResult(source="held-out.csv", t=np.arange(300) / 100.0, tau=tau, tau_hat=tau - res,
+                            rel_error=0.05, rms=np.array([0.05, 0.08]), joint_rel_error=np.array([0.04, 0.06]),
+                            noise=normality(res))
+
+
+def _tilt(system):
+    W3, tau = system
+    return GravityTiltResult(robot_name="toy", chi=np.array([1e-3, -2e-3]), cov=np.diag([1e-8, 1e-8]),
+                             gravity0=np.array([0, 0, -9.81]), gravity=np.array([0.01, 0.02, -9.81]),
+                             rel_error_before=0.03, rel_error_after=0.02, weighted_rss_before=10.0,
+                             weighted_rss_after=5.0, lr_statistic=5.0, lr_dof=2, p_value=0.08, iterations=3,
+                             converged=True, robot=None, wls=wls(W3, tau, NAMES))
+
+
+def _asymmetric(system):
+    W3, tau = system
+    return AsymmetricFrictionResult(robot_name="toy", joints=[1, 2], values=np.full((2, 4), 0.5),
+                                    sigma=np.full((2, 4), 0.01), fit=wls(W3, tau, NAMES), rel_error_before=0.03)
+
+
+def _diagnosis(system):
+    W3, tau = system
+    w = wls(W3, tau, NAMES)
+    return DiagnosisResult(robot_name="toy", source="x.csv", ranking=[], steps=[], selected=[], model_before=w,
+                           model_after=w, errors={}, settings={"max_effects": 3, "n_candidates": 0, "effects": [],
+                                                                 "folds": 5, "gap": 10, "alpha": 0.01})
+
+
+def _payload(system):
+    chi = np.array([0.01, 0, 0, 0.01, 0, 0.01, 0.02, 0.0, 0.05, 1.0])
+    return PayloadResult(method="WLS (robot fixed)", names=list(PAYLOAD_NAMES), chi=chi, cov=_cov(chi),
+                         robot_name="toy", link=1, frame="flange", R=np.eye(3), p=np.zeros(3), T=np.eye(10),
+                         joint_sigma=np.ones(2), rel_error=0.02, n_rows=600, hac_lags=3,
+                         singular_ratio=np.ones(10), sources=["a.csv"])
+
+
+def _physical_payload(system):
+    chi = np.array([0.01, 0, 0, 0.01, 0, 0.01, 0.02, 0.0, 0.05, 1.0])
+    return PhysicalPayload(names=list(PAYLOAD_NAMES), chi=chi, cov=_cov(chi), delta=0.0, active=[], com_box=None,
+                           status="optimal")
+
+
+def _drive_gains(system):
+    g = np.array([1.5, 2.0])
+    return DriveGainResult(names=["g1", "g2"], chi=g * 1.01, cov=_cov(g), joints=[1, 2], g_file=g,
+                           factor=np.full(2, 1.01), factor_std=np.full(2, 0.001), known={"M": 1.0}, other={},
+                           robot_name="toy", sources=["a.csv"], rel_error=0.02, hac_lags=3)
+
+
+def _controller_gains(system):
+    k = np.array([100.0, 10.0, 80.0, 8.0])
+    return GainsResult(names=["Kp1", "Kd1", "Kp2", "Kd2"], chi=k, cov=_cov(k), n_joints=2, feedforward=False,
+                       integral=False, rel_error=np.array([0.01, 0.02]), n_rows=300)
+
+
+PARAMETER_RESULTS = {"idim": _idim, "didim": _didim, "projection": _projection, "ml": _ml, "physical": _physical,
+                     "posterior": _posterior, "repeated": _repeated, "per-joint": _per_joint, "tilt": _tilt,
+                     "payload": _payload, "physical-payload": _physical_payload, "drive-gains": _drive_gains,
+                     "controller-gains": _controller_gains}
+OTHER_RESULTS = {"validation": _validation, "asymmetric-friction": _asymmetric, "diagnosis": _diagnosis}
+
+
+@pytest.fixture(scope="module", params=sorted({**PARAMETER_RESULTS, **OTHER_RESULTS}))
+def result(request, system):
+    make = {**PARAMETER_RESULTS, **OTHER_RESULTS}[request.param]
+    return make(system)
+
+
+def test_every_result_has_the_base(result, tmp_path):
+    assert isinstance(result, Result)
+    text = result.summary()
+    assert str(result) == text and len(text) > 40
+    line = repr(result)
+    assert "\n" not in line and len(line) < 160 and line.startswith(f"<{type(result).__name__}")
+    assert "array(" not in line
+    doc = result.to_dict()
+    text_json = result.to_json(tmp_path / "r.json")
+    assert json.loads((tmp_path / "r.json").read_text()) == json.loads(text_json) == json.loads(
+        json.dumps(doc, allow_nan=False))
+    frame = result.to_frame()
+    csv = result.to_csv(tmp_path / "r.csv")
+    assert (tmp_path / "r.csv").read_text() == csv and len(pd.read_csv(tmp_path / "r.csv")) == len(frame)
+
+
+@pytest.mark.parametrize("key", sorted(PARAMETER_RESULTS))
+def test_parameter_results_share_records_units_and_intervals(key, system):
+    r = PARAMETER_RESULTS[key](system)
+    assert isinstance(r, dynid.ParameterResults)
+    names = list(r.names)
+    text = r.summary()
+    units = [parameter_unit(n) for n in names]
+    assert any(units), names
+    assert "unit" in text and all(u in text for u in units if u)
+    rec = r[names[0]]
+    value, std = rec                                  # unpacks as (value, std), as r[name] always did
+    assert isinstance(rec, Parameter) and rec.name == names[0] and rec.unit == units[0]
+    assert value == pytest.approx(r.params.iloc[0]) and std == pytest.approx(r.bse.iloc[0])
+    assert rec["value"] == value and set(rec.to_dict()) == {"name", "value", "std", "rel_std_percent", "unit"}
+    with pytest.raises(KeyError, match="no parameter"):
+        r["nope"]
+    ci = r.conf_int(0.1)
+    assert list(ci.columns) == ["lower", "upper"] and list(ci.index) == names
+    assert not hasattr(r, "interval") or key == "posterior"
+
+
+def test_posterior_intervals_are_conf_int_and_interval_is_deprecated(system):
+    post = _posterior(system)
+    ci = post.conf_int(alpha=0.5).to_numpy()
+    with pytest.warns(DeprecationWarning, match="conf_int"):
+        old = post.interval(0.5)
+    np.testing.assert_allclose(old, ci)
+    np.testing.assert_allclose(post.conf_int(0.05).to_numpy(), post.ci95)
+    assert post[post.names[0]].value == pytest.approx(post.mean[0])
+    assert post.draws(post.names[0]).shape == (post.n_samples,)
+
+
+@pytest.mark.parametrize("key, attr, new", [
+    ("idim-model", "sigma", "bse"), ("idim-model", "rel_sigma", "rel_std"), ("ml", "theta", "params"),
+    ("ml", "sigma", "bse"), ("ml", "rel_sigma", "rel_std"), ("projection", "sigma", "bse"),
+    ("projection", "rel_sigma", "rel_std"), ("physical", "sigma", "bse"), ("tilt", "theta", "params"),
+    ("tilt", "sigma", "bse")])
+def test_raw_accessors_warn_and_give_the_same_numbers(key, attr, new, system):
+    r = _idim(system).model if key == "idim-model" else PARAMETER_RESULTS[key](system)
+    with pytest.warns(DeprecationWarning, match=new):
+        old = getattr(r, attr)
+    np.testing.assert_array_equal(old, getattr(r, new).to_numpy())
+
+
+def test_no_deprecated_accessor_fires_inside_dynid(system, tmp_path):
+    with warnings.catch_warnings():
+        warnings.filterwarnings("error", message=".*deprecated and will be removed in the next release")
+        for make in {**PARAMETER_RESULTS, **OTHER_RESULTS}.values():
+            r = make(system)
+            r.summary(), r.to_dict(), repr(r)
+
+
+def test_table_builder_and_notices_block():
+    lines = parameter_table(["ZZ1R", "Fv2", "MXL", "tilt_x"], [("value", [1.0, 2.0, 3.0, 4.0], "num")])
+    assert lines[0].split() == ["Parameter", "unit", "value"]
+    assert "kg m\u00b2" in lines[2] and "N m s/rad" in lines[3] and "kg m" in lines[4] and "rad" in lines[5]
+    block = notices_block(["126 of 1668 equations were excluded by row_mask/joints."], ["x", "x"])
+    assert block[0] == "Notices:" and len(block) == 3
+    assert "row_mask" not in "\n".join(block) and "7.6 %" in block[1]
+
+
+def test_summaries_print_relative_errors_in_percent(system):
+    text = _idim(system).summary()
+    assert "relative error ||Y - W chi|| / ||Y||: OLS" in text and " %, WLS " in text
+    assert text.count("Notices:") == 1
+    assert math.isfinite(_idim(system).model.rel_error)
