@@ -7,6 +7,7 @@ import math
 import numpy as np
 
 from dynid.analysis.diagnosis.effects import order_text
+from dynid.analysis.results import notices_block
 
 __all__ = ["diagnosis_summary", "overview_lines", "verdict_lines", "fmt_p", "nonlinear_text"]
 
@@ -43,7 +44,7 @@ def diagnosis_summary(res):
     lines = _header(res) + overview_lines(res) + [""] + _steps(res) + _ranking(res) + _selected(res)
     lines += _errors(res) + _structure(res) + _hidden(res)
     if res.notices:
-        lines += ["", "  Notices:"] + [f"    - {n}" for n in res.notices]
+        lines += [""] + ["  " + x for x in notices_block(res.notices)]
     return "\n".join(lines)
 
 
