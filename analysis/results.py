@@ -239,7 +239,7 @@ def _describe(obj) -> str:
             break
     if isinstance(err, (int, float, np.floating)):
         tail.append(f"rel. error {percent(err)}")
-    return head + (": " + ", ".join(tail) if tail else "")
+    return ": ".join(x for x in (head, ", ".join(tail)) if x)
 
 
 class Result:
