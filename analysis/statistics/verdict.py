@@ -142,7 +142,7 @@ def identification_residual(idim_result):
 def _estimate(result):
     """The estimate the verdict judges: an IDIM or DIDIM result's model, otherwise the result."""
     m = getattr(result, "model", None)
-    return m if m is not None and hasattr(m, "rel_sigma") else result
+    return m if m is not None and hasattr(m, "rel_std") else result
 
 
 def _fitted_residual(result):
