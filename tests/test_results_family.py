@@ -33,9 +33,12 @@ from dynid.analysis.estimators.payload_physical import PAYLOAD_NAMES, PhysicalPa
 from dynid.analysis.estimators.physical import PhysicalResult
 from dynid.analysis.estimators.projection import ProjectionResult
 from dynid.analysis.results import Parameter, Result, notices_block, parameter_table
+from dynid.analysis.run import Identification, Settings
 from dynid.analysis.sampling.sample import sample_linear
 from dynid.analysis.statistics.validation import ValidationResult, normality
+from dynid.analysis.statistics.verdict import Verdict
 from dynid.analysis.units import parameter_unit
+from dynid.reports.pipeline import FullReport
 
 NAMES = ["ZZ1R", "Fv1", "Fc1", "MX2R", "M2", "Off2"]
 TRUE = np.array([1.2, 0.8, 2.5, 0.4, 3.0, -0.3])
@@ -185,11 +188,26 @@ def _controller_gains(system):
                        integral=False, rel_error=np.array([0.01, 0.02]), n_rows=300)
 
 
+def _verdict():
+    return Verdict(status="identified", identified=True, findings=[{"level": "ok", "text": "fine"}])
+
+
+def _run(system):
+    return Identification(settings=Settings(), robot=SimpleNamespace(name="toy"), experiments=[],
+                          result=_idim(system), verdict=_verdict(), validation=_validation(system))
+
+
+def _full_report(system):
+    return FullReport(result=_idim(system), robot=SimpleNamespace(name="toy"), experiments=[],
+                      validation=_validation(system), _verdict=_verdict())
+
+
 PARAMETER_RESULTS = {"idim": _idim, "didim": _didim, "projection": _projection, "ml": _ml, "physical": _physical,
                      "posterior": _posterior, "repeated": _repeated, "per-joint": _per_joint, "tilt": _tilt,
                      "payload": _payload, "physical-payload": _physical_payload, "drive-gains": _drive_gains,
                      "controller-gains": _controller_gains}
-OTHER_RESULTS = {"validation": _validation, "asymmetric-friction": _asymmetric, "diagnosis": _diagnosis}
+OTHER_RESULTS = {"validation": _validation, "asymmetric-friction": _asymmetric, "diagnosis": _diagnosis,
+                 "run": _run, "full-report": _full_report}
 
 
 @pytest.fixture(scope="module", params=sorted({**PARAMETER_RESULTS, **OTHER_RESULTS}))
