@@ -16,16 +16,24 @@ plant has none).
 Figures: largest mass error (%), centre-of-mass error (mm), inertia error (largest entry of
 the error of the inertia about the centre of mass over the largest principal moment), the
 coverage of the 95 % intervals over the ten parameters x seeds (both routes), the largest
-drive-gain error (%) and coverage, and the time of the fixed route over one IDIM of the same
-10 s loaded recording (same process, same seed).
+drive-gain error (%) and coverage (with `--gains-loaded` loaded recordings, and with the first
+alone), and the time of the fixed route over one IDIM of the same 10 s loaded recording (same
+process, same seed).
 
-Seeds 1000-1004 were used while developing; the default seeds 0-19 were not, nor 100-119.
-Measured (benchmarks/results/payload_*): seeds 0-19, 20 s + 10 s at 2 kHz: mass 0.35 %, centre of
-mass 0.40 mm, inertia 9.8 % (fixed) / 10.2 % (global), coverage 92.5 / 92.0 %; drive gains 1.29 %
-(mass) / 1.23 % (mass and centre of mass), coverage 95 %. Seeds 100-119, 20 s + 20 s, mass: gains
-0.81 %, coverage 90.8 %. Speed (--speed-only --speed-repeats 3, seeds 100-104): median 1.00, max 1.38. Seeds 100-119 with
-20 s loaded: inertia 5.5 % but coverage 89.5 % (fixed) / 83 % (global): a bias the intervals do not
-hold (the half-sample delay of a torque held over a controller period) does not shrink with length.
+Torque timing: the plant holds each command over the next controller period, so every route
+runs with zoh=True (the torque centred on the position samples) and the fixed route's model is
+identified from the centred unloaded recording; --no-zoh shows the bias without it
+(benchmarks/payload_timing.py, docs/payload.md).
+
+Seeds: 1000-1004 developed the estimators; 0-19 and 100-119 judged them last session and
+developed the torque timing (3, 6, 8, 12, 19); 300-319 were used for nothing before this run:
+Measured (benchmarks/results/payload_heldout_zoh_seeds300-319.jsonl; 20 s + 10 s at 2 kHz):
+mass 0.17 %, centre of mass 0.76 mm, inertia 6.2 % (fixed) / 6.6 % (global), coverage 90.5 /
+91.5 %; drive gains with the mass, 20 s unloaded + 2 x 10 s loaded: 1.32 % (one seed, 311, a
+1.6 kg payload 38 mm from the wrist centre; every other seed <= 0.62 %), coverage 90.8 %; with
+one loaded recording 1.19 %; speed median 0.82, max 1.35 (faster of 2).
+Before the timing fix (seeds 0-19, benchmarks/results/payload_heldout_seeds0-19.jsonl): inertia
+9.8 % / 10.2 %, drive gains 1.29 %.
 Run from the repository root (niced): python benchmarks/payload.py [--seeds 20] [--start 0]
 The last line is a JSON object with the figures.
 """
