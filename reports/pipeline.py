@@ -285,10 +285,17 @@ def _payload_part(out, payload, robot, options, say):
     from dynid.errors import IdentificationError
     from dynid.reports.payload_section import payload_refusal_section, payload_report_section
     options = dict(options or {})
-    unknown = sorted(set(options) - {"frame", "offset", "physical", "com_box", "zoh"})
+    if options.get("zoh"):
+        # the robot is fixed to this report's IDIM model, identified from the torque as logged: centring
+        # only the loaded recording would put the robot's own half-sample delay into the payload
+        raise InputError("payload_options zoh=True: the report's model was identified from the torque as "
+                         "logged, and the payload must see the same timing. Leave zoh off here, or use "
+                         "dynid payload --unloaded ... --zoh (the global route) (docs/payload.md)")
+    options.pop("zoh", None)
+    unknown = sorted(set(options) - {"frame", "offset", "physical", "com_box"})
     if unknown:
         raise InputError(f"payload_options: unknown option(s) {', '.join(unknown)}; known: frame, offset, "
-                         "physical, com_box, zoh")
+                         "physical, com_box")
     loaded = payload if isinstance(payload, (list, tuple)) else [payload]
     with say.progress("payload (robot fixed)"):
         try:
@@ -319,7 +326,8 @@ def report(data, robot, path=None, *, settings=None, say=None, payload=None, pay
         robot fixed to this report's IDIM result (dynid.identify_payload) and gets its
         section; a recording that does not identify it gets a section saying why.
     payload_options : dict, optional
-        identify_payload's frame, offset, physical, com_box, zoh.
+        identify_payload's frame, offset, physical, com_box (not zoh: the report's model is
+        identified from the torque as logged).
     **options
         The options of `dynid report` by name: holdout (seconds at the end of a single
         recording held out), validation (a held-out recording, path or Experiment),

@@ -320,3 +320,13 @@ def test_cli_report_takes_payload_recordings():
     args = build_parser().parse_args(["payload", "--robot", "tx40", "--loaded", "l.csv", "--unloaded", "u.csv",
                                       "--zoh", "--mass", "2", "--gains"])
     assert args.zoh and args.gains == "marked"
+
+
+def test_full_report_refuses_zoh_on_its_logged_torque_model():
+    """The report's model comes from the torque as logged: centring only the payload's is refused."""
+    from dynid.reports.pipeline import _payload_part
+    from dynid.reports.progress import Reporter
+    with pytest.raises(InputError, match="same timing"):
+        _payload_part(None, "l.csv", _robot(), {"zoh": True}, Reporter(quiet=True))
+    with pytest.raises(InputError, match="unknown option"):
+        _payload_part(None, "l.csv", _robot(), {"mass": 2.0}, Reporter(quiet=True))
