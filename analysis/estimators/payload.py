@@ -35,8 +35,9 @@ the residual's correlation length.
 Torque timing (`zoh=True`). A controller's log holds the command `tau_k` applied over
 `[t_k, t_k + T)`: half a sample after the position `q_k` it is paired with. The payload's
 columns are small beside the robot's torque, and that half-sample lead of the whole torque
-leaks into them (on the independent TX40 plant at 2 kHz: the inertia about the centre of mass
-off by up to ~7 % of the largest principal moment, intervals that miss it). `zoh=True` centres
+leaks into them (on the independent TX40 plant at 2 kHz, one development seed: the inertia
+about the centre of mass off by 9.8 % of the largest principal moment, 4.5 % once centred;
+benchmarks/payload_timing.py). `zoh=True` centres
 the torque on the position samples, `(tau_k-1 + tau_k) / 2` (`centre_held_torque`, as
 `dynid.analysis.decoupled.estimates` and dynid's simulator do). Every recording of one fit must
 have the same timing: on the robot-fixed route the model must have been identified from centred
