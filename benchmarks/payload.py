@@ -16,16 +16,24 @@ plant has none).
 Figures: largest mass error (%), centre-of-mass error (mm), inertia error (largest entry of
 the error of the inertia about the centre of mass over the largest principal moment), the
 coverage of the 95 % intervals over the ten parameters x seeds (both routes), the largest
-drive-gain error (%) and coverage, and the time of the fixed route over one IDIM of the same
-10 s loaded recording (same process, same seed).
+drive-gain error (%) and coverage (with `--gains-loaded` loaded recordings, and with the first
+alone), and the time of the fixed route over one IDIM of the same 10 s loaded recording (same
+process, same seed).
 
-Seeds 1000-1004 were used while developing; the default seeds 0-19 were not, nor 100-119.
-Measured (benchmarks/results/payload_*): seeds 0-19, 20 s + 10 s at 2 kHz: mass 0.35 %, centre of
-mass 0.40 mm, inertia 9.8 % (fixed) / 10.2 % (global), coverage 92.5 / 92.0 %; drive gains 1.29 %
-(mass) / 1.23 % (mass and centre of mass), coverage 95 %. Seeds 100-119, 20 s + 20 s, mass: gains
-0.81 %, coverage 90.8 %. Speed (--speed-only --speed-repeats 3, seeds 100-104): median 1.00, max 1.38. Seeds 100-119 with
-20 s loaded: inertia 5.5 % but coverage 89.5 % (fixed) / 83 % (global): a bias the intervals do not
-hold (the half-sample delay of a torque held over a controller period) does not shrink with length.
+Torque timing: the plant holds each command over the next controller period, so every route
+runs with zoh=True (the torque centred on the position samples) and the fixed route's model is
+identified from the centred unloaded recording; --no-zoh shows the bias without it
+(benchmarks/payload_timing.py, docs/payload.md).
+
+Seeds: 1000-1004 developed the estimators; 0-19 and 100-119 judged them last session and
+developed the torque timing (3, 6, 8, 12, 19); 300-319 were used for nothing before this run:
+Measured (benchmarks/results/payload_heldout_zoh_seeds300-319.jsonl; 20 s + 10 s at 2 kHz):
+mass 0.17 %, centre of mass 0.76 mm, inertia 6.2 % (fixed) / 6.6 % (global), coverage 90.5 /
+91.5 %; drive gains with the mass, 20 s unloaded + 2 x 10 s loaded: 1.32 % (one seed, 311, a
+1.6 kg payload 38 mm from the wrist centre; every other seed <= 0.62 %), coverage 90.8 %; with
+one loaded recording 1.19 %; speed median 0.82, max 1.35 (faster of 2).
+Before the timing fix (seeds 0-19, benchmarks/results/payload_heldout_seeds0-19.jsonl): inertia
+9.8 % / 10.2 %, drive gains 1.29 %.
 Run from the repository root (niced): python benchmarks/payload.py [--seeds 20] [--start 0]
 The last line is a JSON object with the figures.
 """
@@ -43,7 +51,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 
-def recordings(seed, rate=2000.0, unloaded_s=20.0, loaded_s=10.0):
+def recordings(seed, rate=2000.0, unloaded_s=20.0, loaded_s=10.0, extra_loaded=0):
+    """(params, parts, unloaded, loaded, [extra loaded recordings]) of one seed."""
     import numpy as np
 
     from dynid.analysis.data.experiment import Experiment
@@ -56,7 +65,9 @@ def recordings(seed, rate=2000.0, unloaded_s=20.0, loaded_s=10.0):
         rec = pp.record(plant, ref, s, rate=rate)
         return Experiment(t=rec["t"], q=rec["q"], qr=rec["qr"], tau=rec["tau"], fs=rate,
                           source=f"{name} seed {seed}")
-    return params, parts, one(base, unloaded_s, 2 * seed + 1, "unloaded"), one(loaded, loaded_s, 2 * seed + 2, "loaded")
+    extra = [one(loaded, loaded_s, 1_000_000 + 100 * seed + k, f"loaded {k + 2}") for k in range(extra_loaded)]
+    return (params, parts, one(base, unloaded_s, 2 * seed + 1, "unloaded"),
+            one(loaded, loaded_s, 2 * seed + 2, "loaded"), extra)
 
 
 def main():
@@ -73,43 +84,54 @@ def main():
     ap.add_argument("--unloaded-s", type=float, default=20.0, help="unloaded recording, s (default 20)")
     ap.add_argument("--loaded-s", type=float, default=10.0, help="loaded recording, s (default 10)")
     ap.add_argument("--rate", type=float, default=2000.0, help="controller and log rate, Hz (default 2000)")
+    ap.add_argument("--no-zoh", action="store_true",
+                    help="take the logged torque as sampled at the position instants (the plant holds each "
+                         "command over the next period: zoh=True is the right timing; this shows the bias)")
+    ap.add_argument("--gains-loaded", type=int, default=2, metavar="N",
+                    help="loaded recordings (--loaded-s each, other trajectories) for the drive gains "
+                         "(default 2: the first is the payload routes' recording)")
     args = ap.parse_args()
     import numpy as np
 
     import dynid
     from dynid.analysis.data.experiment import Experiment
     from dynid.analysis.estimators.drive_gains import identify_drive_gains
-    from dynid.analysis.estimators.payload import identify_payload
+    from dynid.analysis.estimators.payload import centre_held_torque, identify_payload
     robot = dataclasses.replace(dynid.load_robot("tx40"), couplings=[])
+    zoh = not args.no_zoh
+    n_extra = 0 if args.no_gains or args.speed_only else max(args.gains_loaded - 1, 0)
     rows = []
     for seed in range(args.start, args.start + args.seeds):
-        params, parts, eu, el = recordings(seed, rate=args.rate, unloaded_s=args.unloaded_s,
-                                           loaded_s=args.loaded_s)
+        params, parts, eu, el, extra = recordings(seed, rate=args.rate, unloaded_s=args.unloaded_s,
+                                                  loaded_s=args.loaded_s, extra_loaded=n_extra)
+
+        def scaled(e, kt):
+            return Experiment(t=e.t, q=e.q, qr=e.qr, tau=e.tau / kt, fs=e.fs, source=e.source)
         if args.gains_only:
             kt = np.random.default_rng(seed + 7).uniform(0.9, 1.1, 6)
-            rd = identify_drive_gains(Experiment(t=eu.t, q=eu.q, tau=eu.tau / kt, fs=eu.fs, source=eu.source),
-                                      Experiment(t=el.t, q=el.q, tau=el.tau / kt, fs=el.fs, source=el.source),
-                                      robot, mass=params[9], com=parts["com"] if args.com else None)
+            rd = identify_drive_gains(scaled(eu, kt), [scaled(e, kt) for e in [el] + extra], robot, mass=params[9],
+                                      com=parts["com"] if args.com else None, zoh=zoh)
             zg = (rd.factor - kt) / rd.factor_std
             rows.append({"seed": seed, "gains": {"rel_error": (np.abs(rd.factor - kt) / kt).tolist(),
                                                   "z": zg.tolist(),
                                                   "covered": int(np.sum(np.abs(zg) <= 1.959963984540054))}})
             print(json.dumps(rows[-1]), flush=True)
             continue
-        r0 = dynid.identify(eu, robot)
+        # the robot-fixed route's model must see the torque with the same timing as the payload
+        r0 = dynid.identify(centre_held_torque(eu) if zoh else eu, robot)
         t_idim = t_fixed = float("inf")
         for _ in range(args.speed_repeats):
             t0 = time.perf_counter()
             dynid.identify(el, robot)
             t_idim = min(t_idim, time.perf_counter() - t0)
             t0 = time.perf_counter()
-            rf = identify_payload(el, robot, model=r0)
+            rf = identify_payload(el, robot, model=r0, zoh=zoh)
             t_fixed = min(t_fixed, time.perf_counter() - t0)
         if args.speed_only:
             rows.append({"seed": seed, "speed_ratio": t_fixed / t_idim, "t_idim": t_idim, "t_fixed": t_fixed})
             print(json.dumps(rows[-1]), flush=True)
             continue
-        rg = identify_payload(el, robot, unloaded=eu)
+        rg = identify_payload(el, robot, unloaded=eu, zoh=zoh)
         Imax = np.linalg.eigvalsh(parts["inertia_com"]).max()
         row = {"seed": seed, "mass": parts["mass"], "com_mm": (1e3 * parts["com"]).tolist(),
                "speed_ratio": t_fixed / t_idim}
@@ -122,19 +144,20 @@ def main():
                         "hac_lags": r.hac_lags}
         if not args.no_gains:
             kt = np.random.default_rng(seed + 7).uniform(0.9, 1.1, 6)
-
-            def scaled(e, kt=kt):
-                return Experiment(t=e.t, q=e.q, qr=e.qr, tau=e.tau / kt, fs=e.fs, source=e.source)
-            rd = identify_drive_gains(scaled(eu), scaled(el), robot, mass=params[9],
-                                      com=parts["com"] if args.com else None)
-            zg = (rd.factor - kt) / rd.factor_std
-            row["gains"] = {"rel_error": (np.abs(rd.factor - kt) / kt).tolist(), "z": zg.tolist(),
+            for key, loaded_list in (("gains", [el] + extra), ("gains_one_loaded", [el] if extra else [])):
+                if not loaded_list:
+                    continue
+                rd = identify_drive_gains(scaled(eu, kt), [scaled(e, kt) for e in loaded_list], robot,
+                                          mass=params[9], com=parts["com"] if args.com else None, zoh=zoh)
+                zg = (rd.factor - kt) / rd.factor_std
+                row[key] = {"rel_error": (np.abs(rd.factor - kt) / kt).tolist(), "z": zg.tolist(),
                             "covered": int(np.sum(np.abs(zg) <= 1.959963984540054))}
         rows.append(row)
         print(json.dumps(row), flush=True)
     if args.gains_only:
-        print(json.dumps({"seeds": [args.start, args.start + args.seeds - 1], "n_seeds": len(rows),
-                          "recordings": f"{args.unloaded_s:g} s unloaded + {args.loaded_s:g} s loaded, {args.rate:g} Hz",
+        print(json.dumps({"seeds": [args.start, args.start + args.seeds - 1], "n_seeds": len(rows), "zoh": zoh,
+                          "recordings": f"{args.unloaded_s:g} s unloaded + {1 + n_extra} x {args.loaded_s:g} s "
+                                        f"loaded, {args.rate:g} Hz",
                           "drive_gain_known": "mass and centre of mass" if args.com else "mass",
                           "drive_gain_rel_error_max": max(max(r["gains"]["rel_error"]) for r in rows),
                           "drive_gain_coverage_95": sum(r["gains"]["covered"] for r in rows) / (6 * len(rows))}))
@@ -147,7 +170,7 @@ def main():
         return
     out = {"seeds": [args.start, args.start + args.seeds - 1], "n_seeds": len(rows),
            "recordings": f"{args.unloaded_s:g} s unloaded + {args.loaded_s:g} s loaded, {args.rate:g} Hz, "
-                          "TX40 URDF plant (Pinocchio)"}
+                          "TX40 URDF plant (Pinocchio)", "zoh": zoh}
     for key in ("fixed", "global"):
         out[key] = {"mass_rel_error_max": max(r[key]["mass_rel_error"] for r in rows),
                     "com_error_mm_max": max(r[key]["com_error_mm"] for r in rows),
@@ -159,6 +182,12 @@ def main():
         out["drive_gain_rel_error_max"] = max(max(r["gains"]["rel_error"]) for r in rows)
         out["drive_gain_coverage_95"] = sum(r["gains"]["covered"] for r in rows) / (6 * len(rows))
         out["drive_gain_known"] = "mass and centre of mass" if args.com else "mass"
+        out["drive_gain_recordings"] = (f"{args.unloaded_s:g} s unloaded + {1 + n_extra} x {args.loaded_s:g} s "
+                                        "loaded")
+        if n_extra:
+            out["drive_gain_rel_error_max_one_loaded"] = max(max(r["gains_one_loaded"]["rel_error"]) for r in rows)
+            out["drive_gain_coverage_95_one_loaded"] = (sum(r["gains_one_loaded"]["covered"] for r in rows)
+                                                        / (6 * len(rows)))
     out["speed_ratio_fixed_over_idim_max"] = max(r["speed_ratio"] for r in rows)
     out["speed_ratio_fixed_over_idim_median"] = float(np.median([r["speed_ratio"] for r in rows]))
     print(json.dumps(out))

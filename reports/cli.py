@@ -170,7 +170,7 @@ def _write_full_report(args, say, out):
 def cmd_report(args, say):
     from dynid.reports.pipeline import report
     settings = settings_of(args)
-    out = report(args.data, _robot(args, settings), settings=settings, say=say)
+    out = report(args.data, _robot(args, settings), settings=settings, say=say, payload=args.payload)
     return _write_full_report(args, say, out)
 
 
@@ -241,18 +241,18 @@ def cmd_payload(args, say):
     if args.gains is not None:
         if args.mass is None or args.unloaded is None:
             raise InputError("--gains needs --mass KG (the payload's known mass) and --unloaded FILE")
-        joints = None if args.gains == "all" else [int(v) for v in _floats(args.gains, len(args.gains.split(",")),
-                                                                             "--gains")]
+        joints = (None if args.gains == "marked" else list(range(1, robot.n_joints + 1)) if args.gains == "all"
+                  else [int(v) for v in _floats(args.gains, len(args.gains.split(",")), "--gains")])
         com = None if args.com is None else _floats(args.com, 3, "--com")
         result = identify_drive_gains(args.unloaded, args.data, robot, mass=args.mass, com=com, joints=joints,
-                                      frame=args.frame)
+                                      frame=args.frame, zoh=args.zoh)
     else:
         if args.mass is not None or args.com is not None:
             raise InputError("--mass and --com are the known payload of --gains; the payload itself is "
                              "identified without them")
         box = None if args.com_box is None else (lambda v: (v[:3], v[3:]))(_floats(args.com_box, 6, "--com-box"))
         result = identify_payload(args.data, robot, model=args.model, unloaded=args.unloaded,
-                                  frame=args.frame, physical=args.physical, com_box=box)
+                                  frame=args.frame, physical=args.physical, com_box=box, zoh=args.zoh)
     outputs = []
     if args.json and args.json != "-":
         outputs.append((args.json, dumps_json(result.to_dict())))

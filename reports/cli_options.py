@@ -333,11 +333,16 @@ def _add_payload_parser(sub, common, full):
     m = g["method"]
     m.add_argument("--frame", default="flange",
                    help="link carrying the payload: flange (last link), a joint name or a link number")
-    m.add_argument("--gains", nargs="?", const="all", metavar="JOINTS",
-                   help="identify the drive gains (all joints, or e.g. 1,2,3) from --unloaded and --mass")
+    m.add_argument("--gains", nargs="?", const="marked", metavar="JOINTS",
+                   help="identify the drive gains from --unloaded and --mass: of the joints the recordings' "
+                        "[currents] identify_gains marks (all if none), or of JOINTS (all, or e.g. 1,2,3)")
     m.add_argument("--mass", type=float, metavar="KG", help="the payload's known mass (kg), for --gains")
     m.add_argument("--com", metavar="X,Y,Z", help="--gains: its known centre of mass in the frame (m)")
     m.add_argument("--physical", action="store_true", help="also the physically consistent payload (SDP)")
+    m.add_argument("--zoh", action="store_true",
+                   help="the torques are commands held over the next sample period (a controller's log): "
+                        "centre them on the position samples (every recording; with --model, identify the "
+                        "model from centred torques too)")
     m.add_argument("--com-box", metavar="X0,Y0,Z0,X1,Y1,Z1",
                    help="--physical: box holding the centre of mass (m)")
     o = g["outputs"]
@@ -482,6 +487,9 @@ def _add_report_parsers(sub, common, full):
     m.add_argument("--seed", type=seed_type, default=1, metavar="N", help="random seed of the sampler")
     m.add_argument("--max-seconds", type=positive_float, default=60.0, metavar="S",
                    help="time limit of the sampler")
+    m.add_argument("--payload", nargs="+", metavar="FILE",
+                   help="recording(s) with a payload: identify it with the robot fixed to this report's "
+                        "model and add its section (docs/payload.md)")
     a = g["advanced"]
     a.add_argument("--max-iter", type=int, default=15, metavar="N",
                    help=adv("DIDIM: largest number of Gauss-Newton steps"))

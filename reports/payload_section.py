@@ -1,16 +1,27 @@
-"""The HTML section of a payload identification or a drive-gain identification (issue 28).
+"""The report section of a payload or drive-gain identification (issue 28).
 
-`payload_html(result)` turns a PayloadResult or a DriveGainResult into one standalone HTML
-page holding one section: the verdict, the parameter table with units and 95 % intervals and,
-for a payload, the constrained fit beside the free one.
+`payload_report_section(result)` is a `dynid.reports.html.Section` for the full report
+(`dynid report --payload`, `dynid.report(..., payload=...)`) and for the page of
+`dynid payload --report` (`payload_html`): a verdict (identified / with reservations / not
+identified, and why), the parameter table with units and 95 % intervals and, for a payload,
+the constrained fit beside the free one. A payload the recording does not identify is a
+section too (`payload_refusal_section`): what is not identifiable and why, instead of no
+section at all.
 """
 from __future__ import annotations
 
 import html
 
 import numpy as np
+from markupsafe import Markup
 
-__all__ = ["payload_section", "payload_html"]
+from dynid.reports.html import Section, para, render_sections
+
+__all__ = ["payload_status", "payload_section", "payload_report_section", "payload_refusal_section",
+           "payload_html"]
+
+#: the three verdicts, as the identification's (dynid.reports.html.STATUS_LEVEL)
+IDENTIFIED, RESERVATIONS, NOT_IDENTIFIED = "identified", "identified with reservations", "not identified"
 
 
 def _num(x, digits=6):
@@ -24,12 +35,44 @@ def _table(head, rows):
     return f"<table><thead><tr>{th}</tr></thead><tbody>{body}</tbody></table>"
 
 
+def payload_status(result) -> tuple[str, list]:
+    """(verdict, reasons) of a PayloadResult or DriveGainResult.
+
+    A payload is `identified` when every parameter passed the identifiability checks and its
+    estimate is physically consistent; `identified with reservations` when the free estimate
+    is not physically consistent (the constrained one is the one to use) or a 95 % interval of
+    the mass or centre of mass reaches past 10 % of the value. Drive gains are `identified` when
+    every gain's 95 % half-width is below 2 % of it.
+    """
+    reasons = []
+    if result.method == "drive-gains":
+        half = 1.959963984540054 * np.asarray(result.factor_std) / np.abs(result.factor)
+        for j, h in zip(result.joints, half):
+            if not h < 0.02:
+                reasons.append(f"gain of joint {j}: 95 % half-width {100 * h:.2g} % of its value")
+        return (RESERVATIONS if reasons else IDENTIFIED), reasons
+    from dynid.dynamics.urdf_writer import link_consistency
+    if not link_consistency(result.chi)["consistent"]:
+        reasons.append("the free estimate is not physically consistent (pseudo-inertia not positive "
+                       "semidefinite): use the constrained fit" + ("" if result.physical is not None
+                                                                   else " (--physical)"))
+    m, sm = result.mass
+    if not 1.959963984540054 * sm < 0.1 * abs(m):
+        reasons.append(f"mass known to +- {1.96 * sm:.2g} kg only (95 %)")
+    c, sc = result.com, result.com_std
+    if not 1.959963984540054 * sc.max() < max(0.1 * float(np.linalg.norm(c)), 0.002):
+        reasons.append(f"centre of mass known to +- {1e3 * 1.96 * sc.max():.2g} mm only (95 %)")
+    return (RESERVATIONS if reasons else IDENTIFIED), reasons
+
+
 def payload_section(result) -> str:
-    """The section (an HTML fragment) of a payload or drive-gain result."""
+    """The body (an HTML fragment) of a payload or drive-gain result: verdict, tables, notices."""
+    status, reasons = payload_status(result)
     ci = result.conf_int().to_numpy()
     bse = result.bse.to_numpy()
-    parts = [f"<section class='payload'><h2>{html.escape(result.method)}</h2>",
-             f"<p><b>Verdict:</b> {html.escape(result.verdict())}</p>"]
+    parts = [f"<p><b>Verdict: {html.escape(status)}.</b> {html.escape(result.verdict())}</p>"]
+    if reasons:
+        parts.append("<ul>" + "".join(f"<li>{html.escape(r)}</li>" for r in reasons) + "</ul>")
     if result.method == "drive-gains":
         rows = [(j, _num(gf), _num(v), _num(s, 3), f"{m:+.3f}", _num(lo), _num(hi))
                 for j, gf, v, s, m, (lo, hi) in zip(result.joints, result.g_file, result.chi, bse,
@@ -42,9 +85,9 @@ def payload_section(result) -> str:
                 for nm, v, s, (lo, hi), u in zip(result.names, result.chi, bse, ci, UNITS)]
         parts.append(_table(["parameter", "value", "sigma", "95 % lower", "95 % upper", "unit"], rows))
         c, sc = result.com, result.com_std
-        parts.append("<p>Centre of mass (m): " + html.escape(", ".join(
-            f"{_num(x, 5)} &plusmn; {_num(s, 2)}" for x, s in zip(c, sc))).replace("&amp;plusmn;", "&plusmn;")
-            + f" in frame {html.escape(result.frame)} (link {result.link + 1})</p>")
+        parts.append("<p>Centre of mass (m): " + ", ".join(
+            f"{_num(x, 5)} &plusmn; {_num(s, 2)}" for x, s in zip(c, sc))
+            + f" in frame {html.escape(result.frame)} (link {result.link + 1}).</p>")
         if result.physical is not None:
             rows = [(nm, _num(a), _num(b)) for nm, a, b in zip(result.names, result.physical.chi, result.chi)]
             parts.append("<h3>Physically consistent (SDP) vs free</h3>"
@@ -53,13 +96,32 @@ def payload_section(result) -> str:
                          + html.escape(", ".join(result.physical.active) or "none") + "</p>")
     if result.notices:
         parts.append("<ul>" + "".join(f"<li>{html.escape(n)}</li>" for n in result.notices) + "</ul>")
-    parts.append("</section>")
     return "\n".join(parts)
 
 
+def _title(result) -> str:
+    if result.method == "drive-gains":
+        return f"Drive gains of {result.robot_name} (known payload)"
+    route = "robot fixed" if result.method == "payload-fixed" else "global"
+    return f"Payload on link {result.link + 1} ({route})"
+
+
+def payload_report_section(result) -> Section:
+    """The `Section` of a PayloadResult or DriveGainResult (id `payload` / `drive-gains`)."""
+    sid = "drive-gains" if result.method == "drive-gains" else "payload"
+    return Section(sid, _title(result), Markup(payload_section(result)))
+
+
+def payload_refusal_section(message, sources=()) -> Section:
+    """The `Section` of a payload the recordings do not identify: the refusal, verbatim."""
+    src = f" ({', '.join(map(str, sources))})" if sources else ""
+    return Section("payload", "Payload", Markup(
+        para(Markup("<b>Verdict: {}.</b> ").format(NOT_IDENTIFIED),
+             f"The payload recording{src} does not identify the payload: {message}")))
+
+
 def payload_html(result) -> str:
-    """A standalone HTML page with `payload_section`."""
-    return ("<!DOCTYPE html>\n<html><head><meta charset='utf-8'><title>dynid payload</title>"
-            "<style>body{font-family:sans-serif;max-width:60em;margin:auto}table{border-collapse:collapse}"
-            "td,th{border:1px solid #ccc;padding:2px 8px;text-align:right}</style></head><body>\n"
-            + payload_section(result) + "\n</body></html>\n")
+    """`dynid payload --report`: a page holding `payload_report_section`."""
+    status, _ = payload_status(result)
+    return render_sections([payload_report_section(result)], title=_title(result),
+                           highlights=[("verdict", status), ("robot", result.robot_name)])

@@ -206,6 +206,7 @@ class FullReport(Result):
     diagnosis: object = None
     sections: list = field(default_factory=list)
     problems: list = field(default_factory=list)
+    payload: object = None               # PayloadResult, or the refusal's text (str), or None
 
     _verdict: object = field(default=None, repr=False)
 
@@ -228,6 +229,8 @@ class FullReport(Result):
         for key, part in (("didim", self.didim), ("posterior", self.posterior), ("diagnosis", self.diagnosis)):
             if part is not None:
                 doc[key] = part.to_dict()
+        if self.payload is not None:
+            doc["payload"] = {"refused": self.payload} if isinstance(self.payload, str) else self.payload.to_dict()
         doc["problems"] = list(self.problems)
         return doc
 
@@ -235,6 +238,9 @@ class FullReport(Result):
         parts = [self.verdict.summary(), self.result.summary(),
                  self.validation.summary() if self.validation is not None else ""]
         parts += [p.summary() for p in (self.didim, self.posterior, self.diagnosis) if p is not None]
+        if self.payload is not None:
+            parts.append(f"Payload not identified: {self.payload}" if isinstance(self.payload, str)
+                         else self.payload.summary())
         return "\n\n".join(p for p in parts if p)
 
     @property
@@ -273,7 +279,41 @@ def _report_settings(settings, options) -> Settings:
     return s
 
 
-def report(data, robot, path=None, *, settings=None, say=None, **options) -> FullReport:
+def _payload_part(out, payload, robot, options, say):
+    """The payload of `report(..., payload=...)`: the robot-fixed route on the report's IDIM
+    result, its section appended; a recording that does not identify it becomes a section
+    saying what is not identifiable and why (bad input still fails the report)."""
+    from dynid.analysis.estimators.payload import identify_payload
+    from dynid.errors import IdentificationError
+    from dynid.reports.payload_section import payload_refusal_section, payload_report_section
+    options = dict(options or {})
+    if options.get("zoh"):
+        # the robot is fixed to this report's IDIM model, identified from the torque as logged: centring
+        # only the loaded recording would put the robot's own half-sample delay into the payload
+        raise InputError("payload_options zoh=True: the report's model was identified from the torque as "
+                         "logged, and the payload must see the same timing. Leave zoh off here, or use "
+                         "dynid payload --unloaded ... --zoh (the global route) (docs/payload.md)")
+    options.pop("zoh", None)
+    unknown = sorted(set(options) - {"frame", "offset", "physical", "com_box"})
+    if unknown:
+        raise InputError(f"payload_options: unknown option(s) {', '.join(unknown)}; known: frame, offset, "
+                         "physical, com_box")
+    loaded = payload if isinstance(payload, (list, tuple)) else [payload]
+    with say.progress("payload (robot fixed)"):
+        try:
+            res = identify_payload(list(loaded), robot, model=out.result, **options)
+        except IdentificationError as e:
+            out.payload = str(e)
+            out.problems.append(f"payload not identified: {e}")
+            out.sections.append(payload_refusal_section(str(e), [getattr(x, "source", x) for x in loaded]))
+            return out
+    out.payload = res
+    out.sections.append(payload_report_section(res))
+    return out
+
+
+def report(data, robot, path=None, *, settings=None, say=None, payload=None, payload_options=None,
+           **options) -> FullReport:
     """IDIM, validation, DIDIM, posterior and diagnosis of `data` in one report.
 
     Parameters
@@ -283,6 +323,13 @@ def report(data, robot, path=None, *, settings=None, say=None, **options) -> Ful
     path : where to write the HTML report (optional; FullReport.html has it)
     settings : Settings or a dict of processing overrides, optional
     say : dynid.reports.progress.Reporter, optional (quiet by default)
+    payload : path, Experiment or a list of them, optional
+        Recording(s) with a payload on the robot: the payload is identified with the
+        robot fixed to this report's IDIM result (dynid.identify_payload) and gets its
+        section; a recording that does not identify it gets a section saying why.
+    payload_options : dict, optional
+        identify_payload's frame, offset, physical, com_box (not zoh: the report's model is
+        identified from the torque as logged).
     **options
         The options of `dynid report` by name: holdout (seconds at the end of a single
         recording held out), validation (a held-out recording, path or Experiment),
@@ -301,6 +348,8 @@ def report(data, robot, path=None, *, settings=None, say=None, **options) -> Ful
         result = steps.identify_step(experiments, robot, s.replace(method="idim"), progress=bar.update)
     validation = validate(result, held_out, robot) if held_out is not None else None
     out = _full_report(result, robot, experiments, validation, held_out, s, say)
+    if payload is not None:
+        out = _payload_part(out, payload, robot, payload_options, say)
     if path is not None:
         out.write(path)
     return out

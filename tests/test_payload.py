@@ -16,6 +16,7 @@ from dynid.analysis.data.experiment import Experiment
 from dynid.analysis.estimators.drive_gains import identify_drive_gains
 from dynid.analysis.estimators.payload import (
     PAYLOAD_NAMES,
+    centre_held_torque,
     identify_payload,
     payload_frame,
     payload_link_values,
@@ -208,3 +209,124 @@ def test_cli_refuses_a_mass_that_is_not_positive(capsys):
     assert rc == 2 and "mass must be > 0 kg" in err and "Traceback" not in err
     rc = main(["payload", "--robot", "tx40", "--loaded", "l.csv", "--unloaded", "u.csv", "--gains"])
     assert rc == 2 and "--mass" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------ torque timing (zoh)
+def test_centre_held_torque_is_the_mean_of_successive_commands():
+    t = np.arange(5) / 100.0
+    tau = np.column_stack([np.arange(5.0), np.arange(5.0) ** 2])
+    e = Experiment(t=t, q=np.zeros((5, 2)), tau=tau, fs=100.0, source="held")
+    c = centre_held_torque(e)
+    assert np.allclose(c.tau[1:], 0.5 * (tau[1:] + tau[:-1])) and np.allclose(c.tau[0], tau[0])
+    assert np.allclose(e.tau, tau)                       # the input is left alone
+    assert any("zoh" in n for n in c.notices)
+
+
+def test_global_route_with_centred_torques_finds_the_payload(plant_data):
+    """The plant holds each command over the next period: the centred timing (zoh) is its own."""
+    d = plant_data
+    r = identify_payload(d["el"], d["robot"], unloaded=d["eu"], zoh=True)
+    m, c, Ic = d["parts"]["mass"], d["parts"]["com"], d["parts"]["inertia_com"]
+    assert r.settings["zoh"] is True
+    assert abs(r.mass[0] - m) / m < 0.02 and np.linalg.norm(r.com - c) < 5e-3
+    assert np.abs(r.inertia_com - Ic).max() < 0.2 * np.linalg.eigvalsh(Ic).max()
+    assert any("centred" in n for n in r.notices)
+
+
+# ------------------------------------------------------------------ identify_gains in the description
+def _currents_toml(tmp_path, extra):
+    n = 50
+    cols = {"t": np.arange(n) / 100.0}
+    cols.update({f"q{j}": np.sin(np.arange(n) / 10.0 + j) for j in range(1, 7)})
+    cols.update({f"i{j}": np.cos(np.arange(n) / 10.0 + j) for j in range(1, 7)})
+    import pandas as pd
+    pd.DataFrame(cols).to_csv(tmp_path / "d.csv", index=False)
+    path = tmp_path / "e.toml"
+    path.write_text('file = "d.csv"\n[time]\ncolumn = "t"\n[positions]\ncolumns = ["q1","q2","q3","q4","q5","q6"]\n'
+                    '[currents]\ncolumns = ["i1","i2","i3","i4","i5","i6"]\n' + extra)
+    return path
+
+
+@pytest.mark.parametrize("extra, joints", [("identify_gains = true\n", [1, 2, 3, 4, 5, 6]),
+                                           ("identify_gains = [4, 6]\n", [4, 6]),
+                                           ("identify_gains = false\n", None), ("", None)])
+def test_description_marks_the_gains_to_identify(tmp_path, extra, joints):
+    from dynid.analysis.estimators.drive_gains import _described_joints
+    e = dynid.load_experiment(_currents_toml(tmp_path, extra), _robot())
+    assert e.meta.get("identify_gains") == joints
+    assert e.meta["drive_gains"] == list(_robot().drive_gains)
+    assert _described_joints([e, e]) == joints
+
+
+@pytest.mark.parametrize("extra, words", [("identify_gains = [0, 7]\n", "distinct joints 1..6"),
+                                          ("identify_gains = [4, 4]\n", "distinct joints 1..6"),
+                                          ("identify_gains = \"yes\"\n", "true, false or a list")])
+def test_description_refuses_a_bad_identify_gains(tmp_path, extra, words):
+    from dynid.errors import DataError
+    with pytest.raises(DataError, match=words) as e:
+        dynid.load_experiment(_currents_toml(tmp_path, extra), _robot())
+    assert "[currents]" in str(e.value)
+
+
+def test_drive_gains_take_the_marks_and_gains_of_the_descriptions(tmp_path):
+    from dynid.analysis.estimators.drive_gains import _common_gains, _described_joints
+    a = dynid.load_experiment(_currents_toml(tmp_path, "identify_gains = [4, 5]\ndrive_gains = [1, 1, 1, 2, 2, 2]\n"),
+                              _robot())
+    b = dynid.load_experiment(_currents_toml(tmp_path, "identify_gains = [5, 6]\n"), _robot())
+    with pytest.raises(InputError, match="different joints"):
+        _described_joints([a, b])
+    # recordings computed with other gains are brought to the first one's
+    g, (a2, b2) = _common_gains([a, b], _robot())
+    assert np.allclose(g, [1, 1, 1, 2, 2, 2]) and a2 is a
+    assert np.allclose(b2.tau, b.tau * g / _robot().drive_gains)
+
+
+# ------------------------------------------------------------------ the full report's payload section
+def test_payload_sections_carry_a_verdict(plant_data):
+    from dynid.reports.payload_section import payload_html, payload_refusal_section, payload_status
+    d = plant_data
+    r = identify_payload(d["el"], d["robot"], model=d["model"], physical=True)
+    status, reasons = payload_status(r)
+    assert status == "identified" and not reasons
+    page = payload_html(r)
+    assert "Verdict: identified" in page and "MXL" in page and "constrained" in page
+    refused = payload_refusal_section("the recording does not identify XXL", ["l.csv"])
+    assert refused.id == "payload" and "not identified" in str(refused.html_body) and "XXL" in str(refused.html_body)
+
+
+@pytest.mark.slow
+def test_full_report_has_a_payload_section_with_a_verdict(plant_data):
+    from dynid.reports.pipeline import _payload_part, report
+    from dynid.reports.progress import Reporter
+    d = plant_data
+    out = report(d["eu"], d["robot"], payload=d["el"], skip=("didim", "sample", "diagnose"))
+    assert abs(out.payload.mass[0] - d["parts"]["mass"]) / d["parts"]["mass"] < 0.02
+    html = out.html
+    assert 'id="payload"' in html and "Verdict: identified" in html
+    doc = out.to_dict()
+    assert doc["payload"]["method"] == "payload-fixed" and "Payload identification" in out.summary()
+    # a recording without a payload: a section saying what is not identified and why, not a crash
+    out.sections = [s for s in out.sections if s.id != "payload"]
+    none = _payload_part(out, d["eu"], d["robot"], None, Reporter(quiet=True))
+    assert isinstance(none.payload, str) and "not identified" in str(none.sections[-1].html_body)
+    assert none.to_dict()["payload"]["refused"] and any("payload" in p for p in none.problems)
+
+
+def test_cli_report_takes_payload_recordings():
+    from dynid.reports.cli_options import build_parser
+    args = build_parser().parse_args(["report", "u.csv", "--robot", "tx40", "--report", "r.html",
+                                      "--payload", "l.csv"])
+    assert args.payload == ["l.csv"]
+    args = build_parser().parse_args(["payload", "--robot", "tx40", "--loaded", "l.csv", "--unloaded", "u.csv",
+                                      "--zoh", "--mass", "2", "--gains"])
+    assert args.zoh and args.gains == "marked"
+
+
+def test_full_report_refuses_zoh_on_its_logged_torque_model():
+    """The report's model comes from the torque as logged: centring only the payload's is refused."""
+    from dynid.reports.pipeline import _payload_part
+    from dynid.reports.progress import Reporter
+    with pytest.raises(InputError, match="same timing"):
+        _payload_part(None, "l.csv", _robot(), {"zoh": True}, Reporter(quiet=True))
+    with pytest.raises(InputError, match="unknown option"):
+        _payload_part(None, "l.csv", _robot(), {"mass": 2.0}, Reporter(quiet=True))

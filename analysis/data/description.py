@@ -38,6 +38,11 @@ Signal sections `[positions]` (q), `[reference]` (qr), `[velocities]` (qd),
     `drive_gains`     ([torques], [currents]) list of n gains, signal → (motor)
                         torque, applied before the transmission. Default for
                         [currents]: `robot.drive_gains`; for [torques]: 1.
+    `identify_gains`  ([currents] only) true (every joint), false (default) or a list of
+                        1-based joints whose drive gain is not trusted: the gains that
+                        `dynid.identify_drive_gains` (`dynid payload --gains`) identifies.
+                        Kept in `meta["identify_gains"]` (1-based joints), the gains
+                        applied in `meta["drive_gains"]`.
     `shift`           ([reference] only) 0 (default), an integer L, or "estimate":
                         pair measured q[i + L] with reference[i]. "estimate" picks the L
                         that minimises the mean square of q[i + L] − reference[i] over all
@@ -101,7 +106,7 @@ if TYPE_CHECKING:
 _SECTIONS = {"positions": "q", "reference": "qr", "velocities": "qd",
              "accelerations": "qdd", "torques": "tau", "currents": "i"}
 _SECTION_KEYS = {"file", "key", "columns", "side", "scale"}
-_EXTRA_KEYS = {"torques": {"drive_gains"}, "currents": {"drive_gains"},
+_EXTRA_KEYS = {"torques": {"drive_gains"}, "currents": {"drive_gains", "identify_gains"},
                "reference": {"shift", "max_shift", "min_shift"}}
 _TIME_KEYS = {"file", "key", "column", "scale"}
 _TRANSMISSION_KEYS = {"gear_ratios", "couplings", "position_offsets"}
@@ -314,7 +319,9 @@ class _Description:
         for s, table in sections.items():
             self._scale(s, table, values, n)
             if s in ("torques", "currents"):
-                self._gains(s, table, values, n)
+                self._gains(s, table, values, n, meta)
+        if "currents" in sections:
+            _gains_to_identify(sections["currents"], sides["currents"], tables, tk, n, meta)
         self._transmission(tables, sections, sides, values, n)
         self._unused_notice()
         _release(self.raws.values(), [time_col] + [c for cols in section_cols.values() for c in cols])
@@ -448,7 +455,7 @@ class _Description:
         values[s] = values[s] * sc
         self.notices.append(f"[{s}] scaled by {sc if np.isscalar(sc) else list(sc)}")
 
-    def _gains(self, s, table, values, n) -> None:
+    def _gains(self, s, table, values, n, meta) -> None:
         g = self.tk.numbers(s, table, "drive_gains", n)
         if g is not None and np.any(g == 0):
             j = int(np.flatnonzero(g == 0)[0])
@@ -472,6 +479,7 @@ class _Description:
             )
         if g is not None:
             values[s] = values[s] * g
+            meta["drive_gains"] = [float(x) for x in g]
 
     def _transmission(self, tables, sections, sides, values, n) -> None:
         motor = [s for s in sections if sides[s] == "motor"]
@@ -585,6 +593,28 @@ def _check_required(sections: dict, tk: _Toml) -> None:
         raise tk.err(None, "give either [torques] or [currents], not both.")
     if "positions" not in sections and "reference" not in sections:
         raise tk.err(None, "no [positions] (or [reference]) section: positions are required.")
+
+
+def _gains_to_identify(table: dict, side: str, tables: dict, tk: _Toml, n: int, meta: dict) -> None:
+    """`identify_gains` of [currents] (true, false or 1-based joints) into `meta["identify_gains"]`."""
+    v = table.get("identify_gains", False)
+    if isinstance(v, bool):
+        joints = list(range(1, n + 1)) if v else []
+    elif isinstance(v, list) and v and all(isinstance(x, int) and not isinstance(x, bool) for x in v):
+        joints = list(v)
+        bad = [j for j in joints if not 1 <= j <= n]
+        if bad or len(set(joints)) != len(joints):
+            raise tk.err("currents", f"identify_gains = {v!r}: list distinct joints 1..{n} (1-based) whose "
+                                     "drive gain is to be identified, or write true for all of them.")
+    else:
+        raise tk.err("currents", f"identify_gains must be true, false or a list of 1-based joints, got {v!r}.")
+    if joints and side == "motor" and (tables.get("transmission") or {}).get("couplings"):
+        raise tk.err("currents", "identify_gains with side = \"motor\" and [transmission] couplings: a "
+                                 "coupled motor's gain is not one joint's torque scale. Convert the currents "
+                                 "to joint side first, or identify the gains of uncoupled joints only with "
+                                 "side = \"joint\".")
+    if joints:
+        meta["identify_gains"] = joints
 
 
 def _reduction(tr: dict, tk: _Toml, n: int):

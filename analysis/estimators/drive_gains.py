@@ -31,8 +31,11 @@ the inertial coupling through the shared parameters, weakly; the known centre of
 the data cannot fix.
 
 The experiment description's `[currents]` section gives the gains the torque column is
-computed with (the robot file's by default); which gains to identify is the argument
-`joints` here (the description has no field for it yet).
+computed with (`drive_gains`, the robot file's by default) and which of them are to be
+identified (`identify_gains = true` or a list of joints; docs/formats.md): both are read
+from the recordings' `meta`. The argument `joints` overrides the description; with neither,
+every joint's gain is identified. Recordings computed with different gains are brought to
+the first loaded recording's gains before the fit (one factor `k_j` per joint).
 """
 from __future__ import annotations
 
@@ -44,10 +47,10 @@ import numpy as np
 from dynid.analysis.estimators import least_squares as ls
 from dynid.analysis.estimators.payload import (
     PAYLOAD_NAMES,
-    _as_experiment,
     _as_robot,
     _hac_lags,
     _observe,
+    _recordings,
     _sandwich,
     payload_frame,
     transform_matrix,
@@ -205,9 +208,39 @@ def _known_payload(mass, com):
     return known
 
 
-def _experiments(x, robot):
-    """One recording or a list of them, as Experiments."""
-    return [_as_experiment(e, robot) for e in (x if isinstance(x, (list, tuple)) else [x])]
+def _described_joints(exps):
+    """The 1-based joints the descriptions mark `identify_gains` (one list shared by all), or None."""
+    marked = {tuple(e.meta["identify_gains"]) for e in exps
+              if isinstance(getattr(e, "meta", None), dict) and e.meta.get("identify_gains")}
+    if len(marked) > 1:
+        raise InputError("the recordings' descriptions mark different joints with identify_gains ("
+                         + "; ".join(str(list(m)) for m in sorted(marked)) + "): mark the same joints in "
+                         "every [currents] section, or give the joints explicitly (joints=, --gains 1,2,3)")
+    return list(marked.pop()) if marked else None
+
+
+def _logged_gains(e):
+    """The gains the recording's torque column was computed with (description's), or None."""
+    g = e.meta.get("drive_gains") if isinstance(getattr(e, "meta", None), dict) else None
+    return None if g is None else np.asarray(g, dtype=float)
+
+
+def _common_gains(exps, robot):
+    """(reference gains, experiments with their torques brought to those gains).
+
+    The reference is the first loaded recording's description's gains (the robot file's when
+    it has none): a recording computed with other gains is rescaled by g_ref / g_rec, so one
+    factor k_j per joint holds for all."""
+    import dataclasses
+    ref = next((g for g in map(_logged_gains, exps) if g is not None), None)
+    ref = np.asarray(robot.drive_gains, dtype=float) if ref is None else ref
+    out = []
+    for e in exps:
+        g = _logged_gains(e)
+        if g is not None and g.shape == ref.shape and not np.allclose(g, ref, rtol=1e-12, atol=0):
+            e = dataclasses.replace(e, tau=np.asarray(e.tau, dtype=float) * (ref / g))
+        out.append(e)
+    return ref, out
 
 
 def _stacked_model(obs_u, obs_l, known, bp):
@@ -250,7 +283,7 @@ def _gain_factors(est, cov, g):
 
 
 def identify_drive_gains(unloaded, loaded, robot, *, mass, com=None, joints=None, frame="flange",
-                         offset=None, settings=None):
+                         offset=None, settings=None, zoh=False):
     """Identify the drive gains with the dynamic parameters from a payload of known mass (module doc).
 
     Parameters
@@ -264,10 +297,14 @@ def identify_drive_gains(unloaded, loaded, robot, *, mass, com=None, joints=None
     com : (3,) array, optional
         Its centre of mass in the payload frame, m: fixes the wrist gains too.
     joints : list of int, optional
-        1-based joints whose gain is identified (default all).
+        1-based joints whose gain is identified (default: the joints the recordings'
+        descriptions mark with `identify_gains`, else all).
     frame, offset : as in identify_payload (the link carrying the payload and its frame).
     settings : dict, optional
         IDIM's processing overrides.
+    zoh : bool
+        The logged signals are commands held over the next sample period: centre them on
+        the position samples (as identify_payload's `zoh`).
 
     Returns
     -------
@@ -282,13 +319,16 @@ def identify_drive_gains(unloaded, loaded, robot, *, mass, com=None, joints=None
     """
     robot = _as_robot(robot)
     mass = _checked_mass(mass)
-    joints = _checked_joints(joints, robot.n_joints)
     known = _known_payload(mass, com)
     link, R, p = payload_frame(robot, frame, offset)
     T = transform_matrix(R, p)
     bp = base_parameters(robot)
-    exps_u = _experiments(unloaded, robot)
-    exps_l = _experiments(loaded, robot)
+    exps_u = _recordings(unloaded, robot, zoh)
+    exps_l = _recordings(loaded, robot, zoh)
+    from_description = joints is None and _described_joints(exps_l + exps_u) is not None
+    joints = _checked_joints(_described_joints(exps_l + exps_u) if joints is None else joints, robot.n_joints)
+    g_ref, exps = _common_gains(exps_l + exps_u, robot)
+    exps_l, exps_u = exps[:len(exps_l)], exps[len(exps_l):]
     first = _observe(exps_l[0], robot, bp, link, T, settings)
     obs_l = [first] + [_observe(e, robot, bp, link, T, first.settings) for e in exps_l[1:]]
     obs_u = [_observe(e, robot, bp, link, T, first.settings) for e in exps_u]
@@ -300,14 +340,15 @@ def identify_drive_gains(unloaded, loaded, robot, *, mass, com=None, joints=None
     names = names + [f"a{j}" for j in joints]
     g = len(joints)
     k, cov_k = _gain_factors(est, cov, g)
-    g_file = robot.drive_gains[gcol]
+    g_file = g_ref[gcol]
     D = np.diag(g_file)
     other = {"names": names[:-g], "values": est[:-g], "std": np.sqrt(np.maximum(np.diag(cov)[:-g], 0.0)),
              "note": "the robot's base parameters and the payload's unknown ones in the units of the "
                      "logged torque times a (tau_j = a_j (W_j theta + known_j))"}
     notices = [n for e in exps_u + exps_l for n in getattr(e, "notices", [])]
-    notices.append("the gains to identify are given as an argument (joints=): the experiment description "
-                   "has no field marking a current column's gain as unknown")
+    notices.append("gains identified for joints " + ", ".join(map(str, joints)) + (
+        " (marked identify_gains in the experiment description)" if from_description else
+        " (joints= / --gains)" if len(joints) < robot.n_joints else " (all joints: the default)"))
     return DriveGainResult(names=gnames, chi=g_file * k, cov=D @ cov_k @ D, joints=joints, g_file=g_file,
                            factor=k, factor_std=np.sqrt(np.maximum(np.diag(cov_k), 0.0)), known=known,
                            other=other, robot_name=robot.name,

@@ -32,6 +32,18 @@ covariance here is the sandwich `A S A` with `A = (W^T Om W)^-1` and
 `sum_j W_tj e_tj / sigma_j^2` (statsmodels' `S_hac_simple`), its window
 the residual's correlation length.
 
+Torque timing (`zoh=True`). A controller's log holds the command `tau_k` applied over
+`[t_k, t_k + T)`: half a sample after the position `q_k` it is paired with. The payload's
+columns are small beside the robot's torque, and that half-sample lead of the whole torque
+leaks into them (on the independent TX40 plant at 2 kHz, one development seed: the inertia
+about the centre of mass off by 9.8 % of the largest principal moment, 4.5 % once centred;
+benchmarks/payload_timing.py). `zoh=True` centres
+the torque on the position samples, `(tau_k-1 + tau_k) / 2` (`centre_held_torque`, as
+`dynid.analysis.decoupled.estimates` and dynid's simulator do). Every recording of one fit must
+have the same timing: on the robot-fixed route the model must have been identified from centred
+torques too (`dynid.identify(centre_held_torque(e), robot)`), else the robot's own torque, whose
+delay the model absorbed, leaks into the payload instead.
+
 Which parameters the data identify is decided by the wrist's motion: the
 payload's ten columns must be independent on the recording. They are checked
 (column-scaled singular values, `RANK_RTOL`); a direction the data do not
@@ -65,7 +77,7 @@ from dynid.errors import IdentificationError, InputError
 from dynid.provenance import json_safe, versions
 
 __all__ = ["PAYLOAD_NAMES", "PayloadResult", "PhysicalPayload", "identify_payload", "physical_payload",
-           "transform_matrix", "payload_frame", "payload_link_values", "RANK_RTOL"]
+           "transform_matrix", "payload_frame", "payload_link_values", "centre_held_torque", "RANK_RTOL"]
 
 UNITS = ("kg m^2",) * 6 + ("kg m",) * 3 + ("kg",)
 #: a payload direction whose column-scaled singular value is below this fraction of the largest
@@ -327,6 +339,36 @@ def _as_robot(robot):
     return robot if isinstance(robot, Robot) else load_robot(robot)
 
 
+def centre_held_torque(experiment):
+    """The recording with its torque centred on the position samples (module doc, `zoh`).
+
+    Parameters
+    ----------
+    experiment : Experiment
+        A recording whose torque `tau_k` is a command held over `[t_k, t_k + T)`.
+
+    Returns
+    -------
+    Experiment
+        A copy with `tau_k` replaced by `(tau_k-1 + tau_k) / 2` (the first sample kept; the
+        position filter's edge drops it), and a notice saying so.
+    """
+    import dataclasses
+    tau = np.asarray(experiment.tau, dtype=float)
+    out = tau.copy()
+    out[1:] = 0.5 * (tau[1:] + tau[:-1])
+    notices = list(getattr(experiment, "notices", [])) + [
+        "torque centred on the position samples, (tau_k-1 + tau_k) / 2: the log holds each command over "
+        "the next sample period (zoh)"]
+    return dataclasses.replace(experiment, tau=out, notices=notices)
+
+
+def _recordings(x, robot, zoh):
+    """One recording or a list of them, as Experiments (torques centred with `zoh`)."""
+    exps = [_as_experiment(e, robot) for e in (x if isinstance(x, (list, tuple)) else [x])]
+    return [centre_held_torque(e) for e in exps] if zoh else exps
+
+
 def _as_experiment(x, robot):
     from dynid.analysis.data.experiment import Experiment, load_experiment
     if isinstance(x, Experiment):
@@ -563,7 +605,7 @@ def _vec3(v):
 
 # ------------------------------------------------------------------------------- entry point
 def identify_payload(loaded, robot, *, model=None, unloaded=None, frame="flange", offset=None,
-                     settings=None, physical=False, com_box=None, rank_rtol=RANK_RTOL,
+                     settings=None, physical=False, com_box=None, zoh=False, rank_rtol=RANK_RTOL,
                      max_rel_halfwidth=MAX_REL_HALFWIDTH):
     """Identify the payload's ten inertial parameters (module doc), robot fixed or global.
 
@@ -588,6 +630,10 @@ def identify_payload(loaded, robot, *, model=None, unloaded=None, frame="flange"
         Also the physically consistent payload (`physical_payload`).
     com_box : ((3,), (3,)), optional
         With `physical`: a box holding the centre of mass (payload frame, m).
+    zoh : bool
+        The torques are commands held over the next sample period (a controller's log):
+        centre them on the position samples (`centre_held_torque`; module doc). On the
+        robot-fixed route the model must come from centred torques too.
     rank_rtol : float
         Identifiability threshold of the columns (RANK_RTOL).
     max_rel_halfwidth : float
@@ -619,7 +665,7 @@ def identify_payload(loaded, robot, *, model=None, unloaded=None, frame="flange"
     T = transform_matrix(R, p)
     bp = base_parameters(robot)
     names = list(PAYLOAD_NAMES)
-    load_list = [_as_experiment(x, robot) for x in (loaded if isinstance(loaded, (list, tuple)) else [loaded])]
+    load_list = _recordings(loaded, robot, zoh)
     if not load_list:
         raise InputError("no loaded recording given")
     first = _observe(load_list[0], robot, bp, link, T, settings)
@@ -647,8 +693,7 @@ def identify_payload(loaded, robot, *, model=None, unloaded=None, frame="flange"
         method = "payload-fixed"
         notices.append(f"robot fixed: {model_source}; its parameters' uncertainty is propagated")
     else:
-        un_list = [_as_experiment(x, robot) for x in
-                   (unloaded if isinstance(unloaded, (list, tuple)) else [unloaded])]
+        un_list = _recordings(unloaded, robot, zoh)
         obs_u = [_observe(e, robot, bp, link, T, first.settings) for e in un_list]
         sources += [f"{e.source} (unloaded)" for e in un_list]
         Wu = np.concatenate([o.Wb for o in obs_u])
@@ -679,7 +724,7 @@ def identify_payload(loaded, robot, *, model=None, unloaded=None, frame="flange"
                         frame=str(frame if frame is not None else "flange"), R=R, p=p, T=T,
                         joint_sigma=fit.joint_sigma, rel_error=fit.rel_error, n_rows=fit.n_rows,
                         hac_lags=lags, singular_ratio=ratio, sources=sources,
-                        settings=dict(first.settings), robot_params=robot_params,
+                        settings=dict(first.settings, zoh=bool(zoh)), robot_params=robot_params,
                         model_source=model_source, notices=notices + first.notices)
     if not chi[9] > 0:
         raise IdentificationError(f"the identified payload mass is {chi[9]:.3g} kg (<= 0): the loaded "

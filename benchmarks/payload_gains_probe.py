@@ -1,0 +1,71 @@
+"""Drive gains of one seed with other unloaded / more loaded recordings (issue 28, the 1 % bar).
+
+Seed 311 of benchmarks/payload.py missed the 1 % bar (1.32 % on joint 4). Which recording
+carries the error: the benchmark's unloaded recording U0 (20 s, seed 2 s + 1) or another
+(U1, seed 5e6 + s), one to four loaded 10 s recordings (L0 the benchmark's, L1-L3 others), the
+mass known, zoh=True. One JSON line per case: error of each factor (%) and its z.
+`--sensor noisy|perfect|tau_only|q_only` and `--friction 0|1` run the case U0 L0 alone with
+that sensor (the benchmark's: noisy, position 2e-5 rad and torque 0.2 N m) and with or without
+the plant's friction: which noise moves the gains.
+Run from the repository root (niced): python benchmarks/payload_gains_probe.py 311
+[--sensor tau_only --friction 1] (benchmarks/results/payload_gains_probe_seed311.jsonl).
+"""
+import argparse
+import dataclasses
+import json
+import os
+import sys
+from pathlib import Path
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+
+def main():
+    import numpy as np
+
+    import dynid
+    from dynid.analysis.data.experiment import Experiment
+    from dynid.analysis.estimators.drive_gains import identify_drive_gains
+    from tests import independent_plant as ip
+    from tests import payload_plant as pp
+    ap = argparse.ArgumentParser()
+    ap.add_argument("seed", type=int)
+    ap.add_argument("--sensor", choices=["noisy", "perfect", "tau_only", "q_only"])
+    ap.add_argument("--friction", type=int, default=1)
+    args = ap.parse_args()
+    seed = args.seed
+    sensor = {None: None, "noisy": None, "perfect": ip.PERFECT, "tau_only": ip.Sensor(q_noise=0.0),
+              "q_only": ip.Sensor(tau_noise=0.0)}[args.sensor]
+    robot = dataclasses.replace(dynid.load_robot("tx40"), couplings=[])
+    params, parts = pp.random_payload(np.random.default_rng(seed))
+    base = ip.tx40_plant("urdf", friction=bool(args.friction))
+    loaded = pp.add_payload(base, params)
+    rate = 2000.0
+
+    def one(plant, dur, s):
+        ref = pp.wrist_reference(plant.limits, dur, rate, s)
+        rec = pp.record(plant, ref, s, rate=rate, sensor=sensor)
+        return Experiment(t=rec["t"], q=rec["q"], qr=rec["qr"], tau=rec["tau"], fs=rate, source=str(s))
+    kt = np.random.default_rng(seed + 7).uniform(0.9, 1.1, 6)
+
+    def sc(e):
+        return Experiment(t=e.t, q=e.q, qr=e.qr, tau=e.tau / kt, fs=e.fs, source=e.source)
+    if args.sensor is not None or not args.friction:
+        U, L = [one(base, 20.0, 2 * seed + 1)], [one(loaded, 10.0, 2 * seed + 2)]
+        cases = (("U0 L0", U, L),)
+    else:
+        U = [one(base, 20.0, 2 * seed + 1), one(base, 20.0, 5_000_000 + seed)]
+        L = [one(loaded, 10.0, 2 * seed + 2)] + [one(loaded, 10.0, 1_000_000 + 100 * seed + k) for k in range(3)]
+        cases = (("U0 L0", [U[0]], L[:1]), ("U1 L0", [U[1]], L[:1]), ("U0 L0-1", [U[0]], L[:2]),
+                 ("U1 L0-1", [U[1]], L[:2]), ("U0 L0-3", [U[0]], L), ("U0+U1 L0-3", U, L))
+    for name, u, lo in cases:
+        r = identify_drive_gains([sc(e) for e in u], [sc(e) for e in lo], robot, mass=params[9], zoh=True)
+        print(json.dumps({"seed": seed, "case": name, "sensor": args.sensor or "noisy",
+                          "friction": bool(args.friction),
+                          "err_pct": (100 * np.abs(r.factor - kt) / kt).round(2).tolist(),
+                          "z": ((r.factor - kt) / r.factor_std).round(2).tolist()}), flush=True)
+
+
+if __name__ == "__main__":
+    main()
