@@ -20,7 +20,7 @@ import signal
 import sys
 
 from dynid.errors import DynidError, InputError
-from dynid.reports.cli_options import build_parser
+from dynid.reports.cli_options import build_parser, parse_command_line
 from dynid.reports.progress import Reporter, clean_text
 from dynid.reports.terminal import check_output_paths, commit_outputs, show, show_clean, stdout_failed
 
@@ -278,7 +278,7 @@ def _terminate(signum, frame):
 def main(argv=None):
     parser = build_parser()
     try:
-        args = parser.parse_args(argv)
+        args = parse_command_line(parser, sys.argv[1:] if argv is None else argv)
     except SystemExit as exc:           # --help raises on; a bad option is exit 2, not an exception
         if exc.code in (0, None):
             raise
