@@ -76,10 +76,14 @@ def cmd_identify(args, say):
 
 
 def cmd_simulate(args, say):
-    from dynid.analysis.data.synthetic import simulate
+    from dynid.analysis.data.synthetic import missing_effects, simulate
     from dynid.provenance import dumps_json
+    robot = _robot(args)
+    say(f"robot '{robot.name}' ({robot.n_joints} joints): simulating {args.duration:g} s")
+    for notice in missing_effects(robot):
+        say(f"notice: {notice}")
     with say.progress(f"closed-loop simulation ({args.duration:g} s)") as bar:
-        sim = simulate(_robot(args), args.duration, seed=args.seed, f0=args.f0, harmonics=args.harmonics,
+        sim = simulate(robot, args.duration, seed=args.seed, f0=args.f0, harmonics=args.harmonics,
                        noise_q=args.noise_q, noise_tau=args.noise_tau, progress=bar.update)
     outputs = [(args.out, sim.experiment.to_frame().to_csv(index=False, float_format="%.10g"))]
     if args.json:
@@ -275,6 +279,17 @@ def _terminate(signum, frame):
     raise KeyboardInterrupt
 
 
+def _leave(code):
+    """Exit at once after an interruption: the exit handlers run (a Dask cluster is closed, the
+    logs flushed), but not the interpreter's teardown, which collects every object the run
+    made and took seconds after a DIDIM run on a loaded machine."""
+    import atexit
+    sys.stdout.flush()
+    sys.stderr.flush()
+    atexit._run_exitfuncs()
+    os._exit(code)
+
+
 def main(argv=None):
     parser = build_parser()
     try:
@@ -299,6 +314,8 @@ def main(argv=None):
         return stdout_failed(args)
     except KeyboardInterrupt:
         print("dynid: interrupted; no partial output was written", file=sys.stderr)
+        if argv is None:              # the program itself, not a caller's main([...]): stop now
+            _leave(EXIT_INTERRUPTED)
         return EXIT_INTERRUPTED
     except DynidError as exc:
         if args.debug:

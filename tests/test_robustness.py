@@ -3,6 +3,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -34,6 +35,24 @@ def test_demo_same_seed_byte_identical_json(tmp_path):
     assert a.with_suffix(".html").read_bytes() == b.with_suffix(".html").read_bytes()
 
 
+def _started(proc, marker, timeout=180.0):
+    """The lines of proc's stderr up to (and with) the first one holding `marker`, read in a thread
+    (the rest is collected too, for the assertions); None if it never came."""
+    lines, seen = [], threading.Event()
+
+    def read():
+        for line in proc.stderr:
+            lines.append(line)
+            if marker in line:
+                seen.set()
+        seen.set()
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    seen.wait(timeout)
+    return lines, reader
+
+
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_killed_identify_leaves_no_partial_output(tmp_path, sig):
     report, js = tmp_path / "out.html", tmp_path / "out.json"
@@ -41,9 +60,16 @@ def test_killed_identify_leaves_no_partial_output(tmp_path, sig):
     proc = subprocess.Popen([sys.executable, "-m", "dynid.reports.cli", "identify", str(TX40), "--robot", "tx40",
                              "--report", str(report), "--json", str(js)],
                             cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(2.0)          # imports done, in the middle of loading / identifying
+    # signal once the run is under way (its data loaded), not after a fixed sleep: on a loaded
+    # machine the interpreter was still starting after 2 s, and a SIGINT then is Python's own
+    # (exit -2), before dynid runs at all
+    lines, reader = _started(proc, "loaded ")
+    time.sleep(0.5)
     proc.send_signal(sig)
-    out, err = proc.communicate(timeout=60)
+    proc.wait(timeout=60)
+    reader.join(timeout=10)
+    proc.stdout.close()
+    err = "".join(lines)
     if proc.returncode == 0:
         pytest.skip("the run finished before the signal arrived on this machine")
     assert proc.returncode == 130, err
