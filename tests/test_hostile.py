@@ -865,13 +865,13 @@ def test_g6_demo_duration_1e6(tmp_path):
 
 def test_g6_fifo_as_robot_file(tmp_path):
     os.mkfifo(tmp_path / "fifo.toml")
-    run = run_dynid("robot", "fifo.toml", cwd=tmp_path, timeout=10)
+    run = run_dynid("robot", "fifo.toml", cwd=tmp_path, timeout=60)   # a hang is forever; 10 s failed on a loaded CI machine
     assert_input_error(run, r"fifo\.toml")
 
 
 def test_g6_fifo_as_data_file(tmp_path):
     os.mkfifo(tmp_path / "fifo.csv")
-    run = run_dynid(*identify_args("fifo.csv"), cwd=tmp_path, timeout=10)
+    run = run_dynid(*identify_args("fifo.csv"), cwd=tmp_path, timeout=60)   # a hang is forever; 10 s failed on a loaded CI machine
     assert_input_error(run, r"fifo\.csv")
 
 
