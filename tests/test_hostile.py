@@ -1603,7 +1603,7 @@ def _signal_when(proc, marker, sig, timeout=120.0):
     return "".join(lines), time.monotonic() - t0
 
 
-@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+@pytest.mark.parametrize("sig", [signal.SIGTERM, pytest.param(signal.SIGINT, marks=pytest.mark.slow)])
 def test_g12_long_compiled_simulation_stops_on_a_signal(tmp_path, sig):
     """A long closed-loop simulation (compiled, it ran no Python signal handler: `--v-s 1e-9` ignored
     SIGTERM for over 90 s) stops at once with exit 130 and writes nothing."""
@@ -1637,6 +1637,7 @@ def test_g13_python_api_checks_every_option_before_work(tmp_path, data, options,
     assert fingerprint(data) == before and sorted(os.listdir(tmp_path)) == ["in.csv"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("args,option", [(("--alpha", "0"), "--alpha"), (("--max-effects", "1000"), "--max-effects")])
 def test_g12_diagnose_option_out_of_range(tmp_path, data, args, option):
     run = run_dynid("diagnose", "in.csv", "--robot", "planar2", *args, "--json", "o.json", cwd=tmp_path)
@@ -1658,6 +1659,7 @@ def test_g14_maximum_likelihood_advice_is_a_longer_recording(tmp_path, frame):
     assert fingerprint(tmp_path / "in.csv") == before and not (tmp_path / "o.json").exists()
 
 
+@pytest.mark.slow
 def test_g14_too_many_harmonics_names_the_flag(tmp_path, frame):
     write_csv(tmp_path / "in.csv", frame)
     run = run_dynid(*identify_args("in.csv", "--method", "ml", "--f0", "0.1", "--json", "o.json"), cwd=tmp_path,
@@ -1671,6 +1673,7 @@ def test_g14_too_many_harmonics_names_the_flag(tmp_path, frame):
         assert not (tmp_path / "o.json").exists()
 
 
+@pytest.mark.slow
 def test_g14_rank_deficiency_advice_can_be_followed_on_the_command_line(tmp_path, frame):
     """A joint that moves one way only aliases its offset with its Coulomb friction: the advice is
     a richer trajectory (not "use base parameters", which the command line always does)."""
@@ -1720,6 +1723,7 @@ def test_g11_excite_limits_of_1e300_are_refused(tmp_path):
     assert fingerprint(robot) == before and not (tmp_path / "o.csv").exists()
 
 
+@pytest.mark.slow
 def test_g13_fleet_unknown_parameter_name(tmp_path, recording):
     """An unknown --parameters name crashed the monitor (TypeError); now exit 2 naming it."""
     fleet_catalogue(tmp_path, recording, n=1)
