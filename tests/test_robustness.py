@@ -75,3 +75,36 @@ def test_killed_identify_leaves_no_partial_output(tmp_path, sig):
     assert proc.returncode == 130, err
     assert "interrupted" in err and "Traceback" not in err
     assert list(tmp_path.iterdir()) == []          # no report, no JSON, no temp file
+
+
+def test_fleet_run_reports_progress_through_dynid_progress(tmp_path, monkeypatch, caplog):
+    """dynid.fleet.run without a progress callable reports through dynid.progress (log records off a
+    terminal), like the other long steps; dynid.progress.silence() turns it off."""
+    import logging
+
+    from dynid import progress as P
+    from dynid.analysis.fleet.engine import FleetRun
+    from dynid.reports import fleet_run
+
+    def fake_identify(catalogue, store, *, progress=None, **kw):
+        for done in (1, 2):
+            progress(done, 2)
+        return FleetRun(store=str(store), n_recordings=2, n_computed=2, n_skipped=0, errors=[], wall_seconds=0.0)
+
+    monkeypatch.setattr(fleet_run, "identify_fleet", fake_identify)
+    monkeypatch.setattr(fleet_run, "monitor", lambda *a, **k: None)
+    monkeypatch.setattr(fleet_run, "ResultStore", lambda root: type("S", (), {"read": lambda self: None})())
+    monkeypatch.setattr(fleet_run, "task", lambda label: P.task(label, delay=0.0, log_every=0.0,
+                                                                 stream=__import__("io").StringIO()))
+    caplog.set_level(logging.INFO, logger="dynid.progress")
+    P.enable(True)
+    try:
+        fleet_run.run(tmp_path / "cat.csv", tmp_path / "store")
+        assert any("fleet" in r.getMessage() for r in caplog.records), [r.getMessage() for r in caplog.records]
+        caplog.clear()
+        P.silence()
+        fleet_run.run(tmp_path / "cat.csv", tmp_path / "store")
+        assert not caplog.records
+    finally:
+        P.enable(True)
+        P._ENABLED = None
