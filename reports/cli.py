@@ -20,6 +20,7 @@ import signal
 import sys
 
 from dynid.errors import DynidError, InputError
+from dynid.ranges import check_range
 from dynid.reports.cli_options import build_parser, parse_command_line
 from dynid.reports.progress import Reporter, clean_text
 from dynid.reports.terminal import check_output_paths, commit_outputs, show, show_clean, stdout_failed
@@ -189,8 +190,8 @@ def cmd_fleet(args, say):
     from dynid.analysis.fleet.health import DEFAULT_BASELINE, DEFAULT_FALSE_ALARM_RATE
     from dynid.reports import fleet_run  # Dask (dynid[fleet]) on first use
     from dynid.reports.fleet_report import fleet_json
-    if args.workers is not None and args.workers < 1:
-        raise InputError(f"--workers must be at least 1, got {args.workers}")
+    if args.workers is not None:
+        check_range("workers", args.workers)         # before Dask is imported
     if os.path.exists(args.store) and not os.path.isdir(args.store):
         raise InputError(f"--out {args.store} is a file; the results store is a folder")
     params = [p.strip() for p in args.parameters.split(",") if p.strip()]

@@ -1747,3 +1747,17 @@ def test_g11_fleet_partial_failure_exits_2_and_counts_it(tmp_path, recording):
     assert fleet_inputs(tmp_path) == before
     doc = json.loads((tmp_path / "f.json").read_text())
     assert doc["n_failed"] == 1 and doc["n_identified"] == 1
+
+
+def test_g12_excite_starts_far_out_of_range(tmp_path):
+    run = run_dynid("excite", "--robot", "planar2", "--f0", "0.2", "--harmonics", "3", "--starts", "1000000000",
+                    "--out", "o.csv", cwd=tmp_path)
+    assert_input_error(run, "--starts", "out of range")
+    assert not (tmp_path / "o.csv").exists()
+
+
+def test_g12_fleet_workers_far_out_of_range(tmp_path, recording):
+    fleet_catalogue(tmp_path, recording, n=1)
+    before = fleet_inputs(tmp_path)
+    run = run_dynid("fleet", "cat.csv", "--out", "store", "--workers", "1000000", cwd=tmp_path)
+    assert_fleet_refused(run, before, tmp_path, "--workers", "out of range")

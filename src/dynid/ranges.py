@@ -63,6 +63,10 @@ RANGES = {
     "alpha": OptionRange("--alpha", "alpha", 0.0, 1.0, open_low=True, open_high=True),
     "walkers": OptionRange("--walkers", "walkers", 1, 100_000, integer=True,
                            why="every walker keeps its own chain in memory"),
+    "n_starts": OptionRange("--starts", "n_starts", 1, 10_000, "starts", integer=True,
+                            why="each start is an optimisation of its own"),
+    "workers": OptionRange("--workers", "workers", 1, 1024, "processes", integer=True,
+                           why="each local worker is a process of its own"),
     "max_steps": OptionRange("--max-steps", "max_steps", 1, 100_000_000, integer=True,
                              why="the chains are kept in memory"),
 }
