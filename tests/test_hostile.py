@@ -1761,3 +1761,24 @@ def test_g12_fleet_workers_far_out_of_range(tmp_path, recording):
     before = fleet_inputs(tmp_path)
     run = run_dynid("fleet", "cat.csv", "--out", "store", "--workers", "1000000", cwd=tmp_path)
     assert_fleet_refused(run, before, tmp_path, "--workers", "out of range")
+
+
+def test_g11_simulate_says_what_it_leaves_out(tmp_path):
+    """A robot file without friction or rotor inertia (a URDF's, typically) was simulated with zero
+    friction and rotor inertia without a word (issue 29): the run says so, and so does its JSON."""
+    robot = planar2_toml(tmp_path, (", Ia1 = 0.05, Ia2 = 0.05, Fv1 = 0.5, Fv2 = 0.3, Fc1 = 1.0, Fc2 = 0.5",
+                                    ", Fv2 = 0.3"))
+    before = fingerprint(robot)
+    run = run_dynid("simulate", "--robot", "my.toml", "--duration", "1", "--out", "o.csv", "--json", "o.json",
+                    cwd=tmp_path)
+    assert_clean(run)
+    assert run.rc == 0, str(run)
+    assert _has(run.err, "without friction on joint 1") and _has(run.err, "without rotor inertia"), str(run)
+    assert not _has(run.err, "joint 1, 2|joints 1"), str(run)
+    notices = json.loads((tmp_path / "o.json").read_text())["notices"]
+    assert any("friction" in n for n in notices) and any("rotor inertia" in n for n in notices)
+    assert fingerprint(robot) == before
+    full = run_dynid("simulate", "--robot", "planar2", "--duration", "1", "--out", "p.csv", "--json", "p.json",
+                     cwd=tmp_path)
+    assert full.rc == 0 and "without" not in full.err, str(full)
+    assert json.loads((tmp_path / "p.json").read_text())["notices"] == []
