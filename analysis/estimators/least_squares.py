@@ -422,7 +422,7 @@ def _rank_error(system, cols, nonzero, R, piv, rank, rank_rtol, Ms) -> Identific
                 f"  - {names[k]!r}: its column is (numerically) {combo}, so only a combination "
                 f"can be estimated. Excite {_joint_list(js) or 'the joints'} with a richer trajectory "
                 f"(both directions of motion, a longer or wider one); in Python, a model of your own "
-                f"can also regroup these parameters or leave {names[k]!r} out."
+                f"can also regroup them into base parameters or remove {names[k]!r}."
             )
     if not lines:
         # Pivoted QR missed a near-deficiency the singular values show: name the
@@ -434,7 +434,7 @@ def _rank_error(system, cols, nonzero, R, piv, rank, rank_rtol, Ms) -> Identific
         lines.append(
             f"  - {involved}: nearly linearly dependent (smallest/largest singular value "
             f"{sv[-1] / sv[0]:.2g}); excite the robot with a richer trajectory (in Python, a model "
-            "of your own can also leave one of them out)."
+            "of your own can also regroup into base parameters or remove one of them)."
         )
     n_bad = len(lines)
     return IdentificationError(
