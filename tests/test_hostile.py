@@ -1645,6 +1645,7 @@ def test_g12_diagnose_option_out_of_range(tmp_path, data, args, option):
     assert not (tmp_path / "o.json").exists()
 
 
+@pytest.mark.slow
 def test_g14_maximum_likelihood_advice_is_a_longer_recording(tmp_path, frame):
     """ML with too few usable equations once advised "lower the dead zone" (wrong: the guard
     around velocity reversals takes them); the advice now is a longer recording or IDIM, with
@@ -1689,7 +1690,8 @@ def test_g14_rank_deficiency_advice_can_be_followed_on_the_command_line(tmp_path
 
 
 @pytest.mark.parametrize("value,names", [("90.0", ("my.toml", "alpha", "degrees")),
-                                         ("1e154", ("my.toml", "alpha", "radians"))])
+                                         pytest.param("1e154", ("my.toml", "alpha", "radians"),
+                                                      marks=pytest.mark.slow)])
 def test_g11_robot_file_angles_in_degrees_through_the_cli(tmp_path, data, value, names):
     robot = planar2_toml(tmp_path, ("d = 1.0", f"d = 1.0\nalpha = {value}"))
     before = fingerprint(robot, data)
@@ -1698,6 +1700,7 @@ def test_g11_robot_file_angles_in_degrees_through_the_cli(tmp_path, data, value,
     assert fingerprint(robot, data) == before and not (tmp_path / "o.json").exists()
 
 
+@pytest.mark.slow
 def test_g11_negative_pid_ki_through_the_cli(tmp_path):
     text = PLANAR2.read_text(encoding="utf-8")
     m = re.search(r"(?m)^kind\s*=\s*\"pd\"", text)
@@ -1710,6 +1713,7 @@ def test_g11_negative_pid_ki_through_the_cli(tmp_path):
     assert fingerprint(robot) == before and not (tmp_path / "o.csv").exists()
 
 
+@pytest.mark.slow
 def test_g11_excite_limits_of_1e300_are_refused(tmp_path):
     text = PLANAR2.read_text(encoding="utf-8")
     m = re.search(r"(?m)^tau_max\s*=\s*[0-9.eE+-]+", text)
@@ -1749,6 +1753,7 @@ def test_g11_fleet_partial_failure_exits_2_and_counts_it(tmp_path, recording):
     assert doc["n_failed"] == 1 and doc["n_identified"] == 1
 
 
+@pytest.mark.slow
 def test_g12_excite_starts_far_out_of_range(tmp_path):
     run = run_dynid("excite", "--robot", "planar2", "--f0", "0.2", "--harmonics", "3", "--starts", "1000000000",
                     "--out", "o.csv", cwd=tmp_path)
@@ -1756,6 +1761,7 @@ def test_g12_excite_starts_far_out_of_range(tmp_path):
     assert not (tmp_path / "o.csv").exists()
 
 
+@pytest.mark.slow
 def test_g12_fleet_workers_far_out_of_range(tmp_path, recording):
     fleet_catalogue(tmp_path, recording, n=1)
     before = fleet_inputs(tmp_path)
@@ -1763,6 +1769,7 @@ def test_g12_fleet_workers_far_out_of_range(tmp_path, recording):
     assert_fleet_refused(run, before, tmp_path, "--workers", "out of range")
 
 
+@pytest.mark.slow
 def test_g11_simulate_says_what_it_leaves_out(tmp_path):
     """A robot file without friction or rotor inertia (a URDF's, typically) was simulated with zero
     friction and rotor inertia without a word (issue 29): the run says so, and so does its JSON."""
