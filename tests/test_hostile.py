@@ -45,7 +45,15 @@ Issue 31 (the fleet and the newer options):
     ``--v-s`` and ``--bootstrap`` far out of range.
 13. ``test_g13_*`` internal errors: ``--prior-weight 1e300``, ``--v-s 1e-300``, a
     scheduler that is not an address, an unwritable or read-only store.
-14. ``test_g14_*`` advice the user can follow from the command line.
+14. ``test_g14_*`` advice the user can follow from the command line (a motionless recording,
+    maximum likelihood, rank deficiency, too many harmonics), several data files after
+    ``--robot``, and the Parquet readers docs/formats.md gives for the fleet store, run as written.
+
+Also in groups 11-13: robot files in degrees and a negative PID ``ki`` through the CLI, excite
+limits of 1e300, ``--starts`` and ``--workers`` out of range, a fleet with one failed recording,
+an unknown ``--parameters`` name, the orchestrator's ranges in Python (``dynid.run``,
+``dynid.identify``), a long compiled simulation stopped by SIGTERM/SIGINT, and ``simulate``
+saying what it leaves out (friction, rotor inertia).
 
 ``pytest -m "not slow"`` leaves out the cases over 20 s. The CLI is run in one place, :func:`run_dynid` (subprocess), and imported in one
 place, :func:`dynid_main` (in-process, group 3 and NUL-byte paths): when the package
