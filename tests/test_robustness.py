@@ -64,7 +64,7 @@ def test_killed_identify_leaves_no_partial_output(tmp_path, sig):
     # machine the interpreter was still starting after 2 s, and a SIGINT then is Python's own
     # (exit -2), before dynid runs at all
     lines, reader = _started(proc, "loaded ")
-    time.sleep(0.5)
+    time.sleep(0.2)                   # the identification itself takes a second or two
     proc.send_signal(sig)
     proc.wait(timeout=60)
     reader.join(timeout=10)
