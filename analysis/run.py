@@ -27,6 +27,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import json
+import math
 import os
 import tempfile
 import warnings
@@ -51,6 +52,7 @@ from dynid.analysis.statistics.verdict import verdict
 from dynid.dynamics.robot import Robot
 from dynid.dynamics.robot_file import load_robot
 from dynid.errors import DataError, InputError
+from dynid.ranges import check_range
 
 METHODS = ("idim", "didim", "projection", "ml")
 
@@ -140,6 +142,9 @@ class Settings:
     #: processing overrides by the observation's own names (fc_position ...), merged under the above
     processing_overrides: dict | None = None
 
+    def __post_init__(self):
+        check_settings(self)
+
     def processing(self) -> dict | None:
         """The observation's settings (fc_position, nd, f_decimation_cutoff, qd_threshold, v_s)."""
         s = dict(self.processing_overrides or {})
@@ -160,6 +165,37 @@ class Settings:
 
     def replace(self, **changes) -> Settings:
         return dataclasses.replace(self, **changes)
+
+
+#: the numeric fields of Settings, each checked against its finite range (dynid.ranges.RANGES)
+#: when a Settings is made: the command line and Python refuse alike, before any work
+RANGED_FIELDS = {"holdout": "holdout", "fc": "fc", "nd": "nd", "decimation_cutoff": "decimation_cutoff",
+                 "max_error_growth": "max_error_growth", "f0": "f0", "ml_harmonics": "ml_harmonics",
+                 "max_iter": "max_iter", "v_s": "v_s", "prior_weight": "prior_weight",
+                 "mass_tolerance": "mass_tolerance", "bootstrap": "n_boot", "seed": "seed",
+                 "max_seconds": "max_seconds", "duration": "duration", "max_effects": "max_effects",
+                 "alpha": "alpha", "walkers": "walkers", "max_steps": "max_steps"}
+
+
+def check_settings(settings: Settings) -> None:
+    """Every numeric option of `settings` within its finite physical range (InputError naming
+    the option both ways, `--bootstrap (bootstrap=)`, and the range): a decimation by 1e10, a
+    bootstrap of 1e9 refits or a prior weighed 1e300 times the data is refused before any work."""
+    for field, name in RANGED_FIELDS.items():
+        value = getattr(settings, field)
+        if value is None or (field == "v_s" and isinstance(value, str) and value.strip().lower() == "auto"):
+            continue
+        check_range(name, value, python=field)
+    if settings.qd_threshold is not None:
+        values = qd_threshold_value(settings.qd_threshold)
+        if not (isinstance(values, str) and values == "auto"):
+            try:
+                numbers = [float(v) for v in (values if isinstance(values, (list, tuple)) else [values])]
+            except (TypeError, ValueError):
+                numbers = [math.nan]
+            if not all(math.isfinite(v) and v >= 0 for v in numbers):
+                raise InputError(f"--qd-threshold (qd_threshold=) {settings.qd_threshold!r}: the velocity dead "
+                                 f"zone must be finite and non-negative rad/s (0 keeps every row), or 'auto'")
 
 
 def settings_from(settings=None, **options) -> Settings:

@@ -111,6 +111,7 @@ import scipy.optimize
 from dynid.errors import InputError
 from dynid.outputs import atomic_write_text
 from dynid.provenance import json_safe
+from dynid.ranges import check_range
 
 from .base_parameters import base_parameters, base_regressor
 from .dynamic_model import inverse_dynamics
@@ -809,9 +810,7 @@ def _design(robot, f0, n_harmonics, *, n_starts, criterion, chi, rng, max_iter, 
     margin = float(margin)
     if not 0 < margin <= 1:
         raise InputError(f"margin must be in (0, 1], got {margin!r}")
-    n_starts = int(n_starts)
-    if n_starts < 1:
-        raise InputError(f"n_starts must be at least 1, got {n_starts!r}")
+    n_starts = check_range("n_starts", n_starts)        # --starts 1e9 would run for ever
     rng = _rng(rng)
     bp = base_parameters(robot) if bp is None else bp
     notices = []

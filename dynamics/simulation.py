@@ -144,6 +144,11 @@ class SimulationResult:
 
 # ----------------------------------------------------------------------------- kernels
 
+#: most RK4 steps of one compiled call (a fraction of a second): between calls Python
+#: handles a pending interruption, so a long simulation (a small v_s, many substeps) stops at once
+RK4_STEPS_PER_CHUNK = 5_000
+
+
 @njit(cache=True, nogil=True)
 def _stages(n):
     return (np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n),
@@ -514,9 +519,10 @@ def simulate_closed_loop(robot, chi_st, t, qr, qdr=None, *, q0=None, qd0=None, c
     q_state, qd_state, integ = q0.copy(), qd0.copy(), np.zeros(n)
     args = (ma.kernel_args(), v_s, np.ascontiguousarray(grid), substeps, qr_g, qdr_g, bool(feedforward),
             pid, Kv, kp, Ki, gain, tau_max, I_max, T, q_state, qd_state, integ)
-    # chunks only to report progress; the state carries over exactly
-    n_chunks = 1 if progress is None else max(1, min(50, N // 2000))
-    bounds = np.linspace(0, N, n_chunks + 1).astype(int)
+    # chunks to report progress and, bounded in RK4 steps, to let Ctrl-C / SIGTERM through
+    # between them (the compiled loop runs no Python signal handler); the state carries over exactly
+    n_chunks = max(1 if progress is None else min(50, N // 2000), -(-N * substeps // RK4_STEPS_PER_CHUNK))
+    bounds = np.linspace(0, N, min(N, max(1, n_chunks)) + 1).astype(int)
     for k0, k1 in zip(bounds[:-1], bounds[1:]):
         status, idx = _closed_loop(*args, int(k0), int(k1), Q, QD, QDD, TAU, SAT)
         if status != OK:

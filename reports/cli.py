@@ -20,7 +20,8 @@ import signal
 import sys
 
 from dynid.errors import DynidError, InputError
-from dynid.reports.cli_options import build_parser
+from dynid.ranges import check_range
+from dynid.reports.cli_options import build_parser, parse_command_line
 from dynid.reports.progress import Reporter, clean_text
 from dynid.reports.terminal import check_output_paths, commit_outputs, show, show_clean, stdout_failed
 
@@ -76,10 +77,14 @@ def cmd_identify(args, say):
 
 
 def cmd_simulate(args, say):
-    from dynid.analysis.data.synthetic import simulate
+    from dynid.analysis.data.synthetic import missing_effects, simulate
     from dynid.provenance import dumps_json
+    robot = _robot(args)
+    say(f"robot '{robot.name}' ({robot.n_joints} joints): simulating {args.duration:g} s")
+    for notice in missing_effects(robot):
+        say(f"notice: {notice}")
     with say.progress(f"closed-loop simulation ({args.duration:g} s)") as bar:
-        sim = simulate(_robot(args), args.duration, seed=args.seed, f0=args.f0, harmonics=args.harmonics,
+        sim = simulate(robot, args.duration, seed=args.seed, f0=args.f0, harmonics=args.harmonics,
                        noise_q=args.noise_q, noise_tau=args.noise_tau, progress=bar.update)
     outputs = [(args.out, sim.experiment.to_frame().to_csv(index=False, float_format="%.10g"))]
     if args.json:
@@ -185,8 +190,8 @@ def cmd_fleet(args, say):
     from dynid.analysis.fleet.health import DEFAULT_BASELINE, DEFAULT_FALSE_ALARM_RATE
     from dynid.reports import fleet_run  # Dask (dynid[fleet]) on first use
     from dynid.reports.fleet_report import fleet_json
-    if args.workers is not None and args.workers < 1:
-        raise InputError(f"--workers must be at least 1, got {args.workers}")
+    if args.workers is not None:
+        check_range("workers", args.workers)         # before Dask is imported
     if os.path.exists(args.store) and not os.path.isdir(args.store):
         raise InputError(f"--out {args.store} is a file; the results store is a folder")
     params = [p.strip() for p in args.parameters.split(",") if p.strip()]
@@ -275,10 +280,21 @@ def _terminate(signum, frame):
     raise KeyboardInterrupt
 
 
+def _leave(code):
+    """Exit at once after an interruption: the exit handlers run (a Dask cluster is closed, the
+    logs flushed), but not the interpreter's teardown, which collects every object the run
+    made and took seconds after a DIDIM run on a loaded machine."""
+    import atexit
+    sys.stdout.flush()
+    sys.stderr.flush()
+    atexit._run_exitfuncs()
+    os._exit(code)
+
+
 def main(argv=None):
     parser = build_parser()
     try:
-        args = parser.parse_args(argv)
+        args = parse_command_line(parser, sys.argv[1:] if argv is None else argv)
     except SystemExit as exc:           # --help raises on; a bad option is exit 2, not an exception
         if exc.code in (0, None):
             raise
@@ -299,6 +315,8 @@ def main(argv=None):
         return stdout_failed(args)
     except KeyboardInterrupt:
         print("dynid: interrupted; no partial output was written", file=sys.stderr)
+        if argv is None:              # the program itself, not a caller's main([...]): stop now
+            _leave(EXIT_INTERRUPTED)
         return EXIT_INTERRUPTED
     except DynidError as exc:
         if args.debug:

@@ -227,6 +227,23 @@ def _sub(sub, common, name, help, description, epilog):
                           formatter_class=HelpFormatter)
 
 
+def parse_command_line(parser, argv):
+    """The options of `argv`, a command's data files allowed before and after its options.
+
+    `dynid identify a.csv --robot tx40 b.csv` names two recordings: the command's own
+    parser reads its arguments intermixed (argparse's `parse_intermixed_args`), which the
+    top-level parser cannot (it holds the subcommands).
+    """
+    argv = list(argv)
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    first = next((i for i, a in enumerate(argv) if not a.startswith("-")), None)
+    if first is None or argv[first] not in sub.choices or any(a != "--version" for a in argv[:first]):
+        return parser.parse_args(argv)       # no command, an unknown one, or top-level -h: argparse answers
+    args = sub.choices[argv[first]].parse_intermixed_args(argv[first + 1:])
+    args.command, args.version = argv[first], "--version" in argv[:first]
+    return args
+
+
 def build_parser(full=False):
     """The parser of every command; `full`: list every option (--help-all), else the common ones."""
     parser = argparse.ArgumentParser(

@@ -7,6 +7,7 @@ writes the report; the command line imports it from here.
 """
 from __future__ import annotations
 
+import contextlib
 import os
 
 from dynid.analysis.fleet.catalogue import input_files
@@ -14,6 +15,7 @@ from dynid.analysis.fleet.engine import FleetRun, identify_fleet
 from dynid.analysis.fleet.health import DEFAULT_BASELINE, DEFAULT_FALSE_ALARM_RATE, check_monitor_options, monitor
 from dynid.analysis.fleet.store import ResultStore
 from dynid.outputs import check_outputs
+from dynid.progress import task
 
 __all__ = ["run", "read_store"]
 
@@ -40,7 +42,9 @@ def run(catalogue, store, *, scheduler: str | None = None, workers: int | None =
     LocalCluster of `workers` processes (default: this machine's cores) is started, or
     `client` (a `distributed.Client`) is used. `parameters`: the base parameters to
     monitor, by family (`Fv` = every joint's) or by name (`Fv2`). `report`/`json`:
-    write the fleet report. Returns the `FleetRun`, its `health` the alarms.
+    write the fleet report. `progress`: a callable `progress(done, total)`; without one,
+    the run reports through `dynid.progress` (silenced by `dynid.progress.silence()`).
+    Returns the `FleetRun`, its `health` the alarms.
 
     Before any work: the monitoring options are range-checked, and no output may be
     an input (the catalogue, a recording, a robot file; through links or `..` too).
@@ -53,8 +57,11 @@ def run(catalogue, store, *, scheduler: str | None = None, workers: int | None =
     check_monitor_options(parameters, false_alarm_rate, n_baseline)
     if report is not None or json is not None:
         check_outputs([("report", report), ("json", json)], input_files(catalogue))
-    result = identify_fleet(catalogue, store, scheduler=scheduler, workers=workers, client=client,
-                            settings=settings, diagnose=diagnose, progress=progress)
+    # without a caller's callable, progress goes through dynid.progress (a bar on a terminal, log
+    # records elsewhere, dynid.progress.silence() to turn it off), as the other long steps do
+    with contextlib.nullcontext(progress) if progress is not None else task("fleet: identifying") as bar:
+        result = identify_fleet(catalogue, store, scheduler=scheduler, workers=workers, client=client,
+                                settings=settings, diagnose=diagnose, progress=bar)
     frame = ResultStore(store).read()
     result.health = monitor(frame, parameters, false_alarm_rate=false_alarm_rate, n_baseline=n_baseline)
     if report is not None or json is not None:

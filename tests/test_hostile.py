@@ -45,7 +45,15 @@ Issue 31 (the fleet and the newer options):
     ``--v-s`` and ``--bootstrap`` far out of range.
 13. ``test_g13_*`` internal errors: ``--prior-weight 1e300``, ``--v-s 1e-300``, a
     scheduler that is not an address, an unwritable or read-only store.
-14. ``test_g14_*`` advice the user can follow from the command line.
+14. ``test_g14_*`` advice the user can follow from the command line (a motionless recording,
+    maximum likelihood, rank deficiency, too many harmonics), several data files after
+    ``--robot``, and the Parquet readers docs/formats.md gives for the fleet store, run as written.
+
+Also in groups 11-13: robot files in degrees and a negative PID ``ki`` through the CLI, excite
+limits of 1e300, ``--starts`` and ``--workers`` out of range, a fleet with one failed recording,
+an unknown ``--parameters`` name, the orchestrator's ranges in Python (``dynid.run``,
+``dynid.identify``), a long compiled simulation stopped by SIGTERM/SIGINT, and ``simulate``
+saying what it leaves out (friction, rotor inertia).
 
 ``pytest -m "not slow"`` leaves out the cases over 20 s. The CLI is run in one place, :func:`run_dynid` (subprocess), and imported in one
 place, :func:`dynid_main` (in-process, group 3 and NUL-byte paths): when the package
@@ -865,13 +873,13 @@ def test_g6_demo_duration_1e6(tmp_path):
 
 def test_g6_fifo_as_robot_file(tmp_path):
     os.mkfifo(tmp_path / "fifo.toml")
-    run = run_dynid("robot", "fifo.toml", cwd=tmp_path, timeout=10)
+    run = run_dynid("robot", "fifo.toml", cwd=tmp_path, timeout=60)   # a hang is forever; 10 s failed on a loaded CI machine
     assert_input_error(run, r"fifo\.toml")
 
 
 def test_g6_fifo_as_data_file(tmp_path):
     os.mkfifo(tmp_path / "fifo.csv")
-    run = run_dynid(*identify_args("fifo.csv"), cwd=tmp_path, timeout=10)
+    run = run_dynid(*identify_args("fifo.csv"), cwd=tmp_path, timeout=60)   # a hang is forever; 10 s failed on a loaded CI machine
     assert_input_error(run, r"fifo\.csv")
 
 
@@ -1506,3 +1514,287 @@ def test_g10_check_outputs_sees_hard_links_and_dotdot(tmp_path):
         check_outputs([("--json", tmp_path / "a.json"), ("--report", tmp_path / "d" / ".." / "a.json")])
     check_outputs([("--json", tmp_path / "new.json")], [("the data file", src)])     # a fresh name passes
     assert src.read_text() == "t\n0\n"
+
+
+# =============================================================================================
+# Issue 31, the rest: several data files after --robot, interruption of compiled loops, the
+# orchestrator's ranges in Python, advice (ML, rank deficiency), the documented store reader,
+# robot files and fleet options through the command line
+# =============================================================================================
+def _serial_fleet_store(folder, recording):
+    """A fleet results store of 2 recordings, each identified in this process (no Dask)."""
+    from dynid.analysis.fleet.engine import plan
+    from dynid.analysis.fleet.store import ResultStore
+    from dynid.analysis.fleet.task import identify_recording
+    cat = fleet_catalogue(folder, recording)
+    store = ResultStore(Path(folder) / "store")
+    specs, _ = plan(str(cat), store)
+    for spec in specs:
+        store.write(identify_recording(spec))
+    return store
+
+
+def _documented_store_readers():
+    """The reader lines of docs/formats.md's "Fleet store" section, as written there."""
+    text = (ROOT / "docs" / "formats.md").read_text(encoding="utf-8")
+    section = text[text.index("## Fleet store"):]
+    section = section[:section.index("\n## ", 5)] if "\n## " in section[5:] else section
+    return sorted(set(re.findall(r"`([a-z_.]+\(STORE[^`]*\)[^`]*)`", section)))
+
+
+def test_g14_documented_store_readers_work(tmp_path, recording):
+    """The docs said `pandas.read_parquet(STORE)` works; it failed with ArrowTypeError (the folder
+    names repeat columns the files hold). Every reader line the docs give is run as written."""
+    pytest.importorskip("pyarrow")
+    import pyarrow.dataset  # noqa: F401  (the namespace the documented line names)
+
+    import dynid
+    import dynid.fleet
+    store = _serial_fleet_store(tmp_path, recording)
+    expected = store.read()
+    lines = _documented_store_readers()
+    assert any(line.startswith("pandas.read_parquet(") for line in lines), lines
+    names = {"pandas": pd, "pyarrow": sys.modules["pyarrow"], "dynid": dynid, "STORE": str(store.root)}
+    for line in lines:
+        got = eval(line, names)                                 # noqa: S307 - the docs' own line
+        got = got.to_pandas() if hasattr(got, "to_pandas") else got
+        assert len(got) == len(expected) and set(expected.columns) <= set(got.columns), line
+        assert sorted(got["robot_id"].astype(str)) == sorted(expected["robot_id"].astype(str)), line
+
+
+def test_g14_several_data_files_after_the_robot_option(tmp_path, recording):
+    """`dynid identify a.csv --robot planar2 b.csv` was "unrecognized arguments": both are identified."""
+    lines = recording.read_text().splitlines(keepends=True)
+    half = len(lines) // 2
+    (tmp_path / "a.csv").write_text("".join(lines[:half]))
+    (tmp_path / "b.csv").write_text("".join(lines[:1] + lines[half:]))
+    before = fingerprint(tmp_path / "a.csv", tmp_path / "b.csv")
+    run = run_dynid("identify", "a.csv", "--robot", "planar2", "b.csv", "--json", "o.json", cwd=tmp_path,
+                    timeout=120)
+    assert_clean(run)
+    assert run.rc == 0, str(run)
+    doc = json.loads((tmp_path / "o.json").read_text())
+    sources = json.dumps(doc)
+    assert "a.csv" in sources and "b.csv" in sources, "one of the two recordings is missing from the JSON"
+    assert fingerprint(tmp_path / "a.csv", tmp_path / "b.csv") == before
+
+
+def test_g14_unknown_option_after_the_data_is_still_refused(tmp_path, data):
+    run = run_dynid(*identify_args("in.csv", "--no-such-option", "3", "--json", "o.json"), cwd=tmp_path)
+    assert_input_error(run, "--no-such-option")
+    assert not (tmp_path / "o.json").exists()
+
+
+def _signal_when(proc, marker, sig, timeout=120.0):
+    """Send `sig` to proc once a stderr line holds `marker`; returns (stderr text, seconds to exit)."""
+    lines, seen = [], threading.Event()
+
+    def read():
+        for raw in proc.stderr:
+            lines.append(raw.decode("utf-8", "replace"))
+            if marker in lines[-1]:
+                seen.set()
+        seen.set()
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    assert seen.wait(timeout), "the run never got under way"
+    time.sleep(1.0)                       # inside the compiled loop by now
+    t0 = time.monotonic()
+    proc.send_signal(sig)
+    try:
+        proc.wait(timeout=60)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+    reader.join(timeout=10)
+    return "".join(lines), time.monotonic() - t0
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, pytest.param(signal.SIGINT, marks=pytest.mark.slow)])
+def test_g12_long_compiled_simulation_stops_on_a_signal(tmp_path, sig):
+    """A long closed-loop simulation (compiled, it ran no Python signal handler: `--v-s 1e-9` ignored
+    SIGTERM for over 90 s) stops at once with exit 130 and writes nothing."""
+    cmd = [sys.executable, "-c", DYNID_CODE.replace("main(sys.argv[1:])", "main()"), "simulate", "--robot",
+           "tx40", "--duration", "3000", "--out", "run.csv", "--json", "run.json"]
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""),
+               OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
+    proc = subprocess.Popen(cmd, cwd=tmp_path, env=env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, start_new_session=True)
+    err, seconds = _signal_when(proc, "simulating", sig)
+    assert proc.returncode == 130, f"exit {proc.returncode}\n{err}"
+    assert "interrupted" in err and "Traceback" not in err, err
+    assert seconds < 20, f"{seconds:.1f} s from the signal to the exit\n{err}"
+    assert sorted(os.listdir(tmp_path)) == [], "partial output or temporary files left"
+
+
+@pytest.mark.parametrize("options,name", [
+    ({"bootstrap": 10**9, "physical": True}, "bootstrap"), ({"prior_weight": 1e300}, "prior_weight"),
+    ({"method": "didim", "v_s": 1e-300}, "v_s"), ({"nd": 10**10}, "nd"), ({"holdout": float("inf")}, "holdout"),
+    ({"alpha": 1.5}, "alpha"), ({"max_iter": 0, "method": "didim"}, "max_iter")])
+def test_g13_python_api_checks_every_option_before_work(tmp_path, data, options, name):
+    """dynid.identify / dynid.run refuse out-of-range options as the command line does, naming both
+    spellings, before the data is even read (a file that does not exist is not reached)."""
+    import dynid
+    from dynid.errors import InputError
+    before = fingerprint(data)
+    calls = (dynid.run,) + ((dynid.identify,) if name not in ("holdout", "alpha") else ())   # identify's keywords
+    for call in calls:
+        with pytest.raises(InputError, match=rf"\({name}=\).*out of range"):
+            call(tmp_path / "no-such-file.csv", "planar2", **options)
+    assert fingerprint(data) == before and sorted(os.listdir(tmp_path)) == ["in.csv"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("args,option", [(("--alpha", "0"), "--alpha"), (("--max-effects", "1000"), "--max-effects")])
+def test_g12_diagnose_option_out_of_range(tmp_path, data, args, option):
+    run = run_dynid("diagnose", "in.csv", "--robot", "planar2", *args, "--json", "o.json", cwd=tmp_path)
+    assert_input_error(run, option, "out of range")
+    assert not (tmp_path / "o.json").exists()
+
+
+@pytest.mark.slow
+def test_g14_maximum_likelihood_advice_is_a_longer_recording(tmp_path, frame):
+    """ML with too few usable equations once advised "lower the dead zone" (wrong: the guard
+    around velocity reversals takes them); the advice now is a longer recording or IDIM, with
+    the command line's flag."""
+    write_csv(tmp_path / "in.csv", frame.iloc[:len(frame) // 4])
+    before = fingerprint(tmp_path / "in.csv")
+    run = run_dynid(*identify_args("in.csv", "--method", "ml", "--f0", "0.1", "--ml-harmonics", "3",
+                                   "--json", "o.json"), cwd=tmp_path, timeout=120)
+    assert_input_error(run, "maximum likelihood", "longer recording", "--method idim")
+    assert "dead zone" not in run.err.split("need")[-1], f"advises a dead-zone change again\n{run}"
+    assert "lower the" not in run.err, str(run)
+    assert fingerprint(tmp_path / "in.csv") == before and not (tmp_path / "o.json").exists()
+
+
+@pytest.mark.slow
+def test_g14_too_many_harmonics_names_the_flag(tmp_path, frame):
+    write_csv(tmp_path / "in.csv", frame)
+    run = run_dynid(*identify_args("in.csv", "--method", "ml", "--f0", "0.1", "--json", "o.json"), cwd=tmp_path,
+                    timeout=120)
+    if run.rc == 2 and "harmonics" in run.err:
+        assert_input_error(run, "--ml-harmonics")
+        assert "n_harmonics" not in run.err.replace("n_harmonics=", ""), str(run)
+    else:
+        assert_clean(run)
+    if run.rc != 0:
+        assert not (tmp_path / "o.json").exists()
+
+
+@pytest.mark.slow
+def test_g14_rank_deficiency_advice_can_be_followed_on_the_command_line(tmp_path, frame):
+    """A joint that moves one way only aliases its offset with its Coulomb friction: the advice is
+    a richer trajectory (not "use base parameters", which the command line always does)."""
+    frame = frame.copy()
+    frame["q2"] = np.linspace(0.0, 1.0, len(frame))           # joint 2 only ever moves forward
+    write_csv(tmp_path / "in.csv", frame.drop(columns=["qr1", "qr2"]))
+    run = run_dynid(*identify_args("in.csv", "--json", "o.json"), cwd=tmp_path, timeout=120)
+    if run.rc == 2 and "rank-deficient" in run.err:
+        assert_input_error(run, "richer trajectory", "joint 2")
+        assert "use base parameters" not in run.err, str(run)
+    else:
+        assert_clean(run)
+
+
+@pytest.mark.parametrize("value,names", [("90.0", ("my.toml", "alpha", "degrees")),
+                                         pytest.param("1e154", ("my.toml", "alpha", "radians"),
+                                                      marks=pytest.mark.slow)])
+def test_g11_robot_file_angles_in_degrees_through_the_cli(tmp_path, data, value, names):
+    robot = planar2_toml(tmp_path, ("d = 1.0", f"d = 1.0\nalpha = {value}"))
+    before = fingerprint(robot, data)
+    run = run_dynid("identify", "in.csv", "--robot", "my.toml", "--json", "o.json", cwd=tmp_path)
+    assert_input_error(run, *names)
+    assert fingerprint(robot, data) == before and not (tmp_path / "o.json").exists()
+
+
+@pytest.mark.slow
+def test_g11_negative_pid_ki_through_the_cli(tmp_path):
+    text = PLANAR2.read_text(encoding="utf-8")
+    m = re.search(r"(?m)^kind\s*=\s*\"pd\"", text)
+    if m is None:
+        pytest.skip("planar2.toml's controller is not a PD")
+    robot = planar2_toml(tmp_path, (m.group(0), 'kind = "pid"\nki = [1.0, -5.0]'))
+    before = fingerprint(robot)
+    run = run_dynid("simulate", "--robot", "my.toml", "--duration", "1", "--out", "o.csv", cwd=tmp_path)
+    assert_input_error(run, "my.toml", "ki", "negative")
+    assert fingerprint(robot) == before and not (tmp_path / "o.csv").exists()
+
+
+@pytest.mark.slow
+def test_g11_excite_limits_of_1e300_are_refused(tmp_path):
+    text = PLANAR2.read_text(encoding="utf-8")
+    m = re.search(r"(?m)^tau_max\s*=\s*[0-9.eE+-]+", text)
+    if m is None:
+        pytest.skip("planar2.toml has no tau_max line")
+    robot = planar2_toml(tmp_path, (m.group(0), "tau_max = 1e300"))
+    before = fingerprint(robot)
+    run = run_dynid("excite", "--robot", "my.toml", "--f0", "0.2", "--harmonics", "3", "--out", "o.csv",
+                    cwd=tmp_path)
+    assert_input_error(run, "my.toml", "tau_max")
+    assert fingerprint(robot) == before and not (tmp_path / "o.csv").exists()
+
+
+@pytest.mark.slow
+def test_g13_fleet_unknown_parameter_name(tmp_path, recording):
+    """An unknown --parameters name crashed the monitor (TypeError); now exit 2 naming it."""
+    fleet_catalogue(tmp_path, recording, n=1)
+    before = fleet_inputs(tmp_path)
+    run = run_dynid("fleet", "cat.csv", "--out", "store", "--workers", "1", "--parameters", "Xyz",
+                    "--json", "f.json", cwd=tmp_path, timeout=180)
+    assert_input_error(run, "--parameters", "Xyz")
+    after = fleet_inputs(tmp_path)
+    assert {p: after.get(p) for p in before} == before and not (tmp_path / "f.json").exists()
+
+
+@pytest.mark.slow
+def test_g11_fleet_partial_failure_exits_2_and_counts_it(tmp_path, recording):
+    """One recording good, one broken: exit 2, 1 identified and 1 failed (it said "2 identified", exit 0)."""
+    fleet_catalogue(tmp_path, recording)
+    (tmp_path / "rec1.csv").write_text("t,q1\n0,garbage\n")
+    before = fleet_inputs(tmp_path)
+    run = run_dynid("fleet", "cat.csv", "--out", "store", "--workers", "1", "--json", "f.json", cwd=tmp_path,
+                    timeout=300)
+    assert_input_error(run, "1 of 2 recordings could not be identified", "rec1.csv")
+    after = fleet_inputs(tmp_path)
+    assert {p: after.get(p) for p in before} == before, "an input changed"
+    doc = json.loads((tmp_path / "f.json").read_text())
+    assert doc["n_failed"] == 1 and doc["n_identified"] == 1
+
+
+@pytest.mark.slow
+def test_g12_excite_starts_far_out_of_range(tmp_path):
+    run = run_dynid("excite", "--robot", "planar2", "--f0", "0.2", "--harmonics", "3", "--starts", "1000000000",
+                    "--out", "o.csv", cwd=tmp_path)
+    assert_input_error(run, "--starts", "out of range")
+    assert not (tmp_path / "o.csv").exists()
+
+
+@pytest.mark.slow
+def test_g12_fleet_workers_far_out_of_range(tmp_path, recording):
+    fleet_catalogue(tmp_path, recording, n=1)
+    before = fleet_inputs(tmp_path)
+    run = run_dynid("fleet", "cat.csv", "--out", "store", "--workers", "1000000", cwd=tmp_path)
+    assert_fleet_refused(run, before, tmp_path, "--workers", "out of range")
+
+
+@pytest.mark.slow
+def test_g11_simulate_says_what_it_leaves_out(tmp_path):
+    """A robot file without friction or rotor inertia (a URDF's, typically) was simulated with zero
+    friction and rotor inertia without a word (issue 29): the run says so, and so does its JSON."""
+    robot = planar2_toml(tmp_path, (", Ia1 = 0.05, Ia2 = 0.05, Fv1 = 0.5, Fv2 = 0.3, Fc1 = 1.0, Fc2 = 0.5",
+                                    ", Fv2 = 0.3"))
+    before = fingerprint(robot)
+    run = run_dynid("simulate", "--robot", "my.toml", "--duration", "1", "--out", "o.csv", "--json", "o.json",
+                    cwd=tmp_path)
+    assert_clean(run)
+    assert run.rc == 0, str(run)
+    assert _has(run.err, "without friction on joint 1") and _has(run.err, "without rotor inertia"), str(run)
+    assert not _has(run.err, "joint 1, 2|joints 1"), str(run)
+    notices = json.loads((tmp_path / "o.json").read_text())["notices"]
+    assert any("friction" in n for n in notices) and any("rotor inertia" in n for n in notices)
+    assert fingerprint(robot) == before
+    full = run_dynid("simulate", "--robot", "planar2", "--duration", "1", "--out", "p.csv", "--json", "p.json",
+                     cwd=tmp_path)
+    assert full.rc == 0 and "without" not in full.err, str(full)
+    assert json.loads((tmp_path / "p.json").read_text())["notices"] == []

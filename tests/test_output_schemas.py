@@ -58,7 +58,7 @@ def load(path):
 
 def test_every_command_with_json_has_a_schema():
     names = {p.stem for p in SCHEMAS.glob("*.json")}
-    assert names == {"robot", "simulate", "excite", "identify", "sample", "diagnose", "report"}
+    assert names == {"robot", "simulate", "excite", "identify", "sample", "diagnose", "report", "fleet"}
     for name in names:
         doc = schema(name)
         assert doc["required"] and doc.get("additionalProperties", True) is True, name
@@ -115,6 +115,47 @@ def test_demo_json(folder):
     run(folder, "demo", "--skip", "didim,sample,diagnose", "--duration", "5", "--report", "demo.html",
         "--json", "demo.json")
     check("report", load(folder / "demo.json"))
+
+
+def _fleet_catalogue(folder):
+    """Two planar2 recordings of one robot, a day apart (the folder's simulated p2.csv, cut two ways)."""
+    lines = (folder / "p2.csv").read_text().splitlines(keepends=True)
+    rows = ["robot_id,timestamp,path,robot,temperature"]
+    for k, cut in enumerate((len(lines) // 2, len(lines))):
+        (folder / f"fleet{k}.csv").write_text("".join(lines[:1] + lines[1 + k:cut]))
+        rows.append(f"R1,2026-03-0{k + 1}T08:00:00Z,fleet{k}.csv,planar2,{30 + k}")
+    (folder / "fleet.csv").write_text("\n".join(rows) + "\n")
+    return folder / "fleet.csv"
+
+
+def test_fleet_json_in_process(folder):
+    """The fleet's JSON (dynid.reports.fleet_report.fleet_json, what --json writes) from a store
+    filled in this process, without Dask."""
+    pytest.importorskip("pyarrow")
+    from dynid.analysis.fleet.engine import FleetRun, plan
+    from dynid.analysis.fleet.health import monitor
+    from dynid.analysis.fleet.store import ResultStore
+    from dynid.analysis.fleet.task import identify_recording
+    from dynid.reports.fleet_report import fleet_json
+    store = ResultStore(folder / "fleet-store-serial")
+    specs, _ = plan(str(_fleet_catalogue(folder)), store)
+    for spec in specs:
+        store.write(identify_recording(spec))
+    frame = store.read()
+    health = monitor(frame, ["Fv", "Fc"], false_alarm_rate=1e-4, n_baseline=3)
+    run = FleetRun(store=str(store.root), n_recordings=len(specs), n_computed=len(specs), n_skipped=0, errors=[],
+                   wall_seconds=0.0, workers=1, health=health)
+    doc = json.loads(json.dumps(fleet_json(run, frame, health), allow_nan=False))
+    check("fleet", doc)
+    assert doc["n_identified"] == 2 and [r["robot_id"] for r in doc["robots"]] == ["R1"]
+
+
+@pytest.mark.slow
+def test_fleet_json(folder):
+    pytest.importorskip("distributed")
+    _fleet_catalogue(folder)
+    run(folder, "fleet", "fleet.csv", "--out", "fleet-store", "--workers", "1", "--json", "fleet.json")
+    check("fleet", load(folder / "fleet.json"))
 
 
 def test_a_schema_rejects_a_document_without_its_core():

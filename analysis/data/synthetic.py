@@ -5,7 +5,8 @@ simulator itself, which is checked against Pinocchio).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+import re
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -156,6 +157,28 @@ def simulate_experiment(robot, chi_st, trajectory, duration, *, rng, tau_noise, 
                       meta={"true_q": sim.q, "true_tau": tau_sensor})
 
 
+def missing_effects(robot) -> list:
+    """What a simulation of `robot`'s a-priori values leaves out, in words (empty when nothing):
+    the joints without friction (no nonzero Fv/Fc value) and a robot without rotor inertia (no
+    nonzero Ia): a robot made from a URDF has neither until its TOML adds them (docs/guide.md)."""
+    values = dict(robot.apriori)
+    if robot.name == "tx40":
+        values.update(TX40_EXTRA)
+    nonzero = {k for k, v in values.items() if v}
+    n = robot.n_joints
+    no_friction = [j for j in range(1, n + 1) if not any(re.fullmatch(rf"(Fv|Fc){j}R?", k) for k in nonzero)]
+    out = []
+    if no_friction:
+        which = "any joint" if len(no_friction) == n else "joint" + ("s " if len(no_friction) > 1 else " ") \
+            + ", ".join(map(str, no_friction))
+        out.append(f"simulated without friction on {which}: the robot file gives no Fv or Fc value "
+                   f"(add them to its [apriori] table)")
+    if not any(re.fullmatch(r"Ia\d+R?", k) for k in nonzero):
+        out.append("simulated without rotor inertia: the robot file gives no Ia value (add them to its "
+                   "[apriori] table)")
+    return out
+
+
 @dataclass(eq=False)
 class SimulatedRecording:
     """A simulated recording (`experiment`) with what produced it."""
@@ -168,6 +191,8 @@ class SimulatedRecording:
     duration: float
     noise_q: float
     noise_tau: float
+    #: what the simulation leaves out (friction, rotor inertia), in words
+    notices: list = field(default_factory=list)
 
     def to_dict(self) -> dict:
         """Settings, reference coefficients and true parameters (JSON-safe).
@@ -185,7 +210,7 @@ class SimulatedRecording:
         tr = self.trajectory
         return json_safe({
             "robot": self.robot.name, "seed": self.seed, "duration": self.duration, "fs": self.experiment.fs,
-            "noise": {"q_std": self.noise_q, "tau_std": self.noise_tau},
+            "noise": {"q_std": self.noise_q, "tau_std": self.noise_tau}, "notices": list(self.notices),
             "reference": {"f0": tr.f0, "harmonics": tr.harmonics, "a": tr.a, "b": tr.b, "q0": tr.q0},
             "true_parameters": {"source": "the robot file's a-priori values" + extra,
                                 "base": dict(zip(bp.names, bp.from_standard(self.chi))),
@@ -229,5 +254,7 @@ def simulate(robot, duration: float = 20.0, *, seed: int = 1, f0: float = 0.1, h
     traj = random_fourier_trajectory(robot, f0, harmonics, rng)
     exp = simulate_experiment(robot, chi, traj, duration, rng=rng, q_noise=noise_q, tau_noise=noise_tau,
                               progress=progress, name=f"simulated {robot.name} (seed {seed})")
+    notices = missing_effects(robot)
+    exp.notices = list(exp.notices or []) + notices
     return SimulatedRecording(experiment=exp, robot=robot, trajectory=traj, chi=chi, seed=seed,
-                              duration=duration, noise_q=noise_q, noise_tau=noise_tau)
+                              duration=duration, noise_q=noise_q, noise_tau=noise_tau, notices=notices)

@@ -420,9 +420,9 @@ def _rank_error(system, cols, nonzero, R, piv, rank, rank_rtol, Ms) -> Identific
             js = np.flatnonzero(system.support[:, cols[k]])
             lines.append(
                 f"  - {names[k]!r}: its column is (numerically) {combo}, so only a combination "
-                f"can be estimated. Regroup these parameters (use base parameters) or remove "
-                f"{names[k]!r} from the model, or excite {_joint_list(js) or 'the joints'} with "
-                "a richer trajectory."
+                f"can be estimated. Excite {_joint_list(js) or 'the joints'} with a richer trajectory "
+                f"(both directions of motion, a longer or wider one); in Python, a model of your own "
+                f"can also regroup them into base parameters or remove {names[k]!r}."
             )
     if not lines:
         # Pivoted QR missed a near-deficiency the singular values show: name the
@@ -433,8 +433,8 @@ def _rank_error(system, cols, nonzero, R, piv, rank, rank_rtol, Ms) -> Identific
         involved = ", ".join(repr(names[nz[i]]) for i in big if abs(v[i]) > 0.1)
         lines.append(
             f"  - {involved}: nearly linearly dependent (smallest/largest singular value "
-            f"{sv[-1] / sv[0]:.2g}); remove one of them from the model (use base parameters) or "
-            "excite the robot with a richer trajectory."
+            f"{sv[-1] / sv[0]:.2g}); excite the robot with a richer trajectory (in Python, a model "
+            "of your own can also regroup into base parameters or remove one of them)."
         )
     n_bad = len(lines)
     return IdentificationError(

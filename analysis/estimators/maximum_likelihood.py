@@ -568,7 +568,8 @@ def _fourier_start(t, q, f0, K):
     C0, res, rank, _ = np.linalg.lstsq(B, q, rcond=None)
     if rank < m:
         raise InputError(f"the recording cannot separate {K} harmonics of f0 = {f0:g} Hz (rank {rank} < {m}); "
-                         "record at least one full period or lower n_harmonics")
+                         "record at least one full period, or fit fewer harmonics (--ml-harmonics on the "
+                         "command line, n_harmonics= in Python)")
     return B, Bd, Bdd, C0
 
 

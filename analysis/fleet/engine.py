@@ -24,6 +24,7 @@ from dynid.analysis.fleet.catalogue import joint_temperature, read_catalogue
 from dynid.analysis.fleet.store import ResultStore
 from dynid.analysis.fleet.task import MAX_SAMPLES, file_hash, identify_recording, task_key
 from dynid.errors import InputError
+from dynid.ranges import check_range
 
 INSTALL_HINT = 'pip install "dynid[fleet]"'
 
@@ -207,6 +208,8 @@ def identify_fleet(catalogue, store, *, scheduler=None, workers=None, client=Non
                    diagnose=False, max_samples=MAX_SAMPLES, progress=None) -> FleetRun:
     """Identify every recording of `catalogue` not yet in `store` (the store is updated)."""
     t0 = time.perf_counter()
+    if workers is not None:
+        workers = check_range("workers", workers)      # before the catalogue is read
     store = store if isinstance(store, ResultStore) else ResultStore(store)
     specs, todo = plan(catalogue, store, settings=settings, diagnose=diagnose, max_samples=max_samples)
     own = None

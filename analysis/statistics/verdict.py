@@ -348,7 +348,7 @@ def _whiteness(x: VerdictInputs) -> dict:
                      "correlation comes from the filtering and decimation, or from an effect it "
                      "does not model.")
     if corr:
-        white["text"] = ("The residual is correlated in time (Ljung-Box at lag "
+        white["text"] = ("The identification residual (fitted rows) is correlated in time (Ljung-Box at lag "
                          f"{white['lag']}: " + ", ".join(f"{names[j]} p = {_fmt_p(lb_p[j])}"
                                                          for j in range(n) if names[j] in corr)
                          + "): %\u03c3 counts the samples as independent and is optimistic; "
@@ -356,7 +356,8 @@ def _whiteness(x: VerdictInputs) -> dict:
                             "whether an effect is missing is what the diagnosis tests (dynid diagnose, "
                             "or the full report)."))
     else:
-        white["text"] = (f"The residual is white (Ljung-Box at lag {white['lag']}, every p \u2265 {alpha:g})."
+        white["text"] = (f"The identification residual (fitted rows) is white (Ljung-Box at lag {white['lag']}, "
+                         f"every p \u2265 {alpha:g})."
                          + diag_text)
     return white
 
@@ -372,10 +373,13 @@ def _normality(x: VerdictInputs) -> dict:
               "excess_kurtosis": [float(v) for v in nm_tab["excess_kurtosis"]],
               "non_gaussian_joints": nongauss, "alpha": alpha,
               "residual": "identification, fitted (moving) rows"}
-    normal["text"] = ("Residual not Gaussian (Jarque-Bera p < " + f"{alpha:g}) on "
+    normal["text"] = ("Identification residual (fitted rows) not Gaussian (Jarque-Bera p < " + f"{alpha:g}) on "
                       + ", ".join(f"{names[j]} (p = {_fmt_p(jb[j])})" for j in range(n)
                                   if names[j] in nongauss) + "."
-                      if nongauss else f"Residual Gaussian on every joint (Jarque-Bera p \u2265 {alpha:g}).")
+                      if nongauss else "Identification residual (fitted rows) Gaussian on every joint "
+                                       f"(Jarque-Bera p \u2265 {alpha:g})"
+                      + ("; the held-out samples are tested apart (Validation)." if x.validation is not None
+                         else "."))
     return normal
 
 

@@ -28,6 +28,8 @@ class OptionRange:
     unit: str = ""
     integer: bool = False
     why: str = ""       # what the upper end protects (time, memory, a solver)
+    open_low: bool = False      # `low` itself refused (a cut-off of 0 Hz, a level of 0)
+    open_high: bool = False
 
 
 RANGES = {
@@ -42,6 +44,31 @@ RANGES = {
     "prior_weight": OptionRange("--prior-weight", "prior_weight", 0.0, 1e15,
                                 why="beyond 1e15 the data vanish below double precision beside the "
                                     "a-priori term and the SDP solver fails"),
+    # the other numeric options of an identification run (dynid.analysis.run.Settings)
+    "holdout": OptionRange("--holdout", "holdout", 0.0, 1e7, "s", open_low=True),
+    "fc": OptionRange("--fc", "fc", 0.0, 1e6, "Hz", open_low=True),
+    "decimation_cutoff": OptionRange("--decimation-cutoff", "decimation_cutoff", 0.0, 1e6, "Hz", open_low=True),
+    "max_error_growth": OptionRange("--max-error-growth", "max_error_growth", 0.0, 100.0,
+                                    "(a fraction: 0.02 = 2 %)"),
+    "f0": OptionRange("--f0", "f0", 0.0, 1e4, "Hz", open_low=True),
+    "ml_harmonics": OptionRange("--ml-harmonics", "ml_harmonics", 1, 1000, integer=True,
+                                why="each harmonic adds parameters to every joint's latent trajectory"),
+    "max_iter": OptionRange("--max-iter", "max_iter", 1, 10_000, "steps", integer=True,
+                            why="each step is a closed-loop simulation"),
+    "mass_tolerance": OptionRange("--mass-tolerance", "mass_tolerance", 0.0, 1e3, "(a fraction of each mass)"),
+    "seed": OptionRange("--seed", "seed", 0, 10**18, integer=True),
+    "max_seconds": OptionRange("--max-seconds", "max_seconds", 0.0, 1e7, "s", open_low=True),
+    "duration": OptionRange("--duration", "duration", 0.0, 1e6, "s", open_low=True),
+    "max_effects": OptionRange("--max-effects", "max_effects", 0, 100, integer=True),
+    "alpha": OptionRange("--alpha", "alpha", 0.0, 1.0, open_low=True, open_high=True),
+    "walkers": OptionRange("--walkers", "walkers", 1, 100_000, integer=True,
+                           why="every walker keeps its own chain in memory"),
+    "n_starts": OptionRange("--starts", "n_starts", 1, 10_000, "starts", integer=True,
+                            why="each start is an optimisation of its own"),
+    "workers": OptionRange("--workers", "workers", 1, 1024, "processes", integer=True,
+                           why="each local worker is a process of its own"),
+    "max_steps": OptionRange("--max-steps", "max_steps", 1, 100_000_000, integer=True,
+                             why="the chains are kept in memory"),
 }
 
 
@@ -58,15 +85,21 @@ def check_range(name: str, value, *, cli: str | None = None, python: str | None 
     r = RANGES[name]
     where = f"{cli or r.cli} ({python or r.python}=)"
     unit = f" {r.unit}" if r.unit else ""
-    span = f"from {r.low:g} to {r.high:g}{unit}"
+    span = (f"{'greater than' if r.open_low else 'from'} {r.low:g} "
+            f"{'and below' if r.open_high else 'and at most' if r.open_low else 'to'} {r.high:g}{unit}")
     try:
         number = float(value) if not isinstance(value, bool) else math.nan
     except (TypeError, ValueError):
         number = math.nan
     if r.integer and math.isfinite(number) and number != int(number):
         number = math.nan
-    if not (math.isfinite(number) and r.low <= number <= r.high):
+    inside = (math.isfinite(number) and (r.low < number if r.open_low else r.low <= number)
+              and (number < r.high if r.open_high else number <= r.high))
+    if not inside:
         kind = "a whole number" if r.integer else "a number"
         raise InputError(f"{where} {value!r} is out of range: give {kind} {span}"
                          + (f" ({r.why})" if r.why and math.isfinite(number) and number > r.high else ""))
-    return int(number) if r.integer else number
+    # a whole number given as 3.0 stays an int; a float option keeps its value (a numpy float stays one)
+    if r.integer:
+        return value if isinstance(value, int) else int(number)
+    return value if isinstance(value, float) else number
