@@ -284,3 +284,13 @@ def pin_compatible_parameters(robot, bp, beta, mass=1.0):
     if not np.allclose(P @ chi, beta, rtol=0, atol=1e-9 * max(1.0, np.abs(beta).max())):
         raise RuntimeError("pin_compatible_parameters: link masses are not free for this robot")
     return chi
+
+
+def regressor_inverse_dynamics(robot, chi_st, q, qd, qdd):
+    """tau = IDM_st(q, qd, qdd) chi_st of eq. (2), through dynid's public regressor.
+
+    Not independent of dynid: a second route (the linear-in-parameters regressor) against
+    which the compiled per-sample RNEA of dynid.dynamics.dynamic_model is compared.
+    """
+    from dynid.dynamics.regressor import regressor
+    return regressor(robot, q, qd, qdd) @ np.asarray(chi_st, dtype=float)

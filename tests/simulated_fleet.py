@@ -24,6 +24,7 @@ to 2-3 % (a 20 % change is 7 sigma).
 """
 from __future__ import annotations
 
+import functools
 import os
 import re
 from dataclasses import dataclass
@@ -73,10 +74,18 @@ def _cycle(rng, poses, fs, n_moves):
     return piecewise_acceleration(durations, accel, fs, poses[0])
 
 
+@functools.lru_cache(maxsize=8)
+def _robot(spec: str):
+    # one load per worker process and robot model, as dynid.analysis.fleet does, through public names
+    from dynid.analysis.identify import as_robot
+    from dynid.dynamics.base_parameters import base_parameters
+    robot = as_robot(spec)
+    return robot, base_parameters(robot)
+
+
 def simulate_recording(job: dict) -> str:
     """Simulate and write one recording (a job of `simulate_fleet`); returns its path."""
     from dynid.analysis.data.synthetic import apriori_parameters
-    from dynid.analysis.fleet.task import _robot
     from dynid.dynamics.simulation import simulate_closed_loop
     robot, bp = _robot(job["robot"])
     rng = np.random.default_rng(job["seed"])
@@ -137,7 +146,6 @@ def simulate_fleet(folder, n_robots: int = 20, n_days: int = 30, *, seed: int = 
         The plan of the recordings, the true parameters (with wear) and the paths
         written.
     """
-    from dynid.analysis.fleet.task import _robot
     os.makedirs(folder, exist_ok=True)
     rng = np.random.default_rng(seed)
     n_joints = _robot(robot)[0].n_joints

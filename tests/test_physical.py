@@ -237,14 +237,14 @@ def test_real_kuka_the_data_want_a_non_physical_model(kuka_23):
 def test_real_kuka_sdp_is_below_the_log_cholesky_search(kuka_23):
     """The SDP is a global optimum: with the same constraints (J_l >= 0, Ia >= 0) its chi2 is at
     most that of the log-Cholesky local search (which stopped at 1431-1440 in 2000 evaluations)."""
-    from dynid.analysis.estimators.physical import _build, _whitening
+    from dynid.analysis.estimators.sdp import build_sdp, whitening
     from dynid.analysis.estimators.standard_set import apriori_standard, choose_standard_set
     robot, res = kuka_23
     b, cov = res.wls.chi, res.wls.cov
     local = choose_standard_set(robot, res.base, b, cov, solver="log-cholesky", max_nfev=300)
     ap = apriori_standard(robot)
-    R = _whitening(cov)
-    pb = _build(robot, res.base, R, ap, scales(robot, ap), 1e-8, None, nonneg_kinds=("Ia",))
+    R = whitening(cov)
+    pb = build_sdp(robot, res.base, R, ap, scales(robot, ap), 1e-8, None, nonneg_kinds=("Ia",))
     chi = pb.solve(R @ b)
     chi2 = float(np.sum((R @ (res.base.matrix @ chi - b)) ** 2))
     assert chi2 < local.chi2
@@ -255,14 +255,14 @@ def test_pc_is_never_farther_from_a_physical_truth_in_the_wls_metric(pendulum):
     """Projection on a convex set holding the truth is non-expansive: ||R (beta_pc - beta)|| <=
     ||R (beta_wls - beta)|| for every draw of the WLS estimate (here the truth has Fv1 = 0, on
     a constraint, and a 30 % noise level so that WLS is often non-physical)."""
-    from dynid.analysis.estimators.physical import _whitening
+    from dynid.analysis.estimators.sdp import whitening
     robot, bp, chi, _ = pendulum
     chi = chi.copy()
     chi[robot.standard_names.index("Fv1")] = 0.0
     beta = bp.from_standard(chi)
     cov, _ = _cov(beta)
     cov = cov * 30 ** 2
-    R = _whitening(cov)
+    R = whitening(cov)
     L = np.linalg.cholesky(cov)
     rng = np.random.default_rng(3)
     non_physical = 0
@@ -322,17 +322,17 @@ def test_pc_didim_simulates_physical_estimates():
 def test_a_failed_bootstrap_refit_is_left_out_and_reported(pendulum, monkeypatch):
     """One refit failing in the solver (it happened once in 2,500 PC-DIDIM refits) leaves the
     fit and the other refits standing, and says how many were left out."""
-    from dynid.analysis.estimators import physical
+    from dynid.analysis.estimators.sdp import SDPProblem
     robot, bp, chi, beta = pendulum
     cov, _ = _cov(beta)
-    solve, calls = physical._Problem.solve, []
+    solve, calls = SDPProblem.solve, []
 
     def flaky(self, t):
         calls.append(1)
         if len(calls) == 3:
             raise InputError("the physically consistent fit failed in the SDP solver: test")
         return solve(self, t)
-    monkeypatch.setattr(physical._Problem, "solve", flaky)
+    monkeypatch.setattr(SDPProblem, "solve", flaky)
     r = pc_wls(robot, bp, beta, cov, n_boot=25, seed=0)
     assert len(r.boot) == 24 and r.n_boot == 25
     assert any("1 of 25 bootstrap refits failed" in n for n in r.notices)
@@ -404,7 +404,7 @@ def test_pc_didim_steps_lower_the_output_error():
     import dynid
     from dynid.analysis.data.synthetic import simulate_experiment
     from dynid.analysis.estimators.didim import identify_didim
-    from dynid.analysis.estimators.physical import _whitening
+    from dynid.analysis.estimators.sdp import whitening
     from dynid.dynamics.trajectories import random_fourier_trajectory
     robot = dynid.load_robot("panda")
     chi = truth(robot, np.random.default_rng(15))
@@ -421,7 +421,7 @@ def test_pc_didim_steps_lower_the_output_error():
     full_or_tested = h["step_length"].to_numpy()[1:] > 0.5 ** 6          # DEFAULT_HALVINGS
     assert np.all(oe[1:][full_or_tested] <= oe[:-1][full_or_tested] + 1e-9)
     beta = res.base.from_standard(chi)
-    R = _whitening(res.wls.cov)
+    R = whitening(res.wls.cov)
     assert np.linalg.norm(R @ (pc.physical.chi - beta)) <= np.linalg.norm(R @ (plain.result.chi - beta))
     assert pc.physical.consistent
 

@@ -109,15 +109,16 @@ def test_pc_effect_covariance_matches_a_monte_carlo_of_the_profiled_fit():
     jointly (base and effect parameters), each draw's base part refitted under the constraints
     and theta from eq. (2) (~17 s: 800 SDP solves)."""
     from dynid.analysis.diagnosis.physical_fit import profile_physical
-    from dynid.analysis.estimators.physical import TIE_BREAK, _build, _whitening
+    from dynid.analysis.estimators.physical import TIE_BREAK
+    from dynid.analysis.estimators.sdp import build_sdp, whitening
     from dynid.analysis.estimators.standard_set import apriori_standard, scales
     robot, bp, x_true, cov = _clamped_case()
     b = bp.n_base
     _, _, cov3 = profile_physical(robot, bp, x_true, cov, b, n_boot=2000, seed=1)
     chi_ap = apriori_standard(robot)
     cov_bb = cov[:b, :b]
-    R = _whitening(cov_bb)
-    pb = _build(robot, bp, R, chi_ap, scales(robot, chi_ap), TIE_BREAK, getattr(robot, "mass_tolerance", None))
+    R = whitening(cov_bb)
+    pb = build_sdp(robot, bp, R, chi_ap, scales(robot, chi_ap), TIE_BREAK, getattr(robot, "mass_tolerance", None))
     K = np.linalg.solve(cov_bb, cov[:b, b:]).T
     draws = np.random.default_rng(7).multivariate_normal(x_true, cov, size=800)
     theta = np.array([d[b:] + K @ (bp.matrix @ pb.solve(R @ d[:b]) - d[:b]) for d in draws])

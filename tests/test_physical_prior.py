@@ -305,7 +305,7 @@ def test_divergence_is_frame_invariant_the_euclidean_term_is_not():
 def test_dynid_pulls_toward_the_same_divergence_in_any_frame():
     """The objective dynid builds gives, at a given J, the divergence computed here (the SDP's
     prior term by cvxpy at a fixed point), in the original and in a moved link frame."""
-    from dynid.analysis.estimators.physical import _build
+    from dynid.analysis.estimators.sdp import build_sdp
     from dynid.analysis.estimators.standard_set import apriori_standard, scales
     from dynid.dynamics.base_parameters import base_parameters
     robot = _load(TOML)
@@ -326,7 +326,7 @@ def test_dynid_pulls_toward_the_same_divergence_in_any_frame():
             ap_t[lk], chi_t[lk] = values(J0t), values(Jt)
             expect += divergence(Jt, J0t)
         st = scales(robot, ap_t)
-        pb = _build(robot, bp, np.zeros((1, bp.n_base)), ap_t, st, 1.0, None, prior="geometric")
+        pb = build_sdp(robot, bp, np.zeros((1, bp.n_base)), ap_t, st, 1.0, None, prior="geometric")
         pb.target.value = np.zeros(1)
         pb.z.value = chi_t / st
         got = pb.prob.objective.value

@@ -12,13 +12,13 @@ import pytest
 
 from dynid.analysis.data.synthetic import experiment_from_simulation
 from dynid.dynamics import dynamic_model as dm
-from dynid.dynamics.regressor import _inverse_dynamics_via_regressor as regressor_inverse_dynamics
 from dynid.dynamics.robot import Controller, Coupling, Joint, Robot, mdh_placement
 from dynid.dynamics.robot_file import load_robot
 from dynid.dynamics.simulation import SimulationResult, simulate_closed_loop, simulate_torque
 from dynid.dynamics.trajectories import random_fourier_trajectory
 from dynid.errors import InputError
 from tests import oracles
+from tests.oracles import regressor_inverse_dynamics
 
 pin = oracles.pin
 needs_pin = pytest.mark.skipif(pin is None, reason="pinocchio (pin) not installed")
