@@ -15,7 +15,6 @@ from dynid.analysis.data.synthetic import tx40_true_parameters
 from dynid.dynamics.base_parameters import base_parameters
 from dynid.dynamics.dynamic_model import inverse_dynamics
 from dynid.dynamics.excitation import (
-    _Problem,
     apriori_parameters,
     column_scales,
     design_excitation,
@@ -23,6 +22,7 @@ from dynid.dynamics.excitation import (
     regressor_conditioning,
     spectrum_check,
 )
+from dynid.dynamics.excitation_problem import ExcitationProblem as _Problem
 from dynid.dynamics.robot_file import load_robot
 from dynid.dynamics.trajectories import FourierTrajectory, random_fourier_trajectory
 from dynid.errors import InputError
