@@ -38,7 +38,7 @@ from pathlib import Path
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))      # physical_truth.py: the random physical truth, shared with a test
+sys.path.insert(0, str(ROOT / "tests" / "support"))      # physical_truth.py: the random physical truth, shared with a test
 
 from physical_truth import truth
 

@@ -38,7 +38,7 @@ Output at each controller sample `t_k`: the state `q_k, qd_k`, the torque
 `tau_k` computed there and held over `[t_k, t_k+1)`, and `qdd_k` the
 acceleration of the plant at `(q_k, qd_k, tau_k)` (the first RK4 stage).
 
-Accuracy (measured by `tests/test_simulation.py`, TX40 with Table-2-like
+Accuracy (measured by `tests/dynamics/test_simulation.py`, TX40 with Table-2-like
 parameters tracking a 5-harmonic Fourier reference at 5 kHz, 5 s, v_s = 0.05):
 the RK4 step of one controller period differs from a 4x finer step by
 4e-9 rad in q (7e-6 rad/s in qd, 1e-5 N m in tau, mostly at velocity
