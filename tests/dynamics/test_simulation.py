@@ -149,6 +149,7 @@ def test_forward_dynamics_rejects_indefinite_mass_matrix():
 # ----------------------------------------------------------------------------- (b) simulator vs Pinocchio loop
 
 @needs_pin
+@pytest.mark.slow
 def test_tx40_closed_loop_matches_pinocchio_loop(tx40, capsys):
     """5 s of TX40 closed-loop tracking at 5 kHz: dynid's compiled loop against a
     plain-Python loop on Pinocchio (same controller, ZOH and RK4 step)."""

@@ -51,6 +51,7 @@ def test_demo_recovers_every_table2_parameter(demo_run):
         assert abs(err) <= 0.05 * abs(value), f"{name}: error {100 * err / value:.2f} % of Table 2"
 
 
+@pytest.mark.slow
 def test_demo_essential_set_is_table2_plus_rotor6(demo_run):
     _, doc = demo_run
     essential = {p["name"] for p in doc["parameters"]}
@@ -60,12 +61,14 @@ def test_demo_essential_set_is_table2_plus_rotor6(demo_run):
     assert essential - table2 <= {"Ia6"}
 
 
+@pytest.mark.slow
 def test_demo_relative_errors_below_three_percent(demo_run):
     _, doc = demo_run
     assert doc["rel_error"] < 0.03
     assert doc["validation"]["rel_error"] < 0.03
 
 
+@pytest.mark.slow
 def test_demo_report_prints_paper_rel_std_beside_ours(demo_run):
     out, _ = demo_run
     html = (out / "demo.html").read_text()
@@ -152,6 +155,7 @@ def test_real_tx40_held_out_error(real_tx40):
     assert val.t.min() >= 6.0
 
 
+@pytest.mark.slow
 def test_cli_identify_real_tx40(tmp_path):
     report, js = tmp_path / "out.html", tmp_path / "out.json"
     code = main(["identify", str(TX40_EXPERIMENT), "--robot", "tx40", "--holdout", "3",
