@@ -13,7 +13,7 @@ other strings are left alone):
 * a literal double-backtick span ``x`` becomes `x`.
 
 mkdocstrings (numpy style) shows single backticks as code; Sphinx roles and double
-backticks come out as raw text in the API reference (tests/test_docs.py fails on them).
+backticks come out as raw text in the API reference (tests/project/test_docs.py fails on them).
 The script is idempotent: run it again after merging branches that add docstrings.
 """
 from __future__ import annotations

@@ -35,7 +35,7 @@ import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))   # bias_scenarios: a test fixture
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "support"))   # bias_scenarios: a test fixture
 
 import bias_scenarios as bs  # noqa: E402
 import numpy as np  # noqa: E402

@@ -1,7 +1,7 @@
 """Memory of a long recording identified in memory vs reduced chunk by chunk (the fleet task's two paths).
 
 One long production recording of the planar2 arm (pick-and-place cycles at 1 kHz,
-simulated in closed loop as tests/simulated_fleet.py does) is identified by
+simulated in closed loop as tests/support/simulated_fleet.py does) is identified by
 the fleet task (IDIM: WLS and essential set) twice per length, on its first
 N/4 samples and on all N:
 - in memory: dynid.analysis.estimators.idim.identify_idim (the full-rate filtered
@@ -30,7 +30,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests"))      # simulated_fleet.py: the test fleet's recordings
+sys.path.insert(0, str(ROOT / "tests" / "support"))      # simulated_fleet.py: the test fleet's recordings
 
 import numpy as np
 

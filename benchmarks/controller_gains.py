@@ -4,7 +4,7 @@
     python benchmarks/controller_gains.py --seeds 3 4 --duration 16
     python benchmarks/controller_gains.py --didim          # and DIDIM with them against IDIM
 
-Data: ``tests/independent_plant.py`` (Pinocchio TX40 with the Table 2 parameters and the
+Data: ``tests/support/independent_plant.py`` (Pinocchio TX40 with the Table 2 parameters and the
 coupled wrist, its own semi-implicit Euler integrator and PID with velocity feed-forward,
 gains unknown to dynid), 10-harmonic reference, encoder noise 2e-5 rad, torque noise 0.2 N m.
 Seeds 3-8 were used while developing the estimator (the velocity-lag column, the whitened
@@ -44,7 +44,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-for _p in (ROOT, ROOT / "tests"):
+for _p in (ROOT, ROOT / "tests" / "support"):
     if str(_p) not in sys.path:
         sys.path.insert(0, str(_p))
 

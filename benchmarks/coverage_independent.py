@@ -1,6 +1,6 @@
 """Coverage of IDIM's 95 % intervals on the independent closed-loop plant, coloured noise (issue 26).
 
-Plant: ``tests/independent_plant.py`` (Pinocchio, its own integrator, PID loop), the
+Plant: ``tests/support/independent_plant.py`` (Pinocchio, its own integrator, PID loop), the
 TX40 with the Table 2 parameters and the coupled wrist, i.e. dynid's ``tx40`` model
 with the Table 2 values, so the true base parameters are the plant's standard parameters
 (``tx40_table2_parameters``, motor-6 friction 0.8, 1.6, offsets 0) mapped by the
@@ -41,7 +41,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-for _p in (ROOT, ROOT / "tests"):
+for _p in (ROOT, ROOT / "tests" / "support"):
     if str(_p) not in sys.path:
         sys.path.insert(0, str(_p))
 

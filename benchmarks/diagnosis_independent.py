@@ -7,7 +7,7 @@ it was not tuned to?
         --cache /tmp/diag_cache --workers 2
     python benchmarks/diagnosis_independent.py --seeds 1 --cases clean stribeck_j1
 
-Data. ``tests/independent_plant.py`` (Pinocchio dynamics, its own integrator, PID
+Data. ``tests/support/independent_plant.py`` (Pinocchio dynamics, its own integrator, PID
 controller and friction law ``Fv qd + Fc tanh(qd / 0.01)``): the TX40 with the Table 2
 parameters and the coupled wrist, and the KUKA LWR4+ of dynid's URDF (cases
 ``kuka_*``); multisine reference with 10 harmonics, 5 kHz, default sensor noise
@@ -69,7 +69,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-for _p in (ROOT, ROOT / "tests"):
+for _p in (ROOT, ROOT / "tests" / "support"):
     if str(_p) not in sys.path:
         sys.path.insert(0, str(_p))
 

@@ -13,7 +13,7 @@ RK4 step) as a plain-Python loop on Pinocchio:
   armature (diag(Ia)); the wrist coupling's off-diagonal rotor term, which ABA
   cannot take, is left out, so this is the cost of an ABA-based loop, not the
   exact TX40 dynamics;
-* tests/oracles.py ``pin_closed_loop``: the exact TX40 dynamics through
+* tests/support/oracles.py ``pin_closed_loop``: the exact TX40 dynamics through
   ``crba`` + ``nonLinearEffects`` + a 6x6 solve (what the tests compare with).
 
 The Python loops are timed on the first ``--pin-seconds`` s (default 1 s,
@@ -37,7 +37,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests"))
+sys.path.insert(0, str(ROOT / "tests" / "support"))
 
 import numpy as np  # noqa: E402
 
@@ -158,7 +158,7 @@ def main():
           f"({1e6 * dynid_s / n_steps:.1f} us/step)")
     print(f"  Pinocchio aba Python loop: {aba_s:.2f} s for {m:,} steps -> {aba_full:.1f} s for "
           f"{n_steps:,} (x{aba_full / dynid_s:.0f} dynid)")
-    print(f"  Pinocchio crba+solve Python loop (exact TX40, tests/oracles.py): {exact_s:.2f} s for "
+    print(f"  Pinocchio crba+solve Python loop (exact TX40, tests/support/oracles.py): {exact_s:.2f} s for "
           f"{m:,} steps -> {exact_full:.1f} s (x{exact_full / dynid_s:.0f} dynid); "
           f"max |q_pin - q_dynid| = {agree:.1e} rad")
     print(json.dumps({

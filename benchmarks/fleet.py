@@ -1,6 +1,6 @@
 """Benchmark of the fleet: 200 robots x 30 days identified on Dask, friction wear detected.
 
-1. A simulated fleet (simulate_fleet of tests/simulated_fleet.py: planar2 at 200 Hz, one 9 s
+1. A simulated fleet (simulate_fleet of tests/support/simulated_fleet.py: planar2 at 200 Hz, one 9 s
    pick-and-place recording per robot and day, friction spread, daily temperature
    cycles, wear on one joint of 30 % of the robots from a random day on, a few
    corrupted logs) is written to a temporary folder, simulated on the cluster.
@@ -40,7 +40,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests"))      # simulated_fleet.py: the test fleet (Dask workers inherit the path)
+sys.path.insert(0, str(ROOT / "tests" / "support"))      # simulated_fleet.py: the test fleet (Dask workers inherit the path)
 
 import numpy as np
 import pandas as pd

@@ -1,7 +1,7 @@
 """Payload identification and drive gains on an independent plant (issue 28).
 
 Each seed: a random payload (1-5 kg, centre of mass 2-15 cm off the flange, a full inertia
-tensor: tests/payload_plant.py) on the TX40 plant of tests/independent_plant.py (Pinocchio,
+tensor: tests/support/payload_plant.py) on the TX40 plant of tests/support/independent_plant.py (Pinocchio,
 FIGAROH's URDF, its friction law and a PID loop at 2 kHz (`--rate`), position noise 2e-5 rad, torque
 noise 0.2 N m). Two closed-loop recordings: 20 s without the payload, 10 s with it, the wrist
 swept at 0.4 Hz. dynid's model is the tx40 robot file without its wrist coupling (the URDF
@@ -56,7 +56,7 @@ def recordings(seed, rate=2000.0, unloaded_s=20.0, loaded_s=10.0, extra_loaded=0
     import numpy as np
 
     from dynid.analysis.data.experiment import Experiment
-    from tests import payload_plant as pp
+    from tests.support import payload_plant as pp
     params, parts = pp.random_payload(np.random.default_rng(seed))
     base, loaded, _ = pp.tx40_payload_plant(params)
 

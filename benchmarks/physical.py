@@ -97,15 +97,15 @@ def _timed(fn, repeat=3):
 
 def solve_times(res, robot):
     from dynid.analysis.estimators import least_squares as ls
-    from dynid.analysis.estimators.physical import _build, _whitening
+    from dynid.analysis.estimators.sdp import build_sdp, whitening
     from dynid.analysis.estimators.standard_set import apriori_standard, scales
     obs = res.observation
     wls_s, _ = _timed(lambda: ls.wls(obs.W, obs.tau, list(res.base.names), row_mask=obs.row_mask))
     ap = apriori_standard(robot)
-    R = _whitening(res.wls.cov)
+    R = whitening(res.wls.cov)
 
     def total():
-        pb = _build(robot, res.base, R, ap, scales(robot, ap), 1e-8, None)
+        pb = build_sdp(robot, res.base, R, ap, scales(robot, ap), 1e-8, None)
         return pb, pb.solve(R @ res.wls.chi)
     total_s, (pb, _) = _timed(total)
     solve_s, _ = _timed(lambda: pb.solve(R @ res.wls.chi))
@@ -123,10 +123,11 @@ def constraint_costs(res, robot, held):
     import numpy as np
 
     import dynid
-    from dynid.analysis.estimators.physical import _build, _whitening, identify_physical
+    from dynid.analysis.estimators.physical import identify_physical
+    from dynid.analysis.estimators.sdp import build_sdp, whitening
     from dynid.analysis.estimators.standard_set import apriori_standard, scales
     ap = apriori_standard(robot)
-    R = _whitening(res.wls.cov)
+    R = whitening(res.wls.cov)
     pc = identify_physical(res, robot, n_boot=0)
     out = {}
     cases = (("pseudo_inertia_only", (), robot.mass_tolerance), ("plus_Ia", ("Ia",), robot.mass_tolerance),
@@ -134,7 +135,7 @@ def constraint_costs(res, robot, held):
              ("plus_Ia_Fv_Fc", ("Ia", "Fv", "Fc"), robot.mass_tolerance),
              ("plus_Ia_Fv_Fc_no_mass_bounds", ("Ia", "Fv", "Fc"), None))
     for label, kinds, tol in cases:
-        pb = _build(robot, res.base, R, ap, scales(robot, ap), 1e-8, tol, nonneg_kinds=kinds)
+        pb = build_sdp(robot, res.base, R, ap, scales(robot, ap), 1e-8, tol, nonneg_kinds=kinds)
         chi = pb.solve(R @ res.wls.chi)
         pc.chi = res.base.matrix @ chi
         v = dynid.validate(pc, held, robot)
@@ -157,7 +158,8 @@ def link_side_model(res, robot, held):
 
     import dynid
     from dynid.analysis.estimators import least_squares as ls
-    from dynid.analysis.estimators.physical import _build, _whitening, identify_physical
+    from dynid.analysis.estimators.physical import identify_physical
+    from dynid.analysis.estimators.sdp import build_sdp, whitening
     from dynid.analysis.estimators.standard_set import apriori_standard, scales
     obs = res.observation
     names = list(res.base.names)
@@ -172,8 +174,8 @@ def link_side_model(res, robot, held):
     class _Reduced:
         matrix = res.base.matrix[keep]
     ap = apriori_standard(robot)
-    R = _whitening(wls.cov)
-    pb = _build(robot, _Reduced, R, ap, scales(robot, ap), 1e-8, robot.mass_tolerance, zero_kinds=("Ia",))
+    R = whitening(wls.cov)
+    pb = build_sdp(robot, _Reduced, R, ap, scales(robot, ap), 1e-8, robot.mass_tolerance, zero_kinds=("Ia",))
     chi = pb.solve(R @ wls.chi)
     pc.chi = res.base.matrix @ chi
     v_pc = dynid.validate(pc, held, robot).rel_error
@@ -223,14 +225,14 @@ def prior_table(res, robot, held, weights=PRIOR_WEIGHTS):
 def prior_solve_times(res, robot, weight=0.1, apriori=None):
     """Building + first solve and a re-solve (best of 3) of the SDP with the Euclidean and with the
     geometric prior at ``weight``; ``apriori``: the reference set instead of the robot file's."""
-    from dynid.analysis.estimators.physical import _build, _whitening
+    from dynid.analysis.estimators.sdp import build_sdp, whitening
     from dynid.analysis.estimators.standard_set import apriori_standard, scales
     ap = apriori_standard(robot) if apriori is None else apriori
-    R = _whitening(res.wls.cov)
+    R = whitening(res.wls.cov)
     out = {}
     for prior in ("apriori", "geometric"):
         def total(prior=prior):
-            pb = _build(robot, res.base, R, ap, scales(robot, ap), weight, robot.mass_tolerance, prior=prior)
+            pb = build_sdp(robot, res.base, R, ap, scales(robot, ap), weight, robot.mass_tolerance, prior=prior)
             return pb, pb.solve(R @ res.wls.chi)
         total_s, (pb, _) = _timed(total)
         solve_s, _ = _timed(lambda pb=pb: pb.solve(R @ res.wls.chi))
@@ -286,16 +288,16 @@ def export_comparison(res, robot, max_nfev=2000):
     local search it replaced, with the same constraints (J_l, Ia >= 0)."""
     import numpy as np
 
-    from dynid.analysis.estimators.physical import _build, _whitening
+    from dynid.analysis.estimators.sdp import build_sdp, whitening
     from dynid.analysis.estimators.standard_set import apriori_standard, choose_standard_set, scales
     b, cov = res.wls.chi, res.wls.cov
     t = time.perf_counter()
     local = choose_standard_set(robot, res.base, b, cov, solver="log-cholesky", max_nfev=max_nfev)
     t_local = time.perf_counter() - t
     ap = apriori_standard(robot)
-    R = _whitening(cov)
+    R = whitening(cov)
     t = time.perf_counter()
-    pb = _build(robot, res.base, R, ap, scales(robot, ap), 1e-8, None, nonneg_kinds=("Ia",))
+    pb = build_sdp(robot, res.base, R, ap, scales(robot, ap), 1e-8, None, nonneg_kinds=("Ia",))
     chi = pb.solve(R @ b)
     t_sdp = time.perf_counter() - t
     chi2 = float(np.sum((R @ (res.base.matrix @ chi - b)) ** 2))

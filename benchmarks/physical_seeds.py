@@ -38,7 +38,7 @@ from pathlib import Path
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))      # physical_truth.py: the random physical truth, shared with a test
+sys.path.insert(0, str(ROOT / "tests" / "support"))      # physical_truth.py: the random physical truth, shared with a test
 
 from physical_truth import truth
 
@@ -61,7 +61,8 @@ def main():
 
     import dynid
     from dynid.analysis.data.synthetic import simulate_experiment
-    from dynid.analysis.estimators.physical import _whitening, identify_physical
+    from dynid.analysis.estimators.physical import identify_physical
+    from dynid.analysis.estimators.sdp import whitening
     from dynid.dynamics.trajectories import random_fourier_trajectory
     from dynid.dynamics.urdf_writer import consistency
     robot = dynid.load_robot("panda")
@@ -92,7 +93,7 @@ def main():
                        "width_ratio": ((ci["upper"].to_numpy() - ci["lower"].to_numpy()) / (2 * hw)).tolist()}
         else:
             row_cov = {}
-        R = _whitening(res.wls.cov)
+        R = whitening(res.wls.cov)
         # ||R (beta_wls - beta)||^2 is chi^2 with b degrees of freedom if cov_wls is right
         row_cov["wls_mahalanobis2"] = float(np.sum((R @ (res.wls.chi - beta)) ** 2))
         d_w, d_p = (float(np.linalg.norm(R @ (b - beta))) for b in (res.wls.chi, pc.chi))

@@ -86,7 +86,7 @@ def speed(n_samples, repeats=3):
 
     import pinocchio as pin
 
-    from tests.oracles import pin_model_from_robot, random_standard_parameters
+    from tests.support.oracles import pin_model_from_robot, random_standard_parameters
     chi = random_standard_parameters(robot, np.random.default_rng(2))
     model = pin_model_from_robot(robot, chi)
     data = model.createData()

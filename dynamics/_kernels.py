@@ -46,6 +46,47 @@ else:  # pragma: no cover
     _whole_row_start = _whole_row_start_py
 
 
+def _propagate_link_py(R, P, j, sigma_j, qdj, qddj, wx, wy, wz, ax, ay, az, vx, vy, vz):
+    """One step of the Newton-Euler forward recursion: link j's angular velocity, angular
+    acceleration and origin acceleration (gravity included) in frame j, from its parent's in
+    frame j-1 (R, P: joint j's rotation and origin in frame j-1; sigma_j 0 revolute, 1 prismatic).
+    Shared by the regressor kernel here and the RNEA of dynamic_model, term for term."""
+    px = P[j, 0]; py = P[j, 1]; pz = P[j, 2]
+    # acceleration of origin j in frame j-1: dv + dw x P + w x (w x P)
+    cx = wy * pz - wz * py
+    cy = wz * px - wx * pz
+    cz = wx * py - wy * px
+    tx = vx + (ay * pz - az * py) + (wy * cz - wz * cy)
+    ty = vy + (az * px - ax * pz) + (wz * cx - wx * cz)
+    tz = vz + (ax * py - ay * px) + (wx * cy - wy * cx)
+    # into frame j: R^T x
+    nwx = R[j, 0, 0] * wx + R[j, 1, 0] * wy + R[j, 2, 0] * wz
+    nwy = R[j, 0, 1] * wx + R[j, 1, 1] * wy + R[j, 2, 1] * wz
+    nwz = R[j, 0, 2] * wx + R[j, 1, 2] * wy + R[j, 2, 2] * wz
+    nax = R[j, 0, 0] * ax + R[j, 1, 0] * ay + R[j, 2, 0] * az
+    nay = R[j, 0, 1] * ax + R[j, 1, 1] * ay + R[j, 2, 1] * az
+    naz = R[j, 0, 2] * ax + R[j, 1, 2] * ay + R[j, 2, 2] * az
+    nvx = R[j, 0, 0] * tx + R[j, 1, 0] * ty + R[j, 2, 0] * tz
+    nvy = R[j, 0, 1] * tx + R[j, 1, 1] * ty + R[j, 2, 1] * tz
+    nvz = R[j, 0, 2] * tx + R[j, 1, 2] * ty + R[j, 2, 2] * tz
+    if sigma_j == 0:
+        nax += nwy * qdj
+        nay -= nwx * qdj
+        naz += qddj
+        nwz += qdj
+    else:
+        nvx += 2.0 * nwy * qdj
+        nvy -= 2.0 * nwx * qdj
+        nvz += qddj
+    return nwx, nwy, nwz, nax, nay, naz, nvx, nvy, nvz
+
+
+if HAVE_NUMBA:
+    propagate_link = numba.njit(cache=True, nogil=True, inline="always")(_propagate_link_py)
+else:  # pragma: no cover
+    propagate_link = _propagate_link_py
+
+
 def _inertial_columns(Rp, pp, sigma, gravity, q, qd, qdd, out, whole_rows):
     """Fill the 10 inertial columns of every link, for every sample, into `out`.
 
@@ -103,37 +144,8 @@ def _inertial_columns(Rp, pp, sigma, gravity, q, qd, qdd, out, whole_rows):
         ax = 0.0; ay = 0.0; az = 0.0           # angular acceleration
         vx = -gravity[0]; vy = -gravity[1]; vz = -gravity[2]
         for j in range(n):
-            px = P[j, 0]; py = P[j, 1]; pz = P[j, 2]
-            # a_prev = dv + dw x P + w x (w x P)
-            cx = wy * pz - wz * py
-            cy = wz * px - wx * pz
-            cz = wx * py - wy * px
-            tx = vx + (ay * pz - az * py) + (wy * cz - wz * cy)
-            ty = vy + (az * px - ax * pz) + (wz * cx - wx * cz)
-            tz = vz + (ax * py - ay * px) + (wx * cy - wy * cx)
-            # rotate into frame j: x_j = R^T x
-            nwx = R[j, 0, 0] * wx + R[j, 1, 0] * wy + R[j, 2, 0] * wz
-            nwy = R[j, 0, 1] * wx + R[j, 1, 1] * wy + R[j, 2, 1] * wz
-            nwz = R[j, 0, 2] * wx + R[j, 1, 2] * wy + R[j, 2, 2] * wz
-            nax = R[j, 0, 0] * ax + R[j, 1, 0] * ay + R[j, 2, 0] * az
-            nay = R[j, 0, 1] * ax + R[j, 1, 1] * ay + R[j, 2, 1] * az
-            naz = R[j, 0, 2] * ax + R[j, 1, 2] * ay + R[j, 2, 2] * az
-            nvx = R[j, 0, 0] * tx + R[j, 1, 0] * ty + R[j, 2, 0] * tz
-            nvy = R[j, 0, 1] * tx + R[j, 1, 1] * ty + R[j, 2, 1] * tz
-            nvz = R[j, 0, 2] * tx + R[j, 1, 2] * ty + R[j, 2, 2] * tz
-            qdj = qd[s, j]
-            if sigma[j] == 0:
-                nax += nwy * qdj
-                nay -= nwx * qdj
-                naz += qdd[s, j]
-                nwz += qdj
-            else:
-                nvx += 2.0 * nwy * qdj
-                nvy -= 2.0 * nwx * qdj
-                nvz += qdd[s, j]
-            wx = nwx; wy = nwy; wz = nwz
-            ax = nax; ay = nay; az = naz
-            vx = nvx; vy = nvy; vz = nvz
+            wx, wy, wz, ax, ay, az, vx, vy, vz = propagate_link(
+                R, P, j, sigma[j], qd[s, j], qdd[s, j], wx, wy, wz, ax, ay, az, vx, vy, vz)
             # --- wrench columns of link j (about its origin, frame j)
             for a in range(3):
                 for k in range(10):

@@ -49,6 +49,7 @@ from numba import njit
 
 from dynid.errors import InputError
 
+from ._kernels import propagate_link
 from .robot import PER_JOINT
 
 N_PER_JOINT = len(PER_JOINT)          # 14
@@ -198,42 +199,14 @@ def _rnea_pass(R, P, sigma, inertial, gx, gy, gz, qd, qdd, unit, W, DW, DV, F, N
         F[j, 0] = 0.0; F[j, 1] = 0.0; F[j, 2] = 0.0
         NM[j, 0] = 0.0; NM[j, 1] = 0.0; NM[j, 2] = 0.0
     for j in range(start, n):
-        px = P[j, 0]; py = P[j, 1]; pz = P[j, 2]
-        # acceleration of origin j in frame j-1: dv + dw x P + w x (w x P)
-        cx = wy * pz - wz * py
-        cy = wz * px - wx * pz
-        cz = wx * py - wy * px
-        tx = vx + (ay * pz - az * py) + (wy * cz - wz * cy)
-        ty = vy + (az * px - ax * pz) + (wz * cx - wx * cz)
-        tz = vz + (ax * py - ay * px) + (wx * cy - wy * cx)
-        # into frame j: R^T x
-        nwx = R[j, 0, 0] * wx + R[j, 1, 0] * wy + R[j, 2, 0] * wz
-        nwy = R[j, 0, 1] * wx + R[j, 1, 1] * wy + R[j, 2, 1] * wz
-        nwz = R[j, 0, 2] * wx + R[j, 1, 2] * wy + R[j, 2, 2] * wz
-        nax = R[j, 0, 0] * ax + R[j, 1, 0] * ay + R[j, 2, 0] * az
-        nay = R[j, 0, 1] * ax + R[j, 1, 1] * ay + R[j, 2, 1] * az
-        naz = R[j, 0, 2] * ax + R[j, 1, 2] * ay + R[j, 2, 2] * az
-        nvx = R[j, 0, 0] * tx + R[j, 1, 0] * ty + R[j, 2, 0] * tz
-        nvy = R[j, 0, 1] * tx + R[j, 1, 1] * ty + R[j, 2, 1] * tz
-        nvz = R[j, 0, 2] * tx + R[j, 1, 2] * ty + R[j, 2, 2] * tz
         if unit < 0:
             qdj = qd[j]
             qddj = qdd[j]
         else:
             qdj = 0.0
             qddj = 1.0 if j == unit else 0.0
-        if sigma[j] == 0:
-            nax += nwy * qdj
-            nay -= nwx * qdj
-            naz += qddj
-            nwz += qdj
-        else:
-            nvx += 2.0 * nwy * qdj
-            nvy -= 2.0 * nwx * qdj
-            nvz += qddj
-        wx = nwx; wy = nwy; wz = nwz
-        ax = nax; ay = nay; az = naz
-        vx = nvx; vy = nvy; vz = nvz
+        wx, wy, wz, ax, ay, az, vx, vy, vz = propagate_link(
+            R, P, j, sigma[j], qdj, qddj, wx, wy, wz, ax, ay, az, vx, vy, vz)
         # link wrench about origin j, frame j
         XX = inertial[j, 0]; XY = inertial[j, 1]; XZ = inertial[j, 2]
         YY = inertial[j, 3]; YZ = inertial[j, 4]; ZZ = inertial[j, 5]

@@ -99,549 +99,38 @@ drops from ~9 to ~5.7; the raw SI cond, not optimised, *rises* (110-170 to
 """
 from __future__ import annotations
 
-import contextlib
-import ctypes
-import math
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.optimize
 
 from dynid.errors import InputError
 from dynid.outputs import atomic_write_text
 from dynid.provenance import json_safe
 from dynid.ranges import check_range
 
-from .base_parameters import base_parameters, base_regressor
-from .dynamic_model import inverse_dynamics
+from .base_parameters import base_parameters
+from .blas_threads import limit_blas_threads
+from .excitation_measures import (
+    DEFAULT_N_CHECK,
+    DEFAULT_SAMPLES_PER_HARMONIC,
+    SCALINGS,
+    apriori_parameters,
+    column_scales,
+    limit_margins,
+    regressor_conditioning,
+    spectrum_check,
+    within_limits,
+)
+from .excitation_problem import ExcitationProblem, shrink_to_torque
 from .trajectories import FourierTrajectory, _rng, check_f0, check_harmonics, random_fourier_trajectory
 
+# the measures, the problem and the BLAS limit live in their own modules (one concept each);
+# their public names stay importable from here, where they were first published
 __all__ = ["ExcitationResult", "design_excitation", "limit_blas_threads", "apriori_parameters", "column_scales",
            "regressor_conditioning", "limit_margins", "spectrum_check", "SCALINGS", "CRITERIA"]
 
-SCALINGS = ("envelope", "none", "columns")
 CRITERIA = ("cond", "logdet")
-DEFAULT_SAMPLES_PER_HARMONIC = 20
-DEFAULT_N_CHECK = 20_000
-_ENVELOPE_SEED = 19970501           # fixed: S must depend on the robot only
-_ENVELOPE_SAMPLES = 4000
-_H_Q = 1e-6                          # rad (m) step of the position derivative
-_H_QD = 1e-6                         # rad/s step of the velocity derivative
-
-
-# ----------------------------------------------------------------------------- helpers
-def apriori_parameters(robot, bp=None):
-    """Standard parameters `chi_st` built from `robot.apriori` (for torque limits).
-
-    Keys of `robot.apriori` may be base-parameter names (`ZZ1R`) or standard
-    names. When every key is a standard name, `beta = P chi` maps them to the
-    base parameters; otherwise base names are read directly (a standard name that
-    is also a base name, such as `Fv1`, counts as both). Parameters without an
-    a-priori value are zero. Returns `(chi_st, beta, missing)` with `missing`
-    the base parameters that had no value.
-    """
-    bp = base_parameters(robot) if bp is None else bp
-    values = dict(robot.apriori or {})
-    std = set(robot.standard_names)
-    if values and set(values) <= std:
-        beta = bp.from_standard(robot.standard_vector(values))
-        missing = []
-        for k, name in enumerate(bp.names):
-            involved = [bp.standard_names[bp.independent[k]]] + [
-                bp.standard_names[d] for c, d in zip(bp.K[k], bp.dependent) if c != 0.0]
-            if not any(nm in values for nm in involved):
-                missing.append(name)
-    else:
-        unknown = sorted(set(values) - set(bp.names) - std)
-        if unknown:
-            raise InputError(f"a-priori values of '{robot.name}' name unknown parameters: "
-                             f"{', '.join(unknown)}; use base names ({', '.join(bp.names[:4])}, ...) "
-                             "or standard names")
-        beta = np.array([float(values.get(nm, 0.0)) for nm in bp.names])
-        missing = [nm for nm in bp.names if nm not in values]
-    return bp.to_standard(beta), beta, missing
-
-
-def column_scales(robot, bp, scaling="envelope"):
-    """Fixed column scales `S` (b,) of the base regressor (see the module docstring).
-
-    `"envelope"`: RMS of each column over states uniform in the limit box (an
-    infinite position range is replaced by [-pi, pi], an infinite velocity or
-    acceleration limit by 1); `"none"`: ones. `"columns"` has no fixed scale
-    (the columns are normalised per trajectory): ones are returned.
-    """
-    if scaling not in SCALINGS:
-        raise InputError(f"scaling must be one of {', '.join(SCALINGS)}, got {scaling!r}")
-    if scaling != "envelope":
-        return np.ones(bp.n_base)
-    q_min, q_max, qd_max, qdd_max, _ = robot.limits()
-    finite = np.isfinite(q_min) & np.isfinite(q_max)
-    lo = np.where(finite, q_min, -np.pi)
-    hi = np.where(finite, q_max, np.pi)
-    vd = np.where(np.isfinite(qd_max), qd_max, 1.0)
-    va = np.where(np.isfinite(qdd_max), qdd_max, 1.0)
-    rng = np.random.default_rng(_ENVELOPE_SEED)
-    m, n = _ENVELOPE_SAMPLES, robot.n_joints
-    q = rng.uniform(lo, hi, (m, n))
-    qd = rng.uniform(-vd, vd, (m, n))
-    qdd = rng.uniform(-va, va, (m, n))
-    W = base_regressor(robot, bp, q, qd, qdd)
-    rms = np.sqrt(np.mean(W ** 2, axis=(0, 1)) * n)   # RMS per sample (all joints' rows)
-    return np.where(rms > 0, rms, 1.0)
-
-
-def _cond(s):
-    return float(s[0] / s[-1]) if s[-1] > 0 else math.inf
-
-
-def regressor_conditioning(robot, bp, trajectory, *, samples_per_harmonic=DEFAULT_SAMPLES_PER_HARMONIC,
-                           scales=None):
-    """Condition numbers of the base regressor of `trajectory` over one period.
-
-    Returns `{"cond": cond(W S^-1) (envelope scales unless `scales` given),
-    "cond_raw": cond(W) in SI units, "cond_unit": cond of W with unit-norm columns,
-    "logdet": log det(W_s^T W_s) / b / (samples), "n_samples": ...}`.
-    """
-    scales = column_scales(robot, bp) if scales is None else np.asarray(scales, dtype=float)
-    G = int(samples_per_harmonic) * trajectory.harmonics
-    t = np.arange(G) * (trajectory.period / G)
-    q, qd, qdd = trajectory.evaluate(t)
-    W = base_regressor(robot, bp, q, qd, qdd).reshape(-1, bp.n_base)
-    s_raw = np.linalg.svd(W, compute_uv=False)
-    Ws = W / scales
-    s = np.linalg.svd(Ws, compute_uv=False)
-    norms = np.linalg.norm(W, axis=0)
-    s_unit = np.linalg.svd(W / np.where(norms > 0, norms, 1.0), compute_uv=False)
-    with np.errstate(divide="ignore"):
-        logdet = float(2.0 * np.sum(np.log(s / math.sqrt(G))) / bp.n_base)
-    return {"cond": _cond(s), "cond_raw": _cond(s_raw), "cond_unit": _cond(s_unit),
-            "logdet": logdet, "n_samples": G}
-
-
-def limit_margins(robot, trajectory, chi_st=None, *, n_check=DEFAULT_N_CHECK, bp=None):
-    """Relative distance of `trajectory` to every limit, per joint, on a dense grid.
-
-    Columns (1 = untouched, 0 = on the limit, negative = violated):
-    `q_low = (min q - q_min) / half range`, `q_high = (q_max - max q) / half range`,
-    `qd = 1 - max|qd| / qd_max`, `qdd = 1 - max|qdd| / qdd_max` and, with
-    `chi_st`, `tau = 1 - max|tau| / tau_max` (NaN where a limit is infinite),
-    plus the peak values. The grid is `n_check` points over one period (offset
-    by half a step from t = 0).
-    """
-    import pandas as pd  # slow to import; the dynamics layer needs it only for this table
-
-    q_min, q_max, qd_max, qdd_max, tau_max = robot.limits()
-    t = (np.arange(n_check) + 0.5) * (trajectory.period / n_check)
-    q, qd, qdd = trajectory.evaluate(t)
-    half = 0.5 * (q_max - q_min)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        rows = {
-            "q_low": np.where(np.isfinite(q_min), (q.min(0) - q_min) / half, np.nan),
-            "q_high": np.where(np.isfinite(q_max), (q_max - q.max(0)) / half, np.nan),
-            "qd": np.where(np.isfinite(qd_max), 1.0 - np.abs(qd).max(0) / qd_max, np.nan),
-            "qdd": np.where(np.isfinite(qdd_max), 1.0 - np.abs(qdd).max(0) / qdd_max, np.nan),
-        }
-        peaks = {"q_min_reached": q.min(0), "q_max_reached": q.max(0),
-                 "qd_peak": np.abs(qd).max(0), "qdd_peak": np.abs(qdd).max(0)}
-        if chi_st is not None:
-            tau = inverse_dynamics(robot, chi_st, q, qd, qdd)
-            rows["tau"] = np.where(np.isfinite(tau_max), 1.0 - np.abs(tau).max(0) / tau_max, np.nan)
-            peaks["tau_peak"] = np.abs(tau).max(0)
-    df = pd.DataFrame({**rows, **peaks}, index=pd.Index(robot.joint_names, name="joint"))
-    return df
-
-
-def spectrum_check(trajectory, fs=None, *, rel_tol=1e-9):
-    """FFT of one period of the reference positions: lines only at `k f0`, `k <= N`?
-
-    One whole period sampled at `fs` (default `50 N f0`, at least 64 samples
-    per period) puts harmonic `k` exactly in FFT bin `k`. Returns a dict:
-    `freqs` (Hz) and `amplitude` (n, bins) of the one-sided amplitude spectrum
-    of `q - q0`, `lines` (frequencies of the bins above `rel_tol` times the
-    largest line), `off_grid` (largest amplitude outside bins 1..N relative to
-    the largest line), `bandwidth` (N f0) and `ok`.
-    """
-    N = trajectory.harmonics
-    if fs is None:
-        m = max(64, 50 * N)
-    else:
-        m = int(round(float(fs) * trajectory.period))
-        if abs(m - float(fs) * trajectory.period) > 1e-6 * m:
-            raise InputError(f"fs = {fs} Hz does not give a whole number of samples per period "
-                             f"({float(fs) * trajectory.period:g}); choose fs = k f0")
-    t = np.arange(m) * (trajectory.period / m)
-    q, _, _ = trajectory.evaluate(t)
-    X = np.fft.rfft(q - q.mean(0), axis=0) / m
-    amp = 2.0 * np.abs(X).T                                  # (n, bins)
-    freqs = np.arange(amp.shape[1]) * trajectory.f0
-    peak = float(amp.max()) if amp.size else 0.0
-    mask = np.zeros(amp.shape[1], bool)
-    mask[1:N + 1] = True
-    off = float(amp[:, ~mask].max() / peak) if peak > 0 and (~mask).any() else 0.0
-    lines = freqs[(amp.max(0) > rel_tol * peak)] if peak > 0 else np.array([])
-    return {"freqs": freqs, "amplitude": amp, "lines": lines, "off_grid": off,
-            "bandwidth": N * trajectory.f0, "max_line": float(lines.max()) if lines.size else 0.0,
-            "ok": bool(off <= rel_tol and (lines.size == 0 or lines.max() <= N * trajectory.f0 * (1 + 1e-9)))}
-
-
-# ----------------------------------------------------------------------------- problem
-class _Problem:
-    """Grids, Fourier bases, linear constraints and the objective of eq. (20)."""
-
-    def __init__(self, robot, bp, f0, N, chi, criterion, scaling, margin, samples_per_harmonic,
-                 n_constraint):
-        self.robot, self.bp, self.f0, self.N = robot, bp, float(f0), int(N)
-        self.n = robot.n_joints
-        self.m = 2 * self.N + 1
-        self.chi = chi
-        self.criterion, self.scaling, self.margin = criterion, scaling, float(margin)
-        self.scales = column_scales(robot, bp, "envelope")
-        self.opt_scales = column_scales(robot, bp, scaling)
-        T = 1.0 / self.f0
-        self.G = int(samples_per_harmonic) * self.N
-        self.t = np.arange(self.G) * (T / self.G)
-        self.B = self._bases(self.t)
-        self.Gc = int(n_constraint)
-        self.tc = np.arange(self.Gc) * (T / self.Gc)
-        self.Bc = self._bases(self.tc)
-        q_min, q_max, qd_max, qdd_max, tau_max = robot.limits()
-        self.tau_max = tau_max
-        self.torque_limited = chi is not None and bool(np.any(np.isfinite(tau_max)))
-        self._tkeep = np.isfinite(tau_max)
-        # same tightening as the kinematic limits (no guarantee between grid points:
-        # the torque is not a trigonometric polynomial of degree N)
-        self._tlim = (1.0 - 0.5 * (np.pi * self.N / self.Gc) ** 2) * self.margin * tau_max[self._tkeep]
-        # variable scaling: velocity amplitudes by qd_max (or the acceleration/position
-        # limits it implies), offsets by the half range
-        w = 2.0 * np.pi * self.f0
-        half = 0.5 * (q_max - q_min)
-        vs = np.fmin(np.fmin(qd_max, qdd_max / (w * self.N)), half * w)
-        vs = np.where(np.isfinite(vs) & (vs > 0), vs, 1.0)
-        ps = np.where(np.isfinite(half) & (half > 0), half, 1.0)
-        self.xs = np.concatenate([np.r_[np.full(2 * self.N, vs[j]), ps[j]] for j in range(self.n)])
-        self._linear_constraints(q_min, q_max, qd_max, qdd_max)
-        self._values, self._grad_key, self._grad = {}, None, None
-        self._tvalues, self._tjac_key, self._tjac = {}, None, None
-
-    # Fourier bases: x_j = [a(N), b(N), q0] -> q_j, qd_j, qdd_j on the grid
-    def _bases(self, t):
-        w = 2.0 * np.pi * self.f0
-        wk = w * np.arange(1, self.N + 1)
-        ph = np.multiply.outer(t, wk)
-        S, C = np.sin(ph), np.cos(ph)
-        one, zero = np.ones((t.size, 1)), np.zeros((t.size, 1))
-        return (np.hstack([S / wk, -C / wk, one]), np.hstack([C, S, zero]),
-                np.hstack([-S * wk, C * wk, zero]))
-
-    def kinematics(self, x, B=None):
-        X = x.reshape(self.n, self.m)
-        Bq, Bqd, Bqdd = self.B if B is None else B
-        return Bq @ X.T, Bqd @ X.T, Bqdd @ X.T
-
-    def _linear_constraints(self, q_min, q_max, qd_max, qdd_max):
-        """A z <= u on the constraint grid (z = x / xs), Bernstein-tightened."""
-        guard = 1.0 - 0.5 * (np.pi * self.N / self.Gc) ** 2
-        mg = self.margin
-        mid = 0.5 * (q_min + q_max)
-        half = 0.5 * (q_max - q_min)
-        rows, ub = [], []
-        Bq, Bqd, Bqdd = self.Bc
-        for j in range(self.n):
-            sl = slice(j * self.m, (j + 1) * self.m)
-            if np.isfinite(half[j]):
-                # |q - mid| <= guard mg half on the grid (checked densely afterwards)
-                lim = mg * half[j]
-                blk = np.zeros((self.Gc, self.n * self.m))
-                blk[:, sl] = Bq
-                rows += [blk, -blk]
-                ub += [np.full(self.Gc, mid[j] + guard * lim), np.full(self.Gc, -(mid[j] - guard * lim))]
-            for Bk, lim in ((Bqd, qd_max[j]), (Bqdd, qdd_max[j])):
-                if np.isfinite(lim):
-                    blk = np.zeros((self.Gc, self.n * self.m))
-                    blk[:, sl] = Bk
-                    rows += [blk, -blk]
-                    ub += [np.full(self.Gc, guard * mg * lim)] * 2
-        if rows:
-            A = np.vstack(rows) * self.xs           # in normalised variables
-            u = np.concatenate(ub)
-            # normalise each row so that the tolerances of SLSQP are comparable
-            nr = np.abs(u)
-            nr = np.where(nr > 0, nr, 1.0)
-            self.A, self.u = A / nr[:, None], u / nr
-        else:
-            self.A, self.u = np.zeros((0, self.n * self.m)), np.zeros(0)
-
-    # --- regressor with partial derivatives
-    def _stack(self, q, qd, qdd):
-        """All perturbed states: base, q_j +- h, qd_j + d h, qd_j + 2 d h, qdd_j + 1."""
-        n = self.n
-        Q, QD, QDD = [q], [qd], [qdd]
-        d = np.where(qd >= 0, 1.0, -1.0)
-        for j in range(n):
-            e = np.zeros(n)
-            e[j] = 1.0
-            Q += [q + _H_Q * e, q - _H_Q * e]
-            QD += [qd, qd]
-            QDD += [qdd, qdd]
-        for j in range(n):
-            dq = np.zeros_like(qd)
-            dq[:, j] = d[:, j] * _H_QD
-            Q += [q, q]
-            QD += [qd + dq, qd + 2 * dq]
-            QDD += [qdd, qdd]
-        for j in range(n):
-            e = np.zeros(n)
-            e[j] = 1.0
-            Q.append(q)
-            QD.append(qd)
-            QDD.append(qdd + e)
-        return np.vstack(Q), np.vstack(QD), np.vstack(QDD), d
-
-    def _partials(self, F, G, d):
-        """Split stacked values F ((1 + 5n) G, n, ...) into F0 and dF/dq_j, dF/dqd_j, dF/dqdd_j."""
-        n = self.n
-        F = F.reshape((1 + 5 * n, G) + F.shape[1:])
-        F0 = F[0]
-        extra = (None,) * (F.ndim - 2)
-        dq = [(F[1 + 2 * j] - F[2 + 2 * j]) / (2.0 * _H_Q) for j in range(n)]
-        o = 1 + 2 * n
-        dqd = [(F[o + 2 * j + 1] - F[o + 2 * j]) / (d[(slice(None), j) + extra] * _H_QD)
-               for j in range(n)]
-        o2 = 1 + 4 * n
-        dqdd = [F[o2 + j] - F0 for j in range(n)]
-        return F0, dq, dqd, dqdd
-
-    def _chain(self, gq, gqd, gqdd, B):
-        """Gradient w.r.t. x from per-sample sensitivities g (G, n, ...) to q_j, qd_j, qdd_j."""
-        Bq, Bqd, Bqdd = B
-        return (np.einsum("sm,js...->...jm", Bq, gq) + np.einsum("sm,js...->...jm", Bqd, gqd)
-                + np.einsum("sm,js...->...jm", Bqdd, gqdd))
-
-    # --- objective
-    def objective_terms(self, W):
-        """(f, H) with f the criterion of the stacked regressor W (G, n, b) and H = df/dW."""
-        b = self.bp.n_base
-        W2 = W.reshape(-1, b)
-        if self.scaling == "columns":
-            norms = np.linalg.norm(W2, axis=0)
-            norms = np.where(norms > 0, norms, 1.0)
-            Ws = W2 / norms
-        else:
-            Ws = W2 / self.opt_scales
-        # eigen-decomposition of the Gram matrix: b x b, much cheaper than the SVD of Ws
-        lam, V = np.linalg.eigh(Ws.T @ Ws)
-        if lam[0] <= 0 or not np.isfinite(lam).all():
-            return math.inf, np.zeros_like(W)
-        WV = Ws @ V
-        if self.criterion == "cond":
-            f = 0.5 * math.log(lam[-1] / lam[0])
-            Gm = np.outer(WV[:, -1], V[:, -1]) / lam[-1] - np.outer(WV[:, 0], V[:, 0]) / lam[0]
-        else:  # logdet: minimise -log det(Ws^T Ws / G) / b
-            f = -float(np.sum(np.log(lam / self.G))) / b
-            Gm = -(2.0 / b) * (WV / lam) @ V.T
-        if self.scaling == "columns":
-            H = (Gm - Ws * np.sum(Ws * Gm, axis=0)) / norms
-        else:
-            H = Gm / self.opt_scales
-        return f, H.reshape(W.shape)
-
-    def _value(self, z):
-        """Criterion only (one regressor evaluation): what the line search needs."""
-        key = z.tobytes()
-        if key in self._values:
-            return self._values[key]
-        q, qd, qdd = self.kinematics(z * self.xs)
-        W = base_regressor(self.robot, self.bp, q, qd, qdd)
-        f = self.objective_terms(W)[0]
-        if len(self._values) > 64:
-            self._values.clear()
-        self._values[key] = f
-        return f
-
-    def _gradient(self, z):
-        key = z.tobytes()
-        if key == self._grad_key:
-            return self._grad
-        x = z * self.xs
-        q, qd, qdd = self.kinematics(x)
-        Q, QD, QDD, d = self._stack(q, qd, qdd)
-        Wst = base_regressor(self.robot, self.bp, Q, QD, QDD)
-        W0, dq, dqd, dqdd = self._partials(Wst, self.G, d)
-        f, H = self.objective_terms(W0)
-        D = np.stack([np.stack(dq), np.stack(dqd), np.stack(dqdd)])     # (3, n, G, n, b)
-        g = np.einsum("tjsic,sic->tjs", D, H)                            # (3, n, G)
-        grad = self._chain(g[0], g[1], g[2], self.B).ravel() * self.xs
-        self._values[key] = f
-        self._grad_key, self._grad = key, grad
-        return grad
-
-    def fun(self, z):
-        return self._value(z)
-
-    def jac(self, z):
-        return self._gradient(z)
-
-    # --- torque constraint
-    def torque(self, x, B=None):
-        q, qd, qdd = self.kinematics(x, self.Bc if B is None else B)
-        return inverse_dynamics(self.robot, self.chi, q, qd, qdd)
-
-    def _torque_value(self, z):
-        """Normalised torque constraints (>= 0 when within margin tau_max) on the grid."""
-        key = z.tobytes()
-        if key in self._tvalues:
-            return self._tvalues[key]
-        tau = self.torque(z * self.xs)
-        r = tau[:, self._tkeep] / self._tlim
-        c = np.concatenate([(1.0 - r).ravel(), (1.0 + r).ravel()])
-        if len(self._tvalues) > 64:
-            self._tvalues.clear()
-        self._tvalues[key] = c
-        return c
-
-    def _torque_jac(self, z):
-        key = z.tobytes()
-        if key == self._tjac_key:
-            return self._tjac
-        x = z * self.xs
-        q, qd, qdd = self.kinematics(x, self.Bc)
-        Q, QD, QDD, d = self._stack(q, qd, qdd)
-        tst = inverse_dynamics(self.robot, self.chi, Q, QD, QDD)
-        tau, dq, dqd, dqdd = self._partials(tst, self.Gc, d)
-        # J[s, i, j, m] = dtau_i(s) / dx_jm
-        Bq, Bqd, Bqdd = self.Bc
-        J = (np.einsum("sm,jsi->sijm", Bq, np.stack(dq)) + np.einsum("sm,jsi->sijm", Bqd, np.stack(dqd))
-             + np.einsum("sm,jsi->sijm", Bqdd, np.stack(dqdd)))
-        J = J.reshape(self.Gc, self.n, -1)[:, self._tkeep] * self.xs
-        Jr = (J / self._tlim[None, :, None]).reshape(-1, J.shape[-1])
-        self._tjac_key, self._tjac = key, np.concatenate([-Jr, Jr])
-        return self._tjac
-
-    def constraints(self):
-        cons = []
-        if self.A.shape[0]:
-            A, u = self.A, self.u
-            cons.append({"type": "ineq", "fun": lambda z: u - A @ z, "jac": lambda z: -A})
-        if self.torque_limited:
-            cons.append({"type": "ineq", "fun": self._torque_value, "jac": self._torque_jac})
-        return cons
-
-    def max_violation(self, z):
-        """Largest normalised constraint violation at z (0 when feasible on the grid)."""
-        v = 0.0
-        if self.A.shape[0]:
-            v = max(v, float(np.max(self.A @ z - self.u)))
-        if self.torque_limited:
-            v = max(v, float(-np.min(self._torque_value(z))))
-        return v
-
-    def optimise(self, z0, max_iter, ftol, tol=1e-7):
-        """SLSQP from z0; returns (z, result): the best grid-feasible iterate seen.
-
-        SLSQP may end on an infeasible point (e.g. "Inequality constraints
-        incompatible"); the callback keeps the best feasible iterate instead.
-        """
-        best = {"f": math.inf, "z": z0}
-
-        def consider(z):
-            if self.max_violation(z) <= tol:
-                f = self.fun(z)
-                if f < best["f"]:
-                    best["f"], best["z"] = f, np.array(z, copy=True)
-
-        consider(z0)
-        res = scipy.optimize.minimize(self.fun, z0, jac=self.jac, method="SLSQP",
-                                      constraints=self.constraints(), callback=consider,
-                                      options={"maxiter": int(max_iter), "ftol": ftol})
-        consider(res.x)
-        return best["z"], best["f"], res
-
-    def to_x(self, traj):
-        return np.hstack([traj.a, traj.b, traj.q0[:, None]]).ravel()
-
-    def to_traj(self, x):
-        X = x.reshape(self.n, self.m)
-        N = self.N
-        return FourierTrajectory(self.f0, X[:, :N], X[:, N:2 * N], X[:, 2 * N])
-
-
-_BLAS_API = (("openblas_get_num_threads", "openblas_set_num_threads"),
-             ("openblas_get_num_threads64_", "openblas_set_num_threads64_"),
-             ("scipy_openblas_get_num_threads", "scipy_openblas_set_num_threads"),
-             ("scipy_openblas_get_num_threads64_", "scipy_openblas_set_num_threads64_"))
-
-
-@contextlib.contextmanager
-def limit_blas_threads(n):
-    """Limit the OpenBLAS libraries loaded in this process to `n` threads, then restore.
-
-    The optimisation makes thousands of small BLAS calls (60 x 60 Gram
-    matrices, SLSQP's least-squares steps); a multithreaded OpenBLAS spends
-    more time synchronising than computing on them, worst on a busy machine
-    (15x slower measured on 2 loaded cores). Finds the OpenBLAS copies of numpy
-    and scipy through `/proc/self/maps` (Linux) and calls their
-    `*_set_num_threads`; a no-op where that is not possible (other systems:
-    set `OPENBLAS_NUM_THREADS=1` in the environment instead). `n=None`: no
-    change.
-    """
-    restore = []
-    if n is not None:
-        try:
-            with open("/proc/self/maps") as fh:
-                paths = {ln.split()[-1] for ln in fh if "openblas" in ln.lower() and "/" in ln}
-            for path in sorted(paths):
-                try:
-                    lib = ctypes.CDLL(path)
-                except OSError:
-                    continue
-                for get, set_ in _BLAS_API:
-                    if hasattr(lib, get) and hasattr(lib, set_):
-                        getter, setter = getattr(lib, get), getattr(lib, set_)
-                        getter.restype = ctypes.c_int
-                        old = int(getter())
-                        setter(ctypes.c_int(int(n)))
-                        restore.append((setter, old))
-                        break
-        except OSError:
-            pass
-    try:
-        yield len(restore)
-    finally:
-        for setter, old in restore:
-            setter(ctypes.c_int(old))
-
-
-def _shrink_to_torque(prob, traj, n_grid=2000):
-    """Scale a start's oscillation about q0 until |tau| <= margin tau_max (bisection)."""
-    if not prob.torque_limited:
-        return traj, 1.0
-    t = np.arange(n_grid) * (traj.period / n_grid)
-    lim = prob.margin * prob.tau_max
-
-    def ok(scale):
-        tr = FourierTrajectory(traj.f0, traj.a * scale, traj.b * scale, traj.q0)
-        q, qd, qdd = tr.evaluate(t)
-        tau = inverse_dynamics(prob.robot, prob.chi, q, qd, qdd)
-        return bool(np.all(np.abs(tau) <= lim))
-
-    if ok(1.0):
-        return traj, 1.0
-    if not ok(0.0):
-        raise InputError(f"the gravity torque at the centre of the joint ranges of '{prob.robot.name}' "
-                         f"exceeds margin * tau_max: no random start is feasible; raise tau_max or "
-                         f"lower margin")
-    lo, hi = 0.0, 1.0
-    for _ in range(30):
-        mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if ok(mid) else (lo, mid)
-    return FourierTrajectory(traj.f0, traj.a * lo, traj.b * lo, traj.q0), lo
-
-
-def _feasible(margins, tol=0.0):
-    cols = [c for c in ("q_low", "q_high", "qd", "qdd", "tau") if c in margins]
-    v = margins[cols].to_numpy(dtype=float)
-    return bool(np.all(np.where(np.isnan(v), np.inf, v) >= -tol))
 
 
 # ----------------------------------------------------------------------------- result
@@ -697,7 +186,7 @@ class ExcitationResult:
 
     @property
     def feasible(self):
-        return _feasible(self.margins)
+        return within_limits(self.margins)
 
     def to_frame(self, fs, n_periods=1):
         """Reference `t, qr1..n, qdr1..n, qddr1..n` at the controller rate `fs` (Hz).
@@ -832,7 +321,7 @@ def _design(robot, f0, n_harmonics, *, n_starts, criterion, chi, rng, max_iter, 
         torque_src = "the given parameters"
     if n_constraint is None:
         n_constraint = max(200, 40 * N)
-    prob = _Problem(robot, bp, f0, N, chi_st, criterion, scaling, margin, samples_per_harmonic,
+    prob = ExcitationProblem(robot, bp, f0, N, chi_st, criterion, scaling, margin, samples_per_harmonic,
                     n_constraint)
     cond_key = {"envelope": "cond", "none": "cond_raw", "columns": "cond_unit"}[scaling]
     cond_name = {"cond": "cond(W S^-1), envelope column scales",
@@ -846,7 +335,7 @@ def _design(robot, f0, n_harmonics, *, n_starts, criterion, chi, rng, max_iter, 
     for k in range(n_starts):
         t0 = time.perf_counter()
         start = random_fourier_trajectory(robot, f0, N, rng, margin=margin)
-        start, shrink = _shrink_to_torque(prob, start)
+        start, shrink = shrink_to_torque(prob, start)
         c_start = conditioning(start)
         starts.append((c_start[cond_key], start, c_start))
         z0 = prob.to_x(start) / prob.xs
@@ -854,7 +343,7 @@ def _design(robot, f0, n_harmonics, *, n_starts, criterion, chi, rng, max_iter, 
         tr = prob.to_traj(z * prob.xs)
         c_end = conditioning(tr)
         marg = limit_margins(robot, tr, chi_st, n_check=n_check)
-        ok = _feasible(marg)
+        ok = within_limits(marg)
         runs.append({"start": k, "cond_start": c_start[cond_key], "cond_result": c_end[cond_key],
                      "criterion_value": float(fbest), "iterations": int(res.nit),
                      "evaluations": int(res.nfev), "message": str(res.message),

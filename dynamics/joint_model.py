@@ -34,7 +34,7 @@ steps of a trapezoidal rule whose velocity update is implicit in the friction::
 
 solved in closed form (try v' > 0, then v' < 0, else stick at 0), so the
 Coulomb discontinuity needs no smoothing and no stiff step: sticking is exact
-and the smooth part is second-order. `tests/test_decoupled.py` checks it
+and the smooth part is second-order. `tests/analysis/decoupled/test_decoupled.py` checks it
 against the exact zero-order-hold discretisation (matrix exponential) of the
 linear case.
 

@@ -35,7 +35,7 @@ balance, so `stiffness = Ks_j` and `springref = 0` (a spring `k (q_j - q0)`
 is `Ks q_j` plus a constant, which dynid puts in `Off`). MuJoCo's compiler
 keeps a negative stiffness and its passive force applies it with its sign
 (`mj_inverse` gives `+stiffness q`, `mj_step` follows the anti-spring;
-checked with MuJoCo 3.3.0 and 4.0.0, and by `tests/test_replay.py`), so a
+checked with MuJoCo 3.3.0 and 4.0.0, and by `tests/integration/test_replay.py`), so a
 negative `Ks` is written as it is and the file's comment says so.
 Gravity is MJCF's `<option gravity>`, in dynid's base frame (MuJoCo's world).
 One `<motor>` actuator per joint (gear 1, unbounded) drives it with torque.

@@ -199,9 +199,8 @@ def regressor_chunks(robot, q, qd, qdd, *, columns=None, chunk=DEFAULT_CHUNK):
 # dynid's one public inverse_dynamics / mass_matrix / bias_torque are the
 # per-sample RNEA of dynid.dynamics.dynamic_model (re-exported below). The three
 # functions here compute the same quantities through the regressor, tau = W chi;
-# they stay, private, only as an independent check: tests/test_regressor.py
-# compares them with Pinocchio (which checks the regressor's columns) and
-# tests/test_simulation.py compares the RNEA with them.
+# they stay, private, only as an independent check: tests/dynamics/test_regressor.py
+# compares them with Pinocchio (which checks the regressor's columns).
 
 def _inverse_dynamics_via_regressor(robot, chi, q, qd, qdd, *, chunk=DEFAULT_CHUNK):
     """tau = IDM_st(q, qd, qdd) chi, shape (N, n), eq. (2) (test oracle)."""

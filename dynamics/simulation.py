@@ -38,7 +38,7 @@ Output at each controller sample `t_k`: the state `q_k, qd_k`, the torque
 `tau_k` computed there and held over `[t_k, t_k+1)`, and `qdd_k` the
 acceleration of the plant at `(q_k, qd_k, tau_k)` (the first RK4 stage).
 
-Accuracy (measured by `tests/test_simulation.py`, TX40 with Table-2-like
+Accuracy (measured by `tests/dynamics/test_simulation.py`, TX40 with Table-2-like
 parameters tracking a 5-harmonic Fourier reference at 5 kHz, 5 s, v_s = 0.05):
 the RK4 step of one controller period differs from a 4x finer step by
 4e-9 rad in q (7e-6 rad/s in qd, 1e-5 N m in tau, mostly at velocity
@@ -206,6 +206,24 @@ def _integrate_interval(model, ws, stg, q, qd, tau, a1, dt, substeps, v_s):
 
 
 @njit(cache=True, nogil=True)
+def _record_and_step(model, ws, stg, q, qd, tau, a1, QDD, t, k, substeps, v_s):
+    """The acceleration of sample k into QDD, then the state on to sample k + 1 (none after
+    the last sample); returns (status, sample index of the failure or -1)."""
+    N, n = QDD.shape
+    st = _qdd(model, ws, q, qd, tau, v_s, a1)
+    if st != OK:
+        return st, k
+    for j in range(n):
+        QDD[k, j] = a1[j]
+    if k == N - 1:
+        return OK, -1
+    st = _integrate_interval(model, ws, stg, q, qd, tau, a1, t[k + 1] - t[k], substeps, v_s)
+    if st != OK:
+        return st, k + 1
+    return OK, -1
+
+
+@njit(cache=True, nogil=True)
 def _closed_loop(model, v_s, t, substeps, qr, qdr, ff, pid, Kv, kp, Ki, gain, tau_max, I_max,
                  T, q, qd, integ, k0, k1, Q, QD, QDD, TAU, SAT):
     """Closed-loop simulation of samples k0..k1-1; returns (status, sample index of the failure or -1).
@@ -244,16 +262,9 @@ def _closed_loop(model, v_s, t, substeps, qr, qdr, ff, pid, Kv, kp, Ki, gain, ta
             Q[k, j] = q[j]
             QD[k, j] = qd[j]
             TAU[k, j] = tj
-        st = _qdd(model, ws, q, qd, tau, v_s, a1)
+        st, at = _record_and_step(model, ws, stg, q, qd, tau, a1, QDD, t, k, substeps, v_s)
         if st != OK:
-            return st, k
-        for j in range(n):
-            QDD[k, j] = a1[j]
-        if k == N - 1:
-            break
-        st = _integrate_interval(model, ws, stg, q, qd, tau, a1, t[k + 1] - t[k], substeps, v_s)
-        if st != OK:
-            return st, k + 1
+            return st, at
     return OK, -1
 
 
@@ -271,16 +282,9 @@ def _open_loop(model, v_s, t, substeps, TAU, q0, qd0, Q, QD, QDD):
             tau[j] = TAU[k, j]
             Q[k, j] = q[j]
             QD[k, j] = qd[j]
-        st = _qdd(model, ws, q, qd, tau, v_s, a1)
+        st, at = _record_and_step(model, ws, stg, q, qd, tau, a1, QDD, t, k, substeps, v_s)
         if st != OK:
-            return st, k
-        for j in range(n):
-            QDD[k, j] = a1[j]
-        if k == N - 1:
-            break
-        st = _integrate_interval(model, ws, stg, q, qd, tau, a1, t[k + 1] - t[k], substeps, v_s)
-        if st != OK:
-            return st, k + 1
+            return st, at
     return OK, -1
 
 

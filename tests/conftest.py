@@ -13,7 +13,11 @@ ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = Path(os.environ.get("DYNID_SHARED_DATA", ROOT.parent / "shared" / "data"))
 TX40_EXAMPLE = ROOT / "examples" / "staubli_tx40"
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))   # tests/oracles.py
+# the test-only helpers (tests/support/: oracles, independent plants, simulated data), importable
+# from every test folder as `import oracles` or `from tests.support import oracles`
+sys.path.insert(0, str(Path(__file__).resolve().parent / "support"))
+if str(ROOT) not in sys.path:
+    sys.path.append(str(ROOT))   # `tests.support` when pytest is run as `pytest`, not `python -m pytest`
 
 # Reproducible property-based tests: the same examples on every run and machine
 # (derandomize), nothing replayed from or written to .hypothesis/ (database=None), and

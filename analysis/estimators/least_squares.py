@@ -18,6 +18,10 @@ essential-parameter search (`dynid.analysis.estimators.essential`) all solve the
 stacked triangles exactly instead of the r x b system. The small system is
 then solved by a column-scaled, column-pivoted QR (scipy.linalg.qr), which
 also performs the rank check; the covariance uses R⁻¹, never (WᵀW)⁻¹.
+
+Why one module above 800 lines: OLS, WLS, the reduction, the rank check and the covariance
+options all work on one private reduced system (`_System`, `_fit`), whose invariants (the
+per-joint triangles, the row masks) a split would have to make public.
 """
 
 from __future__ import annotations

@@ -113,7 +113,6 @@ from scipy import stats
 
 from dynid.analysis.estimators.sdp import (
     NONNEG_KINDS,
-    SDPProblem,
     active_constraints,
     apriori_pseudo_inertias,
     build_sdp,
@@ -145,9 +144,6 @@ __all__ = ["PhysicalResult", "PhysicalSupport", "pc_wls", "identify_physical", "
 TIE_BREAK = 1e-8
 #: the normal 97.5 % quantile: the level at which the reported sigma matches the interval
 _Z95 = 1.959963984540054
-# TODO(issue 25 item 6): tests and benchmarks import these private names; point them at
-# dynid.analysis.estimators.sdp (build_sdp, whitening, SDPProblem) and drop the aliases.
-_build, _whitening, _Problem = build_sdp, whitening, SDPProblem
 
 #: the a-priori terms of pc_wls(prior=...): None = tie-break only
 PRIORS = (None, "apriori", "geometric")

@@ -1,7 +1,7 @@
 """dynid's TX40 estimates beside FIGAROH's published results and Table 2 of the DIDIM paper.
 
 Part of this example, not of the dynid package (run.py imports it from beside
-itself; tests/test_comparison.py and benchmarks/real_data.py from this folder).
+itself; tests/integration/test_comparison.py and benchmarks/real_data.py from this folder).
 
 ``comparison_frame(idim, reference_dir, didim=None)`` returns one row per
 compared quantity, every value with its %σ in each source:
@@ -15,7 +15,7 @@ compared quantity, every value with its %σ in each source:
   DIDIM on another recording of a TX40 (section 5 of the paper).
 
 Mapping. FIGAROH's base parameters have the same regrouping relations as
-dynid's (checked in ``tests/test_base_parameters.py``) except at the coupled
+dynid's (checked in ``tests/dynamics/test_base_parameters.py``) except at the coupled
 wrist, which FIGAROH parametrises differently: its ``fv5``, ``fv6`` include
 the diagonal part of the motor-6 viscous friction, so they are compared with
 dynid's ``Fv5 + Fvm6`` and ``Fv6 + Fvm6`` (value and σ of the sum, from the

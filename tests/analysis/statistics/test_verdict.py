@@ -1,0 +1,239 @@
+"""Held-out error on all samples, the verdict, and one DIDIM step index everywhere."""
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+import types
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+ROOT = Path(__file__).resolve().parents[3]
+TX40 = ROOT / "examples" / "staubli_tx40" / "experiment.toml"
+
+
+@pytest.fixture(scope="module")
+def tx40_run(tmp_path_factory):
+    """``dynid identify ... --holdout 3 --json --report`` on the real TX40, run once."""
+    out = tmp_path_factory.mktemp("tx40")
+    js, html = out / "out.json", out / "out.html"
+    proc = subprocess.run([sys.executable, "-m", "dynid.reports.cli", "identify", str(TX40), "--robot", "tx40",
+                           "--holdout", "3", "--json", str(js), "--report", str(html), "--quiet"],
+                          capture_output=True, text=True, cwd=ROOT, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    return json.loads(js.read_text()), html.read_text(encoding="utf-8")
+
+
+def _independent_all_samples_error(doc):
+    """The held-out error recomputed from the log and the JSON's parameters, without validate()."""
+    from dynid.analysis.data.experiment import load_experiment
+    from dynid.analysis.processing.observation import observe
+    from dynid.dynamics.base_parameters import base_parameters
+    from dynid.dynamics.robot_file import load_robot
+    robot = load_robot("tx40")
+    exp = load_experiment(TX40, robot)
+    held = exp.segment(exp.t[-1] - 3.0, None)            # the last 3 s, t >= t[-1] - 3
+    assert held.t[0] >= exp.t[-1] - 3.0 and held.t[-1] == exp.t[-1]
+    settings = dict(doc["settings"], qd_threshold=0.0)     # same processing, dead zone OFF
+    obs = observe(held, robot, base_parameters(robot), settings)
+    assert np.asarray(obs.row_mask).all() and obs.W.shape[0] == doc["validation"]["n_samples"]
+    col = {n: k for k, n in enumerate(obs.names)}
+    names = [p["name"] for p in doc["parameters"]]
+    chi = np.array([p["value"] for p in doc["parameters"]])
+    tau_hat = obs.W[:, :, [col[n] for n in names]] @ chi
+    res = obs.tau - tau_hat
+    return (float(np.linalg.norm(res) / np.linalg.norm(obs.tau)),
+            np.linalg.norm(res, axis=0) / np.linalg.norm(obs.tau, axis=0))
+
+
+def test_held_out_error_is_over_all_samples(tx40_run):
+    doc, _ = tx40_run
+    v = doc["validation"]
+    rel, jrel = _independent_all_samples_error(doc)
+    assert v["all_samples"]["rel_error"] == pytest.approx(rel, abs=1e-6)
+    assert np.allclose(v["all_samples"]["joint_rel_error"], jrel, atol=1e-6)
+    assert v["rel_error"] == v["all_samples"]["rel_error"]          # top level = all samples
+    mov = v["moving_samples"]
+    assert 0 < mov["fraction"] < 1 and mov["excluded_fraction"] == pytest.approx(1 - mov["fraction"])
+    assert mov["rel_error"] < v["all_samples"]["rel_error"]       # the dead zone hides the hard rows
+    print(f"\nTX40 held-out, all samples: {100 * rel:.2f} % (per joint "
+          + ", ".join(f"{100 * x:.1f}" for x in jrel)
+          + f" %); moving samples: {100 * mov['rel_error']:.2f} % with {100 * mov['excluded_fraction']:.1f} % excluded")
+
+
+def test_verdict_flags_exactly_the_parameters_above_threshold(tx40_run):
+    doc, html = tx40_run
+    vd = doc["verdict"]
+    thr = vd["rel_std_threshold_percent"]
+    expected = [p["name"] for p in doc["parameters"] if not p["rel_std_percent"] <= thr]
+    assert vd["not_identified"] == expected and expected
+    assert [p["name"] for p in vd["parameters"] if p["flagged"]] == expected
+    joints = vd["validation"]["joints"]
+    jrel = doc["validation"]["all_samples"]["joint_rel_error"]
+    assert vd["validation"]["flagged_joints"] == [j for j, e in zip(joints, jrel)
+                                                   if e > vd["validation"]["joint_error_threshold"]]
+    assert vd["validation"]["worst_joint"] == joints[int(np.argmax(jrel))]
+    assert vd["validation"]["rel_error"] == doc["validation"]["all_samples"]["rel_error"]
+    # the HTML shows the same verdict, first
+    m = re.search(r'<section id="verdict"[^>]*data-flagged-parameters="([^"]*)" data-flagged-joints="([^"]*)"', html)
+    assert m and m.group(1).split() == expected and m.group(2).split() == vd["validation"]["flagged_joints"]
+    assert html.index('id="verdict"') < html.index('<section id="run"')
+    print(f"\nTX40 verdict: {vd['status']}; not identified: {', '.join(expected)}; joints: "
+          f"{', '.join(vd['validation']['flagged_joints'])}")
+
+
+def test_units_and_plausibility_rules():
+    from dynid.analysis.statistics.verdict import must_be_nonnegative, parameter_unit
+    from dynid.dynamics.base_parameters import base_parameters
+    from dynid.dynamics.robot_file import load_robot
+    assert [parameter_unit(n) for n in ("ZZ1R", "MX2R", "M3", "Ia4", "Fv1", "Fc2", "Off3", "Fvm6", "Fcm6")] == \
+        ["kg m\u00b2", "kg m", "kg", "kg m\u00b2", "N m s/rad", "N m", "N m", "N m s/rad", "N m"]
+    robot = load_robot("tx40")
+    bp = base_parameters(robot)
+    k = {n: i for i, n in enumerate(bp.names)}
+    assert must_be_nonnegative(bp, robot.standard_names, k["ZZ2R"])        # ZZ2 + Ia2 + c M...
+    assert not must_be_nonnegative(bp, robot.standard_names, k["XX2R"])    # XX2 - YY2 - ...
+    assert must_be_nonnegative(bp, robot.standard_names, k["Fv1"])
+
+
+def test_one_normality_computation():
+    from dynid.analysis.statistics import noise, validation
+    rng = np.random.default_rng(3)
+    e = rng.laplace(size=(12_000, 2))
+    a = validation.normality(e)
+    b = noise.noise_pdf_tests(e).table
+    for c in ("excess_kurtosis", "jarque_bera_p", "shapiro_p", "skew"):
+        assert np.allclose(a[c].to_numpy(), b[c].to_numpy())
+    assert a["shapiro_n"].iloc[0] <= 5000 and a["excess_kurtosis"].iloc[0] == pytest.approx(3.0, abs=0.5)
+    # NaN rows (not fitted) are left out, never counted as zeros
+    f = e.copy()
+    f[::3] = np.nan
+    assert validation.normality(f)["n"].iloc[0] == np.isfinite(f[:, 0]).sum()
+
+
+def _fake_didim(k=4, n=2):
+    from dynid.analysis.estimators.didim import DIDIMResult
+    rng = np.random.default_rng(0)
+    rows = []
+    for it in range(1, k + 1):
+        row = {"iteration": it, "step_length": 1.0, "rho_norm": 10.0 / it, "rel_change": np.nan if it == 1 else 0.1 / it,
+               "output_error": 11.0 / it, "rel_error": 0.01 * it, "max_rel_param_change": 0.1 * it,
+               "max_change_sigma": float(it), "substeps": 1}
+        for j in range(n):
+            row[f"track_rms_{j + 1}"] = 1e-3 * (10 * it + j)
+        for j in range(n):
+            row[f"kd_scale_{j + 1}"] = 1.0 + 0.1 * it + 0.01 * j
+        rows.append(row)
+    h = pd.DataFrame(rows)
+    res = types.SimpleNamespace(
+        history=h, iterations=k, converged=True, stop_reason="test", data_hash="", notices=[],
+        q_sim=rng.normal(size=(50, n)), t_dec=np.arange(5.0), transient_samples=0,
+        settings={"tol": 1e-3, "max_iter": 15, "initialisation": "x", "update_gains": True, "rate": 1000.0,
+                  "feedforward": False, "v_s": 0.01, "saturate": False, "transient": 0.0, "nd": 10,
+                  "f_decimation_cutoff": 40.0})
+    return res, h, DIDIMResult
+
+
+def _table_rows(html, key):
+    block = html[html.index(f'id="{key}"'):]
+    body = block[block.index("<tbody>"):block.index("</tbody>")]
+    return [[re.sub(r"<[^>]+>", "", c).strip() for c in re.findall(r"<td[^>]*>(.*?)</td>", tr, re.S)]
+            for tr in re.findall(r"<tr>(.*?)</tr>", body, re.S)]
+
+
+def test_didim_step_index_is_the_same_everywhere(monkeypatch):
+    from dynid.reports import didim_section as D
+    from dynid.reports import tables as T
+    from dynid.reports.html import render_sections
+    res, h, DIDIMResult = _fake_didim()
+    seen = {}
+    orig = D.convergence_figure
+
+    def spy(history, tol, **kw):
+        seen["plot_steps"] = list(np.asarray(history["iteration"], dtype=int))
+        seen["plot_rho"] = list(np.asarray(history["rho_norm"], dtype=float))
+        return orig(history, tol, **kw)
+
+    monkeypatch.setattr(D, "convergence_figure", spy)
+    html = render_sections([D._convergence_section(res)], title="t")
+    steps = list(h["iteration"])
+    assert seen["plot_steps"] == steps == [1, 2, 3, 4]
+    hist = _table_rows(html, "tab-didim-history")
+    track = _table_rows(html, "tab-didim-tracking")
+    kd = _table_rows(html, "tab-didim-kd-scale")
+    for rows in (hist, track, kd):
+        assert [int(r[0]) for r in rows] == steps              # one row per step, step 1 first, none empty
+        assert all(all(c not in ("", T.MISSING) for c in r[1:]) for r in rows[1:])
+    for r, (_, row) in zip(hist, h.iterrows()):
+        assert r[2] == T.format_value(row["rho_norm"], "num").text
+    for r, (_, row) in zip(track, h.iterrows()):
+        assert r[1] == T.format_value(1e3 * row["track_rms_1"], "num").text
+    for r, (_, row) in zip(kd, h.iterrows()):
+        assert r[2] == T.format_value(row["kd_scale_2"], "num").text
+    # the JSON and the terminal summary use the same column
+    records = h.to_dict(orient="records")
+    assert [int(r["iteration"]) for r in records] == steps
+    cols = [c for c in ("iteration", "rho_norm") if c in h]
+    text = h[cols].to_string(index=False)
+    assert [int(line.split()[0]) for line in text.splitlines()[1:]] == steps
+
+
+@pytest.mark.parametrize("method", ["didim", "projection", "ml"])
+def test_every_method_gives_a_verdict(tmp_path, method):
+    """DIDIM, the Projection Method and ML get the verdict too: JSON, summary and report's first block."""
+    from dynid.reports.cli import main
+    csv, js, html = tmp_path / "run.csv", tmp_path / "out.json", tmp_path / "out.html"
+    assert main(["simulate", "--robot", "planar2", "--duration", "10", "--out", str(csv), "--quiet"]) == 0
+    extra = ["--f0", "0.1"] if method == "ml" else []
+    code = main(["identify", str(csv), "--robot", "planar2", "--method", method, *extra,
+                 "--json", str(js), "--report", str(html), "--quiet"])
+    assert code == 0
+    doc = json.loads(js.read_text())
+    v = doc["verdict"]
+    assert v["status"] in ("identified", "identified with reservations", "not identified")
+    assert "no validation data" in v["reasons"]                # no held-out data for these methods
+    # the flagged parameters are exactly those above the threshold in the JSON's own table
+    rel = {p["name"]: p["rel_std_percent"] for p in doc["parameters"]}
+    above = sorted(n for n, r in rel.items() if not r <= v["rel_std_threshold_percent"])
+    assert sorted(v["not_identified"]) == above
+    assert [p["name"] for p in v["parameters"]] == list(rel)
+    if method == "didim":                                       # its own residual is judged
+        assert v["whiteness"]["test"] == "Ljung-Box" and len(v["whiteness"]["p_value"]) == 2
+    else:
+        assert v["whiteness"]["test"] is None
+    text = html.read_text(encoding="utf-8")
+    block = re.search(r'<section id="verdict"[^>]*data-status="([^"]*)"[^>]*data-flagged-parameters="([^"]*)"',
+                      text)
+    assert block and block.group(1) == v["status"]
+    assert sorted(block.group(2).split()) == above
+    assert block.start() == text.index("<section")              # the first section of the page
+
+
+def test_a_check_is_one_function_in_the_list():
+    """Adding a check is appending one function: its finding, reason and JSON block appear, the others stay."""
+    from dynid.analysis.demo import demo_data
+    from dynid.analysis.estimators.idim import identify_idim
+    from dynid.analysis.statistics.verdict import CHECKS, CheckOutcome, verdict
+
+    robot, bp, _, ident, _ = demo_data(1, 5.0)
+    res = identify_idim(ident, robot, bp=bp)
+    base = verdict(res)
+
+    def check_planted(x):
+        return CheckOutcome(findings=[{"level": "warn", "key": "planted", "text": f"{x.n} joints seen."}],
+                            reasons=["planted"], fields={"planted": {"n": x.n}})
+
+    v = verdict(res, checks=[*CHECKS, check_planted])
+    assert v.findings[:-1] == base.findings and v.findings[-1]["text"] == "6 joints seen."
+    assert v.reasons == base.reasons + ["planted"] and v.status != "identified"
+    d, d0 = v.to_dict(), base.to_dict()
+    assert d.pop("planted") == {"n": 6} and "planted" not in d0
+    d0.pop("findings"), d0.pop("reasons"), d0.pop("status"), d.pop("findings"), d.pop("reasons"), d.pop("status")
+    assert d == d0
+    # a failing check makes the model "not identified"
+    v = verdict(res, checks=[*CHECKS, lambda x: CheckOutcome(fail=True)])
+    assert v.status == "not identified" and not v.identified

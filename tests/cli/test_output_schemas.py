@@ -1,0 +1,169 @@
+"""Every command's `--json` output validates against its published JSON Schema
+(docs/schema/*.json, described in docs/formats.md, "Outputs").
+
+The schemas require the stable core of each document and allow other keys, so a command
+may add to its JSON without breaking them; removing or retyping a required key fails here.
+The commands run as a user runs them (the `dynid` console script of this venv), on a short
+simulated recording of the bundled two-joint `planar2`.
+"""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+jsonschema = pytest.importorskip("jsonschema", reason='the schema tests need pip install ".[test]"')
+
+ROOT = Path(__file__).resolve().parents[2]
+SCHEMAS = ROOT / "docs" / "schema"
+DYNID = Path(sys.executable).parent / "dynid"
+
+
+def schema(name):
+    doc = json.loads((SCHEMAS / f"{name}.json").read_text(encoding="utf-8"))
+    jsonschema.Draft202012Validator.check_schema(doc)
+    return doc
+
+
+def check(name, document):
+    """Raise with every violation listed (not only the first)."""
+    errors = sorted(jsonschema.Draft202012Validator(schema(name)).iter_errors(document), key=lambda e: list(e.path))
+    assert not errors, "\n".join(f"{list(e.path)}: {e.message[:200]}" for e in errors)
+
+
+def run(folder, *args, timeout=600):
+    if not DYNID.exists():
+        pytest.skip(f"no dynid console script beside {sys.executable}: pip install . first")
+    proc = subprocess.run([str(DYNID), *args, "--quiet"], cwd=folder, capture_output=True, text=True,
+                          timeout=timeout)
+    assert proc.returncode in (0, 3), f"dynid {' '.join(args)}: exit {proc.returncode}\n{proc.stderr[-3000:]}"
+    return proc
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory):
+    """A folder with a short closed-loop recording of planar2 (and the simulate JSON)."""
+    path = tmp_path_factory.mktemp("schemas")
+    run(path, "simulate", "--robot", "planar2", "--duration", "6", "--seed", "4", "--out", "p2.csv",
+        "--json", "simulate.json")
+    return path
+
+
+def load(path):
+    return json.loads(Path(path).read_text(encoding="utf-8"))
+
+
+def test_every_command_with_json_has_a_schema():
+    names = {p.stem for p in SCHEMAS.glob("*.json")}
+    assert names == {"robot", "simulate", "excite", "identify", "sample", "diagnose", "report", "fleet"}
+    for name in names:
+        doc = schema(name)
+        assert doc["required"] and doc.get("additionalProperties", True) is True, name
+
+
+def test_robot_json(folder):
+    run(folder, "robot", "planar2", "--json", "robot.json")
+    check("robot", load(folder / "robot.json"))
+
+
+def test_simulate_json(folder):
+    check("simulate", load(folder / "simulate.json"))
+
+
+def test_excite_json(folder):
+    run(folder, "excite", "--robot", "planar2", "--f0", "0.2", "--harmonics", "3", "--starts", "1",
+        "--out", "traj.csv", "--json", "excite.json")
+    check("excite", load(folder / "excite.json"))
+
+
+def test_identify_json_to_stdout(folder):
+    proc = run(folder, "identify", "p2.csv", "--robot", "planar2", "--holdout", "2", "--json", "-")
+    doc = json.loads(proc.stdout)
+    check("identify", doc)
+    assert doc["validation"]["all_samples"]["rel_error"] == doc["validation"]["rel_error"]
+
+
+@pytest.mark.parametrize("method", ["didim", "projection"])
+def test_identify_json_of_the_other_methods(folder, method):
+    run(folder, "identify", "p2.csv", "--robot", "planar2", "--method", method, "--json", f"{method}.json")
+    check("identify", load(folder / f"{method}.json"))
+
+
+def test_sample_json(folder):
+    run(folder, "sample", "p2.csv", "--robot", "planar2", "--max-seconds", "3", "--allow-unconverged",
+        "--json", "sample.json")
+    check("sample", load(folder / "sample.json"))
+
+
+def test_diagnose_json(folder):
+    run(folder, "diagnose", "p2.csv", "--robot", "planar2", "--holdout", "2", "--json", "diagnose.json")
+    check("diagnose", load(folder / "diagnose.json"))
+
+
+def test_report_json(folder):
+    run(folder, "report", "p2.csv", "--robot", "planar2", "--holdout", "2", "--skip", "sample,didim",
+        "--report", "all.html", "--json", "report.json")
+    doc = load(folder / "report.json")
+    check("report", doc)
+    check("diagnose", dict(doc["diagnosis"], verdict=doc["verdict"]))    # the nested part, as diagnose writes it
+
+
+def test_demo_json(folder):
+    run(folder, "demo", "--skip", "didim,sample,diagnose", "--duration", "5", "--report", "demo.html",
+        "--json", "demo.json")
+    check("report", load(folder / "demo.json"))
+
+
+def _fleet_catalogue(folder):
+    """Two planar2 recordings of one robot, a day apart (the folder's simulated p2.csv, cut two ways)."""
+    lines = (folder / "p2.csv").read_text().splitlines(keepends=True)
+    rows = ["robot_id,timestamp,path,robot,temperature"]
+    for k, cut in enumerate((len(lines) // 2, len(lines))):
+        (folder / f"fleet{k}.csv").write_text("".join(lines[:1] + lines[1 + k:cut]))
+        rows.append(f"R1,2026-03-0{k + 1}T08:00:00Z,fleet{k}.csv,planar2,{30 + k}")
+    (folder / "fleet.csv").write_text("\n".join(rows) + "\n")
+    return folder / "fleet.csv"
+
+
+def test_fleet_json_in_process(folder):
+    """The fleet's JSON (dynid.reports.fleet_report.fleet_json, what --json writes) from a store
+    filled in this process, without Dask."""
+    pytest.importorskip("pyarrow")
+    from dynid.analysis.fleet.engine import FleetRun, plan
+    from dynid.analysis.fleet.health import monitor
+    from dynid.analysis.fleet.store import ResultStore
+    from dynid.analysis.fleet.task import identify_recording
+    from dynid.reports.fleet_report import fleet_json
+    store = ResultStore(folder / "fleet-store-serial")
+    specs, _ = plan(str(_fleet_catalogue(folder)), store)
+    for spec in specs:
+        store.write(identify_recording(spec))
+    frame = store.read()
+    health = monitor(frame, ["Fv", "Fc"], false_alarm_rate=1e-4, n_baseline=3)
+    run = FleetRun(store=str(store.root), n_recordings=len(specs), n_computed=len(specs), n_skipped=0, errors=[],
+                   wall_seconds=0.0, workers=1, health=health)
+    doc = json.loads(json.dumps(fleet_json(run, frame, health), allow_nan=False))
+    check("fleet", doc)
+    assert doc["n_identified"] == 2 and [r["robot_id"] for r in doc["robots"]] == ["R1"]
+
+
+@pytest.mark.slow
+def test_fleet_json(folder):
+    pytest.importorskip("distributed")
+    _fleet_catalogue(folder)
+    run(folder, "fleet", "fleet.csv", "--out", "fleet-store", "--workers", "1", "--json", "fleet.json")
+    check("fleet", load(folder / "fleet.json"))
+
+
+def test_a_schema_rejects_a_document_without_its_core():
+    """The check above can fail: a document missing a required key, or with a wrong type, is refused."""
+    with pytest.raises(AssertionError, match="verdict"):
+        check("identify", {"method": "IDIM", "robot": "r", "source": "s", "settings": {}, "parameters": [],
+                           "rel_error": 0.1, "versions": {"dynid": "0"}, "data_hash": "x", "notices": []})
+    with pytest.raises(AssertionError, match="rel_error"):
+        check("identify", {"method": "IDIM", "robot": "r", "source": "s", "settings": {}, "parameters": [],
+                           "rel_error": "small", "versions": {"dynid": "0"}, "data_hash": "x", "notices": [],
+                           "verdict": {"status": "identified", "identified": True, "reasons": [], "findings": []}})
