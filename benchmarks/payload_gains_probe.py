@@ -27,8 +27,8 @@ def main():
     import dynid
     from dynid.analysis.data.experiment import Experiment
     from dynid.analysis.estimators.drive_gains import identify_drive_gains
-    from tests import independent_plant as ip
-    from tests import payload_plant as pp
+    from tests.support import independent_plant as ip
+    from tests.support import payload_plant as pp
     ap = argparse.ArgumentParser()
     ap.add_argument("seed", type=int)
     ap.add_argument("--sensor", choices=["noisy", "perfect", "tau_only", "q_only"])
