@@ -127,6 +127,7 @@ from scipy import stats
 
 from dynid.analysis.processing.observation import observe
 from dynid.analysis.statistics.residuals import effective_sample_size
+from dynid.threads import with_single_blas_thread
 
 __all__ = ["residual_structure", "StructureResult", "StructureTest", "Unexplained",
            "noise_floor", "whiteness", "position_noise", "position_noise_residual", "WHITE_Q_MIN", "WHITE_MIN", "EDGE_FACTOR", "BINS", "N_PERM", "MIN_RATIO", "FLOOR_RATIO"]
@@ -470,6 +471,7 @@ def _curve(test, d):
     return (x, y), "t [s]"
 
 
+@with_single_blas_thread
 def residual_structure(eobs, residual, mask, *, names=None, alpha=0.01, n_perm=N_PERM, gap=2,
                        seed=0, min_ratio=MIN_RATIO, floor_ratio=FLOOR_RATIO, bins=BINS,
                        explained=None, full_residual=None, full_mask=None, full_block=None,
