@@ -53,6 +53,9 @@ def single_blas_thread() -> Iterator[None]:
     except ImportError:          # optional at run time: numbers are the same, only slower when busy
         yield
         return
+    # threadpoolctl limits the libraries loaded now: load scipy's own OpenBLAS (beside numpy's)
+    # first, or a command that imports scipy.linalg later keeps two threads there
+    import scipy.linalg  # noqa: F401
     with threadpool_limits(limits=1, user_api="blas"):
         yield
 
