@@ -223,19 +223,23 @@ class EffectObservation:
         nd = int(self.settings["nd"])
         dec = self._decimator() if nd > 1 else None
         parts = []
+        # two chunk buffers for the whole pass: a fresh 50 MB array per chunk and delay cost
+        # more in page faults than in arithmetic (the decimator copies what it keeps)
+        buf = np.empty((min(N, CHUNK), n, k))
+        tmp = np.empty_like(buf) if frac else None
         for start in range(0, N, CHUNK):
             stop = min(N, start + CHUNK)
             kk = np.arange(start, stop)
-            C = source(start - si, stop - si)
+            C = buf[:kk.size]
             if frac:
-                C = (1.0 - frac) * C
-                C += frac * source(start - si - 1, stop - si - 1)
-            if not frac:
-                C = np.array(C)              # a view of W_full: never scaled in place
+                np.multiply(source(start - si, stop - si), 1.0 - frac, out=C)
+                C += np.multiply(source(start - si - 1, stop - si - 1), frac, out=tmp[:kk.size])
+            else:
+                C[...] = source(start - si, stop - si)   # a view of W_full: never scaled in place
             if self.dead is not None:
                 C *= (~self.dead[kk])[:, :, None]
             C = C.reshape(kk.size, n * k)
-            parts.append(dec.push(C) if dec is not None else C)
+            parts.append(dec.push(C) if dec is not None else C.copy())   # C is the reused buffer
         if dec is not None:
             dec.finish()
         D = np.concatenate(parts, axis=0)
