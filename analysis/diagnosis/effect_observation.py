@@ -206,28 +206,40 @@ class EffectObservation:
         full = self.W_full is not None and k == self.W_full.shape[2] and np.array_equal(
             cols, np.arange(k))
 
-        def source(idx):
-            idx = np.clip(idx, 0, N - 1)
+        def source(a, b):
+            """Rows clip(a..b-1, 0, N-1) of the regressor: a view inside the recording (no
+            gather copy per delay), the ends held by a clipped index only at its edges."""
+            lo, hi = min(max(a, 0), N - 1), max(min(b, N), 1)
+            inside = a >= 0 and b <= N
             if self.W_full is not None:
+                if inside:
+                    return self.W_full[a:b] if full else self.W_full[a:b][:, :, cols]
+                idx = np.clip(np.arange(a, b), 0, N - 1)
                 return self.W_full[idx] if full else self.W_full[idx][:, :, cols]
-            lo, hi = int(idx.min()), int(idx.max()) + 1
             W = regressor(self.robot, self.q[lo:hi], self.qd[lo:hi], self.qdd[lo:hi],
                           columns=np.asarray(self.bp.independent)[cols])
-            return W[idx - lo]
+            return W[np.clip(np.arange(a, b), lo, hi - 1) - lo]
 
         nd = int(self.settings["nd"])
         dec = self._decimator() if nd > 1 else None
         parts = []
+        # two chunk buffers for the whole pass: a fresh 50 MB array per chunk and delay cost
+        # more in page faults than in arithmetic (the decimator copies what it keeps)
+        buf = np.empty((min(N, CHUNK), n, k))
+        tmp = np.empty_like(buf) if frac else None
         for start in range(0, N, CHUNK):
-            kk = np.arange(start, min(N, start + CHUNK))
-            C = source(kk - si)
+            stop = min(N, start + CHUNK)
+            kk = np.arange(start, stop)
+            C = buf[:kk.size]
             if frac:
-                C = (1.0 - frac) * C
-                C += frac * source(kk - si - 1)
+                np.multiply(source(start - si, stop - si), 1.0 - frac, out=C)
+                C += np.multiply(source(start - si - 1, stop - si - 1), frac, out=tmp[:kk.size])
+            else:
+                C[...] = source(start - si, stop - si)   # a view of W_full: never scaled in place
             if self.dead is not None:
                 C *= (~self.dead[kk])[:, :, None]
             C = C.reshape(kk.size, n * k)
-            parts.append(dec.push(C) if dec is not None else C)
+            parts.append(dec.push(C) if dec is not None else C.copy())   # C is the reused buffer
         if dec is not None:
             dec.finish()
         D = np.concatenate(parts, axis=0)

@@ -12,6 +12,7 @@ import scipy.linalg as sla
 from scipy import stats
 
 from dynid.analysis.statistics.residuals import effective_sample_size
+from dynid.threads import with_single_blas_thread
 
 __all__ = ["ALIAS_RTOL", "Scorer", "lr_statistics", "weighted_sse", "shift_scores", "chi2_logsf",
            "new_columns", "independent_columns"]
@@ -75,6 +76,7 @@ class Scorer:
         """Weighted used rows (r, k) of decimated columns C (M, n, k)."""
         return C[self.ri, self.rj, :] * self.w[self.rj][:, None]
 
+    @with_single_blas_thread
     def score(self, Cw_list):
         """Scores of candidates given as weighted row blocks (r, k_c).
 
@@ -165,6 +167,7 @@ def weighted_sse(X, Y, mask, weights):
     return float(r @ r), int(y.size - A.shape[1])
 
 
+@with_single_blas_thread
 def shift_scores(problem, state, delays, weights, folds, gap):
     """Scores of 'time_delay' candidates: the *base* model (all base parameters, plus the
     effects so far) re-fitted on W(t - d), against the same model on W(t).

@@ -127,6 +127,7 @@ from scipy import stats
 
 from dynid.analysis.processing.observation import observe
 from dynid.analysis.statistics.residuals import effective_sample_size
+from dynid.threads import with_single_blas_thread
 
 __all__ = ["residual_structure", "StructureResult", "StructureTest", "Unexplained",
            "noise_floor", "whiteness", "position_noise", "position_noise_residual", "WHITE_Q_MIN", "WHITE_MIN", "EDGE_FACTOR", "BINS", "N_PERM", "MIN_RATIO", "FLOOR_RATIO"]
@@ -139,6 +140,7 @@ WHITE_MIN = 2.0
 WHITE_Q_MIN = 2.0      # var(d4 q) / var(d3 q): 70/20 = 3.5 for white position noise
 EDGE_FACTOR = 3.0
 GRID = 4096            # position grid of the spectral test (before zero padding x2)
+_BATCH = 16            # permutations binned together (bounds the memory of a batch)
 
 
 @dataclass
@@ -330,13 +332,13 @@ def position_noise_residual(experiment, robot, eobs, cols, chi, seed=0, n_draws=
 
 
 def _block_perms(n, L, n_perm, rng):
+    """(n_perm, n) sample orders: blocks of L samples in a random order (the last one short)."""
     nb = int(math.ceil(n / L))
-    starts = np.arange(nb) * L
-    out = []
-    for _ in range(n_perm):
-        order = rng.permutation(nb)
-        idx = np.concatenate([np.arange(s, min(s + L, n)) for s in starts[order]])
-        out.append(idx)
+    within = np.arange(L)
+    out = np.empty((n_perm, n), dtype=np.intp)
+    for i in range(n_perm):
+        idx = (rng.permutation(nb)[:, None] * L + within).ravel()
+        out[i] = idx[idx < n]           # the short last block keeps its order wherever it lands
     return out
 
 
@@ -345,6 +347,30 @@ def _binned_stat(bins, nb, e):
     c = np.bincount(bins, minlength=nb)
     with np.errstate(divide="ignore", invalid="ignore"):
         return float(np.sum(np.where(c > 0, s * s / np.maximum(c, 1), 0.0)))
+
+
+def _binned_null(bins, nb, y, perms):
+    """`_binned_stat(bins, nb, y[p])` for every order p of `perms` (the counts binned once)."""
+    c = np.bincount(bins, minlength=nb)
+    s = np.empty((len(perms), nb))
+    for i, p in enumerate(perms):
+        s[i] = np.bincount(bins, weights=y[p], minlength=nb)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.sum(np.where(c > 0, s * s / np.maximum(c, 1), 0.0), axis=1)
+
+
+def _perm_power(gi, y, perms):
+    """Mean over the orders p of `perms` of `_position_power(gi, y[p])` (FFTs batched)."""
+    total = np.zeros(GRID + 1)
+    binned = np.empty((_BATCH, GRID))
+    for a in range(0, len(perms), _BATCH):
+        P = perms[a:a + _BATCH]
+        for i, p in enumerate(P):
+            binned[i] = np.bincount(gi, weights=y[p], minlength=GRID)
+        power = np.abs(np.fft.rfft(binned[:len(P)], 2 * GRID, axis=1)) ** 2
+        for row in power:                # the same running sum as np.mean over the rows
+            total += row
+    return total / len(perms)
 
 
 def _satterthwaite_p(S, null):
@@ -373,7 +399,7 @@ def _line_test(j, x, e, L, n_perm, rng, noise_rms):
     gi = np.clip(np.round((x - lo) / dq).astype(int), 0, GRID - 1)
     nfft = 2 * GRID
     P = _position_power(gi, e)
-    Pn = np.mean([_position_power(gi, e[p]) for p in _block_perms(nu, L, n_perm, rng)], axis=0)
+    Pn = _perm_power(gi, e, _block_perms(nu, L, n_perm, rng))
     k_orders = 2 * np.pi * np.fft.rfftfreq(nfft, dq)
     kmin = 2 * np.pi * 3.0 / rng_q           # at least 3 periods over the range
     kmax = 2 * np.pi / (4 * dq)              # at least 4 grid steps per period
@@ -427,7 +453,7 @@ def _line_confirmation(gi, e, sel, L, n_perm, rng):
 
     def spectra(idx):
         g, y = gi[idx], e[idx]
-        Pn = np.mean([_position_power(g, y[q]) for q in _block_perms(y.size, L, n_perm, rng)], axis=0)
+        Pn = _perm_power(g, y, _block_perms(y.size, L, n_perm, rng))
         return np.where(sel & (Pn > 0), _position_power(g, y) / np.where(Pn > 0, Pn, 1.0), 0.0)
 
     za = spectra(np.arange(half))
@@ -470,6 +496,7 @@ def _curve(test, d):
     return (x, y), "t [s]"
 
 
+@with_single_blas_thread
 def residual_structure(eobs, residual, mask, *, names=None, alpha=0.01, n_perm=N_PERM, gap=2,
                        seed=0, min_ratio=MIN_RATIO, floor_ratio=FLOOR_RATIO, bins=BINS,
                        explained=None, full_residual=None, full_mask=None, full_block=None,
@@ -574,7 +601,7 @@ def _dependence_tests(j, variables, e, perms, nbins):
         ranks = np.argsort(np.argsort(x, kind="stable"), kind="stable")
         b = np.minimum((ranks * nbins) // nu, nbins - 1)
         S = _binned_stat(b, nbins, y)
-        null = np.array([_binned_stat(b, nbins, y[p]) for p in perms])
+        null = _binned_null(b, nbins, y, perms)
         p = _satterthwaite_p(S, null)
         struct2 = max(0.0, (S - float(np.mean(null))) / nu)
         rms = math.sqrt(struct2)

@@ -319,12 +319,14 @@ def chain_effective_sample_size(n_walkers: int, n_steps: int, tau: np.ndarray) -
 # ----------------------------------------------------------------------- the rule
 def diagnose(stored: np.ndarray, interval: int, n_steps: int, accepted: np.ndarray,
              criteria: ConvergenceCriteria, sampled=None, limit: str | None = None,
-             history=None, elapsed: float = math.nan, final_burn: bool = True) -> ChainDiagnostics:
+             history=None, elapsed: float = math.nan, final_burn: bool = True,
+             rank_rhat: bool = True) -> ChainDiagnostics:
     """Apply the convergence rule to a stored chain.
 
     `stored` (L, n_walkers, d) holds every `interval`-th step of a run of
     `n_steps` steps (stored[i] is step (i + 1)·interval); `accepted`
-    (n_walkers,) counts accepted proposals per walker.
+    (n_walkers,) counts accepted proposals per walker. `rank_rhat=False` skips the
+    rank-normalised R-hat (reported, not part of the rule): the checks between batches do.
     """
     stored = np.asarray(stored, dtype=float)
     L, n_walkers, d = stored.shape
@@ -394,7 +396,8 @@ def diagnose(stored: np.ndarray, interval: int, n_steps: int, accepted: np.ndarr
             reason += f" (run stopped by its {limit} limit after meeting the rule)"
     else:
         reason = "NOT CONVERGED: " + "; ".join(problems)
-    return ChainDiagnostics(tau=tau, rhat=rhat, rhat_rank=rank_normalized_rhat(post) if post.shape[0] >= 4 else None,
+    rank = rank_normalized_rhat(post) if rank_rhat and post.shape[0] >= 4 else None
+    return ChainDiagnostics(tau=tau, rhat=rhat, rhat_rank=rank,
                             acceptance=acc, n_steps=int(n_steps),
                             n_walkers=n_walkers, burn_in=int(burn), thin=int(thin),
                             converged=bool(converged), reason=reason, sampled=sampled,
@@ -493,7 +496,7 @@ def run_until_converged(sampler, p0: np.ndarray, criteria: ConvergenceCriteria |
                 break
         first = False
         stored, _ = buf.view()
-        dg = diagnose(stored, buf.interval, n, accepted, c, sampled=sampled)
+        dg = diagnose(stored, buf.interval, n, accepted, c, sampled=sampled, rank_rhat=False)
         tmax = dg.tau_max
         history.append((n, tmax))
         if dg.converged or limit is not None:

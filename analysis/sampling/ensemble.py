@@ -11,18 +11,74 @@ import dataclasses
 
 import emcee
 import numpy as np
+from emcee.state import State
 
 from dynid.analysis.sampling.convergence import ConvergenceCriteria
 from dynid.errors import IdentificationError, InputError
 
 
+class _VectorAccept:
+    """emcee's red-blue `propose` with the acceptance of a half-ensemble drawn and decided at
+    once: one uniform per walker, in walker order, as emcee's loop draws them one by one (the
+    same RandomState stream, the same decisions), without a Python step per walker."""
+
+    def propose(self, model, state):
+        nwalkers, ndim = state.coords.shape
+        if nwalkers < 2 * ndim and not self.live_dangerously:
+            raise RuntimeError("It is unadvisable to use a red-blue move with fewer walkers than "
+                               "twice the number of dimensions.")
+        self.setup(state.coords)
+        accepted = np.zeros(nwalkers, dtype=bool)
+        all_inds = np.arange(nwalkers)
+        inds = all_inds % self.nsplits
+        if self.randomize_split:
+            model.random.shuffle(inds)
+        for split in range(self.nsplits):
+            S1 = inds == split
+            sets = [state.coords[inds == j] for j in range(self.nsplits)]
+            q, factors = self.get_proposal(sets[split], sets[:split] + sets[split + 1:], model.random)
+            new_log_probs, new_blobs = model.compute_log_prob_fn(q)
+            idx = all_inds[S1]
+            lnpdiff = factors + new_log_probs - state.log_prob[idx]
+            accepted[idx] = lnpdiff > np.log(model.random.rand(idx.size))
+            state = self.update(state, State(q, log_prob=new_log_probs, blobs=new_blobs), accepted, S1)
+        return state, accepted
+
+
+class _DEMove(_VectorAccept, emcee.moves.DEMove):
+    pass
+
+
+class _DESnookerMove(_VectorAccept, emcee.moves.DESnookerMove):
+    pass
+
+
+class _StretchMove(_VectorAccept, emcee.moves.StretchMove):
+    pass
+
+
+class _Sampler(emcee.EnsembleSampler):
+    """emcee's sampler for a vectorised log-probability that returns one float per walker and
+    no blobs: the values are taken as one array (emcee converts them one by one)."""
+
+    def compute_log_prob(self, coords):
+        if np.any(np.isinf(coords)):
+            raise ValueError("At least one parameter value was infinite")
+        if np.any(np.isnan(coords)):
+            raise ValueError("At least one parameter value was NaN")
+        lp = np.asarray(self.log_prob_fn(coords))
+        if lp.shape != (coords.shape[0],) or lp.dtype.kind not in "fi":
+            return super().compute_log_prob(coords)      # blobs or another shape: emcee's way
+        return np.array(lp, dtype=np.float64), None
+
+
 def emcee_moves(moves):
     if moves is None or moves == "de":
-        return emcee.moves.DEMove()
+        return _DEMove()
     if moves == "stretch":
-        return emcee.moves.StretchMove()
+        return _StretchMove()
     if moves == "de-snooker":
-        return [(emcee.moves.DEMove(), 0.8), (emcee.moves.DESnookerMove(), 0.2)]
+        return [(_DEMove(), 0.8), (_DESnookerMove(), 0.2)]
     if isinstance(moves, str):
         raise InputError(f"moves must be 'de', 'de-snooker', 'stretch' or emcee move object(s), not {moves!r}")
     return moves
@@ -69,7 +125,7 @@ def initial_ball(log_prob, centre, cov, n_walkers, init_scale, rng):
 
 
 def make_sampler(log_prob, n_walkers, d, moves, rng):
-    sampler = emcee.EnsembleSampler(n_walkers, d, log_prob, vectorize=True, moves=emcee_moves(moves))
+    sampler = _Sampler(n_walkers, d, log_prob, vectorize=True, moves=emcee_moves(moves))
     # emcee 3.1 draws from a numpy RandomState; seed it from the run's Generator
     sampler.random_state = np.random.RandomState(int(rng.integers(0, 2**32 - 1))).get_state()
     return sampler
