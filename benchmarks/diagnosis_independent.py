@@ -132,7 +132,9 @@ def main(argv=None):
         rows = [_job(c, s, dz, a.cache, a.rows) for c, s in jobs]
     print(f"{'case':<30} {'seed':>4}  {'named':<40} {'unexplained':<24} {'hidden/onset':<12} {'s':>5}  verdict")
     for r in rows:
-        nm = ", ".join(f"{n} j{j}" for n, j in r["named"]) or "-"
+        # added effects, then findings (named, not added) marked with *
+        nm = ", ".join([f"{n} j{j}" for n, j in r["named"]]
+                       + [f"{n}* j{j}" for n, j in r.get("findings", [])]) or "-"
         un = ", ".join(f"j{u['joint']} {u['variable']}" for u in r["unexplained"]) or "-"
         hd = ",".join([f"j{j}" for j in r["hidden"]] + [f"onset j{j}" for j in r["onsets"]]) or "-"
         print(f"{r['case']:<30} {r['seed']:>4}  {nm:<40.40} {un:<24.24} {hd:<12.12} {r['seconds']:5.1f}  "
