@@ -34,7 +34,7 @@ import numpy as np
 from dynid.analysis.diagnosis.effect_observation import observe_effects
 from dynid.errors import DynidError
 
-__all__ = ["RestPhases", "rest_phases", "REST_MODELS"]
+__all__ = ["RestPhases", "rest_phases", "REST_MODELS", "coulomb_signal"]
 
 REST_MODELS = ("sign(qd)", "zero", "last motion")
 
@@ -57,6 +57,22 @@ class RestPhases:
     cv_gain: dict = None          # {model: (n,) CV gain on the identification rest rows}
     blocks_better: dict = None    # {model: (n,) blocks of `folds` where it beats sign(qd)}
     folds: int = 5
+
+    def coulomb_signal(self, joint, qd, dead):
+        """The full-rate signal that multiplies Fc of `joint` (1-based) in the diagnosed model:
+        `coulomb_signal` with the rest model chosen for that joint.
+
+        Parameters
+        ----------
+        joint : int, 1-based.
+        qd : (N,) velocity of the joint, rad/s.
+        dead : (N,) bool, the rows of the velocity dead zone (the joint at rest).
+
+        Returns
+        -------
+        np.ndarray (N,)
+        """
+        return coulomb_signal(qd, dead, self.model[joint - 1])
 
     def lines(self):
         js = range(len(self.model))
@@ -160,6 +176,31 @@ def _rms(res, rest):
     return np.sqrt(np.sum(np.where(rest, res, 0.0) ** 2, axis=0) / np.maximum(k, 1))
 
 
+def coulomb_signal(qd, dead, model):
+    """The full-rate signal multiplying Fc of one joint under a rest model of `REST_MODELS`.
+
+    Parameters
+    ----------
+    qd : (N,) velocity, rad/s.
+    dead : (N,) bool, the velocity dead zone (the joint at rest).
+    model : "sign(qd)" (as identified), "zero" (no Coulomb friction at rest) or "last motion"
+        (sticking: at rest the sign of the last motion).
+
+    Returns
+    -------
+    np.ndarray (N,)
+    """
+    s = np.sign(np.asarray(qd, dtype=float))
+    dead = np.asarray(dead, dtype=bool)
+    if model == "zero":
+        return np.where(dead, 0.0, s)
+    if model == "last motion":
+        return _last_motion(s, dead)
+    if model == "sign(qd)":
+        return s
+    raise ValueError(f"rest model must be one of {', '.join(REST_MODELS)}, got {model!r}")
+
+
 def _share(res, rest):
     tot = np.sum(res ** 2, axis=0)
     return np.sum(np.where(rest, res, 0.0) ** 2, axis=0) / np.where(tot > 0, tot, 1.0)
@@ -177,10 +218,9 @@ def _all_samples(experiment, robot, bp, settings, cols, chi, eobs_dz, fc):
     qd = np.asarray(eobs_dz.qd, dtype=float)
     for j, k in fc.items():
         dead = np.asarray(eobs_dz.dead[:, j], dtype=bool)
-        s = np.sign(qd[:, j])
-        cur = e0.decimate(s, joint=j)[:, j, 0]
-        for m, alt in (("zero", np.where(dead, 0.0, s)), ("last motion", _last_motion(s, dead))):
-            d = e0.decimate(alt, joint=j)[:, j, 0] - cur
+        cur = e0.decimate(coulomb_signal(qd[:, j], dead, "sign(qd)"), joint=j)[:, j, 0]
+        for m in REST_MODELS[1:]:
+            d = e0.decimate(coulomb_signal(qd[:, j], dead, m), joint=j)[:, j, 0] - cur
             res[m][:, j] = res[m][:, j] - chi[k] * d
     return {"res": res, "tau": tau, "rest": rest}
 
