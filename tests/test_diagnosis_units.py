@@ -289,3 +289,14 @@ def test_rest_model_chosen_by_blocked_cv_only_where_consistent():
     assert gain["zero"][1] == 0.0 and better["zero"][1] == 0
     # better in one block only (and by a lot): the rule's folds - 1 blocks are not met
     assert better["last motion"][0] == 1
+
+
+def test_coulomb_signal_of_each_rest_model():
+    from dynid.analysis.diagnosis.rest import coulomb_signal
+    qd = np.array([0.5, 0.001, -0.002, -0.4, 0.003])
+    dead = np.abs(qd) < 0.01
+    assert list(coulomb_signal(qd, dead, "sign(qd)")) == [1, 1, -1, -1, 1]
+    assert list(coulomb_signal(qd, dead, "zero")) == [1, 0, 0, -1, 0]
+    assert list(coulomb_signal(qd, dead, "last motion")) == [1, 1, 1, -1, -1]
+    with pytest.raises(ValueError):
+        coulomb_signal(qd, dead, "stick")
