@@ -49,6 +49,20 @@ the true model is that of the clean run with the same robot and seed (same refer
 same noise, nothing missing): ``catalogue_heldout_ratio_to_true_*`` compare the
 validation RMS after the diagnosis with it.
 
+Issue 27. A time-varying effect (drift) is never added to the model: it is named as a
+*finding*. The cases ``friction_warmup_j1_j2`` and ``kuka_friction_warmup_j1``
+(:data:`DRIFT_CASES`) must have a drift finding on each warmed-up joint
+(``drift_named_on_its_joints``); ``drift_added_runs`` counts the runs where a drift was
+added (must be 0); findings count as named in the wrong-joint check and break a clean
+run's quiet; ``drift_j1`` is named first when its first finding is the drift on joint 1
+(nothing added before it). The table marks findings with ``*``. Friction at rest: the
+plant's friction is ``Fc tanh(qd / 0.01)``, so its static friction is known (zero at
+rest, a Coulomb level at the dead zone's edge); ``rest_rms_nm_before_median`` /
+``..._after_median`` are the held-out rest rows' RMS error (N m, all joints) with the
+model's ``Fc sign(qd)`` and with the rest model the diagnosis chose per joint,
+``rest_runs_worse`` the runs where it got worse, and ``all_samples_rel_error_*`` the
+held-out error on all samples (no sample left out).
+
 The last line printed is JSON: the headline rates of issue 13 (:func:`headline`), the
 mean seconds per diagnosis, ``seconds_per_diagnosis_20s_5kHz_tx40`` (CPU seconds of one
 diagnosis of a 20 s recording, with ``--time-20s``) and ``campaign_seconds``.
@@ -132,7 +146,9 @@ def main(argv=None):
         rows = [_job(c, s, dz, a.cache, a.rows) for c, s in jobs]
     print(f"{'case':<30} {'seed':>4}  {'named':<40} {'unexplained':<24} {'hidden/onset':<12} {'s':>5}  verdict")
     for r in rows:
-        nm = ", ".join(f"{n} j{j}" for n, j in r["named"]) or "-"
+        # added effects, then findings (named, not added) marked with *
+        nm = ", ".join([f"{n} j{j}" for n, j in r["named"]]
+                       + [f"{n}* j{j}" for n, j in r.get("findings", [])]) or "-"
         un = ", ".join(f"j{u['joint']} {u['variable']}" for u in r["unexplained"]) or "-"
         hd = ",".join([f"j{j}" for j in r["hidden"]] + [f"onset j{j}" for j in r["onsets"]]) or "-"
         print(f"{r['case']:<30} {r['seed']:>4}  {nm:<40.40} {un:<24.24} {hd:<12.12} {r['seconds']:5.1f}  "

@@ -35,7 +35,7 @@ from dynid.reports import figures as F
 from dynid.reports import tables as T
 from dynid.reports.html import Section, bullets, join, kv_list, para
 
-__all__ = ["diagnosis_sections", "diagnosis_title", "SECTION_IDS"]
+__all__ = ["diagnosis_sections", "diagnosis_title", "diagnosis_lead", "SECTION_IDS"]
 
 SECTION_IDS = ("diagnosis-summary", "diagnosis", "diagnosis-effects", "diagnosis-errors", "diagnosis-residuals")
 MAX_RANKED_ROWS = 30
@@ -468,6 +468,39 @@ def _unexplained_figure(unexplained):
     return F.render_figure(fig, "diag-fig-unexplained", "Final residual against the variable its "
                            "unexplained structure depends on (binned means; noise-floor and step "
                            "tests: the residual over time)")
+
+
+def diagnosis_lead(result, robot=None):
+    """What a diagnosis report shows first: its title, highlights and lead section (the diagnosis),
+    and the other sections.
+
+    Parameters
+    ----------
+    result : DiagnosisResult
+    robot : Robot, optional (joint names)
+
+    Returns
+    -------
+    dict
+        `title` (str), `highlights` ((label, value) pairs), `lead` (the `diagnosis-summary`
+        section, shown above the identification's verdict) and `sections` (the rest of
+        `diagnosis_sections`, after the identification's sections); the keywords of
+        `dynid.reports.html.render_idim_report` as `title`, `lead_highlights`,
+        `lead_sections`, `extra_sections`.
+    """
+    secs = diagnosis_sections(result, robot)
+    highlights = [("diagnosis", _verdict_words(result))]
+    rest = getattr(result, "rest", None)
+    if rest is not None:
+        highlights.append(("held-out error, all samples", f"{_pct(rest.rel_error_before)} → "
+                                                          f"{_pct(rest.rel_error_after)}"))
+    v = result.errors.get("validation")
+    if v is not None:
+        highlights.append(("held-out error, moving samples", f"{_pct(v['before'].rel_error)} → "
+                                                             f"{_pct(v['after'].rel_error)}"))
+    return {"title": diagnosis_title(result), "highlights": highlights,
+            "lead": [x for x in secs if x.id == "diagnosis-summary"],
+            "sections": [x for x in secs if x.id != "diagnosis-summary"]}
 
 
 def diagnosis_sections(result, robot=None):

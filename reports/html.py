@@ -141,17 +141,23 @@ def _check_sections(sections):
             seen.add(k)
 
 
-def render_sections(sections, *, title, subtitle="", highlights=(), footer=(), verdict=None) -> str:
+def render_sections(sections, *, title, subtitle="", highlights=(), footer=(), verdict=None, lead=()) -> str:
     """The HTML page of `sections` (a list of `Section`).
 
     `highlights`: (label, value) pairs shown under the title; `footer`:
     lines of text at the bottom; `verdict`: a `VerdictBlock` (see
-    `verdict_block`) shown first, above the sections.
+    `verdict_block`) shown above the sections; `lead`: sections shown first, above
+    the verdict (what the report is about: a diagnosis report's diagnosis).
+
+    Returns
+    -------
+    str
+        The HTML text.
     """
-    sections = list(sections)
-    _check_sections(sections)
+    sections, lead = list(sections), list(lead)
+    _check_sections(lead + sections)
     html = environment().get_template(TEMPLATE).render(
-        title=title, subtitle=subtitle, sections=sections, highlights=list(highlights),
+        title=title, subtitle=subtitle, sections=sections, lead=lead, highlights=list(highlights),
         footer=list(footer), generator=f"dynid {versions().get('dynid', '?')}", verdict=verdict,
     )
     return html
@@ -583,7 +589,8 @@ def report_kind(extra_sections) -> str:
 
 
 def render_idim_report(idim_result, robot, experiment=None, validation=None, *, title=None,
-                       extra_sections=None, reference="auto", verdict=None, kind=None) -> str:
+                       extra_sections=None, reference="auto", verdict=None, kind=None, lead_sections=None,
+                       lead_highlights=None) -> str:
     """One self-contained HTML page reporting an IDIM identification.
 
     `extra_sections` (list of `Section`) are appended after the
@@ -591,7 +598,10 @@ def render_idim_report(idim_result, robot, experiment=None, validation=None, *, 
     (computed from the result and the validation if not given), shown first.
     `kind`: what the report is (a key of `REPORT_TITLES`: `"full"` for the
     pipeline's report); by default read from the extra sections (`report_kind`).
-    The title says it unless `title` is given.
+    The title says it unless `title` is given. `lead_sections` are shown first, above the
+    verdict, and `lead_highlights` ((label, value) pairs) first under the title: what the
+    report is about when it is not the identification (a diagnosis report leads with the
+    diagnosis: `dynid.reports.diagnosis_section.diagnosis_lead`).
 
     Returns
     -------
@@ -616,6 +626,7 @@ def render_idim_report(idim_result, robot, experiment=None, validation=None, *, 
         highlights.append(("held-out error (all samples)", _pct(validation.rel_error)))
         highlights.append(("held-out error (moving samples)", _pct(validation.moving_rel_error)))
     highlights.insert(0, ("verdict", verdict.status))
+    highlights = list(lead_highlights or []) + highlights
     footer = ["Method: IDIM with OLS, per-joint WLS and essential parameters, after section 2 of "
               "Gautier, Janot, Vandanjon (2010)."]
     if reference is not None:
@@ -627,4 +638,5 @@ def render_idim_report(idim_result, robot, experiment=None, validation=None, *, 
         highlights=highlights,
         footer=footer,
         verdict=verdict_block(verdict),
+        lead=lead_sections or (),
     )

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from dynid.reports.bayes_section import bayes_sections
 from dynid.reports.bona_section import excitation_section
-from dynid.reports.diagnosis_section import diagnosis_sections
+from dynid.reports.diagnosis_section import diagnosis_lead, diagnosis_sections
 from dynid.reports.didim_section import didim_sections
 from dynid.reports.friction_section import asymmetric_friction_section
 from dynid.reports.html import Section, para, render_idim_report, render_sections, verdict_block
@@ -68,8 +68,10 @@ def sample_html(post, result, robot, experiment, verdict) -> str:
 
 def diagnosis_html(run) -> str:
     """`dynid diagnose --report`: the identification, its validation and the diagnosis' sections."""
-    return render_idim_report(run.result, run.robot, run.experiment, run.validation,
-                              extra_sections=diagnosis_sections(run.diagnosis, run.robot), verdict=run.verdict)
+    lead = diagnosis_lead(run.diagnosis, run.robot)      # the diagnosis first (issue 27 item 5)
+    return render_idim_report(run.result, run.robot, run.experiment, run.validation, title=lead["title"],
+                              extra_sections=lead["sections"], lead_sections=lead["lead"],
+                              lead_highlights=lead["highlights"], verdict=run.verdict)
 
 
 def excitation_html(res, robot) -> str:

@@ -37,7 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["Hypothesis", "name_flags", "gear_ratios_of", "MIN_SHARE", "HARMONIC_TOL",
-           "ordinal"]
+           "ordinal", "attach_findings"]
 
 #: least share of the joint's residual variance a flagged structure must carry
 MIN_SHARE = 1.0 / 3.0
@@ -219,3 +219,30 @@ def _drift(j, t, values):
     if fc:
         size += f", {100 * t.rms / abs(fc):.0f} % of Fc{j} = {fc:.3g} N m"
     return Hypothesis(j, "drift", f"drift: the friction level of joint {j} changes over the recording ({size})")
+
+
+def attach_findings(structure, findings):
+    """Name the drift a finding found on a flagged joint in that joint's hypothesis (in place).
+
+    A drift is never added to the model (findings.py), so its torque stays in the residual
+    the structure tests examine: the joint is flagged, along t x sign(qd_j) (named a drift
+    already) or as a coloured residual whose cause the finding names.
+
+    Parameters
+    ----------
+    structure : StructureResult with hypotheses attached (`name_flags`), or None.
+    findings : list of Finding.
+
+    Returns
+    -------
+    None
+    """
+    if structure is None:
+        return
+    by_joint = {f.joint: f for f in findings if f.name == "drift"}
+    for u in structure.unexplained:
+        f = by_joint.get(u.joint)
+        if f is None or getattr(u, "mechanism", None) in ("drift", "time"):
+            continue
+        u.hypothesis = f"drift (named as a finding, not added: {f.size}); the structure tests: {u.hypothesis}"
+        u.mechanism = "drift"

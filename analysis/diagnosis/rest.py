@@ -16,10 +16,14 @@ column is built from (then decimated exactly as the regressor):
   against the torque it last moved with).
 
 The choice is made per joint on the *identification* recording's rest rows, which the
-fit never used (the dead zone drops them), by their squared error, the way the blocked
-CV chooses among the other candidates: on data the parameters were not fitted to. No
-parameter is refitted, no sample is left out: the held-out error is scored on all
-samples before and after, and its rest-phase share reported per joint.
+fit never used (the dead zone drops them), by the blocked CV rule of the other
+candidates (rule.py): the rest rows are cut into `folds` contiguous time blocks, and a
+rest model other than `sign(qd)` wins when it lowers the squared error on the rest rows
+in total (CV gain > 0) and in all but one of the blocks that hold rest rows (at least 3
+such blocks); among winners the largest gain. A rest model that wins is part of the diagnosed model: its prediction of the
+held-out recording (`after`) uses it on the rest rows. No parameter is refitted, no sample
+is left out: the held-out error is scored on all samples before and after, and its
+rest-phase share reported per joint, with the RMS error on the held-out rest rows.
 """
 from __future__ import annotations
 
@@ -30,7 +34,7 @@ import numpy as np
 from dynid.analysis.diagnosis.effect_observation import observe_effects
 from dynid.errors import DynidError
 
-__all__ = ["RestPhases", "rest_phases", "REST_MODELS"]
+__all__ = ["RestPhases", "rest_phases", "REST_MODELS", "coulomb_signal"]
 
 REST_MODELS = ("sign(qd)", "zero", "last motion")
 
@@ -48,6 +52,27 @@ class RestPhases:
     rest_share_before: np.ndarray  # share of the joint's held-out squared error on rest rows
     rest_share_after: np.ndarray
     id_rest_sse: dict             # {model: (n,) identification rest-row SSE}
+    rest_rms_before: np.ndarray = None   # (n,) RMS error on the held-out rest rows, N m
+    rest_rms_after: np.ndarray = None
+    cv_gain: dict = None          # {model: (n,) CV gain on the identification rest rows}
+    blocks_better: dict = None    # {model: (n,) blocks of `folds` where it beats sign(qd)}
+    folds: int = 5
+
+    def coulomb_signal(self, joint, qd, dead):
+        """The full-rate signal that multiplies Fc of `joint` (1-based) in the diagnosed model:
+        `coulomb_signal` with the rest model chosen for that joint.
+
+        Parameters
+        ----------
+        joint : int, 1-based.
+        qd : (N,) velocity of the joint, rad/s.
+        dead : (N,) bool, the rows of the velocity dead zone (the joint at rest).
+
+        Returns
+        -------
+        np.ndarray (N,)
+        """
+        return coulomb_signal(qd, dead, self.model[joint - 1])
 
     def lines(self):
         js = range(len(self.model))
@@ -59,11 +84,20 @@ class RestPhases:
                 + "; ".join(f"j{j + 1} {100 * self.joint_rel_error_before[j]:.1f} -> "
                             f"{100 * self.joint_rel_error_after[j]:.1f} % "
                             f"({100 * self.rest_share_before[j]:.0f} -> {100 * self.rest_share_after[j]:.0f} %; "
-                            f"{100 * self.rest_fraction[j]:.0f} %)" for j in js)]
+                            f"{100 * self.rest_fraction[j]:.0f} %)" for j in js),
+                "  held-out rest rows, RMS error before -> after [N m]: "
+                + "; ".join(f"j{j + 1} {self.rest_rms_before[j]:.3g} -> {self.rest_rms_after[j]:.3g}"
+                            for j in js)]
 
     def to_dict(self):
         return {"rest_models": list(REST_MODELS), "chosen": list(self.model),
-                "chosen_on": "identification rows at rest (not fitted), squared error",
+                "chosen_on": (f"identification rows at rest (not fitted): blocked CV in {self.folds} "
+                              f"contiguous blocks, CV gain > 0 and lower error than sign(qd) in all but one "
+                              f"of the blocks holding rest rows (at least 3)"),
+                "cv_gain": {k: list(map(float, v)) for k, v in (self.cv_gain or {}).items()},
+                "blocks_better": {k: list(map(int, v)) for k, v in (self.blocks_better or {}).items()},
+                "rest_rms_nm": {"before": list(map(float, self.rest_rms_before)),
+                                "after": list(map(float, self.rest_rms_after))},
                 "rest_fraction": list(map(float, self.rest_fraction)),
                 "all_samples_rel_error": {"before": self.rel_error_before, "after": self.rel_error_after},
                 "joint_rel_error": {"before": list(map(float, self.joint_rel_error_before)),
@@ -73,7 +107,8 @@ class RestPhases:
                 "identification_rest_sse": {k: list(map(float, v)) for k, v in self.id_rest_sse.items()}}
 
 
-def rest_phases(identification, validation, robot, bp, settings, cols, chi, names, id_eobs, val_eobs):
+def rest_phases(identification, validation, robot, bp, settings, cols, chi, names, id_eobs, val_eobs,
+                folds=5):
     """`RestPhases` of the model (`cols`, `chi`, `names`) or None (no Coulomb term, no data).
 
     Parameters
@@ -82,6 +117,11 @@ def rest_phases(identification, validation, robot, bp, settings, cols, chi, name
     robot, bp, settings : as the identification (resolved settings with the dead zone).
     cols, chi, names : the model's base-regressor columns, values and names.
     id_eobs, val_eobs : EffectObservation (dead zone on) of both recordings.
+    folds : contiguous blocks of the CV choice (the diagnosis' blocked CV).
+
+    Returns
+    -------
+    RestPhases or None
     """
     fc = {j: names.index(f"Fc{j + 1}") for j in range(robot.n_joints) if f"Fc{j + 1}" in names}
     if not fc or id_eobs.dead is None or val_eobs.dead is None:
@@ -94,7 +134,15 @@ def rest_phases(identification, validation, robot, bp, settings, cols, chi, name
     n = robot.n_joints
     sse = {m: np.array([np.sum(np.where(ident["rest"][:, j], ident["res"][m][:, j], 0.0) ** 2)
                         for j in range(n)]) for m in REST_MODELS}
-    chosen = [min(REST_MODELS, key=lambda m: (sse[m][j], REST_MODELS.index(m))) for j in range(n)]
+    gain, better = _blocked_cv(ident["res"], ident["rest"], folds)
+    # blocks without rest rows of the joint cannot be better: the rule counts the others
+    # (KUKA LWR4+, 2-3 % of the rows at rest: some blocks hold none)
+    occupied = _occupied(ident["rest"], folds)
+    chosen = []
+    for j in range(n):
+        wins = [m for m in REST_MODELS[1:] if gain[m][j] > 0 and occupied[j] >= 3
+                and better[m][j] >= occupied[j] - 1]
+        chosen.append(max(wins, key=lambda m: gain[m][j]) if wins else REST_MODELS[0])
     before = held["res"]["sign(qd)"]
     after = np.column_stack([held["res"][chosen[j]][:, j] for j in range(n)])
     tau, rest = held["tau"], held["rest"]
@@ -104,7 +152,64 @@ def rest_phases(identification, validation, robot, bp, settings, cols, chi, name
                       joint_rel_error_before=np.linalg.norm(before, axis=0) / np.linalg.norm(tau, axis=0),
                       joint_rel_error_after=np.linalg.norm(after, axis=0) / np.linalg.norm(tau, axis=0),
                       rest_share_before=_share(before, rest), rest_share_after=_share(after, rest),
-                      id_rest_sse=sse)
+                      id_rest_sse=sse, rest_rms_before=_rms(before, rest), rest_rms_after=_rms(after, rest),
+                      cv_gain=gain, blocks_better=better, folds=folds)
+
+
+def _blocked_cv(res, rest, folds):
+    """({model: (n,) CV gain}, {model: (n,) blocks better}) of each rest model against sign(qd) on
+    the rest rows, cut into `folds` contiguous time blocks (no parameter is fitted: each block's
+    error is already out of sample)."""
+    M, n = rest.shape
+    block = np.minimum((np.arange(M) * folds) // max(M, 1), folds - 1)
+    ref = res[REST_MODELS[0]]
+    e0 = np.array([[np.sum(np.where(rest[:, j] & (block == b), ref[:, j], 0.0) ** 2)
+                    for j in range(n)] for b in range(folds)])
+    gain, better = {}, {}
+    for m in REST_MODELS[1:]:
+        e = np.array([[np.sum(np.where(rest[:, j] & (block == b), res[m][:, j], 0.0) ** 2)
+                       for j in range(n)] for b in range(folds)])
+        tot0 = e0.sum(axis=0)
+        gain[m] = np.where(tot0 > 0, (tot0 - e.sum(axis=0)) / np.where(tot0 > 0, tot0, 1.0), 0.0)
+        better[m] = (e < e0).sum(axis=0)
+    return gain, better
+
+
+def _occupied(rest, folds):
+    """(n,) number of the `folds` contiguous blocks holding at least one rest row of each joint."""
+    M = rest.shape[0]
+    block = np.minimum((np.arange(M) * folds) // max(M, 1), folds - 1)
+    return np.array([len(set(block[rest[:, j]])) for j in range(rest.shape[1])])
+
+
+def _rms(res, rest):
+    k = rest.sum(axis=0)
+    return np.sqrt(np.sum(np.where(rest, res, 0.0) ** 2, axis=0) / np.maximum(k, 1))
+
+
+def coulomb_signal(qd, dead, model):
+    """The full-rate signal multiplying Fc of one joint under a rest model of `REST_MODELS`.
+
+    Parameters
+    ----------
+    qd : (N,) velocity, rad/s.
+    dead : (N,) bool, the velocity dead zone (the joint at rest).
+    model : "sign(qd)" (as identified), "zero" (no Coulomb friction at rest) or "last motion"
+        (sticking: at rest the sign of the last motion).
+
+    Returns
+    -------
+    np.ndarray (N,)
+    """
+    s = np.sign(np.asarray(qd, dtype=float))
+    dead = np.asarray(dead, dtype=bool)
+    if model == "zero":
+        return np.where(dead, 0.0, s)
+    if model == "last motion":
+        return _last_motion(s, dead)
+    if model == "sign(qd)":
+        return s
+    raise ValueError(f"rest model must be one of {', '.join(REST_MODELS)}, got {model!r}")
 
 
 def _share(res, rest):
@@ -124,10 +229,9 @@ def _all_samples(experiment, robot, bp, settings, cols, chi, eobs_dz, fc):
     qd = np.asarray(eobs_dz.qd, dtype=float)
     for j, k in fc.items():
         dead = np.asarray(eobs_dz.dead[:, j], dtype=bool)
-        s = np.sign(qd[:, j])
-        cur = e0.decimate(s, joint=j)[:, j, 0]
-        for m, alt in (("zero", np.where(dead, 0.0, s)), ("last motion", _last_motion(s, dead))):
-            d = e0.decimate(alt, joint=j)[:, j, 0] - cur
+        cur = e0.decimate(coulomb_signal(qd[:, j], dead, "sign(qd)"), joint=j)[:, j, 0]
+        for m in REST_MODELS[1:]:
+            d = e0.decimate(coulomb_signal(qd[:, j], dead, m), joint=j)[:, j, 0] - cur
             res[m][:, j] = res[m][:, j] - chi[k] * d
     return {"res": res, "tau": tau, "rest": rest}
 

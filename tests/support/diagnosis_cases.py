@@ -174,9 +174,10 @@ def run_case(case, seed, *, dead_zone="auto", cache=None, **diag_kw):
     hidden = [h.joint for h in getattr(res, "hidden", [])]
     # issue 27: time-varying effects named but not added, and the effects cut by max_effects
     findings = [(f_.name, f_.joint) for f_ in getattr(res, "findings", [])]
-    ok, why = judge(case, named, [u["joint"] for u in unexplained], hidden)
+    ok, why = judge(case, named, [u["joint"] for u in unexplained], hidden, findings)
     val = res.errors["validation"]
-    first = named[0] if named else None
+    # named = added to the model, then named as findings (a drift is never added)
+    first = (named + findings)[0] if named + findings else None
     fit = res.model_after
     params = {nm: [float(fit.chi[k]), float(fit.sigma[k])] for k, nm in enumerate(fit.names)
               if nm.startswith(("Off", "Fc"))}
@@ -191,14 +192,30 @@ def run_case(case, seed, *, dead_zone="auto", cache=None, **diag_kw):
             and first[0] in ALIASES.get(FIRST[case][0], {FIRST[case][0]}),
             "val_rms_after": float(np.sqrt(np.mean(val["after"].rms ** 2))),
             "val_rms_before": float(np.sqrt(np.mean(val["before"].rms ** 2))),
-            "seconds": dt, "summary": res.summary(), "dead_zone": dead_zone}
+            "seconds": dt, "summary": res.summary(), "dead_zone": dead_zone, "rest": _rest_row(res)}
 
 
-def judge(case, named, flagged, hidden=()):
+def _rest_row(res):
+    """The friction at rest of a run (issue 27 item 4): the plant's static friction is known
+    (`Fc tanh(qd / 0.01)`: zero at rest), so the held-out rest rows' error before (the model's
+    `Fc sign(qd)`) and after (the rest model the diagnosis chose per joint) is the figure."""
+    rp = getattr(res, "rest", None)
+    if rp is None:
+        return None
+    return {"chosen": list(rp.model), "rest_fraction": [float(v) for v in rp.rest_fraction],
+            "rest_rms_before": [float(v) for v in rp.rest_rms_before],
+            "rest_rms_after": [float(v) for v in rp.rest_rms_after],
+            "all_before": float(rp.rel_error_before), "all_after": float(rp.rel_error_after)}
+
+
+def judge(case, named, flagged, hidden=(), findings=()):
     """(passes, reason) of a run against :data:`EXPECT` (and :data:`FIRST`: a catalogue effect
-    must be the first one named)."""
+    must be the first one named). `findings`: (name, joint) named but not added (a drift is
+    never added: it counts as named after the effects added, and no drift may be added)."""
     exp = EXPECT[case]
-    reasons = []
+    reasons = [f"{nm} j{j} added to the model (a time-varying effect must be a finding)"
+               for nm, j in named if nm == "drift"]
+    named = list(named) + [f for f in findings if f not in named]
     if case in FIRST and (not named or named[0][1] != FIRST[case][1]
                           or named[0][0] not in ALIASES.get(FIRST[case][0], {FIRST[case][0]})):
         nm, j = FIRST[case]
@@ -218,13 +235,13 @@ def judge(case, named, flagged, hidden=()):
     return not reasons, "; ".join(reasons) or "as expected"
 
 
-def wrong_joints(case, named, flagged, hidden=()):
-    """What is named or flagged on a joint where nothing was injected (or a delay named when
-    none was)."""
+def wrong_joints(case, named, flagged, hidden=(), findings=()):
+    """What is named (added or as a finding) or flagged on a joint where nothing was injected
+    (or a delay named when none was)."""
     exp = EXPECT[case]
     delay = FIRST.get(case) == ("time_delay", None)
     out = []
-    for nm, nj in named:
+    for nm, nj in list(named) + [f for f in findings if f not in named]:
         if nm == "time_delay":
             if not delay:
                 out.append("time_delay named (none injected)")
@@ -252,6 +269,11 @@ def absorbed(row, clean_row):
         if abs((a - b) - d) > max(3.0 * np.hypot(sa, sb), 0.1 * abs(d)):
             return False
     return True
+
+
+def _pairs(items):
+    """(name, joint) tuples (JSON rows hold lists)."""
+    return [tuple(x) for x in items]
 
 
 def headline(rows):
@@ -284,20 +306,45 @@ def headline(rows):
                                              for j in EXPECT[r["case"]])),
         "out_of_catalogue_runs": sum(r["case"] in OUT_OF_CATALOGUE for r in rows),
         "clean_quiet": rate([r for r in rows if r["case"] in CLEAN],
-                            lambda r: not r["named"] and not r["unexplained"] and not r["hidden"]),
+                            lambda r: not r["named"] and not r["unexplained"] and not r["hidden"]
+                            and not r.get("findings")),
         "clean_runs": sum(r["case"] in CLEAN for r in rows),
         "runs_with_coulomb_onset": sum(bool(r["onsets"]) for r in rows),
         "hidden_found": rate([r for r in rows if r["case"] in HIDDEN], lambda r: 2 in r["hidden"]),
         "hidden_runs": sum(r["case"] in HIDDEN for r in rows),
         "wrong_joint": rate(rows, lambda r: wrong_joints(r["case"], r["named"],
                                                          [u["joint"] for u in r["unexplained"]],
-                                                         r["hidden"])),
+                                                         r["hidden"], _pairs(r.get("findings", [])))),
         # issue 27: a friction drift over the recording named as drift on the right joints, as a
-        # finding or an added effect (a drift cannot improve another recording: not added)
+        # finding, and not added to the model (a drift cannot predict another recording)
         "drift_named_on_its_joints": rate([r for r in rows if r["case"] in DRIFT_CASES],
-                                          lambda r: all(("drift", j) in r.get("findings", [])
-                                                        or ("drift", j) in r["named"]
+                                          lambda r: all(("drift", j) in _pairs(r.get("findings", []))
                                                         for j in DRIFT_CASES[r["case"]])),
         "drift_runs": sum(r["case"] in DRIFT_CASES for r in rows),
+        "drift_added_runs": sum(any(nm == "drift" for nm, _ in r["named"]) for r in rows),
         "passed": int(sum(r["ok"] for r in rows)), "runs": len(rows),
+        **_rest_headline(rows),
     }
+
+
+def _rest_headline(rows):
+    """Rest-phase figures over the runs: the held-out rest rows' RMS error (all joints) before and
+    after the friction at rest the diagnosis chose, and the all-samples relative error."""
+    rs = [r["rest"] for r in rows if r.get("rest")]
+    if not rs:
+        return {"rest_runs": 0}
+
+    def pooled(r, key):
+        w = np.asarray(r["rest_fraction"])
+        return float(np.sqrt(np.sum(w * np.asarray(r[key]) ** 2) / max(np.sum(w), 1e-300)))
+    before = np.array([pooled(r, "rest_rms_before") for r in rs])
+    after = np.array([pooled(r, "rest_rms_after") for r in rs])
+    return {"rest_runs": len(rs),
+            "rest_rms_nm_before_median": float(np.median(before)),
+            "rest_rms_nm_after_median": float(np.median(after)),
+            "rest_rms_ratio_after_to_before_median": float(np.median(after / np.maximum(before, 1e-300))),
+            "rest_runs_worse": int(np.sum(after > before * (1 + 1e-9))),
+            "all_samples_rel_error_before_median": float(np.median([r["all_before"] for r in rs])),
+            "all_samples_rel_error_after_median": float(np.median([r["all_after"] for r in rs])),
+            "rest_models_chosen": {m: int(sum(c == m for r in rs for c in r["chosen"]))
+                                   for m in ("sign(qd)", "zero", "last motion")}}

@@ -186,6 +186,17 @@ def test_diagnose_finds_an_injected_viscous_asymmetry_and_reports(short_sim):
     assert [s.id for s in secs] == list(SECTION_IDS)
     html = render_sections(secs, title="diagnosis")
     assert "asymmetric_viscous" in html and "diag-fig-velocity" in html
+    # a diagnosis report leads with the diagnosis: its title, then the summary above the verdict
+    from dynid.reports.diagnosis_section import diagnosis_lead
+    from dynid.reports.html import VerdictBlock
+    lead = diagnosis_lead(res, robot)
+    assert lead["title"].startswith("Residual diagnosis of") and "effect(s) added" in lead["title"]
+    assert [x.id for x in lead["lead"]] == ["diagnosis-summary"]
+    assert "diagnosis-summary" not in [x.id for x in lead["sections"]]
+    vb = VerdictBlock(status="X", level="ok", icon="", findings=[], flagged_parameters=[], flagged_joints=[])
+    page = render_sections(lead["sections"], title=lead["title"], lead=lead["lead"], verdict=vb,
+                           highlights=lead["highlights"])
+    assert page.index('id="diagnosis-summary"') < page.index('id="verdict"') < page.index('id="diagnosis"')
 
 
 # ------------------------------------------------------------------ reduced campaign
