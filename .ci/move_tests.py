@@ -91,6 +91,7 @@ TABLE = {
     "test_browser": "reports",
     "test_report": "reports",
     "test_progress": "base",
+    "test_threads": "base",
     # the command line
     "test_cli": "cli",
     "test_cli_api": "cli",
