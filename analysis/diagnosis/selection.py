@@ -93,6 +93,10 @@ the data and model fits (problem.py), scoring (scoring.py), the selection rule (
 refinement of a nonlinear parameter (refine.py), notes on effects (notes.py), the structure
 tests (structure.py), the hidden-effects route (hidden.py), the result objects (results.py,
 summary_text.py). This module runs the stages in order.
+
+Why one module above 800 lines: its docstring is the method's description (the selection rule
+and why it does not fool itself, about 100 lines), and the greedy loop, the decision of one
+step and the confirmation on validation data share one private selection state.
 """
 from __future__ import annotations
 
