@@ -215,3 +215,41 @@ def test_bootstrap_falls_back_to_hac_when_blocks_cannot_identify(monkeypatch):
     assert any("was asked for" in n and "3 of 50" in n for n in r.notices)
     h = ls.ols(W3, tau, ["a", "b", "c"], uncertainty="hac")
     np.testing.assert_allclose(r.cov, h.cov)
+
+
+def test_one_default_for_the_cli_the_settings_and_identify():
+    # the parser does not import the numerical modules: its copy of the choices and of the
+    # default must be the library's
+    from dynid.analysis.estimators.idim import DEFAULT_UNCERTAINTY
+    from dynid.analysis.run import Settings
+    from dynid.reports import cli_options
+    from dynid.reports.cli_options import build_parser
+    assert tuple(cli_options.UNCERTAINTY_CHOICES) == ls.UNCERTAINTY
+    assert cli_options.UNCERTAINTY_DEFAULT == DEFAULT_UNCERTAINTY == Settings().uncertainty
+    args = build_parser(full=True).parse_args(["identify", "x.csv", "--robot", "tx40"])
+    assert args.uncertainty == DEFAULT_UNCERTAINTY
+
+
+def test_identification_report_shows_the_agreement():
+    # the pipeline's identification report carries the agreement section (figure and table)
+    # when the result has an agreement, and none when it has not
+    from types import SimpleNamespace
+
+    from dynid.reports.html import render_sections
+    from dynid.reports.render import idim_extra_sections
+    rng = np.random.default_rng(13)
+    chis = 5 + rng.normal(size=(3, 4))
+    sig = np.full((3, 4), 0.2)
+    a = ag.agreement(chis, sig, [np.diag(s**2) for s in sig], ["ZZ1R", "Fv1", "Fc1", "Off1"], kind="segments")
+    a.update(uncertainty="hac", left_out=["Ia6"])
+    result = SimpleNamespace(agreement=a, agreement_line=ag.agreement_verdict(a))
+    ident = SimpleNamespace(tilt=None, asymmetric_friction=None, physical=None, effects=None, export=None,
+                            result=result)
+    sections = idim_extra_sections(ident)
+    assert [s.id for s in sections] == ["agreement"]
+    html = render_sections(sections, title="t")
+    assert 'id="fig-agreement"' in html or "fig-agreement" in html
+    assert "tab-agreement" in html and "kg m²" in html and "Ia6" in html and "hac covariance" in html
+    assert ag.agreement_verdict(a)[:40] in html
+    ident.result = SimpleNamespace(agreement=None)
+    assert idim_extra_sections(ident) == []
