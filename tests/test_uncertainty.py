@@ -253,3 +253,33 @@ def test_identification_report_shows_the_agreement():
     assert ag.agreement_verdict(a)[:40] in html
     ident.result = SimpleNamespace(agreement=None)
     assert idim_extra_sections(ident) == []
+
+
+def test_essential_robust_sigma_adds_the_bias_of_the_removed_parameters():
+    # d = chi_e - chi_base,e equals the omitted-variable bias A chi_d of nested weighted LS
+    # (computed here with numpy on the weighted rows); the robust essential covariance is the
+    # option's own plus d d', classic is left as eq. (14)
+    rng = np.random.default_rng(14)
+    W3, tau, _ = _system(rng, phi=0.8)
+    # "d" is mostly "a" (so its %sigma is large and it is removed) with a true value of 0.5:
+    # removing it shifts "a" by about 1.5 of its sigma
+    dcol = 0.5 * W3[:, :, 0] + 0.05 * np.sin(np.arange(W3.shape[0]) / 7.0)[:, None]
+    W3 = np.concatenate([W3, dcol[:, :, None], 1e-3 * rng.standard_normal(W3.shape[:2] + (1,))], axis=2)
+    tau = tau + 0.5 * dcol
+    names = ["a", "b", "c", "d", "e"]
+    e = essential_parameters(W3, tau, names, ls.wls, uncertainty="hac")
+    cols = [names.index(n) for n in e.essential]
+    drop = [k for k in range(5) if k not in cols]
+    w = 1.0 / e.base.joint_sigma
+    X = (W3 * w[None, :, None]).transpose(1, 0, 2).reshape(-1, 5)
+    A = np.linalg.lstsq(X[:, cols], X[:, drop], rcond=None)[0]
+    d = e.result.chi - e.base.chi[cols]
+    assert e.removed == ["e", "d"] and np.max(np.abs(d) / e.base.sigma[cols]) > 1.0
+    np.testing.assert_allclose(d, A @ e.base.chi[drop], rtol=1e-6, atol=1e-12)
+    own = ls.wls(W3[:, :, cols], tau, e.essential, joint_sigma=e.base.joint_sigma, uncertainty="hac")
+    np.testing.assert_allclose(e.result.cov, own.cov + np.outer(d, d), rtol=1e-10)
+    assert "selection_bias" in e.result.settings["least_squares"]["uncertainty"]
+    assert any("bias of removing parameters" in n for n in e.result.notices)
+    classic = essential_parameters(W3, tau, names, ls.wls)
+    np.testing.assert_allclose(classic.result.cov, ls.wls(W3[:, :, cols], tau, e.essential,
+                                                          joint_sigma=e.base.joint_sigma).cov)

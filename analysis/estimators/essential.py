@@ -11,7 +11,7 @@ as well and is better identified (smaller %σ, better conditioning).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pandas as pd
@@ -238,8 +238,32 @@ def essential_parameters(
     out.base = estimator(W3, tau, out.base.names, **kw)
     kw["settings"] = out.result.settings
     kw["settings"] = {k: v for k, v in kw["settings"].items() if k != "least_squares"}
-    out.result = estimator(np.asarray(W3)[:, :, cols], tau, out.essential, **kw)
+    out.result = _with_selection_bias(estimator(np.asarray(W3)[:, :, cols], tau, out.essential, **kw),
+                                      out.base, cols)
     return out
+
+
+def _with_selection_bias(res, base, cols):
+    """The robust covariance of the essential estimate plus its omitted-parameter bias d dᵀ.
+
+    Removing parameters whose true value is not exactly zero biases the others by
+    A χ_d (A = (W_eᵀW_e)⁻¹W_eᵀW_d, same weights), and for nested least squares the
+    estimate of that bias is d = χ̂_e − χ̂_base,e, the essential estimate minus the
+    full model's estimate of the same parameters. So cov_e + d dᵀ estimates the mean
+    squared error of χ̂_e: its σ covers the truth when the removed parameters matter
+    and adds nothing when they are zero (conservative by A cov_d Aᵀ on average, because
+    d also carries the noise of χ̂_d). Only for the robust options: "classic" stays
+    eq. (14) of the essential model, as in the papers.
+    """
+    d = res.chi - base.chi[np.asarray(cols, dtype=int)]
+    unc = dict(res.settings.get("least_squares", {}).get("uncertainty", {}))
+    unc["selection_bias"] = "d d' added, d = essential estimate - full-model estimate of the same parameters"
+    settings = {**res.settings, "least_squares": {**res.settings.get("least_squares", {}), "uncertainty": unc}}
+    rms = float(np.sqrt(np.mean((d / np.where(res.sigma > 0, res.sigma, np.inf)) ** 2))) if d.size else 0.0
+    note = (f"the essential sigma includes the bias of removing parameters (the essential minus the full "
+            f"model's estimate, rms {rms:.2g} of the {unc.get('uncertainty', 'robust')} sigma).")
+    return replace(res, cov=res.cov + np.outer(d, d), settings=settings,
+                               notices=list(res.notices) + [note])
 
 
 def _essential_samples(W3, tau, names, estimator, crit, estimator_kwargs):
