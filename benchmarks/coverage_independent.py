@@ -12,8 +12,9 @@ logging rate with coefficient ``PHI`` (marginal std ``NOISE`` N m), in place of 
 simulator's white noise (both only enter the record, not the loop), and the plant one
 small unmodelled effect, a position ripple ``A sin(k q1)`` on joint 1 (``RIPPLE``).
 
-The essential set's robust σ includes the bias of the removed parameters
-(essential.py, σ² + d², d the essential minus the full WLS estimate):
+The essential set's robust σ is the full WLS's σ of the same parameters with the
+bias of the removed parameters added in quadrature (essential.py: σ_wls,e² + d², d the
+essential minus the full WLS estimate; chosen on seeds 1000-1099):
 ``essential_<opt>+bias`` (rows recorded before that rule get it from their z and σ).
 
 For each seed dynid's default IDIM runs once per covariance option
@@ -171,7 +172,7 @@ def _didim_rows(row, exp, robot, bp, beta):
 
 
 def _essential_with_bias(row, opt):
-    """z of the essential estimate with sigma^2 + d^2, d = chi_e - chi_wls,e (essential.py's rule).
+    """z of the essential estimate with sigma_wls,e^2 + d^2, d = chi_e - chi_wls,e (essential.py's rule).
 
     Rows recorded before that rule (no `essential_<opt>_bias_included`) get it here from
     their z and sigma: chi - truth = z sigma for both the essential and the WLS estimate.
@@ -183,7 +184,7 @@ def _essential_with_bias(row, opt):
     names = _base_names()   # the WLS rows are in base-parameter order
     idx = [names.index(n) for n in row["essential_names"]]
     d = ze * se - zw[idx] * sw[idx]
-    s = np.sqrt(se**2 + d**2)
+    s = np.sqrt(sw[idx] ** 2 + d**2)
     return ze * se / s, s
 
 
