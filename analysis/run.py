@@ -41,7 +41,7 @@ from dynid.analysis.diagnosis.physical_fit import effect_candidates, identify_ph
 from dynid.analysis.estimators.controller_gains import identify_gains
 from dynid.analysis.estimators.didim import DEFAULT_MAX_ITER, identify_didim
 from dynid.analysis.estimators.gravity_tilt import gravity_tilt
-from dynid.analysis.estimators.idim import identify_idim
+from dynid.analysis.estimators.idim import DEFAULT_UNCERTAINTY, identify_idim
 from dynid.analysis.estimators.maximum_likelihood import maximum_likelihood, robot_model
 from dynid.analysis.estimators.physical import identify_physical, require_cvxpy
 from dynid.analysis.estimators.projection import identify_projection
@@ -107,7 +107,7 @@ class Settings:
     decimation_cutoff: float | None = None
     qd_threshold: object = None
     max_error_growth: float = 0.02
-    uncertainty: str = "classic"
+    uncertainty: str = DEFAULT_UNCERTAINTY
     f0: float | None = None
     ml_harmonics: int | None = None
     max_iter: int | None = None

@@ -12,13 +12,30 @@ logging rate with coefficient ``PHI`` (marginal std ``NOISE`` N m), in place of 
 simulator's white noise (both only enter the record, not the loop), and the plant one
 small unmodelled effect, a position ripple ``A sin(k q1)`` on joint 1 (``RIPPLE``).
 
+The essential set's robust σ is the full WLS's σ of the same parameters with the
+bias of the removed parameters added in quadrature (essential.py: σ_wls,e² + d², d the
+essential minus the full WLS estimate; chosen on seeds 1000-1099):
+``essential_<opt>+bias`` (rows recorded before that rule get it from their z and σ).
+
 For each seed dynid's default IDIM runs once per covariance option
 (``classic``, ``hac``, ``bootstrap``): the estimates are identical, only the
 intervals change. Coverage: the fraction of (parameter, seed) pairs whose
 estimate ± 1.96 σ holds the truth, for the WLS of all base parameters and for
 the essential set, with the median interval width relative to classic.
 
-Seeds 0-4 were used while developing; ``--start 1000`` gives held-out ones.
+``--methods idim,pc,didim`` adds, on the same record:
+
+* ``pc``: PC-WLS (identify_physical of the classic IDIM result, as ``dynid identify
+  --physical`` runs it), its ``conf_int()`` (bootstrap percentiles with the WLS
+  half-width, cut at the physical bound) against the truth, width relative to the
+  classic WLS interval;
+* ``didim``: DIDIM (section 3) from eq. (31)'s start with the robot file's gains (the
+  plant's PID is the robot file's), its last Gauss-Newton step's WLS with each
+  covariance option recomputed on that step's regressor (the estimate is the same,
+  asserted); seeds where DIDIM did not converge are counted and kept.
+
+Seeds 0-4 were used while developing; ``--start 1000`` gives held-out ones (the
+first campaign); ``--start 3000`` is the held-out range of the pc/didim campaign.
 
     nice -n 10 python benchmarks/coverage_independent.py --seeds 100 --start 1000 --workers 2 \
         --out benchmarks/results/coverage_independent.jsonl
@@ -33,6 +50,7 @@ for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_v, "1")
 
 import argparse
+import functools
 import json
 import sys
 import time
@@ -75,7 +93,7 @@ def truth(robot, bp):
     return bp.from_standard(chi)
 
 
-def run_seed(seed):
+def run_seed(seed, methods=("idim",)):
     import independent_plant as ip
 
     from dynid.analysis.data.experiment import Experiment
@@ -107,9 +125,74 @@ def run_seed(seed):
             z = (r.chi - beta[idx]) / r.sigma
             row[f"{part}_{opt}_z"] = [float(v) for v in z]
             row[f"{part}_{opt}_sigma"] = [float(v) for v in r.sigma]
+        unc = res.model.settings.get("least_squares", {}).get("uncertainty", {})
+        row[f"essential_{opt}_bias_included"] = "selection_bias" in unc
         row["essential_names"] = list(res.model.names)
+    if "pc" in methods:
+        _pc_rows(row, ref, robot, beta)
+    if "didim" in methods:
+        _didim_rows(row, exp, robot, bp, beta)
     row["seconds"] = time.time() - t0
     return row
+
+
+def _pc_rows(row, idim, robot, beta):
+    """PC-WLS of the classic IDIM result: does its conf_int hold the truth?"""
+    from dynid.analysis.estimators.physical import identify_physical
+    t = time.time()
+    pc = identify_physical(idim, robot, n_boot=100)
+    ci = np.asarray(pc.conf_int(), dtype=float)
+    idx = [list(idim.base.names).index(n) for n in pc.names]
+    b = beta[idx]
+    row["pc_inside"] = [bool(v) for v in (ci[:, 0] <= b) & (b <= ci[:, 1])]
+    row["pc_width_vs_classic"] = [float(v) for v in (ci[:, 1] - ci[:, 0]) / (2 * 1.96 * idim.wls.sigma[idx])]
+    row["pc_seconds"] = time.time() - t
+
+
+def _didim_rows(row, exp, robot, bp, beta):
+    """DIDIM's last step, with each covariance option on that step's WLS."""
+    from dynid.analysis.estimators import least_squares as ls
+    from dynid.analysis.estimators.didim import identify_didim
+    t = time.time()
+    try:
+        d = identify_didim(exp, robot, bp=bp, essential=False)
+    except Exception as exc:   # a failed run is a result of the campaign, not a crash of it
+        row["didim_error"] = str(exc).splitlines()[0]
+        row["didim_seconds"] = time.time() - t
+        return
+    row["didim_converged"] = bool(d.converged)
+    names = list(d.result.names)
+    idx = [list(bp.names).index(n) for n in names]
+    for opt in OPTIONS:
+        r = ls.wls(d.W_dec, d.tau_dec, names, row_mask=d.row_mask, uncertainty=opt)
+        assert np.allclose(r.chi, d.result.chi, rtol=1e-9, atol=1e-12), "the last step's WLS is not reproduced"
+        row[f"didim_{opt}_z"] = [float(v) for v in (r.chi - beta[idx]) / r.sigma]
+        row[f"didim_{opt}_sigma"] = [float(v) for v in r.sigma]
+    row["didim_seconds"] = time.time() - t
+
+
+def _essential_with_bias(row, opt):
+    """z of the essential estimate with sigma_wls,e^2 + d^2, d = chi_e - chi_wls,e (essential.py's rule).
+
+    Rows recorded before that rule (no `essential_<opt>_bias_included`) get it here from
+    their z and sigma: chi - truth = z sigma for both the essential and the WLS estimate.
+    """
+    ze, se = np.asarray(row[f"essential_{opt}_z"]), np.asarray(row[f"essential_{opt}_sigma"])
+    if row.get(f"essential_{opt}_bias_included"):
+        return ze, se
+    zw, sw = np.asarray(row[f"wls_{opt}_z"]), np.asarray(row[f"wls_{opt}_sigma"])
+    names = _base_names()   # the WLS rows are in base-parameter order
+    idx = [names.index(n) for n in row["essential_names"]]
+    d = ze * se - zw[idx] * sw[idx]
+    s = np.sqrt(sw[idx] ** 2 + d**2)
+    return ze * se / s, s
+
+
+@functools.lru_cache(maxsize=1)
+def _base_names():
+    from dynid.dynamics.base_parameters import base_parameters
+    from dynid.dynamics.robot_file import load_robot
+    return list(base_parameters(load_robot("tx40")).names)
 
 
 def headline(rows):
@@ -122,6 +205,32 @@ def headline(rows):
                 ratio = np.concatenate([np.asarray(r[f"{part}_{opt}_sigma"]) / np.asarray(r[f"{part}_classic_sigma"])
                                         for r in rows])
                 out[f"{part}_{opt}_median_width_vs_classic"] = float(np.median(ratio))
+    for opt in OPTIONS[1:]:
+        zs = [_essential_with_bias(r, opt) for r in rows]
+        out[f"essential_{opt}+bias_coverage95"] = float(np.mean(np.abs(np.concatenate([z for z, _ in zs])) <= 1.96))
+        out[f"essential_{opt}+bias_median_width_vs_classic"] = float(np.median(np.concatenate(
+            [s / np.asarray(r["essential_classic_sigma"]) for (_, s), r in zip(zs, rows)])))
+    pc = [r for r in rows if "pc_inside" in r]
+    if pc:
+        out["pc_seeds"] = len(pc)
+        out["pc_coverage95"] = float(np.mean(np.concatenate([r["pc_inside"] for r in pc])))
+        out["pc_median_width_vs_classic"] = float(np.median(np.concatenate([r["pc_width_vs_classic"] for r in pc])))
+    dd = [r for r in rows if "didim_classic_z" in r]
+    if dd or any("didim_error" in r for r in rows):
+        out["didim_seeds"] = len(dd)
+        out["didim_failed"] = sum("didim_error" in r for r in rows)
+        out["didim_converged"] = sum(r.get("didim_converged", False) for r in dd)
+        for opt in OPTIONS if dd else ():
+            z = np.concatenate([r[f"didim_{opt}_z"] for r in dd])
+            out[f"didim_{opt}_coverage95"] = float(np.mean(np.abs(z) <= 1.96))
+            ok = [r for r in dd if r.get("didim_converged")]
+            if ok:
+                zc = np.concatenate([r[f"didim_{opt}_z"] for r in ok])
+                out[f"didim_{opt}_coverage95_converged"] = float(np.mean(np.abs(zc) <= 1.96))
+            if opt != "classic":
+                ratio = np.concatenate([np.asarray(r[f"didim_{opt}_sigma"]) / np.asarray(r["didim_classic_sigma"])
+                                        for r in dd])
+                out[f"didim_{opt}_median_width_vs_classic"] = float(np.median(ratio))
     return out
 
 
@@ -131,7 +240,9 @@ def main(argv=None):
     ap.add_argument("--start", type=int, default=0)
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--out", default=None, help="JSON lines, one per seed (appended; seeds done are skipped)")
+    ap.add_argument("--methods", default="idim", help="comma-separated: idim (always), pc, didim")
     a = ap.parse_args(argv)
+    methods = tuple(m.strip() for m in a.methods.split(",") if m.strip())
     seeds = list(range(a.start, a.start + a.seeds))
     rows = []
     if a.out and Path(a.out).exists():
@@ -145,6 +256,10 @@ def main(argv=None):
         rows.append(row)
         line = (f"seed {row['seed']}: " + ", ".join(
             f"{p} {o} {np.mean(np.abs(row[f'{p}_{o}_z']) <= 1.96):.2f}" for p in ("wls", "essential") for o in OPTIONS)
+            + "".join(f", pc {np.mean(row['pc_inside']):.2f}" for _ in [0] if "pc_inside" in row)
+            + "".join(f", didim {o} {np.mean(np.abs(row[f'didim_{o}_z']) <= 1.96):.2f}" for o in OPTIONS
+                      if f"didim_{o}_z" in row)
+            + "".join(f", didim failed ({row['didim_error']})" for _ in [0] if "didim_error" in row)
             + f" ({row['seconds']:.0f} s)")
         print(line, flush=True)
         if a.out:
@@ -154,11 +269,11 @@ def main(argv=None):
     if a.workers > 1:
         from concurrent.futures import ProcessPoolExecutor
         with ProcessPoolExecutor(a.workers) as ex:
-            for row in ex.map(run_seed, seeds):
+            for row in ex.map(run_seed, seeds, [methods] * len(seeds)):
                 record(row)
     else:
         for s in seeds:
-            record(run_seed(s))
+            record(run_seed(s, methods))
     out = headline(rows)
     out.update({"duration_s": DURATION, "log_rate_hz": RATE / LOG_EVERY, "ar1": PHI, "noise_std": NOISE,
                 "ripple": RIPPLE, "campaign_seconds": time.time() - t0, "first_seed": a.start})

@@ -4,16 +4,21 @@
 (`agreement(...)` or `IDIMResult.agreement`) against N(0, 1): left, their normal Q-Q
 plot with the ±1.96 band; right, the histogram of z with the N(0, 1) density. The
 title carries the fraction within ±1.96, the count of pairs and the χ² test of equal
-parameters; the caption says which covariance produced the σ.
+parameters; the caption says which covariance produced the σ. `agreement_section(a)`
+is the report section: the verdict's line, the figure and the per-parameter table
+(random-effects pooled value, between-run spread, Cochran's Q p-value) with units.
 """
 from __future__ import annotations
 
 import numpy as np
+import pandas as pd
 from scipy import stats
 
 from dynid.reports import figures as F
+from dynid.reports import tables as T
+from dynid.reports.html import Section, para
 
-__all__ = ["agreement_figure"]
+__all__ = ["agreement_figure", "agreement_section"]
 
 
 def agreement_figure(a: dict, *, key: str = "fig-agreement", caption: str | None = None, fmt: str = "auto"):
@@ -69,3 +74,48 @@ def agreement_figure(a: dict, *, key: str = "fig-agreement", caption: str | None
                    f"{a.get('rel_max', 10):g} %), in units of their combined sigma "
                    f"({a.get('uncertainty', 'classic')} covariance), against N(0, 1).")
     return F.render_figure(fig, key, caption, fmt=fmt)
+
+
+def agreement_section(a: dict, line: str) -> Section:
+    """The report section of the cross-recording (cross-segment) agreement.
+
+    Parameters
+    ----------
+    a : dict
+        `IDIMResult.agreement` (dynid.analysis.estimators.agreement.agreement plus
+        `uncertainty` and `left_out`).
+    line : str
+        The verdict's agreement line (`IDIMResult.agreement_line`), shown first.
+
+    Returns
+    -------
+    Section
+        Id `agreement`: the line, a paragraph on how to read it, `agreement_figure`
+        and the per-parameter table `tab-agreement`.
+    """
+    from dynid.analysis.statistics.verdict import parameter_unit
+    what = a.get("kind", "recordings")
+    one = what[:-1]
+    body = para(line, " ", (
+        f"Each {one} was identified alone (per-joint WLS with the weights of the whole); for every "
+        f"parameter that two {what} both identify (%sigma <= {a.get('rel_max', 10):g} %) the "
+        f"difference is divided by its combined sigma. If the intervals held what another {one} "
+        "finds, these z would follow N(0, 1): 95 % within +-1.96, median |z| 0.67. More spread "
+        "means model error that differs between trajectories (friction shape, elasticity, an "
+        f"unmodelled torque): the sigma of one {one} does not include it, and the pooled value "
+        f"with its between-{one} spread below is the more honest figure."
+        + (f" Left out (not identified by every {one}): {', '.join(a['left_out'])}."
+           if a.get("left_out") else "")))
+    names = list(a.get("names", []))
+    df = pd.DataFrame({
+        "pooled": a.get("pooled", []), "pooled_std": a.get("pooled_std", []),
+        "between_std": a.get("between_std", []), "p_value": a.get("per_parameter_p_value", []),
+        "unit": [parameter_unit(n) for n in names]}, index=pd.Index(names, name="parameter"))
+    tab = T.make_table(df, "tab-agreement", f"Per parameter over the {a.get('k', '?')} {what}: "
+                       "random-effects (DerSimonian-Laird) pooled value and its sigma including the "
+                       f"between-{one} spread, that spread, and the p-value of Cochran's Q test of "
+                       "equal values", formats={"unit": "text"},
+                       labels={"pooled": "pooled value", "pooled_std": "pooled sigma",
+                               "between_std": f"between-{one} sigma", "p_value": "Q p-value"})
+    title = f"Do the {what} agree within their intervals?"
+    return Section("agreement", title, body, figures=[agreement_figure(a)], tables=[tab])

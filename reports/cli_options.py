@@ -218,6 +218,10 @@ def _add_data_options(g, validation=True, resample=True):
 #: the names of --gain-update: the keys of dynid.analysis.run.GAIN_UPDATES, which maps them
 #: (not imported: the parser starts without the numerical modules; a test checks they agree)
 GAIN_UPDATE_CHOICES = ("every", "initial", "none")
+#: --uncertainty: dynid.analysis.estimators.least_squares.UNCERTAINTY and its default
+#: dynid.analysis.estimators.idim.DEFAULT_UNCERTAINTY (not imported, as above; tested to agree)
+UNCERTAINTY_CHOICES = ("classic", "hac", "bootstrap")
+UNCERTAINTY_DEFAULT = "classic"
 JSON_HELP = "write the results as JSON here ('-': to stdout)"
 REPORT_HELP = "write the HTML report here"
 
@@ -381,7 +385,7 @@ def _add_identify_parser(sub, common, full):
     m.add_argument("--method", choices=["idim", "didim", "projection", "ml"], default="idim",
                    help="idim (q, tau); didim (qr or q, tau, a controller); projection (q, qr, tau); "
                         "ml (periodic: --f0)")
-    g["advanced"].add_argument("--uncertainty", choices=["classic", "hac", "bootstrap"], default="classic",
+    g["advanced"].add_argument("--uncertainty", choices=list(UNCERTAINTY_CHOICES), default=UNCERTAINTY_DEFAULT,
                                help=adv("IDIM sigma: classic (eqs. (14)-(15), samples independent), hac "
                                         "(Newey-West), bootstrap (circular blocks over time)"))
     m.add_argument("--f0", type=positive_float, metavar="HZ", help="ML: fundamental of the excitation")

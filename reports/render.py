@@ -1,6 +1,7 @@
 """The HTML of every command's report, from the orchestrator's results (dynid.reports.pipeline)."""
 from __future__ import annotations
 
+from dynid.reports.agreement_figure import agreement_section
 from dynid.reports.bayes_section import bayes_sections
 from dynid.reports.bona_section import excitation_section
 from dynid.reports.diagnosis_section import diagnosis_lead, diagnosis_sections
@@ -47,6 +48,8 @@ def idim_extra_sections(ident) -> list:
         extra.append(effects_section(ident.effects))
     if ident.export is not None:
         extra.append(ident.export.section())
+    if getattr(ident.result, "agreement", None) is not None:
+        extra.append(agreement_section(ident.result.agreement, ident.result.agreement_line))
     return extra
 
 

@@ -22,17 +22,23 @@ from dynid.dynamics.base_parameters import base_parameters
 from dynid.errors import IdentificationError
 from dynid.provenance import data_hash, json_safe, versions
 
-#: The covariance users get by default (identify(), dynid identify --uncertainty): the block
-#: bootstrap. Calibration (issue 26): on the independent TX40 plant with AR(1) torque noise and
-#: an unmodelled ripple (benchmarks/coverage_independent.py, 100 held-out seeds) its WLS
-#: intervals cover 95.1 % (classic 82.6 %, hac 88.5 %; the essential set's 80.0 %, 62.8 %,
-#: 72.2 %: still optimistic under model error); on real data (benchmarks/uncertainty.py)
-#: it is the only option whose cross-recording / cross-segment differences fall inside the
-#: combined intervals (LWR4+ 100 % of 11 pairs, TX40 100 % of 11, Panda 88 % of 8; classic
-#: 42 % of 31, 67 % of 36, 35 % of 26). identify_idim itself keeps "classic" as its default so
-#: that the library's internal callers (DIDIM's start, the diagnosis, PC-WLS's metric, the
-#: fleet) are unchanged unless they ask.
-DEFAULT_UNCERTAINTY = "bootstrap"
+#: The covariance users get by default (dynid.identify, Settings.uncertainty, dynid identify
+#: --uncertainty): still the papers' "classic" eq. (14), because no option meets issue 26's
+#: bar on real data, >= 90 % of the LWR4+ cross-recording differences within +-1.96 combined
+#: sigma with >= 16 pairs identified in both runs (benchmarks/uncertainty.py, results in
+#: benchmarks/results/uncertainty.txt): classic 42 % of 31 pairs, hac 48 % of 23, bootstrap
+#: 100 % of 11 (too few pairs), hac or classic plus the between-segment variance of three
+#: segments (random effects) 67-80 % of 10-15. Recording 3 repeats one trajectory: its
+#: segments agree within their noise (a bias constant over the recording is invisible to any
+#: estimate made from that recording), yet its Ia7 is -0.21 where the other two find -1.1
+#: and -1.2. The block bootstrap is the best-calibrated option (independent TX40 plant with
+#: AR(1) noise and a ripple, benchmarks/coverage_independent.py, 100 held-out seeds: WLS
+#: 95.1 %, classic 82.6 %, hac 88.5 %; the essential set's 95.5 % with the removal bias of
+#: essential.py, classic 62.8 %) and the one to pass for honest intervals; changing
+#: this constant switches the CLI, Settings and dynid.identify together. identify_idim's own
+#: default stays "classic" so that the library's internal callers (DIDIM's start, the
+#: diagnosis, PC-WLS's metric, the fleet) never depend on it.
+DEFAULT_UNCERTAINTY = "classic"
 
 
 @dataclass(eq=False, repr=False)

@@ -215,3 +215,72 @@ def test_bootstrap_falls_back_to_hac_when_blocks_cannot_identify(monkeypatch):
     assert any("was asked for" in n and "3 of 50" in n for n in r.notices)
     h = ls.ols(W3, tau, ["a", "b", "c"], uncertainty="hac")
     np.testing.assert_allclose(r.cov, h.cov)
+
+
+def test_one_default_for_the_cli_the_settings_and_identify():
+    # the parser does not import the numerical modules: its copy of the choices and of the
+    # default must be the library's
+    from dynid.analysis.estimators.idim import DEFAULT_UNCERTAINTY
+    from dynid.analysis.run import Settings
+    from dynid.reports import cli_options
+    from dynid.reports.cli_options import build_parser
+    assert tuple(cli_options.UNCERTAINTY_CHOICES) == ls.UNCERTAINTY
+    assert cli_options.UNCERTAINTY_DEFAULT == DEFAULT_UNCERTAINTY == Settings().uncertainty
+    args = build_parser(full=True).parse_args(["identify", "x.csv", "--robot", "tx40"])
+    assert args.uncertainty == DEFAULT_UNCERTAINTY
+
+
+def test_identification_report_shows_the_agreement():
+    # the pipeline's identification report carries the agreement section (figure and table)
+    # when the result has an agreement, and none when it has not
+    from types import SimpleNamespace
+
+    from dynid.reports.html import render_sections
+    from dynid.reports.render import idim_extra_sections
+    rng = np.random.default_rng(13)
+    chis = 5 + rng.normal(size=(3, 4))
+    sig = np.full((3, 4), 0.2)
+    a = ag.agreement(chis, sig, [np.diag(s**2) for s in sig], ["ZZ1R", "Fv1", "Fc1", "Off1"], kind="segments")
+    a.update(uncertainty="hac", left_out=["Ia6"])
+    result = SimpleNamespace(agreement=a, agreement_line=ag.agreement_verdict(a))
+    ident = SimpleNamespace(tilt=None, asymmetric_friction=None, physical=None, effects=None, export=None,
+                            result=result)
+    sections = idim_extra_sections(ident)
+    assert [s.id for s in sections] == ["agreement"]
+    html = render_sections(sections, title="t")
+    assert 'id="fig-agreement"' in html or "fig-agreement" in html
+    assert "tab-agreement" in html and "kg m²" in html and "Ia6" in html and "hac covariance" in html
+    assert ag.agreement_verdict(a)[:40] in html
+    ident.result = SimpleNamespace(agreement=None)
+    assert idim_extra_sections(ident) == []
+
+
+def test_essential_robust_sigma_adds_the_bias_of_the_removed_parameters():
+    # d = chi_e - chi_base,e equals the omitted-variable bias A chi_d of nested weighted LS
+    # (computed here with numpy on the weighted rows); the robust essential covariance is the
+    # full model's for the same parameters plus d d', classic is left as eq. (14)
+    rng = np.random.default_rng(14)
+    W3, tau, _ = _system(rng, phi=0.8)
+    # "d" is mostly "a" (so its %sigma is large and it is removed) with a true value of 0.5:
+    # removing it shifts "a" by about 1.5 of its sigma
+    dcol = 0.5 * W3[:, :, 0] + 0.05 * np.sin(np.arange(W3.shape[0]) / 7.0)[:, None]
+    W3 = np.concatenate([W3, dcol[:, :, None], 1e-3 * rng.standard_normal(W3.shape[:2] + (1,))], axis=2)
+    tau = tau + 0.5 * dcol
+    names = ["a", "b", "c", "d", "e"]
+    e = essential_parameters(W3, tau, names, ls.wls, uncertainty="hac")
+    cols = [names.index(n) for n in e.essential]
+    drop = [k for k in range(5) if k not in cols]
+    w = 1.0 / e.base.joint_sigma
+    X = (W3 * w[None, :, None]).transpose(1, 0, 2).reshape(-1, 5)
+    A = np.linalg.lstsq(X[:, cols], X[:, drop], rcond=None)[0]
+    d = e.result.chi - e.base.chi[cols]
+    assert e.removed == ["e", "d"] and np.max(np.abs(d) / e.base.sigma[cols]) > 1.0
+    np.testing.assert_allclose(d, A @ e.base.chi[drop], rtol=1e-6, atol=1e-12)
+    np.testing.assert_allclose(e.result.cov, e.base.cov[np.ix_(cols, cols)] + np.outer(d, d), rtol=1e-10)
+    own = ls.wls(W3[:, :, cols], tau, e.essential, joint_sigma=e.base.joint_sigma, uncertainty="hac")
+    assert e.result.sigma[0] > own.sigma[0]   # "a", the parameter the removal shifts
+    assert "selection_bias" in e.result.settings["least_squares"]["uncertainty"]
+    assert any("bias of removing the others" in n for n in e.result.notices)
+    classic = essential_parameters(W3, tau, names, ls.wls)
+    np.testing.assert_allclose(classic.result.cov, ls.wls(W3[:, :, cols], tau, e.essential,
+                                                          joint_sigma=e.base.joint_sigma).cov)
