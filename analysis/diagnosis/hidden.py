@@ -263,7 +263,7 @@ def physical_effects(eobs, X, Y, mask, n_base, chi, robot, *, weights, alpha=0.0
 
     The amplitude is that of the PC fit with the candidate: the least spring that makes the base
     parameters those of a rigid body, so a lower bound of the true one when the constraint stays
-    active (tests/test_diagnosis_units.py, planar 2R arm in Pinocchio, masses known to 10 %: a
+    active (tests/analysis/diagnosis/test_diagnosis_units.py, planar 2R arm in Pinocchio, masses known to 10 %: a
     10 N m spring is found at 7.9 N m). Measured on the independent TX40 plant, whose robot
     file bounds no mass: a 20 N m spring on joint 2 leaves the fit physical (PC-WLS chi2 13.0
     on 14 active constraints, p = 0.53), so this route does not see it and the a-priori route

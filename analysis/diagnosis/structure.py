@@ -92,7 +92,7 @@ Rule for "unexplained" (documented choice). A joint is reported as
 Why both. Significance alone flags tiny, harmless mismatches on long
 recordings (n_eff in the thousands makes 1 % of the residual variance
 significant); size alone flags noise. Measured on the independent closed-loop
-plant (tests/independent_plant.py, TX40, 8 s at 5 kHz, 179 decimated samples;
+plant (tests/support/independent_plant.py, TX40, 8 s at 5 kHz, 179 decimated samples;
 benchmarks/diagnosis_independent.py): on clean runs (seeds 1-3) the final
 residual RMS is 1.0-1.3 x the torque-noise floor (0.011-0.013 N m) and no joint
 is flagged; a 1.5 N m order-50 ripple on joint 3 (outside the catalogue) is

@@ -56,7 +56,7 @@ Documented choices (all in `DIDIMResult.settings`, all overridable through
   (`wn`, `zeta` of the normalised double integrator) whatever chi^k is;
   that equals the actual loop when the actual controller's a-priori J_ap is
   right (J_ap = max_q M_jj of the real robot). Measured on Pinocchio data of
-  the TX40 (tests/test_didim.py): with the actual loop as designed, the update
+  the TX40 (tests/analysis/estimators/test_didim.py): with the actual loop as designed, the update
   makes DIDIM independent of a wrong J_ap in the robot file (J_ap x 2 gives
   the same estimate to 1e-6; without the update Ia6 comes out 6 % low, Ia5
   1.5 % low). When instead the *actual* controller runs with
@@ -1067,7 +1067,7 @@ def _identify_auto_v_s(experiment, robot, *, settings, chi0, tol, max_iter, upda
        point and its two neighbours;
     4. DIDIM from the best candidate's estimate at its `v_s` to convergence.
 
-    Measured on the independent Pinocchio TX40 (`tests/independent_plant.py`, friction
+    Measured on the independent Pinocchio TX40 (`tests/support/independent_plant.py`, friction
     `tanh(qd / 0.01)`, development seeds): `||rho||` falls by a factor of 4-5 from 0.05 to
     0.0125 rad/s and is flat within ~10 % between 0.005 and 0.0125. The candidates cost one
     closed-loop simulation each, more substeps the smaller `v_s`

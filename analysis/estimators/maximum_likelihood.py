@@ -46,7 +46,7 @@ Covariance. The inverse Fisher information of the Gaussian likelihood, which
 for a least-squares likelihood with known sigmas is the inverse Gauss-Newton
 Hessian `(J^T J)^-1` of the weighted residual vector; the theta block of the
 full inverse (trajectory coefficients included), so the uncertainty of the
-latent trajectory is propagated. `tests/test_maximum_likelihood.py` checks it
+latent trajectory is propagated. `tests/analysis/estimators/test_maximum_likelihood.py` checks it
 against the spread of estimates over noise seeds. With estimated sigmas, the
 uncertainty of sigma is not propagated (a second-order effect for N >> p).
 
@@ -414,7 +414,7 @@ class _Problem:
 #: not dilated around reversals and a closed-loop joint lingers near zero speed
 #: while it reverses (first measured: Fc biased by -20 % at 1 %, < 1 % at 5 %
 #: on the 1-DOF test case; re-measured with the default reversal guard, 12 seeds
-#: of tests/test_maximum_likelihood.py's case: mean Fc error -8.3 % at 1 %,
+#: of tests/analysis/estimators/test_maximum_likelihood.py's case: mean Fc error -8.3 % at 1 %,
 #: -7.8 % at 5 %, spread 9 %). Kept at 5 % so ML's estimates do not change.
 ML_DEAD_ZONE_FRACTION = 0.05
 

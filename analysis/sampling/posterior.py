@@ -46,7 +46,7 @@ Linear models (IDIM base or essential parameters, or any per-joint linear
        (`student_t_posterior`).
 
 The nonlinear per-joint gravity model of Bona & Curatella (2005, eq. (23))
-that was sampled here too now lives with its tests (tests/gravity_posterior.py):
+that was sampled here too now lives with its tests (tests/support/gravity_posterior.py):
 no user-facing command or function reached it.
 
 Outputs: `PosteriorResult` (samples after burn-in and thinning,
