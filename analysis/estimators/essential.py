@@ -268,7 +268,8 @@ def _with_selection_bias(res, base, cols):
     unc["selection_bias"] = ("full model's covariance of these parameters + d d', d = essential estimate - "
                              "full-model estimate of the same parameters")
     settings = {**res.settings, "least_squares": {**res.settings.get("least_squares", {}), "uncertainty": unc}}
-    rms = float(np.sqrt(np.mean((d / np.where(res.sigma > 0, res.sigma, np.inf)) ** 2))) if d.size else 0.0
+    own = res.bse.to_numpy()
+    rms = float(np.sqrt(np.mean((d / np.where(own > 0, own, np.inf)) ** 2))) if d.size else 0.0
     note = (f"the essential sigma is the full model's {unc.get('uncertainty', 'robust')} sigma of the same "
             f"parameters with the bias of removing the others (the essential minus the full model's "
             f"estimate, rms {rms:.2g} of the essential model's own sigma) added in quadrature.")
