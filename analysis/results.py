@@ -41,7 +41,7 @@ from dynid.outputs import atomic_write_text
 from dynid.provenance import dumps_json, json_safe, versions
 
 __all__ = ["Result", "Exportable", "ParameterResults", "ModelResults", "IdentificationResult", "Parameter",
-           "parameter_records", "parameter_table", "notices_block", "percent", "serialize", "deprecated_alias"]
+           "parameter_records", "parameter_table", "notices_block", "one_notices_block", "percent", "serialize", "deprecated_alias"]
 
 _WIDTH = 78
 
@@ -156,6 +156,42 @@ def notices_block(*notice_lists) -> list:
                 seen.add(text)
                 out.append(f"  - {text}")
     return ["Notices:"] + out if out else []
+
+
+def one_notices_block(parts) -> list:
+    """The printed parts of a run with their Notices blocks gathered into one, at the end.
+
+    Parameters
+    ----------
+    parts : list of str
+        Summaries, each possibly ending in a `notices_block`.
+
+    Returns
+    -------
+    list of str
+        The parts without their blocks, then one block holding every remark once.
+    """
+    kept, remarks = [], []
+    for part in parts:
+        lines, inside, indent = [], False, ""
+        for line in part.splitlines():
+            stripped = line.strip()
+            if stripped == "Notices:":
+                inside, indent = True, line[: len(line) - len(line.lstrip())]
+                continue
+            if inside and line.startswith(indent + "  - "):
+                remarks.append(line[len(indent) + 4:])
+                continue
+            if inside and line.startswith(indent + "    ") and remarks:
+                remarks[-1] += " " + stripped
+                continue
+            inside = False
+            lines.append(line)
+        text = "\n".join(lines).rstrip()
+        if text:
+            kept.append(text)
+    block = notices_block(remarks)
+    return kept + (["\n".join(block)] if block else [])
 
 
 def serialize(result, fmt: str, path: str | os.PathLike | None = None) -> str:

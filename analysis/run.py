@@ -46,7 +46,7 @@ from dynid.analysis.estimators.maximum_likelihood import maximum_likelihood, rob
 from dynid.analysis.estimators.physical import identify_physical, require_cvxpy
 from dynid.analysis.estimators.projection import identify_projection
 from dynid.analysis.processing.observation import SETTINGS_HELP
-from dynid.analysis.results import Result
+from dynid.analysis.results import Result, one_notices_block
 from dynid.analysis.statistics.validation import ValidationResult, validate
 from dynid.analysis.statistics.verdict import verdict
 from dynid.dynamics.robot import Robot
@@ -664,10 +664,11 @@ class Identification(Result):
         parts += [p if isinstance(p, str) else p.summary()
                   for p in (self.tilt, self.result, validation, self.asymmetric_friction, self.effects,
                             self.physical if self.method == "idim" else None, gains) if p is not None]
-        return parts
+        # each part's summary ends in its own Notices block: the run prints them as one
+        return one_notices_block([p for p in parts if p])
 
     def summary(self) -> str:
-        return "\n\n".join(p for p in self.summaries() if p)
+        return "\n\n".join(self.summaries())
 
     def __repr__(self) -> str:
         return f"{super().__repr__()[:-1]}; verdict {getattr(self.verdict, 'status', '?')}>"
