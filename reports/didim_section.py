@@ -35,7 +35,7 @@ from dynid.reports import tables as T
 from dynid.reports.html import Section, bullets, code, join, kv_list, para
 from dynid.reports.paper import reference_for
 
-__all__ = ["didim_sections", "SECTION_IDS", "convergence_figure", "trajectory_figure"]
+__all__ = ["didim_sections", "SECTION_IDS", "convergence_figure", "convergence_section", "trajectory_figure"]
 
 #: Ids of the DIDIM sections, in order (``didim-vs-idim`` only with an IDIM result).
 SECTION_IDS = ("didim-convergence", "didim-table2", "didim-torques", "didim-trajectories",
@@ -139,7 +139,17 @@ def trajectory_figure(t, reference, simulated, joint_names, *, key="fig-didim-tr
 
 
 # ----------------------------------------------------------------------------- sections
-def _convergence_section(res):
+def convergence_section(res):
+    """The report section of DIDIM's Gauss-Newton steps: the convergence figure and the tables.
+
+    Parameters
+    ----------
+    res : DIDIMResult
+
+    Returns
+    -------
+    Section
+    """
     h = res.history
     s = res.settings
     state = "converged" if res.converged else "did NOT converge"
@@ -330,7 +340,7 @@ def didim_sections(didim_result, idim_result=None, *, reference="auto"):
     if isinstance(reference, str) and reference == "auto":
         reference = reference_for(didim_result.robot_name)
     sections = [
-        _convergence_section(didim_result),
+        convergence_section(didim_result),
         _table2_section(didim_result, reference),
         _torque_section(didim_result, reference),
         _trajectory_section(didim_result),

@@ -159,7 +159,7 @@ def test_didim_step_index_is_the_same_everywhere(monkeypatch):
         return orig(history, tol, **kw)
 
     monkeypatch.setattr(D, "convergence_figure", spy)
-    html = render_sections([D._convergence_section(res)], title="t")
+    html = render_sections([D.convergence_section(res)], title="t")
     steps = list(h["iteration"])
     assert seen["plot_steps"] == steps == [1, 2, 3, 4]
     hist = _table_rows(html, "tab-didim-history")
