@@ -298,3 +298,13 @@ def test_summaries_print_relative_errors_in_percent(system):
     assert "relative error ||Y - W chi|| / ||Y||: OLS" in text and " %, WLS " in text
     assert text.count("Notices:") == 1
     assert math.isfinite(_idim(system).model.rel_error)
+
+
+def test_one_notices_block_gathers_every_part_s_block_at_the_end():
+    from dynid.analysis.results import notices_block, one_notices_block
+    first = "\n".join(["IDIM of r", "  table"] + notices_block(["a remark", "a shared remark"]))
+    second = "\n".join(["Validation", "  errors"] + ["  " + x for x in notices_block(["a shared remark", "late"])])
+    parts = one_notices_block(["Verdict: OK", first, second])
+    assert parts[:3] == ["Verdict: OK", "IDIM of r\n  table", "Validation\n  errors"]
+    assert parts[3].splitlines() == ["Notices:", "  - a remark", "  - a shared remark", "  - late"]
+    assert one_notices_block(["no remark here"]) == ["no remark here"]
