@@ -26,6 +26,8 @@ Estimators in `dynid.analysis.estimators.least_squares` build it; users only rea
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import math
 import os
 import re
@@ -41,7 +43,7 @@ from dynid.outputs import atomic_write_text
 from dynid.provenance import dumps_json, json_safe, versions
 
 __all__ = ["Result", "Exportable", "ParameterResults", "ModelResults", "IdentificationResult", "Parameter",
-           "parameter_records", "parameter_table", "notices_block", "one_notices_block", "percent", "serialize", "deprecated_alias"]
+           "parameter_records", "parameter_table", "notices_block", "gathered_notices", "percent", "serialize", "deprecated_alias"]
 
 _WIDTH = 78
 
@@ -154,44 +156,35 @@ def notices_block(*notice_lists) -> list:
             text = _plain(str(text))
             if text not in seen:
                 seen.add(text)
-                out.append(f"  - {text}")
-    return ["Notices:"] + out if out else []
+                out.append(text)
+    gathered = _GATHERED.get()
+    if gathered is not None:
+        gathered.extend(out)
+        return []
+    return ["Notices:"] + [f"  - {text}" for text in out] if out else []
 
 
-def one_notices_block(parts) -> list:
-    """The printed parts of a run with their Notices blocks gathered into one, at the end.
+# the remarks of the summaries built inside `gathered_notices`, printed once by the caller
+_GATHERED = contextvars.ContextVar("gathered_notices", default=None)
 
-    Parameters
-    ----------
-    parts : list of str
-        Summaries, each possibly ending in a `notices_block`.
 
-    Returns
-    -------
+@contextlib.contextmanager
+def gathered_notices():
+    """Within this block, every `notices_block` hands its remarks to the yielded list and
+    prints nothing, so that a summary made of several results has one Notices block.
+
+    Yields
+    ------
     list of str
-        The parts without their blocks, then one block holding every remark once.
+        The remarks, in order; pass it to `notices_block` once the parts are built.
     """
-    kept, remarks = [], []
-    for part in parts:
-        lines, inside, indent = [], False, ""
-        for line in part.splitlines():
-            stripped = line.strip()
-            if stripped == "Notices:":
-                inside, indent = True, line[: len(line) - len(line.lstrip())]
-                continue
-            if inside and line.startswith(indent + "  - "):
-                remarks.append(line[len(indent) + 4:])
-                continue
-            if inside and line.startswith(indent + "    ") and remarks:
-                remarks[-1] += " " + stripped
-                continue
-            inside = False
-            lines.append(line)
-        text = "\n".join(lines).rstrip()
-        if text:
-            kept.append(text)
-    block = notices_block(remarks)
-    return kept + (["\n".join(block)] if block else [])
+    remarks = []
+    token = _GATHERED.set(remarks)
+    try:
+        yield remarks
+    finally:
+        _GATHERED.reset(token)
+
 
 
 def serialize(result, fmt: str, path: str | os.PathLike | None = None) -> str:

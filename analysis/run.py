@@ -46,7 +46,7 @@ from dynid.analysis.estimators.maximum_likelihood import maximum_likelihood, rob
 from dynid.analysis.estimators.physical import identify_physical, require_cvxpy
 from dynid.analysis.estimators.projection import identify_projection
 from dynid.analysis.processing.observation import SETTINGS_HELP
-from dynid.analysis.results import Result, one_notices_block
+from dynid.analysis.results import Result, gathered_notices, notices_block
 from dynid.analysis.statistics.validation import ValidationResult, validate
 from dynid.analysis.statistics.verdict import verdict
 from dynid.dynamics.robot import Robot
@@ -655,17 +655,18 @@ class Identification(Result):
         return doc
 
     def summaries(self) -> list:
-        """The printed parts, the verdict first."""
+        """The printed parts, the verdict first, then one Notices block for all of them."""
         gains = getattr(self.result, "gains", None)
-        validation = self.validation.summary() if self.validation is not None else None
-        if validation is not None and self.settings.holdout is not None:
-            validation = f"held out: the last {self.settings.holdout:g} s\n{validation}"
-        parts = [self.verdict.summary()]
-        parts += [p if isinstance(p, str) else p.summary()
-                  for p in (self.tilt, self.result, validation, self.asymmetric_friction, self.effects,
-                            self.physical if self.method == "idim" else None, gains) if p is not None]
-        # each part's summary ends in its own Notices block: the run prints them as one
-        return one_notices_block([p for p in parts if p])
+        with gathered_notices() as remarks:
+            validation = self.validation.summary() if self.validation is not None else None
+            if validation is not None and self.settings.holdout is not None:
+                validation = f"held out: the last {self.settings.holdout:g} s\n{validation}"
+            parts = [self.verdict.summary()]
+            parts += [p if isinstance(p, str) else p.summary()
+                      for p in (self.tilt, self.result, validation, self.asymmetric_friction, self.effects,
+                                self.physical if self.method == "idim" else None, gains) if p is not None]
+        block = notices_block(remarks)
+        return [p for p in parts if p] + (["\n".join(block)] if block else [])
 
     def summary(self) -> str:
         return "\n\n".join(self.summaries())

@@ -300,11 +300,12 @@ def test_summaries_print_relative_errors_in_percent(system):
     assert math.isfinite(_idim(system).model.rel_error)
 
 
-def test_one_notices_block_gathers_every_part_s_block_at_the_end():
-    from dynid.analysis.results import notices_block, one_notices_block
-    first = "\n".join(["IDIM of r", "  table"] + notices_block(["a remark", "a shared remark"]))
-    second = "\n".join(["Validation", "  errors"] + ["  " + x for x in notices_block(["a shared remark", "late"])])
-    parts = one_notices_block(["Verdict: OK", first, second])
-    assert parts[:3] == ["Verdict: OK", "IDIM of r\n  table", "Validation\n  errors"]
-    assert parts[3].splitlines() == ["Notices:", "  - a remark", "  - a shared remark", "  - late"]
-    assert one_notices_block(["no remark here"]) == ["no remark here"]
+def test_a_summary_of_several_results_has_one_notices_block_at_the_end():
+    from dynid.analysis.results import gathered_notices, notices_block
+    assert notices_block(["a remark"]) == ["Notices:", "  - a remark"]
+    with gathered_notices() as remarks:
+        first = notices_block(["a remark", "a shared remark"])
+        second = notices_block(["a shared remark", "late"])
+    assert first == second == []
+    assert notices_block(remarks) == ["Notices:", "  - a remark", "  - a shared remark", "  - late"]
+    assert notices_block(["outside again"]) == ["Notices:", "  - outside again"]
