@@ -37,6 +37,7 @@ from dynid.errors import (
     OutputError,
     RobotFileError,
 )
+from dynid.threads import with_single_blas_thread
 
 # The public names, imported on first use (PEP 562): `import dynid` and the command line
 # start in milliseconds, and a signal at start-up reaches the command's handler rather
@@ -55,6 +56,11 @@ _LAZY = {
     "identify_drive_gains": "dynid.analysis.estimators.drive_gains",
     "DriveGainResult": "dynid.analysis.estimators.drive_gains",
 }
+# the public functions that compute: they run with one BLAS thread, as the command line does
+# (dynid.threads: on dynid's tall, thin problems a second thread only spins; the user's own
+# thread setting in the environment, or DYNID_BLAS_THREADS=0, is kept)
+_ONE_BLAS_THREAD = {"simulate", "identify_campaign", "simulate_campaign", "identify", "validate",
+                    "demo", "report", "run", "identify_payload", "identify_drive_gains"}
 # subpackage-like modules loaded on first use: `dynid.fleet.run(...)` after a plain `import dynid`
 _LAZY_MODULES = {"fleet": "dynid.fleet"}
 
@@ -68,6 +74,8 @@ def __getattr__(name: str) -> Any:
         raise AttributeError(f"module 'dynid' has no attribute {name!r}")
     import importlib
     value = getattr(importlib.import_module(module), name)
+    if name in _ONE_BLAS_THREAD:
+        value = with_single_blas_thread(value)
     globals()[name] = value
     return value
 
@@ -104,6 +112,7 @@ __all__ = [
 ]
 
 
+@with_single_blas_thread
 def sample(result: IDIMResult, *, which: str = "essential", seed: int = 1, **kwargs: Any) -> PosteriorResult:
     """Posterior of the essential (default) or base parameters of an IDIM result, by emcee.
 
@@ -120,6 +129,7 @@ def sample(result: IDIMResult, *, which: str = "essential", seed: int = 1, **kwa
     return sample_idim(result, which=which, seed=seed, **kwargs)
 
 
+@with_single_blas_thread
 def diagnose(data: str | os.PathLike[str] | Experiment | Sequence[str | os.PathLike[str] | Experiment],
              robot: Robot | str | os.PathLike[str], *,
              validation: str | os.PathLike[str] | Experiment | None = None,
@@ -143,6 +153,7 @@ def diagnose(data: str | os.PathLike[str] | Experiment | Sequence[str | os.PathL
     return _diagnose(experiment, robot, validation=valid, idim_result=idim_result, **kwargs)
 
 
+@with_single_blas_thread
 def excite(robot: Robot | str | os.PathLike[str], f0: float, harmonics: int, **kwargs: Any) -> ExcitationResult:
     """Optimal Fourier excitation of `robot` (Bona & Curatella 2005, eq. (20)).
 
@@ -158,6 +169,7 @@ def excite(robot: Robot | str | os.PathLike[str], f0: float, harmonics: int, **k
     return design_excitation(as_robot(robot), f0, harmonics, **kwargs)
 
 
+@with_single_blas_thread
 def verdict(result: Any, held_out: str | os.PathLike[str] | Experiment | None = None, *,
             robot: Robot | None = None) -> Verdict:
     """How far to trust `result`: the verdict the report and the command line show.
