@@ -146,7 +146,7 @@ def push_chunk(dec, robot, bp, qf, qd, qdd, tau, dead):
         # decimation stays consistent while the samples where the friction
         # model is wrong drop out entirely
         keep_rows = ~dead
-        W = W * keep_rows[:, :, None]
+        W *= keep_rows[:, :, None]        # W is this chunk's own: in place, no second copy
         tau = tau * keep_rows
     kept = np.ones(tau.shape) if dead is None else (~dead).astype(float)
     return dec.push(W, tau, qf, qd, qdd, kept)
