@@ -3,7 +3,9 @@
 1. A 200,000-row x 13-column CSV in dynid's column format (t, q1..q6, tau1..tau6; a
    40 s, 5 kHz, 6-joint log) is generated in a temporary folder and loaded with
    dynid.load_experiment(path, n_joints=6) and with pandas.read_csv, alternately, in
-   the same process (median of 3 each). Target: dynid / pandas <= 1.3.
+   the same process (median of 3 each). Target: dynid / pandas <= 1.3. dynid reads with
+   Arrow's CSV reader when pyarrow is installed; its time through pandas' reader (what
+   it does without pyarrow) is given beside.
 2. A CSV of about 200 MB in the same format is loaded by dynid in a fresh subprocess
    whose peak resident memory (ru_maxrss of the child) is its own; it is given as a
    multiple of the file size, also net of the memory the child had before loading
@@ -63,12 +65,15 @@ def rows_for_bytes(target: int) -> int:
 
 
 def time_loading(path: Path, repeats: int = 3):
+    """Medians of dynid.load_experiment (its default route: Arrow's reader when pyarrow is
+    installed), of the same with pandas' reader instead, and of pandas.read_csv, in turn."""
     import pandas as pd
 
     import dynid
+    from dynid.analysis.data import readers
 
-    dynid_s, pandas_s = [], []
-    exp = None
+    dynid_s, pandas_route_s, pandas_s = [], [], []
+    exp = exp_pd = None
     for _ in range(repeats):
         t0 = time.perf_counter()
         exp = dynid.load_experiment(path, n_joints=N_JOINTS)
@@ -76,10 +81,19 @@ def time_loading(path: Path, repeats: int = 3):
         t0 = time.perf_counter()
         df = pd.read_csv(path)
         pandas_s.append(time.perf_counter() - t0)
+        readers._USE_ARROW = False
+        try:
+            t0 = time.perf_counter()
+            exp_pd = dynid.load_experiment(path, n_joints=N_JOINTS)
+            pandas_route_s.append(time.perf_counter() - t0)
+        finally:
+            readers._USE_ARROW = True
     assert exp.n_samples == len(df)
-    # the values dynid loaded are those pandas parsed (and Python's float() would)
+    # the values dynid loaded are those pandas parsed (and Python's float() would), by either route
     np.testing.assert_array_equal(exp.tau, df[[f"tau{j}" for j in range(1, N_JOINTS + 1)]].to_numpy())
-    return statistics.median(dynid_s), statistics.median(pandas_s), exp
+    assert exp.tau.tobytes() == exp_pd.tau.tobytes() and exp.q.tobytes() == exp_pd.q.tobytes()
+    return (statistics.median(dynid_s), statistics.median(pandas_s), exp,
+            statistics.median(pandas_route_s))
 
 
 def _status_kb(field: str) -> int | None:
@@ -125,11 +139,19 @@ def main():
         write_csv(csv_path, n_rows)
         size = csv_path.stat().st_size
         time_loading(csv_path, repeats=1)          # warm-up: imports, page cache
-        dynid_s, pandas_s, exp = time_loading(csv_path)
+        dynid_s, pandas_s, exp, pandas_route_s = time_loading(csv_path)
         ratio = dynid_s / pandas_s
+        ratio_pandas_route = pandas_route_s / pandas_s
+        try:
+            import pyarrow
+            arrow = f"pyarrow {pyarrow.__version__}"
+        except ImportError:
+            arrow = "no pyarrow: pandas' reader"
         print(f"CSV {n_rows:,} rows x {1 + 2 * N_JOINTS} columns ({size / 1e6:.1f} MB): "
-              f"dynid.load_experiment {dynid_s:.3f} s, pandas.read_csv {pandas_s:.3f} s, "
+              f"dynid.load_experiment {dynid_s:.3f} s ({arrow}), pandas.read_csv {pandas_s:.3f} s, "
               f"ratio {ratio:.2f} (target 1.3; median of 3)")
+        print(f"  dynid through pandas' reader (as without pyarrow) {pandas_route_s:.3f} s, "
+              f"ratio {ratio_pandas_route:.2f}")
 
         big = Path(d) / "big.csv"
         write_csv(big, rows_for_bytes(rss_bytes), seed=2)
@@ -150,6 +172,7 @@ def main():
               f"RUSAGE_CHILDREN ru_maxrss {children_kb / 1024:.0f} MB)")
     print(json.dumps({"csv_rows": n_rows, "csv_mb": round(size / 1e6, 1), "dynid_s": round(dynid_s, 3),
                       "pandas_s": round(pandas_s, 3), "ratio": round(ratio, 2),
+                      "ratio_pandas_route": round(ratio_pandas_route, 2),
                       "rss_file_mb": round(big_size / 1e6), "rss_peak_mb": round(peak / 1e6),
                       "rss_over_file": round(rss_over_file, 2),
                       "rss_net_over_file": round(net_over_file, 2)}))

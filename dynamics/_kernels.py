@@ -103,8 +103,11 @@ def _inertial_columns(Rp, pp, sigma, gravity, q, qd, qdd, out, whole_rows):
     P = np.empty((n, 3))          # origin j in frame j-1
     Rw = np.empty((n, 3, 3))      # frame j in base
     Ow = np.empty((n, 3))         # origin j in base
-    f = np.empty((3, 10))
-    m = np.empty((3, 10))
+    # the entries of a link's wrench columns that are always zero (f of the inertia-tensor
+    # columns, m[0, 6], m[1, 7], m[2, 8], m of the mass column) are zeroed once, here, not
+    # per link and sample; the loop overwrites every other entry
+    f = np.zeros((3, 10))
+    m = np.zeros((3, 10))
     for s in range(N):
         if whole_rows:
             _whole_row_start(out, s, n, width, qd, qdd)
@@ -147,10 +150,6 @@ def _inertial_columns(Rp, pp, sigma, gravity, q, qd, qdd, out, whole_rows):
             wx, wy, wz, ax, ay, az, vx, vy, vz = propagate_link(
                 R, P, j, sigma[j], qd[s, j], qdd[s, j], wx, wy, wz, ax, ay, az, vx, vy, vz)
             # --- wrench columns of link j (about its origin, frame j)
-            for a in range(3):
-                for k in range(10):
-                    f[a, k] = 0.0
-                    m[a, k] = 0.0
             # XX: D w = (wx,0,0)
             m[0, 0] = ax;  m[1, 0] = wz * wx;  m[2, 0] = -wy * wx
             # XY: D w = (wy, wx, 0)

@@ -16,6 +16,8 @@ than propagating full wrenches back link by link.
 """
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 
 from . import _kernels
@@ -155,36 +157,92 @@ def _coupling_columns(robot, qd, qdd, out):
 
 
 def regressor(robot, q, qd, qdd, *, columns=None, chunk=DEFAULT_CHUNK, gravity=None,
-              backend="numba"):
+              backend="numba", out=None):
     """IDM_st(q, qd, qdd) of eq. (2): array (N, n, Ns), or (N, n, len(columns)).
 
-    `columns` selects standard-parameter columns (indices), e.g. the
-    independent ones of the base parameters, so only those are kept in memory.
-    Samples are processed `chunk` at a time to bound temporary memory.
-    `backend` is `"numba"` (compiled, default) or `"numpy"` (vectorised
-    reference implementation).
+    Parameters
+    ----------
+    robot : Robot
+    q, qd, qdd : array_like (N, n)
+        Joint positions, velocities, accelerations.
+    columns : sequence of int, optional
+        Standard-parameter columns to keep (e.g. the independent ones of the base
+        parameters), so only those are held in memory.
+    chunk : int
+        Samples processed at a time (bounds the temporary memory).
+    gravity : array_like (3,), optional
+        Instead of the robot's.
+    backend : str
+        `"numba"` (compiled, default) or `"numpy"` (vectorised reference implementation).
+    out : ndarray (N, n, Ns or len(columns)), optional
+        Float64, C-contiguous array to write into (every entry is written): a caller that
+        builds the regressor of the same number of samples repeatedly reuses it instead of
+        paying for fresh memory each time.
+
+    Returns
+    -------
+    ndarray
+        `out` when given, else a new array.
     """
     q, qd, qdd = _as_samples(robot, q, qd, qdd)
     N, n = q.shape
     ns = robot.n_standard
     width = ns if columns is None else len(columns)
     compiled = backend == "numba" and _kernels.HAVE_NUMBA
-    # the compiled kernel writes every column; the NumPy one adds into zeros
-    W = np.empty((N, n, width)) if compiled or columns is not None else np.zeros((N, n, width))
-    block = None
+    if out is None:
+        # the compiled kernel writes every column; the NumPy one adds into zeros
+        W = np.empty((N, n, width)) if compiled or columns is not None else np.zeros((N, n, width))
+    else:
+        if (not isinstance(out, np.ndarray) or out.shape != (N, n, width) or out.dtype != np.float64
+                or not out.flags.c_contiguous or not out.flags.writeable):
+            raise ValueError(f"out must be a writeable C-contiguous float64 array of shape "
+                             f"{(N, n, width)}, got {getattr(out, 'shape', type(out).__name__)}")
+        W = out
+        if not (compiled or columns is not None):
+            W[...] = 0.0
+    take = _take_mode(columns, ns)
     for start in range(0, N, chunk):
         sl = slice(start, min(N, start + chunk))
         if columns is None:
             _fill_chunk(robot, q[sl], qd[sl], qdd[sl], W[sl], gravity, backend)
         else:
-            m = sl.stop - sl.start
-            if block is None or block.shape[0] != m:      # one buffer for every full chunk
-                block = np.empty((m, n, ns))
+            block = _scratch_block((sl.stop - sl.start, n, ns))
             if not compiled:
                 block[...] = 0.0
             _fill_chunk(robot, q[sl], qd[sl], qdd[sl], block, gravity, backend)
-            np.take(block, columns, axis=2, out=W[sl])
+            np.take(block, take[0], axis=2, out=W[sl], mode=take[1])
     return W
+
+
+#: Per thread, the last all-columns buffer of the `columns` route. A chunk of the TX40
+#: (10,000 samples x 6 x 86) is 41 MB, above the size malloc hands back to the system at
+#: once, so a fresh buffer per call paid its page faults again at every chunk of every
+#: caller (regressor_chunks, the observation matrix, the diagnosis).
+_SCRATCH = threading.local()
+
+
+def _scratch_block(shape):
+    """A C-contiguous (m, n, Ns) buffer: the first m rows of this thread's kept one when it
+    is large enough (a row slice of a C-contiguous array is one), else a new one, kept."""
+    block = getattr(_SCRATCH, "block", None)
+    if block is None or block.shape[1:] != shape[1:] or block.shape[0] < shape[0]:
+        block = _SCRATCH.block = np.empty(shape)
+    return block[:shape[0]]
+
+
+def _take_mode(columns, ns):
+    """(indices, mode) for np.take of the kept columns: non-negative in-range indices with
+    mode "clip" when they all are, which writes straight into `out` (mode "raise" with `out`
+    goes through a buffer, 3x slower); else the columns as given with "raise", and NumPy
+    raises for an index out of range as before."""
+    if columns is None:
+        return None
+    cols = np.asarray(columns)
+    if cols.dtype.kind not in "iu" or cols.ndim != 1 or not cols.size:
+        return columns, "raise"
+    if cols.min() < -ns or cols.max() >= ns:
+        return columns, "raise"
+    return np.where(cols < 0, cols + ns, cols).astype(np.intp), "clip"
 
 
 def regressor_chunks(robot, q, qd, qdd, *, columns=None, chunk=DEFAULT_CHUNK):

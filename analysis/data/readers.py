@@ -225,6 +225,9 @@ def _read_csv_fast(path: Path, label: str) -> _RawFile | None:
             or len(set(names)) != len(names) or len(names) < 2
             or all(_is_number(h) for h in stripped)):
         return None
+    raw = _read_csv_arrow(path, label, names, stripped)
+    if raw is not None:
+        return raw
     kw = {} if int(pd.__version__.split(".")[0]) >= 3 else {"float_precision": "round_trip"}
 
     def parse(dtypes):
@@ -266,6 +269,53 @@ def _read_csv_fast(path: Path, label: str) -> _RawFile | None:
                 return None
         else:
             a = col.to_numpy(dtype=object)
+        raw.arrays[name] = a
+    return raw
+
+
+#: Try Arrow's CSV reader before pandas' (benchmarks/io.py turns it off to time the pandas route).
+_USE_ARROW = True
+
+
+def _read_csv_arrow(path: Path, label: str, names: list[str], stripped: list[str]) -> _RawFile | None:
+    """Every column as float64 by Arrow's CSV reader (on one thread about 1.5x as fast as
+    pandas' C reader), or None, and the pandas route decides.
+
+    Arrow's float parser rounds correctly, so each value is the bits of Python's `float()`
+    of its cell. Nothing is accepted that pandas' float parse rejects: no null spellings,
+    no booleans, no quotes (the scan refused them), no blank lines; a NaN cell (Arrow reads
+    "nan", pandas does not) sends the file on to pandas, as does any failure. Optional:
+    without pyarrow the pandas route reads every file."""
+    if not _USE_ARROW:
+        return None
+    try:
+        import pyarrow as pa
+        import pyarrow.csv as pacsv
+    except ImportError:
+        return None
+    try:
+        table = pacsv.read_csv(
+            path,
+            # one thread: on a loaded 2-core machine Arrow's thread pool is slower than one
+            # thread (measured: 0.34 s against 0.52 s median for 51 MB at load 16)
+            read_options=pacsv.ReadOptions(encoding="utf8", use_threads=False),
+            parse_options=pacsv.ParseOptions(delimiter=",", quote_char=False, double_quote=False,
+                                             escape_char=False, newlines_in_values=False,
+                                             ignore_empty_lines=False),
+            convert_options=pacsv.ConvertOptions(
+                column_types=dict.fromkeys(names, pa.float64()), null_values=[], true_values=[],
+                false_values=[], strings_can_be_null=False, quoted_strings_can_be_null=False),
+        )
+    except Exception:  # noqa: BLE001 - any failure: pandas (then the precise path) judges the file
+        return None
+    if table.column_names != names or table.num_rows < 1:
+        return None
+    raw = _RawFile(path, label, "csv")
+    raw.first_line = 2
+    for c, name in enumerate(stripped):
+        a = table.column(c).to_numpy()
+        if a.dtype != np.float64 or np.isnan(a).any():
+            return None
         raw.arrays[name] = a
     return raw
 

@@ -310,3 +310,35 @@ def test_regressor_chunks_cover_the_recording(tx40):
         np.testing.assert_array_equal(W, full[sl][:, :, bp.independent])
         seen[sl] += 1
     assert (seen == 1).all()
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_out_buffer_is_written_and_returned(tx40, backend):
+    rng = np.random.default_rng(11)
+    q, qd, qdd = samples(6, 29, rng)
+    full = regressor(tx40, q, qd, qdd, backend=backend)
+    buf = np.full(full.shape, np.nan)                    # stale contents must not survive
+    assert regressor(tx40, q, qd, qdd, out=buf, chunk=8, backend=backend) is buf
+    np.testing.assert_array_equal(buf, regressor(tx40, q, qd, qdd, chunk=8, backend=backend))
+    idx = [85, 3, -1, 14]
+    sub = np.full((29, 6, 4), np.nan)
+    regressor(tx40, q, qd, qdd, columns=idx, out=sub, backend=backend)
+    np.testing.assert_array_equal(sub, regressor(tx40, q, qd, qdd, backend=backend)[:, :, idx])
+    with pytest.raises(ValueError, match="shape"):
+        regressor(tx40, q, qd, qdd, out=np.empty((29, 6, 4)), backend=backend)
+    with pytest.raises(ValueError, match="C-contiguous"):
+        regressor(tx40, q, qd, qdd, columns=idx, out=np.empty((29, 6, 8))[:, :, ::2], backend=backend)
+
+
+def test_column_route_is_the_same_whatever_ran_before(tx40):
+    """The columns route reuses one scratch buffer per thread: calls of every size, in any
+    order, give the columns of the full regressor (out-of-range columns still raise)."""
+    rng = np.random.default_rng(12)
+    bp = base_parameters(tx40)
+    q, qd, qdd = samples(6, 70, rng)
+    full = regressor(tx40, q, qd, qdd)
+    for n, chunk in ((70, 16), (5, 16), (70, 64), (3, 2), (70, 100), (41, 100)):
+        W = regressor(tx40, q[:n], qd[:n], qdd[:n], columns=bp.independent, chunk=chunk)
+        np.testing.assert_array_equal(W, full[:n][:, :, bp.independent])
+    with pytest.raises(IndexError):
+        regressor(tx40, q, qd, qdd, columns=[0, 86])
