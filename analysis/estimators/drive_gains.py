@@ -24,6 +24,17 @@ file's gains, each step the per-joint weighted least squares of eq. (16) (Gautie
 Vandanjon 2010); the covariance is the HAC sandwich of `dynid.analysis.estimators.payload`
 at the solution, `k` and its standard deviation by the delta method.
 
+Low speeds. The scale of each gain rests on the known payload's torque, small beside the
+robot's, so a torque the model lacks biases the gains in proportion to its size over that
+torque, and more data does not shrink it. Such a torque sits at low speed: eq. (3)'s Coulomb
+term `Fc sign(qd)` is a step, a real joint's friction a smooth (Stribeck, pre-sliding)
+transition some hundredths of rad/s wide. IDIM's default dead zone (1 % of each joint's peak
+speed) leaves part of it in the equations; here the dead zone is `DEAD_ZONE_FRACTION` (5 %)
+of each joint's peak speed in the first loaded recording unless the settings give
+`qd_threshold`. Measured on the independent TX40 plant (friction `Fc tanh(qd / 0.01)`),
+seed 311, 6 noise draws: mean gain errors -0.9 / -0.9 / -1.1 % on joints 1, 4, 5 at 1 %,
+-0.1 / -0.4 / -0.2 % at 5 % (benchmarks/payload_gains_probe.py, docs/payload.md).
+
 What the known mass identifies: a mass at the wrist centre (where the last three axes
 meet, as on the TX40) loads joints 1-3 only, so with the mass alone the wrist gains rest on
 the inertial coupling through the shared parameters, weakly; the known centre of mass
@@ -55,12 +66,17 @@ from dynid.analysis.estimators.payload import (
     payload_frame,
     transform_matrix,
 )
+from dynid.analysis.processing.observation import full_rate
+from dynid.analysis.processing.signals import dead_zone_thresholds
 from dynid.analysis.results import ParameterResults, notices_block, parameter_table, percent
 from dynid.dynamics.base_parameters import base_parameters
 from dynid.errors import IdentificationError, InputError
 from dynid.provenance import json_safe, versions
 
-__all__ = ["DriveGainResult", "identify_drive_gains"]
+__all__ = ["DEAD_ZONE_FRACTION", "DriveGainResult", "identify_drive_gains"]
+
+#: dead zone of the drive-gain fit: this fraction of each joint's peak speed (module doc, Low speeds)
+DEAD_ZONE_FRACTION = 0.05
 
 
 @dataclass(eq=False, repr=False)
@@ -243,6 +259,22 @@ def _common_gains(exps, robot):
     return ref, out
 
 
+def _gain_settings(experiment, robot, settings):
+    """IDIM's settings with the drive gains' dead zone (module doc, Low speeds): `DEAD_ZONE_FRACTION`
+    of each joint's peak filtered speed in `experiment`, unless `settings` give `qd_threshold`.
+    Returns (settings, notice or None)."""
+    if settings and settings.get("qd_threshold") is not None:
+        return settings, None
+    settings = dict(settings or {})
+    qd = full_rate(experiment, robot, experiment.q, dict(settings, qd_threshold=0.0)).qd
+    thr = dead_zone_thresholds(qd, "auto", fraction=DEAD_ZONE_FRACTION)
+    settings["qd_threshold"] = [float(v) for v in thr]
+    return settings, (f"drive gains: equations below {100 * DEAD_ZONE_FRACTION:g} % of each joint's peak speed "
+                      f"dropped (" + ", ".join(f"{v:.3g}" for v in thr) + " rad/s; IDIM's default 1 %): an "
+                      "unmodelled smooth Coulomb transition there biases the gains (settings qd_threshold "
+                      "overrides)")
+
+
 def _stacked_model(obs_u, obs_l, known, bp):
     """The unloaded then loaded rows stacked: regressor `X` (base and unknown payload columns,
     the latter zero on unloaded rows), logged torque, known payload torque, row mask, names."""
@@ -329,6 +361,7 @@ def identify_drive_gains(unloaded, loaded, robot, *, mass, com=None, joints=None
     joints = _checked_joints(_described_joints(exps_l + exps_u) if joints is None else joints, robot.n_joints)
     g_ref, exps = _common_gains(exps_l + exps_u, robot)
     exps_l, exps_u = exps[:len(exps_l)], exps[len(exps_l):]
+    settings, dz_notice = _gain_settings(exps_l[0], robot, settings)
     first = _observe(exps_l[0], robot, bp, link, T, settings)
     obs_l = [first] + [_observe(e, robot, bp, link, T, first.settings) for e in exps_l[1:]]
     obs_u = [_observe(e, robot, bp, link, T, first.settings) for e in exps_u]
@@ -346,6 +379,8 @@ def identify_drive_gains(unloaded, loaded, robot, *, mass, com=None, joints=None
              "note": "the robot's base parameters and the payload's unknown ones in the units of the "
                      "logged torque times a (tau_j = a_j (W_j theta + known_j))"}
     notices = [n for e in exps_u + exps_l for n in getattr(e, "notices", [])]
+    if dz_notice:
+        notices.append(dz_notice)
     notices.append("gains identified for joints " + ", ".join(map(str, joints)) + (
         " (marked identify_gains in the experiment description)" if from_description else
         " (joints= / --gains)" if len(joints) < robot.n_joints else " (all joints: the default)"))
