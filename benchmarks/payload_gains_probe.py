@@ -9,6 +9,15 @@ that sensor (the benchmark's: noisy, position 2e-5 rad and torque 0.2 N m) and w
 the plant's friction: which noise moves the gains.
 Run from the repository root (niced): python benchmarks/payload_gains_probe.py 311
 [--sensor tau_only --friction 1] (benchmarks/results/payload_gains_probe_seed311.jsonl).
+
+`--draws N` separates bias from noise: the two recordings (U0, L0) simulated once without
+sensor noise, then N independent draws of the sensor's noise (position 2e-5 rad, torque
+0.2 N m; `--sensor tau_only|q_only` for one of them) added to the same motion, each fitted with
+IDIM's dead zone (1 % of each joint's peak speed, `qd_threshold = "auto"`) and with the drive
+gains' own (DEAD_ZONE_FRACTION, 5 %); one line per draw, then per dead zone the mean error
+of each factor (%, the bias), its standard deviation over the draws and the mean stated sigma.
+The noise-free recordings are fitted first (draw -1) with both dead zones.
+(benchmarks/results/payload_gains_probe_seed311_draws.jsonl)
 """
 import argparse
 import dataclasses
@@ -33,6 +42,7 @@ def main():
     ap.add_argument("seed", type=int)
     ap.add_argument("--sensor", choices=["noisy", "perfect", "tau_only", "q_only"])
     ap.add_argument("--friction", type=int, default=1)
+    ap.add_argument("--draws", type=int, default=0, metavar="N")
     args = ap.parse_args()
     seed = args.seed
     sensor = {None: None, "noisy": None, "perfect": ip.PERFECT, "tau_only": ip.Sensor(q_noise=0.0),
@@ -51,6 +61,8 @@ def main():
 
     def sc(e):
         return Experiment(t=e.t, q=e.q, qr=e.qr, tau=e.tau / kt, fs=e.fs, source=e.source)
+    if args.draws:
+        return draws(args, robot, params, base, loaded, rate, kt, one)
     if args.sensor is not None or not args.friction:
         U, L = [one(base, 20.0, 2 * seed + 1)], [one(loaded, 10.0, 2 * seed + 2)]
         cases = (("U0 L0", U, L),)
@@ -65,6 +77,49 @@ def main():
                           "friction": bool(args.friction),
                           "err_pct": (100 * np.abs(r.factor - kt) / kt).round(2).tolist(),
                           "z": ((r.factor - kt) / r.factor_std).round(2).tolist()}), flush=True)
+
+
+def draws(args, robot, params, base, loaded, rate, kt, one):
+    """Bias or noise: one noise-free motion, `args.draws` noise draws on it (module doc)."""
+    import numpy as np
+
+    from dynid.analysis.data.experiment import Experiment
+    from dynid.analysis.estimators.drive_gains import DEAD_ZONE_FRACTION, identify_drive_gains
+    from tests.support import independent_plant as ip
+    seed = args.seed
+    from tests.support import payload_plant as pp
+    recs = {}
+    for key, plant, dur, s in (("U", base, 20.0, 2 * seed + 1), ("L", loaded, 10.0, 2 * seed + 2)):
+        recs[key] = pp.record(plant, pp.wrist_reference(plant.limits, dur, rate, s), s, rate=rate,
+                              sensor=ip.PERFECT)
+    q_sd = 0.0 if args.sensor == "tau_only" else 2e-5
+    t_sd = 0.0 if args.sensor == "q_only" else 0.2
+
+    def noisy(rec, rng):
+        if rng is None:
+            return Experiment(t=rec["t"], q=rec["q"], qr=rec["qr"], tau=rec["tau"] / kt, fs=rate, source="clean")
+        q = rec["q"] + q_sd * rng.standard_normal(rec["q"].shape)
+        tau = rec["tau"] + t_sd * rng.standard_normal(rec["tau"].shape)
+        return Experiment(t=rec["t"], q=q, qr=rec["qr"], tau=tau / kt, fs=rate, source="draw")
+    out = {"idim_1pc": [], f"gains_{100 * DEAD_ZONE_FRACTION:g}pc": []}
+    for d in range(-1, args.draws):
+        rng = None if d < 0 else np.random.default_rng(10_000 + d)
+        u, lo = noisy(recs["U"], rng), noisy(recs["L"], rng)
+        for key, settings in zip(out, ({"qd_threshold": "auto"}, None)):
+            r = identify_drive_gains(u, lo, robot, mass=params[9], zoh=True, settings=settings)
+            err = 100 * (r.factor - kt) / kt
+            if d >= 0:
+                out[key].append((err, 100 * r.factor_std / kt))
+            print(json.dumps({"seed": seed, "draw": d, "dead_zone": key,
+                              "sensor": "none" if d < 0 else args.sensor or "noisy",
+                              "err_pct": err.round(3).tolist()}), flush=True)
+    for key, rows in out.items():
+        e = np.array([r[0] for r in rows])
+        s = np.array([r[1] for r in rows])
+        print(json.dumps({"seed": seed, "dead_zone": key, "sensor": args.sensor or "noisy", "draws": args.draws,
+                          "mean_err_pct": e.mean(0).round(3).tolist(),
+                          "sd_err_pct": e.std(0, ddof=1).round(3).tolist(),
+                          "mean_sigma_pct": s.mean(0).round(3).tolist()}), flush=True)
 
 
 if __name__ == "__main__":

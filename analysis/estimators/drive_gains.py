@@ -73,10 +73,12 @@ from dynid.dynamics.base_parameters import base_parameters
 from dynid.errors import IdentificationError, InputError
 from dynid.provenance import json_safe, versions
 
-__all__ = ["DEAD_ZONE_FRACTION", "DriveGainResult", "identify_drive_gains"]
+__all__ = ["DEAD_ZONE_FRACTION", "WEAK_GAIN_HALFWIDTH", "DriveGainResult", "identify_drive_gains"]
 
 #: dead zone of the drive-gain fit: this fraction of each joint's peak speed (module doc, Low speeds)
 DEAD_ZONE_FRACTION = 0.05
+#: a gain whose 95 % half-width exceeds this fraction of it gets a notice (weakly fixed by the payload)
+WEAK_GAIN_HALFWIDTH = 0.01
 
 
 @dataclass(eq=False, repr=False)
@@ -314,6 +316,20 @@ def _gain_factors(est, cov, g):
     return k, Jk @ cov[-g:, -g:] @ Jk.T
 
 
+def _weak_gain_notice(joints, k, k_std):
+    """A notice naming the gains whose 95 % half-width exceeds `WEAK_GAIN_HALFWIDTH`, or None."""
+    half = 1.959963984540054 * np.asarray(k_std) / np.abs(k)
+    weak = [f"joint {j} +- {100 * h:.2g} %" for j, h in zip(joints, half) if h > WEAK_GAIN_HALFWIDTH]
+    if not weak:
+        return None
+    return ("gain(s) weakly fixed by the payload (95 % half-width above "
+            f"{100 * WEAK_GAIN_HALFWIDTH:g} %): {', '.join(weak)}. The known payload's torque on those joints "
+            "is small beside the noise (a light payload near the wrist centre loads the wrist joints only "
+            "through the robot's shared parameters); the error is noise the interval covers. A heavier "
+            "payload, one farther from the wrist centre, its centre of mass (com=, --com) or longer "
+            "recordings narrow it")
+
+
 def identify_drive_gains(unloaded, loaded, robot, *, mass, com=None, joints=None, frame="flange",
                          offset=None, settings=None, zoh=False):
     """Identify the drive gains with the dynamic parameters from a payload of known mass (module doc).
@@ -381,6 +397,9 @@ def identify_drive_gains(unloaded, loaded, robot, *, mass, com=None, joints=None
     notices = [n for e in exps_u + exps_l for n in getattr(e, "notices", [])]
     if dz_notice:
         notices.append(dz_notice)
+    weak = _weak_gain_notice(joints, k, np.sqrt(np.maximum(np.diag(cov_k), 0.0)))
+    if weak:
+        notices.append(weak)
     notices.append("gains identified for joints " + ", ".join(map(str, joints)) + (
         " (marked identify_gains in the experiment description)" if from_description else
         " (joints= / --gains)" if len(joints) < robot.n_joints else " (all joints: the default)"))
