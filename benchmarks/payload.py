@@ -70,6 +70,81 @@ def recordings(seed, rate=2000.0, unloaded_s=20.0, loaded_s=10.0, extra_loaded=0
             one(loaded, loaded_s, 2 * seed + 2, "loaded"), extra)
 
 
+def header(args):
+    """The results file's first line: the command, the commit, the date (UTC)."""
+    import datetime
+    import subprocess
+    try:
+        commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True,
+                                check=True).stdout.strip()
+        dirty = bool(subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=ROOT,
+                                    capture_output=True, text=True, check=True).stdout.strip())
+    except (OSError, subprocess.CalledProcessError):
+        commit, dirty = "unknown", None
+    return {"command": "python " + " ".join(["benchmarks/payload.py", *sys.argv[1:]]), "commit": commit,
+            "uncommitted_changes": dirty,
+            "date": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%dT%H:%M:%SZ")}
+
+
+def one_seed(seed, args):
+    """The JSON row of one seed (module doc)."""
+    import numpy as np
+
+    import dynid
+    from dynid.analysis.data.experiment import Experiment
+    from dynid.analysis.estimators.drive_gains import identify_drive_gains
+    from dynid.analysis.estimators.payload import centre_held_torque, identify_payload
+    robot = dataclasses.replace(dynid.load_robot("tx40"), couplings=[])
+    zoh = not args.no_zoh
+    n_extra = 0 if args.no_gains or args.speed_only else max(args.gains_loaded - 1, 0)
+    params, parts, eu, el, extra = recordings(seed, rate=args.rate, unloaded_s=args.unloaded_s,
+                                              loaded_s=args.loaded_s, extra_loaded=n_extra)
+
+    def scaled(e, kt):
+        return Experiment(t=e.t, q=e.q, qr=e.qr, tau=e.tau / kt, fs=e.fs, source=e.source)
+    if args.gains_only:
+        kt = np.random.default_rng(seed + 7).uniform(0.9, 1.1, 6)
+        rd = identify_drive_gains(scaled(eu, kt), [scaled(e, kt) for e in [el] + extra], robot, mass=params[9],
+                                  com=parts["com"] if args.com else None, zoh=zoh)
+        zg = (rd.factor - kt) / rd.factor_std
+        return {"seed": seed, "gains": {"rel_error": (np.abs(rd.factor - kt) / kt).tolist(), "z": zg.tolist(),
+                                        "covered": int(np.sum(np.abs(zg) <= 1.959963984540054))}}
+    # the robot-fixed route's model must see the torque with the same timing as the payload
+    r0 = dynid.identify(centre_held_torque(eu) if zoh else eu, robot)
+    t_idim = t_fixed = float("inf")
+    for _ in range(args.speed_repeats):
+        t0 = time.perf_counter()
+        dynid.identify(el, robot)
+        t_idim = min(t_idim, time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        rf = identify_payload(el, robot, model=r0, zoh=zoh)
+        t_fixed = min(t_fixed, time.perf_counter() - t0)
+    if args.speed_only:
+        return {"seed": seed, "speed_ratio": t_fixed / t_idim, "t_idim": t_idim, "t_fixed": t_fixed}
+    rg = identify_payload(el, robot, unloaded=eu, zoh=zoh)
+    Imax = np.linalg.eigvalsh(parts["inertia_com"]).max()
+    row = {"seed": seed, "mass": parts["mass"], "com_mm": (1e3 * parts["com"]).tolist(),
+           "speed_ratio": t_fixed / t_idim}
+    for key, r in (("fixed", rf), ("global", rg)):
+        z = (r.chi - params) / r.bse.to_numpy()
+        row[key] = {"mass_rel_error": abs(r.chi[9] - params[9]) / params[9],
+                    "com_error_mm": 1e3 * float(np.linalg.norm(r.com - parts["com"])),
+                    "inertia_rel_error": float(np.abs(r.inertia_com - parts["inertia_com"]).max() / Imax),
+                    "z": z.tolist(), "covered": int(np.sum(np.abs(z) <= 1.959963984540054)),
+                    "hac_lags": r.hac_lags}
+    if not args.no_gains:
+        kt = np.random.default_rng(seed + 7).uniform(0.9, 1.1, 6)
+        for key, loaded_list in (("gains", [el] + extra), ("gains_one_loaded", [el] if extra else [])):
+            if not loaded_list:
+                continue
+            rd = identify_drive_gains(scaled(eu, kt), [scaled(e, kt) for e in loaded_list], robot,
+                                      mass=params[9], com=parts["com"] if args.com else None, zoh=zoh)
+            zg = (rd.factor - kt) / rd.factor_std
+            row[key] = {"rel_error": (np.abs(rd.factor - kt) / kt).tolist(), "z": zg.tolist(),
+                        "covered": int(np.sum(np.abs(zg) <= 1.959963984540054))}
+    return row
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--seeds", type=int, default=20)
@@ -90,83 +165,52 @@ def main():
     ap.add_argument("--gains-loaded", type=int, default=2, metavar="N",
                     help="loaded recordings (--loaded-s each, other trajectories) for the drive gains "
                          "(default 2: the first is the payload routes' recording)")
+    ap.add_argument("--workers", type=int, default=1, help="seeds run in this many processes (default 1)")
+    ap.add_argument("--out", metavar="FILE.jsonl",
+                    help="also write a header line (command, commit, date), the rows and the figures to FILE")
     args = ap.parse_args()
     import numpy as np
-
-    import dynid
-    from dynid.analysis.data.experiment import Experiment
-    from dynid.analysis.estimators.drive_gains import identify_drive_gains
-    from dynid.analysis.estimators.payload import centre_held_torque, identify_payload
-    robot = dataclasses.replace(dynid.load_robot("tx40"), couplings=[])
     zoh = not args.no_zoh
     n_extra = 0 if args.no_gains or args.speed_only else max(args.gains_loaded - 1, 0)
     rows = []
-    for seed in range(args.start, args.start + args.seeds):
-        params, parts, eu, el, extra = recordings(seed, rate=args.rate, unloaded_s=args.unloaded_s,
-                                                  loaded_s=args.loaded_s, extra_loaded=n_extra)
+    seeds = range(args.start, args.start + args.seeds)
+    out_file = None
+    if args.out:
+        out_file = open(args.out, "w")
+        out_file.write(json.dumps(header(args)) + "\n")
 
-        def scaled(e, kt):
-            return Experiment(t=e.t, q=e.q, qr=e.qr, tau=e.tau / kt, fs=e.fs, source=e.source)
-        if args.gains_only:
-            kt = np.random.default_rng(seed + 7).uniform(0.9, 1.1, 6)
-            rd = identify_drive_gains(scaled(eu, kt), [scaled(e, kt) for e in [el] + extra], robot, mass=params[9],
-                                      com=parts["com"] if args.com else None, zoh=zoh)
-            zg = (rd.factor - kt) / rd.factor_std
-            rows.append({"seed": seed, "gains": {"rel_error": (np.abs(rd.factor - kt) / kt).tolist(),
-                                                  "z": zg.tolist(),
-                                                  "covered": int(np.sum(np.abs(zg) <= 1.959963984540054))}})
-            print(json.dumps(rows[-1]), flush=True)
-            continue
-        # the robot-fixed route's model must see the torque with the same timing as the payload
-        r0 = dynid.identify(centre_held_torque(eu) if zoh else eu, robot)
-        t_idim = t_fixed = float("inf")
-        for _ in range(args.speed_repeats):
-            t0 = time.perf_counter()
-            dynid.identify(el, robot)
-            t_idim = min(t_idim, time.perf_counter() - t0)
-            t0 = time.perf_counter()
-            rf = identify_payload(el, robot, model=r0, zoh=zoh)
-            t_fixed = min(t_fixed, time.perf_counter() - t0)
-        if args.speed_only:
-            rows.append({"seed": seed, "speed_ratio": t_fixed / t_idim, "t_idim": t_idim, "t_fixed": t_fixed})
-            print(json.dumps(rows[-1]), flush=True)
-            continue
-        rg = identify_payload(el, robot, unloaded=eu, zoh=zoh)
-        Imax = np.linalg.eigvalsh(parts["inertia_com"]).max()
-        row = {"seed": seed, "mass": parts["mass"], "com_mm": (1e3 * parts["com"]).tolist(),
-               "speed_ratio": t_fixed / t_idim}
-        for key, r in (("fixed", rf), ("global", rg)):
-            z = (r.chi - params) / r.bse.to_numpy()
-            row[key] = {"mass_rel_error": abs(r.chi[9] - params[9]) / params[9],
-                        "com_error_mm": 1e3 * float(np.linalg.norm(r.com - parts["com"])),
-                        "inertia_rel_error": float(np.abs(r.inertia_com - parts["inertia_com"]).max() / Imax),
-                        "z": z.tolist(), "covered": int(np.sum(np.abs(z) <= 1.959963984540054)),
-                        "hac_lags": r.hac_lags}
-        if not args.no_gains:
-            kt = np.random.default_rng(seed + 7).uniform(0.9, 1.1, 6)
-            for key, loaded_list in (("gains", [el] + extra), ("gains_one_loaded", [el] if extra else [])):
-                if not loaded_list:
-                    continue
-                rd = identify_drive_gains(scaled(eu, kt), [scaled(e, kt) for e in loaded_list], robot,
-                                          mass=params[9], com=parts["com"] if args.com else None, zoh=zoh)
-                zg = (rd.factor - kt) / rd.factor_std
-                row[key] = {"rel_error": (np.abs(rd.factor - kt) / kt).tolist(), "z": zg.tolist(),
-                            "covered": int(np.sum(np.abs(zg) <= 1.959963984540054))}
+    def emit(row):
         rows.append(row)
         print(json.dumps(row), flush=True)
+        if out_file:
+            out_file.write(json.dumps(row) + "\n")
+            out_file.flush()
+    if args.workers > 1:
+        from concurrent.futures import ProcessPoolExecutor
+        with ProcessPoolExecutor(args.workers) as pool:
+            for row in pool.map(one_seed, seeds, [args] * len(seeds)):
+                emit(row)
+    else:
+        for seed in seeds:
+            emit(one_seed(seed, args))
+    def finish(figures):
+        print(json.dumps(figures), flush=True)
+        if out_file:
+            out_file.write(json.dumps(figures) + "\n")
+            out_file.close()
     if args.gains_only:
-        print(json.dumps({"seeds": [args.start, args.start + args.seeds - 1], "n_seeds": len(rows), "zoh": zoh,
+        finish({"seeds": [args.start, args.start + args.seeds - 1], "n_seeds": len(rows), "zoh": zoh,
                           "recordings": f"{args.unloaded_s:g} s unloaded + {1 + n_extra} x {args.loaded_s:g} s "
                                         f"loaded, {args.rate:g} Hz",
                           "drive_gain_known": "mass and centre of mass" if args.com else "mass",
                           "drive_gain_rel_error_max": max(max(r["gains"]["rel_error"]) for r in rows),
-                          "drive_gain_coverage_95": sum(r["gains"]["covered"] for r in rows) / (6 * len(rows))}))
+                          "drive_gain_coverage_95": sum(r["gains"]["covered"] for r in rows) / (6 * len(rows))})
         return
     if args.speed_only:
         ratios = [r["speed_ratio"] for r in rows]
-        print(json.dumps({"seeds": [args.start, args.start + args.seeds - 1], "speed_repeats": args.speed_repeats,
+        finish({"seeds": [args.start, args.start + args.seeds - 1], "speed_repeats": args.speed_repeats,
                           "speed_ratio_fixed_over_idim_max": max(ratios),
-                          "speed_ratio_fixed_over_idim_median": float(np.median(ratios))}))
+                          "speed_ratio_fixed_over_idim_median": float(np.median(ratios))})
         return
     out = {"seeds": [args.start, args.start + args.seeds - 1], "n_seeds": len(rows),
            "recordings": f"{args.unloaded_s:g} s unloaded + {args.loaded_s:g} s loaded, {args.rate:g} Hz, "
@@ -190,7 +234,7 @@ def main():
                                                         / (6 * len(rows)))
     out["speed_ratio_fixed_over_idim_max"] = max(r["speed_ratio"] for r in rows)
     out["speed_ratio_fixed_over_idim_median"] = float(np.median([r["speed_ratio"] for r in rows]))
-    print(json.dumps(out))
+    finish(out)
 
 
 if __name__ == "__main__":
