@@ -86,6 +86,29 @@ def header(args):
             "date": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%dT%H:%M:%SZ")}
 
 
+def gain_row(rd, kt):
+    """Errors, z, coverage and the weak flags (95 % half-width above WEAK_GAIN_HALFWIDTH) of one fit."""
+    import numpy as np
+
+    from dynid.analysis.estimators.drive_gains import WEAK_GAIN_HALFWIDTH
+    zg = (rd.factor - kt) / rd.factor_std
+    half = 1.959963984540054 * rd.factor_std / np.abs(rd.factor)
+    return {"rel_error": (np.abs(rd.factor - kt) / kt).tolist(), "z": zg.tolist(),
+            "covered": int(np.sum(np.abs(zg) <= 1.959963984540054)), "half_width_95": half.tolist(),
+            "weak": (half > WEAK_GAIN_HALFWIDTH).tolist()}
+
+
+def gain_figures(rows, key, suffix=""):
+    """The drive gains' figures over the seeds: all gains, and those not flagged weak (the subset)."""
+    err = [e for r in rows for e in r[key]["rel_error"]]
+    weak = [w for r in rows for w in r[key]["weak"]]
+    strong = [e for e, w in zip(err, weak) if not w]
+    return {f"drive_gain_rel_error_max{suffix}": max(err),
+            f"drive_gain_coverage_95{suffix}": sum(r[key]["covered"] for r in rows) / len(err),
+            f"drive_gain_weak_fraction{suffix}": sum(weak) / len(err),
+            f"drive_gain_rel_error_max_not_weak{suffix}": max(strong) if strong else None}
+
+
 def one_seed(seed, args):
     """The JSON row of one seed (module doc)."""
     import numpy as np
@@ -106,9 +129,7 @@ def one_seed(seed, args):
         kt = np.random.default_rng(seed + 7).uniform(0.9, 1.1, 6)
         rd = identify_drive_gains(scaled(eu, kt), [scaled(e, kt) for e in [el] + extra], robot, mass=params[9],
                                   com=parts["com"] if args.com else None, zoh=zoh)
-        zg = (rd.factor - kt) / rd.factor_std
-        return {"seed": seed, "gains": {"rel_error": (np.abs(rd.factor - kt) / kt).tolist(), "z": zg.tolist(),
-                                        "covered": int(np.sum(np.abs(zg) <= 1.959963984540054))}}
+        return {"seed": seed, "gains": gain_row(rd, kt)}
     # the robot-fixed route's model must see the torque with the same timing as the payload
     r0 = dynid.identify(centre_held_torque(eu) if zoh else eu, robot)
     t_idim = t_fixed = float("inf")
@@ -139,9 +160,7 @@ def one_seed(seed, args):
                 continue
             rd = identify_drive_gains(scaled(eu, kt), [scaled(e, kt) for e in loaded_list], robot,
                                       mass=params[9], com=parts["com"] if args.com else None, zoh=zoh)
-            zg = (rd.factor - kt) / rd.factor_std
-            row[key] = {"rel_error": (np.abs(rd.factor - kt) / kt).tolist(), "z": zg.tolist(),
-                        "covered": int(np.sum(np.abs(zg) <= 1.959963984540054))}
+            row[key] = gain_row(rd, kt)
     return row
 
 
@@ -203,8 +222,7 @@ def main():
                           "recordings": f"{args.unloaded_s:g} s unloaded + {1 + n_extra} x {args.loaded_s:g} s "
                                         f"loaded, {args.rate:g} Hz",
                           "drive_gain_known": "mass and centre of mass" if args.com else "mass",
-                          "drive_gain_rel_error_max": max(max(r["gains"]["rel_error"]) for r in rows),
-                          "drive_gain_coverage_95": sum(r["gains"]["covered"] for r in rows) / (6 * len(rows))})
+                          **gain_figures(rows, "gains")})
         return
     if args.speed_only:
         ratios = [r["speed_ratio"] for r in rows]
@@ -223,15 +241,12 @@ def main():
     out.update({k: out["fixed"][k] for k in ("mass_rel_error_max", "com_error_mm_max", "inertia_rel_error_max",
                                               "coverage_95")})
     if not args.no_gains:
-        out["drive_gain_rel_error_max"] = max(max(r["gains"]["rel_error"]) for r in rows)
-        out["drive_gain_coverage_95"] = sum(r["gains"]["covered"] for r in rows) / (6 * len(rows))
+        out.update(gain_figures(rows, "gains"))
         out["drive_gain_known"] = "mass and centre of mass" if args.com else "mass"
         out["drive_gain_recordings"] = (f"{args.unloaded_s:g} s unloaded + {1 + n_extra} x {args.loaded_s:g} s "
                                         "loaded")
         if n_extra:
-            out["drive_gain_rel_error_max_one_loaded"] = max(max(r["gains_one_loaded"]["rel_error"]) for r in rows)
-            out["drive_gain_coverage_95_one_loaded"] = (sum(r["gains_one_loaded"]["covered"] for r in rows)
-                                                        / (6 * len(rows)))
+            out.update(gain_figures(rows, "gains_one_loaded", "_one_loaded"))
     out["speed_ratio_fixed_over_idim_max"] = max(r["speed_ratio"] for r in rows)
     out["speed_ratio_fixed_over_idim_median"] = float(np.median([r["speed_ratio"] for r in rows]))
     finish(out)

@@ -16,7 +16,8 @@ sensor noise, then N independent draws of the sensor's noise (position 2e-5 rad,
 IDIM's dead zone (1 % of each joint's peak speed, `qd_threshold = "auto"`) and with the drive
 gains' own (DEAD_ZONE_FRACTION, 5 %); one line per draw, then per dead zone the mean error
 of each factor (%, the bias), its standard deviation over the draws and the mean stated sigma.
-The noise-free recordings are fitted first (draw -1) with both dead zones.
+The noise-free recordings are fitted first (draw -1) with both dead zones, with the rms of
+each joint's residual (N m): the torque the model lacks.
 (benchmarks/results/payload_gains_probe_seed311_draws.jsonl)
 """
 import argparse
@@ -43,6 +44,8 @@ def main():
     ap.add_argument("--sensor", choices=["noisy", "perfect", "tau_only", "q_only"])
     ap.add_argument("--friction", type=int, default=1)
     ap.add_argument("--draws", type=int, default=0, metavar="N")
+    ap.add_argument("--first-draw", type=int, default=0, metavar="D",
+                    help="--draws: noise draws D..D+N-1 (generator seeds 10000 + d)")
     args = ap.parse_args()
     seed = args.seed
     sensor = {None: None, "noisy": None, "perfect": ip.PERFECT, "tau_only": ip.Sensor(q_noise=0.0),
@@ -102,7 +105,7 @@ def draws(args, robot, params, base, loaded, rate, kt, one):
         tau = rec["tau"] + t_sd * rng.standard_normal(rec["tau"].shape)
         return Experiment(t=rec["t"], q=q, qr=rec["qr"], tau=tau / kt, fs=rate, source="draw")
     out = {"idim_1pc": [], f"gains_{100 * DEAD_ZONE_FRACTION:g}pc": []}
-    for d in range(-1, args.draws):
+    for d in [-1, *range(args.first_draw, args.first_draw + args.draws)]:
         rng = None if d < 0 else np.random.default_rng(10_000 + d)
         u, lo = noisy(recs["U"], rng), noisy(recs["L"], rng)
         for key, settings in zip(out, ({"qd_threshold": "auto"}, None)):
@@ -110,16 +113,39 @@ def draws(args, robot, params, base, loaded, rate, kt, one):
             err = 100 * (r.factor - kt) / kt
             if d >= 0:
                 out[key].append((err, 100 * r.factor_std / kt))
-            print(json.dumps({"seed": seed, "draw": d, "dead_zone": key,
-                              "sensor": "none" if d < 0 else args.sensor or "noisy",
-                              "err_pct": err.round(3).tolist()}), flush=True)
+            row = {"seed": seed, "draw": d, "dead_zone": key, "sensor": "none" if d < 0 else args.sensor or "noisy",
+                   "err_pct": err.round(3).tolist()}
+            if d < 0:
+                row["residual_rms_Nm"] = clean_residual(u, lo, robot, params[9], settings).round(4).tolist()
+            print(json.dumps(row), flush=True)
     for key, rows in out.items():
         e = np.array([r[0] for r in rows])
         s = np.array([r[1] for r in rows])
         print(json.dumps({"seed": seed, "dead_zone": key, "sensor": args.sensor or "noisy", "draws": args.draws,
-                          "mean_err_pct": e.mean(0).round(3).tolist(),
+                          "first_draw": args.first_draw, "mean_err_pct": e.mean(0).round(3).tolist(),
+                          "se_mean_pct": (e.std(0, ddof=1) / np.sqrt(len(e))).round(3).tolist(),
                           "sd_err_pct": e.std(0, ddof=1).round(3).tolist(),
                           "mean_sigma_pct": s.mean(0).round(3).tolist()}), flush=True)
+
+
+def clean_residual(u, lo, robot, mass, settings):
+    """Rms of each joint's residual (N m) of the drive-gain fit, its steps as identify_drive_gains."""
+    import numpy as np
+
+    from dynid.analysis.estimators import drive_gains as dg
+    from dynid.analysis.estimators.payload import _observe, _recordings, payload_frame, transform_matrix
+    from dynid.dynamics.base_parameters import base_parameters
+    link, R, p = payload_frame(robot, "flange", None)
+    T = transform_matrix(R, p)
+    bp = base_parameters(robot)
+    eu, el = _recordings(u, robot, True), _recordings(lo, robot, True)
+    settings, _ = dg._gain_settings(el[0], robot, settings)
+    first = _observe(el[0], robot, bp, link, T, settings)
+    obs_u = [_observe(e, robot, bp, link, T, first.settings) for e in eu]
+    X, tau, known_tau, mask, names = dg._stacked_model(obs_u, [first], dg._known_payload(mass, None), bp)
+    _, _, fit, _ = dg._gauss_newton(X, tau, known_tau, np.arange(robot.n_joints), names, mask)
+    e = np.where(mask, fit.residual, 0.0)
+    return np.sqrt((e ** 2).sum(axis=0) / mask.sum(axis=0))
 
 
 if __name__ == "__main__":
