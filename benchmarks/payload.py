@@ -11,12 +11,14 @@ plant has none).
 * global: identify_payload(unloaded=...);
 * drive gains: both recordings' torques divided by per-joint factors k in U(0.9, 1.1) (a
   current logged with wrong gains), identify_drive_gains with the known mass (`--com`: and
-  centre of mass), error of each identified factor.
+  centre of mass), error of each identified factor, and whether its 95 % half-width is above
+  drive_gains.WEAK_GAIN_HALFWIDTH (1 %: the result's weak-gain notice).
 
 Figures: largest mass error (%), centre-of-mass error (mm), inertia error (largest entry of
 the error of the inertia about the centre of mass over the largest principal moment), the
 coverage of the 95 % intervals over the ten parameters x seeds (both routes), the largest
-drive-gain error (%) and coverage (with `--gains-loaded` loaded recordings, and with the first
+drive-gain error (%) over all gains and over the gains not flagged weak, the fraction flagged,
+and coverage (with `--gains-loaded` loaded recordings, and with the first
 alone), and the time of the fixed route over one IDIM of the same 10 s loaded recording (same
 process, same seed).
 
@@ -25,16 +27,24 @@ runs with zoh=True (the torque centred on the position samples) and the fixed ro
 identified from the centred unloaded recording; --no-zoh shows the bias without it
 (benchmarks/payload_timing.py, docs/payload.md).
 
-Seeds: 1000-1004 developed the estimators; 0-19 and 100-119 judged them last session and
-developed the torque timing (3, 6, 8, 12, 19); 300-319 were used for nothing before this run:
-Measured (benchmarks/results/payload_heldout_zoh_seeds300-319.jsonl; 20 s + 10 s at 2 kHz):
-mass 0.17 %, centre of mass 0.76 mm, inertia 6.2 % (fixed) / 6.6 % (global), coverage 90.5 /
-91.5 %; drive gains with the mass, 20 s unloaded + 2 x 10 s loaded: 1.32 % (one seed, 311, a
-1.6 kg payload 38 mm from the wrist centre; every other seed <= 0.62 %), coverage 90.8 %; with
-one loaded recording 1.19 %; speed median 0.82, max 1.35 (faster of 2).
+Seeds: 1000-1004 developed the estimators; 0-19 and 100-119 judged them and developed the torque
+timing (3, 6, 8, 12, 19); 300-319 judged that; 311 and 0-11 developed the drive gains' dead zone
+(drive_gains.DEAD_ZONE_FRACTION); 400-419 were used for nothing before judging it:
+Measured (benchmarks/results/payload_heldout_zoh_seeds400-419.jsonl; 20 s + 10 s at 2 kHz; two
+workers): mass 0.22 %, centre of mass 0.41 mm, inertia 9.1 % (fixed) / 9.5 % (global; seed 413,
+a 1.2 kg payload), coverage 94 / 95 %; drive gains with the mass, 20 s unloaded + 2 x 10 s
+loaded: 1.37 % over all 120 gains (seed 416, joint 6: a 1.0 kg payload 36 mm from the wrist
+centre, z -1.6), coverage 90.0 %; 9 gains (7.5 %) flagged weak (95 % half-width > 1 %), the
+other 111 within 0.59 %; with one loaded recording 1.67 %, 12 flagged, the others within 0.77 %;
+speed median 0.80, max 1.34.
+Seeds 300-319 (before the dead zone; payload_heldout_zoh_seeds300-319.jsonl): mass 0.17 %, centre
+of mass 0.76 mm, inertia 6.2 % / 6.6 %, coverage 90.5 / 91.5 %, drive gains 1.32 % (seed 311).
 Before the timing fix (seeds 0-19, benchmarks/results/payload_heldout_seeds0-19.jsonl): inertia
 9.8 % / 10.2 %, drive gains 1.29 %.
+`--workers N` runs the seeds in N processes; `--out FILE` writes a header line (command, commit,
+date), the rows and the figures.
 Run from the repository root (niced): python benchmarks/payload.py [--seeds 20] [--start 0]
+[--workers 2 --out benchmarks/results/payload_heldout_zoh_seeds400-419.jsonl]
 The last line is a JSON object with the figures.
 """
 import argparse

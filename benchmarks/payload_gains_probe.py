@@ -17,7 +17,9 @@ IDIM's dead zone (1 % of each joint's peak speed, `qd_threshold = "auto"`) and w
 gains' own (DEAD_ZONE_FRACTION, 5 %); one line per draw, then per dead zone the mean error
 of each factor (%, the bias), its standard deviation over the draws and the mean stated sigma.
 The noise-free recordings are fitted first (draw -1) with both dead zones, with the rms of
-each joint's residual (N m): the torque the model lacks.
+each joint's residual (N m): the torque the model lacks; the first noisy draw also gives the
+error of the noise-free recordings fitted with that draw's per-joint weights fixed (how the
+weights, which the noise sets, move the misfit onto the gains).
 (benchmarks/results/payload_gains_probe_seed311_draws.jsonl)
 """
 import argparse
@@ -105,6 +107,7 @@ def draws(args, robot, params, base, loaded, rate, kt, one):
         tau = rec["tau"] + t_sd * rng.standard_normal(rec["tau"].shape)
         return Experiment(t=rec["t"], q=q, qr=rec["qr"], tau=tau / kt, fs=rate, source="draw")
     out = {"idim_1pc": [], f"gains_{100 * DEAD_ZONE_FRACTION:g}pc": []}
+    clean = noisy(recs["U"], None), noisy(recs["L"], None)
     for d in [-1, *range(args.first_draw, args.first_draw + args.draws)]:
         rng = None if d < 0 else np.random.default_rng(10_000 + d)
         u, lo = noisy(recs["U"], rng), noisy(recs["L"], rng)
@@ -117,6 +120,13 @@ def draws(args, robot, params, base, loaded, rate, kt, one):
                    "err_pct": err.round(3).tolist()}
             if d < 0:
                 row["residual_rms_Nm"] = clean_residual(u, lo, robot, params[9], settings).round(4).tolist()
+            elif d == args.first_draw:
+                # the noise-free motion fitted with the weights this noisy draw gives: the misfit the
+                # weights move onto the gains, without the noise itself
+                sig = clean_residual(u, lo, robot, params[9], settings)
+                k = clean_residual(*clean, robot, params[9], settings, sigma=sig)
+                row["noise_free_with_these_weights_err_pct"] = (100 * (k - kt) / kt).round(3).tolist()
+                row["residual_rms_Nm"] = sig.round(4).tolist()
             print(json.dumps(row), flush=True)
     for key, rows in out.items():
         e = np.array([r[0] for r in rows])
@@ -128,8 +138,9 @@ def draws(args, robot, params, base, loaded, rate, kt, one):
                           "mean_sigma_pct": s.mean(0).round(3).tolist()}), flush=True)
 
 
-def clean_residual(u, lo, robot, mass, settings):
-    """Rms of each joint's residual (N m) of the drive-gain fit, its steps as identify_drive_gains."""
+def clean_residual(u, lo, robot, mass, settings, sigma=None):
+    """Rms of each joint's residual (N m) of the drive-gain fit, its steps as identify_drive_gains;
+    with `sigma` (n,) the factors k of the fit with those per-joint weights fixed instead."""
     import numpy as np
 
     from dynid.analysis.estimators import drive_gains as dg
@@ -143,9 +154,32 @@ def clean_residual(u, lo, robot, mass, settings):
     first = _observe(el[0], robot, bp, link, T, settings)
     obs_u = [_observe(e, robot, bp, link, T, first.settings) for e in eu]
     X, tau, known_tau, mask, names = dg._stacked_model(obs_u, [first], dg._known_payload(mass, None), bp)
+    if sigma is not None:
+        return fixed_weight_factors(X, tau, known_tau, mask, names, sigma)
     _, _, fit, _ = dg._gauss_newton(X, tau, known_tau, np.arange(robot.n_joints), names, mask)
     e = np.where(mask, fit.residual, 0.0)
     return np.sqrt((e ** 2).sum(axis=0) / mask.sum(axis=0))
+
+
+def fixed_weight_factors(X, tau, known_tau, mask, names, sigma, max_iter=30):
+    """drive_gains' Gauss-Newton on every joint's gain with the per-joint weights 1 / sigma fixed: k."""
+    import numpy as np
+
+    from dynid.analysis.estimators import least_squares as ls
+    M, n, p = X.shape
+    a = np.ones(n)
+    theta = ls.ols(X, tau - known_tau, names, row_mask=mask).chi
+    for _ in range(max_iter):
+        base = X @ theta + known_tau
+        J = np.zeros((M, n, p + n))
+        J[:, :, :p] = X * a[None, :, None]
+        J[:, np.arange(n), p + np.arange(n)] = base
+        step = ls.wls(J, tau - a * base, list(names) + [f"a{j + 1}" for j in range(n)], row_mask=mask,
+                      joint_sigma=np.asarray(sigma, dtype=float))
+        theta, a = theta + step.chi[:p], a + step.chi[p:]
+        if np.max(np.abs(step.chi[p:])) < 1e-10:
+            break
+    return 1.0 / a
 
 
 if __name__ == "__main__":

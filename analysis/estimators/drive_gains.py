@@ -26,14 +26,17 @@ at the solution, `k` and its standard deviation by the delta method.
 
 Low speeds. The scale of each gain rests on the known payload's torque, small beside the
 robot's, so a torque the model lacks biases the gains in proportion to its size over that
-torque, and more data does not shrink it. Such a torque sits at low speed: eq. (3)'s Coulomb
+torque, and more data do not shrink it. Such a torque sits at low speed: eq. (3)'s Coulomb
 term `Fc sign(qd)` is a step, a real joint's friction a smooth (Stribeck, pre-sliding)
 transition some hundredths of rad/s wide. IDIM's default dead zone (1 % of each joint's peak
-speed) leaves part of it in the equations; here the dead zone is `DEAD_ZONE_FRACTION` (5 %)
-of each joint's peak speed in the first loaded recording unless the settings give
-`qd_threshold`. Measured on the independent TX40 plant (friction `Fc tanh(qd / 0.01)`),
-seed 311, 6 noise draws: mean gain errors -0.9 / -0.9 / -1.1 % on joints 1, 4, 5 at 1 %,
--0.1 / -0.4 / -0.2 % at 5 % (benchmarks/payload_gains_probe.py, docs/payload.md).
+speed) leaves part of it in the equations, and the noise moves it onto the gains through the
+per-joint weights (comparable weights let the misfit of joints 2-3 bend the parameters the
+joints share). Here the dead zone is `DEAD_ZONE_FRACTION` (5 %) of each joint's peak speed in
+the first loaded recording unless the settings give `qd_threshold`. Measured on the
+independent TX40 plant (friction `Fc tanh(qd / 0.01)`), seed 311, one motion and 12 draws of
+the sensor noise: mean gain errors -0.88 / -1.01 / -1.03 / -0.87 % on joints 1, 4, 5, 6 with
+IDIM's dead zone (stated sigma 0.5-0.8 %), -0.22 / -0.58 / -0.18 / -0.41 % with 5 %
+(benchmarks/payload_gains_probe.py --draws, docs/payload.md).
 
 What the known mass identifies: a mass at the wrist centre (where the last three axes
 meet, as on the TX40) loads joints 1-3 only, so with the mass alone the wrist gains rest on
