@@ -205,8 +205,9 @@ def main():
     seeds = range(args.start, args.start + args.seeds)
     out_file = None
     if args.out:
+        head = header(args)             # before the file is opened: rewriting a tracked file is no change
         out_file = open(args.out, "w")
-        out_file.write(json.dumps(header(args)) + "\n")
+        out_file.write(json.dumps(head) + "\n")
 
     def emit(row):
         rows.append(row)
