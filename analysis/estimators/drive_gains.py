@@ -35,7 +35,8 @@ joints share). Here the dead zone is `DEAD_ZONE_FRACTION` (5 %) of each joint's 
 the first loaded recording unless the settings give `qd_threshold`. Measured on the
 independent TX40 plant (friction `Fc tanh(qd / 0.01)`), seed 311, one motion and 12 draws of
 the sensor noise: mean gain errors -0.88 / -1.01 / -1.03 / -0.87 % on joints 1, 4, 5, 6 with
-IDIM's dead zone (stated sigma 0.5-0.8 %), -0.22 / -0.58 / -0.18 / -0.41 % with 5 %
+IDIM's dead zone (stated sigma 0.5-0.8 %), -0.22 / -0.58 / -0.18 / -0.41 % with 5 %; 24 further
+draws: -0.78 / -0.81 / -1.04 / -0.82 % and -0.04 / -0.12 / -0.12 / -0.10 %
 (benchmarks/payload_gains_probe.py --draws, docs/payload.md).
 
 What the known mass identifies: a mass at the wrist centre (where the last three axes
