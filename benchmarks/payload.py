@@ -36,7 +36,9 @@ a 1.2 kg payload), coverage 94 / 95 %; drive gains with the mass, 20 s unloaded 
 loaded: 1.37 % over all 120 gains (seed 416, joint 6: a 1.0 kg payload 36 mm from the wrist
 centre, z -1.6), coverage 90.0 %; 9 gains (7.5 %) flagged weak (95 % half-width > 1 %), the
 other 111 within 0.59 %; with one loaded recording 1.67 %, 12 flagged, the others within 0.77 %;
-speed median 0.80, max 1.34.
+speed median 0.80, max 1.34 (one timing; machine loaded 11-18 on 2 cores: the rerun's 0.86 / 2.02,
+payload_heldout_speed_seeds400-419.jsonl's faster-of-3 0.75 / 2.37; the seeds above 1.5 re-timed
+alone, faster of 5, 0.79-0.86: payload_heldout_speed_recheck_402_408_418.jsonl).
 Seeds 300-319 (before the dead zone; payload_heldout_zoh_seeds300-319.jsonl): mass 0.17 %, centre
 of mass 0.76 mm, inertia 6.2 % / 6.6 %, coverage 90.5 / 91.5 %, drive gains 1.32 % (seed 311).
 Before the timing fix (seeds 0-19, benchmarks/results/payload_heldout_seeds0-19.jsonl): inertia
