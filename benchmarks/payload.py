@@ -11,12 +11,14 @@ plant has none).
 * global: identify_payload(unloaded=...);
 * drive gains: both recordings' torques divided by per-joint factors k in U(0.9, 1.1) (a
   current logged with wrong gains), identify_drive_gains with the known mass (`--com`: and
-  centre of mass), error of each identified factor.
+  centre of mass), error of each identified factor, and whether its 95 % half-width is above
+  drive_gains.WEAK_GAIN_HALFWIDTH (1 %: the result's weak-gain notice).
 
 Figures: largest mass error (%), centre-of-mass error (mm), inertia error (largest entry of
 the error of the inertia about the centre of mass over the largest principal moment), the
 coverage of the 95 % intervals over the ten parameters x seeds (both routes), the largest
-drive-gain error (%) and coverage (with `--gains-loaded` loaded recordings, and with the first
+drive-gain error (%) over all gains and over the gains not flagged weak, the fraction flagged,
+and coverage (with `--gains-loaded` loaded recordings, and with the first
 alone), and the time of the fixed route over one IDIM of the same 10 s loaded recording (same
 process, same seed).
 
@@ -25,16 +27,26 @@ runs with zoh=True (the torque centred on the position samples) and the fixed ro
 identified from the centred unloaded recording; --no-zoh shows the bias without it
 (benchmarks/payload_timing.py, docs/payload.md).
 
-Seeds: 1000-1004 developed the estimators; 0-19 and 100-119 judged them last session and
-developed the torque timing (3, 6, 8, 12, 19); 300-319 were used for nothing before this run:
-Measured (benchmarks/results/payload_heldout_zoh_seeds300-319.jsonl; 20 s + 10 s at 2 kHz):
-mass 0.17 %, centre of mass 0.76 mm, inertia 6.2 % (fixed) / 6.6 % (global), coverage 90.5 /
-91.5 %; drive gains with the mass, 20 s unloaded + 2 x 10 s loaded: 1.32 % (one seed, 311, a
-1.6 kg payload 38 mm from the wrist centre; every other seed <= 0.62 %), coverage 90.8 %; with
-one loaded recording 1.19 %; speed median 0.82, max 1.35 (faster of 2).
+Seeds: 1000-1004 developed the estimators; 0-19 and 100-119 judged them and developed the torque
+timing (3, 6, 8, 12, 19); 300-319 judged that; 311 and 0-11 developed the drive gains' dead zone
+(drive_gains.DEAD_ZONE_FRACTION); 400-419 were used for nothing before judging it:
+Measured (benchmarks/results/payload_heldout_zoh_seeds400-419.jsonl; 20 s + 10 s at 2 kHz; two
+workers): mass 0.22 %, centre of mass 0.41 mm, inertia 9.1 % (fixed) / 9.5 % (global; seed 413,
+a 1.2 kg payload), coverage 94 / 95 %; drive gains with the mass, 20 s unloaded + 2 x 10 s
+loaded: 1.37 % over all 120 gains (seed 416, joint 6: a 1.0 kg payload 36 mm from the wrist
+centre, z -1.6), coverage 90.0 %; 9 gains (7.5 %) flagged weak (95 % half-width > 1 %), the
+other 111 within 0.59 %; with one loaded recording 1.67 %, 12 flagged, the others within 0.77 %;
+speed median 0.80, max 1.34 (one timing; machine loaded 11-18 on 2 cores: the rerun's 0.86 / 2.02,
+payload_heldout_speed_seeds400-419.jsonl's faster-of-3 0.75 / 2.37; the seeds above 1.5 re-timed
+alone, faster of 5, 0.79-0.86: payload_heldout_speed_recheck_402_408_418.jsonl).
+Seeds 300-319 (before the dead zone; payload_heldout_zoh_seeds300-319.jsonl): mass 0.17 %, centre
+of mass 0.76 mm, inertia 6.2 % / 6.6 %, coverage 90.5 / 91.5 %, drive gains 1.32 % (seed 311).
 Before the timing fix (seeds 0-19, benchmarks/results/payload_heldout_seeds0-19.jsonl): inertia
 9.8 % / 10.2 %, drive gains 1.29 %.
+`--workers N` runs the seeds in N processes; `--out FILE` writes a header line (command, commit,
+date), the rows and the figures.
 Run from the repository root (niced): python benchmarks/payload.py [--seeds 20] [--start 0]
+[--workers 2 --out benchmarks/results/payload_heldout_zoh_seeds400-419.jsonl]
 The last line is a JSON object with the figures.
 """
 import argparse
@@ -70,6 +82,100 @@ def recordings(seed, rate=2000.0, unloaded_s=20.0, loaded_s=10.0, extra_loaded=0
             one(loaded, loaded_s, 2 * seed + 2, "loaded"), extra)
 
 
+def header(args):
+    """The results file's first line: the command, the commit, the date (UTC)."""
+    import datetime
+    import subprocess
+    try:
+        commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True,
+                                check=True).stdout.strip()
+        dirty = bool(subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=ROOT,
+                                    capture_output=True, text=True, check=True).stdout.strip())
+    except (OSError, subprocess.CalledProcessError):
+        commit, dirty = "unknown", None
+    return {"command": "python " + " ".join(["benchmarks/payload.py", *sys.argv[1:]]), "commit": commit,
+            "uncommitted_changes": dirty,
+            "date": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%dT%H:%M:%SZ")}
+
+
+def gain_row(rd, kt):
+    """Errors, z, coverage and the weak flags (95 % half-width above WEAK_GAIN_HALFWIDTH) of one fit."""
+    import numpy as np
+
+    from dynid.analysis.estimators.drive_gains import WEAK_GAIN_HALFWIDTH
+    zg = (rd.factor - kt) / rd.factor_std
+    half = 1.959963984540054 * rd.factor_std / np.abs(rd.factor)
+    return {"rel_error": (np.abs(rd.factor - kt) / kt).tolist(), "z": zg.tolist(),
+            "covered": int(np.sum(np.abs(zg) <= 1.959963984540054)), "half_width_95": half.tolist(),
+            "weak": (half > WEAK_GAIN_HALFWIDTH).tolist()}
+
+
+def gain_figures(rows, key, suffix=""):
+    """The drive gains' figures over the seeds: all gains, and those not flagged weak (the subset)."""
+    err = [e for r in rows for e in r[key]["rel_error"]]
+    weak = [w for r in rows for w in r[key]["weak"]]
+    strong = [e for e, w in zip(err, weak) if not w]
+    return {f"drive_gain_rel_error_max{suffix}": max(err),
+            f"drive_gain_coverage_95{suffix}": sum(r[key]["covered"] for r in rows) / len(err),
+            f"drive_gain_weak_fraction{suffix}": sum(weak) / len(err),
+            f"drive_gain_rel_error_max_not_weak{suffix}": max(strong) if strong else None}
+
+
+def one_seed(seed, args):
+    """The JSON row of one seed (module doc)."""
+    import numpy as np
+
+    import dynid
+    from dynid.analysis.data.experiment import Experiment
+    from dynid.analysis.estimators.drive_gains import identify_drive_gains
+    from dynid.analysis.estimators.payload import centre_held_torque, identify_payload
+    robot = dataclasses.replace(dynid.load_robot("tx40"), couplings=[])
+    zoh = not args.no_zoh
+    n_extra = 0 if args.no_gains or args.speed_only else max(args.gains_loaded - 1, 0)
+    params, parts, eu, el, extra = recordings(seed, rate=args.rate, unloaded_s=args.unloaded_s,
+                                              loaded_s=args.loaded_s, extra_loaded=n_extra)
+
+    def scaled(e, kt):
+        return Experiment(t=e.t, q=e.q, qr=e.qr, tau=e.tau / kt, fs=e.fs, source=e.source)
+    if args.gains_only:
+        kt = np.random.default_rng(seed + 7).uniform(0.9, 1.1, 6)
+        rd = identify_drive_gains(scaled(eu, kt), [scaled(e, kt) for e in [el] + extra], robot, mass=params[9],
+                                  com=parts["com"] if args.com else None, zoh=zoh)
+        return {"seed": seed, "gains": gain_row(rd, kt)}
+    # the robot-fixed route's model must see the torque with the same timing as the payload
+    r0 = dynid.identify(centre_held_torque(eu) if zoh else eu, robot)
+    t_idim = t_fixed = float("inf")
+    for _ in range(args.speed_repeats):
+        t0 = time.perf_counter()
+        dynid.identify(el, robot)
+        t_idim = min(t_idim, time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        rf = identify_payload(el, robot, model=r0, zoh=zoh)
+        t_fixed = min(t_fixed, time.perf_counter() - t0)
+    if args.speed_only:
+        return {"seed": seed, "speed_ratio": t_fixed / t_idim, "t_idim": t_idim, "t_fixed": t_fixed}
+    rg = identify_payload(el, robot, unloaded=eu, zoh=zoh)
+    Imax = np.linalg.eigvalsh(parts["inertia_com"]).max()
+    row = {"seed": seed, "mass": parts["mass"], "com_mm": (1e3 * parts["com"]).tolist(),
+           "speed_ratio": t_fixed / t_idim}
+    for key, r in (("fixed", rf), ("global", rg)):
+        z = (r.chi - params) / r.bse.to_numpy()
+        row[key] = {"mass_rel_error": abs(r.chi[9] - params[9]) / params[9],
+                    "com_error_mm": 1e3 * float(np.linalg.norm(r.com - parts["com"])),
+                    "inertia_rel_error": float(np.abs(r.inertia_com - parts["inertia_com"]).max() / Imax),
+                    "z": z.tolist(), "covered": int(np.sum(np.abs(z) <= 1.959963984540054)),
+                    "hac_lags": r.hac_lags}
+    if not args.no_gains:
+        kt = np.random.default_rng(seed + 7).uniform(0.9, 1.1, 6)
+        for key, loaded_list in (("gains", [el] + extra), ("gains_one_loaded", [el] if extra else [])):
+            if not loaded_list:
+                continue
+            rd = identify_drive_gains(scaled(eu, kt), [scaled(e, kt) for e in loaded_list], robot,
+                                      mass=params[9], com=parts["com"] if args.com else None, zoh=zoh)
+            row[key] = gain_row(rd, kt)
+    return row
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--seeds", type=int, default=20)
@@ -90,83 +196,52 @@ def main():
     ap.add_argument("--gains-loaded", type=int, default=2, metavar="N",
                     help="loaded recordings (--loaded-s each, other trajectories) for the drive gains "
                          "(default 2: the first is the payload routes' recording)")
+    ap.add_argument("--workers", type=int, default=1, help="seeds run in this many processes (default 1)")
+    ap.add_argument("--out", metavar="FILE.jsonl",
+                    help="also write a header line (command, commit, date), the rows and the figures to FILE")
     args = ap.parse_args()
     import numpy as np
-
-    import dynid
-    from dynid.analysis.data.experiment import Experiment
-    from dynid.analysis.estimators.drive_gains import identify_drive_gains
-    from dynid.analysis.estimators.payload import centre_held_torque, identify_payload
-    robot = dataclasses.replace(dynid.load_robot("tx40"), couplings=[])
     zoh = not args.no_zoh
     n_extra = 0 if args.no_gains or args.speed_only else max(args.gains_loaded - 1, 0)
     rows = []
-    for seed in range(args.start, args.start + args.seeds):
-        params, parts, eu, el, extra = recordings(seed, rate=args.rate, unloaded_s=args.unloaded_s,
-                                                  loaded_s=args.loaded_s, extra_loaded=n_extra)
+    seeds = range(args.start, args.start + args.seeds)
+    out_file = None
+    if args.out:
+        head = header(args)             # before the file is opened: rewriting a tracked file is no change
+        out_file = open(args.out, "w")
+        out_file.write(json.dumps(head) + "\n")
 
-        def scaled(e, kt):
-            return Experiment(t=e.t, q=e.q, qr=e.qr, tau=e.tau / kt, fs=e.fs, source=e.source)
-        if args.gains_only:
-            kt = np.random.default_rng(seed + 7).uniform(0.9, 1.1, 6)
-            rd = identify_drive_gains(scaled(eu, kt), [scaled(e, kt) for e in [el] + extra], robot, mass=params[9],
-                                      com=parts["com"] if args.com else None, zoh=zoh)
-            zg = (rd.factor - kt) / rd.factor_std
-            rows.append({"seed": seed, "gains": {"rel_error": (np.abs(rd.factor - kt) / kt).tolist(),
-                                                  "z": zg.tolist(),
-                                                  "covered": int(np.sum(np.abs(zg) <= 1.959963984540054))}})
-            print(json.dumps(rows[-1]), flush=True)
-            continue
-        # the robot-fixed route's model must see the torque with the same timing as the payload
-        r0 = dynid.identify(centre_held_torque(eu) if zoh else eu, robot)
-        t_idim = t_fixed = float("inf")
-        for _ in range(args.speed_repeats):
-            t0 = time.perf_counter()
-            dynid.identify(el, robot)
-            t_idim = min(t_idim, time.perf_counter() - t0)
-            t0 = time.perf_counter()
-            rf = identify_payload(el, robot, model=r0, zoh=zoh)
-            t_fixed = min(t_fixed, time.perf_counter() - t0)
-        if args.speed_only:
-            rows.append({"seed": seed, "speed_ratio": t_fixed / t_idim, "t_idim": t_idim, "t_fixed": t_fixed})
-            print(json.dumps(rows[-1]), flush=True)
-            continue
-        rg = identify_payload(el, robot, unloaded=eu, zoh=zoh)
-        Imax = np.linalg.eigvalsh(parts["inertia_com"]).max()
-        row = {"seed": seed, "mass": parts["mass"], "com_mm": (1e3 * parts["com"]).tolist(),
-               "speed_ratio": t_fixed / t_idim}
-        for key, r in (("fixed", rf), ("global", rg)):
-            z = (r.chi - params) / r.bse.to_numpy()
-            row[key] = {"mass_rel_error": abs(r.chi[9] - params[9]) / params[9],
-                        "com_error_mm": 1e3 * float(np.linalg.norm(r.com - parts["com"])),
-                        "inertia_rel_error": float(np.abs(r.inertia_com - parts["inertia_com"]).max() / Imax),
-                        "z": z.tolist(), "covered": int(np.sum(np.abs(z) <= 1.959963984540054)),
-                        "hac_lags": r.hac_lags}
-        if not args.no_gains:
-            kt = np.random.default_rng(seed + 7).uniform(0.9, 1.1, 6)
-            for key, loaded_list in (("gains", [el] + extra), ("gains_one_loaded", [el] if extra else [])):
-                if not loaded_list:
-                    continue
-                rd = identify_drive_gains(scaled(eu, kt), [scaled(e, kt) for e in loaded_list], robot,
-                                          mass=params[9], com=parts["com"] if args.com else None, zoh=zoh)
-                zg = (rd.factor - kt) / rd.factor_std
-                row[key] = {"rel_error": (np.abs(rd.factor - kt) / kt).tolist(), "z": zg.tolist(),
-                            "covered": int(np.sum(np.abs(zg) <= 1.959963984540054))}
+    def emit(row):
         rows.append(row)
         print(json.dumps(row), flush=True)
+        if out_file:
+            out_file.write(json.dumps(row) + "\n")
+            out_file.flush()
+    if args.workers > 1:
+        from concurrent.futures import ProcessPoolExecutor
+        with ProcessPoolExecutor(args.workers) as pool:
+            for row in pool.map(one_seed, seeds, [args] * len(seeds)):
+                emit(row)
+    else:
+        for seed in seeds:
+            emit(one_seed(seed, args))
+    def finish(figures):
+        print(json.dumps(figures), flush=True)
+        if out_file:
+            out_file.write(json.dumps(figures) + "\n")
+            out_file.close()
     if args.gains_only:
-        print(json.dumps({"seeds": [args.start, args.start + args.seeds - 1], "n_seeds": len(rows), "zoh": zoh,
+        finish({"seeds": [args.start, args.start + args.seeds - 1], "n_seeds": len(rows), "zoh": zoh,
                           "recordings": f"{args.unloaded_s:g} s unloaded + {1 + n_extra} x {args.loaded_s:g} s "
                                         f"loaded, {args.rate:g} Hz",
                           "drive_gain_known": "mass and centre of mass" if args.com else "mass",
-                          "drive_gain_rel_error_max": max(max(r["gains"]["rel_error"]) for r in rows),
-                          "drive_gain_coverage_95": sum(r["gains"]["covered"] for r in rows) / (6 * len(rows))}))
+                          **gain_figures(rows, "gains")})
         return
     if args.speed_only:
         ratios = [r["speed_ratio"] for r in rows]
-        print(json.dumps({"seeds": [args.start, args.start + args.seeds - 1], "speed_repeats": args.speed_repeats,
+        finish({"seeds": [args.start, args.start + args.seeds - 1], "speed_repeats": args.speed_repeats,
                           "speed_ratio_fixed_over_idim_max": max(ratios),
-                          "speed_ratio_fixed_over_idim_median": float(np.median(ratios))}))
+                          "speed_ratio_fixed_over_idim_median": float(np.median(ratios))})
         return
     out = {"seeds": [args.start, args.start + args.seeds - 1], "n_seeds": len(rows),
            "recordings": f"{args.unloaded_s:g} s unloaded + {args.loaded_s:g} s loaded, {args.rate:g} Hz, "
@@ -179,18 +254,15 @@ def main():
     out.update({k: out["fixed"][k] for k in ("mass_rel_error_max", "com_error_mm_max", "inertia_rel_error_max",
                                               "coverage_95")})
     if not args.no_gains:
-        out["drive_gain_rel_error_max"] = max(max(r["gains"]["rel_error"]) for r in rows)
-        out["drive_gain_coverage_95"] = sum(r["gains"]["covered"] for r in rows) / (6 * len(rows))
+        out.update(gain_figures(rows, "gains"))
         out["drive_gain_known"] = "mass and centre of mass" if args.com else "mass"
         out["drive_gain_recordings"] = (f"{args.unloaded_s:g} s unloaded + {1 + n_extra} x {args.loaded_s:g} s "
                                         "loaded")
         if n_extra:
-            out["drive_gain_rel_error_max_one_loaded"] = max(max(r["gains_one_loaded"]["rel_error"]) for r in rows)
-            out["drive_gain_coverage_95_one_loaded"] = (sum(r["gains_one_loaded"]["covered"] for r in rows)
-                                                        / (6 * len(rows)))
+            out.update(gain_figures(rows, "gains_one_loaded", "_one_loaded"))
     out["speed_ratio_fixed_over_idim_max"] = max(r["speed_ratio"] for r in rows)
     out["speed_ratio_fixed_over_idim_median"] = float(np.median([r["speed_ratio"] for r in rows]))
-    print(json.dumps(out))
+    finish(out)
 
 
 if __name__ == "__main__":
