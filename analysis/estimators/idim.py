@@ -65,6 +65,7 @@ class IDIMResult(ModelResults):
     robot: object = None         # the Robot identified (for validate() and predictions)
     uncertainty: str = "classic"  # the covariance reported (least_squares.UNCERTAINTY)
     agreement: dict = None        # cross-recording (or cross-segment) check, see recording_agreement
+    groups: np.ndarray = None     # recording of each decimated sample (the robust covariances' blocks)
 
     @property
     def agreement_line(self) -> str | None:
@@ -182,7 +183,7 @@ def identify_idim(experiment, robot, *, settings=None, bp=None, max_error_growth
     return IDIMResult(robot_name=robot.name, base=bp, ols=r_ols, wls=r_wls, essential=ess,
                       observation=obs, settings=obs.settings, notices=notices, data_hash=h,
                       source=" + ".join(str(e.source) for e in experiments), robot=robot,
-                      uncertainty=uncertainty, agreement=agr)
+                      uncertainty=uncertainty, agreement=agr, groups=groups)
 
 
 def recording_agreement(obs, names, groups, joint_sigma, uncertainty="classic", n_segments=3):
