@@ -17,28 +17,39 @@ bias of the removed parameters added in quadrature (essential.py: σ_wls,e² + d
 essential minus the full WLS estimate; chosen on seeds 1000-1099):
 ``essential_<opt>+bias`` (rows recorded before that rule get it from their z and σ).
 
-For each seed dynid's default IDIM runs once per covariance option
-(``classic``, ``hac``, ``bootstrap``): the estimates are identical, only the
-intervals change. Coverage: the fraction of (parameter, seed) pairs whose
-estimate ± 1.96 σ holds the truth, for the WLS of all base parameters and for
-the essential set, with the median interval width relative to classic.
+For each seed the decimated system of dynid's default IDIM (``observe``) is fitted once
+per covariance option (``classic``, ``hac``, ``bootstrap``; WLS of all base parameters
+and the essential set, as ``identify_idim`` does): the estimates are identical, only the
+intervals change. ``--cache DIR`` keeps each seed's system (``seed_N.npz``), so the
+simulation, most of a seed's cost, runs once (``--methods simulate`` only fills the
+cache). Coverage: the fraction of (parameter, seed) pairs whose estimate ± 1.96 σ holds
+the truth, with the median interval width relative to classic.
 
-``--methods idim,pc,didim`` adds, on the same record:
+``--methods`` adds, on the same record:
 
-* ``pc``: PC-WLS (identify_physical of the classic IDIM result, as ``dynid identify
-  --physical`` runs it), its ``conf_int()`` (bootstrap percentiles with the WLS
-  half-width, cut at the physical bound) against the truth, width relative to the
+* ``candidates``: the covariances evaluated in benchmarks/uncertainty.py and not
+  shipped (fixed-b HAC, EWC, bootstrap variants), from the classic fits;
+* ``pc``: PC-WLS (``pc_wls`` on the WLS estimate, classic metric as ``dynid identify
+  --physical`` runs it) whose bootstrap draws from each option's covariance
+  (``--pc-options``, default all), its ``conf_int()`` (bootstrap percentiles with the
+  WLS half-width, cut at the physical bound) against the truth, width relative to the
   classic WLS interval;
 * ``didim``: DIDIM (section 3) from eq. (31)'s start with the robot file's gains (the
   plant's PID is the robot file's), its last Gauss-Newton step's WLS with each
   covariance option recomputed on that step's regressor (the estimate is the same,
   asserted); seeds where DIDIM did not converge are counted and kept.
 
-Seeds 0-4 were used while developing; ``--start 1000`` gives held-out ones (the
-first campaign); ``--start 3000`` is the held-out range of the pc/didim campaign.
+Seeds: 0-4 were used while developing the first options; 1000-1099 held out for the
+first campaign (and then used to choose the essential rule); 3000-3099 held out for
+the pc/didim campaign; 0-20 used while developing the bootstrap's block rule and
+percentile σ (2026-12-03); 4000-4099 held out for that campaign:
 
-    nice -n 10 python benchmarks/coverage_independent.py --seeds 100 --start 1000 --workers 2 \
-        --out benchmarks/results/coverage_independent.jsonl
+    nice -n 10 python benchmarks/coverage_independent.py --methods simulate --cache CACHE \
+        --seeds 100 --start 4000
+    nice -n 10 python benchmarks/coverage_independent.py --methods idim,candidates --cache CACHE \
+        --seeds 100 --start 4000 --out benchmarks/results/coverage_independent_4000.jsonl
+    nice -n 10 python benchmarks/coverage_independent.py --methods idim,pc --pc-options classic,bootstrap \
+        --cache CACHE --seeds 100 --start 4000 --out benchmarks/results/coverage_independent_pc_4000.jsonl
 
 The last line is a JSON object with the headline figures.
 """
@@ -129,7 +140,7 @@ def observed_system(seed, cache=None):
     obs = observe(exp, robot, bp)
     if f is not None:
         f.parent.mkdir(parents=True, exist_ok=True)
-        tmp = f.with_suffix(".tmp.npz")
+        tmp = f.with_suffix(f".{os.getpid()}.tmp.npz")   # two campaigns may fill one cache
         np.savez(tmp, W=obs.W, tau=obs.tau, mask=obs.row_mask, beta=beta, sim_seconds=t_sim)
         tmp.replace(f)
     return obs.W, obs.tau, obs.row_mask, beta, t_sim

@@ -24,15 +24,30 @@ independent segment biases). The cross-recording random-effects pooling and χ²
 of equal parameters are printed for each data set, and for each LWR4+ recording how
 its own three segments agree (the cross-segment check of the verdict, hac σ).
 
-The column ``>=90 % of >=16`` says whether a row meets issue 26's must-show on the
-LWR4+; ``lwr4_bar_met_by`` in the last line lists the rows that do. None does
-(2026-12-03): recording 3 repeats one trajectory, its segments agree within their own
-noise, so no estimate made from recording 3 alone can see the bias that separates it
-from recordings 1 and 2 (Ia7 −0.21 against −1.10 and −1.22). The default stays the
-classic σ (dynid.analysis.estimators.idim.DEFAULT_UNCERTAINTY, whose comment gives
-the figures); the JSON's ``lwr4_*`` figures are the default's.
+Rows marked ``(candidate)`` are covariances evaluated here and not shipped
+(`CANDIDATES`), computed from the classic fit of the same system:
 
-Run from the repository root (about 2 min on a shared 2-core machine):
+* ``hac_fixed_b``: the Newey-West sandwich with Andrews' bandwidth M and σ times
+  cv(M/T)/1.96, cv the fixed-b critical value of Kiefer & Vogelsang (2005, Bartlett);
+* ``ewc``: the equal-weighted cosine long-run variance with ν = 0.4 T^(2/3) and the
+  t_ν critical value (Lazarus, Lewis, Stock & Watson 2018);
+* ``bootstrap_cov``: the shipped bootstrap with the replicates' covariance instead of
+  the percentile half-width;
+* ``bootstrap_ar1_cov``: the AR(1) block-length rule and the covariance of the
+  bootstrap as it was at 0a87b8b (with the samples-with-equations fix).
+
+The column ``sigma/classic`` is the median σ over the classic σ. The column
+``>=90 % of >=16`` says whether a row meets issue 26's must-show on the LWR4+;
+``lwr4_bar_met_by`` in the last line lists the rows that do. None does
+(2026-12-03): the misses left are recording 3 against the others on Off5, Fc5 and
+Ia7 (fixed-b HAC: 5.6σ, 2.9σ, 15σ). Recording 3 repeats one trajectory, its segments
+agree within their own noise, so no estimate made from recording 3 alone can see the
+bias that separates it from recordings 1 and 2 (Ia7 −0.21 against −1.10 and −1.22);
+a σ wide enough to hold those differences identifies too few parameters. The default
+stays the classic σ (dynid.analysis.estimators.idim.DEFAULT_UNCERTAINTY, whose comment
+gives the figures); the JSON's ``lwr4_*`` figures are the default's.
+
+Run from the repository root (about 4 min on a shared 2-core machine):
 
     python benchmarks/uncertainty.py [--no-panda]
 
@@ -322,13 +337,13 @@ def main(argv=None):
     for ds in sets:
         rows, agr, verdict, labels = evaluate(ds, panda_dir)
         print(f"\n{ds}: {', '.join(labels)} each alone; per-joint WLS, pairs with %sigma <= 10 % in both runs")
-        print(f"  {'sigma':<26}{'pairs':>6}{'within 95 %':>13}{'median |z|':>12}{'beyond 5':>10}"
+        print(f"  {'sigma':<30}{'pairs':>6}{'within 95 %':>13}{'median |z|':>12}{'beyond 5':>10}"
               f"{'sigma/classic':>15}{'  >=90 % of >=16':>17}")
         for opt, r in rows.items():
             tag = " (default)" if opt == DEFAULT_UNCERTAINTY else ""
             tag += " (candidate)" if opt in CANDIDATES else ""
             width = f"{r['width']:.2f}" if "width" in r else "-"
-            print(f"  {opt + tag:<26}{r['pairs']:>6}{100 * r['within_95']:>12.0f}%{r['median_abs_z']:>12.2f}"
+            print(f"  {opt + tag:<30}{r['pairs']:>6}{100 * r['within_95']:>12.0f}%{r['median_abs_z']:>12.2f}"
                   f"{100 * r['beyond_5']:>9.0f}%{width:>15}{'yes' if meets_bar(r) else 'no':>17}")
         if ds == "lwr4":
             out["lwr4_bar_met_by"] = [opt for opt, r in rows.items() if meets_bar(r)]

@@ -473,17 +473,18 @@ def test_interval_covariance_moves_sigma_and_intervals_not_the_estimate(pendulum
 
 
 def test_identify_physical_draws_from_the_robust_covariance(kuka_23):
-    # same IDIM result, same PC estimate; the bootstrap option's sigma is the WLS block bootstrap's
+    # same IDIM result, same PC estimate; the hac option's interval covariance is the WLS sandwich's
+    # (with the recordings as groups)
     from dynid.analysis.estimators import least_squares as ls
     from dynid.analysis.estimators.physical import identify_physical
     robot, res = kuka_23
     classic = identify_physical(res, robot, n_boot=0)
-    boot = identify_physical(res, robot, n_boot=0, uncertainty="bootstrap")
+    boot = identify_physical(res, robot, n_boot=0, uncertainty="hac")
     np.testing.assert_array_equal(boot.chi, classic.chi)
     obs = res.observation
-    direct = ls.wls(obs.W, obs.tau, list(res.base.names), row_mask=obs.row_mask, uncertainty="bootstrap",
+    direct = ls.wls(obs.W, obs.tau, list(res.base.names), row_mask=obs.row_mask, uncertainty="hac",
                     groups=res.groups)
     np.testing.assert_allclose(boot.wls_cov, direct.cov, rtol=1e-10)
-    assert boot.uncertainty == "bootstrap" and classic.uncertainty == "classic"
+    assert boot.uncertainty == "hac" and classic.uncertainty == "classic"
     with pytest.raises(InputError, match="uncertainty must be one of"):
         identify_physical(res, robot, n_boot=0, uncertainty="robust")
