@@ -454,8 +454,8 @@ def test_interval_covariance_moves_sigma_and_intervals_not_the_estimate(pendulum
     # the metric stays cov_wls; the bootstrap draws from (and the intervals keep the half-width
     # of) interval_cov: four times the variance, twice the half-width, the same PC estimate
     robot, bp, b, cov, sig, k = _pushed(pendulum, "Fv1", -0.01)
-    ref = pc_wls(robot, bp, b, cov, n_boot=40, seed=2)
-    wide = pc_wls(robot, bp, b, cov, n_boot=40, seed=2, interval_cov=4 * cov, uncertainty="hac")
+    ref = pc_wls(robot, bp, b, cov, n_boot=24, seed=2)
+    wide = pc_wls(robot, bp, b, cov, n_boot=24, seed=2, interval_cov=4 * cov, uncertainty="hac")
     np.testing.assert_array_equal(wide.chi, ref.chi)
     assert wide.chi2 == ref.chi2
     assert np.all(wide.bse.to_numpy() >= 2 * sig - 1e-12)
