@@ -413,7 +413,10 @@ def pc_wls(robot, bp, beta_wls, cov_wls, *, prior=None, prior_weight=1.0, mass_t
     `interval_cov`: the covariance of `beta_wls` the bootstrap draws from and whose half-width
     the intervals keep (a HAC or block-bootstrap one, named by `uncertainty`); default
     `cov_wls`. The fit's metric stays `cov_wls` (eq. (14)'s), so the estimate does not depend
-    on it: only `bse`, `conf_int` and the refits do, and they agree with each other.
+    on it: only `bse`, `conf_int` and the refits do, and they agree with each other. On the
+    independent TX40 plant with AR(1) noise and a ripple (benchmarks/coverage_independent.py,
+    held-out seeds 4000-4099) the 95 % intervals cover 88.0 % drawn from the classic
+    covariance and 95.8 % from the block bootstrap's (1.38 times the classic WLS width).
     """
     if prior not in PRIORS:
         raise InputError(f"prior must be one of None, 'apriori' (Euclidean) or 'geometric' (Lee, Wensing & "
