@@ -692,7 +692,9 @@ def _unc_notice(unc: dict) -> list[str]:
     if unc["uncertainty"] == "classic":
         return []
     extra = (f"bandwidth {unc['bandwidth']:.3g} samples" if unc["uncertainty"] == "hac"
-             else f"blocks of {unc['block']} samples, {unc['n_boot'] - unc['failed']} replicates")
+             else f"blocks of {unc['block']} samples ({unc.get('block_rule', 'given')} rule), "
+                  f"{unc['n_boot'] - unc['failed']} replicates, sigma from "
+                  f"{'their 95 % percentile interval' if unc.get('spread') == 'percentile' else 'their covariance'}")
     note = f"sigma is the {unc['uncertainty']} covariance ({extra}), not the classic eq. (14)."
     if "fallback" in unc:
         note += f" The {unc['requested']} covariance was asked for: {unc['fallback']}."
