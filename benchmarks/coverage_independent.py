@@ -17,28 +17,39 @@ bias of the removed parameters added in quadrature (essential.py: σ_wls,e² + d
 essential minus the full WLS estimate; chosen on seeds 1000-1099):
 ``essential_<opt>+bias`` (rows recorded before that rule get it from their z and σ).
 
-For each seed dynid's default IDIM runs once per covariance option
-(``classic``, ``hac``, ``bootstrap``): the estimates are identical, only the
-intervals change. Coverage: the fraction of (parameter, seed) pairs whose
-estimate ± 1.96 σ holds the truth, for the WLS of all base parameters and for
-the essential set, with the median interval width relative to classic.
+For each seed the decimated system of dynid's default IDIM (``observe``) is fitted once
+per covariance option (``classic``, ``hac``, ``bootstrap``; WLS of all base parameters
+and the essential set, as ``identify_idim`` does): the estimates are identical, only the
+intervals change. ``--cache DIR`` keeps each seed's system (``seed_N.npz``), so the
+simulation, most of a seed's cost, runs once (``--methods simulate`` only fills the
+cache). Coverage: the fraction of (parameter, seed) pairs whose estimate ± 1.96 σ holds
+the truth, with the median interval width relative to classic.
 
-``--methods idim,pc,didim`` adds, on the same record:
+``--methods`` adds, on the same record:
 
-* ``pc``: PC-WLS (identify_physical of the classic IDIM result, as ``dynid identify
-  --physical`` runs it), its ``conf_int()`` (bootstrap percentiles with the WLS
-  half-width, cut at the physical bound) against the truth, width relative to the
+* ``candidates``: the covariances evaluated in benchmarks/uncertainty.py and not
+  shipped (fixed-b HAC, EWC, bootstrap variants), from the classic fits;
+* ``pc``: PC-WLS (``pc_wls`` on the WLS estimate, classic metric as ``dynid identify
+  --physical`` runs it) whose bootstrap draws from each option's covariance
+  (``--pc-options``, default all), its ``conf_int()`` (bootstrap percentiles with the
+  WLS half-width, cut at the physical bound) against the truth, width relative to the
   classic WLS interval;
 * ``didim``: DIDIM (section 3) from eq. (31)'s start with the robot file's gains (the
   plant's PID is the robot file's), its last Gauss-Newton step's WLS with each
   covariance option recomputed on that step's regressor (the estimate is the same,
   asserted); seeds where DIDIM did not converge are counted and kept.
 
-Seeds 0-4 were used while developing; ``--start 1000`` gives held-out ones (the
-first campaign); ``--start 3000`` is the held-out range of the pc/didim campaign.
+Seeds: 0-4 were used while developing the first options; 1000-1099 held out for the
+first campaign (and then used to choose the essential rule); 3000-3099 held out for
+the pc/didim campaign; 0-20 used while developing the bootstrap's block rule and
+percentile σ (2026-12-03); 4000-4099 held out for that campaign:
 
-    nice -n 10 python benchmarks/coverage_independent.py --seeds 100 --start 1000 --workers 2 \
-        --out benchmarks/results/coverage_independent.jsonl
+    nice -n 10 python benchmarks/coverage_independent.py --methods simulate --cache CACHE \
+        --seeds 100 --start 4000
+    nice -n 10 python benchmarks/coverage_independent.py --methods idim,candidates --cache CACHE \
+        --seeds 100 --start 4000 --out benchmarks/results/coverage_independent_4000.jsonl
+    nice -n 10 python benchmarks/coverage_independent.py --methods idim,pc --pc-options classic,bootstrap \
+        --cache CACHE --seeds 100 --start 4000 --out benchmarks/results/coverage_independent_pc_4000.jsonl
 
 The last line is a JSON object with the headline figures.
 """
@@ -93,11 +104,11 @@ def truth(robot, bp):
     return bp.from_standard(chi)
 
 
-def run_seed(seed, methods=("idim",)):
+def simulate(seed):
+    """The seed's record: (Experiment, robot, base parameters, true base parameters, seconds)."""
     import independent_plant as ip
 
     from dynid.analysis.data.experiment import Experiment
-    from dynid.analysis.estimators.idim import identify_idim
     from dynid.dynamics.base_parameters import base_parameters
     from dynid.dynamics.robot_file import load_robot
     t0 = time.time()
@@ -111,42 +122,117 @@ def run_seed(seed, methods=("idim",)):
                      source=f"independent plant seed {seed}", name=f"cov-{seed}")
     robot = load_robot("tx40")
     bp = base_parameters(robot)
-    beta = truth(robot, bp)
-    t_sim = time.time() - t0
+    return exp, robot, bp, truth(robot, bp), time.time() - t0
+
+
+def observed_system(seed, cache=None):
+    """The seed's decimated system (W, tau, row_mask, true base parameters), cached in `cache`.
+
+    The simulation is most of a seed's cost and does not depend on the covariance
+    option: with a cache folder, every option is evaluated on the same stored system.
+    """
+    from dynid.analysis.processing.observation import observe
+    f = None if cache is None else Path(cache) / f"seed_{seed}.npz"
+    if f is not None and f.exists():
+        z = np.load(f)
+        return z["W"], z["tau"], z["mask"], z["beta"], float(z["sim_seconds"])
+    exp, robot, bp, beta, t_sim = simulate(seed)
+    obs = observe(exp, robot, bp)
+    if f is not None:
+        f.parent.mkdir(parents=True, exist_ok=True)
+        tmp = f.with_suffix(f".{os.getpid()}.tmp.npz")   # two campaigns may fill one cache
+        np.savez(tmp, W=obs.W, tau=obs.tau, mask=obs.row_mask, beta=beta, sim_seconds=t_sim)
+        tmp.replace(f)
+    return obs.W, obs.tau, obs.row_mask, beta, t_sim
+
+
+def run_seed(seed, methods=("idim",), cache=None, options=None, pc_options=None):
+    """One seed's rows: z and sigma of WLS and the essential set for every option (and PC, DIDIM)."""
+    from dynid.analysis.estimators import least_squares as ls
+    from dynid.analysis.estimators.essential import essential_parameters
+    from dynid.dynamics.base_parameters import base_parameters
+    from dynid.dynamics.robot_file import load_robot
+    options = OPTIONS if options is None else tuple(options)
+    t0 = time.time()
+    if "didim" in methods:
+        exp, robot, bp, beta, t_sim = simulate(seed)
+        from dynid.analysis.processing.observation import observe
+        obs = observe(exp, robot, bp)
+        W, tau, mask = obs.W, obs.tau, obs.row_mask
+    else:
+        W, tau, mask, beta, t_sim = observed_system(seed, cache)
+        robot = load_robot("tx40")
+        bp = base_parameters(robot)
     row = {"seed": seed, "sim_seconds": t_sim}
-    ref = None
-    for opt in OPTIONS:
-        res = identify_idim(exp, robot, bp=bp, uncertainty=opt)
+    if "simulate" in methods:
+        row["seconds"] = time.time() - t0
+        return row
+    names = list(bp.names)
+    groups = np.zeros(W.shape[0], dtype=int)
+    ref, fits = None, {}
+    for opt in options:
+        # what identify_idim does with this system (one recording)
+        unc = {"uncertainty": opt, "groups": groups}
+        wls = ls.wls(W, tau, names, row_mask=mask, **unc)
+        ess = essential_parameters(W, tau, names, ls.wls, row_mask=mask, **unc).result
         if ref is None:
-            ref = res
-        assert np.array_equal(res.wls.chi, ref.wls.chi) and np.array_equal(res.model.chi, ref.model.chi)
-        for part, r in (("wls", res.wls), ("essential", res.model)):
-            idx = [bp.names.index(n) for n in r.names]
-            z = (r.chi - beta[idx]) / r.sigma
-            row[f"{part}_{opt}_z"] = [float(v) for v in z]
-            row[f"{part}_{opt}_sigma"] = [float(v) for v in r.sigma]
-        unc = res.model.settings.get("least_squares", {}).get("uncertainty", {})
-        row[f"essential_{opt}_bias_included"] = "selection_bias" in unc
-        row["essential_names"] = list(res.model.names)
+            ref = (wls, ess)
+        assert np.array_equal(wls.chi, ref[0].chi) and np.array_equal(ess.chi, ref[1].chi)
+        fits[opt] = wls
+        for part, r in (("wls", wls), ("essential", ess)):
+            idx = [names.index(n) for n in r.names]
+            sig = r.bse.to_numpy()
+            row[f"{part}_{opt}_z"] = [float(v) for v in (r.chi - beta[idx]) / sig]
+            row[f"{part}_{opt}_sigma"] = [float(v) for v in sig]
+        row[f"essential_{opt}_bias_included"] = "selection_bias" in ess.settings.get(
+            "least_squares", {}).get("uncertainty", {})
+        row["essential_names"] = list(ess.names)
+    if "candidates" in methods:
+        _candidate_rows(row, W, tau, mask, names, beta, *ref)
     if "pc" in methods:
-        _pc_rows(row, ref, robot, beta)
+        for opt in pc_options or options:
+            _pc_rows(row, fits[opt], fits["classic"], robot, bp, beta, opt)
     if "didim" in methods:
         _didim_rows(row, exp, robot, bp, beta)
     row["seconds"] = time.time() - t0
     return row
 
 
-def _pc_rows(row, idim, robot, beta):
-    """PC-WLS of the classic IDIM result: does its conf_int hold the truth?"""
-    from dynid.analysis.estimators.physical import identify_physical
+def _candidate_rows(row, W, tau, mask, names, beta, wls, ess):
+    """z and sigma of the covariances evaluated in benchmarks/uncertainty.py and not shipped.
+
+    Computed from the classic fits (same estimates); the essential set gets the robust
+    options' rule: the full model's covariance of its parameters plus d d'.
+    """
+    from uncertainty import candidate_sigmas
+    idx = [names.index(n) for n in ess.names]
+    d = ess.chi - wls.chi[idx]
+    for cand, (cov, sig) in candidate_sigmas(wls, W, tau, mask).items():
+        row[f"wls_{cand}_z"] = [float(v) for v in (wls.chi - beta) / sig]
+        row[f"wls_{cand}_sigma"] = [float(v) for v in sig]
+        se = np.sqrt(np.diag(cov)[idx] + d**2)
+        row[f"essential_{cand}_z"] = [float(v) for v in (ess.chi - beta[idx]) / se]
+        row[f"essential_{cand}_sigma"] = [float(v) for v in se]
+        row[f"essential_{cand}_bias_included"] = True
+
+
+def _pc_rows(row, wls, classic, robot, bp, beta, opt):
+    """PC-WLS from the WLS estimate with option `opt`'s covariance: does its conf_int hold the truth?
+
+    Its parametric bootstrap draws from that covariance (as `dynid identify --physical`
+    does from the IDIM result it is given); width relative to the classic WLS interval.
+    """
+    from dynid.analysis.estimators.physical import pc_wls
     t = time.time()
-    pc = identify_physical(idim, robot, n_boot=100)
+    pc = pc_wls(robot, bp, wls.chi, classic.cov, n_boot=100, interval_cov=wls.cov, uncertainty=opt)
     ci = np.asarray(pc.conf_int(), dtype=float)
-    idx = [list(idim.base.names).index(n) for n in pc.names]
+    idx = [list(bp.names).index(n) for n in pc.names]
     b = beta[idx]
-    row["pc_inside"] = [bool(v) for v in (ci[:, 0] <= b) & (b <= ci[:, 1])]
-    row["pc_width_vs_classic"] = [float(v) for v in (ci[:, 1] - ci[:, 0]) / (2 * 1.96 * idim.wls.sigma[idx])]
-    row["pc_seconds"] = time.time() - t
+    key = "pc" if opt == "classic" else f"pc_{opt}"
+    row[f"{key}_inside"] = [bool(v) for v in (ci[:, 0] <= b) & (b <= ci[:, 1])]
+    row[f"{key}_width_vs_classic"] = [float(v) for v in (ci[:, 1] - ci[:, 0])
+                                      / (2 * 1.96 * classic.bse.to_numpy()[idx])]
+    row[f"{key}_seconds"] = time.time() - t
 
 
 def _didim_rows(row, exp, robot, bp, beta):
@@ -195,26 +281,30 @@ def _base_names():
     return list(base_parameters(load_robot("tx40")).names)
 
 
-def headline(rows):
+def headline(rows, options=OPTIONS):
     out = {"seeds": len(rows)}
+    options = [o for o in options if all(f"wls_{o}_z" in r for r in rows)]
     for part in ("wls", "essential"):
-        for opt in OPTIONS:
+        for opt in options:
             z = np.concatenate([r[f"{part}_{opt}_z"] for r in rows])
             out[f"{part}_{opt}_coverage95"] = float(np.mean(np.abs(z) <= 1.96))
             if opt != "classic":
                 ratio = np.concatenate([np.asarray(r[f"{part}_{opt}_sigma"]) / np.asarray(r[f"{part}_classic_sigma"])
                                         for r in rows])
                 out[f"{part}_{opt}_median_width_vs_classic"] = float(np.median(ratio))
-    for opt in OPTIONS[1:]:
+    for opt in options[1:]:
         zs = [_essential_with_bias(r, opt) for r in rows]
         out[f"essential_{opt}+bias_coverage95"] = float(np.mean(np.abs(np.concatenate([z for z, _ in zs])) <= 1.96))
         out[f"essential_{opt}+bias_median_width_vs_classic"] = float(np.median(np.concatenate(
             [s / np.asarray(r["essential_classic_sigma"]) for (_, s), r in zip(zs, rows)])))
-    pc = [r for r in rows if "pc_inside" in r]
-    if pc:
-        out["pc_seeds"] = len(pc)
-        out["pc_coverage95"] = float(np.mean(np.concatenate([r["pc_inside"] for r in pc])))
-        out["pc_median_width_vs_classic"] = float(np.median(np.concatenate([r["pc_width_vs_classic"] for r in pc])))
+    for opt in options:
+        key = "pc" if opt == "classic" else f"pc_{opt}"
+        pc = [r for r in rows if f"{key}_inside" in r]
+        if pc:
+            out[f"{key}_seeds"] = len(pc)
+            out[f"{key}_coverage95"] = float(np.mean(np.concatenate([r[f"{key}_inside"] for r in pc])))
+            out[f"{key}_median_width_vs_classic"] = float(np.median(np.concatenate(
+                [r[f"{key}_width_vs_classic"] for r in pc])))
     dd = [r for r in rows if "didim_classic_z" in r]
     if dd or any("didim_error" in r for r in rows):
         out["didim_seeds"] = len(dd)
@@ -240,9 +330,17 @@ def main(argv=None):
     ap.add_argument("--start", type=int, default=0)
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--out", default=None, help="JSON lines, one per seed (appended; seeds done are skipped)")
-    ap.add_argument("--methods", default="idim", help="comma-separated: idim (always), pc, didim")
+    ap.add_argument("--methods", default="idim",
+                    help="comma-separated: idim (always), pc, didim; or simulate (only fill --cache)")
+    ap.add_argument("--cache", default=None, help="folder of the seeds' decimated systems (reused when present)")
+    ap.add_argument("--options", default=",".join(OPTIONS), help="comma-separated covariance options")
+    ap.add_argument("--pc-options", default=None, help="options PC-WLS draws from (default: --options)")
     a = ap.parse_args(argv)
     methods = tuple(m.strip() for m in a.methods.split(",") if m.strip())
+    options = tuple(o.strip() for o in a.options.split(",") if o.strip())
+    if "classic" not in options:
+        options = ("classic",) + options
+    pc_options = None if a.pc_options is None else tuple(o.strip() for o in a.pc_options.split(",") if o.strip())
     seeds = list(range(a.start, a.start + a.seeds))
     rows = []
     if a.out and Path(a.out).exists():
@@ -254,9 +352,14 @@ def main(argv=None):
 
     def record(row):
         rows.append(row)
+        if "simulate" in methods:
+            print(f"seed {row['seed']}: simulated ({row['seconds']:.0f} s)", flush=True)
+            return
         line = (f"seed {row['seed']}: " + ", ".join(
-            f"{p} {o} {np.mean(np.abs(row[f'{p}_{o}_z']) <= 1.96):.2f}" for p in ("wls", "essential") for o in OPTIONS)
-            + "".join(f", pc {np.mean(row['pc_inside']):.2f}" for _ in [0] if "pc_inside" in row)
+            f"{p} {o} {np.mean(np.abs(row[f'{p}_{o}_z']) <= 1.96):.2f}" for p in ("wls", "essential") for o in options
+            if f"{p}_{o}_z" in row)
+            + "".join(f", {k[:-7].replace('_', ' ')} {np.mean(v):.2f}" for k, v in row.items()
+                      if k.startswith("pc") and k.endswith("_inside"))
             + "".join(f", didim {o} {np.mean(np.abs(row[f'didim_{o}_z']) <= 1.96):.2f}" for o in OPTIONS
                       if f"didim_{o}_z" in row)
             + "".join(f", didim failed ({row['didim_error']})" for _ in [0] if "didim_error" in row)
@@ -269,12 +372,18 @@ def main(argv=None):
     if a.workers > 1:
         from concurrent.futures import ProcessPoolExecutor
         with ProcessPoolExecutor(a.workers) as ex:
-            for row in ex.map(run_seed, seeds, [methods] * len(seeds)):
+            for row in ex.map(run_seed, seeds, [methods] * len(seeds), [a.cache] * len(seeds),
+                              [options] * len(seeds), [pc_options] * len(seeds)):
                 record(row)
     else:
         for s in seeds:
-            record(run_seed(s, methods))
-    out = headline(rows)
+            record(run_seed(s, methods, a.cache, options, pc_options))
+    if "simulate" in methods:
+        return
+    if "candidates" in methods:
+        from uncertainty import CANDIDATES
+        options = options + tuple(CANDIDATES)
+    out = headline(rows, options)
     out.update({"duration_s": DURATION, "log_rate_hz": RATE / LOG_EVERY, "ar1": PHI, "noise_std": NOISE,
                 "ripple": RIPPLE, "campaign_seconds": time.time() - t0, "first_seed": a.start})
     print(json.dumps(out))

@@ -479,7 +479,8 @@ UNCERTAINTY = ("classic", "hac", "bootstrap")
 _UNCERTAINTY_LABEL = {
     "classic": "classic: sigma_rho^2 (W'W)^-1 of eqs. (13)-(14), samples counted as independent",
     "hac": "hac: Newey-West sandwich, Bartlett kernel, Andrews (1991) bandwidth, scores summed over joints per sample",
-    "bootstrap": "bootstrap: circular block bootstrap of the decimated samples (Politis & Romano 1992)",
+    "bootstrap": ("bootstrap: circular block bootstrap of the decimated samples with equations (Politis & "
+                  "Romano 1992), block length of Politis & White (2004), sigma = 95 % percentile half-width / 1.96"),
 }
 
 
@@ -631,8 +632,10 @@ def ols(W3, tau, names, *, row_mask=None, joints=None, rank_rtol: float = RANK_R
         independent (the papers' σ). "hac": a Newey-West sandwich whose
         scores sum the joints of each sample (residual correlated in time and
         across joints; bandwidth of Andrews 1991). "bootstrap": a circular
-        block bootstrap of the decimated samples (block length from the
-        scores' correlation). The estimate is the same for all three; the
+        block bootstrap of the decimated samples that carry equations (block
+        length by the rule of Politis & White 2004 on the scores, σ the
+        half-width of the 95 % percentile interval over 1.96; see
+        dynid.analysis.estimators.hac). The estimate is the same for all three; the
         choice is recorded in `settings["least_squares"]["uncertainty"]`
         and in a notice.
     groups : array (N,), optional
@@ -689,7 +692,9 @@ def _unc_notice(unc: dict) -> list[str]:
     if unc["uncertainty"] == "classic":
         return []
     extra = (f"bandwidth {unc['bandwidth']:.3g} samples" if unc["uncertainty"] == "hac"
-             else f"blocks of {unc['block']} samples, {unc['n_boot'] - unc['failed']} replicates")
+             else f"blocks of {unc['block']} samples ({unc.get('block_rule', 'given')} rule), "
+                  f"{unc['n_boot'] - unc['failed']} replicates, sigma from "
+                  f"{'their 95 % percentile interval' if unc.get('spread') == 'percentile' else 'their covariance'}")
     note = f"sigma is the {unc['uncertainty']} covariance ({extra}), not the classic eq. (14)."
     if "fallback" in unc:
         note += f" The {unc['requested']} covariance was asked for: {unc['fallback']}."

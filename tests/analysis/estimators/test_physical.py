@@ -448,3 +448,43 @@ def test_pc_didim_with_the_automatic_v_s_continues_from_physical_estimates(monke
     physical = [np.asarray(r.physical.chi) for r in results]
     for chi0 in starts[1:]:
         assert any(np.array_equal(np.asarray(chi0), p) for p in physical)
+
+
+def test_interval_covariance_moves_sigma_and_intervals_not_the_estimate(pendulum):
+    # the metric stays cov_wls; the bootstrap draws from (and the intervals keep the half-width
+    # of) interval_cov: four times the variance, twice the half-width, the same PC estimate
+    robot, bp, b, cov, sig, k = _pushed(pendulum, "Fv1", -0.01)
+    ref = pc_wls(robot, bp, b, cov, n_boot=24, seed=2)
+    wide = pc_wls(robot, bp, b, cov, n_boot=24, seed=2, interval_cov=4 * cov, uncertainty="hac")
+    np.testing.assert_array_equal(wide.chi, ref.chi)
+    assert wide.chi2 == ref.chi2
+    assert np.all(wide.bse.to_numpy() >= 2 * sig - 1e-12)
+    ci = wide.conf_int().to_numpy()
+    s = wide.bse.to_numpy()
+    assert np.all(ci[:, 0] >= wide.chi - 1.96 * s - 1e-12) and np.all(ci[:, 1] <= wide.chi + 1.96 * s + 1e-12)
+    others = [i for i in range(bp.n_base) if i != k]
+    # never narrower than twice the classic WLS interval where no bound cuts it (percentiles may widen it)
+    assert np.all((ci[others, 1] - ci[others, 0]) / (2 * 1.96 * sig[others]) >= 1.9999)
+    assert np.all((ref.conf_int().to_numpy()[others, 1] - ref.conf_int().to_numpy()[others, 0])
+                  / (2 * 1.96 * sig[others]) < 2.0)
+    assert wide.physical_block()["uncertainty"] == "hac" and any("hac covariance" in n for n in wide.notices)
+    with pytest.raises(InputError, match="covariances of shape"):
+        pc_wls(robot, bp, b, cov, n_boot=0, interval_cov=cov[:2, :2])
+
+
+def test_identify_physical_draws_from_the_robust_covariance(kuka_23):
+    # same IDIM result, same PC estimate; the hac option's interval covariance is the WLS sandwich's
+    # (with the recordings as groups)
+    from dynid.analysis.estimators import least_squares as ls
+    from dynid.analysis.estimators.physical import identify_physical
+    robot, res = kuka_23
+    classic = identify_physical(res, robot, n_boot=0)
+    boot = identify_physical(res, robot, n_boot=0, uncertainty="hac")
+    np.testing.assert_array_equal(boot.chi, classic.chi)
+    obs = res.observation
+    direct = ls.wls(obs.W, obs.tau, list(res.base.names), row_mask=obs.row_mask, uncertainty="hac",
+                    groups=res.groups)
+    np.testing.assert_allclose(boot.wls_cov, direct.cov, rtol=1e-10)
+    assert boot.uncertainty == "hac" and classic.uncertainty == "classic"
+    with pytest.raises(InputError, match="uncertainty must be one of"):
+        identify_physical(res, robot, n_boot=0, uncertainty="robust")
