@@ -430,7 +430,7 @@ def identify_step(experiments, robot, settings: Settings, progress=None):
             return res
         return identify_physical(res, robot, prior=settings.prior, prior_weight=settings.prior_weight,
                                  mass_tolerance=settings.mass_tolerance, n_boot=settings.bootstrap,
-                                 which=settings.physical_set)
+                                 which=settings.physical_set, uncertainty=settings.uncertainty)
     exp = experiments[0]
     if method == "didim":
         return _carrying(_didim(exp, robot, settings, progress), robot)
@@ -583,7 +583,7 @@ def physical_step(experiments, robot, result, held_out, settings: Settings, cand
     say("physically consistent WLS (SDP)")
     physical = identify_physical(result, robot, prior=settings.prior, prior_weight=settings.prior_weight,
                                  mass_tolerance=settings.mass_tolerance, n_boot=settings.bootstrap,
-                                 which=settings.physical_set)
+                                 which=settings.physical_set, uncertainty=settings.uncertainty)
     if held_out is not None:
         physical = dataclasses.replace(physical, validation=physical.held_out_block(held_out, robot))
     return physical, None
