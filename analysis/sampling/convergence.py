@@ -46,10 +46,13 @@ with a 10 % margin, but never more than doubles the chain (an early,
 underestimated τ must not decide the stopping point alone) and never less
 than a quarter of it.
 
-Reproducibility. The sampler's random state is seeded by the caller; batch
-sizes depend only on the chain. The same seed gives the same chain bit for
-bit, unless `max_seconds` stops the run (then the stopping step depends on
-the machine; the reason says so).
+Budget and reproducibility. Every run is bounded by a step budget
+(`max_steps`, default 200 000 steps of every walker), never by the clock:
+the sampler's random state is seeded by the caller and batch sizes depend
+only on the chain, so the same seed gives the same chain bit for bit on any
+machine, loaded or idle. A wall-clock limit (`max_seconds`) is only an
+explicit option of the user (default none); when it stops a run the
+stopping step depends on the machine, and the reason says so.
 """
 from __future__ import annotations
 
@@ -86,7 +89,7 @@ class ConvergenceCriteria:
     min_acceptance: float = 0.05
     min_walker_acceptance: float = 0.01
     max_steps: int = 200_000
-    max_seconds: float | None = 300.0
+    max_seconds: float | None = None      # wall-clock safety: off unless the user asks for it
     first_batch: int = 1000
     max_stored: int = 2048
 
