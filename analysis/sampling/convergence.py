@@ -228,10 +228,12 @@ def integrated_time(chain: np.ndarray, c: float = 5.0) -> np.ndarray:
     x = np.ascontiguousarray((chain - chain.mean(axis=0)).reshape(T, W * d).T)
     n = 1 << (T - 1).bit_length()             # next power of two, as emcee.autocorr.next_pow_two
     F = np.fft.rfft(x, n=2 * n, axis=-1)
-    acf = np.fft.irfft(F * np.conj(F), n=2 * n, axis=-1)[:, :T]
+    P = F.real ** 2 + F.imag ** 2
+    # each walker's ACF normalised by its lag-0 value (sum of P / 2n), then averaged over walkers:
+    # linear, so done on the spectra and one inverse FFT per parameter instead of per walker
     with np.errstate(divide="ignore", invalid="ignore"):
-        acf = acf / acf[:, :1]
-    f = acf.reshape(W, d, T).mean(axis=0).T   # (T, d) averaged over walkers
+        P = P * (2 * n) / (P[:, :1] + 2.0 * P[:, 1:-1].sum(axis=1, keepdims=True) + P[:, -1:])
+    f = np.fft.irfft(P.reshape(W, d, -1).mean(axis=0), n=2 * n, axis=-1)[:, :T].T   # (T, d)
     taus = 2.0 * np.cumsum(f, axis=0) - 1.0
     m = np.arange(T)[:, None] < c * taus      # auto_window
     window = np.where(m.any(axis=0), np.argmin(m, axis=0), T - 1)
@@ -399,7 +401,9 @@ def diagnose(stored: np.ndarray, interval: int, n_steps: int, accepted: np.ndarr
             reason += f" (run stopped by its {limit} limit after meeting the rule)"
     else:
         reason = "NOT CONVERGED: " + "; ".join(problems)
-    rank = rank_normalized_rhat(post) if rank_rhat and post.shape[0] >= 4 else None
+    # on the kept (thinned) draws: ranks of every stored step cost seconds, for the same estimate
+    kept = post[::-1][:: max(1, thin // interval)][::-1]
+    rank = rank_normalized_rhat(kept) if rank_rhat and kept.shape[0] >= 4 else None
     return ChainDiagnostics(tau=tau, rhat=rhat, rhat_rank=rank,
                             acceptance=acc, n_steps=int(n_steps),
                             n_walkers=n_walkers, burn_in=int(burn), thin=int(thin),
@@ -482,15 +486,22 @@ def run_until_converged(sampler, p0: np.ndarray, criteria: ConvergenceCriteria |
     target = min(c.first_batch, c.max_steps)
     limit = None
     first = True
+    lean = hasattr(sampler, "advance")
     while True:
         todo = target - n
         # emcee checks the initial ensemble for degeneracy; later batches resume a live one
-        for st in sampler.sample(state, iterations=todo, store=False,
-                                 skip_initial_state_check=not first):
+        if lean:
+            steps = sampler.advance(state, todo, check=first)
+        else:
+            steps = ((st, None) for st in sampler.sample(state, iterations=todo, store=False,
+                                                          skip_initial_state_check=not first))
+        for st, acc in steps:
             n += 1
             coords = st.coords
-            accepted += np.any(coords != prev, axis=1)
-            prev = coords.copy()
+            if acc is None:
+                acc = np.any(coords != prev, axis=1)
+                prev = coords.copy()
+            accepted += acc
             buf.push(n, coords, st.log_prob)
             state = st
             if c.max_seconds is not None and (n & 63) == 0 and \
