@@ -56,6 +56,7 @@ stopping step depends on the machine, and the reason says so.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import asdict, dataclass, field
@@ -228,12 +229,14 @@ def integrated_time(chain: np.ndarray, c: float = 5.0) -> np.ndarray:
     x = np.ascontiguousarray((chain - chain.mean(axis=0)).reshape(T, W * d).T)
     n = 1 << (T - 1).bit_length()             # next power of two, as emcee.autocorr.next_pow_two
     F = np.fft.rfft(x, n=2 * n, axis=-1)
-    P = F.real ** 2 + F.imag ** 2
-    # each walker's ACF normalised by its lag-0 value (sum of P / 2n), then averaged over walkers:
-    # linear, so done on the spectra and one inverse FFT per parameter instead of per walker
+    P = np.square(F.real)
+    P += np.square(F.imag)
+    # each walker's ACF normalised by its lag-0 value Σ x² (Parseval), then averaged over walkers:
+    # linear, so done on the spectra, one inverse FFT per parameter instead of one per walker
     with np.errstate(divide="ignore", invalid="ignore"):
-        P = P * (2 * n) / (P[:, :1] + 2.0 * P[:, 1:-1].sum(axis=1, keepdims=True) + P[:, -1:])
-    f = np.fft.irfft(P.reshape(W, d, -1).mean(axis=0), n=2 * n, axis=-1)[:, :T].T   # (T, d)
+        inv = 1.0 / (W * np.einsum("kt,kt->k", x, x))
+    f = np.fft.irfft(np.einsum("wdf,wd->df", P.reshape(W, d, -1), inv.reshape(W, d)),
+                     n=2 * n, axis=-1)[:, :T].T   # (T, d)
     taus = 2.0 * np.cumsum(f, axis=0) - 1.0
     m = np.arange(T)[:, None] < c * taus      # auto_window
     window = np.where(m.any(axis=0), np.argmin(m, axis=0), T - 1)
@@ -401,15 +404,21 @@ def diagnose(stored: np.ndarray, interval: int, n_steps: int, accepted: np.ndarr
             reason += f" (run stopped by its {limit} limit after meeting the rule)"
     else:
         reason = "NOT CONVERGED: " + "; ".join(problems)
-    # on the kept (thinned) draws: ranks of every stored step cost seconds, for the same estimate
-    kept = post[::-1][:: max(1, thin // interval)][::-1]
-    rank = rank_normalized_rhat(kept) if rank_rhat and kept.shape[0] >= 4 else None
+    rank = _kept_rank_rhat(stored, interval, burn, thin) if rank_rhat else None
     return ChainDiagnostics(tau=tau, rhat=rhat, rhat_rank=rank,
                             acceptance=acc, n_steps=int(n_steps),
                             n_walkers=n_walkers, burn_in=int(burn), thin=int(thin),
                             converged=bool(converged), reason=reason, sampled=sampled,
                             criteria=c, limit=limit, history=list(history or []),
                             storage_interval=int(interval), elapsed=elapsed)
+
+
+def _kept_rank_rhat(stored, interval, burn, thin):
+    """The rank-normalised R̂ of the kept draws (after burn-in, thinned as `ChainRun.kept`):
+    the ranks of every stored step cost seconds, for the same estimate. None if < 4 draws."""
+    post = stored[int(math.ceil(burn / interval)):]
+    kept = post[::-1][:: max(1, thin // interval)][::-1]
+    return rank_normalized_rhat(kept) if kept.shape[0] >= 4 else None
 
 
 # ----------------------------------------------------------------------- the runner
@@ -529,6 +538,11 @@ def run_until_converged(sampler, p0: np.ndarray, criteria: ConvergenceCriteria |
         target = min(n + nxt, c.max_steps)
     stored, lps = buf.view()
     elapsed = time.perf_counter() - t_start
-    dg = diagnose(stored, buf.interval, n, accepted, c, sampled=sampled, limit=limit,
-                  history=history, elapsed=elapsed)
+    if limit is None and dg.converged:
+        # the last check ran on this very chain: its τ, R̂ and reason stand
+        dg = dataclasses.replace(dg, history=list(history), elapsed=elapsed,
+                                 rhat_rank=_kept_rank_rhat(stored, buf.interval, dg.burn_in, dg.thin))
+    else:
+        dg = diagnose(stored, buf.interval, n, accepted, c, sampled=sampled, limit=limit,
+                      history=history, elapsed=elapsed)
     return ChainRun(stored=stored.copy(), log_prob=lps.copy(), interval=buf.interval, diagnostics=dg)
