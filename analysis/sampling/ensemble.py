@@ -105,10 +105,44 @@ class _Sampler(emcee.EnsembleSampler):
             state.log_prob, state.blobs = self.compute_log_prob(state.coords)
             if np.any(np.isnan(state.log_prob)):
                 raise ValueError("The initial log_prob was NaN")
+        if len(self._moves) == 1 and isinstance(self._moves[0], _VectorAccept):
+            yield from self._red_blue_steps(state, int(iterations), self._moves[0])
+            return
         model = Model(self.log_prob_fn, self.compute_log_prob, map, self._random)
         for _ in range(int(iterations)):
             move = self._random.choice(self._moves, p=self._weights)   # kept: it draws from the stream
             state, accepted = move.propose(model, state)
+            yield state, accepted
+
+    def _red_blue_steps(self, state, iterations, move):
+        """One red-blue move, step after step, on the state's arrays in place: the draws of
+        emcee's loop in its order (the move's choice, the split's shuffle, each half's
+        proposal and uniforms), without a State object and an update per half-step."""
+        rnd = self._random
+        coords, lp = state.coords, state.log_prob
+        nwalkers, ndim = coords.shape
+        if nwalkers < 2 * ndim and not move.live_dangerously:
+            raise RuntimeError("It is unadvisable to use a red-blue move with fewer walkers than "
+                               "twice the number of dimensions.")
+        all_inds = np.arange(nwalkers)
+        split_of = all_inds % move.nsplits
+        for _ in range(iterations):
+            rnd.random_sample()            # emcee's choice among the moves: one uniform
+            move.setup(coords)
+            accepted = np.zeros(nwalkers, dtype=bool)
+            inds = split_of.copy()
+            if move.randomize_split:
+                rnd.shuffle(inds)
+            for split in range(move.nsplits):
+                S1 = inds == split
+                others = [coords[inds == j] for j in range(move.nsplits) if j != split]
+                q, factors = move.get_proposal(coords[S1], others, rnd)
+                new_lp, _ = self.compute_log_prob(q)
+                idx = all_inds[S1]
+                acc = factors + new_lp - lp[idx] > np.log(rnd.rand(idx.size))
+                accepted[idx] = acc
+                coords[idx[acc]] = q[acc]
+                lp[idx[acc]] = new_lp[acc]
             yield state, accepted
 
 
