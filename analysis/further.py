@@ -86,6 +86,7 @@ def posterior_step(result, settings: Settings, say=None, robot=None):
         raise InputError("--physical samples the base parameters: add --which base")
     with messages(say).progress("sampling (steps / steps needed)") as bar:
         return sample_idim(result, which=settings.which, seed=settings.seed, max_seconds=settings.max_seconds,
+                           noise=settings.noise,
                            progress=lambda n, need: bar.update(n / max(need, 1)),
                            **({"n_walkers": settings.walkers} if settings.walkers is not None else {}),
                            **({"max_steps": settings.max_steps} if settings.max_steps is not None else {}),
@@ -150,7 +151,8 @@ def check_report(settings: Settings) -> None:
     check_parts(settings.skip)
     check_diagnosis(settings)
     diagnosis_candidates(settings)
-    if not (isinstance(settings.max_seconds, (int, float)) and settings.max_seconds > 0
+    if settings.max_seconds is not None and not (
+            isinstance(settings.max_seconds, (int, float)) and settings.max_seconds > 0
             and not math.isnan(settings.max_seconds)):
         raise InputError(f"max_seconds must be positive, got {settings.max_seconds!r} (--max-seconds)")
 

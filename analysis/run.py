@@ -94,7 +94,7 @@ class Settings:
     `mass_tolerance`, `physical_set`, `bootstrap`, `effects` (identify: the effects fitted
     beside the rigid body, 'spring:all'; diagnose: the candidate effects). Report and demo:
     `skip`, `seed`, `max_seconds`, `duration`. Diagnosis: `max_effects`, `alpha`, `no_offsets`.
-    Posterior: `which`, `walkers`, `max_steps`. Outputs (written by the reports layer):
+    Posterior: `which`, `noise`, `walkers`, `max_steps`. Outputs (written by the reports layer):
     `report`, `json`, `csv`, `urdf`, `mjcf`.
     """
 
@@ -126,12 +126,13 @@ class Settings:
     effects: object = None
     skip: tuple = ()
     seed: int = 1
-    max_seconds: float = 300.0
+    max_seconds: float | None = None       # wall-clock limit of the sampler: off unless asked
     duration: float = 20.0
     max_effects: int = 3
     alpha: float = 0.01
     no_offsets: bool = False
     which: str = "essential"
+    noise: str = "neff"                    # the posterior's noise model (dynid.analysis.sampling.noise)
     walkers: int | None = None
     max_steps: int | None = None
     report: object = None

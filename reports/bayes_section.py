@@ -318,6 +318,9 @@ def bayes_sections(result, *, prefix: str = "posterior", title: str | None = Non
         if k in st:
             v = st[k]
             pairs.append((label, v if isinstance(v, (str, int)) else "Gaussian (given mean and covariance)"))
+    nm = st.get("noise_model")
+    if isinstance(nm, dict) and nm.get("description"):
+        pairs.append(("Noise model", nm["description"]))
     pairs += [("Walkers \u00d7 steps", f"{dg.n_walkers} \u00d7 {dg.n_steps}"),
               ("Burn-in / thin", f"{dg.burn_in} / {dg.thin} steps"),
               ("Kept draws", str(result.n_samples))]
@@ -342,7 +345,9 @@ def bayes_sections(result, *, prefix: str = "posterior", title: str | None = Non
         ("chain / max \u03c4", _fmt(dg.chain_over_tau, 3)),
         ("max split R\u0302", _fmt(dg.rhat_max, 5)),
         ("Acceptance (mean / min walker)", f"{dg.acceptance_mean:.3f} / {float(np.min(dg.acceptance)):.3f}"),
-        ("Limits", f"max_steps = {c.max_steps}, max_seconds = {c.max_seconds}"),
+        ("Limits", f"step budget max_steps = {c.max_steps}; " + (
+            f"wall-clock limit max_seconds = {c.max_seconds:g} s (asked for)" if c.max_seconds is not None
+            else "no wall-clock limit (the stop depends only on the chain)")),
     ]
     if dg.limit:
         conv_pairs.append(("Stopped by", f"the {dg.limit} limit"))

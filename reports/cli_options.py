@@ -450,8 +450,13 @@ def _add_sample_parser(sub, common, full):
     m = g["method"]
     m.add_argument("--which", choices=["essential", "base"], default="essential",
                    help="the parameters to sample")
+    m.add_argument("--noise", choices=["neff", "white"], default="neff",
+                   help="noise model of the likelihood: neff (each joint's rows count as its residual's "
+                        "effective sample size) or white (independent rows)")
     m.add_argument("--seed", type=seed_type, default=1, metavar="N", help="random seed of the sampler")
-    m.add_argument("--max-seconds", type=positive_float, default=300.0, metavar="S", help="time limit")
+    m.add_argument("--max-seconds", type=positive_float, default=None, metavar="S",
+                   help="wall-clock safety limit of the sampler (default: none; the sampler stops on "
+                        "its step budget, so the output depends only on the seed)")
     g["model"].add_argument("--physical", action="store_true",
                             help="with --which base: sample on the physically consistent set (one "
                                  "feasibility SDP per point, needs dynid[physical])")
@@ -506,8 +511,9 @@ def _add_report_parsers(sub, common, full):
     m.add_argument("--skip", metavar="LIST", default="",
                    help="comma-separated parts to leave out: didim, sample, diagnose")
     m.add_argument("--seed", type=seed_type, default=1, metavar="N", help="random seed of the sampler")
-    m.add_argument("--max-seconds", type=positive_float, default=60.0, metavar="S",
-                   help="time limit of the sampler")
+    m.add_argument("--max-seconds", type=positive_float, default=None, metavar="S",
+                   help="wall-clock safety limit of the sampler (default: none; the sampler stops on "
+                        "its step budget, so the output depends only on the seed)")
     m.add_argument("--payload", nargs="+", metavar="FILE",
                    help="recording(s) with a payload: identify it with the robot fixed to this report's "
                         "model and add its section (docs/payload.md)")
@@ -535,8 +541,9 @@ def _add_report_parsers(sub, common, full):
                    help="length of the identification recording")
     m.add_argument("--skip", metavar="LIST", default="",
                    help="comma-separated parts to leave out: didim, sample, diagnose")
-    m.add_argument("--max-seconds", type=positive_float, default=60.0, metavar="S",
-                   help="time limit of the sampler")
+    m.add_argument("--max-seconds", type=positive_float, default=None, metavar="S",
+                   help="wall-clock safety limit of the sampler (default: none; the sampler stops on "
+                        "its step budget, so the output depends only on the seed)")
     a = g["advanced"]
     a.add_argument("--max-iter", type=int, default=15, metavar="N",
                    help=adv("DIDIM: largest number of Gauss-Newton steps"))

@@ -273,7 +273,6 @@ def _report_settings(settings, options) -> Settings:
     if not isinstance(settings, Settings):       # a Settings (the command line's) carries its own
         options.setdefault("gain_update", REPORT_GAIN_UPDATE)
         options.setdefault("max_iter", 15)
-        options.setdefault("max_seconds", 300.0)
     s = steps.settings_from(settings, **options)
     further.check_report(s)
     return s
@@ -333,7 +332,8 @@ def report(data, robot, path=None, *, settings=None, say=None, payload=None, pay
     **options
         The options of `dynid report` by name: holdout (seconds at the end of a single
         recording held out), validation (a held-out recording, path or Experiment),
-        skip (parts of REPORT_PARTS not to run), seed, max_seconds (default 300),
+        skip (parts of REPORT_PARTS not to run), seed, max_seconds (default None: no wall-clock
+        limit, the sampler stops on its step budget),
         max_error_growth, gain_update (default 'initial'), max_iter (default 15), fc, nd ...
 
     Returns
@@ -355,7 +355,7 @@ def report(data, robot, path=None, *, settings=None, say=None, payload=None, pay
     return out
 
 
-def demo(*, seed=1, duration=20.0, skip=(), max_seconds=300.0, path=None, say=None) -> FullReport:
+def demo(*, seed=1, duration=20.0, skip=(), max_seconds=None, path=None, say=None) -> FullReport:
     """The demo: a simulated TX40 (Table 2 of the DIDIM paper) through the whole pipeline.
 
     Returns

@@ -46,13 +46,17 @@ with a 10 % margin, but never more than doubles the chain (an early,
 underestimated τ must not decide the stopping point alone) and never less
 than a quarter of it.
 
-Reproducibility. The sampler's random state is seeded by the caller; batch
-sizes depend only on the chain. The same seed gives the same chain bit for
-bit, unless `max_seconds` stops the run (then the stopping step depends on
-the machine; the reason says so).
+Budget and reproducibility. Every run is bounded by a step budget
+(`max_steps`, default 200 000 steps of every walker), never by the clock:
+the sampler's random state is seeded by the caller and batch sizes depend
+only on the chain, so the same seed gives the same chain bit for bit on any
+machine, loaded or idle. A wall-clock limit (`max_seconds`) is only an
+explicit option of the user (default none); when it stops a run the
+stopping step depends on the machine, and the reason says so.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import asdict, dataclass, field
@@ -86,7 +90,7 @@ class ConvergenceCriteria:
     min_acceptance: float = 0.05
     min_walker_acceptance: float = 0.01
     max_steps: int = 200_000
-    max_seconds: float | None = 300.0
+    max_seconds: float | None = None      # wall-clock safety: off unless the user asks for it
     first_batch: int = 1000
     max_stored: int = 2048
 
@@ -225,10 +229,14 @@ def integrated_time(chain: np.ndarray, c: float = 5.0) -> np.ndarray:
     x = np.ascontiguousarray((chain - chain.mean(axis=0)).reshape(T, W * d).T)
     n = 1 << (T - 1).bit_length()             # next power of two, as emcee.autocorr.next_pow_two
     F = np.fft.rfft(x, n=2 * n, axis=-1)
-    acf = np.fft.irfft(F * np.conj(F), n=2 * n, axis=-1)[:, :T]
+    P = np.square(F.real)
+    P += np.square(F.imag)
+    # each walker's ACF normalised by its lag-0 value Σ x² (Parseval), then averaged over walkers:
+    # linear, so done on the spectra, one inverse FFT per parameter instead of one per walker
     with np.errstate(divide="ignore", invalid="ignore"):
-        acf = acf / acf[:, :1]
-    f = acf.reshape(W, d, T).mean(axis=0).T   # (T, d) averaged over walkers
+        inv = 1.0 / (W * np.einsum("kt,kt->k", x, x))
+    f = np.fft.irfft(np.einsum("wdf,wd->df", P.reshape(W, d, -1), inv.reshape(W, d)),
+                     n=2 * n, axis=-1)[:, :T].T   # (T, d)
     taus = 2.0 * np.cumsum(f, axis=0) - 1.0
     m = np.arange(T)[:, None] < c * taus      # auto_window
     window = np.where(m.any(axis=0), np.argmin(m, axis=0), T - 1)
@@ -396,13 +404,21 @@ def diagnose(stored: np.ndarray, interval: int, n_steps: int, accepted: np.ndarr
             reason += f" (run stopped by its {limit} limit after meeting the rule)"
     else:
         reason = "NOT CONVERGED: " + "; ".join(problems)
-    rank = rank_normalized_rhat(post) if rank_rhat and post.shape[0] >= 4 else None
+    rank = _kept_rank_rhat(stored, interval, burn, thin) if rank_rhat else None
     return ChainDiagnostics(tau=tau, rhat=rhat, rhat_rank=rank,
                             acceptance=acc, n_steps=int(n_steps),
                             n_walkers=n_walkers, burn_in=int(burn), thin=int(thin),
                             converged=bool(converged), reason=reason, sampled=sampled,
                             criteria=c, limit=limit, history=list(history or []),
                             storage_interval=int(interval), elapsed=elapsed)
+
+
+def _kept_rank_rhat(stored, interval, burn, thin):
+    """The rank-normalised R̂ of the kept draws (after burn-in, thinned as `ChainRun.kept`):
+    the ranks of every stored step cost seconds, for the same estimate. None if < 4 draws."""
+    post = stored[int(math.ceil(burn / interval)):]
+    kept = post[::-1][:: max(1, thin // interval)][::-1]
+    return rank_normalized_rhat(kept) if kept.shape[0] >= 4 else None
 
 
 # ----------------------------------------------------------------------- the runner
@@ -479,15 +495,22 @@ def run_until_converged(sampler, p0: np.ndarray, criteria: ConvergenceCriteria |
     target = min(c.first_batch, c.max_steps)
     limit = None
     first = True
+    lean = hasattr(sampler, "advance")
     while True:
         todo = target - n
         # emcee checks the initial ensemble for degeneracy; later batches resume a live one
-        for st in sampler.sample(state, iterations=todo, store=False,
-                                 skip_initial_state_check=not first):
+        if lean:
+            steps = sampler.advance(state, todo, check=first)
+        else:
+            steps = ((st, None) for st in sampler.sample(state, iterations=todo, store=False,
+                                                          skip_initial_state_check=not first))
+        for st, acc in steps:
             n += 1
             coords = st.coords
-            accepted += np.any(coords != prev, axis=1)
-            prev = coords.copy()
+            if acc is None:
+                acc = np.any(coords != prev, axis=1)
+                prev = coords.copy()
+            accepted += acc
             buf.push(n, coords, st.log_prob)
             state = st
             if c.max_seconds is not None and (n & 63) == 0 and \
@@ -515,6 +538,11 @@ def run_until_converged(sampler, p0: np.ndarray, criteria: ConvergenceCriteria |
         target = min(n + nxt, c.max_steps)
     stored, lps = buf.view()
     elapsed = time.perf_counter() - t_start
-    dg = diagnose(stored, buf.interval, n, accepted, c, sampled=sampled, limit=limit,
-                  history=history, elapsed=elapsed)
+    if limit is None and dg.converged:
+        # the last check ran on this very chain: its τ, R̂ and reason stand
+        dg = dataclasses.replace(dg, history=list(history), elapsed=elapsed,
+                                 rhat_rank=_kept_rank_rhat(stored, buf.interval, dg.burn_in, dg.thin))
+    else:
+        dg = diagnose(stored, buf.interval, n, accepted, c, sampled=sampled, limit=limit,
+                      history=history, elapsed=elapsed)
     return ChainRun(stored=stored.copy(), log_prob=lps.copy(), interval=buf.interval, diagnostics=dg)

@@ -8,7 +8,10 @@ the WLS of eq. (16).
 Linear models (IDIM base or essential parameters, or any per-joint linear
    model given as W3 (N, n, b), tau (N, n)).
 
-   Likelihood: ρ^j ~ N(0, σ_j² I_{r_j}) independently per joint.
+   Likelihood: ρ^j ~ N(0, σ_j² I_{r_j}) independently per joint (noise model "white"),
+   by default tempered per joint by the effective sample size of its LS residual
+   (noise model "neff": every term of joint j below divided by τ_j, i.e. G_j, g_j,
+   s_j, r_j → G_j/τ_j, g_j/τ_j, s_j/τ_j, r_j/τ_j; `dynid.analysis.sampling.noise`).
    Priors: Jeffreys p(σ_j) ∝ 1/σ_j on each σ_j; flat on χ, or a Gaussian
    N(μ₀, P₀) on some or all of χ (`GaussianPrior`, e.g. from a-priori
    values or from a previous identification).
@@ -54,11 +57,13 @@ summaries, intervals beside the LS values, convergence diagnostics from
 `dynid.analysis.sampling.convergence`; `converged=False` with the reason whenever the
 rule was not met). Runs are seeded: the same `seed` gives the same chain,
 the same `PosteriorResult.to_dict` and the same CSV, byte for byte
-(unless a `max_seconds` limit stopped the run).
+on any machine: runs stop on a step budget, never on the clock unless a
+`max_seconds` limit is asked for (then the stopping point depends on the machine).
 
 The concepts live in their own modules, re-exported here (the names users
 import from dynid.analysis.sampling.posterior): `sufficient` (the per-joint
-sufficient statistics), `linear` (priors, log-posterior, closed forms),
+sufficient statistics), `noise` (the likelihood's noise model), `linear`
+(priors, log-posterior, closed forms),
 `ensemble` (emcee: moves, walkers, seeding, start, rule), `sample`
 (`sample_linear`, `sample_idim`) and `result` (`PosteriorResult`).
 """

@@ -89,6 +89,11 @@ class PosteriorResult(ParameterResults):
         return bool(self.diagnostics.converged)
 
     @property
+    def noise_model(self) -> str:
+        """The likelihood's noise model ("neff", "white"; see dynid.analysis.sampling.noise)."""
+        return str((self.settings.get("noise_model") or {}).get("kind", "white"))
+
+    @property
     def reason(self) -> str:
         return self.diagnostics.reason
 
@@ -213,6 +218,7 @@ class PosteriorResult(ParameterResults):
         flag = "CONVERGED" if self.converged else "NOT CONVERGED - do not use these intervals"
         lines = [f"Posterior ({self.method}): {self.model}".center(_WIDTH), rule,
                  f"Status: {flag}", f"  {dg.reason}",
+                 f"Noise model: {(self.settings.get('noise_model') or {}).get('description', 'white')}",
                  f"Walkers {dg.n_walkers}   steps {dg.n_steps}   burn-in {dg.burn_in}   thin {dg.thin}   "
                  f"draws {self.n_samples}",
                  f"max tau {dg.tau_max:.4g} steps   chain/tau {dg.chain_over_tau:.1f} "
@@ -251,6 +257,7 @@ class PosteriorResult(ParameterResults):
             "model": self.model,
             "converged": self.converged,
             "reason": self.reason,
+            "noise_model": self.noise_model,
             "settings": self.settings,
             "ls_method": self.ls_label,
             "parameters": params,

@@ -20,6 +20,7 @@ from dynid.analysis.sampling.ensemble import (
     rng_from_seed,
 )
 from dynid.analysis.sampling.linear import LinearPosterior
+from dynid.analysis.sampling.noise import check_noise, noise_model, temper
 from dynid.analysis.sampling.result import PosteriorResult
 from dynid.analysis.sampling.sufficient import SufficientStats, sufficient_statistics
 from dynid.errors import InputError
@@ -30,7 +31,7 @@ def sample_linear(W3, tau, names, *, row_mask=None, ls=None, sigma=None, prior=N
                   n_walkers=None, criteria=None, max_steps=None, max_seconds=None, moves="de",
                   init_scale: float = 0.1, method_label: str = "linear model", truth=None,
                   suff_stats: SufficientStats | None = None, progress=None, support=None,
-                  start=None) -> PosteriorResult:
+                  start=None, noise: str = "neff") -> PosteriorResult:
     """Posterior of χ (and σ_j) of Y = Wχ + ρ by emcee; see the module docstring.
 
     Parameters
@@ -66,6 +67,11 @@ def sample_linear(W3, tau, names, *, row_mask=None, ls=None, sigma=None, prior=N
         (`dynid.analysis.estimators.physical.PhysicalSupport`).
     start : (b,) array, optional
         Centre of the initial ball instead of the LS estimate (it must be in `support`).
+    noise : "neff" (default) or "white"
+        The noise model of the likelihood (dynid.analysis.sampling.noise): "neff" tempers each
+        joint's likelihood by the effective sample size of its LS residual, so that rows
+        correlated in time are not counted as independent; "white" is the likelihood of
+        independent rows (eq. (16)). The result's settings, summary and JSON name it.
     """
     rng = rng_from_seed(seed)
     if ls is None:
@@ -77,7 +83,9 @@ def sample_linear(W3, tau, names, *, row_mask=None, ls=None, sigma=None, prior=N
         st = sufficient_statistics(W3, tau, names, row_mask=row_mask, ref=ls.chi)
         st.data_hash = data_hash(np.asarray(W3), np.asarray(tau),
                                     None if row_mask is None else np.asarray(row_mask))
-    model = LinearPosterior(st, sigma=sigma, prior=prior)
+    noise = check_noise(noise)
+    nm = noise_model(noise, W3, tau, row_mask, st.ref)
+    model = LinearPosterior(temper(st, nm), sigma=sigma, prior=prior)
     d = model.ndim
     b = st.n_params
     nw = n_walkers_for(n_walkers, d)
@@ -100,7 +108,7 @@ def sample_linear(W3, tau, names, *, row_mask=None, ls=None, sigma=None, prior=N
         if js is None or not np.all(np.isfinite(np.asarray(js)[act])):
             js = np.sqrt(st.s / np.maximum(st.rows - b, 1))
         centre[b:] = np.log(np.asarray(js, dtype=float)[act])
-        cov[b:, b:] = np.diag(1.0 / (2.0 * st.rows[act]))
+        cov[b:, b:] = np.diag(1.0 / (2.0 * model.stats.rows[act]))
     crit = criteria_from(criteria, max_steps=max_steps, max_seconds=max_seconds)
     p0 = initial_ball(log_prob, centre, cov, nw, init_scale, rng)
     sampler = make_sampler(log_prob, nw, d, moves, rng)
@@ -118,8 +126,11 @@ def sample_linear(W3, tau, names, *, row_mask=None, ls=None, sigma=None, prior=N
         else "one σ_j per joint, Jeffreys prior p(σ_j) ∝ 1/σ_j, sampled as log σ_j"
     settings = {
         "model": method_label,
-        "likelihood": "Gaussian, independent rows, per-joint σ_j (eqs. (9), (10), (16))",
+        "likelihood": ("Gaussian, independent rows, per-joint σ_j (eqs. (9), (10), (16))" if nm.kind == "white"
+                       else "Gaussian, per-joint σ_j (eqs. (9), (10), (16)), each joint's likelihood "
+                            "tempered by its effective sample size n_eff,j / r_j"),
         "noise": noise,
+        "noise_model": nm.to_dict(),
         "prior_chi": "flat" if prior is None else {"gaussian": prior.to_dict()},
         "linear_parameters": "sampled jointly with the noise parameters (not marginalised)",
         "sampler": "emcee.EnsembleSampler(vectorize=True)",

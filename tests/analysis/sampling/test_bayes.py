@@ -36,7 +36,8 @@ def tx40_essential():
 @pytest.fixture(scope="module")
 def tx40_known_noise(tx40_essential):
     W, tau, mask, ls = tx40_essential
-    res = bayes.sample_linear(W, tau, ls.names, row_mask=mask, ls=ls, sigma=ls.joint_sigma, seed=11)
+    res = bayes.sample_linear(W, tau, ls.names, row_mask=mask, ls=ls, sigma=ls.joint_sigma, seed=11,
+                              noise="white")
     stats_ = bayes.sufficient_statistics(W, tau, ls.names, row_mask=mask, ref=ls.chi)
     mean, cov = bayes.known_noise_posterior(stats_, ls.joint_sigma)
     return res, mean, cov
@@ -142,7 +143,7 @@ def test_gaussian_prior_closed_form_and_emcee():
     c = np.concatenate([y[:, 0] / 0.2, [0.4 / 0.05]])
     np.testing.assert_allclose(mean, np.linalg.lstsq(A, c, rcond=None)[0], rtol=1e-10)
     np.testing.assert_allclose(cov, np.linalg.inv(A.T @ A), rtol=1e-10)
-    res = bayes.sample_linear(W, y, names, sigma=sigma, prior=prior, seed=4)
+    res = bayes.sample_linear(W, y, names, sigma=sigma, prior=prior, seed=4, noise="white")
     assert res.converged, res.reason
     assert np.all(np.abs((res.mean - mean) / res.mc_stderr()) < 4)
     assert np.all(np.abs(res.std**2 / np.diag(cov) - 1) < 0.10)
@@ -171,7 +172,7 @@ def test_unknown_noise_single_joint_student_t_marginals():
     ols = lsq.ols(W, y, names)
     np.testing.assert_allclose(an.loc, ols.chi, rtol=1e-10)
     np.testing.assert_allclose(an.scale, ols.sigma, rtol=1e-8)   # s √[(WᵀW)⁻¹]_ii = eq. (14)
-    res = bayes.sample_linear(W, y, names, seed=0, criteria={"tau_multiple": 200})
+    res = bayes.sample_linear(W, y, names, seed=0, criteria={"tau_multiple": 200}, noise="white")
     assert res.converged, res.reason
     k = int(np.ceil(3 * res.diagnostics.tau_max / res.diagnostics.thin))
     S = res.chain[:, ::k].reshape(-1, 3)
