@@ -221,7 +221,7 @@ GAIN_UPDATE_CHOICES = ("every", "initial", "none")
 #: --uncertainty: dynid.analysis.estimators.least_squares.UNCERTAINTY and its default
 #: dynid.analysis.estimators.idim.DEFAULT_UNCERTAINTY (not imported, as above; tested to agree)
 UNCERTAINTY_CHOICES = ("classic", "hac", "bootstrap")
-UNCERTAINTY_DEFAULT = "classic"
+UNCERTAINTY_DEFAULT = "bootstrap"
 JSON_HELP = "write the results as JSON here ('-': to stdout)"
 REPORT_HELP = "write the HTML report here"
 

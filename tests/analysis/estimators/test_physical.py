@@ -478,7 +478,7 @@ def test_identify_physical_draws_from_the_robust_covariance(kuka_23):
     from dynid.analysis.estimators import least_squares as ls
     from dynid.analysis.estimators.physical import identify_physical
     robot, res = kuka_23
-    classic = identify_physical(res, robot, n_boot=0)
+    classic = identify_physical(res, robot, n_boot=0, uncertainty="classic")
     boot = identify_physical(res, robot, n_boot=0, uncertainty="hac")
     np.testing.assert_array_equal(boot.chi, classic.chi)
     obs = res.observation

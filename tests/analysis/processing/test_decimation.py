@@ -1,6 +1,5 @@
 """Tests of the parallel decimation of eq. (9) (dynid.analysis.processing.decimation)."""
 
-import time
 import zlib
 
 import numpy as np
@@ -155,14 +154,16 @@ def test_custom_cutoff():
     np.testing.assert_allclose(y, np.sin(2 * np.pi * 2.0 * t[idx]), atol=3e-3)
 
 
-def test_performance_regressor_sized_array():
+def test_regressor_sized_array_is_decimated_column_by_column():
+    # a regressor-sized block (samples x joints x parameters) in one call gives what each column
+    # gives alone; its speed is measured by benchmarks/regressor.py, not by a timed test
     x = np.random.default_rng(6).standard_normal((45000, 6, 60))
-    decimate(x[:5000], ND, fs=FS)  # warm-up (BLAS threads, imports)
-    start = time.perf_counter()
     y, idx = decimate(x, ND, fs=FS)
-    elapsed = time.perf_counter() - start
     assert y.shape == (len(idx), 6, 60)
-    assert elapsed < 0.5, f"decimate took {elapsed:.3f} s"
+    for j, k in ((0, 0), (3, 17), (5, 59)):
+        yj, idx_j = decimate(x[:, j, k], ND, fs=FS)
+        np.testing.assert_array_equal(idx_j, idx)
+        np.testing.assert_allclose(y[:, j, k], yj, rtol=1e-12, atol=1e-12)
 
 
 @pytest.mark.parametrize("nd", [0, -3, 2.5, "10", True])
