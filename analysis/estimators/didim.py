@@ -120,6 +120,7 @@ have to make public across modules.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import re
@@ -142,7 +143,7 @@ from dynid.errors import DataError, DynidError, InputError
 from dynid.provenance import json_safe, versions
 from dynid.ranges import check_range
 
-__all__ = ["identify_didim", "DIDIMResult", "initial_parameters", "initial_standard",
+__all__ = ["identify_didim", "didim_covariance", "DIDIMResult", "initial_parameters", "initial_standard",
            "DIDIM_SETTINGS_HELP", "resolve_didim_settings"]
 
 #: DIDIM's processing settings users may override, with their meaning.
@@ -233,6 +234,7 @@ class DIDIMResult(ModelResults):
     timings: list = field(default_factory=list)   # seconds per step (not in to_dict)
     gains: object = None              # GainsResult when the controller gains were identified
     physical: object = None           # PhysicalResult of the last step (physical=True: PC-DIDIM)
+    _state: object = field(default=None, repr=False)   # (_Loop, last step) for didim_covariance
 
     method = "DIDIM"
 
@@ -886,7 +888,7 @@ def _gauss_newton(L, beta0, tol, physical, pc_options, notices):
         timings.append({"iteration": k, "simulation_s": t_sim,
                         "total_s": time.perf_counter() - t_start})
         last = dict(res=res, Wd=Wd, taud=taud, mask=mask, idx=idx, q=q_s, qd=qd_s, qdd=qdd_s,
-                    tau_ddm=tau_ddm, kd=kd.copy(), start=beta0)
+                    tau_ddm=tau_ddm, kd=kd.copy(), start=beta0, beta_sim=np.array(beta_sim))
         beta_ls = res.chi
         if physical:
             from dynid.analysis.estimators.physical import pc_wls
@@ -923,7 +925,7 @@ def identify_didim(experiment, robot, *, settings=None, chi0=None, tol=DEFAULT_T
                    max_iter=DEFAULT_MAX_ITER, update_gains=True, essential=True, progress=None,
                    bp=None, controller=None, reference="qr", max_error_growth=0.02,
                    workers=None, physical=False, prior=None, prior_weight=1.0, mass_tolerance=None,
-                   n_boot=100) -> DIDIMResult:
+                   n_boot=100, uncertainty="classic", gains=None) -> DIDIMResult:
     """Identify the base (and essential) parameters of `robot` by DIDIM (section 3).
 
     Parameters
@@ -955,6 +957,13 @@ def identify_didim(experiment, robot, *, settings=None, chi0=None, tol=DEFAULT_T
     reference : `"qr"` (default) or `"q"`: track the measured positions instead
         (only when the reference was not logged; a notice says so).
     max_error_growth : criterion of the essential-parameter search.
+    uncertainty : covariance of the last step's WLS (the reported sigma): "classic" (eq. (14),
+        the paper's), "hac" or "bootstrap" (`dynid.analysis.estimators.least_squares`; the
+        residual of the simulated-output error is correlated in time); see `didim_covariance`.
+        The essential parameters keep eq. (14).
+    gains : the `GainsResult` of controller gains identified from the data that `controller`
+        holds: their covariance is propagated through the simulated loop and added to the
+        reported one (one more simulation per gain); the result keeps it in `gains`.
     workers : threads building the regressor chunks (default 1; the compiled kernel
         releases the GIL, but on a busy 2-core machine 2 threads were slower).
 
@@ -967,6 +976,7 @@ def identify_didim(experiment, robot, *, settings=None, chi0=None, tol=DEFAULT_T
     bp = base_parameters(robot) if bp is None else bp
     ctrl = _controller_of(robot, controller)
     tol, max_iter, update_gains = _check_iteration(tol, max_iter, update_gains)
+    ls.check_uncertainty(uncertainty)
     notices = list(getattr(experiment, "notices", []) or [])
     qr, more = _reference_of(experiment, robot, reference)
     notices += more
@@ -988,7 +998,7 @@ def identify_didim(experiment, robot, *, settings=None, chi0=None, tol=DEFAULT_T
                                   progress=progress, bp=bp, controller=controller, reference=reference,
                                   max_error_growth=max_error_growth, workers=workers, physical=physical,
                                   prior=prior, prior_weight=prior_weight, mass_tolerance=mass_tolerance,
-                                  n_boot=n_boot)
+                                  n_boot=n_boot, uncertainty=uncertainty, gains=gains)
     s["update_gains"] = update_gains
     s["tol"] = tol
     s["max_iter"] = max_iter
@@ -1003,13 +1013,107 @@ def identify_didim(experiment, robot, *, settings=None, chi0=None, tol=DEFAULT_T
     notices += _convergence_notices(history, converged, stop_reason)
     return _didim_result(L, experiment, beta0, tau, history, timings, last, converged, stop_reason, notices,
                          essential=essential, max_error_growth=max_error_growth, physical=physical,
-                         n_boot=n_boot, pc_options=pc_options)
+                         n_boot=n_boot, pc_options=pc_options, uncertainty=uncertainty, gains_cov=gains)
+
+
+def _gains_covariance(L, last, res, gains):
+    """Covariance of the DIDIM estimate from the error of identified controller gains.
+
+    The simulated loop runs with the gains `gains` identified from the data; their error moves
+    the simulated motion, hence the regressor W(q_s) and the estimate. Sensitivity by one-sided
+    differences: each gain g_i moved by its standard deviation s_i, the last simulated estimate
+    simulated again and the step's WLS solved (the step that produced `res`, the same weights
+    and rows), `J_i = (chi_i - chi) / s_i`; covariance `J C_g J'` with `C_g` the gains'
+    covariance (correlated within a joint). One closed-loop simulation per gain.
+    """
+    names_g = list(gains.names)
+    sd = np.sqrt(np.maximum(np.diag(gains.cov), 0.0))
+    J = np.zeros((res.chi.size, len(names_g)))
+    s = dict(L.s)
+    cols = []
+    for i in range(len(names_g)):
+        if not sd[i] > 0:
+            continue
+        chi_g = np.array(gains.chi, dtype=float)
+        chi_g[i] += sd[i]
+        moved = dataclasses.replace(gains, chi=chi_g, cov=gains.cov)
+        ctrl = moved.controller(L.robot)
+        q_s, qd_s, qdd_s = _simulate(L.robot, L.bp, last["beta_sim"], ctrl, L.t, L.qr, L.qdr, s,
+                                     last["kd"])[:3]
+        Wd, taud, mask, _ = L.system(q_s, qd_s, qdd_s)
+        r = ls.wls(Wd, taud, L.names, row_mask=mask)
+        J[:, i] = (r.chi - res.chi) / sd[i]
+        cols.append(names_g[i])
+    cov = J @ gains.cov @ J.T
+    return 0.5 * (cov + cov.T), cols
+
+
+def _robust(L, last, uncertainty, gains, n_boot_cov, seed):
+    """The last step's WLS with `uncertainty` and, with `gains`, the gains' share added."""
+    res = last["res"]
+    if uncertainty != "classic":
+        res = ls.wls(last["Wd"], last["taud"], L.names, row_mask=last["mask"], settings=L.info,
+                     uncertainty=uncertainty, n_boot=n_boot_cov, seed=seed)
+    if gains is None:
+        return res
+    extra, cols = _gains_covariance(L, last, res, gains)
+    base = res.bse.to_numpy()
+    res = dataclasses.replace(res, cov=res.cov + extra)
+    grow = np.nanmedian(res.bse.to_numpy() / np.where(base > 0, base, np.nan))
+    unc = dict(res.settings.get("least_squares", {}).get("uncertainty", {}))
+    unc["controller_gains"] = (f"covariance of the {len(cols)} identified gains propagated through the "
+                               "simulated loop (one simulation per gain)")
+    res.settings = {**res.settings, "least_squares": {**res.settings.get("least_squares", {}),
+                                                      "uncertainty": unc}}
+    res.notices = list(res.notices) + [
+        f"sigma includes the error of the identified controller gains ({len(cols)} gains propagated "
+        f"through the simulated loop; median sigma x{grow:.3g})"]
+    return res
+
+
+def didim_covariance(result, uncertainty="bootstrap", *, gains=None, n_boot=300, seed=0):
+    """The last Gauss-Newton step's WLS of a DIDIM result with another covariance.
+
+    Parameters
+    ----------
+    result : DIDIMResult
+        From `identify_didim` in this process (it keeps the loop it simulated).
+    uncertainty : {"classic", "hac", "bootstrap"}
+        Covariance of the last step's WLS on the simulated regressor (eq. (14), the
+        Newey-West sandwich or the circular block bootstrap of `least_squares`): the
+        residual of the simulated-output error is correlated in time, so eq. (14) is
+        optimistic.
+    gains : GainsResult, optional
+        The identified controller gains the loop was simulated with: their covariance
+        is propagated to the estimate (`_gains_covariance`) and added.
+    n_boot, seed : int
+        Replicates and seed of the bootstrap.
+
+    Returns
+    -------
+    IdentificationResult
+        The same estimate as `result.result`, another `cov`.
+
+    Raises
+    ------
+    InputError
+        An unknown `uncertainty`, or a result that does not hold its loop (read from JSON).
+    """
+    ls.check_uncertainty(uncertainty)
+    if result._state is None:
+        raise InputError("didim_covariance needs a DIDIMResult computed in this process by identify_didim")
+    L, last = result._state
+    return _robust(L, last, uncertainty, gains, n_boot, seed)
 
 
 def _didim_result(L, experiment, beta0, tau, history, timings, last, converged, stop_reason, notices, *,
-                  essential, max_error_growth, physical, n_boot, pc_options):
+                  essential, max_error_growth, physical, n_boot, pc_options, uncertainty="classic",
+                  gains_cov=None):
     """The DIDIMResult of the last step: essential set, simulated torques, provenance."""
     robot, bp, names = L.robot, L.bp, L.names
+    if uncertainty != "classic" or gains_cov is not None:
+        last["res_classic"] = last["res"]
+        last["res"] = _robust(L, last, uncertainty, gains_cov, 300, 0)
     res = last["res"]
     if physical and n_boot:
         from dynid.analysis.estimators.physical import pc_wls
@@ -1034,7 +1138,8 @@ def _didim_result(L, experiment, beta0, tau, history, timings, last, converged, 
         tau_ddm=last["tau_ddm"], t_dec=t[n0:][last["idx"]], tau_dec=last["taud"],
         tau_est_dec=last["Wd"] @ res.chi, W_dec=last["Wd"], row_mask=last["mask"],
         transient_samples=n0, notices=notices, data_hash=h, source=str(experiment.source),
-        joint_names=list(robot.joint_names), timings=timings, physical=last.get("physical"))
+        joint_names=list(robot.joint_names), timings=timings, physical=last.get("physical"),
+        gains=gains_cov, _state=(L, last))
 
 
 # ----------------------------------------------------------------------------- v_s from the data
@@ -1076,17 +1181,24 @@ def _identify_auto_v_s(experiment, robot, *, settings, chi0, tol, max_iter, upda
     base = dict(settings or {})
     # PC-DIDIM: only the final run's PC fit is bootstrapped (the candidates are scored by ||rho||)
     n_boot = kw.pop("n_boot", 0)
+    # so is the robust covariance (and the gains' share): the candidates need only the estimate
+    final_cov = {"uncertainty": kw.pop("uncertainty", "classic"), "gains": kw.pop("gains", None)}
 
-    def run(v, start, iters, ess, upd, prog=None, boot=0):
+    def run(v, start, iters, ess, upd, prog=None, boot=0, cov=None):
         return identify_didim(experiment, robot, settings={**base, "v_s": v}, chi0=start, tol=tol,
                               max_iter=iters, update_gains=upd, essential=ess, progress=prog,
-                              n_boot=boot, **kw)
+                              n_boot=boot, **(cov or {}), **kw)
 
     def part(a, b):
         return None if progress is None else (lambda f: progress(a + (b - a) * f))
 
     first = run(V_S_START, chi0, max_iter, False, update_gains, part(0.0, 0.5))
     if not first.converged:
+        if final_cov["uncertainty"] != "classic" or final_cov["gains"] is not None:
+            L, last = first._state
+            last["res_classic"] = last["res"]
+            last["res"] = first.result = _robust(L, last, final_cov["uncertainty"], final_cov["gains"], 300, 0)
+            first.gains = final_cov["gains"]
         if kw.get("physical") and n_boot:
             from dynid.analysis.estimators.physical import pc_wls
             first.physical = pc_wls(robot, first.base, first.result.chi, first.result.cov, n_boot=n_boot,
@@ -1152,7 +1264,8 @@ def _identify_auto_v_s(experiment, robot, *, settings, chi0, tol, max_iter, upda
             evaluate(v)
             refined = f"; parabola in log v_s through {lo:.3g}, {b:.3g}, {hi:.3g} rad/s gave {v:.3g}"
     chosen = best()
-    final = run(chosen, scan[chosen][1], max_iter, essential, cont, part(0.85, 1.0), boot=n_boot)
+    final = run(chosen, scan[chosen][1], max_iter, essential, cont, part(0.85, 1.0), boot=n_boot,
+                cov=final_cov)
     if progress is not None:
         progress(1.0)
 
