@@ -131,7 +131,15 @@ def main(argv=None):
     ap.add_argument("--gains", default="identify", choices=("identify", "true"))
     ap.add_argument("--options", default=",".join(OPTIONS))
     ap.add_argument("--out", default=None, help="JSON lines, one per seed (appended; seeds done are skipped)")
+    ap.add_argument("--summarize", nargs="+", default=None, metavar="JSONL",
+                    help="only print the headline of the rows in these files (no new runs)")
     a = ap.parse_args(argv)
+    if a.summarize:
+        rows = [json.loads(x) for f in a.summarize for x in Path(f).read_text().splitlines() if x.strip()]
+        out = headline(rows)
+        out["seed_list"] = sorted(r["seed"] for r in rows)
+        print(json.dumps(out))
+        return
     options = tuple(o for o in a.options.split(",") if o)
     seeds = list(range(a.start, a.start + a.seeds))
     rows = []
