@@ -122,7 +122,9 @@ Documented choices (all in `DIDIMResult.settings`, all overridable through
   `dynid.analysis.estimators.hac` on the same system. With gains identified from the data
   (`gains=`, a GainsResult) their covariance is propagated through the simulated loop and
   added (`_gains_covariance`). Measured on the independent plant (benchmarks/coverage_didim.py,
-  identified gains, coloured noise, a ripple the model lacks): see that script's results; the
+  identified gains, coloured noise, a ripple the model lacks, 99 held-out seeds): the 95 %
+  intervals cover 83.0 % (classic), 88.5 % (hac), 95.6 % (bootstrap, width x1.50 of classic);
+  the gains' share moved the bootstrap width by < 0.1 % on 5 seeds. The
   robot file's gains where the actual loop has others are another robot (bias, no sigma
   covers it: the former campaign's 66 % classic / 85 % bootstrap).
 * `fc_position`, `order` and `edge` (IDIM's position filter) do not
