@@ -171,6 +171,7 @@ def convergence_section(res):
                        f"{res.transient_samples} samples ({T.format_number(s['transient'])} s) dropped"),
         ("Decimation", f"nd = {s['nd']}, low-pass {T.format_number(s['f_decimation_cutoff'])} Hz; "
                        f"{res.t_dec.size} decimated samples"),
+        ("Uncertainty (σ)", _uncertainty_label(res)),
         ("Data hash (SHA-256)", code(res.data_hash or "\u2014")),
     ]
     body = join(
@@ -348,3 +349,12 @@ def didim_sections(didim_result, idim_result=None, *, reference="auto"):
     if idim_result is not None:
         sections.append(_comparison_section(didim_result, idim_result))
     return sections
+
+
+def _uncertainty_label(res):
+    """Which covariance the DIDIM sigma is (the last step's WLS), and whether the gains' is in it."""
+    unc = res.result.settings.get("least_squares", {}).get("uncertainty", {})
+    label = unc.get("covariance") or "classic, eq. (14)"
+    if "controller_gains" in unc:
+        label += "; with the identified controller gains' covariance propagated through the loop"
+    return label
