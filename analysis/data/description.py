@@ -20,6 +20,13 @@ All sections and keys are checked; an unknown key is an error (typos do not pass
                         stamps. Done last, after `start_offset` and the reference shift.
     `time_tolerance`  allowed relative deviation of a time step from the median
                         (default 0.01).
+    `gear_ratios`     n numbers, optional: the gear ratio N_j of each joint's motor
+                        (q_motor = N_j q_j), a fact about the robot, not a conversion:
+                        signals are not converted by it. Kept in `meta["gear_ratios"]`
+                        for the diagnosis, which names a spectral line at a harmonic
+                        of the motor turn with it. Motor-side data give them already
+                        ([transmission] gear_ratios, also kept there); both given and
+                        different is an error.
 
 `[time]`: `file`, `column` (or `key`) naming a 1-D column/array in s,
 `scale` (e.g. 0.001 for ms).
@@ -148,7 +155,9 @@ _EXPERIMENT_FIELDS = {
     "resample": _Field("bool", False),
     "file": _Field("string"),
 }
-_EXPERIMENT_KEYS = set(_EXPERIMENT_FIELDS)
+#: keys of [experiment] that are lists, read once the number of joints is known
+_EXPERIMENT_LISTS = {"gear_ratios"}
+_EXPERIMENT_KEYS = set(_EXPERIMENT_FIELDS) | _EXPERIMENT_LISTS
 
 
 class _Toml:
@@ -310,7 +319,11 @@ class _Description:
         meta: dict = {"description": label}
         sections = {s: tables[s] for s in _SECTIONS if s in tables}
         if not sections and "time" not in tables:
-            return self._column_format(tables, opts, meta)
+            experiment = self._column_format(tables, opts, meta)
+            gear = _gear_ratios(exp, None, tk, experiment.n_joints)
+            if gear is not None:
+                experiment.meta["gear_ratios"] = gear
+            return experiment
         time_col, t = self._time(tables, opts)
         _check_required(sections, tk)
         values, sides, section_cols = self._signals(sections)
@@ -323,6 +336,10 @@ class _Description:
         if "currents" in sections:
             _gains_to_identify(sections["currents"], sides["currents"], tables, tk, n, meta)
         self._transmission(tables, sections, sides, values, n)
+        gear = _gear_ratios(exp, tables.get("transmission") if any(
+            v == "motor" for v in sides.values()) else None, tk, n)
+        if gear is not None:
+            meta["gear_ratios"] = gear
         self._unused_notice()
         _release(self.raws.values(), [time_col] + [c for cols in section_cols.values() for c in cols])
         signals = {_SECTIONS[s]: v for s, v in values.items()}
@@ -615,6 +632,23 @@ def _gains_to_identify(table: dict, side: str, tables: dict, tk: _Toml, n: int, 
                                  "side = \"joint\".")
     if joints:
         meta["identify_gains"] = joints
+
+
+def _gear_ratios(exp: dict, transmission: dict | None, tk: _Toml, n: int) -> list[float] | None:
+    """The joints' gear ratios for `meta["gear_ratios"]`: `[experiment] gear_ratios`, or those
+    of a [transmission] that converts motor-side signals; None when neither gives them."""
+    given = tk.numbers("experiment", exp, "gear_ratios", n)
+    if given is not None and np.any(given == 0):
+        j = int(np.flatnonzero(given == 0)[0])
+        raise tk.err("experiment", f"gear_ratios[{j}] = 0 (joint {j + 1}): a gear ratio is the motor's "
+                                   "turns per joint turn, never 0. Give it, or leave gear_ratios out.")
+    used = None if transmission is None else tk.numbers("transmission", transmission, "gear_ratios", n)
+    if given is not None and used is not None and not np.allclose(given, used):
+        raise tk.err("experiment", f"gear_ratios {[_fmt(x) for x in given]} differ from [transmission] "
+                                   f"gear_ratios {[_fmt(x) for x in used]}, which convert the motor-side "
+                                   "signals; remove the [experiment] key (the [transmission] ones are kept).")
+    ratios = given if given is not None else used
+    return None if ratios is None else [float(x) for x in ratios]
 
 
 def _reduction(tr: dict, tk: _Toml, n: int):

@@ -8,7 +8,8 @@ along which variable. A user of a real robot needs *what* it points to (issue 27
   (the full-rate recording for the line test) it is an alias, not a mechanism: the flag
   is not raised (it is kept in `StructureResult.dropped` with the reason). Below it, the
   order per link turn k = 2 pi / P is compared with the harmonics of the motor turn
-  (k / |N_j|, N_j the joint's gear ratio from the data description's [transmission]):
+  (k / |N_j|, N_j the joint's gear ratio from the data description: `[experiment]
+  gear_ratios`, or the `[transmission]` of motor-side data):
   within `HARMONIC_TOL` of an integer h it is "motor-side cogging/gear ripple, h-th
   harmonic of motor j" (real TX40 joint 1: P = 0.00409 rad, k = 1536 = 32 x 48);
   otherwise a position ripple of order k per link turn;
@@ -31,7 +32,6 @@ with the small structure named beside it.
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass
 
 import numpy as np
@@ -77,20 +77,12 @@ def ordinal(k):
 def gear_ratios_of(experiment):
     """Gear ratios (n,) of the joints' motors from the data, or None.
 
-    `experiment.meta["gear_ratios"]` when the loader records it; else the
-    `[transmission] gear_ratios` of the experiment's TOML description, read again.
+    `experiment.meta["gear_ratios"]`: the experiment description's `[experiment]
+    gear_ratios`, or the `[transmission] gear_ratios` that converted motor-side signals
+    (docs/formats.md). The robot file holds no gear ratio.
     """
     meta = getattr(experiment, "meta", None) or {}
-    if meta.get("gear_ratios") is not None:
-        return np.asarray(meta["gear_ratios"], dtype=float)
-    path = meta.get("description")
-    if not path or not str(path).endswith(".toml"):
-        return None
-    try:
-        with open(path, "rb") as f:
-            ratios = tomllib.load(f).get("transmission", {}).get("gear_ratios")
-    except (OSError, ValueError):
-        return None
+    ratios = meta.get("gear_ratios")
     return None if ratios is None else np.asarray(ratios, dtype=float)
 
 

@@ -86,8 +86,9 @@ class RestPhases:
                             f"({100 * self.rest_share_before[j]:.0f} -> {100 * self.rest_share_after[j]:.0f} %; "
                             f"{100 * self.rest_fraction[j]:.0f} %)" for j in js),
                 "  held-out rest rows, RMS error before -> after [N m]: "
+                # a joint that never stops in the held-out data has no rest-row error (not 0)
                 + "; ".join(f"j{j + 1} {self.rest_rms_before[j]:.3g} -> {self.rest_rms_after[j]:.3g}"
-                            for j in js)]
+                            if self.rest_fraction[j] > 0 else f"j{j + 1} no rest row" for j in js)]
 
     def to_dict(self):
         return {"rest_models": list(REST_MODELS), "chosen": list(self.model),

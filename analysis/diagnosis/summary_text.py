@@ -9,7 +9,7 @@ import numpy as np
 from dynid.analysis.diagnosis.effects import order_text
 from dynid.analysis.results import notices_block
 
-__all__ = ["diagnosis_summary", "overview_lines", "verdict_lines", "fmt_p", "nonlinear_text"]
+__all__ = ["diagnosis_summary", "overview_lines", "fmt_p", "nonlinear_text"]
 
 
 def fmt_p(p):
@@ -50,7 +50,7 @@ def diagnosis_summary(res):
 
 def overview_lines(res):
     """The first screen: effects added, findings, flagged joints with their hypothesis, effects
-    cut by max_effects, errors before/after (also the verdict's diagnosis lines)."""
+    cut by max_effects, errors before/after."""
     eff = res.effects
     lines = [f"  DIAGNOSIS: {len(eff)} effect(s) added, {len(res.findings)} finding(s) named but not "
              f"added, {len(res.unexplained)} joint(s) flagged, {len(res.cut)} effect(s) cut by max_effects"]
@@ -192,22 +192,3 @@ def _hidden(res):
                  f"gravity-shaped spring explains it (best joint {best.joint}, "
                  f"p = {best.p_value:.2g})")
     return lines
-
-
-def verdict_lines(res):
-    """The verdict's lines on what the diagnosis found but did not add (issue 27 item 2):
-    findings named with their size, flagged joints with their hypothesis, effects cut by
-    max_effects. Empty when there is none of these."""
-    out = []
-    if res.findings:
-        out.append("Named but not added to the model: "
-                   + "; ".join(f"{f.label}: {f.size}" for f in res.findings) + ".")
-    if res.unexplained:
-        out.append("Structure no effect explains: "
-                   + "; ".join(f"joint {u.joint}: {u.hypothesis or u.depends_on}" for u in res.unexplained) + ".")
-    if res.cut:
-        k = res.settings["max_effects"]
-        out.append(f"{len(res.cut)} effect(s) pass the rule but were cut by max_effects = {k} ("
-                   + ", ".join(f"{r.label}, CV gain {100 * r.cv_gain:.1f} %" for r in res.cut)
-                   + f"); include them with --max-effects {k + len(res.cut)}.")
-    return out

@@ -16,6 +16,10 @@ table:
   Jarque-Bera / Shapiro-Wilk (`dynid.analysis.statistics.noise.normality`).
   A correlated residual is *not* taken as proof of a missing effect: the
   text points to the diagnosis and says what it found;
+* **what the diagnosis named but did not add** (if it ran): its findings (a drift,
+  with its size and CV gain: a change during one recording cannot predict another)
+  and the effects cut by `max_effects` (with their CV gain and the `--max-effects`
+  that includes them), one line, information only;
 * **physical plausibility**: an identified parameter that must not be
   negative and is. The rule (simple on purpose): a parameter must be ≥ 0 when
   it is, or regroups with non-negative coefficients only, standard
@@ -54,7 +58,7 @@ from dynid.dynamics.base_parameters import base_parameters
 from dynid.dynamics.excitation import apriori_parameters
 from dynid.provenance import json_safe
 
-__all__ = ["Verdict", "verdict", "CHECKS", "VerdictInputs", "CheckOutcome", "parameter_unit", "must_be_nonnegative", "NONNEGATIVE_KINDS"]
+__all__ = ["Verdict", "verdict", "CHECKS", "check_diagnosis", "VerdictInputs", "CheckOutcome", "parameter_unit", "must_be_nonnegative", "NONNEGATIVE_KINDS"]
 
 #: standard-parameter kinds that are never negative (see the module docstring)
 NONNEGATIVE_KINDS = ("M", "XX", "YY", "ZZ", "Ia", "Fv", "Fc", "Fvm", "Fcm")
@@ -401,6 +405,41 @@ def check_residual(x: VerdictInputs) -> CheckOutcome:
         fields={"whiteness": white, "normality": normal})
 
 
+def check_diagnosis(x: VerdictInputs) -> CheckOutcome:
+    """What the diagnosis found but did not put in the model (issue 27 items 2 and 3), one line.
+
+    Findings: time-varying effects (drift) named with their size and evidence, never added
+    (a change during one recording cannot predict another); cut effects: candidates that
+    pass the rule but were not tried because `max_effects` effects were added already, with
+    their CV gain and the `--max-effects` that includes them. Information only: the status
+    does not change. No line when the diagnosis did not run or has neither.
+    """
+    d = x.diagnosis
+    findings = list(getattr(d, "findings", None) or [])
+    cut = list(getattr(d, "cut", None) or [])
+    if d is None or not (findings or cut):
+        return CheckOutcome()
+    parts = []
+    if findings:
+        parts.append("The diagnosis named, but did not add (a change during this recording cannot predict "
+                     "another one): " + "; ".join(f"{f.label}: {f.size}, CV gain {100 * f.cv_gain:.1f} %"
+                                                  for f in findings) + ".")
+    k = None
+    if cut:
+        k = int((getattr(d, "settings", None) or {}).get("max_effects", 0))
+        parts.append(f"Cut by max_effects = {k} (they pass the rule, not tried): "
+                     + "; ".join(f"{r.label}, CV gain {100 * r.cv_gain:.1f} %" for r in cut)
+                     + f"; include them with --max-effects {k + len(cut)}.")
+    fields = {"diagnosis_findings": [f.to_dict() for f in findings],
+              "diagnosis_cut": [{"label": r.label, "name": r.name, "joint": r.joint,
+                                 "cv_gain": float(r.cv_gain), "statistic": float(r.statistic),
+                                 "p_value": float(r.p_value)} for r in cut]}
+    if cut:
+        fields["diagnosis_include_cut_with"] = f"--max-effects {k + len(cut)}"
+    return CheckOutcome(findings=[{"level": "info", "key": "diagnosis", "text": " ".join(parts)}],
+                        fields=fields)
+
+
 def check_plausibility(x: VerdictInputs) -> CheckOutcome:
     """A parameter that must not be negative and is (see `must_be_nonnegative`) fails."""
     bp = x.base
@@ -524,7 +563,7 @@ def check_agreement(x: VerdictInputs) -> CheckOutcome:
     return CheckOutcome(findings=[{"level": level, "key": "agreement", "text": x.result.agreement_line}])
 
 
-CHECKS = [check_validation, check_parameters, check_residual, check_plausibility, check_apriori,
+CHECKS = [check_validation, check_parameters, check_residual, check_diagnosis, check_plausibility, check_apriori,
           check_data_quality, check_agreement]
 
 

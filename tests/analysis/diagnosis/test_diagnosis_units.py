@@ -300,3 +300,15 @@ def test_coulomb_signal_of_each_rest_model():
     assert list(coulomb_signal(qd, dead, "last motion")) == [1, 1, 1, -1, -1]
     with pytest.raises(ValueError):
         coulomb_signal(qd, dead, "stick")
+
+
+def test_rest_lines_say_when_a_joint_never_stops():
+    """A joint with no held-out rest row has no rest-row error: 'no rest row', not '0 -> 0'."""
+    from dynid.analysis.diagnosis.rest import RestPhases
+    z = np.zeros(2)
+    rp = RestPhases(model=["sign(qd)", "zero"], rest_fraction=np.array([0.0, 0.3]),
+                    rel_error_before=0.1, rel_error_after=0.09, joint_rel_error_before=np.array([0.1, 0.2]),
+                    joint_rel_error_after=np.array([0.1, 0.15]), rest_share_before=z, rest_share_after=z,
+                    id_rest_sse={}, rest_rms_before=np.array([0.0, 1.2]), rest_rms_after=np.array([0.0, 0.4]))
+    line = rp.lines()[-1]
+    assert "j1 no rest row" in line and "j2 1.2 -> 0.4" in line and "j1 0 -> 0" not in line
