@@ -89,7 +89,7 @@ class Settings:
     `qd_threshold` ('auto', a number or one per joint, rad/s), `max_error_growth` (the
     essential-parameter rule). Method: `method` ('idim', 'didim', 'projection', 'ml');
     ML: `f0` (Hz), `ml_harmonics`; DIDIM: `max_iter`, `gain_update` ('every', 'initial',
-    'none'), `gains` ('assumed', 'identify'), `v_s` (rad/s or 'auto'), `reference` ('qr' or
+    'none'), `gains` ('assumed', 'identify'), `didim_start` ('idim', 'apriori'), `v_s` (rad/s or 'auto'), `reference` ('qr' or
     'q'). Model: `gravity_tilt`, `asymmetric_friction`, `physical`, `prior`, `prior_weight`,
     `mass_tolerance`, `physical_set`, `bootstrap`, `effects` (identify: the effects fitted
     beside the rigid body, 'spring:all'; diagnose: the candidate effects). Report and demo:
@@ -113,6 +113,7 @@ class Settings:
     max_iter: int | None = None
     gain_update: object = "every"
     gains: str = "assumed"
+    didim_start: str = "idim"
     v_s: object = None
     reference: str | None = None
     gravity_tilt: bool = False
@@ -394,6 +395,8 @@ def check_identify(settings: Settings) -> None:
                          "pass physical=True (--physical)")
     if method == "didim" and settings.gains not in ("assumed", "identify"):
         raise InputError(f"gains must be 'assumed' or 'identify', got {settings.gains!r} (--gains)")
+    if method == "didim" and settings.didim_start not in ("idim", "apriori"):
+        raise InputError(f"didim_start must be 'idim' or 'apriori', got {settings.didim_start!r} (--didim-start)")
     if settings.physical:
         require_cvxpy()          # before the identification, not after it
 
@@ -468,15 +471,24 @@ def _didim(exp, robot, settings: Settings, progress):
         # With the real loop's gains, the paper's rough start (Ia = 1 ...) drives the simulated
         # robot into saturation on the first step; IDIM's estimate is a start in the right basin.
         # The start gets the settings IDIM shares with DIDIM (not v_s, substeps, transient ...).
-        shared = None if processing is None else {k: v for k, v in processing.items() if k in SETTINGS_HELP}
-        start = identify_idim(exp, robot, settings=shared, max_error_growth=settings.max_error_growth)
-        chi0 = dict(zip(start.base.names, start.wls.chi))
+        if settings.didim_start == "idim":
+            shared = None if processing is None else {k: v for k, v in processing.items() if k in SETTINGS_HELP}
+            start = identify_idim(exp, robot, settings=shared, max_error_growth=settings.max_error_growth)
+            chi0 = dict(zip(start.base.names, start.wls.chi))
+    if settings.didim_start == "apriori":
+        # the robot file's a-priori values (base names as given, the rest zero); a start whose
+        # M(q) is not positive definite is projected onto the physically consistent set by DIDIM
+        if not getattr(robot, "apriori", None):
+            raise InputError(f"--didim-start apriori: '{robot.name}' ({robot.source}) has no [apriori] "
+                             "values; add them to the robot file or start from IDIM (--didim-start idim)")
+        chi0 = dict(robot.apriori)
+
     res = identify_didim(exp, robot, settings=processing, reference=ref, controller=controller, chi0=chi0,
                          max_iter=DEFAULT_MAX_ITER if settings.max_iter is None else settings.max_iter,
                          max_error_growth=settings.max_error_growth, update_gains=update_gains,
                          progress=progress, physical=settings.physical, prior=settings.prior,
                          prior_weight=settings.prior_weight, mass_tolerance=settings.mass_tolerance,
-                         n_boot=settings.bootstrap)
+                         n_boot=settings.bootstrap, uncertainty=settings.uncertainty)
     # the new result's own fields, set before it leaves this step
     res.gains = identified
     res.notices.append(didim_gains_notice(exp, robot, identified))

@@ -386,8 +386,8 @@ def _add_identify_parser(sub, common, full):
                    help="idim (q, tau); didim (qr or q, tau, a controller); projection (q, qr, tau); "
                         "ml (periodic: --f0)")
     g["advanced"].add_argument("--uncertainty", choices=list(UNCERTAINTY_CHOICES), default=UNCERTAINTY_DEFAULT,
-                               help=adv("IDIM sigma: classic (eqs. (14)-(15), samples independent), hac "
-                                        "(Newey-West), bootstrap (circular blocks over time)"))
+                               help=adv("sigma of IDIM and DIDIM: bootstrap (circular blocks over time), hac "
+                                        "(Newey-West), classic (the papers' eqs. (14)-(15), samples independent)"))
     m.add_argument("--f0", type=positive_float, metavar="HZ", help="ML: fundamental of the excitation")
     a = g["advanced"]
     a.add_argument("--ml-harmonics", type=harmonics_type, metavar="K",
@@ -401,6 +401,10 @@ def _add_identify_parser(sub, common, full):
                    help=adv("DIDIM: the controller gains of the robot file (assumed, as the paper), or "
                             "identified first from the logged qr, q and tau (the structure, pd or pid, "
                             "from the robot file)"))
+    a.add_argument("--didim-start", choices=["idim", "apriori"], default="idim",
+                   help=adv("DIDIM: the start: idim (IDIM's estimate with --gains identify, the paper's "
+                            "eq. (31) with the assumed gains) or apriori (the robot file's a-priori "
+                            "values, projected onto the physically consistent set if needed)"))
     a.add_argument("--v-s", type=_v_s_arg, metavar="RAD_PER_S|auto", dest="v_s",
                    help=adv("DIDIM: velocity over which the simulated Coulomb friction changes sign "
                             "(default auto: the smallest DIDIM residual on a factor-2 walk from 0.05 "

@@ -332,6 +332,17 @@ def check_parameters(x: VerdictInputs) -> CheckOutcome:
     return out
 
 
+def _sigma_option(x: VerdictInputs) -> str:
+    """The covariance behind the judged %σ: classic (eq. (14)), hac or bootstrap."""
+    for obj in (x.estimate, x.result):
+        option = getattr(obj, "uncertainty", None)
+        if isinstance(option, str):
+            return option
+    settings = getattr(x.result, "settings", None)
+    option = settings.get("uncertainty") if isinstance(settings, dict) else None
+    return option if isinstance(option, str) else "classic"
+
+
 def _whiteness(x: VerdictInputs) -> dict:
     """Ljung-Box on the fitted residual, with what the diagnosis found (if it ran)."""
     names, n, alpha, diagnosis = x.names, x.n, x.alpha, x.diagnosis
@@ -342,6 +353,7 @@ def _whiteness(x: VerdictInputs) -> dict:
              "statistic": [float(v) for v in lb["statistic"]], "p_value": lb_p,
              "correlated_joints": corr, "alpha": alpha,
              "residual": "identification, fitted (moving) rows"}
+    option = _sigma_option(x)
     diag_text = ""
     if diagnosis is not None:
         sel = [f"{s.name} (joint {s.joint})" if getattr(s, "joint", None) else str(s.name)
@@ -355,7 +367,10 @@ def _whiteness(x: VerdictInputs) -> dict:
         white["text"] = ("The identification residual (fitted rows) is correlated in time (Ljung-Box at lag "
                          f"{white['lag']}: " + ", ".join(f"{names[j]} p = {_fmt_p(lb_p[j])}"
                                                          for j in range(n) if names[j] in corr)
-                         + "): %\u03c3 counts the samples as independent and is optimistic; "
+                         + ("): %\u03c3 counts the samples as independent and is optimistic; "
+                            if option == "classic" else
+                            f"): %\u03c3 ({option} covariance) allows for that correlation, which the "
+                            "papers' classic %\u03c3 ignores; ")
                          + ("see the diagnosis." + diag_text if diagnosis is not None else
                             "whether an effect is missing is what the diagnosis tests (dynid diagnose, "
                             "or the full report)."))
