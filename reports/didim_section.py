@@ -353,7 +353,8 @@ def didim_sections(didim_result, idim_result=None, *, reference="auto"):
 
 def _uncertainty_label(res):
     """Which covariance the DIDIM sigma is (the last step's WLS), and whether the gains' is in it."""
-    unc = res.result.settings.get("least_squares", {}).get("uncertainty", {})
+    settings = getattr(getattr(res, "result", None), "settings", None) or {}
+    unc = settings.get("least_squares", {}).get("uncertainty", {})
     label = unc.get("covariance") or "classic, eq. (14)"
     if "controller_gains" in unc:
         label += "; with the identified controller gains' covariance propagated through the loop"
