@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from dynid.analysis.data.synthetic import simulate_experiment, tx40_true_parameters
-from dynid.analysis.estimators.idim import identify_idim
+from dynid.analysis.estimators.idim import DEFAULT_UNCERTAINTY, identify_idim
 from dynid.analysis.statistics.validation import validate
 from dynid.dynamics.base_parameters import base_parameters
 from dynid.dynamics.robot_file import load_robot
@@ -42,10 +42,10 @@ def demo_data(seed=1, duration=20.0):
     return robot, bp, beta, ident, valid
 
 
-def run_demo(seed=1, duration=20.0, say=print):
+def run_demo(seed=1, duration=20.0, say=print, uncertainty=DEFAULT_UNCERTAINTY):
     robot, bp, beta, ident, valid = demo_data(seed, duration)
     say(f"simulated the TX40: {duration:g} s for identification, {VALIDATION_DURATION:g} s for validation")
-    result = identify_idim(ident, robot, bp=bp)
+    result = identify_idim(ident, robot, bp=bp, uncertainty=uncertainty)
     result.truth = dict(zip(bp.names, beta))
     validation = validate(result, valid, robot)
     return result, robot, ident, validation, valid

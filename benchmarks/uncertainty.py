@@ -44,8 +44,9 @@ Ia7 (fixed-b HAC: 5.6σ, 2.9σ, 15σ). Recording 3 repeats one trajectory, its s
 agree within their own noise, so no estimate made from recording 3 alone can see the
 bias that separates it from recordings 1 and 2 (Ia7 −0.21 against −1.10 and −1.22);
 a σ wide enough to hold those differences identifies too few parameters. The default
-stays the classic σ (dynid.analysis.estimators.idim.DEFAULT_UNCERTAINTY, whose comment
-gives the figures); the JSON's ``lwr4_*`` figures are the default's.
+is the block bootstrap, the best calibrated here and on the independent plant
+(dynid.analysis.estimators.idim.DEFAULT_UNCERTAINTY, whose comment gives the figures);
+the JSON's ``lwr4_*`` figures are the default's.
 
 Run from the repository root (about 4 min on a shared 2-core machine):
 

@@ -374,7 +374,7 @@ def demo(*, seed=1, duration=20.0, skip=(), max_seconds=None, path=None, say=Non
         raise InputError(f"seed must be a non-negative integer, got {seed!r} (--seed)")
     sample_count(duration, float(load_robot("tx40").controller.rate),
                  what="the demo's controller rate (the TX40's)")
-    result, robot, experiment, validation, held_out = run_demo(seed=seed, duration=duration, say=say)
+    result, robot, experiment, validation, held_out = run_demo(seed=seed, duration=duration, say=say, uncertainty=s.uncertainty)
     out = _full_report(result, robot, [experiment], validation, held_out, s, say)
     if path is not None:
         out.write(path)
