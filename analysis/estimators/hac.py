@@ -302,16 +302,22 @@ def bootstrap_covariance(W3, tau, mask, chi, weights, *, groups=None, n_boot: in
     A = np.einsum("tjs,tjk->tsk", Wt, Wt) if N * s * s * 8 <= MAX_BOOT_BYTES else None
     c = np.einsum("tjs,tj->ts", Wt, yt)
     draws, failed = [], 0
-    for _ in range(n_boot):
-        counts = np.zeros(g.shape[0])
+    counts_all = np.zeros((n_boot, N))
+    for r in range(n_boot):
+        counts = counts_all[r]
         for idx in parts:
             T = idx.size
             b = min(block, T)
             starts = rng.integers(0, T, size=math.ceil(T / b))
             pos = (starts[:, None] + np.arange(b)[None, :]).reshape(-1)[:T] % T
             np.add.at(counts, idx[pos], 1.0)
-        As = np.tensordot(counts, A, axes=1) if A is not None else np.einsum("tjs,t,tjk->sk", Wt, counts, Wt)
-        cs = counts @ c
+    # every replicate's information in one matrix product: A is read once, not once per replicate
+    A_all = (counts_all @ A.reshape(N, s * s)).reshape(n_boot, s, s) if A is not None else None
+    c_all = counts_all @ c
+    for r in range(n_boot):
+        counts = counts_all[r]
+        As = A_all[r] if A_all is not None else np.einsum("tjs,t,tjk->sk", Wt, counts, Wt)
+        cs = c_all[r]
         d = np.sqrt(np.diag(As))
         if not np.all(d > 0):
             failed += 1
