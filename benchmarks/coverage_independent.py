@@ -68,6 +68,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from campaign_rows import resume
 
 ROOT = Path(__file__).resolve().parents[1]
 for _p in (ROOT, ROOT / "tests" / "support"):
@@ -342,12 +343,7 @@ def main(argv=None):
         options = ("classic",) + options
     pc_options = None if a.pc_options is None else tuple(o.strip() for o in a.pc_options.split(",") if o.strip())
     seeds = list(range(a.start, a.start + a.seeds))
-    rows = []
-    if a.out and Path(a.out).exists():
-        rows = [json.loads(x) for x in Path(a.out).read_text().splitlines() if x.strip()]
-        done = {r["seed"] for r in rows}
-        rows = [r for r in rows if r["seed"] in seeds]
-        seeds = [s for s in seeds if s not in done]
+    rows, seeds = resume(a.out, seeds)
     t0 = time.time()
 
     def record(row):

@@ -36,6 +36,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from campaign_rows import resume
 
 ROOT = Path(__file__).resolve().parents[1]
 for _p in (ROOT, ROOT / "benchmarks", ROOT / "tests" / "support"):
@@ -164,12 +165,7 @@ def main(argv=None):
     which = tuple(x.strip() for x in a.which.split(",") if x.strip())
     noises = tuple(x.strip() for x in a.noise.split(",") if x.strip())
     seeds = list(range(a.start, a.start + a.seeds))
-    rows = []
-    if a.out and Path(a.out).exists():
-        rows = [json.loads(x) for x in Path(a.out).read_text().splitlines() if x.strip()]
-        done = {r["seed"] for r in rows}
-        rows = [r for r in rows if r["seed"] in seeds]
-        seeds = [s for s in seeds if s not in done]
+    rows, seeds = resume(a.out, seeds)
     t0 = time.time()
 
     def keep(row):

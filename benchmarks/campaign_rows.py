@@ -1,0 +1,35 @@
+"""The rows a seed campaign already wrote: resume an interrupted run where it stopped.
+
+Shared by the coverage and convergence campaigns (`coverage_independent.py`,
+`coverage_didim.py`, `coverage_posterior.py`, `didim_gains.py`), whose results file holds
+one JSON object per seed and line.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+
+def resume(out, seeds):
+    """The rows of `out` for `seeds`, and the seeds still to run.
+
+    Parameters
+    ----------
+    out : str or Path or None
+        The campaign's .jsonl results file (one JSON object with a "seed" key per line); None or
+        a missing file: nothing done yet.
+    seeds : list of int
+        The seeds the campaign asks for.
+
+    Returns
+    -------
+    rows : list of dict
+        The rows already written for those seeds.
+    todo : list of int
+        The seeds without a row, in order.
+    """
+    if not out or not Path(out).exists():
+        return [], list(seeds)
+    rows = [json.loads(x) for x in Path(out).read_text().splitlines() if x.strip()]
+    done = {r["seed"] for r in rows}
+    return [r for r in rows if r["seed"] in seeds], [s for s in seeds if s not in done]
