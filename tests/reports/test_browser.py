@@ -201,6 +201,9 @@ def test_screenshot_api_page_of_identify(shots, tmp_path):
     assert "Parameters:" in text and "Returns:" in text
 
 
+# the whole demo (DIDIM and the diagnosis) for one screenshot: slow; the verdict on the demo
+# report's first screen is checked by test_verdict_block_matches_the_json[demo]
+@pytest.mark.slow
 def test_screenshot_demo_report_first_screen(shots, tmp_path):
     from dynid.reports.cli import main
     report = tmp_path / "demo.html"

@@ -182,7 +182,9 @@ def test_didim_step_index_is_the_same_everywhere(monkeypatch):
     assert [int(line.split()[0]) for line in text.splitlines()[1:]] == steps
 
 
-@pytest.mark.parametrize("method", ["didim", "projection", "ml"])
+# ML's own fit takes about half a minute on this recording (a full SVD of its Jacobian per
+# step): it runs with the slow tests; its identification is in tests/cli/test_cli.py
+@pytest.mark.parametrize("method", ["didim", "projection", pytest.param("ml", marks=pytest.mark.slow)])
 def test_every_method_gives_a_verdict(tmp_path, method):
     """DIDIM, the Projection Method and ML get the verdict too: JSON, summary and report's first block."""
     from dynid.reports.cli import main
