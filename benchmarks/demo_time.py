@@ -1,0 +1,82 @@
+"""How long `dynid demo` takes: CPU (user + system) and wall time of the README's command.
+
+Each run is a fresh child process writing the HTML report into a temporary folder:
+
+    dynid demo --seed 1 --report dynid-demo.html --quiet
+
+With ``--reference PYTHON`` (an interpreter whose environment has another version of
+dynid installed, e.g. a worktree of an earlier commit), the two are run alternately, so
+both see the same machine load, and the figure is the ratio of the medians (this / the
+reference): the back-to-back before/after of issue 30. The README's stated demo time
+comes from this script.
+
+The last line is a JSON object with `demo_cpu_s`, `demo_wall_s` (medians) and, with a
+reference, `reference_cpu_s`, `reference_wall_s` and `ratio_cpu`.
+
+Run from the repository root:
+
+    python benchmarks/demo_time.py [--repeats N] [--reference /path/to/other/.venv/bin/python]
+"""
+import argparse
+import json
+import os
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+
+def dynid_command(python: str):
+    """The `dynid` script beside `python`, else `python -m` the CLI module."""
+    script = Path(python).with_name("dynid")
+    return [str(script)] if script.exists() else [python, "-m", "dynid.reports.cli"]
+
+
+def timed(cmd, cwd):
+    """(cpu seconds, wall seconds) of one child process running `cmd`."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    subprocess.run(cmd, cwd=cwd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime), wall
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--repeats", type=int, default=1, help="runs of each interpreter (default 1)")
+    ap.add_argument("--reference", help="another interpreter with dynid installed, run alternately")
+    ap.add_argument("--seed", type=int, default=1)
+    args = ap.parse_args(argv)
+    runs = {"this": dynid_command(sys.executable)}
+    if args.reference:
+        runs["reference"] = dynid_command(args.reference)
+    times = {name: [] for name in runs}
+    load = os.getloadavg()[0]
+    with tempfile.TemporaryDirectory() as d:
+        for _ in range(args.repeats):
+            for name, cmd in runs.items():
+                cpu, wall = timed(cmd + ["demo", "--seed", str(args.seed), "--report", "dynid-demo.html",
+                                         "--quiet"], d)
+                times[name].append((cpu, wall))
+                print(f"  {name:9s} CPU {cpu:6.1f} s  wall {wall:6.1f} s", flush=True)
+    med = {name: (statistics.median(c for c, _ in ts), statistics.median(w for _, w in ts))
+           for name, ts in times.items()}
+    out = {"demo_cpu_s": round(med["this"][0], 1), "demo_wall_s": round(med["this"][1], 1),
+           "repeats": args.repeats, "cpus": os.cpu_count(),
+           "load_before": round(load, 1), "load_after": round(os.getloadavg()[0], 1)}
+    print(f"dynid demo --seed {args.seed}: CPU {out['demo_cpu_s']} s, wall {out['demo_wall_s']} s "
+          f"(median of {args.repeats}; load {out['load_before']} -> {out['load_after']} on {out['cpus']} CPUs)")
+    if args.reference:
+        out.update(reference_cpu_s=round(med["reference"][0], 1), reference_wall_s=round(med["reference"][1], 1),
+                   ratio_cpu=round(med["this"][0] / med["reference"][0], 3))
+        print(f"reference ({args.reference}): CPU {out['reference_cpu_s']} s, wall {out['reference_wall_s']} s; "
+              f"ratio CPU this / reference {out['ratio_cpu']}")
+    print(json.dumps(out))
+
+
+if __name__ == "__main__":
+    main()
