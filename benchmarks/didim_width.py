@@ -17,6 +17,9 @@ seed 5 by default (the held-out seeds 6100-6198 are not used).
 
     python benchmarks/didim_width.py [--seed 5] [--repeat 3] [--profile] [--save out.json]
 
+The simulation work (closed-loop simulations and their RK4 substeps, counted in one more pair of
+runs) is printed beside the times: it does not depend on the machine's load.
+
 `--profile` prints the cProfile (CPU time) of one automatic run, `--save` writes the
 estimates, the chosen width and its scan (to compare two versions of dynid: run this script
 with each one's Python). BLAS runs single-threaded. The last line is a JSON object with
@@ -103,6 +106,28 @@ def main(argv=None):
     print("scan: " + ", ".join(f"{r['v_s']:.4g}: {r['rho_norm']:.6g}" for r in res_auto.settings["v_s_scan"]))
     print(f"auto {med_a:.2f} s CPU, fixed {med_f:.2f} s CPU (medians of {a.repeat}): ratio {med_a / med_f:.2f}; "
           f"largest |chi_auto - chi_fixed| = {d_sigma:.3g} sigma")
+    # the work, independent of the machine's load: closed-loop simulations and their RK4 substeps
+    # (one controller period of one simulation at 1 substep = 1 unit), counted in one more pair
+    import dynid.analysis.estimators.didim as didim_module
+    counted = []
+    plain = didim_module._simulate
+
+    def counting(*args, **kwargs):
+        out = plain(*args, **kwargs)
+        counted.append(int(out[4]))
+        return out
+
+    didim_module._simulate = counting
+    try:
+        auto()
+        n_auto, u_auto = len(counted), sum(counted)
+        counted.clear()
+        identify_didim(exp, robot, settings={"v_s": float(res_auto.settings["v_s"])}, **kw)
+        n_fixed, u_fixed = len(counted), sum(counted)
+    finally:
+        didim_module._simulate = plain
+    print(f"closed-loop simulations: auto {n_auto} ({u_auto} substep units), fixed {n_fixed} ({u_fixed}): "
+          f"ratio of the simulation work {u_auto / u_fixed:.2f}")
     if a.profile:
         import cProfile
         import pstats
@@ -122,7 +147,9 @@ def main(argv=None):
         "ratio_auto_to_fixed_width": round(med_a / med_f, 3), "auto_cpu_s": round(med_a, 3),
         "fixed_cpu_s": round(med_f, 3), "auto_cpu_runs_s": [round(x, 3) for x in t_auto],
         "fixed_cpu_runs_s": [round(x, 3) for x in t_fixed], "v_s": float(res_auto.settings["v_s"]),
-        "widths_scored": len(res_auto.settings["v_s_scan"]), "steps_auto": int(res_auto.iterations),
+        "widths_scored": len(res_auto.settings["v_s_scan"]), "simulations_auto": n_auto,
+        "simulations_fixed": n_fixed, "substep_units_auto": u_auto, "substep_units_fixed": u_fixed,
+        "ratio_simulation_work": round(u_auto / u_fixed, 3), "steps_auto": int(res_auto.iterations),
         "steps_fixed": int(res_fixed.iterations), "max_auto_minus_fixed_sigma": d_sigma,
         "seed": a.seed, "duration_s": a.duration, "repeat": a.repeat,
         "load_1min": round(os.getloadavg()[0], 2)}))
