@@ -339,6 +339,9 @@ def test_v_s_is_chosen_from_the_data(tx40):
     # measured: 0.0095 rad/s, ||rho|| 0.224 against 0.302 at 0.05 (0.226 at 0.00625, 0.224 at 0.0125)
     assert scan[s["v_s"]] < 0.85 * scan[0.05] and scan[s["v_s"]] == min(scan.values())
     assert res.history["v_s"].iloc[-1] == s["v_s"] and res.history["v_s"].iloc[0] == 0.05
+    # the final iteration continues the step that scored the chosen width: that step is its first
+    at_chosen = res.history[res.history["v_s"] == s["v_s"]]
+    assert at_chosen["rho_norm"].iloc[0] == scan[s["v_s"]] and np.isnan(at_chosen["rel_change"].iloc[0])
     # one step index everywhere: the stop reason names the history's last step
     assert res.history["iteration"].tolist() == list(range(1, res.iterations + 1))
     assert f"rho_{res.iterations}||" in res.stop_reason, res.stop_reason
@@ -353,6 +356,25 @@ def test_v_s_is_chosen_from_the_data(tx40):
     assert "v_s_scan" not in given.settings and given.iterations <= 2
     with pytest.raises(InputError, match="v_s must be 'auto'"):
         identify_didim(exp, actual, bp=bp, settings={"v_s": "sharp"})
+
+
+def test_parabola_refinement_and_its_predicted_fall():
+    """The v_s search refines at the vertex of the parabola through three widths (equally spaced in
+    log v_s) and skips it when the predicted fall of ||rho|| is within tol_I: closed forms."""
+    from dynid.analysis.estimators.didim import _parabola_gain, _parabola_vertex
+
+    def f(x, x0):
+        return 2.0 + 0.3 * (x - x0) ** 2
+    for x0 in (0.2, -0.35):
+        off = _parabola_vertex(f(-1, x0), f(0, x0), f(1, x0))
+        assert off == pytest.approx(x0, abs=1e-12)
+        assert _parabola_gain(f(-1, x0), f(0, x0), f(1, x0), off) == pytest.approx(0.3 * x0 ** 2, rel=1e-12)
+    # a vertex beyond the neighbours: clipped to half a step, the fall at that point
+    off = _parabola_vertex(f(-1, 0.8), f(0, 0.8), f(1, 0.8))
+    assert off == 0.5
+    assert _parabola_gain(f(-1, 0.8), f(0, 0.8), f(1, 0.8), off) == pytest.approx(f(0, 0.8) - f(0.5, 0.8))
+    # not curving upwards: no refinement, no predicted fall
+    assert _parabola_vertex(1.0, 2.0, 1.5) == 0.0 and _parabola_gain(1.0, 2.0, 1.5, 0.3) == 0.0
 
 
 @needs_pin
