@@ -358,6 +358,28 @@ def test_v_s_is_chosen_from_the_data(tx40):
         identify_didim(exp, actual, bp=bp, settings={"v_s": "sharp"})
 
 
+def test_v_s_search_that_keeps_the_start_width_continues_the_first_run(monkeypatch):
+    """When no other width is tried (the range shrunk to the start width), the search's final
+    iteration continues the first run's last step: the history is the fixed-width run's, then
+    steps whose criterion compares with the step before, numbered on (planar2, dynid's simulator)."""
+    import dynid
+    from dynid.analysis.estimators import didim
+    robot = dynid.load_robot("planar2")
+    exp = dynid.simulate(robot, 2.0, seed=5).experiment
+    fixed = identify_didim(exp, robot, essential=False, settings={"v_s": didim.V_S_START})
+    monkeypatch.setattr(didim, "V_S_MIN", didim.V_S_START)
+    monkeypatch.setattr(didim, "V_S_MAX", didim.V_S_START)
+    res = identify_didim(exp, robot, essential=False)
+    h, n = res.history, fixed.iterations
+    assert res.converged and fixed.converged and [r["v_s"] for r in res.settings["v_s_scan"]] == [0.05]
+    np.testing.assert_array_equal(h["rho_norm"].iloc[:n], fixed.history["rho_norm"])
+    assert res.iterations > n and h["iteration"].tolist() == list(range(1, res.iterations + 1))
+    rho = h["rho_norm"].to_numpy()
+    assert h["rel_change"].iloc[n] == pytest.approx(abs(rho[n] - rho[n - 1]) / rho[n - 1], rel=1e-12)
+    assert f"rho_{res.iterations}||" in res.stop_reason
+    assert np.max(np.abs(res.chi - fixed.chi) / fixed.result.bse.to_numpy()) < 0.05
+
+
 def test_parabola_refinement_and_its_predicted_fall():
     """The v_s search refines at the vertex of the parabola through three widths (equally spaced in
     log v_s) and skips it when the predicted fall of ||rho|| is within tol_I: closed forms."""
