@@ -339,6 +339,9 @@ def test_v_s_is_chosen_from_the_data(tx40):
     # measured: 0.0095 rad/s, ||rho|| 0.224 against 0.302 at 0.05 (0.226 at 0.00625, 0.224 at 0.0125)
     assert scan[s["v_s"]] < 0.85 * scan[0.05] and scan[s["v_s"]] == min(scan.values())
     assert res.history["v_s"].iloc[-1] == s["v_s"] and res.history["v_s"].iloc[0] == 0.05
+    # the final iteration continues the step that scored the chosen width: that step is its first
+    at_chosen = res.history[res.history["v_s"] == s["v_s"]]
+    assert at_chosen["rho_norm"].iloc[0] == scan[s["v_s"]] and np.isnan(at_chosen["rel_change"].iloc[0])
     # one step index everywhere: the stop reason names the history's last step
     assert res.history["iteration"].tolist() == list(range(1, res.iterations + 1))
     assert f"rho_{res.iterations}||" in res.stop_reason, res.stop_reason
@@ -353,6 +356,47 @@ def test_v_s_is_chosen_from_the_data(tx40):
     assert "v_s_scan" not in given.settings and given.iterations <= 2
     with pytest.raises(InputError, match="v_s must be 'auto'"):
         identify_didim(exp, actual, bp=bp, settings={"v_s": "sharp"})
+
+
+def test_v_s_search_that_keeps_the_start_width_continues_the_first_run(monkeypatch):
+    """When no other width is tried (the range shrunk to the start width), the search's final
+    iteration continues the first run's last step: the history is the fixed-width run's, then
+    steps whose criterion compares with the step before, numbered on (planar2, dynid's simulator)."""
+    import dynid
+    from dynid.analysis.estimators import didim
+    robot = dynid.load_robot("planar2")
+    exp = dynid.simulate(robot, 2.0, seed=5).experiment
+    fixed = identify_didim(exp, robot, essential=False, settings={"v_s": didim.V_S_START})
+    monkeypatch.setattr(didim, "V_S_MIN", didim.V_S_START)
+    monkeypatch.setattr(didim, "V_S_MAX", didim.V_S_START)
+    res = identify_didim(exp, robot, essential=False)
+    h, n = res.history, fixed.iterations
+    assert res.converged and fixed.converged and [r["v_s"] for r in res.settings["v_s_scan"]] == [0.05]
+    np.testing.assert_array_equal(h["rho_norm"].iloc[:n], fixed.history["rho_norm"])
+    assert res.iterations > n and h["iteration"].tolist() == list(range(1, res.iterations + 1))
+    rho = h["rho_norm"].to_numpy()
+    assert h["rel_change"].iloc[n] == pytest.approx(abs(rho[n] - rho[n - 1]) / rho[n - 1], rel=1e-12)
+    assert f"rho_{res.iterations}||" in res.stop_reason
+    assert np.max(np.abs(res.chi - fixed.chi) / fixed.result.bse.to_numpy()) < 0.05
+
+
+def test_parabola_refinement_and_its_predicted_fall():
+    """The v_s search refines at the vertex of the parabola through three widths (equally spaced in
+    log v_s) and skips it when the predicted fall of ||rho|| is within tol_I: closed forms."""
+    from dynid.analysis.estimators.didim import _parabola_gain, _parabola_vertex
+
+    def f(x, x0):
+        return 2.0 + 0.3 * (x - x0) ** 2
+    for x0 in (0.2, -0.35):
+        off = _parabola_vertex(f(-1, x0), f(0, x0), f(1, x0))
+        assert off == pytest.approx(x0, abs=1e-12)
+        assert _parabola_gain(f(-1, x0), f(0, x0), f(1, x0), off) == pytest.approx(0.3 * x0 ** 2, rel=1e-12)
+    # a vertex beyond the neighbours: clipped to half a step, the fall at that point
+    off = _parabola_vertex(f(-1, 0.8), f(0, 0.8), f(1, 0.8))
+    assert off == 0.5
+    assert _parabola_gain(f(-1, 0.8), f(0, 0.8), f(1, 0.8), off) == pytest.approx(f(0, 0.8) - f(0.5, 0.8))
+    # not curving upwards: no refinement, no predicted fall
+    assert _parabola_vertex(1.0, 2.0, 1.5) == 0.0 and _parabola_gain(1.0, 2.0, 1.5, 0.3) == 0.0
 
 
 @needs_pin

@@ -434,18 +434,20 @@ def test_pc_didim_with_the_automatic_v_s_continues_from_physical_estimates(monke
     from dynid.analysis.estimators import didim
     robot = dynid.load_robot("planar2")
     rec = dynid.simulate(robot, 4.0, seed=5)
-    real, starts, results = didim.identify_didim, [], []
+    # the search's iterations (first run, one step per candidate width, the final run continuing
+    # a candidate's step) are calls of didim._gauss_newton: their starts and last estimates
+    real, starts, lasts = didim._gauss_newton, [], []
 
-    def spy(*args, **kw):
-        starts.append(kw.get("chi0"))
-        out = real(*args, **kw)
-        results.append(out)
+    def spy(L, beta0, *args, **kw):
+        starts.append(beta0 if kw.get("resume") is None else kw["resume"]["beta_ls"])
+        out = real(L, beta0, *args, **kw)
+        lasts.append(out[2])
         return out
-    monkeypatch.setattr(didim, "identify_didim", spy)
-    out = real(rec.experiment, robot, max_iter=10, physical=True, essential=False, n_boot=0)
+    monkeypatch.setattr(didim, "_gauss_newton", spy)
+    out = didim.identify_didim(rec.experiment, robot, max_iter=10, physical=True, essential=False, n_boot=0)
     assert "v_s_scan" in out.settings             # the search ran (the first run converged)
     assert len(starts) >= 3                        # the first run, candidates, the final run
-    physical = [np.asarray(r.physical.chi) for r in results]
+    physical = [np.asarray(last["physical"].chi) for last in lasts]
     for chi0 in starts[1:]:
         assert any(np.array_equal(np.asarray(chi0), p) for p in physical)
 
