@@ -224,6 +224,13 @@ class EffectObservation:
                           columns=np.asarray(self.bp.independent)[cols])
             return W[np.clip(np.arange(a, b), lo, hi - 1) - lo]
 
+        if self.W_full is not None:
+            # only the (joint, column) pairs that are not identically zero (a joint's row
+            # has no columns of the links before it, nor the other joints' drive terms:
+            # about half of them on a 6-joint arm); the others stay exact zeros
+            sel = np.flatnonzero(self._nonzero_pairs()[:, cols].ravel())
+            if sel.size < n * k:
+                return self._shifted_pairs(cols, sel, si, frac)
         nd = int(self.settings["nd"])
         dec = self._decimator() if nd > 1 else None
         keep = None if self.dead is None else (~self.dead)[:, :, None].astype(float)
@@ -257,6 +264,77 @@ class EffectObservation:
             dec.finish()
         D = np.concatenate(parts, axis=0)
         return D.reshape(D.shape[0], n, k)
+
+    def _nonzero_pairs(self):
+        """(n, b) bool: the full-rate regressor's (joint, column) pairs not identically zero
+        (computed once per observation; `with_base` makes a new one)."""
+        nz = self.__dict__.get("_nonzero")
+        if nz is None:
+            nz = np.zeros(self.W_full.shape[1:], dtype=bool)
+            for start in range(0, self.n_full, CHUNK):
+                nz |= np.any(self.W_full[start:start + CHUNK] != 0, axis=0)
+            self.__dict__["_nonzero"] = nz
+        return nz
+
+    def _shifted_pairs(self, cols, sel, si, frac):
+        """`shifted_regressor` of the flat (joint, column) pairs `sel` of (n, len(cols)) only,
+        the others zero: the same operations on each pair, in the same order."""
+        N, n, k = self.n_full, self.n_joints, cols.size
+        b_all = self.W_full.shape[2]
+        joint = sel // k
+        flat = joint * b_all + cols[sel % k]          # pairs in the flattened (n * b) rows
+        # the pairs gathered once into a contiguous copy, kept for the next
+        # delays (the delay grid shifts the same columns 14 times per step)
+        # delays (the delay grid shifts the same columns 14 times per step), unless that
+        # copy would pass half the regressor cache's limit: then gathered block by block
+        W2 = self.W_full.reshape(N, n * b_all)
+        cached = self.__dict__.get("_pairs")
+        if (cached is None or not np.array_equal(cached[0], flat)) and N * flat.size * 8 <= CACHE_LIMIT_BYTES / 2:
+            Wp = np.empty((N, flat.size))
+            for start in range(0, N, CHUNK):
+                Wp[start:start + CHUNK] = W2[start:start + CHUNK][:, flat]
+            cached = (flat, Wp)
+            self.__dict__["_pairs"] = cached
+        if cached is not None and np.array_equal(cached[0], flat):
+            Wp, pick = cached[1], slice(None)
+        else:
+            Wp, pick = W2, flat
+        keep = None if self.dead is None else (~self.dead).astype(float)
+
+        def source(a, b):
+            if a >= 0 and b <= N:
+                return Wp[a:b, pick]
+            return Wp[np.clip(np.arange(a, b), 0, N - 1)][:, pick]
+
+        nd = int(self.settings["nd"])
+        dec = self._decimator() if nd > 1 else None
+        m = sel.size
+        buf = np.empty((min(N, CHUNK), m))
+        sub = max(1, _SUB_BYTES // max(1, 8 * m))
+        tmp = np.empty((min(N, sub), m)) if frac else None
+        parts = []
+        for start in range(0, N, CHUNK):
+            stop = min(N, start + CHUNK)
+            C = buf[:stop - start]
+            for a in range(start, stop, sub):
+                b = min(stop, a + sub)
+                Cs = C[a - start:b - start]
+                if frac:
+                    np.multiply(source(a - si, b - si), 1.0 - frac, out=Cs)
+                    Cs += np.multiply(source(a - si - 1, b - si - 1), frac, out=tmp[:b - a])
+                    if keep is not None:
+                        Cs *= keep[a:b][:, joint]
+                elif keep is not None:
+                    np.multiply(source(a - si, b - si), keep[a:b][:, joint], out=Cs)
+                else:
+                    Cs[...] = source(a - si, b - si)
+            parts.append(dec.push(C) if dec is not None else C.copy())   # C is the reused buffer
+        if dec is not None:
+            dec.finish()
+        D = np.concatenate(parts, axis=0)
+        out = np.zeros((D.shape[0], n * k))
+        out[:, sel] = D
+        return out.reshape(D.shape[0], n, k)
 
     # ------------------------------------------------------------- variants
     def with_base(self, bp_sub):
