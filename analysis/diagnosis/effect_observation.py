@@ -419,13 +419,16 @@ def observe_effects(experiment, robot, bp, settings=None, *, cache_regressor="au
     else:
         dec = ParallelDecimator(nd, n_samples_total=n_kept, fs=fs, cutoff=s["f_decimation_cutoff"])
         parts = []
+        # one buffer for the masked chunks (the decimator copies what it keeps): a fresh
+        # array per chunk costs more in page faults than the product
+        buf = None if keep_rows is None else np.empty((min(n_kept, CHUNK), n, b))
         for start in range(0, n_kept, CHUNK):
             sl = slice(start, min(n_kept, start + CHUNK))
             W = chunk_regressor(sl)
             tc = tau[sl]
             if keep_rows is not None:
                 # as dynid.analysis.processing.observation.push_chunk: zero both sides in the dead zone
-                W = W * keep_rows[sl][:, :, None]
+                W = np.multiply(W, keep_rows[sl][:, :, None], out=buf[:sl.stop - sl.start])
                 tc = tc * keep_rows[sl]
             kept = np.ones(tc.shape) if dead is None else keep_rows[sl].astype(float)
             parts.append(dec.push(W, tc, qf[sl], qd[sl], qdd[sl], kept))
