@@ -190,8 +190,10 @@ class EffectObservation:
             keep = ~np.asarray(exclude, dtype=bool)
             cols, chi = cols[keep], chi[keep]
         tau = np.empty((self.n_full, self.n_joints))
+        # all columns in order: the chunk itself, not a gathered copy of it (the same product)
+        every = self.W_full is not None and np.array_equal(cols, np.arange(self.W_full.shape[2]))
         for sl, W in self.regressor_chunks():
-            tau[sl] = W[:, :, cols] @ chi
+            tau[sl] = (W if every else W[:, :, cols]) @ chi
         return tau
 
     def shifted_regressor(self, columns, d):
@@ -401,8 +403,12 @@ def observe_effects(experiment, robot, bp, settings=None, *, cache_regressor="au
     payload = np.empty((n_kept, n, len(pay_idx)))
     keep_rows = None if dead is None else ~dead
 
+    chunk_buf = np.empty((min(n_kept, CHUNK), n, columns.size))
+
     def chunk_regressor(sl):
-        Wc = regressor(robot, qf[sl], qd[sl], qdd[sl], columns=columns)
+        # into one reused buffer (its parts are copied out below, or masked into another)
+        Wc = regressor(robot, qf[sl], qd[sl], qdd[sl], columns=columns,
+                       out=chunk_buf[:sl.stop - sl.start])
         payload[sl] = Wc[:, :, b:]
         Wb = Wc[:, :, :b]
         if W_full is not None:
@@ -410,7 +416,7 @@ def observe_effects(experiment, robot, bp, settings=None, *, cache_regressor="au
         return Wb
 
     if nd <= 1:
-        W = np.concatenate([chunk_regressor(slice(a, min(n_kept, a + CHUNK)))
+        W = np.concatenate([chunk_regressor(slice(a, min(n_kept, a + CHUNK))).copy()   # the buffer is reused
                             for a in range(0, n_kept, CHUNK)], axis=0)
         mask = np.ones(tau.shape, dtype=bool) if dead is None else keep_rows.copy()
         Wd, taud = W * mask[:, :, None], tau * mask
