@@ -34,6 +34,10 @@ __all__ = ["EffectObservation", "observe_effects", "payload_parameter_names", "C
 #: ``cache_regressor="auto"`` keeps the full-rate base regressor below this size.
 CACHE_LIMIT_BYTES = 400e6
 
+#: Rows of the shifted regressor's arithmetic per step (`shifted_regressor`): a block that
+#: stays in the cache.
+_SUB_BYTES = 1 << 20
+
 #: The last link's standard parameters the payload effect adds to (mass, first moments).
 PAYLOAD_SYMBOLS = ("M", "MX", "MY", "MZ")
 
@@ -186,8 +190,10 @@ class EffectObservation:
             keep = ~np.asarray(exclude, dtype=bool)
             cols, chi = cols[keep], chi[keep]
         tau = np.empty((self.n_full, self.n_joints))
+        # all columns in order: the chunk itself, not a gathered copy of it (the same product)
+        every = self.W_full is not None and np.array_equal(cols, np.arange(self.W_full.shape[2]))
         for sl, W in self.regressor_chunks():
-            tau[sl] = W[:, :, cols] @ chi
+            tau[sl] = (W if every else W[:, :, cols]) @ chi
         return tau
 
     def shifted_regressor(self, columns, d):
@@ -220,30 +226,117 @@ class EffectObservation:
                           columns=np.asarray(self.bp.independent)[cols])
             return W[np.clip(np.arange(a, b), lo, hi - 1) - lo]
 
+        if self.W_full is not None:
+            # only the (joint, column) pairs that are not identically zero (a joint's row
+            # has no columns of the links before it, nor the other joints' drive terms:
+            # about half of them on a 6-joint arm); the others stay exact zeros
+            sel = np.flatnonzero(self._nonzero_pairs()[:, cols].ravel())
+            if sel.size < n * k:
+                return self._shifted_pairs(cols, sel, si, frac)
         nd = int(self.settings["nd"])
         dec = self._decimator() if nd > 1 else None
+        keep = None if self.dead is None else (~self.dead)[:, :, None].astype(float)
         parts = []
         # two chunk buffers for the whole pass: a fresh 50 MB array per chunk and delay cost
-        # more in page faults than in arithmetic (the decimator copies what it keeps)
+        # more in page faults than in arithmetic (the decimator copies what it keeps); the
+        # arithmetic runs on sub-blocks that stay in the cache (one pass over memory, not
+        # four; the same operations in the same order, so the same numbers)
         buf = np.empty((min(N, CHUNK), n, k))
-        tmp = np.empty_like(buf) if frac else None
+        # (without the cached regressor, `source` builds the rows: one call per chunk)
+        sub = max(1, _SUB_BYTES // max(1, 8 * n * k)) if self.W_full is not None else CHUNK
+        tmp = np.empty((min(N, sub), n, k)) if frac else None
         for start in range(0, N, CHUNK):
             stop = min(N, start + CHUNK)
-            kk = np.arange(start, stop)
-            C = buf[:kk.size]
-            if frac:
-                np.multiply(source(start - si, stop - si), 1.0 - frac, out=C)
-                C += np.multiply(source(start - si - 1, stop - si - 1), frac, out=tmp[:kk.size])
-            else:
-                C[...] = source(start - si, stop - si)   # a view of W_full: never scaled in place
-            if self.dead is not None:
-                C *= (~self.dead[kk])[:, :, None]
-            C = C.reshape(kk.size, n * k)
+            C = buf[:stop - start]
+            for a in range(start, stop, sub):
+                b = min(stop, a + sub)
+                Cs = C[a - start:b - start]
+                if frac:
+                    np.multiply(source(a - si, b - si), 1.0 - frac, out=Cs)
+                    Cs += np.multiply(source(a - si - 1, b - si - 1), frac, out=tmp[:b - a])
+                    if keep is not None:
+                        Cs *= keep[a:b]
+                elif keep is not None:
+                    np.multiply(source(a - si, b - si), keep[a:b], out=Cs)
+                else:
+                    Cs[...] = source(a - si, b - si)   # a view of W_full: never scaled in place
+            C = C.reshape(stop - start, n * k)
             parts.append(dec.push(C) if dec is not None else C.copy())   # C is the reused buffer
         if dec is not None:
             dec.finish()
         D = np.concatenate(parts, axis=0)
         return D.reshape(D.shape[0], n, k)
+
+    def _nonzero_pairs(self):
+        """(n, b) bool: the full-rate regressor's (joint, column) pairs not identically zero
+        (computed once per observation; `with_base` makes a new one)."""
+        nz = self.__dict__.get("_nonzero")
+        if nz is None:
+            nz = np.zeros(self.W_full.shape[1:], dtype=bool)
+            for start in range(0, self.n_full, CHUNK):
+                nz |= np.any(self.W_full[start:start + CHUNK] != 0, axis=0)
+            self.__dict__["_nonzero"] = nz
+        return nz
+
+    def _shifted_pairs(self, cols, sel, si, frac):
+        """`shifted_regressor` of the flat (joint, column) pairs `sel` of (n, len(cols)) only,
+        the others zero: the same operations on each pair, in the same order."""
+        N, n, k = self.n_full, self.n_joints, cols.size
+        b_all = self.W_full.shape[2]
+        joint = sel // k
+        flat = joint * b_all + cols[sel % k]          # pairs in the flattened (n * b) rows
+        # the pairs gathered once into a contiguous copy, kept for the next
+        # delays (the delay grid shifts the same columns 14 times per step)
+        # delays (the delay grid shifts the same columns 14 times per step), unless that
+        # copy would pass half the regressor cache's limit: then gathered block by block
+        W2 = self.W_full.reshape(N, n * b_all)
+        cached = self.__dict__.get("_pairs")
+        if (cached is None or not np.array_equal(cached[0], flat)) and N * flat.size * 8 <= CACHE_LIMIT_BYTES / 2:
+            Wp = np.empty((N, flat.size))
+            for start in range(0, N, CHUNK):
+                Wp[start:start + CHUNK] = W2[start:start + CHUNK][:, flat]
+            cached = (flat, Wp)
+            self.__dict__["_pairs"] = cached
+        if cached is not None and np.array_equal(cached[0], flat):
+            Wp, pick = cached[1], slice(None)
+        else:
+            Wp, pick = W2, flat
+        keep = None if self.dead is None else (~self.dead).astype(float)
+
+        def source(a, b):
+            if a >= 0 and b <= N:
+                return Wp[a:b, pick]
+            return Wp[np.clip(np.arange(a, b), 0, N - 1)][:, pick]
+
+        nd = int(self.settings["nd"])
+        dec = self._decimator() if nd > 1 else None
+        m = sel.size
+        buf = np.empty((min(N, CHUNK), m))
+        sub = max(1, _SUB_BYTES // max(1, 8 * m))
+        tmp = np.empty((min(N, sub), m)) if frac else None
+        parts = []
+        for start in range(0, N, CHUNK):
+            stop = min(N, start + CHUNK)
+            C = buf[:stop - start]
+            for a in range(start, stop, sub):
+                b = min(stop, a + sub)
+                Cs = C[a - start:b - start]
+                if frac:
+                    np.multiply(source(a - si, b - si), 1.0 - frac, out=Cs)
+                    Cs += np.multiply(source(a - si - 1, b - si - 1), frac, out=tmp[:b - a])
+                    if keep is not None:
+                        Cs *= keep[a:b][:, joint]
+                elif keep is not None:
+                    np.multiply(source(a - si, b - si), keep[a:b][:, joint], out=Cs)
+                else:
+                    Cs[...] = source(a - si, b - si)
+            parts.append(dec.push(C) if dec is not None else C.copy())   # C is the reused buffer
+        if dec is not None:
+            dec.finish()
+        D = np.concatenate(parts, axis=0)
+        out = np.zeros((D.shape[0], n * k))
+        out[:, sel] = D
+        return out.reshape(D.shape[0], n, k)
 
     # ------------------------------------------------------------- variants
     def with_base(self, bp_sub):
@@ -310,8 +403,12 @@ def observe_effects(experiment, robot, bp, settings=None, *, cache_regressor="au
     payload = np.empty((n_kept, n, len(pay_idx)))
     keep_rows = None if dead is None else ~dead
 
+    chunk_buf = np.empty((min(n_kept, CHUNK), n, columns.size))
+
     def chunk_regressor(sl):
-        Wc = regressor(robot, qf[sl], qd[sl], qdd[sl], columns=columns)
+        # into one reused buffer (its parts are copied out below, or masked into another)
+        Wc = regressor(robot, qf[sl], qd[sl], qdd[sl], columns=columns,
+                       out=chunk_buf[:sl.stop - sl.start])
         payload[sl] = Wc[:, :, b:]
         Wb = Wc[:, :, :b]
         if W_full is not None:
@@ -319,7 +416,7 @@ def observe_effects(experiment, robot, bp, settings=None, *, cache_regressor="au
         return Wb
 
     if nd <= 1:
-        W = np.concatenate([chunk_regressor(slice(a, min(n_kept, a + CHUNK)))
+        W = np.concatenate([chunk_regressor(slice(a, min(n_kept, a + CHUNK))).copy()   # the buffer is reused
                             for a in range(0, n_kept, CHUNK)], axis=0)
         mask = np.ones(tau.shape, dtype=bool) if dead is None else keep_rows.copy()
         Wd, taud = W * mask[:, :, None], tau * mask
@@ -328,13 +425,16 @@ def observe_effects(experiment, robot, bp, settings=None, *, cache_regressor="au
     else:
         dec = ParallelDecimator(nd, n_samples_total=n_kept, fs=fs, cutoff=s["f_decimation_cutoff"])
         parts = []
+        # one buffer for the masked chunks (the decimator copies what it keeps): a fresh
+        # array per chunk costs more in page faults than the product
+        buf = None if keep_rows is None else np.empty((min(n_kept, CHUNK), n, b))
         for start in range(0, n_kept, CHUNK):
             sl = slice(start, min(n_kept, start + CHUNK))
             W = chunk_regressor(sl)
             tc = tau[sl]
             if keep_rows is not None:
                 # as dynid.analysis.processing.observation.push_chunk: zero both sides in the dead zone
-                W = W * keep_rows[sl][:, :, None]
+                W = np.multiply(W, keep_rows[sl][:, :, None], out=buf[:sl.stop - sl.start])
                 tc = tc * keep_rows[sl]
             kept = np.ones(tc.shape) if dead is None else keep_rows[sl].astype(float)
             parts.append(dec.push(W, tc, qf[sl], qd[sl], qdd[sl], kept))

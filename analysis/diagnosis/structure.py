@@ -359,18 +359,40 @@ def _binned_null(bins, nb, y, perms):
         return np.sum(np.where(c > 0, s * s / np.maximum(c, 1), 0.0), axis=1)
 
 
-def _perm_power(gi, y, perms):
-    """Mean over the orders p of `perms` of `_position_power(gi, y[p])` (FFTs batched)."""
+def _perm_power(gi, y, L, n_perm, rng):
+    """Mean over `n_perm` block permutations p (`_block_perms(y.size, L, n_perm, rng)`: the same
+    draws) of `_position_power(gi, y[p])` (FFTs batched).
+
+    The permuted residuals are gathered block by block from y cut into rows of L, a batch at
+    a time (the orders as sample indices, n_perm x N integers, are never built: at the full
+    rate that was most of the structure tests' time); the same values as y[p], so the
+    same sums.
+    """
+    n = y.size
+    nb = int(math.ceil(n / L))
+    perms = np.array([rng.permutation(nb) for _ in range(n_perm)], dtype=np.intp).reshape(n_perm, nb)
+    short = n - (nb - 1) * L               # samples of the last block, which keeps its order
+    Yb = np.zeros(nb * L)
+    Yb[:n] = y
+    Yb = Yb.reshape(nb, L)
     total = np.zeros(GRID + 1)
     binned = np.empty((_BATCH, GRID))
-    for a in range(0, len(perms), _BATCH):
+    for a in range(0, n_perm, _BATCH):
         P = perms[a:a + _BATCH]
-        for i, p in enumerate(P):
-            binned[i] = np.bincount(gi, weights=y[p], minlength=GRID)
-        power = np.abs(np.fft.rfft(binned[:len(P)], 2 * GRID, axis=1)) ** 2
+        B = len(P)
+        G = Yb[P]                           # (B, nb, L)
+        if short < L:
+            keep = np.ones(G.shape, dtype=bool)
+            keep[np.arange(B), np.argmax(P == nb - 1, axis=1), short:] = False
+            G = G[keep].reshape(B, n)
+        else:
+            G = G.reshape(B, n)
+        for i in range(B):
+            binned[i] = np.bincount(gi, weights=G[i], minlength=GRID)
+        power = np.abs(np.fft.rfft(binned[:B], 2 * GRID, axis=1)) ** 2
         for row in power:                # the same running sum as np.mean over the rows
             total += row
-    return total / len(perms)
+    return total / n_perm
 
 
 def _satterthwaite_p(S, null):
@@ -399,7 +421,7 @@ def _line_test(j, x, e, L, n_perm, rng, noise_rms):
     gi = np.clip(np.round((x - lo) / dq).astype(int), 0, GRID - 1)
     nfft = 2 * GRID
     P = _position_power(gi, e)
-    Pn = _perm_power(gi, e, _block_perms(nu, L, n_perm, rng))
+    Pn = _perm_power(gi, e, L, n_perm, rng)
     k_orders = 2 * np.pi * np.fft.rfftfreq(nfft, dq)
     kmin = 2 * np.pi * 3.0 / rng_q           # at least 3 periods over the range
     kmax = 2 * np.pi / (4 * dq)              # at least 4 grid steps per period
@@ -453,7 +475,7 @@ def _line_confirmation(gi, e, sel, L, n_perm, rng):
 
     def spectra(idx):
         g, y = gi[idx], e[idx]
-        Pn = _perm_power(g, y, _block_perms(y.size, L, n_perm, rng))
+        Pn = _perm_power(g, y, L, n_perm, rng)
         return np.where(sel & (Pn > 0), _position_power(g, y) / np.where(Pn > 0, Pn, 1.0), 0.0)
 
     za = spectra(np.arange(half))

@@ -1,0 +1,118 @@
+"""The diagnosis' fast paths give the numbers of the direct computations they replace.
+
+Each reference is written here from the definition (interpolate, zero in the dead zone,
+decimate; a second observation without the dead zone; permute, bin, transform), not
+taken from the code under test. Synthetic planar 2R motion (positions only matter: the
+regressor is the robot's), a few seconds at 500 Hz: well under a second in all.
+"""
+import numpy as np
+import pytest
+
+from dynid.analysis.data.experiment import Experiment
+from dynid.analysis.diagnosis import structure
+from dynid.analysis.diagnosis.effect_observation import observe_effects
+from dynid.analysis.diagnosis.rest import REST_MODELS, _all_samples, coulomb_signal
+from dynid.dynamics.base_parameters import base_parameters
+from dynid.dynamics.robot_file import load_robot
+
+
+@pytest.fixture(scope="module")
+def planar():
+    robot = load_robot("planar2")
+    bp = base_parameters(robot)
+    fs, rng = 500.0, np.random.default_rng(4)
+    t = np.arange(int(4.0 * fs)) / fs
+    f = np.array([0.25, 0.4, 0.7])
+    a = rng.uniform(0.3, 0.6, (3, 2))
+    ph = rng.uniform(0, 2 * np.pi, (3, 2))
+    q = np.einsum("kj,tkj->tj", a, np.sin(2 * np.pi * f[:, None] * t[:, None, None] + ph))
+    tau = rng.standard_normal(q.shape)
+    exp = Experiment(t=t, q=q, qr=q, tau=tau, fs=fs, source="planar2 multisine")
+    settings = {"qd_threshold": 0.05, "nd": 5}
+    return robot, bp, exp, settings, observe_effects(exp, robot, bp, settings)
+
+
+def _shifted_by_definition(eobs, d):
+    """W(t - d) by linear interpolation of the full-rate regressor (ends held), zeroed in the
+    dead zone, decimated column by column."""
+    N, n, k = eobs.W_full.shape
+    x = np.arange(N) - d * eobs.fs
+    i0 = np.floor(x).astype(int)
+    f = (x - i0)[:, None, None]
+    W = (1 - f) * eobs.W_full[np.clip(i0, 0, N - 1)] + f * eobs.W_full[np.clip(i0 + 1, 0, N - 1)]
+    W = W * (~eobs.dead)[:, :, None]
+    return eobs._decimate_2d(W.reshape(N, n * k)).reshape(-1, n, k)
+
+
+@pytest.mark.parametrize("d", [0.0031, -0.004, 0.0])
+def test_shifted_regressor_equals_its_definition(planar, d):
+    robot, bp, exp, settings, eobs = planar
+    nz = np.any(eobs.W_full != 0, axis=0)
+    assert 0 < nz.sum() < nz.size            # identically zero pairs exist: the pairs path runs
+    cols = np.arange(len(bp.names))
+    ref = _shifted_by_definition(eobs, d)
+    got = eobs.shifted_regressor(cols, d)
+    np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-12 * np.abs(ref).max())
+    assert np.all(got[:, ~nz] == 0.0)
+    # a subset of the columns, and without the cached full-rate regressor
+    sub = cols[1::2]
+    np.testing.assert_allclose(eobs.shifted_regressor(sub, d), ref[:, :, sub], rtol=1e-12,
+                               atol=1e-12 * np.abs(ref).max())
+    uncached = observe_effects(exp, robot, bp, settings, cache_regressor=False)
+    np.testing.assert_allclose(uncached.shifted_regressor(cols, d), ref, rtol=1e-12,
+                               atol=1e-12 * np.abs(ref).max())
+
+
+def test_observation_without_decimation_keeps_every_chunk(planar):
+    """The chunks' regressor is built into one reused buffer: without decimation each chunk
+    must still be its own rows (here several chunks: the chunk length is lowered)."""
+    import dynid.analysis.diagnosis.effect_observation as eo
+    robot, bp, exp, settings, _ = planar
+    old = eo.CHUNK
+    try:
+        eo.CHUNK = 500
+        e1 = observe_effects(exp, robot, bp, dict(settings, nd=1))
+    finally:
+        eo.CHUNK = old
+    e2 = observe_effects(exp, robot, bp, dict(settings, nd=1))
+    np.testing.assert_array_equal(e1.obs.W, e2.obs.W)
+    np.testing.assert_array_equal(e1.W_full, e2.W_full)
+
+
+def test_all_samples_residuals_equal_a_second_observation_without_dead_zone(planar):
+    robot, bp, exp, settings, eobs = planar
+    names = list(bp.names)
+    cols = np.arange(len(names))
+    chi = np.random.default_rng(1).standard_normal(len(names))
+    fc = {j: names.index(f"Fc{j + 1}") for j in range(robot.n_joints)}
+    got = _all_samples(exp, robot, bp, eobs.settings, cols, chi, eobs, fc)
+    # by definition: the recording observed again with the dead zone off
+    e0 = observe_effects(exp, robot, bp, dict(eobs.settings, qd_threshold=0.0))
+    tau = e0.obs.tau
+    res0 = tau - e0.obs.W @ chi
+    np.testing.assert_allclose(got["tau"], tau, rtol=0, atol=0)
+    scale = np.abs(res0).max()
+    for m in REST_MODELS:
+        ref = res0.copy()
+        for j, k in fc.items():
+            dead = eobs.dead[:, j]
+            d = (e0.decimate(coulomb_signal(eobs.qd[:, j], dead, m), joint=j)
+                 - e0.decimate(coulomb_signal(eobs.qd[:, j], dead, "sign(qd)"), joint=j))[:, j, 0]
+            ref[:, j] -= chi[k] * d
+        np.testing.assert_allclose(got["res"][m], ref, rtol=0, atol=1e-12 * scale)
+
+
+def _mean_power_by_definition(gi, y, L, n_perm, seed):
+    P = np.array([structure._position_power(gi, y[p])
+                  for p in structure._block_perms(y.size, L, n_perm, np.random.default_rng(seed))])
+    return P.mean(axis=0)
+
+
+@pytest.mark.parametrize("n, L", [(5003, 40), (4000, 40), (300, 7)])
+def test_block_permutation_power_is_the_mean_over_the_permuted_orders(n, L):
+    rng = np.random.default_rng(n)
+    y = rng.standard_normal(n)
+    gi = rng.integers(0, structure.GRID, n)
+    ref = _mean_power_by_definition(gi, y, L, 37, seed=2)
+    got = structure._perm_power(gi, y, L, 37, np.random.default_rng(2))
+    np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-12 * ref.max())
