@@ -9,10 +9,14 @@ plant has none).
 
 * robot fixed: IDIM on the unloaded recording, then identify_payload(model=...);
 * global: identify_payload(unloaded=...);
-* drive gains: both recordings' torques divided by per-joint factors k in U(0.9, 1.1) (a
-  current logged with wrong gains), identify_drive_gains with the known mass (`--com`: and
-  centre of mass), error of each identified factor, and whether its 95 % half-width is above
-  drive_gains.WEAK_GAIN_HALFWIDTH (1 %: the result's weak-gain notice).
+* drive gains: their own loaded recordings (`--gains-loaded` 3 x `--gains-loaded-s` 30 s, the
+  wrist as above and the arm accelerating too: payload_plant.DRIVE_GAIN_EXCITATION, the advice of
+  docs/payload.md, Drive gains) beside the unloaded one, all torques divided by per-joint factors
+  k in U(0.9, 1.1) (a current logged with wrong gains), identify_drive_gains with the known mass
+  (`--com`: and centre of mass), error of each identified factor, and whether its 95 % half-width
+  is above drive_gains.WEAK_GAIN_HALFWIDTH (1 %: the result's weak-gain notice).
+  `--gains-excitation payload` gives the gains the payload routes' loaded recording and
+  `--gains-loaded - 1` more like it (10 s each), as before DRIVE_GAIN_EXCITATION.
 
 Figures: largest mass error (%), centre-of-mass error (mm), inertia error (largest entry of
 the error of the inertia about the centre of mass over the largest principal moment), the
