@@ -31,6 +31,16 @@ runs with zoh=True (the torque centred on the position samples) and the fixed ro
 identified from the centred unloaded recording; --no-zoh shows the bias without it
 (benchmarks/payload_timing.py, docs/payload.md).
 
+Drive gains with their own excitation (DRIVE_GAIN_EXCITATION, 3 x 30 s loaded): developed on seeds
+2034, 2027, 2187 (benchmarks/payload_gains_excitation.py) and 2000-2009 (0.14 %, coverage 96.7 %;
+payload_gains_drive_dev_seeds2000-2009.jsonl); judged once on fresh seeds 500-519
+(payload_heldout_seeds500-519.jsonl, the full run): drive gains 0.29 % over all 120 gains (seed
+519, joint 4, z -1.8), coverage 89.2 % (13 misses, all with 95 % half-widths of 0.04-0.14 % and errors of
+at most 0.20 %; 9 on joints 1-3), none flagged weak (largest half-width 0.56 %); one 30 s
+loaded recording 0.49 %; payload routes mass 0.39 % / 0.18 %, centre of mass 0.48 / 0.33 mm,
+inertia 7.9 % / 9.9 % (seed 507), coverage 94 / 93.5 %, speed median 0.71, max 1.22 (one timing);
+and on 400-419 (gains only, payload_gains_drive_seeds400-419.jsonl): GAINS400.
+
 Seeds: 1000-1004 developed the estimators; 0-19 and 100-119 judged them and developed the torque
 timing (3, 6, 8, 12, 19); 300-319 judged that; 311 and 0-11 developed the drive gains' dead zone
 (drive_gains.DEAD_ZONE_FRACTION); 400-419 were used for nothing before judging it:

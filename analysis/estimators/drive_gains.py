@@ -336,8 +336,9 @@ def _weak_gain_notice(joints, k, k_std):
     return ("gain(s) weakly fixed by the payload (95 % half-width above "
             f"{100 * WEAK_GAIN_HALFWIDTH:g} %): {', '.join(weak)}. The payload's torque on those joints "
             "is small beside the noise, or the arm joints did not see it (a light payload near the wrist "
-            "centre; an arm moving slowly: the scale of joint 1's and the wrist gains comes from the "
-            "payload's torque as the arm joints see it); the error is noise the interval covers. Record "
+            "centre; an arm moving slowly: the scale of a gain the mass's gravity does not load, a vertical "
+            "first axis or the wrist, comes from the payload's torque as the arm joints see it); the error "
+            "is noise the interval covers. Record "
             "the loaded recordings with the arm accelerating too and longer (docs/payload.md, Drive gains: "
             "3 x 30 s), or use a heavier payload or one farther from the wrist centre; its centre of mass "
             "(com=, --com) adds the wrist joints' gravity torque, little for a payload near the wrist centre")
