@@ -7,7 +7,8 @@ gain (%), with the rms of the payload's own torque on each joint along the loade
 (Pinocchio: loaded minus unloaded inverse dynamics on the true state, N m): the signal that
 fixes each gain's scale (the torque noise is 0.2 N m per sample).
 Run from the repository root (niced): python benchmarks/payload_gains_excitation.py SEED
-[--loaded-s 10 --n-loaded 2 --wrist-f0 0.4 --wrist-amplitude 0.6 --wrist-qd 0.7 --arm-amplitude 0.3 --arm-qd 0.5]
+[--loaded-s 10 --n-loaded 2 --wrist-f0 0.4 --wrist-amplitude 0.6 --wrist-qd 0.7 --arm-amplitude 0.3 --arm-qd 0.5
+--arm-f0 0.3 --payload 1,0,0,0.02,0.04,0.04,0.04]
 """
 import argparse
 import dataclasses
@@ -54,10 +55,19 @@ def main():
     ap.add_argument("--com", action="store_true")
     ap.add_argument("--same-unloaded", action="store_true",
                     help="the unloaded recording with the loaded excitation too")
+    ap.add_argument("--payload", metavar="M,CX,CY,CZ,A,B,H",
+                    help="a given payload instead of the seed's: mass kg, centre of mass m, box sides m (axis-aligned)")
     args = ap.parse_args()
     seed, rate = args.seed, 2000.0
     robot = dataclasses.replace(dynid.load_robot("tx40"), couplings=[])
     params, parts = pp.random_payload(np.random.default_rng(seed))
+    if args.payload:
+        m, cx, cy, cz, a, b, h = map(float, args.payload.split(","))
+        c = np.array([cx, cy, cz])
+        Ic = m / 12.0 * np.diag([b * b + h * h, a * a + h * h, a * a + b * b])
+        I_o = Ic + m * (c @ c * np.eye(3) - np.outer(c, c))
+        params = np.array([I_o[0, 0], I_o[0, 1], I_o[0, 2], I_o[1, 1], I_o[1, 2], I_o[2, 2], *(m * c), m])
+        parts = dict(mass=m, com=c, inertia_com=Ic)
     base, loaded, _ = pp.tx40_payload_plant(params)
     kw = dict(wrist_f0=args.wrist_f0, wrist_amplitude=args.wrist_amplitude, wrist_qd_fraction=args.wrist_qd,
               arm_amplitude=args.arm_amplitude, qd_fraction=args.arm_qd,
