@@ -6,6 +6,8 @@ under the excitation given by the options; each fit's error and stated 95 % half
 gain (%), with the rms of the payload's own torque on each joint along the loaded motion
 (Pinocchio: loaded minus unloaded inverse dynamics on the true state, N m): the signal that
 fixes each gain's scale (the torque noise is 0.2 N m per sample).
+Results: benchmarks/results/payload_gains_excitation_probes.jsonl (seeds 2034, 2187, 2027, 416, and the
+given payload 1,0,0,0.02,0.04,0.04,0.04 on seed 2100's trajectories).
 Run from the repository root (niced): python benchmarks/payload_gains_excitation.py SEED
 [--loaded-s 10 --n-loaded 2 --wrist-f0 0.4 --wrist-amplitude 0.6 --wrist-qd 0.7 --arm-amplitude 0.3 --arm-qd 0.5
 --arm-f0 0.3 --payload 1,0,0,0.02,0.04,0.04,0.04]
