@@ -40,10 +40,17 @@ draws: -0.78 / -0.81 / -1.04 / -0.82 % and -0.04 / -0.12 / -0.12 / -0.10 %
 (benchmarks/payload_gains_probe.py --draws, docs/payload.md).
 
 What the known mass identifies: a mass at the wrist centre (where the last three axes
-meet, as on the TX40) loads joints 1-3 only, so with the mass alone the wrist gains rest on
-the inertial coupling through the shared parameters, weakly; the known centre of mass
-(`com`) gives the wrist joints a known gravity torque. The rank check names the gains
-the data cannot fix.
+meet, as on the TX40) puts no torque on joints 4-6, and its gravity none on joint 1 (a
+vertical axis). The wrist rows alone fix the wrist gains only up to one scale shared with the
+payload's other parameters (`a_w / s`, `s pi_u` leave them unchanged); that scale comes from
+the payload's inertia and first moments as the arm joints see them (their torque about the
+wrist axes reaches joints 1-3 too), and joint 1's gain from the mass's inertial torque. So
+the arm must accelerate in the loaded recordings, and the 95 % half-width of those gains
+falls as one over the square root of their length (docs/payload.md, Drive gains: measured,
+2 x 10 s with a slow arm 1.0-1.55 %, 3 x 30 s with the arm at 0.3 Hz 0.1-0.6 % for a 1.2 kg
+payload 28 mm from the wrist centre). The known centre of mass (`com`) adds the wrist
+joints' gravity torque of `m c`, small for such a payload (measured: the same half-widths
+within 0.1 %). The rank check names the gains the data cannot fix.
 
 The experiment description's `[currents]` section gives the gains the torque column is
 computed with (`drive_gains`, the robot file's by default) and which of them are to be
@@ -327,11 +334,14 @@ def _weak_gain_notice(joints, k, k_std):
     if not weak:
         return None
     return ("gain(s) weakly fixed by the payload (95 % half-width above "
-            f"{100 * WEAK_GAIN_HALFWIDTH:g} %): {', '.join(weak)}. The known payload's torque on those joints "
-            "is small beside the noise (a light payload near the wrist centre loads the wrist joints only "
-            "through the robot's shared parameters); the error is noise the interval covers. A heavier "
-            "payload, one farther from the wrist centre, its centre of mass (com=, --com) or longer "
-            "recordings narrow it")
+            f"{100 * WEAK_GAIN_HALFWIDTH:g} %): {', '.join(weak)}. The payload's torque on those joints "
+            "is small beside the noise, or the arm joints did not see it (a light payload near the wrist "
+            "centre; an arm moving slowly: the scale of a gain the mass's gravity does not load, a vertical "
+            "first axis or the wrist, comes from the payload's torque as the arm joints see it); the error "
+            "is noise the interval covers. Record "
+            "the loaded recordings with the arm accelerating too and longer (docs/payload.md, Drive gains: "
+            "3 x 30 s), or use a heavier payload or one farther from the wrist centre; its centre of mass "
+            "(com=, --com) adds the wrist joints' gravity torque, little for a payload near the wrist centre")
 
 
 def identify_drive_gains(unloaded, loaded, robot, *, mass, com=None, joints=None, frame="flange",

@@ -63,14 +63,25 @@ def tx40_payload_plant(params=None, seed=None, **kw):
     return base, add_payload(base, params), np.asarray(params, dtype=float)
 
 
+#: the drive gains' loaded excitation (docs/payload.md): the wrist as `wrist_reference`'s default, the arm
+#: wider (half its half range), faster (0.8 of its speed limit) and at 0.3 Hz instead of one period per
+#: 10 s. Why: with the mass alone the wrist gains' scale comes from the payload's inertia and first
+#: moments as the arm joints (whose gains its mass fixes) see them, and joint 1's from the payload's
+#: inertial torque (gravity acts along axis 1): both need the arm accelerating (seed 2034, 2 x 10 s
+#: loaded: 95 % half-widths of joints 1, 4, 5, 6 0.99, 1.36, 1.19, 1.55 % -> 0.22, 1.02, 1.01, 1.12 %;
+#: 2 x 30 s: 0.56, 0.82, 0.78, 0.88 % -> 0.15, 0.64, 0.57, 0.66 %; benchmarks/payload_gains_excitation.py)
+DRIVE_GAIN_EXCITATION = dict(arm_amplitude=0.5, qd_fraction=0.8, arm_f0=0.3)
+
+
 def wrist_reference(limits, duration, rate, seed, *, wrist_amplitude=0.6, arm_amplitude=0.3,
-                    qd_fraction=0.5, wrist_qd_fraction=0.7, wrist_f0=0.4, still_wrist=False, **kw):
+                    qd_fraction=0.5, wrist_qd_fraction=0.7, wrist_f0=0.4, arm_f0=None, still_wrist=False, **kw):
     """A multisine with the wrist (joints 4-6) swept wider and faster than the arm
     (`wrist_amplitude` of the half range, fundamental `wrist_f0` Hz, peak speed
-    `wrist_qd_fraction` of the limit); `still_wrist` holds joints 4-6 nearly still (0.5 % of
-    the range: a bad recording)."""
+    `wrist_qd_fraction` of the limit; the arm `arm_amplitude`, `qd_fraction`, fundamental
+    `arm_f0`, by default one period per 10 s); `still_wrist` holds joints 4-6 nearly still
+    (0.5 % of the range: a bad recording)."""
     ref = ip.multisine_reference(limits, duration, rate, seed, amplitude=arm_amplitude,
-                                 qd_fraction=qd_fraction, **kw)
+                                 qd_fraction=qd_fraction, f0=arm_f0, **kw)
     wide = ip.multisine_reference(limits, duration, rate, seed + 10_000,
                                   amplitude=0.005 if still_wrist else wrist_amplitude,
                                   qd_fraction=wrist_qd_fraction, f0=wrist_f0, **kw)
