@@ -95,7 +95,11 @@ def sample_linear(W3, tau, names, *, row_mask=None, ls=None, sigma=None, prior=N
                                     None if row_mask is None else np.asarray(row_mask))
     noise = check_noise(noise)
     if noise == "sandwich":
-        js = np.asarray(sigma if sigma is not None else getattr(ls, "joint_sigma", None), dtype=float)
+        js = sigma if sigma is not None else getattr(ls, "joint_sigma", None)
+        js = np.full(st.n_joints, np.nan) if js is None else np.asarray(js, dtype=float).reshape(-1)
+        if js.size != st.n_joints or not np.all(np.isfinite(js[st.active])):
+            # an LS result without per-joint σ (OLS): the residual's, as for the walkers' start
+            js = np.sqrt(st.s / np.maximum(st.rows - st.n_params, 1))
         robust_cov, source = _robust_cov(W3, tau, names, row_mask, ls, js, robust_cov, groups)
         source = _source or source
         nm = sandwich_model(st, robust_cov, js, source)
