@@ -47,6 +47,7 @@ from dynid.analysis.estimators.physical import identify_physical, require_cvxpy
 from dynid.analysis.estimators.projection import identify_projection
 from dynid.analysis.processing.observation import SETTINGS_HELP
 from dynid.analysis.results import Result, gathered_notices, notices_block
+from dynid.analysis.sampling.noise import DEFAULT_NOISE
 from dynid.analysis.statistics.validation import ValidationResult, validate
 from dynid.analysis.statistics.verdict import verdict
 from dynid.dynamics.robot import Robot
@@ -133,7 +134,7 @@ class Settings:
     alpha: float = 0.01
     no_offsets: bool = False
     which: str = "essential"
-    noise: str = "neff"                    # the posterior's noise model (dynid.analysis.sampling.noise)
+    noise: str = DEFAULT_NOISE             # the posterior's noise model (dynid.analysis.sampling.noise)
     walkers: int | None = None
     max_steps: int | None = None
     report: object = None

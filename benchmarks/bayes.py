@@ -136,7 +136,7 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--rows-large", type=int, default=1_000_000)
-    ap.add_argument("--noise", choices=["neff", "white"], default=None,
+    ap.add_argument("--noise", choices=["sandwich", "neff", "white"], default=None,
                     help="the posterior's noise model (default: the library's)")
     args = ap.parse_args()
     ref = reference_seconds()

@@ -454,9 +454,11 @@ def _add_sample_parser(sub, common, full):
     m = g["method"]
     m.add_argument("--which", choices=["essential", "base"], default="essential",
                    help="the parameters to sample")
-    m.add_argument("--noise", choices=["neff", "white"], default="neff",
-                   help="noise model of the likelihood: neff (each joint's rows count as its residual's "
-                        "effective sample size) or white (independent rows)")
+    m.add_argument("--noise", choices=["sandwich", "neff", "white"], default="sandwich",
+                   help="noise model of the likelihood: sandwich (its curvature matched to the robust "
+                        "covariance of the fit, the intervals of --uncertainty bootstrap), neff (each "
+                        "joint's rows count as its residual's effective sample size) or white "
+                        "(independent rows)")
     m.add_argument("--seed", type=seed_type, default=1, metavar="N", help="random seed of the sampler")
     m.add_argument("--max-seconds", type=positive_float, default=None, metavar="S",
                    help="wall-clock safety limit of the sampler (default: none; the sampler stops on "

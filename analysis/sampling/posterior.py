@@ -9,9 +9,11 @@ Linear models (IDIM base or essential parameters, or any per-joint linear
    model given as W3 (N, n, b), tau (N, n)).
 
    Likelihood: ρ^j ~ N(0, σ_j² I_{r_j}) independently per joint (noise model "white"),
-   by default tempered per joint by the effective sample size of its LS residual
-   (noise model "neff": every term of joint j below divided by τ_j, i.e. G_j, g_j,
-   s_j, r_j → G_j/τ_j, g_j/τ_j, s_j/τ_j, r_j/τ_j; `dynid.analysis.sampling.noise`).
+   by default with its curvature in χ matched to the robust (block-bootstrap) covariance
+   of the LS fit (noise model "sandwich": S_j evaluated at χ_ref + C(χ − χ_ref), i.e.
+   G_j, g_j → CᵀG_jC, Cᵀg_j; Ribatet, Cooley & Davison 2012), or tempered per joint by
+   the effective sample size of its LS residual (noise model "neff": G_j, g_j, s_j, r_j →
+   G_j/τ_j, g_j/τ_j, s_j/τ_j, r_j/τ_j); `dynid.analysis.sampling.noise`.
    Priors: Jeffreys p(σ_j) ∝ 1/σ_j on each σ_j; flat on χ, or a Gaussian
    N(μ₀, P₀) on some or all of χ (`GaussianPrior`, e.g. from a-priori
    values or from a previous identification).

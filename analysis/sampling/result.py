@@ -90,7 +90,7 @@ class PosteriorResult(ParameterResults):
 
     @property
     def noise_model(self) -> str:
-        """The likelihood's noise model ("neff", "white"; see dynid.analysis.sampling.noise)."""
+        """The likelihood's noise model ("sandwich", "neff", "white"; see dynid.analysis.sampling.noise)."""
         return str((self.settings.get("noise_model") or {}).get("kind", "white"))
 
     @property

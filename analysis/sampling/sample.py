@@ -20,7 +20,7 @@ from dynid.analysis.sampling.ensemble import (
     rng_from_seed,
 )
 from dynid.analysis.sampling.linear import LinearPosterior
-from dynid.analysis.sampling.noise import check_noise, noise_model, temper
+from dynid.analysis.sampling.noise import DEFAULT_NOISE, check_noise, noise_model, sandwich_model, temper
 from dynid.analysis.sampling.result import PosteriorResult
 from dynid.analysis.sampling.sufficient import SufficientStats, sufficient_statistics
 from dynid.errors import InputError
@@ -31,7 +31,8 @@ def sample_linear(W3, tau, names, *, row_mask=None, ls=None, sigma=None, prior=N
                   n_walkers=None, criteria=None, max_steps=None, max_seconds=None, moves="de",
                   init_scale: float = 0.1, method_label: str = "linear model", truth=None,
                   suff_stats: SufficientStats | None = None, progress=None, support=None,
-                  start=None, noise: str = "neff") -> PosteriorResult:
+                  start=None, noise: str = DEFAULT_NOISE, robust_cov=None, groups=None,
+                  _source: str | None = None) -> PosteriorResult:
     """Posterior of χ (and σ_j) of Y = Wχ + ρ by emcee; see the module docstring.
 
     Parameters
@@ -67,11 +68,20 @@ def sample_linear(W3, tau, names, *, row_mask=None, ls=None, sigma=None, prior=N
         (`dynid.analysis.estimators.physical.PhysicalSupport`).
     start : (b,) array, optional
         Centre of the initial ball instead of the LS estimate (it must be in `support`).
-    noise : "neff" (default) or "white"
-        The noise model of the likelihood (dynid.analysis.sampling.noise): "neff" tempers each
-        joint's likelihood by the effective sample size of its LS residual, so that rows
-        correlated in time are not counted as independent; "white" is the likelihood of
-        independent rows (eq. (16)). The result's settings, summary and JSON name it.
+    noise : "sandwich" (default), "neff" or "white"
+        The noise model of the likelihood (dynid.analysis.sampling.noise): "sandwich" matches
+        the likelihood's curvature to the robust covariance of the LS fit (Ribatet, Cooley &
+        Davison 2012), so that correlated rows and model error widen the posterior as they
+        widen the fit's robust intervals; "neff" tempers each joint's likelihood by the
+        effective sample size of its LS residual; "white" is the likelihood of independent
+        rows (eq. (16)). The result's settings, summary and JSON name it.
+    robust_cov : (b, b) array, optional
+        For "sandwich": the robust covariance Σ_R of the estimate `ls`. Default: `ls.cov`
+        when `ls` carries a robust ("bootstrap" or "hac") covariance, else the circular
+        block bootstrap of the WLS with `ls`'s σ_j (dynid.analysis.estimators.hac, the
+        default uncertainty of dynid identify).
+    groups : (N,) array, optional
+        Recording of each sample, for that bootstrap (no block crosses recordings).
     """
     rng = rng_from_seed(seed)
     if ls is None:
@@ -84,7 +94,17 @@ def sample_linear(W3, tau, names, *, row_mask=None, ls=None, sigma=None, prior=N
         st.data_hash = data_hash(np.asarray(W3), np.asarray(tau),
                                     None if row_mask is None else np.asarray(row_mask))
     noise = check_noise(noise)
-    nm = noise_model(noise, W3, tau, row_mask, st.ref)
+    if noise == "sandwich":
+        js = sigma if sigma is not None else getattr(ls, "joint_sigma", None)
+        js = np.full(st.n_joints, np.nan) if js is None else np.asarray(js, dtype=float).reshape(-1)
+        if js.size != st.n_joints or not np.all(np.isfinite(js[st.active])):
+            # an LS result without per-joint σ (OLS): the residual's, as for the walkers' start
+            js = np.sqrt(st.s / np.maximum(st.rows - st.n_params, 1))
+        robust_cov, source = _robust_cov(W3, tau, names, row_mask, ls, js, robust_cov, groups)
+        source = _source or source
+        nm = sandwich_model(st, robust_cov, js, source)
+    else:
+        nm = noise_model(noise, W3, tau, row_mask, st.ref)
     model = LinearPosterior(temper(st, nm), sigma=sigma, prior=prior)
     d = model.ndim
     b = st.n_params
@@ -126,9 +146,7 @@ def sample_linear(W3, tau, names, *, row_mask=None, ls=None, sigma=None, prior=N
         else "one σ_j per joint, Jeffreys prior p(σ_j) ∝ 1/σ_j, sampled as log σ_j"
     settings = {
         "model": method_label,
-        "likelihood": ("Gaussian, independent rows, per-joint σ_j (eqs. (9), (10), (16))" if nm.kind == "white"
-                       else "Gaussian, per-joint σ_j (eqs. (9), (10), (16)), each joint's likelihood "
-                            "tempered by its effective sample size n_eff,j / r_j"),
+        "likelihood": _LIKELIHOOD[nm.kind],
         "noise": noise,
         "noise_model": nm.to_dict(),
         "prior_chi": "flat" if prior is None else {"gaussian": prior.to_dict()},
@@ -149,6 +167,64 @@ def sample_linear(W3, tau, names, *, row_mask=None, ls=None, sigma=None, prior=N
         ls_label=getattr(ls, "method", "LS"), settings=settings, truth=truth,
         data_hash=st.data_hash or getattr(ls, "data_hash", None),
         coords=model.coords)
+
+
+_LIKELIHOOD = {
+    "white": "Gaussian, independent rows, per-joint σ_j (eqs. (9), (10), (16))",
+    "neff": "Gaussian, per-joint σ_j (eqs. (9), (10), (16)), each joint's likelihood tempered by its "
+            "effective sample size n_eff,j / r_j",
+    "sandwich": "Gaussian, per-joint σ_j (eqs. (9), (10), (16)), evaluated at chi_LS + C (chi - chi_LS) "
+                "with C' H C the inverse of the fit's robust covariance (curvature adjustment, Ribatet, "
+                "Cooley & Davison 2012)",
+}
+
+
+def _robust_label(ls):
+    """The robust covariance option `ls` carries ("bootstrap", "hac") or None."""
+    unc = ((getattr(ls, "settings", None) or {}).get("least_squares") or {}).get("uncertainty") or {}
+    kind = unc.get("uncertainty") if isinstance(unc, dict) else None
+    return kind if kind in ("bootstrap", "hac") else None
+
+
+def _robust_cov(W3, tau, names, row_mask, ls, joint_sigma, robust_cov, groups):
+    """(Σ_R, where it came from) for the sandwich noise model (see `sample_linear`)."""
+    if robust_cov is not None:
+        return np.asarray(robust_cov, dtype=float), "robust covariance given"
+    kind = _robust_label(ls)
+    if kind is not None:
+        return np.asarray(ls.cov, dtype=float), f"the fit's {kind} covariance"
+    if W3 is None or tau is None:
+        raise InputError("the sandwich noise model needs the samples (W3, tau) or robust_cov")
+    boot = lsq.wls(W3, tau, names, row_mask=row_mask, joint_sigma=joint_sigma, uncertainty="bootstrap",
+                   groups=groups)
+    return boot.cov, f"the {_robust_label(boot) or 'bootstrap'} covariance of the WLS fit"
+
+
+def idim_robust_cov(idim_result, which: str = "essential"):
+    """(Σ_R, where it came from): the robust covariance of an IDIM result's base or essential estimate.
+
+    The result's own covariance when it was identified with a robust uncertainty
+    ("bootstrap", the default of dynid identify, or "hac"); otherwise the same
+    computation: the circular block bootstrap of the full WLS (its σ_j and
+    recordings), and for the essential parameters the full model's covariance of
+    them plus d dᵀ, d the essential minus the full estimate
+    (dynid.analysis.estimators.essential, the removal bias).
+    """
+    ls = idim_result.essential.result if which == "essential" else idim_result.wls
+    kind = _robust_label(ls)
+    if kind is not None:
+        return np.asarray(ls.cov, dtype=float), f"the IDIM {which} fit's {kind} covariance"
+    obs = idim_result.observation
+    full = idim_result.wls
+    boot = lsq.wls(obs.W, obs.tau, full.names, row_mask=obs.row_mask, joint_sigma=full.joint_sigma,
+                   uncertainty="bootstrap", groups=getattr(idim_result, "groups", None))
+    kind = _robust_label(boot) or "bootstrap"
+    if which != "essential":
+        return boot.cov, f"the IDIM base fit's {kind} covariance"
+    cols = [full.names.index(n) for n in ls.names]
+    d = ls.chi - boot.chi[cols]
+    return (boot.cov[np.ix_(cols, cols)] + np.outer(d, d),
+            f"the full WLS's {kind} covariance of these parameters + d d', d the bias of removing the others")
 
 
 def sample_idim(idim_result, *, which: str = "essential", physical: bool = False, robot=None,
@@ -192,6 +268,8 @@ def sample_idim(idim_result, *, which: str = "essential", physical: bool = False
                                "(feasibility SDP per point, cvxpy + Clarabel)")
         kwargs["support"] = support
         kwargs["start"] = pc.chi
+    if check_noise(kwargs.get("noise", DEFAULT_NOISE)) == "sandwich" and kwargs.get("robust_cov") is None:
+        kwargs["robust_cov"], kwargs["_source"] = idim_robust_cov(idim_result, which)
     res = sample_linear(W, obs.tau, ls.names, row_mask=obs.row_mask, ls=ls, truth=truth, **kwargs)
     res.data_hash = idim_result.data_hash or res.data_hash
     return res
