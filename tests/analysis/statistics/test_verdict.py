@@ -184,12 +184,20 @@ def test_didim_step_index_is_the_same_everywhere(monkeypatch):
 
 # ML's own fit takes about half a minute on this recording (a full SVD of its Jacobian per
 # step): it runs with the slow tests; its identification is in tests/cli/test_cli.py
+@pytest.fixture(scope="module")
+def planar2_csv(tmp_path_factory):
+    """One simulated planar2 recording (the same command for every method), written once."""
+    from dynid.reports.cli import main
+    csv = tmp_path_factory.mktemp("planar2") / "run.csv"
+    assert main(["simulate", "--robot", "planar2", "--duration", "10", "--out", str(csv), "--quiet"]) == 0
+    return csv
+
+
 @pytest.mark.parametrize("method", ["didim", "projection", pytest.param("ml", marks=pytest.mark.slow)])
-def test_every_method_gives_a_verdict(tmp_path, method):
+def test_every_method_gives_a_verdict(tmp_path, planar2_csv, method):
     """DIDIM, the Projection Method and ML get the verdict too: JSON, summary and report's first block."""
     from dynid.reports.cli import main
-    csv, js, html = tmp_path / "run.csv", tmp_path / "out.json", tmp_path / "out.html"
-    assert main(["simulate", "--robot", "planar2", "--duration", "10", "--out", str(csv), "--quiet"]) == 0
+    csv, js, html = planar2_csv, tmp_path / "out.json", tmp_path / "out.html"
     extra = ["--f0", "0.1"] if method == "ml" else []
     code = main(["identify", str(csv), "--robot", "planar2", "--method", method, *extra,
                  "--json", str(js), "--report", str(html), "--quiet"])
