@@ -125,17 +125,20 @@ def _verdict_in_browser(html_path):
 
 
 @pytest.mark.parametrize("which", ["demo", "tx40"])
-def test_verdict_block_matches_the_json(tmp_path, which):
+def test_verdict_block_matches_the_json(tmp_path_factory, which):
+    """The runs are shared with tests/cli/test_output_schemas.py (the IDIM-only demo) and
+    tests/analysis/statistics/test_verdict.py (identify on the TX40 recording): made once per session."""
     import json
 
-    from dynid.reports.cli import main
-    report, js = tmp_path / f"{which}.html", tmp_path / f"{which}.json"
+    from shared_runs import DYNID, demo_idim_run, tx40_identify_run
     if which == "demo":
-        argv = ["demo", "--duration", "8", "--skip", "didim,sample,diagnose"]
+        if not DYNID.exists():
+            pytest.skip("no dynid console script beside the interpreter: pip install . first")
+        run, stem = demo_idim_run(tmp_path_factory), "demo"
     else:
-        argv = ["identify", str(ROOT / "examples" / "staubli_tx40" / "experiment.toml"), "--robot", "tx40",
-                "--holdout", "3"]
-    assert main(argv + ["--report", str(report), "--json", str(js), "--quiet"]) == 0
+        run, stem = tx40_identify_run(tmp_path_factory), "out"
+    assert run.returncode == 0, run.stderr[-3000:]
+    report, js = run.folder / f"{stem}.html", run.folder / f"{stem}.json"
     doc = json.loads(js.read_text())
     vd = doc["verdict"]
     got = _verdict_in_browser(report)

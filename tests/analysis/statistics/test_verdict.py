@@ -3,8 +3,6 @@ from __future__ import annotations
 
 import json
 import re
-import subprocess
-import sys
 import types
 from pathlib import Path
 
@@ -18,14 +16,12 @@ TX40 = ROOT / "examples" / "staubli_tx40" / "experiment.toml"
 
 @pytest.fixture(scope="module")
 def tx40_run(tmp_path_factory):
-    """``dynid identify ... --holdout 3 --json --report`` on the real TX40, run once."""
-    out = tmp_path_factory.mktemp("tx40")
-    js, html = out / "out.json", out / "out.html"
-    proc = subprocess.run([sys.executable, "-m", "dynid.reports.cli", "identify", str(TX40), "--robot", "tx40",
-                           "--holdout", "3", "--json", str(js), "--report", str(html), "--quiet"],
-                          capture_output=True, text=True, cwd=ROOT, timeout=600)
-    assert proc.returncode == 0, proc.stderr
-    return json.loads(js.read_text()), html.read_text(encoding="utf-8")
+    """``dynid identify ... --holdout 3 --json --report`` on the real TX40, run once per session
+    (tests/reports/test_browser.py reads the same run)."""
+    from shared_runs import tx40_identify_run
+    run = tx40_identify_run(tmp_path_factory)
+    assert run.returncode == 0, run.stderr
+    return json.loads((run.folder / "out.json").read_text()), (run.folder / "out.html").read_text(encoding="utf-8")
 
 
 def _independent_all_samples_error(doc):

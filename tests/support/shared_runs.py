@@ -1,0 +1,75 @@
+"""Command-line runs that several test files read, made once per test session.
+
+Under `pytest -n 2 --dist loadfile` the files that read one run may sit on different workers:
+the first to ask runs the command (in a subprocess, as a user runs it) in a folder beside the
+workers' temporary folders; the other waits on a file lock and reads the same outputs. Where no
+lock is available (no fcntl) every caller runs the command itself, in its own folder.
+
+Each run returns its folder, its exit code and its stderr, so every test keeps its own
+assertion on how the command ended.
+"""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+try:
+    import fcntl
+except ImportError:                     # pragma: no cover (not POSIX): no sharing
+    fcntl = None
+
+ROOT = Path(__file__).resolve().parents[2]
+TX40_EXPERIMENT = ROOT / "examples" / "staubli_tx40" / "experiment.toml"
+DYNID = Path(sys.executable).parent / "dynid"
+
+
+@dataclass(frozen=True)
+class Run:
+    folder: Path
+    returncode: int
+    stderr: str
+
+
+def _shared_root(tmp_path_factory) -> Path:
+    base = tmp_path_factory.getbasetemp()
+    # xdist gives each worker <basetemp>/popen-gwN; their parent is the session's
+    return base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+
+
+def _once(tmp_path_factory, key: str, argv: list[str]) -> Run:
+    if fcntl is None:
+        folder = tmp_path_factory.mktemp(key)
+        proc = subprocess.run(argv, cwd=folder, capture_output=True, text=True, timeout=900)
+        return Run(folder, proc.returncode, proc.stderr)
+    folder = _shared_root(tmp_path_factory) / f"shared-{key}"
+    with open(f"{folder}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            done = folder / "returncode"
+            if not done.exists():
+                folder.mkdir(exist_ok=True)
+                proc = subprocess.run(argv, cwd=folder, capture_output=True, text=True, timeout=900)
+                (folder / "stderr").write_text(proc.stderr)
+                done.write_text(str(proc.returncode))      # written last: the run is complete
+            return Run(folder, int(done.read_text()), (folder / "stderr").read_text())
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
+
+
+def demo_idim_run(tmp_path_factory) -> Run:
+    """`dynid demo --skip didim,sample,diagnose --duration 5 --report demo.html --json demo.json --quiet`
+    with the console script of this venv (tests/cli/test_output_schemas.py skips when it is missing)."""
+    return _once(tmp_path_factory, "demo-idim",
+                 [str(DYNID), "demo", "--skip", "didim,sample,diagnose", "--duration", "5",
+                  "--report", "demo.html", "--json", "demo.json", "--quiet"])
+
+
+def tx40_identify_run(tmp_path_factory) -> Run:
+    """`dynid identify examples/staubli_tx40/experiment.toml --robot tx40 --holdout 3 --json out.json
+    --report out.html --quiet` on the real TX40 recording."""
+    return _once(tmp_path_factory, "tx40-identify",
+                 [sys.executable, "-m", "dynid.reports.cli", "identify", str(TX40_EXPERIMENT), "--robot", "tx40",
+                  "--holdout", "3", "--json", "out.json", "--report", "out.html", "--quiet"])
