@@ -215,14 +215,15 @@ def test_screenshot_demo_report_first_screen(shots, tmp_path):
     assert "Full report on tx40" in text and "IDENTIFIED" in text.upper()
 
 
-def test_screenshot_diagnosis_report_first_screen(shots, tmp_path):
-    from dynid.reports.cli import main
-    run = tmp_path / "run.csv"
-    assert main(["simulate", "--robot", "planar2", "--duration", "8", "--seed", "2", "--out", str(run),
-                 "--quiet"]) == 0
-    report = tmp_path / "diag.html"
-    assert main(["diagnose", str(run), "--robot", "planar2", "--holdout", "2", "--report", str(report),
-                 "--quiet"]) == 0
+def test_screenshot_diagnosis_report_first_screen(shots, tmp_path_factory):
+    """The report of `dynid diagnose` on a simulated planar2 recording, run once per session
+    (tests/cli/test_output_schemas.py checks the same run's JSON)."""
+    from shared_runs import DYNID, planar2_diagnose_run
+    if not DYNID.exists():
+        pytest.skip("no dynid console script beside the interpreter: pip install . first")
+    run = planar2_diagnose_run(tmp_path_factory)
+    assert run.returncode == 0, run.stderr[-3000:]
+    report = run.folder / "diag.html"
     text = _first_screen(report.resolve().as_uri(), shots / "diagnosis-first-screen.png")
     assert "Residual diagnosis of planar2" in text
     # the structure plots further down, whole, for a look at their axes

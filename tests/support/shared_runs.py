@@ -39,11 +39,19 @@ def _shared_root(tmp_path_factory) -> Path:
     return base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
 
 
-def _once(tmp_path_factory, key: str, argv: list[str]) -> Run:
+def _run_all(commands: list[list[str]], folder: Path) -> tuple[int, str]:
+    """The commands in order, in `folder`; the first that fails ends the run."""
+    for argv in commands:
+        proc = subprocess.run(argv, cwd=folder, capture_output=True, text=True, timeout=900)
+        if proc.returncode not in (0, 3):      # 3: finished, with problems listed in its outputs
+            break
+    return proc.returncode, f"{' '.join(argv[1:])}: {proc.stderr}"
+
+
+def _once(tmp_path_factory, key: str, *commands: list[str]) -> Run:
     if fcntl is None:
         folder = tmp_path_factory.mktemp(key)
-        proc = subprocess.run(argv, cwd=folder, capture_output=True, text=True, timeout=900)
-        return Run(folder, proc.returncode, proc.stderr)
+        return Run(folder, *_run_all(list(commands), folder))
     folder = _shared_root(tmp_path_factory) / f"shared-{key}"
     with open(f"{folder}.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
@@ -51,9 +59,9 @@ def _once(tmp_path_factory, key: str, argv: list[str]) -> Run:
             done = folder / "returncode"
             if not done.exists():
                 folder.mkdir(exist_ok=True)
-                proc = subprocess.run(argv, cwd=folder, capture_output=True, text=True, timeout=900)
-                (folder / "stderr").write_text(proc.stderr)
-                done.write_text(str(proc.returncode))      # written last: the run is complete
+                code, err = _run_all(list(commands), folder)
+                (folder / "stderr").write_text(err)
+                done.write_text(str(code))      # written last: the run is complete
             return Run(folder, int(done.read_text()), (folder / "stderr").read_text())
         finally:
             fcntl.flock(lock, fcntl.LOCK_UN)
@@ -73,3 +81,14 @@ def tx40_identify_run(tmp_path_factory) -> Run:
     return _once(tmp_path_factory, "tx40-identify",
                  [sys.executable, "-m", "dynid.reports.cli", "identify", str(TX40_EXPERIMENT), "--robot", "tx40",
                   "--holdout", "3", "--json", "out.json", "--report", "out.html", "--quiet"])
+
+
+def planar2_diagnose_run(tmp_path_factory) -> Run:
+    """`dynid simulate --robot planar2 --duration 6 --seed 4 --out p2.csv`, then `dynid diagnose p2.csv
+    --robot planar2 --holdout 2 --report diag.html --json diagnose.json --quiet`, with the console script
+    of this venv; the returned code is the first failing command's, else the diagnosis'."""
+    return _once(tmp_path_factory, "planar2-diagnose",
+                 [str(DYNID), "simulate", "--robot", "planar2", "--duration", "6", "--seed", "4", "--out", "p2.csv",
+                  "--quiet"],
+                 [str(DYNID), "diagnose", "p2.csv", "--robot", "planar2", "--holdout", "2", "--report", "diag.html",
+                  "--json", "diagnose.json", "--quiet"])
