@@ -110,10 +110,16 @@ def test_diagnose_json(tmp_path_factory):
     check("diagnose", load(diag.folder / "diagnose.json"))
 
 
-def test_report_json(folder):
-    run(folder, "report", "p2.csv", "--robot", "planar2", "--holdout", "2", "--skip", "sample,didim",
-        "--report", "all.html", "--json", "report.json")
-    doc = load(folder / "report.json")
+def test_report_json(tmp_path_factory):
+    """`dynid report` with every part (IDIM, validation, DIDIM, posterior, diagnosis) on a simulated
+    planar2 recording, run once per session (tests/cli/test_cli.py checks the same run's parts); a
+    report with parts skipped is test_demo_json's."""
+    from shared_runs import planar2_full_report_run
+    if not DYNID.exists():
+        pytest.skip(f"no dynid console script beside {sys.executable}: pip install . first")
+    full = planar2_full_report_run(tmp_path_factory)
+    assert full.returncode in (0, 3), f"exit {full.returncode}\n{full.stderr[-3000:]}"
+    doc = load(full.folder / "r.json")
     check("report", doc)
     check("diagnose", dict(doc["diagnosis"], verdict=doc["verdict"]))    # the nested part, as diagnose writes it
 

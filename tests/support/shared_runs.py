@@ -92,3 +92,15 @@ def planar2_diagnose_run(tmp_path_factory) -> Run:
                   "--quiet"],
                  [str(DYNID), "diagnose", "p2.csv", "--robot", "planar2", "--holdout", "2", "--report", "diag.html",
                   "--json", "diagnose.json", "--quiet"])
+
+
+def planar2_full_report_run(tmp_path_factory) -> Run:
+    """`dynid simulate --robot planar2 --duration 12 --out run.csv`, then `dynid report run.csv --robot
+    planar2 --holdout 3 --max-seconds 20 --report r.html --json r.json --quiet`: every part of the report
+    (IDIM, validation, DIDIM, posterior, diagnosis). The console script of this venv, or
+    `python -m dynid.reports.cli` where there is none."""
+    dynid = [str(DYNID)] if DYNID.exists() else [sys.executable, "-m", "dynid.reports.cli"]
+    return _once(tmp_path_factory, "planar2-report",
+                 [*dynid, "simulate", "--robot", "planar2", "--duration", "12", "--out", "run.csv", "--quiet"],
+                 [*dynid, "report", "run.csv", "--robot", "planar2", "--holdout", "3", "--max-seconds", "20",
+                  "--report", "r.html", "--json", "r.json", "--quiet"])
