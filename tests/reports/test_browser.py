@@ -179,12 +179,10 @@ def shots(tmp_path_factory):
     return tmp_path_factory.mktemp("screenshots")
 
 
-def test_screenshot_api_page_of_identify(shots, tmp_path):
+def test_screenshot_api_page_of_identify(shots, tmp_path_factory):
     pytest.importorskip("mkdocs")
-    from test_docs import build
-    site = tmp_path / "site"
-    proc = build(site, tmp_path)
-    assert proc.returncode == 0, proc.stderr[-3000:]
+    from test_docs import built_site
+    site = built_site(tmp_path_factory)          # built once per session, with tests/project/test_docs.py
     # served over HTTP as a reader's server would (the search worker is refused on file://)
     import functools
     import http.server

@@ -48,10 +48,11 @@ def _run_all(commands: list[list[str]], folder: Path) -> tuple[int, str]:
     return proc.returncode, f"{' '.join(argv[1:])}: {proc.stderr}"
 
 
-def _once(tmp_path_factory, key: str, *commands: list[str]) -> Run:
+def once_in_folder(tmp_path_factory, key: str, make) -> Run:
+    """`make(folder)` -> (exit code, stderr), called once per session for `key` (see the module's text)."""
     if fcntl is None:
         folder = tmp_path_factory.mktemp(key)
-        return Run(folder, *_run_all(list(commands), folder))
+        return Run(folder, *make(folder))
     folder = _shared_root(tmp_path_factory) / f"shared-{key}"
     with open(f"{folder}.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
@@ -59,12 +60,16 @@ def _once(tmp_path_factory, key: str, *commands: list[str]) -> Run:
             done = folder / "returncode"
             if not done.exists():
                 folder.mkdir(exist_ok=True)
-                code, err = _run_all(list(commands), folder)
+                code, err = make(folder)
                 (folder / "stderr").write_text(err)
                 done.write_text(str(code))      # written last: the run is complete
             return Run(folder, int(done.read_text()), (folder / "stderr").read_text())
         finally:
             fcntl.flock(lock, fcntl.LOCK_UN)
+
+
+def _once(tmp_path_factory, key: str, *commands: list[str]) -> Run:
+    return once_in_folder(tmp_path_factory, key, lambda folder: _run_all(list(commands), folder))
 
 
 def demo_idim_run(tmp_path_factory) -> Run:
