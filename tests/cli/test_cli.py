@@ -230,11 +230,14 @@ def test_diagnose_rejects_unknown_effect_names_before_any_work(capsys):
     assert "gremlins" in capsys.readouterr().err
 
 
-def test_report_runs_every_part_on_one_recording(tmp_path):
-    csv, js, html = tmp_path / "run.csv", tmp_path / "r.json", tmp_path / "r.html"
-    assert main(["simulate", "--robot", "planar2", "--duration", "12", "--out", str(csv), "--quiet"]) == 0
-    code = main(["report", str(csv), "--robot", "planar2", "--holdout", "3", "--max-seconds", "20",
-                 "--report", str(html), "--json", str(js), "--quiet"])
+def test_report_runs_every_part_on_one_recording(tmp_path_factory):
+    """`dynid simulate` then `dynid report` with every part, run once per session
+    (tests/cli/test_output_schemas.py validates the same run's JSON)."""
+    from shared_runs import planar2_full_report_run
+    run = planar2_full_report_run(tmp_path_factory)
+    js, html = run.folder / "r.json", run.folder / "r.html"
+    assert js.exists(), run.stderr[-3000:]
+    code = run.returncode
     doc = json.loads(js.read_text())
     assert code == (3 if doc["problems"] else 0)
     assert set(doc) >= {"parameters", "essential", "validation", "didim", "posterior", "diagnosis"}

@@ -98,23 +98,41 @@ def test_sample_json(folder):
     check("sample", load(folder / "sample.json"))
 
 
-def test_diagnose_json(folder):
-    run(folder, "diagnose", "p2.csv", "--robot", "planar2", "--holdout", "2", "--json", "diagnose.json")
-    check("diagnose", load(folder / "diagnose.json"))
+def test_diagnose_json(tmp_path_factory):
+    """`dynid diagnose p2.csv --robot planar2 --holdout 2 --report diag.html --json diagnose.json` on the
+    same simulated recording as `folder`, run once per session (tests/reports/test_browser.py
+    screenshots its report)."""
+    from shared_runs import planar2_diagnose_run
+    if not DYNID.exists():
+        pytest.skip(f"no dynid console script beside {sys.executable}: pip install . first")
+    diag = planar2_diagnose_run(tmp_path_factory)
+    assert diag.returncode in (0, 3), f"exit {diag.returncode}\n{diag.stderr[-3000:]}"
+    check("diagnose", load(diag.folder / "diagnose.json"))
 
 
-def test_report_json(folder):
-    run(folder, "report", "p2.csv", "--robot", "planar2", "--holdout", "2", "--skip", "sample,didim",
-        "--report", "all.html", "--json", "report.json")
-    doc = load(folder / "report.json")
+def test_report_json(tmp_path_factory):
+    """`dynid report` with every part (IDIM, validation, DIDIM, posterior, diagnosis) on a simulated
+    planar2 recording, run once per session (tests/cli/test_cli.py checks the same run's parts); a
+    report with parts skipped is test_demo_json's."""
+    from shared_runs import planar2_full_report_run
+    if not DYNID.exists():
+        pytest.skip(f"no dynid console script beside {sys.executable}: pip install . first")
+    full = planar2_full_report_run(tmp_path_factory)
+    assert full.returncode in (0, 3), f"exit {full.returncode}\n{full.stderr[-3000:]}"
+    doc = load(full.folder / "r.json")
     check("report", doc)
     check("diagnose", dict(doc["diagnosis"], verdict=doc["verdict"]))    # the nested part, as diagnose writes it
 
 
-def test_demo_json(folder):
-    run(folder, "demo", "--skip", "didim,sample,diagnose", "--duration", "5", "--report", "demo.html",
-        "--json", "demo.json")
-    check("report", load(folder / "demo.json"))
+def test_demo_json(tmp_path_factory):
+    """`dynid demo --skip didim,sample,diagnose --duration 5 --report demo.html --json demo.json`, run
+    once per session (tests/reports/test_browser.py reads the same run)."""
+    from shared_runs import demo_idim_run
+    if not DYNID.exists():
+        pytest.skip(f"no dynid console script beside {sys.executable}: pip install . first")
+    demo = demo_idim_run(tmp_path_factory)
+    assert demo.returncode in (0, 3), f"dynid demo: exit {demo.returncode}\n{demo.stderr[-3000:]}"
+    check("report", load(demo.folder / "demo.json"))
 
 
 def _fleet_catalogue(folder):

@@ -102,10 +102,19 @@ def site_problems(site: Path) -> list[str]:
 def site(tmp_path_factory):
     pytest.importorskip("mkdocs", reason='the API reference needs pip install ".[docs]"')
     pytest.importorskip("mkdocstrings")
-    tmp = tmp_path_factory.mktemp("docs")
-    proc = build(tmp / "site", tmp)
-    assert proc.returncode == 0, proc.stderr[-4000:]
-    return tmp / "site"
+    return built_site(tmp_path_factory)
+
+
+def built_site(tmp_path_factory) -> Path:
+    """The site, built once per session (tests/reports/test_browser.py screenshots a page of it)."""
+    from shared_runs import once_in_folder
+
+    def make(folder):
+        proc = build(folder / "site", folder)
+        return proc.returncode, proc.stderr
+    run = once_in_folder(tmp_path_factory, "docs-site", make)
+    assert run.returncode == 0, run.stderr[-4000:]
+    return run.folder / "site"
 
 
 def test_api_reference_renders_without_raw_markup_or_missing_returns(site):

@@ -123,40 +123,6 @@ def test_every_command_block_runs(tmp_path):
     assert "parameter" in (tmp_path / "essential.csv").read_text().splitlines()[0]
 
 
-def test_own_robot_recipe_from_a_urdf_to_a_verdict(tmp_path):
-    """The guide's own-robot recipe, as written: a URDF the test writes (branched, so --base/--tip
-    matter), the guide's robot TOML (controller, a-priori rotor inertia and friction), a log, a
-    verdict."""
-    dynid = BIN / "dynid"
-    if not dynid.exists():
-        pytest.skip(f"no dynid console script beside {sys.executable}: pip install . first")
-    write_own_robot_files(tmp_path)
-    env = dict(os.environ, PATH=f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}")
-    # the branched URDF alone is refused, and the message offers the tips
-    proc = subprocess.run([str(dynid), "robot", "arm.urdf"], cwd=tmp_path, capture_output=True, text=True,
-                          timeout=120)
-    assert proc.returncode == 2 and "--tip" in proc.stderr and "link3" in proc.stderr
-    blocks = sh_blocks(own_robot_section())
-    assert len(blocks) == 2 and "--base base_link --tip link3" in blocks[0]
-    for block in blocks:
-        proc = subprocess.run(["bash", "-e", "-c", block], cwd=tmp_path, env=env, capture_output=True,
-                              text=True, timeout=600)
-        assert proc.returncode == 0, f"{block}\nexit {proc.returncode}\n{proc.stderr[-3000:]}"
-    assert "26 base parameters" in (tmp_path / "arm3_parameters.txt").read_text()
-    doc = json.loads((tmp_path / "arm3.json").read_text())
-    verdict = doc["verdict"]
-    assert verdict["status"] == "identified with reservations", verdict["findings"]
-    # the line the guide explains: Ia2 carries ZZ2R, which left the essential set, so the
-    # bootstrap sigma (which counts the shift of that removal) leaves it above 10 %
-    assert verdict["not_identified"] == ["Ia2"], verdict["findings"]
-    assert verdict["apriori"]["flagged"] == []
-    # the a-priori friction and rotor inertia were simulated, and come back within 3 sigma
-    compared = {c["name"]: c for c in verdict["apriori"]["compared"]}
-    for name in ("Fv1", "Fc2", "Fv3", "Ia3"):
-        assert compared[name]["n_sigma"] < 3, compared[name]
-    assert "<html" in (tmp_path / "arm3.html").read_text()[:200].lower()
-
-
 def python_blocks():
     return re.findall(r"```python\n(.*?)\n```", GUIDE.read_text(), flags=re.S)
 

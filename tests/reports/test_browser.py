@@ -125,17 +125,20 @@ def _verdict_in_browser(html_path):
 
 
 @pytest.mark.parametrize("which", ["demo", "tx40"])
-def test_verdict_block_matches_the_json(tmp_path, which):
+def test_verdict_block_matches_the_json(tmp_path_factory, which):
+    """The runs are shared with tests/cli/test_output_schemas.py (the IDIM-only demo) and
+    tests/analysis/statistics/test_verdict.py (identify on the TX40 recording): made once per session."""
     import json
 
-    from dynid.reports.cli import main
-    report, js = tmp_path / f"{which}.html", tmp_path / f"{which}.json"
+    from shared_runs import DYNID, demo_idim_run, tx40_identify_run
     if which == "demo":
-        argv = ["demo", "--duration", "8", "--skip", "didim,sample,diagnose"]
+        if not DYNID.exists():
+            pytest.skip("no dynid console script beside the interpreter: pip install . first")
+        run, stem = demo_idim_run(tmp_path_factory), "demo"
     else:
-        argv = ["identify", str(ROOT / "examples" / "staubli_tx40" / "experiment.toml"), "--robot", "tx40",
-                "--holdout", "3"]
-    assert main(argv + ["--report", str(report), "--json", str(js), "--quiet"]) == 0
+        run, stem = tx40_identify_run(tmp_path_factory), "out"
+    assert run.returncode == 0, run.stderr[-3000:]
+    report, js = run.folder / f"{stem}.html", run.folder / f"{stem}.json"
     doc = json.loads(js.read_text())
     vd = doc["verdict"]
     got = _verdict_in_browser(report)
@@ -176,12 +179,10 @@ def shots(tmp_path_factory):
     return tmp_path_factory.mktemp("screenshots")
 
 
-def test_screenshot_api_page_of_identify(shots, tmp_path):
+def test_screenshot_api_page_of_identify(shots, tmp_path_factory):
     pytest.importorskip("mkdocs")
-    from test_docs import build
-    site = tmp_path / "site"
-    proc = build(site, tmp_path)
-    assert proc.returncode == 0, proc.stderr[-3000:]
+    from test_docs import built_site
+    site = built_site(tmp_path_factory)          # built once per session, with tests/project/test_docs.py
     # served over HTTP as a reader's server would (the search worker is refused on file://)
     import functools
     import http.server
@@ -212,14 +213,15 @@ def test_screenshot_demo_report_first_screen(shots, tmp_path):
     assert "Full report on tx40" in text and "IDENTIFIED" in text.upper()
 
 
-def test_screenshot_diagnosis_report_first_screen(shots, tmp_path):
-    from dynid.reports.cli import main
-    run = tmp_path / "run.csv"
-    assert main(["simulate", "--robot", "planar2", "--duration", "8", "--seed", "2", "--out", str(run),
-                 "--quiet"]) == 0
-    report = tmp_path / "diag.html"
-    assert main(["diagnose", str(run), "--robot", "planar2", "--holdout", "2", "--report", str(report),
-                 "--quiet"]) == 0
+def test_screenshot_diagnosis_report_first_screen(shots, tmp_path_factory):
+    """The report of `dynid diagnose` on a simulated planar2 recording, run once per session
+    (tests/cli/test_output_schemas.py checks the same run's JSON)."""
+    from shared_runs import DYNID, planar2_diagnose_run
+    if not DYNID.exists():
+        pytest.skip("no dynid console script beside the interpreter: pip install . first")
+    run = planar2_diagnose_run(tmp_path_factory)
+    assert run.returncode == 0, run.stderr[-3000:]
+    report = run.folder / "diag.html"
     text = _first_screen(report.resolve().as_uri(), shots / "diagnosis-first-screen.png")
     assert "Residual diagnosis of planar2" in text
     # the structure plots further down, whole, for a look at their axes

@@ -3,8 +3,6 @@ from __future__ import annotations
 
 import json
 import re
-import subprocess
-import sys
 import types
 from pathlib import Path
 
@@ -18,14 +16,12 @@ TX40 = ROOT / "examples" / "staubli_tx40" / "experiment.toml"
 
 @pytest.fixture(scope="module")
 def tx40_run(tmp_path_factory):
-    """``dynid identify ... --holdout 3 --json --report`` on the real TX40, run once."""
-    out = tmp_path_factory.mktemp("tx40")
-    js, html = out / "out.json", out / "out.html"
-    proc = subprocess.run([sys.executable, "-m", "dynid.reports.cli", "identify", str(TX40), "--robot", "tx40",
-                           "--holdout", "3", "--json", str(js), "--report", str(html), "--quiet"],
-                          capture_output=True, text=True, cwd=ROOT, timeout=600)
-    assert proc.returncode == 0, proc.stderr
-    return json.loads(js.read_text()), html.read_text(encoding="utf-8")
+    """``dynid identify ... --holdout 3 --json --report`` on the real TX40, run once per session
+    (tests/reports/test_browser.py reads the same run)."""
+    from shared_runs import tx40_identify_run
+    run = tx40_identify_run(tmp_path_factory)
+    assert run.returncode == 0, run.stderr
+    return json.loads((run.folder / "out.json").read_text()), (run.folder / "out.html").read_text(encoding="utf-8")
 
 
 def _independent_all_samples_error(doc):
@@ -184,12 +180,20 @@ def test_didim_step_index_is_the_same_everywhere(monkeypatch):
 
 # ML's own fit takes about half a minute on this recording (a full SVD of its Jacobian per
 # step): it runs with the slow tests; its identification is in tests/cli/test_cli.py
+@pytest.fixture(scope="module")
+def planar2_csv(tmp_path_factory):
+    """One simulated planar2 recording (the same command for every method), written once."""
+    from dynid.reports.cli import main
+    csv = tmp_path_factory.mktemp("planar2") / "run.csv"
+    assert main(["simulate", "--robot", "planar2", "--duration", "10", "--out", str(csv), "--quiet"]) == 0
+    return csv
+
+
 @pytest.mark.parametrize("method", ["didim", "projection", pytest.param("ml", marks=pytest.mark.slow)])
-def test_every_method_gives_a_verdict(tmp_path, method):
+def test_every_method_gives_a_verdict(tmp_path, planar2_csv, method):
     """DIDIM, the Projection Method and ML get the verdict too: JSON, summary and report's first block."""
     from dynid.reports.cli import main
-    csv, js, html = tmp_path / "run.csv", tmp_path / "out.json", tmp_path / "out.html"
-    assert main(["simulate", "--robot", "planar2", "--duration", "10", "--out", str(csv), "--quiet"]) == 0
+    csv, js, html = planar2_csv, tmp_path / "out.json", tmp_path / "out.html"
     extra = ["--f0", "0.1"] if method == "ml" else []
     code = main(["identify", str(csv), "--robot", "planar2", "--method", method, *extra,
                  "--json", str(js), "--report", str(html), "--quiet"])
