@@ -181,6 +181,9 @@ def shots(tmp_path_factory):
 
 def test_screenshot_api_page_of_identify(shots, tmp_path_factory):
     pytest.importorskip("mkdocs")
+    import sys
+    if str(ROOT / "tests" / "project") not in sys.path:     # this file run alone
+        sys.path.insert(0, str(ROOT / "tests" / "project"))
     from test_docs import built_site
     site = built_site(tmp_path_factory)          # built once per session, with tests/project/test_docs.py
     # served over HTTP as a reader's server would (the search worker is refused on file://)
