@@ -116,3 +116,22 @@ def test_block_permutation_power_is_the_mean_over_the_permuted_orders(n, L):
     ref = _mean_power_by_definition(gi, y, L, 37, seed=2)
     got = structure._perm_power(gi, y, L, 37, np.random.default_rng(2))
     np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-12 * ref.max())
+
+
+def test_identification_from_the_effect_observation_is_identify_idims(planar):
+    """`dynid diagnose` identifies from the diagnosis' observation (one regressor build): it is
+    `observe`'s system field by field, notices included, and IDIM from it is bit-identical."""
+    from dynid.analysis.estimators.idim import identify_idim
+    from dynid.analysis.processing.observation import observe
+    robot, bp, exp, settings, eobs = planar
+    o = observe(exp, robot, bp, settings)
+    for a in ("W", "tau", "t", "q", "qd", "qdd", "row_mask"):
+        assert np.array_equal(getattr(o, a), getattr(eobs.obs, a)), a
+    assert (o.names, o.settings, o.notices, o.n_raw) == (
+        eobs.obs.names, eobs.obs.settings, eobs.obs.notices, eobs.obs.n_raw)
+    ref = identify_idim(exp, robot, settings=settings, bp=bp)
+    got = identify_idim(exp, robot, settings=settings, bp=bp, observation=eobs.obs)
+    for r, g in ((ref.ols, got.ols), (ref.wls, got.wls), (ref.model, got.model)):
+        assert list(r.names) == list(g.names)
+        assert np.array_equal(r.chi, g.chi) and np.array_equal(r.bse.to_numpy(), g.bse.to_numpy())
+    assert ref.notices == got.notices
