@@ -150,3 +150,21 @@ def test_position_noise_residual_is_observes_residual(planar, nd):
     ref = o.tau - o.W[:, :, cols] @ chi
     assert np.array_equal(mask, o.row_mask)
     np.testing.assert_allclose(r, ref, rtol=0, atol=1e-12 * np.abs(ref).max())
+
+
+def test_small_pages_inside_the_diagnosis_and_restored_after(monkeypatch):
+    """`dynid diagnose` turns numpy's huge-page advice off for its work only, unless the user
+    chose (NUMPY_MADVISE_HUGEPAGE)."""
+    mm = pytest.importorskip("numpy._core.multiarray")
+    from dynid.analysis.further import _small_pages
+    monkeypatch.delenv("NUMPY_MADVISE_HUGEPAGE", raising=False)
+    start = mm._set_madvise_hugepage(True)
+    try:
+        with _small_pages():
+            assert mm._set_madvise_hugepage(False) is False
+        assert mm._set_madvise_hugepage(True) is True
+        monkeypatch.setenv("NUMPY_MADVISE_HUGEPAGE", "1")
+        with _small_pages():
+            assert mm._set_madvise_hugepage(True) is True
+    finally:
+        mm._set_madvise_hugepage(start)
