@@ -9,15 +9,20 @@
 """
 from __future__ import annotations
 
+import contextlib
 import math
+import os
 from dataclasses import dataclass
 
+from dynid.analysis.diagnosis.effect_observation import observe_effects
 from dynid.analysis.diagnosis.effects import check_effect_names
 from dynid.analysis.diagnosis.selection import diagnose
+from dynid.analysis.estimators.idim import identify_idim
 from dynid.analysis.run import (
     REPORT_PARTS,
     Settings,
     as_robot,
+    check_identify,
     check_robot_options,
     identify_step,
     load_data,
@@ -27,6 +32,7 @@ from dynid.analysis.run import (
 from dynid.analysis.sampling.posterior import sample_idim
 from dynid.analysis.statistics.validation import validate
 from dynid.analysis.statistics.verdict import verdict
+from dynid.dynamics.base_parameters import base_parameters
 from dynid.errors import InputError
 
 # ---------------------------------------------------------------- steps 8-10: a full report
@@ -51,9 +57,10 @@ def check_diagnosis(settings: Settings) -> None:
 
 
 def diagnosis_step(experiment, robot, held_out, idim_result, settings: Settings, say=None,
-                   candidates=None):
+                   candidates=None, observation=None):
     """Step 10: the residual diagnosis of an IDIM result (`no_offsets`: of the model without the
-    torque offsets, identified here). `candidates`: the effects to consider (default all)."""
+    torque offsets, identified here). `candidates`: the effects to consider (default all);
+    `observation`: the EffectObservation `idim_result` was identified from, when built."""
     say = messages(say)
     with say.progress("diagnosis (selection steps)") as bar:
         kwargs = dict(validation=held_out, effects=candidates, max_effects=settings.max_effects,
@@ -61,7 +68,7 @@ def diagnosis_step(experiment, robot, held_out, idim_result, settings: Settings,
         if settings.no_offsets:
             return diagnose(experiment, robot, settings=settings.processing(), exclude_parameters=("Off",),
                             max_error_growth=settings.max_error_growth, **kwargs)
-        return diagnose(experiment, robot, idim_result=idim_result, **kwargs)
+        return diagnose(experiment, robot, idim_result=idim_result, observation=observation, **kwargs)
 
 
 def didim_beside(experiments, robot, settings: Settings, say=None):
@@ -187,9 +194,36 @@ class DiagnosisRun:
         return self.summary()
 
 
+@contextlib.contextmanager
+def _small_pages():
+    """numpy's large arrays on ordinary pages inside (restored after), unless the user set
+    NUMPY_MADVISE_HUGEPAGE. The diagnosis allocates many short-lived arrays of tens of MB;
+    with transparent huge pages on `madvise`, each fresh one can stall in the kernel's
+    compaction, a cost that grows with the machine's load: measured on the project's 2-core
+    machine (benchmarks/diagnosis_speed.py, load 1-2), `dynid diagnose` 11.1 -> 8.9 s CPU,
+    its system time 2.5-4.2 -> 1.0-1.2 s. Allocation only: the numbers are the same."""
+    try:
+        from numpy._core.multiarray import _set_madvise_hugepage
+    except ImportError:          # another numpy layout: nothing to switch
+        _set_madvise_hugepage = None
+    if _set_madvise_hugepage is None or "NUMPY_MADVISE_HUGEPAGE" in os.environ:
+        yield
+        return
+    before = _set_madvise_hugepage(False)
+    try:
+        yield
+    finally:
+        _set_madvise_hugepage(before)
+
+
 def diagnosis_run(data, robot, settings=None, *, say=None, **options) -> DiagnosisRun:
     """`dynid diagnose`: identify (IDIM; not with `no_offsets`), look for the effects the model
     lacks (step 10), validate on the held-out data and give the verdict with the diagnosis."""
+    with _small_pages():
+        return _diagnosis_run(data, robot, settings, say=say, **options)
+
+
+def _diagnosis_run(data, robot, settings=None, *, say=None, **options) -> DiagnosisRun:
     s = settings_from(settings, **options)
     say = messages(say)
     check_diagnosis(s)
@@ -200,12 +234,22 @@ def diagnosis_run(data, robot, settings=None, *, say=None, **options) -> Diagnos
     if len(experiments) > 1:
         raise InputError("the diagnosis works on one recording at a time")
     experiment = experiments[0]
-    result = None
+    result = eobs = None
     if not s.no_offsets:
+        ident = s.replace(method="idim", physical=False)
+        check_identify(ident)
         with say.progress("regressor and decimation") as bar:
-            result = identify_step(experiments, robot, s.replace(method="idim", physical=False), bar.update)
+            # the diagnosis' observation first: its decimated system is observe's, so IDIM
+            # identifies from it and the full-rate regressor is built once, not twice
+            # (identify_step's IDIM with these settings, given the system)
+            eobs = observe_effects(experiment, robot, base_parameters(robot), ident.processing(),
+                                   progress=bar.update)
+            result = identify_idim(experiment, robot, settings=ident.processing(), bp=eobs.bp,
+                                   max_error_growth=ident.max_error_growth,
+                                   uncertainty=ident.uncertainty, observation=eobs.obs)
     say("scoring candidate effects")
-    diag = diagnosis_step(experiment, robot, held_out, result, s, say, candidates=candidates)
+    diag = diagnosis_step(experiment, robot, held_out, result, s, say, candidates=candidates,
+                          observation=eobs)
     result = diag.idim if diag.idim is not None else result
     validation = validate(result, held_out, robot) if held_out is not None and result is not None else None
     the_verdict = verdict(result, validation, robot=robot, diagnosis=diag) if result is not None else None

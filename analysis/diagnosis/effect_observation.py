@@ -392,6 +392,12 @@ def observe_effects(experiment, robot, bp, settings=None, *, cache_regressor="au
     notices = [fr.edge_notice]
     nd = int(s["nd"])
     n_kept = qf.shape[0]
+    if dead is not None:
+        # observe's notices word for word: its observation system is this one's `obs`
+        notices.append("velocity dead zone (Coulomb friction's sign is unreliable there): rows with "
+                       + ", ".join(f"|qd{j + 1}| < {v:.3g}" for j, v in enumerate(s["qd_threshold"]))
+                       + " rad/s are zeroed in W and Y before decimation; excluded per joint: "
+                       + ", ".join(f"{100 * f:.1f} %" for f in dead.mean(axis=0)))
     b = len(bp.independent)
     std_names = robot.standard_names
     pay_idx = [std_names.index(nm) for nm in payload_parameter_names(robot)]
@@ -445,7 +451,8 @@ def observe_effects(experiment, robot, bp, settings=None, *, cache_regressor="au
                                                   for k in range(6))
         td = t[dec.indices]
         notices.append(f"parallel decimation by nd = {nd} (low-pass {s['f_decimation_cutoff']:.3g} Hz): "
-                       f"{n_kept} -> {len(dec.indices)} samples")
+                       f"{n_kept} -> {len(dec.indices)} samples, {dec.dropped_start} + {dec.dropped_end} "
+                       f"dropped for the decimation filter's transients")
         obs = Observation(W=Wd, tau=taud, t=td, q=qf_d, qd=qd_d, qdd=qdd_d,
                           row_mask=kept_frac >= 0.5, names=list(bp.names), settings=s,
                           notices=list(notices), n_raw=N)

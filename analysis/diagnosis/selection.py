@@ -173,7 +173,7 @@ def diagnose(experiment, robot, *, validation=None, idim_result=None, settings=N
              joints=None, residual_analysis=True, confirm_on_validation=True, max_error_growth=0.02,
              progress=None, structure_tests=True, start_model="essential", base_guard=True,
              max_tries=5, hidden_tests=True, physical_tests=True, reselect_essential=True,
-             gear_ratios=None, rest_phases=True):
+             gear_ratios=None, rest_phases=True, observation=None):
     """Find what the identified model of `robot` lacks in `experiment`.
 
     Parameters
@@ -244,6 +244,10 @@ def diagnose(experiment, robot, *, validation=None, idim_result=None, settings=N
     rest_phases : with validation data, choose the friction at rest per joint on the
         identification's rest rows and report the held-out error on all samples before/after
         and its rest-phase share (`dynid.analysis.diagnosis.rest`).
+    observation : EffectObservation, optional
+        `observe_effects` of `experiment` with `idim_result`'s base parameters and settings,
+        already built (e.g. the one `idim_result` was identified from: `dynid diagnose`
+        builds the full-rate regressor once); default: built here.
 
     Returns
     -------
@@ -259,15 +263,16 @@ def diagnose(experiment, robot, *, validation=None, idim_result=None, settings=N
         reselect_essential=reselect_essential, processing=settings, gear_ratios=gear_ratios,
         rest_phases=rest_phases)
     return run_diagnosis(experiment, robot, opts, validation=validation, idim_result=idim_result,
-                         progress=progress)
+                         progress=progress, observation=observation)
 
 
-def run_diagnosis(experiment, robot, opts=None, *, validation=None, idim_result=None, progress=None):
+def run_diagnosis(experiment, robot, opts=None, *, validation=None, idim_result=None, progress=None,
+                  observation=None):
     """`diagnose` with its settings in one `DiagnosisSettings` object.
 
     Parameters
     ----------
-    experiment, robot, validation, idim_result, progress : as `diagnose`.
+    experiment, robot, validation, idim_result, progress, observation : as `diagnose`.
     opts : DiagnosisSettings, optional (default: the defaults of `diagnose`).
 
     Returns
@@ -279,7 +284,8 @@ def run_diagnosis(experiment, robot, opts=None, *, validation=None, idim_result=
                          "drift and time-delay effects are defined per recording")
     opts = (opts or DiagnosisSettings()).checked()
     stage = _Progress(progress)
-    setup = prepare(experiment, robot, opts, validation=validation, idim_result=idim_result)
+    setup = prepare(experiment, robot, opts, validation=validation, idim_result=idim_result,
+                    observation=observation)
     stage("selection", 0.0)
     sel = select_effects(setup, opts, stage)
     stage("reselection", 0.0)
@@ -338,10 +344,11 @@ class Setup:
     validation: object = None    # the validation data as given
 
 
-def prepare(experiment, robot, opts, *, validation=None, idim_result=None):
-    """Identify (unless given), build the candidate set and the decimated data: `Setup`."""
+def prepare(experiment, robot, opts, *, validation=None, idim_result=None, observation=None):
+    """Identify (unless given), build the candidate set and the decimated data: `Setup`.
+    `observation`: the identification data's `EffectObservation`, when already built."""
     notices = []
-    eobs, idim_result = _identification(experiment, robot, opts, idim_result, notices)
+    eobs, idim_result = _identification(experiment, robot, opts, idim_result, notices, observation)
     obs = eobs.obs
     ref = idim_result.observation
     if ref.tau.shape != obs.tau.shape or not np.allclose(ref.tau, obs.tau, rtol=1e-9, atol=1e-12):
@@ -366,8 +373,9 @@ def prepare(experiment, robot, opts, *, validation=None, idim_result=None):
                  folds=folds, gap=gap, vprob=vprob, notices=notices, validation=validation)
 
 
-def _identification(experiment, robot, opts, idim_result, notices):
-    """(EffectObservation, IDIMResult) of the identification data."""
+def _identification(experiment, robot, opts, idim_result, notices, observation=None):
+    """(EffectObservation, IDIMResult) of the identification data (`observation`: its
+    EffectObservation when the caller built it, with `idim_result`)."""
     if isinstance(experiment, EffectObservation):
         if idim_result is None:
             idim_result = identify_from_observation(experiment, robot,
@@ -381,6 +389,11 @@ def _identification(experiment, robot, opts, idim_result, notices):
                            + ", ".join(opts.exclude_parameters))
         idim_result = identify_idim(experiment, robot, settings=opts.processing, bp=bp,
                                     max_error_growth=opts.max_error_growth)
+    if observation is not None:
+        if observation.bp is None or list(observation.bp.names) != list(idim_result.base.names):
+            raise DataError("observation has other base parameters than idim_result; pass the "
+                            "matching observation or none")
+        return observation, idim_result
     return observe_effects(experiment, robot, idim_result.base, idim_result.settings), idim_result
 
 

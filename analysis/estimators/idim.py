@@ -19,7 +19,7 @@ from dynid.analysis.estimators.essential import essential_parameters
 from dynid.analysis.processing.observation import Observation, concatenate, observe
 from dynid.analysis.results import ModelResults, notices_block, parameter_records, percent
 from dynid.dynamics.base_parameters import base_parameters
-from dynid.errors import IdentificationError
+from dynid.errors import IdentificationError, InputError
 from dynid.provenance import data_hash, json_safe, versions
 
 #: The covariance users get by default (dynid.identify, Settings.uncertainty, dynid identify
@@ -151,7 +151,7 @@ class IDIMResult(ModelResults):
 
 
 def identify_idim(experiment, robot, *, settings=None, bp=None, max_error_growth=0.02,
-                  progress=None, uncertainty: str = "classic"):
+                  progress=None, uncertainty: str = "classic", observation=None):
     """Identify the base and essential parameters of `robot` from `experiment` (IDIM-LS/WLS).
 
     `experiment` may be a list of recordings: their observation systems are
@@ -159,13 +159,18 @@ def identify_idim(experiment, robot, *, settings=None, bp=None, max_error_growth
     `uncertainty` ("classic", "hac" or "bootstrap") is the covariance of the
     OLS, WLS and essential estimates (see
     dynid.analysis.estimators.least_squares.ols); the estimates do not depend on it.
+    `observation`: the observation system of `experiment` (one recording) as `observe` builds
+    it with `bp` and `settings`, when the caller already has it (not built again).
     """
     ls.check_uncertainty(uncertainty)
     bp = base_parameters(robot) if bp is None else bp
     experiments = list(experiment) if isinstance(experiment, (list, tuple)) else [experiment]
     # settings derived from the first recording apply to all, so every row of the
     # stacked system is processed alike
-    first = observe(experiments[0], robot, bp, settings, progress=progress)
+    if observation is not None and len(experiments) > 1:
+        raise InputError("identify_idim: observation is the system of one recording")
+    first = observation if observation is not None else observe(experiments[0], robot, bp, settings,
+                                                                progress=progress)
     parts = [first] + [observe(e, robot, bp, first.settings) for e in experiments[1:]]
     obs = concatenate(parts)
     groups = np.repeat(np.arange(len(parts)), [p.n_samples for p in parts])

@@ -207,6 +207,15 @@ class _Stage:
         self.next = self.h + (phase - self.h) % down  # next output, local index
         self.t0 = 0  # local index of tails[k][0]
         self.tails = None
+        self._work = np.empty(0)
+
+    def _scratch(self, size):
+        """A reused flat work array of at least `size` values (`_polyphase`'s products): a
+        fresh one per push and column block paid its page faults anew (tens of MB on a
+        regressor chunk)."""
+        if self._work.size < size:
+            self._work = np.empty(size)
+        return self._work[:size]
 
     def push(self, parts):
         """Consume the column blocks `parts` (each (n, c_k)); return theirs."""
@@ -225,10 +234,10 @@ class _Stage:
             pieces = []
             if n_joined:
                 joined = np.concatenate((tail, part[:head]))
-                pieces.append(_polyphase(joined, start, n_joined, self.poly, down))
+                pieces.append(_polyphase(joined, start, n_joined, self.poly, down, self._scratch))
             if count > n_joined:
                 s_in = start + n_joined * down - n_tail
-                pieces.append(_polyphase(part, s_in, count - n_joined, self.poly, down))
+                pieces.append(_polyphase(part, s_in, count - n_joined, self.poly, down, self._scratch))
             outs.append(
                 pieces[0] if len(pieces) == 1
                 else np.concatenate(pieces) if pieces
@@ -247,14 +256,16 @@ class _Stage:
         return outs
 
 
-def _polyphase(buf: np.ndarray, start: int, count: int, poly: np.ndarray, down: int):
-    """`out[i] = sum_j taps[j] * buf[start + i*down + j]` for i < count."""
+def _polyphase(buf: np.ndarray, start: int, count: int, poly: np.ndarray, down: int, scratch=None):
+    """`out[i] = sum_j taps[j] * buf[start + i*down + j]` for i < count (`scratch(size)`: a
+    flat work array to reuse for the products, else a fresh one)."""
     rows, n_cols = poly.shape[0], buf.shape[1]
     if count == 0:
         return np.empty((0, n_cols))
     n_blocks = count - 1 + rows
     full = min(n_blocks, (buf.shape[0] - start) // down)
-    z = np.empty((n_blocks, rows, n_cols))
+    size = n_blocks * rows * n_cols
+    z = (np.empty(size) if scratch is None else scratch(size)).reshape(n_blocks, rows, n_cols)
     np.matmul(poly, buf[start : start + full * down].reshape(full, down, n_cols), out=z[:full])
     if full < n_blocks:
         # Last blocks run past the data only where the padded taps are zero.

@@ -116,3 +116,55 @@ def test_block_permutation_power_is_the_mean_over_the_permuted_orders(n, L):
     ref = _mean_power_by_definition(gi, y, L, 37, seed=2)
     got = structure._perm_power(gi, y, L, 37, np.random.default_rng(2))
     np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-12 * ref.max())
+
+
+def test_identification_from_the_effect_observation_is_identify_idims(planar):
+    """`dynid diagnose` identifies from the diagnosis' observation (one regressor build): it is
+    `observe`'s system field by field, notices included, and IDIM from it is bit-identical."""
+    from dynid.analysis.estimators.idim import identify_idim
+    from dynid.analysis.processing.observation import observe
+    robot, bp, exp, settings, eobs = planar
+    o = observe(exp, robot, bp, settings)
+    for a in ("W", "tau", "t", "q", "qd", "qdd", "row_mask"):
+        assert np.array_equal(getattr(o, a), getattr(eobs.obs, a)), a
+    assert (o.names, o.settings, o.notices, o.n_raw) == (
+        eobs.obs.names, eobs.obs.settings, eobs.obs.notices, eobs.obs.n_raw)
+    ref = identify_idim(exp, robot, settings=settings, bp=bp)
+    got = identify_idim(exp, robot, settings=settings, bp=bp, observation=eobs.obs)
+    for r, g in ((ref.ols, got.ols), (ref.wls, got.wls), (ref.model, got.model)):
+        assert list(r.names) == list(g.names)
+        assert np.array_equal(r.chi, g.chi) and np.array_equal(r.bse.to_numpy(), g.bse.to_numpy())
+    assert ref.notices == got.notices
+
+
+@pytest.mark.parametrize("nd", [5, 1])
+def test_position_noise_residual_is_observes_residual(planar, nd):
+    """The position-noise floor's residual from the full-rate model torque is the residual of
+    `observe`'s decimated system (the decimation is linear), row mask included."""
+    from dynid.analysis.processing.observation import observe
+    robot, bp, exp, settings, _ = planar
+    o = observe(exp, robot, bp, dict(settings, nd=nd))
+    cols = np.arange(0, len(bp.names), 2)
+    chi = np.random.default_rng(1).normal(size=cols.size)
+    r, mask = structure._observed_residual(exp, robot, bp, o.settings, cols, chi)
+    ref = o.tau - o.W[:, :, cols] @ chi
+    assert np.array_equal(mask, o.row_mask)
+    np.testing.assert_allclose(r, ref, rtol=0, atol=1e-12 * np.abs(ref).max())
+
+
+def test_small_pages_inside_the_diagnosis_and_restored_after(monkeypatch):
+    """`dynid diagnose` turns numpy's huge-page advice off for its work only, unless the user
+    chose (NUMPY_MADVISE_HUGEPAGE)."""
+    mm = pytest.importorskip("numpy._core.multiarray")
+    from dynid.analysis.further import _small_pages
+    monkeypatch.delenv("NUMPY_MADVISE_HUGEPAGE", raising=False)
+    start = mm._set_madvise_hugepage(True)
+    try:
+        with _small_pages():
+            assert mm._set_madvise_hugepage(False) is False
+        assert mm._set_madvise_hugepage(True) is True
+        monkeypatch.setenv("NUMPY_MADVISE_HUGEPAGE", "1")
+        with _small_pages():
+            assert mm._set_madvise_hugepage(True) is True
+    finally:
+        mm._set_madvise_hugepage(start)
