@@ -9,9 +9,7 @@
 """
 from __future__ import annotations
 
-import contextlib
 import math
-import os
 from dataclasses import dataclass
 
 from dynid.analysis.diagnosis.effect_observation import observe_effects
@@ -34,6 +32,7 @@ from dynid.analysis.statistics.validation import validate
 from dynid.analysis.statistics.verdict import verdict
 from dynid.dynamics.base_parameters import base_parameters
 from dynid.errors import InputError
+from dynid.pages import small_pages
 
 # ---------------------------------------------------------------- steps 8-10: a full report
 
@@ -194,32 +193,10 @@ class DiagnosisRun:
         return self.summary()
 
 
-@contextlib.contextmanager
-def _small_pages():
-    """numpy's large arrays on ordinary pages inside (restored after), unless the user set
-    NUMPY_MADVISE_HUGEPAGE. The diagnosis allocates many short-lived arrays of tens of MB;
-    with transparent huge pages on `madvise`, each fresh one can stall in the kernel's
-    compaction, a cost that grows with the machine's load: measured on the project's 2-core
-    machine (benchmarks/diagnosis_speed.py, load 1-2), `dynid diagnose` 11.1 -> 8.9 s CPU,
-    its system time 2.5-4.2 -> 1.0-1.2 s. Allocation only: the numbers are the same."""
-    try:
-        from numpy._core.multiarray import _set_madvise_hugepage
-    except ImportError:          # another numpy layout: nothing to switch
-        _set_madvise_hugepage = None
-    if _set_madvise_hugepage is None or "NUMPY_MADVISE_HUGEPAGE" in os.environ:
-        yield
-        return
-    before = _set_madvise_hugepage(False)
-    try:
-        yield
-    finally:
-        _set_madvise_hugepage(before)
-
-
 def diagnosis_run(data, robot, settings=None, *, say=None, **options) -> DiagnosisRun:
     """`dynid diagnose`: identify (IDIM; not with `no_offsets`), look for the effects the model
     lacks (step 10), validate on the held-out data and give the verdict with the diagnosis."""
-    with _small_pages():
+    with small_pages():
         return _diagnosis_run(data, robot, settings, say=say, **options)
 
 

@@ -20,6 +20,7 @@ import signal
 import sys
 
 from dynid.errors import DynidError, InputError
+from dynid.pages import small_pages
 from dynid.ranges import check_range
 from dynid.reports.cli_options import build_parser, parse_command_line
 from dynid.reports.progress import Reporter, clean_text
@@ -311,7 +312,9 @@ def main(argv=None):
     say = Reporter(quiet=args.quiet)
     try:
         check_output_paths(args)
-        with single_blas_thread():      # tall-thin problems: a 2nd BLAS thread only spins (dynid.threads)
+        # tall-thin problems: a 2nd BLAS thread only spins (dynid.threads); fresh large arrays
+        # stall on huge-page compaction under load (dynid.pages)
+        with single_blas_thread(), small_pages():
             return COMMANDS[args.command](args, say)
     except BrokenPipeError:           # output piped into head & co. (an error for --json -)
         return stdout_failed(args)

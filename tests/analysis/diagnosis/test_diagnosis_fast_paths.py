@@ -153,10 +153,10 @@ def test_position_noise_residual_is_observes_residual(planar, nd):
 
 
 def test_small_pages_inside_the_diagnosis_and_restored_after(monkeypatch):
-    """`dynid diagnose` turns numpy's huge-page advice off for its work only, unless the user
+    """dynid's commands turn numpy's huge-page advice off for their work only, unless the user
     chose (NUMPY_MADVISE_HUGEPAGE)."""
     mm = pytest.importorskip("numpy._core.multiarray")
-    from dynid.analysis.further import _small_pages
+    from dynid.pages import small_pages as _small_pages
     monkeypatch.delenv("NUMPY_MADVISE_HUGEPAGE", raising=False)
     start = mm._set_madvise_hugepage(True)
     try:
