@@ -236,35 +236,10 @@ class EffectObservation:
         nd = int(self.settings["nd"])
         dec = self._decimator() if nd > 1 else None
         keep = None if self.dead is None else (~self.dead)[:, :, None].astype(float)
-        parts = []
-        # two chunk buffers for the whole pass: a fresh 50 MB array per chunk and delay cost
-        # more in page faults than in arithmetic (the decimator copies what it keeps); the
-        # arithmetic runs on sub-blocks that stay in the cache (one pass over memory, not
-        # four; the same operations in the same order, so the same numbers)
-        buf = np.empty((min(N, CHUNK), n, k))
         # (without the cached regressor, `source` builds the rows: one call per chunk)
         sub = max(1, _SUB_BYTES // max(1, 8 * n * k)) if self.W_full is not None else CHUNK
-        tmp = np.empty((min(N, sub), n, k)) if frac else None
-        for start in range(0, N, CHUNK):
-            stop = min(N, start + CHUNK)
-            C = buf[:stop - start]
-            for a in range(start, stop, sub):
-                b = min(stop, a + sub)
-                Cs = C[a - start:b - start]
-                if frac:
-                    np.multiply(source(a - si, b - si), 1.0 - frac, out=Cs)
-                    Cs += np.multiply(source(a - si - 1, b - si - 1), frac, out=tmp[:b - a])
-                    if keep is not None:
-                        Cs *= keep[a:b]
-                elif keep is not None:
-                    np.multiply(source(a - si, b - si), keep[a:b], out=Cs)
-                else:
-                    Cs[...] = source(a - si, b - si)   # a view of W_full: never scaled in place
-            C = C.reshape(stop - start, n * k)
-            parts.append(dec.push(C) if dec is not None else C.copy())   # C is the reused buffer
-        if dec is not None:
-            dec.finish()
-        D = np.concatenate(parts, axis=0)
+        D = _shift_and_decimate(source, N, (n, k), si, frac, None if keep is None else lambda a, b: keep[a:b],
+                                dec, sub)
         return D.reshape(D.shape[0], n, k)
 
     def _nonzero_pairs(self):
@@ -286,7 +261,6 @@ class EffectObservation:
         joint = sel // k
         flat = joint * b_all + cols[sel % k]          # pairs in the flattened (n * b) rows
         # the pairs gathered once into a contiguous copy, kept for the next
-        # delays (the delay grid shifts the same columns 14 times per step)
         # delays (the delay grid shifts the same columns 14 times per step), unless that
         # copy would pass half the regressor cache's limit: then gathered block by block
         W2 = self.W_full.reshape(N, n * b_all)
@@ -311,29 +285,9 @@ class EffectObservation:
         nd = int(self.settings["nd"])
         dec = self._decimator() if nd > 1 else None
         m = sel.size
-        buf = np.empty((min(N, CHUNK), m))
-        sub = max(1, _SUB_BYTES // max(1, 8 * m))
-        tmp = np.empty((min(N, sub), m)) if frac else None
-        parts = []
-        for start in range(0, N, CHUNK):
-            stop = min(N, start + CHUNK)
-            C = buf[:stop - start]
-            for a in range(start, stop, sub):
-                b = min(stop, a + sub)
-                Cs = C[a - start:b - start]
-                if frac:
-                    np.multiply(source(a - si, b - si), 1.0 - frac, out=Cs)
-                    Cs += np.multiply(source(a - si - 1, b - si - 1), frac, out=tmp[:b - a])
-                    if keep is not None:
-                        Cs *= keep[a:b][:, joint]
-                elif keep is not None:
-                    np.multiply(source(a - si, b - si), keep[a:b][:, joint], out=Cs)
-                else:
-                    Cs[...] = source(a - si, b - si)
-            parts.append(dec.push(C) if dec is not None else C.copy())   # C is the reused buffer
-        if dec is not None:
-            dec.finish()
-        D = np.concatenate(parts, axis=0)
+        D = _shift_and_decimate(source, N, (m,), si, frac,
+                                None if keep is None else lambda a, b: keep[a:b][:, joint],
+                                dec, max(1, _SUB_BYTES // max(1, 8 * m)))
         out = np.zeros((D.shape[0], n * k))
         out[:, sel] = D
         return out.reshape(D.shape[0], n, k)
@@ -459,3 +413,38 @@ def observe_effects(experiment, robot, bp, settings=None, *, cache_regressor="au
     return EffectObservation(obs=obs, t=t, q=qf, qd=qd, qdd=qdd, tau=tau, dead=dead,
                              payload=payload, keep=keep, fs=float(fs), settings=s, robot=robot,
                              bp=bp, source=str(experiment.source), W_full=W_full, notices=notices)
+
+
+def _shift_and_decimate(source, N, tail, si, frac, keep, dec, sub):
+    """Rows `source(a - si, b - si)` delayed by a further `frac` sample (linear interpolation
+    between neighbours), times `keep(a, b)` where given (the velocity dead zone), decimated by
+    `dec` (None: kept at full rate): (M, prod(tail)).
+
+    Two chunk buffers serve the whole pass: a fresh 50 MB array per chunk and delay costs
+    more in page faults than in arithmetic (the decimator copies what it keeps). The
+    arithmetic runs on sub-blocks of `sub` rows that stay in the cache: one pass over memory,
+    not four, with the same operations in the same order, so the same numbers.
+    """
+    buf = np.empty((min(N, CHUNK), *tail))
+    tmp = np.empty((min(N, sub), *tail)) if frac else None
+    parts = []
+    for start in range(0, N, CHUNK):
+        stop = min(N, start + CHUNK)
+        C = buf[:stop - start]
+        for a in range(start, stop, sub):
+            b = min(stop, a + sub)
+            Cs = C[a - start:b - start]
+            if frac:
+                np.multiply(source(a - si, b - si), 1.0 - frac, out=Cs)
+                Cs += np.multiply(source(a - si - 1, b - si - 1), frac, out=tmp[:b - a])
+                if keep is not None:
+                    Cs *= keep(a, b)
+            elif keep is not None:
+                np.multiply(source(a - si, b - si), keep(a, b), out=Cs)
+            else:
+                Cs[...] = source(a - si, b - si)   # may be a view of the cached regressor: never scaled in place
+        C = C.reshape(stop - start, -1)
+        parts.append(dec.push(C) if dec is not None else C.copy())   # C is the reused buffer
+    if dec is not None:
+        dec.finish()
+    return np.concatenate(parts, axis=0)
