@@ -1,6 +1,6 @@
 """The rows a seed campaign already wrote: resume an interrupted run where it stopped.
 
-Shared by the coverage and convergence campaigns (`coverage_independent.py`,
+Shared (`resume`, and `append` for each new row) by the coverage and convergence campaigns (`coverage_independent.py`,
 `coverage_didim.py`, `coverage_posterior.py`, `didim_gains.py`), whose results file holds
 one JSON object per seed and line.
 """
@@ -33,3 +33,18 @@ def resume(out, seeds):
     rows = [json.loads(x) for x in Path(out).read_text().splitlines() if x.strip()]
     done = {r["seed"] for r in rows}
     return [r for r in rows if r["seed"] in seeds], [s for s in seeds if s not in done]
+
+
+def append(out, row):
+    """Write `row` as one line of `out` (nothing when `out` is None): what `resume` reads back.
+
+    Parameters
+    ----------
+    out : str or Path or None
+        The campaign's .jsonl results file.
+    row : dict
+        One seed's results, with its "seed" key.
+    """
+    if out:
+        with open(out, "a") as fh:
+            fh.write(json.dumps(row) + "\n")

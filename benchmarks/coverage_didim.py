@@ -38,7 +38,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from campaign_rows import resume
+from campaign_rows import append, resume
 
 ROOT = Path(__file__).resolve().parents[1]
 for _p in (ROOT, ROOT / "benchmarks", ROOT / "tests" / "support"):
@@ -151,9 +151,7 @@ def main(argv=None):
         print(f"seed {row['seed']}: converged {row.get('converged')} "
               + ", ".join(f"{o} {np.mean(np.abs(row[f'{o}_z']) <= 1.96):.2f}" for o in OPTIONS if f"{o}_z" in row)
               + (f" error {row['error']}" if "error" in row else "") + f" ({row['seconds']:.0f} s)", flush=True)
-        if a.out:
-            with open(a.out, "a") as fh:
-                fh.write(json.dumps(row) + "\n")
+        append(a.out, row)
 
     if a.workers > 1:
         from concurrent.futures import ProcessPoolExecutor

@@ -68,7 +68,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from campaign_rows import resume
+from campaign_rows import append, resume
 
 ROOT = Path(__file__).resolve().parents[1]
 for _p in (ROOT, ROOT / "tests" / "support"):
@@ -361,9 +361,7 @@ def main(argv=None):
             + "".join(f", didim failed ({row['didim_error']})" for _ in [0] if "didim_error" in row)
             + f" ({row['seconds']:.0f} s)")
         print(line, flush=True)
-        if a.out:
-            with open(a.out, "a") as f:
-                f.write(json.dumps(row) + "\n")
+        append(a.out, row)
 
     if a.workers > 1:
         from concurrent.futures import ProcessPoolExecutor

@@ -52,7 +52,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from campaign_rows import resume
+from campaign_rows import append, resume
 
 ROOT = Path(__file__).resolve().parents[1]
 for _p in (ROOT, ROOT / "benchmarks", ROOT / "tests" / "support"):
@@ -219,9 +219,7 @@ def main(argv=None):
             + "".join(f", closed base {nz} {np.mean(row[f'closed_base_{nz}_inside']):.2f}" for nz in NOISES)
             + "".join(f", {w} classic {np.mean(row[f'closed_{w}_classic_inside']):.2f}" for w in which)
             + f" ({row['seconds']:.0f} s)", flush=True)
-        if a.out:
-            with open(a.out, "a") as f:
-                f.write(json.dumps(row) + "\n")
+        append(a.out, row)
 
     args = [(s, which, noises, a.tau_multiple, (s - a.start) % a.sample_every == 0) for s in seeds]
     if a.workers > 1:

@@ -46,7 +46,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from campaign_rows import resume
+from campaign_rows import append, resume
 
 ROOT = Path(__file__).resolve().parents[1]
 for _p in (ROOT, ROOT / "tests" / "support"):
@@ -194,9 +194,7 @@ def main(argv=None):
               f"err {row.get('error', '')} stop {row.get('stop_reason', '')[:120]} "
               f"({row.get('didim_seconds', 0):.0f} s DIDIM, gains err {row['gain_max_rel_error']:.3f})",
               flush=True)
-        if a.out:
-            with open(a.out, "a") as fh:
-                fh.write(json.dumps(row) + "\n")
+        append(a.out, row)
 
     args = (a.duration, a.log_every, a.start_from, v_s)
     if a.workers > 1:
