@@ -20,29 +20,11 @@ Run from the repository root:
 import argparse
 import json
 import os
-import resource
 import statistics
-import subprocess
 import sys
 import tempfile
-import time
-from pathlib import Path
 
-
-def dynid_command(python: str):
-    """The `dynid` script beside `python`, else `python -m` the CLI module."""
-    script = Path(python).with_name("dynid")
-    return [str(script)] if script.exists() else [python, "-m", "dynid.reports.cli"]
-
-
-def timed(cmd, cwd):
-    """(cpu seconds, wall seconds) of one child process running `cmd`."""
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    t0 = time.perf_counter()
-    subprocess.run(cmd, cwd=cwd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    wall = time.perf_counter() - t0
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime), wall
+from diagnosis_speed import dynid_command, timed  # one child process, timed the same way
 
 
 def main(argv=None):

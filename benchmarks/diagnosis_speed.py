@@ -35,10 +35,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def dynid_command():
-    """The `dynid` script beside this interpreter, else `python -m` the CLI module."""
-    script = Path(sys.executable).with_name("dynid")
-    return [str(script)] if script.exists() else [sys.executable, "-m", "dynid.reports.cli"]
+def dynid_command(python=sys.executable):
+    """The `dynid` script beside `python` (default: this interpreter), else `python -m` the CLI module."""
+    script = Path(python).with_name("dynid")
+    return [str(script)] if script.exists() else [python, "-m", "dynid.reports.cli"]
 
 
 def timed(cmd, cwd, env=None):
