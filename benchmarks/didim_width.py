@@ -15,10 +15,19 @@ independent Pinocchio TX40 plant with friction `tanh(qd / 0.01)`, PID with feed-
 gain update, the robot file's a-priori values as the start, no essential set. Development
 seed 5 by default (the held-out seeds 6100-6198 are not used).
 
-    python benchmarks/didim_width.py [--seed 5] [--repeat 3] [--profile] [--save out.json]
+`--case demo`: the DIDIM of `dynid demo --seed S` instead (the simulated TX40 of
+`dynid.analysis.demo`, 20 s at 5 kHz, the robot file's gains, eq. (31)'s start, the gain update
+for the first simulation only, up to 15 steps, essential parameters): a start far from the
+answer, which the fixed width must walk to at its own (more expensive) substeps.
+
+    python benchmarks/didim_width.py [--case pid|demo] [--seed 5] [--repeat 3] [--profile] [--save out.json]
 
 The simulation work (closed-loop simulations and their RK4 substeps, counted in one more pair of
-runs) is printed beside the times: it does not depend on the machine's load.
+runs) is printed beside the times: it does not depend on the machine's load. That pair also
+splits each run's CPU time into the closed-loop simulations and the rest (the regressor and
+its decimation per simulation, the WLS, the a-priori start's projection): the `floor` is the
+ratio the automatic run would have if it cost nothing but its simulations beyond what the
+fixed run costs, i.e. what a search that simulates the same widths cannot go below.
 
 `--profile` prints the cProfile (CPU time) of one automatic run, `--save` writes the
 estimates, the chosen width and its scan (to compare two versions of dynid: run this script
@@ -60,6 +69,13 @@ def case(seed, duration):
     return exp, robot, kw
 
 
+def case_demo(seed):
+    """(experiment, robot, keyword arguments of identify_didim) of `dynid demo --seed S`'s DIDIM."""
+    from dynid.analysis.demo import demo_data
+    robot, bp, _, exp, _ = demo_data(seed, 20.0)
+    return exp, robot, dict(bp=bp, max_iter=15, update_gains="initial")
+
+
 def timed(fn):
     t0 = time.process_time()
     out = fn()
@@ -68,7 +84,8 @@ def timed(fn):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seed", type=int, default=5)
+    ap.add_argument("--case", choices=("pid", "demo"), default="pid")
+    ap.add_argument("--seed", type=int, default=None, help="default 5 (pid), 1 (demo)")
     ap.add_argument("--duration", type=float, default=4.0)
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--profile", action="store_true", help="cProfile (CPU time) of one automatic run")
@@ -77,10 +94,12 @@ def main(argv=None):
 
     import dynid
     from dynid.analysis.estimators.didim import identify_didim
-    exp, robot, kw = case(a.seed, a.duration)
-    print(f"dynid from {Path(dynid.__file__).resolve().parents[2]}; seed {a.seed}, {exp.t.size} samples at "
+    if a.seed is None:
+        a.seed = 5 if a.case == "pid" else 1
+    exp, robot, kw = case(a.seed, a.duration) if a.case == "pid" else case_demo(a.seed)
+    print(f"dynid from {Path(dynid.__file__).resolve().parents[2]}; case {a.case}, seed {a.seed}, {exp.t.size} samples at "
           f"{exp.fs:g} Hz; BLAS threads {os.environ.get('OPENBLAS_NUM_THREADS')}", flush=True)
-    identify_didim(exp, robot, settings={"v_s": 0.05}, max_iter=1, **kw)   # numba caches loaded
+    identify_didim(exp, robot, settings={"v_s": 0.05}, **{**kw, "max_iter": 1})   # numba caches loaded
 
     def auto():
         return identify_didim(exp, robot, **kw)
@@ -109,25 +128,33 @@ def main(argv=None):
     # the work, independent of the machine's load: closed-loop simulations and their RK4 substeps
     # (one controller period of one simulation at 1 substep = 1 unit), counted in one more pair
     import dynid.analysis.estimators.didim as didim_module
-    counted = []
+    counted, sim_cpu = [], []
     plain = didim_module._simulate
 
     def counting(*args, **kwargs):
+        t0 = time.process_time()
         out = plain(*args, **kwargs)
+        sim_cpu.append(time.process_time() - t0)
         counted.append(int(out[4]))
         return out
 
     didim_module._simulate = counting
     try:
-        auto()
-        n_auto, u_auto = len(counted), sum(counted)
+        c_auto, _ = timed(auto)
+        n_auto, u_auto, s_auto = len(counted), sum(counted), sum(sim_cpu)
         counted.clear()
-        identify_didim(exp, robot, settings={"v_s": float(res_auto.settings["v_s"])}, **kw)
-        n_fixed, u_fixed = len(counted), sum(counted)
+        sim_cpu.clear()
+        c_fixed, _ = timed(lambda: identify_didim(exp, robot, settings={"v_s": float(res_auto.settings["v_s"])},
+                                                  **kw))
+        n_fixed, u_fixed, s_fixed = len(counted), sum(counted), sum(sim_cpu)
     finally:
         didim_module._simulate = plain
+    floor = (s_auto + c_fixed - s_fixed) / c_fixed
     print(f"closed-loop simulations: auto {n_auto} ({u_auto} substep units), fixed {n_fixed} ({u_fixed}): "
           f"ratio of the simulation work {u_auto / u_fixed:.2f}")
+    print(f"CPU split (that pair): auto {c_auto:.2f} s = simulations {s_auto:.2f} + rest {c_auto - s_auto:.2f}; "
+          f"fixed {c_fixed:.2f} s = simulations {s_fixed:.2f} + rest {c_fixed - s_fixed:.2f}; floor of the "
+          f"same simulations (auto's rest = fixed's) {floor:.2f}")
     if a.profile:
         import cProfile
         import pstats
@@ -151,7 +178,10 @@ def main(argv=None):
         "simulations_fixed": n_fixed, "substep_units_auto": u_auto, "substep_units_fixed": u_fixed,
         "ratio_simulation_work": round(u_auto / u_fixed, 3), "steps_auto": int(res_auto.iterations),
         "steps_fixed": int(res_fixed.iterations), "max_auto_minus_fixed_sigma": d_sigma,
-        "seed": a.seed, "duration_s": a.duration, "repeat": a.repeat,
+        "simulation_cpu_auto_s": round(s_auto, 3), "rest_cpu_auto_s": round(c_auto - s_auto, 3),
+        "simulation_cpu_fixed_s": round(s_fixed, 3), "rest_cpu_fixed_s": round(c_fixed - s_fixed, 3),
+        "floor_ratio_same_simulations": round(floor, 3),
+        "case": a.case, "seed": a.seed, "duration_s": a.duration if a.case == "pid" else 20.0, "repeat": a.repeat,
         "load_1min": round(os.getloadavg()[0], 2)}))
 
 

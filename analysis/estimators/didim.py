@@ -562,6 +562,20 @@ def _simulate(robot, bp, beta, ctrl, t, qr, qdr, s, kd_scale):
     return at(sim.q), at(sim.qd), at(sim.qdd), at(sim.tau), substeps, sim
 
 
+def _positive_definite(M):
+    """True when every M[i] has its smallest eigenvalue above PD_MARGIN times its largest:
+    a Cholesky factorisation of M[i] - PD_MARGIN trace(M[i]) I exists (trace >= largest
+    eigenvalue of a positive definite M). One batched Cholesky costs ~1/9 of the eigenvalues
+    (4001-20000 configurations per simulated estimate); False sends the caller to them (the
+    exact test and the error message), so the outcome is theirs."""
+    tr = np.maximum(np.trace(M, axis1=1, axis2=2), 0.0)
+    try:
+        np.linalg.cholesky(M - (PD_MARGIN * tr)[:, None, None] * np.eye(M.shape[-1]))
+    except np.linalg.LinAlgError:
+        return False
+    return True
+
+
 def _simulate_checked(robot, bp, beta, ctrl, t, qr, qdr, s, configs, J_ap, update_gains):
     """Check that `beta` can be simulated, set the derivative gains, simulate.
 
@@ -571,13 +585,14 @@ def _simulate_checked(robot, bp, beta, ctrl, t, qr, qdr, s, configs, J_ap, updat
     """
     chi = bp.to_standard(beta, "zero")
     M = mass_matrix(robot, chi, configs)
-    ev = np.linalg.eigvalsh(M)
-    ok = ev[:, 0] > PD_MARGIN * np.abs(ev[:, -1])
-    if not np.all(ok):
-        i = int(np.flatnonzero(~ok)[0])
-        raise InputError(f"M(q) is not positive definite at {int((~ok).sum())} of {len(ok)} "
-                         f"configurations (smallest eigenvalue {ev[i, 0]:.3g} at q = "
-                         f"{np.array2string(configs[i], precision=3)})")
+    if not _positive_definite(M):
+        ev = np.linalg.eigvalsh(M)
+        ok = ev[:, 0] > PD_MARGIN * np.abs(ev[:, -1])
+        if not np.all(ok):
+            i = int(np.flatnonzero(~ok)[0])
+            raise InputError(f"M(q) is not positive definite at {int((~ok).sum())} of {len(ok)} "
+                             f"configurations (smallest eigenvalue {ev[i, 0]:.3g} at q = "
+                             f"{np.array2string(configs[i], precision=3)})")
     if update_gains:
         J = np.max(np.diagonal(M, axis1=1, axis2=2), axis=0)
         kd = J / J_ap

@@ -466,3 +466,27 @@ def test_descent_test_keeps_the_output_error_from_growing(pin_data, short):
     assert res.settings["descent_test"] is True
     with pytest.raises(InputError, match="descent_test"):
         identify_didim(short, pin_data["robot"], bp=pin_data["bp"], settings={"descent_test": "yes"})
+
+
+def test_positive_definite_fast_path_agrees_with_the_eigenvalues():
+    """The batched Cholesky test of the simulated estimate's M(q) says True only where the
+    eigenvalue criterion (smallest > PD_MARGIN x largest, numpy's eigvalsh) holds, on
+    well-conditioned, nearly singular, singular and indefinite 6 x 6 matrices."""
+    from dynid.analysis.estimators.didim import PD_MARGIN, _positive_definite
+    rng = np.random.default_rng(3)
+    cases = []
+    for smallest in (1.0, 1e-3, 1e-7, 1e-8, 3e-9, 1e-9, 1e-10, 0.0, -1e-12, -1e-3):
+        Q, _ = np.linalg.qr(rng.standard_normal((6, 6)))
+        ev = np.array([smallest, 0.2, 0.5, 1.0, 2.0, 1.0])
+        cases.append((Q * ev) @ Q.T)
+    for M in cases:
+        ev = np.linalg.eigvalsh(M)
+        exact = bool(ev[0] > PD_MARGIN * abs(ev[-1]))
+        fast = _positive_definite(M[None])
+        # the fast test may only decline (then the caller computes the eigenvalues)
+        assert not fast or exact, (ev[0], fast, exact)
+        if ev[0] > 10 * PD_MARGIN * 6 * ev[-1] or ev[0] <= 0:
+            assert fast == exact
+    batch = np.stack(cases[:3] + [np.eye(6)])
+    assert _positive_definite(batch)
+    assert not _positive_definite(np.stack(cases))
