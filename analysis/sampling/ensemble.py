@@ -163,7 +163,8 @@ class _Sampler(emcee.EnsembleSampler):
         nsplits = move.nsplits
         split_of = np.arange(nwalkers) % nsplits
         # each half's walkers in walker order: one stable sort of the shuffled labels
-        bounds = np.cumsum(np.bincount(split_of, minlength=nsplits))[:-1].tolist()
+        ends = np.cumsum(np.bincount(split_of, minlength=nsplits)).tolist()
+        cuts = [slice(a, b) for a, b in zip([0] + ends[:-1], ends)]
         evaluate = self._evaluator()
         proposal = getattr(move, "proposal", None)
         for _ in range(iterations):
@@ -173,7 +174,8 @@ class _Sampler(emcee.EnsembleSampler):
             inds = split_of.copy()
             if move.randomize_split:
                 rnd.shuffle(inds)
-            halves = np.split(np.argsort(inds, kind="stable"), bounds)
+            order = np.argsort(inds, kind="stable")
+            halves = [order[c] for c in cuts]
             for split in range(nsplits):
                 idx = halves[split]
                 others = halves[:split] + halves[split + 1:]
