@@ -213,25 +213,40 @@ class Workspace:
     The autocorrelation of a stored chain (2048 steps x 64 walkers x 31 parameters) works
     on ~100 MB of temporaries; allocated afresh at every check they are mapped and zeroed
     page by page by the kernel, which on a shared VM cost 3-4 times the arithmetic
-    (system time). `get` hands out views of buffers kept between checks.
+    (system time). `get` hands out views of buffers kept between checks; `reserve` sizes
+    them once for the longest chain of a run (a buffer that grows is mapped again).
     """
 
     def __init__(self):
         self._bufs = {}
 
-    def get(self, name: str, shape: tuple, dtype=float) -> np.ndarray:
-        """An uninitialised (shape) view of buffer `name`, grown when too small."""
+    def reserve(self, name: str, size: int, dtype=float) -> None:
+        """Make buffer `name` hold at least `size` elements of `dtype`."""
         buf = self._bufs.get(name)
-        if buf is None or buf.dtype != np.dtype(dtype) or buf.ndim != len(shape) or \
-                any(a < b for a, b in zip(buf.shape, shape)):
-            big = shape if buf is None or buf.ndim != len(shape) else tuple(map(max, buf.shape, shape))
-            buf = self._bufs[name] = np.empty(big, dtype=dtype)
-        return buf[tuple(slice(0, k) for k in shape)]
+        if buf is None or buf.dtype != np.dtype(dtype) or buf.size < size:
+            self._bufs[name] = np.empty(int(size), dtype=dtype)
+
+    def get(self, name: str, shape: tuple, dtype=float) -> np.ndarray:
+        """An uninitialised C-contiguous array of `shape` in buffer `name` (grown if too small)."""
+        size = math.prod(shape)
+        self.reserve(name, size, dtype)
+        return self._bufs[name][:size].reshape(shape)
 
 
 # parameters per FFT block of `integrated_time`: its spectra (64 walkers x 4097 values)
 # stay in the cache between the transform, the power and the walker average
 _TAU_BLOCK = 2
+
+
+def reserve_for_chain(work: Workspace, n_steps: int, n_walkers: int, d: int) -> None:
+    """Size `work` once for `integrated_time` and `split_rhat` of chains up to (n_steps, n_walkers, d)."""
+    n = 1 << (max(n_steps, 2) - 1).bit_length()
+    work.reserve("x", n_steps * n_walkers * d)          # also split_rhat's deviations
+    work.reserve("spec", d * (n + 1))
+    block = n_walkers * min(d, _TAU_BLOCK) * (n + 1)
+    work.reserve("F", block, complex)
+    work.reserve("P", block)
+    work.reserve("P2", block)
 
 
 def integrated_time(chain: np.ndarray, c: float = 5.0, *, work: Workspace | None = None) -> np.ndarray:
@@ -310,7 +325,7 @@ def split_rhat(chain: np.ndarray, *, work: Workspace | None = None) -> np.ndarra
         # numpy's order, the deviations in one buffer instead of temporaries of the chain's size
         means = np.empty((m, d))              # chain c: half c // n_walkers of walker c % n_walkers
         variances = np.empty((m, d))
-        dev = (work or Workspace()).get("rhat", (n, n_walkers, d))
+        dev = (work or Workspace()).get("x", (n, n_walkers, d))   # integrated_time's buffer: free now
         for k, half in enumerate((chain[:n], chain[n_steps - n:])):
             mean = np.add.reduce(half, axis=0) / n
             means[k * n_walkers:(k + 1) * n_walkers] = mean
@@ -548,6 +563,7 @@ def run_until_converged(sampler, p0: np.ndarray, criteria: ConvergenceCriteria |
     first = True
     lean = hasattr(sampler, "advance")
     work = Workspace()
+    reserve_for_chain(work, c.max_stored, n_walkers, d)
     while True:
         todo = target - n
         # emcee checks the initial ensemble for degeneracy; later batches resume a live one
