@@ -238,7 +238,7 @@ class Workspace:
 _TAU_BLOCK = 2
 
 
-def reserve_for_chain(work: Workspace, n_steps: int, n_walkers: int, d: int) -> None:
+def _reserve_for_chain(work: Workspace, n_steps: int, n_walkers: int, d: int) -> None:
     """Size `work` once for `integrated_time` and `split_rhat` of chains up to (n_steps, n_walkers, d)."""
     n = 1 << (max(n_steps, 2) - 1).bit_length()
     work.reserve("x", n_steps * n_walkers * d)          # also split_rhat's deviations
@@ -563,7 +563,7 @@ def run_until_converged(sampler, p0: np.ndarray, criteria: ConvergenceCriteria |
     first = True
     lean = hasattr(sampler, "advance")
     work = Workspace()
-    reserve_for_chain(work, c.max_stored, n_walkers, d)
+    _reserve_for_chain(work, c.max_stored, n_walkers, d)
     while True:
         todo = target - n
         # emcee checks the initial ensemble for degeneracy; later batches resume a live one
