@@ -14,6 +14,14 @@
 
 Times are also printed as ratios to a reference workload run in the same
 process (a fixed 1500x1500 matrix product), since the machines are noisy.
+
+Issue 30's figure, sampling time / (steps x 2 log-prob calls of 64 walkers), is printed on
+wall time and on the process's CPU time (user + system): on a shared machine the wall time
+of the run is its CPU time plus the time it waited in the run queue for a core (Linux
+/proc/self/schedstat, printed with the voluntary context switches, which count sleeps, I/O,
+locks and thread pools: none, so the difference is the other processes' load). A floor:
+emcee's own step and dynid's step on a trivial vectorised log-prob of the same dimension and
+walkers (the sampler's cost without the posterior).
 The last line is a JSON object with the headline figures.
 Run from the repository root: python benchmarks/bayes.py [--seed S] [--rows-large N]
 """
@@ -24,6 +32,7 @@ for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import argparse
 import json
+import resource
 import sys
 import time
 from pathlib import Path
@@ -50,6 +59,17 @@ def best_of(fn, repeat=5, number=1):
             fn()
         best = min(best, (time.perf_counter() - t0) / number)
     return best
+
+
+def usage():
+    """(wall, user + system CPU, system CPU, run-queue wait, voluntary and involuntary switches)."""
+    t, ru = os.times(), resource.getrusage(resource.RUSAGE_SELF)
+    try:
+        with open("/proc/self/schedstat") as f:       # on-CPU ns, run-queue wait ns, slices (Linux)
+            wait = int(f.read().split()[1]) / 1e9
+    except (OSError, IndexError, ValueError):
+        wait = float("nan")
+    return np.array([time.perf_counter(), t.user + t.system, t.system, wait, ru.ru_nvcsw, ru.ru_nivcsw])
 
 
 class _Timed:
@@ -84,11 +104,11 @@ def tx40(seed, noise=None):
     robot, bp, beta, ident, valid = demo_data(1, 20.0)
     res = identify_idim(ident, robot, bp=bp)
     prep = time.perf_counter() - t0
-    t0, c0 = time.perf_counter(), time.process_time()
+    u0 = usage()
     with _Timed(bayes.LinearPosterior) as timed:
         post = bayes.sample_idim(res, seed=seed, n_walkers=64, **({} if noise is None else {"noise": noise}))
-    sampling, cpu = time.perf_counter() - t0, time.process_time() - c0
-    return prep, sampling, post, cpu, timed
+    use = usage() - u0
+    return prep, use[0], post, use[1], timed, use
 
 
 def scaling_setup(n_rows, n_joints=6, b=25, walkers=64, seed=0):
@@ -121,15 +141,52 @@ def scaling_setup(n_rows, n_joints=6, b=25, walkers=64, seed=0):
 
 
 def logprob_times(models, rounds=25, number=200):
-    """Best time per log_prob call of each (model, X), measured alternately (fair under load)."""
+    """Best wall and best CPU time per log_prob call of each (model, X), measured alternately
+    (fair under load): ([wall...], [cpu...])."""
     best = [np.inf] * len(models)
+    best_cpu = [np.inf] * len(models)
     for _ in range(rounds):
         for i, (model, X) in enumerate(models):
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             for _ in range(number):
                 model.log_prob(X)
             best[i] = min(best[i], (time.perf_counter() - t0) / number)
+            best_cpu[i] = min(best_cpu[i], (time.process_time() - c0) / number)
+    return best, best_cpu
+
+
+def sampler_floor(dims, walkers=64, steps=1000, rounds=3):
+    """CPU seconds per step of emcee's own sampler (DEMove, vectorize=True, store=False) and of
+    dynid's (dynid.analysis.sampling.ensemble) on a trivial vectorised log-prob of `dims`
+    dimensions: what stepping costs without the posterior. Best of `rounds`, alternately."""
+    import emcee
+
+    from dynid.analysis.sampling.ensemble import make_sampler
+
+    def trivial(X):
+        return -0.5 * np.einsum("ij,ij->i", X, X)
+
+    p0 = np.random.default_rng(0).standard_normal((walkers, dims))
+    best = {"emcee": np.inf, "dynid": np.inf}
+    for _ in range(rounds):
+        ref = emcee.EnsembleSampler(walkers, dims, trivial, vectorize=True, moves=emcee.moves.DEMove())
+        ref.random_state = np.random.RandomState(1).get_state()
+        c0 = time.process_time()
+        ref.run_mcmc(p0, steps, store=False)
+        best["emcee"] = min(best["emcee"], (time.process_time() - c0) / steps)
+        ours = make_sampler(trivial, walkers, dims, "de", np.random.default_rng(1))
+        c0 = time.process_time()
+        for _ in ours.advance(p0, steps, check=True):
+            pass
+        best["dynid"] = min(best["dynid"], (time.process_time() - c0) / steps)
     return best
+
+
+def loadavg():
+    try:
+        return os.getloadavg()[0]
+    except OSError:
+        return float("nan")
 
 
 def main():
@@ -142,7 +199,9 @@ def main():
     ref = reference_seconds()
     print(f"reference workload (1500x1500 matmul): {ref * 1e3:.1f} ms")
 
-    prep, sampling, post, cpu, timed = tx40(args.seed, args.noise)
+    load0 = loadavg()
+    prep, sampling, post, cpu, timed, use = tx40(args.seed, args.noise)
+    load1 = loadavg()
     dg = post.diagnostics
     print(f"TX40 demo (20 s at 5 kHz): simulation + IDIM {prep:.1f} s (not counted)")
     print(f"emcee on {len(post.names) - 6} essential parameters + 6 noise levels = {len(post.names)} "
@@ -157,10 +216,16 @@ def main():
                              post.std[:len(post.names) - 6]))
     print(f"  largest |posterior mean - WLS| / posterior std: {post.names[worst]} "
           f"{abs(post.mean[worst] - post.ls_value[worst]) / post.std[worst]:.3f}")
+    print(f"  where the wall time went: {sampling:.2f} s wall = {cpu:.2f} s on CPU (of which system "
+          f"{use[2]:.2f} s) + {use[3]:.2f} s waiting in the run queue for a core (+ {sampling - cpu - use[3]:.2f} s "
+          f"else); {int(use[4])} voluntary context switches (sleep, I/O, locks, thread pools), "
+          f"{int(use[5])} involuntary (preempted); load average {load0:.1f} before, {load1:.1f} after")
+    chain_hash = __import__("hashlib").sha256(np.ascontiguousarray(post.chain).tobytes()).hexdigest()[:16]
+    print(f"  chain sha256 {chain_hash} (same seed, same chain bit for bit)")
 
     rows = [1000, args.rows_large]
     setups = {r: scaling_setup(r) for r in rows}
-    lp = logprob_times([(setups[r][1], setups[r][2]) for r in rows])
+    lp, lp_cpu = logprob_times([(setups[r][1], setups[r][2]) for r in rows])
     res = {r: (setups[r][0], lp[i], setups[r][3]) for i, r in enumerate(rows)}
     for r in rows:
         s, t, nv = res[r]
@@ -173,6 +238,15 @@ def main():
     # step, measured alone on statistics of the same shape, 25 parameters x 6 joints)
     step_ratio = sampling / (dg.n_steps * 2 * small[1])
     print(f"sampling time / (steps x 2 log-prob calls of 64 walkers): {step_ratio:.1f}")
+    # the same on CPU time, numerator and denominator: what the run costs without the run-queue wait
+    step_ratio_cpu = cpu / (dg.n_steps * 2 * lp_cpu[0])
+    print(f"sampling CPU time / (steps x 2 log-prob calls of 64 walkers, CPU {lp_cpu[0] * 1e6:.1f} us each): "
+          f"{step_ratio_cpu:.1f}")
+    floor = sampler_floor(len(post.names))
+    work = 2 * lp_cpu[0]
+    print(f"stepping alone (trivial log-prob, {len(post.names)} dimensions, 64 walkers), CPU per step: emcee's own "
+          f"sampler {floor['emcee'] * 1e6:.0f} us = {floor['emcee'] / work:.1f} x the log-prob work of a step; "
+          f"dynid's {floor['dynid'] * 1e6:.0f} us = {floor['dynid'] / work:.1f} x")
     # the same ratio from CPU time measured inside the run (robust on a loaded, shared machine):
     # the sampling's CPU time over the CPU time of its own log-prob calls
     inrun = cpu / timed.cpu if timed.cpu > 0 else float("nan")
@@ -185,11 +259,18 @@ def main():
         "tx40_ratio_to_reference": round(sampling / ref, 1), "tx40_steps": dg.n_steps,
         "tx40_us_per_step": round(1e6 * dg.elapsed / dg.n_steps), "tx40_converged": post.converged,
         "tx40_sampling_over_logprob_work": round(step_ratio, 2),
+        "tx40_sampling_cpu_over_logprob_cpu_work": round(step_ratio_cpu, 2),
+        "tx40_runqueue_wait_s": round(float(use[3]), 2), "tx40_system_cpu_s": round(float(use[2]), 2),
+        "tx40_voluntary_switches": int(use[4]), "load_average": round(load0, 1),
+        "emcee_step_us_trivial_logprob": round(floor["emcee"] * 1e6, 1),
+        "dynid_step_us_trivial_logprob": round(floor["dynid"] * 1e6, 1),
+        "emcee_step_over_logprob_work": round(floor["emcee"] / work, 2),
+        "tx40_chain_sha256": chain_hash,
         "tx40_cpu_over_inrun_logprob_cpu": round(inrun, 2), "tx40_sampling_cpu_s": round(cpu, 2),
         "tx40_noise_model": post.settings.get("noise_model", {}).get("kind", "white"),
         "tx40_tau_max": round(dg.tau_max, 1), "tx40_chain_over_tau": round(dg.chain_over_tau, 1),
         "tx40_rhat_max": round(dg.rhat_max, 4), "tx40_acceptance": round(dg.acceptance_mean, 3),
-        "logprob_us_1k_rows": round(small[1] * 1e6, 1), "logprob_us_large_rows": round(large[1] * 1e6, 1),
+        "logprob_us_1k_rows": round(small[1] * 1e6, 1), "logprob_cpu_us_1k_rows": round(lp_cpu[0] * 1e6, 1), "logprob_us_large_rows": round(large[1] * 1e6, 1),
         "large_rows": rows[1], "logprob_ratio_large_to_1k": round(ratio, 2),
         "stats_ms_1k_rows": round(small[0] * 1e3, 3), "stats_ms_large_rows": round(large[0] * 1e3, 1),
         "naive_logprob_ms_large_rows": round(large[2] * 1e3, 1), "reference_s": round(ref, 4),

@@ -71,6 +71,7 @@ __all__ = [
     "ChainDiagnostics",
     "ChainRun",
     "integrated_time",
+    "Workspace",
     "split_rhat",
     "rank_normalized_rhat",
     "chain_effective_sample_size",
@@ -206,7 +207,49 @@ class ChainDiagnostics:
 
 
 # ----------------------------------------------------------------------- statistics
-def integrated_time(chain: np.ndarray, c: float = 5.0) -> np.ndarray:
+class Workspace:
+    """Arrays reused by the checks of one run.
+
+    The autocorrelation of a stored chain (2048 steps x 64 walkers x 31 parameters) works
+    on ~100 MB of temporaries; allocated afresh at every check they are mapped and zeroed
+    page by page by the kernel, which on a shared VM cost 3-4 times the arithmetic
+    (system time). `get` hands out views of buffers kept between checks; `reserve` sizes
+    them once for the longest chain of a run (a buffer that grows is mapped again).
+    """
+
+    def __init__(self):
+        self._bufs = {}
+
+    def reserve(self, name: str, size: int, dtype=float) -> None:
+        """Make buffer `name` hold at least `size` elements of `dtype`."""
+        buf = self._bufs.get(name)
+        if buf is None or buf.dtype != np.dtype(dtype) or buf.size < size:
+            self._bufs[name] = np.empty(int(size), dtype=dtype)
+
+    def get(self, name: str, shape: tuple, dtype=float) -> np.ndarray:
+        """An uninitialised C-contiguous array of `shape` in buffer `name` (grown if too small)."""
+        size = math.prod(shape)
+        self.reserve(name, size, dtype)
+        return self._bufs[name][:size].reshape(shape)
+
+
+# parameters per FFT block of `integrated_time`: its spectra (64 walkers x 4097 values)
+# stay in the cache between the transform, the power and the walker average
+_TAU_BLOCK = 2
+
+
+def _reserve_for_chain(work: Workspace, n_steps: int, n_walkers: int, d: int) -> None:
+    """Size `work` once for `integrated_time` and `split_rhat` of chains up to (n_steps, n_walkers, d)."""
+    n = 1 << (max(n_steps, 2) - 1).bit_length()
+    work.reserve("x", n_steps * n_walkers * d)          # also split_rhat's deviations
+    work.reserve("spec", d * (n + 1))
+    block = n_walkers * min(d, _TAU_BLOCK) * (n + 1)
+    work.reserve("F", block, complex)
+    work.reserve("P", block)
+    work.reserve("P2", block)
+
+
+def integrated_time(chain: np.ndarray, c: float = 5.0, *, work: Workspace | None = None) -> np.ndarray:
     """τ of each parameter of `chain` (n_steps, n_walkers, d), in stored steps.
 
     emcee's estimator (`emcee.autocorr.integrated_time` with `tol=0`:
@@ -215,39 +258,46 @@ def integrated_time(chain: np.ndarray, c: float = 5.0) -> np.ndarray:
     over walkers; τ(M) = 1 + 2 Σ_{t=1..M} ρ(t) with the automatic window,
     the smallest M ≥ c τ(M). Same algorithm, vectorised over walkers and
     parameters (emcee loops over them in Python, ~50× slower here); the tests
-    check it equals emcee's. A parameter that does not vary gets NaN.
+    check it equals emcee's. A parameter whose draws are all equal gets NaN.
+    `work` (a `Workspace`) keeps the buffers between calls of one run.
     """
     chain = np.asarray(chain, dtype=float)
     if chain.ndim != 3:
         raise InputError(f"chain must be (n_steps, n_walkers, d), got shape {chain.shape}")
-    T, _, d = chain.shape
+    T, W, d = chain.shape
     out = np.full(d, np.nan)
     if T < 2:
         return out
-    W = chain.shape[1]
-    # (walkers * d, T), time contiguous: FFTs along the last axis are ~3x faster
-    x = np.ascontiguousarray((chain - chain.mean(axis=0)).reshape(T, W * d).T)
+    ws = work if work is not None else Workspace()
     n = 1 << (T - 1).bit_length()             # next power of two, as emcee.autocorr.next_pow_two
-    F = np.fft.rfft(x, n=2 * n, axis=-1)
-    P = np.square(F.real)
-    P += np.square(F.imag)
+    # (walkers * d, T), time contiguous: FFTs along the last axis are ~3x faster
+    x = ws.get("x", (W * d, T))
+    np.subtract(chain.reshape(T, W * d).T, chain.mean(axis=0).reshape(W * d, 1), out=x)
     # each walker's ACF normalised by its lag-0 value Σ x² (Parseval), then averaged over walkers:
     # linear, so done on the spectra, one inverse FFT per parameter instead of one per walker
     with np.errstate(divide="ignore", invalid="ignore"):
-        inv = 1.0 / (W * np.einsum("kt,kt->k", x, x))
-    f = np.fft.irfft(np.einsum("wdf,wd->df", P.reshape(W, d, -1), inv.reshape(W, d)),
-                     n=2 * n, axis=-1)[:, :T].T   # (T, d)
+        inv = (1.0 / (W * np.einsum("kt,kt->k", x, x))).reshape(W, d)
+    x3 = x.reshape(W, d, T)
+    spec = ws.get("spec", (d, n + 1))
+    for i0 in range(0, d, _TAU_BLOCK):
+        i1 = min(d, i0 + _TAU_BLOCK)
+        shape = (W, i1 - i0, n + 1)
+        F = np.fft.rfft(x3[:, i0:i1], n=2 * n, axis=-1, out=ws.get("F", shape, complex))
+        P = np.square(F.real, out=ws.get("P", shape))
+        P += np.square(F.imag, out=ws.get("P2", shape))
+        np.einsum("wdf,wd->df", P, inv[:, i0:i1], out=spec[i0:i1])
+    f = np.fft.irfft(spec, n=2 * n, axis=-1)[:, :T].T   # (T, d)
     taus = 2.0 * np.cumsum(f, axis=0) - 1.0
     m = np.arange(T)[:, None] < c * taus      # auto_window
     window = np.where(m.any(axis=0), np.argmin(m, axis=0), T - 1)
     est = taus[window, np.arange(d)]
-    var = chain.var(axis=(0, 1))
-    ok = np.isfinite(var) & (var > 0) & np.isfinite(est)
+    varies = chain.max(axis=(0, 1)) > chain.min(axis=(0, 1))     # False for NaN too
+    ok = varies & np.isfinite(est)
     out[ok] = est[ok]
     return out
 
 
-def split_rhat(chain: np.ndarray) -> np.ndarray:
+def split_rhat(chain: np.ndarray, *, work: Workspace | None = None) -> np.ndarray:
     """Split-chain potential scale reduction R̂ of each parameter.
 
     `chain` is (n_steps, n_walkers, d). Each walker's chain is cut in two
@@ -269,11 +319,26 @@ def split_rhat(chain: np.ndarray) -> np.ndarray:
     out = np.full(d, np.nan)
     if n < 2:
         return out
-    halves = np.concatenate([chain[:n], chain[n_steps - n:]], axis=1)  # (n, 2W, d)
-    m = halves.shape[1]
-    means = halves.mean(axis=0)                                      # (m, d)
+    m = 2 * n_walkers
+    if chain.flags.c_contiguous:
+        # the stored chain: the halves' means and variances (ddof 1) by numpy's operations in
+        # numpy's order, the deviations in one buffer instead of temporaries of the chain's size
+        means = np.empty((m, d))              # chain c: half c // n_walkers of walker c % n_walkers
+        variances = np.empty((m, d))
+        dev = (work or Workspace()).get("x", (n, n_walkers, d))   # integrated_time's buffer: free now
+        for k, half in enumerate((chain[:n], chain[n_steps - n:])):
+            mean = np.add.reduce(half, axis=0) / n
+            means[k * n_walkers:(k + 1) * n_walkers] = mean
+            np.subtract(half, mean, out=dev)
+            np.multiply(dev, dev, out=dev)
+            variances[k * n_walkers:(k + 1) * n_walkers] = np.add.reduce(dev, axis=0) / (n - 1)
+    else:
+        # another layout (the rank-normalised draws): numpy's reductions follow it
+        halves = np.concatenate([chain[:n], chain[n_steps - n:]], axis=1)  # (n, 2W, d)
+        means = halves.mean(axis=0)
+        variances = halves.var(axis=0, ddof=1)
     B = n / (m - 1) * ((means - means.mean(axis=0)) ** 2).sum(axis=0)
-    W = halves.var(axis=0, ddof=1).mean(axis=0)
+    W = variances.mean(axis=0)
     with np.errstate(divide="ignore", invalid="ignore"):
         var_plus = (n - 1) / n * W + B / n
         r = np.sqrt(var_plus / W)
@@ -328,13 +393,14 @@ def chain_effective_sample_size(n_walkers: int, n_steps: int, tau: np.ndarray) -
 def diagnose(stored: np.ndarray, interval: int, n_steps: int, accepted: np.ndarray,
              criteria: ConvergenceCriteria, sampled=None, limit: str | None = None,
              history=None, elapsed: float = math.nan, final_burn: bool = True,
-             rank_rhat: bool = True) -> ChainDiagnostics:
+             rank_rhat: bool = True, work: Workspace | None = None) -> ChainDiagnostics:
     """Apply the convergence rule to a stored chain.
 
     `stored` (L, n_walkers, d) holds every `interval`-th step of a run of
     `n_steps` steps (stored[i] is step (i + 1)·interval); `accepted`
     (n_walkers,) counts accepted proposals per walker. `rank_rhat=False` skips the
     rank-normalised R-hat (reported, not part of the rule): the checks between batches do.
+    `work` (a `Workspace`) keeps the buffers of the autocorrelation between the checks of a run.
     """
     stored = np.asarray(stored, dtype=float)
     L, n_walkers, d = stored.shape
@@ -343,7 +409,7 @@ def diagnose(stored: np.ndarray, interval: int, n_steps: int, accepted: np.ndarr
     c = criteria
     problems = []
 
-    tau_all = integrated_time(stored) * interval
+    tau_all = integrated_time(stored, work=work) * interval
     t0 = tau_all[sampled]
     if L < 8:
         burn = n_steps // 2
@@ -363,8 +429,8 @@ def diagnose(stored: np.ndarray, interval: int, n_steps: int, accepted: np.ndarr
                             f"({c.burn_in_tau:g} τ with τ ≈ {float(t0.max()):.3g} steps)")
     post = stored[burn_stored:]
     burn = burn_stored * interval
-    tau = integrated_time(post) * interval
-    rhat = split_rhat(post)
+    tau = integrated_time(post, work=work) * interval
+    rhat = split_rhat(post, work=work)
     ts = tau[sampled]
     if np.all(np.isfinite(ts)) and ts.size:
         tmax = float(ts.max())
@@ -496,6 +562,8 @@ def run_until_converged(sampler, p0: np.ndarray, criteria: ConvergenceCriteria |
     limit = None
     first = True
     lean = hasattr(sampler, "advance")
+    work = Workspace()
+    _reserve_for_chain(work, c.max_stored, n_walkers, d)
     while True:
         todo = target - n
         # emcee checks the initial ensemble for degeneracy; later batches resume a live one
@@ -519,7 +587,7 @@ def run_until_converged(sampler, p0: np.ndarray, criteria: ConvergenceCriteria |
                 break
         first = False
         stored, _ = buf.view()
-        dg = diagnose(stored, buf.interval, n, accepted, c, sampled=sampled, rank_rhat=False)
+        dg = diagnose(stored, buf.interval, n, accepted, c, sampled=sampled, rank_rhat=False, work=work)
         tmax = dg.tau_max
         history.append((n, tmax))
         if dg.converged or limit is not None:
@@ -544,5 +612,6 @@ def run_until_converged(sampler, p0: np.ndarray, criteria: ConvergenceCriteria |
                                  rhat_rank=_kept_rank_rhat(stored, buf.interval, dg.burn_in, dg.thin))
     else:
         dg = diagnose(stored, buf.interval, n, accepted, c, sampled=sampled, limit=limit,
-                      history=history, elapsed=elapsed)
-    return ChainRun(stored=stored.copy(), log_prob=lps.copy(), interval=buf.interval, diagnostics=dg)
+                      history=history, elapsed=elapsed, work=work)
+    # the buffer is the run's own and not used again: its views are the result (no copy)
+    return ChainRun(stored=stored, log_prob=lps, interval=buf.interval, diagnostics=dg)

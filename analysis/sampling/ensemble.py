@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 
 import emcee
 import numpy as np
@@ -60,12 +61,28 @@ class _DEMove(_VectorAccept, emcee.moves.DEMove):
         gamma = self.g0 * (1 + self.sigma * random.randn(ns, 1))
         return s + gamma * (c[pick[:, 1]] - c[pick[:, 0]]), np.zeros(ns)
 
+    def proposal(self, coords, idx, other, random):
+        """`get_proposal(coords[idx], [coords[other]], random)` from the walkers' indices (the
+        same draws and positions) without copying the two halves; its factors are zero,
+        returned as None."""
+        first, second = _pair_columns(other.size)
+        pick = random.randint(0, first.size, size=idx.size)
+        gamma = self.g0 * (1 + self.sigma * random.randn(idx.size, 1))
+        return coords[idx] + gamma * (coords[other[second[pick]]] - coords[other[first[pick]]]), None
+
 
 @functools.lru_cache(maxsize=4)
 def _nondiagonal_pairs(n):
     """The pairs (i, j), i != j, in the order of emcee.moves.de (its draws index them)."""
     rows, cols = np.tril_indices(n, -1)
     return np.column_stack([np.concatenate([rows, cols]), np.concatenate([cols, rows])])
+
+
+@functools.lru_cache(maxsize=4)
+def _pair_columns(n):
+    """The two columns of `_nondiagonal_pairs(n)`, each contiguous."""
+    pairs = _nondiagonal_pairs(n)
+    return np.ascontiguousarray(pairs[:, 0]), np.ascontiguousarray(pairs[:, 1])
 
 
 class _DESnookerMove(_VectorAccept, emcee.moves.DESnookerMove):
@@ -89,6 +106,23 @@ class _Sampler(emcee.EnsembleSampler):
         if lp.shape != (coords.shape[0],) or lp.dtype.kind not in "fi":
             return super().compute_log_prob(coords)      # blobs or another shape: emcee's way
         return np.array(lp, dtype=np.float64), None
+
+    def _evaluator(self):
+        """`compute_log_prob(q)[0]` with the fewest calls on the common path: one finiteness
+        test of the positions, the user's function called directly (not through emcee's
+        wrapper), its float64 array used as it is (the step copies what it keeps)."""
+        wrapper, compute = self.log_prob_fn, self.compute_log_prob
+        fn = wrapper.f if not (wrapper.args or wrapper.kwargs) else wrapper
+
+        def evaluate(q):
+            if not math.isfinite(q.sum()):
+                # an inf or NaN position (or a sum that overflows): emcee's checks and error
+                return compute(q)[0]
+            lp = fn(q)
+            if type(lp) is np.ndarray and lp.dtype == np.float64 and lp.shape == (q.shape[0],):
+                return lp
+            return compute(q)[0]
+        return evaluate
 
     def advance(self, state, iterations: int, check: bool = False):
         """Yield (state, accepted) after each of `iterations` steps from `state` (a State or an
@@ -117,15 +151,22 @@ class _Sampler(emcee.EnsembleSampler):
     def _red_blue_steps(self, state, iterations, move):
         """One red-blue move, step after step, on the state's arrays in place: the draws of
         emcee's loop in its order (the move's choice, the split's shuffle, each half's
-        proposal and uniforms), without a State object and an update per half-step."""
+        proposal and uniforms), without a State object and an update per half-step. The
+        halves are index arrays (emcee's complement: the other halves in split order); a move
+        with `proposal` (de) draws from them without copying the halves."""
         rnd = self._random
         coords, lp = state.coords, state.log_prob
         nwalkers, ndim = coords.shape
         if nwalkers < 2 * ndim and not move.live_dangerously:
             raise RuntimeError("It is unadvisable to use a red-blue move with fewer walkers than "
                                "twice the number of dimensions.")
-        all_inds = np.arange(nwalkers)
-        split_of = all_inds % move.nsplits
+        nsplits = move.nsplits
+        split_of = np.arange(nwalkers) % nsplits
+        # each half's walkers in walker order: one stable sort of the shuffled labels
+        ends = np.cumsum(np.bincount(split_of, minlength=nsplits)).tolist()
+        cuts = [slice(a, b) for a, b in zip([0] + ends[:-1], ends)]
+        evaluate = self._evaluator()
+        proposal = getattr(move, "proposal", None)
         for _ in range(iterations):
             rnd.random_sample()            # emcee's choice among the moves: one uniform
             move.setup(coords)
@@ -133,16 +174,24 @@ class _Sampler(emcee.EnsembleSampler):
             inds = split_of.copy()
             if move.randomize_split:
                 rnd.shuffle(inds)
-            for split in range(move.nsplits):
-                S1 = inds == split
-                others = [coords[inds == j] for j in range(move.nsplits) if j != split]
-                q, factors = move.get_proposal(coords[S1], others, rnd)
-                new_lp, _ = self.compute_log_prob(q)
-                idx = all_inds[S1]
-                acc = factors + new_lp - lp[idx] > np.log(rnd.rand(idx.size))
+            order = np.argsort(inds, kind="stable")
+            halves = [order[c] for c in cuts]
+            for split in range(nsplits):
+                idx = halves[split]
+                others = halves[:split] + halves[split + 1:]
+                if proposal is not None:
+                    q, factors = proposal(coords, idx, others[0] if nsplits == 2 else np.concatenate(others),
+                                          rnd)
+                else:
+                    q, factors = move.get_proposal(coords[idx], [coords[o] for o in others], rnd)
+                new_lp = evaluate(q)
+                # emcee accepts if factors + new_lp - lp > log(u): zero factors, the same decisions
+                diff = new_lp - lp[idx] if factors is None else factors + new_lp - lp[idx]
+                acc = diff > np.log(rnd.rand(idx.size))
                 accepted[idx] = acc
-                coords[idx[acc]] = q[acc]
-                lp[idx[acc]] = new_lp[acc]
+                moved = idx[acc]
+                coords[moved] = q[acc]
+                lp[moved] = new_lp[acc]
             yield state, accepted
 
 

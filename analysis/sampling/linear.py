@@ -100,6 +100,7 @@ class LinearPosterior:
         self._G = stats.G[self.active]
         self._Gr = self._G.transpose(1, 0, 2).reshape(b, n_act * b)
         self._g = stats.g[self.active]
+        self._g2 = 2.0 * self._g                    # exact: a power of two
         self._s = stats.s[self.active]
         self._r = stats.rows[self.active].astype(float)
         sig_names = [f"sigma{j + 1}" for j in self.active]
@@ -114,8 +115,10 @@ class LinearPosterior:
     # ---------------------------------------------------------------- density
     def _S(self, D):
         DG = (D @ self._Gr).reshape(D.shape[0], -1, self.b)
-        DG -= 2.0 * self._g
-        return np.einsum("kjb,kb->kj", DG, D) + self._s
+        DG -= self._g2
+        S = np.einsum("kjb,kb->kj", DG, D)
+        S += self._s
+        return S
 
     def _log_prior(self, X):
         if self.prior is None:
@@ -125,18 +128,23 @@ class LinearPosterior:
 
     def log_prob(self, X) -> np.ndarray:
         """log p (up to a constant) of each row of `X` (K, ndim); −inf outside the support."""
-        X = np.atleast_2d(np.asarray(X, dtype=float))
+        if type(X) is not np.ndarray or X.ndim != 2 or X.dtype != np.float64:
+            X = np.atleast_2d(np.asarray(X, dtype=float))
         chi = X[:, : self.b]
         D = chi - self.stats.ref
         S = self._S(D)
+        # the sampler calls this twice a step: sums as np.add.reduce (what .sum calls), no
+        # prior term when there is none (adding 0.0 changes no comparison), NaN -> -inf in place
         with np.errstate(over="ignore", invalid="ignore"):
             if self.sigma is not None:
-                lp = -0.5 * (S / self.sigma[self.active] ** 2).sum(axis=1)
+                lp = -0.5 * np.add.reduce(S / self.sigma[self.active] ** 2, axis=1)
             else:
                 u = X[:, self.b:]
-                lp = -(u @ self._r) - 0.5 * (S * np.exp(-2.0 * u)).sum(axis=1)
-            lp = lp + self._log_prior(chi)
-        return np.where(np.isnan(lp), -np.inf, lp)
+                lp = -(u @ self._r) - 0.5 * np.add.reduce(S * np.exp(-2.0 * u), axis=1)
+            if self.prior is not None:
+                lp = lp + self._log_prior(chi)
+        lp[np.isnan(lp)] = -np.inf
+        return lp
 
     __call__ = log_prob
 
