@@ -154,6 +154,11 @@ def test_identify_didim_from_reference_and_torque_only(tmp_path):
     assert est["MX1R"] == pytest.approx(3.0, rel=0.03)
 
 
+# A second full TX40 design (4 starts, ~10 s on an idle machine): the default suite checks the design's
+# limits on a dense grid and its CSV export in tests/dynamics/test_excitation.py (same robot, f0 and
+# harmonics), and the excite command's outputs in test_excite_json_to_stdout_is_the_only_stdout,
+# tests/cli/test_cli_api.py::test_excite and tests/cli/test_output_schemas.py::test_excite_json.
+@pytest.mark.slow
 def test_excite_tx40_as_in_the_issue_respects_limits_in_the_written_csv(tmp_path):
     """`dynid excite --robot tx40 --f0 0.1 --harmonics 5 --out traj.csv --json ex.json`.
 

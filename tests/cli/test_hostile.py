@@ -186,6 +186,11 @@ def run_dynid(*args, cwd, env=None, timeout=60, stdout=subprocess.PIPE, close_st
     A run that exceeds ``timeout`` is killed (its own process group) and reported
     as timed out instead of raising. The returned Run also lists the input files the
     run changed and the temporary files it left (see :class:`_Watch`).
+
+    With stdout a pipe, no file-size limit and the worker's environment (most runs), the
+    process is forked from a server that has imported dynid once (tests/support/forked_cli.py:
+    a fresh interpreter spends a second or more on imports before it reads its arguments);
+    any other run, or every run with DYNID_TEST_FRESH_PROCESSES=1, starts a fresh interpreter.
     """
     cmd = [sys.executable, "-c", DYNID_CODE, *map(str, args)]
     full_env = dict(os.environ)
@@ -205,6 +210,13 @@ def run_dynid(*args, cwd, env=None, timeout=60, stdout=subprocess.PIPE, close_st
             os.close(1)
 
     watch = _Watch(args, cwd)
+    dec = lambda b: (b or b"").decode("utf-8", "replace")  # noqa: E731
+    if stdout is subprocess.PIPE and not close_stdout and file_size_limit is None:
+        forked = _forked_cli(full_env)
+        answer = forked.run(args, cwd, full_env, timeout) if forked else None
+        if answer is not None:
+            rc, out, err, elapsed = answer
+            return watch.report(Run(args, rc, dec(out), dec(err), elapsed, rc is None, timeout))
     t0 = time.monotonic()
     proc = subprocess.Popen(cmd, cwd=cwd, env=full_env, stdin=subprocess.DEVNULL,
                             stdout=subprocess.DEVNULL if close_stdout else stdout,
@@ -217,9 +229,29 @@ def run_dynid(*args, cwd, env=None, timeout=60, stdout=subprocess.PIPE, close_st
         os.killpg(proc.pid, signal.SIGKILL)
         out, err = proc.communicate()
     elapsed = time.monotonic() - t0
-    dec = lambda b: (b or b"").decode("utf-8", "replace")  # noqa: E731
     return watch.report(Run(args, None if timed_out else proc.returncode, dec(out), dec(err),
                             elapsed, timed_out, timeout))
+
+
+_FORKED = []
+
+
+def _forked_cli(env):
+    """This worker's forked-CLI server (tests/support/forked_cli.py), started on first use with
+    the environment of a default run; None where fork is unavailable or turned off."""
+    import forked_cli
+    if not forked_cli.enabled():
+        return None
+    if not _FORKED:
+        _FORKED.append(forked_cli.ForkedCli(DYNID_CODE, env, MEMORY_LIMIT))
+    return _FORKED[0]
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _close_forked_cli():
+    yield
+    while _FORKED:
+        _FORKED.pop().close()
 
 
 def dynid_main():

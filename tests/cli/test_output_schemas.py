@@ -3,12 +3,14 @@
 
 The schemas require the stable core of each document and allow other keys, so a command
 may add to its JSON without breaking them; removing or retyping a required key fails here.
-The commands run as a user runs them (the `dynid` console script of this venv), on a short
+The commands run as a user runs them (the `dynid` console script of this venv: its entry point
+in a process of its own, forked from one that has imported dynid, see `run`), on a short
 simulated recording of the bundled two-joint `planar2`.
 """
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -34,11 +36,38 @@ def check(name, document):
     assert not errors, "\n".join(f"{list(e.path)}: {e.message[:200]}" for e in errors)
 
 
+#: what the console script runs (its entry point, dynid.reports.cli:main)
+CONSOLE_CODE = "import sys; from dynid.reports.cli import main; sys.exit(main())"
+_FORKED = []
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _close_forked_cli():
+    yield
+    while _FORKED:
+        _FORKED.pop().close()
+
+
 def run(folder, *args, timeout=600):
+    """`dynid ARGS --quiet` in `folder`: forked from a server that has imported dynid once
+    (tests/support/forked_cli.py; the console script's entry point, with its path as argv[0]),
+    or the console script itself where fork is unavailable or DYNID_TEST_FRESH_PROCESSES=1."""
+    import forked_cli
     if not DYNID.exists():
         pytest.skip(f"no dynid console script beside {sys.executable}: pip install . first")
-    proc = subprocess.run([str(DYNID), *args, "--quiet"], cwd=folder, capture_output=True, text=True,
-                          timeout=timeout)
+    argv = [*map(str, args), "--quiet"]
+    answer = None
+    if forked_cli.enabled():
+        env = dict(os.environ)
+        if not _FORKED:
+            _FORKED.append(forked_cli.ForkedCli(CONSOLE_CODE, env, forked_cli.NO_LIMIT))
+        answer = _FORKED[0].run(argv, folder, env, timeout, argv0=str(DYNID))
+    if answer is None:
+        proc = subprocess.run([str(DYNID), *argv], cwd=folder, capture_output=True, text=True, timeout=timeout)
+    else:
+        code, out, err, _ = answer
+        assert code is not None, f"dynid {' '.join(argv)}: no answer within {timeout} s"
+        proc = subprocess.CompletedProcess([str(DYNID), *argv], code, out.decode(), err.decode())
     assert proc.returncode in (0, 3), f"dynid {' '.join(args)}: exit {proc.returncode}\n{proc.stderr[-3000:]}"
     return proc
 
