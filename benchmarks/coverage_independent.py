@@ -28,7 +28,9 @@ the truth, with the median interval width relative to classic.
 ``--methods`` adds, on the same record:
 
 * ``candidates``: the covariances evaluated in benchmarks/uncertainty.py and not
-  shipped (fixed-b HAC, EWC, bootstrap variants), from the classic fits;
+  shipped (fixed-b HAC, EWC, bootstrap variants, the Gaussian-process discrepancy),
+  from the classic fits; ``--candidates`` picks some (the discrepancy ones need the
+  state (q, qd, qdd), which the cache keeps since 2026-12-03: older caches skip them);
 * ``pc``: PC-WLS (``pc_wls`` on the WLS estimate, classic metric as ``dynid identify
   --physical`` runs it) whose bootstrap draws from each option's covariance
   (``--pc-options``, default all), its ``conf_int()`` (bootstrap percentiles with the
@@ -42,7 +44,9 @@ the truth, with the median interval width relative to classic.
 Seeds: 0-4 were used while developing the first options; 1000-1099 held out for the
 first campaign (and then used to choose the essential rule); 3000-3099 held out for
 the pc/didim campaign; 0-20 used while developing the bootstrap's block rule and
-percentile σ (2026-12-03); 4000-4099 held out for that campaign:
+percentile σ (2026-12-03); 4000-4099 held out for that campaign; 9050-9052 used while
+developing the discrepancy candidates, 9100-9199 held out for them
+(results/coverage_independent_gp_9100.jsonl, _gp_model_9100.jsonl):
 
     nice -n 10 python benchmarks/coverage_independent.py --methods simulate --cache CACHE \
         --seeds 100 --start 4000

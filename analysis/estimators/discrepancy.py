@@ -27,7 +27,10 @@ covariance (bootstrap, HAC) plus this term.
   or AR(1)-in-time noise beside the GP (a residual correlated in time alone is
   not a discrepancy: only where the trajectory revisits a state can the two be
   told apart);
-* `discrepancy_covariance`: Σ_j s_j² A_j K_j A_jᵀ, by random features or exactly.
+* `discrepancy_covariance`: Σ_j s_j² A_j K_j A_jᵀ, by random features or exactly;
+* `noise_covariance`: Σ_j σ_n,j² A_j R_j A_jᵀ, the same model's noise part (R_j the
+  AR(1) correlation in time), so that the model's own total is
+  A(σ_n² R + s² K)Aᵀ.
 
 The estimate itself never changes. Plain functions on numpy arrays.
 """
@@ -38,7 +41,7 @@ import math
 import numpy as np
 
 __all__ = ["normalized_state", "rbf_kernel", "random_fourier_features", "reml_hyperparameters",
-           "discrepancy_covariance", "discrepancy_from_fit"]
+           "discrepancy_covariance", "noise_covariance", "discrepancy_from_fit"]
 
 #: Lengthscales searched by `reml_hyperparameters`, in units of the median distance between samples.
 LENGTHSCALE_GRID = tuple(np.geomspace(0.05, 2.0, 12))
@@ -244,6 +247,42 @@ def discrepancy_covariance(W3, mask, weights, bread_inv, states, s2, lengthscale
             S += s2[j] * (G @ G.T)
         else:
             S += s2[j] * (Wj.T @ rbf_kernel(X, X, lengthscales[j]) @ Wj)
+    cov = bread_inv @ S @ bread_inv
+    return 0.5 * (cov + cov.T)
+
+
+def noise_covariance(W3, mask, weights, bread_inv, noise2, phi, *, chunk: int = 2048) -> np.ndarray:
+    """Σ_j σ_n,j² A_j R_j A_jᵀ: the covariance of the WLS error from AR(1) noise, R_j[t, u] = φ_j^|t − u|.
+
+    The sampling part of the same model as `discrepancy_covariance` (noise independent
+    across joints, correlated in time with the coefficient `reml_hyperparameters` found);
+    t and u are the sample numbers of joint j's equations.
+
+    Parameters
+    ----------
+    W3, mask, weights, bread_inv
+        As in `discrepancy_covariance`.
+    noise2, phi : arrays (n,)
+        Marginal noise variance (torque units squared) and AR(1) coefficient per sample of each joint.
+    chunk : int
+        Rows of R_j formed at a time (memory chunk · T_j).
+
+    Returns
+    -------
+    array (s, s)
+    """
+    W3 = np.asarray(W3, dtype=float)
+    mask = np.asarray(mask, dtype=bool)
+    S = np.zeros((W3.shape[2], W3.shape[2]))
+    for j in range(W3.shape[1]):
+        rows = np.flatnonzero(mask[:, j])
+        if rows.size == 0 or not noise2[j] > 0:
+            continue
+        Wj = W3[rows, j, :] * float(weights[j]) ** 2
+        t = rows.astype(float)
+        for a in range(0, rows.size, chunk):
+            R = float(phi[j]) ** np.abs(t[a:a + chunk, None] - t[None, :])
+            S += noise2[j] * (Wj[a:a + chunk].T @ (R @ Wj))
     cov = bread_inv @ S @ bread_inv
     return 0.5 * (cov + cov.T)
 

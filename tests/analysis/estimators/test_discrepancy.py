@@ -118,3 +118,22 @@ def test_bad_options_are_refused():
                                   method="nystrom")
     with pytest.raises(ValueError, match="noise"):
         dc.reml_hyperparameters(np.zeros(50), np.ones((50, 1)), np.zeros((50, 2)), noise="pink")
+
+
+def test_noise_covariance_is_the_closed_form_a_r_a():
+    _, _, _, _, W3, mask, w, bread_inv = _system(seed=2)
+    noise2, phi = np.array([0.2, 0.05]), np.array([0.9, 0.5])
+    got = dc.noise_covariance(W3, mask, w, bread_inv, noise2, phi, chunk=17)   # chunks must not matter
+    want = np.zeros_like(got)
+    for j in range(W3.shape[1]):
+        rows = np.flatnonzero(mask[:, j])
+        A = bread_inv @ (W3[rows, j, :] * w[j] ** 2).T
+        R = phi[j] ** np.abs(np.subtract.outer(rows, rows))
+        want += noise2[j] * A @ R @ A.T
+    np.testing.assert_allclose(got, want, rtol=1e-10, atol=1e-14)
+    # white noise: the classic covariance of eq. (14) with sigma_j^2 = noise2_j (weights 1/sigma_j)
+    w_white = 1.0 / np.sqrt(noise2)
+    Wt = (W3 * np.where(mask, w_white[None, :], 0.0)[:, :, None]).reshape(-1, W3.shape[2])
+    bread = np.linalg.inv(Wt.T @ Wt)
+    np.testing.assert_allclose(dc.noise_covariance(W3, mask, w_white, bread, noise2, [0.0, 0.0]), bread,
+                               rtol=1e-10)
