@@ -127,8 +127,9 @@ MISSES = ("Off5", "Fc5", "Ia7")
 
 # ---------------------------------------------------------------- candidates
 # Covariances evaluated here and not shipped (none met both bars): each is a function of the
-# weighted system (W3, tau, mask, chi, weights, bread_inv = (W~'W~)^-1, groups) -> cov, with
-# the 95 % critical value folded into an equivalent sigma where its theory has one.
+# weighted system (W3, tau, mask, chi, weights, bread_inv = (W~'W~)^-1, groups, state) -> cov,
+# with the 95 % critical value folded into an equivalent sigma where its theory has one; state
+# (q, qd, qdd) of the samples is used by the discrepancy candidates only.
 
 def _live_parts(mask, groups):
     live = np.asarray(mask, dtype=bool).any(axis=1)
