@@ -431,8 +431,11 @@ def evaluate(dataset, panda_dir=None):
     for name in MISSES:
         k = names.index(name)
         for opt, sg in sigs.items():
+            zs = [f"{a + 1}-{b + 1} z {(cl[a].wls.chi[k] - cl[b].wls.chi[k]) / np.hypot(sg[a][k], sg[b][k]):+.2f}"
+                  for a, b in ((0, 1), (0, 2), (1, 2))]
             print(f"  {name} {opt}: " + ", ".join(
-                f"{r.wls.chi[k]:+.3g} +- {s[k]:.2g} ({100 * s[k] / abs(r.wls.chi[k]):.0f} %)" for r, s in zip(cl, sg)))
+                f"{r.wls.chi[k]:+.3g} +- {s[k]:.2g} ({100 * s[k] / abs(r.wls.chi[k]):.0f} %)" for r, s in zip(cl, sg))
+                + "; " + ", ".join(zs))
     return rows, agr, agreement_verdict(agr), [label for label, _ in runs]
 
 
