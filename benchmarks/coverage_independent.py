@@ -28,7 +28,9 @@ the truth, with the median interval width relative to classic.
 ``--methods`` adds, on the same record:
 
 * ``candidates``: the covariances evaluated in benchmarks/uncertainty.py and not
-  shipped (fixed-b HAC, EWC, bootstrap variants), from the classic fits;
+  shipped (fixed-b HAC, EWC, bootstrap variants, the Gaussian-process discrepancy),
+  from the classic fits; ``--candidates`` picks some (the discrepancy ones need the
+  state (q, qd, qdd), which the cache keeps since 2026-12-03: older caches skip them);
 * ``pc``: PC-WLS (``pc_wls`` on the WLS estimate, classic metric as ``dynid identify
   --physical`` runs it) whose bootstrap draws from each option's covariance
   (``--pc-options``, default all), its ``conf_int()`` (bootstrap percentiles with the
@@ -42,7 +44,9 @@ the truth, with the median interval width relative to classic.
 Seeds: 0-4 were used while developing the first options; 1000-1099 held out for the
 first campaign (and then used to choose the essential rule); 3000-3099 held out for
 the pc/didim campaign; 0-20 used while developing the bootstrap's block rule and
-percentile σ (2026-12-03); 4000-4099 held out for that campaign:
+percentile σ (2026-12-03); 4000-4099 held out for that campaign; 9050-9052 used while
+developing the discrepancy candidates, 9100-9199 held out for them
+(results/coverage_independent_gp_9100.jsonl, _gp_model_9100.jsonl):
 
     nice -n 10 python benchmarks/coverage_independent.py --methods simulate --cache CACHE \
         --seeds 100 --start 4000
@@ -142,12 +146,22 @@ def observed_system(seed, cache=None):
     if f is not None:
         f.parent.mkdir(parents=True, exist_ok=True)
         tmp = f.with_suffix(f".{os.getpid()}.tmp.npz")   # two campaigns may fill one cache
-        np.savez(tmp, W=obs.W, tau=obs.tau, mask=obs.row_mask, beta=beta, sim_seconds=t_sim)
+        np.savez(tmp, W=obs.W, tau=obs.tau, mask=obs.row_mask, beta=beta, sim_seconds=t_sim,
+                 q=obs.q, qd=obs.qd, qdd=obs.qdd)   # the state, for the discrepancy candidates
         tmp.replace(f)
     return obs.W, obs.tau, obs.row_mask, beta, t_sim
 
 
-def run_seed(seed, methods=("idim",), cache=None, options=None, pc_options=None):
+def observed_state(seed, cache):
+    """(q, qd, qdd) of the seed's decimated samples from the cache, or None (caches made before they were kept)."""
+    f = None if cache is None else Path(cache) / f"seed_{seed}.npz"
+    if f is None or not f.exists():
+        return None
+    z = np.load(f)
+    return (z["q"], z["qd"], z["qdd"]) if "q" in z.files else None
+
+
+def run_seed(seed, methods=("idim",), cache=None, options=None, pc_options=None, candidates=None):
     """One seed's rows: z and sigma of WLS and the essential set for every option (and PC, DIDIM)."""
     from dynid.analysis.estimators import least_squares as ls
     from dynid.analysis.estimators.essential import essential_parameters
@@ -189,7 +203,9 @@ def run_seed(seed, methods=("idim",), cache=None, options=None, pc_options=None)
             "least_squares", {}).get("uncertainty", {})
         row["essential_names"] = list(ess.names)
     if "candidates" in methods:
-        _candidate_rows(row, W, tau, mask, names, beta, *ref)
+        _candidate_rows(row, W, tau, mask, names, beta, *ref,
+                        state=(obs.q, obs.qd, obs.qdd) if "didim" in methods else observed_state(seed, cache),
+                        only=candidates)
     if "pc" in methods:
         for opt in pc_options or options:
             _pc_rows(row, fits[opt], fits["classic"], robot, bp, beta, opt)
@@ -199,7 +215,7 @@ def run_seed(seed, methods=("idim",), cache=None, options=None, pc_options=None)
     return row
 
 
-def _candidate_rows(row, W, tau, mask, names, beta, wls, ess):
+def _candidate_rows(row, W, tau, mask, names, beta, wls, ess, state=None, only=None):
     """z and sigma of the covariances evaluated in benchmarks/uncertainty.py and not shipped.
 
     Computed from the classic fits (same estimates); the essential set gets the robust
@@ -208,7 +224,7 @@ def _candidate_rows(row, W, tau, mask, names, beta, wls, ess):
     from uncertainty import candidate_sigmas
     idx = [names.index(n) for n in ess.names]
     d = ess.chi - wls.chi[idx]
-    for cand, (cov, sig) in candidate_sigmas(wls, W, tau, mask).items():
+    for cand, (cov, sig) in candidate_sigmas(wls, W, tau, mask, state=state, only=only).items():
         row[f"wls_{cand}_z"] = [float(v) for v in (wls.chi - beta) / sig]
         row[f"wls_{cand}_sigma"] = [float(v) for v in sig]
         se = np.sqrt(np.diag(cov)[idx] + d**2)
@@ -336,12 +352,15 @@ def main(argv=None):
     ap.add_argument("--cache", default=None, help="folder of the seeds' decimated systems (reused when present)")
     ap.add_argument("--options", default=",".join(OPTIONS), help="comma-separated covariance options")
     ap.add_argument("--pc-options", default=None, help="options PC-WLS draws from (default: --options)")
+    ap.add_argument("--candidates", default=None,
+                    help="comma-separated candidates of benchmarks/uncertainty.py (default all)")
     a = ap.parse_args(argv)
     methods = tuple(m.strip() for m in a.methods.split(",") if m.strip())
     options = tuple(o.strip() for o in a.options.split(",") if o.strip())
     if "classic" not in options:
         options = ("classic",) + options
     pc_options = None if a.pc_options is None else tuple(o.strip() for o in a.pc_options.split(",") if o.strip())
+    candidates = None if a.candidates is None else tuple(c.strip() for c in a.candidates.split(",") if c.strip())
     seeds = list(range(a.start, a.start + a.seeds))
     rows, seeds = resume(a.out, seeds)
     t0 = time.time()
@@ -367,16 +386,16 @@ def main(argv=None):
         from concurrent.futures import ProcessPoolExecutor
         with ProcessPoolExecutor(a.workers) as ex:
             for row in ex.map(run_seed, seeds, [methods] * len(seeds), [a.cache] * len(seeds),
-                              [options] * len(seeds), [pc_options] * len(seeds)):
+                              [options] * len(seeds), [pc_options] * len(seeds), [candidates] * len(seeds)):
                 record(row)
     else:
         for s in seeds:
-            record(run_seed(s, methods, a.cache, options, pc_options))
+            record(run_seed(s, methods, a.cache, options, pc_options, candidates))
     if "simulate" in methods:
         return
     if "candidates" in methods:
         from uncertainty import CANDIDATES
-        options = options + tuple(CANDIDATES)
+        options = options + (tuple(CANDIDATES) if candidates is None else candidates)
     out = headline(rows, options)
     out.update({"duration_s": DURATION, "log_rate_hz": RATE / LOG_EVERY, "ar1": PHI, "noise_std": NOISE,
                 "ripple": RIPPLE, "campaign_seconds": time.time() - t0, "first_seed": a.start})

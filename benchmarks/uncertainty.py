@@ -35,6 +35,26 @@ Rows marked ``(candidate)`` are covariances evaluated here and not shipped
   the percentile half-width;
 * ``bootstrap_ar1_cov``: the AR(1) block-length rule and the covariance of the
   bootstrap as it was at 0a87b8b (with the samples-with-equations fix).
+* ``gp_*``: model discrepancy (Kennedy & O'Hagan 2001,
+  dynid.analysis.estimators.discrepancy): the named sampling covariance plus
+  Σ_j s_j² A_j K_j A_jᵀ, the covariance of the WLS error b = A δ when the torque the
+  model lacks, δ_j, is a Gaussian process over the standardised state (q, qd, qdd of
+  every joint; ``joint``: joint j's own three), squared-exponential kernel, 500 random
+  Fourier features. s_j², the noise variance and ℓ_j by restricted maximum likelihood of
+  the run's own residual of joint j (at most 400 rows, the joint's regressor as fixed
+  effects, ℓ on a grid of 0.05-2 median state distances); ``median``: ℓ fixed at the
+  median distance. ``ar1``: AR(1)-in-time noise beside the GP in the likelihood;
+  ``+model``: the model's own noise part A σ_n² R A' (R the AR(1) correlation) in place
+  of a resampling. Because K is over the state, a recording that repeats one trajectory
+  does not average the bias down. The variants were fixed in three rounds before each
+  was run, none tuned to a figure: (1) reml, joint, median (white noise) with bootstrap,
+  hac, classic; (2) after (1) chose short ℓ on the LWR4+ (0.07-0.19 median distances,
+  the time correlation of the noise taken for δ): ar1; (3) ar1+model.
+
+A second table judges every row on the classic's pairs (its 31 on the LWR4+) and on
+every parameter of every pair (no %σ filter), with the number of the classic's pairs
+the row keeps: whether an interval holds the differences where the classic σ calls the
+parameters identified, apart from how many it keeps.
 
 The column ``sigma/classic`` is the median σ over the classic σ. The column
 ``>=90 % of >=16`` says whether a row meets issue 26's must-show on the LWR4+;
@@ -43,7 +63,35 @@ The column ``sigma/classic`` is the median σ over the classic σ. The column
 Ia7 (fixed-b HAC: 5.6σ, 2.9σ, 15σ). Recording 3 repeats one trajectory, its segments
 agree within their own noise, so no estimate made from recording 3 alone can see the
 bias that separates it from recordings 1 and 2 (Ia7 −0.21 against −1.10 and −1.22);
-a σ wide enough to hold those differences identifies too few parameters. The default
+a σ wide enough to hold those differences identifies too few parameters.
+
+The discrepancy (``gp_*``, 2026-12-03, results/uncertainty.txt) fails the bar on the
+count, and is wider than needed elsewhere:
+
+* LWR4+: every variant keeps 7-9 pairs, on MY2R, MY4R and Off1 only (100 % within for
+  the +bootstrap/+hac rows, 89 % for +classic/+model: MY4R 1-2 at 2.0-2.4σ), median σ
+  2.6-3.7 times the classic (``median``: 11). On the classic's 31 pairs they hold
+  74-87 % (bootstrap 61 %), on every parameter of every pair 88-97 % (bootstrap 79 %).
+  Off5 and Fc5 are held (gp_ar1+bootstrap: 1-3 at 0.9σ each) but leave the pairs, their
+  %σ in recording 3 rising to 24 %; Ia7 is not held even so: 3.2σ (1-3) and 4.7σ (2-3)
+  with σ 0.27, 0.20 and 0.066 (24, 17, 31 %). REML chooses a short ℓ (mostly 0.07-0.19
+  median state distances) and s/σ_n mostly 0.3-11 on every run: the residual is dominated by error
+  that is rough over the state, and a prior on δ cannot know which parameter δ will
+  project onto, so A K A' widens every parameter, not only those the recordings
+  disagree on. With ℓ fixed at the median distance (``median``) REML puts the whole
+  residual in the GP (s/σ_n at the grid's bound, 100): the part of a smooth δ the
+  parameters absorb is not identified by the residual, and the σ is unbounded.
+* TX40 3 s segments: gp_reml+hac 94 % of 16, gp_reml+classic 94 % of 17, gp_ar1+model
+  94 % of 16 meet ">= 90 % of >= 16", with median |z| 0.20-0.27 (0.67 expected: about
+  three times wider than the differences need); the +bootstrap rows keep 8 pairs.
+* Panda halves: gp_reml+bootstrap 94 % of 16, gp_ar1+classic and gp_ar1+model 94 % of
+  16 (bootstrap 65 % of 17), median |z| 1.0-1.15, σ 5.4-5.6 times the classic.
+* Independent plant (benchmarks/coverage_independent.py, seeds 9100-9199 held out,
+  results/coverage_independent_gp_9100.txt and _gp_model_9100.txt): WLS 95 % coverage
+  gp_reml+bootstrap 99.5 % at 2.06 times the classic width, gp_reml+classic 98.6 % at
+  1.83, gp_ar1+bootstrap 98.7 % at 1.90, gp_ar1+model 98.4 % at 1.80, gp_ar1+classic
+  96.7 % at 1.64 (bootstrap 92.8 % at 1.37, classic 81.4 %); essential set 96.8-99.3 %.
+  Only gp_ar1+classic stays in 93-97 %, and it is 89 % of 9 on the LWR4+. The default
 is the block bootstrap, the best calibrated here and on the independent plant
 (dynid.analysis.estimators.idim.DEFAULT_UNCERTAINTY, whose comment gives the figures);
 the JSON's ``lwr4_*`` figures are the default's.
@@ -73,12 +121,15 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 OPTIONS = ("classic", "hac", "bootstrap")
 N_SEG = 3
+#: LWR4+ parameters whose recording-3 estimate no option's interval holds (printed per run)
+MISSES = ("Off5", "Fc5", "Ia7")
 
 
 # ---------------------------------------------------------------- candidates
 # Covariances evaluated here and not shipped (none met both bars): each is a function of the
-# weighted system (W3, tau, mask, chi, weights, bread_inv = (W~'W~)^-1, groups) -> cov, with
-# the 95 % critical value folded into an equivalent sigma where its theory has one.
+# weighted system (W3, tau, mask, chi, weights, bread_inv = (W~'W~)^-1, groups, state) -> cov,
+# with the 95 % critical value folded into an equivalent sigma where its theory has one; state
+# (q, qd, qdd) of the samples is used by the discrepancy candidates only.
 
 def _live_parts(mask, groups):
     live = np.asarray(mask, dtype=bool).any(axis=1)
@@ -91,7 +142,7 @@ def kiefer_vogelsang_cv(b):
     return 1.96 + 2.9694 * b + 0.4160 * b**2 - 0.5324 * b**3
 
 
-def hac_fixed_b(W3, tau, mask, chi, weights, bread_inv, groups=None):
+def hac_fixed_b(W3, tau, mask, chi, weights, bread_inv, groups=None, state=None):
     """Newey-West with Andrews' bandwidth M, sigma times cv(M/T)/1.96 (fixed-b, Kiefer-Vogelsang 2005)."""
     from dynid.analysis.estimators import hac
     g, _ = hac.sample_scores(W3, tau, mask, chi, weights)
@@ -102,7 +153,7 @@ def hac_fixed_b(W3, tau, mask, chi, weights, bread_inv, groups=None):
     return cov * (kiefer_vogelsang_cv(b) / 1.96) ** 2
 
 
-def ewc(W3, tau, mask, chi, weights, bread_inv, groups=None):
+def ewc(W3, tau, mask, chi, weights, bread_inv, groups=None, state=None):
     """Equal-weighted cosine long-run variance, nu = 0.4 T^(2/3) cosines, t_nu critical value.
 
     Lazarus, Lewis, Stock & Watson (2018), "HAR inference: recommendations for practice".
@@ -126,12 +177,51 @@ def ewc(W3, tau, mask, chi, weights, bread_inv, groups=None):
 
 
 def _boot(block, spread):
-    def f(W3, tau, mask, chi, weights, bread_inv, groups=None):
+    def f(W3, tau, mask, chi, weights, bread_inv, groups=None, state=None):
         from dynid.analysis.estimators import hac
         return hac.bootstrap_covariance(W3, tau, mask, chi, weights, groups=groups, block=block,
                                         spread=spread)[0]
     return f
 
+
+_GP_CACHE: dict = {}
+
+
+def _sampling(kind, W3, tau, mask, chi, weights, bread_inv, groups, info=None):
+    from dynid.analysis.estimators import hac
+    if kind == "model":   # the GP model's own noise part: AR(1) per joint, its REML variance and coefficient
+        from dynid.analysis.estimators.discrepancy import noise_covariance
+        return noise_covariance(W3, mask, weights, bread_inv, info["noise2"], info["phi"])
+    if kind == "classic":
+        r = int(np.count_nonzero(mask))
+        rho = np.where(mask, tau - W3 @ chi, 0.0) * np.asarray(weights)[None, :]
+        return bread_inv * float(np.sum(rho**2)) / max(r - W3.shape[2], 1)
+    if kind == "hac":
+        return hac.hac_covariance(W3, tau, mask, chi, weights, bread_inv, groups=groups)[0]
+    return hac.bootstrap_covariance(W3, tau, mask, chi, weights, groups=groups)[0]
+
+
+def _gp(sampling, per_joint_state=False, lengthscale="reml", noise="white"):
+    """Sampling covariance plus the Kennedy-O'Hagan discrepancy A K A' (dynid.analysis.estimators.discrepancy)."""
+    def f(W3, tau, mask, chi, weights, bread_inv, groups=None, state=None):
+        from dynid.analysis.estimators.discrepancy import discrepancy_from_fit
+        if state is None:
+            raise ValueError("the discrepancy candidates need the state (q, qd, qdd) of the samples")
+        key = (W3.shape, chi.tobytes(), np.asarray(mask).tobytes(), per_joint_state, lengthscale, noise)
+        if key not in _GP_CACHE:
+            if len(_GP_CACHE) > 8:
+                _GP_CACHE.clear()   # the variants of one fit share it
+            _GP_CACHE[key] = discrepancy_from_fit(W3, tau, mask, chi, weights, bread_inv, state,
+                                                  per_joint_state=per_joint_state, lengthscale=lengthscale,
+                                                  noise=noise)
+        dcov, info = _GP_CACHE[key]
+        GP_INFO.append({"variant": ("joint state" if per_joint_state else "whole state", lengthscale, noise), **info})
+        return _sampling(sampling, W3, tau, mask, chi, weights, bread_inv, groups, info) + dcov
+    return f
+
+
+#: hyperparameters of every discrepancy fit, for the printout
+GP_INFO: list = []
 
 #: name -> covariance function, beside the shipped OPTIONS
 CANDIDATES = {
@@ -139,11 +229,28 @@ CANDIDATES = {
     "ewc": ewc,
     "bootstrap_cov": _boot("politis-white", "cov"),          # the shipped bootstrap with np.cov
     "bootstrap_ar1_cov": _boot("ar1", "cov"),                # the block rule and spread of 0a87b8b
+    # Kennedy-O'Hagan discrepancy, variants fixed before any LWR4+ figure was seen (2026-12-03)
+    "gp_reml+bootstrap": _gp("bootstrap"),                   # whole state, l/s2/noise by REML
+    "gp_reml+hac": _gp("hac"),
+    "gp_reml+classic": _gp("classic"),
+    "gp_joint_reml+bootstrap": _gp("bootstrap", per_joint_state=True),   # joint j's own (q, qd, qdd)
+    "gp_median+bootstrap": _gp("bootstrap", lengthscale="median"),       # l = median distance, s2 by REML
+    # second round, after the first on the LWR4+ (l chosen short: the GP took the noise's
+    # correlation in time): AR(1)-in-time noise beside the GP in the likelihood, as the brief proposed
+    "gp_ar1+bootstrap": _gp("bootstrap", noise="ar1"),
+    "gp_ar1+classic": _gp("classic", noise="ar1"),
+    "gp_joint_ar1+bootstrap": _gp("bootstrap", per_joint_state=True, noise="ar1"),
+    # third: the model's own total A (noise2 R + s2 K) A', its AR(1) noise in place of a resampling
+    "gp_ar1+model": _gp("model", noise="ar1"),
 }
 
 
-def candidate_sigmas(r, W3, tau, mask, groups=None):
-    """{candidate: (cov, sigma)} of a classic WLS result `r` of the system (W3, tau, mask)."""
+def candidate_sigmas(r, W3, tau, mask, groups=None, state=None, only=None):
+    """{candidate: (cov, sigma)} of a classic WLS result `r` of the system (W3, tau, mask).
+
+    `state` (q, qd, qdd) of the samples, for the discrepancy candidates (left out without it);
+    `only`: the candidates to compute (default all).
+    """
     m = np.asarray(mask, dtype=bool)
     if m.ndim == 1:
         m = np.broadcast_to(m[:, None], tau.shape)
@@ -152,7 +259,9 @@ def candidate_sigmas(r, W3, tau, mask, groups=None):
     bread = r.cov / r.sigma_rho ** 2
     out = {}
     for name, f in CANDIDATES.items():
-        cov = f(W3, tau, m, r.chi, w, bread, groups)
+        if (state is None and name.startswith("gp_")) or (only is not None and name not in only):
+            continue
+        cov = f(W3, tau, m, r.chi, w, bread, groups, state=state)
         out[name] = (cov, np.sqrt(np.maximum(np.diag(cov), 0.0)))
     return out
 
@@ -190,6 +299,14 @@ def segment_fits(obs, names, k, opt):
     return out
 
 
+def _agree(chis, sig, names):
+    """pairwise_agreement with the %sigma filter, and beside it ("all") over every parameter."""
+    from dynid.analysis.estimators.agreement import pairwise_agreement
+    out = pairwise_agreement(chis, sig, names=names)
+    out["all"] = pairwise_agreement(chis, sig, names=names, rel_max=np.inf)
+    return out
+
+
 def _width(sig, ref):
     """Median sigma / classic sigma over the runs' parameters."""
     r = np.concatenate([np.asarray(a) / np.asarray(b) for a, b in zip(sig, ref)])
@@ -204,7 +321,8 @@ def segment_candidates(obs, names, k):
     for m in segments(obs.n_samples, obs.row_mask, k):
         cols = ls.identifiable_columns(obs.W, m)
         r = ls.wls(obs.W[:, :, cols], obs.tau, [names[c] for c in cols], row_mask=m)
-        for cand, (_, sig) in candidate_sigmas(r, obs.W[:, :, cols], obs.tau, m).items():
+        for cand, (_, sig) in candidate_sigmas(r, obs.W[:, :, cols], obs.tau, m,
+                                               state=(obs.q, obs.qd, obs.qdd)).items():
             full = np.full(len(names), np.nan)
             full[cols] = sig
             out[cand].append(full)
@@ -233,7 +351,7 @@ def runs_of(dataset, panda_dir=None):
 
 def evaluate_segments(dataset, panda_dir=None):
     """One recording, its observation system built once, its k segments fitted alone."""
-    from dynid.analysis.estimators.agreement import agreement, agreement_verdict, pairwise_agreement
+    from dynid.analysis.estimators.agreement import agreement, agreement_verdict
     from dynid.analysis.estimators.idim import identify_idim
     robot, runs, settings = runs_of(dataset, panda_dir)
     exp = runs[0][1]
@@ -243,10 +361,10 @@ def evaluate_segments(dataset, panda_dir=None):
     rows, fits = {}, {}
     for opt in OPTIONS:
         fits[opt] = segment_fits(res.observation, names, k, opt)
-        rows[opt] = pairwise_agreement([f[0] for f in fits[opt]], [f[1] for f in fits[opt]], names=names)
+        rows[opt] = _agree([f[0] for f in fits[opt]], [f[1] for f in fits[opt]], names)
         rows[opt]["width"] = _width([f[1] for f in fits[opt]], [f[1] for f in fits["classic"]])
     for cand, sig in segment_candidates(res.observation, names, k).items():
-        rows[cand] = pairwise_agreement([f[0] for f in fits["classic"]], sig, names=names)
+        rows[cand] = _agree([f[0] for f in fits["classic"]], sig, names)
         rows[cand]["width"] = _width(sig, [f[1] for f in fits["classic"]])
     both = np.all([np.isfinite(f[0]) for f in fits["classic"]], axis=0)
     cl = fits["classic"]
@@ -258,7 +376,7 @@ def evaluate_segments(dataset, panda_dir=None):
 
 def evaluate(dataset, panda_dir=None):
     from dynid.analysis.estimators.agreement import agreement, agreement_verdict, pairwise_agreement
-    from dynid.analysis.estimators.idim import identify_idim
+    from dynid.analysis.estimators.idim import DEFAULT_UNCERTAINTY, identify_idim
     if dataset != "lwr4":
         return evaluate_segments(dataset, panda_dir)
     robot, runs, settings = runs_of(dataset, panda_dir)
@@ -274,7 +392,8 @@ def evaluate(dataset, panda_dir=None):
             names = list(r.base.names)
         ref = fits["classic"][-1]
         obs = ref.observation
-        for cand, (_, sig) in candidate_sigmas(ref.wls, obs.W, obs.tau, obs.row_mask).items():
+        for cand, (_, sig) in candidate_sigmas(ref.wls, obs.W, obs.tau, obs.row_mask,
+                                               state=(obs.q, obs.qd, obs.qdd)).items():
             cand_sig[cand].append(sig)
         a = fits["hac"][-1].agreement
         if a is not None:   # what this recording alone says about its own model error
@@ -292,7 +411,7 @@ def evaluate(dataset, panda_dir=None):
     for opt in OPTIONS:
         chis = [r.wls.chi for r in fits[opt]]
         sig = [r.wls.bse.to_numpy() for r in fits[opt]]
-        rows[opt] = pairwise_agreement(chis, sig, names=names)
+        rows[opt] = _agree(chis, sig, names)
         rows[opt]["width"] = _width(sig, [r.wls.bse.to_numpy() for r in fits["classic"]])
         if all(t is not None for t in tau2):
             rows[f"{opt}+segments"] = pairwise_agreement(
@@ -300,12 +419,23 @@ def evaluate(dataset, panda_dir=None):
             rows[f"{opt}+segments/K"] = pairwise_agreement(
                 chis, [np.sqrt(s**2 + t / N_SEG) for s, t in zip(sig, tau2)], names=names)
     for cand, sig in cand_sig.items():
-        rows[cand] = pairwise_agreement([r.wls.chi for r in fits["classic"]], sig, names=names)
+        rows[cand] = _agree([r.wls.chi for r in fits["classic"]], sig, names)
         rows[cand]["width"] = _width(sig, [r.wls.bse.to_numpy() for r in fits["classic"]])
     cl = fits["classic"]
     agr = agreement([r.wls.chi for r in cl], [r.wls.bse.to_numpy() for r in cl], [r.wls.cov for r in cl], names,
                     kind="recordings" if dataset == "lwr4" else "segments")
     print("\n".join(within))
+    # the parameters whose recording-3 estimate no option holds (issue 26): value +- sigma (%sigma) per run
+    sigs = {opt: [r.wls.bse.to_numpy() for r in fits[opt]] for opt in ("classic", DEFAULT_UNCERTAINTY)}
+    sigs.update({c: v for c, v in cand_sig.items() if c.startswith("gp_") and c.endswith("+bootstrap")})
+    for name in MISSES:
+        k = names.index(name)
+        for opt, sg in sigs.items():
+            zs = [f"{a + 1}-{b + 1} z {(cl[a].wls.chi[k] - cl[b].wls.chi[k]) / np.hypot(sg[a][k], sg[b][k]):+.2f}"
+                  for a, b in ((0, 1), (0, 2), (1, 2))]
+            print(f"  {name} {opt}: " + ", ".join(
+                f"{r.wls.chi[k]:+.3g} +- {s[k]:.2g} ({100 * s[k] / abs(r.wls.chi[k]):.0f} %)" for r, s in zip(cl, sg))
+                + "; " + ", ".join(zs))
     return rows, agr, agreement_verdict(agr), [label for label, _ in runs]
 
 
@@ -319,12 +449,14 @@ def main(argv=None):
     from dynid.analysis.estimators.idim import DEFAULT_UNCERTAINTY
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--no-panda", action="store_true")
+    ap.add_argument("--sets", default="lwr4,tx40,panda", help="comma-separated data sets (lwr4, tx40, panda)")
     ap.add_argument("--panda-data", default=None, help="Gaz et al.'s folder (default: the shared data folder)")
     a = ap.parse_args(argv)
     t0 = time.time()
-    sets = ["lwr4", "tx40"]
+    wanted = [x.strip() for x in a.sets.split(",") if x.strip()]
+    sets = [x for x in ("lwr4", "tx40") if x in wanted]
     panda_dir = a.panda_data
-    if not a.no_panda:
+    if not a.no_panda and "panda" in wanted:
         if panda_dir is None:
             for p in [ROOT, *ROOT.parents]:
                 if (p / "shared/data/franka-panda-gaz").is_dir():
@@ -336,7 +468,20 @@ def main(argv=None):
             print("Panda: data folder not found (pass --panda-data): skipped")
     out = {"default_uncertainty": DEFAULT_UNCERTAINTY}
     for ds in sets:
+        GP_INFO.clear()
         rows, agr, verdict, labels = evaluate(ds, panda_dir)
+        seen = set()
+        for g in GP_INFO:
+            key = (g["variant"], tuple(g["s2"]))
+            if key in seen:
+                continue
+            seen.add(key)
+            print(f"  discrepancy {', '.join(g['variant'])}: l/median distance "
+                  + " ".join(f"{v:.2f}" for v in g["lengthscale_rel"]) + "; noise AR(1) "
+                  + " ".join(f"{v:.2f}" for v in g["phi"]) + "; s/noise "
+                  + " ".join(f"{np.sqrt(a / b):.2f}" for a, b in zip(g["s2"], g["noise2"]))
+                  + (f"; at a grid bound on joints {[j + 1 for j, b in enumerate(g['at_bound']) if b]}"
+                     if any(g["at_bound"]) else ""))
         print(f"\n{ds}: {', '.join(labels)} each alone; per-joint WLS, pairs with %sigma <= 10 % in both runs")
         print(f"  {'sigma':<30}{'pairs':>6}{'within 95 %':>13}{'median |z|':>12}{'beyond 5':>10}"
               f"{'sigma/classic':>15}{'  >=90 % of >=16':>17}")
@@ -346,6 +491,26 @@ def main(argv=None):
             width = f"{r['width']:.2f}" if "width" in r else "-"
             print(f"  {opt + tag:<30}{r['pairs']:>6}{100 * r['within_95']:>12.0f}%{r['median_abs_z']:>12.2f}"
                   f"{100 * r['beyond_5']:>9.0f}%{width:>15}{'yes' if meets_bar(r) else 'no':>17}")
+        # the same sigmas judged on the classic's pairs, and on every parameter (no %sigma filter):
+        # whether the intervals hold the differences where the classic sigma calls them identified
+        ref = {(z["a"], z["b"], z["name"]) for z in rows["classic"]["z"]}
+        print(f"  {'sigma':<30}{'on the classic pairs':>22}{'median |z|':>12}{'all parameters':>16}{'median |z|':>12}"
+              f"{'  classic pairs with %sigma <= 10 % in both':>44}")
+        for opt, r in rows.items():
+            if "all" not in r:
+                continue
+            on = [abs(z["z"]) for z in r["all"]["z"] if (z["a"], z["b"], z["name"]) in ref]
+            al = r["all"]
+            kept = len({(z["a"], z["b"], z["name"]) for z in r["z"]} & ref)
+            on_txt = f"{100 * np.mean(np.array(on) <= 1.96):.0f}% of {len(on)}"
+            all_txt = f"{100 * al['within_95']:.0f}% of {al['pairs']}"
+            print(f"  {opt:<30}{on_txt:>22}{np.median(on):>12.2f}{all_txt:>16}{al['median_abs_z']:>12.2f}{kept:>44}")
+        for opt, r in rows.items():
+            if opt.startswith("gp_") or opt == DEFAULT_UNCERTAINTY:
+                miss = [f"{z['a'] + 1}-{z['b'] + 1} {z['name']} {z['z']:+.1f}"
+                        for z in r["z"] if abs(z["z"]) > 1.96]
+                ins = sorted({z["name"] for z in r["z"]})
+                print(f"  {opt}: pairs on {', '.join(ins)}; beyond 1.96: {', '.join(miss) or 'none'}")
         if ds == "lwr4":
             out["lwr4_bar_met_by"] = [opt for opt, r in rows.items() if meets_bar(r)]
         print(f"  verdict (classic): {verdict}")
