@@ -20,6 +20,7 @@ by chunk when asked for.
 """
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -98,9 +99,16 @@ class EffectObservation:
 
     # ------------------------------------------------------------- decimation
     def _decimator(self):
-        s = self.settings
-        return ParallelDecimator(int(s["nd"]), n_samples_total=self.n_full, fs=self.fs,
-                                 cutoff=s["f_decimation_cutoff"])
+        """A fresh `ParallelDecimator` of this recording: a copy of one designed once per
+        observation (the filter design, a Kaiser FIR per candidate split of nd, cost more than
+        decimating a few columns, and the diagnosis asks for some 60)."""
+        template = self.__dict__.get("_decimator_template")
+        if template is None:
+            s = self.settings
+            template = ParallelDecimator(int(s["nd"]), n_samples_total=self.n_full, fs=self.fs,
+                                         cutoff=s["f_decimation_cutoff"])
+            self.__dict__["_decimator_template"] = template
+        return copy.deepcopy(template)
 
     def decimate(self, columns, joint=None):
         """Decimated version of full-rate columns, with the dead zone and decimation of W.
