@@ -246,7 +246,8 @@ class EffectObservation:
         keep = None if self.dead is None else (~self.dead)[:, :, None].astype(float)
         # (without the cached regressor, `source` builds the rows: one call per chunk)
         sub = max(1, _SUB_BYTES // max(1, 8 * n * k)) if self.W_full is not None else CHUNK
-        D = _shift_and_decimate(source, N, (n, k), si, frac, None if keep is None else lambda a, b: keep[a:b],
+        D = _shift_and_decimate(source, N, (n, k), si, frac,
+                                None if keep is None else lambda out, src, a, b: np.multiply(src, keep[a:b], out=out),
                                 dec, sub)
         return D.reshape(D.shape[0], n, k)
 
@@ -290,11 +291,19 @@ class EffectObservation:
                 return Wp[a:b, pick]
             return Wp[np.clip(np.arange(a, b), 0, N - 1)][:, pick]
 
+        # the pairs come joint by joint (sel is sorted): each joint's dead zone multiplies its
+        # run of columns in place of a gathered (rows, pairs) copy of the dead zone
+        cuts = np.flatnonzero(np.diff(joint)) + 1
+        runs = [(int(a), int(b), int(joint[a])) for a, b in zip(np.r_[0, cuts], np.r_[cuts, joint.size])]
+
+        def zero_dead(out, src, a, b):
+            for lo, hi, j in runs:
+                np.multiply(src[:, lo:hi], keep[a:b, j:j + 1], out=out[:, lo:hi])
+
         nd = int(self.settings["nd"])
         dec = self._decimator() if nd > 1 else None
         m = sel.size
-        D = _shift_and_decimate(source, N, (m,), si, frac,
-                                None if keep is None else lambda a, b: keep[a:b][:, joint],
+        D = _shift_and_decimate(source, N, (m,), si, frac, None if keep is None else zero_dead,
                                 dec, max(1, _SUB_BYTES // max(1, 8 * m)))
         out = np.zeros((D.shape[0], n * k))
         out[:, sel] = D
@@ -425,8 +434,9 @@ def observe_effects(experiment, robot, bp, settings=None, *, cache_regressor="au
 
 def _shift_and_decimate(source, N, tail, si, frac, keep, dec, sub):
     """Rows `source(a - si, b - si)` delayed by a further `frac` sample (linear interpolation
-    between neighbours), times `keep(a, b)` where given (the velocity dead zone), decimated by
-    `dec` (None: kept at full rate): (M, prod(tail)).
+    between neighbours), zeroed in the velocity dead zone by `keep(out, src, a, b)` where given
+    (`out = src * keep` of rows a..b-1, `src` may be `out`), decimated by `dec` (None: kept at
+    full rate): (M, prod(tail)).
 
     Two chunk buffers serve the whole pass: a fresh 50 MB array per chunk and delay costs
     more in page faults than in arithmetic (the decimator copies what it keeps). The
@@ -446,9 +456,9 @@ def _shift_and_decimate(source, N, tail, si, frac, keep, dec, sub):
                 np.multiply(source(a - si, b - si), 1.0 - frac, out=Cs)
                 Cs += np.multiply(source(a - si - 1, b - si - 1), frac, out=tmp[:b - a])
                 if keep is not None:
-                    Cs *= keep(a, b)
+                    keep(Cs, Cs, a, b)
             elif keep is not None:
-                np.multiply(source(a - si, b - si), keep(a, b), out=Cs)
+                keep(Cs, source(a - si, b - si), a, b)
             else:
                 Cs[...] = source(a - si, b - si)   # may be a view of the cached regressor: never scaled in place
         C = C.reshape(stop - start, -1)
