@@ -304,7 +304,8 @@ class EffectObservation:
         dec = self._decimator() if nd > 1 else None
         m = sel.size
         D = _shift_and_decimate(source, N, (m,), si, frac, None if keep is None else zero_dead,
-                                dec, max(1, _SUB_BYTES // max(1, 8 * m)))
+                                dec, max(1, _SUB_BYTES // max(1, 8 * m)),
+                                buffers=self.__dict__.setdefault("_shift_buffers", {}))
         out = np.zeros((D.shape[0], n * k))
         out[:, sel] = D
         return out.reshape(D.shape[0], n, k)
@@ -432,7 +433,7 @@ def observe_effects(experiment, robot, bp, settings=None, *, cache_regressor="au
                              bp=bp, source=str(experiment.source), W_full=W_full, notices=notices)
 
 
-def _shift_and_decimate(source, N, tail, si, frac, keep, dec, sub):
+def _shift_and_decimate(source, N, tail, si, frac, keep, dec, sub, buffers=None):
     """Rows `source(a - si, b - si)` delayed by a further `frac` sample (linear interpolation
     between neighbours), zeroed in the velocity dead zone by `keep(out, src, a, b)` where given
     (`out = src * keep` of rows a..b-1, `src` may be `out`), decimated by `dec` (None: kept at
@@ -441,10 +442,20 @@ def _shift_and_decimate(source, N, tail, si, frac, keep, dec, sub):
     Two chunk buffers serve the whole pass: a fresh 50 MB array per chunk and delay costs
     more in page faults than in arithmetic (the decimator copies what it keeps). The
     arithmetic runs on sub-blocks of `sub` rows that stay in the cache: one pass over memory,
-    not four, with the same operations in the same order, so the same numbers.
+    not four, with the same operations in the same order, so the same numbers. `buffers`: a
+    dict that keeps the two buffers for the next call (the delay grid shifts the same columns
+    14 times per step: one allocation, not 14).
     """
-    buf = np.empty((min(N, CHUNK), *tail))
-    tmp = np.empty((min(N, sub), *tail)) if frac else None
+    buffers = {} if buffers is None else buffers
+    key = (min(N, CHUNK), *tail)
+    buf = buffers.get(key)
+    if buf is None:
+        buf = buffers[key] = np.empty(key)
+    tmp = None
+    if frac:
+        tmp = buffers.get(("tmp", sub, *tail))
+        if tmp is None:
+            tmp = buffers[("tmp", sub, *tail)] = np.empty((min(N, sub), *tail))
     parts = []
     for start in range(0, N, CHUNK):
         stop = min(N, start + CHUNK)
