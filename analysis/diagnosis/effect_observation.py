@@ -20,6 +20,7 @@ by chunk when asked for.
 """
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -98,9 +99,16 @@ class EffectObservation:
 
     # ------------------------------------------------------------- decimation
     def _decimator(self):
-        s = self.settings
-        return ParallelDecimator(int(s["nd"]), n_samples_total=self.n_full, fs=self.fs,
-                                 cutoff=s["f_decimation_cutoff"])
+        """A fresh `ParallelDecimator` of this recording: a copy of one designed once per
+        observation (the filter design, a Kaiser FIR per candidate split of nd, cost more than
+        decimating a few columns, and the diagnosis asks for some 60)."""
+        template = self.__dict__.get("_decimator_template")
+        if template is None:
+            s = self.settings
+            template = ParallelDecimator(int(s["nd"]), n_samples_total=self.n_full, fs=self.fs,
+                                         cutoff=s["f_decimation_cutoff"])
+            self.__dict__["_decimator_template"] = template
+        return copy.deepcopy(template)
 
     def decimate(self, columns, joint=None):
         """Decimated version of full-rate columns, with the dead zone and decimation of W.
@@ -238,7 +246,8 @@ class EffectObservation:
         keep = None if self.dead is None else (~self.dead)[:, :, None].astype(float)
         # (without the cached regressor, `source` builds the rows: one call per chunk)
         sub = max(1, _SUB_BYTES // max(1, 8 * n * k)) if self.W_full is not None else CHUNK
-        D = _shift_and_decimate(source, N, (n, k), si, frac, None if keep is None else lambda a, b: keep[a:b],
+        D = _shift_and_decimate(source, N, (n, k), si, frac,
+                                None if keep is None else lambda out, src, a, b: np.multiply(src, keep[a:b], out=out),
                                 dec, sub)
         return D.reshape(D.shape[0], n, k)
 
@@ -282,12 +291,21 @@ class EffectObservation:
                 return Wp[a:b, pick]
             return Wp[np.clip(np.arange(a, b), 0, N - 1)][:, pick]
 
+        # the pairs come joint by joint (sel is sorted): each joint's dead zone multiplies its
+        # run of columns in place of a gathered (rows, pairs) copy of the dead zone
+        cuts = np.flatnonzero(np.diff(joint)) + 1
+        runs = [(int(a), int(b), int(joint[a])) for a, b in zip(np.r_[0, cuts], np.r_[cuts, joint.size])]
+
+        def zero_dead(out, src, a, b):
+            for lo, hi, j in runs:
+                np.multiply(src[:, lo:hi], keep[a:b, j:j + 1], out=out[:, lo:hi])
+
         nd = int(self.settings["nd"])
         dec = self._decimator() if nd > 1 else None
         m = sel.size
-        D = _shift_and_decimate(source, N, (m,), si, frac,
-                                None if keep is None else lambda a, b: keep[a:b][:, joint],
-                                dec, max(1, _SUB_BYTES // max(1, 8 * m)))
+        D = _shift_and_decimate(source, N, (m,), si, frac, None if keep is None else zero_dead,
+                                dec, max(1, _SUB_BYTES // max(1, 8 * m)),
+                                buffers=self.__dict__.setdefault("_shift_buffers", {}))
         out = np.zeros((D.shape[0], n * k))
         out[:, sel] = D
         return out.reshape(D.shape[0], n, k)
@@ -415,18 +433,29 @@ def observe_effects(experiment, robot, bp, settings=None, *, cache_regressor="au
                              bp=bp, source=str(experiment.source), W_full=W_full, notices=notices)
 
 
-def _shift_and_decimate(source, N, tail, si, frac, keep, dec, sub):
+def _shift_and_decimate(source, N, tail, si, frac, keep, dec, sub, buffers=None):
     """Rows `source(a - si, b - si)` delayed by a further `frac` sample (linear interpolation
-    between neighbours), times `keep(a, b)` where given (the velocity dead zone), decimated by
-    `dec` (None: kept at full rate): (M, prod(tail)).
+    between neighbours), zeroed in the velocity dead zone by `keep(out, src, a, b)` where given
+    (`out = src * keep` of rows a..b-1, `src` may be `out`), decimated by `dec` (None: kept at
+    full rate): (M, prod(tail)).
 
     Two chunk buffers serve the whole pass: a fresh 50 MB array per chunk and delay costs
     more in page faults than in arithmetic (the decimator copies what it keeps). The
     arithmetic runs on sub-blocks of `sub` rows that stay in the cache: one pass over memory,
-    not four, with the same operations in the same order, so the same numbers.
+    not four, with the same operations in the same order, so the same numbers. `buffers`: a
+    dict that keeps the two buffers for the next call (the delay grid shifts the same columns
+    14 times per step: one allocation, not 14).
     """
-    buf = np.empty((min(N, CHUNK), *tail))
-    tmp = np.empty((min(N, sub), *tail)) if frac else None
+    buffers = {} if buffers is None else buffers
+    key = (min(N, CHUNK), *tail)
+    buf = buffers.get(key)
+    if buf is None:
+        buf = buffers[key] = np.empty(key)
+    tmp = None
+    if frac:
+        tmp = buffers.get(("tmp", sub, *tail))
+        if tmp is None:
+            tmp = buffers[("tmp", sub, *tail)] = np.empty((min(N, sub), *tail))
     parts = []
     for start in range(0, N, CHUNK):
         stop = min(N, start + CHUNK)
@@ -438,9 +467,9 @@ def _shift_and_decimate(source, N, tail, si, frac, keep, dec, sub):
                 np.multiply(source(a - si, b - si), 1.0 - frac, out=Cs)
                 Cs += np.multiply(source(a - si - 1, b - si - 1), frac, out=tmp[:b - a])
                 if keep is not None:
-                    Cs *= keep(a, b)
+                    keep(Cs, Cs, a, b)
             elif keep is not None:
-                np.multiply(source(a - si, b - si), keep(a, b), out=Cs)
+                keep(Cs, source(a - si, b - si), a, b)
             else:
                 Cs[...] = source(a - si, b - si)   # may be a view of the cached regressor: never scaled in place
         C = C.reshape(stop - start, -1)

@@ -291,7 +291,8 @@ def physical_effects(eobs, X, Y, mask, n_base, chi, robot, *, weights, alpha=0.0
         info = 0.5 * (info + info.T)
         eps = 1e-10 * max(float(np.max(np.diag(info))), 1e-300)
         cov = np.linalg.inv(info + eps * np.eye(nb))
-        pc = pc_wls(robot, bp, coef[:nb], 0.5 * (cov + cov.T), n_boot=0)
+        # the fit alone: whether the unconstrained estimate is physical (a second SDP) is not used
+        pc = pc_wls(robot, bp, coef[:nb], 0.5 * (cov + cov.T), n_boot=0, check_wls=False)
         beta = np.asarray(pc.chi, float)
         # the other columns (effects, candidate) given the physical base parameters
         rest, *_ = np.linalg.lstsq(Aa[:, nb:], y - Aa[:, :nb] @ beta, rcond=None) if Aa.shape[1] > nb \

@@ -9,7 +9,7 @@ from scipy import stats
 
 from dynid.analysis.diagnosis.effects import EFFECT_NAMES, Candidate
 from dynid.analysis.diagnosis.results import RankedEffect, fmt_p
-from dynid.analysis.diagnosis.scoring import chi2_logsf, lr_statistics
+from dynid.analysis.diagnosis.scoring import chi2_logsf, chi2_logsf_many, lr_statistics
 
 __all__ = ["RULE", "group_key", "passes_rule", "rank_candidates", "cand_needs_guard", "by_base_evidence",
            "set_runner_up"]
@@ -77,8 +77,8 @@ def rank_candidates(pool, scores, scorer, step, alpha, folds):
     # rank by the evidence: the LR test's chi2_k tail (log, so that huge LRs stay ordered),
     # then the held-out gain; not by the relative CV gain (a per-joint relative gain favours
     # effects on quiet joints and candidates whose baseline differs, e.g. time_delay's)
-    for e, lr_i, k_i in zip(entries, lr, k, strict=True):
-        e._logsf = chi2_logsf(lr_i, k_i)
+    for e, v in zip(entries, chi2_logsf_many(lr, k), strict=True):
+        e._logsf = float(v)
     entries.sort(key=lambda e: (round(e._logsf, 9), -round(e.cv_gain, 12), e.candidate.n_params,
                                 order_index[e.name]))
     # best per group

@@ -15,6 +15,7 @@ from dynid.analysis.statistics.residuals import effective_sample_size
 from dynid.threads import with_single_blas_thread
 
 __all__ = ["ALIAS_RTOL", "Scorer", "lr_statistics", "weighted_sse", "shift_scores", "chi2_logsf",
+           "chi2_logsf_many",
            "new_columns", "independent_columns"]
 
 #: Column tolerance of the rank check: a candidate column whose part outside the
@@ -205,6 +206,19 @@ def chi2_logsf(x, k):
     a = 0.5 * float(k)
     return (a - 1.0) * math.log(0.5 * x) - 0.5 * x - math.lgamma(a)
 
+
+
+def chi2_logsf_many(x, k):
+    """`chi2_logsf` of each (x_i, k_i), in one call to scipy (the per-candidate calls of a
+    selection step cost more than its LR statistics); the same values, element by element."""
+    x = np.asarray(x, dtype=float)
+    k = np.asarray(k)
+    if x.size == 0:
+        return np.zeros(0)
+    v = np.asarray(stats.chi2.logsf(x, k), dtype=float).reshape(x.shape)
+    for i in np.flatnonzero(~np.isfinite(v) & (x > 0)):
+        v[i] = chi2_logsf(x[i], k[i])
+    return v
 
 
 def new_columns(X, C, mask, weights):

@@ -161,6 +161,7 @@ from dynid.analysis.estimators.physical import require_cvxpy
 from dynid.analysis.processing.decimation import DecimationFilter
 from dynid.dynamics.base_parameters import base_parameters
 from dynid.errors import DataError, DynidError, InputError
+from dynid.threads import single_blas_thread
 
 __all__ = ["diagnose", "run_diagnosis", "DiagnosisSettings", "DiagnosisResult", "RankedEffect",
            "SelectedEffect", "DiagnosisStep", "without_parameters", "identify_from_observation",
@@ -283,6 +284,15 @@ def run_diagnosis(experiment, robot, opts=None, *, validation=None, idim_result=
         raise InputError("diagnose takes one recording (and one validation recording): the "
                          "drift and time-delay effects are defined per recording")
     opts = (opts or DiagnosisSettings()).checked()
+    # one BLAS thread for the whole diagnosis, not only its scoring: its dense problems are
+    # tall and thin (hundreds of QRs and fits of a few thousand rows), where a second
+    # OpenBLAS thread spins on a busy machine without speeding anything up (dynid.threads)
+    with single_blas_thread():
+        return _run(experiment, robot, opts, validation, idim_result, progress, observation)
+
+
+def _run(experiment, robot, opts, validation, idim_result, progress, observation):
+    """`run_diagnosis` with checked settings, inside one BLAS thread."""
     stage = _Progress(progress)
     setup = prepare(experiment, robot, opts, validation=validation, idim_result=idim_result,
                     observation=observation)

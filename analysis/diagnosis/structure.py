@@ -125,6 +125,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
+from dynid.analysis.diagnosis.permuted_bins import permuted_bins
 from dynid.analysis.processing.decimation import ParallelDecimator
 from dynid.analysis.processing.observation import CHUNK, full_rate
 from dynid.analysis.statistics.residuals import effective_sample_size
@@ -397,32 +398,19 @@ def _perm_power(gi, y, L, n_perm, rng):
     """Mean over `n_perm` block permutations p (`_block_perms(y.size, L, n_perm, rng)`: the same
     draws) of `_position_power(gi, y[p])` (FFTs batched).
 
-    The permuted residuals are gathered block by block from y cut into rows of L, a batch at
-    a time (the orders as sample indices, n_perm x N integers, are never built: at the full
-    rate that was most of the structure tests' time); the same values as y[p], so the
-    same sums.
+    The permuted residuals are binned on the position grid in one compiled pass per batch
+    (`permuted_bins`: neither the orders as sample indices, n_perm x N integers, nor the
+    permuted copies are built; at the full rate those were most of the structure tests'
+    time); the same sums as `np.bincount(gi, weights=y[p])`, bit for bit.
     """
     n = y.size
     nb = int(math.ceil(n / L))
     perms = np.array([rng.permutation(nb) for _ in range(n_perm)], dtype=np.intp).reshape(n_perm, nb)
-    short = n - (nb - 1) * L               # samples of the last block, which keeps its order
-    Yb = np.zeros(nb * L)
-    Yb[:n] = y
-    Yb = Yb.reshape(nb, L)
     total = np.zeros(GRID + 1)
     binned = np.empty((_BATCH, GRID))
     for a in range(0, n_perm, _BATCH):
-        P = perms[a:a + _BATCH]
-        B = len(P)
-        G = Yb[P]                           # (B, nb, L)
-        if short < L:
-            keep = np.ones(G.shape, dtype=bool)
-            keep[np.arange(B), np.argmax(P == nb - 1, axis=1), short:] = False
-            G = G[keep].reshape(B, n)
-        else:
-            G = G.reshape(B, n)
-        for i in range(B):
-            binned[i] = np.bincount(gi, weights=G[i], minlength=GRID)
+        B = len(perms[a:a + _BATCH])
+        permuted_bins(y, gi, perms[a:a + _BATCH], L, GRID, out=binned)
         power = np.abs(np.fft.rfft(binned[:B], 2 * GRID, axis=1)) ** 2
         for row in power:                # the same running sum as np.mean over the rows
             total += row

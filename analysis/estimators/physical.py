@@ -398,7 +398,8 @@ class PhysicalResult(ParameterResults):
 
 
 def pc_wls(robot, bp, beta_wls, cov_wls, *, prior=None, prior_weight=1.0, mass_tolerance=None,
-           n_boot=100, seed=0, apriori=None, interval_cov=None, uncertainty="classic") -> PhysicalResult:
+           n_boot=100, seed=0, apriori=None, interval_cov=None, uncertainty="classic",
+           check_wls=True) -> PhysicalResult:
     """PC-WLS from an unconstrained WLS estimate `beta_wls` (b,) and its covariance (b, b).
 
     `prior`: None (a-priori values only break ties), `"apriori"` (add
@@ -417,6 +418,9 @@ def pc_wls(robot, bp, beta_wls, cov_wls, *, prior=None, prior_weight=1.0, mass_t
     independent TX40 plant with AR(1) noise and a ripple (benchmarks/coverage_independent.py,
     held-out seeds 4000-4099) the 95 % intervals cover 88.0 % drawn from the classic
     covariance and 95.8 % from the block bootstrap's (1.38 times the classic WLS width).
+    `check_wls`: also test whether some rigid body has the unconstrained estimate (a second
+    SDP, `wls_consistent`); False skips it (`wls_consistent` None, the fit itself unchanged),
+    for callers that use only the fit (the residual diagnosis' physical test).
     """
     if prior not in PRIORS:
         raise InputError(f"prior must be one of None, 'apriori' (Euclidean) or 'geometric' (Lee, Wensing & "
@@ -482,7 +486,7 @@ def pc_wls(robot, bp, beta_wls, cov_wls, *, prior=None, prior_weight=1.0, mass_t
     if uncertainty != "classic":
         notices.append(f"sigma and intervals: the bootstrap draws from the {uncertainty} covariance of the "
                        "WLS estimate (its metric stays the classic eq. (14), so the estimate does not move)")
-    wls_std = _wls_standard_consistent(robot, bp, beta_wls)
+    wls_std = _wls_standard_consistent(robot, bp, beta_wls) if check_wls else None
     if wls_std is False:
         notices.append("the unconstrained WLS base parameters are those of no rigid body "
                        "(no consistent standard set reproduces them)")

@@ -168,3 +168,22 @@ def test_small_pages_inside_the_diagnosis_and_restored_after(monkeypatch):
             assert mm._set_madvise_hugepage(True) is True
     finally:
         mm._set_madvise_hugepage(start)
+
+
+def test_pc_wls_without_the_consistency_check_is_the_same_fit():
+    # the diagnosis' physical test asks pc_wls for the fit alone (check_wls=False): the same
+    # estimate, chi2, p and active constraints as the full call, only wls_consistent left out
+    pytest.importorskip("cvxpy")
+    import bias_scenarios as bs
+
+    from dynid.analysis.estimators.physical import pc_wls
+    robot, bp, _, beta = bs.pendulum()
+    b = beta.copy()
+    b[bp.names.index("ZZ1R")] = -0.05          # no rigid body: a constraint is active
+    cov = np.diag((np.abs(beta) * 0.01 + 1e-3) ** 2)
+    full = pc_wls(robot, bp, b, cov, n_boot=0)
+    fit = pc_wls(robot, bp, b, cov, n_boot=0, check_wls=False)
+    assert full.wls_consistent is False and fit.wls_consistent is None
+    assert np.array_equal(fit.chi, full.chi) and np.array_equal(fit.standard, full.standard)
+    assert (fit.chi2, fit.p_value, fit.dof, fit.active) == (full.chi2, full.p_value, full.dof, full.active)
+    assert fit.p_value < 1e-3
