@@ -29,7 +29,10 @@ from markupsafe import Markup, escape
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.backends.backend_svg import FigureCanvasSVG
 from matplotlib.figure import Figure
+from matplotlib.layout_engine import ConstrainedLayoutEngine
 from matplotlib.ticker import LogLocator, NullFormatter
+
+from dynid.reports.figure_layout import GridLayoutEngine, thin_crowded_ticks
 
 __all__ = [
     "FigureMarkup", "MAX_POINTS", "SVG_MAX_VERTICES", "RED", "BLUE",
@@ -186,62 +189,22 @@ def _labels_overlap(axis, renderer, pad=2.0) -> bool:
     return any(b.x0 < a.x1 + pad for a, b in zip(boxes, boxes[1:]))
 
 
-def _labels_clearly_fit(ax, renderer, fig, pad=2.0, shrink=0.5) -> bool:
-    """Whether the x tick labels of `ax` fit even if the layout shrinks the panel to `shrink`
-    of its width before layout.
-
-    Measures the label texts the locator and formatter give, without a layout pass (the
-    expensive part of a figure: most panels have short labels, 0 2 4 6 8, and need no pass).
-    """
-    lo, hi = sorted(ax.get_xlim())
-    if not hi > lo:
-        return False
-    span = (hi - lo) * 1e-9
-    locs = [v for v in ax.xaxis.get_major_locator()() if lo - span <= v <= hi + span]
-    if len(locs) < 2:
-        return True
-    texts = ax.xaxis.get_major_formatter().format_ticks(locs)
-    prop = ax.xaxis.get_major_ticks()[0].label1.get_fontproperties()
-    widths = [renderer.get_text_width_height_descent(t, prop, ismath=False)[0] if t else 0.0 for t in texts]
-    px_per_x = shrink * ax.get_position().width * fig.get_figwidth() * fig.dpi / (hi - lo)
-    return all(0.5 * (wa + wb) + pad < (b - a) * px_per_x
-               for a, b, wa, wb in zip(locs, locs[1:], widths, widths[1:]))
+def thin_overlapping_ticks(fig) -> None:
+    """Fewer numeric x ticks on every narrow axes whose x tick labels overlap, at the axes'
+    current positions (dynid.reports.figure_layout.thin_crowded_ticks; figures laid out by
+    `render_figure` are thinned by their layout engine)."""
+    thin_crowded_ticks(fig, FigureCanvasAgg(fig).get_renderer())
 
 
-def thin_overlapping_ticks(fig, min_bins: int = 2, max_width_in: float = 4.0) -> None:
-    """Fewer numeric x ticks on every narrow axes whose x tick labels overlap.
-
-    Narrow panels (one per joint, a few centimetres wide) with long tick labels
-    (-0.00025) run the labels into each other. The ticks are thinned (automatic locators
-    only: named ticks such as parameter names are kept); labels still overlapping at two
-    ticks are slanted.
-    """
-    from matplotlib.ticker import AutoLocator, MaxNLocator
-    # only narrow panels crowd (a full-width plot is left alone, and costs no extra layout pass)
-    axes = [ax for ax in fig.get_axes() if ax.get_visible()
-            and ax.get_position().width * fig.get_figwidth() < max_width_in
-            and isinstance(ax.xaxis.get_major_locator(), (AutoLocator, MaxNLocator))]
-    if not axes:
-        return
-    FigureCanvasAgg(fig)
-    renderer = fig.canvas.get_renderer()
-    if all(_labels_clearly_fit(ax, renderer, fig) for ax in axes):
-        return
-    fig.draw_without_rendering()
-    for nbins in (5, 4, 3, min_bins, None):
-        crowded = [ax for ax in axes if _labels_overlap(ax.xaxis, renderer)]
-        if not crowded:
-            return
-        if nbins is None:                     # long labels even at two ticks: slant them
-            for ax in crowded:
-                ax.tick_params(axis="x", labelrotation=35)
-                for label in ax.xaxis.get_ticklabels():
-                    label.set_horizontalalignment("right")
-                    label.set_rotation_mode("anchor")
-            return
-        for ax in crowded:
-            ax.xaxis.set_major_locator(MaxNLocator(nbins=nbins, steps=[1, 2, 2.5, 5, 10]))
-        fig.draw_without_rendering()          # one layout pass for all the thinned axes
+def _grid_layout(fig) -> None:
+    """Lay `fig` out in one pass: a constrained layout becomes the equivalent GridLayoutEngine
+    (which also thins crowded ticks); a figure placed by hand has its crowded ticks thinned."""
+    engine = fig.get_layout_engine()
+    if (isinstance(engine, ConstrainedLayoutEngine) and not getattr(engine, "_compress", False)
+            and tuple(engine.get()["rect"]) == (0, 0, 1, 1)):
+        fig.set_layout_engine(GridLayoutEngine.like(engine))
+    elif not isinstance(engine, (GridLayoutEngine, ConstrainedLayoutEngine)):
+        thin_overlapping_ticks(fig)
 
 
 def render_figure(fig, key: str, caption: str, *, fmt: str = "auto") -> FigureMarkup:
@@ -253,7 +216,7 @@ def render_figure(fig, key: str, caption: str, *, fmt: str = "auto") -> FigureMa
         The figure as trusted HTML, with its key and caption; x tick labels that
         would overlap are thinned first.
     """
-    thin_overlapping_ticks(fig)
+    _grid_layout(fig)
     if fmt == "auto":
         fmt = "png" if _count_vertices(fig) > SVG_MAX_VERTICES else "svg"
     label = escape(caption)
