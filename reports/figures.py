@@ -28,6 +28,7 @@ import numpy as np
 from markupsafe import Markup, escape
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.backends.backend_svg import FigureCanvasSVG
+from matplotlib.collections import PolyCollection
 from matplotlib.figure import Figure
 from matplotlib.layout_engine import ConstrainedLayoutEngine
 from matplotlib.ticker import LogLocator, NullFormatter
@@ -272,6 +273,18 @@ def _excluded_spans(t, excluded):
     return spans
 
 
+def _shade(ax, spans, label):
+    """Grey bands over the full height of `ax` on the time `spans`: one collection, one legend
+    entry (a dead zone has hundreds of spans; one artist each would cost more than the curves)."""
+    if not spans:
+        return
+    verts = [[(a, 0.0), (a, 1.0), (b, 1.0), (b, 0.0)] for a, b in spans]
+    ax.add_collection(PolyCollection(verts, facecolors=EXCLUDED_COLOR, edgecolors="none", linewidths=0,
+                                     zorder=0, label=label, transform=ax.get_xaxis_transform()),
+                      autolim=False)
+    ax.update_datalim([(spans[0][0], 0.0), (spans[-1][1], 0.0)], updatey=False)
+
+
 def torque_figure(t, measured, estimated, joint_names, *, key="fig-torque", caption=None,
                   fmt="auto", ylabel="torque [N m]", labels=("measured", "estimated"), mask=None,
                   shade=None, shade_label="velocity dead zone"):
@@ -301,14 +314,10 @@ def torque_figure(t, measured, estimated, joint_names, *, key="fig-torque", capt
             excl = ~np.isfinite(measured[:, j])
             if shade is not None and not excl.any():
                 sh = np.broadcast_to(np.asarray(shade, dtype=bool), measured.shape)[:, j]
-                for k, (a, b) in enumerate(_excluded_spans(t, sh)):
-                    ax.axvspan(a, b, color=EXCLUDED_COLOR, lw=0, zorder=0,
-                               label=shade_label if k == 0 else None)
+                _shade(ax, _excluded_spans(t, sh), shade_label)
             if excl.any():
                 any_excluded = True
-                for k, (a, b) in enumerate(_excluded_spans(t, excl)):
-                    ax.axvspan(a, b, color=EXCLUDED_COLOR, lw=0, zorder=0,
-                               label="excluded (not measured here)" if k == 0 else None)
+                _shade(ax, _excluded_spans(t, excl), "excluded (not measured here)")
             ax.plot(t[idx], measured[idx, j], color=RED, lw=0.9, label=labels[0])
             ax.plot(t[idx], estimated[idx, j], color=BLUE, lw=0.8, label=labels[1])
             ax.set_title(_plain(joint_label(j, joint_names[j])), loc="left")
