@@ -14,6 +14,11 @@ string the report embeds directly:
 
 Time series with more than `MAX_POINTS` samples are decimated for
 plotting only (every k-th sample); the caption says so.
+
+A figure made with `layout="constrained"` is laid out by
+dynid.reports.figure_layout.GridLayoutEngine when rendered: the same placement for
+a grid of panels, measured once instead of twice, with the crowded x ticks of narrow
+panels thinned at their final size.
 """
 from __future__ import annotations
 
