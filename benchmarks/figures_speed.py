@@ -43,7 +43,7 @@ def figures(seed=0):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--repeats", type=int, default=5)
     args = ap.parse_args(argv)
     grid_layout = F._grid_layout
     runs = {"grid": grid_layout, "constrained": lambda fig: None}   # None: keep matplotlib's engine
