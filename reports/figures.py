@@ -262,20 +262,17 @@ def masked(values, mask):
 
 
 def _excluded_spans(t, excluded):
-    """(start, end) time spans of consecutive excluded samples."""
-    spans = []
-    k, n = 0, len(excluded)
-    while k < n:
-        if excluded[k]:
-            s0 = k
-            while k < n and excluded[k]:
-                k += 1
-            lo = t[s0 - 1] if s0 > 0 else t[s0]
-            hi = t[k] if k < n else t[k - 1]
-            spans.append((0.5 * (lo + t[s0]), 0.5 * (hi + t[k - 1])))
-        else:
-            k += 1
-    return spans
+    """(start, end) time spans of consecutive excluded samples, each edge halfway to the
+    neighbouring kept sample (the first and last sample: the edge is the sample itself)."""
+    t = np.asarray(t, dtype=float)
+    ex = np.asarray(excluded, dtype=bool)
+    n = ex.size
+    edges = np.diff(np.concatenate([[False], ex, [False]]).astype(np.int8))
+    first = np.flatnonzero(edges == 1)                 # first excluded sample of each run
+    end = np.flatnonzero(edges == -1)                  # one past its last
+    lo = np.where(first > 0, t[np.maximum(first - 1, 0)], t[first])
+    hi = np.where(end < n, t[np.minimum(end, n - 1)], t[end - 1])
+    return list(zip((0.5 * (lo + t[first])).tolist(), (0.5 * (hi + t[end - 1])).tolist()))
 
 
 def _shade(ax, spans, label):
