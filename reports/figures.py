@@ -14,6 +14,11 @@ string the report embeds directly:
 
 Time series with more than `MAX_POINTS` samples are decimated for
 plotting only (every k-th sample); the caption says so.
+
+A figure made with `layout="constrained"` is laid out by
+dynid.reports.figure_layout.GridLayoutEngine when rendered: the same placement for
+a grid of panels, measured once instead of twice, with the crowded x ticks of narrow
+panels thinned at their final size.
 """
 from __future__ import annotations
 
@@ -28,8 +33,12 @@ import numpy as np
 from markupsafe import Markup, escape
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.backends.backend_svg import FigureCanvasSVG
+from matplotlib.collections import PolyCollection
 from matplotlib.figure import Figure
+from matplotlib.layout_engine import ConstrainedLayoutEngine
 from matplotlib.ticker import LogLocator, NullFormatter
+
+from dynid.reports.figure_layout import GridLayoutEngine, thin_crowded_ticks
 
 __all__ = [
     "FigureMarkup", "MAX_POINTS", "SVG_MAX_VERTICES", "RED", "BLUE",
@@ -186,62 +195,22 @@ def _labels_overlap(axis, renderer, pad=2.0) -> bool:
     return any(b.x0 < a.x1 + pad for a, b in zip(boxes, boxes[1:]))
 
 
-def _labels_clearly_fit(ax, renderer, fig, pad=2.0, shrink=0.5) -> bool:
-    """Whether the x tick labels of `ax` fit even if the layout shrinks the panel to `shrink`
-    of its width before layout.
-
-    Measures the label texts the locator and formatter give, without a layout pass (the
-    expensive part of a figure: most panels have short labels, 0 2 4 6 8, and need no pass).
-    """
-    lo, hi = sorted(ax.get_xlim())
-    if not hi > lo:
-        return False
-    span = (hi - lo) * 1e-9
-    locs = [v for v in ax.xaxis.get_major_locator()() if lo - span <= v <= hi + span]
-    if len(locs) < 2:
-        return True
-    texts = ax.xaxis.get_major_formatter().format_ticks(locs)
-    prop = ax.xaxis.get_major_ticks()[0].label1.get_fontproperties()
-    widths = [renderer.get_text_width_height_descent(t, prop, ismath=False)[0] if t else 0.0 for t in texts]
-    px_per_x = shrink * ax.get_position().width * fig.get_figwidth() * fig.dpi / (hi - lo)
-    return all(0.5 * (wa + wb) + pad < (b - a) * px_per_x
-               for a, b, wa, wb in zip(locs, locs[1:], widths, widths[1:]))
+def thin_overlapping_ticks(fig) -> None:
+    """Fewer numeric x ticks on every narrow axes whose x tick labels overlap, at the axes'
+    current positions (dynid.reports.figure_layout.thin_crowded_ticks; figures laid out by
+    `render_figure` are thinned by their layout engine)."""
+    thin_crowded_ticks(fig, FigureCanvasAgg(fig).get_renderer())
 
 
-def thin_overlapping_ticks(fig, min_bins: int = 2, max_width_in: float = 4.0) -> None:
-    """Fewer numeric x ticks on every narrow axes whose x tick labels overlap.
-
-    Narrow panels (one per joint, a few centimetres wide) with long tick labels
-    (-0.00025) run the labels into each other. The ticks are thinned (automatic locators
-    only: named ticks such as parameter names are kept); labels still overlapping at two
-    ticks are slanted.
-    """
-    from matplotlib.ticker import AutoLocator, MaxNLocator
-    # only narrow panels crowd (a full-width plot is left alone, and costs no extra layout pass)
-    axes = [ax for ax in fig.get_axes() if ax.get_visible()
-            and ax.get_position().width * fig.get_figwidth() < max_width_in
-            and isinstance(ax.xaxis.get_major_locator(), (AutoLocator, MaxNLocator))]
-    if not axes:
-        return
-    FigureCanvasAgg(fig)
-    renderer = fig.canvas.get_renderer()
-    if all(_labels_clearly_fit(ax, renderer, fig) for ax in axes):
-        return
-    fig.draw_without_rendering()
-    for nbins in (5, 4, 3, min_bins, None):
-        crowded = [ax for ax in axes if _labels_overlap(ax.xaxis, renderer)]
-        if not crowded:
-            return
-        if nbins is None:                     # long labels even at two ticks: slant them
-            for ax in crowded:
-                ax.tick_params(axis="x", labelrotation=35)
-                for label in ax.xaxis.get_ticklabels():
-                    label.set_horizontalalignment("right")
-                    label.set_rotation_mode("anchor")
-            return
-        for ax in crowded:
-            ax.xaxis.set_major_locator(MaxNLocator(nbins=nbins, steps=[1, 2, 2.5, 5, 10]))
-        fig.draw_without_rendering()          # one layout pass for all the thinned axes
+def _grid_layout(fig) -> None:
+    """Lay `fig` out in one pass: a constrained layout becomes the equivalent GridLayoutEngine
+    (which also thins crowded ticks); a figure placed by hand has its crowded ticks thinned."""
+    engine = fig.get_layout_engine()
+    if (isinstance(engine, ConstrainedLayoutEngine) and not getattr(engine, "_compress", False)
+            and tuple(engine.get()["rect"]) == (0, 0, 1, 1)):
+        fig.set_layout_engine(GridLayoutEngine.like(engine))
+    elif not isinstance(engine, (GridLayoutEngine, ConstrainedLayoutEngine)):
+        thin_overlapping_ticks(fig)
 
 
 def render_figure(fig, key: str, caption: str, *, fmt: str = "auto") -> FigureMarkup:
@@ -253,7 +222,7 @@ def render_figure(fig, key: str, caption: str, *, fmt: str = "auto") -> FigureMa
         The figure as trusted HTML, with its key and caption; x tick labels that
         would overlap are thinned first.
     """
-    thin_overlapping_ticks(fig)
+    _grid_layout(fig)
     if fmt == "auto":
         fmt = "png" if _count_vertices(fig) > SVG_MAX_VERTICES else "svg"
     label = escape(caption)
@@ -293,20 +262,29 @@ def masked(values, mask):
 
 
 def _excluded_spans(t, excluded):
-    """(start, end) time spans of consecutive excluded samples."""
-    spans = []
-    k, n = 0, len(excluded)
-    while k < n:
-        if excluded[k]:
-            s0 = k
-            while k < n and excluded[k]:
-                k += 1
-            lo = t[s0 - 1] if s0 > 0 else t[s0]
-            hi = t[k] if k < n else t[k - 1]
-            spans.append((0.5 * (lo + t[s0]), 0.5 * (hi + t[k - 1])))
-        else:
-            k += 1
-    return spans
+    """(start, end) time spans of consecutive excluded samples, each edge halfway to the
+    neighbouring kept sample (the first and last sample: the edge is the sample itself)."""
+    t = np.asarray(t, dtype=float)
+    ex = np.asarray(excluded, dtype=bool)
+    n = ex.size
+    edges = np.diff(np.concatenate([[False], ex, [False]]).astype(np.int8))
+    first = np.flatnonzero(edges == 1)                 # first excluded sample of each run
+    end = np.flatnonzero(edges == -1)                  # one past its last
+    lo = np.where(first > 0, t[np.maximum(first - 1, 0)], t[first])
+    hi = np.where(end < n, t[np.minimum(end, n - 1)], t[end - 1])
+    return list(zip((0.5 * (lo + t[first])).tolist(), (0.5 * (hi + t[end - 1])).tolist()))
+
+
+def _shade(ax, spans, label):
+    """Grey bands over the full height of `ax` on the time `spans`: one collection, one legend
+    entry (a dead zone has hundreds of spans; one artist each would cost more than the curves)."""
+    if not spans:
+        return
+    verts = [[(a, 0.0), (a, 1.0), (b, 1.0), (b, 0.0)] for a, b in spans]
+    ax.add_collection(PolyCollection(verts, facecolors=EXCLUDED_COLOR, edgecolors="none", linewidths=0,
+                                     zorder=0, label=label, transform=ax.get_xaxis_transform()),
+                      autolim=False)
+    ax.update_datalim([(spans[0][0], 0.0), (spans[-1][1], 0.0)], updatey=False)
 
 
 def torque_figure(t, measured, estimated, joint_names, *, key="fig-torque", caption=None,
@@ -338,14 +316,10 @@ def torque_figure(t, measured, estimated, joint_names, *, key="fig-torque", capt
             excl = ~np.isfinite(measured[:, j])
             if shade is not None and not excl.any():
                 sh = np.broadcast_to(np.asarray(shade, dtype=bool), measured.shape)[:, j]
-                for k, (a, b) in enumerate(_excluded_spans(t, sh)):
-                    ax.axvspan(a, b, color=EXCLUDED_COLOR, lw=0, zorder=0,
-                               label=shade_label if k == 0 else None)
+                _shade(ax, _excluded_spans(t, sh), shade_label)
             if excl.any():
                 any_excluded = True
-                for k, (a, b) in enumerate(_excluded_spans(t, excl)):
-                    ax.axvspan(a, b, color=EXCLUDED_COLOR, lw=0, zorder=0,
-                               label="excluded (not measured here)" if k == 0 else None)
+                _shade(ax, _excluded_spans(t, excl), "excluded (not measured here)")
             ax.plot(t[idx], measured[idx, j], color=RED, lw=0.9, label=labels[0])
             ax.plot(t[idx], estimated[idx, j], color=BLUE, lw=0.8, label=labels[1])
             ax.set_title(_plain(joint_label(j, joint_names[j])), loc="left")

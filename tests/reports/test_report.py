@@ -378,6 +378,14 @@ def test_dense_torque_plot_is_decimated_png_and_deterministic():
     assert small.n_bytes < 150_000
 
 
+def test_excluded_spans_reach_halfway_to_the_kept_neighbours():
+    t = np.array([0.0, 1.0, 2.0, 4.0, 5.0, 6.0])
+    excluded = np.array([True, False, True, True, False, True])
+    assert F._excluded_spans(t, excluded) == [(0.0, 0.5), (1.5, 4.5), (5.5, 6.0)]
+    assert F._excluded_spans(t, np.zeros(6, bool)) == []
+    assert F._excluded_spans(t, np.ones(6, bool)) == [(0.0, 6.0)]
+
+
 def test_svg_is_inline_ready_and_stable():
     path = pd.DataFrame({"step": [1, 2], "removed": ["a", "b"], "rel_std_removed": [500.0, 80.0],
                          "max_rel_std_remaining": [80.0, 10.0], "rel_error": [0.05, 0.051],
