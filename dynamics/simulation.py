@@ -58,9 +58,12 @@ when it exceeds 2.5, with the substeps and `v_s` that fix it.
 Adaptive substeps (`adaptive=True`, opt-in; DIDIM uses it). The smooth sign's slope
 is `(Fc / v_s) sech^2(qd / v_s)`: the friction is stiff only near a velocity
 reversal. With `m = substeps`, one RK4 step over the whole period `T` at a speed
-`|qd| >= c v_s`, `sech^2(c) = 1 / m`, i.e. `c = arccosh(sqrt(m))` (1.3 for m = 3,
-1.5 for 6, 1.9 for 11), sees the Coulomb slope times `T` no larger than a substep
-`T / m` sees at rest, the case the stiffness check above sizes. So a period is
+`|qd| >= c v_s`, `sech^2(c) = 1 / (4 m)`, i.e. `c = arccosh(2 sqrt(m))` (1.9 for
+m = 3, 2.3 for 6, 2.6 for 11), sees the Coulomb slope times `T` no larger than a step
+of the 4x-finer reference `T / (4 m)` sees at rest: the uniform mode's own error is
+what that reference measures, so the long steps add less than it. (Stability alone,
+`sech^2(c) = 1 / m`, is not enough for accuracy: on DIDIM's simulation of
+benchmarks/didim_width.py, seed 5, it gave 4x the uniform error.) So a period is
 integrated with all `m` substeps when, at its start, some joint (or coupled rotor,
 `w = c_k qd`) has `|qd| < c v_s + 2 |qdd| T` (near zero, or may come near it within
 the period: the state is seen only at the start, and the acceleration changes fastest
@@ -449,8 +452,9 @@ ADAPTIVE_VISCOUS_LIMIT = 0.5
 
 
 def _adaptive_threshold(robot, chi, q0, T, v_s, substeps, notes):
-    """`c v_s`, the speed above which one RK4 step per period is as stiff as a substep at rest
-    (module doc, "Adaptive substeps"); -1 (uniform substeps) when the viscous friction alone
+    """`c v_s`, the speed above which one RK4 step per period is no stiffer than a step of the
+    4x-finer reference at rest (module doc, "Adaptive substeps"); -1 (uniform substeps) when
+    the viscous friction alone
     makes a whole period's step stiff."""
     if substeps == 1:
         return -1.0
@@ -460,7 +464,7 @@ def _adaptive_threshold(robot, chi, q0, T, v_s, substeps, notes):
                      f"> {ADAPTIVE_VISCOUS_LIMIT} for one step per controller period; all {substeps} "
                      "substeps used in every period")
         return -1.0
-    return math.acosh(math.sqrt(substeps)) * v_s
+    return math.acosh(2.0 * math.sqrt(substeps)) * v_s
 
 
 def _status(status, index, t, robot, where):
@@ -517,7 +521,7 @@ def simulate_closed_loop(robot, chi_st, t, qr, qdr=None, *, q0=None, qd0=None, c
     progress : callable(fraction in [0, 1]) called as the simulation advances.
     adaptive : integrate a controller period with all `substeps` only when a velocity
         reversal is near (some joint or coupled rotor with `|qd| < c v_s + 2 |qdd| T` at the
-        period's start, `c = arccosh(sqrt(substeps))`), else with one RK4 step (see the
+        period's start, `c = arccosh(2 sqrt(substeps))`), else with one RK4 step (see the
         module doc, "Adaptive substeps"). Default False: every period gets `substeps`.
 
     Returns
