@@ -68,12 +68,15 @@ integrated with all `m` substeps when, at its start, some joint (or coupled roto
 `w = c_k qd`) has `|qd| < c v_s + 2 |qdd| T` (near zero, or may come near it within
 the period: the state is seen only at the start, and the acceleration changes fastest
 at a reversal, so the margin is twice the linear excursion), and with one RK4 step
-otherwise. The viscous part `Fv` does not fade with
-speed: when it alone gives `T lambda > 0.5` the mode falls back to uniform substeps
-(a note says so). The stiffness warning is unchanged: its step `T / m` is still the
-one taken at rest. Accuracy against `scipy.integrate.solve_ivp` (tests/dynamics/
-test_simulation.py, TX40 closed loop with reversals): the adaptive error stays
-within 2x the uniform mode's.
+otherwise. The viscous part `Fv` does not fade with speed: when it alone gives
+`T lambda > 0.5` the mode falls back to uniform substeps (a note says so). The
+stiffness warning is unchanged: its step `T / m` is still the one taken at rest.
+Accuracy: against `scipy.integrate.solve_ivp` and against the 4x-finer uniform step
+(tests/dynamics/test_simulation.py, TX40 closed loop, every joint reversing, v_s =
+0.00625, m = 5) the adaptive error is 4.6e-10 rad beside the uniform mode's 4.7e-10;
+on a DIDIM simulation (benchmarks/didim_width.py seed 5, v_s = 0.00625, m = 6) 1.2e-10
+rad beside 1.1e-10 (tau 3.5e-6 N m beside 2.7e-6), with all substeps in 20 % of the
+periods.
 """
 from __future__ import annotations
 
