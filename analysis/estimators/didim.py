@@ -95,7 +95,9 @@ Documented choices (all in `DIDIMResult.settings`, all overridable through
   simulated robot (`saturate=False`: the initial robot `M = I` needs far more
   torque than the real one; the actual drive's limits say nothing about it),
   Coulomb friction smoothed over `v_s` rad/s, and as many RK4
-  substeps as keep `h * lambda_friction <= 1.5` (`substeps="auto"`). The
+  substeps as keep `h * lambda_friction <= 1.5` (`substeps="auto"`), taken only in the
+  controller periods near a velocity reversal (`adaptive=True` of the simulator: one
+  step elsewhere, where the smoothed friction is not stiff). The
   reference velocity is the second-order finite difference of `qr`.
 * **Coulomb smoothing** `v_s` (default `"auto"`): chosen from the data by the
   output error DIDIM minimises (see `_identify_auto_v_s`): converge at 0.05 rad/s,
@@ -553,7 +555,8 @@ def _simulate(robot, bp, beta, ctrl, t, qr, qdr, s, kd_scale):
         substeps = max(1, int(math.ceil(x / STIFFNESS_TARGET))) if math.isfinite(x) else 1
     sim = simulate_closed_loop(robot, chi, t, qr, qdr, q0=qr[0], qd0=qdr[0], controller=ctrl,
                                kd_scale=kd_scale, substeps=substeps, v_s=s["v_s"],
-                               feedforward=s["feedforward"], rate=rate, saturate=s["saturate"])
+                               feedforward=s["feedforward"], rate=rate, saturate=s["saturate"],
+                               adaptive=True)
     if sim.t.size == t.size and np.allclose(sim.t, t, rtol=0, atol=1e-9 / rate):
         return sim.q, sim.qd, sim.qdd, sim.tau, substeps, sim
     # controller grid differs from the sampling grid: states at the samples by interpolation

@@ -14,7 +14,12 @@ from dynid.analysis.data.synthetic import experiment_from_simulation
 from dynid.dynamics import dynamic_model as dm
 from dynid.dynamics.robot import Controller, Coupling, Joint, Robot, mdh_placement
 from dynid.dynamics.robot_file import load_robot
-from dynid.dynamics.simulation import SimulationResult, simulate_closed_loop, simulate_torque
+from dynid.dynamics.simulation import (
+    SimulationResult,
+    friction_stiffness,
+    simulate_closed_loop,
+    simulate_torque,
+)
 from dynid.dynamics.trajectories import random_fourier_trajectory
 from dynid.errors import InputError
 from tests.support import oracles
@@ -415,3 +420,100 @@ def test_progress_chunks_give_exactly_the_single_call_result():
     assert len(seen) == 10 and seen[-1] == 1.0 and np.all(np.diff(seen) > 0)
     for a, b in ((one.q, chunked.q), (one.qd, chunked.qd), (one.qdd, chunked.qdd), (one.tau, chunked.tau)):
         assert np.array_equal(a, b)
+
+
+def _zoh_closed_loop_solve_ivp(robot, chi, t, qr, qdr, v_s):
+    """The PD loop of the simulator (no feedforward, no saturation) with the plant integrated by
+    scipy's DOP853 at tight tolerances over each held-torque period: the reference solution."""
+    from scipy.integrate import solve_ivp
+
+    model = dm.model_arrays(robot, chi).kernel_args()
+    c = robot.controller
+    kp = c.wn / (2 * c.zeta)
+    Kv = c.J_ap / c.g_ap * 2 * c.zeta * c.wn
+    n = robot.n_joints
+    acc = np.empty((1, n))
+
+    def rhs(_, y, tau):
+        dm._forward_dynamics_batch(model, y[None, :n], y[None, n:], tau[None], v_s, acc)
+        return np.concatenate([y[n:], acc[0]])
+
+    y = np.concatenate([qr[0], qdr[0]])
+    Q = np.empty((t.size, n))
+    for k in range(t.size):
+        Q[k] = y[:n]
+        if k + 1 < t.size:
+            tau = robot.drive_gains * Kv * (kp * (qr[k] - y[:n]) - y[n:])
+            y = solve_ivp(rhs, (t[k], t[k + 1]), y, method="DOP853", rtol=1e-10, atol=1e-12,
+                          args=(tau,)).y[:, -1]
+    return Q
+
+
+def _reversal_case(tx40):
+    """TX40 tracking sines whose every joint reverses within 40 ms, at DIDIM's v_s = 0.00625 and
+    the substeps that keep h lambda <= 1.5."""
+    chi = tx40_like_parameters(tx40, np.random.default_rng(4))
+    rate, v_s = tx40.controller.rate, 0.00625
+    t = np.arange(201) / rate
+    phase = np.linspace(1.2, 1.5, 6)                          # reference reversals at 3-15 ms
+    A = np.array([0.2, 0.2, 0.3, 0.5, 0.5, 0.8])
+    w = 2 * np.pi * 4.0
+    qr, qdr = A * np.sin(w * t[:, None] + phase), A * w * np.cos(w * t[:, None] + phase)
+    m = int(np.ceil(friction_stiffness(tx40, chi, qr[0], 1 / rate, v_s) / 1.5))
+    assert m >= 4                                             # the substeps matter here
+    return chi, t, qr, qdr, v_s, m
+
+
+def _check_adaptive_against(tx40, chi, t, qr, qdr, v_s, m, ref, what, capsys):
+    kw = dict(v_s=v_s, saturate=False)
+    uniform = simulate_closed_loop(tx40, chi, t, qr, qdr, substeps=m, **kw)
+    adaptive = simulate_closed_loop(tx40, chi, t, qr, qdr, substeps=m, adaptive=True, **kw)
+    with pytest.warns(RuntimeWarning, match="substeps >= "):
+        single = simulate_closed_loop(tx40, chi, t, qr, qdr, substeps=1, **kw)
+    assert np.all((np.diff(np.sign(uniform.qd), axis=0) != 0).any(axis=0))   # every joint reverses
+    err = {name: np.max(np.abs(r.q - ref)) for name, r in
+           (("uniform", uniform), ("adaptive", adaptive), ("single", single))}
+    assert err["uniform"] < 1e-8                              # the reference resolves the reversals
+    assert err["adaptive"] <= 2 * err["uniform"] + 1e-10, err
+    assert err["single"] > 20 * err["adaptive"], err
+    assert adaptive.adaptive and not uniform.adaptive and np.isnan(uniform.refined)
+    assert 0 < adaptive.refined < 0.5                        # the saving: most periods take 1 step
+    assert adaptive.stiffness == uniform.stiffness            # the same warning logic
+    with capsys.disabled():
+        print(f"\n[tx40 40 ms @ 5 kHz, v_s {v_s}, {m} substeps] max|q - q_{what}|: "
+              + ", ".join(f"{k} {e:.1e} rad" for k, e in err.items())
+              + f"; adaptive refined {adaptive.refined:.0%} of the periods")
+
+
+def test_adaptive_substeps_error_against_finer_step(tx40, capsys):
+    """Adaptive substeps (all of them only near velocity reversals) against the uniform RK4 with
+    4x the substeps: the error is of the order of the uniform substeps' (<= 2x + 1e-10 rad),
+    while one step per period everywhere is far off (the friction is stiff at the reversals)."""
+    chi, t, qr, qdr, v_s, m = _reversal_case(tx40)
+    ref = simulate_closed_loop(tx40, chi, t, qr, qdr, substeps=4 * m, v_s=v_s, saturate=False).q
+    _check_adaptive_against(tx40, chi, t, qr, qdr, v_s, m, ref, "4x finer", capsys)
+
+
+@pytest.mark.slow
+def test_adaptive_substeps_error_against_solve_ivp(tx40, capsys):
+    """The same against a reference solution of the zero-order-hold loop that shares no
+    integrator with the simulator (scipy solve_ivp, DOP853, rtol 1e-10)."""
+    chi, t, qr, qdr, v_s, m = _reversal_case(tx40)
+    ref = _zoh_closed_loop_solve_ivp(tx40, chi, t, qr, qdr, v_s)
+    _check_adaptive_against(tx40, chi, t, qr, qdr, v_s, m, ref, "solve_ivp", capsys)
+
+
+def test_adaptive_is_opt_in_and_off_when_it_cannot_help(tx40):
+    """Default: every period gets all substeps (bit-identical to before); with one substep or a
+    viscous friction that makes a whole period's step stiff, adaptive changes nothing."""
+    rng = np.random.default_rng(4)
+    chi = tx40_like_parameters(tx40, rng)
+    traj = random_fourier_trajectory(tx40, 0.3, 4, rng)
+    t = np.arange(101) / tx40.controller.rate
+    a = simulate_closed_loop(tx40, chi, t, traj, v_s=0.05, substeps=1)
+    b = simulate_closed_loop(tx40, chi, t, traj, v_s=0.05, substeps=1, adaptive=True)
+    assert np.array_equal(a.q, b.q) and np.array_equal(a.tau, b.tau)
+    chi[11] = 1e4                                             # Fv1: T lambda ~ 1.5 > 0.5
+    c = simulate_closed_loop(tx40, chi, t, traj, v_s=0.05, substeps=2)
+    d = simulate_closed_loop(tx40, chi, t, traj, v_s=0.05, substeps=2, adaptive=True)
+    assert np.array_equal(c.q, d.q) and not d.adaptive and "adaptive substeps off" in d.notes[-1]
