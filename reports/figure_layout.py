@@ -168,8 +168,10 @@ def _place(fig, grid, renderer, *, h_pad, w_pad, hspace, wspace, estimate=False)
 
 
 def _text_size(renderer, text, prop):
-    w, h, _ = renderer.get_text_width_height_descent(text, prop, ismath="$" in text)
-    return w, h
+    # line by line: the renderer measures one line and has no glyph for a newline
+    sizes = [renderer.get_text_width_height_descent(line or " ", prop, ismath="$" in line)[:2]
+             for line in text.split("\n")]
+    return max(w for w, _ in sizes), sum(h for _, h in sizes) * (1.2 if len(sizes) > 1 else 1.0)
 
 
 def _visible_labels(axis):

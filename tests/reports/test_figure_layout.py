@@ -81,3 +81,26 @@ def test_render_figure_lays_out_in_one_measuring_pass(monkeypatch):
     F.render_figure(fig, "fig-grid", "grid")
     assert isinstance(fig.get_layout_engine(), GridLayoutEngine)
     assert passes == [True, False]
+
+
+def test_multiline_labels_are_measured_line_by_line_without_a_glyph_warning():
+    """A two-line title is placed as matplotlib's engine places it, and no 'Glyph 10 missing' warning."""
+    import warnings
+
+    def make():
+        with matplotlib.rc_context(F.STYLE):
+            fig = Figure(figsize=(6.6, 2.2), layout="constrained")
+            for j, ax in enumerate(fig.subplots(1, 2)):
+                ax.plot([0, 1], [0, 10 ** j])
+                ax.set_title("joint 1\nspring found", loc="left")
+                ax.set_ylabel("torque\n[N m]")
+        return fig
+    ref = make()
+    FigureCanvasAgg(ref).draw()
+    fig = make()
+    fig.set_layout_engine(GridLayoutEngine.like(fig.get_layout_engine()))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        FigureCanvasAgg(fig).draw()
+    for a, b in zip(ref.axes, fig.axes):
+        np.testing.assert_allclose(a.get_position().bounds, b.get_position().bounds, atol=0.5 / 72 / 3.3)
