@@ -127,15 +127,21 @@ def test_sample_json(folder):
     check("sample", load(folder / "sample.json"))
 
 
+def _shared_run(run_once, tmp_path_factory):
+    """The once-per-session command run of tests/support/shared_runs.py, which must end in 0 or 3."""
+    if not DYNID.exists():
+        pytest.skip(f"no dynid console script beside {sys.executable}: pip install . first")
+    done = run_once(tmp_path_factory)
+    assert done.returncode in (0, 3), f"exit {done.returncode}\n{done.stderr[-3000:]}"
+    return done
+
+
 def test_diagnose_json(tmp_path_factory):
     """`dynid diagnose p2.csv --robot planar2 --holdout 2 --report diag.html --json diagnose.json` on the
     same simulated recording as `folder`, run once per session (tests/reports/test_browser.py
     screenshots its report)."""
     from shared_runs import planar2_diagnose_run
-    if not DYNID.exists():
-        pytest.skip(f"no dynid console script beside {sys.executable}: pip install . first")
-    diag = planar2_diagnose_run(tmp_path_factory)
-    assert diag.returncode in (0, 3), f"exit {diag.returncode}\n{diag.stderr[-3000:]}"
+    diag = _shared_run(planar2_diagnose_run, tmp_path_factory)
     check("diagnose", load(diag.folder / "diagnose.json"))
 
 
@@ -144,10 +150,7 @@ def test_report_json(tmp_path_factory):
     planar2 recording, run once per session (tests/cli/test_cli.py checks the same run's parts); a
     report with parts skipped is test_demo_json's."""
     from shared_runs import planar2_full_report_run
-    if not DYNID.exists():
-        pytest.skip(f"no dynid console script beside {sys.executable}: pip install . first")
-    full = planar2_full_report_run(tmp_path_factory)
-    assert full.returncode in (0, 3), f"exit {full.returncode}\n{full.stderr[-3000:]}"
+    full = _shared_run(planar2_full_report_run, tmp_path_factory)
     doc = load(full.folder / "r.json")
     check("report", doc)
     check("diagnose", dict(doc["diagnosis"], verdict=doc["verdict"]))    # the nested part, as diagnose writes it
@@ -157,10 +160,7 @@ def test_demo_json(tmp_path_factory):
     """`dynid demo --skip didim,sample,diagnose --duration 5 --report demo.html --json demo.json`, run
     once per session (tests/reports/test_browser.py reads the same run)."""
     from shared_runs import demo_idim_run
-    if not DYNID.exists():
-        pytest.skip(f"no dynid console script beside {sys.executable}: pip install . first")
-    demo = demo_idim_run(tmp_path_factory)
-    assert demo.returncode in (0, 3), f"dynid demo: exit {demo.returncode}\n{demo.stderr[-3000:]}"
+    demo = _shared_run(demo_idim_run, tmp_path_factory)
     check("report", load(demo.folder / "demo.json"))
 
 

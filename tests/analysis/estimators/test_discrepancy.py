@@ -69,12 +69,17 @@ def test_monte_carlo_bias_of_wls_matches_the_covariance():
     np.testing.assert_allclose(np.sqrt(np.diag(mc)), np.sqrt(np.diag(cov)), rtol=0.08)
 
 
+def _repeating_path(N):
+    """A state that repeats (period 2 pi over 12 s) and the fixed effects of a joint's regressor."""
+    t = np.linspace(0.0, 12.0, N)
+    X = np.c_[np.sin(t), np.cos(t), np.sin(2 * t)] / 0.7
+    return X, np.c_[np.ones(N), X[:, 0]]
+
+
 def test_reml_finds_no_discrepancy_in_white_noise_and_one_in_a_gp_draw():
     rng = np.random.default_rng(5)
     N = 200
-    t = np.linspace(0.0, 12.0, N)
-    X = np.c_[np.sin(t), np.cos(t), np.sin(2 * t)] / 0.7
-    F = np.c_[np.ones(N), X[:, 0]]
+    X, F = _repeating_path(N)
     white = dc.reml_hyperparameters(0.1 * rng.standard_normal(N), F, X, n_sub=N, lengthscales=[0.5, 1.0, 2.0])
     assert white["s2"] < 0.1 * white["noise2"]
     assert white["noise2"] == pytest.approx(0.01, rel=0.3)
@@ -89,9 +94,7 @@ def test_reml_finds_no_discrepancy_in_white_noise_and_one_in_a_gp_draw():
 def test_ar1_noise_is_not_taken_for_a_discrepancy():
     rng = np.random.default_rng(6)
     N = 160
-    t = np.linspace(0.0, 12.0, N)
-    X = np.c_[np.sin(t), np.cos(t), np.sin(2 * t)] / 0.7
-    F = np.c_[np.ones(N), X[:, 0]]
+    X, F = _repeating_path(N)
     u = rng.standard_normal(N)
     e = np.empty(N)
     e[0] = u[0] / np.sqrt(1 - 0.81)
