@@ -15,7 +15,6 @@ from dataclasses import dataclass
 from dynid.analysis.diagnosis.effect_observation import observe_effects
 from dynid.analysis.diagnosis.effects import check_effect_names
 from dynid.analysis.diagnosis.selection import diagnose
-from dynid.analysis.estimators.idim import identify_idim
 from dynid.analysis.run import (
     REPORT_PARTS,
     Settings,
@@ -218,12 +217,9 @@ def _diagnosis_run(data, robot, settings=None, *, say=None, **options) -> Diagno
         with say.progress("regressor and decimation") as bar:
             # the diagnosis' observation first: its decimated system is observe's, so IDIM
             # identifies from it and the full-rate regressor is built once, not twice
-            # (identify_step's IDIM with these settings, given the system)
             eobs = observe_effects(experiment, robot, base_parameters(robot), ident.processing(),
                                    progress=bar.update)
-            result = identify_idim(experiment, robot, settings=ident.processing(), bp=eobs.bp,
-                                   max_error_growth=ident.max_error_growth,
-                                   uncertainty=ident.uncertainty, observation=eobs.obs)
+            result = identify_step([experiment], robot, ident, observation=eobs.obs, bp=eobs.bp)
     say("scoring candidate effects")
     diag = diagnosis_step(experiment, robot, held_out, result, s, say, candidates=candidates,
                           observation=eobs)

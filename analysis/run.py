@@ -413,11 +413,13 @@ def _carrying(result, robot):
     return result
 
 
-def identify_step(experiments, robot, settings: Settings, progress=None):
+def identify_step(experiments, robot, settings: Settings, progress=None, *, observation=None, bp=None):
     """Step 3: identify with `settings.method`; IDIM stacks several recordings, the others take one.
 
     IDIM with `physical`: the PC-WLS (a PhysicalResult whose `idim` is the unconstrained fit).
-    DIDIM: its notices say which controller gains it simulated with.
+    DIDIM: its notices say which controller gains it simulated with. `observation` and `bp`:
+    IDIM's decimated system of the one recording and its base parameters, when the caller
+    has built them already (the diagnosis).
     """
     check_identify(settings)
     method = settings.method
@@ -429,7 +431,7 @@ def identify_step(experiments, robot, settings: Settings, progress=None):
         # its estimate must not depend on the IDIM interval option
         res = identify_idim(experiments if len(experiments) > 1 else experiments[0], robot,
                             settings=settings.processing(), max_error_growth=settings.max_error_growth,
-                            progress=progress,
+                            progress=progress, observation=observation, bp=bp,
                             uncertainty="classic" if settings.physical else settings.uncertainty)
         if not settings.physical:
             return res

@@ -1295,6 +1295,8 @@ def _identify_auto_v_s(experiment, robot, *, settings, chi0, tol, max_iter, upda
         return None if progress is None else (lambda f: progress(a + (b - a) * f))
 
     first = run(V_S_START, chi0, max_iter, False, update_gains, part(0.0, 0.5))
+    pc_options = dict(prior=kw.get("prior"), prior_weight=kw.get("prior_weight", 1.0),
+                      mass_tolerance=kw.get("mass_tolerance"))
     if not first.converged:
         if final_cov["uncertainty"] != "classic" or final_cov["gains"] is not None:
             L, last = first._state
@@ -1306,8 +1308,7 @@ def _identify_auto_v_s(experiment, robot, *, settings, chi0, tol, max_iter, upda
         if kw.get("physical") and n_boot:
             from dynid.analysis.estimators.physical import pc_wls
             first.physical = pc_wls(robot, first.base, first.result.chi, first.result.cov, n_boot=n_boot,
-                                    prior=kw.get("prior"), prior_weight=kw.get("prior_weight", 1.0),
-                                    mass_tolerance=kw.get("mass_tolerance"))
+                                    **pc_options)
         if essential:
             first.essential = essential_parameters(
                 first.W_dec, first.tau_dec, list(first.base.names), ls.wls,
@@ -1325,8 +1326,6 @@ def _identify_auto_v_s(experiment, robot, *, settings, chi0, tol, max_iter, upda
     cont = False if update_gains == "initial" else update_gains
     L0, last0 = first._state
     physical = bool(kw.get("physical"))
-    pc_options = dict(prior=kw.get("prior"), prior_weight=kw.get("prior_weight", 1.0),
-                      mass_tolerance=kw.get("mass_tolerance"))
 
     def estimate(last):
         # PC-DIDIM continues from the physical estimate, the one its next step would simulate: the
