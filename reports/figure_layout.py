@@ -185,7 +185,7 @@ def _estimated_bbox(ax, renderer, pos):
     """`pos` grown by an estimate of the decorations of `ax` (figure fraction)."""
     if not ax.get_visible():
         return pos
-    fig = ax.get_figure(root=True)
+    fig = ax.figure.figure   # the root figure (a Figure's .figure is itself), as get_figure(root=True) of matplotlib >= 3.10
     px = fig.dpi / 72.0
     rc = matplotlib.rcParams
     grow = dict(left=0.0, right=0.0, top=0.0, bottom=0.0)
@@ -263,7 +263,7 @@ def x_labels_fit(ax, renderer, pad=2.0) -> bool:
     texts = ax.xaxis.get_major_formatter().format_ticks(locs)
     prop = ticks[0].label1.get_fontproperties()
     widths = [renderer.get_text_width_height_descent(t, prop, ismath=False)[0] if t else 0.0 for t in texts]
-    px_per_x = ax.get_position().width * ax.get_figure(root=True).bbox.width / (hi - lo)
+    px_per_x = ax.get_position().width * ax.figure.figure.bbox.width / (hi - lo)
     return all(0.5 * (wa + wb) + pad < (b - a) * px_per_x
                for a, b, wa, wb in zip(locs, locs[1:], widths, widths[1:]))
 
