@@ -97,7 +97,8 @@ Documented choices (all in `DIDIMResult.settings`, all overridable through
   Coulomb friction smoothed over `v_s` rad/s, and as many RK4
   substeps as keep `h * lambda_friction <= 1.5` (`substeps="auto"`), taken only in the
   controller periods near a velocity reversal (`adaptive=True` of the simulator: one
-  step elsewhere, where the smoothed friction is not stiff). The
+  step elsewhere, where the smoothed friction is not stiff), M(q) by the composite rigid
+  body algorithm (`crba=True`: equal to rounding, cheaper). The
   reference velocity is the second-order finite difference of `qr`.
 * **Coulomb smoothing** `v_s` (default `"auto"`): chosen from the data by the
   output error DIDIM minimises (see `_identify_auto_v_s`): converge at 0.05 rad/s,
@@ -556,7 +557,7 @@ def _simulate(robot, bp, beta, ctrl, t, qr, qdr, s, kd_scale):
     sim = simulate_closed_loop(robot, chi, t, qr, qdr, q0=qr[0], qd0=qdr[0], controller=ctrl,
                                kd_scale=kd_scale, substeps=substeps, v_s=s["v_s"],
                                feedforward=s["feedforward"], rate=rate, saturate=s["saturate"],
-                               adaptive=True)
+                               adaptive=True, crba=True)
     if sim.t.size == t.size and np.allclose(sim.t, t, rtol=0, atol=1e-9 / rate):
         return sim.q, sim.qd, sim.qdd, sim.tau, substeps, sim
     # controller grid differs from the sampling grid: states at the samples by interpolation

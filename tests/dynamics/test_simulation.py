@@ -131,6 +131,32 @@ def test_rnea_and_mass_matrix_match_pinocchio(which, tx40):
     assert dm.forward_dynamics(robot, chi, q[0], qd[0], tau[0]).shape == (n,)
 
 
+@needs_pin
+@pytest.mark.parametrize("which", ["tx40", "random"])
+def test_crba_mass_matrix_matches_pinocchio(which, tx40):
+    """The CRBA of the simulator's `crba=True` mode against pin.crba (with a prismatic joint and
+    a general coupling on the random robot), and its closed loop against the default one's."""
+    rng = np.random.default_rng(12)
+    robot = tx40 if which == "tx40" else random_robot(rng)
+    chi = oracles.random_standard_parameters(robot, rng)
+    n = robot.n_joints
+    q = rng.uniform(-2, 2, (40, n))
+    _, M_ref = _pin_reference(robot, chi, q, np.zeros_like(q), np.zeros_like(q))
+    model, ws = dm.model_arrays(robot, chi).kernel_args(), dm._workspace(n)
+    for s in range(q.shape[0]):
+        dm._mass_crba(model, ws, q[s], True)
+        M = ws[7]
+        assert np.max(np.abs(M - M_ref[s])) <= 1e-12 * np.max(np.abs(M_ref[s]))
+        assert np.array_equal(M, M.T)
+    traj = random_fourier_trajectory(robot, 0.5, 3, rng)
+    t = np.arange(401) / robot.controller.rate
+    a = simulate_closed_loop(robot, chi, t, traj, v_s=0.05, substeps=2)
+    b = simulate_closed_loop(robot, chi, t, traj, v_s=0.05, substeps=2, crba=True)
+    assert not np.array_equal(a.qdd, b.qdd)             # the other algorithm ran ...
+    assert np.max(np.abs(a.qdd - b.qdd)) <= 1e-10 * np.max(np.abs(a.qdd))   # ... to the same motion
+    assert np.max(np.abs(a.q - b.q)) <= 1e-12
+
+
 def test_smooth_sign_friction():
     robot, chi = pendulum()
     chi[12] = 3.0                                                   # Fc
