@@ -184,17 +184,6 @@ def _count_vertices(fig) -> int:
     return total
 
 
-def _labels_overlap(axis, renderer, pad=2.0) -> bool:
-    """Whether the drawn major tick labels of `axis` run into each other."""
-    lo, hi = sorted(axis.get_view_interval())
-    span = (hi - lo) * 1e-9
-    labels = [t for loc, t in zip(axis.get_majorticklocs(), axis.get_ticklabels())
-              if lo - span <= loc <= hi + span]      # ticks outside the view are not drawn
-    boxes = [t.get_window_extent(renderer) for t in labels if t.get_visible() and t.get_text()]
-    boxes.sort(key=lambda b: b.x0)
-    return any(b.x0 < a.x1 + pad for a, b in zip(boxes, boxes[1:]))
-
-
 def thin_overlapping_ticks(fig) -> None:
     """Fewer numeric x ticks on every narrow axes whose x tick labels overlap, at the axes'
     current positions (dynid.reports.figure_layout.thin_crowded_ticks; figures laid out by

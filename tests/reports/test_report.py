@@ -432,6 +432,18 @@ def test_no_excluded_sample_is_drawn_at_zero(planar, monkeypatch):
     assert np.all(np.isfinite(val.tau)) and np.all(np.isfinite(val.tau_hat))
 
 
+def _labels_overlap(axis, renderer, pad=2.0) -> bool:
+    """Whether the drawn major tick labels of `axis` run into each other (the oracle: measured
+    on the drawn labels, not from the label widths the layout engine estimates)."""
+    lo, hi = sorted(axis.get_view_interval())
+    span = (hi - lo) * 1e-9
+    labels = [t for loc, t in zip(axis.get_majorticklocs(), axis.get_ticklabels())
+              if lo - span <= loc <= hi + span]      # ticks outside the view are not drawn
+    boxes = [t.get_window_extent(renderer) for t in labels if t.get_visible() and t.get_text()]
+    boxes.sort(key=lambda b: b.x0)
+    return any(b.x0 < a.x1 + pad for a, b in zip(boxes, boxes[1:]))
+
+
 def test_tick_labels_of_narrow_panels_do_not_overlap():
     """One panel per joint, a few centimetres wide (the diagnosis' structure plots), with long tick
     labels: they overlap as matplotlib draws them; render_figure thins them, or slants them."""
@@ -445,12 +457,12 @@ def test_tick_labels_of_narrow_panels_do_not_overlap():
     F.FigureCanvasAgg(fig)
     renderer = fig.canvas.get_renderer()
     fig.draw_without_rendering()
-    assert any(F._labels_overlap(ax.xaxis, renderer) for ax in axes)   # the fault, as drawn
+    assert any(_labels_overlap(ax.xaxis, renderer) for ax in axes)   # the fault, as drawn
     F.render_figure(fig, "fig-narrow", "narrow panels")
     F.FigureCanvasAgg(fig)
     renderer = fig.canvas.get_renderer()
     fig.draw_without_rendering()
     for ax in axes:
         slanted = all(t.get_rotation() > 0 for t in ax.xaxis.get_ticklabels())
-        assert slanted or not F._labels_overlap(ax.xaxis, renderer)
+        assert slanted or not _labels_overlap(ax.xaxis, renderer)
         assert len([t for t in ax.xaxis.get_ticklabels() if t.get_text()]) >= 2
