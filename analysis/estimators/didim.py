@@ -1334,7 +1334,6 @@ def _identify_auto_v_s(experiment, robot, *, settings, chi0, tol, max_iter, upda
         return last["res"].chi if last.get("physical") is None else last["physical"].chi
 
     h1 = first.history
-    n1 = len(h1)
     # each width: (||rho||, estimate, substeps); the step that scored it is kept for the best one
     # only, so that the final run continues it (one simulation less than a fresh start)
     scan = {V_S_START: (float(h1["rho_norm"].iloc[-1]), estimate(last0), int(h1["substeps"].iloc[-1]))}
@@ -1391,8 +1390,10 @@ def _identify_auto_v_s(experiment, robot, *, settings, chi0, tol, max_iter, upda
                        f"{v:.3g} predicted ||rho|| lower by {100 * gain / scan[b][0]:.2g} % <= tol_I, "
                        "not simulated")
     chosen = best()
-    final, h2, t2 = _continue_at(experiment, L0, first, chosen, steps[chosen], scan[chosen][1], n1, cont,
-                                 tol, max_iter, essential, physical, pc_options, n_boot, final_cov, kw,
+    final_run = dict(update_gains=cont, tol=tol, max_iter=max_iter, essential=essential, physical=physical,
+                     pc_options=pc_options, n_boot=n_boot, max_error_growth=kw["max_error_growth"],
+                     **final_cov)
+    final, h2, t2 = _continue_at(experiment, L0, first, chosen, steps[chosen], scan[chosen][1], final_run,
                                  part(0.85, 1.0))
     if progress is not None:
         progress(1.0)
@@ -1422,8 +1423,7 @@ def _identify_auto_v_s(experiment, robot, *, settings, chi0, tol, max_iter, upda
     return final
 
 
-def _continue_at(experiment, L0, first, v, step, start, n1, update_gains, tol, max_iter, essential,
-                 physical, pc_options, n_boot, final_cov, kw, progress):
+def _continue_at(experiment, L0, first, v, step, start, final_run, progress):
     """DIDIM at the chosen width `v` to convergence, continuing the step that scored it.
 
     `step` = (history row, timings row, last) of the candidate's Gauss-Newton step at `v`, which
@@ -1431,11 +1431,14 @@ def _continue_at(experiment, L0, first, v, step, start, n1, update_gains, tol, m
     step simulates, so the iteration goes on from there (step `n1 + 1` of the whole history) and
     its criterion compares the next step's ||rho|| with the candidate's, as any DIDIM step does
     with the previous one. At `V_S_START` the first run's last step is continued (`step` None).
-    Returns (DIDIMResult of the final steps, their history rows, their timings), the steps
-    numbered as steps of the whole history.
+    `final_run`: the run's options (update_gains, tol, max_iter, essential, physical, pc_options,
+    n_boot, max_error_growth, uncertainty, gains). Returns (DIDIMResult of the final steps, their
+    history rows, their timings), the steps numbered as steps of the whole history.
     """
-    unc = final_cov["uncertainty"] + ("+gains" if final_cov["gains"] is not None else "")
-    Lf = _loop_at(L0, v, update_gains, max_iter, progress, uncertainty=unc)
+    o = final_run
+    n1 = len(first.history)
+    unc = o["uncertainty"] + ("+gains" if o["gains"] is not None else "")
+    Lf = _loop_at(L0, v, o["update_gains"], o["max_iter"], progress, uncertainty=unc)
     if step is None:
         row, last, rows, timings = first.history.iloc[-1].to_dict(), first._state[1], [], []
         k = n1 + 1
@@ -1444,16 +1447,16 @@ def _continue_at(experiment, L0, first, v, step, start, n1, update_gains, tol, m
         rows = [dict(row, iteration=n1 + 1)]
         timings = [dict(trow, iteration=n1 + 1)]
         k = n1 + 2
-    notices = [_loop_notice(Lf.s, Lf.n0, update_gains)]
+    notices = [_loop_notice(Lf.s, Lf.n0, o["update_gains"])]
     resume = dict(k=k, last=last, rho=float(row["rho_norm"]), out_err=float(row["output_error"]), beta_ls=start)
-    history, tim, last, converged, stop_reason = _gauss_newton(Lf, start, tol, physical, pc_options, notices,
-                                                               resume=resume)
+    history, tim, last, converged, stop_reason = _gauss_newton(Lf, start, o["tol"], o["physical"],
+                                                               o["pc_options"], notices, resume=resume)
     rows += history
     timings += tim
     notices += _convergence_notices(rows, converged, stop_reason)
     tau = np.ascontiguousarray(experiment.tau, dtype=float)
     res = _didim_result(Lf, experiment, start, tau, rows, timings, last, converged, stop_reason, notices,
-                        essential=essential, max_error_growth=kw["max_error_growth"], physical=physical,
-                        n_boot=n_boot, pc_options=pc_options, uncertainty=final_cov["uncertainty"],
-                        gains_cov=final_cov["gains"])
+                        essential=o["essential"], max_error_growth=o["max_error_growth"],
+                        physical=o["physical"], n_boot=o["n_boot"], pc_options=o["pc_options"],
+                        uncertainty=o["uncertainty"], gains_cov=o["gains"])
     return res, rows, timings
