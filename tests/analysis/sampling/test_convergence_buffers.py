@@ -60,3 +60,11 @@ def test_average_ranks_are_scipys_with_and_without_ties():
     stuck = np.repeat(x[::3], 3, axis=0)                        # repeated draws: tie groups of 3
     for a in (x, folded, stuck, np.round(x), np.zeros((5, 2)), x[:1]):
         assert np.array_equal(average_ranks(a), rankdata(a, axis=0, method="average"))
+
+
+def test_integrated_time_is_nan_for_a_constant_or_nan_parameter_only():
+    x = _ar_chain(300, 6, 4, 12)
+    x[:, :, 1] = 0.1                 # constant, and its mean is not exactly 0.1 in floating point
+    x[5, 0, 2] = np.nan
+    tau = integrated_time(x)
+    assert np.isfinite(tau[[0, 3]]).all() and np.isnan(tau[[1, 2]]).all()
