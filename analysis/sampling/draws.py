@@ -33,31 +33,36 @@ _N, _M = 624, 397
 
 @njit(cache=True, nogil=True)
 def _regenerate(key):
-    for i in range(_N):
-        y = (key[i] & 0x80000000) | (key[(i + 1) % _N] & 0x7FFFFFFF)
-        key[i] = key[(i + _M) % _N] ^ (y >> 1) ^ (-(y & 1) & 0x9908B0DF)
+    for i in range(_N - _M):
+        y = (key[i] & 0x80000000) | (key[i + 1] & 0x7FFFFFFF)
+        key[i] = key[i + _M] ^ (y >> 1) ^ (-(y & 1) & 0x9908B0DF)
+    for i in range(_N - _M, _N - 1):
+        y = (key[i] & 0x80000000) | (key[i + 1] & 0x7FFFFFFF)
+        key[i] = key[i + _M - _N] ^ (y >> 1) ^ (-(y & 1) & 0x9908B0DF)
+    y = (key[_N - 1] & 0x80000000) | (key[0] & 0x7FFFFFFF)
+    key[_N - 1] = key[_M - 1] ^ (y >> 1) ^ (-(y & 1) & 0x9908B0DF)
 
 
 @njit(cache=True, nogil=True)
-def _word(key, st):
-    """The next 32-bit word; st[0] is the position in the key."""
-    if st[0] >= _N:
+def _word(key, pos):
+    """(the next 32-bit word, the new position in the key); the position is passed along as a
+    scalar so that the compiled loops keep it in a register."""
+    if pos >= _N:
         _regenerate(key)
-        st[0] = 0
-    y = key[st[0]]
-    st[0] += 1
+        pos = 0
+    y = key[pos]
     y ^= y >> 11
     y ^= (y << 7) & 0x9D2C5680
     y ^= (y << 15) & 0xEFC60000
     y ^= y >> 18
-    return y
+    return y, pos + 1
 
 
 @njit(cache=True, nogil=True)
-def _uniform(key, st):
-    a = _word(key, st) >> 5
-    b = _word(key, st) >> 6
-    return (a * 67108864.0 + b) / 9007199254740992.0
+def _uniform(key, pos):
+    a, pos = _word(key, pos)
+    b, pos = _word(key, pos)
+    return ((a >> 5) * 67108864.0 + (b >> 6)) / 9007199254740992.0, pos
 
 
 @njit(cache=True, nogil=True)
@@ -72,32 +77,36 @@ def _mask(n):
 
 
 @njit(cache=True, nogil=True)
-def _bounded(key, st, top, mask):
+def _bounded(key, pos, top, mask):
     """Uniform integer in [0, top] (top < 2^32) by masking and rejection."""
-    v = _word(key, st) & mask
+    v, pos = _word(key, pos)
+    v &= mask
     while v > top:
-        v = _word(key, st) & mask
-    return v
+        v, pos = _word(key, pos)
+        v &= mask
+    return v, pos
 
 
 @njit(cache=True, nogil=True)
-def _gauss(key, st, cache):
+def _gauss(key, pos, cache):
     """numpy's legacy_gauss; cache = [has_gauss, gauss]."""
     if cache[0] != 0.0:
         v = cache[1]
         cache[0] = 0.0
         cache[1] = 0.0
-        return v
+        return v, pos
     while True:
-        x1 = 2.0 * _uniform(key, st) - 1.0
-        x2 = 2.0 * _uniform(key, st) - 1.0
+        u1, pos = _uniform(key, pos)
+        u2, pos = _uniform(key, pos)
+        x1 = 2.0 * u1 - 1.0
+        x2 = 2.0 * u2 - 1.0
         r2 = x1 * x1 + x2 * x2
         if r2 < 1.0 and r2 != 0.0:
             break
     f = math.sqrt(-2.0 * math.log(r2) / r2)
     cache[1] = f * x1
     cache[0] = 1.0
-    return f * x2
+    return f * x2, pos
 
 
 @njit(cache=True, nogil=True)
@@ -108,12 +117,13 @@ def _de_draws(key, st, cache, labels, nsplits, randomize, first, second, order, 
     other = np.empty(nw - half, np.int64)
     top = first.size - 1
     mask = _mask(top)
+    pos = st[0]
     for s in range(n_steps):
-        _uniform(key, st)                        # emcee's choice among the moves
+        _, pos = _uniform(key, pos)              # emcee's choice among the moves
         inds[:] = labels
         if randomize:
             for i in range(nw - 1, 0, -1):
-                j = _bounded(key, st, i, _mask(i))
+                j, pos = _bounded(key, pos, i, _mask(i))
                 t = inds[i]
                 inds[i] = inds[j]
                 inds[j] = t
@@ -132,13 +142,14 @@ def _de_draws(key, st, cache, labels, nsplits, randomize, first, second, order, 
                         k += 1
             base = sp * half
             for m in range(half):
-                p = _bounded(key, st, top, mask)
+                p, pos = _bounded(key, pos, top, mask)
                 ia[s, base + m] = other[first[p]]
                 ib[s, base + m] = other[second[p]]
             for m in range(half):
-                normals[s, base + m] = _gauss(key, st, cache)
+                normals[s, base + m], pos = _gauss(key, pos, cache)
             for m in range(half):
-                uniforms[s, base + m] = _uniform(key, st)
+                uniforms[s, base + m], pos = _uniform(key, pos)
+    st[0] = pos
 
 
 class StreamState:
