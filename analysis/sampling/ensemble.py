@@ -232,7 +232,10 @@ class _Sampler(emcee.EnsembleSampler):
                         draws.propose(coords, idx, dr.ia[s, split], dr.ib[s, split], gamma[s, split], q)
                         new_lp = evaluate(q)
                         if type(new_lp) is not np.ndarray or new_lp.dtype != np.float64:
-                            new_lp = np.asarray(new_lp, dtype=np.float64)
+                            new_lp = np.ascontiguousarray(new_lp, dtype=np.float64)
+                        if new_lp.shape != idx.shape:      # the compiled test reads new_lp[k] unchecked
+                            raise ValueError(f"the log-probability returned shape {new_lp.shape} for "
+                                             f"{idx.size} walkers")
                         draws.accept(coords, lp, idx, q, new_lp, log_u[s, split], accepted)
                     taken = s + 1
                     yield state, accepted
