@@ -616,6 +616,8 @@ def run_until_converged(sampler, p0: np.ndarray, criteria: ConvergenceCriteria |
                     time.perf_counter() - t_start > c.max_seconds:
                 limit = "time"
                 break
+        if lean:
+            steps.close()       # stopped early: the sampler's random state as after the steps taken
         first = False
         stored, _ = buf.view()
         dg = diagnose(stored, buf.interval, n, accepted, c, sampled=sampled, rank_rhat=False, work=work)
