@@ -196,23 +196,26 @@ class DEDraws:
 
 
 @njit(cache=True, nogil=True)
-def propose(coords, idx, ia, ib, gamma, q):
-    """q[k] = coords[idx[k]] + gamma[k] * (coords[ib[k]] - coords[ia[k]])."""
+def propose(coords, order, ia, ib, gamma, s, split, q):
+    """Sub-ensemble `split` of step `s` of a `DEDraws` block: q[k] = coords[i] + gamma * (coords[b] -
+    coords[a]) with i = order[s, split, k], a = ia[s, split, k], b = ib[s, split, k], gamma =
+    gamma[s, split, k] (the arrays of the block are passed whole: one call, no views)."""
     d = coords.shape[1]
-    for k in range(idx.size):
-        g = gamma[k]
-        i, a, b = idx[k], ia[k], ib[k]
+    for k in range(q.shape[0]):
+        g = gamma[s, split, k]
+        i, a, b = order[s, split, k], ia[s, split, k], ib[s, split, k]
         for j in range(d):
             q[k, j] = coords[i, j] + g * (coords[b, j] - coords[a, j])
 
 
 @njit(cache=True, nogil=True)
-def accept(coords, lp, idx, q, new_lp, log_u, accepted):
-    """emcee's test new_lp[k] - lp[idx[k]] > log_u[k]; an accepted walker takes q[k], new_lp[k]."""
+def accept(coords, lp, order, s, split, q, new_lp, log_u, accepted):
+    """emcee's test new_lp[k] - lp[w] > log_u[s, split, k] for walker w = order[s, split, k]; an
+    accepted walker takes q[k] and new_lp[k], and accepted[w] is set."""
     d = coords.shape[1]
-    for k in range(idx.size):
-        w = idx[k]
-        if new_lp[k] - lp[w] > log_u[k]:
+    for k in range(q.shape[0]):
+        w = order[s, split, k]
+        if new_lp[k] - lp[w] > log_u[s, split, k]:
             for j in range(d):
                 coords[w, j] = q[k, j]
             lp[w] = new_lp[k]

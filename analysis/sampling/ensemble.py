@@ -212,6 +212,8 @@ class _Sampler(emcee.EnsembleSampler):
         nsplits = move.nsplits
         first, second = _pair_columns(nwalkers - nwalkers // nsplits)
         stream = draws.StreamState(rnd)
+        half = nwalkers // nsplits
+        q_shape, lp_shape = (half, coords.shape[1]), (half,)
         done = 0
         while done < iterations:
             m = min(block, iterations - done)
@@ -223,22 +225,21 @@ class _Sampler(emcee.EnsembleSampler):
             gamma = move.g0 * (1 + move.sigma * dr.normals)
             log_u = np.log(dr.uniforms)
             taken = 0
+            accepted = np.zeros((m, nwalkers), dtype=bool)     # row s: step s's acceptance
             try:
                 for s in range(m):
-                    accepted = np.zeros(nwalkers, dtype=bool)
                     for split in range(nsplits):
-                        idx = dr.order[s, split]
-                        q = np.empty((idx.size, coords.shape[1]))
-                        draws.propose(coords, idx, dr.ia[s, split], dr.ib[s, split], gamma[s, split], q)
+                        q = np.empty(q_shape)
+                        draws.propose(coords, dr.order, dr.ia, dr.ib, gamma, s, split, q)
                         new_lp = evaluate(q)
                         if type(new_lp) is not np.ndarray or new_lp.dtype != np.float64:
                             new_lp = np.ascontiguousarray(new_lp, dtype=np.float64)
-                        if new_lp.shape != idx.shape:      # the compiled test reads new_lp[k] unchecked
+                        if new_lp.shape != lp_shape:     # the compiled test reads new_lp[k] unchecked
                             raise ValueError(f"the log-probability returned shape {new_lp.shape} for "
-                                             f"{idx.size} walkers")
-                        draws.accept(coords, lp, idx, q, new_lp, log_u[s, split], accepted)
+                                             f"{lp_shape[0]} walkers")
+                        draws.accept(coords, lp, dr.order, s, split, q, new_lp, log_u, accepted[s])
                     taken = s + 1
-                    yield state, accepted
+                    yield state, accepted[s]
             finally:
                 if taken < m:
                     # stopped inside the block: the stream as after the steps taken
