@@ -4,6 +4,10 @@ Shared by every posterior: `rng_from_seed` makes runs reproducible,
 `initial_ball` places the walkers where the posterior is positive,
 `make_sampler` seeds emcee's RandomState from the run's Generator and
 `criteria_from` copies the caller's convergence rule before applying overrides.
+`_Sampler.advance` steps emcee's moves without emcee's per-step bookkeeping; with dynid's
+default DEMove it takes the random draws of a block of steps at once from the same
+RandomState stream and runs each sub-ensemble's proposal and acceptance compiled
+(dynid.analysis.sampling.draws): the chain is emcee's bit for bit (tests/analysis/sampling).
 """
 from __future__ import annotations
 
