@@ -292,9 +292,13 @@ def integrated_time(chain: np.ndarray, c: float = 5.0, *, work: Workspace | None
     m = np.arange(T)[:, None] < c * taus      # auto_window
     window = np.where(m.any(axis=0), np.argmin(m, axis=0), T - 1)
     est = taus[window, np.arange(d)]
-    # a parameter with two different draws (one comparison pass, not a max and a min pass; a
-    # NaN draw makes est NaN)
-    varies = (chain.reshape(T * W, d) != chain[0, 0]).any(axis=0)
+    # a parameter with two different draws (a NaN draw makes est NaN): a witness among the first
+    # and last draws of the walkers decides almost always; the others are compared in full
+    first = chain[0, 0]
+    varies = (chain[0] != first).any(axis=0) | (chain[-1] != first).any(axis=0)
+    if not varies.all():
+        rest = np.flatnonzero(~varies)
+        varies[rest] = (chain[:, :, rest].reshape(T * W, rest.size) != first[rest]).any(axis=0)
     ok = varies & np.isfinite(est)
     out[ok] = est[ok]
     return out

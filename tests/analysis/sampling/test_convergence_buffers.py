@@ -63,8 +63,9 @@ def test_average_ranks_are_scipys_with_and_without_ties():
 
 
 def test_integrated_time_is_nan_for_a_constant_or_nan_parameter_only():
-    x = _ar_chain(300, 6, 4, 12)
+    x = _ar_chain(300, 6, 5, 12)
     x[:, :, 1] = 0.1                 # constant, and its mean is not exactly 0.1 in floating point
     x[5, 0, 2] = np.nan
+    x[[0, -1], :, 4] = 0.3           # varies, but not among the first and last draws
     tau = integrated_time(x)
-    assert np.isfinite(tau[[0, 3]]).all() and np.isnan(tau[[1, 2]]).all()
+    assert np.isfinite(tau[[0, 3, 4]]).all() and np.isnan(tau[[1, 2]]).all()
