@@ -22,6 +22,10 @@ of the run is its CPU time plus the time it waited in the run queue for a core (
 locks and thread pools: none, so the difference is the other processes' load). A floor:
 emcee's own step and dynid's step on a trivial vectorised log-prob of the same dimension and
 walkers (the sampler's cost without the posterior).
+The sampler's compiled kernels (dynid.analysis.sampling.draws) are loaded from numba's cache
+(compiled on the first run of an installation) before the timed run, and that time is printed
+beside it, with the figure that includes it. The sampling CPU is split into the log-prob calls,
+the stepping (draws, proposals, acceptance, storage), the convergence checks and the setup.
 The last line is a JSON object with the headline figures.
 Run from the repository root: python benchmarks/bayes.py [--seed S] [--rows-large N]
 """
@@ -95,20 +99,71 @@ class _Timed:
         self.cls.log_prob = self.orig
 
 
+class _Sections:
+    """CPU time spent inside some module functions during a run, one bucket per group (a call
+    nested in another of the same group is not counted twice)."""
+
+    def __init__(self, groups):
+        self.groups, self.cpu, self._saved = groups, {g: 0.0 for g in groups}, []
+
+    def __enter__(self):
+        for group, targets in self.groups.items():
+            depth = [0]
+            for mod, name in targets:
+                orig = getattr(mod, name)
+
+                def wrapped(*a, _orig=orig, _group=group, _depth=depth, **k):
+                    _depth[0] += 1
+                    t0 = time.process_time()
+                    try:
+                        return _orig(*a, **k)
+                    finally:
+                        _depth[0] -= 1
+                        if _depth[0] == 0:
+                            self.cpu[_group] += time.process_time() - t0
+                self._saved.append((mod, name, orig))
+                setattr(mod, name, wrapped)
+        return self
+
+    def __exit__(self, *exc):
+        for mod, name, orig in reversed(self._saved):
+            setattr(mod, name, orig)
+
+
+def warm_up():
+    """Load (or, on a fresh installation, compile) the sampler's numba kernels: (seconds, compiled)."""
+    from dynid.analysis.sampling import draws
+    from dynid.analysis.sampling.ensemble import make_sampler
+
+    t0 = time.perf_counter()
+    sampler = make_sampler(lambda X: -0.5 * np.einsum("ij,ij->i", X, X), 8, 2, "de", np.random.default_rng(0))
+    for _ in sampler.advance(np.random.default_rng(1).standard_normal((8, 2)), 2):
+        pass
+    compiled = any(sum(f.stats.cache_misses.values()) for f in (draws._de_draws, draws.propose, draws.accept))
+    return time.perf_counter() - t0, compiled
+
+
 def tx40(seed, noise=None):
     from dynid.analysis.demo import demo_data
     from dynid.analysis.estimators.idim import identify_idim
+    from dynid.analysis.sampling import convergence, sample
     from dynid.analysis.sampling import posterior as bayes
 
     t0 = time.perf_counter()
     robot, bp, beta, ident, valid = demo_data(1, 20.0)
     res = identify_idim(ident, robot, bp=bp)
     prep = time.perf_counter() - t0
+    # after the identification, as in dynid sample: numba itself is loaded by then (its
+    # start-up, ~0.2 s, is the identification's), only the sampler's kernels remain
+    warm = warm_up()
     u0 = usage()
-    with _Timed(bayes.LinearPosterior) as timed:
+    sections = _Sections({"run": [(sample, "run_until_converged")],
+                          "checks": [(convergence, "diagnose"), (convergence, "_kept_rank_rhat")]})
+    with _Timed(bayes.LinearPosterior) as timed, sections:
         post = bayes.sample_idim(res, seed=seed, n_walkers=64, **({} if noise is None else {"noise": noise}))
     use = usage() - u0
-    return prep, use[0], post, use[1], timed, use
+    timed.sections = sections.cpu
+    return prep, use[0], post, use[1], timed, use, warm
 
 
 def scaling_setup(n_rows, n_joints=6, b=25, walkers=64, seed=0):
@@ -200,10 +255,12 @@ def main():
     print(f"reference workload (1500x1500 matmul): {ref * 1e3:.1f} ms")
 
     load0 = loadavg()
-    prep, sampling, post, cpu, timed, use = tx40(args.seed, args.noise)
+    prep, sampling, post, cpu, timed, use, (warm_s, compiled) = tx40(args.seed, args.noise)
     load1 = loadavg()
     dg = post.diagnostics
     print(f"TX40 demo (20 s at 5 kHz): simulation + IDIM {prep:.1f} s (not counted)")
+    print(f"sampler kernels {'compiled (first run of this installation)' if compiled else 'loaded from numba cache'}"
+          f" in {warm_s:.3f} s (not counted in the sampling time; once per process, compiled once per installation)")
     print(f"emcee on {len(post.names) - 6} essential parameters + 6 noise levels = {len(post.names)} "
           f"dimensions, {dg.n_walkers} walkers: {sampling:.2f} s (target 30 s; {sampling / ref:.0f} x "
           f"reference), {dg.n_steps} steps, {1e6 * dg.elapsed / dg.n_steps:.0f} us/step")
@@ -237,7 +294,8 @@ def main():
     # issue 30's figure: the sampling time over its log-probability work (2 calls of 64 walkers a
     # step, measured alone on statistics of the same shape, 25 parameters x 6 joints)
     step_ratio = sampling / (dg.n_steps * 2 * small[1])
-    print(f"sampling time / (steps x 2 log-prob calls of 64 walkers): {step_ratio:.1f}")
+    print(f"sampling time / (steps x 2 log-prob calls of 64 walkers): {step_ratio:.1f} "
+          f"({(sampling + warm_s) / (dg.n_steps * 2 * small[1]):.1f} with the kernels' loading)")
     # the same on CPU time, numerator and denominator: what the run costs without the run-queue wait
     step_ratio_cpu = cpu / (dg.n_steps * 2 * lp_cpu[0])
     print(f"sampling CPU time / (steps x 2 log-prob calls of 64 walkers, CPU {lp_cpu[0] * 1e6:.1f} us each): "
@@ -251,6 +309,13 @@ def main():
     # the sampling's CPU time over the CPU time of its own log-prob calls
     inrun = cpu / timed.cpu if timed.cpu > 0 else float("nan")
     print(f"sampling CPU {cpu:.2f} s / CPU inside its {timed.calls} log-prob calls {timed.cpu:.2f} s: {inrun:.1f}")
+    sec = timed.sections
+    setup_cpu = cpu - sec["run"]
+    stepping_cpu = sec["run"] - sec["checks"] - timed.cpu
+    print(f"where the sampling CPU went: log-prob {timed.cpu:.2f} s, stepping (draws, proposals, acceptance, "
+          f"storage) {stepping_cpu:.2f} s, convergence checks {sec['checks']:.2f} s, setup and result "
+          f"(noise model, start, summary) {setup_cpu:.2f} s; in units of the in-run log-prob CPU: 1 + "
+          f"{stepping_cpu / timed.cpu:.2f} + {sec['checks'] / timed.cpu:.2f} + {setup_cpu / timed.cpu:.2f}")
     print(f"log-prob time ratio {rows[1]:,} / {rows[0]:,} rows: {ratio:.2f} (same code on statistics of "
           f"identical shape: (6, 25, 25) + (6, 25) + (6,)); statistics pass ratio "
           f"{large[0] / small[0]:.0f} (linear in the rows, paid once)")
@@ -267,6 +332,10 @@ def main():
         "emcee_step_over_logprob_work": round(floor["emcee"] / work, 2),
         "tx40_chain_sha256": chain_hash,
         "tx40_cpu_over_inrun_logprob_cpu": round(inrun, 2), "tx40_sampling_cpu_s": round(cpu, 2),
+        "tx40_logprob_cpu_s": round(timed.cpu, 3), "tx40_stepping_cpu_s": round(stepping_cpu, 3),
+        "tx40_checks_cpu_s": round(sec["checks"], 3), "tx40_setup_cpu_s": round(setup_cpu, 3),
+        "kernels_warm_up_s": round(warm_s, 2), "kernels_compiled": compiled,
+        "tx40_sampling_with_warm_up_over_logprob_work": round((sampling + warm_s) / (dg.n_steps * 2 * small[1]), 2),
         "tx40_noise_model": post.settings.get("noise_model", {}).get("kind", "white"),
         "tx40_tau_max": round(dg.tau_max, 1), "tx40_chain_over_tau": round(dg.chain_over_tau, 1),
         "tx40_rhat_max": round(dg.rhat_max, 4), "tx40_acceptance": round(dg.acceptance_mean, 3),

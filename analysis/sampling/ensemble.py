@@ -4,6 +4,10 @@ Shared by every posterior: `rng_from_seed` makes runs reproducible,
 `initial_ball` places the walkers where the posterior is positive,
 `make_sampler` seeds emcee's RandomState from the run's Generator and
 `criteria_from` copies the caller's convergence rule before applying overrides.
+`_Sampler.advance` steps emcee's moves without emcee's per-step bookkeeping; with dynid's
+default DEMove it takes the random draws of a block of steps at once from the same
+RandomState stream and runs each sub-ensemble's proposal and acceptance compiled
+(dynid.analysis.sampling.draws): the chain is emcee's bit for bit (tests/analysis/sampling).
 """
 from __future__ import annotations
 
@@ -17,6 +21,7 @@ from emcee.ensemble import walkers_independent
 from emcee.model import Model
 from emcee.state import State
 
+from dynid.analysis.sampling import draws
 from dynid.analysis.sampling.convergence import ConvergenceCriteria
 from dynid.errors import IdentificationError, InputError
 
@@ -166,6 +171,11 @@ class _Sampler(emcee.EnsembleSampler):
         ends = np.cumsum(np.bincount(split_of, minlength=nsplits)).tolist()
         cuts = [slice(a, b) for a, b in zip([0] + ends[:-1], ends)]
         evaluate = self._evaluator()
+        if (type(move) is _DEMove and nwalkers % nsplits == 0 and coords.dtype == np.float64
+                and coords.flags.c_contiguous and lp.dtype == np.float64 and lp.flags.c_contiguous
+                and rnd.get_state()[0] == "MT19937"):
+            yield from self._de_steps(state, iterations, move, evaluate)
+            return
         proposal = getattr(move, "proposal", None)
         for _ in range(iterations):
             rnd.random_sample()            # emcee's choice among the moves: one uniform
@@ -193,6 +203,55 @@ class _Sampler(emcee.EnsembleSampler):
                 coords[moved] = q[acc]
                 lp[moved] = new_lp[acc]
             yield state, accepted
+
+    def _de_steps(self, state, iterations, move, evaluate, block=256):
+        """`_red_blue_steps` for dynid's DEMove with equal sub-ensembles: the random draws of
+        up to `block` steps taken at once (dynid.analysis.sampling.draws, the same stream), the
+        proposal and the acceptance of a sub-ensemble in one compiled pass each. The
+        RandomState is left where emcee's would be after the steps yielded, also when the
+        caller stops early."""
+        rnd = self._random
+        coords, lp = state.coords, state.log_prob
+        nwalkers = coords.shape[0]
+        nsplits = move.nsplits
+        first, second = _pair_columns(nwalkers - nwalkers // nsplits)
+        stream = draws.StreamState(rnd)
+        half = nwalkers // nsplits
+        q_shape, lp_shape = (half, coords.shape[1]), (half,)
+        done = 0
+        while done < iterations:
+            m = min(block, iterations - done)
+            start = stream.copy()
+            move.setup(coords)
+            dr = draws.DEDraws(stream, m, nwalkers, nsplits, move.randomize_split, first, second)
+            stream.give(rnd)
+            # the step sizes and log-uniforms as emcee computes them, elementwise on the block
+            gamma = move.g0 * (1 + move.sigma * dr.normals)
+            log_u = np.log(dr.uniforms)
+            taken = 0
+            accepted = np.zeros((m, nwalkers), dtype=bool)     # row s: step s's acceptance
+            try:
+                for s in range(m):
+                    for split in range(nsplits):
+                        q = np.empty(q_shape)
+                        draws.propose(coords, dr.order, dr.ia, dr.ib, gamma, s, split, q)
+                        new_lp = evaluate(q)
+                        if type(new_lp) is not np.ndarray or new_lp.dtype != np.float64:
+                            new_lp = np.ascontiguousarray(new_lp, dtype=np.float64)
+                        if new_lp.shape != lp_shape:     # the compiled test reads new_lp[k] unchecked
+                            raise ValueError(f"the log-probability returned shape {new_lp.shape} for "
+                                             f"{lp_shape[0]} walkers")
+                        draws.accept(coords, lp, dr.order, s, split, q, new_lp, log_u, accepted[s])
+                    taken = s + 1
+                    yield state, accepted[s]
+            finally:
+                if taken < m:
+                    # stopped inside the block: the stream as after the steps taken
+                    stream = start
+                    if taken:
+                        draws.DEDraws(stream, taken, nwalkers, nsplits, move.randomize_split, first, second)
+                    stream.give(rnd)
+            done += m
 
 
 def emcee_moves(moves):
