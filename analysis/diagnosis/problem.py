@@ -100,7 +100,8 @@ class Problem:
             if c.joint is None:
                 glob.append(c)
             else:
-                joint_blocks.append((c.columns(self.signals), c.joint - 1))
+                # built when its joint is decimated: one joint's columns in memory at a time
+                joint_blocks.append((lambda c=c: c.columns(self.signals), c.joint - 1))
                 joint_c.append(c)
         if joint_blocks:
             for c, D in zip(joint_c, self.eobs.decimate_joint_blocks(joint_blocks)):

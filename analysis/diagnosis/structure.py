@@ -298,6 +298,10 @@ def position_noise(q):
     return sigma, r
 
 
+#: Regressor values per chunk of `_observed_residual` (4 MB).
+_MODEL_ROWS = 1 << 19
+
+
 def position_noise_residual(experiment, robot, eobs, cols, chi, seed=0, n_draws=2):
     """(delta (n_draws, M, n) or None, sigma_q (n,)): what the recording's own position noise does
     to the decimated residual of the model `(cols, chi)` (base-regressor columns of `eobs.obs.W` and
@@ -349,10 +353,14 @@ def _observed_residual(experiment, robot, bp, settings, cols, chi):
         W = regressor(robot, fr.q, fr.qd, fr.qdd, columns=columns)
         return fr.tau * mask - (W * mask[:, :, None]) @ chi, mask
     dec = ParallelDecimator(nd, n_samples_total=N, fs=fr.fs, cutoff=fr.settings["f_decimation_cutoff"])
-    buf = np.empty((min(CHUNK, N), fr.q.shape[1], columns.size))   # one regressor buffer
+    # one regressor buffer of a few MB: each row's model torque is the same whatever the
+    # chunk, and a buffer of CHUNK rows (58 MB for 60 columns of 6 joints) per draw cost more
+    # in page faults than its products
+    rows = max(1, min(CHUNK, N, _MODEL_ROWS // max(1, fr.q.shape[1] * columns.size)))
+    buf = np.empty((rows, fr.q.shape[1], columns.size))
     parts = []
-    for start in range(0, N, CHUNK):
-        sl = slice(start, min(N, start + CHUNK))
+    for start in range(0, N, rows):
+        sl = slice(start, min(N, start + rows))
         model = regressor(robot, fr.q[sl], fr.qd[sl], fr.qdd[sl], columns=columns,
                           out=buf[:sl.stop - sl.start]) @ chi
         tau = fr.tau[sl]
