@@ -43,6 +43,21 @@ CACHE_LIMIT_BYTES = 400e6
 #: stays in the cache.
 _SUB_BYTES = 1 << 20
 
+#: Bytes of the regressor (and payload) columns per chunk of `observe_effects`.
+_OBSERVE_BYTES = 1 << 23
+
+#: Bytes of the shifted regressor pushed to the decimator at a time (`_shift_and_decimate`):
+#: measured on a 20 s, 5 kHz TX40 recording (166 pairs), 14 delays took 0.55 s in chunks of
+#: 2500 rows against 0.75 s in chunks of 20000 (the observation's `CHUNK`), whose 26 MB the
+#: decimator read back from memory.
+_SHIFT_BYTES = 1 << 22
+
+
+def _shift_chunk(width, sub):
+    """Rows per chunk of `_shift_and_decimate` for `width` columns: `_SHIFT_BYTES`, at least `sub`."""
+    return max(sub, _SHIFT_BYTES // max(1, 8 * width))
+
+
 #: Values per chunk when the full-rate regressor is rebuilt from its pairs (`regressor_chunks`).
 _PAIR_ROWS = 1 << 19
 
@@ -336,7 +351,7 @@ class EffectObservation:
         sub = max(1, _SUB_BYTES // max(1, 8 * n * k)) if self.W_full is not None else CHUNK
         D = _shift_and_decimate(source, N, (n, k), si, frac,
                                 None if keep is None else lambda out, src, a, b: np.multiply(src, keep[a:b], out=out),
-                                dec, sub)
+                                dec, sub, chunk=_shift_chunk(n * k, sub) if self.W_full is not None else CHUNK)
         return D.reshape(D.shape[0], n, k)
 
     def _nonzero_pairs(self):
@@ -408,9 +423,10 @@ class EffectObservation:
         nd = int(self.settings["nd"])
         dec = self._decimator() if nd > 1 else None
         m = sel.size
+        sub = max(1, _SUB_BYTES // max(1, 8 * m))
         D = _shift_and_decimate(source, N, (m,), si, frac, None if keep is None else zero_dead,
-                                dec, max(1, _SUB_BYTES // max(1, 8 * m)),
-                                buffers=self.__dict__.setdefault("_shift_buffers", {}))
+                                dec, sub, buffers=self.__dict__.setdefault("_shift_buffers", {}),
+                                chunk=_shift_chunk(m, sub))
         out = np.zeros((D.shape[0], n * k))
         out[:, sel] = D
         return out.reshape(D.shape[0], n, k)
@@ -490,7 +506,11 @@ def observe_effects(experiment, robot, bp, settings=None, *, cache_regressor="au
     payload = np.empty((n_kept, n, len(pay_idx)))
     keep_rows = None if dead is None else ~dead
 
-    chunk_buf = np.empty((min(n_kept, CHUNK), n, columns.size))
+    # chunks of a few MB: the decimator then reads them from the cache (measured on a 20 s,
+    # 5 kHz TX40 recording: 0.4 s in chunks of 2500 rows against 0.6-1.4 s in chunks of
+    # 20000); the outputs do not depend on the chunk
+    chunk = min(CHUNK, max(1, _OBSERVE_BYTES // (8 * n * columns.size)))
+    chunk_buf = np.empty((min(n_kept, chunk), n, columns.size))
     if as_pairs:
         structural = _structural_pairs(robot, bp.independent)
         kept_pairs = np.flatnonzero(structural)
@@ -518,8 +538,8 @@ def observe_effects(experiment, robot, bp, settings=None, *, cache_regressor="au
         return Wb
 
     if nd <= 1:
-        W = np.concatenate([chunk_regressor(slice(a, min(n_kept, a + CHUNK))).copy()   # the buffer is reused
-                            for a in range(0, n_kept, CHUNK)], axis=0)
+        W = np.concatenate([chunk_regressor(slice(a, min(n_kept, a + chunk))).copy()   # the buffer is reused
+                            for a in range(0, n_kept, chunk)], axis=0)
         mask = np.ones(tau.shape, dtype=bool) if dead is None else keep_rows.copy()
         Wd, taud = W * mask[:, :, None], tau * mask
         obs = Observation(W=Wd, tau=taud, t=t, q=qf, qd=qd, qdd=qdd, row_mask=mask,
@@ -529,9 +549,9 @@ def observe_effects(experiment, robot, bp, settings=None, *, cache_regressor="au
         parts = []
         # one buffer for the masked chunks (the decimator copies what it keeps): a fresh
         # array per chunk costs more in page faults than the product
-        buf = None if keep_rows is None else np.empty((min(n_kept, CHUNK), n, b))
-        for start in range(0, n_kept, CHUNK):
-            sl = slice(start, min(n_kept, start + CHUNK))
+        buf = None if keep_rows is None else np.empty((min(n_kept, chunk), n, b))
+        for start in range(0, n_kept, chunk):
+            sl = slice(start, min(n_kept, start + chunk))
             W = chunk_regressor(sl)
             tc = tau[sl]
             if keep_rows is not None:
@@ -572,7 +592,7 @@ def _pairs_to_full(store, kept_pairs, rows, shape):
     del store["data"], store["nonzero"]
 
 
-def _shift_and_decimate(source, N, tail, si, frac, keep, dec, sub, buffers=None):
+def _shift_and_decimate(source, N, tail, si, frac, keep, dec, sub, buffers=None, chunk=CHUNK):
     """Rows `source(a - si, b - si)` delayed by a further `frac` sample (linear interpolation
     between neighbours), zeroed in the velocity dead zone by `keep(out, src, a, b)` where given
     (`out = src * keep` of rows a..b-1, `src` may be `out`), decimated by `dec` (None: kept at
@@ -583,10 +603,12 @@ def _shift_and_decimate(source, N, tail, si, frac, keep, dec, sub, buffers=None)
     arithmetic runs on sub-blocks of `sub` rows that stay in the cache: one pass over memory,
     not four, with the same operations in the same order, so the same numbers. `buffers`: a
     dict that keeps the two buffers for the next call (the delay grid shifts the same columns
-    14 times per step: one allocation, not 14).
+    14 times per step: one allocation, not 14). `chunk`: rows pushed to the decimator at a
+    time (`_shift_chunk`: a few MB, which the decimator then reads from the cache; the
+    outputs do not depend on it).
     """
     buffers = {} if buffers is None else buffers
-    key = (min(N, CHUNK), *tail)
+    key = (min(N, chunk), *tail)
     buf = buffers.get(key)
     if buf is None:
         buf = buffers[key] = np.empty(key)
@@ -596,8 +618,8 @@ def _shift_and_decimate(source, N, tail, si, frac, keep, dec, sub, buffers=None)
         if tmp is None:
             tmp = buffers[("tmp", sub, *tail)] = np.empty((min(N, sub), *tail))
     parts = []
-    for start in range(0, N, CHUNK):
-        stop = min(N, start + CHUNK)
+    for start in range(0, N, chunk):
+        stop = min(N, start + chunk)
         C = buf[:stop - start]
         for a in range(start, stop, sub):
             b = min(stop, a + sub)
