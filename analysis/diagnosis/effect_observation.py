@@ -293,19 +293,27 @@ class EffectObservation:
         `exclude`: a boolean (len(columns),) of parameters left out (e.g. the
         friction terms, for the torque the transmission carries).
         """
-        cols = np.asarray(columns, dtype=int)
-        chi = np.asarray(chi, dtype=float)
-        if exclude is not None:
-            keep = ~np.asarray(exclude, dtype=bool)
-            cols, chi = cols[keep], chi[keep]
-        tau = np.empty((self.n_full, self.n_joints))
-        # all columns in order: the chunk itself, not a gathered copy of it (the same product)
+        return self.model_torques(columns, [(chi, exclude)])[0]
+
+    def model_torques(self, columns, models):
+        """`model_torque(columns, chi, exclude=exclude)` of each `(chi, exclude)` in `models`,
+        in one pass over the full-rate regressor (the same numbers as one call each)."""
         b = self.W_full.shape[2] if self.W_full is not None else (
             self.pairs.shape[1] if self.pairs is not None else -1)
-        every = b >= 0 and np.array_equal(cols, np.arange(b))
+        specs = []
+        for chi, exclude in models:
+            cols = np.asarray(columns, dtype=int)
+            chi = np.asarray(chi, dtype=float)
+            if exclude is not None:
+                keep = ~np.asarray(exclude, dtype=bool)
+                cols, chi = cols[keep], chi[keep]
+            # all columns in order: the chunk itself, not a gathered copy of it (the same product)
+            specs.append((None if b >= 0 and np.array_equal(cols, np.arange(b)) else cols, chi))
+        taus = [np.empty((self.n_full, self.n_joints)) for _ in specs]
         for sl, W in self.regressor_chunks():
-            tau[sl] = (W if every else W[:, :, cols]) @ chi
-        return tau
+            for tau, (cols, chi) in zip(taus, specs):
+                tau[sl] = (W if cols is None else W[:, :, cols]) @ chi
+        return taus
 
     def shifted_regressor(self, columns, d):
         """Decimated base-regressor columns of the motion shifted by `d` s: W(t - d).

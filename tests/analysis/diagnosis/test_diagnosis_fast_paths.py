@@ -228,3 +228,30 @@ def test_regressor_pairs_fall_back_to_the_full_regressor(planar, monkeypatch):
     got = observe_effects(exp, robot, bp, settings, cache_regressor="pairs")
     assert got.pairs is None
     np.testing.assert_array_equal(got.W_full, full.W_full)
+
+
+def test_model_torques_in_one_pass_are_model_torque_each(planar):
+    robot, bp, exp, settings, eobs = planar
+    cols = np.arange(len(bp.names))
+    rng = np.random.default_rng(5)
+    chi = rng.standard_normal(cols.size)
+    ex = rng.random(cols.size) < 0.4
+    for e in (eobs, observe_effects(exp, robot, bp, settings, cache_regressor="pairs")):
+        a, b = e.model_torques(cols, [(chi, None), (chi, ex)])
+        assert np.array_equal(a, e.model_torque(cols, chi))
+        assert np.array_equal(b, e.model_torque(cols, chi, exclude=ex))
+
+
+def test_line_confirmation_not_needed_draws_the_same_permutations():
+    """With the full-data p at 1 the confirmation is not computed, but the generator is left
+    where the computation leaves it: the tests after it draw the same permutations."""
+    rng0 = np.random.default_rng(8)
+    n = 3001
+    e = rng0.standard_normal(n)
+    gi = rng0.integers(0, structure.GRID, n)
+    sel = np.zeros(structure.GRID + 1, dtype=bool)
+    sel[10:200] = True
+    r1, r2 = np.random.default_rng(3), np.random.default_rng(3)
+    structure._line_confirmation(gi, e, sel, 40, 11, r1)
+    assert structure._line_confirmation(gi, e, sel, 40, 11, r2, needed=False) == 1.0
+    assert r1.integers(0, 2 ** 62) == r2.integers(0, 2 ** 62)
