@@ -155,8 +155,7 @@ def signals_from_observation(eobs, model_columns=None, chi=None, model_names=Non
     if model_columns is not None and chi is not None:
         names = list(model_names) if model_names is not None else [eobs.bp.names[c] for c in model_columns]
         friction = np.array([_is_friction(nm) for nm in names], dtype=bool)
-        tau_model = eobs.model_torque(model_columns, chi)
-        tau_load = eobs.model_torque(model_columns, chi, exclude=friction)
+        tau_model, tau_load = eobs.model_torques(model_columns, [(chi, None), (chi, friction)])
         tau_rate = np.gradient(tau_model, 1.0 / fs, axis=0)
     robot = robot if robot is not None else eobs.robot
     sigma = None if robot is None else robot.sigma

@@ -100,7 +100,8 @@ class Problem:
             if c.joint is None:
                 glob.append(c)
             else:
-                joint_blocks.append((c.columns(self.signals), c.joint - 1))
+                # built when its joint is decimated: one joint's columns in memory at a time
+                joint_blocks.append((lambda c=c: c.columns(self.signals), c.joint - 1))
                 joint_c.append(c)
         if joint_blocks:
             for c, D in zip(joint_c, self.eobs.decimate_joint_blocks(joint_blocks)):
@@ -194,7 +195,7 @@ def start_model_fit(idim_result, obs, start_model):
 
 def validation_problem(data, robot, idim_result, t0, T, model=None):
     eobs = data if isinstance(data, EffectObservation) else observe_effects(
-        data, robot, idim_result.base, idim_result.settings)
+        data, robot, idim_result.base, idim_result.settings, cache_regressor="pairs")
     model0 = idim_result.model if model is None else model
     cols0 = idim_result.columns(model0.names)
     sig = signals_from_observation(eobs, cols0, model0.chi, model0.names, t0=t0, T=T, robot=robot)

@@ -298,6 +298,10 @@ def position_noise(q):
     return sigma, r
 
 
+#: Regressor values per chunk of `_observed_residual` (4 MB).
+_MODEL_ROWS = 1 << 19
+
+
 def position_noise_residual(experiment, robot, eobs, cols, chi, seed=0, n_draws=2):
     """(delta (n_draws, M, n) or None, sigma_q (n,)): what the recording's own position noise does
     to the decimated residual of the model `(cols, chi)` (base-regressor columns of `eobs.obs.W` and
@@ -349,10 +353,14 @@ def _observed_residual(experiment, robot, bp, settings, cols, chi):
         W = regressor(robot, fr.q, fr.qd, fr.qdd, columns=columns)
         return fr.tau * mask - (W * mask[:, :, None]) @ chi, mask
     dec = ParallelDecimator(nd, n_samples_total=N, fs=fr.fs, cutoff=fr.settings["f_decimation_cutoff"])
-    buf = np.empty((min(CHUNK, N), fr.q.shape[1], columns.size))   # one regressor buffer
+    # one regressor buffer of a few MB: each row's model torque is the same whatever the
+    # chunk, and a buffer of CHUNK rows (58 MB for 60 columns of 6 joints) per draw cost more
+    # in page faults than its products
+    rows = max(1, min(CHUNK, N, _MODEL_ROWS // max(1, fr.q.shape[1] * columns.size)))
+    buf = np.empty((rows, fr.q.shape[1], columns.size))
     parts = []
-    for start in range(0, N, CHUNK):
-        sl = slice(start, min(N, start + CHUNK))
+    for start in range(0, N, rows):
+        sl = slice(start, min(N, start + rows))
         model = regressor(robot, fr.q[sl], fr.qd[sl], fr.qdd[sl], columns=columns,
                           out=buf[:sl.stop - sl.start]) @ chi
         tau = fr.tau[sl]
@@ -458,7 +466,7 @@ def _line_test(j, x, e, L, n_perm, rng, noise_rms):
     rms = math.sqrt(struct2)
     if noise_rms is None:          # the rest of the full-rate residual
         noise_rms = math.sqrt(max(float(np.mean(e ** 2)) - struct2, 1e-300))
-    p = max(p, _line_confirmation(gi, e, sel, L, n_perm, rng))
+    p = max(p, _line_confirmation(gi, e, sel, L, n_perm, rng, needed=p < 1.0))
     order = float(k_orders[ib])
     if 0 < ib < P.size - 1:       # parabolic interpolation of the peak (bin spacing ~2 % at order 50)
         a_, b_, c_ = P[ib - 1], P[ib], P[ib + 1]
@@ -476,7 +484,7 @@ def _position_power(gi, y):
     return np.abs(np.fft.rfft(np.bincount(gi, weights=y, minlength=GRID), 2 * GRID)) ** 2
 
 
-def _line_confirmation(gi, e, sel, L, n_perm, rng):
+def _line_confirmation(gi, e, sel, L, n_perm, rng, needed=True):
     """p of the spectral line found in one half of the recording, tested in the other.
 
     The full-data test searches thousands of orders; its Bonferroni factor K holds only if
@@ -488,11 +496,19 @@ def _line_confirmation(gi, e, sel, L, n_perm, rng):
     order is searched in one half (in time) and the ordinate at that order (and the
     bins beside it) is tested in the other, without a search: `p = 3 exp(-z)`; both
     directions, the smaller p times 2. The line must pass both this and the full-data
-    test (the larger p is kept).
+    test (the larger p is kept). `needed=False` (the full-data p is 1 already, so the larger
+    is 1 whatever this one is): 1, after drawing the same permutations from `rng`, so the
+    tests after this one draw what they would have.
     """
     nu = e.size
     half = nu // 2
     if half < 100:
+        return 1.0
+    if not needed:
+        for size in (half, nu - half):
+            nb = int(math.ceil(size / L))
+            for _ in range(n_perm):
+                rng.permutation(nb)
         return 1.0
 
     def spectra(idx):

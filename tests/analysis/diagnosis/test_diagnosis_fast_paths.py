@@ -187,3 +187,71 @@ def test_pc_wls_without_the_consistency_check_is_the_same_fit():
     assert np.array_equal(fit.chi, full.chi) and np.array_equal(fit.standard, full.standard)
     assert (fit.chi2, fit.p_value, fit.dof, fit.active) == (full.chi2, full.p_value, full.dof, full.active)
     assert fit.p_value < 1e-3
+
+
+def test_regressor_kept_as_pairs_gives_the_same_numbers(planar):
+    """`cache_regressor="pairs"` keeps only the regressor's pairs that are not identically
+    zero: every method gives the numbers of the full regressor, bit for bit."""
+    from dynid.analysis.diagnosis.problem import without_parameters
+    robot, bp, exp, settings, full = planar
+    pairs = observe_effects(exp, robot, bp, settings, cache_regressor="pairs")
+    assert pairs.W_full is None and pairs.pairs.data.shape[1] < full.W_full[0].size
+    n, b = pairs.pairs.shape
+    rebuilt = np.zeros((pairs.n_full, n * b))
+    pairs.pairs.fill(slice(None), rebuilt)
+    assert np.array_equal(rebuilt.reshape(full.W_full.shape), full.W_full)
+    for a in ("W", "tau", "row_mask"):
+        assert np.array_equal(getattr(pairs.obs, a), getattr(full.obs, a)), a
+    assert np.array_equal(pairs._nonzero_pairs(), np.any(full.W_full != 0, axis=0))
+    cols = np.arange(b)
+    rng = np.random.default_rng(3)
+    chi = rng.standard_normal(b)
+    for c in (cols, cols[1::2]):
+        assert np.array_equal(pairs.model_torque(c, chi[:c.size]), full.model_torque(c, chi[:c.size]))
+        for d in (0.0031, -0.004, 0.0):
+            assert np.array_equal(pairs.shifted_regressor(c, d), full.shifted_regressor(c, d))
+    sub = without_parameters(bp, ("Off",))
+    p2, f2 = pairs.with_base(sub), full.with_base(sub)
+    c2 = np.arange(len(sub.names))
+    assert np.array_equal(p2.shifted_regressor(c2, 0.0031), f2.shifted_regressor(c2, 0.0031))
+
+
+def test_regressor_pairs_fall_back_to_the_full_regressor(planar, monkeypatch):
+    """A pair the structural probe calls zero but the recording does not: the full regressor
+    is kept instead, the same as without pairs."""
+    import dynid.analysis.diagnosis.effect_observation as eo
+    robot, bp, exp, settings, full = planar
+    nz = np.any(full.W_full != 0, axis=0).ravel()
+    missed = nz.copy()
+    missed[np.flatnonzero(nz)[-1]] = False
+    monkeypatch.setattr(eo, "_structural_pairs", lambda robot, columns: missed)
+    got = observe_effects(exp, robot, bp, settings, cache_regressor="pairs")
+    assert got.pairs is None
+    np.testing.assert_array_equal(got.W_full, full.W_full)
+
+
+def test_model_torques_in_one_pass_are_model_torque_each(planar):
+    robot, bp, exp, settings, eobs = planar
+    cols = np.arange(len(bp.names))
+    rng = np.random.default_rng(5)
+    chi = rng.standard_normal(cols.size)
+    ex = rng.random(cols.size) < 0.4
+    for e in (eobs, observe_effects(exp, robot, bp, settings, cache_regressor="pairs")):
+        a, b = e.model_torques(cols, [(chi, None), (chi, ex)])
+        assert np.array_equal(a, e.model_torque(cols, chi))
+        assert np.array_equal(b, e.model_torque(cols, chi, exclude=ex))
+
+
+def test_line_confirmation_not_needed_draws_the_same_permutations():
+    """With the full-data p at 1 the confirmation is not computed, but the generator is left
+    where the computation leaves it: the tests after it draw the same permutations."""
+    rng0 = np.random.default_rng(8)
+    n = 3001
+    e = rng0.standard_normal(n)
+    gi = rng0.integers(0, structure.GRID, n)
+    sel = np.zeros(structure.GRID + 1, dtype=bool)
+    sel[10:200] = True
+    r1, r2 = np.random.default_rng(3), np.random.default_rng(3)
+    structure._line_confirmation(gi, e, sel, 40, 11, r1)
+    assert structure._line_confirmation(gi, e, sel, 40, 11, r2, needed=False) == 1.0
+    assert r1.integers(0, 2 ** 62) == r2.integers(0, 2 ** 62)
