@@ -31,7 +31,6 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from dynid.analysis.diagnosis.effect_observation import observe_effects
 from dynid.errors import DynidError
 
 __all__ = ["RestPhases", "rest_phases", "REST_MODELS", "coulomb_signal"]
@@ -108,16 +107,15 @@ class RestPhases:
                 "identification_rest_sse": {k: list(map(float, v)) for k, v in self.id_rest_sse.items()}}
 
 
-def rest_phases(identification, validation, robot, bp, settings, cols, chi, names, id_eobs, val_eobs,
-                folds=5):
+def rest_phases(robot, cols, chi, names, id_eobs, val_eobs, folds=5):
     """`RestPhases` of the model (`cols`, `chi`, `names`) or None (no Coulomb term, no data).
 
     Parameters
     ----------
-    identification, validation : Experiment of the identification and the held-out data.
-    robot, bp, settings : as the identification (resolved settings with the dead zone).
+    robot : the robot identified.
     cols, chi, names : the model's base-regressor columns, values and names.
-    id_eobs, val_eobs : EffectObservation (dead zone on) of both recordings.
+    id_eobs, val_eobs : EffectObservation (dead zone on) of the identification and the held-out
+        recordings, as `observe_effects` builds them (with their robot and base parameters).
     folds : contiguous blocks of the CV choice (the diagnosis' blocked CV).
 
     Returns
@@ -128,8 +126,8 @@ def rest_phases(identification, validation, robot, bp, settings, cols, chi, name
     if not fc or id_eobs.dead is None or val_eobs.dead is None:
         return None
     try:
-        ident = _all_samples(identification, robot, bp, settings, cols, chi, id_eobs, fc)
-        held = _all_samples(validation, robot, bp, settings, cols, chi, val_eobs, fc)
+        ident = _all_samples(cols, chi, id_eobs, fc)
+        held = _all_samples(cols, chi, val_eobs, fc)
     except DynidError:
         return None
     n = robot.n_joints
@@ -218,7 +216,7 @@ def _share(res, rest):
     return np.sum(np.where(rest, res, 0.0) ** 2, axis=0) / np.where(tot > 0, tot, 1.0)
 
 
-def _all_samples(experiment, robot, bp, settings, cols, chi, eobs_dz, fc):
+def _all_samples(cols, chi, eobs_dz, fc):
     """Residuals (M, n) on all samples for each rest model, the torque and the rest rows.
 
     The system without the dead zone is `eobs_dz`'s full-rate data decimated without the
@@ -226,11 +224,7 @@ def _all_samples(experiment, robot, bp, settings, cols, chi, eobs_dz, fc):
     same decimator); the model's prediction is the decimated full-rate model torque (the
     filter is linear), so the regressor is not rebuilt (it was, by a second
     `observe_effects`: about 1.5 s per 20 s at 5 kHz; equal to 1e-13 relative).
-    `experiment`, `robot`, `bp`, `settings`: the recording and its processing, used only when
-    `eobs_dz` keeps neither the full-rate regressor nor the robot.
     """
-    if eobs_dz.W_full is None and (eobs_dz.robot is None or eobs_dz.bp is None):
-        eobs_dz = observe_effects(experiment, robot, bp, settings)
     e0 = replace(eobs_dz, dead=None)
     cols = np.asarray(cols, dtype=int)
     tau = e0.decimate(eobs_dz.tau)[:, :, 0]

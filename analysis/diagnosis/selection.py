@@ -796,10 +796,8 @@ def _rest(experiment, robot, setup, opts):
     if not opts.rest_phases or setup.vprob is None or isinstance(experiment, EffectObservation) \
             or isinstance(setup.validation, EffectObservation):
         return None
-    ir = setup.idim_result
-    return rest_phases(experiment, setup.validation, robot, ir.base, ir.settings, setup.cols0,
-                       setup.model0.chi, list(setup.names0), setup.eobs, setup.vprob.eobs,
-                       folds=setup.folds)
+    return rest_phases(robot, setup.cols0, setup.model0.chi, list(setup.names0), setup.eobs,
+                       setup.vprob.eobs, folds=setup.folds)
 
 
 # ======================================================================= stage 5: tests of the final model

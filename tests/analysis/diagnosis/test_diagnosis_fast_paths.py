@@ -85,7 +85,7 @@ def test_all_samples_residuals_equal_a_second_observation_without_dead_zone(plan
     cols = np.arange(len(names))
     chi = np.random.default_rng(1).standard_normal(len(names))
     fc = {j: names.index(f"Fc{j + 1}") for j in range(robot.n_joints)}
-    got = _all_samples(exp, robot, bp, eobs.settings, cols, chi, eobs, fc)
+    got = _all_samples(cols, chi, eobs, fc)
     # by definition: the recording observed again with the dead zone off
     e0 = observe_effects(exp, robot, bp, dict(eobs.settings, qd_threshold=0.0))
     tau = e0.obs.tau
