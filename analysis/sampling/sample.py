@@ -95,11 +95,8 @@ def sample_linear(W3, tau, names, *, row_mask=None, ls=None, sigma=None, prior=N
                                     None if row_mask is None else np.asarray(row_mask))
     noise = check_noise(noise)
     if noise == "sandwich":
-        js = sigma if sigma is not None else getattr(ls, "joint_sigma", None)
-        js = np.full(st.n_joints, np.nan) if js is None else np.asarray(js, dtype=float).reshape(-1)
-        if js.size != st.n_joints or not np.all(np.isfinite(js[st.active])):
-            # an LS result without per-joint σ (OLS): the residual's, as for the walkers' start
-            js = np.sqrt(st.s / np.maximum(st.rows - st.n_params, 1))
+        js = _joint_sigma_or_residual(st, sigma if sigma is not None else getattr(ls, "joint_sigma", None),
+                                      st.active)
         robust_cov, source = _robust_cov(W3, tau, names, row_mask, ls, js, robust_cov, groups)
         source = _source or source
         nm = sandwich_model(st, robust_cov, js, source)
@@ -124,10 +121,7 @@ def sample_linear(W3, tau, names, *, row_mask=None, ls=None, sigma=None, prior=N
     cov[:b, :b] = ls.cov
     if sigma is None:
         act = model.active
-        js = getattr(ls, "joint_sigma", None)
-        if js is None or not np.all(np.isfinite(np.asarray(js)[act])):
-            js = np.sqrt(st.s / np.maximum(st.rows - b, 1))
-        centre[b:] = np.log(np.asarray(js, dtype=float)[act])
+        centre[b:] = np.log(_joint_sigma_or_residual(st, getattr(ls, "joint_sigma", None), act)[act])
         cov[b:, b:] = np.diag(1.0 / (2.0 * model.stats.rows[act]))
     crit = criteria_from(criteria, max_steps=max_steps, max_seconds=max_seconds)
     p0 = initial_ball(log_prob, centre, cov, nw, init_scale, rng)
@@ -177,6 +171,15 @@ _LIKELIHOOD = {
                 "with C' H C the inverse of the fit's robust covariance (curvature adjustment, Ribatet, "
                 "Cooley & Davison 2012)",
 }
+
+
+def _joint_sigma_or_residual(st, js, active):
+    """The per-joint σ `js` (n,) or, when it is missing or not finite on an active joint (an
+    OLS result has none), the LS residual's `sqrt(s_j / (r_j - b))` (eq. (16))."""
+    js = np.full(st.n_joints, np.nan) if js is None else np.asarray(js, dtype=float).reshape(-1)
+    if js.size != st.n_joints or not np.all(np.isfinite(js[active])):
+        js = np.sqrt(st.s / np.maximum(st.rows - st.n_params, 1))
+    return js
 
 
 def _robust_label(ls):
