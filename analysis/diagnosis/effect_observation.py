@@ -30,7 +30,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from dynid.analysis.processing.decimation import ParallelDecimator
-from dynid.analysis.processing.observation import CHUNK, Observation, full_rate
+from dynid.analysis.processing.observation import CHUNK, Observation, dead_zone_notice, decimation_notice, full_rate
 from dynid.dynamics.regressor import regressor
 from dynid.errors import DataError
 
@@ -496,11 +496,8 @@ def observe_effects(experiment, robot, bp, settings=None, *, cache_regressor="au
     nd = int(s["nd"])
     n_kept = qf.shape[0]
     if dead is not None:
-        # observe's notices word for word: its observation system is this one's `obs`
-        notices.append("velocity dead zone (Coulomb friction's sign is unreliable there): rows with "
-                       + ", ".join(f"|qd{j + 1}| < {v:.3g}" for j, v in enumerate(s["qd_threshold"]))
-                       + " rad/s are zeroed in W and Y before decimation; excluded per joint: "
-                       + ", ".join(f"{100 * f:.1f} %" for f in dead.mean(axis=0)))
+        # observe's notices: its observation system is this one's `obs`
+        notices.append(dead_zone_notice(s, dead))
     b = len(bp.independent)
     std_names = robot.standard_names
     pay_idx = [std_names.index(nm) for nm in payload_parameter_names(robot)]
@@ -574,9 +571,7 @@ def observe_effects(experiment, robot, bp, settings=None, *, cache_regressor="au
         Wd, taud, qf_d, qd_d, qdd_d, kept_frac = (np.concatenate([p[k] for p in parts], axis=0)
                                                   for k in range(6))
         td = t[dec.indices]
-        notices.append(f"parallel decimation by nd = {nd} (low-pass {s['f_decimation_cutoff']:.3g} Hz): "
-                       f"{n_kept} -> {len(dec.indices)} samples, {dec.dropped_start} + {dec.dropped_end} "
-                       f"dropped for the decimation filter's transients")
+        notices.append(decimation_notice(s, n_kept, dec))
         obs = Observation(W=Wd, tau=taud, t=td, q=qf_d, qd=qd_d, qdd=qdd_d,
                           row_mask=kept_frac >= 0.5, names=list(bp.names), settings=s,
                           notices=list(notices), n_raw=N)

@@ -98,10 +98,7 @@ def observe(experiment, robot, bp, settings=None, *, progress=None, reference=Fa
     nd = int(s["nd"])
     n_kept = qf.shape[0]
     if dead is not None:
-        notices.append("velocity dead zone (Coulomb friction's sign is unreliable there): rows with "
-                       + ", ".join(f"|qd{j + 1}| < {v:.3g}" for j, v in enumerate(s["qd_threshold"]))
-                       + " rad/s are zeroed in W and Y before decimation; excluded per joint: "
-                       + ", ".join(f"{100 * f:.1f} %" for f in dead.mean(axis=0)))
+        notices.append(dead_zone_notice(s, dead))
     if nd <= 1:
         W = base_regressor(robot, bp, qf, qd, qdd)
         Wd, taud, qd_d, qf_d, qdd_d, td = W, tau, qd, qf, qdd, t
@@ -127,9 +124,7 @@ def observe(experiment, robot, bp, settings=None, *, progress=None, reference=Fa
                                                   for k in range(6))
         idx = dec.indices
         td = t[idx]
-        notices.append(f"parallel decimation by nd = {nd} (low-pass {s['f_decimation_cutoff']:.3g} Hz): "
-                       f"{n_kept} -> {len(idx)} samples, {dec.dropped_start} + {dec.dropped_end} "
-                       f"dropped for the decimation filter's transients")
+        notices.append(decimation_notice(s, n_kept, dec))
         # a decimated row made mostly of zeroed samples carries little information
         # and a distorted noise level: drop those whose window kept < half its samples
         mask = kept_frac >= 0.5
@@ -140,6 +135,21 @@ def observe(experiment, robot, bp, settings=None, *, progress=None, reference=Fa
 # the dead-zone functions of dynid.analysis.processing.signals, re-exported for users
 __all__ = ["Observation", "observe", "resolve_settings", "low_velocity_mask", "velocity_dead_zone",
            "SETTINGS_HELP", "AUTO_DEAD_ZONE"]
+
+
+def dead_zone_notice(s, dead) -> str:
+    """The notice of the velocity dead zone `dead` (N, n) with the thresholds of settings `s`."""
+    return ("velocity dead zone (Coulomb friction's sign is unreliable there): rows with "
+            + ", ".join(f"|qd{j + 1}| < {v:.3g}" for j, v in enumerate(s["qd_threshold"]))
+            + " rad/s are zeroed in W and Y before decimation; excluded per joint: "
+            + ", ".join(f"{100 * f:.1f} %" for f in dead.mean(axis=0)))
+
+
+def decimation_notice(s, n_kept, dec) -> str:
+    """The notice of the parallel decimation `dec` (a finished ParallelDecimator) of `n_kept` rows."""
+    return (f"parallel decimation by nd = {int(s['nd'])} (low-pass {s['f_decimation_cutoff']:.3g} Hz): "
+            f"{n_kept} -> {len(dec.indices)} samples, {dec.dropped_start} + {dec.dropped_end} "
+            f"dropped for the decimation filter's transients")
 
 
 def push_chunk(dec, robot, bp, qf, qd, qdd, tau, dead, out=None):
