@@ -334,13 +334,10 @@ class EffectObservation:
         def source(a, b):
             """Rows clip(a..b-1, 0, N-1) of the regressor: a view inside the recording (no
             gather copy per delay), the ends held by a clipped index only at its edges."""
-            lo, hi = min(max(a, 0), N - 1), max(min(b, N), 1)
-            inside = a >= 0 and b <= N
             if self.W_full is not None:
-                if inside:
-                    return self.W_full[a:b] if full else self.W_full[a:b][:, :, cols]
-                idx = np.clip(np.arange(a, b), 0, N - 1)
-                return self.W_full[idx] if full else self.W_full[idx][:, :, cols]
+                rows = _held_rows(self.W_full, a, b)
+                return rows if full else rows[:, :, cols]
+            lo, hi = min(max(a, 0), N - 1), max(min(b, N), 1)
             W = regressor(self.robot, self.q[lo:hi], self.qd[lo:hi], self.qdd[lo:hi],
                           columns=np.asarray(self.bp.independent)[cols])
             return W[np.clip(np.arange(a, b), lo, hi - 1) - lo]
@@ -416,9 +413,7 @@ class EffectObservation:
                 Wp, pick = W2, flat
 
         def source(a, b):
-            if a >= 0 and b <= N:
-                return Wp[a:b, pick]
-            return Wp[np.clip(np.arange(a, b), 0, N - 1)][:, pick]
+            return _held_rows(Wp, a, b)[:, pick]
 
         keep = None if self.dead is None else self._pair_keep(joint)
 
@@ -593,6 +588,14 @@ def _pairs_to_full(store, kept_pairs, rows, shape):
     W_full.reshape(N, n * b)[:rows, kept_pairs] = store["data"][:rows]
     store["W_full"] = W_full
     del store["data"], store["nonzero"]
+
+
+def _held_rows(A, a, b):
+    """Rows a..b-1 of `A` with the ends held (indices clipped to its rows): a view of `A` when
+    they lie inside it, a gathered copy only at its edges."""
+    if a >= 0 and b <= A.shape[0]:
+        return A[a:b]
+    return A[np.clip(np.arange(a, b), 0, A.shape[0] - 1)]
 
 
 def _shift_and_decimate(source, N, tail, si, frac, keep, dec, sub, buffers=None, chunk=CHUNK):
