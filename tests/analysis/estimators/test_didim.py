@@ -179,7 +179,7 @@ def test_gain_update_makes_a_wrong_a_priori_inertia_harmless(pin_data, nominal, 
     err = lambda r, k: (r.chi[k] - truth[k]) / truth[k]          # noqa: E731
     assert abs(err(upd, k6)) < 0.02 and abs(err(upd, k5)) < 0.01
     assert err(off, k6) < -0.03                                    # measured -6.1 %
-    assert abs(off.chi[k6] - upd.chi[k6]) > 5 * upd.result.sigma[k6]
+    assert abs(off.chi[k6] - upd.chi[k6]) > 5 * upd.result.bse.to_numpy()[k6]
     rho_upd, rho_off = upd.history["rho_norm"].iloc[-1], off.history["rho_norm"].iloc[-1]
     assert rho_off > 1.005 * rho_upd                               # measured +1.1 %
     with capsys.disabled():
@@ -301,7 +301,7 @@ def test_real_tx40_runs(tx40):
     robot, bp, _ = tx40
     exp = load_experiment(TX40_EXAMPLE / "experiment.toml", robot)
     res = identify_didim(exp, robot, bp=bp, reference="q", max_iter=2, essential=False)
-    assert np.all(np.isfinite(res.chi)) and np.all(np.isfinite(res.result.sigma))
+    assert np.all(np.isfinite(res.chi)) and np.all(np.isfinite(res.result.bse.to_numpy()))
     assert 0 < res.result.rel_error < 0.2
     assert any("measured positions q are used as the reference" in n for n in res.notices)
     json.loads(dumps_json(res.to_dict()))

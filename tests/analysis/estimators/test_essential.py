@@ -57,7 +57,7 @@ def test_recovers_the_true_parameters(estimator):
     kw = {"joint_sigma": ess.base.joint_sigma} if estimator is wls else {}
     direct = estimator(W3[:, :, cols], tau, ess.essential, **kw)
     np.testing.assert_allclose(ess.result.chi, direct.chi, rtol=1e-10)
-    np.testing.assert_allclose(ess.result.sigma, direct.sigma, rtol=1e-10)
+    np.testing.assert_allclose(ess.result.bse.to_numpy(), direct.bse.to_numpy(), rtol=1e-10)
 
 
 def test_compressed_path_equals_calling_the_estimator():

@@ -52,8 +52,8 @@ def test_ols_matches_lstsq_and_naive_covariance():
     s2 = e @ e / (n * N - b)  # eq. (13)
     np.testing.assert_allclose(res.sigma_rho**2, s2, rtol=1e-10)
     np.testing.assert_allclose(res.cov, s2 * np.linalg.inv(W.T @ W), rtol=1e-8, atol=1e-14)  # eq. (14)
-    np.testing.assert_allclose(res.sigma, np.sqrt(np.diag(res.cov)))
-    np.testing.assert_allclose(res.rel_sigma, 100 * res.sigma / np.abs(res.chi))  # eq. (15)
+    np.testing.assert_allclose(res.bse.to_numpy(), np.sqrt(np.diag(res.cov)))
+    np.testing.assert_allclose(res.rel_std.to_numpy(), 100 * res.bse.to_numpy() / np.abs(res.chi))  # eq. (15)
     np.testing.assert_allclose(res.rel_error, np.linalg.norm(e) / np.linalg.norm(Y), rtol=1e-10)
     E = e.reshape(n, N)
     np.testing.assert_allclose(res.residual, E.T, atol=1e-12)
@@ -67,7 +67,7 @@ def test_ols_matches_lstsq_and_naive_covariance():
     assert res.n_samples == N and res.n_joints == n and res.n_rows == n * N and res.dof == n * N - b
     np.testing.assert_allclose(res.predict(W3), W3 @ res.chi)
     v, s = res["P3"]
-    assert v == res.chi[3] and s == res.sigma[3]
+    assert v == res.chi[3] and s == res.bse.to_numpy()[3]
     with pytest.raises(KeyError, match="P0"):
         res["nope"]
 
@@ -100,7 +100,7 @@ def test_ols_sigma_matches_monte_carlo_spread():
         tau = W3 @ chi + true_sigma * rng.standard_normal((N, n))
         res = ols(W3, tau, NAMES)
         estimates.append(res.chi)
-        reported.append(res.sigma)
+        reported.append(res.bse.to_numpy())
         sig_rho.append(res.sigma_rho)
     empirical = np.std(estimates, axis=0, ddof=1)
     mean_reported = np.mean(reported, axis=0)
@@ -114,12 +114,12 @@ def test_rel_sigma_is_inf_or_nan_safe_and_json_null(tmp_path):
     W3, chi = problem(5)
     tau = np.zeros((N, n))  # χ̂ = 0 and σ = 0: %σ is undefined, rel_error is 0/0
     res = ols(W3, tau, NAMES)
-    assert np.all(np.isnan(res.rel_sigma))
+    assert np.all(np.isnan(res.rel_std.to_numpy()))
     assert math.isnan(res.rel_error)
     import dataclasses
 
     res2 = dataclasses.replace(res, cov=np.eye(b))  # σ = 1, χ̂ = 0 → %σ = inf
-    assert np.all(np.isinf(res2.rel_sigma))
+    assert np.all(np.isinf(res2.rel_std.to_numpy()))
     d = json.loads(dumps_json(res2.to_dict()))
     assert d["rel_error"] is None
     assert all(p["rel_std_percent"] is None and p["value"] == 0.0 for p in d["parameters"])
@@ -169,7 +169,7 @@ def test_wls_beats_ols_with_one_noisy_joint_and_reports_right_sigma():
         o.append(ols(W3, tau, NAMES).chi)
         r = wls(W3, tau, NAMES)
         w.append(r.chi)
-        w_sig.append(r.sigma)
+        w_sig.append(r.bse.to_numpy())
     var_o = np.var(o, axis=0, ddof=1)
     var_w = np.var(w, axis=0, ddof=1)
     assert np.all(var_w < 0.5 * var_o)

@@ -63,8 +63,8 @@ def campaign():
         t, q, tau = noisy(seed)
         e_ols.append(ols_estimate(q, tau) - beta)
         last = maximum_likelihood(t, q, tau, model, f0=bs.F0, n_harmonics=K)
-        e_ml.append(last.theta - beta)
-        s_ml.append(last.sigma)
+        e_ml.append(last.chi - beta)
+        s_ml.append(last.bse.to_numpy())
     return {"names": list(bp.names), "beta": beta, "ols": np.array(e_ols), "ml": np.array(e_ml),
             "ml_sigma": np.array(s_ml), "last": last, "elapsed": time.perf_counter() - t0}
 
@@ -124,10 +124,10 @@ def test_per_joint_model_nonlinear_in_its_parameters():
     t, q, tau = noisy(100)
     a = maximum_likelihood(t, q, tau, joint_model(1), f0=bs.F0, n_harmonics=K)
     b = maximum_likelihood(t, q, tau, robot_model(robot, bp), f0=bs.F0, n_harmonics=K)
-    J, Fv, Fc, k, qoff, off = a.theta
-    ZZ, MX, MY, Fv_b, Fc_b, Off_b = b.theta
+    J, Fv, Fc, k, qoff, off = a.chi
+    ZZ, MX, MY, Fv_b, Fc_b, Off_b = b.chi
     mapped = np.array([J, k * math.sin(qoff) / g, -k * math.cos(qoff) / g, Fv, Fc, off])
-    assert np.allclose(mapped, b.theta, rtol=2e-3, atol=2e-3 * np.abs(b.theta).max()), (mapped, b.theta)
+    assert np.allclose(mapped, b.chi, rtol=2e-3, atol=2e-3 * np.abs(b.chi).max()), (mapped, b.chi)
     # and against the truth, within 4 of its own standard deviations
     for name, true in (("J1", beta[0]), ("k1", g * beta[1]), ("qoff1", math.pi / 2)):
         value, std = a[name]
@@ -144,7 +144,7 @@ def test_linear_model_wrapper_matches_robot_model():
     a = maximum_likelihood(t, q, tau, m1, f0=bs.F0, n_harmonics=10)
     b = maximum_likelihood(t, q, tau, m2, f0=bs.F0, n_harmonics=10, sigma_q=a.sigma_q,
                            sigma_tau=a.sigma_tau, refine_sigma_tau=False)
-    assert np.allclose(a.theta, b.theta, rtol=1e-3, atol=1e-4)
+    assert np.allclose(a.chi, b.chi, rtol=1e-3, atol=1e-4)
 
 
 def test_fourier_basis_derivatives_and_bic():

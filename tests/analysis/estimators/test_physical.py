@@ -176,7 +176,7 @@ def test_coverage_with_few_refits_and_a_truth_on_its_bound(pendulum):
         q_lo, q_hi = np.quantile(r.boot, [0.025, 0.975], axis=0)
         pct.append((q_lo <= beta + 1e-12) & (beta - 1e-12 <= q_hi))
         # what a reader of %sigma does: the estimate +- 1.96 sigma
-        sym.append(np.abs(r.chi - beta) <= z * r.sigma + 1e-12)
+        sym.append(np.abs(r.chi - beta) <= z * r.bse.to_numpy() + 1e-12)
         spread.append(np.abs(r.chi - beta) <= z * r.boot_std + 1e-12)
         assert ci["lower"].iloc[k] >= 0.0
     hits, pct, sym, spread = map(np.array, (hits, pct, sym, spread))
@@ -357,8 +357,8 @@ def test_pc_didim_options_reach_the_last_step():
     assert np.max(np.abs(tie.standard - pc.standard)) > 1e-4
     ci = pc.conf_int()
     z = stats.norm.ppf(0.975)
-    assert np.all(pc.chi - z * pc.sigma <= ci["lower"].to_numpy() + 1e-12)
-    assert np.all(ci["upper"].to_numpy() <= pc.chi + z * pc.sigma + 1e-12)
+    assert np.all(pc.chi - z * pc.bse.to_numpy() <= ci["lower"].to_numpy() + 1e-12)
+    assert np.all(ci["upper"].to_numpy() <= pc.chi + z * pc.bse.to_numpy() + 1e-12)
 
 
 def test_pc_fit_of_the_essential_set(kuka_23):

@@ -43,7 +43,7 @@ def campaign():
                                 max_lag=MAX_LAG)
         ls_err.append(res.ls.chi - run["beta"])
         pm_err.append(res.chi - run["beta"])
-        pm_sig.append(res.sigma)
+        pm_sig.append(res.bse.to_numpy())
         corr.append(res.corr[0])
         xc.append(res.max_xcorr[0])
     return {"names": run["names"], "beta": run["beta"], "ls": np.array(ls_err), "pm": np.array(pm_err),

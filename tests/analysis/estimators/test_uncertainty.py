@@ -55,7 +55,7 @@ def test_options_keep_the_estimate_and_record_their_name():
         np.testing.assert_array_equal(r.chi, ref.chi)
         assert r.settings["least_squares"]["uncertainty"]["uncertainty"] == opt
         assert any(opt in n for n in r.notices)
-        assert not np.allclose(r.sigma, ref.sigma)
+        assert not np.allclose(r.bse.to_numpy(), ref.bse.to_numpy())
     assert ref.settings["least_squares"]["uncertainty"]["uncertainty"] == "classic"
 
 
@@ -91,7 +91,7 @@ def test_coverage_with_ar1_noise_hac_and_bootstrap_beat_classic():
         W3, tau, chi = _system(rng, phi=0.8)
         for o in ls.UNCERTAINTY:
             r = ls.wls(W3, tau, ["a", "b", "c"], uncertainty=o, n_boot=150, seed=seed)
-            hits[o] += int(np.sum(np.abs(r.chi - chi) <= 1.96 * r.sigma))
+            hits[o] += int(np.sum(np.abs(r.chi - chi) <= 1.96 * r.bse.to_numpy()))
         n += 3
     cover = {o: h / n for o, h in hits.items()}
     assert cover["classic"] < 0.80
@@ -105,7 +105,7 @@ def test_groups_keep_lags_inside_each_recording():
     names = ["a", "b", "c"]
     one = ls.wls(W3, tau, names, uncertainty="hac")
     two = ls.wls(W3, tau, names, uncertainty="hac", groups=np.repeat([0, 1], 200))
-    assert not np.allclose(one.sigma, two.sigma)
+    assert not np.allclose(one.bse.to_numpy(), two.bse.to_numpy())
     with pytest.raises(InputError, match="groups"):
         ls.wls(W3, tau, names, uncertainty="hac", groups=np.zeros(3))
 
@@ -274,11 +274,11 @@ def test_essential_robust_sigma_adds_the_bias_of_the_removed_parameters():
     X = (W3 * w[None, :, None]).transpose(1, 0, 2).reshape(-1, 5)
     A = np.linalg.lstsq(X[:, cols], X[:, drop], rcond=None)[0]
     d = e.result.chi - e.base.chi[cols]
-    assert e.removed == ["e", "d"] and np.max(np.abs(d) / e.base.sigma[cols]) > 1.0
+    assert e.removed == ["e", "d"] and np.max(np.abs(d) / e.base.bse.to_numpy()[cols]) > 1.0
     np.testing.assert_allclose(d, A @ e.base.chi[drop], rtol=1e-6, atol=1e-12)
     np.testing.assert_allclose(e.result.cov, e.base.cov[np.ix_(cols, cols)] + np.outer(d, d), rtol=1e-10)
     own = ls.wls(W3[:, :, cols], tau, e.essential, joint_sigma=e.base.joint_sigma, uncertainty="hac")
-    assert e.result.sigma[0] > own.sigma[0]   # "a", the parameter the removal shifts
+    assert e.result.bse.to_numpy()[0] > own.bse.to_numpy()[0]   # "a", the parameter the removal shifts
     assert "selection_bias" in e.result.settings["least_squares"]["uncertainty"]
     assert any("bias of removing the others" in n for n in e.result.notices)
     classic = essential_parameters(W3, tau, names, ls.wls)

@@ -171,7 +171,7 @@ def test_unknown_noise_single_joint_student_t_marginals():
     assert an.df == 8
     ols = lsq.ols(W, y, names)
     np.testing.assert_allclose(an.loc, ols.chi, rtol=1e-10)
-    np.testing.assert_allclose(an.scale, ols.sigma, rtol=1e-8)   # s √[(WᵀW)⁻¹]_ii = eq. (14)
+    np.testing.assert_allclose(an.scale, ols.bse.to_numpy(), rtol=1e-8)   # s √[(WᵀW)⁻¹]_ii = eq. (14)
     res = bayes.sample_linear(W, y, names, seed=0, criteria={"tau_multiple": 200}, noise="white")
     assert res.converged, res.reason
     k = int(np.ceil(3 * res.diagnostics.tau_max / res.diagnostics.thin))
