@@ -4,8 +4,9 @@
    40 s, 5 kHz, 6-joint log) is generated in a temporary folder and loaded with
    dynid.load_experiment(path, n_joints=6) and with pandas.read_csv, alternately, in
    the same process (median of 3 each). Target: dynid / pandas <= 1.3. dynid reads with
-   Arrow's CSV reader when pyarrow is installed; its time through pandas' reader (what
-   it does without pyarrow) is given beside.
+   pandas' C reader on pandas >= 3 (exact there); on pandas 2 with Arrow's CSV reader first
+   when pyarrow is installed, and its time through pandas' reader (what it does without
+   pyarrow) is given beside (the same route on pandas >= 3).
 2. A CSV of about 200 MB in the same format is loaded by dynid in a fresh subprocess
    whose peak resident memory (ru_maxrss of the child) is its own; it is given as a
    multiple of the file size, also net of the memory the child had before loading

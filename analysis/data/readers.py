@@ -225,10 +225,13 @@ def _read_csv_fast(path: Path, label: str) -> _RawFile | None:
             or len(set(names)) != len(names) or len(names) < 2
             or all(_is_number(h) for h in stripped)):
         return None
-    raw = _read_csv_arrow(path, label, names, stripped)
+    pandas3 = int(pd.__version__.split(".")[0]) >= 3
+    # pandas >= 3 parses floats exactly, on its threads: faster than Arrow on one thread
+    # (benchmarks/io.py); pandas 2 needs its slower round-trip parser, so Arrow goes first
+    raw = None if pandas3 else _read_csv_arrow(path, label, names, stripped)
     if raw is not None:
         return raw
-    kw = {} if int(pd.__version__.split(".")[0]) >= 3 else {"float_precision": "round_trip"}
+    kw = {} if pandas3 else {"float_precision": "round_trip"}
 
     def parse(dtypes):
         with warnings.catch_warnings():
@@ -273,13 +276,14 @@ def _read_csv_fast(path: Path, label: str) -> _RawFile | None:
     return raw
 
 
-#: Try Arrow's CSV reader before pandas' (benchmarks/io.py turns it off to time the pandas route).
+#: With pandas < 3, try Arrow's CSV reader before pandas' (benchmarks/io.py turns it off to time
+#: the pandas route).
 _USE_ARROW = True
 
 
 def _read_csv_arrow(path: Path, label: str, names: list[str], stripped: list[str]) -> _RawFile | None:
     """Every column as float64 by Arrow's CSV reader (on one thread about 1.5x as fast as
-    pandas' C reader), or None, and the pandas route decides.
+    pandas 2's exact round-trip parse; pandas 3 is faster still), or None, and the pandas route decides.
 
     Arrow's float parser rounds correctly, so each value is the bits of Python's `float()`
     of its cell. Nothing is accepted that pandas' float parse rejects: no null spellings,
