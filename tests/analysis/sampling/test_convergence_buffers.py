@@ -50,18 +50,6 @@ def test_a_parameter_that_never_moves_has_no_autocorrelation_time():
     assert np.isfinite(tau[0]) and np.isnan(tau[1])
 
 
-def test_average_ranks_are_scipys_with_and_without_ties():
-    from scipy.stats import rankdata
-
-    from dynid.analysis.sampling.convergence import average_ranks
-
-    x = _ar_chain(120, 8, 4, 11).reshape(-1, 4)
-    folded = np.abs(x - np.median(x, axis=0))                 # the tail R-hat's draws
-    stuck = np.repeat(x[::3], 3, axis=0)                        # repeated draws: tie groups of 3
-    for a in (x, folded, stuck, np.round(x), np.zeros((5, 2)), x[:1]):
-        assert np.array_equal(average_ranks(a), rankdata(a, axis=0, method="average"))
-
-
 def test_integrated_time_is_nan_for_a_constant_or_nan_parameter_only():
     x = _ar_chain(300, 6, 5, 12)
     x[:, :, 1] = 0.1                 # constant, and its mean is not exactly 0.1 in floating point
