@@ -32,7 +32,7 @@ import numpy as np
 from dynid.analysis.processing.decimation import ParallelDecimator
 from dynid.analysis.processing.observation import CHUNK, Observation, dead_zone_notice, decimation_notice, full_rate
 from dynid.dynamics.regressor import regressor
-from dynid.errors import DataError
+from dynid.errors import DataError, InputError
 
 __all__ = ["EffectObservation", "observe_effects", "payload_parameter_names", "CACHE_LIMIT_BYTES"]
 
@@ -498,6 +498,8 @@ def observe_effects(experiment, robot, bp, settings=None, *, cache_regressor="au
     pay_idx = [std_names.index(nm) for nm in payload_parameter_names(robot)]
     columns = np.concatenate([np.asarray(bp.independent, dtype=int), np.asarray(pay_idx, dtype=int)])
     n = robot.n_joints
+    if not (isinstance(cache_regressor, bool) or cache_regressor in ("auto", "pairs")):
+        raise InputError(f"cache_regressor must be True, False, 'auto' or 'pairs', got {cache_regressor!r}")
     as_pairs = cache_regressor == "pairs"
     if cache_regressor in ("auto", "pairs"):
         cache_regressor = n_kept * n * b * 8 <= CACHE_LIMIT_BYTES

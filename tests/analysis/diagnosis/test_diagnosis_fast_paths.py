@@ -14,6 +14,7 @@ from dynid.analysis.diagnosis.effect_observation import observe_effects
 from dynid.analysis.diagnosis.rest import REST_MODELS, _all_samples, coulomb_signal
 from dynid.dynamics.base_parameters import base_parameters
 from dynid.dynamics.robot_file import load_robot
+from dynid.errors import InputError
 
 
 @pytest.fixture(scope="module")
@@ -255,3 +256,9 @@ def test_line_confirmation_not_needed_draws_the_same_permutations():
     structure._line_confirmation(gi, e, sel, 40, 11, r1)
     assert structure._line_confirmation(gi, e, sel, 40, 11, r2, needed=False) == 1.0
     assert r1.integers(0, 2 ** 62) == r2.integers(0, 2 ** 62)
+
+
+def test_an_unknown_cache_regressor_is_refused(planar):
+    robot, bp, exp, settings, _ = planar
+    with pytest.raises(InputError, match="cache_regressor.*'pair'"):
+        observe_effects(exp, robot, bp, settings, cache_regressor="pair")
