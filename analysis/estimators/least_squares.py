@@ -45,6 +45,8 @@ __all__ = ["stack", "ols", "wls", "RANK_RTOL", "UNCERTAINTY", "check_uncertainty
 #: covariance of eq. (14) has no correct digit even though a QR solve would
 #: still return numbers.
 RANK_RTOL = math.sqrt(np.finfo(float).eps)
+#: A column of one joint's equations below this times the largest of them is rounding (σ_j, eq. (16)).
+ROUNDING_RTOL = 1e-12
 
 
 # --------------------------------------------------------------------- inputs
@@ -723,7 +725,10 @@ def _joint_sigma(system: _System, rank_rtol: float) -> np.ndarray:
     for j in np.flatnonzero(system.rows > 0):
         A = system.blocks[j]
         norms = np.sqrt(np.einsum("ij,ij->j", A[:, :b], A[:, :b]))
-        nz = np.flatnonzero(norms > 0.0)
+        # a column at rounding level in joint j's rows (a regrouped parameter that joint j does
+        # not see, e.g. ZZ2R in joint 1 at 1e-19 of the largest column) is absent there: scaled to
+        # unit norm it would be noise that takes a dof and makes σ_j depend on the machine's rounding
+        nz = np.flatnonzero(norms > ROUNDING_RTOL * norms.max()) if b else np.array([], dtype=int)
         c = A[:, b]
         rank = 0
         if nz.size:

@@ -161,6 +161,20 @@ def test_wls_joint_sigma_dof_is_unbiased_for_short_records():
     np.testing.assert_allclose(np.mean(est, axis=0), 0.09, rtol=0.06)
 
 
+def test_joint_sigma_ignores_a_column_at_rounding_level():
+    # A regrouped parameter that joint 1 does not see can reach its rows as rounding (ZZ2R in
+    # the TX40's joint-1 rows at 1e-19 of the largest column). Scaled to unit norm it would be
+    # a column of noise taking a dof and part of the residual: σ_1 must be that of exact zeros.
+    W3, chi = problem(9, N=60)
+    W3[:, 0, 5:] = 0.0
+    rng = np.random.default_rng(1)
+    tau = W3 @ chi + 0.3 * rng.standard_normal((60, n))
+    exact = wls(W3, tau, NAMES).joint_sigma
+    noisy = W3.copy()
+    noisy[:, 0, 5:] = 1e-19 * rng.standard_normal((60, 3))
+    np.testing.assert_allclose(wls(noisy, tau, NAMES).joint_sigma, exact, rtol=1e-12)
+
+
 def test_wls_beats_ols_with_one_noisy_joint_and_reports_right_sigma():
     W3, chi = problem(8)
     o, w, w_sig = [], [], []
