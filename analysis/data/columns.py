@@ -316,15 +316,21 @@ def _saturation_notices(tau: np.ndarray, notices: list[str], what: str) -> None:
     n_samples = tau.shape[0]
     for j in range(tau.shape[1]):
         x = tau[:, j]
-        if x.max() == x.min():
+        hi, lo = x.max(), x.min()
+        if hi == lo:
             notices.append(
                 f"joint {j + 1}: tau{j + 1} is constant ({_fmt(x[0])}) throughout {what}: "
                 "check that the joint was driven and its torque logged"
             )
             continue
-        a = np.abs(x)
-        top = float(a.max())
-        at = a >= top * (1 - SATURATION_REL_TOL)
+        top = float(max(hi, -lo))
+        thr = top * (1 - SATURATION_REL_TOL)
+        at = x >= thr
+        at |= x <= -thr
+        # runs of >= SATURATION_MIN_RUN samples at the top cannot reach the notice's share when
+        # all the samples at the top do not: one count instead of the run lengths
+        if np.count_nonzero(at) < SATURATION_FRACTION * n_samples:
+            continue
         d = np.diff(np.concatenate([[0], at.astype(np.int8), [0]]))
         starts, ends = np.flatnonzero(d == 1), np.flatnonzero(d == -1)
         lens = ends - starts

@@ -3,7 +3,7 @@ neighbours and the median absolute deviation of the column)."""
 import numpy as np
 import pytest
 
-from dynid.analysis.data.plausibility import SPIKE_FACTOR, _isolated_spikes
+from dynid.analysis.data.plausibility import SPIKE_BLOCK, SPIKE_FACTOR, _isolated_spikes, _spikes_of_columns
 
 
 def spikes_by_definition(x):
@@ -24,7 +24,7 @@ def spikes_by_definition(x):
 
 def columns(rng):
     for trial in range(240):
-        n = int(rng.choice([8, 9, 10, 11, 64, 1001]))
+        n = int(rng.choice([8, 9, 10, 11, 64, 1001, SPIKE_BLOCK + 1, 2 * SPIKE_BLOCK + 2]))
         kind = trial % 6
         if kind == 0:
             x = rng.normal(size=n)
@@ -71,3 +71,19 @@ def test_one_planted_spike_is_found_with_its_scale(n):
     got, scale = _isolated_spikes(x)
     want, want_scale = spikes_by_definition(x)
     assert list(got) == list(want) == [n // 2] and scale == want_scale
+
+
+def test_columns_at_once_across_blocks_are_the_definition():
+    """Every column of a 2-D signal, its spikes planted at and beside the block edges."""
+    rng = np.random.default_rng(3)
+    n = 2 * SPIKE_BLOCK + 3
+    X = np.sin(np.arange(n)[:, None] / 300 + np.arange(4)) + rng.normal(0, 1e-3, (n, 4))
+    at = [0, 1, SPIKE_BLOCK - 2, SPIKE_BLOCK - 1, SPIKE_BLOCK, SPIKE_BLOCK + 1, 2 * SPIKE_BLOCK, n - 2, n - 1]
+    for j, k in enumerate(at):
+        X[k, j % 4] += 40.0 * (-1) ** j
+    X[:, 3] = np.round(X[:, 3], 2)                      # ties
+    got = _spikes_of_columns(X)
+    for j in range(4):
+        want, want_scale = spikes_by_definition(X[:, j].copy())
+        np.testing.assert_array_equal(got[j][0], want)
+        assert want.size and got[j][1] == want_scale
