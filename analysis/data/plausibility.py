@@ -24,6 +24,7 @@ import math
 
 import numpy as np
 
+from dynid.analysis.data.spikes import SPIKE_FACTOR, spikes_of_columns
 from dynid.errors import DataError
 
 #: |value| above which a signal cell is refused.
@@ -32,9 +33,6 @@ MAGNITUDE_LIMIT = 1e12
 TAU_NOTICE_FACTOR = 3.0
 #: 99th percentile (units) or a single sample (spike) of |tau_j| above this × tau_max: an error.
 TAU_ERROR_FACTOR = 20.0
-#: A sample farther than this × the column's robust scale (1.4826 × MAD) from the median
-#: of its 4 neighbours, which agree among themselves, is an isolated spike.
-SPIKE_FACTOR = 20.0
 #: every joint's 99th-percentile |tau_j| below this × its tau_max: an error (kN·m?). A moving arm
 #: needs a few % of tau_max on some joint; 1000x too small data (kN·m) sit at 1e-4 .. 1e-3.
 TAU_SMALL_FACTOR = 2e-3
@@ -207,95 +205,6 @@ def check_limits(signals: dict, rows, robot, cols_of, source: str, notices: list
             notices.append(f"{what}: {fix}")
 
 
-#: Rows per block of the spike check's neighbour pass: its six buffers stay in the cache
-#: and are reused, instead of seven arrays of the column's length faulted in per column.
-SPIKE_BLOCK = 4096
-
-
-def _neighbour_candidates(X: np.ndarray, block: int = SPIKE_BLOCK):
-    """(row, column, deviation) of the samples of `X` (n, k) farther from the median of their
-    4 neighbours (edges repeated) than 4 times the neighbours' spread, in row order.
-
-    The median of 4 is taken as np.median does ((2nd + 3rd smallest) / 2), by a sorting
-    network: the same bits, no partition across rows."""
-    n, k = X.shape
-    w = np.empty((block + 4, k))
-    lo1, hi1, lo2, hi2, spread, tmp = (np.empty((block, k)) for _ in range(6))
-    rows, cols, devs = [], [], []
-    for s in range(0, n, block):
-        e = min(n, s + block)
-        m = e - s
-        lo, hi = max(s - 2, 0), min(e + 2, n)      # w[i] = X[clip(s - 2 + i, 0, n - 1)]
-        a0, a1 = lo - (s - 2), hi - (s - 2)
-        w[a0:a1] = X[lo:hi]
-        w[:a0] = X[0]
-        w[a1:m + 4] = X[n - 1]
-        a, b, c, d = w[0:m], w[1:m + 1], w[3:m + 3], w[4:m + 4]
-        l1, h1, l2, h2, sp, t = lo1[:m], hi1[:m], lo2[:m], hi2[:m], spread[:m], tmp[:m]
-        np.minimum(a, b, out=l1)
-        np.maximum(a, b, out=h1)
-        np.minimum(c, d, out=l2)
-        np.maximum(c, d, out=h2)
-        np.maximum(h1, h2, out=sp)
-        sp -= np.minimum(l1, l2, out=t)
-        sp *= 4.0
-        dev = np.maximum(l1, l2, out=l1)
-        dev += np.minimum(h1, h2, out=h1)
-        dev /= 2
-        np.subtract(w[2:m + 2], dev, out=dev)
-        np.abs(dev, out=dev)
-        r, col = np.nonzero(dev > sp)
-        if r.size:
-            rows.append(r + s)
-            cols.append(col)
-            devs.append(dev[r, col])
-    if not rows:
-        return np.array([], dtype=np.intp), np.array([], dtype=np.intp), np.array([])
-    return np.concatenate(rows), np.concatenate(cols), np.concatenate(devs)
-
-
-def _robust_scale_spikes(x: np.ndarray, cand: np.ndarray, dev: np.ndarray):
-    """The candidates `cand` (deviations `dev`) of column `x` that are spikes, and the
-    column's robust scale 1.4826 MAD (0.0 when there is no spike)."""
-    n = x.size
-    y = np.array(x, dtype=float)    # a copy: the medians reorder it in place
-    absdev = np.abs(np.subtract(y, np.median(y, overwrite_input=True), out=y), out=y)
-    # Skip the second median when it cannot matter: if fewer than half the samples lie
-    # within V of the median, the median absolute deviation is at least V, and with V the
-    # largest candidate's deviation / (SPIKE_FACTOR * 1.4826) no candidate is a spike. A
-    # count is one pass; the median a copy and a partition. (A NaN anywhere makes the
-    # median NaN, hence no spike, on either branch.)
-    top = float(dev.max())
-    v = top / (SPIKE_FACTOR * 1.4826) * (1.0 + 1e-12)
-    if SPIKE_FACTOR * (1.4826 * v) >= top and np.count_nonzero(absdev < v) <= (n - 1) // 2:
-        return np.array([], dtype=int), 0.0
-    scale = 1.4826 * float(np.median(absdev, overwrite_input=True))
-    if not scale > 0:
-        return np.array([], dtype=int), 0.0
-    return cand[dev > SPIKE_FACTOR * scale], scale
-
-
-def _spikes_of_columns(X: np.ndarray):
-    """[(indices of isolated spikes, robust scale)] for each column of `X` (n, k)."""
-    X = np.asarray(X, dtype=float)
-    n, k = X.shape
-    none = (np.array([], dtype=int), 0.0)
-    if n < 9:
-        return [none] * k
-    rows, cols, devs = _neighbour_candidates(X)
-    out = []
-    for j in range(k):
-        sel = cols == j
-        out.append(_robust_scale_spikes(X[:, j], rows[sel], devs[sel]) if sel.any() else none)
-    return out
-
-
-def _isolated_spikes(x: np.ndarray):
-    """Indices of isolated spikes of `x` and the column's robust scale (0.0 when there is
-    no spike)."""
-    return _spikes_of_columns(np.asarray(x, dtype=float).reshape(-1, 1))[0]
-
-
 def check_spikes(signals: dict, rows, cols_of, source: str, notices: list[str]) -> None:
     """A notice per column (q, qr, tau) with isolated spikes, naming the first row."""
     w = _Where(cols_of, rows, source)
@@ -303,7 +212,7 @@ def check_spikes(signals: dict, rows, cols_of, source: str, notices: list[str]) 
         x = signals.get(s)
         if x is None:
             continue
-        for j, (idx, scale) in enumerate(_spikes_of_columns(x)):
+        for j, (idx, scale) in enumerate(spikes_of_columns(x)):
             if not idx.size:
                 continue
             k = int(idx[0])

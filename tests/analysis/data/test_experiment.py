@@ -776,7 +776,7 @@ CELLS = st.one_of(
     st.floats(allow_nan=True, allow_infinity=True).map(repr),
     st.integers(-3, 3).map(str),
     st.sampled_from(["", " ", "nan", "NaN", "inf", "-inf", "abc", "1e400", " 3 ", '"4"',
-                     "'", '"', "1_0", "0x10", "1,5", "١", "\t"]),
+                     "'", '"', "1_0", "0x10", "1,5", "١", "\t", "True", "false", "TRUE"]),
     st.text(alphabet=st.characters(blacklist_categories=("Cs",)), max_size=4),
 )
 
@@ -1122,6 +1122,8 @@ def test_fast_csv_path_is_used_and_bit_identical(tmp_path):
     "t,q1,tau1\n0,nan,2\n0.1,1,3\n",
     "t,q1,tau1\n0,1,2\n0.1,1,3\n\n\n",       # blank lines at the end
     "\nt,q1,tau1\n0,1,2\n0.1,1,3\n",         # blank line before the header
+    "t,q1,tau1\n0,True,2\n0.1,1,3\n",       # booleans: pandas 2 reads them as 1.0 and 0.0
+    "t,q1,tau1\n0,1,2\n0.1,1,FALSE\n",
 ])
 def test_fast_csv_path_declines_what_it_cannot_judge(tmp_path, text):
     from dynid.analysis.data import readers

@@ -1,9 +1,15 @@
-"""The spike check's fast route against its definition, term for term (np.median of the 4
+"""The spike check's compiled route against its definition, term for term (np.median of the 4
 neighbours and the median absolute deviation of the column)."""
 import numpy as np
 import pytest
 
-from dynid.analysis.data.plausibility import SPIKE_BLOCK, SPIKE_FACTOR, _isolated_spikes, _spikes_of_columns
+from dynid.analysis.data.spikes import (
+    SPIKE_FACTOR,
+    _candidates,
+    _densest_window_bound,
+    isolated_spikes,
+    spikes_of_columns,
+)
 
 
 def spikes_by_definition(x):
@@ -24,7 +30,7 @@ def spikes_by_definition(x):
 
 def columns(rng):
     for trial in range(240):
-        n = int(rng.choice([8, 9, 10, 11, 64, 1001, SPIKE_BLOCK + 1, 2 * SPIKE_BLOCK + 2]))
+        n = int(rng.choice([8, 9, 10, 11, 64, 1001, 5000]))
         kind = trial % 6
         if kind == 0:
             x = rng.normal(size=n)
@@ -54,7 +60,7 @@ def test_fast_spike_check_is_the_definition():
         before = x.copy()
         with np.errstate(invalid="ignore"):
             want, want_scale = spikes_by_definition(x)
-            got, scale = _isolated_spikes(x)
+            got, scale = isolated_spikes(x)
         np.testing.assert_array_equal(x, before)          # the caller's column is untouched
         np.testing.assert_array_equal(got, want)
         if want.size:
@@ -68,22 +74,57 @@ def test_one_planted_spike_is_found_with_its_scale(n):
     rng = np.random.default_rng(1)
     x = np.sin(np.arange(n) / 500) + rng.normal(0, 1e-3, n)
     x[n // 2] += 50.0                                    # 20 x 1.4826 MAD is about 21
-    got, scale = _isolated_spikes(x)
+    got, scale = isolated_spikes(x)
     want, want_scale = spikes_by_definition(x)
     assert list(got) == list(want) == [n // 2] and scale == want_scale
 
 
-def test_columns_at_once_across_blocks_are_the_definition():
-    """Every column of a 2-D signal, its spikes planted at and beside the block edges."""
+def test_columns_at_once_are_the_definition():
+    """Every column of a 2-D signal, its spikes planted at and beside the edges."""
     rng = np.random.default_rng(3)
-    n = 2 * SPIKE_BLOCK + 3
+    n = 9000
     X = np.sin(np.arange(n)[:, None] / 300 + np.arange(4)) + rng.normal(0, 1e-3, (n, 4))
-    at = [0, 1, SPIKE_BLOCK - 2, SPIKE_BLOCK - 1, SPIKE_BLOCK, SPIKE_BLOCK + 1, 2 * SPIKE_BLOCK, n - 2, n - 1]
+    at = [0, 1, 2, 4095, 4096, 5000, n - 3, n - 2, n - 1]
     for j, k in enumerate(at):
         X[k, j % 4] += 40.0 * (-1) ** j
     X[:, 3] = np.round(X[:, 3], 2)                      # ties
-    got = _spikes_of_columns(X)
+    got = spikes_of_columns(X)
     for j in range(4):
         want, want_scale = spikes_by_definition(X[:, j].copy())
         np.testing.assert_array_equal(got[j][0], want)
         assert want.size and got[j][1] == want_scale
+
+
+def test_candidates_are_the_neighbour_test_even_beyond_the_first_buffer():
+    # a pulse every 5 samples is a candidate each time (its 4 neighbours agree): 20,000 of them,
+    # more than the first buffer holds
+    n = 100_000
+    X = np.zeros((n, 2))
+    X[2::5, 0] = 1.0
+    X[:, 1] = np.random.default_rng(0).normal(size=n)
+    rows, cols, devs = _candidates(X)
+    p = np.pad(X, ((2, 2), (0, 0)), mode="edge")
+    nb = np.stack([p[0:n], p[1:n + 1], p[3:n + 3], p[4:n + 4]], axis=2)
+    dev = np.abs(X - np.median(nb, axis=2))
+    want_r, want_c = np.nonzero(dev > 4.0 * (nb.max(axis=2) - nb.min(axis=2)))
+    assert rows.size > 1 << 14
+    np.testing.assert_array_equal(rows, want_r)
+    np.testing.assert_array_equal(cols, want_c)
+    np.testing.assert_array_equal(devs, dev[want_r, want_c])
+
+
+def test_densest_window_bound_is_an_upper_bound():
+    rng = np.random.default_rng(5)
+    for trial in range(60):
+        n = int(rng.integers(2, 3000))
+        x = np.round(rng.standard_t(2, n), int(rng.integers(0, 4)))
+        v = float(rng.choice([1e-9, 1e-3, 0.05, 0.5, 5.0]))
+        s = np.sort(x)
+        # the most samples an open interval of width 2v holds: [c, c + 2v) from a sample c
+        densest = max(np.searchsorted(s, c + 2 * v) - np.searchsorted(s, c) for c in s)
+        assert densest <= _densest_window_bound(x, v) <= n
+    x = rng.normal(size=100)
+    for bad in (np.nan, np.inf):
+        y = x.copy()
+        y[7] = bad
+        assert _densest_window_bound(y, 0.1) == 100
