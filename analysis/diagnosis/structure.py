@@ -126,10 +126,8 @@ import numpy as np
 from scipy import stats
 
 from dynid.analysis.diagnosis.permuted_bins import permuted_bins
-from dynid.analysis.processing.decimation import ParallelDecimator
-from dynid.analysis.processing.observation import CHUNK, full_rate
+from dynid.analysis.processing.observation import observed_residual
 from dynid.analysis.statistics.residuals import effective_sample_size
-from dynid.dynamics.regressor import regressor
 from dynid.threads import with_single_blas_thread
 
 __all__ = ["residual_structure", "StructureResult", "StructureTest", "Unexplained",
@@ -298,10 +296,6 @@ def position_noise(q):
     return sigma, r
 
 
-#: Regressor values per chunk of `_observed_residual` (4 MB).
-_MODEL_ROWS = 1 << 19
-
-
 def position_noise_residual(experiment, robot, eobs, cols, chi, seed=0, n_draws=2):
     """(delta (n_draws, M, n) or None, sigma_q (n,)): what the recording's own position noise does
     to the decimated residual of the model `(cols, chi)` (base-regressor columns of `eobs.obs.W` and
@@ -331,47 +325,11 @@ def position_noise_residual(experiment, robot, eobs, cols, chi, seed=0, n_draws=
     out = []
     for _ in range(int(n_draws)):
         noisy = dataclasses.replace(experiment, q=q + sigma_q * rng.standard_normal(q.shape))
-        r2, mask2 = _observed_residual(noisy, robot, eobs.bp, obs.settings, cols, chi)
+        r2, mask2 = observed_residual(noisy, robot, eobs.bp, obs.settings, cols, chi)
         if r2.shape != r0.shape:
             return None, sigma_q
         out.append(np.where(obs.row_mask & mask2, r2 - r0, 0.0))
     return np.stack(out), sigma_q
-
-
-def _observed_residual(experiment, robot, bp, settings, cols, chi):
-    """(decimated `tau - W[:, :, cols] chi` (M, n), row mask (M, n)) of `experiment` processed as
-    `dynid.analysis.processing.observation.observe` does with `settings` (filter, dead zone,
-    decimation), from the full-rate model torque: the decimation is linear, so this is the
-    decimated W times chi up to rounding (1e-13 relative), without decimating all b columns."""
-    fr = full_rate(experiment, robot, experiment.q, settings)
-    nd = int(fr.settings["nd"])
-    keep = None if fr.dead is None else ~fr.dead
-    columns = np.asarray(bp.independent)[cols]
-    N = fr.q.shape[0]
-    if nd <= 1:
-        mask = np.ones(fr.tau.shape, dtype=bool) if keep is None else keep
-        W = regressor(robot, fr.q, fr.qd, fr.qdd, columns=columns)
-        return fr.tau * mask - (W * mask[:, :, None]) @ chi, mask
-    dec = ParallelDecimator(nd, n_samples_total=N, fs=fr.fs, cutoff=fr.settings["f_decimation_cutoff"])
-    # one regressor buffer of a few MB: each row's model torque is the same whatever the
-    # chunk, and a buffer of CHUNK rows (58 MB for 60 columns of 6 joints) per draw cost more
-    # in page faults than its products
-    rows = max(1, min(CHUNK, N, _MODEL_ROWS // max(1, fr.q.shape[1] * columns.size)))
-    buf = np.empty((rows, fr.q.shape[1], columns.size))
-    parts = []
-    for start in range(0, N, rows):
-        sl = slice(start, min(N, start + rows))
-        model = regressor(robot, fr.q[sl], fr.qd[sl], fr.qdd[sl], columns=columns,
-                          out=buf[:sl.stop - sl.start]) @ chi
-        tau = fr.tau[sl]
-        if keep is not None:                 # zeroed on both sides in the dead zone, as observe
-            model *= keep[sl]
-            tau = tau * keep[sl]
-        kept = np.ones(tau.shape) if keep is None else keep[sl].astype(float)
-        parts.append(dec.push(tau, model, kept))
-    dec.finish()
-    taud, modeld, kept_frac = (np.concatenate([p[k] for p in parts], axis=0) for k in range(3))
-    return taud - modeld, kept_frac >= 0.5
 
 
 def _block_perms(n, L, n_perm, rng):

@@ -23,9 +23,15 @@ from dynid.analysis.processing.signals import (
     velocity_dead_zone,
 )
 from dynid.dynamics.base_parameters import base_regressor
+from dynid.dynamics.regressor import regressor
 from dynid.errors import DataError
 
 CHUNK = 20_000
+#: A decimated row made mostly of zeroed (dead-zone) samples carries little information and a
+#: distorted noise level: rows whose window kept less than this fraction are dropped.
+KEPT_FRACTION_MIN = 0.5
+#: Regressor values per chunk of `observed_residual` (4 MB).
+_MODEL_ROWS = 1 << 19
 
 # the settings users may override, with their meaning
 SETTINGS_HELP = {
@@ -125,16 +131,51 @@ def observe(experiment, robot, bp, settings=None, *, progress=None, reference=Fa
         idx = dec.indices
         td = t[idx]
         notices.append(decimation_notice(s, n_kept, dec))
-        # a decimated row made mostly of zeroed samples carries little information
-        # and a distorted noise level: drop those whose window kept < half its samples
-        mask = kept_frac >= 0.5
+        mask = kept_frac >= KEPT_FRACTION_MIN
     return Observation(W=Wd, tau=taud, t=td, q=qf_d, qd=qd_d, qdd=qdd_d, row_mask=mask,
                        names=list(bp.names), settings=s, notices=notices, n_raw=N)
 
 
 # the dead-zone functions of dynid.analysis.processing.signals, re-exported for users
-__all__ = ["Observation", "observe", "resolve_settings", "low_velocity_mask", "velocity_dead_zone",
+__all__ = ["Observation", "observe", "observed_residual", "resolve_settings", "low_velocity_mask", "velocity_dead_zone",
            "SETTINGS_HELP", "AUTO_DEAD_ZONE"]
+
+
+def observed_residual(experiment, robot, bp, settings, cols, chi):
+    """(decimated `tau - W[:, :, cols] chi` (M, n), row mask (M, n)) of `experiment` processed as
+    `observe` does with `settings` (filter, dead zone, decimation), from the full-rate model
+    torque: the decimation is linear, so this is the decimated W times chi up to rounding
+    (1e-13 relative), without decimating all b columns of W. `cols` index the base
+    parameters of `bp`, `chi` their values."""
+    fr = full_rate(experiment, robot, experiment.q, settings)
+    nd = int(fr.settings["nd"])
+    keep = None if fr.dead is None else ~fr.dead
+    columns = np.asarray(bp.independent)[cols]
+    N = fr.q.shape[0]
+    if nd <= 1:
+        mask = np.ones(fr.tau.shape, dtype=bool) if keep is None else keep
+        W = regressor(robot, fr.q, fr.qd, fr.qdd, columns=columns)
+        return fr.tau * mask - (W * mask[:, :, None]) @ chi, mask
+    dec = ParallelDecimator(nd, n_samples_total=N, fs=fr.fs, cutoff=fr.settings["f_decimation_cutoff"])
+    # one regressor buffer of a few MB: each row's model torque is the same whatever the
+    # chunk, and a buffer of CHUNK rows (58 MB for 60 columns of 6 joints) per draw cost more
+    # in page faults than its products
+    rows = max(1, min(CHUNK, N, _MODEL_ROWS // max(1, fr.q.shape[1] * columns.size)))
+    buf = np.empty((rows, fr.q.shape[1], columns.size))
+    parts = []
+    for start in range(0, N, rows):
+        sl = slice(start, min(N, start + rows))
+        model = regressor(robot, fr.q[sl], fr.qd[sl], fr.qdd[sl], columns=columns,
+                          out=buf[:sl.stop - sl.start]) @ chi
+        tau = fr.tau[sl]
+        if keep is not None:                 # zeroed on both sides in the dead zone, as observe
+            model *= keep[sl]
+            tau = tau * keep[sl]
+        kept = np.ones(tau.shape) if keep is None else keep[sl].astype(float)
+        parts.append(dec.push(tau, model, kept))
+    dec.finish()
+    taud, modeld, kept_frac = (np.concatenate([p[k] for p in parts], axis=0) for k in range(3))
+    return taud - modeld, kept_frac >= KEPT_FRACTION_MIN
 
 
 def dead_zone_notice(s, dead) -> str:

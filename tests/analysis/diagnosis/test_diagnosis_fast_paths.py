@@ -142,12 +142,12 @@ def test_identification_from_the_effect_observation_is_identify_idims(planar):
 def test_position_noise_residual_is_observes_residual(planar, nd):
     """The position-noise floor's residual from the full-rate model torque is the residual of
     `observe`'s decimated system (the decimation is linear), row mask included."""
-    from dynid.analysis.processing.observation import observe
+    from dynid.analysis.processing.observation import observe, observed_residual
     robot, bp, exp, settings, _ = planar
     o = observe(exp, robot, bp, dict(settings, nd=nd))
     cols = np.arange(0, len(bp.names), 2)
     chi = np.random.default_rng(1).normal(size=cols.size)
-    r, mask = structure._observed_residual(exp, robot, bp, o.settings, cols, chi)
+    r, mask = observed_residual(exp, robot, bp, o.settings, cols, chi)
     ref = o.tau - o.W[:, :, cols] @ chi
     assert np.array_equal(mask, o.row_mask)
     np.testing.assert_allclose(r, ref, rtol=0, atol=1e-12 * np.abs(ref).max())
