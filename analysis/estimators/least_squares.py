@@ -45,7 +45,7 @@ __all__ = ["stack", "ols", "wls", "RANK_RTOL", "UNCERTAINTY", "check_uncertainty
 #: covariance of eq. (14) has no correct digit even though a QR solve would
 #: still return numbers.
 RANK_RTOL = math.sqrt(np.finfo(float).eps)
-#: A column of one joint's equations below this times the largest of them is rounding (σ_j, eq. (16)).
+#: A column in one joint's equations below this times its norm over all joints is rounding (σ_j, eq. (16)).
 ROUNDING_RTOL = 1e-12
 
 
@@ -722,13 +722,16 @@ def _joint_sigma(system: _System, rank_rtol: float) -> np.ndarray:
     """
     b = system.n_params
     sig = np.full(system.n_joints, np.nan)
+    joint_norms = np.sqrt(np.einsum("jik,jik->jk", system.blocks[:, :, :b], system.blocks[:, :, :b]))
+    # a column at rounding level in joint j's rows (a regrouped parameter that joint j does not
+    # see, e.g. ZZ2R in joint 1's rows at 1e-19 of its norm over all joints) is absent there:
+    # scaled to unit norm it would be noise that takes a dof and makes σ_j depend on the
+    # machine's rounding. Compared with the same column over all joints, whatever its units.
+    floor = ROUNDING_RTOL * np.sqrt(np.sum(joint_norms**2, axis=0))
     for j in np.flatnonzero(system.rows > 0):
         A = system.blocks[j]
-        norms = np.sqrt(np.einsum("ij,ij->j", A[:, :b], A[:, :b]))
-        # a column at rounding level in joint j's rows (a regrouped parameter that joint j does
-        # not see, e.g. ZZ2R in joint 1 at 1e-19 of the largest column) is absent there: scaled to
-        # unit norm it would be noise that takes a dof and makes σ_j depend on the machine's rounding
-        nz = np.flatnonzero(norms > ROUNDING_RTOL * norms.max()) if b else np.array([], dtype=int)
+        norms = joint_norms[j]
+        nz = np.flatnonzero(norms > floor)
         c = A[:, b]
         rank = 0
         if nz.size:

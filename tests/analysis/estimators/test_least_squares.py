@@ -175,6 +175,16 @@ def test_joint_sigma_ignores_a_column_at_rounding_level():
     np.testing.assert_allclose(wls(noisy, tau, NAMES).joint_sigma, exact, rtol=1e-12)
 
 
+def test_joint_sigma_does_not_depend_on_a_parameters_units():
+    # a real column 1e-13 times the others (a parameter in other units) is not rounding
+    W3, chi = problem(10)
+    tau = W3 @ chi + 0.1 * np.random.default_rng(2).standard_normal((N, n))
+    scaled = W3.copy()
+    scaled[:, :, 0] *= 1e-13
+    np.testing.assert_allclose(wls(scaled, tau, NAMES).joint_sigma, wls(W3, tau, NAMES).joint_sigma,
+                               rtol=1e-9)
+
+
 def test_wls_beats_ols_with_one_noisy_joint_and_reports_right_sigma():
     W3, chi = problem(8)
     o, w, w_sig = [], [], []
