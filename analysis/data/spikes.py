@@ -106,6 +106,8 @@ def _densest_window_bound(x, v):  # pragma: no cover - compiled
         return n
     m = int(span) + 1
     inv = 1.0 / w
+    if not inv < np.inf:      # w subnormal: int() of an infinite index is undefined
+        return n
     h = np.zeros(m + 4, dtype=np.int64)
     for t in x:
         i = int((t - lo) * inv)
