@@ -179,7 +179,7 @@ def run_case(case, seed, *, dead_zone="auto", cache=None, **diag_kw):
     # named = added to the model, then named as findings (a drift is never added)
     first = (named + findings)[0] if named + findings else None
     fit = res.model_after
-    params = {nm: [float(fit.chi[k]), float(fit.sigma[k])] for k, nm in enumerate(fit.names)
+    params = {nm: [float(fit.chi[k]), float(fit.bse.iloc[k])] for k, nm in enumerate(fit.names)
               if nm.startswith(("Off", "Fc"))}
     detail = [{"name": s_.name, "joint": s_.joint, "nonlinear": dict(s_.nonlinear),
                "parameters": list(s_.params), "values": [float(v) for v in s_.values]}

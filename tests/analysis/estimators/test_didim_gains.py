@@ -128,7 +128,7 @@ def test_didim_with_identified_gains_agrees_with_idim(plant_run):
     assert 1 <= len(off_wide) <= 2 and wide.settings["v_s_choice"] == "given"
     assert didim.model.rel_error < wide.model.rel_error / 2
     # with the gains assumed in tx40.toml (wn = 60, PD) the simulated loop is another robot's
-    assumed = dynid.identify(exp, robot, "didim", gains="assumed", update_gains="initial",
+    assumed = dynid.identify(exp, robot, "didim", gains="assumed", gain_update="initial",
                              settings={"v_s": 0.05})
     assert assumed.model.rel_error > 3 * wide.model.rel_error
     assert any("depend on those gains" in n for n in assumed.notices)

@@ -214,7 +214,7 @@ def test_calibration_of_credible_intervals():
         assert res.converged, res.reason
         truth = np.r_[chi, sig]
         hits95.append((res.ci95[:, 0] <= truth) & (truth <= res.ci95[:, 1]))
-        i50 = res.interval(0.5)
+        i50 = res.conf_int(alpha=0.5).to_numpy()
         hits50.append((i50[:, 0] <= truth) & (truth <= i50[:, 1]))
     h95, h50 = np.array(hits95), np.array(hits50)
     assert abs(h95.mean() - 0.95) <= 0.03, h95.mean(0)
