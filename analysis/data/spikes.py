@@ -75,16 +75,6 @@ def _neighbour_candidates(X, rows, cols, devs):  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True)
-def _count_within(y, centre, v):  # pragma: no cover - compiled
-    """How many samples of y lie strictly within v of centre."""
-    count = 0
-    for x in y:
-        if abs(x - centre) < v:
-            count += 1
-    return count
-
-
-@njit(cache=True, nogil=True)
 def _densest_window_bound(x, v):  # pragma: no cover - compiled
     """An upper bound on how many samples of x lie within v of any one value (x.size when a
     value is not finite).
@@ -152,7 +142,7 @@ def _robust_spikes(y: np.ndarray, cand: np.ndarray, dev: np.ndarray):
     are spikes, and the column's robust scale 1.4826 MAD (0.0 when there is no spike)."""
     n = y.size
     med = np.median(y, overwrite_input=True)
-    if _cannot_be_spikes(dev, lambda v: _count_within(y, med, v), n):
+    if _cannot_be_spikes(dev, lambda v: int(np.count_nonzero(np.abs(y - med) < v)), n):
         return _NONE
     absdev = np.abs(np.subtract(y, med, out=y), out=y)
     scale = 1.4826 * float(np.median(absdev, overwrite_input=True))
