@@ -1133,6 +1133,33 @@ def test_fast_csv_path_declines_what_it_cannot_judge(tmp_path, text):
     assert readers._read_csv_fast(p, str(p)) is None
 
 
+@pytest.mark.parametrize("body", [
+    "0,1,2\n0.1,1,3\n" * 5,                       # regular: accepted
+    "0,1,2\r\n0.1,1,3\r\n" * 5,                   # CRLF throughout: accepted
+    "0,1,2\n" * 4 + "0.1,True,3\n",                 # a boolean word
+    "0,1,2\n" * 4 + "0.1,1,FALSE\n",
+    "0,1,2\n" * 4 + '0.1,"1",3\n',                  # a quote
+    "0,1,2\n" * 4 + "0.1,1\r,3\n",                 # a CR that does not end a line
+    "0,1,2\n" * 4 + "0.1,1,3\r",                    # a CR at the very end
+    "0,1,2\n" * 4 + "0.1,1,3\0\n",                 # a NUL byte
+])
+def test_csv_scan_does_not_depend_on_where_its_chunks_end(tmp_path, monkeypatch, body):
+    """`_scan_csv` reads the file in chunks of `_SCAN_CHUNK` bytes into one buffer: every chunk
+    size, so that each word, CR LF and quote falls across a boundary somewhere, gives the
+    verdict of the whole file at once."""
+    from dynid.analysis.data import readers
+
+    p = tmp_path / "chunks.csv"
+    p.write_bytes(("t,q1,tau1\n" + body).encode())
+    whole = readers._scan_csv(p)
+    expected = not any(x in body for x in ('"', "\0", "True", "FALSE")) and (
+        body.count("\r") == body.count("\r\n"))
+    assert (whole is not None) == expected
+    for size in range(4, len(body) + 2):    # >= 4: a boolean word then spans at most two chunks
+        monkeypatch.setattr(readers, "_SCAN_CHUNK", size)
+        assert readers._scan_csv(p) == whole, size
+
+
 @settings(max_examples=300, deadline=None,
           suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 @given(text=csv_texts())
