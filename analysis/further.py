@@ -218,7 +218,7 @@ def _diagnosis_run(data, robot, settings=None, *, say=None, **options) -> Diagno
             # the diagnosis' observation first: its decimated system is observe's, so IDIM
             # identifies from it and the full-rate regressor is built once, not twice
             eobs = observe_effects(experiment, robot, base_parameters(robot), ident.processing(),
-                                   progress=bar.update, cache_regressor="pairs")
+                                   progress=bar.update)
             result = identify_step([experiment], robot, ident, observation=eobs.obs, bp=eobs.bp)
     say("scoring candidate effects")
     diag = diagnosis_step(experiment, robot, held_out, result, s, say, candidates=candidates,

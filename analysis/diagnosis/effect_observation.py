@@ -16,7 +16,7 @@ effect). `EffectObservation.decimate` then pushes any full-rate columns
 through the same dead zone and decimation. With `cache_regressor` the
 full-rate base regressor is kept too (memory N x n x b x 8 bytes), so the
 model torque of any parameter vector is cheap; otherwise it is rebuilt chunk
-by chunk when asked for. With `cache_regressor="pairs"` (what `dynid diagnose` uses) only its
+by chunk when asked for. With `cache_regressor="pairs"` (the default) only its
 (joint, column) pairs that are not identically zero are kept (`RegressorPairs`: about half
 of them on a 6-joint arm), with the same numbers out of every method: half the memory, and
 on a machine where fresh memory is slow to fault in (a VM: some 4 ms per MB measured) that
@@ -469,16 +469,17 @@ class EffectObservation:
         return replace(self, obs=obs, tau=tau)
 
 
-def observe_effects(experiment, robot, bp, settings=None, *, cache_regressor="auto",
+def observe_effects(experiment, robot, bp, settings=None, *, cache_regressor="pairs",
                     progress=None) -> EffectObservation:
     """`dynid.analysis.processing.observation.observe`, keeping what effect columns are built from.
 
     Same steps and settings as `observe` (its decimated W, tau, q, qd, qdd,
     t and row mask are reproduced exactly); `settings` are overrides or a
     resolved settings dict (e.g. an identification's, for validation data).
-    `cache_regressor`: True, False, "auto" (keep the full-rate base regressor if it takes
-    less than `CACHE_LIMIT_BYTES`) or "pairs" (as "auto", keeping only its pairs that are not
-    identically zero: `EffectObservation.pairs`, the same numbers in half the memory).
+    `cache_regressor`: "pairs" (default: keep the full-rate base regressor's (joint, column)
+    pairs that are not identically zero, `EffectObservation.pairs`, when the whole regressor
+    would take less than `CACHE_LIMIT_BYTES`: the same numbers in half the memory), "auto"
+    (the whole regressor, `EffectObservation.W_full`, under the same limit), True or False.
     """
     q_meas = experiment.q
     if q_meas is None:

@@ -195,7 +195,7 @@ def start_model_fit(idim_result, obs, start_model):
 
 def validation_problem(data, robot, idim_result, t0, T, model=None):
     eobs = data if isinstance(data, EffectObservation) else observe_effects(
-        data, robot, idim_result.base, idim_result.settings, cache_regressor="pairs")
+        data, robot, idim_result.base, idim_result.settings)
     model0 = idim_result.model if model is None else model
     cols0 = idim_result.columns(model0.names)
     sig = signals_from_observation(eobs, cols0, model0.chi, model0.names, t0=t0, T=T, robot=robot)

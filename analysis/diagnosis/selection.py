@@ -404,8 +404,7 @@ def _identification(experiment, robot, opts, idim_result, notices, observation=N
             raise DataError("observation has other base parameters than idim_result; pass the "
                             "matching observation or none")
         return observation, idim_result
-    return observe_effects(experiment, robot, idim_result.base, idim_result.settings,
-                           cache_regressor="pairs"), idim_result
+    return observe_effects(experiment, robot, idim_result.base, idim_result.settings), idim_result
 
 
 def _folds_and_gap(eobs, opts, notices):

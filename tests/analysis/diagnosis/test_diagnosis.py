@@ -131,7 +131,7 @@ def test_offset_and_asymmetric_coulomb_are_the_same_columns_while_moving(short_s
 def test_shifted_regressor_is_the_regressor_of_the_shifted_motion(short_sim):
     """W(t - d) for d a whole number of samples: the decimated regressor of the delayed signals."""
     robot, bp, ident, _ = short_sim
-    e = observe_effects(ident, robot, bp)
+    e = observe_effects(ident, robot, bp, cache_regressor="auto")     # W_full, the definition's regressor
     cols = np.arange(len(bp.names))
     s = 7
     B = e.shifted_regressor(cols, s / e.fs)

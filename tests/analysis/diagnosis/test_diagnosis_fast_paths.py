@@ -30,7 +30,7 @@ def planar():
     tau = rng.standard_normal(q.shape)
     exp = Experiment(t=t, q=q, qr=q, tau=tau, fs=fs, source="planar2 multisine")
     settings = {"qd_threshold": 0.05, "nd": 5}
-    return robot, bp, exp, settings, observe_effects(exp, robot, bp, settings)
+    return robot, bp, exp, settings, observe_effects(exp, robot, bp, settings, cache_regressor="auto")
 
 
 def _shifted_by_definition(eobs, d):
@@ -72,10 +72,10 @@ def test_observation_without_decimation_keeps_every_chunk(planar):
     old = eo.CHUNK
     try:
         eo.CHUNK = 500
-        e1 = observe_effects(exp, robot, bp, dict(settings, nd=1))
+        e1 = observe_effects(exp, robot, bp, dict(settings, nd=1), cache_regressor="auto")
     finally:
         eo.CHUNK = old
-    e2 = observe_effects(exp, robot, bp, dict(settings, nd=1))
+    e2 = observe_effects(exp, robot, bp, dict(settings, nd=1), cache_regressor="auto")
     np.testing.assert_array_equal(e1.obs.W, e2.obs.W)
     np.testing.assert_array_equal(e1.W_full, e2.W_full)
 
