@@ -3,7 +3,7 @@
 1. A 200,000-row x 13-column CSV in dynid's column format (t, q1..q6, tau1..tau6; a
    40 s, 5 kHz, 6-joint log) is generated in a temporary folder and loaded with
    dynid.load_experiment(path, n_joints=6) and with pandas.read_csv, alternately, in
-   the same process (median of 3 each). Target: dynid / pandas <= 1.3. dynid reads with
+   the same process (median of 5 each), with the CPU time of each beside. Target: dynid / pandas <= 1.3. dynid reads with
    pandas' C reader on pandas >= 3 (exact there); on pandas 2 with Arrow's CSV reader first
    when pyarrow is installed, and its time through pandas' reader (what it does without
    pyarrow) is given beside (the same route on pandas >= 3). Beside them, the time of
@@ -67,6 +67,10 @@ def rows_for_bytes(target: int) -> int:
     return int(target / per_row)
 
 
+#: Loads of each kind timed (the median is given).
+REPEATS = 5
+
+
 def time_loading(path: Path, repeats: int = 3):
     """Medians of dynid.load_experiment (its default route: Arrow's reader when pyarrow is
     installed), of the same with pandas' reader instead, and of pandas.read_csv, in turn."""
@@ -75,18 +79,20 @@ def time_loading(path: Path, repeats: int = 3):
     import dynid
     from dynid.analysis.data import readers
 
-    dynid_s, pandas_route_s, pandas_s, scan_s = [], [], [], []
+    dynid_s, pandas_route_s, pandas_s, scan_s, dynid_cpu, pandas_cpu = [], [], [], [], [], []
     exp = exp_pd = None
     for _ in range(repeats):
         t0 = time.perf_counter()
         readers._scan_csv(path)      # what dynid reads before pandas: cells pandas would misread
         scan_s.append(time.perf_counter() - t0)
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         exp = dynid.load_experiment(path, n_joints=N_JOINTS)
         dynid_s.append(time.perf_counter() - t0)
-        t0 = time.perf_counter()
+        dynid_cpu.append(time.process_time() - c0)
+        t0, c0 = time.perf_counter(), time.process_time()
         df = pd.read_csv(path)
         pandas_s.append(time.perf_counter() - t0)
+        pandas_cpu.append(time.process_time() - c0)
         readers._USE_ARROW = False
         try:
             t0 = time.perf_counter()
@@ -99,7 +105,8 @@ def time_loading(path: Path, repeats: int = 3):
     np.testing.assert_array_equal(exp.tau, df[[f"tau{j}" for j in range(1, N_JOINTS + 1)]].to_numpy())
     assert exp.tau.tobytes() == exp_pd.tau.tobytes() and exp.q.tobytes() == exp_pd.q.tobytes()
     return (statistics.median(dynid_s), statistics.median(pandas_s), exp,
-            statistics.median(pandas_route_s), statistics.median(scan_s))
+            statistics.median(pandas_route_s), statistics.median(scan_s),
+            statistics.median(dynid_cpu), statistics.median(pandas_cpu))
 
 
 def _status_kb(field: str) -> int | None:
@@ -145,7 +152,8 @@ def main():
         write_csv(csv_path, n_rows)
         size = csv_path.stat().st_size
         time_loading(csv_path, repeats=1)          # warm-up: imports, page cache
-        dynid_s, pandas_s, exp, pandas_route_s, scan_s = time_loading(csv_path)
+        dynid_s, pandas_s, exp, pandas_route_s, scan_s, dynid_cpu, pandas_cpu = time_loading(
+            csv_path, repeats=REPEATS)
         ratio = dynid_s / pandas_s
         # the part no check can remove: pandas' parse and the scan for what it misreads
         ratio_parse_scan = (pandas_s + scan_s) / pandas_s
@@ -157,12 +165,16 @@ def main():
             arrow = "no pyarrow: pandas' reader"
         print(f"CSV {n_rows:,} rows x {1 + 2 * N_JOINTS} columns ({size / 1e6:.1f} MB): "
               f"dynid.load_experiment {dynid_s:.3f} s ({arrow}), pandas.read_csv {pandas_s:.3f} s, "
-              f"ratio {ratio:.2f} (target 1.3; median of 3)")
+              f"ratio {ratio:.2f} (target 1.3; median of {REPEATS})")
         print(f"  dynid through pandas' reader (as without pyarrow) {pandas_route_s:.3f} s, "
               f"ratio {ratio_pandas_route:.2f}")
         print(f"  of dynid's time: the scan for cells pandas would misread (booleans, quotes, NUL, "
               f"stray CR) {scan_s:.3f} s, so the parse and the scan alone are {ratio_parse_scan:.2f} x "
               f"pandas; the checks and the arrays {max(dynid_s - pandas_s - scan_s, 0.0):.3f} s")
+        # pandas >= 3 parses on every core; dynid's scan and checks run on one
+        print(f"  CPU time: dynid {dynid_cpu:.3f} s, pandas {pandas_cpu:.3f} s (ratio "
+              f"{dynid_cpu / pandas_cpu:.2f}); pandas kept {pandas_cpu / pandas_s:.1f} cores busy "
+              "(when a core is taken by other work, pandas' parse slows and the ratio falls)")
 
         big = Path(d) / "big.csv"
         write_csv(big, rows_for_bytes(rss_bytes), seed=2)
@@ -185,6 +197,8 @@ def main():
                       "pandas_s": round(pandas_s, 3), "ratio": round(ratio, 2),
                       "ratio_pandas_route": round(ratio_pandas_route, 2), "scan_s": round(scan_s, 4),
                       "ratio_parse_and_scan": round(ratio_parse_scan, 3),
+                      "ratio_cpu": round(dynid_cpu / pandas_cpu, 2),
+                      "pandas_cores_busy": round(pandas_cpu / pandas_s, 2),
                       "rss_file_mb": round(big_size / 1e6), "rss_peak_mb": round(peak / 1e6),
                       "rss_over_file": round(rss_over_file, 2),
                       "rss_net_over_file": round(net_over_file, 2)}))

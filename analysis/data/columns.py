@@ -63,19 +63,13 @@ import numpy as np
 
 from dynid.analysis.data import plausibility as _plaus
 from dynid.analysis.data._format import _fmt, _short_list
+from dynid.analysis.data.saturation import saturation_notices
 from dynid.analysis.data.timebase import _check_time, _Options, _resample, estimate_shift
 from dynid.errors import DataError
 
 if TYPE_CHECKING:
     from dynid.analysis.data.experiment import Experiment
     from dynid.analysis.data.readers import _RawFile
-
-#: Fraction of samples at max |tau| (in long enough runs) that triggers a saturation notice.
-SATURATION_FRACTION = 0.005
-#: Shortest run of consecutive samples at max |tau| that counts as saturation.
-SATURATION_MIN_RUN = 3
-#: Relative tolerance for "at its maximum".
-SATURATION_REL_TOL = 1e-6
 
 _STEMS = ("q", "qr", "qd", "qdd", "tau", "i")
 _COLUMN_RE = re.compile(r"^(?:(t)|(qdd|qd|qr|q|tau|i)([1-9][0-9]*))$", re.ASCII)
@@ -312,40 +306,6 @@ def _drive_gains(robot, n: int, where: str) -> tuple[np.ndarray, str]:
 
 
 
-def _saturation_notices(tau: np.ndarray, notices: list[str], what: str) -> None:
-    n_samples = tau.shape[0]
-    for j in range(tau.shape[1]):
-        x = tau[:, j]
-        hi, lo = x.max(), x.min()
-        if hi == lo:
-            notices.append(
-                f"joint {j + 1}: tau{j + 1} is constant ({_fmt(x[0])}) throughout {what}: "
-                "check that the joint was driven and its torque logged"
-            )
-            continue
-        top = float(max(hi, -lo))
-        thr = top * (1 - SATURATION_REL_TOL)
-        at = x >= thr
-        at |= x <= -thr
-        # runs of >= SATURATION_MIN_RUN samples at the top cannot reach the notice's share when
-        # all the samples at the top do not: one count instead of the run lengths
-        if np.count_nonzero(at) < SATURATION_FRACTION * n_samples:
-            continue
-        d = np.diff(np.concatenate([[0], at.astype(np.int8), [0]]))
-        starts, ends = np.flatnonzero(d == 1), np.flatnonzero(d == -1)
-        lens = ends - starts
-        long = lens >= SATURATION_MIN_RUN
-        count = int(lens[long].sum())
-        if count and count >= SATURATION_FRACTION * n_samples:
-            notices.append(
-                f"joint {j + 1}: |tau{j + 1}| sits at its maximum {_fmt(top)} for {count} "
-                f"samples ({100 * count / n_samples:.2g} % of the record, "
-                f"{int(long.sum())} run(s) of ≥ {SATURATION_MIN_RUN} samples): the drive "
-                "was probably saturated (current limit). Clipped torques do not follow "
-                "the model: exclude those samples or excite less."
-            )
-
-
 def _assemble(
     *,
     t: np.ndarray | None,
@@ -457,7 +417,7 @@ def _assemble(
                       time_col.where if time_col is not None
                       else f"{opts.where}: t (from sampling_rate)", notices)
     tau = signals["tau"]
-    _saturation_notices(tau, notices, source)
+    saturation_notices(tau, notices, source)
     fs = None
     if time_col is None:
         fs = float(opts.sampling_rate)

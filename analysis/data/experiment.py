@@ -7,7 +7,8 @@ schema are documented in docs/formats.md. The loader is split by concept:
 * `dynid.analysis.data.record`: the `Experiment` record itself (re-exported here);
 * `dynid.analysis.data.readers`: CSV / Parquet / npz / MAT file → raw named columns;
 * `dynid.analysis.data.columns`: column names, parsing to numbers, finite /
-  joint-count / saturation checks, assembling an Experiment;
+  joint-count checks, assembling an Experiment;
+* `dynid.analysis.data.saturation`: the torque saturation notice;
 * `dynid.analysis.data.timebase`: time checks, resampling, `estimate_shift`;
 * `dynid.analysis.data.description`: the TOML experiment description schema;
 * `dynid.analysis.data.transmission`: motor side → joint side.
@@ -20,10 +21,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from dynid.analysis.data.columns import SATURATION_FRACTION, SATURATION_MIN_RUN, SATURATION_REL_TOL, _from_columns
+from dynid.analysis.data.columns import _from_columns
 from dynid.analysis.data.description import _load_toml
 from dynid.analysis.data.readers import _READERS, _read_data_file
 from dynid.analysis.data.record import SIGNALS, Experiment
+from dynid.analysis.data.saturation import SATURATION_FRACTION, SATURATION_MIN_RUN, SATURATION_REL_TOL
 from dynid.analysis.data.timebase import GAP_FACTOR, TIME_STEP_TOLERANCE, _Options, estimate_shift
 from dynid.errors import DataError
 

@@ -1,0 +1,92 @@
+"""Torque saturation: a joint whose |tau| sits at its maximum for a share of the record.
+
+A notice is given for joint j when |tau_j| is within a relative `SATURATION_REL_TOL` of
+its maximum over the record for at least `SATURATION_FRACTION` of the samples, counting
+only runs of at least `SATURATION_MIN_RUN` consecutive samples (a drive at its current
+limit clips the torque for a while; single samples at the top are ordinary peaks), and
+when tau_j is constant throughout (the joint was not driven, or its torque not logged).
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from dynid.analysis.data._format import _fmt
+
+__all__ = ["SATURATION_FRACTION", "SATURATION_MIN_RUN", "SATURATION_REL_TOL", "saturation_notices"]
+
+#: Fraction of samples at max |tau| (in long enough runs) that triggers a saturation notice.
+SATURATION_FRACTION = 0.005
+#: Shortest run of consecutive samples at max |tau| that counts as saturation.
+SATURATION_MIN_RUN = 3
+#: Relative tolerance for "at its maximum".
+SATURATION_REL_TOL = 1e-6
+
+
+@njit(cache=True, nogil=True)
+def _extremes_and_tops(X, rel_tol):  # pragma: no cover - compiled
+    """Per column of X (n, k): (max, min, top = max(max, -min), samples with |x| >= top ×
+    (1 - rel_tol), NaN present), in two row-major passes (the strided column passes of NumPy
+    took three times as long, benchmarks/io.py)."""
+    n, k = X.shape
+    hi = X[0].copy()
+    lo = X[0].copy()
+    nan = np.zeros(k, dtype=np.bool_)
+    for i in range(n):
+        for j in range(k):
+            v = X[i, j]
+            nan[j] |= v != v
+            if v > hi[j]:
+                hi[j] = v
+            if v < lo[j]:
+                lo[j] = v
+    top = np.empty(k)
+    thr = np.empty(k)
+    for j in range(k):
+        top[j] = hi[j] if hi[j] > -lo[j] else -lo[j]
+        thr[j] = top[j] * (1 - rel_tol)
+    count = np.zeros(k, dtype=np.int64)
+    for i in range(n):
+        for j in range(k):
+            v = X[i, j]
+            count[j] += (v >= thr[j]) | (v <= -thr[j])
+    return hi, lo, top, count, nan
+
+
+def saturation_notices(tau: np.ndarray, notices: list[str], what: str) -> None:
+    """Append a notice for each joint of tau (n, k) that is constant or saturated."""
+    tau = np.ascontiguousarray(tau, dtype=float)
+    n_samples = tau.shape[0]
+    if n_samples == 0:
+        return
+    hi, lo, top, counts, nan = _extremes_and_tops(tau, SATURATION_REL_TOL)
+    for j in range(tau.shape[1]):
+        if nan[j]:      # as NumPy's max and min: NaN extremes, nothing at the top
+            continue
+        x = tau[:, j]
+        if hi[j] == lo[j]:
+            notices.append(
+                f"joint {j + 1}: tau{j + 1} is constant ({_fmt(x[0])}) throughout {what}: "
+                "check that the joint was driven and its torque logged"
+            )
+            continue
+        # runs of >= SATURATION_MIN_RUN samples at the top cannot reach the notice's share when
+        # all the samples at the top do not: one count instead of the run lengths
+        if counts[j] < SATURATION_FRACTION * n_samples:
+            continue
+        thr = float(top[j]) * (1 - SATURATION_REL_TOL)
+        at = x >= thr
+        at |= x <= -thr
+        d = np.diff(np.concatenate([[0], at.astype(np.int8), [0]]))
+        starts, ends = np.flatnonzero(d == 1), np.flatnonzero(d == -1)
+        lens = ends - starts
+        long = lens >= SATURATION_MIN_RUN
+        count = int(lens[long].sum())
+        if count and count >= SATURATION_FRACTION * n_samples:
+            notices.append(
+                f"joint {j + 1}: |tau{j + 1}| sits at its maximum {_fmt(float(top[j]))} for "
+                f"{count} samples ({100 * count / n_samples:.2g} % of the record, "
+                f"{int(long.sum())} run(s) of ≥ {SATURATION_MIN_RUN} samples): the drive "
+                "was probably saturated (current limit). Clipped torques do not follow "
+                "the model: exclude those samples or excite less."
+            )
