@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from dynid.analysis.data._format import _short_list
+from dynid.analysis.data.beside import Beside
 from dynid.analysis.data.columns import _COLUMN_RE, _CONVENTION
 from dynid.errors import DataError
 
@@ -46,6 +47,9 @@ class _RawFile:
         #: CSV read by the fast path: data row k (0-based) is on file line first_line + k.
         self.first_line: int | None = None
         self.notices: list[str] = []
+        #: CSV read by the fast path while its scan runs beside (`_read_csv_fast(defer_scan=
+        #: True)`): the scan's verdict, pending; `_build_checked` waits for it.
+        self.scan: Beside | None = None
 
     @property
     def tabular(self) -> bool:
@@ -133,13 +137,34 @@ def _read_bytes(path: Path, label: str) -> bytes:
     return data
 
 
-def _read_csv(path: Path, label: str) -> _RawFile:
-    """A CSV file: the fast pandas path when the file is regular, else the precise one."""
+def _read_csv(path: Path, label: str, defer_scan: bool = False) -> _RawFile:
+    """A CSV file: the fast pandas path when the file is regular, else the precise one.
+
+    `defer_scan`: the fast path's scan of the file runs beside what follows the read, and
+    the caller builds its result with `_build_checked`."""
     _refuse_special(path, label)
-    raw = _read_csv_fast(path, label)
+    raw = _read_csv_fast(path, label, defer_scan=defer_scan)
     if raw is not None:
         return raw
     return _read_csv_precise(path, label)
+
+
+def _build_checked(raw: _RawFile, build):
+    """`build(raw)`; for a CSV whose scan ran beside the build (`defer_scan`), the scan's
+    verdict is then awaited, and when the scan found cells pandas reads differently from
+    the precise path, the build is done again from `_read_csv_precise` (and its errors,
+    which name the cell, are the ones raised). A failed build waits for the verdict too."""
+    if raw.scan is None:
+        return build(raw)
+    try:
+        out = build(raw)
+    except Exception:
+        if raw.scan.result() is not None:
+            raise
+        return build(_read_csv_precise(raw.path, raw.label))
+    if raw.scan.result() is None:
+        return build(_read_csv_precise(raw.path, raw.label))
+    return out
 
 
 #: Bytes read at a time by the fast CSV path's scan of the file: one buffer, refilled, small
@@ -148,6 +173,23 @@ def _read_csv(path: Path, label: str) -> _RawFile:
 _SCAN_CHUNK = 1 << 18
 #: Spellings pandas' float parser reads as booleans (1.0 / 0.0); Python's float() does not.
 _BOOL_WORDS = (b"rue", b"RUE", b"alse", b"ALSE")
+
+
+def _header_line(f) -> str | None:
+    """The first line of the open binary file `f` as text, or None when the fast path cannot
+    take it: no line end, blank, quoted, a NUL, a CR inside it, not UTF-8."""
+    first = f.readline(1 << 20)
+    if not first.endswith(b"\n") or b'"' in first or b"\0" in first:
+        return None
+    line = first[:-1]
+    if line.endswith(b"\r"):
+        line = line[:-1]
+    if not line.strip() or b"\r" in line:
+        return None
+    try:
+        return line.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        return None
 
 
 def _scan_csv(path: Path) -> str | None:
@@ -161,17 +203,8 @@ def _scan_csv(path: Path) -> str | None:
     except OSError:
         return None
     with f:
-        first = f.readline(1 << 20)
-        if not first.endswith(b"\n") or b'"' in first or b"\0" in first:
-            return None
-        line = first[:-1]
-        if line.endswith(b"\r"):
-            line = line[:-1]
-        if not line.strip() or b"\r" in line:
-            return None
-        try:
-            header = line.decode("utf-8-sig")
-        except UnicodeDecodeError:
+        header = _header_line(f)
+        if header is None:
             return None
         last = b""
         cr_open = False
@@ -201,7 +234,7 @@ def _scan_csv(path: Path) -> str | None:
     return header
 
 
-def _read_csv_fast(path: Path, label: str) -> _RawFile | None:
+def _read_csv_fast(path: Path, label: str, defer_scan: bool = False) -> _RawFile | None:
     """The whole CSV parsed by pandas' C reader into float64 columns (text for columns
     outside the dynid convention, exactly as the precise path keeps them), or None
     when anything is unusual and `_read_csv_precise` must read (and judge) it.
@@ -210,7 +243,12 @@ def _read_csv_fast(path: Path, label: str) -> _RawFile | None:
     floats exactly; pandas 2 does with `float_precision="round_trip"`). Cells the
     precise path would reject or read differently (text, empty cells, NaN, booleans,
     '_' digit separators, Unicode digits) make pandas fail, and the precise path
-    then names the file, column, data row and file line."""
+    then names the file, column, data row and file line.
+
+    `defer_scan` (pandas >= 3): the scan for what pandas would misread runs on a thread
+    while pandas parses and after, and the returned file's `scan` holds its pending verdict
+    (`_build_checked`). pandas' parse keeps every core busy, so the scan costs nothing
+    only beside dynid's checks, which run on one (benchmarks/io.py)."""
     try:
         import pandas as pd
     except ImportError:
@@ -220,7 +258,16 @@ def _read_csv_fast(path: Path, label: str) -> _RawFile | None:
             return None
     except OSError:
         return None
-    header_text = _scan_csv(path)
+    pandas3 = int(pd.__version__.split(".")[0]) >= 3
+    defer_scan = defer_scan and pandas3
+    if defer_scan:
+        try:
+            with open(path, "rb") as f:
+                header_text = _header_line(f)
+        except OSError:
+            return None
+    else:
+        header_text = _scan_csv(path)
     if header_text is None:
         return None
     names = next(csv.reader([header_text]))
@@ -229,7 +276,6 @@ def _read_csv_fast(path: Path, label: str) -> _RawFile | None:
             or len(set(names)) != len(names) or len(names) < 2
             or all(_is_number(h) for h in stripped)):
         return None
-    pandas3 = int(pd.__version__.split(".")[0]) >= 3
     # pandas >= 3 parses floats exactly, on its threads: faster than Arrow on one thread
     # (benchmarks/io.py); pandas 2 needs its slower round-trip parser, so Arrow goes first
     raw = None if pandas3 else _read_csv_arrow(path, label, names, stripped)
@@ -250,13 +296,15 @@ def _read_csv_fast(path: Path, label: str) -> _RawFile | None:
     # Every column as numbers first (a TOML may name any column); if that fails, the
     # columns outside the convention as text, as the precise path keeps them.
     dtypes = dict.fromkeys(names, float)
+    scanned = not defer_scan
     try:
         df = parse(dtypes)
     except Exception:  # noqa: BLE001 - any parse failure: the precise path explains it
         dtypes = {raw: (float if _COLUMN_RE.match(name) else object)
                   for raw, name in zip(names, stripped, strict=True)}
-        if object not in dtypes.values():
+        if object not in dtypes.values() or (not scanned and _scan_csv(path) is None):
             return None
+        scanned = True
         try:
             df = parse(dtypes)
         except Exception:  # noqa: BLE001
@@ -267,6 +315,9 @@ def _read_csv_fast(path: Path, label: str) -> _RawFile | None:
     if list(df.columns) != names or len(df) < 1:
         return None
     raw = _RawFile(path, label, "csv")
+    if not scanned:
+        # started after the parse, which keeps every core busy: beside it, the scan slowed it
+        raw.scan = Beside(_scan_csv, path, name="dynid-csv-scan")
     raw.first_line = 2
     for c, name in enumerate(stripped):
         col = df.iloc[:, c]
@@ -714,7 +765,9 @@ def _safe_reason(e: Exception) -> str:
 _READERS = {".csv": _read_csv, ".parquet": _read_parquet, ".npz": _read_npz, ".mat": _read_mat}
 
 
-def _read_data_file(path: Path, label: str) -> _RawFile:
+def _read_data_file(path: Path, label: str, defer_scan: bool = False) -> _RawFile:
+    """The raw columns of one data file. `defer_scan` (CSV): see `_read_csv`; build the
+    result with `_build_checked`."""
     ext = path.suffix.lower()
     if ext not in _READERS:
         raise DataError(
@@ -722,5 +775,7 @@ def _read_data_file(path: Path, label: str) -> _RawFile:
             ".csv, .parquet, .npz, .mat (and .toml experiment descriptions). If it is a "
             "comma-separated table, rename it to .csv."
         )
+    if ext == ".csv":
+        return _read_csv(path, label, defer_scan=defer_scan)
     return _READERS[ext](path, label)
 

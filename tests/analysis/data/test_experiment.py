@@ -1174,6 +1174,56 @@ def test_fast_csv_path_agrees_with_the_precise_path(tmp_path, text):
     _same_raw(fast, readers._read_csv_precise(p, str(p)))
 
 
+def _outcome(build):
+    """What a load gives: its error's text, or its notices and the bits of its arrays."""
+    try:
+        e = build()
+    except DataError as ex:
+        return ("error", str(ex))
+    return ("ok", e.notices, e.t.tobytes(), None if e.q is None else e.q.tobytes(), e.tau.tobytes())
+
+
+def _precise_outcome(p):
+    from dynid.analysis.data import readers
+    from dynid.analysis.data.columns import _from_columns
+    from dynid.analysis.data.timebase import _Options
+
+    return _outcome(lambda: _from_columns(readers._read_csv_precise(p, str(p)), None, None,
+                                          _Options(name=p.stem, where=str(p)), str(p), [], {}))
+
+
+_BODY = "".join(f"{k / 100!r},{math.sin(k / 7)!r},{math.cos(k / 5)!r}\n" for k in range(40))
+
+
+@pytest.mark.parametrize("text", [
+    "t,q1,tau1\n" + _BODY,                                          # regular
+    "t,q1,tau1\n" + _BODY.replace("\n", "\r\n"),                    # CR LF
+    "t,q1,tau1\n" + _BODY.replace("\n", "\r"),                       # CR line ends
+    "t,q1,tau1\n" + _BODY[:200] + "\r" + _BODY[200:],                # one lone CR
+    "t,q1,tau1\n" + "".join(f"{k},{k % 3},{'True' if k % 2 else 'False'}\n" for k in range(20)),
+    "t,q1,tau1\n" + _BODY + '1,"2",3\n',                            # a quote
+    "t,q1,tau1\n" + _BODY + "1,2\0,3\n",                           # a NUL
+    "t,q1,tau1\n" + _BODY + "0.1,2,3\n",                            # time goes back: an error
+    "t,q1,tau1,note\n" + "".join(f"{k},1,2,\"a\"\n" for k in range(20)),   # quoted text column
+])
+def test_load_with_its_scan_beside_is_the_precise_load(tmp_path, text):
+    """load_experiment reads a CSV with pandas while the scan for cells pandas misreads runs
+    beside the checks: whatever the scan finds, the Experiment (or the error) is the one of
+    the precise reader."""
+    p = tmp_path / "beside.csv"
+    p.write_bytes(text.encode())
+    assert _outcome(lambda: load_experiment(p)) == _precise_outcome(p)
+
+
+@settings(max_examples=100, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+@given(text=csv_texts())
+def test_load_with_its_scan_beside_agrees_with_the_precise_load(tmp_path, text):
+    p = tmp_path / "beside_any.csv"
+    p.write_text(text, encoding="utf-8", newline="")
+    assert _outcome(lambda: load_experiment(p)) == _precise_outcome(p)
+
+
 # --------------------------------------------------------------------------------------
 # plausibility against the robot's limits (dynid.analysis.data.plausibility)
 # --------------------------------------------------------------------------------------
