@@ -46,6 +46,33 @@ else:  # pragma: no cover
     _whole_row_start = _whole_row_start_py
 
 
+def _joint_transforms_py(Rp, pp, sigma, q, R, P):
+    """Frame j in frame j-1 for joint positions q (n,): `R[j] = Rp[j] Rot(z, q_j)` for a
+    revolute joint, `P[j] = pp[j] + q_j Rp[j] z` for a prismatic one. Shared by the regressor
+    kernel here and the dynamics of dynamic_model."""
+    n = q.shape[0]
+    for j in range(n):
+        if sigma[j] == 0:
+            c = np.cos(q[j])
+            s = np.sin(q[j])
+            for a in range(3):
+                R[j, a, 0] = Rp[j, a, 0] * c + Rp[j, a, 1] * s
+                R[j, a, 1] = -Rp[j, a, 0] * s + Rp[j, a, 1] * c
+                R[j, a, 2] = Rp[j, a, 2]
+                P[j, a] = pp[j, a]
+        else:
+            for a in range(3):
+                for b in range(3):
+                    R[j, a, b] = Rp[j, a, b]
+                P[j, a] = pp[j, a] + q[j] * Rp[j, a, 2]
+
+
+if HAVE_NUMBA:
+    joint_transforms = numba.njit(cache=True, nogil=True)(_joint_transforms_py)
+else:  # pragma: no cover
+    joint_transforms = _joint_transforms_py
+
+
 def _propagate_link_py(R, P, j, sigma_j, qdj, qddj, wx, wy, wz, ax, ay, az, vx, vy, vz):
     """One step of the Newton-Euler forward recursion: link j's angular velocity, angular
     acceleration and origin acceleration (gravity included) in frame j, from its parent's in
@@ -112,20 +139,8 @@ def _inertial_columns(Rp, pp, sigma, gravity, q, qd, qdd, out, whole_rows):
         if whole_rows:
             _whole_row_start(out, s, n, width, qd, qdd)
         # --- kinematics
+        joint_transforms(Rp, pp, sigma, q[s], R, P)
         for j in range(n):
-            if sigma[j] == 0:
-                c = np.cos(q[s, j])
-                sn = np.sin(q[s, j])
-                for a in range(3):
-                    R[j, a, 0] = Rp[j, a, 0] * c + Rp[j, a, 1] * sn
-                    R[j, a, 1] = -Rp[j, a, 0] * sn + Rp[j, a, 1] * c
-                    R[j, a, 2] = Rp[j, a, 2]
-                    P[j, a] = pp[j, a]
-            else:
-                for a in range(3):
-                    for b in range(3):
-                        R[j, a, b] = Rp[j, a, b]
-                    P[j, a] = pp[j, a] + q[s, j] * Rp[j, a, 2]
             if j == 0:
                 for a in range(3):
                     Ow[0, a] = P[0, a]

@@ -56,6 +56,7 @@ from numba import njit
 
 from dynid.errors import InputError
 
+from ._kernels import joint_transforms as _transforms
 from ._kernels import propagate_link
 from .robot import PER_JOINT
 
@@ -166,26 +167,6 @@ def _workspace(n):
     return (np.empty((n, 3, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)),
             np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, n)),
             np.empty(n), np.empty(n))
-
-
-@njit(cache=True, nogil=True)
-def _transforms(Rp, pp, sigma, q, R, P):
-    """Frame j in frame j-1: `R[j] = Rp[j] Rot(z, q_j)` or `P[j] = pp[j] + q_j Rp[j] z`."""
-    n = q.shape[0]
-    for j in range(n):
-        if sigma[j] == 0:
-            c = np.cos(q[j])
-            s = np.sin(q[j])
-            for a in range(3):
-                R[j, a, 0] = Rp[j, a, 0] * c + Rp[j, a, 1] * s
-                R[j, a, 1] = -Rp[j, a, 0] * s + Rp[j, a, 1] * c
-                R[j, a, 2] = Rp[j, a, 2]
-                P[j, a] = pp[j, a]
-        else:
-            for a in range(3):
-                for b in range(3):
-                    R[j, a, b] = Rp[j, a, b]
-                P[j, a] = pp[j, a] + q[j] * Rp[j, a, 2]
 
 
 @njit(cache=True, nogil=True)
