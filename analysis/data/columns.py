@@ -63,12 +63,12 @@ import numpy as np
 
 from dynid.analysis.data import plausibility as _plaus
 from dynid.analysis.data._format import _fmt, _short_list
+from dynid.analysis.data.record import Experiment
 from dynid.analysis.data.saturation import saturation_notices
 from dynid.analysis.data.timebase import _check_time, _Options, _resample, estimate_shift
 from dynid.errors import DataError
 
 if TYPE_CHECKING:
-    from dynid.analysis.data.experiment import Experiment
     from dynid.analysis.data.readers import _RawFile
 
 _STEMS = ("q", "qr", "qd", "qdd", "tau", "i")
@@ -411,7 +411,6 @@ def _assemble(
                     f"time column {time_col.where} gives {_fmt(fs_file)} Hz. Remove "
                     "sampling_rate (the time column is used) or correct it."
                 )
-    from dynid.analysis.data.record import Experiment  # TODO(issue 25): to module level (no cycle since record.py)
 
     _plaus.check_rate(t, signals, robot,
                       time_col.where if time_col is not None

@@ -11,8 +11,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dynid.analysis.data.experiment import Experiment
+from dynid.dynamics.base_parameters import base_parameters
 from dynid.dynamics.robot_file import load_robot
 from dynid.dynamics.simulation import simulate_closed_loop
+from dynid.dynamics.trajectories import random_fourier_trajectory
+from dynid.errors import InputError
+from dynid.provenance import json_safe
 
 # Values of the simulated TX40 outside Table 2. Ia6 is FIGAROH's a-priori rotor
 # inertia of joint 6 (config/TX40_config.yaml): without it M66 = 0 and M(q) is
@@ -35,7 +39,6 @@ def sample_count(duration, fs, *, option="--duration", what="the controller rate
     """
     import math
 
-    from dynid.errors import InputError
     if not (isinstance(duration, (int, float, np.floating, np.integer)) and math.isfinite(duration)
             and duration > 0):
         raise InputError(f"the duration must be a positive, finite number of seconds, got {duration!r} "
@@ -63,7 +66,6 @@ def _bytes(n) -> str:
 
 def check_noise(value, option) -> None:
     """A noise standard deviation (scalar or per joint): finite and non-negative."""
-    from dynid.errors import InputError
     arr = np.asarray(value, dtype=float)
     if not np.all(np.isfinite(arr)) or np.any(arr < 0):
         raise InputError(f"the noise standard deviation must be finite and non-negative (0 for none), "
@@ -88,7 +90,6 @@ def apriori_parameters(robot, bp):
     Base values (`ZZ1R`...) become a standard set through `bp.to_standard`;
     standard values (`ZZ1`...) are taken as they are. Missing ones are zero.
     """
-    from dynid.errors import InputError
     values = dict(robot.apriori)
     if robot.name == "tx40":
         values.update(TX40_EXTRA)
@@ -202,8 +203,6 @@ class SimulatedRecording:
         dict
             JSON-safe.
         """
-        from dynid.dynamics.base_parameters import base_parameters
-        from dynid.provenance import json_safe
         bp = base_parameters(self.robot)
         extra = (" (with " + ", ".join(f"{k} = {v:g}" for k, v in TX40_EXTRA.items())
                  + " added: the coupled wrist needs a rotor-6 inertia)") if self.robot.name == "tx40" else ""
@@ -232,9 +231,6 @@ def simulate(robot, duration: float = 20.0, *, seed: int = 1, f0: float = 0.1, h
         The recording (`experiment`) with the trajectory, the simulated parameters and
         the noise levels that produced it.
     """
-    from dynid.dynamics.base_parameters import base_parameters
-    from dynid.dynamics.trajectories import random_fourier_trajectory
-    from dynid.errors import InputError
     robot = load_robot(robot)   # a Robot passes through
     if robot.controller is None:
         raise InputError(f"robot '{robot.name}' ({robot.source}) has no [controller]; add one to simulate")

@@ -35,6 +35,7 @@ from dynid.analysis.diagnosis.effects import make_candidate
 from dynid.analysis.diagnosis.selection import fit_effects
 from dynid.analysis.results import Result, notices_block, parameter_table
 from dynid.errors import InputError
+from dynid.provenance import json_safe
 
 __all__ = ["AsymmetricFrictionResult", "asymmetric_friction"]
 
@@ -81,7 +82,6 @@ class AsymmetricFrictionResult(Result):
         return "\n".join(lines)
 
     def to_dict(self) -> dict:
-        from dynid.provenance import json_safe
         return json_safe({
             "robot": self.robot_name, "model": "Bona & Curatella eq. (2)",
             "joints": [{"joint": j, **{name: {"value": self.values[k, c], "std": self.sigma[k, c]}

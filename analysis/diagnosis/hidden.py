@@ -59,7 +59,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
+from dynid.analysis.estimators.physical import pc_wls
 from dynid.analysis.statistics.residuals import effective_sample_size
+from dynid.dynamics.excitation import apriori_parameters
 
 __all__ = ["hidden_effects", "physical_effects", "HiddenEffect", "PRIOR_REL", "PRIOR_ABS", "APRIORI_K",
            "MIN_AMPLITUDE_SIGMA", "HELDOUT_TOL"]
@@ -154,7 +156,6 @@ def hidden_effects(eobs, X, Y, mask, names, chi, sigma, robot, *, weights, alpha
     """
     if robot is None or not getattr(robot, "apriori", None):
         return []
-    from dynid.dynamics.excitation import apriori_parameters
     try:
         _, beta, missing = apriori_parameters(robot, eobs.bp)
     except Exception:        # a-priori values the base set cannot map: no test
@@ -269,7 +270,6 @@ def physical_effects(eobs, X, Y, mask, n_base, chi, robot, *, weights, alpha=0.0
     on 14 active constraints, p = 0.53), so this route does not see it and the a-priori route
     of `hidden_effects` does.
     """
-    from dynid.analysis.estimators.physical import pc_wls
     bp = eobs.bp
     nb = int(n_base)
     chi = np.asarray(chi, float)

@@ -36,7 +36,11 @@ import numpy as np
 
 from dynid.analysis.diagnosis.effect_observation import observe_effects
 from dynid.analysis.diagnosis.effects import make_candidate, signals_from_observation
+from dynid.analysis.estimators import least_squares as ls
+from dynid.analysis.estimators.physical import pc_wls
+from dynid.analysis.statistics.validation import prediction_errors
 from dynid.errors import IdentificationError, InputError
+from dynid.provenance import json_safe
 
 SPEC_EFFECTS = ("offset", "asymmetric_coulomb", "asymmetric_viscous", "spring", "position_ripple")
 
@@ -165,7 +169,6 @@ class EffectsFit:
     def to_dict(self) -> dict:
         """The JSON block of the effects: `spec`, per-parameter values and sigma (unconstrained
         and, with the physical fit, PC), the errors on the identification data and held out."""
-        from dynid.provenance import json_safe
         return json_safe({
             "spec": self.spec, "candidates": [{"effect": c.name, "joint": c.joint, **c.nonlinear}
                                               for c in self.candidates],
@@ -215,7 +218,6 @@ def profile_physical(robot, bp, x_hat, cov, n_base, **pc_options):
     (`EffectsFit.effects`) is never below the unconstrained one, the rule of the base
     parameters' (`interval_covariance`).
     """
-    from dynid.analysis.estimators.physical import pc_wls
     b = int(n_base)
     x_hat, cov = np.asarray(x_hat, float), np.asarray(cov, float)
     cov_bb = 0.5 * (cov[:b, :b] + cov[:b, :b].T)
@@ -238,7 +240,6 @@ def identify_physical_effects(experiments, robot, result, candidates, *, physica
     `experiments`) plus `candidates`' columns, with `result`'s processing settings; the
     per-joint sigma_j are re-estimated on the stacked design (eq. (16)). `validation`: a
     held-out recording, whose errors (`held_out_errors`) go into the result."""
-    from dynid.analysis.estimators import least_squares as ls
     if not isinstance(experiments, (list, tuple)):
         experiments = [experiments]
     bp, s = result.base, result.observation.settings
@@ -280,7 +281,6 @@ def held_out_errors(fit: EffectsFit, experiment, robot, bp, *, detail=False):
     dead zone, as `dynid.analysis.statistics.validation.validate`): `{"wls", "pc"}`
     ("pc" only with the physical fit). `detail=True`: the block of the JSON instead, with the
     per-joint RMS [N m] and the gap PC - WLS in points."""
-    from dynid.analysis.statistics.validation import prediction_errors
     W, tau, _, _ = effect_design(experiment, robot, bp, dict(fit.settings, qd_threshold=0.0), fit.candidates)
     e_wls, rms_wls, _ = prediction_errors(tau, W @ fit.x_wls)
     out = {"wls": e_wls}

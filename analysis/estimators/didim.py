@@ -158,6 +158,7 @@ import pandas as pd
 
 from dynid.analysis.estimators import least_squares as ls
 from dynid.analysis.estimators.essential import essential_parameters
+from dynid.analysis.estimators.physical import pc_wls, require_cvxpy
 from dynid.analysis.processing.decimation import ParallelDecimator
 from dynid.analysis.processing.signals import dead_zone_thresholds, default_settings, velocity_dead_zone
 from dynid.analysis.results import ModelResults, notices_block, parameter_records, percent
@@ -850,7 +851,6 @@ def _physical_start(L, beta0, failure):
     iteration starts there.
     Needs the optional cvxpy + Clarabel; without them the original error stands.
     """
-    from dynid.analysis.estimators.physical import pc_wls, require_cvxpy
     try:
         require_cvxpy()
     except InputError as exc:
@@ -973,7 +973,6 @@ def _gauss_newton(L, beta0, tol, physical, pc_options, notices, resume=None):
                     tau_ddm=tau_ddm, kd=kd.copy(), start=beta0, beta_sim=np.array(beta_sim))
         beta_ls = res.chi
         if physical:
-            from dynid.analysis.estimators.physical import pc_wls
             last["physical"] = pc_wls(L.robot, L.bp, res.chi, res.cov, n_boot=0, **pc_options)
             beta_ls = last["physical"].chi
         if L.progress is not None:
@@ -1201,7 +1200,6 @@ def _didim_result(L, experiment, beta0, tau, history, timings, last, converged, 
         last["res"] = _robust(L, last, uncertainty, gains_cov, 300, 0)
     res = last["res"]
     if physical and n_boot:
-        from dynid.analysis.estimators.physical import pc_wls
         last["physical"] = pc_wls(robot, bp, res.chi, res.cov, n_boot=n_boot, **pc_options)
     h = experiment.data_hash() if hasattr(experiment, "data_hash") else ""
     res.data_hash = h
@@ -1307,7 +1305,6 @@ def _identify_auto_v_s(experiment, robot, *, settings, chi0, tol, max_iter, upda
             first.settings["uncertainty"] = (final_cov["uncertainty"]
                                              + ("+gains" if final_cov["gains"] is not None else ""))
         if kw.get("physical") and n_boot:
-            from dynid.analysis.estimators.physical import pc_wls
             first.physical = pc_wls(robot, first.base, first.result.chi, first.result.cov, n_boot=n_boot,
                                     **pc_options)
         if essential:

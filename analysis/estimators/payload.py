@@ -65,13 +65,16 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
+from dynid.analysis.data.experiment import Experiment, load_experiment
 from dynid.analysis.estimators import least_squares as ls
 from dynid.analysis.estimators.payload_physical import PAYLOAD_NAMES, PhysicalPayload, physical_payload
 from dynid.analysis.processing.decimation import ParallelDecimator
 from dynid.analysis.processing.observation import CHUNK, full_rate
-from dynid.analysis.results import ParameterResults, notices_block, parameter_table, percent
+from dynid.analysis.results import IdentificationResult, ParameterResults, notices_block, parameter_table, percent
 from dynid.dynamics.base_parameters import base_parameters
 from dynid.dynamics.regressor import regressor
+from dynid.dynamics.robot import Robot
+from dynid.dynamics.robot_file import load_robot
 from dynid.dynamics.urdf_writer import inertial_slice, link_consistency
 from dynid.errors import IdentificationError, InputError
 from dynid.provenance import json_safe, versions
@@ -334,8 +337,6 @@ def _refuse(directions, robot, obs_list, link, rtol):
 # ------------------------------------------------------------------------------- robot model
 def _as_robot(robot):
     """A Robot from a Robot, a bundled name or a robot file (as dynid.identify takes it)."""
-    from dynid.dynamics.robot import Robot
-    from dynid.dynamics.robot_file import load_robot
     return robot if isinstance(robot, Robot) else load_robot(robot)
 
 
@@ -370,7 +371,6 @@ def _recordings(x, robot, zoh):
 
 
 def _as_experiment(x, robot):
-    from dynid.analysis.data.experiment import Experiment, load_experiment
     if isinstance(x, Experiment):
         return x
     if isinstance(x, (str, os.PathLike)):
@@ -709,7 +709,6 @@ def identify_payload(loaded, robot, *, model=None, unloaded=None, frame="flange"
                                       f"robot's base parameters with the payload's: {e}") from None
         b = bp.n_base
         chi, cov = est[b:], cov_all[b:, b:]
-        from dynid.analysis.results import IdentificationResult
         robot_params = IdentificationResult(
             method="WLS (global, with payload)", names=list(bp.names), chi=est[:b], cov=cov_all[:b, :b],
             sigma_rho=fit.sigma_rho, residual=fit.residual, rel_error=fit.rel_error, rms=fit.rms,

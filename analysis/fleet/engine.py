@@ -24,6 +24,7 @@ from dynid.analysis.fleet.catalogue import joint_temperature, read_catalogue
 from dynid.analysis.fleet.store import ResultStore
 from dynid.analysis.fleet.task import MAX_SAMPLES, file_hash, identify_recording, task_key
 from dynid.errors import InputError
+from dynid.provenance import json_safe, versions
 from dynid.ranges import check_range
 
 INSTALL_HINT = 'pip install "dynid[fleet]"'
@@ -67,7 +68,6 @@ class FleetRun:
                 f"the store, {self.n_failed} failed ({self.wall_seconds:.1f} s)")
 
     def to_dict(self) -> dict:
-        from dynid.provenance import json_safe
         out = {"store": self.store, "n_recordings": self.n_recordings, "n_computed": self.n_computed,
                "n_identified": self.n_identified, "n_failed": self.n_failed,
                "n_skipped": self.n_skipped, "n_errors": len(self.errors),
@@ -80,7 +80,6 @@ class FleetRun:
 
 def plan(catalogue, store: ResultStore, *, settings=None, diagnose=False, max_samples=MAX_SAMPLES):
     """(all task specs, the specs not yet in `store`) of a catalogue."""
-    from dynid.provenance import versions
     version = versions().get("dynid", "?")
     frame = read_catalogue(catalogue)
     options = {"settings": repr(sorted((settings or {}).items())), "diagnose": bool(diagnose),

@@ -35,6 +35,7 @@ import numpy as np
 import pandas as pd
 
 from dynid.errors import InputError
+from dynid.provenance import json_safe
 
 DEFAULT_PARAMETERS = ("Fv", "Fc")
 #: reference temperature of the compensated values, degrees Celsius
@@ -135,7 +136,6 @@ class FleetHealth:
         return dict(sorted(out.items()))
 
     def to_dict(self) -> dict:
-        from dynid.provenance import json_safe
         return json_safe({"settings": self.settings, "threshold": self.threshold,
                           "temperature_coefficients": self.temperature_coefficients,
                           "scatter_ratio": self.scatter_ratio,

@@ -25,6 +25,16 @@ import time
 
 import numpy as np
 
+from dynid.analysis.data.experiment import Experiment, load_experiment
+from dynid.analysis.diagnosis.selection import diagnose
+from dynid.analysis.estimators import least_squares as ls
+from dynid.analysis.estimators.essential import essential_parameters
+from dynid.analysis.estimators.idim import identify_idim
+from dynid.analysis.estimators.streamed import reduce_stream
+from dynid.analysis.identify import as_robot
+from dynid.analysis.processing.observation import resolve_settings
+from dynid.analysis.processing.signals import dead_zone_thresholds, derivatives
+from dynid.dynamics.base_parameters import base_parameters
 from dynid.errors import DynidError
 
 #: samples above which a recording is streamed and reduced block by block (6 joints x 2e6
@@ -54,18 +64,12 @@ def task_key(robot_id: str, recording: str, data_hash: str, version: str, option
 @functools.lru_cache(maxsize=32)
 def _robot(spec: str):
     # one load per worker process and robot model, not per task
-    from dynid.analysis.identify import as_robot
-    from dynid.dynamics.base_parameters import base_parameters
     robot = as_robot(spec)
     return robot, base_parameters(robot)
 
 
 def _streamed_reduction(exp, robot, bp, settings, block):
     """The reduced system of a long recording, block by block (settings from its first block)."""
-    from dynid.analysis.data.experiment import Experiment
-    from dynid.analysis.estimators.streamed import reduce_stream
-    from dynid.analysis.processing.observation import resolve_settings
-    from dynid.analysis.processing.signals import dead_zone_thresholds, derivatives
     head = slice(0, min(exp.q.shape[0], block))
     first = Experiment(t=exp.t[head], q=exp.q[head], tau=exp.tau[head], fs=exp.fs, source=exp.source)
     s = resolve_settings(first, settings)
@@ -82,11 +86,8 @@ def _streamed_reduction(exp, robot, bp, settings, block):
 def _identify(exp, robot, bp, settings, max_samples):
     """(wls result, essential result, samples of the recording) of one recording."""
     if exp.q is None or exp.q.shape[0] <= max_samples:
-        from dynid.analysis.estimators.idim import identify_idim
         r = identify_idim(exp, robot, settings=settings, bp=bp)
         return r.wls, r.essential, r.observation.n_raw
-    from dynid.analysis.estimators import least_squares as ls
-    from dynid.analysis.estimators.essential import essential_parameters
     streamed = _streamed_reduction(exp, robot, bp, settings, max(1000, max_samples // 4))
     cfg = dict(streamed.settings)
     wls = ls.wls_reduced(streamed.reduction, settings=cfg)
@@ -103,7 +104,6 @@ def identify_recording(spec: dict) -> dict:
                                 "version")}
     out["temperatures"] = list(spec.get("temperatures") or [])
     try:
-        from dynid.analysis.data.experiment import load_experiment
         robot, bp = _robot(spec["robot"])
         exp = load_experiment(spec["path"], robot)
         wls, ess, n_raw = _identify(exp, robot, bp, spec.get("settings"), int(spec.get("max_samples") or MAX_SAMPLES))
@@ -119,7 +119,6 @@ def identify_recording(spec: dict) -> dict:
                                     for n in wls.names],
                    experiment_hash=exp.data_hash(), effects=[])
         if spec.get("diagnose"):
-            from dynid.analysis.diagnosis.selection import diagnose
             d = diagnose(exp, robot)
             out["effects"] = [e.name if e.joint is None else f"{e.name} (joint {e.joint})" for e in d.selected]
     except DynidError as exc:           # a bad log: its message, and the fleet goes on

@@ -134,11 +134,11 @@ def test_long_recording_reduced_chunk_by_chunk_equals_its_decimated_system_in_me
         chunks = list(chunks)
         held["obs"] = streaming.observe_stream(iter(chunks), *args, **kw)
         return real(iter(chunks), *args, **kw)
-    streamed.reduce_stream = both
+    task.reduce_stream = both           # the name the task calls
     try:
         wls, ess, n_raw = task._identify(exp, robot, bp, None, 1200)
     finally:
-        streamed.reduce_stream = real
+        task.reduce_stream = real
     obs = held["obs"]
     ref = ls.wls(obs.W, obs.tau, list(bp.names), row_mask=obs.row_mask)
     ref_ess = essential_parameters(obs.W, obs.tau, list(bp.names), ls.wls, row_mask=obs.row_mask)
