@@ -14,6 +14,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
+from dynid.analysis.statistics.verdict import parameter_unit
 from dynid.reports import figures as F
 from dynid.reports import tables as T
 from dynid.reports.html import Section, para
@@ -93,7 +94,6 @@ def agreement_section(a: dict, line: str) -> Section:
         Id `agreement`: the line, a paragraph on how to read it, `agreement_figure`
         and the per-parameter table `tab-agreement`.
     """
-    from dynid.analysis.statistics.verdict import parameter_unit
     what = a.get("kind", "recordings")
     one = what[:-1]
     body = para(line, " ", (

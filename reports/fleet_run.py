@@ -16,6 +16,7 @@ from dynid.analysis.fleet.health import DEFAULT_BASELINE, DEFAULT_FALSE_ALARM_RA
 from dynid.analysis.fleet.store import ResultStore
 from dynid.outputs import check_outputs
 from dynid.progress import task
+from dynid.reports.fleet_report import write_fleet_outputs
 
 __all__ = ["run", "read_store"]
 
@@ -66,6 +67,5 @@ def run(catalogue, store, *, scheduler: str | None = None, workers: int | None =
     result.health = monitor(frame, parameters, false_alarm_rate=false_alarm_rate, n_baseline=n_baseline)
     if report is not None or json is not None:
         # matplotlib and the HTML template only when a report is asked for
-        from dynid.reports.fleet_report import write_fleet_outputs
         write_fleet_outputs(result, frame, html=report, json_path=json)
     return result

@@ -30,6 +30,10 @@ import numpy as np
 import pandas as pd
 from markupsafe import Markup, escape
 
+from dynid.analysis.processing.observation import SETTINGS_HELP
+from dynid.analysis.statistics.validation import DEAD_ZONE_REASON
+from dynid.analysis.statistics.verdict import parameter_unit
+from dynid.analysis.statistics.verdict import verdict as _verdict
 from dynid.outputs import atomic_write_text
 from dynid.provenance import versions
 from dynid.reports import figures as F
@@ -254,7 +258,6 @@ def _setting_value(key, value, joint_names):
 
 
 def _run_section(res, robot, experiment, reference):
-    from dynid.analysis.processing.observation import SETTINGS_HELP
 
     obs = res.observation
     names = _joint_names(robot, obs.tau.shape[1])
@@ -351,7 +354,6 @@ def _model_section(robot, res):
 
 def _base_section(res):
     table = res.parameter_table()
-    from dynid.analysis.statistics.verdict import parameter_unit
     shown = pd.DataFrame({
         "relation": [r.split(" = ", 1)[1] if " = " in r else r for r in table["relation"]],
         "unit": [parameter_unit(n) for n in table.index],
@@ -471,7 +473,6 @@ def _torque_section(res, robot, reference):
 
 
 def _validation_section(res, robot, validation):
-    from dynid.analysis.statistics.validation import DEAD_ZONE_REASON
     n = validation.tau.shape[1]
     names = _joint_names(robot, n)
     excl = float(getattr(validation, "excluded_fraction", 0.0))
@@ -609,7 +610,6 @@ def render_idim_report(idim_result, robot, experiment=None, validation=None, *, 
         The HTML text; write it with `write_report`.
     """
     if verdict is None:
-        from dynid.analysis.statistics.verdict import verdict as _verdict
         verdict = _verdict(idim_result, validation, robot=robot)
     if isinstance(reference, str) and reference == "auto":
         reference = reference_for(robot)

@@ -15,6 +15,8 @@ import html
 import numpy as np
 from markupsafe import Markup
 
+from dynid.analysis.estimators.payload import UNITS
+from dynid.dynamics.urdf_writer import link_consistency
 from dynid.reports.html import Section, para, render_sections
 
 __all__ = ["payload_status", "payload_section", "payload_report_section", "payload_refusal_section",
@@ -51,7 +53,6 @@ def payload_status(result) -> tuple[str, list]:
             if not h < 0.02:
                 reasons.append(f"gain of joint {j}: 95 % half-width {100 * h:.2g} % of its value")
         return (RESERVATIONS if reasons else IDENTIFIED), reasons
-    from dynid.dynamics.urdf_writer import link_consistency
     if not link_consistency(result.chi)["consistent"]:
         reasons.append("the free estimate is not physically consistent (pseudo-inertia not positive "
                        "semidefinite): use the constrained fit" + ("" if result.physical is not None
@@ -80,7 +81,6 @@ def payload_section(result) -> str:
         parts.append(_table(["joint", "file gain", "identified gain", "sigma", "moved (%)", "95 % lower",
                              "95 % upper"], rows))
     else:
-        from dynid.analysis.estimators.payload import UNITS
         rows = [(nm, _num(v), _num(s, 3), _num(lo), _num(hi), u)
                 for nm, v, s, (lo, hi), u in zip(result.names, result.chi, bse, ci, UNITS)]
         parts.append(_table(["parameter", "value", "sigma", "95 % lower", "95 % upper", "unit"], rows))

@@ -21,6 +21,7 @@ from dynid.analysis import further
 from dynid.analysis import run as steps
 from dynid.analysis.data.synthetic import sample_count
 from dynid.analysis.demo import run_demo
+from dynid.analysis.estimators.payload import identify_payload
 from dynid.analysis.further import DiagnosisRun
 from dynid.analysis.results import Result
 from dynid.analysis.run import (  # noqa: F401 - REPORT_PARTS: public here since 0.1
@@ -31,9 +32,11 @@ from dynid.analysis.run import (  # noqa: F401 - REPORT_PARTS: public here since
 )
 from dynid.analysis.statistics.validation import validate
 from dynid.dynamics.robot_file import load_robot
-from dynid.errors import InputError
+from dynid.errors import IdentificationError, InputError
 from dynid.outputs import atomic_write_text, write_all
 from dynid.provenance import dumps_json
+from dynid.reports import render
+from dynid.reports.payload_section import payload_refusal_section, payload_report_section
 from dynid.reports.progress import Reporter
 from dynid.reports.urdf_export import export_urdf, mjcf_of
 
@@ -88,7 +91,6 @@ def _render():
     """The HTML renderers (dynid.reports.render), imported when a report is rendered: they load
     matplotlib and every report section, seconds a run without --report does not need to spend
     (and an interrupted run then stops in the identification, not inside a plotting import)."""
-    from dynid.reports import render
     return render
 
 
@@ -282,9 +284,6 @@ def _payload_part(out, payload, robot, options, say):
     """The payload of `report(..., payload=...)`: the robot-fixed route on the report's IDIM
     result, its section appended; a recording that does not identify it becomes a section
     saying what is not identifiable and why (bad input still fails the report)."""
-    from dynid.analysis.estimators.payload import identify_payload
-    from dynid.errors import IdentificationError
-    from dynid.reports.payload_section import payload_refusal_section, payload_report_section
     options = dict(options or {})
     if options.get("zoh"):
         # the robot is fixed to this report's IDIM model, identified from the torque as logged: centring

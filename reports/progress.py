@@ -10,6 +10,8 @@ import re
 import sys
 import time
 
+from dynid.progress import task
+
 #: control characters a terminal may act on (escape sequences, bell, carriage return...);
 #: tab and newline are kept
 _CONTROL = re.compile(r"[\x00-\x08\x0b-\x1f\x7f-\x9f]")
@@ -59,7 +61,6 @@ class _TaskProgress:
     """`with reporter.progress(label) as bar: bar.update(fraction)` over `dynid.progress.task`."""
 
     def __init__(self, label):
-        from dynid.progress import task
         self._context = task(clean_text(label))
         self._call = None
 

@@ -46,6 +46,8 @@ from dynid.dynamics.urdf_writer import read_extra_parameters, urdf_text, urdf_un
 from dynid.errors import InputError
 from dynid.outputs import atomic_write_text
 from dynid.provenance import json_safe
+from dynid.reports import tables as T
+from dynid.reports.html import Section, bullets, join, para
 
 __all__ = ["UrdfExport", "export_urdf", "round_trip", "mjcf_of", "effect_springs"]
 
@@ -84,8 +86,6 @@ class UrdfExport:
 
     def section(self, *, id="urdf-export", title="URDF export: a physically consistent standard set"):
         # the HTML report only: writing a URDF needs neither jinja2 nor matplotlib
-        from dynid.reports import tables as T
-        from dynid.reports.html import Section, bullets, join, para
         ss = self.standard_set
         p = self.prediction
         verdict = ("reproduces the identified parameters" if ss.reproduces else

@@ -115,7 +115,7 @@ def test_candidates_are_the_neighbour_test_even_beyond_the_first_buffer():
 
 def test_densest_window_bound_is_an_upper_bound():
     rng = np.random.default_rng(5)
-    for trial in range(60):
+    for _trial in range(60):
         n = int(rng.integers(2, 3000))
         x = np.round(rng.standard_t(2, n), int(rng.integers(0, 4)))
         v = float(rng.choice([1e-9, 1e-3, 0.05, 0.5, 5.0]))
