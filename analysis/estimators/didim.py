@@ -1297,104 +1297,143 @@ def _identify_auto_v_s(experiment, robot, *, settings, chi0, tol, max_iter, upda
     pc_options = dict(prior=kw.get("prior"), prior_weight=kw.get("prior_weight", 1.0),
                       mass_tolerance=kw.get("mass_tolerance"))
     if not first.converged:
-        if final_cov["uncertainty"] != "classic" or final_cov["gains"] is not None:
-            L, last = first._state
-            last["res_classic"] = last["res"]
-            last["res"] = first.result = _robust(L, last, final_cov["uncertainty"], final_cov["gains"], 300, 0)
-            first.gains = final_cov["gains"]
-            first.settings["uncertainty"] = (final_cov["uncertainty"]
-                                             + ("+gains" if final_cov["gains"] is not None else ""))
-        if kw.get("physical") and n_boot:
-            first.physical = pc_wls(robot, first.base, first.result.chi, first.result.cov, n_boot=n_boot,
-                                    **pc_options)
-        if essential:
-            first.essential = essential_parameters(
-                first.W_dec, first.tau_dec, list(first.base.names), ls.wls,
-                max_error_growth=kw["max_error_growth"], row_mask=first.row_mask, settings=first.settings)
-            for r in (first.essential.result, first.essential.base):
-                r.data_hash = first.data_hash
-        # the walk compares converged residuals; from an unconverged estimate it would
-        # compare the iteration's progress, not the friction model
-        first.settings["v_s_choice"] = (f"auto, not searched: DIDIM did not converge at the "
-                                        f"starting {V_S_START:g} rad/s")
-        first.notices.append(f"v_s was not chosen from the data: DIDIM did not converge at the "
-                             f"starting v_s = {V_S_START:g} rad/s, which it kept")
-        return first
+        return _keep_start_width(first, robot, final_cov, n_boot, pc_options, essential,
+                                 kw["max_error_growth"], bool(kw.get("physical")))
     # the later runs continue the first one: "initial" updated the gains for chi^0 only
     cont = False if update_gains == "initial" else update_gains
-    L0, last0 = first._state
+    L0 = first._state[0]
     physical = bool(kw.get("physical"))
+    search = _WidthSearch(L0, first, cont, tol, physical, pc_options, progress)
+    search.walk()
+    refined = search.refine()
+    chosen = search.best()
+    final_run = dict(update_gains=cont, tol=tol, max_iter=max_iter, essential=essential, physical=physical,
+                     pc_options=pc_options, n_boot=n_boot, max_error_growth=kw["max_error_growth"],
+                     **final_cov)
+    final, h2, t2 = _continue_at(experiment, L0, first, chosen, search.steps[chosen], search.scan[chosen][1],
+                                 final_run, part(0.85, 1.0))
+    if progress is not None:
+        progress(1.0)
+    return _with_width_choice(final, first, h2, t2, search, chosen, refined, update_gains)
 
-    def estimate(last):
-        # PC-DIDIM continues from the physical estimate, the one its next step would simulate: the
-        # last step's unconstrained WLS can have M(q) indefinite and not be simulable at all
-        return last["res"].chi if last.get("physical") is None else last["physical"].chi
 
-    h1 = first.history
-    # each width: (||rho||, estimate, substeps); the step that scored it is kept for the best one
-    # only, so that the final run continues it (one simulation less than a fresh start)
-    scan = {V_S_START: (float(h1["rho_norm"].iloc[-1]), estimate(last0), int(h1["substeps"].iloc[-1]))}
-    steps = {V_S_START: None}
-    failed = []
+def _keep_start_width(first, robot, final_cov, n_boot, pc_options, essential, max_error_growth, physical):
+    """The first run, unconverged at `V_S_START`, finished as the result: the walk compares
+    converged residuals, and from an unconverged estimate it would compare the iteration's
+    progress, not the friction model. The robust covariance, the PC fit and the essential set
+    the final run would have made are made here."""
+    if final_cov["uncertainty"] != "classic" or final_cov["gains"] is not None:
+        L, last = first._state
+        last["res_classic"] = last["res"]
+        last["res"] = first.result = _robust(L, last, final_cov["uncertainty"], final_cov["gains"], 300, 0)
+        first.gains = final_cov["gains"]
+        first.settings["uncertainty"] = (final_cov["uncertainty"]
+                                         + ("+gains" if final_cov["gains"] is not None else ""))
+    if physical and n_boot:
+        first.physical = pc_wls(robot, first.base, first.result.chi, first.result.cov, n_boot=n_boot,
+                                **pc_options)
+    if essential:
+        first.essential = essential_parameters(
+            first.W_dec, first.tau_dec, list(first.base.names), ls.wls,
+            max_error_growth=max_error_growth, row_mask=first.row_mask, settings=first.settings)
+        for r in (first.essential.result, first.essential.base):
+            r.data_hash = first.data_hash
+    first.settings["v_s_choice"] = (f"auto, not searched: DIDIM did not converge at the "
+                                    f"starting {V_S_START:g} rad/s")
+    first.notices.append(f"v_s was not chosen from the data: DIDIM did not converge at the "
+                         f"starting v_s = {V_S_START:g} rad/s, which it kept")
+    return first
 
-    def best():
-        return min(scan, key=lambda v: scan[v][0])
 
-    def evaluate(v):
+def _next_estimate(last):
+    """The estimate the next Gauss-Newton step simulates: PC-DIDIM continues from the physical
+    one (the last step's unconstrained WLS can have M(q) indefinite and not be simulable)."""
+    return last["res"].chi if last.get("physical") is None else last["physical"].chi
+
+
+class _WidthSearch:
+    """Steps 2 and 3 of `_identify_auto_v_s`: the factor-2 walk over v_s and the parabola.
+
+    `scan`: width -> (||rho||, estimate, substeps); `steps`: width -> (history row, timings
+    row, last) of the Gauss-Newton step that scored it, kept for the best width only, so that
+    the final run continues it (one simulation less than a fresh start); `failed`: the
+    widths whose step failed, with the reason."""
+
+    def __init__(self, L0, first, cont, tol, physical, pc_options, progress):
+        self.L0, self.cont, self.tol = L0, cont, tol
+        self.physical, self.pc_options, self.progress = physical, pc_options, progress
+        h1 = first.history
+        self.scan = {V_S_START: (float(h1["rho_norm"].iloc[-1]), _next_estimate(first._state[1]),
+                                 int(h1["substeps"].iloc[-1]))}
+        self.steps = {V_S_START: None}
+        self.failed = []
+
+    def best(self):
+        return min(self.scan, key=lambda v: self.scan[v][0])
+
+    def evaluate(self, v):
         """One Gauss-Newton step at width v from the best estimate so far (warm start): its ||rho||."""
+        scan, steps = self.scan, self.steps
         try:
-            Lv = _loop_at(L0, check_range("v_s", v), cont, 1)
-            hist, tim, last, _, _ = _gauss_newton(Lv, scan[best()][1], tol, physical, pc_options, [])
+            Lv = _loop_at(self.L0, check_range("v_s", v), self.cont, 1)
+            hist, tim, last, _, _ = _gauss_newton(Lv, scan[self.best()][1], self.tol, self.physical,
+                                                  self.pc_options, [])
         except DynidError as exc:
-            failed.append(f"v_s = {v:.3g}: {exc}")
+            self.failed.append(f"v_s = {v:.3g}: {exc}")
             scan[v] = (math.inf, None, 0)
             return math.inf
-        scan[v] = (float(hist[-1]["rho_norm"]), estimate(last), int(hist[-1]["substeps"]))
+        scan[v] = (float(hist[-1]["rho_norm"]), _next_estimate(last), int(hist[-1]["substeps"]))
         steps[v] = (hist[-1], tim[-1], last)
-        for w in [w for w in steps if w != best() and steps[w] is not None]:
+        for w in [w for w in steps if w != self.best() and steps[w] is not None]:
             steps[w] = None
-        if progress is not None:   # the walk's length is not known ahead: each candidate closes part of the gap
-            progress(0.5 + 0.35 * (1.0 - 0.6 ** (len(scan) - 1)))
+        if self.progress is not None:   # the walk's length is not known ahead: each candidate closes part of the gap
+            self.progress(0.5 + 0.35 * (1.0 - 0.6 ** (len(scan) - 1)))
         return scan[v][0]
 
-    for factor, bound in ((0.5, V_S_MIN), (2.0, V_S_MAX)):
-        v = V_S_START
-        while True:
-            nxt = v * factor
-            if (factor < 1 and nxt < bound * (1 - 1e-9)) or (factor > 1 and nxt > bound * (1 + 1e-9)):
-                break
-            if evaluate(nxt) >= scan[v][0] * (1.0 - tol):
-                break
-            v = nxt
-        if v != V_S_START:
-            break           # the downward walk helped: no need to look upwards
-    b = best()
-    lo, hi = b / 2.0, b * 2.0
-    refined = ""
-    if lo in scan and hi in scan:
+    def walk(self):
+        """Halve v_s from `V_S_START` while ||rho|| falls by more than tol_I (within V_S_MIN),
+        else double it (within V_S_MAX) while it does."""
+        for factor, bound in ((0.5, V_S_MIN), (2.0, V_S_MAX)):
+            v = V_S_START
+            while True:
+                nxt = v * factor
+                if (factor < 1 and nxt < bound * (1 - 1e-9)) or (factor > 1 and nxt > bound * (1 + 1e-9)):
+                    break
+                if self.evaluate(nxt) >= self.scan[v][0] * (1.0 - self.tol):
+                    break
+                v = nxt
+            if v != V_S_START:
+                break           # the downward walk helped: no need to look upwards
+
+    def refine(self) -> str:
+        """The parabola in log v_s through the best grid width and its two neighbours; its
+        vertex is simulated unless the gain it predicts is within tol_I. What was done, as text."""
+        scan = self.scan
+        b = self.best()
+        lo, hi = b / 2.0, b * 2.0
+        if not (lo in scan and hi in scan):
+            return ""
         off = _parabola_vertex(scan[lo][0], scan[b][0], scan[hi][0])
         gain = _parabola_gain(scan[lo][0], scan[b][0], scan[hi][0], off)
         v = b * 2.0 ** off
-        if abs(off) > 0.05 and gain > tol * scan[b][0]:
-            evaluate(v)
-            refined = f"; parabola in log v_s through {lo:.3g}, {b:.3g}, {hi:.3g} rad/s gave {v:.3g}"
-        elif abs(off) > 0.05:
+        if abs(off) > 0.05 and gain > self.tol * scan[b][0]:
+            self.evaluate(v)
+            return f"; parabola in log v_s through {lo:.3g}, {b:.3g}, {hi:.3g} rad/s gave {v:.3g}"
+        if abs(off) > 0.05:
             # the walk's own rule: a change of ||rho|| below tol_I is inside the noise. Measured
             # (seed 5 of benchmarks/didim_width.py, tests/analysis/estimators/test_didim.py) the
             # parabola over-predicts the gain (the residual is flat below the best width and steep
             # above it), so a vertex predicted inside the noise does not win either
-            refined = (f"; parabola in log v_s through {lo:.3g}, {b:.3g}, {hi:.3g} rad/s: its vertex "
-                       f"{v:.3g} predicted ||rho|| lower by {100 * gain / scan[b][0]:.2g} % <= tol_I, "
-                       "not simulated")
-    chosen = best()
-    final_run = dict(update_gains=cont, tol=tol, max_iter=max_iter, essential=essential, physical=physical,
-                     pc_options=pc_options, n_boot=n_boot, max_error_growth=kw["max_error_growth"],
-                     **final_cov)
-    final, h2, t2 = _continue_at(experiment, L0, first, chosen, steps[chosen], scan[chosen][1], final_run,
-                                 part(0.85, 1.0))
-    if progress is not None:
-        progress(1.0)
+            return (f"; parabola in log v_s through {lo:.3g}, {b:.3g}, {hi:.3g} rad/s: its vertex "
+                    f"{v:.3g} predicted ||rho|| lower by {100 * gain / scan[b][0]:.2g} % <= tol_I, "
+                    "not simulated")
+        return ""
 
+
+def _with_width_choice(final, first, h2, t2, search, chosen, refined, update_gains):
+    """The final run's result with the width search recorded: settings `v_s_choice` and
+    `v_s_scan`, a notice with every width's ||rho||, both runs' history and timings."""
+    scan = search.scan
     rows = [{"v_s": float(v), "rho_norm": scan[v][0], "substeps": scan[v][2]} for v in sorted(scan)]
     at_edge = chosen <= V_S_MIN * (1 + 1e-9) or chosen >= V_S_MAX * (1 - 1e-9)
     how = (f"auto: smallest DIDIM residual ||rho|| over {len(rows)} candidate(s) "
@@ -1409,9 +1448,9 @@ def _identify_auto_v_s(experiment, robot, *, settings, chi0, tol, max_iter, upda
     s["v_s_scan"] = rows
     s["initialisation"] = first.settings.get("initialisation")
     s["update_gains"] = update_gains
-    notices = list(first.notices) + [note] + [f"v_s candidate failed ({f})" for f in failed]
+    notices = list(first.notices) + [note] + [f"v_s candidate failed ({f})" for f in search.failed]
     notices += [n for n in final.notices if n not in notices]
-    final.history = pd.concat([h1, pd.DataFrame(h2)], ignore_index=True)
+    final.history = pd.concat([first.history, pd.DataFrame(h2)], ignore_index=True)
     final.settings = s
     final.notices = notices
     final.initial = first.initial
