@@ -349,54 +349,8 @@ def _assemble(
         notices.append(f"skipped the first {k} samples (start_offset = {k})")
         meta["start_offset"] = k
     if shift is not None and "qr" in signals:
-        n = t.size
-        if shift == "estimate":
-            if "q" not in signals:
-                raise DataError(
-                    f"{shift_where}: shift = \"estimate\" compares the reference with the "
-                    "measured positions, but there is no [positions] section. Add one, or "
-                    "give the shift as a number of samples."
-                )
-            lo = 0 if min_shift is None else min_shift
-            hi = n // 4 if max_shift is None else max_shift
-            L, _ = estimate_shift(signals["q"], signals["qr"], hi, lo)
-            how = (f"estimated by least squares over shifts {max(lo, -(n - 2))}…"
-                   f"{min(hi, n - 2)} samples")
-        else:
-            L = int(shift)
-            how = "as given"
-            if abs(L) > n - 2:
-                raise DataError(
-                    f"{shift_where}: shift = {L} leaves fewer than 2 of the {n} samples. "
-                    "Use a smaller shift."
-                )
-        if L > 0:
-            meas, ref = slice(L, n), slice(0, n - L)
-        elif L < 0:
-            meas, ref = slice(0, n + L), slice(-L, n)
-        else:
-            meas = ref = slice(0, n)
-        qr = signals["qr"][ref]
-        t, rows = t[meas], rows[meas]
-        signals = {s: (qr if s == "qr" else a[meas]) for s, a in signals.items()}
-        rms_text = ""
-        if "q" in signals:
-            d = signals["q"] - signals["qr"]
-            rms = float(np.sqrt(np.mean(d**2)))
-            meta["reference_shift_rms"] = rms
-            per = ", ".join(f"{x:.3g}" for x in np.sqrt(np.mean(d**2, axis=0)))
-            rms_text = f"; RMS of q − qr after the shift {rms:.4g} rad (per joint {per})"
-        meta["reference_shift"] = L
-        if L >= 0:
-            dropped = (f"the first {L} measured samples and the last {L} reference samples "
-                       "have no partner and were dropped")
-        else:
-            dropped = (f"the first {-L} reference samples and the last {-L} measured samples "
-                       "have no partner and were dropped")
-        notices.append(
-            f"reference shifted by L = {L} samples (measured q[i + L] ≈ reference[i]), "
-            f"{how}{rms_text}; {dropped}"
-        )
+        t, rows, signals = _shift_reference(t, rows, signals, shift, min_shift, max_shift, shift_where,
+                                            notices, meta)
     _plaus.check_limits(signals, rows, robot, cols_of, source, notices)
     _plaus.check_spikes(signals, rows, cols_of, source, notices)
     if time_col is not None:
@@ -434,6 +388,61 @@ def _assemble(
         meta=meta,
     )
     return exp
+
+
+def _shift_reference(t, rows, signals, shift, min_shift, max_shift, shift_where, notices, meta):
+    """The reference qr moved by L samples against the measured signals (`shift`: a number of
+    samples, or "estimate": least squares over [min_shift, max_shift], default 0 … n/4), the
+    samples without a partner dropped: (t, rows, signals), a notice and meta entries."""
+    n = t.size
+    if shift == "estimate":
+        if "q" not in signals:
+            raise DataError(
+                f"{shift_where}: shift = \"estimate\" compares the reference with the "
+                "measured positions, but there is no [positions] section. Add one, or "
+                "give the shift as a number of samples."
+            )
+        lo = 0 if min_shift is None else min_shift
+        hi = n // 4 if max_shift is None else max_shift
+        L, _ = estimate_shift(signals["q"], signals["qr"], hi, lo)
+        how = (f"estimated by least squares over shifts {max(lo, -(n - 2))}…"
+               f"{min(hi, n - 2)} samples")
+    else:
+        L = int(shift)
+        how = "as given"
+        if abs(L) > n - 2:
+            raise DataError(
+                f"{shift_where}: shift = {L} leaves fewer than 2 of the {n} samples. "
+                "Use a smaller shift."
+            )
+    if L > 0:
+        meas, ref = slice(L, n), slice(0, n - L)
+    elif L < 0:
+        meas, ref = slice(0, n + L), slice(-L, n)
+    else:
+        meas = ref = slice(0, n)
+    qr = signals["qr"][ref]
+    t, rows = t[meas], rows[meas]
+    signals = {s: (qr if s == "qr" else a[meas]) for s, a in signals.items()}
+    rms_text = ""
+    if "q" in signals:
+        d = signals["q"] - signals["qr"]
+        rms = float(np.sqrt(np.mean(d**2)))
+        meta["reference_shift_rms"] = rms
+        per = ", ".join(f"{x:.3g}" for x in np.sqrt(np.mean(d**2, axis=0)))
+        rms_text = f"; RMS of q − qr after the shift {rms:.4g} rad (per joint {per})"
+    meta["reference_shift"] = L
+    if L >= 0:
+        dropped = (f"the first {L} measured samples and the last {L} reference samples "
+                   "have no partner and were dropped")
+    else:
+        dropped = (f"the first {-L} reference samples and the last {-L} measured samples "
+                   "have no partner and were dropped")
+    notices.append(
+        f"reference shifted by L = {L} samples (measured q[i + L] ≈ reference[i]), "
+        f"{how}{rms_text}; {dropped}"
+    )
+    return t, rows, signals
 
 
 # --------------------------------------------------------------------------------------
