@@ -149,6 +149,15 @@ def _read_csv(path: Path, label: str, defer_scan: bool = False) -> _RawFile:
     return _read_csv_precise(path, label)
 
 
+def _scan_or_none(path: Path) -> str | None:
+    """`_scan_csv`, with a read that fails on the way (an I/O error) taken as a refusal: the
+    precise reader then reads the file again and says what is wrong with it."""
+    try:
+        return _scan_csv(path)
+    except (OSError, MemoryError):
+        return None
+
+
 def _build_checked(raw: _RawFile, build):
     """`build(raw)`; for a CSV whose scan ran beside the build (`defer_scan`), the scan's
     verdict is then awaited, and when the scan found cells pandas reads differently from
@@ -317,7 +326,7 @@ def _read_csv_fast(path: Path, label: str, defer_scan: bool = False) -> _RawFile
     raw = _RawFile(path, label, "csv")
     if not scanned:
         # started after the parse, which keeps every core busy: beside it, the scan slowed it
-        raw.scan = Beside(_scan_csv, path, name="dynid-csv-scan")
+        raw.scan = Beside(_scan_or_none, path, name="dynid-csv-scan")
     raw.first_line = 2
     for c, name in enumerate(stripped):
         col = df.iloc[:, c]

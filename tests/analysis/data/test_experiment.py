@@ -1215,6 +1215,22 @@ def test_load_with_its_scan_beside_is_the_precise_load(tmp_path, text):
     assert _outcome(lambda: load_experiment(p)) == _precise_outcome(p)
 
 
+def test_a_scan_that_fails_to_read_sends_the_file_to_the_precise_reader(tmp_path, monkeypatch):
+    from dynid.analysis.data import readers
+
+    p = tmp_path / "io_error.csv"
+    p.write_bytes(("t,q1,tau1\n" + _BODY).encode())
+    expected = _precise_outcome(p)
+    calls = []
+
+    def failing(path):
+        calls.append(path)
+        raise OSError(5, "Input/output error")
+    monkeypatch.setattr(readers, "_scan_csv", failing)
+    assert _outcome(lambda: load_experiment(p)) == expected
+    assert calls        # the scan ran beside the checks, and its failure was caught
+
+
 @settings(max_examples=100, deadline=None,
           suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 @given(text=csv_texts())
