@@ -679,42 +679,17 @@ def identify_payload(loaded, robot, *, model=None, unloaded=None, frame="flange"
         _refuse(directions, robot, obs_l, link, rank_rtol)
     Wb = np.concatenate([o.Wb for o in obs_l])
     tau = np.concatenate([o.tau for o in obs_l])
-    robot_params = None
-    model_source = ""
     if model is not None:
-        beta, cov_beta, model_source = _model_vector(model, robot, bp)
-        y = tau - Wb @ beta
-        chi, cov, fit, lags = _wls_hac(Wp, y, names, mask_l)
-        # the robot's own uncertainty moves the payload estimate by G d(beta)
-        w = np.where(mask_l, 1.0 / fit.joint_sigma[None, :] ** 2, 0.0)
-        A = np.linalg.pinv(np.einsum("tjp,tj,tjq->pq", Wp, w, Wp))
-        G = -A @ np.einsum("tjp,tj,tjq->pq", Wp, w, Wb)
-        cov = cov + G @ cov_beta @ G.T
-        method = "payload-fixed"
+        chi, cov, fit, lags, model_source = _fit_with_robot_fixed(model, robot, bp, Wp, Wb, tau, mask_l,
+                                                                   names)
+        robot_params, method = None, "payload-fixed"
         notices.append(f"robot fixed: {model_source}; its parameters' uncertainty is propagated")
     else:
         un_list = _recordings(unloaded, robot, zoh)
         obs_u = [_observe(e, robot, bp, link, T, first.settings) for e in un_list]
         sources += [f"{e.source} (unloaded)" for e in un_list]
-        Wu = np.concatenate([o.Wb for o in obs_u])
-        W3 = np.concatenate([np.concatenate([Wu, np.zeros(Wu.shape[:2] + (10,))], axis=2),
-                             np.concatenate([Wb, Wp], axis=2)])
-        tau_all = np.concatenate([np.concatenate([o.tau for o in obs_u]), tau])
-        mask_all = np.concatenate([np.concatenate([o.mask for o in obs_u]), mask_l])
-        all_names = list(bp.names) + names
-        try:
-            est, cov_all, fit, lags = _wls_hac(W3, tau_all, all_names, mask_all)
-        except IdentificationError as e:
-            raise IdentificationError(f"the stacked unloaded and loaded recordings do not identify the "
-                                      f"robot's base parameters with the payload's: {e}") from None
-        b = bp.n_base
-        chi, cov = est[b:], cov_all[b:, b:]
-        robot_params = IdentificationResult(
-            method="WLS (global, with payload)", names=list(bp.names), chi=est[:b], cov=cov_all[:b, :b],
-            sigma_rho=fit.sigma_rho, residual=fit.residual, rel_error=fit.rel_error, rms=fit.rms,
-            joint_rel_error=fit.joint_rel_error, cond=fit.cond, n_samples=fit.n_samples,
-            n_joints=fit.n_joints, n_rows=fit.n_rows, joint_sigma=fit.joint_sigma)
-        method = "payload-global"
+        chi, cov, fit, lags, robot_params = _fit_with_unloaded(obs_u, bp, Wp, Wb, tau, mask_l, names)
+        model_source, method = "", "payload-global"
     cov = 0.5 * (cov + cov.T)
     poor = _poorly_identified(chi, cov, max_rel_halfwidth)
     if poor:
@@ -733,6 +708,43 @@ def identify_payload(loaded, robot, *, model=None, unloaded=None, frame="flange"
     elif com_box is not None:
         raise InputError("com_box is an option of the physically consistent payload: pass physical=True")
     return res
+
+
+def _fit_with_robot_fixed(model, robot, bp, Wp, Wb, tau, mask, names):
+    """The payload's WLS on the loaded recordings' torque minus the robot's known model
+    `model` (its base parameters beta): (chi, cov, fit, HAC lags, the model's source). The
+    robot's own covariance is propagated: the estimate moves by G d(beta)."""
+    beta, cov_beta, model_source = _model_vector(model, robot, bp)
+    y = tau - Wb @ beta
+    chi, cov, fit, lags = _wls_hac(Wp, y, names, mask)
+    w = np.where(mask, 1.0 / fit.joint_sigma[None, :] ** 2, 0.0)
+    A = np.linalg.pinv(np.einsum("tjp,tj,tjq->pq", Wp, w, Wp))
+    G = -A @ np.einsum("tjp,tj,tjq->pq", Wp, w, Wb)
+    return chi, cov + G @ cov_beta @ G.T, fit, lags, model_source
+
+
+def _fit_with_unloaded(obs_u, bp, Wp, Wb, tau, mask, names):
+    """The global route: the robot's base parameters and the payload's in one WLS of the
+    unloaded recordings (`obs_u`, payload columns zero) stacked on the loaded ones:
+    (chi, cov of the payload, fit, HAC lags, the robot's IdentificationResult)."""
+    Wu = np.concatenate([o.Wb for o in obs_u])
+    W3 = np.concatenate([np.concatenate([Wu, np.zeros(Wu.shape[:2] + (10,))], axis=2),
+                         np.concatenate([Wb, Wp], axis=2)])
+    tau_all = np.concatenate([np.concatenate([o.tau for o in obs_u]), tau])
+    mask_all = np.concatenate([np.concatenate([o.mask for o in obs_u]), mask])
+    all_names = list(bp.names) + names
+    try:
+        est, cov_all, fit, lags = _wls_hac(W3, tau_all, all_names, mask_all)
+    except IdentificationError as e:
+        raise IdentificationError(f"the stacked unloaded and loaded recordings do not identify the "
+                                  f"robot's base parameters with the payload's: {e}") from None
+    b = bp.n_base
+    robot_params = IdentificationResult(
+        method="WLS (global, with payload)", names=list(bp.names), chi=est[:b], cov=cov_all[:b, :b],
+        sigma_rho=fit.sigma_rho, residual=fit.residual, rel_error=fit.rel_error, rms=fit.rms,
+        joint_rel_error=fit.joint_rel_error, cond=fit.cond, n_samples=fit.n_samples,
+        n_joints=fit.n_joints, n_rows=fit.n_rows, joint_sigma=fit.joint_sigma)
+    return est[b:], cov_all[b:, b:], fit, lags, robot_params
 
 
 def parameter_frame(result) -> pd.DataFrame:
