@@ -494,6 +494,50 @@ def _controller_of(robot, controller):
     return c
 
 
+def _reference_on_grid(robot, t, qr, qdr, T, rate, feedforward, notes):
+    """The controller's time grid (t itself when it steps by the period T, else t[0] + k T) and
+    the reference qr, qdr on it: a trajectory object evaluated there, sampled arrays linearly
+    interpolated when the grids differ, qdr by finite differences of qr when not given. What
+    was done goes to `notes`."""
+    n = robot.n_joints
+    span = t[-1] - t[0]
+    steps = np.diff(t)
+    uniform = np.all(np.abs(steps - T) <= 1e-6 * T)
+    if uniform:
+        grid = t
+    else:
+        K = int(math.floor(span / T * (1 + 1e-12) + 1e-9)) + 1
+        if K < 2:
+            raise InputError(f"t spans {span:.3g} s, less than one controller period 1/{rate:g} s")
+        grid = t[0] + T * np.arange(K)
+    N = grid.size
+
+    if hasattr(qr, "evaluate"):
+        qr_g, qdr_g, _ = qr.evaluate(grid)
+        qr_g = _signal(qr_g, N, n, "qr", robot.name)
+        qdr_g = _signal(qdr_g, N, n, "qdr", robot.name)
+        if qdr is not None:
+            raise InputError("give qdr only with a sampled qr, not with a trajectory object")
+    else:
+        qr_a = _signal(qr, t.size, n, "qr", robot.name)
+        qdr_a = None if qdr is None else _signal(qdr, t.size, n, "qdr", robot.name)
+        if uniform:
+            qr_g, qdr_g = qr_a, qdr_a
+        else:
+            notes.append(f"reference sampled at {1 / np.median(steps):.6g} Hz, controller at "
+                         f"{rate:.6g} Hz: qr{'/qdr' if qdr_a is not None else ''} linearly "
+                         "interpolated onto the controller grid")
+            qr_g = np.column_stack([np.interp(grid, t, qr_a[:, j]) for j in range(n)])
+            qdr_g = (None if qdr_a is None else
+                     np.column_stack([np.interp(grid, t, qdr_a[:, j]) for j in range(n)]))
+        if qdr_g is None:
+            edge = 2 if N >= 3 else 1
+            qdr_g = np.gradient(qr_g, grid, axis=0, edge_order=edge)
+            notes.append("qdr not given: finite difference of qr used for the initial velocity"
+                         + (" and the feedforward" if feedforward else ""))
+    return grid, qr_g, qdr_g
+
+
 # ----------------------------------------------------------------------------- API
 
 def simulate_closed_loop(robot, chi_st, t, qr, qdr=None, *, q0=None, qd0=None, controller=None,
@@ -547,41 +591,8 @@ def simulate_closed_loop(robot, chi_st, t, qr, qdr=None, *, q0=None, qd0=None, c
     t = _time(t)
     notes = []
 
-    span = t[-1] - t[0]
-    steps = np.diff(t)
-    uniform = np.all(np.abs(steps - T) <= 1e-6 * T)
-    if uniform:
-        grid = t
-    else:
-        K = int(math.floor(span / T * (1 + 1e-12) + 1e-9)) + 1
-        if K < 2:
-            raise InputError(f"t spans {span:.3g} s, less than one controller period 1/{rate:g} s")
-        grid = t[0] + T * np.arange(K)
+    grid, qr_g, qdr_g = _reference_on_grid(robot, t, qr, qdr, T, rate, feedforward, notes)
     N = grid.size
-
-    if hasattr(qr, "evaluate"):
-        qr_g, qdr_g, _ = qr.evaluate(grid)
-        qr_g = _signal(qr_g, N, n, "qr", robot.name)
-        qdr_g = _signal(qdr_g, N, n, "qdr", robot.name)
-        if qdr is not None:
-            raise InputError("give qdr only with a sampled qr, not with a trajectory object")
-    else:
-        qr_a = _signal(qr, t.size, n, "qr", robot.name)
-        qdr_a = None if qdr is None else _signal(qdr, t.size, n, "qdr", robot.name)
-        if uniform:
-            qr_g, qdr_g = qr_a, qdr_a
-        else:
-            notes.append(f"reference sampled at {1 / np.median(steps):.6g} Hz, controller at "
-                         f"{rate:.6g} Hz: qr{'/qdr' if qdr_a is not None else ''} linearly "
-                         "interpolated onto the controller grid")
-            qr_g = np.column_stack([np.interp(grid, t, qr_a[:, j]) for j in range(n)])
-            qdr_g = (None if qdr_a is None else
-                     np.column_stack([np.interp(grid, t, qdr_a[:, j]) for j in range(n)]))
-        if qdr_g is None:
-            edge = 2 if N >= 3 else 1
-            qdr_g = np.gradient(qr_g, grid, axis=0, edge_order=edge)
-            notes.append("qdr not given: finite difference of qr used for the initial velocity"
-                         + (" and the feedforward" if feedforward else ""))
     qr_g = np.ascontiguousarray(qr_g, dtype=float)
     qdr_g = np.ascontiguousarray(qdr_g, dtype=float)
 
