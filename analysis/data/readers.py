@@ -14,12 +14,12 @@ import os
 import re
 import stat
 import warnings
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
 from dynid.analysis.data._format import _short_list
-from dynid.analysis.data.beside import Beside
 from dynid.analysis.data.columns import _COLUMN_RE, _CONVENTION
 from dynid.errors import DataError
 
@@ -49,7 +49,7 @@ class _RawFile:
         self.notices: list[str] = []
         #: CSV read by the fast path while its scan runs beside (`_read_csv_fast(defer_scan=
         #: True)`): the scan's verdict, pending; `_build_checked` waits for it.
-        self.scan: Beside | None = None
+        self.scan: Future | None = None
 
     @property
     def tabular(self) -> bool:
@@ -156,6 +156,17 @@ def _scan_or_none(path: Path) -> str | None:
         return _scan_csv(path)
     except (OSError, MemoryError):
         return None
+
+
+def _scan_beside(path: Path) -> Future:
+    """`_scan_or_none(path)` on a thread of its own, started after pandas' parse (which keeps
+    every core busy: beside it, the scan only slowed it) so that it runs beside dynid's checks,
+    which use one core; the future's result is the scan's verdict."""
+    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="dynid-csv-scan")
+    try:
+        return pool.submit(_scan_or_none, path)
+    finally:
+        pool.shutdown(wait=False)     # the thread ends with the scan
 
 
 def _build_checked(raw: _RawFile, build):
@@ -325,8 +336,7 @@ def _read_csv_fast(path: Path, label: str, defer_scan: bool = False) -> _RawFile
         return None
     raw = _RawFile(path, label, "csv")
     if not scanned:
-        # started after the parse, which keeps every core busy: beside it, the scan slowed it
-        raw.scan = Beside(_scan_or_none, path, name="dynid-csv-scan")
+        raw.scan = _scan_beside(path)
     raw.first_line = 2
     for c, name in enumerate(stripped):
         col = df.iloc[:, c]
