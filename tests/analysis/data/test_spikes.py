@@ -95,9 +95,9 @@ def test_columns_at_once_are_the_definition():
         assert want.size and got[j][1] == want_scale
 
 
-def test_candidates_are_the_neighbour_test_even_beyond_the_first_buffer():
+def test_candidates_are_the_neighbour_test_in_row_major_order():
     # a pulse every 5 samples is a candidate each time (its 4 neighbours agree): 20,000 of them,
-    # more than the first buffer holds
+    # beside a noisy column's scattered ones
     n = 100_000
     X = np.zeros((n, 2))
     X[2::5, 0] = 1.0
@@ -123,8 +123,20 @@ def test_densest_window_bound_is_an_upper_bound():
         # the most samples an open interval of width 2v holds: [c, c + 2v) from a sample c
         densest = max(np.searchsorted(s, c + 2 * v) - np.searchsorted(s, c) for c in s)
         assert densest <= _densest_window_bound(x, v) <= n
+    # every sample within v of the middle of [c, c + 2v), wherever the bins' edges fall: the
+    # bound must count them all
+    for _trial in range(200):
+        v = float(rng.choice([1e-6, 0.01, 3.0]))
+        c = float(rng.uniform(-1e3, 1e3)) * v
+        assert _densest_window_bound(c + rng.uniform(0, 2 * v, 500), v) == 500
     x = rng.normal(size=100)
-    for bad in (np.nan, np.inf):
+    for bad in (np.nan, np.inf, 1e300):      # 1e300 / 0.1 is beyond the bins' integer range
         y = x.copy()
         y[7] = bad
         assert _densest_window_bound(y, 0.1) == 100
+    # many more bins of width v than the ring holds: they share ring positions, and the count
+    # stays an upper bound (and far below n, so it still rules candidates out)
+    x = np.sin(np.arange(200_000) / 700.0)
+    s = np.sort(x)
+    densest = max(np.searchsorted(s, c + 2e-5) - np.searchsorted(s, c) for c in s[::97])
+    assert densest <= _densest_window_bound(x, 1e-5) < 2000
