@@ -65,33 +65,35 @@ def _interior_flags(xa, xb, x, xc, xd, flags):  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True)
+def _clamped_test(x, i, j, k, n):  # pragma: no cover - compiled
+    """`_neighbour_test` of sample (i, j) of the flattened row-major (n, k) signal x, its
+    neighbours' rows clamped to the first and the last."""
+    a = x[max(i - 2, 0) * k + j]
+    b = x[max(i - 1, 0) * k + j]
+    c = x[min(i + 1, n - 1) * k + j]
+    d = x[min(i + 2, n - 1) * k + j]
+    return _neighbour_test(a, b, c, d, x[i * k + j])
+
+
+@njit(cache=True, nogil=True)
 def _deviations(x, p, k, n):  # pragma: no cover - compiled
-    """|x - median of its 4 neighbours| at the flat indices p of a row-major (n, k) signal x,
-    the edge rows' neighbours clamped to the first and last rows."""
+    """|x - median of its 4 neighbours| at the flat indices p of x (row-major, (n, k))."""
     out = np.empty(p.size)
     for m in range(p.size):
         i = p[m] // k
-        j = p[m] - i * k
-        a = x[max(i - 2, 0) * k + j]
-        b = x[max(i - 1, 0) * k + j]
-        c = x[min(i + 1, n - 1) * k + j]
-        d = x[min(i + 2, n - 1) * k + j]
-        out[m] = _neighbour_test(a, b, c, d, x[p[m]])[0]
+        out[m] = _clamped_test(x, i, p[m] - i * k, k, n)[0]
     return out
 
 
 @njit(cache=True, nogil=True)
 def _edge_candidates(x, k, n):  # pragma: no cover - compiled
-    """Flat indices of the candidates in the first two and the last two rows (n >= 4)."""
+    """Flat indices of the candidates in the first two and the last two rows of x (row-major,
+    (n, k), n >= 4)."""
     out = np.empty(4 * k, dtype=np.intp)
     m = 0
     for i in (0, 1, n - 2, n - 1):
         for j in range(k):
-            a = x[max(i - 2, 0) * k + j]
-            b = x[max(i - 1, 0) * k + j]
-            c = x[min(i + 1, n - 1) * k + j]
-            d = x[min(i + 2, n - 1) * k + j]
-            if _neighbour_test(a, b, c, d, x[i * k + j])[1]:
+            if _clamped_test(x, i, j, k, n)[1]:
                 out[m] = i * k + j
                 m += 1
     return out[:m]
