@@ -50,6 +50,9 @@ class _RawFile:
         #: CSV read by the fast path while its scan runs beside (`_read_csv_fast(defer_scan=
         #: True)`): the scan's verdict, pending; `_build_checked` waits for it.
         self.scan: Future | None = None
+        #: Every array is float64 and finite: the fast CSV path checked each as it took it,
+        #: so the loader need not pass over them again (`columns._column_values`).
+        self.finite = False
 
     @property
     def tabular(self) -> bool:
@@ -342,11 +345,13 @@ def _read_csv_fast(path: Path, label: str, defer_scan: bool = False) -> _RawFile
         col = df.iloc[:, c]
         if dtypes[names[c]] is float:
             a = col.to_numpy(dtype=float)
-            if a.dtype != np.float64 or np.isnan(a).any():
+            # NaN and inf: the precise path names the cell (as the loader would, one pass later)
+            if a.dtype != np.float64 or not np.isfinite(a).all():
                 return None
         else:
             a = col.to_numpy(dtype=object)
         raw.arrays[name] = a
+    raw.finite = object not in dtypes.values()
     return raw
 
 
