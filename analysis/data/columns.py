@@ -321,12 +321,14 @@ def _assemble(
     shift_where: str = "",
     robot=None,
     cols_of: dict | None = None,
+    beside=None,
 ) -> Experiment:
     """start_offset → reference shift → plausibility (robot limits, spikes) → time checks /
     resampling → rate check → saturation.
 
     `cols_of`: signal → the joint columns (`_Col`) it came from, or None, for
-    naming the column and row in messages.
+    naming the column and row in messages. `beside`: an executor for part of the spike check
+    (`plausibility.spike_notices`), which then runs beside the time and saturation checks.
     """
     n_raw = next(iter(signals.values())).shape[0]
     rows = np.arange(n_raw)
@@ -352,7 +354,8 @@ def _assemble(
         t, rows, signals = _shift_reference(t, rows, signals, shift, min_shift, max_shift, shift_where,
                                             notices, meta)
     _plaus.check_limits(signals, rows, robot, cols_of, source, notices)
-    _plaus.check_spikes(signals, rows, cols_of, source, notices)
+    spikes = _plaus.spike_notices(signals, rows, cols_of, source, beside)
+    at = len(notices)          # the spike notices go here, before the time checks' ones
     if time_col is not None:
         if _check_time(t, time_col, rows, opts, notices):
             t, signals = _resample(t, signals, notices, time_col.where)
@@ -371,6 +374,7 @@ def _assemble(
                       else f"{opts.where}: t (from sampling_rate)", notices)
     tau = signals["tau"]
     saturation_notices(tau, notices, source)
+    notices[at:at] = spikes()
     fs = None
     if time_col is None:
         fs = float(opts.sampling_rate)
@@ -571,7 +575,7 @@ def _from_columns(raw: _RawFile, robot, n_joints, opts: _Options, source: str,
             f"g = [{', '.join(_fmt(x) for x in g)}], {origin})"
         )
     return _assemble(t=t, time_col=tcol, signals=signals, opts=opts, notices=notices,
-                     source=source, meta=meta, robot=robot, cols_of=cols_of)
+                     source=source, meta=meta, robot=robot, cols_of=cols_of, beside=raw.beside)
 
 
 def _by_stem(cols: dict) -> tuple[dict, dict]:

@@ -9,7 +9,7 @@ right after the cells are parsed). They catch silent nonsense that parses fine:
 * `check_limits` (robot given): the joint torques against `tau_max`, the
   positions against `q_limits`; wrong units (mN·m, degrees) and single impossible
   samples are errors, milder excess is a notice.
-* `check_spikes`: isolated spikes (one sample far from its neighbours' median,
+* `spike_notices` / `check_spikes`: isolated spikes (one sample far from its neighbours' median,
   measured in the column's robust scale) are a notice naming the column and the row.
 * `check_rate` (robot given): a sampling rate below `LOW_RATE` with joint
   speeds far below `qd_max` (time in ms), or speeds far above `qd_max`.
@@ -205,24 +205,43 @@ def check_limits(signals: dict, rows, robot, cols_of, source: str, notices: list
             notices.append(f"{what}: {fix}")
 
 
-def check_spikes(signals: dict, rows, cols_of, source: str, notices: list[str]) -> None:
-    """A notice per column (q, qr, tau) with isolated spikes, naming the first row."""
+def spike_notices(signals: dict, rows, cols_of, source: str, beside=None):
+    """A notice per column (q, qr, tau) with isolated spikes, naming the first row, as a
+    function to call when they are needed.
+
+    `beside`: an executor whose thread will be free while the caller goes on (the CSV loader's
+    scan thread); the last signal's check is queued there, and the function waits for it."""
     w = _Where(cols_of, rows, source)
-    for s in ("q", "qr", "tau"):
-        x = signals.get(s)
-        if x is None:
-            continue
-        for j, (idx, scale) in enumerate(spikes_of_columns(x)):
-            if not idx.size:
-                continue
-            k = int(idx[0])
-            more = f" ({idx.size} such samples in all)" if idx.size > 1 else ""
-            notices.append(
-                f"{w.name(s, j)}, {w.row(s, j, k)}: isolated spike in {s}{j + 1}: "
-                f"{x[k, j]:.6g} {_UNIT[s]}, more than {SPIKE_FACTOR:g}× the column's robust "
-                f"scale ({_g(scale)}, from its median absolute deviation) away from its "
-                f"neighbours{more}: a glitch? Fix or remove that row (outliers bias the fit)"
-            )
+    arrays = {s: signals[s] for s in ("q", "qr", "tau") if signals.get(s) is not None}
+    present = list(arrays)
+    last = None
+    if beside is not None and present:
+        last = beside.submit(spikes_of_columns, arrays[present[-1]])
+    found = [spikes_of_columns(arrays[s]) for s in (present[:-1] if last else present)]
+
+    def notices() -> list[str]:
+        out = []
+        for s, per_column in zip(present, found + ([last.result()] if last else []), strict=True):
+            x = arrays[s]
+            for j, (idx, scale) in enumerate(per_column):
+                if not idx.size:
+                    continue
+                k = int(idx[0])
+                more = f" ({idx.size} such samples in all)" if idx.size > 1 else ""
+                out.append(
+                    f"{w.name(s, j)}, {w.row(s, j, k)}: isolated spike in {s}{j + 1}: "
+                    f"{x[k, j]:.6g} {_UNIT[s]}, more than {SPIKE_FACTOR:g}× the column's robust "
+                    f"scale ({_g(scale)}, from its median absolute deviation) away from its "
+                    f"neighbours{more}: a glitch? Fix or remove that row (outliers bias the fit)"
+                )
+        return out
+
+    return notices
+
+
+def check_spikes(signals: dict, rows, cols_of, source: str, notices: list[str]) -> None:
+    """Append `spike_notices` to `notices`."""
+    notices.extend(spike_notices(signals, rows, cols_of, source)())
 
 
 def check_rate(t: np.ndarray, signals: dict, robot, time_where: str, notices: list[str]) -> None:

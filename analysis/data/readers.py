@@ -50,6 +50,8 @@ class _RawFile:
         #: CSV read by the fast path while its scan runs beside (`_read_csv_fast(defer_scan=
         #: True)`): the scan's verdict, pending; `_build_checked` waits for it.
         self.scan: Future | None = None
+        #: ... and the thread it runs on, which then takes work from the checks.
+        self.beside: ThreadPoolExecutor | None = None
         #: Every array is float64 and finite: the fast CSV path checked each as it took it,
         #: so the loader need not pass over them again (`columns._column_values`).
         self.finite = False
@@ -161,15 +163,19 @@ def _scan_or_none(path: Path) -> str | None:
         return None
 
 
-def _scan_beside(path: Path) -> Future:
-    """`_scan_or_none(path)` on a thread of its own, started after pandas' parse (which keeps
-    every core busy: beside it, the scan only slowed it) so that it runs beside dynid's checks,
-    which use one core; the future's result is the scan's verdict."""
-    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="dynid-csv-scan")
-    try:
-        return pool.submit(_scan_or_none, path)
-    finally:
-        pool.shutdown(wait=False)     # the thread ends with the scan
+def _start_beside(raw: _RawFile) -> None:
+    """Start the scan of `raw`'s file (`_scan_or_none`) on a thread of its own, `raw.beside`,
+    after pandas' parse (which keeps every core busy: beside it, the scan only slowed it), so
+    that it runs beside dynid's checks, which use one core; `raw.scan` is its pending verdict.
+    The checks queue work behind the scan (`plausibility.spike_notices`)."""
+    raw.beside = ThreadPoolExecutor(max_workers=1, thread_name_prefix="dynid-csv-beside")
+    raw.scan = raw.beside.submit(_scan_or_none, raw.path)
+
+
+def _stop_beside(raw: _RawFile) -> None:
+    """No more work for `raw.beside`: its thread ends with what it was given."""
+    if raw.beside is not None:
+        raw.beside.shutdown(wait=False)
 
 
 def _build_checked(raw: _RawFile, build):
@@ -185,6 +191,8 @@ def _build_checked(raw: _RawFile, build):
         if raw.scan.result() is not None:
             raise
         return build(_read_csv_precise(raw.path, raw.label))
+    finally:
+        _stop_beside(raw)
     if raw.scan.result() is None:
         return build(_read_csv_precise(raw.path, raw.label))
     return out
@@ -339,7 +347,7 @@ def _read_csv_fast(path: Path, label: str, defer_scan: bool = False) -> _RawFile
         return None
     raw = _RawFile(path, label, "csv")
     if not scanned:
-        raw.scan = _scan_beside(path)
+        _start_beside(raw)
     raw.first_line = 2
     for c, name in enumerate(stripped):
         col = df.iloc[:, c]
@@ -347,6 +355,7 @@ def _read_csv_fast(path: Path, label: str, defer_scan: bool = False) -> _RawFile
             a = col.to_numpy(dtype=float)
             # NaN and inf: the precise path names the cell (as the loader would, one pass later)
             if a.dtype != np.float64 or not np.isfinite(a).all():
+                _stop_beside(raw)
                 return None
         else:
             a = col.to_numpy(dtype=object)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import re
+import threading
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -1195,6 +1196,18 @@ def _precise_outcome(p):
 _BODY = "".join(f"{k / 100!r},{math.sin(k / 7)!r},{math.cos(k / 5)!r}\n" for k in range(40))
 
 
+def _noticed_body(n=80):
+    """Rows of t, q1, q2, tau1, tau2 with a spike in q1 and in tau1 and tau2 clipped: spike
+    notices and a saturation notice."""
+    rows = []
+    for k in range(n):
+        q1 = math.sin(k / 40) + (5.0 if k == 30 else 0.0)
+        tau1 = math.cos(k / 30) + (40.0 if k == 50 else 0.0)
+        tau2 = max(-0.5, min(0.5, math.sin(k / 4)))
+        rows.append(f"{k / 100!r},{q1!r},{math.cos(k / 11)!r},{tau1!r},{tau2!r}\n")
+    return "".join(rows)
+
+
 @pytest.mark.parametrize("text", [
     "t,q1,tau1\n" + _BODY,                                          # regular
     "t,q1,tau1\n" + _BODY.replace("\n", "\r\n"),                    # CR LF
@@ -1205,14 +1218,32 @@ _BODY = "".join(f"{k / 100!r},{math.sin(k / 7)!r},{math.cos(k / 5)!r}\n" for k i
     "t,q1,tau1\n" + _BODY + "1,2\0,3\n",                           # a NUL
     "t,q1,tau1\n" + _BODY + "0.1,2,3\n",                            # time goes back: an error
     "t,q1,tau1,note\n" + "".join(f"{k},1,2,\"a\"\n" for k in range(20)),   # quoted text column
+    "t,q1,q2,tau1,tau2\n" + _noticed_body(),        # spike and saturation notices, in order
+    "t,q1,q2,tau1,tau2\n" + _noticed_body() + "0.1,0,0,0,0\n",   # ... and then an error
 ])
-def test_load_with_its_scan_beside_is_the_precise_load(tmp_path, text):
+def test_load_with_its_scan_beside_is_the_precise_load(tmp_path, monkeypatch, text):
     """load_experiment reads a CSV with pandas while the scan for cells pandas misreads runs
-    beside the checks: whatever the scan finds, the Experiment (or the error) is the one of
-    the precise reader."""
+    beside the checks, and then tau's spike check: whatever the scan finds, the Experiment
+    (or the error, notices in their order) is the one of the precise reader."""
+    from dynid.analysis.data import plausibility
+
+    threads = []
+
+    def spy(x):
+        threads.append(threading.current_thread().name)
+        return spikes_of_columns(x)
+    spikes_of_columns = plausibility.spikes_of_columns
+    monkeypatch.setattr(plausibility, "spikes_of_columns", spy)
     p = tmp_path / "beside.csv"
     p.write_bytes(text.encode())
-    assert _outcome(lambda: load_experiment(p)) == _precise_outcome(p)
+    got = _outcome(lambda: load_experiment(p))
+    assert got == _precise_outcome(p)
+    if "tau2" in text:                            # the case is what it claims to be
+        assert threads[0] == threading.current_thread().name
+        assert threads[1].startswith("dynid-csv-beside")
+        if got[0] == "ok":
+            assert [("spike in q1" in m, "spike in tau1" in m, "tau2" in m) for m in got[1]] == [
+                (True, False, False), (False, True, False), (False, False, True)]
 
 
 def test_a_scan_that_fails_to_read_sends_the_file_to_the_precise_reader(tmp_path, monkeypatch):
