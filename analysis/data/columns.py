@@ -356,12 +356,15 @@ def _assemble(
     _plaus.check_limits(signals, rows, robot, cols_of, source, notices)
     spikes = _plaus.spike_notices(signals, rows, cols_of, source, beside)
     at = len(notices)          # the spike notices go here, before the time checks' ones
+    step = None                # the median time step of t, once known
     if time_col is not None:
-        if _check_time(t, time_col, rows, opts, notices):
+        resample, step = _check_time(t, time_col, rows, opts, notices)
+        if resample:
             t, signals = _resample(t, signals, notices, time_col.where)
             meta["resampled"] = True
+            step = float(np.median(np.diff(t)))
         if opts.sampling_rate is not None:
-            fs_file = 1.0 / float(np.median(np.diff(t)))
+            fs_file = 1.0 / step
             if abs(fs_file - opts.sampling_rate) > opts.time_tolerance * opts.sampling_rate:
                 raise DataError(
                     f"{opts.where}: sampling_rate = {_fmt(opts.sampling_rate)} Hz but the "
@@ -375,9 +378,8 @@ def _assemble(
     tau = signals["tau"]
     saturation_notices(tau, notices, source)
     notices[at:at] = spikes()
-    fs = None
-    if time_col is None:
-        fs = float(opts.sampling_rate)
+    # the rate Experiment would take from the same median step of t
+    fs = float(opts.sampling_rate) if time_col is None else 1.0 / step
     exp = Experiment(
         fs=fs,
         t=t,

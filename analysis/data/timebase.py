@@ -47,8 +47,8 @@ class _Options:
 
 
 def _check_time(t: np.ndarray, col: _Col, rows: np.ndarray, opts: _Options,
-                notices: list[str]) -> bool:
-    """Validate the time column; True if the caller must resample."""
+                notices: list[str]) -> tuple[bool, float]:
+    """Validate the time column; (True if the caller must resample, the median time step)."""
     with np.errstate(over="ignore", invalid="ignore"):
         dt = np.diff(t)
     if not np.all(np.isfinite(dt)):
@@ -91,7 +91,7 @@ def _check_time(t: np.ndarray, col: _Col, rows: np.ndarray, opts: _Options,
                 f"resample = true, but the time steps of {col.where} are already uniform "
                 f"within {tol:.3g} of the median: not resampled"
             )
-        return False
+        return False, med
     n_off = int((dev > tol).sum())
     if opts.resample:
         notices.append(
@@ -99,7 +99,7 @@ def _check_time(t: np.ndarray, col: _Col, rows: np.ndarray, opts: _Options,
             f"{_fmt(dt.max() * 1e3)} ms, median {_fmt(med * 1e3)} ms; {n_off} of "
             f"{dt.size} steps off by more than {tol:.1%})." + gap_text
         )
-        return True
+        return True, med
     k = int(np.argmax(dev))
     raise DataError(
         f"{col.where}: irregular time steps: the median step is {_fmt(med * 1e3)} ms but "
