@@ -1262,6 +1262,49 @@ def test_a_scan_that_fails_to_read_sends_the_file_to_the_precise_reader(tmp_path
     assert calls        # the scan ran beside the checks, and its failure was caught
 
 
+def test_the_threads_beside_a_load_end_with_it(tmp_path):
+    """Each fast CSV load starts a thread for its scan (and tau's spike check); it ends once
+    the load is done, whether the load succeeds, fails or falls back to the precise reader."""
+    import time
+
+    texts = ["t,q1,q2,tau1,tau2\n" + _noticed_body(),                      # loads
+             "t,q1,q2,tau1,tau2\n" + _noticed_body() + "0.1,0,0,0,0\n",   # time goes back
+             "t,q1,tau1\n" + _BODY + "1,inf,3\n",                           # inf: the precise reader
+             "t,q1,tau1\n" + _BODY + '1,"2",3\n']                           # the scan refuses it
+    for k, text in enumerate(texts * 3):
+        p = tmp_path / f"threads{k}.csv"
+        p.write_bytes(text.encode())
+        _outcome(lambda p=p: load_experiment(p))
+
+    def beside():
+        return [t for t in threading.enumerate() if t.name.startswith("dynid-csv-beside")]
+    deadline = time.monotonic() + 5.0
+    while beside() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert not beside()
+
+
+@pytest.mark.parametrize("tail", ["", "0.1,0,0,0,0\n"])
+def test_a_build_closes_the_thread_beside_it(tmp_path, tail):
+    """`_build_checked` takes no more work for the load's thread once the build is done or
+    has failed: the thread ends with its tasks, not when the file's objects are collected."""
+    from dynid.analysis.data import readers
+    from dynid.analysis.data.columns import _from_columns
+    from dynid.analysis.data.timebase import _Options
+
+    p = tmp_path / "closed.csv"
+    p.write_bytes(("t,q1,q2,tau1,tau2\n" + _noticed_body() + tail).encode())
+    raw = readers._read_data_file(p, str(p), defer_scan=True)
+    assert raw.beside is not None
+    build = lambda r: _from_columns(r, None, None, _Options(name="c", where=str(p)), str(p), [], {})  # noqa: E731
+    try:
+        readers._build_checked(raw, build)
+    except DataError:
+        assert tail
+    with pytest.raises(RuntimeError, match="shutdown"):
+        raw.beside.submit(int)
+
+
 @settings(max_examples=100, deadline=None,
           suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 @given(text=csv_texts())
