@@ -354,30 +354,12 @@ def _assemble(
         t, rows, signals = _shift_reference(t, rows, signals, shift, min_shift, max_shift, shift_where,
                                             notices, meta)
     _plaus.check_limits(signals, rows, robot, cols_of, source, notices)
-    spikes = _plaus.spike_notices(signals, rows, cols_of, source, beside)
-    at = len(notices)          # the spike notices go here, before the time checks' ones
-    step = None                # the median time step of t, once known
-    if time_col is not None:
-        resample, step = _check_time(t, time_col, rows, opts, notices)
-        if resample:
-            t, signals = _resample(t, signals, notices, time_col.where)
-            meta["resampled"] = True
-            step = float(np.median(np.diff(t)))
-        if opts.sampling_rate is not None:
-            fs_file = 1.0 / step
-            if abs(fs_file - opts.sampling_rate) > opts.time_tolerance * opts.sampling_rate:
-                raise DataError(
-                    f"{opts.where}: sampling_rate = {_fmt(opts.sampling_rate)} Hz but the "
-                    f"time column {time_col.where} gives {_fmt(fs_file)} Hz. Remove "
-                    "sampling_rate (the time column is used) or correct it."
-                )
-
-    _plaus.check_rate(t, signals, robot,
-                      time_col.where if time_col is not None
-                      else f"{opts.where}: t (from sampling_rate)", notices)
-    tau = signals["tau"]
-    saturation_notices(tau, notices, source)
-    notices[at:at] = spikes()
+    with _plaus.spike_notices(signals, rows, cols_of, source, beside) as spikes:
+        at = len(notices)          # the spike notices go here, before the time checks' ones
+        t, signals, step = _time_and_rate(t, time_col, rows, signals, opts, robot, notices, meta)
+        tau = signals["tau"]
+        saturation_notices(tau, notices, source)
+        notices[at:at] = spikes.result()
     # the rate Experiment would take from the same median step of t
     fs = float(opts.sampling_rate) if time_col is None else 1.0 / step
     exp = Experiment(
@@ -394,6 +376,30 @@ def _assemble(
         meta=meta,
     )
     return exp
+
+
+def _time_and_rate(t, time_col, rows, signals, opts, robot, notices, meta):
+    """The time column's checks (and resampling), the sampling rate's and the joint speeds';
+    returns (t, signals, the median time step of t or None without a time column)."""
+    step = None
+    if time_col is not None:
+        resample, step = _check_time(t, time_col, rows, opts, notices)
+        if resample:
+            t, signals = _resample(t, signals, notices, time_col.where)
+            meta["resampled"] = True
+            step = float(np.median(np.diff(t)))
+        if opts.sampling_rate is not None:
+            fs_file = 1.0 / step
+            if abs(fs_file - opts.sampling_rate) > opts.time_tolerance * opts.sampling_rate:
+                raise DataError(
+                    f"{opts.where}: sampling_rate = {_fmt(opts.sampling_rate)} Hz but the "
+                    f"time column {time_col.where} gives {_fmt(fs_file)} Hz. Remove "
+                    "sampling_rate (the time column is used) or correct it."
+                )
+    _plaus.check_rate(t, signals, robot,
+                      time_col.where if time_col is not None
+                      else f"{opts.where}: t (from sampling_rate)", notices)
+    return t, signals, step
 
 
 def _shift_reference(t, rows, signals, shift, min_shift, max_shift, shift_where, notices, meta):

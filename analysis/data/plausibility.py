@@ -205,43 +205,67 @@ def check_limits(signals: dict, rows, robot, cols_of, source: str, notices: list
             notices.append(f"{what}: {fix}")
 
 
-def spike_notices(signals: dict, rows, cols_of, source: str, beside=None):
-    """A notice per column (q, qr, tau) with isolated spikes, naming the first row, as a
-    function to call when they are needed.
+def _first_spikes(x: np.ndarray) -> list[tuple[int, int, int, float, float]]:
+    """(column, row of its first spike, its number of spikes, its robust scale, the first
+    spike's value) for each column of x (n, k) with isolated spikes."""
+    out = []
+    for j, (idx, scale) in enumerate(spikes_of_columns(x)):
+        if idx.size:
+            k = int(idx[0])
+            out.append((j, k, int(idx.size), scale, float(x[k, j])))
+    return out
+
+
+class SpikeNotices:
+    """The notices of `spike_notices`, the last signal's perhaps still being found on another
+    thread: `result()` waits for them; leaving a ``with`` block on an exception cancels that
+    check if it has not started."""
+
+    def __init__(self, where: _Where, found: list, pending=None):
+        self._where = where
+        self._found = found              # [(signal, _first_spikes of it)]
+        self._pending = pending          # (signal, Future of its _first_spikes) or None
+
+    def result(self) -> list[str]:
+        found = list(self._found)
+        if self._pending is not None:
+            found.append((self._pending[0], self._pending[1].result()))
+        w = self._where
+        return [
+            f"{w.name(s, j)}, {w.row(s, j, k)}: isolated spike in {s}{j + 1}: "
+            f"{value:.6g} {_UNIT[s]}, more than {SPIKE_FACTOR:g}× the column's robust "
+            f"scale ({_g(scale)}, from its median absolute deviation) away from its "
+            f"neighbours{f' ({count} such samples in all)' if count > 1 else ''}: a glitch? "
+            "Fix or remove that row (outliers bias the fit)"
+            for s, columns in found for j, k, count, scale, value in columns
+        ]
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is not None and self._pending is not None:
+            self._pending[1].cancel()
+
+
+def spike_notices(signals: dict, rows, cols_of, source: str, beside=None) -> SpikeNotices:
+    """A notice per column (q, qr, tau) with isolated spikes, naming the first row.
 
     `beside`: an executor whose thread will be free while the caller goes on (the CSV loader's
-    scan thread); the last signal's check is queued there, and the function waits for it."""
+    scan thread); the last signal's check is queued there, and `result()` waits for it. Only
+    the values the notices need are kept, not the signals (resampling frees them)."""
     w = _Where(cols_of, rows, source)
-    arrays = {s: signals[s] for s in ("q", "qr", "tau") if signals.get(s) is not None}
-    present = list(arrays)
-    last = None
+    present = [s for s in ("q", "qr", "tau") if signals.get(s) is not None]
+    pending = None
     if beside is not None and present:
-        last = beside.submit(spikes_of_columns, arrays[present[-1]])
-    found = [spikes_of_columns(arrays[s]) for s in (present[:-1] if last else present)]
-
-    def notices() -> list[str]:
-        out = []
-        for s, per_column in zip(present, found + ([last.result()] if last else []), strict=True):
-            x = arrays[s]
-            for j, (idx, scale) in enumerate(per_column):
-                if not idx.size:
-                    continue
-                k = int(idx[0])
-                more = f" ({idx.size} such samples in all)" if idx.size > 1 else ""
-                out.append(
-                    f"{w.name(s, j)}, {w.row(s, j, k)}: isolated spike in {s}{j + 1}: "
-                    f"{x[k, j]:.6g} {_UNIT[s]}, more than {SPIKE_FACTOR:g}× the column's robust "
-                    f"scale ({_g(scale)}, from its median absolute deviation) away from its "
-                    f"neighbours{more}: a glitch? Fix or remove that row (outliers bias the fit)"
-                )
-        return out
-
-    return notices
+        last = present.pop()
+        pending = (last, beside.submit(_first_spikes, signals[last]))
+    return SpikeNotices(w, [(s, _first_spikes(signals[s])) for s in present], pending)
 
 
 def check_spikes(signals: dict, rows, cols_of, source: str, notices: list[str]) -> None:
     """Append `spike_notices` to `notices`."""
-    notices.extend(spike_notices(signals, rows, cols_of, source)())
+    notices.extend(spike_notices(signals, rows, cols_of, source).result())
 
 
 def check_rate(t: np.ndarray, signals: dict, robot, time_where: str, notices: list[str]) -> None:

@@ -140,3 +140,43 @@ def test_densest_window_bound_is_an_upper_bound():
     s = np.sort(x)
     densest = max(np.searchsorted(s, c + 2e-5) - np.searchsorted(s, c) for c in s[::97])
     assert densest <= _densest_window_bound(x, 1e-5) < 2000
+
+
+def test_spike_notices_beside_are_cancelled_when_the_load_fails():
+    """`plausibility.spike_notices` queues the last signal's check on the executor it is given;
+    leaving its ``with`` block on an exception cancels that check while it waits (the load has
+    failed: nobody will read its notices), and without one, `result()` has every notice."""
+    import threading
+    from concurrent.futures import ThreadPoolExecutor
+
+    from dynid.analysis.data import plausibility
+
+    rng = np.random.default_rng(4)
+    X = np.sin(np.arange(500)[:, None] / 40 + np.arange(2)) + rng.normal(0, 1e-3, (500, 2))
+    X[100, 1] += 30.0
+    signals = {"q": X.copy(), "tau": X.copy()}
+    seen = []
+    real = plausibility.spikes_of_columns
+
+    def spy(x):
+        seen.append(threading.current_thread().name)
+        return real(x)
+
+    plausibility.spikes_of_columns = spy
+    try:
+        with ThreadPoolExecutor(1, thread_name_prefix="side") as pool:
+            gate = threading.Event()
+            pool.submit(gate.wait)                       # the scan, still running
+            with pytest.raises(ValueError), plausibility.spike_notices(signals, None, None, "f", pool):
+                raise ValueError("a time check failed")
+            gate.set()
+        assert seen == [threading.current_thread().name]  # q here; tau's check never ran
+        seen.clear()
+        with ThreadPoolExecutor(1, thread_name_prefix="side") as pool:
+            with plausibility.spike_notices(signals, None, None, "f", pool) as spikes:
+                notices = spikes.result()
+        assert len(notices) == 2 and all("sample 101" in n for n in notices)
+        assert "isolated spike in q2" in notices[0] and "isolated spike in tau2" in notices[1]
+        assert sorted(name.startswith("side") for name in seen) == [False, True]
+    finally:
+        plausibility.spikes_of_columns = real
