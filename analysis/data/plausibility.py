@@ -9,7 +9,7 @@ right after the cells are parsed). They catch silent nonsense that parses fine:
 * `check_limits` (robot given): the joint torques against `tau_max`, the
   positions against `q_limits`; wrong units (mN·m, degrees) and single impossible
   samples are errors, milder excess is a notice.
-* `spike_notices` / `check_spikes`: isolated spikes (one sample far from its neighbours' median,
+* `spike_notices`: isolated spikes (one sample far from its neighbours' median,
   measured in the column's robust scale) are a notice naming the column and the row.
 * `check_rate` (robot given): a sampling rate below `LOW_RATE` with joint
   speeds far below `qd_max` (time in ms), or speeds far above `qd_max`.
@@ -261,11 +261,6 @@ def spike_notices(signals: dict, rows, cols_of, source: str, beside=None) -> Spi
         last = present.pop()
         pending = (last, beside.submit(_first_spikes, signals[last]))
     return SpikeNotices(w, [(s, _first_spikes(signals[s])) for s in present], pending)
-
-
-def check_spikes(signals: dict, rows, cols_of, source: str, notices: list[str]) -> None:
-    """Append `spike_notices` to `notices`."""
-    notices.extend(spike_notices(signals, rows, cols_of, source).result())
 
 
 def check_rate(t: np.ndarray, signals: dict, robot, time_where: str, notices: list[str]) -> None:
