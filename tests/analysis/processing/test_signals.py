@@ -11,6 +11,8 @@ from dynid.analysis.processing.signals import (
     low_velocity_mask,
     lowpass_filtfilt,
     transient_samples,
+    velocity_dead_zone,
+    widen_in_time,
 )
 from dynid.errors import InputError
 
@@ -198,3 +200,27 @@ def test_low_velocity_mask():
     with pytest.raises(InputError, match=">= 0"):
         low_velocity_mask(qd, -1.0)
 
+
+
+def test_widen_in_time_is_scipys_binary_dilation():
+    """The dead zone's widening is the binary dilation along time by a (2 guard + 1)-sample
+    window (scipy.ndimage, the oracle), at the edges too and with guards beyond the record."""
+    from scipy import ndimage
+
+    rng = np.random.default_rng(7)
+    for _ in range(400):
+        N, n, guard = int(rng.integers(1, 300)), int(rng.integers(1, 5)), int(rng.integers(1, 120))
+        mask = rng.random((N, n)) < rng.choice([0.002, 0.02, 0.2, 0.9])
+        expected = ndimage.binary_dilation(mask, structure=np.ones((2 * guard + 1, 1), dtype=bool))
+        np.testing.assert_array_equal(widen_in_time(mask, guard), expected)
+    one = np.zeros(9, dtype=bool)
+    one[0] = True
+    np.testing.assert_array_equal(widen_in_time(one, 2), [1, 1, 1, 0, 0, 0, 0, 0, 0])
+
+
+def test_velocity_dead_zone_guard_widens_each_joint_alone():
+    qd = np.ones((12, 2))
+    qd[5, 0] = 0.0
+    dead = velocity_dead_zone(qd, 0.1, guard=2)
+    np.testing.assert_array_equal(np.flatnonzero(dead[:, 0]), [3, 4, 5, 6, 7])
+    assert not dead[:, 1].any()
