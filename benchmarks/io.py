@@ -3,7 +3,7 @@
 1. A 200,000-row x 13-column CSV in dynid's column format (t, q1..q6, tau1..tau6; a
    40 s, 5 kHz, 6-joint log) is generated in a temporary folder and loaded with
    dynid.load_experiment(path, n_joints=6) and with pandas.read_csv, alternately, in
-   the same process (median of 5 each), with the CPU time of each beside. Target: dynid / pandas <= 1.3. dynid reads with
+   the same process (median of 11 each), with the CPU time of each beside. Target: dynid / pandas <= 1.3. dynid reads with
    pandas' C reader on pandas >= 3 (exact there); on pandas 2 with Arrow's CSV reader first
    when pyarrow is installed, and its time through pandas' reader (what it does without
    pyarrow) is given beside (the same route on pandas >= 3). Beside them, the time of
@@ -67,8 +67,9 @@ def rows_for_bytes(target: int) -> int:
     return int(target / per_row)
 
 
-#: Loads of each kind timed (the median is given).
-REPEATS = 5
+#: Loads of each kind timed (the median is given). Medians of 5 moved by +-0.13 from run to run
+#: on an idle machine (results/io.txt), as much as the margin to the target.
+REPEATS = 11
 
 
 def time_loading(path: Path, repeats: int = 3):
