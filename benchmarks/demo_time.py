@@ -11,7 +11,8 @@ reference): the back-to-back before/after of issue 30. The README's stated demo 
 comes from this script.
 
 The last line is a JSON object with `demo_cpu_s`, `demo_wall_s` (medians) and, with a
-reference, `reference_cpu_s`, `reference_wall_s` and `ratio_cpu`.
+reference, `reference_cpu_s`, `reference_wall_s`, `ratio_cpu` and `ratio_cpu_paired` (the
+median of each run's ratio to the reference run right after it).
 
 Run from the repository root:
 
@@ -53,10 +54,14 @@ def main(argv=None):
     print(f"dynid demo --seed {args.seed}: CPU {out['demo_cpu_s']} s, wall {out['demo_wall_s']} s "
           f"(median of {args.repeats}; load {out['load_before']} -> {out['load_after']} on {out['cpus']} CPUs)")
     if args.reference:
+        # each run beside the reference run right after it: the machine's speed drifts over minutes
+        paired = [a[0] / b[0] for a, b in zip(times["this"], times["reference"])]
         out.update(reference_cpu_s=round(med["reference"][0], 1), reference_wall_s=round(med["reference"][1], 1),
-                   ratio_cpu=round(med["this"][0] / med["reference"][0], 3))
+                   ratio_cpu=round(med["this"][0] / med["reference"][0], 3),
+                   ratio_cpu_paired=round(statistics.median(paired), 3))
         print(f"reference ({args.reference}): CPU {out['reference_cpu_s']} s, wall {out['reference_wall_s']} s; "
-              f"ratio CPU this / reference {out['ratio_cpu']}")
+              f"ratio CPU this / reference {out['ratio_cpu']} (median of the run-by-run ratios "
+              f"{out['ratio_cpu_paired']}: {', '.join(f'{r:.3f}' for r in paired)})")
     print(json.dumps(out))
 
 
