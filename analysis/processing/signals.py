@@ -425,7 +425,7 @@ def velocity_dead_zone(qd, threshold="auto", *, guard=0, couplings=(),
 
 
 def widen_in_time(mask, guard: int) -> np.ndarray:
-    """Boolean `mask` (N, ...) widened by `guard` samples on each side along time: True at
+    """Boolean `mask` (N, ...) widened by `guard` >= 0 samples on each side along time: True at
     sample t where any of samples t - guard .. t + guard is True (outside the record: False).
 
     The binary dilation by a (2 guard + 1)-sample window, from running counts: its cost
@@ -433,9 +433,15 @@ def widen_in_time(mask, guard: int) -> np.ndarray:
     """
     mask = np.asarray(mask, dtype=bool)
     N = mask.shape[0]
+    guard = int(guard)
+    if guard < 0:
+        raise ValueError(f"guard must be >= 0 samples, got {guard}")
+    guard = min(guard, N)              # a wider window reaches no further than the record
     # counts[k] = True samples before padded row k; the record sits between guard False rows
-    counts = np.zeros((N + 2 * guard + 1,) + mask.shape[1:], dtype=np.int64)
-    np.cumsum(mask, axis=0, out=counts[guard + 1: guard + 1 + N])
+    counts = np.zeros((N + 2 * guard + 1,) + mask.shape[1:], dtype=np.int32 if N < 2**31 else np.int64)
+    body = counts[guard + 1: guard + 1 + N]
+    body[...] = mask
+    np.cumsum(body, axis=0, out=body)  # in place: no temporary of the counts' size
     counts[guard + 1 + N:] = counts[guard + N]
     return counts[2 * guard + 1:] > counts[:N]
 

@@ -201,7 +201,6 @@ def test_low_velocity_mask():
         low_velocity_mask(qd, -1.0)
 
 
-
 def test_widen_in_time_is_scipys_binary_dilation():
     """The dead zone's widening is the binary dilation along time by a (2 guard + 1)-sample
     window (scipy.ndimage, the oracle), at the edges too and with guards beyond the record."""
@@ -213,9 +212,15 @@ def test_widen_in_time_is_scipys_binary_dilation():
         mask = rng.random((N, n)) < rng.choice([0.002, 0.02, 0.2, 0.9])
         expected = ndimage.binary_dilation(mask, structure=np.ones((2 * guard + 1, 1), dtype=bool))
         np.testing.assert_array_equal(widen_in_time(mask, guard), expected)
+        if N < 40:                      # guards beyond the record (clamped to it)
+            np.testing.assert_array_equal(widen_in_time(mask, 3 * N + 5), ndimage.binary_dilation(
+                mask, structure=np.ones((2 * (3 * N + 5) + 1, 1), dtype=bool)))
     one = np.zeros(9, dtype=bool)
     one[0] = True
     np.testing.assert_array_equal(widen_in_time(one, 2), [1, 1, 1, 0, 0, 0, 0, 0, 0])
+    np.testing.assert_array_equal(widen_in_time(one, 0), one)
+    with pytest.raises(ValueError, match=">= 0"):
+        widen_in_time(one, -1)
 
 
 def test_velocity_dead_zone_guard_widens_each_joint_alone():
