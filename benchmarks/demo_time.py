@@ -6,8 +6,9 @@ Each run is a fresh child process writing the HTML report into a temporary folde
 
 With ``--reference PYTHON`` (an interpreter whose environment has another version of
 dynid installed, e.g. a worktree of an earlier commit), the two are run alternately, so
-both see the same machine load, and the figure is the ratio of the medians (this / the
-reference): the back-to-back before/after of issue 30. The README's stated demo time
+both see the same machine load, and the figures are the ratio of the medians (this / the
+reference) and the median of each run's ratio to the reference run right after it (the
+machine's speed drifts over minutes): the back-to-back before/after of issue 30. The README's stated demo time
 comes from this script.
 
 The last line is a JSON object with `demo_cpu_s`, `demo_wall_s` (medians) and, with a

@@ -3,12 +3,14 @@
 1. A 200,000-row x 13-column CSV in dynid's column format (t, q1..q6, tau1..tau6; a
    40 s, 5 kHz, 6-joint log) is generated in a temporary folder and loaded with
    dynid.load_experiment(path, n_joints=6) and with pandas.read_csv, alternately, in
-   the same process (median of 11 each), with the CPU time of each beside. Target: dynid / pandas <= 1.3. dynid reads with
-   pandas' C reader on pandas >= 3 (exact there); on pandas 2 with Arrow's CSV reader first
-   when pyarrow is installed, and its time through pandas' reader (what it does without
-   pyarrow) is given beside (the same route on pandas >= 3). Beside them, the time of
-   dynid's scan of the file for cells pandas would read differently (`_scan_csv`), alone; in
-   `load_experiment` it runs on a thread beside the checks, after pandas' parse.
+   the same process (median of 11 each; beside it, the median of each dynid load's ratio to
+   the pandas load right after it), with the CPU time of each beside. Target: dynid / pandas
+   <= 1.3. dynid reads with pandas' C reader on pandas >= 3 (exact there); on pandas 2
+   with Arrow's CSV reader first when pyarrow is installed, and its time through pandas'
+   reader (what it does without pyarrow) is given beside (the same route on pandas >= 3).
+   Beside them, the time of dynid's scan of the file for cells pandas would read
+   differently (`_scan_csv`), alone; in `load_experiment` it runs on a thread beside the
+   checks, after pandas' parse.
 2. A CSV of about 200 MB in the same format is loaded by dynid in a fresh subprocess
    whose peak resident memory (ru_maxrss of the child) is its own; it is given as a
    multiple of the file size, also net of the memory the child had before loading
@@ -67,8 +69,8 @@ def rows_for_bytes(target: int) -> int:
     return int(target / per_row)
 
 
-#: Loads of each kind timed (the median is given). Medians of 5 moved by +-0.13 from run to run
-#: on an idle machine (results/io.txt), as much as the margin to the target.
+#: Loads of each kind timed (the median is given). Ratios from medians of 5 ranged over 1.10-1.36
+#: in ten runs on an idle machine (results/io.txt); most of that is the machine, not the count.
 REPEATS = 11
 
 
@@ -105,7 +107,8 @@ def time_loading(path: Path, repeats: int = 3):
     # the values dynid loaded are those pandas parsed (and Python's float() would), by either route
     np.testing.assert_array_equal(exp.tau, df[[f"tau{j}" for j in range(1, N_JOINTS + 1)]].to_numpy())
     assert exp.tau.tobytes() == exp_pd.tau.tobytes() and exp.q.tobytes() == exp_pd.q.tobytes()
-    return (statistics.median(dynid_s), statistics.median(pandas_s), exp,
+    paired = statistics.median(d / p for d, p in zip(dynid_s, pandas_s))
+    return (statistics.median(dynid_s), statistics.median(pandas_s), exp, paired,
             statistics.median(pandas_route_s), statistics.median(scan_s),
             statistics.median(dynid_cpu), statistics.median(pandas_cpu))
 
@@ -153,7 +156,7 @@ def main():
         write_csv(csv_path, n_rows)
         size = csv_path.stat().st_size
         time_loading(csv_path, repeats=1)          # warm-up: imports, page cache
-        dynid_s, pandas_s, exp, pandas_route_s, scan_s, dynid_cpu, pandas_cpu = time_loading(
+        dynid_s, pandas_s, exp, paired, pandas_route_s, scan_s, dynid_cpu, pandas_cpu = time_loading(
             csv_path, repeats=REPEATS)
         ratio = dynid_s / pandas_s
         # pandas' parse and the scan one after the other (a load runs the scan beside the checks)
@@ -166,7 +169,7 @@ def main():
             arrow = "no pyarrow: pandas' reader"
         print(f"CSV {n_rows:,} rows x {1 + 2 * N_JOINTS} columns ({size / 1e6:.1f} MB): "
               f"dynid.load_experiment {dynid_s:.3f} s ({arrow}), pandas.read_csv {pandas_s:.3f} s, "
-              f"ratio {ratio:.2f} (target 1.3; median of {REPEATS})")
+              f"ratio {ratio:.2f} (target 1.3; median of {REPEATS}; load by load {paired:.2f})")
         print(f"  dynid through pandas' reader (as without pyarrow) {pandas_route_s:.3f} s, "
               f"ratio {ratio_pandas_route:.2f}")
         print(f"  dynid's time beyond pandas' {dynid_s - pandas_s:.3f} s: the checks and the arrays, with "
@@ -195,7 +198,7 @@ def main():
               f"{child['baseline_kb'] / 1024:.0f} MB the child held after importing dynid; "
               f"RUSAGE_CHILDREN ru_maxrss {children_kb / 1024:.0f} MB)")
     print(json.dumps({"csv_rows": n_rows, "csv_mb": round(size / 1e6, 1), "dynid_s": round(dynid_s, 3),
-                      "pandas_s": round(pandas_s, 3), "ratio": round(ratio, 2),
+                      "pandas_s": round(pandas_s, 3), "ratio": round(ratio, 2), "ratio_paired": round(paired, 2),
                       "ratio_pandas_route": round(ratio_pandas_route, 2), "scan_s": round(scan_s, 4),
                       "ratio_parse_and_scan": round(ratio_parse_scan, 3),
                       "ratio_cpu": round(dynid_cpu / pandas_cpu, 2),
