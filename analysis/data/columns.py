@@ -398,7 +398,7 @@ def _time_and_rate(t, time_col, rows, signals, opts, robot, notices, meta):
                 )
     _plaus.check_rate(t, signals, robot,
                       time_col.where if time_col is not None
-                      else f"{opts.where}: t (from sampling_rate)", notices)
+                      else f"{opts.where}: t (from sampling_rate)", notices, step=step)
     return t, signals, step
 
 

@@ -263,9 +263,10 @@ def spike_notices(signals: dict, rows, cols_of, source: str, beside=None) -> Spi
     return SpikeNotices(w, [(s, _first_spikes(signals[s])) for s in present], pending)
 
 
-def check_rate(t: np.ndarray, signals: dict, robot, time_where: str, notices: list[str]) -> None:
+def check_rate(t: np.ndarray, signals: dict, robot, time_where: str, notices: list[str],
+               step: float | None = None) -> None:
     """A time column in ms (rate below LOW_RATE, joints far slower than qd_max) and
-    joint speeds far above qd_max."""
+    joint speeds far above qd_max. `step`: the median time step of t, when the caller has it."""
     if robot is None or t.size < 3:
         return
     q = signals.get("q")
@@ -273,7 +274,7 @@ def check_rate(t: np.ndarray, signals: dict, robot, time_where: str, notices: li
         q = signals.get("qr")
     if q is None:
         return
-    step = float(np.median(np.diff(t)))
+    step = float(np.median(np.diff(t))) if step is None else float(step)
     if not step > 0:
         return
     fs = 1.0 / step
