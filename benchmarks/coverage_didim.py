@@ -22,6 +22,12 @@ kept (their intervals are judged like the others: a user gets them with a warnin
     nice -n 10 python benchmarks/coverage_didim.py --start 6100 --seeds 40 --workers 2 \
         --out benchmarks/results/coverage_didim_seeds6100.jsonl
 
+`--essential`: DIDIM as the user gets it (`identify_didim(..., essential=True,
+uncertainty="bootstrap", gains=<identified>)`, the CLI's `--gains identify`), and the coverage of
+its reported parameters, the essential set (`essential_z`: the truth is the true base parameter
+of the same name), beside the classic essential sigma of the same run (eq. (14) of the essential
+model, `essential_classic_z`) and the median width relative to it.
+
 Development used seeds below 1000; the last line is a JSON object with the headline figures.
 """
 from __future__ import annotations
@@ -48,7 +54,7 @@ for _p in (ROOT, ROOT / "benchmarks", ROOT / "tests" / "support"):
 OPTIONS = ("classic", "hac", "bootstrap", "bootstrap+gains")
 
 
-def run_seed(seed, duration=4.0, gains="identify", options=OPTIONS):
+def run_seed(seed, duration=4.0, gains="identify", options=OPTIONS, essential=False):
     import coverage_independent as ci
     import didim_gains as dg
 
@@ -76,14 +82,20 @@ def run_seed(seed, duration=4.0, gains="identify", options=OPTIONS):
     row = {"seed": seed, "gains": gains, "gain_factors": [float(x) for x in f]}
     t1 = time.time()
     try:
-        d = identify_didim(exp, robot, bp=bp, controller=ctrl, chi0=dict(robot.apriori), update_gains=False,
-                           essential=False)
+        if essential:    # what the user gets: the essential set with the default covariance
+            d = identify_didim(exp, robot, bp=bp, controller=ctrl, chi0=dict(robot.apriori), update_gains=False,
+                               essential=True, uncertainty="bootstrap", gains=g)
+        else:
+            d = identify_didim(exp, robot, bp=bp, controller=ctrl, chi0=dict(robot.apriori), update_gains=False,
+                               essential=False)
     except Exception as exc:   # a failed run is a result of the campaign, with its message
         row["error"] = str(exc).splitlines()[0]
         row["seconds"] = time.time() - t0
         return row
     row.update(converged=bool(d.converged), steps=d.iterations, v_s=float(d.settings["v_s"]),
                stop_reason=d.stop_reason, didim_seconds=time.time() - t1)
+    if essential:
+        _essential_rows(row, d, bp, beta)
     idx = [list(bp.names).index(n) for n in d.result.names]
     for opt in options:
         if opt.endswith("+gains") and g is None:
@@ -98,6 +110,23 @@ def run_seed(seed, duration=4.0, gains="identify", options=OPTIONS):
         row[f"{opt}_seconds"] = time.time() - t2
     row["seconds"] = time.time() - t0
     return row
+
+
+def _essential_rows(row, d, bp, beta):
+    """z and sigma of the essential set DIDIM reports, and of its classic sigma (eq. (14))."""
+    from dynid.analysis.estimators import least_squares as ls
+    from dynid.analysis.estimators.essential import essential_parameters
+    L, last = d._state
+    classic = essential_parameters(last["Wd"], last["taud"], list(bp.names), ls.wls, max_error_growth=0.02,
+                                   row_mask=last["mask"], settings=L.info).result
+    ess = d.essential.result
+    assert list(classic.names) == list(ess.names) and np.allclose(classic.chi, ess.chi), "not the same set"
+    idx = [list(bp.names).index(n) for n in ess.names]
+    row["essential_names"] = list(ess.names)
+    for part, r in (("essential", ess), ("essential_classic", classic)):
+        sig = r.bse.to_numpy()
+        row[f"{part}_z"] = [float(v) for v in (r.chi - beta[idx]) / sig]
+        row[f"{part}_sigma"] = [float(v) for v in sig]
 
 
 def headline(rows):
@@ -120,6 +149,14 @@ def headline(rows):
         if opt != "classic":
             ratio = np.concatenate([np.asarray(r[f"{opt}_sigma"]) / np.asarray(r["classic_sigma"]) for r in have])
             out[f"{opt}_median_width_vs_classic"] = float(np.median(ratio))
+    ess = [r for r in ok if "essential_z" in r]
+    if ess:
+        for part in ("essential", "essential_classic"):
+            z = np.concatenate([r[f"{part}_z"] for r in ess])
+            out[f"{part}_coverage95"] = float(np.mean(np.abs(z) <= 1.96))
+        out["essential_pairs"] = int(sum(len(r["essential_z"]) for r in ess))
+        out["essential_median_width_vs_classic"] = float(np.median(np.concatenate(
+            [np.asarray(r["essential_sigma"]) / np.asarray(r["essential_classic_sigma"]) for r in ess])))
     return out
 
 
@@ -131,6 +168,8 @@ def main(argv=None):
     ap.add_argument("--duration", type=float, default=4.0)
     ap.add_argument("--gains", default="identify", choices=("identify", "true"))
     ap.add_argument("--options", default=",".join(OPTIONS))
+    ap.add_argument("--essential", action="store_true",
+                    help="DIDIM with its essential set and the default covariance, as the CLI runs it")
     ap.add_argument("--out", default=None, help="JSON lines, one per seed (appended; seeds done are skipped)")
     ap.add_argument("--summarize", nargs="+", default=None, metavar="JSONL",
                     help="only print the headline of the rows in these files (no new runs)")
@@ -150,6 +189,7 @@ def main(argv=None):
         rows.append(row)
         print(f"seed {row['seed']}: converged {row.get('converged')} "
               + ", ".join(f"{o} {np.mean(np.abs(row[f'{o}_z']) <= 1.96):.2f}" for o in OPTIONS if f"{o}_z" in row)
+              + (f", essential {np.mean(np.abs(row['essential_z']) <= 1.96):.2f}" if "essential_z" in row else "")
               + (f" error {row['error']}" if "error" in row else "") + f" ({row['seconds']:.0f} s)", flush=True)
         append(a.out, row)
 
@@ -157,13 +197,14 @@ def main(argv=None):
         from concurrent.futures import ProcessPoolExecutor
         n = len(seeds)
         with ProcessPoolExecutor(a.workers) as ex:
-            for row in ex.map(run_seed, seeds, [a.duration] * n, [a.gains] * n, [options] * n):
+            for row in ex.map(run_seed, seeds, [a.duration] * n, [a.gains] * n, [options] * n,
+                              [a.essential] * n):
                 record(row)
     else:
         for s in seeds:
-            record(run_seed(s, a.duration, a.gains, options))
+            record(run_seed(s, a.duration, a.gains, options, a.essential))
     out = headline(rows)
-    out.update({"first_seed": a.start, "duration_s": a.duration, "gains": a.gains,
+    out.update({"first_seed": a.start, "duration_s": a.duration, "gains": a.gains, "essential": a.essential,
                 "campaign_seconds": time.time() - t0})
     print(json.dumps(out))
 

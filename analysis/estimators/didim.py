@@ -157,7 +157,7 @@ import numpy as np
 import pandas as pd
 
 from dynid.analysis.estimators import least_squares as ls
-from dynid.analysis.estimators.essential import essential_parameters
+from dynid.analysis.estimators.essential import essential_parameters, with_base_covariance
 from dynid.analysis.estimators.physical import pc_wls, require_cvxpy
 from dynid.analysis.processing.decimation import ParallelDecimator
 from dynid.analysis.processing.signals import dead_zone_thresholds, default_settings, velocity_dead_zone
@@ -1134,7 +1134,7 @@ def _gains_covariance(L, last, res, gains):
 
 def _robust(L, last, uncertainty, gains, n_boot_cov, seed):
     """The last step's WLS with `uncertainty` and, with `gains`, the gains' share added."""
-    res = last["res"]
+    res = last.get("res_classic", last["res"])    # eq. (14): the run may have replaced it already
     if uncertainty != "classic":
         res = ls.wls(last["Wd"], last["taud"], L.names, row_mask=last["mask"], settings=L.info,
                      uncertainty=uncertainty, n_boot=n_boot_cov, seed=seed)
@@ -1208,6 +1208,8 @@ def _didim_result(L, experiment, beta0, tau, history, timings, last, converged, 
         ess = essential_parameters(last["Wd"], last["taud"], names, ls.wls,
                                    max_error_growth=max_error_growth, row_mask=last["mask"],
                                    settings=L.info)
+        if uncertainty != "classic" or gains_cov is not None:   # the full model's covariance is not eq. (14)
+            ess = with_base_covariance(ess, res)
         for r in (ess.result, ess.base):
             r.data_hash = h
     chi_final = bp.to_standard(res.chi, "zero")
@@ -1336,6 +1338,8 @@ def _keep_start_width(first, robot, final_cov, n_boot, pc_options, essential, ma
         first.essential = essential_parameters(
             first.W_dec, first.tau_dec, list(first.base.names), ls.wls,
             max_error_growth=max_error_growth, row_mask=first.row_mask, settings=first.settings)
+        if final_cov["uncertainty"] != "classic" or final_cov["gains"] is not None:
+            first.essential = with_base_covariance(first.essential, first.result)
         for r in (first.essential.result, first.essential.base):
             r.data_hash = first.data_hash
     first.settings["v_s_choice"] = (f"auto, not searched: DIDIM did not converge at the "

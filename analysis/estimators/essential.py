@@ -21,7 +21,7 @@ from dynid.analysis.results import IdentificationResult, ParameterResults
 from dynid.errors import InputError
 from dynid.provenance import json_safe
 
-__all__ = ["essential_parameters", "EssentialResult"]
+__all__ = ["essential_parameters", "EssentialResult", "with_base_covariance"]
 
 _PATH_COLUMNS = ["step", "removed", "rel_std_removed", "max_rel_std_remaining", "rel_error", "n_remaining"]
 
@@ -276,6 +276,24 @@ def _with_selection_bias(res, base, cols):
     cov = base.cov[np.ix_(cols, cols)] + np.outer(d, d)
     return replace(res, cov=cov, settings=settings,
                                notices=list(res.notices) + [note])
+
+
+def with_base_covariance(ess: EssentialResult, base: IdentificationResult) -> EssentialResult:
+    """`ess` with the covariance of `base`, a fit of the same full base model on the same rows
+    with another covariance (a robust one, or one with the controller gains' share).
+
+    The essential set and estimate do not change: `ess.base` becomes `base`, and the
+    essential estimate's covariance is `base`'s for the same parameters plus the bias of
+    removing the others (`_with_selection_bias`), the rule `essential_parameters` applies
+    for the robust options. DIDIM uses it, whose full model's covariance comes from its
+    last Gauss-Newton step.
+    """
+    cols = [list(base.names).index(n) for n in ess.essential]
+    least_squares = {**ess.result.settings.get("least_squares", {}),
+                     "uncertainty": dict(base.settings.get("least_squares", {}).get("uncertainty", {}))}
+    own = replace(ess.result, settings={**ess.result.settings, "least_squares": least_squares},
+                  notices=list(ess.result.notices) + [n for n in base.notices if n not in ess.result.notices])
+    return replace(ess, base=base, result=_with_selection_bias(own, base, cols))
 
 
 def _essential_samples(W3, tau, names, estimator, crit, estimator_kwargs):

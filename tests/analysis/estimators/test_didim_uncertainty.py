@@ -83,3 +83,28 @@ def test_gains_covariance_is_propagated(run):
     # over 2-8 % of a gain; the estimate's response to the gains is of the size of its noise)
     assert add4.sum() > 2 * add1.sum(), (add4.sum(), add1.sum())
     assert any("controller gains" in n for n in one.notices)
+
+
+def test_reported_essential_parameters_carry_the_chosen_covariance(run):
+    """The essential set DIDIM reports (`params`, `bse`) gets the option's covariance, by the rule of
+    IDIM's essential set: the full model's robust sigma of the same parameters with the removal bias
+    added; a classic covariance asked for afterwards is still eq. (14)."""
+    robot, bp, exp, classic_run = run
+    res = identify_didim(exp, robot, bp=bp, settings={"v_s": 0.05}, max_iter=4, essential=True,
+                         uncertainty="hac")
+    np.testing.assert_allclose(res.result.chi, classic_run.result.chi, rtol=1e-10, atol=1e-14)
+    ess = res.essential.result
+    cols = [list(res.result.names).index(n) for n in ess.names]
+    d = ess.chi - res.result.chi[cols]
+    expected = res.result.cov[np.ix_(cols, cols)] + np.outer(d, d)
+    np.testing.assert_allclose(res.cov.to_numpy() if hasattr(res.cov, "to_numpy") else res.cov, expected)
+    np.testing.assert_allclose(res.bse.to_numpy(), np.sqrt(np.diag(expected)))
+    assert ess.settings["least_squares"]["uncertainty"]["uncertainty"] == "hac"
+    assert "selection_bias" in ess.settings["least_squares"]["uncertainty"]
+    assert res.essential.base is res.result
+    half = (res.conf_int().iloc[:, 1] - res.conf_int().iloc[:, 0]).to_numpy() / 2
+    np.testing.assert_allclose(half, 1.959963984540054 * res.bse.to_numpy(), rtol=1e-9)
+    # eq. (14) of the last step, not the hac covariance the run reported
+    np.testing.assert_allclose(didim_covariance(res, "classic").cov, classic_run.result.cov, rtol=1e-10)
+    hac_sigma = res.result.bse.to_numpy()
+    assert np.median(hac_sigma / classic_run.result.bse.to_numpy()) > 1.05
