@@ -102,9 +102,10 @@ def identify(data, robot, method: str = "idim", *, settings=None, max_error_grow
         IDIM physical only: constrain the WLS of all base parameters (default) or
         the essential WLS.
     **options
-        Any other field of `dynid.Settings`, named as on the command line: `fc`, `nd`,
-        `decimation_cutoff`, `qd_threshold`, `v_s`, `uncertainty` (`"classic"`, `"hac"`
-        or `"bootstrap"`: the covariance of IDIM's estimates) ...
+        The fields of `dynid.Settings` that identification reads, named as on the command
+        line: `fc`, `nd`, `decimation_cutoff`, `qd_threshold`, `v_s`, `uncertainty`
+        (`"classic"`, `"hac"` or `"bootstrap"`: the covariance of the estimates) and
+        `didim_start` (`"idim"` or `"apriori"`: DIDIM's starting estimate).
 
     Returns
     -------
@@ -130,7 +131,8 @@ def identify(data, robot, method: str = "idim", *, settings=None, max_error_grow
     >>> r = dynid.identify("examples/staubli_tx40/experiment.toml", "tx40")  # doctest: +SKIP
     >>> r.params["ZZ1R"], r.rel_std["ZZ1R"]                                  # doctest: +SKIP
     """
-    allowed = {"fc", "nd", "decimation_cutoff", "qd_threshold", "v_s", "update_gains", "n_boot"}
+    allowed = {"fc", "nd", "decimation_cutoff", "qd_threshold", "v_s", "uncertainty", "didim_start",
+               "update_gains", "n_boot"}
     unknown = sorted(set(options) - allowed)
     if unknown:
         raise TypeError(f"identify() got an unexpected keyword argument {unknown[0]!r}")

@@ -130,3 +130,16 @@ def test_per_joint_intervals_reproduce_the_student_half_width():
     ci = table.conf_int(alpha=1 - table.confidence)
     np.testing.assert_allclose(ci["upper"] - table.params, table.half_width, rtol=1e-12)
     assert math.isclose(table.bse.iloc[0], table.std[0] / math.sqrt(table.n_repetitions - 1))
+
+
+def test_identify_takes_the_covariance_option_as_a_keyword(planar2):
+    """`identify(..., uncertainty=...)` as its docstring says (the same estimate, the asked covariance);
+    a field identification does not read is refused."""
+    robot, exp = planar2
+    hac = dynid.identify(exp, robot, uncertainty="hac")
+    classic = dynid.identify(exp, robot, uncertainty="classic")
+    assert hac.uncertainty == "hac" and classic.uncertainty == "classic"
+    np.testing.assert_array_equal(hac.params.to_numpy(), classic.params.to_numpy())
+    assert not np.allclose(hac.bse.to_numpy(), classic.bse.to_numpy())
+    with pytest.raises(TypeError, match="holdout"):
+        dynid.identify(exp, robot, holdout=2.0)
