@@ -105,9 +105,12 @@ class DecoupledIdentification(ParameterResults):
         return "\n\n".join(parts)
 
     def to_dict(self) -> dict:
+        gravity, friction, inertia = (r.to_dict() for r in self.tables)
+        # the interface's flat list (as every result's "parameters"), each row naming its table
+        params = [{**p, "table": r.table or r.kind} for r, d in zip(self.tables, (gravity, friction, inertia))
+                  for p in d["parameters"]]
         return json_safe({"method": "per-joint identification (Bona & Curatella 2005, section 3)",
-                          "gravity": self.gravity.to_dict(), "friction": self.friction.to_dict(),
-                          "inertia": self.inertia.to_dict(),
+                          "parameters": params, "gravity": gravity, "friction": friction, "inertia": inertia,
                           "validation": None if self.validation is None else self.validation.to_dict(),
                           "elapsed_s": self.elapsed, "versions": versions()})
 

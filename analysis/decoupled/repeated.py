@@ -132,8 +132,15 @@ class RepeatedEstimate(ParameterResults):
         return self[name][0] if name in self.names else default
 
     def to_frame(self) -> pd.DataFrame:
+        """One row per parameter: `value` (the mean), `std` and `rel_std_percent` of that mean
+        (the interface's, as for every result), `spread` (the paper's sigma of the repetitions,
+        1/n) and the Student `half_width`."""
+        se = self.bse.to_numpy()
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rel = 100.0 * se / np.abs(self.mean)
         df = pd.DataFrame({"joint": self.joints, "symbol": self.symbols, "unit": self.units,
-                           "mean": self.mean, "std": self.std, "half_width": self.half_width},
+                           "value": self.mean, "std": se, "rel_std_percent": rel, "spread": self.std,
+                           "half_width": self.half_width},
                           index=pd.Index(self.names, name="parameter"))
         if self.truth is not None:
             df["true"] = self.truth
@@ -144,7 +151,7 @@ class RepeatedEstimate(ParameterResults):
         pct = f"{100 * self.confidence:g} %"
         lines = [f"{self.table or self.kind}: {self.n_repetitions} repetitions, {pct} Student "
                  f"interval, t_gamma = {self.t_gamma:.4f} ({self.n_repetitions - 1} dof)"]
-        columns = [("mean", self.mean, lambda x: f"{x:.5g}"), ("sigma", self.std, lambda x: f"{x:.4g}"),
+        columns = [("mean", self.mean, lambda x: f"{x:.5g}"), ("sigma (1/n)", self.std, lambda x: f"{x:.4g}"),
                    ("t s/sqrt(n-1)", self.half_width, lambda x: f"{x:.4g}")]
         if self.truth is not None:
             columns += [("true", self.truth, lambda x: f"{x:.5g}"),
@@ -161,10 +168,12 @@ class RepeatedEstimate(ParameterResults):
     def to_dict(self) -> dict:
 
         params = []
+        se = self.bse.to_numpy()
         for i, name in enumerate(self.names):
             d = {"name": name, "joint": self.joints[i], "symbol": self.symbols[i], "unit": self.units[i],
-                 "value": self.mean[i], "std": self.std[i],
-                 "rel_std_percent": 100 * self.std[i] / abs(self.mean[i]) if self.mean[i] else None,
+                 "value": self.mean[i], "std": se[i],
+                 "rel_std_percent": 100 * se[i] / abs(self.mean[i]) if self.mean[i] else None,
+                 "spread": self.std[i],
                  "half_width": self.half_width[i], "lower": self.lower[i], "upper": self.upper[i]}
             if self.truth is not None:
                 d["true"] = self.truth[i]
@@ -172,6 +181,8 @@ class RepeatedEstimate(ParameterResults):
             params.append(d)
         return json_safe({"kind": self.kind, "table": self.table, "n_repetitions": self.n_repetitions,
                           "confidence": self.confidence, "t_gamma": self.t_gamma,
-                          "std_definition": "1/n", "half_width_definition": "t_gamma * std / sqrt(n - 1)",
+                          "std_definition": "standard error of the mean: spread / sqrt(n - 1)",
+                          "spread_definition": "standard deviation of the repetitions (1/n), the paper's sigma",
+                          "half_width_definition": "t_gamma * spread / sqrt(n - 1)",
                           "parameters": params, "estimates": self.estimates, "settings": self.settings,
                           "notices": self.notices})

@@ -99,6 +99,15 @@ def test_half_width_is_the_student_interval_of_the_mean():
     assert math.isclose(r.std[0], x.std(ddof=0))
     assert math.isclose(r.lower[0], lo, rel_tol=1e-12) and math.isclose(r.upper[0], hi, rel_tol=1e-12)
     assert math.isclose(r.t_gamma, stats.t.ppf(0.9995, 24))
+    # JSON and CSV: `std` is the sigma of the estimate (the mean), as for every result; the
+    # paper's sigma of the repetitions is `spread`
+    rec = r.to_dict()["parameters"][0]
+    assert math.isclose(rec["std"], stats.sem(x[:, 0]), rel_tol=1e-12)
+    assert math.isclose(rec["spread"], x.std(ddof=0), rel_tol=1e-12)
+    assert math.isclose(rec["rel_std_percent"], 100 * stats.sem(x[:, 0]) / abs(x.mean()), rel_tol=1e-12)
+    row = r.to_frame().loc["a"]
+    assert math.isclose(row["value"], x.mean()) and math.isclose(row["std"], r["a"].std, rel_tol=1e-12)
+    assert math.isclose(row["spread"], x.std(ddof=0), rel_tol=1e-12)
 
 
 def test_simulator_matches_exact_zero_order_hold_of_the_linear_joint():
