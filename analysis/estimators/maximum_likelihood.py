@@ -243,6 +243,9 @@ class MLResult(ParameterResults):
     rms_tau: np.ndarray
     elapsed: float
     model: str = ""
+    #: ||tau - tau_model(latent trajectory)|| / ||tau|| on the torque equations kept (the
+    #: relative error norm every identification result reports)
+    rel_error: float = float("nan")
     settings: dict = field(default_factory=dict)
     notices: list = field(default_factory=list)
     data_hash: str = ""
@@ -306,7 +309,7 @@ class MLResult(ParameterResults):
             "neg_log_likelihood": self.nll, "converged": self.converged,
             "n_evaluations": self.n_evaluations, "n_samples": self.n_samples,
             "rms_q_residual": self.rms_q, "rms_tau_residual": self.rms_tau,
-            "elapsed_s": self.elapsed,
+            "rel_error": self.rel_error, "elapsed_s": self.elapsed,
             "versions": versions(), "data_hash": self.data_hash, "notices": self.notices,
         })
 
@@ -532,7 +535,8 @@ def maximum_likelihood(t, q, tau, model, *, f0, n_harmonics=None, sigma_q=None, 
                     sigma_tau_given=given, n_harmonics=K, f0=f0, coefficients=C, nll=nll,
                     converged=bool(sol.status > 0), n_evaluations=n_eval, n_samples=N, n_joints=n,
                     rms_q=np.sqrt(np.mean(rq ** 2, axis=0)), rms_tau=np.sqrt(np.sum(rt ** 2, axis=0) / n_tau),
-                    elapsed=time.perf_counter() - t0, model=model.description, settings=cfg,
+                    elapsed=time.perf_counter() - t0, model=model.description,
+                    rel_error=float(np.linalg.norm(rt) / np.linalg.norm(keep * tau)), settings=cfg,
                     notices=notices, data_hash=data_hash(t, q, tau))
 
 

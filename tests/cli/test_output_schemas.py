@@ -115,9 +115,10 @@ def test_identify_json_to_stdout(folder):
     assert doc["validation"]["all_samples"]["rel_error"] == doc["validation"]["rel_error"]
 
 
-@pytest.mark.parametrize("method", ["didim", "projection"])
-def test_identify_json_of_the_other_methods(folder, method):
-    run(folder, "identify", "p2.csv", "--robot", "planar2", "--method", method, "--json", f"{method}.json")
+@pytest.mark.parametrize("method, extra", [("didim", ()), ("projection", ()),
+                                           ("ml", ("--f0", "0.2", "--ml-harmonics", "3"))])
+def test_identify_json_of_the_other_methods(folder, method, extra):
+    run(folder, "identify", "p2.csv", "--robot", "planar2", "--method", method, *extra, "--json", f"{method}.json")
     check("identify", load(folder / f"{method}.json"))
 
 
