@@ -106,7 +106,7 @@ import numpy as np
 
 from dynid.errors import InputError
 from dynid.outputs import atomic_write_text
-from dynid.provenance import json_safe
+from dynid.provenance import dumps_json, json_safe
 from dynid.ranges import check_range
 
 from .base_parameters import base_parameters
@@ -206,16 +206,36 @@ class ExcitationResult:
         t = np.arange(m) / fs
         return self.trajectory.to_frame(t)
 
-    def to_csv(self, path, fs, n_periods=1):
-        """Write `to_frame` to `path` atomically (full precision).
+    def to_csv(self, path=None, fs=None, n_periods=1) -> str:
+        """`to_frame(fs, n_periods)` as CSV (full precision), written atomically to `path` when
+        given (all or nothing). `fs` (Hz), the controller rate the reference is written at, is
+        required.
 
         Returns
         -------
-        None
-            The file is written whole or not at all.
+        str
+            The CSV text.
         """
-        atomic_write_text(path, self.to_frame(fs, n_periods).to_csv(index=False, lineterminator="\n",
-                                                                    float_format="%.17g"))
+        if fs is None:
+            raise InputError("ExcitationResult.to_csv needs fs, the controller rate in Hz at which the "
+                             "reference is written (for example to_csv(path, fs=5000.0))")
+        text = self.to_frame(fs, n_periods).to_csv(index=False, lineterminator="\n", float_format="%.17g")
+        if path is not None:
+            atomic_write_text(path, text)
+        return text
+
+    def to_json(self, path=None) -> str:
+        """`to_dict` as JSON, written atomically to `path` when given (all or nothing).
+
+        Returns
+        -------
+        str
+            The JSON text.
+        """
+        text = dumps_json(self.to_dict())
+        if path is not None:
+            atomic_write_text(path, text)
+        return text
 
     def to_dict(self):
         tr = self.trajectory

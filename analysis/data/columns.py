@@ -273,7 +273,8 @@ def _robot_joints(robot, n_joints) -> tuple[int | None, str]:
         try:
             n = int(robot.n_joints)
         except (AttributeError, TypeError, ValueError):
-            raise DataError("The robot object has no valid n_joints.") from None
+            raise DataError(f"robot must be a Robot (dynid.load_robot(...)), a bundled robot's name or a "
+                            f"robot file's path; got {type(robot).__name__} {robot!r:.60}.") from None
         name = getattr(robot, "name", "?")
         if n_joints is not None and int(n_joints) != n:
             raise DataError(

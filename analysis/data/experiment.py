@@ -19,7 +19,7 @@ column and the row; non-fatal findings go to `Experiment.notices`.
 
 from __future__ import annotations
 
-from pathlib import Path
+from pathlib import Path, PurePath
 
 from dynid.analysis.data.columns import _from_columns
 from dynid.analysis.data.description import _load_toml
@@ -27,6 +27,7 @@ from dynid.analysis.data.readers import _READERS, _build_checked, _read_data_fil
 from dynid.analysis.data.record import SIGNALS, Experiment
 from dynid.analysis.data.saturation import SATURATION_FRACTION, SATURATION_MIN_RUN, SATURATION_REL_TOL
 from dynid.analysis.data.timebase import GAP_FACTOR, TIME_STEP_TOLERANCE, _Options, estimate_shift
+from dynid.dynamics.robot_file import load_robot
 from dynid.errors import DataError
 
 __all__ = [
@@ -56,7 +57,8 @@ def load_experiment(path, robot=None, *, n_joints: int | None = None) -> Experim
         `.toml` experiment description (schema in docs/formats.md, section
         "Experiment description (TOML)", and `dynid.analysis.data.description`).
     robot:
-        Optional robot; only `n_joints`, `name` and `drive_gains` are used (the
+        Optional robot (a Robot, a bundled robot's name or a robot file's path); only
+        `n_joints`, `name` and `drive_gains` are used (the
         joint count is checked; currents `i*` become torques through the gains).
     n_joints:
         Expected joint count when no robot is given.
@@ -74,6 +76,8 @@ def load_experiment(path, robot=None, *, n_joints: int | None = None) -> Experim
         p = Path(path)
     except TypeError:
         raise DataError(f"load_experiment needs a file path, got {path!r}.") from None
+    if isinstance(robot, (str, PurePath)):      # a bundled name or a robot file, as identify() takes
+        robot = load_robot(robot)
     label = str(path)
     ext = p.suffix.lower()
     if ext == ".toml":

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dynid.analysis.data.experiment import Experiment
+from dynid.analysis.results import Result
 from dynid.dynamics.base_parameters import base_parameters
 from dynid.dynamics.robot_file import load_robot
 from dynid.dynamics.simulation import simulate_closed_loop
@@ -185,9 +186,14 @@ def missing_effects(robot) -> list:
     return out
 
 
-@dataclass(eq=False)
-class SimulatedRecording:
-    """A simulated recording (`experiment`) with what produced it."""
+@dataclass(eq=False, repr=False)
+class SimulatedRecording(Result):
+    """A simulated recording (`experiment`) with what produced it.
+
+    `to_csv(path)` writes the recording in dynid's column format (what `dynid simulate
+    --out` writes, read back by `load_experiment`); `to_json(path)` the settings, the
+    reference and the true parameters (`to_dict`).
+    """
 
     experiment: Experiment
     robot: object
@@ -199,6 +205,40 @@ class SimulatedRecording:
     noise_tau: float
     #: what the simulation leaves out (friction, rotor inertia), in words
     notices: list = field(default_factory=list)
+
+    def summary(self) -> str:
+        e, tr = self.experiment, self.trajectory
+        lines = [f"Simulated {self.robot.name} ({self.robot.n_joints} joints): {self.duration:g} s at "
+                 f"{e.fs:g} Hz ({e.n_samples} samples), seed {self.seed}",
+                 f"  reference: random Fourier series, f0 = {tr.f0:g} Hz, {tr.harmonics} harmonics",
+                 f"  noise: q {self.noise_q:g} rad, tau {self.noise_tau:g} N m (white, standard deviations)",
+                 "  true parameters: the robot file's a-priori values (to_dict()['true_parameters'])"]
+        lines += [f"  notice: {n}" for n in self.notices]
+        return "\n".join(lines)
+
+    def to_frame(self):
+        """The recording as `dynid simulate --out` writes it: t, q1.., qr1.., tau1..
+
+        Returns
+        -------
+        pandas.DataFrame
+        """
+        return self.experiment.to_frame()
+
+    def to_csv(self, path=None) -> str:
+        """The recording in dynid's column format (`dynid simulate --out`), written atomically
+        to `path` when given.
+
+        Returns
+        -------
+        str
+            The CSV text.
+        """
+        from dynid.outputs import atomic_write_text
+        text = self.to_frame().to_csv(index=False, float_format="%.10g", lineterminator="\n")
+        if path is not None:
+            atomic_write_text(path, text)
+        return text
 
     def to_dict(self) -> dict:
         """Settings, reference coefficients and true parameters (JSON-safe).

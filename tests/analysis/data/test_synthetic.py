@@ -23,3 +23,17 @@ def test_fast_simulation_is_the_uniform_one_within_the_integrators_error():
     np.testing.assert_allclose(fast.q - fast.meta["true_q"], slow.q - slow.meta["true_q"], rtol=0, atol=1e-15)
     np.testing.assert_allclose(fast.tau - fast.meta["true_tau"], slow.tau - slow.meta["true_tau"], rtol=0,
                                atol=1e-12)
+
+
+def test_simulated_recording_has_the_results_interface(tmp_path):
+    """summary(), to_json() and to_csv(): the CSV is the recording `load_experiment` reads back."""
+    import json
+
+    import dynid
+    sim = dynid.simulate("planar2", duration=2.0, seed=2)
+    assert "planar2" in sim.summary() and str(sim) == sim.summary()
+    assert json.loads(sim.to_json(tmp_path / "sim.json"))["seed"] == 2
+    sim.to_csv(tmp_path / "sim.csv")
+    back = dynid.load_experiment(tmp_path / "sim.csv", "planar2")
+    np.testing.assert_allclose(back.q, sim.experiment.q, atol=1e-9)
+    np.testing.assert_allclose(back.tau, sim.experiment.tau, rtol=1e-9, atol=1e-9)
