@@ -649,9 +649,11 @@ def assemble(experiment, robot, setup, opts, sel, stage=None):
     `stage`: callable(stage, fraction) reporting progress (`_Progress`), or None."""
     stage = stage or (lambda name, fraction: None)
     state = sel.state
-    model_after = state["fit"]
+    model_after = _reported_fit(setup, state)
     errors, residuals, path, vsource = _errors_and_path(setup, opts, sel)
     cfg = _settings_record(setup, opts)
+    cfg["parameters_uncertainty"] = (model_after.settings.get("least_squares", {}).get("uncertainty", {})
+                                     .get("uncertainty", "classic"))
     test_state, test_fit = _test_model(setup.problem, state)
     structure = None
     stage("structure", 0.0)
@@ -678,16 +680,34 @@ def assemble(experiment, robot, setup, opts, sel, stage=None):
                            ranking=ranking, steps=sel.steps, structure=structure,
                            findings=findings, cut=cut,
                            rest=rest,
-                           selected=_selected_effects(setup, state, sel.selected),
+                           selected=_selected_effects(setup, state, sel.selected, model_after),
                            model_before=setup.model0, model_after=model_after,
                            errors=errors, settings=cfg, idim=setup.idim_result, residuals=residuals,
                            validation_source=vsource, notices=setup.notices, path=path,
                            data_hash=getattr(setup.idim_result, "data_hash", "") or "")
 
 
-def _selected_effects(setup, state, selected):
-    """`SelectedEffect` per added effect, with its parameters in the final model."""
-    problem, model_after = setup.problem, state["fit"]
+def _reported_fit(setup, state):
+    """The final model's fit as reported: the selection's own WLS, with the covariance of the
+    identification it started from (`uncertainty`: the same estimate, the decisions taken on
+    the classic one are unchanged)."""
+    fit = state["fit"]
+    uncertainty = getattr(setup.idim_result, "uncertainty", "classic")
+    if uncertainty == "classic":
+        return fit
+    problem = setup.problem
+    X = problem.design(state["delay"], state["effects"], cols=state["cols"])
+    robust = ls.wls(X, problem.Y, list(fit.names), row_mask=problem.mask, joint_sigma=fit.joint_sigma,
+                    uncertainty=uncertainty)
+    if not np.allclose(robust.chi, fit.chi, rtol=1e-8, atol=1e-12 * max(1.0, float(np.abs(fit.chi).max()))):
+        return fit      # not the same weighted problem: keep the fit the decisions were taken on
+    robust.data_hash = getattr(fit, "data_hash", "")
+    return robust
+
+
+def _selected_effects(setup, state, selected, model_after):
+    """`SelectedEffect` per added effect, with its parameters in the final model (`model_after`)."""
+    problem = setup.problem
     X_after = problem.design(state["delay"], state["effects"], cols=state["cols"])
     out = []
     for cand, step, _ in selected:

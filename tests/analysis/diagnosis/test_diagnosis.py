@@ -346,3 +346,27 @@ def test_nothing_added_means_one_line_not_a_before_after_comparison(short_sim):
     assert "diag-errors-identification" not in html
     stats = [t for t in secs["diagnosis-residuals"].tables if t.key == "diag-residual-stats"]
     assert stats and {row[0].text for row in stats[0].rows} == {"before"}
+
+
+def test_reported_parameters_carry_the_identifications_covariance(short_sim):
+    """The final model's parameters and the added effects' sigmas have the covariance of the
+    identification the diagnosis starts from; the decisions and the estimates do not depend on it."""
+    from dynid.analysis.estimators.idim import identify_idim
+    robot, bp, ident, valid = short_sim
+    c = make_candidate("asymmetric_viscous", 2)
+    q = ident.meta["true_q"]
+    qd = np.gradient(q, 1 / ident.fs, axis=0)
+    sig = EffectSignals(t=ident.t, q=q, qd=qd, qdd=np.gradient(qd, 1 / ident.fs, axis=0))
+    ident = replace(ident, tau=ident.tau + 2.0 * effect_torque(c, sig, [1.0]))
+    runs = {}
+    for u in ("classic", "hac"):
+        idim = identify_idim(ident, robot, bp=bp, uncertainty=u)
+        runs[u] = diagnose(ident, robot, idim_result=idim, max_effects=1, residual_analysis=False)
+    c, h = runs["classic"], runs["hac"]
+    assert [s.name for s in c.selected] == [s.name for s in h.selected] and c.selected
+    np.testing.assert_allclose(h.model_after.chi, c.model_after.chi, rtol=1e-8)
+    np.testing.assert_allclose(h.selected[0].values, c.selected[0].values, rtol=1e-8)
+    assert h.settings["parameters_uncertainty"] == "hac" and c.settings["parameters_uncertainty"] == "classic"
+    assert not np.allclose(h.model_after.bse.to_numpy(), c.model_after.bse.to_numpy())
+    k = [list(h.model_after.names).index(p) for p in h.selected[0].params]
+    np.testing.assert_allclose(h.selected[0].sigma, h.model_after.bse.to_numpy()[k])
