@@ -69,8 +69,8 @@ def identify(data, robot, method: str = "idim", *, settings=None, max_error_grow
     max_iter : int, optional
         DIDIM only: maximum Gauss-Newton iterations.
     gain_update : str, optional
-        DIDIM only: the gain update of eq. (27): `"every"` step (default), the first
-        step only (`"initial"`) or `"none"` (the old keyword `update_gains` still works,
+        DIDIM only: the gain update of eq. (27): the first simulation only (`"initial"`,
+        the default), `"every"` step (the paper's) or `"none"` (the old keyword `update_gains` still works,
         with a DeprecationWarning).
     gains : str
         DIDIM only. `"assumed"`: the controller gains of the robot file, as the

@@ -66,7 +66,11 @@ def run_seed(seed, duration=4.0, gains="identify", options=OPTIONS, essential=Fa
     robot = dg.robot_pid()
     bp = base_parameters(robot)
     beta = ci.truth(robot, bp)
-    g = identify_gains(exp, robot)
+    try:
+        g = identify_gains(exp, robot)
+    except Exception as exc:   # the gains of a seed that cannot be identified: a row of the campaign
+        return {"seed": seed, "gains": gains, "gain_factors": [float(x) for x in f],
+                "error": f"gains: {str(exc).splitlines()[0]}", "seconds": time.time() - t0}
     if gains == "true":
         import dataclasses
         G = rec["gains"]

@@ -394,9 +394,10 @@ def _add_identify_parser(sub, common, full):
                    help=adv("ML: harmonics of the latent trajectory (default: chosen by BIC on q)"))
     a.add_argument("--max-iter", type=int, default=10, metavar="N",
                    help=adv("DIDIM: largest number of Gauss-Newton steps"))
-    a.add_argument("--gain-update", choices=list(GAIN_UPDATE_CHOICES), default="every",
-                   help=adv("DIDIM: scale the simulated derivative gains by J_j/J_ap_j (eq. 27) at every "
-                            "step (as the paper), only for the first simulation (initial), or never"))
+    a.add_argument("--gain-update", choices=list(GAIN_UPDATE_CHOICES), default="initial",
+                   help=adv("DIDIM: scale the simulated derivative gains by J_j/J_ap_j (eq. 27) only for "
+                            "the first simulation (initial, the default), at every step (every, as the "
+                            "paper; it oscillates when the robot file's J_ap is not max M_jj), or never"))
     a.add_argument("--gains", choices=["assumed", "identify"], default="assumed",
                    help=adv("DIDIM: the controller gains of the robot file (assumed, as the paper), or "
                             "identified first from the logged qr, q and tau (the structure, pd or pid, "

@@ -109,3 +109,22 @@ def test_readme_real_data_table_is_what_the_benchmark_computes(tmp_path):
         assert shown[head] == fresh[head], (head, shown[head], fresh[head])
         compared += 1
     assert compared >= 3                          # the TX40 and both LWR4+ splits ship with the project
+
+
+@pytest.mark.slow
+def test_readme_didim_command_converges_on_the_readme_recording(tmp_path):
+    """The Commands block's `dynid simulate --robot tx40 --out run.csv` then `dynid identify run.csv
+    --robot tx40 --method didim`, as written: DIDIM converges (exit 0) on dynid's own recording."""
+    import json
+    import sys
+    text = (ROOT / "README.md").read_text()
+    lines = {ln.split("#")[0].strip() for ln in text.splitlines() if ln.startswith("dynid ")}
+    sim = "dynid simulate --robot tx40 --out run.csv"
+    didim = "dynid identify run.csv --robot tx40 --method didim"
+    assert sim in lines and didim in lines
+    exe = str(Path(sys.executable).parent / "dynid")
+    for cmd in (sim, didim + " --json d.json"):
+        proc = subprocess.run([exe, *cmd.split()[1:], "--quiet"], cwd=tmp_path, capture_output=True, text=True,
+                              timeout=600)
+        assert proc.returncode == 0, (cmd, proc.stderr[-2000:])
+    assert json.loads((tmp_path / "d.json").read_text())["converged"] is True
