@@ -159,8 +159,15 @@ def agreement_verdict(a: dict) -> str:
     if not a["pairs"]:
         return (f"Agreement across {a['k']} {what}: no parameter has %sigma <= {a['rel_max']:g} % in two "
                 f"{what}; nothing to compare.")
-    ok = a["within_95"] >= 0.9 and a["p_value"] >= 0.01
-    head = "agree within their intervals" if ok else "do NOT agree within their intervals"
+    pairs_ok, joint_ok = a["within_95"] >= 0.9, a["p_value"] >= 0.01
+    ok = pairs_ok and joint_ok
+    # say which test decided: the pairs one at a time, or all the parameters together (the chi2
+    # test sees small shifts the pairwise intervals hold one by one)
+    head = ("agree within their intervals" if ok else
+            "agree pair by pair but NOT all together (the chi2 test rejects equal parameters)" if pairs_ok else
+            "do NOT agree within their intervals (too few pairwise differences inside them)" if joint_ok else
+            "do NOT agree within their intervals (too few pairwise differences inside them, and the chi2 "
+            "test rejects equal parameters)")
     tail = ("" if ok else "; the intervals of one recording are optimistic: model error differs between "
             f"{what} (use the pooled estimate and its between-{what[:-1]} spread)")
     return (f"The {a['k']} {what} {head}: {100 * a['within_95']:.0f} % of {a['pairs']} pairwise differences "

@@ -156,6 +156,12 @@ def test_equality_test_and_random_effects():
     assert "do NOT agree" in line and "chi2" in line
     b = ag.agreement(same, sig, [np.diag(s**2) for s in sig], ["a", "b", "c"])
     assert "agree within" in ag.agreement_verdict(b) or b["within_95"] < 0.9
+    # the line says which test decided when only one of them fails
+    both = dict(a, within_95=0.95, p_value=1e-6)
+    assert "pair by pair but NOT all together" in ag.agreement_verdict(both)
+    pairs = dict(a, within_95=0.5, p_value=0.5)
+    assert "too few pairwise differences" in ag.agreement_verdict(pairs) and "rejects" not in \
+        ag.agreement_verdict(pairs).split(":")[0]
 
 
 def test_recording_agreement_segments_and_recordings():
