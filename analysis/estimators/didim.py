@@ -337,7 +337,8 @@ class DIDIMResult(ModelResults):
                  "", "Gauss-Newton steps:"]
         cols = [c for c in ("iteration", "v_s", "rho_norm", "rel_change", "output_error", "rel_error",
                             "max_rel_param_change", "max_change_sigma") if c in h]
-        lines.append(h[cols].to_string(index=False, float_format=lambda x: f"{x:.5g}"))
+        # a step with no previous one to compare has no relative change: a dash, as in the report
+        lines.append(h[cols].to_string(index=False, na_rep="—", float_format=lambda x: f"{x:.5g}"))
         lines.append("")
         lines.append(self.model.summary(notices=False))
         if self.physical is not None:

@@ -104,6 +104,7 @@ def test_every_result_has_the_shared_interface(result, tmp_path):
     assert isinstance(frame, pd.DataFrame) and list(frame.index) == names
     text = result.summary()
     assert isinstance(text, str) and len(text) > 50 and str(result) == text
+    assert "NaN" not in text and " nan " not in text        # a missing value prints as a dash
     doc = result.to_dict()
     assert isinstance(doc, dict)
     json.dumps(doc, allow_nan=False)
