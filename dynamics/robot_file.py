@@ -51,6 +51,7 @@ The fields, their units and ranges are the tables `JOINT_FIELDS` and
 """
 from __future__ import annotations
 
+import math
 import re
 import tomllib
 from importlib import resources
@@ -402,13 +403,39 @@ def _apply_apriori(robot, doc, apriori, path):
     for key, v in given.items():
         _apriori_bounds(key, v, key in standard, path)
     apriori.update(given)
+    _centres_of_mass(apriori, robot, path)
     robot.apriori = apriori
 
 
 _NONNEGATIVE = {"M": MAX_MASS, "XX": MAX_INERTIA, "YY": MAX_INERTIA, "ZZ": MAX_INERTIA,
                 "Ia": MAX_INERTIA}
 _SIGNED = {"XY": MAX_INERTIA, "XZ": MAX_INERTIA, "YZ": MAX_INERTIA}
+#: viscous and Coulomb friction (of a joint or a coupled motor) dissipate: not negative
+_FRICTION = {"Fv": "N m s/rad", "Fc": "N m", "Fvm": "N m s/rad", "Fcm": "N m"}
 _UNITS = {"M": "kg"}
+
+
+def _centres_of_mass(apriori, robot, path):
+    """A link's centre of mass (first moment / mass, where the mass is positive) within twice the
+    robot's reach (the joints' offsets and prismatic travel) plus 1 m of its frame: far more than
+    any link of the robot can hold, so a value beyond is a wrong number or unit."""
+    reach = 0.0
+    for jt in robot.joints:
+        reach += float(np.linalg.norm(jt.p))
+        if jt.sigma == 1:
+            lo, hi = jt.q_limits
+            reach += max(abs(lo), abs(hi)) if np.isfinite(lo) and np.isfinite(hi) else MAX_LENGTH
+    bound = 2.0 * reach + 1.0
+    for j in range(1, robot.n_joints + 1):
+        m = apriori.get(f"M{j}")
+        ms = [apriori.get(f"{k}{j}", 0.0) for k in ("MX", "MY", "MZ")]
+        if m is None or not m > 0 or math.hypot(*ms) <= bound * m:
+            continue
+        raise RobotFileError(f"{path}: apriori.values put link {j}'s centre of mass {math.hypot(*ms) / m:.3g} m "
+                             f"from its frame (MX{j}, MY{j}, MZ{j} = {', '.join(f'{x:g}' for x in ms)} kg m, "
+                             f"M{j} = {m:g} kg), beyond the {bound:.3g} m this robot can hold (twice its reach "
+                             f"plus 1 m); the first moments are mass times the centre's position: check the "
+                             f"numbers and their units")
 
 
 def _apriori_bounds(key, v, is_standard, path):
@@ -420,6 +447,9 @@ def _apriori_bounds(key, v, is_standard, path):
         what = "a mass" if prefix == "M" else "an inertia about an axis"
         raise RobotFileError(f"{path}: {where} = {v:g}{unit} is negative; {what} must not be "
                              f"negative: fix it")
+    if prefix in _FRICTION and v < 0:
+        raise RobotFileError(f"{path}: {where} = {v:g} {_FRICTION[prefix]} is negative; a friction "
+                             f"coefficient dissipates and must not be negative: fix it (a torque offset is Off)")
     bound = _NONNEGATIVE.get(prefix) or _SIGNED.get(prefix) or MAX_APRIORI
     if abs(v) > bound:
         raise RobotFileError(f"{path}: {where} = {v:g}{unit} is beyond the {bound:g}{unit} dynid "

@@ -493,3 +493,20 @@ def test_finite_limits_beyond_any_robot_are_refused(key, value, fields):
     robot = robot_from_dict(_joint_edit(0, tau_max=math.inf, qd_max=math.inf, q_limits=[-math.inf, math.inf]),
                             "ok.toml")
     assert robot.joints[0].tau_max == math.inf and robot.joints[0].q_limits == (-math.inf, math.inf)
+
+
+def test_negative_friction_and_a_far_centre_of_mass_are_refused():
+    """Viscous and Coulomb friction dissipate; a link's centre of mass beyond twice the robot's reach
+    plus 1 m is a wrong number or unit (MX1 = 100 kg m for a 2 kg link: 50 m)."""
+    base = tomllib.loads(bundled_path("planar2").read_text())
+    for edit, words in ((("Fv1", -0.5), ["apriori.values.Fv1", "negative", "friction"]),
+                        (("Fc2", -0.5), ["apriori.values.Fc2", "negative"]),
+                        (("MX1", 100.0), ["link 1", "50 m", "MX1", "M1 = 2 kg"])):
+        doc = copy.deepcopy(base)
+        doc["apriori"]["values"][edit[0]] = edit[1]
+        with pytest.raises(RobotFileError) as err:
+            robot_from_dict(doc, "p2.toml")
+        assert all(w in str(err.value) for w in words) and "p2.toml" in str(err.value), str(err.value)
+    doc = copy.deepcopy(base)
+    doc["apriori"]["values"]["MX1"] = 2.0                      # 1 m from the frame: within the rod
+    robot_from_dict(doc, "p2.toml")
