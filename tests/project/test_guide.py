@@ -41,31 +41,9 @@ def sh_blocks(text=None):
     return re.findall(r"```sh\n(.*?)\n```", GUIDE.read_text() if text is None else text, flags=re.S)
 
 
-# The own-robot recipe starts from the user's URDF: a 3-joint arm with a camera on a moving
-# mount beside joint 2, so the tree branches and --base/--tip must pick the chain. Written by
-# the test (no bundled robot); the robot TOML is the guide's own ```toml block.
-ARM_URDF = """<?xml version="1.0"?>
-<robot name="arm3">
-  <link name="base_link"/>
-  <link name="link1"><inertial><origin xyz="0 0 0.15"/><mass value="4.0"/>
-    <inertia ixx="0.05" ixy="0" ixz="0" iyy="0.05" iyz="0" izz="0.01"/></inertial></link>
-  <link name="link2"><inertial><origin xyz="0.2 0 0"/><mass value="3.0"/>
-    <inertia ixx="0.005" ixy="0" ixz="0" iyy="0.04" iyz="0" izz="0.04"/></inertial></link>
-  <link name="link3"><inertial><origin xyz="0.15 0 0"/><mass value="1.5"/>
-    <inertia ixx="0.002" ixy="0" ixz="0" iyy="0.015" iyz="0" izz="0.015"/></inertial></link>
-  <link name="camera"><inertial><origin xyz="0 0 0"/><mass value="0.3"/>
-    <inertia ixx="0.0003" ixy="0" ixz="0" iyy="0.0003" iyz="0" izz="0.0003"/></inertial></link>
-  <joint name="j1" type="revolute"><parent link="base_link"/><child link="link1"/>
-    <origin xyz="0 0 0.1"/><axis xyz="0 0 1"/><limit lower="-3.0" upper="3.0" velocity="3.0" effort="80"/></joint>
-  <joint name="j2" type="revolute"><parent link="link1"/><child link="link2"/>
-    <origin xyz="0 0 0.3" rpy="1.5708 0 0"/><axis xyz="0 0 1"/>
-    <limit lower="-2.5" upper="2.5" velocity="3.0" effort="80"/></joint>
-  <joint name="j3" type="revolute"><parent link="link2"/><child link="link3"/>
-    <origin xyz="0.4 0 0"/><axis xyz="0 0 1"/><limit lower="-2.5" upper="2.5" velocity="3.0" effort="40"/></joint>
-  <joint name="camera_mount" type="revolute"><parent link="link1"/><child link="camera"/>
-    <origin xyz="0.05 0 0.2"/><axis xyz="0 1 0"/><limit lower="-1" upper="1" velocity="1" effort="1"/></joint>
-</robot>
-"""
+# The own-robot recipe starts from the user's URDF (examples/own_robot/arm.urdf, which the
+# guide copies): a 3-joint arm with a camera on a moving mount beside joint 2, so the tree
+# branches and --base/--tip must pick the chain; the robot TOML is the guide's ```toml block.
 OWN_ROBOT = "### Your own robot"
 
 
@@ -76,8 +54,7 @@ def own_robot_section():
 
 
 def write_own_robot_files(folder):
-    """The user's URDF, and the robot TOML as the guide gives it."""
-    (folder / "arm.urdf").write_text(ARM_URDF)
+    """The robot TOML as the guide gives it (the guide's first block copies the URDF)."""
     toml_blocks = re.findall(r"```toml\n(.*?)\n```", own_robot_section(), flags=re.S)
     assert len(toml_blocks) == 1
     (folder / "arm3.toml").write_text(toml_blocks[0] + "\n")
