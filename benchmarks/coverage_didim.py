@@ -68,6 +68,7 @@ def run_seed(seed, duration=4.0, gains="identify", options=OPTIONS, essential=Fa
     beta = ci.truth(robot, bp)
     try:
         g = identify_gains(exp, robot)
+        g.controller(robot)    # refused when an identified gain is not positive
     except Exception as exc:   # the gains of a seed that cannot be identified: a row of the campaign
         return {"seed": seed, "gains": gains, "gain_factors": [float(x) for x in f],
                 "error": f"gains: {str(exc).splitlines()[0]}", "seconds": time.time() - t0}

@@ -55,6 +55,10 @@ def export_step(ident: Identification, say=None) -> Identification:
     export = export_urdf(ident.result, ident.robot, physical=ident.physical, effects=ident.effects)
     say(f"URDF: {'consistent' if export.consistent else 'NOT consistent'}; "
         f"{'reproduces the identified values' if export.reproduces else 'does not reproduce the identified values (details in --report / --json)'}")
+    # how the set was found, when not by the global SDP: the user must see it, not only the JSON
+    for note in getattr(export.standard_set, "notices", []):
+        if "instead of the SDP" in note or "stopped after" in note:
+            say(f"URDF: {note}")
     if export.springs:
         say("MJCF: with the springs of --effects as joint stiffness: "
             + ", ".join(f"Ks{j} = {k:.4g}" for j, k in export.springs.items()))

@@ -39,8 +39,9 @@ def require_cvxpy():
     try:
         import cvxpy as cp  # optional (the physical extra)
     except ImportError:
-        raise InputError('physically consistent identification (--physical, --urdf, --mjcf) needs '
-                         'the optional packages cvxpy and clarabel: pip install "dynid[physical]"') from None
+        raise InputError('the physically consistent fit (--physical) and the global search of --urdf / '
+                         '--mjcf need the optional packages cvxpy and clarabel (without them --urdf uses '
+                         'a local search): pip install "dynid[physical]"') from None
     if "CLARABEL" not in cp.installed_solvers():
         raise InputError('cvxpy is installed without the Clarabel solver: pip install "dynid[physical]" '
                          '(or pip install clarabel)')

@@ -57,6 +57,15 @@ def test_physical_without_cvxpy_says_how_to_install(planar2_csv, monkeypatch, ca
     assert 'pip install "dynid[physical]"' in capsys.readouterr().err
 
 
+def test_urdf_without_cvxpy_says_it_used_the_local_search(planar2_csv, tmp_path, monkeypatch, capsys):
+    """--urdf runs without the physical extra, and the terminal says how its set was found."""
+    monkeypatch.setitem(sys.modules, "cvxpy", None)
+    assert main(["identify", str(planar2_csv), "--robot", "planar2", "--urdf", str(tmp_path / "p.urdf")]) == 0
+    err = capsys.readouterr().err
+    assert "URDF: " in err and "local log-Cholesky search was used instead of the SDP" in err
+    assert "global search of --urdf" in err and (tmp_path / "p.urdf").exists()
+
+
 def _pseudo_inertia_min_eig(std, link):
     """Smallest eigenvalue of link's pseudo-inertia [[tr(I)/2 - I, h], [h^T, m]] from the JSON's
     standard parameters (Wensing, Kim & Slotine 2017, eq. (7)), computed here, not by dynid."""
