@@ -528,8 +528,10 @@ def check_run(settings: Settings, robot=None):
                                        ("gravity-tilt", settings.gravity_tilt))
                  if v is not None and v is not False]
         if given:
-            raise InputError(f"{', '.join(given)} work with --method idim only, not with --method "
-                             f"{settings.method}; run the IDIM identification for them")
+            raise InputError(f"{', '.join(given)} work{'s' if len(given) == 1 else ''} with --method idim only, "
+                             f"not with --method "
+                             f"{settings.method}; run the IDIM identification for "
+                             f"{'it' if len(given) == 1 else 'them'}")
     check_identify(settings)
     if settings.v_s is not None and settings.method != "didim":
         raise InputError(f"--v-s is the simulated Coulomb friction's sign width of DIDIM; it does not "

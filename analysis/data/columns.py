@@ -623,9 +623,13 @@ def _joint_columns(raw: _RawFile, present: dict, robot, n_joints) -> int | None:
     expected, who = _robot_joints(robot, n_joints)
     if expected is not None and n is not None and n != expected:
         first = next(iter(present))
+        missing = f"{n + 1}" if n + 1 == expected else f"{n + 1}..{expected}"
+        fix = ("remove the extra columns" if n > expected else
+               f"add the columns of joint{'' if n + 1 == expected else 's'} {missing} to every signal "
+               f"({', '.join(f'{stem}{missing}' for stem in present)})")
         raise DataError(
             f"{who} but {raw.label} has {_span(first, present[first])}. Load the data with "
-            "the robot it was recorded on, or remove the extra columns."
+            f"the robot it was recorded on, or {fix}."
         )
     return n
 

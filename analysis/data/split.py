@@ -9,6 +9,11 @@ import numpy as np
 from dynid.errors import InputError
 
 
+#: fewest samples either side of a hold-out split keeps (the filters and the decimation need
+#: some; far fewer would say nothing either way)
+MIN_PART_SAMPLES = 64
+
+
 def holdout_split(experiment, seconds: float):
     """`(identification, held_out)`: the last `seconds` of `experiment` are held out.
 
@@ -33,6 +38,14 @@ def holdout_split(experiment, seconds: float):
     if not experiment.t[0] < t_split:
         raise InputError(f"holdout {seconds:g} s is longer than the recording {experiment.source} "
                          f"({experiment.duration:.3g} s): hold out less")
+    n_held = int(np.count_nonzero(experiment.t >= t_split))
+    n_ident = experiment.t.size - n_held
+    if min(n_ident, n_held) < MIN_PART_SAMPLES:
+        short, fix = (("identification part", "hold out less") if n_ident < n_held else
+                      ("held-out part", "hold out more"))
+        raise InputError(f"holdout {seconds:g} s of the {experiment.duration:.3g} s recording {experiment.source} "
+                         f"leaves {min(n_ident, n_held)} samples in the {short} (at least {MIN_PART_SAMPLES} "
+                         f"are needed): {fix}")
     return experiment.segment(None, t_split), experiment.segment(t_split, None)
 
 

@@ -286,7 +286,10 @@ def test_joint_gap(tmp_path):
 def test_joint_count_differs_from_robot(tmp_path):
     p = csv_of(frame(n=7, N=10), tmp_path, "file.csv")
     msg = err(p, robot=robot(6, "tx40"))
-    assert f"robot 'tx40' has 6 joints but {p} has q1..q7" in msg
+    assert f"robot 'tx40' has 6 joints but {p} has q1..q7" in msg and "remove the extra columns" in msg
+    p = csv_of(frame(n=4, N=10), tmp_path, "short.csv")
+    msg = err(p, robot=robot(6, "tx40"))
+    assert "has q1..q4" in msg and "add the columns of joints 5..6" in msg and "tau5..6" in msg
 
 
 def test_joint_count_differs_from_n_joints(tmp_path):

@@ -114,3 +114,14 @@ def test_processed_blocks_hold_the_samples_of_their_span():
         assert f.span[0] - half <= ts[0] and ts[-1] < f.span[1] + half
         assert abs(len(ts) - np.sum((whole >= f.span[0] - half) & (whole < f.span[1] - half))) <= 1
     assert np.all(np.diff(np.concatenate(scored)) > 0)
+
+
+def test_holdout_that_leaves_too_few_samples_says_which_part_and_what_to_do():
+    from dynid.analysis.data.split import MIN_PART_SAMPLES, holdout_split
+    exp = indexed(1000)                                      # 10 s at 100 Hz
+    ident, held = holdout_split(exp, 2.0)
+    assert ident.n_samples + held.n_samples == 1000 and held.n_samples >= MIN_PART_SAMPLES
+    with pytest.raises(InputError, match="identification part .*hold out less"):
+        holdout_split(exp, 9.95)
+    with pytest.raises(InputError, match="held-out part .*hold out more"):
+        holdout_split(exp, 0.05)
