@@ -8,7 +8,6 @@ import numpy as np
 
 from dynid.errors import InputError
 
-
 #: fewest samples either side of a hold-out split keeps (the filters and the decimation need
 #: some; far fewer would say nothing either way)
 MIN_PART_SAMPLES = 64
