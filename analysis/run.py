@@ -153,7 +153,13 @@ class Settings:
         check_settings(self)
 
     def processing(self) -> dict | None:
-        """The observation's settings (fc_position, nd, f_decimation_cutoff, qd_threshold, v_s)."""
+        """The observation's settings (fc_position, nd, f_decimation_cutoff, qd_threshold, v_s).
+
+        Returns
+        -------
+        dict or None
+            The processing overrides by the observation's names; None when none is set.
+        """
         s = dict(self.processing_overrides or {})
         for name, key in (("fc", "fc_position"), ("nd", "nd"), ("decimation_cutoff", "f_decimation_cutoff")):
             if getattr(self, name) is not None:
@@ -677,7 +683,13 @@ class Identification(Result):
         return doc
 
     def summaries(self) -> list:
-        """The printed parts, the verdict first, then one Notices block for all of them."""
+        """The printed parts, the verdict first, then one Notices block for all of them.
+
+        Returns
+        -------
+        list of str
+            The summaries in print order.
+        """
         gains = getattr(self.result, "gains", None)
         with gathered_notices() as remarks:
             validation = self.validation.summary() if self.validation is not None else None

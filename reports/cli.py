@@ -293,6 +293,29 @@ def _leave(code):
     os._exit(code)
 
 
+def _progress_log(quiet):
+    """Off a terminal (stderr redirected to a log, a batch job), the progress records of long
+    steps (`dynid.progress`: one per 10 s) go to stderr, so a run is not silent for minutes;
+    on a terminal the bars show it. Returns the function that detaches the handler, or None."""
+    import logging
+
+    from dynid.progress import LOGGER
+    if quiet or sys.stderr.isatty() or LOGGER.handlers or logging.getLogger().handlers:
+        return None
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("progress: %(message)s"))
+    level, propagate = LOGGER.level, LOGGER.propagate
+    LOGGER.addHandler(handler)
+    LOGGER.setLevel(logging.INFO)
+    LOGGER.propagate = False
+
+    def detach():
+        LOGGER.removeHandler(handler)
+        LOGGER.setLevel(level)
+        LOGGER.propagate = propagate
+    return detach
+
+
 def main(argv=None):
     parser = build_parser()
     try:
@@ -310,6 +333,7 @@ def main(argv=None):
         return EXIT_INPUT
     signal.signal(signal.SIGTERM, _terminate)
     say = Reporter(quiet=args.quiet)
+    progress_log = _progress_log(args.quiet)
     try:
         check_output_paths(args)
         # tall-thin problems: a 2nd BLAS thread only spins (dynid.threads); fresh large arrays
@@ -339,6 +363,9 @@ def main(argv=None):
         print(clean_text(f"dynid {args.command}: internal error ({type(exc).__name__}: {exc}). This is a "
                          f"bug in dynid; rerun with --debug and report the traceback."), file=sys.stderr)
         return EXIT_BUG
+    finally:
+        if progress_log is not None:
+            progress_log()
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -416,3 +416,18 @@ def test_resample_identifies_a_log_with_irregular_time_steps(tmp_path, capsys):
     assert "held out: the last 1 s" in out and out.index("Verdict") < out.index("IDIM identification")
     doc = json.loads(js.read_text())
     assert "resampled" in doc["source"] and any("resampled" in n for n in doc["notices"])
+
+
+def test_off_a_terminal_long_steps_log_their_progress(tmp_path):
+    """stderr redirected (a log, a batch job): a step longer than a second says it is alive
+    ("progress: ..."); --quiet says nothing."""
+    exe = str(Path(sys.executable).parent / "dynid")
+    if not Path(exe).exists():
+        pytest.skip("no dynid console script beside this interpreter")
+    # 8 s of the TX40 at 5 kHz: several seconds of simulation, well beyond the one-second delay
+    args = [exe, "simulate", "--robot", "tx40", "--out", str(tmp_path / "s.csv"), "--duration"]
+    run = subprocess.run(args + ["8"], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    assert "progress: closed-loop simulation (8 s):" in run.stderr and "done after" in run.stderr
+    quiet = subprocess.run(args + ["2", "--quiet"], capture_output=True, text=True, timeout=300)
+    assert quiet.returncode == 0 and "progress" not in quiet.stderr
