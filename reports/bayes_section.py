@@ -26,6 +26,7 @@ from markupsafe import Markup
 from matplotlib.figure import Figure
 from scipy import stats
 
+from dynid.analysis.units import parameter_unit
 from dynid.reports import figures as F
 from dynid.reports import tables as T
 from dynid.reports.html import Section, join, kv_list, para
@@ -249,6 +250,7 @@ def tau_history_figure(result, *, key="fig-posterior-tau", caption=None):
 def posterior_table(result, *, key="tab-posterior", caption=None):
     """Posterior mean, median, std, 95 % and 99.9 % intervals beside the LS value and %σ."""
     df = pd.DataFrame({
+        "unit": [parameter_unit(n) or "-" for n in result.names],
         "ls_value": result.ls_value, "ls_rel_std_percent": result.ls_rel_std,
         "mean": result.mean, "median": result.median, "std": result.std,
         "post_rel_std_percent": result.rel_std,
@@ -264,7 +266,7 @@ def posterior_table(result, *, key="tab-posterior", caption=None):
         labels["truth"] = "true value"
     csv = result.to_frame()
     return T.make_table(df, key, caption or "Posterior summaries beside the LS estimate",
-                        labels=labels, csv_frame=csv,
+                        labels=labels, csv_frame=csv, formats={"unit": "text"},
                         note=("%\u03c3 (post.) = 100 std / |mean|; intervals are equal-tailed "
                               "credible intervals from the kept draws."
                               + ("" if result.converged else " NOT CONVERGED: these numbers are not "

@@ -340,10 +340,13 @@ def _model_section(robot, res):
                       "qd_max": float(j.qd_max), "tau_max": float(j.tau_max),
                       "drive_gain": float(j.drive_gain)})
     jdf = pd.DataFrame(jrows).set_index("j")
+    prismatic = any(j.sigma == 1 for j in robot.joints)
     tables.append(T.make_table(jdf, "tab-joints", "Joints and limits",
                                formats={"joint": "text", "type": "text"},
-                               labels={"q_min": "q min", "q_max": "q max", "qd_max": "qd max",
-                                       "tau_max": "\u03c4 max", "drive_gain": "drive gain"}))
+                               labels={"q_min": "q min [rad]", "q_max": "q max [rad]", "qd_max": "qd max [rad/s]",
+                                       "tau_max": "\u03c4 max [N m]",
+                                       "drive_gain": "drive gain [N m per unit of the logged signal]"},
+                               note="A prismatic joint's limits are in m, m/s and N." if prismatic else ""))
     prov = dict(getattr(robot, "provenance", {}) or {})
     if prov:
         pdf = pd.DataFrame({"what": list(prov), "source": [str(v) for v in prov.values()]}).set_index("what")
@@ -427,13 +430,14 @@ def _path_section(res):
                                   base_max_rel_std=_max_finite(ess.base.rel_std.to_numpy()),
                                   error_limit=limit, key="fig-essential-path")
     path = ess.path.set_index("step")
-    tab = T.make_table(path, "tab-essential-path", "Elimination path",
+    shown = path.assign(rel_error=100.0 * path["rel_error"])      # in % as everywhere in the report
+    tab = T.make_table(shown, "tab-essential-path", "Elimination path",
                        formats={"removed": "text", "rel_std_removed": "pct",
                                 "max_rel_std_remaining": "pct", "rel_error": "num",
                                 "n_remaining": "int"},
                        labels={"rel_std_removed": "%\u03c3 of the removed", "max_rel_std_remaining":
-                               "max %\u03c3 remaining", "rel_error": "relative error",
-                               "n_remaining": "remaining"})
+                               "max %\u03c3 remaining", "rel_error": "relative error [%]",
+                               "n_remaining": "remaining"}, csv_frame=path)
     return Section("essential-path", "Elimination path", body, figures=[fig], tables=[tab])
 
 
