@@ -11,13 +11,17 @@ reference) and the median of each run's ratio to the reference run right after i
 machine's speed drifts over minutes): the back-to-back before/after of issue 30. The README's stated demo time
 comes from this script.
 
+With ``--cold``, one more run first with an empty numba cache (``NUMBA_CACHE_DIR`` a new
+folder): the first demo after installing dynid, which compiles the numba kernels once
+(`demo_cold_cpu_s`, `demo_cold_wall_s`).
+
 The last line is a JSON object with `demo_cpu_s`, `demo_wall_s` (medians) and, with a
 reference, `reference_cpu_s`, `reference_wall_s`, `ratio_cpu` and `ratio_cpu_paired` (the
 median of each run's ratio to the reference run right after it).
 
 Run from the repository root:
 
-    python benchmarks/demo_time.py [--repeats N] [--reference /path/to/other/.venv/bin/python]
+    python benchmarks/demo_time.py [--repeats N] [--cold] [--reference /path/to/other/.venv/bin/python]
 """
 import argparse
 import json
@@ -34,13 +38,20 @@ def main(argv=None):
     ap.add_argument("--repeats", type=int, default=1, help="runs of each interpreter (default 1)")
     ap.add_argument("--reference", help="another interpreter with dynid installed, run alternately")
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--cold", action="store_true", help="first one run with an empty numba cache (a fresh install)")
     args = ap.parse_args(argv)
     runs = {"this": dynid_command(sys.executable)}
     if args.reference:
         runs["reference"] = dynid_command(args.reference)
     times = {name: [] for name in runs}
     load = os.getloadavg()[0]
+    cold = None
     with tempfile.TemporaryDirectory() as d:
+        if args.cold:
+            env = dict(os.environ, NUMBA_CACHE_DIR=os.path.join(d, "numba-cache"))
+            cold = timed(runs["this"] + ["demo", "--seed", str(args.seed), "--report", "dynid-demo.html",
+                                         "--quiet"], d, env=env)
+            print(f"  cold      CPU {cold[0]:6.1f} s  wall {cold[1]:6.1f} s  (empty numba cache)", flush=True)
         for _ in range(args.repeats):
             for name, cmd in runs.items():
                 cpu, wall = timed(cmd + ["demo", "--seed", str(args.seed), "--report", "dynid-demo.html",
@@ -52,6 +63,8 @@ def main(argv=None):
     out = {"demo_cpu_s": round(med["this"][0], 1), "demo_wall_s": round(med["this"][1], 1),
            "repeats": args.repeats, "cpus": os.cpu_count(),
            "load_before": round(load, 1), "load_after": round(os.getloadavg()[0], 1)}
+    if cold is not None:
+        out.update(demo_cold_cpu_s=round(cold[0], 1), demo_cold_wall_s=round(cold[1], 1))
     print(f"dynid demo --seed {args.seed}: CPU {out['demo_cpu_s']} s, wall {out['demo_wall_s']} s "
           f"(median of {args.repeats}; load {out['load_before']} -> {out['load_after']} on {out['cpus']} CPUs)")
     if args.reference:

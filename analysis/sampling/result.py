@@ -201,6 +201,7 @@ class PosteriorResult(ParameterResults):
         dg = self.diagnostics
         sampled = dg.sampled if dg.sampled.size == len(self.names) else np.ones(len(self.names), bool)
         df = pd.DataFrame({
+            "value": self.mean,          # the interface's estimate (the posterior mean)
             "mean": self.mean, "median": self.median, "std": self.std,
             "rel_std_percent": self.rel_std.to_numpy(),
             "ci95_low": self.ci95[:, 0], "ci95_high": self.ci95[:, 1],
@@ -245,7 +246,8 @@ class PosteriorResult(ParameterResults):
         params = []
         for i, n in enumerate(self.names):
             params.append({
-                "name": n, "mean": self.mean[i], "median": self.median[i], "std": self.std[i],
+                "name": n, "value": self.mean[i], "mean": self.mean[i], "median": self.median[i],
+                "std": self.std[i], "rel_std_percent": float(self.rel_std.to_numpy()[i]),
                 "ci95": self.ci95[i], "ci999": self.ci999[i],
                 "ls_value": self.ls_value[i], "ls_std": self.ls_std[i],
                 "ls_rel_std_percent": self.ls_rel_std[i],
