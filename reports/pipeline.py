@@ -261,6 +261,8 @@ class FullReport(Result):
 def _full_report(result, robot, experiments, validation, held_out, settings: Settings, say) -> FullReport:
     """Steps 8-10 after IDIM, the verdict, and the report's sections."""
     more = further.further_analyses(experiments, robot, result, held_out, settings, say)
+    # the figures take seconds: say so, or a redirected log is silent meanwhile
+    say("drawing the report's figures")
     sections = _render().full_report_sections(more, robot)
     return FullReport(result=result, robot=robot, experiments=experiments, validation=validation,
                       didim=more.didim, posterior=more.posterior, diagnosis=more.diagnosis, sections=sections,
