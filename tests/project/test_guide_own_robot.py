@@ -1,5 +1,5 @@
 """docs/guide.md's own-robot recipe ("Your own robot: a URDF, a log, a verdict"), followed as
-written: the test's branched URDF, the guide's robot TOML and its two command blocks.
+written: the branched URDF of examples/own_robot, the guide's robot TOML and its two command blocks.
 
 In a file of its own so that, under `pytest -n 2 --dist loadfile`, it and the guide's Python API
 blocks (tests/project/test_guide.py), the two longest tests near the end of the run, go to
@@ -11,17 +11,19 @@ import subprocess
 import sys
 
 import pytest
-from test_guide import BIN, own_robot_section, sh_blocks, write_own_robot_files
+from test_guide import BIN, ROOT, own_robot_section, sh_blocks, write_own_robot_files
 
 
 def test_own_robot_recipe_from_a_urdf_to_a_verdict(tmp_path):
-    """The guide's own-robot recipe, as written: a URDF the test writes (branched, so --base/--tip
+    """The guide's own-robot recipe, as written: the URDF it ships (branched, so --base/--tip
     matter), the guide's robot TOML (controller, a-priori rotor inertia and friction), a log, a
     verdict."""
     dynid = BIN / "dynid"
     if not dynid.exists():
         pytest.skip(f"no dynid console script beside {sys.executable}: pip install . first")
     write_own_robot_files(tmp_path)
+    (tmp_path / "examples").symlink_to(ROOT / "examples")       # the guide copies the URDF from there
+    (tmp_path / "arm.urdf").write_text((ROOT / "examples" / "own_robot" / "arm.urdf").read_text())
     env = dict(os.environ, PATH=f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}")
     # the branched URDF alone is refused, and the message offers the tips
     proc = subprocess.run([str(dynid), "robot", "arm.urdf"], cwd=tmp_path, capture_output=True, text=True,
