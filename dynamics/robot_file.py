@@ -415,17 +415,23 @@ _FRICTION = {"Fv": "N m s/rad", "Fc": "N m", "Fvm": "N m s/rad", "Fcm": "N m"}
 _UNITS = {"M": "kg"}
 
 
+#: m: the centre-of-mass check never refuses closer than this (the reach counts the joints'
+#: offsets, not the last link's length: a pendulum's joints all sit at its base)
+MIN_COM_BOUND = 10.0
+
+
 def _centres_of_mass(apriori, robot, path):
     """A link's centre of mass (first moment / mass, where the mass is positive) within twice the
-    robot's reach (the joints' offsets and prismatic travel) plus 1 m of its frame: far more than
-    any link of the robot can hold, so a value beyond is a wrong number or unit."""
+    robot's reach (the joints' offsets and prismatic travel) plus 1 m of its frame, and never
+    closer than MIN_COM_BOUND: far more than any link of the robot can hold, so a value beyond
+    is a wrong number or unit."""
     reach = 0.0
     for jt in robot.joints:
         reach += float(np.linalg.norm(jt.p))
         if jt.sigma == 1:
             lo, hi = jt.q_limits
             reach += max(abs(lo), abs(hi)) if np.isfinite(lo) and np.isfinite(hi) else MAX_LENGTH
-    bound = 2.0 * reach + 1.0
+    bound = max(2.0 * reach + 1.0, MIN_COM_BOUND)
     for j in range(1, robot.n_joints + 1):
         m = apriori.get(f"M{j}")
         ms = [apriori.get(f"{k}{j}", 0.0) for k in ("MX", "MY", "MZ")]

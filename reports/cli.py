@@ -300,7 +300,8 @@ def _progress_log(quiet):
     import logging
 
     from dynid.progress import LOGGER
-    if quiet or sys.stderr.isatty() or LOGGER.handlers or logging.getLogger().handlers:
+    isatty = getattr(sys.stderr, "isatty", None)
+    if quiet or sys.stderr is None or isatty is None or isatty() or LOGGER.hasHandlers():
         return None
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(logging.Formatter("progress: %(message)s"))
@@ -311,6 +312,7 @@ def _progress_log(quiet):
 
     def detach():
         LOGGER.removeHandler(handler)
+        handler.close()
         LOGGER.setLevel(level)
         LOGGER.propagate = propagate
     return detach

@@ -39,6 +39,10 @@ def holdout_split(experiment, seconds: float):
                          f"({experiment.duration:.3g} s): hold out less")
     n_held = int(np.count_nonzero(experiment.t >= t_split))
     n_ident = experiment.t.size - n_held
+    if experiment.t.size < 2 * MIN_PART_SAMPLES:
+        raise InputError(f"the recording {experiment.source} has {experiment.t.size} samples: too short to hold "
+                         f"out a part ({MIN_PART_SAMPLES} samples at least on each side); validate on another "
+                         f"recording (--validation) or record longer")
     if min(n_ident, n_held) < MIN_PART_SAMPLES:
         short, fix = (("identification part", "hold out less") if n_ident < n_held else
                       ("held-out part", "hold out more"))

@@ -510,3 +510,8 @@ def test_negative_friction_and_a_far_centre_of_mass_are_refused():
     doc = copy.deepcopy(base)
     doc["apriori"]["values"]["MX1"] = 2.0                      # 1 m from the frame: within the rod
     robot_from_dict(doc, "p2.toml")
+    # a one-joint pendulum has no reach (its joint sits at its base): a 3 m rod still loads
+    import bias_scenarios
+    pend = tomllib.loads(bias_scenarios.PENDULUM_TOML)
+    pend.setdefault("apriori", {"source": "test", "values": {}})["values"].update(M1=2.0, MX1=3.0, ZZ1=6.0)
+    robot_from_dict(pend, "pendulum.toml")

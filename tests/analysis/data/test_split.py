@@ -125,3 +125,5 @@ def test_holdout_that_leaves_too_few_samples_says_which_part_and_what_to_do():
         holdout_split(exp, 9.95)
     with pytest.raises(InputError, match="held-out part .*hold out more"):
         holdout_split(exp, 0.05)
+    with pytest.raises(InputError, match="too short to hold out"):
+        holdout_split(indexed(100), 0.5)

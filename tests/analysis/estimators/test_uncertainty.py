@@ -159,6 +159,8 @@ def test_equality_test_and_random_effects():
     # the line says which test decided when only one of them fails
     both = dict(a, within_95=0.95, p_value=1e-6)
     assert "pair by pair but NOT all together" in ag.agreement_verdict(both)
+    untested = dict(a, within_95=0.95, p_value=float("nan"))    # a chi2 test that could not run rejects nothing
+    assert "agree within their intervals" in ag.agreement_verdict(untested)
     pairs = dict(a, within_95=0.5, p_value=0.5)
     assert "too few pairwise differences" in ag.agreement_verdict(pairs) and "rejects" not in \
         ag.agreement_verdict(pairs).split(":")[0]
