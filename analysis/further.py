@@ -38,8 +38,9 @@ from dynid.pages import small_pages
 def check_parts(skip) -> set:
     """The set of parts to skip, checked against REPORT_PARTS."""
     if isinstance(skip, str):
-        skip = skip.split(",")
-    skip = {x.strip() for x in (skip or ()) if x.strip()}
+        skip = [skip]
+    # each item may itself be comma-separated (--skip didim,sample or --skip didim --skip sample)
+    skip = {x.strip() for item in (skip or ()) for x in str(item).split(",") if x.strip()}
     unknown = skip - set(REPORT_PARTS)
     if unknown:
         raise InputError(f"skip takes {', '.join(REPORT_PARTS)}; unknown: {', '.join(sorted(unknown))} "

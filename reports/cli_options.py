@@ -515,8 +515,8 @@ def _add_report_parsers(sub, common, full):
     _add_robot_options(g, adv)
     _add_data_options(g)
     m = g["method"]
-    m.add_argument("--skip", metavar="LIST", default="",
-                   help="comma-separated parts to leave out: didim, sample, diagnose")
+    m.add_argument("--skip", metavar="LIST", action="append", default=None,
+                   help="parts to leave out, comma-separated or repeated: didim, sample, diagnose")
     m.add_argument("--seed", type=seed_type, default=1, metavar="N", help="random seed of the sampler")
     m.add_argument("--max-seconds", type=positive_float, default=None, metavar="S",
                    help="wall-clock safety limit of the sampler (default: none; the sampler stops on "
@@ -546,8 +546,8 @@ def _add_report_parsers(sub, common, full):
                    help="random seed of the noise and trajectories")
     m.add_argument("--duration", type=positive_float, default=20.0, metavar="SECONDS",
                    help="length of the identification recording")
-    m.add_argument("--skip", metavar="LIST", default="",
-                   help="comma-separated parts to leave out: didim, sample, diagnose")
+    m.add_argument("--skip", metavar="LIST", action="append", default=None,
+                   help="parts to leave out, comma-separated or repeated: didim, sample, diagnose")
     m.add_argument("--max-seconds", type=positive_float, default=None, metavar="S",
                    help="wall-clock safety limit of the sampler (default: none; the sampler stops on "
                         "its step budget, so the output depends only on the seed)")

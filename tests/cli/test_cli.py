@@ -254,6 +254,13 @@ def test_report_runs_every_part_on_one_recording(tmp_path_factory):
 def test_report_rejects_unknown_parts(capsys):
     assert main(["report", "x.csv", "--robot", "planar2", "--report", "r.html", "--skip", "didim,magic"]) == 2
     assert "magic" in capsys.readouterr().err
+    # repeated --skip adds up (it used to keep only the last)
+    assert main(["report", "x.csv", "--robot", "planar2", "--report", "r.html", "--skip", "didim",
+                 "--skip", "magic"]) == 2
+    assert "magic" in capsys.readouterr().err
+    from dynid.analysis.further import check_parts
+    assert check_parts(["didim,sample", "diagnose"]) == {"didim", "sample", "diagnose"}
+    assert check_parts("didim, sample") == {"didim", "sample"} and check_parts(None) == set()
 
 
 def test_identify_projection_method_recovers_the_robot_file_values(tmp_path):
