@@ -251,6 +251,13 @@ def test_parameter_results_share_records_units_and_intervals(key, system):
     ci = r.conf_int(0.1)
     assert list(ci.columns) == ["lower", "upper"] and list(ci.index) == names
     assert not hasattr(r, "interval") or key == "posterior"
+    # the JSON's flat "parameters" list: one record per parameter with its value and sigma
+    doc = r.to_dict()
+    records = doc.get("parameters") if isinstance(doc.get("parameters"), list) else None
+    if records is not None and records and isinstance(records[0], dict) and "std" in records[0]:
+        assert [p["name"] for p in records][:len(names)] == names[:len(records)]
+        assert records[0]["std"] == pytest.approx(std)
+    assert key not in ("tilt", "drive-gains") or records is not None, doc.keys()
 
 
 def test_posterior_intervals_are_conf_int_and_interval_is_deprecated(system):
