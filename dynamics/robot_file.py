@@ -440,7 +440,7 @@ def _centres_of_mass(apriori, robot, path):
         raise RobotFileError(f"{path}: apriori.values put link {j}'s centre of mass {math.hypot(*ms) / m:.3g} m "
                              f"from its frame (MX{j}, MY{j}, MZ{j} = {', '.join(f'{x:g}' for x in ms)} kg m, "
                              f"M{j} = {m:g} kg), beyond the {bound:.3g} m this robot can hold (twice its reach "
-                             f"plus 1 m); the first moments are mass times the centre's position: check the "
+                             f"plus 1 m, at least {MIN_COM_BOUND:g} m); the first moments are mass times the centre's position: check the "
                              f"numbers and their units")
 
 

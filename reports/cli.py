@@ -15,12 +15,14 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 import os
 import signal
 import sys
 
 from dynid.errors import DynidError, InputError
 from dynid.pages import small_pages
+from dynid.progress import LOGGER
 from dynid.ranges import check_range
 from dynid.reports.cli_options import build_parser, parse_command_line
 from dynid.reports.progress import Reporter, clean_text
@@ -88,7 +90,7 @@ def cmd_simulate(args, say):
     with say.progress(f"closed-loop simulation ({args.duration:g} s)") as bar:
         sim = simulate(robot, args.duration, seed=args.seed, f0=args.f0, harmonics=args.harmonics,
                        noise_q=args.noise_q, noise_tau=args.noise_tau, progress=bar.update)
-    outputs = [(args.out, sim.experiment.to_frame().to_csv(index=False, float_format="%.10g"))]
+    outputs = [(args.out, sim.to_csv())]
     if args.json:
         doc = sim.to_dict()
         doc["csv"] = args.out
@@ -297,9 +299,6 @@ def _progress_log(quiet):
     """Off a terminal (stderr redirected to a log, a batch job), the progress records of long
     steps (`dynid.progress`: one per 10 s) go to stderr, so a run is not silent for minutes;
     on a terminal the bars show it. Returns the function that detaches the handler, or None."""
-    import logging
-
-    from dynid.progress import LOGGER
     isatty = getattr(sys.stderr, "isatty", None)
     if quiet or sys.stderr is None or isatty is None or isatty() or LOGGER.hasHandlers():
         return None

@@ -56,9 +56,8 @@ def export_step(ident: Identification, say=None) -> Identification:
     say(f"URDF: {'consistent' if export.consistent else 'NOT consistent'}; "
         f"{'reproduces the identified values' if export.reproduces else 'does not reproduce the identified values (details in --report / --json)'}")
     # how the set was found, when not by the global SDP: the user must see it, not only the JSON
-    for note in getattr(export.standard_set, "notices", []):
-        if "instead of the SDP" in note or "stopped after" in note:
-            say(f"URDF: {note}")
+    for note in export.standard_set.search_caveats():
+        say(f"URDF: {note}")
     if export.springs:
         say("MJCF: with the springs of --effects as joint stiffness: "
             + ", ".join(f"Ks{j} = {k:.4g}" for j, k in export.springs.items()))
@@ -186,8 +185,7 @@ def excitation_outputs(res, robot, fs, periods, *, out=None, json=None, report=N
     """`(path, text)` of the trajectory CSV, the JSON and the HTML report of `dynid excite`."""
     outputs = []
     if out:
-        outputs.append((out, res.to_frame(fs, periods).to_csv(index=False, lineterminator="\n",
-                                                              float_format="%.17g")))
+        outputs.append((out, res.to_csv(fs=fs, n_periods=periods)))
     if json:
         doc = res.to_dict()
         doc["csv"] = {"fs": fs, "periods": periods} if out else None

@@ -17,6 +17,7 @@ from dynid.dynamics.robot_file import load_robot
 from dynid.dynamics.simulation import simulate_closed_loop
 from dynid.dynamics.trajectories import random_fourier_trajectory
 from dynid.errors import InputError
+from dynid.outputs import atomic_write_text
 from dynid.provenance import json_safe
 
 # Values of the simulated TX40 outside Table 2. Ia6 is FIGAROH's a-priori rotor
@@ -234,7 +235,6 @@ class SimulatedRecording(Result):
         str
             The CSV text.
         """
-        from dynid.outputs import atomic_write_text
         text = self.to_frame().to_csv(index=False, float_format="%.10g", lineterminator="\n")
         if path is not None:
             atomic_write_text(path, text)

@@ -76,6 +76,9 @@ _INERTIA = {"XX", "XY", "XZ", "YY", "YZ", "ZZ"}
 #: a chi^2 below this (deviations of ~0.01 sigma) counts as reproducing the identified values;
 #: the a-priori pull (lam) alone leaves ~1e-6
 REPRODUCE_CHI2 = 1e-4
+#: how the notices that the set may not be the closest one begin or end (`StandardSet.search_caveats`)
+LOCAL_SEARCH_NOTE = "the local log-Cholesky search was used instead of the SDP"
+STOPPED_EARLY_NOTE = "the optimisation stopped after"
 
 
 def _kind(name):
@@ -109,6 +112,11 @@ class StandardSet:
     message: str
     notices: list = field(default_factory=list)
     extra: dict = field(default_factory=dict)   # e.g. the prediction check
+
+    def search_caveats(self) -> list:
+        """The notices that say the set may not be the closest consistent one: a local search
+        replaced the SDP, or the search stopped at its evaluation limit."""
+        return [n for n in self.notices if n.endswith(LOCAL_SEARCH_NOTE) or n.startswith(STOPPED_EARLY_NOTE)]
 
     @property
     def max_deviation_sigma(self) -> float:
@@ -283,7 +291,7 @@ def choose_standard_set(robot, bp, target, cov, *, target_names=None, apriori=No
         try:
             pb = build_sdp(robot, bp, R, chi_ap, s, lam, None)
         except InputError as e:
-            notices.append(f"{e}; the local log-Cholesky search was used instead of the SDP")
+            notices.append(f"{e}; {LOCAL_SEARCH_NOTE}")
             solver = "log-cholesky"
         else:
             chi = pb.solve(R @ b)
@@ -312,7 +320,7 @@ def choose_standard_set(robot, bp, target, cov, *, target_names=None, apriori=No
                        + ", ".join(f"Ia{j + 1}" for j in range(n) if ia_free[j] == 0)
                        + ") are written into the link's izz: URDF has no rotor inertia")
     if not reproduces and sol is not None and sol.status == 0:
-        notices.append(f"the optimisation stopped after {sol.nfev} evaluations (max_nfev) at chi^2 = "
+        notices.append(f"{STOPPED_EARLY_NOTE} {sol.nfev} evaluations (max_nfev) at chi^2 = "
                        f"{chi2:.4g}; a consistent set closer to the identified values may exist")
     elif not reproduces:
         worst = table.reindex(table["deviation_sigma"].abs().sort_values(ascending=False).index)
