@@ -11,6 +11,9 @@ import numpy as np
 
 try:
     import numba
+
+    from dynid.numba_cache import install as _cache_outside_the_package
+    _cache_outside_the_package()   # before the first njit(cache=True): dynid.numba_cache
     HAVE_NUMBA = True
 except ImportError:  # pragma: no cover - numba is a declared dependency
     HAVE_NUMBA = False

@@ -55,10 +55,13 @@ import numpy as np
 from numba import njit
 
 from dynid.errors import InputError
+from dynid.numba_cache import install as _cache_outside_the_package
 
 from ._kernels import joint_transforms as _transforms
 from ._kernels import propagate_link
 from .robot import PER_JOINT
+
+_cache_outside_the_package()   # before the first @njit(cache=True): dynid.numba_cache
 
 N_PER_JOINT = len(PER_JOINT)          # 14
 DEFAULT_V_S = 0.01                    # rad/s, smooth-sign width of the simulator

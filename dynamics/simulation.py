@@ -89,6 +89,7 @@ from numba import njit
 from scipy.linalg import eigh
 
 from dynid.errors import DynidError, InputError
+from dynid.numba_cache import install as _cache_outside_the_package
 
 from .dynamic_model import (
     DEFAULT_V_S,
@@ -101,6 +102,8 @@ from .dynamic_model import (
     mass_matrix,
     model_arrays,
 )
+
+_cache_outside_the_package()   # before the first @njit(cache=True): dynid.numba_cache
 
 RK4_STABILITY = 2.785        # RK4 is stable on the negative real axis for h*lambda < 2.785
 STIFFNESS_WARNING = 2.5

@@ -12,6 +12,9 @@ import numpy as np
 from numba import njit
 
 from dynid.analysis.data._format import _fmt
+from dynid.numba_cache import install as _cache_outside_the_package
+
+_cache_outside_the_package()   # before the first @njit(cache=True): dynid.numba_cache
 
 __all__ = ["SATURATION_FRACTION", "SATURATION_MIN_RUN", "SATURATION_REL_TOL", "saturation_notices"]
 

@@ -19,6 +19,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from dynid.numba_cache import install as _cache_outside_the_package
+
+_cache_outside_the_package()   # before the first @njit(cache=True): dynid.numba_cache
+
 __all__ = ["SPIKE_FACTOR", "spikes_of_columns", "isolated_spikes"]
 
 #: A sample farther than this × the column's robust scale (1.4826 × MAD) from the median

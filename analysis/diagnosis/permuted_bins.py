@@ -18,6 +18,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from dynid.numba_cache import install as _cache_outside_the_package
+
+_cache_outside_the_package()   # before the first @njit(cache=True): dynid.numba_cache
+
 __all__ = ["permuted_bins", "permuted_bins_numpy"]
 
 

@@ -28,6 +28,10 @@ import math
 import numpy as np
 from numba import njit
 
+from dynid.numba_cache import install as _cache_outside_the_package
+
+_cache_outside_the_package()   # before the first @njit(cache=True): dynid.numba_cache
+
 _N, _M = 624, 397
 
 
