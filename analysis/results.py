@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from dynid.analysis.units import parameter_unit
+from dynid.analysis.units import parameter_unit, prismatic_joints
 from dynid.errors import InputError
 from dynid.outputs import atomic_write_text
 from dynid.provenance import dumps_json, json_safe, versions
@@ -93,7 +93,7 @@ def _cell(value, kind) -> str:
     return str(value)
 
 
-def parameter_table(names, columns, *, label: str = "Parameter") -> list:
+def parameter_table(names, columns, *, label: str = "Parameter", prismatic=frozenset()) -> list:
     """The one parameter table of every summary: name, unit, then `columns`.
 
     Parameters
@@ -105,6 +105,8 @@ def parameter_table(names, columns, *, label: str = "Parameter") -> list:
         (a p-value), `"text"`, or a function of the value giving its text.
     label : str
         Heading of the name column.
+    prismatic : collection of int
+        The 1-based numbers of the robot's prismatic joints (their per-joint units are N and m).
 
     Returns
     -------
@@ -112,7 +114,7 @@ def parameter_table(names, columns, *, label: str = "Parameter") -> list:
         The heading, a rule, one line per parameter.
     """
     names = [str(n) for n in names]
-    units = [parameter_unit(n) or "-" for n in names]
+    units = [parameter_unit(n, prismatic) or "-" for n in names]
     cells = [[_cell(v, kind) for v in values] for _, values, kind in columns]
     nw = max([len(label)] + [len(n) for n in names]) + 2
     uw = max([4] + [len(u) for u in units]) + 2
@@ -326,10 +328,10 @@ class Parameter(tuple):
     `p["value"]` reads an attribute by name; `to_dict()` gives all five.
     """
 
-    def __new__(cls, name, value, std, rel_std_percent=math.nan):
+    def __new__(cls, name, value, std, rel_std_percent=math.nan, unit=None):
         self = super().__new__(cls, (float(value), float(std)))
         self.name, self.rel_std_percent = str(name), float(rel_std_percent)
-        self.unit = parameter_unit(self.name)
+        self.unit = parameter_unit(self.name) if unit is None else str(unit)
         return self
 
     @property
@@ -363,7 +365,7 @@ class Parameter(tuple):
         return f"<Parameter {self.name} = {self.value:.6g} \u00b1 {self.std:.3g}{unit}>"
 
     def __getnewargs__(self):
-        return self.name, self.value, self.std, self.rel_std_percent
+        return self.name, self.value, self.std, self.rel_std_percent, self.unit
 
 
 class ParameterResults(Result):
@@ -383,6 +385,16 @@ class ParameterResults(Result):
 
     def _index(self) -> pd.Index:
         return pd.Index(list(self.names), name="parameter")
+
+    def _prismatic(self) -> frozenset:
+        """The 1-based numbers of the identified robot's prismatic joints (for the units)."""
+        if getattr(self, "prismatic", None):
+            return frozenset(self.prismatic)
+        for owner in (self, getattr(self, "idim", None)):
+            for model in (getattr(owner, "robot", None), getattr(owner, "base", None)):
+                if model is not None:
+                    return prismatic_joints(model)
+        return frozenset()
 
     @property
     def n_params(self) -> int:
@@ -418,7 +430,7 @@ class ParameterResults(Result):
         value, std = self._estimate()[i], self.bse.to_numpy()[i]
         with np.errstate(divide="ignore", invalid="ignore"):
             rel = 100.0 * std / abs(value)
-        return Parameter(name, value, std, rel)
+        return Parameter(name, value, std, rel, parameter_unit(name, self._prismatic()))
 
     def cov_params(self) -> pd.DataFrame:
         """The covariance as a labelled table (statsmodels' name).
@@ -566,6 +578,8 @@ class IdentificationResult(ParameterResults):
     settings: dict = field(default_factory=dict)
     notices: list = field(default_factory=list)
     data_hash: str | None = None
+    # the 1-based numbers of the robot's prismatic joints: their per-joint units (N, m)
+    prismatic: tuple = ()
 
     sigma = deprecated_alias("bse (a pandas Series; .to_numpy() for the array)", lambda r: r._sigma)
     rel_sigma = deprecated_alias("rel_std (a pandas Series; .to_numpy() for the array)", lambda r: r._rel_sigma)
@@ -622,7 +636,7 @@ class IdentificationResult(ParameterResults):
         return W3 @ self.chi
 
     # ------------------------------------------------------------ presentation
-    def summary(self, notices: bool = True) -> str:
+    def summary(self, notices: bool = True, prismatic=None) -> str:
         """Printable report: header block, per-joint residuals, parameter table, notices.
 
         Parameters
@@ -630,6 +644,9 @@ class IdentificationResult(ParameterResults):
         notices : bool
             False leaves the notices to the caller (a result that holds this one prints
             one block of notices for both).
+        prismatic : collection of int, optional
+            The robot's prismatic joints, for the units (default: `prismatic`); a result
+            that holds this one and knows the robot passes them.
 
         Returns
         -------
@@ -668,7 +685,8 @@ class IdentificationResult(ParameterResults):
             lines.append(row)
         lines.append(thin)
         lines += parameter_table(self.names, [("value", self.chi, "num"), ("sigma", self._sigma, "num"),
-                                              ("%sigma", self._rel_sigma, "pct")])
+                                              ("%sigma", self._rel_sigma, "pct")],
+                                 prismatic=self._prismatic() if prismatic is None else prismatic)
         lines.append(rule)
         if notices:
             lines += notices_block(self.notices)

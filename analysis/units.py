@@ -1,7 +1,9 @@
 """SI units of parameters, from their names (the papers' names: XX1 ... Off1, regrouped ZZ1R).
 
-XX..ZZ and Ia kg m², MX/MY/MZ kg m, M kg, Fv/Fvm N m s/rad, Fc/Fcm/Off N m (revolute
-joints; a prismatic joint's are in N and kg). Beside the dynamic model's names, those of the
+XX..ZZ and Ia kg m², MX/MY/MZ kg m, M kg, Fv/Fvm N m s/rad, Fc/Fcm/Off N m. The
+per-joint parameters of a prismatic joint (`prismatic=`, `prismatic_joints(robot)`) are in
+N and m instead: Ia kg, Fv/Fvm N s/m, Fc/Fcm/Off N (and the per-joint figures below the
+same way); the inertial parameters' units do not depend on the joint. Beside the dynamic model's names, those of the
 other results: the payload's (`XXL` ... `ML`), the asymmetric friction's (`Fv+1`, `Fc-1`),
 the per-joint gravity of Bona & Curatella (`k1` N m, `qoff1` rad), the gravity tilt
 (`tilt_x`, `tilt_y` rad), a posterior's torque noise (`sigma1` N m) and the drive
@@ -11,7 +13,7 @@ from __future__ import annotations
 
 import re
 
-__all__ = ["parameter_kind", "parameter_unit"]
+__all__ = ["parameter_kind", "parameter_unit", "prismatic_joints"]
 
 _UNITS = (("XX", "kg m\u00b2"), ("XY", "kg m\u00b2"), ("XZ", "kg m\u00b2"), ("YY", "kg m\u00b2"),
           ("YZ", "kg m\u00b2"), ("ZZ", "kg m\u00b2"), ("MX", "kg m"), ("MY", "kg m"), ("MZ", "kg m"),
@@ -21,6 +23,10 @@ _UNITS = (("XX", "kg m\u00b2"), ("XY", "kg m\u00b2"), ("XZ", "kg m\u00b2"), ("YY
 # so the verdict's units (the JSON) are those of `_UNITS` alone
 _OTHER_UNITS = {"k": "N m", "qoff": "rad", "tilt": "rad", "sigma": "N m", "g": "N m per unit",
                 "Kp": "N m/rad", "Kd": "N m s/rad", "Ki": "N m/(rad s)"}
+# the per-joint parameters of a prismatic joint: forces and translations
+_PRISMATIC_UNITS = {"Ia": "kg", "Fvm": "N s/m", "Fcm": "N", "Fv": "N s/m", "Fc": "N", "Off": "N",
+                    "k": "N", "qoff": "m", "sigma": "N", "g": "N per unit", "Kp": "N/m", "Kd": "N s/m",
+                    "Ki": "N/(m s)"}
 _KIND_RE = re.compile(r"^([A-Za-z]+?)(\d+)R?$")
 _OTHER_RE = re.compile(r"^([A-Za-z]+?)(?:[+-]|_[xyz])?(\d*)[RL]?$")
 
@@ -31,13 +37,25 @@ def parameter_kind(name: str) -> str:
     return m.group(1) if m else ""
 
 
-def parameter_unit(name: str) -> str:
+def prismatic_joints(model) -> frozenset:
+    """The 1-based numbers of the prismatic joints of `model`: a robot (its joints) or its
+    base parameters (`prismatic`); empty for None or anything else."""
+    joints = getattr(model, "joints", None)
+    if joints is not None:
+        return frozenset(i + 1 for i, jt in enumerate(joints) if getattr(jt, "prismatic", False))
+    return frozenset(getattr(model, "prismatic", None) or ())
+
+
+def parameter_unit(name: str, prismatic=frozenset()) -> str:
     """SI unit of a parameter from its name pattern (module docstring), `""` if unknown.
 
     Parameters
     ----------
     name : str
         A parameter name such as `ZZ1R`, `Fv2`, `MXL` or `tilt_x`.
+    prismatic : collection of int
+        The 1-based numbers of the prismatic joints (`prismatic_joints(robot)`): their
+        per-joint parameters are in N and m.
 
     Returns
     -------
@@ -49,6 +67,10 @@ def parameter_unit(name: str) -> str:
     >>> parameter_unit("ZZ1R"), parameter_unit("Fv2"), parameter_unit("ML")
     ('kg m²', 'N m s/rad', 'kg')
     """
+    if prismatic:
+        m = _KIND_RE.match(str(name)) or _OTHER_RE.match(str(name))
+        if m is not None and m.group(2) and int(m.group(2)) in prismatic and m.group(1) in _PRISMATIC_UNITS:
+            return _PRISMATIC_UNITS[m.group(1)]
     kind = parameter_kind(name)
     for k, u in _UNITS:
         if kind == k:

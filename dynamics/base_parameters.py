@@ -35,6 +35,7 @@ class BaseParameters:
     dependent: np.ndarray         # indices of regrouped or unidentifiable parameters
     K: np.ndarray                 # (b, n_dependent): beta = chi[independent] + K chi[dependent]
     names: list                   # base-parameter names, 'R' suffix where regrouped
+    prismatic: tuple = ()         # 1-based numbers of the prismatic joints (their units: N, m)
 
     @property
     def n_base(self) -> int:
@@ -138,7 +139,8 @@ def base_parameters(robot, n_samples=None, seed=_SEED) -> BaseParameters:
     for k, i in enumerate(independent):
         names.append(std[i] + ("R" if np.any(K[k]) else ""))
     return BaseParameters(robot_name=robot.name, standard_names=list(std),
-                          independent=independent, dependent=dependent, K=K, names=names)
+                          independent=independent, dependent=dependent, K=K, names=names,
+                          prismatic=tuple(i + 1 for i, jt in enumerate(robot.joints) if jt.prismatic))
 
 
 def _clean(K):

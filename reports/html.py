@@ -346,7 +346,9 @@ def _model_section(robot, res):
                                labels={"q_min": "q min [rad]", "q_max": "q max [rad]", "qd_max": "qd max [rad/s]",
                                        "tau_max": "\u03c4 max [N m]",
                                        "drive_gain": "drive gain [N m per unit of the logged signal]"},
-                               note="A prismatic joint's limits are in m, m/s and N." if prismatic else ""))
+                               note=("A prismatic joint's limits are in m, m/s and N, and so are its "
+                                     "positions, velocities and torques (forces) wherever this report "
+                                     "says rad, rad/s and N m." if prismatic else "")))
     prov = dict(getattr(robot, "provenance", {}) or {})
     if prov:
         pdf = pd.DataFrame({"what": list(prov), "source": [str(v) for v in prov.values()]}).set_index("what")
@@ -359,7 +361,7 @@ def _base_section(res):
     table = res.parameter_table()
     shown = pd.DataFrame({
         "relation": [r.split(" = ", 1)[1] if " = " in r else r for r in table["relation"]],
-        "unit": [parameter_unit(n) for n in table.index],
+        "unit": [parameter_unit(n, res._prismatic()) for n in table.index],
         "ols": table["ols"], "ols_rel_std": table["ols_rel_std"],
         "wls": table["wls"], "wls_rel_std": table["wls_rel_std"],
         "essential": table["essential"].astype(bool),

@@ -120,7 +120,8 @@ class GainsResult(ParameterResults):
                  ]
         lines += parameter_table(self.names, [("value", self.chi, lambda x: f"{x:.6g}"),
                                               ("std", self.bse.to_numpy(), lambda x: f"{x:.3g}"),
-                                              ("%std", self.rel_std.to_numpy(), "pct")], label="gain")
+                                              ("%std", self.rel_std.to_numpy(), "pct")], label="gain",
+                                             prismatic=self._prismatic())
         lines.append("control-law fit, relative error per joint: "
                      + ", ".join(percent(x, 3) for x in self.rel_error))
         lines += notices_block(self.notices)

@@ -340,7 +340,7 @@ class DIDIMResult(ModelResults):
         # a step with no previous one to compare has no relative change: a dash, as in the report
         lines.append(h[cols].to_string(index=False, na_rep="—", float_format=lambda x: f"{x:.5g}"))
         lines.append("")
-        lines.append(self.model.summary(notices=False))
+        lines.append(self.model.summary(notices=False, prismatic=self._prismatic()))
         if self.physical is not None:
             lines += ["", "PC-DIDIM: the last step's WLS refitted under physical consistency (the "
                       "estimate the loop simulated)", self.physical.summary()]

@@ -139,7 +139,8 @@ class DriveGainResult(ParameterResults):
         lines += parameter_table(self.names, [
             ("file gain", self.g_file, lambda x: f"{x:.6g}"), ("identified", self.chi, lambda x: f"{x:.6g}"),
             ("sigma", self.bse.to_numpy(), lambda x: f"{x:.3g}"), ("moved %", self.moved_percent, lambda x: f"{x:.3f}"),
-            ("95 % low", ci[:, 0], lambda x: f"{x:.5g}"), ("95 % high", ci[:, 1], lambda x: f"{x:.5g}")])
+            ("95 % low", ci[:, 0], lambda x: f"{x:.5g}"), ("95 % high", ci[:, 1], lambda x: f"{x:.5g}")],
+            prismatic=self._prismatic())
         lines += ["=" * 78, "Verdict: " + self.verdict()]
         lines += notices_block(self.notices)
         return "\n".join(lines)

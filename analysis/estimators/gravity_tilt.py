@@ -119,7 +119,8 @@ class GravityTiltResult(ParameterResults):
                  f"  likelihood ratio of 'no tilt': chi2 = {self.lr_statistic:.1f}, {self.lr_dof} dof, "
                  f"p = {self.p_value:.3g} ({verdict} at 1 %)"]
         lines += ["  " + x for x in parameter_table(self.names, [("value", self.chi, "num"),
-                                                                 ("sigma", self.bse.to_numpy(), "num")])]
+                                                                 ("sigma", self.bse.to_numpy(), "num")],
+                                                          prismatic=self._prismatic())]
         if self.added_parameters:
             lines.append(f"  base parameters a tilt makes identifiable: {', '.join(self.added_parameters)} "
                          f"(counted in the dof)")

@@ -113,7 +113,7 @@ class IDIMResult(ModelResults):
                  "  uncertainty: " + (self.model.settings.get("least_squares", {}).get("uncertainty", {})
                                       .get("covariance") or self.uncertainty),
                  ""]
-        lines.append(self.essential.result.summary(notices=False))
+        lines.append(self.essential.result.summary(notices=False, prismatic=self._prismatic()))
         if self.agreement is not None:
             lines += ["", agreement_verdict(self.agreement)]
         block = notices_block(self.notices, self.model.notices)
@@ -183,9 +183,14 @@ def identify_idim(experiment, robot, *, settings=None, bp=None, max_error_growth
                                row_mask=obs.row_mask, settings=info, **unc)
     h = (experiments[0].data_hash() if len(experiments) == 1 else
          data_hash(*[np.frombuffer(e.data_hash().encode(), dtype=np.uint8) for e in experiments]))
+    prismatic = tuple(getattr(bp, "prismatic", ()))
     for r in (r_ols, r_wls, ess.result, ess.base):
-        r.data_hash = h
+        r.data_hash, r.prismatic = h, prismatic
     notices = [n for e in experiments for n in getattr(e, "notices", [])] + obs.notices
+    if prismatic:
+        notices.append(f"joint(s) {', '.join(map(str, prismatic))} prismatic: their torques, residuals and RMS "
+                       "are forces in N and their positions in m where the tables say N m and rad; their "
+                       "parameters carry their own units (Ia kg, Fv N s/m, Fc and Off N)")
     agr, why = recording_agreement(obs, names, groups, r_wls.joint_sigma, uncertainty)
     if why:
         notices.append(why)

@@ -291,7 +291,7 @@ class MLResult(ParameterResults):
         lines.append(thin)
         lines += parameter_table(self.names, [("ML value", self.chi, "num"), ("sigma", self.bse.to_numpy(), "num"),
                                               ("%sigma", self.rel_std.to_numpy(), "pct"),
-                                              ("LS start", self.theta_ls, "num")])
+                                              ("LS start", self.theta_ls, "num")], prismatic=self._prismatic())
         lines.append(rule)
         lines += notices_block(self.notices)
         return "\n".join(lines)

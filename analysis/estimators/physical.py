@@ -392,7 +392,8 @@ class PhysicalResult(ParameterResults):
         c = self.comparison()
         lines += parameter_table(self.names, [("PC", c["pc"], "num"), ("sigma", c["pc_std"], "num"),
                                               ("%sigma", self.rel_std.to_numpy(), "pct"), ("WLS", c["wls"], "num"),
-                                              ("shift [sigma]", c["shift_sigma"], lambda x: f"{x:.2f}")])
+                                              ("shift [sigma]", c["shift_sigma"], lambda x: f"{x:.2f}")],
+                                 prismatic=self._prismatic())
         lines += notices_block(self.notices)
         return "\n".join(lines)
 

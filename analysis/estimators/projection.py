@@ -399,7 +399,7 @@ class ProjectionResult(ParameterResults):
                    ("%sigma", self.rel_std.to_numpy(), "pct")]
         if self.ls is not None:
             columns += [("LS value", self.ls.chi, "num"), ("LS %sigma", self.ls.rel_std.to_numpy(), "pct")]
-        lines += parameter_table(self.names, columns)
+        lines += parameter_table(self.names, columns, prismatic=self._prismatic())
         lines.append(rule)
         lines += notices_block(self.notices)
         return "\n".join(lines)

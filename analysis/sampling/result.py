@@ -230,7 +230,7 @@ class PosteriorResult(ParameterResults):
             ("mean", self.mean, _g), ("std", self.std, _g), ("95% low", self.ci95[:, 0], _g),
             ("95% high", self.ci95[:, 1], _g), (self.ls_label[:11], self.ls_value, _g),
             ("LS %sig", self.ls_rel_std, _pct), ("tau", dg.tau, lambda x: _g(x, 3)),
-            ("R-hat", dg.rhat, lambda x: f"{x:.4f}")])
+            ("R-hat", dg.rhat, lambda x: f"{x:.4f}")], prismatic=self._prismatic())
         lines.append(rule)
         lines += notices_block(self.notices)
         return "\n".join(lines)

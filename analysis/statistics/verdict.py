@@ -53,7 +53,7 @@ from functools import cached_property
 import numpy as np
 
 from dynid.analysis.statistics.residuals import analyze_residuals, residual_analysis
-from dynid.analysis.units import parameter_kind, parameter_unit
+from dynid.analysis.units import parameter_kind, parameter_unit, prismatic_joints
 from dynid.dynamics.base_parameters import base_parameters
 from dynid.dynamics.excitation import apriori_parameters
 from dynid.provenance import json_safe
@@ -253,12 +253,13 @@ class CheckOutcome:
     fields: dict = field(default_factory=dict)
 
 
-def _parameter_table(m, rel_std_threshold):
-    """One row per judged parameter: name, value, std, unit, %σ and whether %σ is above the threshold."""
+def _parameter_table(m, rel_std_threshold, prismatic=frozenset()):
+    """One row per judged parameter: name, value, std, unit, %σ and whether %σ is above the
+    threshold (`prismatic`: the robot's prismatic joints, for the units)."""
     params = []
     for name, v, s, r in zip(m.names, m.chi, m.bse.to_numpy(), m.rel_std.to_numpy()):
         bad = not (float(r) <= rel_std_threshold)
-        params.append({"name": name, "value": float(v), "std": float(s), "unit": parameter_unit(name),
+        params.append({"name": name, "value": float(v), "std": float(s), "unit": parameter_unit(name, prismatic),
                        "rel_std_percent": float(r), "flagged": bool(bad)})
     return params
 
@@ -594,7 +595,7 @@ def _inputs(result, validation, robot, diagnosis, residuals, **thresholds) -> Ve
         result=result, validation=validation, robot=robot, diagnosis=diagnosis, residuals=residuals,
         estimate=m, names=_joint_names(robot, n), n=n,
         kind="essential" if getattr(result, "essential", None) is not None else "base",
-        params=_parameter_table(m, thresholds["rel_std_threshold"]), **thresholds)
+        params=_parameter_table(m, thresholds["rel_std_threshold"], prismatic_joints(robot)), **thresholds)
 
 
 def verdict(idim_result, validation=None, *, robot=None, diagnosis=None, residuals=None,

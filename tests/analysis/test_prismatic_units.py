@@ -1,0 +1,41 @@
+"""A prismatic joint's per-joint parameters are in N and m, not N m and rad
+(dynid.analysis.units.parameter_unit with the robot's prismatic joints)."""
+from pathlib import Path
+
+import pytest
+
+import dynid
+from dynid.analysis.units import parameter_unit, prismatic_joints
+
+ROBOT = Path(__file__).resolve().parents[1] / "data" / "prismatic" / "rpr.toml"
+
+
+def test_units_by_joint_type():
+    assert parameter_unit("Fv2", {2}) == "N s/m" and parameter_unit("Fv2") == "N m s/rad"
+    assert parameter_unit("Fc-2", {2}) == "N" and parameter_unit("Off2", {2}) == "N"
+    assert parameter_unit("Ia2", {2}) == "kg" and parameter_unit("Ia1", {2}) == "kg m\u00b2"
+    assert parameter_unit("M2R", {2}) == "kg" and parameter_unit("Kp2", {2}) == "N/m"
+
+
+@pytest.fixture(scope="module")
+def identified():
+    robot = dynid.load_robot(ROBOT)
+    assert prismatic_joints(robot) == {2}
+    rec = dynid.simulate(robot, 6.0, seed=2)
+    train, held = dynid.holdout_split(rec.experiment, 2.0)
+    return robot, dynid.identify(train, robot), held
+
+
+def test_identified_parameters_carry_the_joint_units(identified):
+    robot, r, held = identified
+    assert r["Fv2"].unit == "N s/m" and r["Fc2"].unit == "N" and r["Fv1"].unit == "N m s/rad"
+    assert r.wls["Ia2"].unit == "kg"
+    table = {line.split()[0]: line.split()[1:3] for line in r.summary().splitlines() if line[:3] in ("Fv1", "Fv2")}
+    assert table["Fv2"][:2] == ["N", "s/m"] and table["Fv1"] == ["N", "m"]
+    assert any("prismatic" in n for n in r.notices)
+    units = {p["name"]: p["unit"] for p in dynid.verdict(r, dynid.validate(r, held)).to_dict()["parameters"]}
+    assert units["Fc2"] == "N" and units["Fc1"] == "N m"
+
+
+def test_revolute_robot_unchanged():
+    assert prismatic_joints(dynid.load_robot("tx40")) == frozenset()
