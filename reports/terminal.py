@@ -3,6 +3,7 @@ output path before any work, and writing the outputs all or none.
 """
 from __future__ import annotations
 
+import filecmp
 import os
 import sys
 import tomllib
@@ -23,8 +24,19 @@ OUTPUT_OPTIONS = ("json", "report", "csv", "out", "urdf", "mjcf")
 _TOML_PEEK_BYTES = 1 << 20
 
 
+def _file_keys(table):
+    """`(key, value)` of every `urdf` and `file` string in a TOML document, its tables at any depth
+    (an experiment's `[time]`, `[positions]`, `[torques]` ... name their own files)."""
+    if isinstance(table, list):
+        return [kv for item in table for kv in _file_keys(item)]
+    if not isinstance(table, dict):
+        return []
+    found = [(k, v) for k, v in table.items() if k in ("urdf", "file") and isinstance(v, str) and v]
+    return found + [kv for v in table.values() if isinstance(v, (dict, list)) for kv in _file_keys(v)]
+
+
 def _referenced_files(path):
-    """Files a robot or experiment TOML refers to (`urdf`, `file`), relative to its folder."""
+    """Files a robot or experiment TOML refers to (`urdf`, `file`, in any table), relative to its folder."""
     try:
         if not path.lower().endswith(".toml") or not os.path.isfile(path) \
                 or os.path.getsize(path) > _TOML_PEEK_BYTES:
@@ -34,12 +46,10 @@ def _referenced_files(path):
     except Exception:           # noqa: BLE001 - the loader reports a bad file properly later
         return []
     found = []
-    tables = [doc] + [v for k, v in doc.items() if k == "experiment" and isinstance(v, dict)]
-    for tab in tables:
-        for key in ("urdf", "file"):
-            v = tab.get(key)
-            if isinstance(v, str) and v:
-                found.append((key, os.path.join(os.path.dirname(path), v)))
+    for key, v in _file_keys(doc):
+        ref = os.path.join(os.path.dirname(path), v)
+        if (key, ref) not in found:
+            found.append((key, ref))
     return found
 
 
@@ -51,12 +61,16 @@ def _input_files(args):
         out.append(("the data file", p))
     if getattr(args, "validation", None):
         out.append(("the --validation file", args.validation))
+    for opt in ("model", "unloaded", "payload"):        # payload's other inputs, report's payload
+        value = getattr(args, opt, None)
+        for p in [value] if isinstance(value, str) else (value or []):
+            out.append((f"the --{opt} file", p))
     robot = getattr(args, "robot", None)
     if robot:
         out.append(("the robot file" if args.command == "robot" else "the --robot file", robot))
     for _what, p in list(out):
         for key, ref in _referenced_files(p):
-            out.append((f"the file {key} = ... of {p}", ref))
+            out.append((f"the file {p} reads ({key} = {os.path.basename(ref)!r})", ref))
             if "\0" in ref:
                 raise InputError(f"{p}: {key} = {os.path.basename(ref)!r} contains a NUL byte, which no "
                                  f"file name can; fix '{key}' in {p}")
@@ -73,17 +87,45 @@ def check_input_paths(args):
     data = [p for what, p in inputs if what == "the data file"]
     for i, p in enumerate(data):
         for q in data[:i]:
-            if same_file(p, q):
-                extra = "" if p == q else f" (as {q} and {p})"
+            how = _one_recording(p, q)
+            if how:
+                extra = f" (as {q} and {p}{', a copy' if how == 'copy' else ''})" if p != q else ""
                 raise InputError(f"the data file {p} is given twice{extra}: the same recording counted "
                                  f"twice doubles its weight and proves nothing; give each recording once")
     valid = getattr(args, "validation", None)
     if valid:
         for p in data:
-            if same_file(valid, p):
-                raise InputError(f"--validation {valid} is the same file as the data file {p}: validating "
-                                 f"on the identification data says nothing about the model; give another "
-                                 f"recording, or --holdout SECONDS to hold out the end of this one")
+            how = _one_recording(valid, p)
+            if how:
+                raise InputError(f"--validation {valid} is {'a copy of' if how == 'copy' else 'the same file as'} "
+                                 f"the data file {p}: validating on the identification data says nothing about "
+                                 f"the model; give another recording, or --holdout SECONDS to hold out the end "
+                                 f"of this one")
+    for opt, role in (("unloaded", "the recordings without the payload"), ("payload", "the payload recordings")):
+        value = getattr(args, opt, None)
+        for o in [value] if isinstance(value, str) else (value or []):
+            for p in data:
+                how = _one_recording(o, p)
+                if how:
+                    raise InputError(f"--{opt} {o} is {'a copy of' if how == 'copy' else 'the same file as'} "
+                                     f"the data file {p}: {role} must be other recordings than the "
+                                     f"{'loaded' if opt == 'unloaded' else 'identification'} ones; give "
+                                     f"the recording made {'without' if opt == 'unloaded' else 'with'} the payload")
+
+
+def _one_recording(a, b):
+    """`"same"` when paths `a` and `b` are one file, `"copy"` when two files hold the same bytes,
+    else "" (a TOML description and the file it reads are not compared: two descriptions may
+    read different parts of one file)."""
+    if same_file(a, b):
+        return "same"
+    try:
+        if os.path.isfile(a) and os.path.isfile(b) and os.path.getsize(a) == os.path.getsize(b) \
+                and filecmp.cmp(a, b, shallow=False):
+            return "copy"
+    except OSError:
+        pass
+    return ""
 
 
 def check_output_paths(args):

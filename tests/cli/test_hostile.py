@@ -803,6 +803,40 @@ def test_g4_file_as_its_own_validation(tmp_path, data):
                            (r"same", r"itself", r"identical", r"also the"))
 
 
+def test_g4_copy_as_validation_or_twice(tmp_path, data):
+    """A copy of the recording under another name is the same recording (the bytes compared)."""
+    shutil.copyfile(data, tmp_path / "copy.csv")
+    run = run_dynid(*identify_args("in.csv", "--validation", "copy.csv", "--json", "o.json"), cwd=tmp_path)
+    assert_input_error(run, r"--validation copy\.csv", r"a copy of the data file in\.csv")
+    run = run_dynid("identify", "in.csv", "copy.csv", "--robot", "planar2", cwd=tmp_path)
+    assert_input_error(run, r"copy\.csv", r"given twice")
+    assert not (tmp_path / "o.json").exists()
+
+
+def test_g4_output_on_a_file_an_experiment_section_reads(tmp_path, data):
+    """An experiment TOML whose [time], [positions], [torques] name their files: --csv on that file
+    is refused before any work, and the recording is kept."""
+    (tmp_path / "exp.toml").write_text('[time]\nfile = "in.csv"\ncolumn = "t"\n'
+                                       '[positions]\nfile = "in.csv"\ncolumns = ["q1", "q2"]\n'
+                                       '[torques]\nfile = "in.csv"\ncolumns = ["tau1", "tau2"]\n')
+    before = fingerprint(data)
+    run = run_dynid("identify", "exp.toml", "--robot", "planar2", "--csv", "in.csv", cwd=tmp_path)
+    assert_input_error(run, r"--csv in\.csv", r"exp\.toml reads")
+    assert fingerprint(data) == before
+
+
+def test_g4_payload_outputs_and_inputs(tmp_path, data):
+    """payload: --json on its --model file, and --unloaded equal to --loaded, are refused."""
+    (tmp_path / "model.json").write_text("{}")
+    run = run_dynid("payload", "--robot", "planar2", "--loaded", "in.csv", "--model", "model.json",
+                    "--json", "model.json", cwd=tmp_path)
+    assert_input_error(run, r"--json model\.json", r"--model file")
+    assert (tmp_path / "model.json").read_text() == "{}"
+    run = run_dynid("payload", "--robot", "planar2", "--loaded", "in.csv", "--unloaded", "in.csv",
+                    "--json", "p.json", cwd=tmp_path)
+    assert_input_error(run, r"--unloaded in\.csv", r"same file as the data file")
+
+
 # =============================================================================================
 # 5. Impossible robot files
 # =============================================================================================
