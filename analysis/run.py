@@ -312,6 +312,8 @@ def _load_resampled(path, robot):
     if str(path).lower().endswith(".toml"):
         raise InputError(f"--resample: {path} is an experiment description; write resample = true in "
                          f"its [experiment] table instead")
+    if not os.path.isfile(path):        # named here: the temporary description would be named otherwise
+        raise DataError(f"{path}: file not found. Check the path.")
     with tempfile.TemporaryDirectory(prefix="dynid-resample-") as tmp:
         toml = os.path.join(tmp, "resample.toml")
         with open(toml, "w", encoding="utf-8") as fh:

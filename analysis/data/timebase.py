@@ -25,12 +25,16 @@ from dynid.errors import DataError
 if TYPE_CHECKING:
     from dynid.analysis.data.columns import _Col
 
-__all__ = ["estimate_shift", "TIME_STEP_TOLERANCE", "GAP_FACTOR"]
+__all__ = ["estimate_shift", "TIME_STEP_TOLERANCE", "GAP_FACTOR", "MAX_RESAMPLE_STEP"]
 
 #: Largest allowed relative deviation of a time step from the median step.
 TIME_STEP_TOLERANCE = 0.01
 #: A time step longer than this × the median is reported as dropped samples / clock jump.
 GAP_FACTOR = 1.5
+#: `resample = true` interpolates across steps up to this × the median (the Panda's ROS
+#: stamps reach 8.8 ×); a longer step is a gap, and a straight line across it would be
+#: fitted as if the robot had moved that way.
+MAX_RESAMPLE_STEP = 20.0
 
 
 @dataclass
@@ -93,6 +97,19 @@ def _check_time(t: np.ndarray, col: _Col, rows: np.ndarray, opts: _Options,
             )
         return False, med
     n_off = int((dev > tol).sum())
+    holes = np.flatnonzero(dt > MAX_RESAMPLE_STEP * med)
+    if holes.size:
+        k = int(holes[0])
+        raise DataError(
+            f"{col.where}: the recording has a gap: {_fmt(dt[k] * 1e3)} ms ({dt[k] / med:.0f} median steps) "
+            f"between {col.raw.row(rows[k])} and {col.raw.row(rows[k + 1])}"
+            + (f", and {holes.size - 1} more longer than {MAX_RESAMPLE_STEP:g} median steps" if holes.size > 1
+               else "")
+            + ". Interpolating across a gap would invent the motion the recording lacks "
+            + ("(resampling, --resample or resample = true, does so only across shorter steps)" if opts.resample else
+               "(so it is not offered here)")
+            + ". Split the file at its gaps and give the parts as separate recordings."
+        )
     if opts.resample:
         notices.append(
             f"{col.where}: irregular time steps ({_fmt(dt.min() * 1e3)} … "

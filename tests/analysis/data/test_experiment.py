@@ -510,6 +510,25 @@ def test_toml_top_level_keys_and_resample(tmp_path):
     assert any("resampled" in m for m in e.notices) and e.meta["resampled"]
 
 
+def test_resample_refuses_a_gap(tmp_path):
+    """A step longer than MAX_RESAMPLE_STEP median steps is a gap: refused with its rows, with or
+    without resample (a straight line across it would be fitted as motion); shorter ones are resampled."""
+    t = np.arange(400) * 0.01
+    t[200:] += 0.5                                    # 50 samples dropped after data row 200
+    df = pd.DataFrame({"t": t, "q1": np.sin(t), "tau1": np.cos(t)})
+    csv_of(df, tmp_path, "gap.csv")
+    with pytest.raises(DataError, match=r"gap: 510 ms .*data row 200 .*data row 201.*Split the file") as exc:
+        load_experiment(tmp_path / "gap.csv")
+    assert "resample = true" not in str(exc.value)
+    p = write(tmp_path, "r.toml", 'file = "gap.csv"\nresample = true\n')
+    with pytest.raises(DataError, match=r"gap: 510 ms"):
+        load_experiment(p)
+    t = np.arange(400) * 0.01
+    t[200:] += 0.08                                   # 9 median steps: the Panda's ROS stamps reach 8.8
+    csv_of(pd.DataFrame({"t": t, "q1": np.sin(t), "tau1": np.cos(t)}), tmp_path, "gap.csv")
+    assert load_experiment(p).meta["resampled"]
+
+
 def _tx_files(tmp_path, N=100, fs=10.0):
     rng = np.random.default_rng(1)
     pos = pd.DataFrame(rng.normal(size=(N, 3)), columns=["A", "B", "C"])
