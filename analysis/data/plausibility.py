@@ -289,11 +289,14 @@ def check_rate(t: np.ndarray, signals: dict, robot, time_where: str, notices: li
                 f"sampling rate of {_g(fs)} Hz")
         if known and all(speed[j] < SLOW_FRACTION * qd_max[j] for j in known):
             j = max(known, key=lambda i: speed[i] / qd_max[i])
+            # the unit that makes the rate plausible: ms, µs or ns
+            scale, unit = next(((s, u) for s, u in ((1e-3, "ms"), (1e-6, "\u00b5s"), (1e-9, "ns"))
+                                if fs / s >= LOW_RATE), (1e-9, "ns"))
             raise DataError(
                 f"{head}; at that rate the fastest joint (joint {j + 1}) moves at "
                 f"{_g(speed[j])} rad/s, {100 * speed[j] / qd_max[j]:.2g} % of its qd_max "
-                f"{_g(qd_max[j])} rad/s: is t in ms? Convert the time column to s (in an "
-                "experiment TOML: [time] scale = 0.001)."
+                f"{_g(qd_max[j])} rad/s: is t in {unit}? Convert the time column to s (in an "
+                f"experiment TOML: [time] scale = {scale:g})."
             )
         notices.append(f"{head}, low for dynamic identification: is t in s (not ms)?")
     for j in known:

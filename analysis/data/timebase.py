@@ -108,7 +108,7 @@ def _check_time(t: np.ndarray, col: _Col, rows: np.ndarray, opts: _Options,
             + ". Interpolating across a gap would invent the motion the recording lacks "
             + ("(resampling, --resample or resample = true, does so only across shorter steps)" if opts.resample else
                "(so it is not offered here)")
-            + ". Split the file at its gaps and give the parts as separate recordings."
+            + ". Split the recording at its gaps (one file per part) and give the parts as separate recordings."
         )
     if opts.resample:
         notices.append(

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
+from dynid.analysis.data.rates import check_same_rate
 from dynid.analysis.estimators import least_squares as ls
 from dynid.analysis.estimators.agreement import agreement, agreement_verdict, segments
 from dynid.analysis.estimators.essential import essential_parameters
@@ -169,6 +170,7 @@ def identify_idim(experiment, robot, *, settings=None, bp=None, max_error_growth
     # stacked system is processed alike
     if observation is not None and len(experiments) > 1:
         raise InputError("identify_idim: observation is the system of one recording")
+    check_same_rate(experiments, ["a recording"] * len(experiments))
     first = observation if observation is not None else observe(experiments[0], robot, bp, settings,
                                                                 progress=progress)
     parts = [first] + [observe(e, robot, bp, first.settings) for e in experiments[1:]]

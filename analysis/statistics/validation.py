@@ -27,6 +27,7 @@ import numpy as np
 import pandas as pd
 
 from dynid.analysis.data.experiment import load_experiment
+from dynid.analysis.data.rates import check_rate_matches
 from dynid.analysis.processing.observation import observe
 from dynid.analysis.processing.prediction import prediction_errors
 from dynid.analysis.results import Result, percent
@@ -180,6 +181,7 @@ def validate(idim_result, experiment, robot=None):
     if isinstance(experiment, (str, bytes)) or hasattr(experiment, "__fspath__"):
         experiment = load_experiment(experiment, robot)
     settings = dict(idim_result.settings)
+    check_rate_matches(experiment, settings.get("fs"), "the held-out recording", "the identification data")
     full = observe(experiment, robot, idim_result.base, dict(settings, qd_threshold=0.0))
     tau_hat = idim_result.predict(full.W)
     rel, rms, jrel = prediction_errors(full.tau, tau_hat)

@@ -456,8 +456,10 @@ def test_g1_output_through_a_symlink_to_the_input(tmp_path, data):
     assert_no_temp(tmp_path, run)
 
 
-def test_g1_output_onto_the_validation_file(tmp_path, data):
-    shutil.copyfile(data, tmp_path / "valid.csv")
+def test_g1_output_onto_the_validation_file(tmp_path, data, frame):
+    other = frame.copy()
+    other["tau1"] *= 1.01                   # another recording (a copy is refused as validation)
+    other.to_csv(tmp_path / "valid.csv", index=False)
     before = fingerprint(data, tmp_path / "valid.csv")
     run = run_dynid(*identify_args("in.csv", "--validation", "valid.csv", "--report", "valid.csv"),
                     cwd=tmp_path)

@@ -3,6 +3,7 @@ dynid.analysis.data.transmission (motor ↔ joint side)."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 import threading
@@ -17,8 +18,11 @@ from conftest import SHARED_DATA
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+import dynid
 from dynid.analysis.data import transmission as tr
 from dynid.analysis.data.experiment import Experiment, estimate_shift, load_experiment
+from dynid.analysis.data.rates import check_same_rate
+from dynid.dynamics.robot_file import load_robot
 from dynid.errors import DataError, InputError
 
 # the copies the project ships first; ../shared only for what it does not ship
@@ -517,7 +521,7 @@ def test_resample_refuses_a_gap(tmp_path):
     t[200:] += 0.5                                    # 50 samples dropped after data row 200
     df = pd.DataFrame({"t": t, "q1": np.sin(t), "tau1": np.cos(t)})
     csv_of(df, tmp_path, "gap.csv")
-    with pytest.raises(DataError, match=r"gap: 510 ms .*data row 200 .*data row 201.*Split the file") as exc:
+    with pytest.raises(DataError, match=r"gap: 510 ms .*data row 200 .*data row 201.*Split the recording") as exc:
         load_experiment(tmp_path / "gap.csv")
     assert "resample = true" not in str(exc.value)
     p = write(tmp_path, "r.toml", 'file = "gap.csv"\nresample = true\n')
@@ -1404,3 +1408,32 @@ def test_experiment_toml_zero_scale_and_gain_and_huge_rate(tmp_path):
     assert "sampling_rate" in err(p)
     p = write(tmp_path, "d.toml", 'file = "data.csv"\nname = ' + "[" * 500 + "]" * 500 + "\n")
     assert "d.toml" in err(p)
+
+
+@pytest.mark.parametrize("scale,unit", [(1e-3, "ms"), (1e-6, "\u00b5s"), (1e-9, "ns")])
+def test_time_in_ms_us_or_ns_is_named(tmp_path, scale, unit):
+    """A time column in ms, µs or ns: the message names that unit and the scale that converts it."""
+    t = np.arange(2000) / 1000.0
+    q = 0.5 * np.sin(2 * np.pi * 0.5 * t)
+    df = pd.DataFrame({"t": t / scale, "q1": q, "q2": -q, "tau1": q, "tau2": q})
+    csv_of(df, tmp_path, "x.csv")
+    with pytest.raises(DataError, match=rf"is t in {unit}\? .*scale = {scale:g}\)"):
+        load_experiment(tmp_path / "x.csv", load_robot("planar2"))
+
+
+def test_recordings_at_different_rates_are_named(tmp_path):
+    """Stacked or validated recordings at another sampling rate: one error naming both files and
+    rates, in either order (the processing is chosen on the first)."""
+    robot = load_robot("planar2")
+    rec = dynid.simulate(robot, 4.0, seed=1)
+    fast = rec.experiment
+    slow = dataclasses.replace(fast, t=fast.t[::2], q=fast.q[::2], tau=fast.tau[::2], fs=fast.fs / 2,
+                               source="slow.csv", qr=None if fast.qr is None else fast.qr[::2])
+    for pair in ((fast, slow), (slow, fast)):
+        with pytest.raises(DataError, match=r"sampled at (500|1000) Hz, but .* at (1000|500) Hz.*Resample"):
+            check_same_rate(pair)
+        with pytest.raises(DataError, match=r"Hz, but .* Hz"):
+            dynid.identify(list(pair), robot)
+    r = dynid.identify(fast, robot)
+    with pytest.raises(DataError, match=r"slow\.csv: the held-out recording is sampled at 500 Hz"):
+        dynid.validate(r, slow)
