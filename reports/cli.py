@@ -189,6 +189,10 @@ def cmd_demo(args, say):
     return _write_full_report(args, say, out)
 
 
+#: failed recordings listed in fleet's error (all of them are in the store)
+_FAILED_SHOWN = 20
+
+
 def cmd_fleet(args, say):
     """dynid fleet CATALOGUE --out STORE: identify on Dask, store, monitor, report (dynid.fleet.run)."""
     from dynid.analysis.fleet.health import DEFAULT_BASELINE, DEFAULT_FALSE_ALARM_RATE
@@ -212,8 +216,6 @@ def cmd_fleet(args, say):
                             report=args.report, json=None if args.json in (None, "-") else args.json,
                             progress=lambda done, total: bar.update(done / total))
     say(run.summary_line())
-    for rid, path, msg in run.errors:
-        say(f"  failed: {rid} {path}: {msg}")
     for a in run.health.alarms:
         say(f"  ALARM {a.robot_id} joint {a.joint} {a.parameter}: {a.direction} of {100 * a.rel_size:+.1f} % "
             f"since {a.onset_day} (alarm {a.alarm_day})")
@@ -222,8 +224,12 @@ def cmd_fleet(args, say):
     if args.json == "-":
         print(json.dumps(fleet_json(run, fleet_run.read_store(args.store), run.health), indent=1))
     if run.errors:              # the rest is stored and reported, but the run is not a success
-        print(f"dynid fleet: error: {run.n_failed} of {run.n_computed} recordings could not be identified "
-              f"(listed above and in the store); fix or remove them from the catalogue", file=sys.stderr)
+        # on stderr even with --quiet: a scheduled run must say which file failed and why
+        shown = "".join(f"\n  failed: {rid} {path}: {msg}" for rid, path, msg in run.errors[:_FAILED_SHOWN])
+        more = (f"\n  ... and {len(run.errors) - _FAILED_SHOWN} more (all in the store)"
+                if len(run.errors) > _FAILED_SHOWN else "")
+        print(f"dynid fleet: error: {run.n_failed} of {run.n_computed} recordings could not be identified; "
+              f"fix or remove them from the catalogue:{shown}{more}", file=sys.stderr)
         return EXIT_INPUT
     return EXIT_OK
 

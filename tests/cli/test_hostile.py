@@ -1817,12 +1817,13 @@ def test_g13_fleet_unknown_parameter_name(tmp_path, recording):
 
 @pytest.mark.slow
 def test_g11_fleet_partial_failure_exits_2_and_counts_it(tmp_path, recording):
-    """One recording good, one broken: exit 2, 1 identified and 1 failed (it said "2 identified", exit 0)."""
+    """One recording good, one broken: exit 2, 1 identified and 1 failed (it said "2 identified", exit 0);
+    the failed file is named even with --quiet (a scheduled run)."""
     fleet_catalogue(tmp_path, recording)
     (tmp_path / "rec1.csv").write_text("t,q1\n0,garbage\n")
     before = fleet_inputs(tmp_path)
-    run = run_dynid("fleet", "cat.csv", "--out", "store", "--workers", "1", "--json", "f.json", cwd=tmp_path,
-                    timeout=300)
+    run = run_dynid("fleet", "cat.csv", "--out", "store", "--workers", "1", "--json", "f.json", "--quiet",
+                    cwd=tmp_path, timeout=300)
     assert_input_error(run, "1 of 2 recordings could not be identified", "rec1.csv")
     after = fleet_inputs(tmp_path)
     assert {p: after.get(p) for p in before} == before, "an input changed"
