@@ -1,7 +1,10 @@
 """Tests of simulated experiments (dynid.analysis.data.synthetic)."""
 
+import warnings
+
 import numpy as np
 
+import dynid
 from dynid.analysis.data.synthetic import simulate_experiment, tx40_true_parameters
 from dynid.dynamics.base_parameters import base_parameters
 from dynid.dynamics.robot_file import load_robot
@@ -37,3 +40,12 @@ def test_simulated_recording_has_the_results_interface(tmp_path):
     back = dynid.load_experiment(tmp_path / "sim.csv", "planar2")
     np.testing.assert_allclose(back.q, sim.experiment.q, atol=1e-9)
     np.testing.assert_allclose(back.tau, sim.experiment.tau, rtol=1e-9, atol=1e-9)
+
+
+def test_stiff_friction_gets_enough_substeps():
+    """The LWR4+ at its 200 Hz controller rate: the smoothed friction is stiff for 4 RK4 substeps
+    (h*lambda ~ 3.1 > 2.5); the simulated recording takes more instead of warning."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        rec = dynid.simulate(dynid.load_robot("kuka_lwr4"), 2.0, seed=1)
+    assert not any("chatter" in n for n in rec.experiment.notices)
