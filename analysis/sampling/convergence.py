@@ -58,6 +58,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import time
 from dataclasses import asdict, dataclass, field
 
@@ -237,6 +238,37 @@ class Workspace:
 # parameters per FFT block of `integrated_time`: its spectra (64 walkers x 4097 values)
 # stay in the cache between the transform, the power and the walker average
 _TAU_BLOCK = 2
+
+
+def chain_memory_bytes(n_steps: int, n_walkers: int, d: int) -> int:
+    """Bytes the stored chain and its diagnostics' workspace take (`_Buffer`, `_reserve_for_chain`)."""
+    n = 1 << (max(n_steps, 2) - 1).bit_length()
+    return 8 * n_steps * n_walkers * (2 * d + 1) + 2 * 16 * n_walkers * min(d, _TAU_BLOCK) * (n + 1)
+
+
+def _available_memory() -> int | None:
+    """Bytes of memory available to this process (Linux' MemAvailable, else the physical memory)."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def check_chain_memory(n_steps: int, n_walkers: int, d: int) -> None:
+    """Refuse, before sampling, an ensemble whose chains would not fit in the available memory."""
+    need, have = chain_memory_bytes(n_steps, n_walkers, d), _available_memory()
+    if have is not None and need > 0.8 * have:
+        raise InputError(
+            f"walkers = {n_walkers} (--walkers): the chains of {n_walkers} walkers over {d} parameters "
+            f"need about {need / 2**30:.3g} GiB of memory, and {have / 2**30:.3g} GiB are available; use "
+            f"fewer walkers (a few times the number of parameters is enough for emcee's stretch move)")
 
 
 def _reserve_for_chain(work: Workspace, n_steps: int, n_walkers: int, d: int) -> None:
@@ -558,6 +590,7 @@ def run_until_converged(sampler, p0: np.ndarray, criteria: ConvergenceCriteria |
     c = criteria or ConvergenceCriteria()
     p0 = np.asarray(p0, dtype=float)
     n_walkers, d = p0.shape
+    check_chain_memory(c.max_stored, n_walkers, d)
     buf = _Buffer(c.max_stored, n_walkers, d)
     accepted = np.zeros(n_walkers)
     n = 0
