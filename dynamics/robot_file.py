@@ -306,6 +306,9 @@ def _joints_from_urdf(doc, chain, path):
         raise RobotFileError(f"{path}: 'urdf' must be the path of a URDF file (a string), "
                              f"got {short(doc['urdf'])}")
     urdf_path = Path(path).parent / doc["urdf"]
+    if not urdf_path.is_file():
+        raise RobotFileError(f"{path}: urdf = {doc['urdf']!r}: no such file ({urdf_path}); the path is "
+                             f"relative to the robot file's folder")
     from_urdf = read_urdf(urdf_path, base=chain["base"], tip=chain["tip"])
     joints = from_urdf.joints
     overrides = doc.get("joints", [])

@@ -176,8 +176,9 @@ def excitation_rate(robot, f0, harmonics, fs=None, periods=1) -> float:
                              f"(--fs {10 * top:g} or more)")
         rows = fs * periods / f0
         if rows > 50_000_000:
-            raise InputError(f"--fs {fs:g} Hz x --periods {periods} would write {rows:.3g} rows; "
-                             "lower one of them (at most 50 million rows)")
+            raise InputError(f"--fs {fs:g} Hz x --periods {periods} / --f0 {f0:g} Hz would write {rows:.3g} "
+                             "rows (at most 50 million): raise --f0 (one period lasts 1/f0 s), or lower "
+                             "--fs or --periods")
     return fs
 
 

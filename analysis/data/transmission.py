@@ -86,14 +86,14 @@ def reduction_matrix(
     """
     if isinstance(gear_ratios, (str, bytes)) or not isinstance(gear_ratios, Iterable):
         raise DataError(f"gear_ratios must be a list of numbers, got {gear_ratios!r}.")
-    ratios = [_as_number(g, f"gear_ratios[{k + 1}]") for k, g in enumerate(gear_ratios)]
+    ratios = [_as_number(g, f"gear_ratios[{k}] (joint {k + 1})") for k, g in enumerate(gear_ratios)]
     n = len(ratios)
     if n == 0:
         raise DataError("gear_ratios is empty: give one gear ratio per joint.")
     for k, g in enumerate(ratios):
         if g == 0.0:
             raise DataError(
-                f"gear_ratios[{k + 1}] is 0: a gear ratio cannot be zero "
+                f"gear_ratios[{k}] = 0 (joint {k + 1}): a gear ratio cannot be zero "
                 "(use 1 for a direct drive)."
             )
     R = np.diag(np.asarray(ratios, dtype=float))

@@ -706,7 +706,8 @@ def identify_payload(loaded, robot, *, model=None, unloaded=None, frame="flange"
     if physical:
         res.physical = physical_payload(chi, cov, com_box=com_box)
     elif com_box is not None:
-        raise InputError("com_box is an option of the physically consistent payload: pass physical=True")
+        raise InputError("com_box is an option of the physically consistent payload: pass physical=True "
+                         "(on the command line: --com-box needs --physical)")
     return res
 
 

@@ -64,8 +64,12 @@ def read_catalogue(catalogue) -> pd.DataFrame:
                 raise InputError(f"{path}: a fleet catalogue is a .csv or .parquet file, not '{ext}'")
         except InputError:
             raise
+        except pd.errors.EmptyDataError:
+            raise InputError(f"{path}: the fleet catalogue is empty; write a header line with the columns "
+                             + ", ".join(REQUIRED) + " and one row per recording") from None
         except Exception as exc:  # pandas/pyarrow parse errors: say which file
-            raise InputError(f"{path}: cannot read the fleet catalogue ({type(exc).__name__}: {exc})") from None
+            raise InputError(f"{path}: cannot read the fleet catalogue ({type(exc).__name__}: {exc}); it must be "
+                             f"a CSV (or Parquet) table with the columns {', '.join(REQUIRED)}") from None
     missing = [c for c in REQUIRED if c not in frame.columns]
     if missing:
         raise InputError(f"{label}: missing column(s) {', '.join(missing)}; a fleet catalogue needs "
@@ -99,7 +103,7 @@ def read_catalogue(catalogue) -> pd.DataFrame:
         out_of_range = ~(values.isna() | ((values >= MIN_TEMPERATURE) & (values <= MAX_TEMPERATURE)))
         if out_of_range.any():
             k = int(np.argmax(out_of_range.to_numpy()))
-            raise InputError(f"{label}: column {col}, row {k + 1}: {frame[col].iloc[k]!r} is not a joint "
+            raise InputError(f"{label}: column {col}, row {k + 1}: {values.iloc[k]:g} is not a joint "
                              f"temperature in degrees Celsius (accepted: {MIN_TEMPERATURE:g} to "
                              f"{MAX_TEMPERATURE:g}; leave it empty when not logged)")
         frame[col] = values.astype(float)

@@ -59,7 +59,7 @@ RANGES = {
     "seed": OptionRange("--seed", "seed", 0, 10**18, integer=True),
     "max_seconds": OptionRange("--max-seconds", "max_seconds", 0.0, 1e7, "s", open_low=True),
     "duration": OptionRange("--duration", "duration", 0.0, 1e6, "s", open_low=True),
-    "max_effects": OptionRange("--max-effects", "max_effects", 0, 100, integer=True),
+    "max_effects": OptionRange("--max-effects", "max_effects", 1, 100, integer=True),
     "alpha": OptionRange("--alpha", "alpha", 0.0, 1.0, open_low=True, open_high=True),
     "walkers": OptionRange("--walkers", "walkers", 1, 100_000, integer=True,
                            why="every walker keeps its own chain in memory"),

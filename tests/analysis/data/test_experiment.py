@@ -585,7 +585,7 @@ def test_toml_motor_side_conversion(tmp_path):
          ["[torques]", "unknown key", "'drive_gain'"]),
         (lambda s: s.replace("sampling_rate = 10.0", ""), ["no time", "sampling_rate"]),
         (lambda s: s.split("[transmission]")[0], ["side = \"motor\"", "[transmission]"]),
-        (lambda s: s.replace("[10, -20, 30]", "[10, 0, 30]"), ["[transmission]", "gear_ratios[2]"]),
+        (lambda s: s.replace("[10, -20, 30]", "[10, 0, 30]"), ["[transmission]", "gear_ratios[1] = 0 (joint 2)"]),
         (lambda s: s.replace("[10, -20, 30]", "[10, 30]"),
          ["gear_ratios", "2 entries", "3 joints"]),
         (lambda s: s.replace("motor = 3, joint = 2", "motor = 3, joint = 4"),
