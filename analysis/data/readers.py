@@ -527,8 +527,20 @@ def _blank_line_notice(raw: _RawFile, blank: list[int], line_of_row: list[int], 
 
 
 def _check_csv_widths(rows: list[list[str]], header: list[str], line_of_row: list[int], label: str) -> None:
-    """Every row as wide as the header (empty trailing cells dropped)."""
+    """Every row as wide as the header (empty trailing cells dropped); a title or comment line
+    above the header is named as such."""
     h = len(header)
+    if h == 1 and header[0].lstrip()[:1] in ("{", "["):
+        raise DataError(f"{label}: the file starts with {header[0].strip()[:20]!r}: it looks like JSON, not a "
+                        "comma-separated table. Give the recording's CSV (t, q1..qn, tau1..taun).")
+    if h == 1 and rows and len([c for c in rows[0] if c.strip()]) > 1 \
+            and not any(_is_number(c) for c in rows[0] if c.strip()):
+        what = "a comment" if header[0].lstrip().startswith("#") else "not the header"
+        raise DataError(
+            f"{label}: the first line, {header[0][:60]!r}, is {what}: the line after it names "
+            f"{len(rows[0])} columns. Delete the line(s) above the header, so that the file starts "
+            "with the column names."
+        )
     for k, row in enumerate(rows):
         if len(row) > h:
             if all(not c.strip() for c in row[h:]):

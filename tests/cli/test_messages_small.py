@@ -1,9 +1,11 @@
 """Small bad-input messages found from outside: each names the file or option and what to do."""
+import numpy as np
 import pytest
 
+from dynid.analysis.data.experiment import load_experiment
 from dynid.analysis.fleet.catalogue import read_catalogue
 from dynid.dynamics.robot_file import load_robot
-from dynid.errors import InputError, RobotFileError
+from dynid.errors import DataError, InputError, RobotFileError
 from dynid.ranges import check_range
 
 
@@ -32,3 +34,24 @@ def test_robot_toml_names_its_missing_urdf(tmp_path):
     (tmp_path / "arm.toml").write_text('name = "arm"\nurdf = "missing.urdf"\n')
     with pytest.raises(RobotFileError, match=r"arm\.toml: urdf = 'missing\.urdf': no such file"):
         load_robot(tmp_path / "arm.toml")
+
+
+def test_comment_or_json_above_the_header(tmp_path):
+    """A comment line above the header, or JSON saved as .csv, is named as such."""
+    p = tmp_path / "c.csv"
+    p.write_text("# exported by X\nt,q1,tau1\n0,0,0\n0.001,0,0\n")
+    with pytest.raises(DataError, match=r"c\.csv: the first line, '# exported by X', is a comment"):
+        load_experiment(p)
+    p.write_text('{\n"method": "IDIM",\n"robot": "tx40"\n}\n')
+    with pytest.raises(DataError, match=r"looks like JSON"):
+        load_experiment(p)
+
+
+def test_float32_time_stamps_are_named(tmp_path):
+    """Time stamps 1e6 s from 0 in float32 repeat: the message says why (their digits), not "sort the rows"."""
+    t = np.arange(2000) / 1000.0
+    q = 0.3 * np.sin(t)[:, None] * np.ones((1, 2))
+    np.savez(tmp_path / "t32.npz", t=(t + 1e6).astype(np.float32), q=q, tau=q)
+    with pytest.raises(DataError, match=r"too few digits .*float32") as exc:
+        load_experiment(tmp_path / "t32.npz")
+    assert "sort the rows" not in str(exc.value)
