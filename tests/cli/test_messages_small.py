@@ -2,7 +2,9 @@
 import numpy as np
 import pytest
 
+import dynid
 from dynid.analysis.data.experiment import load_experiment
+from dynid.analysis.estimators.maximum_likelihood import maximum_likelihood, robot_model
 from dynid.analysis.fleet.catalogue import read_catalogue
 from dynid.dynamics.robot_file import load_robot
 from dynid.errors import DataError, InputError, RobotFileError
@@ -55,3 +57,15 @@ def test_float32_time_stamps_are_named(tmp_path):
     with pytest.raises(DataError, match=r"too few digits .*float32") as exc:
         load_experiment(tmp_path / "t32.npz")
     assert "sort the rows" not in str(exc.value)
+
+
+def test_ml_refuses_data_not_periodic_at_f0():
+    """ML's latent trajectory is a Fourier series of f0: at the wrong f0 it left 70 % of the torque
+    unexplained and exited 0; now the recording is refused, naming --f0."""
+    robot = load_robot("planar2")
+    rec = dynid.simulate(robot, 6.0, seed=4, f0=0.5, harmonics=3)
+    e = rec.experiment
+    with pytest.raises(InputError, match=r"not periodic at f0 = 0.2 Hz.*--f0"):
+        maximum_likelihood(e.t, e.q, e.tau, robot_model(robot), f0=0.2, n_harmonics=3)
+    r = maximum_likelihood(e.t, e.q, e.tau, robot_model(robot), f0=0.5, n_harmonics=3)
+    assert not any("unexplained" in n for n in r.notices)

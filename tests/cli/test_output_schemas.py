@@ -116,9 +116,14 @@ def test_identify_json_to_stdout(folder):
 
 
 @pytest.mark.parametrize("method, extra", [("didim", ()), ("projection", ()),
-                                           ("ml", ("--f0", "0.2", "--ml-harmonics", "3"))])
+                                           ("ml", ("--f0", "0.5", "--ml-harmonics", "3"))])
 def test_identify_json_of_the_other_methods(folder, method, extra):
-    run(folder, "identify", "p2.csv", "--robot", "planar2", "--method", method, *extra, "--json", f"{method}.json")
+    data = "p2.csv"
+    if method == "ml":          # ML needs a recording periodic at its f0 (three periods of 0.5 Hz)
+        data = "p2ml.csv"
+        run(folder, "simulate", "--robot", "planar2", "--duration", "6", "--seed", "4", "--f0", "0.5",
+            "--harmonics", "3", "--out", data)
+    run(folder, "identify", data, "--robot", "planar2", "--method", method, *extra, "--json", f"{method}.json")
     check("identify", load(folder / f"{method}.json"))
 
 
