@@ -67,12 +67,21 @@ def _bytes(n) -> str:
     return f"{n / 1e3:.3g} kB"
 
 
+#: the largest noise standard deviation a simulated recording may have (its cells stay far
+#: below dynid.analysis.data.plausibility.MAGNITUDE_LIMIT)
+MAX_NOISE = 1e6
+
+
 def check_noise(value, option) -> None:
-    """A noise standard deviation (scalar or per joint): finite and non-negative."""
+    """A noise standard deviation (scalar or per joint): finite, non-negative, and small enough
+    that the recording it makes can be read back (dynid refuses cells beyond MAGNITUDE_LIMIT)."""
     arr = np.asarray(value, dtype=float)
     if not np.all(np.isfinite(arr)) or np.any(arr < 0):
         raise InputError(f"the noise standard deviation must be finite and non-negative (0 for none), "
                          f"got {value!r} ({option})")
+    if np.any(arr > MAX_NOISE):
+        raise InputError(f"the noise standard deviation {float(arr.max()):g} ({option}) is out of range: at most "
+                         f"{MAX_NOISE:g}, or the recording would hold values dynid refuses to read")
 
 
 def tx40_true_parameters(robot, bp):

@@ -69,3 +69,9 @@ def test_ml_refuses_data_not_periodic_at_f0():
         maximum_likelihood(e.t, e.q, e.tau, robot_model(robot), f0=0.2, n_harmonics=3)
     r = maximum_likelihood(e.t, e.q, e.tau, robot_model(robot), f0=0.5, n_harmonics=3)
     assert not any("unexplained" in n for n in r.notices)
+
+
+def test_simulated_noise_has_an_upper_bound():
+    """--noise-tau 1e30 wrote a recording that identify then refused: refused at once."""
+    with pytest.raises(InputError, match=r"1e\+30 \(--noise-tau\) is out of range"):
+        dynid.simulate(load_robot("planar2"), 1.0, noise_tau=1e30)
