@@ -66,12 +66,14 @@ def _check_time(t: np.ndarray, col: _Col, rows: np.ndarray, opts: _Options,
         k = int(back[0])
         what = "repeats" if dt[k] == 0 else "goes back"
         step = (t[-1] - t[0]) / max(t.size - 1, 1)
-        if step > 0 and float(np.max(np.abs(t))) / step > 2.0 ** 24:
+        with np.errstate(over="ignore", invalid="ignore"):
+            as_float32 = bool(np.all(t.astype(np.float32) == t))
+        if step > 0 and as_float32 and float(np.spacing(np.float32(np.max(np.abs(t))))) >= 0.5 * step:
             # float32 keeps 24 bits: time stamps far from 0 lose the step between samples
             raise DataError(
                 f"{col.where}: time {what} at {col.raw.row(rows[k + 1])}: t = {_fmt_t(t[k + 1])} after "
                 f"t = {_fmt_t(t[k])}, with a mean step of {_fmt(step * 1e3)} ms: the time stamps have too "
-                "few digits for their size (stored as float32, ~7 digits?). Store time as float64, or in s "
+                "few digits for their size (they are float32 values, ~7 digits). Store time as float64, or in s "
                 "relative to the start of the recording."
             )
         raise DataError(

@@ -57,6 +57,12 @@ def test_float32_time_stamps_are_named(tmp_path):
     with pytest.raises(DataError, match=r"too few digits .*float32") as exc:
         load_experiment(tmp_path / "t32.npz")
     assert "sort the rows" not in str(exc.value)
+    t64 = 1.7e9 + t                                     # float64 epoch seconds: a repeat is a repeat
+    t64[100] = t64[99]
+    np.savez(tmp_path / "t64.npz", t=t64, q=q, tau=q)
+    with pytest.raises(DataError, match=r"sort the rows") as exc:
+        load_experiment(tmp_path / "t64.npz")
+    assert "float32" not in str(exc.value)
 
 
 def test_ml_refuses_data_not_periodic_at_f0():
