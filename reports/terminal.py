@@ -114,11 +114,14 @@ def check_input_paths(args):
 
 
 def _one_recording(a, b):
-    """`"same"` when paths `a` and `b` are one file, `"copy"` when two files hold the same bytes,
-    else "" (a TOML description and the file it reads are not compared: two descriptions may
-    read different parts of one file)."""
+    """`"same"` when paths `a` and `b` are one file, `"copy"` when two data files hold the same
+    bytes, else "". Experiment descriptions (TOML) are not compared by their bytes: two equal
+    ones in two folders read two recordings, and two descriptions may read different parts of
+    one file."""
     if same_file(a, b):
         return "same"
+    if any(str(p).lower().endswith(".toml") for p in (a, b)):
+        return ""
     try:
         if os.path.isfile(a) and os.path.isfile(b) and os.path.getsize(a) == os.path.getsize(b) \
                 and filecmp.cmp(a, b, shallow=False):

@@ -289,9 +289,10 @@ def check_rate(t: np.ndarray, signals: dict, robot, time_where: str, notices: li
                 f"sampling rate of {_g(fs)} Hz")
         if known and all(speed[j] < SLOW_FRACTION * qd_max[j] for j in known):
             j = max(known, key=lambda i: speed[i] / qd_max[i])
-            # the unit that makes the rate plausible: ms, µs or ns
-            scale, unit = next(((s, u) for s, u in ((1e-3, "ms"), (1e-6, "\u00b5s"), (1e-9, "ns"))
-                                if fs / s >= LOW_RATE), (1e-9, "ns"))
+            # the unit that makes the joints' speeds plausible (a third of qd_max): ms, µs or ns
+            ratio = speed[j] / qd_max[j]
+            scale, unit = min(((1e-3, "ms"), (1e-6, "\u00b5s"), (1e-9, "ns")),
+                              key=lambda su: abs(math.log10(max(ratio / su[0], 1e-300) / 0.3)))
             raise DataError(
                 f"{head}; at that rate the fastest joint (joint {j + 1}) moves at "
                 f"{_g(speed[j])} rad/s, {100 * speed[j] / qd_max[j]:.2g} % of its qd_max "

@@ -494,6 +494,9 @@ def _csv_rows(text: str, label: str):
 
 def _check_csv_header(header: list[str], header_line: int, label: str) -> None:
     """The first line names columns, separated by commas."""
+    if header and header[0].lstrip()[:1] in ("{", "["):
+        raise DataError(f"{label}: the file starts with {header[0].strip()[:20]!r}: it looks like JSON, not a "
+                        "comma-separated table. Give the recording's CSV (t, q1..qn, tau1..taun).")
     if not header:
         raise DataError(
             f"{label}, file line {header_line}: the header line has no column names. "
@@ -530,9 +533,13 @@ def _check_csv_widths(rows: list[list[str]], header: list[str], line_of_row: lis
     """Every row as wide as the header (empty trailing cells dropped); a title or comment line
     above the header is named as such."""
     h = len(header)
-    if h == 1 and header[0].lstrip()[:1] in ("{", "["):
-        raise DataError(f"{label}: the file starts with {header[0].strip()[:20]!r}: it looks like JSON, not a "
-                        "comma-separated table. Give the recording's CSV (t, q1..qn, tau1..taun).")
+    if header and header[0].lstrip().startswith("#") and rows \
+            and not any(_is_number(c) for c in rows[0] if c.strip()):
+        raise DataError(
+            f"{label}: the first line, {','.join(header)[:60]!r}, is a comment: the line after it names "
+            f"{len(rows[0])} columns. Delete the line(s) above the header, so that the file starts "
+            "with the column names."
+        )
     if h == 1 and rows and len([c for c in rows[0] if c.strip()]) > 1 \
             and not any(_is_number(c) for c in rows[0] if c.strip()):
         what = "a comment" if header[0].lstrip().startswith("#") else "not the header"

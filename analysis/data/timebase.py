@@ -31,10 +31,14 @@ __all__ = ["estimate_shift", "TIME_STEP_TOLERANCE", "GAP_FACTOR", "MAX_RESAMPLE_
 TIME_STEP_TOLERANCE = 0.01
 #: A time step longer than this × the median is reported as dropped samples / clock jump.
 GAP_FACTOR = 1.5
+#: a time column whose steps are 0 this often is too coarse (not a few duplicated rows)
+COARSE_TIME_FRACTION = 0.25
 #: `resample = true` interpolates across steps up to this × the median (the Panda's ROS
-#: stamps reach 8.8 ×); a longer step is a gap, and a straight line across it would be
+#: stamps reach 8.8 ×), or up to MAX_RESAMPLE_GAP seconds when that is longer (a scheduler's
+#: hiccup in a 1 kHz log); a longer step is a gap, and a straight line across it would be
 #: fitted as if the robot had moved that way.
 MAX_RESAMPLE_STEP = 20.0
+MAX_RESAMPLE_GAP = 0.05
 
 
 @dataclass
@@ -65,16 +69,16 @@ def _check_time(t: np.ndarray, col: _Col, rows: np.ndarray, opts: _Options,
     if back.size:
         k = int(back[0])
         what = "repeats" if dt[k] == 0 else "goes back"
-        step = (t[-1] - t[0]) / max(t.size - 1, 1)
-        with np.errstate(over="ignore", invalid="ignore"):
-            as_float32 = bool(np.all(t.astype(np.float32) == t))
-        if step > 0 and as_float32 and float(np.spacing(np.float32(np.max(np.abs(t))))) >= 0.5 * step:
-            # float32 keeps 24 bits: time stamps far from 0 lose the step between samples
+        repeats = int(np.count_nonzero(dt == 0))
+        if repeats >= max(COARSE_TIME_FRACTION * dt.size, 10):
+            # not a few duplicated rows: time stamps coarser than the sampling (float32 keeps ~7
+            # digits, so epoch seconds in float32 do not even resolve a second; or rounded when written)
             raise DataError(
-                f"{col.where}: time {what} at {col.raw.row(rows[k + 1])}: t = {_fmt_t(t[k + 1])} after "
-                f"t = {_fmt_t(t[k])}, with a mean step of {_fmt(step * 1e3)} ms: the time stamps have too "
-                "few digits for their size (they are float32 values, ~7 digits). Store time as float64, or in s "
-                "relative to the start of the recording."
+                f"{col.where}: time does not advance in {repeats} of its {dt.size} steps (first at "
+                f"{col.raw.row(rows[k + 1])}, t = {_fmt_t(t[k + 1])}): the time stamps are coarser than "
+                "the sampling, they have too few digits for their size (float32 values keep ~7 digits; "
+                "or rounded when written). Store time as float64 with enough decimals, or in s relative "
+                "to the start of the recording."
             )
         raise DataError(
             f"{col.where}: time {what} at {col.raw.row(rows[k + 1])}: t = {_fmt_t(t[k + 1])} "
@@ -108,18 +112,17 @@ def _check_time(t: np.ndarray, col: _Col, rows: np.ndarray, opts: _Options,
             )
         return False, med
     n_off = int((dev > tol).sum())
-    holes = np.flatnonzero(dt > MAX_RESAMPLE_STEP * med)
+    holes = np.flatnonzero(dt > max(MAX_RESAMPLE_STEP * med, MAX_RESAMPLE_GAP))
     if holes.size:
         k = int(holes[0])
         raise DataError(
             f"{col.where}: the recording has a gap: {_fmt(dt[k] * 1e3)} ms ({dt[k] / med:.0f} median steps) "
             f"between {col.raw.row(rows[k])} and {col.raw.row(rows[k + 1])}"
-            + (f", and {holes.size - 1} more longer than {MAX_RESAMPLE_STEP:g} median steps" if holes.size > 1
-               else "")
-            + ". Interpolating across a gap would invent the motion the recording lacks "
-            + ("(resampling, --resample or resample = true, does so only across shorter steps)" if opts.resample else
-               "(so it is not offered here)")
-            + ". Split the recording at its gaps (one file per part) and give the parts as separate recordings."
+            + (f", and {holes.size - 1} more as long" if holes.size > 1 else "")
+            + ". Resampling (--resample, resample = true) fills only steps up to "
+            + f"{_fmt(max(MAX_RESAMPLE_STEP * med, MAX_RESAMPLE_GAP) * 1e3)} ms: across a gap it would invent "
+            + "the motion the recording lacks. Split the recording at its gaps (one file per part) and give "
+            + "the parts as separate recordings."
         )
     if opts.resample:
         notices.append(

@@ -490,7 +490,7 @@ def maximum_likelihood(t, q, tau, model, *, f0, n_harmonics=None, sigma_q=None, 
     if N <= m + p:
         raise InputError(f"{N} samples are too few for {p} parameters and {m} Fourier coefficients per joint")
     B, Bd, Bdd, C0 = _fourier_start(t, q, f0, K)
-    _check_periodic(q, B @ C0, f0, K, notices)
+    _check_periodic(q, B @ C0, f0, K, notices, harmonics_given=n_harmonics is not None)
     sq = _sigma_q(q, B, C0, sigma_q, m)
     qf, qdf, qddf = B @ C0, Bd @ C0, Bdd @ C0
     keep = _kept_equations(t, qdf, qd_threshold, reversal_guard, K, f0, p)
@@ -569,23 +569,33 @@ def _harmonics(t, q, f0, n_harmonics, notices):
 #: share of a joint's motion (RMS about its mean) the Fourier series of f0 may leave
 #: unexplained: above NOT_PERIODIC_NOTICE a notice, above NOT_PERIODIC_ERROR an error
 NOT_PERIODIC_NOTICE, NOT_PERIODIC_ERROR = 0.05, 0.25
+#: a joint whose motion (RMS about its mean, rad or m) is below this is not judged: near the
+#: noise level, no Fourier series explains it, and it says nothing about f0
+STILL_JOINT_RMS = 1e-3
 
 
-def _check_periodic(q, q_fit, f0, K, notices):
-    """The latent trajectory (eq. (17)) must describe q: with the wrong f0 (or a motion that is
-    not periodic) most of it is left out, and the fit that follows is meaningless."""
+def _check_periodic(q, q_fit, f0, K, notices, harmonics_given=False):
+    """The latent trajectory (eq. (17)) must describe q: with the wrong f0, too few harmonics or a
+    motion that is not periodic most of it is left out, and the fit that follows is meaningless."""
+    spread = np.sqrt(np.mean((q - q.mean(axis=0)) ** 2, axis=0))
+    moving = spread >= STILL_JOINT_RMS
+    if not moving.any():
+        return
     with np.errstate(divide="ignore", invalid="ignore"):
-        share = np.linalg.norm(q - q_fit, axis=0) / np.linalg.norm(q - q.mean(axis=0), axis=0)
-    share = np.where(np.isfinite(share), share, 0.0)
+        share = np.sqrt(np.mean((q - q_fit) ** 2, axis=0)) / spread
+    share = np.where(moving & np.isfinite(share), share, 0.0)
     j = int(np.argmax(share))
     text = (f"{K} harmonics of f0 = {f0:g} Hz leave {100 * share[j]:.3g} % of joint {j + 1}'s motion "
             "unexplained (RMS about its mean)")
+    fix = ("give more harmonics (--ml-harmonics; n_harmonics= in Python), or the fundamental frequency of "
+           "the excitation (--f0: 1 / the period of the reference)" if harmonics_given else
+           "give the fundamental frequency of the excitation (--f0: 1 / the period of the reference)")
     if share[j] > NOT_PERIODIC_ERROR:
-        raise InputError(f"{text}: the recording is not periodic at f0 = {f0:g} Hz. Give the fundamental "
-                         "frequency of its excitation (--f0; 1 / the period of the reference), or use "
-                         "another method for non-periodic data (IDIM, DIDIM)")
+        raise InputError(f"{text}: the latent trajectory of maximum likelihood (eq. (17)) does not describe "
+                         f"the recording. {fix[0].upper() + fix[1:]}; for data that are not periodic use "
+                         "IDIM or DIDIM")
     if share[j] > NOT_PERIODIC_NOTICE:
-        notices.append(f"{text}: check f0 (--f0) and the number of harmonics")
+        notices.append(f"{text}: {fix}")
 
 
 def _fourier_start(t, q, f0, K):

@@ -25,6 +25,14 @@ __all__ = ["install"]
 _SUBPACKAGES = ("dynid.dynamics", "dynid.analysis", "dynid.reports")
 
 
+def _locator(name):
+    """numba's locator class `name` (numba < 0.62 spells them with a leading underscore), or None."""
+    return getattr(caching, name, None) or getattr(caching, "_" + name, None)
+
+
+_UserWide, _InTree = _locator("UserWideCacheLocator"), _locator("InTreeCacheLocator")
+
+
 def _package_folders() -> tuple[str, ...]:
     folders = []
     for name in _SUBPACKAGES:
@@ -34,14 +42,14 @@ def _package_folders() -> tuple[str, ...]:
     return tuple(folders)
 
 
-class DynidCacheLocator(caching.UserWideCacheLocator):
+class DynidCacheLocator(_UserWide or object):
     """numba's user-wide locator, for the source files of dynid's packages only."""
 
     folders: tuple[str, ...] = ()
 
     @classmethod
     def from_function(cls, py_func, py_file):
-        if config.CACHE_DIR or not os.path.abspath(py_file).startswith(cls.folders):
+        if _UserWide is None or config.CACHE_DIR or not os.path.abspath(py_file).startswith(cls.folders):
             return None
         return super().from_function(py_func, py_file)
 
@@ -53,11 +61,12 @@ def install() -> None:
     cache locator when it decorates it. A numba without the locator list this relies on
     keeps its own behaviour.
     """
-    classes = getattr(getattr(caching, "CacheImpl", None), "_locator_classes", None)
-    if not isinstance(classes, list) or DynidCacheLocator in classes:
+    impl = getattr(caching, "CacheImpl", None) or getattr(caching, "_CacheImpl", None)
+    classes = getattr(impl, "_locator_classes", None)
+    if _UserWide is None or not isinstance(classes, list) or DynidCacheLocator in classes:
         return
     DynidCacheLocator.folders = _package_folders()
     if not DynidCacheLocator.folders:
         return
-    at = classes.index(caching.InTreeCacheLocator) if caching.InTreeCacheLocator in classes else 0
+    at = classes.index(_InTree) if _InTree in classes else 0
     classes.insert(at, DynidCacheLocator)

@@ -1867,3 +1867,16 @@ def test_g11_simulate_says_what_it_leaves_out(tmp_path):
                      cwd=tmp_path)
     assert full.rc == 0 and "without" not in full.err, str(full)
     assert json.loads((tmp_path / "p.json").read_text())["notices"] == []
+
+
+def test_g4_equal_descriptions_of_two_recordings_are_accepted(tmp_path, data, frame):
+    """a/exp.toml and b/exp.toml, byte-identical, read a/run.csv and b/run.csv: two recordings."""
+    for sub, scale in (("a", 1.0), ("b", 1.01)):
+        (tmp_path / sub).mkdir()
+        other = frame.copy()
+        other["tau1"] *= scale
+        other.to_csv(tmp_path / sub / "run.csv", index=False)
+        (tmp_path / sub / "exp.toml").write_text('file = "run.csv"\n')
+    run = run_dynid("identify", "a/exp.toml", "--validation", "b/exp.toml", "--robot", "planar2",
+                    "--json", "o.json", cwd=tmp_path)
+    assert run.rc == 0, str(run)

@@ -1,5 +1,6 @@
 """Small bad-input messages found from outside: each names the file or option and what to do."""
 import numpy as np
+import pandas as pd
 import pytest
 
 import dynid
@@ -57,6 +58,11 @@ def test_float32_time_stamps_are_named(tmp_path):
     with pytest.raises(DataError, match=r"too few digits .*float32") as exc:
         load_experiment(tmp_path / "t32.npz")
     assert "sort the rows" not in str(exc.value)
+    t32 = (1.7e9 + t).astype(np.float32)                # epoch seconds in float32, through a CSV
+    pd.DataFrame({"t": t32, "q1": q[:, 0], "q2": q[:, 1], "tau1": q[:, 0], "tau2": q[:, 1]}).to_csv(
+        tmp_path / "e32.csv", index=False)
+    with pytest.raises(DataError, match=r"does not advance in 1999 of its 1999 steps.*too few digits"):
+        load_experiment(tmp_path / "e32.csv")
     t64 = 1.7e9 + t                                     # float64 epoch seconds: a repeat is a repeat
     t64[100] = t64[99]
     np.savez(tmp_path / "t64.npz", t=t64, q=q, tau=q)
@@ -71,7 +77,7 @@ def test_ml_refuses_data_not_periodic_at_f0():
     robot = load_robot("planar2")
     rec = dynid.simulate(robot, 6.0, seed=4, f0=0.5, harmonics=3)
     e = rec.experiment
-    with pytest.raises(InputError, match=r"not periodic at f0 = 0.2 Hz.*--f0"):
+    with pytest.raises(InputError, match=r"f0 = 0.2 Hz leave .* does not describe the recording.*--f0"):
         maximum_likelihood(e.t, e.q, e.tau, robot_model(robot), f0=0.2, n_harmonics=3)
     r = maximum_likelihood(e.t, e.q, e.tau, robot_model(robot), f0=0.5, n_harmonics=3)
     assert not any("unexplained" in n for n in r.notices)
