@@ -210,6 +210,10 @@ def check_settings(settings: Settings) -> None:
             if not all(math.isfinite(v) and v >= 0 for v in numbers):
                 raise InputError(f"--qd-threshold (qd_threshold=) {settings.qd_threshold!r}: the velocity dead "
                                  f"zone must be finite and non-negative rad/s (0 keeps every row), or 'auto'")
+    g = settings.gain_update
+    if not (isinstance(g, bool) or g in GAIN_UPDATES.values() or (isinstance(g, str) and g in GAIN_UPDATES)):
+        raise InputError(f"--gain-update (gain_update=) {g!r}: DIDIM's controller-gain update is one of "
+                         f"{', '.join(GAIN_UPDATES)}")
 
 
 def settings_from(settings=None, **options) -> Settings:
@@ -635,7 +639,8 @@ def verdict_of(result, held_out=None, *, robot=None, diagnosis=None, residuals=N
         return own
     validation = held_out
     if held_out is not None and not isinstance(held_out, ValidationResult):
-        target = getattr(result, "result", result)         # a run: its identification result
+        # a run: its identification result (an estimator's own result keeps itself)
+        target = result if getattr(result, "base", None) is not None else getattr(result, "result", result)
         validation = validate(target, held_out, robot)
         result = target
     return verdict(result, validation, robot=robot, diagnosis=diagnosis, residuals=residuals)

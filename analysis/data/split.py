@@ -13,6 +13,10 @@ from dynid.errors import InputError
 MIN_PART_SAMPLES = 64
 
 
+def _fmt_s(x: float) -> str:
+    return f"{x:.6g}"
+
+
 def holdout_split(experiment, seconds: float):
     """`(identification, held_out)`: the last `seconds` of `experiment` are held out.
 
@@ -27,6 +31,9 @@ def holdout_split(experiment, seconds: float):
     held_out : Experiment
         The last `seconds`.
     """
+    if not hasattr(experiment, "segment") or not hasattr(experiment, "t"):
+        raise InputError(f"holdout_split: the recording must be an Experiment (dynid.load_experiment(path) "
+                         f"reads a file), not {type(experiment).__name__}")
     try:
         seconds = float(seconds)
     except (TypeError, ValueError):
@@ -35,8 +42,9 @@ def holdout_split(experiment, seconds: float):
         raise InputError(f"holdout must be a positive number of seconds, got {seconds:g}")
     t_split = experiment.t[-1] - seconds
     if not experiment.t[0] < t_split:
-        raise InputError(f"holdout {seconds:g} s is longer than the recording {experiment.source} "
-                         f"({experiment.duration:.3g} s): hold out less")
+        raise InputError(f"holdout {seconds:g} s leaves nothing to identify in the recording "
+                         f"{experiment.source or experiment.name} ({_fmt_s(experiment.t[-1] - experiment.t[0])} s "
+                         "from its first to its last sample): hold out less")
     n_held = int(np.count_nonzero(experiment.t >= t_split))
     n_ident = experiment.t.size - n_held
     if experiment.t.size < 2 * MIN_PART_SAMPLES:

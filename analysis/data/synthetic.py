@@ -20,6 +20,7 @@ from dynid.dynamics.trajectories import random_fourier_trajectory
 from dynid.errors import InputError
 from dynid.outputs import atomic_write_text
 from dynid.provenance import json_safe
+from dynid.ranges import check_range
 
 # Values of the simulated TX40 outside Table 2. Ia6 is FIGAROH's a-priori rotor
 # inertia of joint 6 (config/TX40_config.yaml): without it M66 = 0 and M(q) is
@@ -301,6 +302,11 @@ def simulate(robot, duration: float = 20.0, *, seed: int = 1, f0: float = 0.1, h
     robot = load_robot(robot)   # a Robot passes through
     if robot.controller is None:
         raise InputError(f"robot '{robot.name}' ({robot.source}) has no [controller]; add one to simulate")
+    seed = check_range("seed", seed)
+    duration = check_range("duration", duration)
+    for name, value in (("f0", f0), ("harmonics", harmonics)):
+        if isinstance(value, (str, bytes)) or not isinstance(value, (int, float, np.number)):
+            raise InputError(f"{name} must be a number, got {value!r} (--{name})")
     if not (duration > 0 and f0 > 0 and harmonics >= 1):
         raise InputError("duration and f0 must be positive and harmonics at least 1 "
                          "(--duration, --f0, --harmonics)")
@@ -311,7 +317,13 @@ def simulate(robot, duration: float = 20.0, *, seed: int = 1, f0: float = 0.1, h
                          f"trajectory uses (--harmonics)")
     check_noise(noise_q, "--noise-q")
     check_noise(noise_tau, "--noise-tau")
-    sample_count(duration, float(robot.controller.rate), what=f"the controller rate of robot '{robot.name}'")
+    rate = float(robot.controller.rate)
+    if rate < 10 * f0 * harmonics:
+        # fewer samples per period of the highest harmonic alias the reference (to DC at the rate)
+        raise InputError(f"f0 x harmonics = {f0 * harmonics:g} Hz is too high for the controller rate of robot "
+                         f"'{robot.name}' ({rate:g} Hz): a reference needs at least 10 samples per period of its "
+                         f"highest harmonic; lower --f0 or --harmonics (at most {rate / 10:g} Hz together)")
+    sample_count(duration, rate, what=f"the controller rate of robot '{robot.name}'")
     chi = apriori_parameters(robot, base_parameters(robot))
     rng = np.random.default_rng(seed)
     traj = random_fourier_trajectory(robot, f0, harmonics, rng)

@@ -171,6 +171,13 @@ def identify_idim(experiment, robot, *, settings=None, bp=None, max_error_growth
     if observation is not None and len(experiments) > 1:
         raise InputError("identify_idim: observation is the system of one recording")
     check_same_rate(experiments, ["a recording"] * len(experiments))
+    hashes = [e.data_hash() for e in experiments] if len(experiments) > 1 else None
+    for k, hk in enumerate(hashes or []):
+        if hk in hashes[:k]:
+            i = hashes.index(hk)
+            raise InputError(f"identify: recording {k + 1} ({experiments[k].source or experiments[k].name}) holds "
+                             f"the same data as recording {i + 1}: counted twice it would shrink the sigma and "
+                             "prove nothing; give each recording once")
     first = observation if observation is not None else observe(experiments[0], robot, bp, settings,
                                                                 progress=progress)
     parts = [first] + [observe(e, robot, bp, first.settings) for e in experiments[1:]]
@@ -183,8 +190,8 @@ def identify_idim(experiment, robot, *, settings=None, bp=None, max_error_growth
     r_wls = ls.wls(obs.W, obs.tau, names, row_mask=obs.row_mask, settings=info, **unc)
     ess = essential_parameters(obs.W, obs.tau, names, ls.wls, max_error_growth=max_error_growth,
                                row_mask=obs.row_mask, settings=info, **unc)
-    h = (experiments[0].data_hash() if len(experiments) == 1 else
-         data_hash(*[np.frombuffer(e.data_hash().encode(), dtype=np.uint8) for e in experiments]))
+    h = (experiments[0].data_hash() if hashes is None else
+         data_hash(*[np.frombuffer(hk.encode(), dtype=np.uint8) for hk in hashes]))
     prismatic = tuple(getattr(bp, "prismatic", ()))
     for r in (r_ols, r_wls, ess.result, ess.base):
         r.data_hash, r.prismatic = h, prismatic

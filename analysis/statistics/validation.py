@@ -159,6 +159,23 @@ class ValidationResult(Result):
             "notices": self.notices})
 
 
+def _validatable(result):
+    """The IDIM-like result `validate` needs (a run's identification unwrapped), or an InputError:
+    the held-out system is built with the identification's processing (filters, decimation)."""
+    inner = getattr(result, "result", None)
+    if getattr(result, "base", None) is None and inner is not None:
+        result = inner
+    settings = getattr(result, "settings", None)
+    if (getattr(result, "base", None) is None or not isinstance(settings, dict) or "fc_position" not in settings
+            or not callable(getattr(result, "predict", None))):
+        what = getattr(result, "method", None) or type(result).__name__
+        raise InputError(f"validate: this {type(result).__name__} ({what}) cannot be validated on held-out data "
+                         "here: validation rebuilds the held-out system with IDIM's processing, which only an "
+                         "IDIM result (dynid.identify(..., method='idim')) or its PC-WLS fit carries. Validate "
+                         "the IDIM result of the same data")
+    return result
+
+
 def validate(idim_result, experiment, robot=None):
     """Predict `experiment` with the essential model of `idim_result`.
 
@@ -174,12 +191,20 @@ def validate(idim_result, experiment, robot=None):
         ||tau - tau_hat|| / ||tau|| and per-joint RMS [N m] on all samples and on the
         moving ones, and the normality tests of the residual.
     """
+    idim_result = _validatable(idim_result)
     if robot is None:
         robot = getattr(idim_result, "robot", None)
         if robot is None:
             raise InputError("validate: this result does not carry its robot; pass robot=")
     if isinstance(experiment, (str, bytes)) or hasattr(experiment, "__fspath__"):
         experiment = load_experiment(experiment, robot)
+    if not callable(getattr(experiment, "data_hash", None)):
+        raise InputError(f"validate: the held-out data must be an Experiment or a file path, not "
+                         f"{type(experiment).__name__}")
+    if getattr(idim_result, "data_hash", None) and experiment.data_hash() == idim_result.data_hash:
+        raise InputError("validate: the held-out recording is the identification data: validating on it says "
+                         "nothing about the model; give another recording, or split one with "
+                         "dynid.holdout_split")
     settings = dict(idim_result.settings)
     check_rate_matches(experiment, settings.get("fs"), "the held-out recording", "the identification data")
     full = observe(experiment, robot, idim_result.base, dict(settings, qd_threshold=0.0))

@@ -225,6 +225,9 @@ def _is_regular_or_missing(target: str) -> bool:
         return stat.S_ISREG(os.stat(target).st_mode)
     except FileNotFoundError:
         return True
+    except NotADirectoryError:
+        raise InputError(f"{target}: a part of the folder path is a file, not a folder; give a path in "
+                         "an existing folder") from None
 
 
 def remove_stale_temporaries(folder: str) -> list:
@@ -331,6 +334,11 @@ def write_all(outputs, say=None) -> list:
     Returns the paths written. Raises `OutputError` naming the
     file when one cannot be written; the folder is then as it was before.
     """
+    outputs = list(outputs)
+    for path, _ in outputs:
+        if not isinstance(path, (str, os.PathLike)):
+            raise InputError(f"an output path must be a file name (str or os.PathLike), got "
+                             f"{type(path).__name__} {path!r}")
     to_stdout = [data for path, data in outputs if os.fspath(path) == "-"]
     files = [(path, resolve_target(path), data.encode("utf-8") if isinstance(data, str) else bytes(data))
              for path, data in outputs if os.fspath(path) != "-"]
@@ -341,10 +349,12 @@ def write_all(outputs, say=None) -> list:
         seen[target] = path
     direct = [(p, t, d) for p, t, d in files if not _is_regular_or_missing(t)]
     staged_files = [(p, t, d) for p, t, d in files if _is_regular_or_missing(t)]
-    with _leases(sorted({os.path.dirname(t) for _, t, _ in staged_files})) as leases:
-        _commit(staged_files, leases)
+    # devices and pipes first: they cannot be staged or rolled back, and they are the likeliest
+    # to fail (/dev/full); when one fails, no file has been replaced yet
     for path, target, data in direct:
         _write_direct(target, data, path)
+    with _leases(sorted({os.path.dirname(t) for _, t, _ in staged_files})) as leases:
+        _commit(staged_files, leases)
     written = [p for p, _, _ in files]
     if say is not None:
         for p in written:

@@ -87,3 +87,22 @@ def test_simulated_noise_has_an_upper_bound():
     """--noise-tau 1e30 wrote a recording that identify then refused: refused at once."""
     with pytest.raises(InputError, match=r"1e\+30 \(--noise-tau\) is out of range"):
         dynid.simulate(load_robot("planar2"), 1.0, noise_tau=1e30)
+
+
+@pytest.mark.parametrize("kw, match", [(dict(seed=-1), r"--seed"), (dict(f0=1000.0), r"too high for the controller rate"),
+                                       (dict(gain_update="every2"), r"--gain-update")])
+def test_python_api_options_named(kw, match):
+    robot = load_robot("planar2")
+    with pytest.raises(InputError, match=match):
+        if "gain_update" in kw:
+            dynid.Settings(method="didim", **kw)
+        else:
+            dynid.simulate(robot, 2.0, **kw)
+
+
+def test_holdout_split_names_what_it_needs():
+    with pytest.raises(InputError, match="must be an Experiment"):
+        dynid.holdout_split("x.csv", 1.0)
+    e = dynid.simulate(load_robot("planar2"), 2.0).experiment
+    with pytest.raises(InputError, match="leaves nothing to identify"):
+        dynid.holdout_split(e, e.duration)
