@@ -34,7 +34,7 @@ from dynid.analysis.run import (  # noqa: F401 - as_robot, as_experiments, METHO
 from dynid.errors import InputError
 
 
-def identify(data, robot, method: str = "idim", *, settings=None, max_error_growth: float = 0.02,
+def identify(data, robot, method: str | None = None, *, settings=None, max_error_growth: float = 0.02,
              f0: float | None = None, ml_harmonics: int | None = None, reference: str | None = None,
              max_iter: int | None = None, gain_update: str | None = None, gains: str = "assumed", progress=None,
              physical: bool = False, prior: str | None = None, prior_weight: float = 1.0,
@@ -50,7 +50,7 @@ def identify(data, robot, method: str = "idim", *, settings=None, max_error_grow
     robot : Robot, str or path
         A Robot, a bundled name (`"tx40"`) or the path of a `.toml` / `.urdf` file.
     method : str
-        `"idim"` (default), `"didim"`, `"projection"` or `"ml"`: IDIM (Gautier et al.
+        `"idim"` (default: that of `settings`, else IDIM), `"didim"`, `"projection"` or `"ml"`: IDIM (Gautier et al.
         2010, eqs. (9)-(16)), DIDIM (eqs. (25)-(30)), the Projection Method or maximum
         likelihood (Bona & Curatella 2005).
     settings : dict, optional
@@ -136,8 +136,18 @@ def identify(data, robot, method: str = "idim", *, settings=None, max_error_grow
     unknown = sorted(set(options) - allowed)
     if unknown:
         raise TypeError(f"identify() got an unexpected keyword argument {unknown[0]!r}")
+    if method is None:          # not given: the Settings' method, else IDIM
+        method = settings.method if isinstance(settings, Settings) else (
+            settings.get("method", "idim") if isinstance(settings, dict) else "idim")
     if method not in METHODS:
         raise InputError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
+    chosen = {"f0": f0, "ml_harmonics": ml_harmonics, "max_iter": max_iter, "gain_update": gain_update,
+              "reference": reference, "gains": None if gains == "assumed" else gains,
+              "didim_start": options.get("didim_start"), "update_gains": options.get("update_gains")}
+    for name, value in chosen.items():
+        if value is not None and method not in _METHOD_OF[name]:
+            raise InputError(f"{name}= is an option of {' and '.join(_METHOD_OF[name])}, not of method "
+                             f"{method!r}: pass method={_METHOD_OF[name][0]!r}, or leave {name} out")
     given = dict(method=method, max_error_growth=max_error_growth, f0=f0, ml_harmonics=ml_harmonics,
                  reference=reference, max_iter=max_iter, gain_update=gain_update, gains=gains,
                  physical=physical, prior=prior, prior_weight=prior_weight, mass_tolerance=mass_tolerance,
@@ -151,5 +161,10 @@ def identify(data, robot, method: str = "idim", *, settings=None, max_error_grow
     return identify_step(as_experiments(data, robot), robot, s, progress=progress)
 
 
-_DEFAULTS = {"method": "idim", "max_error_growth": 0.02, "gains": "assumed", "physical": False,
+#: the options only some methods read (an option given to another method is an error, not ignored)
+_METHOD_OF = {"f0": ("ml",), "ml_harmonics": ("ml",), "max_iter": ("didim",), "gain_update": ("didim",),
+              "update_gains": ("didim",), "gains": ("didim",), "didim_start": ("didim",),
+              "reference": ("didim",)}
+
+_DEFAULTS = {"max_error_growth": 0.02, "gains": "assumed", "physical": False,
              "prior_weight": 1.0, "physical_set": "base"}

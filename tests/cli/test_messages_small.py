@@ -106,3 +106,14 @@ def test_holdout_split_names_what_it_needs():
     e = dynid.simulate(load_robot("planar2"), 2.0).experiment
     with pytest.raises(InputError, match="leaves nothing to identify"):
         dynid.holdout_split(e, e.duration)
+
+
+def test_identify_refuses_an_option_of_another_method():
+    """identify(exp, robot, f0=...) ran IDIM and ignored f0; a Settings' method is kept unless
+    method= is given."""
+    rec = dynid.simulate(load_robot("planar2"), 4.0, seed=1)
+    for kw in (dict(f0=0.1), dict(max_iter=5), dict(didim_start="idim")):
+        with pytest.raises(InputError, match=r"is an option of (ml|didim), not of method 'idim'"):
+            dynid.identify(rec.experiment, rec.robot, **kw)
+    r = dynid.identify(rec.experiment, rec.robot, settings=dynid.Settings(method="didim"), method="idim")
+    assert r.method == "IDIM"
