@@ -36,6 +36,7 @@ from pathlib import Path
 
 from dynid.analysis.data.experiment import Experiment, load_experiment
 from dynid.analysis.data.rates import check_same_rate
+from dynid.analysis.data.record import checked_experiment
 from dynid.analysis.data.split import holdout_split
 from dynid.analysis.diagnosis.asymmetric_friction import asymmetric_friction
 from dynid.analysis.diagnosis.physical_fit import effect_candidates, identify_physical_effects
@@ -292,9 +293,9 @@ def as_experiments(data, robot, *, resample=False) -> list:
     if not items:
         raise InputError("no recording given: pass a data file or an Experiment")
     out = []
-    for item in items:
+    for k, item in enumerate(items):
         if isinstance(item, Experiment):
-            out.append(item)
+            out.append(checked_experiment(item, k, robot))
         elif isinstance(item, (str, os.PathLike)):
             out.append(_load_resampled(item, robot) if resample else _load(item, robot))
         else:

@@ -8,6 +8,7 @@ Experiment without importing the loader that imports it.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import math
 from dataclasses import dataclass, field
@@ -17,7 +18,7 @@ import numpy as np
 from dynid.analysis.data._format import _fmt_t
 from dynid.errors import DataError
 
-__all__ = ["Experiment", "SIGNALS"]
+__all__ = ["Experiment", "SIGNALS", "checked_experiment"]
 
 #: Signal names of the column convention, in the order they are stored.
 SIGNALS = ("q", "qr", "qd", "qdd", "tau")
@@ -251,3 +252,47 @@ class Experiment:
             f"n_samples={self.n_samples}, fs={self.fs:.6g}, signals={self.signals}, "
             f"source={self.source!r})"
         )
+
+
+def checked_experiment(experiment: Experiment, k: int = 0, robot=None) -> Experiment:
+    """An Experiment built in memory (not loaded from a file), checked as a file would be.
+
+    The loader checks what it reads; an Experiment made from the user's arrays has not been:
+    every present signal finite, `t` strictly increasing, `fs` the rate of `t` (within 1 %),
+    and the robot's joint count. Errors name the recording (its `source`, else its `name`,
+    else "recording k+1"), the signal, the joint and the 1-based sample. A recording without a
+    `source` gets that label, so later messages name it too.
+
+    Returns
+    -------
+    Experiment
+        `experiment`, or a copy of it with a `source` label.
+    """
+    label = experiment.source or experiment.name or f"recording {k + 1} (an Experiment in memory)"
+    for name in ("t",) + SIGNALS:
+        a = getattr(experiment, name)
+        if a is None:
+            continue
+        bad = ~np.isfinite(a)
+        if bad.any():
+            row, *col = np.argwhere(bad)[0]
+            where = f"{name}{col[0] + 1}" if col else name
+            raise DataError(f"{label}: {where} is not finite (NaN or inf) at sample {row + 1} (1-based), and "
+                            f"{int(bad.sum())} value(s) in all; remove or fill those samples before identifying")
+    dt = np.diff(experiment.t)
+    if np.any(dt <= 0):
+        row = int(np.flatnonzero(dt <= 0)[0])
+        raise DataError(f"{label}: t does not increase at sample {row + 2} (1-based): t = "
+                        f"{_fmt_t(experiment.t[row + 1])} after {_fmt_t(experiment.t[row])}; time must be "
+                        "strictly increasing")
+    fs_t = 1.0 / float(np.median(dt))
+    if abs(experiment.fs - fs_t) > 0.01 * fs_t:
+        raise DataError(f"{label}: fs = {experiment.fs:g} Hz, but its time stamps give {fs_t:g} Hz "
+                        "(1 / the median step); leave fs out (it is computed from t) or give the rate of t")
+    n = getattr(robot, "n_joints", None)
+    if n is not None and experiment.n_joints != n:
+        raise DataError(f"{label}: {experiment.n_joints} joint column(s) in tau, but robot "
+                        f"'{getattr(robot, 'name', '?')}' has {n} joints; give one column per joint")
+    if not experiment.source:
+        experiment = dataclasses.replace(experiment, source=label)
+    return experiment

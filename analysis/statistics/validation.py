@@ -28,6 +28,7 @@ import pandas as pd
 
 from dynid.analysis.data.experiment import load_experiment
 from dynid.analysis.data.rates import check_rate_matches
+from dynid.analysis.data.record import checked_experiment
 from dynid.analysis.processing.observation import observe
 from dynid.analysis.processing.prediction import prediction_errors
 from dynid.analysis.results import Result, percent
@@ -201,6 +202,7 @@ def validate(idim_result, experiment, robot=None):
     if not callable(getattr(experiment, "data_hash", None)):
         raise InputError(f"validate: the held-out data must be an Experiment or a file path, not "
                          f"{type(experiment).__name__}")
+    experiment = checked_experiment(experiment, 0, robot)
     if getattr(idim_result, "data_hash", None) and experiment.data_hash() == idim_result.data_hash:
         raise InputError("validate: the held-out recording is the identification data: validating on it says "
                          "nothing about the model; give another recording, or split one with "

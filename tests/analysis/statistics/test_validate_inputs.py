@@ -1,9 +1,11 @@
 """validate() and verdict() with a result they cannot validate, or the identification data
 itself, raise one clear InputError (they raised AttributeError / KeyError, or said "[ok]")."""
+import numpy as np
 import pytest
 
 import dynid
-from dynid.errors import InputError
+from dynid import Experiment
+from dynid.errors import DataError, InputError
 
 
 @pytest.fixture(scope="module")
@@ -37,3 +39,19 @@ def test_the_same_recording_twice_is_refused(split):
     robot, train, _ = split
     with pytest.raises(InputError, match="recording 2 .* holds the same data as recording 1"):
         dynid.identify([train, train], robot)
+
+
+def test_an_experiment_built_in_memory_is_checked(split):
+    """An Experiment made from arrays: a non-finite torque, a joint too many, a wrong fs are named
+    with the recording, the signal and the sample (a decimation-stage message named none)."""
+    robot, train, held = split
+    tau = train.tau.copy()
+    tau[200, 1] = np.inf
+    with pytest.raises(DataError, match=r"recording 1 \(an Experiment in memory\): tau2 is not finite .* sample 201"):
+        dynid.identify(Experiment(t=train.t, q=train.q, tau=tau), robot)
+    with pytest.raises(DataError, match=r"3 joint column\(s\) in tau, but robot 'planar2' has 2"):
+        dynid.identify(Experiment(t=train.t, q=np.c_[train.q, train.q[:, 0]], tau=np.c_[train.tau, train.tau[:, 0]]),
+                       robot)
+    r = dynid.identify(train, robot)
+    with pytest.raises(DataError, match=r"fs = 10000 Hz, but its time stamps give 1000 Hz"):
+        dynid.validate(r, Experiment(t=held.t, q=held.q, tau=held.tau, fs=10000.0))
