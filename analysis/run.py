@@ -635,6 +635,14 @@ def verdict_of(result, held_out=None, *, robot=None, diagnosis=None, residuals=N
 
     A run (`Identification`) or a full report carries its verdict: it is returned as is.
     """
+    if result is None or not hasattr(result, "names"):
+        raise InputError(f"verdict: give an identification result (dynid.identify, dynid.run), not "
+                         f"{type(result).__name__}")
+    if held_out is not None and not isinstance(held_out, (Experiment, ValidationResult, str, os.PathLike)):
+        raise InputError(f"verdict: the held-out data must be an Experiment, a file path or a ValidationResult, "
+                         f"not {type(held_out).__name__}")
+    if robot is not None:
+        robot = as_robot(robot)
     own = getattr(result, "verdict", None)
     if own is not None and not callable(own) and held_out is None:
         return own

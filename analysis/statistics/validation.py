@@ -193,6 +193,10 @@ def validate(idim_result, experiment, robot=None):
         moving ones, and the normality tests of the residual.
     """
     idim_result = _validatable(idim_result)
+    identified = getattr(idim_result.base, "robot_name", None)
+    if robot is not None and identified and getattr(robot, "name", identified) != identified:
+        raise InputError(f"validate: the result identifies robot '{identified}', but robot= is "
+                         f"'{getattr(robot, 'name', robot)}'; validate with the robot identified")
     if robot is None:
         robot = getattr(idim_result, "robot", None)
         if robot is None:

@@ -55,3 +55,15 @@ def test_an_experiment_built_in_memory_is_checked(split):
     r = dynid.identify(train, robot)
     with pytest.raises(DataError, match=r"fs = 10000 Hz, but its time stamps give 1000 Hz"):
         dynid.validate(r, Experiment(t=held.t, q=held.q, tau=held.tau, fs=10000.0))
+
+
+def test_verdict_names_wrong_arguments(split):
+    robot, train, held = split
+    r = dynid.identify(train, robot)
+    with pytest.raises(InputError, match="give an identification result"):
+        dynid.verdict(None)
+    with pytest.raises(InputError, match="held-out data must be an Experiment"):
+        dynid.verdict(r, 5)
+    with pytest.raises(InputError, match="identifies robot 'planar2', but robot= is 'tx40'"):
+        dynid.verdict(r, held, robot="tx40")
+    assert dynid.verdict(r, held, robot="planar2").status == dynid.verdict(r, held).status
