@@ -580,7 +580,9 @@ def _check_periodic(q, q_fit, f0, K, notices, harmonics_given=False):
     spread = np.sqrt(np.mean((q - q.mean(axis=0)) ** 2, axis=0))
     moving = spread >= STILL_JOINT_RMS
     if not moving.any():
-        return
+        raise InputError(f"no joint moves by more than {STILL_JOINT_RMS:g} rad (RMS about its mean): the "
+                         "recording does not excite the robot, so there is nothing to identify; record the "
+                         "excitation trajectory")
     with np.errstate(divide="ignore", invalid="ignore"):
         share = np.sqrt(np.mean((q - q_fit) ** 2, axis=0)) / spread
     share = np.where(moving & np.isfinite(share), share, 0.0)
@@ -618,7 +620,10 @@ def _sigma_q(q, B, C0, sigma_q, m):
     resid_q = q - B @ C0
     sq = np.sqrt(np.sum(resid_q ** 2, axis=0) / (N - m))
     if not np.all(sq > 0):
-        raise InputError("q is exactly a Fourier series: sigma_q cannot be estimated; pass sigma_q")
+        raise InputError("q is exactly a Fourier series of f0 (no position noise to estimate sigma_q from: "
+                         "a simulation without noise?); add the measurement noise, or call "
+                         "dynid.analysis.estimators.maximum_likelihood.maximum_likelihood(..., sigma_q=...) "
+                         "with the encoders' noise level")
     return sq
 
 
