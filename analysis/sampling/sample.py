@@ -25,6 +25,7 @@ from dynid.analysis.sampling.result import PosteriorResult
 from dynid.analysis.sampling.sufficient import SufficientStats, sufficient_statistics
 from dynid.errors import InputError
 from dynid.provenance import data_hash
+from dynid.ranges import check_range
 
 
 def sample_linear(W3, tau, names, *, row_mask=None, ls=None, sigma=None, prior=None, seed=0,
@@ -241,8 +242,18 @@ def sample_idim(idim_result, *, which: str = "essential", physical: bool = False
     consistent set (`PhysicalSupport`: some
     standard set with PSD pseudo-inertias and Ia, Fv, Fc >= 0 gives these base parameters),
     i.e. the flat prior restricted to it; the walkers start around the PC-WLS estimate.
-    `robot` defaults to the result's.
+    `robot` defaults to the result's. `walkers` is accepted for `n_walkers` (the command line's
+    and `Settings`' name).
     """
+    if getattr(idim_result, "observation", None) is None or getattr(idim_result, "essential", None) is None:
+        raise InputError(f"sample: give an IDIM result (dynid.identify(..., method='idim')), not "
+                         f"{type(idim_result).__name__}")
+    if "walkers" in kwargs:
+        if "n_walkers" in kwargs:
+            raise InputError("sample: give walkers or n_walkers, not both")
+        kwargs["n_walkers"] = kwargs.pop("walkers")
+    if isinstance(kwargs.get("seed"), (int, float)) and not isinstance(kwargs.get("seed"), bool):
+        kwargs["seed"] = check_range("seed", kwargs["seed"])
     obs = idim_result.observation
     if which == "essential":
         ls = idim_result.essential.result

@@ -67,3 +67,13 @@ def test_verdict_names_wrong_arguments(split):
     with pytest.raises(InputError, match="identifies robot 'planar2', but robot= is 'tx40'"):
         dynid.verdict(r, held, robot="tx40")
     assert dynid.verdict(r, held, robot="planar2").status == dynid.verdict(r, held).status
+
+
+def test_sample_names_its_inputs(split):
+    robot, train, _ = split
+    r = dynid.identify(train, robot)
+    with pytest.raises(InputError, match="give an IDIM result"):
+        dynid.sample(None)
+    with pytest.raises(InputError, match="--seed"):
+        dynid.sample(r, seed=-1)
+    assert dynid.sample(r, walkers=24, max_seconds=1).diagnostics.n_walkers == 24
