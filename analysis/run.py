@@ -635,7 +635,7 @@ def verdict_of(result, held_out=None, *, robot=None, diagnosis=None, residuals=N
 
     A run (`Identification`) or a full report carries its verdict: it is returned as is.
     """
-    if result is None or not hasattr(result, "names"):
+    if result is None or not any(hasattr(result, a) for a in ("names", "result", "verdict")):
         raise InputError(f"verdict: give an identification result (dynid.identify, dynid.run), not "
                          f"{type(result).__name__}")
     if held_out is not None and not isinstance(held_out, (Experiment, ValidationResult, str, os.PathLike)):

@@ -272,6 +272,15 @@ def _full_report(result, robot, experiments, validation, held_out, settings: Set
 def _report_settings(settings, options) -> Settings:
     """`dynid report`'s settings: its defaults (DIDIM gain update 'initial', 15 steps), the
     old keyword `diagnosis_options` (a dict of effects, max_effects, alpha, no_offsets) accepted."""
+    for name in ("json", "csv", "urdf", "mjcf"):
+        if options.get(name) is not None:
+            raise InputError(f"report(): {name}= is an output of the command line; in Python, report() writes "
+                             f"the HTML (path=) and returns a FullReport: write its JSON with "
+                             f"FullReport.to_json(path), or use dynid.run(..., {name}=...) for the identification's")
+    if options.get("method", "idim") != "idim":
+        raise InputError(f"report(): method={options['method']!r}: the full report is IDIM's, with DIDIM, the "
+                         "posterior and the diagnosis beside it (skip= leaves parts out); for another method "
+                         "alone use dynid.identify(..., method=...)")
     old = options.pop("diagnosis_options", None)
     if old:
         warnings.warn("report(diagnosis_options={...}) is now report(effects=..., max_effects=..., alpha=..., "

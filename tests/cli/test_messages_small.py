@@ -117,3 +117,12 @@ def test_identify_refuses_an_option_of_another_method():
             dynid.identify(rec.experiment, rec.robot, **kw)
     r = dynid.identify(rec.experiment, rec.robot, settings=dynid.Settings(method="didim"), method="idim")
     assert r.method == "IDIM"
+
+
+def test_report_refuses_options_it_would_ignore(tmp_path):
+    rec = dynid.simulate(load_robot("planar2"), 4.0, seed=1)
+    with pytest.raises(InputError, match=r"json= is an output of the command line"):
+        dynid.report(rec.experiment, rec.robot, tmp_path / "r.html", json=tmp_path / "x.json")
+    with pytest.raises(InputError, match=r"method='didim': the full report is IDIM's"):
+        dynid.report(rec.experiment, rec.robot, tmp_path / "r.html", method="didim")
+    assert not (tmp_path / "r.html").exists()
