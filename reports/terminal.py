@@ -92,25 +92,20 @@ def check_input_paths(args):
                 extra = f" (as {q} and {p}{', a copy' if how == 'copy' else ''})" if p != q else ""
                 raise InputError(f"the data file {p} is given twice{extra}: the same recording counted "
                                  f"twice doubles its weight and proves nothing; give each recording once")
-    valid = getattr(args, "validation", None)
-    if valid:
-        for p in data:
-            how = _one_recording(valid, p)
-            if how:
-                raise InputError(f"--validation {valid} is {'a copy of' if how == 'copy' else 'the same file as'} "
-                                 f"the data file {p}: validating on the identification data says nothing about "
-                                 f"the model; give another recording, or --holdout SECONDS to hold out the end "
-                                 f"of this one")
-    for opt, role in (("unloaded", "the recordings without the payload"), ("payload", "the payload recordings")):
+    others = (("validation", "validating on the identification data says nothing about the model; give "
+                             "another recording, or --holdout SECONDS to hold out the end of this one"),
+              ("unloaded", "the recordings without the payload must be other recordings than the loaded "
+                           "ones; give the recording made without the payload"),
+              ("payload", "the payload recordings must be other recordings than the identification ones; "
+                          "give the recording made with the payload"))
+    for opt, why in others:
         value = getattr(args, opt, None)
-        for o in [value] if isinstance(value, str) else (value or []):
+        for o in [value] if isinstance(value, (str, os.PathLike)) else (value or []):
             for p in data:
                 how = _one_recording(o, p)
                 if how:
                     raise InputError(f"--{opt} {o} is {'a copy of' if how == 'copy' else 'the same file as'} "
-                                     f"the data file {p}: {role} must be other recordings than the "
-                                     f"{'loaded' if opt == 'unloaded' else 'identification'} ones; give "
-                                     f"the recording made {'without' if opt == 'unloaded' else 'with'} the payload")
+                                     f"the data file {p}: {why}")
 
 
 def _one_recording(a, b):
