@@ -157,6 +157,9 @@ def identify(data, robot, method: str | None = None, *, settings=None, max_error
     given = {k: v for k, v in given.items() if v is not None and not (
         isinstance(settings, Settings) and v == _DEFAULTS.get(k))}
     s = settings_from(settings, **given, **options)
+    if progress is not None and not callable(progress):
+        raise InputError(f"progress must be a function of the fraction done (0..1), or None; not "
+                         f"{type(progress).__name__}")
     robot = as_robot(robot)
     return identify_step(as_experiments(data, robot), robot, s, progress=progress)
 

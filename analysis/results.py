@@ -500,7 +500,13 @@ class ModelResults(ParameterResults):
 
     def predict(self, W_base):
         """Torques (N, n) of `model` from a base regressor (N, n, b)."""
-        return np.asarray(W_base)[:, :, self.columns()] @ self.model.chi
+        W = np.asarray(W_base, dtype=float)
+        b = len(self.base.names)
+        if W.ndim != 3 or W.shape[2] != b:
+            raise InputError(f"predict: the base regressor has shape {W.shape}, but this result expects "
+                             f"(N, n, {b}): samples, joints and its {b} base parameters "
+                             "(dynid.dynamics.regressor.base_regressor of the same robot)")
+        return W[:, :, self.columns()] @ self.model.chi
 
 
 def _check_alpha(alpha) -> None:

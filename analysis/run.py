@@ -270,14 +270,30 @@ class _Silent:
         return contextlib.nullcontext(_NoBar())
 
 
+class _Plain(_Silent):
+    """A plain function of a message as a reporter: the messages, no progress bars."""
+
+    def __init__(self, say):
+        self._say = say
+
+    def __call__(self, msg):
+        self._say(msg)
+
+
 class _NoBar:
     def update(self, fraction):
         pass
 
 
 def messages(say):
-    """`say`, or a silent reporter when None."""
-    return say if say is not None else _Silent()
+    """`say` (a Reporter), a plain function of a message (`print`) with no progress bars, or a
+    silent reporter when None."""
+    if say is None:
+        return _Silent()
+    if not callable(say):
+        raise InputError(f"say must be a function taking a message (print, or a dynid Reporter), or None "
+                         f"for silence; not {type(say).__name__}")
+    return say if callable(getattr(say, "progress", None)) else _Plain(say)
 
 
 # ---------------------------------------------------------------- step 1: data

@@ -56,6 +56,24 @@ class Experiment:
     meta: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        for name in ("t",) + SIGNALS:
+            value = getattr(self, name)
+            if value is not None:
+                try:
+                    setattr(self, name, np.asarray(value, dtype=float))
+                except (TypeError, ValueError):
+                    raise DataError(f"Experiment.{name} must be an array of numbers, got "
+                                    f"{type(value).__name__} {str(value)[:40]!r}") from None
+        try:
+            self.fs = None if self.fs is None else float(self.fs)
+        except (TypeError, ValueError):
+            raise DataError(f"Experiment.fs must be a sampling rate in Hz, got {self.fs!r}") from None
+        self.notices = [] if self.notices is None else self.notices
+        self.meta = {} if self.meta is None else self.meta
+        if not isinstance(self.notices, (list, tuple)):
+            raise DataError(f"Experiment.notices must be a list of strings, got {type(self.notices).__name__}")
+        if not isinstance(self.meta, dict):
+            raise DataError(f"Experiment.meta must be a dict, got {type(self.meta).__name__}")
         t = np.asarray(self.t, dtype=float)
         if t.ndim != 1:
             raise DataError(f"Experiment.t must be 1-D, got shape {t.shape}.")

@@ -150,6 +150,9 @@ def diagnose(data: str | os.PathLike[str] | Experiment | Sequence[str | os.PathL
     robot = as_robot(robot)
     experiment = as_experiments(data, robot)[0]
     valid = as_experiments(validation, robot)[0] if validation is not None else None
+    if idim_result is not None and getattr(idim_result, "observation", None) is None:
+        raise InputError(f"diagnose: idim_result must be the IDIM result of the same data "
+                         f"(dynid.identify(..., method='idim')), not {type(idim_result).__name__}")
     return _diagnose(experiment, robot, validation=valid, idim_result=idim_result, **kwargs)
 
 

@@ -77,3 +77,18 @@ def test_sample_names_its_inputs(split):
     with pytest.raises(InputError, match="--seed"):
         dynid.sample(r, seed=-1)
     assert dynid.sample(r, walkers=24, max_seconds=1).diagnostics.n_walkers == 24
+
+
+def test_more_api_inputs_are_named(split):
+    robot, train, _ = split
+    with pytest.raises(DataError, match=r"Experiment.t must be an array of numbers"):
+        Experiment(t="abc", tau=train.tau)
+    with pytest.raises(InputError, match="progress must be a function"):
+        dynid.identify(train, robot, progress=3)
+    with pytest.raises(InputError, match="say must be a function"):
+        dynid.run(train, robot, say=5)
+    dynid.run(train, robot, say=lambda msg: None)          # a plain function of a message is enough
+    with pytest.raises(InputError, match="idim_result must be the IDIM result"):
+        dynid.diagnose(train, robot, idim_result="x")
+    with pytest.raises(InputError, match=r"predict: the base regressor has shape \(3, 3\)"):
+        dynid.identify(train, robot).predict(np.zeros((3, 3)))
