@@ -246,19 +246,42 @@ def chain_memory_bytes(n_steps: int, n_walkers: int, d: int) -> int:
     return 8 * n_steps * n_walkers * (2 * d + 1) + 2 * 16 * n_walkers * min(d, _TAU_BLOCK) * (n + 1)
 
 
+def _cgroup_room() -> int | None:
+    """Bytes a container's memory limit leaves (cgroup v2, else v1), None without a limit."""
+    for limit, usage in (("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory.current"),
+                         ("/sys/fs/cgroup/memory/memory.limit_in_bytes",
+                          "/sys/fs/cgroup/memory/memory.usage_in_bytes")):
+        try:
+            with open(limit) as fh:
+                text = fh.read().strip()
+            if text == "max" or int(text) >= 1 << 60:       # no limit (v1 writes a huge number)
+                return None
+            with open(usage) as fh:
+                return max(int(text) - int(fh.read().strip()), 0)
+        except (OSError, ValueError):
+            continue
+    return None
+
+
 def _available_memory() -> int | None:
-    """Bytes of memory available to this process (Linux' MemAvailable, else the physical memory)."""
+    """Bytes of memory available to this process: Linux' MemAvailable (else the physical
+    memory), or less when a container's memory limit leaves less."""
+    have = None
     try:
         with open("/proc/meminfo") as fh:
             for line in fh:
                 if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
+                    have = int(line.split()[1]) * 1024
+                    break
     except (OSError, ValueError, IndexError):
         pass
-    try:
-        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (ValueError, OSError, AttributeError):
-        return None
+    if have is None:
+        try:
+            have = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+        except (ValueError, OSError, AttributeError):
+            have = None
+    room = _cgroup_room()
+    return room if have is None else have if room is None else min(have, room)
 
 
 def check_chain_memory(n_steps: int, n_walkers: int, d: int) -> None:
