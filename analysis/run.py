@@ -35,7 +35,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from dynid.analysis.data.experiment import Experiment, load_experiment
-from dynid.analysis.data.rates import check_same_rate
+from dynid.analysis.data.rates import check_rate_matches, check_same_rate
 from dynid.analysis.data.record import checked_experiment
 from dynid.analysis.data.split import holdout_split
 from dynid.analysis.diagnosis.asymmetric_friction import asymmetric_friction
@@ -389,14 +389,15 @@ def load_data(data, robot, settings: Settings, say=None):
     for item, exp in zip(data if isinstance(data, (list, tuple)) else [data], experiments):
         if not isinstance(item, Experiment):
             say(f"loaded {item}: {exp.n_samples} samples at {exp.fs:g} Hz")
-    check_same_rate(experiments, ["a data file"] * len(experiments))
+    check_same_rate(experiments, "a data file")
     check_cutoffs(settings, experiments)
     held_out = None
     if settings.validation is not None:
         held_out = as_experiments(settings.validation, robot, resample=settings.resample)[0]
         if not isinstance(settings.validation, Experiment):
             say(f"validation {settings.validation}: {held_out.n_samples} samples")
-        check_same_rate([experiments[0], held_out], ["a data file", "the --validation recording"])
+        check_rate_matches(held_out, experiments[0].fs, "the --validation recording",
+                           experiments[0].source or experiments[0].name)
         check_cutoffs(settings, [held_out])
     elif settings.holdout is not None:
         if len(experiments) > 1:

@@ -13,29 +13,12 @@ from dynid.errors import DataError
 __all__ = ["check_same_rate", "check_rate_matches"]
 
 
-def check_same_rate(experiments, roles=None) -> None:
-    """Raise `DataError` when the recordings' rates differ by more than TIME_STEP_TOLERANCE.
-
-    Parameters
-    ----------
-    experiments : sequence of Experiment
-        The recordings, the first one the reference (its rate sets the processing).
-    roles : sequence of str, optional
-        What each recording is, for the message ("the data", "the --validation recording").
-    """
+def check_same_rate(experiments, role: str = "a recording") -> None:
+    """Raise `DataError` when a recording's rate differs from the first one's (which sets the
+    processing) by more than TIME_STEP_TOLERANCE (`check_rate_matches`); `role` names them."""
     exps = [e for e in experiments if e is not None and getattr(e, "fs", None)]
-    if len(exps) < 2:
-        return
-    roles = list(roles) if roles is not None else ["the recording"] * len(exps)
-    ref = exps[0]
-    for exp, role in zip(exps[1:], roles[1:]):
-        if abs(exp.fs - ref.fs) > TIME_STEP_TOLERANCE * ref.fs:
-            raise DataError(
-                f"{exp.source or exp.name}: {role} is sampled at {exp.fs:g} Hz, but {ref.source or ref.name} "
-                f"at {ref.fs:g} Hz: recordings processed together (filters and decimation are chosen on "
-                f"the first) must share one sampling rate. Resample one of them to the other's rate, or "
-                f"identify them separately."
-            )
+    for exp in exps[1:]:
+        check_rate_matches(exp, exps[0].fs, role, exps[0].source or exps[0].name)
 
 
 def check_rate_matches(experiment, fs, role: str, against: str) -> None:

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dynid.analysis.data._format import _fmt_t
+from dynid.analysis.data.timebase import TIME_STEP_TOLERANCE
 from dynid.errors import DataError
 
 __all__ = ["Experiment", "SIGNALS", "checked_experiment"]
@@ -304,7 +305,7 @@ def checked_experiment(experiment: Experiment, k: int = 0, robot=None) -> Experi
                         f"{_fmt_t(experiment.t[row + 1])} after {_fmt_t(experiment.t[row])}; time must be "
                         "strictly increasing")
     fs_t = 1.0 / float(np.median(dt))
-    if abs(experiment.fs - fs_t) > 0.01 * fs_t:
+    if abs(experiment.fs - fs_t) > TIME_STEP_TOLERANCE * fs_t:
         raise DataError(f"{label}: fs = {experiment.fs:g} Hz, but its time stamps give {fs_t:g} Hz "
                         "(1 / the median step); leave fs out (it is computed from t) or give the rate of t")
     n = getattr(robot, "n_joints", None)

@@ -170,7 +170,7 @@ def identify_idim(experiment, robot, *, settings=None, bp=None, max_error_growth
     # stacked system is processed alike
     if observation is not None and len(experiments) > 1:
         raise InputError("identify_idim: observation is the system of one recording")
-    check_same_rate(experiments, ["a recording"] * len(experiments))
+    check_same_rate(experiments)
     hashes = [e.data_hash() for e in experiments] if len(experiments) > 1 else None
     for k, hk in enumerate(hashes or []):
         if hk in hashes[:k]:

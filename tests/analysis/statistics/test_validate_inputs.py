@@ -15,6 +15,13 @@ def split():
     return rec.robot, train, held
 
 
+@pytest.fixture(scope="module")
+def fitted(split):
+    """The IDIM result of the identification part (the tests only read it)."""
+    robot, train, _ = split
+    return dynid.identify(train, robot)
+
+
 @pytest.mark.parametrize("method", ["projection", "didim"])
 def test_other_methods_are_refused_by_name(split, method):
     robot, train, held = split
@@ -24,9 +31,9 @@ def test_other_methods_are_refused_by_name(split, method):
             f(r, held)
 
 
-def test_identification_data_is_not_held_out(split):
+def test_identification_data_is_not_held_out(split, fitted):
     robot, train, held = split
-    r = dynid.identify(train, robot)
+    r = fitted
     with pytest.raises(InputError, match="the held-out recording is the identification data"):
         dynid.verdict(r, train)
     with pytest.raises(InputError, match="Experiment or a file path"):
@@ -41,7 +48,7 @@ def test_the_same_recording_twice_is_refused(split):
         dynid.identify([train, train], robot)
 
 
-def test_an_experiment_built_in_memory_is_checked(split):
+def test_an_experiment_built_in_memory_is_checked(split, fitted):
     """An Experiment made from arrays: a non-finite torque, a joint too many, a wrong fs are named
     with the recording, the signal and the sample (a decimation-stage message named none)."""
     robot, train, held = split
@@ -52,14 +59,14 @@ def test_an_experiment_built_in_memory_is_checked(split):
     with pytest.raises(DataError, match=r"3 joint column\(s\) in tau, but robot 'planar2' has 2"):
         dynid.identify(Experiment(t=train.t, q=np.c_[train.q, train.q[:, 0]], tau=np.c_[train.tau, train.tau[:, 0]]),
                        robot)
-    r = dynid.identify(train, robot)
+    r = fitted
     with pytest.raises(DataError, match=r"fs = 10000 Hz, but its time stamps give 1000 Hz"):
         dynid.validate(r, Experiment(t=held.t, q=held.q, tau=held.tau, fs=10000.0))
 
 
-def test_verdict_names_wrong_arguments(split):
+def test_verdict_names_wrong_arguments(split, fitted):
     robot, train, held = split
-    r = dynid.identify(train, robot)
+    r = fitted
     with pytest.raises(InputError, match="give an identification result"):
         dynid.verdict(None)
     with pytest.raises(InputError, match="held-out data must be an Experiment"):
@@ -69,9 +76,8 @@ def test_verdict_names_wrong_arguments(split):
     assert dynid.verdict(r, held, robot="planar2").status == dynid.verdict(r, held).status
 
 
-def test_sample_names_its_inputs(split):
-    robot, train, _ = split
-    r = dynid.identify(train, robot)
+def test_sample_names_its_inputs(fitted):
+    r = fitted
     with pytest.raises(InputError, match="give an IDIM result"):
         dynid.sample(None)
     with pytest.raises(InputError, match="--seed"):
@@ -79,7 +85,7 @@ def test_sample_names_its_inputs(split):
     assert dynid.sample(r, walkers=24, max_seconds=1).diagnostics.n_walkers == 24
 
 
-def test_more_api_inputs_are_named(split):
+def test_more_api_inputs_are_named(split, fitted):
     robot, train, _ = split
     with pytest.raises(DataError, match=r"Experiment.t must be an array of numbers"):
         Experiment(t="abc", tau=train.tau)
@@ -91,4 +97,4 @@ def test_more_api_inputs_are_named(split):
     with pytest.raises(InputError, match="idim_result must be the IDIM result"):
         dynid.diagnose(train, robot, idim_result="x")
     with pytest.raises(InputError, match=r"predict: the base regressor has shape \(3, 3\)"):
-        dynid.identify(train, robot).predict(np.zeros((3, 3)))
+        fitted.predict(np.zeros((3, 3)))
