@@ -29,6 +29,7 @@ from __future__ import annotations
 import contextlib
 import contextvars
 import math
+import numbers
 import os
 import re
 import warnings
@@ -510,7 +511,8 @@ class ModelResults(ParameterResults):
 
 
 def _check_alpha(alpha) -> None:
-    if not (isinstance(alpha, (int, float)) and 0 < alpha < 1):
+    # any real number (a numpy float32 too), not a bool
+    if isinstance(alpha, bool) or not isinstance(alpha, numbers.Real) or not 0 < alpha < 1:
         raise InputError(f"conf_int: alpha must be between 0 and 1 (0.05 for a 95 % interval), got {alpha!r}")
 
 

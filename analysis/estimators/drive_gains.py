@@ -174,7 +174,7 @@ def _gauss_newton(X, tau, known_tau, gcol, names, mask, max_iter=30, tol=1e-10):
     least squares then shrinks k (errors in variables: the unloaded rows are homogeneous); in
     this form the noise is where least squares expects it. Gauss-Newton from the fit with
     the file's gains (a = 1); per-joint weights from the residual, HAC covariance at the
-    solution. Returns (theta and a, cov, last step's IdentificationResult, HAC window).
+    solution. Returns (theta and a, cov, the residual's relative error, HAC window).
     """
     M, n, p = X.shape
     g = len(gcol)
@@ -204,8 +204,10 @@ def _gauss_newton(X, tau, known_tau, gcol, names, mask, max_iter=30, tol=1e-10):
     sig = np.sqrt((e ** 2).sum(axis=0) / np.maximum(mask.sum(axis=0) - 1, 1))
     lags = _hac_lags(r, mask)
     cov = _sandwich(J, r, mask, sig, lags)
-    fit = ls.wls(J, r, gn, row_mask=mask, joint_sigma=sig)   # statistics of the final residual
-    return np.concatenate([theta, a[gcol]]), 0.5 * (cov + cov.T), fit, lags
+    # ||residual|| / ||logged torque|| on the rows used, as every result's rel_error
+    used_tau = np.where(mask, tau, 0.0)
+    rel_error = float(np.sqrt((e ** 2).sum() / (used_tau ** 2).sum()))
+    return np.concatenate([theta, a[gcol]]), 0.5 * (cov + cov.T), rel_error, lags
 
 
 def _checked_mass(mass):
@@ -401,7 +403,7 @@ def identify_drive_gains(unloaded, loaded, robot, *, mass, com=None, joints=None
     gcol = np.array(joints) - 1
 
     X, tau, known_tau, mask, names = _stacked_model(obs_u, obs_l, known, bp)
-    est, cov, fit, lags = _solve(X, tau, known_tau, gcol, names, mask, com)
+    est, cov, rel_error, lags = _solve(X, tau, known_tau, gcol, names, mask, com)
     gnames = [f"g{j}" for j in joints]
     names = names + [f"a{j}" for j in joints]
     g = len(joints)
@@ -424,4 +426,4 @@ def identify_drive_gains(unloaded, loaded, robot, *, mass, com=None, joints=None
                            factor=k, factor_std=np.sqrt(np.maximum(np.diag(cov_k), 0.0)), known=known,
                            other=other, robot_name=robot.name,
                            sources=[f"{e.source} (unloaded)" for e in exps_u] + [str(e.source) for e in exps_l],
-                           rel_error=fit.rel_error, hac_lags=lags, notices=notices)
+                           rel_error=rel_error, hac_lags=lags, notices=notices)

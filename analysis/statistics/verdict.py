@@ -56,6 +56,7 @@ from dynid.analysis.statistics.residuals import analyze_residuals, residual_anal
 from dynid.analysis.units import parameter_kind, parameter_unit, prismatic_joints
 from dynid.dynamics.base_parameters import base_parameters
 from dynid.dynamics.excitation import apriori_parameters
+from dynid.errors import InputError
 from dynid.provenance import json_safe
 
 __all__ = ["Verdict", "verdict", "CHECKS", "check_diagnosis", "VerdictInputs", "CheckOutcome", "parameter_unit", "must_be_nonnegative", "NONNEGATIVE_KINDS"]
@@ -586,6 +587,13 @@ CHECKS = [check_validation, check_parameters, check_residual, check_diagnosis, c
 def _inputs(result, validation, robot, diagnosis, residuals, **thresholds) -> VerdictInputs:
     robot = robot if robot is not None else getattr(result, "robot", None)
     m = _estimate(result)
+    if not all(hasattr(m, a) for a in ("names", "chi", "bse", "rel_std")):
+        # a posterior, an essential model alone, a per-joint campaign: no identification to judge
+        raise InputError(
+            f"verdict: {type(result).__name__} is not an identification the verdict judges. Give the "
+            "result of dynid.identify or dynid.run (IDIM, DIDIM, Projection Method, ML, or the physically "
+            "consistent fit); the verdict of an IDIM result judges its essential model, and a posterior's "
+            "identification is the one it sampled")
     if residuals is None:
         residuals = _fitted_residual(result)
     n = (residuals.normality.shape[0] if residuals is not None else

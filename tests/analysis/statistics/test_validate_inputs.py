@@ -82,7 +82,19 @@ def test_sample_names_its_inputs(fitted):
         dynid.sample(None)
     with pytest.raises(InputError, match="--seed"):
         dynid.sample(r, seed=-1)
-    assert dynid.sample(r, walkers=24, max_seconds=1).diagnostics.n_walkers == 24
+    post = dynid.sample(r, walkers=24, max_seconds=1)
+    assert post.diagnostics.n_walkers == 24
+    # neither a posterior nor an essential model alone is an identification to judge
+    for part in (post, r.essential):
+        with pytest.raises(InputError, match=f"{type(part).__name__} is not an identification the verdict judges"):
+            dynid.verdict(part)
+
+
+def test_conf_int_takes_any_real_alpha(fitted):
+    ci = fitted.conf_int(np.float32(0.1))
+    assert np.allclose(ci.to_numpy(), fitted.conf_int(0.1).to_numpy(), rtol=1e-6)
+    with pytest.raises(InputError, match="alpha must be between 0 and 1"):
+        fitted.conf_int(True)
 
 
 def test_more_api_inputs_are_named(split, fitted):
