@@ -382,7 +382,7 @@ class DIDIMResult(ModelResults):
             "rms_per_joint": list(m.rms),
             "wls": {"parameters": params(r), "rel_error": r.rel_error, "rms_per_joint": list(r.rms),
                     "joint_sigma": None if r.joint_sigma is None else list(r.joint_sigma),
-                    "cond": r.cond},
+                    "cond": r.cond, "covariance": r.cov},
             "essential": None if self.essential is None else self.essential.to_dict(),
             "history": self.history.to_dict(orient="records"),
             "kd_scale": list(self.kd_scale),

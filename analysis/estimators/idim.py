@@ -136,7 +136,9 @@ class IDIMResult(ModelResults):
                     "rms_per_joint": list(self.ols.rms), "cond": self.ols.cond},
             "wls": {"parameters": params(self.wls), "rel_error": self.wls.rel_error,
                     "rms_per_joint": list(self.wls.rms), "joint_sigma": list(self.wls.joint_sigma),
-                    "cond": self.wls.cond},
+                    "cond": self.wls.cond,
+                    # what a later step propagates (the payload on this model): σ alone drops the correlations
+                    "covariance": self.wls.cov},
             "parameters": params(self.model),
             "essential": self.essential.to_dict(),
             "rel_error": self.model.rel_error,

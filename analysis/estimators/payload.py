@@ -378,21 +378,33 @@ def _as_experiment(x, robot):
     raise InputError(f"a recording must be a data file path or an Experiment, not {type(x).__name__}")
 
 
-def _robot_hac(wls, obs):
-    """The HAC covariance of the robot's WLS when its observation is at hand (an IDIM result),
-    else None: the robot's residual is as correlated as the payload's."""
-    if obs is None or getattr(wls, "joint_sigma", None) is None or getattr(wls, "residual", None) is None:
+def _base_fit(model):
+    """The WLS of every base parameter of an identification result, when it keeps one: the essential
+    model sets the parameters it dropped to 0, and the payload would take up what they carry."""
+    model = getattr(model, "result", model) if hasattr(model, "experiments") else model   # a run()
+    if getattr(model, "wls", None) is not None:                      # IDIM
+        return model.wls
+    if getattr(model, "tau_est_dec", None) is not None:              # DIDIM: its last step's WLS
+        return model.result
+    return model
+
+
+def _json_covariance(matrix, n):
+    """The (n, n) covariance of a result JSON's WLS parameters, or None when absent or malformed."""
+    if matrix is None:
         return None
-    if obs.W.shape[2] != len(wls.names) or wls.residual.shape != obs.tau.shape:
+    try:
+        cov = np.asarray(matrix, dtype=float)
+    except (TypeError, ValueError):
         return None
-    sig = np.asarray(wls.joint_sigma, dtype=float)
-    sig = np.where(np.isfinite(sig) & (sig > 0), sig, np.inf)
-    cov = _sandwich(obs.W, wls.residual, obs.row_mask, sig, _hac_lags(wls.residual, obs.row_mask))
+    if cov.shape != (n, n) or not np.all(np.isfinite(cov)):
+        return None
     return 0.5 * (cov + cov.T)
 
 
-def _model_vector(model, robot, bp):
-    """(beta (b,), cov (b, b), source) of an identified robot: a dynid result, its dict or JSON file."""
+def _model_vector(model, robot, bp, notices):
+    """(beta (b,), cov (b, b), source) of an identified robot: a dynid result, its dict or JSON file.
+    The covariance is the one the result reports (its `uncertainty` option), by either route."""
     if isinstance(model, (str, os.PathLike)):
         try:
             with open(model, encoding="utf-8") as fh:
@@ -407,7 +419,8 @@ def _model_vector(model, robot, bp):
         src = type(model).__name__
     if isinstance(model, dict):
         # the WLS of every base parameter when the JSON has it (dynid identify --json), as above
-        rows = (model.get("wls") or {}).get("parameters") or model.get("parameters")
+        wls = model.get("wls") or {}
+        rows = wls.get("parameters") or model.get("parameters")
         if not isinstance(rows, list) or not all(isinstance(r, dict) and "name" in r for r in rows):
             raise InputError(f"{src}: no 'parameters' list of {{name, value, std}}: pass the JSON "
                              "written by dynid identify --json")
@@ -416,17 +429,20 @@ def _model_vector(model, robot, bp):
         names = [r["name"] for r in rows]
         values = np.array([np.nan if r.get("value") is None else r["value"] for r in rows], dtype=float)
         std = np.array([0.0 if r.get("std") is None else r["std"] for r in rows], dtype=float)
-        cov = np.diag(std ** 2)
+        cov = _json_covariance(wls.get("covariance") if rows is wls.get("parameters") else None, len(names))
+        if cov is None:
+            # σ alone: the correlations of the base parameters are lost, and with them the cancellation
+            # of their errors in the payload's columns (its σ is then far too wide)
+            cov = np.diag(std ** 2)
+            notices.append(f"{src} has no covariance of its WLS parameters (a JSON of dynid < 0.9?): the "
+                           "robot's σ were propagated without their correlations, which overstates the "
+                           "payload's σ; identify the robot again with dynid identify --json")
     else:
-        # the WLS of every base parameter, when the result keeps it: the essential model sets the
-        # parameters it dropped to 0, and the payload would take up what they carry
-        obs = getattr(model, "observation", None)
-        model = getattr(model, "wls", None) or model
-        hac = _robot_hac(model, obs)
+        model = _base_fit(model)
         try:
             names = list(model.names)
-            values = np.asarray(model.chi if hasattr(model, "chi") else model.params, dtype=float)
-            cov = np.asarray(model.cov, dtype=float) if hac is None else hac
+            values = np.asarray(model.params, dtype=float)
+            cov = np.asarray(model.cov, dtype=float)
         except AttributeError:
             raise InputError("model must be a dynid identification result (e.g. from dynid.identify), "
                              f"its to_dict() or the path of its JSON, not {type(model).__name__}") from None
@@ -681,7 +697,7 @@ def identify_payload(loaded, robot, *, model=None, unloaded=None, frame="flange"
     tau = np.concatenate([o.tau for o in obs_l])
     if model is not None:
         chi, cov, fit, lags, model_source = _fit_with_robot_fixed(model, robot, bp, Wp, Wb, tau, mask_l,
-                                                                   names)
+                                                                   names, notices)
         robot_params, method = None, "payload-fixed"
         notices.append(f"robot fixed: {model_source}; its parameters' uncertainty is propagated")
     else:
@@ -711,11 +727,11 @@ def identify_payload(loaded, robot, *, model=None, unloaded=None, frame="flange"
     return res
 
 
-def _fit_with_robot_fixed(model, robot, bp, Wp, Wb, tau, mask, names):
+def _fit_with_robot_fixed(model, robot, bp, Wp, Wb, tau, mask, names, notices):
     """The payload's WLS on the loaded recordings' torque minus the robot's known model
     `model` (its base parameters beta): (chi, cov, fit, HAC lags, the model's source). The
     robot's own covariance is propagated: the estimate moves by G d(beta)."""
-    beta, cov_beta, model_source = _model_vector(model, robot, bp)
+    beta, cov_beta, model_source = _model_vector(model, robot, bp, notices)
     y = tau - Wb @ beta
     chi, cov, fit, lags = _wls_hac(Wp, y, names, mask)
     w = np.where(mask, 1.0 / fit.joint_sigma[None, :] ** 2, 0.0)

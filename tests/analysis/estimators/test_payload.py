@@ -136,6 +136,16 @@ def test_robot_fixed_route_takes_the_json_of_an_identification(plant_data, tmp_p
     d["model"].to_json(path)
     r = identify_payload(d["el"], d["robot"], model=str(path))
     assert abs(r.mass[0] - d["parts"]["mass"]) / d["parts"]["mass"] < 0.02
+    # the JSON carries the WLS covariance: its σ are the object's (σ alone overstated them up to 8x)
+    direct = identify_payload(d["el"], d["robot"], model=d["model"])
+    assert np.allclose(r.bse.to_numpy(), direct.bse.to_numpy(), rtol=1e-9)
+    assert np.array_equal(r.chi, direct.chi)
+    # without it: the diagonal, and a notice that says so
+    doc = json.loads(path.read_text())
+    del doc["wls"]["covariance"]
+    r_diag = identify_payload(d["el"], d["robot"], model=doc)
+    assert any("without their correlations" in n for n in r_diag.notices)
+    assert r_diag.bse["ML"] > r.bse["ML"]
 
 
 def test_a_still_wrist_is_refused_naming_what_is_not_identified(plant_data):
