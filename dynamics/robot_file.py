@@ -51,6 +51,7 @@ The fields, their units and ranges are the tables `JOINT_FIELDS` and
 """
 from __future__ import annotations
 
+import contextvars
 import math
 import re
 import tomllib
@@ -93,7 +94,10 @@ from .robot_checks import (  # noqa: F401  (MAX_*, check_name, read_limited, sho
     short,
     shown,
 )
-from .urdf import read_urdf
+from .urdf import RIGHT_ANGLE_SNAP, read_urdf, snap_right_angle
+
+#: The DH angles of the robot file being read that were taken as right angles (`snap_right_angle`).
+_SNAPPED: contextvars.ContextVar = contextvars.ContextVar("dynid_snapped_angles", default=None)
 
 # ----------------------------------------------------------------- the fields
 # Every numeric field of a robot file with its unit and finite physical range
@@ -335,13 +339,23 @@ def _joints_from_tables(doc, chain, path):
         raise RobotFileError(f"{path}: {len(tables)} [[joints]] tables, more than the {MAX_JOINTS} "
                              f"joints dynid models (the regressor grows as n^2); check the file")
     joints = []
-    for k, tab in enumerate(tables):
-        if not isinstance(tab, dict):
-            raise RobotFileError(f"{path}: joints[{k + 1}] must be a table")
-        joint = Joint(name=f"j{k + 1}")
-        _apply_joint_options(joint, tab, k, path, kinematics=True)
-        joints.append(joint)
-    return joints, {}, {}, []
+    token = _SNAPPED.set([])
+    try:
+        for k, tab in enumerate(tables):
+            if not isinstance(tab, dict):
+                raise RobotFileError(f"{path}: joints[{k + 1}] must be a table")
+            joint = Joint(name=f"j{k + 1}")
+            _apply_joint_options(joint, tab, k, path, kinematics=True)
+            joints.append(joint)
+        snapped = _SNAPPED.get()
+    finally:
+        _SNAPPED.reset(token)
+    notices = [] if not snapped else [
+        f"{Path(path).name}: angles within {RIGHT_ANGLE_SNAP:g} rad of a multiple of pi/2 taken as that "
+        f"multiple: {'; '.join(snapped)}. A rounded right angle describes a slightly skewed arm, whose base "
+        f"parameters differ (a regrouped parameter kept apart, barely identifiable); write the angle to "
+        f"1e-9 rad or better to keep it as written"]
+    return joints, {}, {}, notices
 
 
 def _check_unique_names(joints, path):
@@ -502,6 +516,12 @@ def _set_kinematics(joint, tab, where, path, who):
         raise RobotFileError(f"{path}: {where}.sigma must be 0 (revolute) or 1 (prismatic), "
                              f"got {short(sigma)}")
     vals = [JOINT_FIELDS[key](tab.get(key, 0.0), f"{where}.{key}", path, who) for key in _KINEMATICS]
+    for i in (0, 2):                      # alpha, theta: a rounded right angle is the right angle
+        taken = snap_right_angle(vals[i])
+        if taken != vals[i]:
+            if _SNAPPED.get() is not None:
+                _SNAPPED.get().append(f"{where}.{_KINEMATICS[i]} = {vals[i]:g} as {taken!r}")
+            vals[i] = taken
     joint.sigma = int(sigma)
     joint.mdh = tuple(vals)
     joint.R, joint.p = mdh_placement(*vals)

@@ -101,7 +101,23 @@ def _floats(text, n, where, path):
     return np.array(vals)
 
 
-def _origin(elem, where, path):
+#: A joint angle written within this of a multiple of pi/2 (1.5708, 1.571, 1.57) is that multiple: the
+#: rounded value would give the base parameters of a slightly skewed arm (a parameter that regroups
+#: at pi/2, Ia2 into ZZ2R, kept apart with cond(W) ~ 1e6). Closer than RIGHT_ANGLE_EXACT: left as written.
+RIGHT_ANGLE_SNAP = 1e-3
+RIGHT_ANGLE_EXACT = 1e-9
+
+
+def snap_right_angle(value: float) -> float:
+    """`value` (rad), or the multiple of pi/2 it rounds (`RIGHT_ANGLE_SNAP`)."""
+    k = round(value / (math.pi / 2))
+    dev = abs(value - k * math.pi / 2)
+    return k * math.pi / 2 if RIGHT_ANGLE_EXACT < dev <= RIGHT_ANGLE_SNAP else value
+
+
+def _origin(elem, where, path, snapped=None):
+    """(R, xyz) of `elem`'s <origin>; with a list `snapped`, rpy angles that round a multiple of pi/2
+    are taken as it (`snap_right_angle`) and (where, written, taken) appended."""
     o = elem.find("origin") if elem is not None else None
     if o is None:
         return np.eye(3), np.zeros(3)
@@ -111,6 +127,11 @@ def _origin(elem, where, path):
                              f"from its parent frame, more than any robot arm; check the number and "
                              f"its unit (metres)")
     rpy = _floats(o.get("rpy", "0 0 0"), 3, f"{where} origin rpy", path)
+    if snapped is not None:
+        taken = np.array([snap_right_angle(float(a)) for a in rpy])
+        if np.any(taken != rpy):
+            snapped.append((where, o.get("rpy"), taken))
+            rpy = taken
     return rpy_matrix(*rpy), xyz
 
 
@@ -428,8 +449,28 @@ def read_urdf(path, base=None, tip=None):
     robot.apriori = {k: float(v) for k, v in apriori.items()}
     robot.provenance = {"kinematics": f"URDF {path.name}" + (f", {chain_text}" if selected else ""),
                         "apriori": f"URDF {path.name} inertials and <dynamics>"}
-    robot.notices = _notices(tree, base, chain, walk.left_out, walk.joints, chain_text)
+    robot.notices = _notices(tree, base, chain, walk.left_out, walk.joints, chain_text) + _snap_notices(
+        path, walk.snapped)
     return robot
+
+
+def _snap_notices(path, snapped):
+    """One notice naming the joint origins whose rpy was taken as a right angle."""
+    if not snapped:
+        return []
+    parts = [f"{where} rpy=\"{text}\" as ({', '.join(_angle_text(a) for a in taken)})"
+             for where, text, taken in snapped]
+    return [f"URDF {Path(path).name}: angles within {RIGHT_ANGLE_SNAP:g} rad of a multiple of pi/2 taken as "
+            f"that multiple: {'; '.join(parts[:6])}{f' and {len(parts) - 6} more' if len(parts) > 6 else ''}. A rounded right angle describes a slightly skewed arm, whose "
+            f"base parameters differ (a regrouped parameter kept apart, barely identifiable); write the "
+            f"angle to 1e-9 rad or better to keep it as written"]
+
+
+def _angle_text(a):
+    k = round(a / (math.pi / 2))
+    if a == k * math.pi / 2:
+        return {0: "0", 1: "pi/2", -1: "-pi/2", 2: "pi", -2: "-pi"}.get(k, f"{k}*pi/2")
+    return f"{a:g}"
 
 
 def _check_chain(tree, chain, base, tip, path):
@@ -468,6 +509,7 @@ class _ChainWalk:
         self.tree, self.path = tree, path
         self.joints, self.aligns, self.inertias, self.apriori, self.left_out = [], [], [], {}, []
         self.chain_links = []
+        self.snapped = []                 # joint origins whose rpy rounded a right angle
 
     def where(self, link):
         pj = self.tree.parent_joint.get(link)
@@ -488,7 +530,7 @@ class _ChainWalk:
             j, R, p = stack.pop()
             c = tree.child(j)
             if owner is not None:
-                R_o, p_o = _origin(j, f"joint '{j.get('name')}'", self.path)
+                R_o, p_o = _origin(j, f"joint '{j.get('name')}'", self.path, self.snapped)
                 R, p = R @ R_o, R @ p_o + p
                 self.add_link(c, owner, R, p)
             for k in tree.children.get(c, []):
@@ -519,7 +561,7 @@ class _ChainWalk:
             self.side_branches(link, nxt, owner, T_R, T_p)
             if nxt is None:
                 break
-            R_o, p_o = _origin(nxt, f"joint '{nxt.get('name')}'", self.path)
+            R_o, p_o = _origin(nxt, f"joint '{nxt.get('name')}'", self.path, self.snapped)
             if nxt.get("type") == "fixed":
                 T_p = T_R @ p_o + T_p
                 T_R = T_R @ R_o

@@ -9,7 +9,7 @@ def robot_text(robot, bp) -> str:
     dh = robot.dh_table()
     if dh:
         out.append("\nmodified DH (Khalil-Kleinfinger):")
-        out.append(f"  {'j':>2} {'name':<10} {'sigma':>5} {'alpha':>9} {'d':>8} {'theta':>9} {'r':>8}")
+        out.append(f"  {'j':>2} {'name':<10} {'sigma':>5} {'alpha/rad':>9} {'d/m':>8} {'theta/rad':>9} {'r/m':>8}")
         for (j, sg, a, d, th, r), name in zip(dh, robot.joint_names):
             out.append(f"  {j:>2} {name:<10} {sg:>5} {a:>9.4f} {d:>8.4f} {th:>9.4f} {r:>8.4f}")
     else:
@@ -26,6 +26,10 @@ def robot_text(robot, bp) -> str:
         out.append("  " + rel)
     if bp.unidentifiable:
         out.append(f"\nno effect on the dynamics ({len(bp.unidentifiable)}): " + " ".join(bp.unidentifiable))
+    notices = list(getattr(robot, "notices", None) or [])
+    if notices:
+        out.append("\nnotices:")
+        out += [f"  - {n}" for n in notices]
     return "\n".join(out)
 
 
@@ -37,4 +41,5 @@ def robot_doc(robot, bp) -> dict:
             "dh": [dict(zip(("j", "sigma", "alpha", "d", "theta", "r"), row)) for row in dh] if dh else None,
             "couplings": [{"motor": c.motor, "joints": list(c.joints),
                            "coefficients": list(c.coefficients)} for c in robot.couplings],
-            "regrouping_matrix": bp.matrix.tolist(), "provenance": robot.provenance}
+            "regrouping_matrix": bp.matrix.tolist(), "provenance": robot.provenance,
+            "notices": list(getattr(robot, "notices", None) or [])}

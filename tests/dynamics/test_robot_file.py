@@ -515,3 +515,18 @@ def test_negative_friction_and_a_far_centre_of_mass_are_refused():
     pend = tomllib.loads(bias_scenarios.PENDULUM_TOML)
     pend.setdefault("apriori", {"source": "test", "values": {}})["values"].update(M1=2.0, MX1=3.0, ZZ1=6.0)
     robot_from_dict(pend, "pendulum.toml")
+
+
+def test_rounded_dh_right_angles_are_right_angles(tmp_path):
+    """A DH table written to 4 decimals (alpha = 1.5708, as `dynid robot` prints it) is the TX40 itself:
+    same placements and base parameters, and a notice names the rounded angles."""
+    from dynid.dynamics.base_parameters import base_parameters
+    p = tmp_path / "rounded.toml"
+    p.write_text(TX40_TEXT.replace("1.5707963267948966", "1.5708"), encoding="utf-8")
+    a, b = load_robot(p), load_robot("tx40")
+    assert "1.5708" in p.read_text()
+    for ja, jb in zip(a.joints, b.joints):
+        np.testing.assert_array_equal(ja.R, jb.R)
+    assert base_parameters(a).names == base_parameters(b).names
+    assert any("joints[2].alpha = -1.5708 as -1.5707963267948966" in n for n in a.notices), a.notices
+    assert not any("pi/2" in n for n in b.notices)

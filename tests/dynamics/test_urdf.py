@@ -764,3 +764,38 @@ def test_deep_fixed_branch_is_merged_without_recursion(tmp_path):
     assert robot.n_joints == 2
     assert robot.apriori["M1"] == pytest.approx(1.0 + 3000 * 0.001)
     assert robot.apriori["M2"] == 1.0
+
+
+def _right_angle_arm(rpy2):
+    return "\n".join([
+        '<?xml version="1.0"?>', '<robot name="arm">', link("base"),
+        joint("j1", "revolute", "base", "l1", "0 0 0.3", "0 0 0", "0 0 1"),
+        link("l1", 2.0, "0.02 0.03 0.1", "0 0 0", 0.02, 0.001, 0.0, 0.03, 0.002, 0.015),
+        joint("j2", "revolute", "l1", "l2", "0 0 0.1", rpy2, "0 0 1"),
+        link("l2", 1.5, "0.15 0 0.01", "0 0 0", 0.01, 0.0, 0.001, 0.02, 0.0, 0.02),
+        joint("j3", "revolute", "l2", "l3", "0.4 0 0", "0 0 0", "0 0 1"),
+        link("l3", 1.0, "0.05 0.02 0", "0 0 0", 0.004, 0.0003, 0.0, 0.005, 0.0002, 0.006),
+        "</robot>"])
+
+
+@pytest.mark.parametrize("written", ["1.5708", "1.571", "1.57", "-1.5708", "3.1416"])
+def test_a_rounded_right_angle_is_the_right_angle(tmp_path, written):
+    """A joint origin's rpy written to a few decimals (1.5708 for pi/2) gives the base parameters of
+    the exact angle (with 1.5708 taken literally, Ia2 stayed apart from ZZ2R: 26 base parameters
+    instead of 25 and cond(W) ~ 6e6), and a notice names the joint."""
+    from dynid.dynamics.base_parameters import base_parameters
+    exact = read_urdf(write(tmp_path, _right_angle_arm(f"{np.pi / 2 * round(float(written) / (np.pi / 2))!r} 0 0"),
+                            "exact.urdf"))
+    rounded = read_urdf(write(tmp_path, _right_angle_arm(f"{written} 0 0"), "rounded.urdf"))
+    assert base_parameters(rounded).names == base_parameters(exact).names
+    assert any("j2" in n and f'rpy="{written} 0 0"' in n for n in rounded.notices), rounded.notices
+    assert not any("pi/2" in n for n in exact.notices)
+    rng = np.random.default_rng(5)
+    q, qd, qdd = (rng.normal(size=(50, 3)) for _ in range(3))
+    assert np.array_equal(regressor(rounded, q, qd, qdd), regressor(exact, q, qd, qdd))
+
+
+def test_an_angle_off_a_right_angle_is_kept(tmp_path):
+    """0.002 rad off pi/2 is a skew the file means (beyond the 1e-3 rad of rounding): kept."""
+    robot = read_urdf(write(tmp_path, _right_angle_arm(f"{np.pi / 2 + 0.002!r} 0 0")))
+    assert not any("pi/2" in n for n in robot.notices)
