@@ -1,7 +1,7 @@
 """Messages and progress of the command line and of the pipeline (`dynid.report`, `dynid.demo`).
 
-Progress goes through `dynid.progress`: a bar on a terminal, `logging` records (logger
-`dynid.progress`) elsewhere, for work that lasts more than a second; nothing with --quiet
+Progress goes through `dynid.progress`: a bar on a terminal, elsewhere `logging` records (logger
+`dynid.progress`) or, with no logging configured, lines on stderr, for work that lasts more than a second; nothing with --quiet
 or after `dynid.progress.silence()`. `Progress` is the bar itself, kept for callers that
 draw one directly."""
 from __future__ import annotations
@@ -84,7 +84,7 @@ class Reporter:
     bar.update(fraction)`. `Reporter(quiet=True)` (the command line's --quiet) shows
     nothing; `Reporter(quiet=False)` shows both. The library's default, `Reporter()`,
     prints no messages but reports progress through `dynid.progress` (a bar on a
-    terminal, logging records elsewhere; `dynid.progress.silence()` turns it off), so a
+    terminal, progress lines or logging records elsewhere; `dynid.progress.silence()` turns it off), so a
     minutes-long `dynid.report(...)` in Python is not silent.
     """
 

@@ -62,7 +62,7 @@ _LAZY = {
 _ONE_BLAS_THREAD = {"simulate", "identify_campaign", "simulate_campaign", "identify", "validate",
                     "demo", "report", "run", "identify_payload", "identify_drive_gains"}
 # subpackage-like modules loaded on first use: `dynid.fleet.run(...)` after a plain `import dynid`
-_LAZY_MODULES = {"fleet": "dynid.fleet"}
+_LAZY_MODULES = {"fleet": "dynid.fleet", "progress": "dynid.progress"}
 
 
 def __getattr__(name: str) -> Any:

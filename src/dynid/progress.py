@@ -9,14 +9,15 @@ The estimators take a `progress` callable (`progress(fraction)` or `progress(don
         result = identify_didim(..., progress=progress)
 
 * on a terminal (stderr is a TTY): a tqdm bar when tqdm is installed, else a one-line bar;
-* elsewhere (a notebook's log, a batch job, CI): `logging` records on the logger
-  `dynid.progress` at INFO, at most one per `log_every` seconds and at the end, so a long
-  run says it is alive without filling a log;
+* elsewhere (a notebook, a batch job, CI): `logging` records on the logger `dynid.progress`
+  at INFO when the application configured logging, else lines `dynid progress: ...` on
+  stderr; at most one per `log_every` seconds and at the end, so a long run says it is
+  alive without filling a log;
 * silent after `silence()` (or `enable(False)`), under the environment variable
   `DYNID_PROGRESS=0`, or for work shorter than `delay` seconds.
 
-Library code never prints: without a `progress` argument the estimators report nothing,
-and `logging` shows nothing until the application configures it (`logging.basicConfig`).
+Without a `progress` argument the estimators report nothing; the public functions
+(`dynid.report`, `demo`, `diagnose`, `sample`, ...) make one with `task`.
 """
 from __future__ import annotations
 
@@ -89,7 +90,7 @@ class _Bar:
             self._draw()
         elif now - self.last_log >= self.log_every:
             self.last_log = now
-            LOGGER.info("%s: %.0f %% (%.0f s)", self.label, 100 * self.fraction, now - self.start)
+            self._log("%s: %.0f %% (%.0f s)", self.label, 100 * self.fraction, now - self.start)
 
     def _draw(self) -> None:
         try:
@@ -116,7 +117,19 @@ class _Bar:
             self.stream.write("\n")
             self.stream.flush()
         if not self.terminal and elapsed >= self.delay:
-            LOGGER.info("%s: %s after %.0f s", self.label, "stopped" if failed else "done", elapsed)
+            self._log("%s: %s after %.0f s", self.label, "stopped" if failed else "done", elapsed)
+
+    def _log(self, fmt, *args) -> None:
+        """A record of `LOGGER` when the application configured logging; else one line on the stream
+        (a notebook or a script that set up nothing would otherwise see nothing for minutes)."""
+        if LOGGER.hasHandlers() or self.stream is None:
+            LOGGER.info(fmt, *args)
+            return
+        try:
+            self.stream.write("dynid progress: " + fmt % args + "\n")
+            self.stream.flush()
+        except (OSError, ValueError, AttributeError):     # a closed or odd stream: progress is not worth an error
+            pass
 
 
 def _noop(done, total=None) -> None:

@@ -75,3 +75,15 @@ def test_the_pipelines_default_reporter_logs_progress_and_quiet_silences_it(capl
     with Reporter(quiet=True).progress("diagnosis") as bar:
         bar.update(0.5)
     assert not caplog.records
+
+
+def test_with_no_logging_configured_progress_lines_go_to_stderr(monkeypatch):
+    """A notebook or script that configured no logging: `logging` would drop INFO records (only
+    WARNING reaches Python's last-resort handler), so the lines go to the stream instead."""
+    monkeypatch.setattr(P.LOGGER, "propagate", False)
+    monkeypatch.setattr(P.LOGGER, "handlers", [])
+    out = io.StringIO()
+    with P.task("diagnosis", delay=0.0, log_every=0.0, stream=out) as progress:
+        progress(0.5)
+    lines = out.getvalue().splitlines()
+    assert lines[0].startswith("dynid progress: diagnosis: 50 %") and "done after" in lines[-1]
