@@ -428,6 +428,10 @@ def check_identify(settings: Settings) -> None:
         raise InputError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
     if settings.physical and method not in ("idim", "didim"):
         raise InputError(f"physical=True works with methods idim and didim only, not {method!r}")
+    if method in ("projection", "ml") and settings.uncertainty != DEFAULT_UNCERTAINTY:
+        # it was ignored: the Projection Method and ML have a covariance of their own
+        raise InputError(f"uncertainty={settings.uncertainty!r} (--uncertainty) chooses the covariance of IDIM "
+                         f"and DIDIM; method {method!r} reports its own (its summary names it): leave it out")
     if not settings.physical and (settings.prior is not None or settings.mass_tolerance is not None):
         raise InputError("prior and mass_tolerance are options of the physically consistent fit: "
                          "pass physical=True (--physical)")

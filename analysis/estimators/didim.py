@@ -1201,7 +1201,8 @@ def _didim_result(L, experiment, beta0, tau, history, timings, last, converged, 
         last["res"] = _robust(L, last, uncertainty, gains_cov, 300, 0)
     res = last["res"]
     if physical and n_boot:
-        last["physical"] = pc_wls(robot, bp, res.chi, res.cov, n_boot=n_boot, **pc_options)
+        last["physical"] = _pc_of(robot, bp, res, last.get("res_classic"), n_boot, pc_options,
+                                  uncertainty + ("+gains" if gains_cov is not None else ""))
     h = experiment.data_hash() if hasattr(experiment, "data_hash") else ""
     res.data_hash = h
     ess = None
@@ -1333,8 +1334,8 @@ def _keep_start_width(first, robot, final_cov, n_boot, pc_options, essential, ma
         first.settings["uncertainty"] = (final_cov["uncertainty"]
                                          + ("+gains" if final_cov["gains"] is not None else ""))
     if physical and n_boot:
-        first.physical = pc_wls(robot, first.base, first.result.chi, first.result.cov, n_boot=n_boot,
-                                **pc_options)
+        first.physical = _pc_of(robot, first.base, first.result, (first._state[1] if first._state else {}).get("res_classic"), n_boot,
+                                pc_options, first.settings.get("uncertainty", "classic"))
     if essential:
         first.essential = essential_parameters(
             first.W_dec, first.tau_dec, list(first.base.names), ls.wls,
@@ -1501,3 +1502,11 @@ def _continue_at(experiment, L0, first, v, step, start, final_run, progress):
                         physical=o["physical"], n_boot=o["n_boot"], pc_options=o["pc_options"],
                         uncertainty=o["uncertainty"], gains_cov=o["gains"])
     return res, rows, timings
+
+
+def _pc_of(robot, bp, res, res_classic, n_boot, pc_options, uncertainty):
+    """The PC fit of DIDIM's estimate, as IDIM's: the metric is eq. (14)'s covariance (so the
+    estimate does not depend on the covariance option), the intervals are the reported one's."""
+    metric = res.cov if res_classic is None else res_classic.cov
+    return pc_wls(robot, bp, res.chi, metric, n_boot=n_boot, interval_cov=res.cov, uncertainty=uncertainty,
+                  **pc_options)

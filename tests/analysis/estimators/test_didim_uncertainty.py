@@ -108,3 +108,17 @@ def test_reported_essential_parameters_carry_the_chosen_covariance(run):
     np.testing.assert_allclose(didim_covariance(res, "classic").cov, classic_run.result.cov, rtol=1e-10)
     hac_sigma = res.result.bse.to_numpy()
     assert np.median(hac_sigma / classic_run.result.bse.to_numpy()) > 1.05
+
+
+def test_the_physical_fit_does_not_depend_on_the_covariance_option():
+    """PC-DIDIM, as IDIM's PC-WLS: the metric is eq. (14)'s, so the estimate is the same for every
+    `uncertainty`; only its σ follows the option, and the result names it (it used the robust
+    covariance as the metric, moved ZZ2R by 0.7σ and said "classic")."""
+    import dynid
+    robot = dynid.load_robot("planar2")
+    exp = dynid.simulate(robot, 6.0, seed=1).experiment
+    a = dynid.identify(exp, robot, method="didim", physical=True, uncertainty="classic", bootstrap=20)
+    b = dynid.identify(exp, robot, method="didim", physical=True, uncertainty="bootstrap", bootstrap=20)
+    assert np.array_equal(a.physical.chi, b.physical.chi) and a.physical.chi2 == b.physical.chi2
+    assert (a.physical.uncertainty, b.physical.uncertainty) == ("classic", "bootstrap")
+    assert not np.allclose(a.physical.bse.to_numpy(), b.physical.bse.to_numpy())

@@ -110,3 +110,10 @@ def test_more_api_inputs_are_named(split, fitted):
         dynid.diagnose(train, robot, idim_result="x")
     with pytest.raises(InputError, match=r"predict: the base regressor has shape \(3, 3\)"):
         fitted.predict(np.zeros((3, 3)))
+
+
+def test_uncertainty_is_refused_where_it_would_be_ignored(split):
+    """The Projection Method and ML have their own covariance: `uncertainty=` was silently dropped."""
+    robot, train, _ = split
+    with pytest.raises(InputError, match=r"uncertainty='classic' .* method 'projection' reports its own"):
+        dynid.identify(train, robot, method="projection", uncertainty="classic")
