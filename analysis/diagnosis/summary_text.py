@@ -137,7 +137,8 @@ def _selected(res):
 
 
 def _errors(res):
-    lines = ["", "  Errors before -> after (relative error norm; RMS per joint [N m]):"]
+    lines = ["", "  Errors before -> after (relative error norm on the moving samples, as the effects are scored; "
+                 "RMS per joint [N m]):"]
     for key in ("identification", "validation"):
         e = res.errors.get(key)
         if e is None:

@@ -310,7 +310,8 @@ def _no_validation(x: VerdictInputs) -> CheckOutcome:
     text = ("No held-out data: the model was not tested on data it was not "
             + (f"fitted to (identification error {_pct(x.estimate.rel_error)} on the fitted rows); "
                if fitted else "fitted to; ")
-            + ("use --holdout or --validation." if hasattr(x.result, "observation") else
+            + ("hold data out: --holdout or --validation of dynid identify, diagnose or report "
+               "(Python: dynid.verdict(result, held_out))." if hasattr(x.result, "observation") else
                "the held-out check is IDIM's: dynid identify --holdout, or dynid "
                "report --holdout for every method at once."))
     return CheckOutcome(findings=[{"level": "warn", "key": "validation", "text": text}],
@@ -531,7 +532,14 @@ def _conditioning(ls_fit, cond_threshold):
     return {"level": "warn" if cs > cond_threshold else "ok",
             "text": f"cond(W) = {c:.3g} ({cs:.3g} with unit columns"
                     + (f", above {cond_threshold:g}: poorly exciting data" if cs > cond_threshold else "")
-                    + ")."}
+                    + ")" + (f", W of all {len(ls_fit.names)} parameters of the {_fit_label(ls_fit)}"
+                             if getattr(ls_fit, "names", None) else "") + "."}
+
+
+def _fit_label(ls_fit):
+    """What the judged cond(W) belongs to, for the reader of a summary that shows another model's."""
+    method = str(getattr(ls_fit, "method", "") or "fit")
+    return f"{method} fit" if "fit" not in method.lower() else method
 
 
 def _dead_zone(mask, validation):
