@@ -429,7 +429,10 @@ def baxter(sides=("left", "right"), head=True):
 
 def panda(fingers=True, mimic=True):
     """A Panda-like arm: 7 joints, fixed flange link8, fixed hand with two sibling prismatic fingers."""
-    rpys = ["0 0 0", "-1.5708 0 0", "1.5708 0 0", "1.5708 0 0", "-1.5708 0 0", "1.5708 0 0", "1.5708 0 0"]
+    # the right angles to full precision, as franka_description's xacro expands ${pi/2}: Pinocchio
+    # reads "1.5708" literally, dynid as pi/2 (test_a_rounded_right_angle_is_the_right_angle)
+    h = repr(np.pi / 2)
+    rpys = ["0 0 0", f"-{h} 0 0", f"{h} 0 0", f"{h} 0 0", f"-{h} 0 0", f"{h} 0 0", f"{h} 0 0"]
     xyzs = ["0 0 0.333", "0 0 0", "0 -0.316 0", "0.0825 0 0", "-0.0825 0.384 0", "0 0 0", "0.088 0 0"]
     parts = ['<?xml version="1.0"?>', '<robot name="panda">', link("link0", *_inertia_args(2, 2.9))]
     for k in range(7):
