@@ -352,10 +352,24 @@ README_ROWS = ("base / essential parameters", "identification error (fitted rows
                "published figure")
 
 
-def readme_block(results):
-    """The Markdown the README shows between :data:`README_BEGIN` and :data:`README_END`."""
+def _table_columns(block):
+    """{column head: its cells} of the Markdown table in `block` (the README's generated block)."""
+    rows = [ln.strip().strip("|").split(" | ") for ln in block.splitlines() if ln.startswith("| ")]
+    if not rows:
+        return {}
+    heads = [h.strip() for h in rows[0][1:]]
+    return {h: [r[i + 1].strip() if i + 1 < len(r) else "" for r in rows[1:]] for i, h in enumerate(heads)}
+
+
+def readme_block(results, old_block=""):
+    """The Markdown the README shows between :data:`README_BEGIN` and :data:`README_END`; a data set
+    not available on this machine keeps its column of `old_block` (the README's current table), so
+    that a run without the Panda's data does not erase its published figures."""
     keys = list(README_HEADS)
-    cols = [readme_cells(results.get(k, {"available": False}), k) for k in keys]
+    old = _table_columns(old_block)
+    cols = [readme_cells(results.get(k, {"available": False}), k)
+            if results.get(k, {}).get("available") or README_HEADS[k] not in old else old[README_HEADS[k]]
+            for k in keys]
     lines = [README_BEGIN, "", "| | " + " | ".join(README_HEADS[k] for k in keys) + " |",
              "|---|" + "---|" * len(keys)]
     for i, label in enumerate(README_ROWS):
@@ -377,8 +391,11 @@ def write_readme(path, results):
         raise SystemExit(f"{path}: no generated real-data block (the lines {README_BEGIN!r} and "
                          f"{README_END!r}); add them where the table goes")
     head, rest = text.split(README_BEGIN, 1)
-    _, tail = rest.split(README_END, 1)
-    atomic_write_text(path, head + readme_block(results) + tail)
+    old_block, tail = rest.split(README_END, 1)
+    kept = [README_HEADS[k] for k in README_HEADS if not results.get(k, {}).get("available")]
+    if kept:
+        print(f"not available here, kept as the README has them: {', '.join(kept)}")
+    atomic_write_text(path, head + readme_block(results, old_block) + tail)
 
 
 def rounded(x):

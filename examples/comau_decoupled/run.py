@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 import dynid
 from dynid.errors import DynidError
@@ -23,7 +24,9 @@ from dynid.reports.html import render_sections
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", default="comau_decoupled.html", help="HTML report to write")
+    ap.add_argument("--out", default="comau_decoupled.html",
+                    help="HTML report to write; a folder (no .html suffix, as the other examples take) "
+                         "gets comau_decoupled.html inside")
     ap.add_argument("--json", default=None, help="also write the results as JSON")
     ap.add_argument("--repetitions", type=int, default=25)
     ap.add_argument("--seed", type=int, default=0)
@@ -48,6 +51,11 @@ def _run(args):
                     ("Largest validation position error",
                      f"{ident.validation.max_q_error_deg.max():.3g} deg")],
         footer=[f"seed {args.seed}; true values: dynamics/comau_decoupled.py (paper Tables 1-3)"])
+    out = Path(args.out)
+    if out.suffix.lower() not in (".html", ".htm"):
+        out.mkdir(parents=True, exist_ok=True)
+        out = out / "comau_decoupled.html"
+    args.out = str(out)
     outputs = [(args.out, html)]
     if args.json:
         outputs.append((args.json, dumps_json(ident.to_dict())))
