@@ -50,21 +50,24 @@ _WIDTH = 78
 
 
 # ---------------------------------------------------------------- the shared pieces
-def parameter_records(names, value, std, rel_std) -> list:
-    """The JSON record of each parameter: `{"name", "value", "std", "rel_std_percent"}`.
+def parameter_records(names, value, std, rel_std, prismatic=frozenset()) -> list:
+    """The JSON record of each parameter: `{"name", "value", "std", "rel_std_percent", "unit"}`.
 
     Parameters
     ----------
     names : sequence of str
     value, std, rel_std : sequences of float
         Estimate, standard deviation and %σ (eq. (15)), in the order of `names`.
+    prismatic : set of int
+        The robot's prismatic joints (1-based), whose parameters carry N and m units.
 
     Returns
     -------
     list of dict
-        One record per parameter (not yet JSON-safe: pass the document through `json_safe`).
+        One record per parameter (not yet JSON-safe: pass the document through `json_safe`);
+        `unit` is "" where dynid has none for the name.
     """
-    return [{"name": n, "value": v, "std": s, "rel_std_percent": r}
+    return [{"name": n, "value": v, "std": s, "rel_std_percent": r, "unit": parameter_unit(n, prismatic)}
             for n, v, s, r in zip(names, value, std, rel_std)]
 
 
@@ -462,15 +465,18 @@ class ParameterResults(Result):
         return pd.DataFrame({"lower": value - half, "upper": value + half}, index=self._index())
 
     def to_frame(self) -> pd.DataFrame:
-        """Table of the parameters: index = names, columns value, std, rel_std_percent.
+        """Table of the parameters: index = names, columns value, std, rel_std_percent, unit.
 
         Returns
         -------
         pandas.DataFrame
-            One row per parameter, columns `value`, `std` and `rel_std_percent`.
+            One row per parameter, columns `value`, `std`, `rel_std_percent` and `unit` (SI).
         """
+        prismatic = self._prismatic()
         return pd.DataFrame({"value": self._estimate(), "std": self.bse.to_numpy(),
-                             "rel_std_percent": self.rel_std.to_numpy()}, index=self._index())
+                             "rel_std_percent": self.rel_std.to_numpy(),
+                             "unit": [parameter_unit(n, prismatic) for n in self._index()]},
+                            index=self._index())
 
 
 
@@ -705,7 +711,7 @@ class IdentificationResult(ParameterResults):
         out = {
             "method": self.method,
             "settings": self.settings,
-            "parameters": parameter_records(self.names, self.chi, self._sigma, self._rel_sigma),
+            "parameters": parameter_records(self.names, self.chi, self._sigma, self._rel_sigma, self._prismatic()),
             "rel_error": self.rel_error,
             "rms_per_joint": self.rms,
             "joint_rel_error": self.joint_rel_error,

@@ -363,7 +363,8 @@ class DIDIMResult(ModelResults):
             JSON-safe; the same for the same data and settings.
         """
         def params(res):
-            return parameter_records(res.names, res.chi, res.bse.to_numpy(), res.rel_std.to_numpy())
+            return parameter_records(res.names, res.chi, res.bse.to_numpy(), res.rel_std.to_numpy(),
+                                     self._prismatic())
         r = self.result
         m = self.model
         return json_safe({

@@ -124,7 +124,8 @@ class IDIMResult(ModelResults):
 
     def to_dict(self):
         def params(res):
-            return parameter_records(res.names, res.chi, res.bse.to_numpy(), res.rel_std.to_numpy())
+            return parameter_records(res.names, res.chi, res.bse.to_numpy(), res.rel_std.to_numpy(),
+                                     self._prismatic())
         return json_safe({
             "method": "IDIM",
             "uncertainty": self.uncertainty,

@@ -71,6 +71,7 @@ from dynid.analysis.estimators.payload_physical import PAYLOAD_NAMES, PhysicalPa
 from dynid.analysis.processing.decimation import ParallelDecimator
 from dynid.analysis.processing.observation import CHUNK, full_rate
 from dynid.analysis.results import IdentificationResult, ParameterResults, notices_block, parameter_table, percent
+from dynid.analysis.units import parameter_unit
 from dynid.dynamics.base_parameters import base_parameters
 from dynid.dynamics.regressor import regressor
 from dynid.dynamics.robot import Robot
@@ -82,7 +83,7 @@ from dynid.provenance import json_safe, versions
 __all__ = ["PAYLOAD_NAMES", "PayloadResult", "PhysicalPayload", "identify_payload", "physical_payload",
            "transform_matrix", "payload_frame", "payload_link_values", "centre_held_torque", "RANK_RTOL"]
 
-UNITS = ("kg m^2",) * 6 + ("kg m",) * 3 + ("kg",)
+UNITS = tuple(parameter_unit(n) for n in PAYLOAD_NAMES)   # kg m², kg m, kg: as every result's
 #: a payload direction whose column-scaled singular value is below this fraction of the largest
 #: is not identified: its sigma would be over 1e3 times that of the best-seen direction
 RANK_RTOL = 1e-3
@@ -596,9 +597,10 @@ class PayloadResult(ParameterResults):
             "method": self.method, "robot": self.robot_name, "sources": self.sources,
             "model": self.model_source, "link": self.link + 1, "frame": self.frame,
             "frame_origin_m": self.p, "frame_axes": self.R,
-            "parameters": [{"name": nm, "value": v, "std": s, "lower_95": lo, "upper_95": hi, "unit": u}
-                           for nm, v, s, (lo, hi), u in zip(self.names, self.chi, self.bse.to_numpy(), ci,
-                                                            UNITS)],
+            "parameters": [{"name": nm, "value": v, "std": s, "rel_std_percent": r, "lower_95": lo, "upper_95": hi,
+                            "unit": u}
+                           for nm, v, s, r, (lo, hi), u in zip(self.names, self.chi, self.bse.to_numpy(),
+                                                               self.rel_std.to_numpy(), ci, UNITS)],
             "covariance": self.cov,
             "mass_kg": self.mass[0], "com_m": c, "com_std_m": sc,
             "inertia_com_kgm2": self.inertia_com,

@@ -323,7 +323,7 @@ def test_summary_frame_dict():
     for piece in ("WLS", "Samples N:", "400", "cond(W)", "sigma_rho", "%sigma", "P7", "sigma_j"):
         assert piece in text
     frame = res.to_frame()
-    assert list(frame.columns) == ["value", "std", "rel_std_percent"]
+    assert list(frame.columns) == ["value", "std", "rel_std_percent", "unit"]
     assert list(frame.index) == NAMES
     d = res.to_dict()
     for key in (
@@ -332,7 +332,7 @@ def test_summary_frame_dict():
     ):
         assert key in d
     assert d["settings"]["decimation"] == 10 and d["settings"]["least_squares"]["estimator"] == "WLS"
-    assert set(d["parameters"][0]) == {"name", "value", "std", "rel_std_percent"}
+    assert set(d["parameters"][0]) == {"name", "value", "std", "rel_std_percent", "unit"}
     assert d["versions"]["numpy"] == np.__version__
     assert d["versions"]["dynid"]
     assert len(d["data_hash"]) == 64
