@@ -139,6 +139,8 @@ def identify(data, robot, method: str | None = None, *, settings=None, max_error
     if method is None:          # not given: the Settings' method, else IDIM
         method = settings.method if isinstance(settings, Settings) else (
             settings.get("method", "idim") if isinstance(settings, dict) else "idim")
+    if isinstance(method, str):          # "IDIM", as the JSON spells it, is idim
+        method = method.strip().lower()
     if method not in METHODS:
         raise InputError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
     chosen = {"f0": f0, "ml_harmonics": ml_harmonics, "max_iter": max_iter, "gain_update": gain_update,

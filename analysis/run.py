@@ -152,6 +152,8 @@ class Settings:
     processing_overrides: dict | None = None
 
     def __post_init__(self):
+        if isinstance(self.method, str):          # "IDIM", as the JSON spells it, is idim
+            object.__setattr__(self, "method", self.method.strip().lower())
         check_settings(self)
 
     def processing(self) -> dict | None:
@@ -744,6 +746,28 @@ class Identification(Result):
 
     def summary(self) -> str:
         return "\n\n".join(self.summaries())
+
+    # The parameter interface of the identification it holds (`result`), as `--csv` writes it; the
+    # physically consistent fit is `physical`, with the same interface.
+    @property
+    def params(self):
+        return self.result.params
+
+    @property
+    def bse(self):
+        return self.result.bse
+
+    @property
+    def rel_std(self):
+        return self.result.rel_std
+
+    @property
+    def cov(self):
+        return self.result.cov
+
+    def conf_int(self, alpha: float = 0.05):
+        """The (1 - alpha) intervals of the identification (`result.conf_int`)."""
+        return self.result.conf_int(alpha)
 
     def __repr__(self) -> str:
         return f"{super().__repr__()[:-1]}; verdict {getattr(self.verdict, 'status', '?')}>"

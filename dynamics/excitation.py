@@ -268,7 +268,7 @@ class ExcitationResult:
             f"starts {self.cond_start:.4g}; x{self.improvement:.2f} lower)",
             f"  cond envelope-scaled {c['cond']:.4g} (start {cs['cond']:.4g}), raw SI {c['cond_raw']:.4g} "
             f"(start {cs['cond_raw']:.4g}), unit columns {c['cond_unit']:.4g} (start {cs['cond_unit']:.4g}); "
-            f"{self.n_samples} samples per period",
+            f"computed on {self.n_samples} samples per period (the CSV holds the controller rate)",
             f"  limits on {self.n_check} points per period: {'all respected' if self.feasible else 'VIOLATED'}"
             f" (torque with {self.torque_parameters})",
             "  joint   q_low  q_high     qd    qdd    tau   (relative margin to each limit)",
@@ -280,7 +280,7 @@ class ExcitationResult:
         sp = self.spectrum
         lines.append(f"  spectrum: lines at {', '.join(f'{f:g}' for f in sp['lines'])} Hz; "
                      f"off-grid {sp['off_grid']:.2e}; {'ok' if sp['ok'] else 'NOT band-limited'}")
-        lines.append(f"  {self.elapsed:.1f} s")
+        lines.append(f"  designed in {self.elapsed:.1f} s")
         lines += [f"  note: {m}" for m in self.notices]
         return "\n".join(lines)
 

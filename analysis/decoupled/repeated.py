@@ -151,7 +151,8 @@ class RepeatedEstimate(ParameterResults):
         pct = f"{100 * self.confidence:g} %"
         lines = [f"{self.table or self.kind}: {self.n_repetitions} repetitions, {pct} Student "
                  f"interval, t_gamma = {self.t_gamma:.4f} ({self.n_repetitions - 1} dof)"]
-        columns = [("mean", self.mean, lambda x: f"{x:.5g}"), ("sigma (1/n)", self.std, lambda x: f"{x:.4g}"),
+        columns = [("mean", self.mean, lambda x: f"{x:.5g}"), ("bse", self.bse.to_numpy(), lambda x: f"{x:.4g}"),
+                   ("sigma (1/n)", self.std, lambda x: f"{x:.4g}"),
                    ("t s/sqrt(n-1)", self.half_width, lambda x: f"{x:.4g}")]
         if self.truth is not None:
             columns += [("true", self.truth, lambda x: f"{x:.5g}"),
@@ -159,6 +160,9 @@ class RepeatedEstimate(ParameterResults):
         lines += parameter_table(self.names, columns, label="param")
         if self.truth is not None:
             lines.append(f"true value inside: {int(self.inside.sum())} of {len(self.names)}")
+        lines.append(f"bse: standard error of the mean (params, bse, conf_int(); conf_int() is 95 % unless "
+                     f"alpha= is given); sigma (1/n): the spread of one repetition (the paper's); "
+                     f"t s/sqrt(n-1): the half-width of the {pct} interval of the mean")
         lines += [f"note: {x}" for x in self.notices]
         return "\n".join(lines)
 

@@ -38,6 +38,7 @@ from dynid.analysis.diagnosis.effect_observation import observe_effects
 from dynid.analysis.diagnosis.effects import make_candidate, signals_from_observation
 from dynid.analysis.estimators import least_squares as ls
 from dynid.analysis.estimators.physical import pc_wls
+from dynid.analysis.results import percent
 from dynid.analysis.statistics.validation import prediction_errors
 from dynid.errors import IdentificationError, InputError
 from dynid.provenance import json_safe
@@ -185,12 +186,13 @@ class EffectsFit:
         pc = self.physical is not None
         lines = [f"Effects fitted with the rigid body ({self.spec}): "
                  + ("unconstrained WLS and PC-WLS of the same model" if pc else "unconstrained WLS"),
-                 f"  relative error on the identification data: WLS {self.rel_error_wls:.4f}"
-                 + (f", PC {self.rel_error_pc:.4f}" if pc else "")]
+                 f"  relative error on the identification data: WLS {percent(self.rel_error_wls, 3)}"
+                 + (f", PC {percent(self.rel_error_pc, 3)}" if pc else "")]
         if self.validation is not None:
             v = self.validation
-            lines.append(f"  held-out relative error (all samples): WLS {v['rel_error_wls']:.4f}"
-                         + (f", PC {v['rel_error_pc']:.4f} (PC - WLS {v['gap_points']:+.3f} points)" if pc else ""))
+            lines.append(f"  held-out relative error (all samples): WLS {percent(v['rel_error_wls'], 3)}"
+                         + (f", PC {percent(v['rel_error_pc'], 3)} (PC - WLS {v['gap_points']:+.3f} points)"
+                            if pc else ""))
         hdr = f"{'Parameter':<12}{'effect':>20}{'WLS':>13}{'sigma':>11}"
         lines.append(hdr + (f"{'PC':>13}{'sigma':>11}" if pc else ""))
         for r in self.effects():

@@ -370,8 +370,8 @@ class PhysicalResult(ParameterResults):
             return "the constraints cost nothing: the unconstrained fit is (or is as good as) physical"
         if self.p_value < 0.01:
             return (f"the data want a non-physical model (chi2 = {self.chi2:.4g} on {self.dof} active "
-                    f"constraint directions, p <= {self.p_value:.2g}): a modelling error worth diagnosing")
-        return (f"the constraints cost little (chi2 = {self.chi2:.4g}, p <= {self.p_value:.2g}): "
+                    f"constraint directions, p <= {self.p_value:.3g}): a modelling error worth diagnosing")
+        return (f"the constraints cost little (chi2 = {self.chi2:.4g}, p <= {self.p_value:.3g}): "
                 f"compatible with a physical model")
 
     def summary(self) -> str:

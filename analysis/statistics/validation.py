@@ -163,6 +163,9 @@ class ValidationResult(Result):
 def _validatable(result):
     """The IDIM-like result `validate` needs (a run's identification unwrapped), or an InputError:
     the held-out system is built with the identification's processing (filters, decimation)."""
+    if callable(getattr(result, "data_hash", None)) or isinstance(result, (str, bytes)) or hasattr(result, "__fspath__"):
+        raise InputError(f"validate: the first argument is held-out data ({type(result).__name__}), not a result: "
+                         "the order is validate(result, held_out)")
     inner = getattr(result, "result", None)
     if getattr(result, "base", None) is None and inner is not None:
         result = inner

@@ -69,7 +69,7 @@ def main(argv=None):
                "n_essential": len(res.model.names), "n_held_out_samples": len(val.t)}
         row.update({f"rms_j{j + 1}": float(v) for j, v in enumerate(val.rms)})
         rows.append(row)
-        say(f"{key}: identification {res.model.rel_error:.4f}, held-out {val.rel_error:.4f}; RMS "
+        say(f"{key}: identification {100 * res.model.rel_error:.2f} %, held-out {100 * val.rel_error:.2f} %; RMS "
             + " ".join(f"{v:.3f}" for v in val.rms))
     held_df = pd.DataFrame(rows).set_index("split")
     main_res, main_val = runs["2+3->1"]

@@ -99,7 +99,7 @@ def main(argv=None):
     didim = dynid.identify(exp, robot, "didim", reference="q")
     lap("didim")
     say(f"  {'converged' if didim.converged else 'NOT converged'} after {didim.iterations} steps; "
-        f"relative error {didim.result.rel_error:.4f}")
+        f"relative error {100 * didim.result.rel_error:.2f} %")
 
     say(f"\nposterior of the essential parameters (at most {args.max_seconds:g} s) ...")
     post = dynid.sample(full, which="essential", seed=args.seed, max_seconds=args.max_seconds)
@@ -138,11 +138,11 @@ def main(argv=None):
     total = time.perf_counter() - t0
 
     ess = full.model
-    print(f"TX40: IDIM on the first {t_split - exp.t[0]:.1f} s: relative error {res.model.rel_error:.4f} "
+    print(f"TX40: IDIM on the first {t_split - exp.t[0]:.1f} s: relative error {100 * res.model.rel_error:.2f} % "
           f"(essential, {len(res.model.names)} parameters); held-out last {HOLDOUT:g} s: "
-          f"{val.rel_error:.4f}")
+          f"{100 * val.rel_error:.2f} %")
     print(f"TX40: whole recording: {len(ess.names)} essential parameters, relative error "
-          f"{ess.rel_error:.4f}; DIDIM {didim.result.rel_error:.4f} "
+          f"{100 * ess.rel_error:.2f} %; DIDIM {100 * didim.result.rel_error:.2f} % "
           f"({'converged' if didim.converged else 'not converged'}, {didim.iterations} steps)")
     print(f"TX40 vs FIGAROH: {summary['agree_within_3sigma_or_5percent']} of "
           f"{summary['both_well_identified']} well-identified parameters agree; Table 2: "
@@ -151,8 +151,8 @@ def main(argv=None):
     chosen = ", ".join(f"{e.name} (joint {e.joint})" for e in diag.selected) or "nothing"
     print(f"TX40: posterior {'converged' if post.converged else 'NOT converged'} "
           f"({post.reason}); diagnosis selected {chosen}"
-          + ("" if v is None else f"; held-out error {v['before'].rel_error:.4f} -> "
-                                   f"{v['after'].rel_error:.4f}"))
+          + ("" if v is None else f"; held-out error on moving samples {100 * v['before'].rel_error:.2f} % -> "
+                                   f"{100 * v['after'].rel_error:.2f} %"))
     print(f"wrote {out / 'tx40.html'} and {out / 'tx40.json'} in {total:.0f} s")
     return 0
 

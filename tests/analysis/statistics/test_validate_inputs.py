@@ -117,3 +117,17 @@ def test_uncertainty_is_refused_where_it_would_be_ignored(split):
     robot, train, _ = split
     with pytest.raises(InputError, match=r"uncertainty='classic' .* method 'projection' reports its own"):
         dynid.identify(train, robot, method="projection", uncertainty="classic")
+
+
+def test_swapped_arguments_and_an_upper_case_method_are_understood(split, fitted):
+    robot, train, held = split
+    with pytest.raises(InputError, match=r"the order is validate\(result, held_out\)"):
+        dynid.validate(held, fitted)
+    assert dynid.identify(train, robot, method="IDIM").params.equals(fitted.params)
+
+
+def test_a_run_has_the_parameter_interface_of_its_identification(split, fitted):
+    robot, train, _ = split
+    run = dynid.run(train, robot)
+    assert run.params.equals(fitted.params) and run.bse.equals(fitted.bse)
+    assert run.conf_int(0.1).equals(fitted.conf_int(0.1))
