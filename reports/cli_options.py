@@ -437,7 +437,8 @@ def _add_identify_parser(sub, common, full):
     o.add_argument("--json", metavar="PATH", help=JSON_HELP)
     o.add_argument("--csv", metavar="PATH", help="write the essential parameters as CSV here")
     o.add_argument("--urdf", metavar="PATH",
-                   help="write a URDF of a physically consistent set reproducing the identified one")
+                   help="write a URDF of the closest physically consistent set (the summary says "
+                        "if it reproduces the identified one)")
     o.add_argument("--mjcf", metavar="PATH", help="write the same set as MuJoCo MJCF (with --effects "
                                                   "spring:...: its springs as joint stiffness)")
     _add_processing_options(g, adv)
