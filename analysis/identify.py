@@ -29,6 +29,7 @@ from dynid.analysis.run import (  # noqa: F401 - as_robot, as_experiments, METHO
     as_experiments,
     as_robot,
     identify_step,
+    method_name,
     settings_from,
 )
 from dynid.errors import InputError
@@ -139,10 +140,9 @@ def identify(data, robot, method: str | None = None, *, settings=None, max_error
     if method is None:          # not given: the Settings' method, else IDIM
         method = settings.method if isinstance(settings, Settings) else (
             settings.get("method", "idim") if isinstance(settings, dict) else "idim")
-    if isinstance(method, str):          # "IDIM", as the JSON spells it, is idim
-        method = method.strip().lower()
+    given_method, method = method, method_name(method)     # "IDIM", "PM", "ML-EIV": the JSON's spellings
     if method not in METHODS:
-        raise InputError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
+        raise InputError(f"method must be one of {', '.join(METHODS)}, got {given_method!r}")
     chosen = {"f0": f0, "ml_harmonics": ml_harmonics, "max_iter": max_iter, "gain_update": gain_update,
               "reference": reference, "gains": None if gains == "assumed" else gains,
               "didim_start": options.get("didim_start"), "update_gains": options.get("update_gains")}

@@ -390,6 +390,11 @@ class ParameterResults(Result):
     def _index(self) -> pd.Index:
         return pd.Index(list(self.names), name="parameter")
 
+    def _units(self) -> list:
+        """The SI unit of each parameter ("" where dynid has none for the name)."""
+        prismatic = self._prismatic()
+        return [parameter_unit(n, prismatic) for n in self._index()]
+
     def _prismatic(self) -> frozenset:
         """The 1-based numbers of the identified robot's prismatic joints (for the units)."""
         if getattr(self, "prismatic", None):
@@ -472,10 +477,8 @@ class ParameterResults(Result):
         pandas.DataFrame
             One row per parameter, columns `value`, `std`, `rel_std_percent` and `unit` (SI).
         """
-        prismatic = self._prismatic()
         return pd.DataFrame({"value": self._estimate(), "std": self.bse.to_numpy(),
-                             "rel_std_percent": self.rel_std.to_numpy(),
-                             "unit": [parameter_unit(n, prismatic) for n in self._index()]},
+                             "rel_std_percent": self.rel_std.to_numpy(), "unit": self._units()},
                             index=self._index())
 
 

@@ -58,6 +58,16 @@ from dynid.errors import DataError, InputError
 from dynid.ranges import check_range
 
 METHODS = ("idim", "didim", "projection", "ml")
+#: the JSON's spellings of the methods (`"method"`), taken as their names
+METHOD_SPELLINGS = {"pm": "projection", "ml-eiv": "ml"}
+
+
+def method_name(method):
+    """`method` as one of METHODS when it is a spelling of one ("IDIM", "PM", "ML-EIV"); else as given."""
+    if not isinstance(method, str):
+        return method
+    m = method.strip().lower()
+    return METHOD_SPELLINGS.get(m, m)
 
 #: --gain-update -> identify_didim's update_gains (eq. (27) at every step, the first simulation only, never)
 GAIN_UPDATES = {"every": True, "initial": "initial", "none": False}
@@ -152,8 +162,7 @@ class Settings:
     processing_overrides: dict | None = None
 
     def __post_init__(self):
-        if isinstance(self.method, str):          # "IDIM", as the JSON spells it, is idim
-            object.__setattr__(self, "method", self.method.strip().lower())
+        object.__setattr__(self, "method", method_name(self.method))   # "IDIM", "PM": the JSON's spellings
         check_settings(self)
 
     def processing(self) -> dict | None:

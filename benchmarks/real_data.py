@@ -353,12 +353,13 @@ README_ROWS = ("base / essential parameters", "identification error (fitted rows
 
 
 def _table_columns(block):
-    """{column head: its cells} of the Markdown table in `block` (the README's generated block)."""
-    rows = [ln.strip().strip("|").split(" | ") for ln in block.splitlines() if ln.startswith("| ")]
+    """{column head: {row label: cell}} of the Markdown table in `block` (the README's generated block)."""
+    rows = [[c.strip() for c in ln.strip().strip("|").split(" | ")] for ln in block.splitlines()
+            if ln.startswith("| ")]
     if not rows:
         return {}
-    heads = [h.strip() for h in rows[0][1:]]
-    return {h: [r[i + 1].strip() if i + 1 < len(r) else "" for r in rows[1:]] for i, h in enumerate(heads)}
+    heads = rows[0][1:]
+    return {h: {r[0]: r[i + 1] if i + 1 < len(r) else "" for r in rows[1:]} for i, h in enumerate(heads)}
 
 
 def readme_block(results, old_block=""):
@@ -368,7 +369,8 @@ def readme_block(results, old_block=""):
     keys = list(README_HEADS)
     old = _table_columns(old_block)
     cols = [readme_cells(results.get(k, {"available": False}), k)
-            if results.get(k, {}).get("available") or README_HEADS[k] not in old else old[README_HEADS[k]]
+            if results.get(k, {}).get("available") or README_HEADS[k] not in old else
+            [old[README_HEADS[k]].get(label, "") for label in README_ROWS]
             for k in keys]
     lines = [README_BEGIN, "", "| | " + " | ".join(README_HEADS[k] for k in keys) + " |",
              "|---|" + "---|" * len(keys)]
@@ -392,7 +394,9 @@ def write_readme(path, results):
                          f"{README_END!r}); add them where the table goes")
     head, rest = text.split(README_BEGIN, 1)
     old_block, tail = rest.split(README_END, 1)
-    kept = [README_HEADS[k] for k in README_HEADS if not results.get(k, {}).get("available")]
+    old = _table_columns(old_block)
+    kept = [README_HEADS[k] for k in README_HEADS
+            if not results.get(k, {}).get("available") and README_HEADS[k] in old]
     if kept:
         print(f"not available here, kept as the README has them: {', '.join(kept)}")
     atomic_write_text(path, head + readme_block(results, old_block) + tail)

@@ -94,7 +94,7 @@ from .robot_checks import (  # noqa: F401  (MAX_*, check_name, read_limited, sho
     short,
     shown,
 )
-from .urdf import RIGHT_ANGLE_SNAP, read_urdf, snap_right_angle
+from .urdf import read_urdf, snap_right_angle
 
 #: The DH angles of the robot file being read that were taken as right angles (`snap_right_angle`).
 _SNAPPED: contextvars.ContextVar = contextvars.ContextVar("dynid_snapped_angles", default=None)
@@ -351,10 +351,9 @@ def _joints_from_tables(doc, chain, path):
     finally:
         _SNAPPED.reset(token)
     notices = [] if not snapped else [
-        f"{Path(path).name}: angles within {RIGHT_ANGLE_SNAP:g} rad of a multiple of pi/2 taken as that "
-        f"multiple: {'; '.join(snapped)}. A rounded right angle describes a slightly skewed arm, whose base "
-        f"parameters differ (a regrouped parameter kept apart, barely identifiable); write the angle to "
-        f"1e-9 rad or better to keep it as written"]
+        f"{Path(path).name}: multiples of pi/2 rounded to the decimals written taken as the multiple: "
+        f"{'; '.join(snapped)}. Taken literally, a rounded right angle describes a slightly skewed arm, whose "
+        f"base parameters differ (a regrouped parameter kept apart, barely identifiable)"]
     return joints, {}, {}, notices
 
 
@@ -520,7 +519,7 @@ def _set_kinematics(joint, tab, where, path, who):
         taken = snap_right_angle(vals[i])
         if taken != vals[i]:
             if _SNAPPED.get() is not None:
-                _SNAPPED.get().append(f"{where}.{_KINEMATICS[i]} = {vals[i]:g} as {taken!r}")
+                _SNAPPED.get().append(f"{where}.{_KINEMATICS[i]} = {vals[i]!r} as {taken!r}")
             vals[i] = taken
     joint.sigma = int(sigma)
     joint.mdh = tuple(vals)

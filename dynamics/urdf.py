@@ -101,18 +101,27 @@ def _floats(text, n, where, path):
     return np.array(vals)
 
 
-#: A joint angle written within this of a multiple of pi/2 (1.5708, 1.571, 1.57) is that multiple: the
-#: rounded value would give the base parameters of a slightly skewed arm (a parameter that regroups
-#: at pi/2, Ia2 into ZZ2R, kept apart with cond(W) ~ 1e6). Closer than RIGHT_ANGLE_EXACT: left as written.
+#: A joint angle that is a nonzero multiple of pi/2 rounded to the decimals written (1.5708, 1.571,
+#: 1.57, 3.1416) is that multiple: the rounded value would give the base parameters of a slightly
+#: skewed arm (a parameter that regroups at pi/2, Ia2 into ZZ2R, kept apart with cond(W) ~ 1e6).
+#: Any other value (a calibrated 1.5703, a small 0.0005) is kept as written, as is one within
+#: RIGHT_ANGLE_EXACT of the multiple; RIGHT_ANGLE_SNAP bounds the rounding taken (2 decimals: 8e-4 rad).
 RIGHT_ANGLE_SNAP = 1e-3
 RIGHT_ANGLE_EXACT = 1e-9
 
 
-def snap_right_angle(value: float) -> float:
-    """`value` (rad), or the multiple of pi/2 it rounds (`RIGHT_ANGLE_SNAP`)."""
+def snap_right_angle(value: float, text: str | None = None) -> float:
+    """`value` (rad), or the nonzero multiple of pi/2 it is a rounding of: `text` (the number as
+    written; default `repr(value)`) has d decimals and `value` is the multiple rounded to d."""
     k = round(value / (math.pi / 2))
     dev = abs(value - k * math.pi / 2)
-    return k * math.pi / 2 if RIGHT_ANGLE_EXACT < dev <= RIGHT_ANGLE_SNAP else value
+    if k == 0 or not RIGHT_ANGLE_EXACT < dev <= RIGHT_ANGLE_SNAP:
+        return value
+    text = (repr(float(value)) if text is None else str(text)).strip().lower()
+    if "e" in text or "." not in text:
+        return value
+    decimals = len(text.split(".", 1)[1])
+    return k * math.pi / 2 if round(k * math.pi / 2, decimals) == round(value, decimals) else value
 
 
 def _origin(elem, where, path, snapped=None):
@@ -128,7 +137,7 @@ def _origin(elem, where, path, snapped=None):
                              f"its unit (metres)")
     rpy = _floats(o.get("rpy", "0 0 0"), 3, f"{where} origin rpy", path)
     if snapped is not None:
-        taken = np.array([snap_right_angle(float(a)) for a in rpy])
+        taken = np.array([snap_right_angle(float(a), t) for a, t in zip(rpy, o.get("rpy", "0 0 0").split())])
         if np.any(taken != rpy):
             snapped.append((where, o.get("rpy"), taken))
             rpy = taken
@@ -460,16 +469,18 @@ def _snap_notices(path, snapped):
         return []
     parts = [f"{where} rpy=\"{text}\" as ({', '.join(_angle_text(a) for a in taken)})"
              for where, text, taken in snapped]
-    return [f"URDF {Path(path).name}: angles within {RIGHT_ANGLE_SNAP:g} rad of a multiple of pi/2 taken as "
-            f"that multiple: {'; '.join(parts[:6])}{f' and {len(parts) - 6} more' if len(parts) > 6 else ''}. A rounded right angle describes a slightly skewed arm, whose "
-            f"base parameters differ (a regrouped parameter kept apart, barely identifiable); write the "
-            f"angle to 1e-9 rad or better to keep it as written"]
+    more = f" and {len(parts) - 6} more" if len(parts) > 6 else ""
+    return [f"URDF {Path(path).name}: multiples of pi/2 rounded to the decimals written taken as the multiple: "
+            f"{'; '.join(parts[:6])}{more}. Taken literally, a rounded right angle describes a slightly skewed "
+            f"arm, whose base parameters differ (a regrouped parameter kept apart, barely identifiable); a value "
+            f"written with digits beyond its rounding (1.570800) is kept as written"]
 
 
 def _angle_text(a):
     k = round(a / (math.pi / 2))
     if a == k * math.pi / 2:
-        return {0: "0", 1: "pi/2", -1: "-pi/2", 2: "pi", -2: "-pi"}.get(k, f"{k}*pi/2")
+        return {0: "0", 1: "pi/2", -1: "-pi/2", 2: "pi", -2: "-pi", 3: "3pi/2", -3: "-3pi/2", 4: "2pi",
+                -4: "-2pi"}.get(k, f"{k}*pi/2")
     return f"{a:g}"
 
 

@@ -29,6 +29,7 @@ from dynid.analysis.run import (  # noqa: F401 - REPORT_PARTS: public here since
     REPORT_PARTS,
     Identification,
     Settings,
+    method_name,
 )
 from dynid.analysis.statistics.validation import validate
 from dynid.dynamics.robot_file import load_robot
@@ -277,7 +278,7 @@ def _report_settings(settings, options) -> Settings:
             raise InputError(f"report(): {name}= is an output of the command line; in Python, report() writes "
                              f"the HTML (path=) and returns a FullReport: write its JSON with "
                              f"FullReport.to_json(path), or use dynid.run(..., {name}=...) for the identification's")
-    if options.get("method", "idim") != "idim":
+    if method_name(options.get("method", "idim")) != "idim":
         raise InputError(f"report(): method={options['method']!r}: the full report is IDIM's, with DIDIM, the "
                          "posterior and the diagnosis beside it (skip= leaves parts out); for another method "
                          "alone use dynid.identify(..., method=...)")

@@ -281,4 +281,4 @@ class DiagnosisResult(Result):
 
 
 def params_records(res):
-    return parameter_records(res.names, res.chi, res.bse.to_numpy(), res.rel_std.to_numpy())
+    return parameter_records(res.names, res.chi, res.bse.to_numpy(), res.rel_std.to_numpy(), res._prismatic())

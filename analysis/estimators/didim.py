@@ -1205,7 +1205,7 @@ def _didim_result(L, experiment, beta0, tau, history, timings, last, converged, 
         last["physical"] = _pc_of(robot, bp, res, last.get("res_classic"), n_boot, pc_options,
                                   uncertainty + ("+gains" if gains_cov is not None else ""))
     h = experiment.data_hash() if hasattr(experiment, "data_hash") else ""
-    res.data_hash = h
+    res.data_hash, res.prismatic = h, tuple(getattr(bp, "prismatic", ()))
     ess = None
     if essential:
         ess = essential_parameters(last["Wd"], last["taud"], names, ls.wls,
@@ -1214,7 +1214,7 @@ def _didim_result(L, experiment, beta0, tau, history, timings, last, converged, 
         if uncertainty != "classic" or gains_cov is not None:   # the full model's covariance is not eq. (14)
             ess = with_base_covariance(ess, res)
         for r in (ess.result, ess.base):
-            r.data_hash = h
+            r.data_hash, r.prismatic = h, tuple(getattr(bp, "prismatic", ()))
     chi_final = bp.to_standard(res.chi, "zero")
     tau_sim = inverse_dynamics(robot, chi_final, last["q"], last["qd"], last["qdd"])
     hist = pd.DataFrame(history)
@@ -1344,7 +1344,7 @@ def _keep_start_width(first, robot, final_cov, n_boot, pc_options, essential, ma
         if final_cov["uncertainty"] != "classic" or final_cov["gains"] is not None:
             first.essential = with_base_covariance(first.essential, first.result)
         for r in (first.essential.result, first.essential.base):
-            r.data_hash = first.data_hash
+            r.data_hash, r.prismatic = first.data_hash, tuple(getattr(first.base, "prismatic", ()))
     first.settings["v_s_choice"] = (f"auto, not searched: DIDIM did not converge at the "
                                     f"starting {V_S_START:g} rad/s")
     first.notices.append(f"v_s was not chosen from the data: DIDIM did not converge at the "

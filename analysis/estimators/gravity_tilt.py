@@ -146,7 +146,8 @@ class GravityTiltResult(ParameterResults):
         return json_safe({
             "method": self.method, "robot": self.robot_name,
             # the interface's records (as every result's), beside the named fields below
-            "parameters": parameter_records(self.names, self.chi, self.bse.to_numpy(), self.rel_std.to_numpy()),
+            "parameters": parameter_records(self.names, self.chi, self.bse.to_numpy(), self.rel_std.to_numpy(),
+                                            self._prismatic()),
             "model": "g = R(theta) g0, R the rotation vector (theta_x, theta_y, 0) about the base axes",
             "theta_rad": list(self.chi), "std_rad": list(self.bse.to_numpy()), "cov": self.cov,
             "angle_rad": self.angle,

@@ -274,7 +274,8 @@ class MLResult(ParameterResults):
 
     def to_frame(self):
         return pd.DataFrame({"value": self.chi, "std": self.bse.to_numpy(), "rel_std_percent": self.rel_std.to_numpy(),
-                             "ls_start": self.theta_ls}, index=pd.Index(self.names, name="parameter"))
+                             "unit": self._units(), "ls_start": self.theta_ls},
+                            index=pd.Index(self.names, name="parameter"))
 
     def summary(self):
         rule, thin = "=" * _WIDTH, "-" * _WIDTH
@@ -301,7 +302,8 @@ class MLResult(ParameterResults):
             "method": "ML-EIV",
             "model": self.model,
             "settings": self.settings,
-            "parameters": parameter_records(self.names, self.chi, self.bse.to_numpy(), self.rel_std.to_numpy()),
+            "parameters": parameter_records(self.names, self.chi, self.bse.to_numpy(), self.rel_std.to_numpy(),
+                                            self._prismatic()),
             "ls_start": [{"name": n, "value": v} for n, v in zip(self.names, self.theta_ls)],
             "sigma_q": self.sigma_q, "sigma_tau": self.sigma_tau,
             "sigma_tau_given": self.sigma_tau_given,

@@ -430,14 +430,19 @@ def _model_vector(model, robot, bp, notices):
         names = [r["name"] for r in rows]
         values = np.array([np.nan if r.get("value") is None else r["value"] for r in rows], dtype=float)
         std = np.array([0.0 if r.get("std") is None else r["std"] for r in rows], dtype=float)
-        cov = _json_covariance(wls.get("covariance") if rows is wls.get("parameters") else None, len(names))
+        given = wls.get("covariance") if rows is wls.get("parameters") else None
+        cov = _json_covariance(given, len(names))
         if cov is None:
             # σ alone: the correlations of the base parameters are lost, and with them the cancellation
             # of their errors in the payload's columns (its σ is then far too wide)
             cov = np.diag(std ** 2)
-            notices.append(f"{src} has no covariance of its WLS parameters (a JSON of dynid < 0.9?): the "
-                           "robot's σ were propagated without their correlations, which overstates the "
-                           "payload's σ; identify the robot again with dynid identify --json")
+            why = ("has no WLS block (a result of method " + str(model.get("method", "?")) + ")"
+                   if not wls.get("parameters") else
+                   "has no covariance of its WLS parameters (written by an earlier dynid)" if given is None else
+                   f"has a wls.covariance that is not a finite {len(names)} x {len(names)} matrix")
+            notices.append(f"{src} {why}: the robot's σ were propagated without their correlations, which "
+                           "overstates the payload's σ; identify the robot with IDIM or DIDIM "
+                           "(dynid identify --json) and pass that JSON")
     else:
         model = _base_fit(model)
         try:

@@ -361,7 +361,7 @@ class PhysicalResult(ParameterResults):
     def to_dict(self) -> dict:
         return json_safe({"method": self.method, "robot": self.robot_name,
                           "parameters": parameter_records(self.names, self.chi, self.bse.to_numpy(),
-                                                          self.rel_std.to_numpy()),
+                                                          self.rel_std.to_numpy(), self._prismatic()),
                           "physical": self.physical_block(), "data_hash": self.data_hash,
                           "versions": versions()})
 

@@ -362,8 +362,8 @@ class ProjectionResult(ParameterResults):
     method = "PM"
 
     def to_frame(self):
-        df = pd.DataFrame({"value": self.chi, "std": self.bse.to_numpy(), "rel_std_percent": self.rel_std.to_numpy()},
-                          index=pd.Index(self.names, name="parameter"))
+        df = pd.DataFrame({"value": self.chi, "std": self.bse.to_numpy(), "rel_std_percent": self.rel_std.to_numpy(),
+                           "unit": self._units()}, index=pd.Index(self.names, name="parameter"))
         if self.ls is not None:
             df["ls_value"] = self.ls.chi
             df["ls_rel_std_percent"] = self.ls.rel_std.to_numpy()
@@ -405,7 +405,8 @@ class ProjectionResult(ParameterResults):
         return "\n".join(lines)
 
     def to_dict(self):
-        params = parameter_records(self.names, self.chi, self.bse.to_numpy(), self.rel_std.to_numpy())
+        params = parameter_records(self.names, self.chi, self.bse.to_numpy(), self.rel_std.to_numpy(),
+                                   self._prismatic())
         out = {
             "method": "PM",
             "settings": self.settings,

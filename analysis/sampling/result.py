@@ -203,7 +203,7 @@ class PosteriorResult(ParameterResults):
         df = pd.DataFrame({
             "value": self.mean,          # the interface's estimate (the posterior mean)
             "mean": self.mean, "median": self.median, "std": self.std,
-            "rel_std_percent": self.rel_std.to_numpy(),
+            "rel_std_percent": self.rel_std.to_numpy(), "unit": self._units(),
             "ci95_low": self.ci95[:, 0], "ci95_high": self.ci95[:, 1],
             "ci999_low": self.ci999[:, 0], "ci999_high": self.ci999[:, 1],
             "ls_value": self.ls_value, "ls_std": self.ls_std, "ls_rel_std_percent": self.ls_rel_std,
@@ -243,11 +243,11 @@ class PosteriorResult(ParameterResults):
         dict
             JSON-safe.
         """
-        params = []
+        params, units = [], self._units()
         for i, n in enumerate(self.names):
             params.append({
                 "name": n, "value": self.mean[i], "mean": self.mean[i], "median": self.median[i],
-                "std": self.std[i], "rel_std_percent": float(self.rel_std.to_numpy()[i]),
+                "std": self.std[i], "rel_std_percent": float(self.rel_std.to_numpy()[i]), "unit": units[i],
                 "ci95": self.ci95[i], "ci999": self.ci999[i],
                 "ls_value": self.ls_value[i], "ls_std": self.ls_std[i],
                 "ls_rel_std_percent": self.ls_rel_std[i],

@@ -166,7 +166,8 @@ def computed_reading(summary, frame, full, didim, res, val, fit_seconds):
     e_didim, e_idim = didim.result.rel_error, full.model.rel_error
     return (f"DIDIM with the measured q as reference agrees with IDIM (WLS) for "
             f"{summary['didim_within_3sigma_of_idim']} of the {summary['didim_compared']} parameters "
-            f"with %σ < {summary['well_identified_percent']:g} within 3 combined σ{exceptions}. Its "
+            f"IDIM identifies with %σ < {summary['well_identified_percent']:g} within 3 "
+            f"combined σ{exceptions}. Its "
             f"relative error ({100 * e_didim:.1f} %) is {'above' if e_didim > e_idim else 'at or below'} "
             f"IDIM's ({100 * e_idim:.1f} %): it simulates the loop with the gains assumed in tx40.toml, "
             f"not the robot's, so here it is a cross-check, not a better estimate. On the held-out last "

@@ -10,7 +10,7 @@ The estimators take a `progress` callable (`progress(fraction)` or `progress(don
 
 * on a terminal (stderr is a TTY): a tqdm bar when tqdm is installed, else a one-line bar;
 * elsewhere (a notebook, a batch job, CI): `logging` records on the logger `dynid.progress`
-  at INFO when the application configured logging, else lines `dynid progress: ...` on
+  at INFO when the application's logging shows them, else lines `dynid progress: ...` on
   stderr; at most one per `log_every` seconds and at the end, so a long run says it is
   alive without filling a log;
 * silent after `silence()` (or `enable(False)`), under the environment variable
@@ -120,9 +120,10 @@ class _Bar:
             self._log("%s: %s after %.0f s", self.label, "stopped" if failed else "done", elapsed)
 
     def _log(self, fmt, *args) -> None:
-        """A record of `LOGGER` when the application configured logging; else one line on the stream
-        (a notebook or a script that set up nothing would otherwise see nothing for minutes)."""
-        if LOGGER.hasHandlers() or self.stream is None:
+        """A record of `LOGGER` when the application's logging shows its INFO records; else one line on
+        the stream (a notebook or a script that set up nothing, or logging at WARNING, would otherwise see
+        nothing for minutes)."""
+        if (LOGGER.hasHandlers() and LOGGER.isEnabledFor(logging.INFO)) or self.stream is None:
             LOGGER.info(fmt, *args)
             return
         try:
@@ -161,7 +162,10 @@ def task(label: str, *, delay: float = 1.0, log_every: float = 10.0, stream=None
         yield _noop
         return
     stream = sys.stderr if stream is None else stream
-    terminal = bool(getattr(stream, "isatty", None) and stream.isatty())
+    try:
+        terminal = bool(getattr(stream, "isatty", None) and stream.isatty())
+    except (ValueError, OSError):        # a closed stream: no bar (and `_log` writes nothing to it)
+        terminal = False
     bar = _Bar(label, stream, delay, log_every, terminal)
     failed = True
     try:

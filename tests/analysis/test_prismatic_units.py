@@ -39,3 +39,25 @@ def test_identified_parameters_carry_the_joint_units(identified):
 
 def test_revolute_robot_unchanged():
     assert prismatic_joints(dynid.load_robot("tx40")) == frozenset()
+
+
+@pytest.mark.parametrize("method", ["idim", "didim", "projection"])
+def test_every_export_of_every_method_carries_the_joint_units(identified, method):
+    """JSON records and the CSV table (what --csv writes) of each method, and the PC fit's JSON."""
+    robot, r, held = identified
+    train = dynid.holdout_split(dynid.simulate(robot, 6.0, seed=2).experiment, 2.0)[0]
+    res = r if method == "idim" else dynid.identify(train, robot, method=method)
+    model = getattr(res, "model", None) or res
+    frame = model.to_frame() if method == "didim" else res.to_frame()
+    assert frame.loc["Fv2", "unit"] == "N s/m" and frame.loc["Fv1", "unit"] == "N m s/rad"
+    units = {p["name"]: p["unit"] for p in res.to_dict()["parameters"]}
+    assert units["Fv2"] == "N s/m"
+
+
+def test_the_physical_fit_json_carries_the_joint_units(identified):
+    pytest.importorskip("cvxpy")
+    robot, r, held = identified
+    pc = dynid.identify(dynid.holdout_split(dynid.simulate(robot, 6.0, seed=2).experiment, 2.0)[0], robot,
+                        physical=True)
+    units = {p["name"]: p["unit"] for p in pc.to_dict()["parameters"]}
+    assert units["Fv2"] == "N s/m" and pc.to_frame().loc["Fv2", "unit"] == "N s/m"

@@ -87,3 +87,22 @@ def test_with_no_logging_configured_progress_lines_go_to_stderr(monkeypatch):
         progress(0.5)
     lines = out.getvalue().splitlines()
     assert lines[0].startswith("dynid progress: diagnosis: 50 %") and "done after" in lines[-1]
+
+
+def test_logging_at_warning_does_not_swallow_progress(monkeypatch):
+    """`logging.basicConfig()` (WARNING) gives the root a handler but drops INFO: lines go to the stream."""
+    handler = logging.StreamHandler(io.StringIO())
+    monkeypatch.setattr(P.LOGGER, "propagate", False)
+    monkeypatch.setattr(P.LOGGER, "handlers", [handler])
+    monkeypatch.setattr(P.LOGGER, "level", logging.WARNING)
+    out = io.StringIO()
+    with P.task("DIDIM", delay=0.0, log_every=0.0, stream=out) as progress:
+        progress(0.25)
+    assert out.getvalue().startswith("dynid progress: DIDIM: 25 %") and handler.stream.getvalue() == ""
+
+
+def test_a_closed_stream_is_no_error():
+    out = io.StringIO()
+    out.close()
+    with P.task("fleet", delay=0.0, log_every=0.0, stream=out) as progress:
+        progress(0.5)

@@ -798,7 +798,14 @@ def test_a_rounded_right_angle_is_the_right_angle(tmp_path, written):
     assert np.array_equal(regressor(rounded, q, qd, qdd), regressor(exact, q, qd, qdd))
 
 
-def test_an_angle_off_a_right_angle_is_kept(tmp_path):
-    """0.002 rad off pi/2 is a skew the file means (beyond the 1e-3 rad of rounding): kept."""
-    robot = read_urdf(write(tmp_path, _right_angle_arm(f"{np.pi / 2 + 0.002!r} 0 0")))
+@pytest.mark.parametrize("written", [repr(np.pi / 2 + 0.002), "1.5703", "1.570800", "0.0005", "-0.0001"])
+def test_an_angle_that_is_not_a_rounded_right_angle_is_kept(tmp_path, written):
+    """A skew the file means (0.002 rad off, a calibrated 1.5703), a small offset (0.0005), or pi/2 written
+    with digits beyond its rounding (1.570800): kept as written."""
+    robot = read_urdf(write(tmp_path, _right_angle_arm(f"{written} 0 0")))
     assert not any("pi/2" in n for n in robot.notices)
+    multiple = np.pi / 2 * round(float(written) / (np.pi / 2))
+    exact = read_urdf(write(tmp_path, _right_angle_arm(f"{multiple!r} 0 0"), "exact.urdf"))
+    rng = np.random.default_rng(6)
+    q, qd, qdd = (rng.normal(size=(20, 3)) for _ in range(3))
+    assert not np.array_equal(regressor(robot, q, qd, qdd), regressor(exact, q, qd, qdd))

@@ -38,7 +38,7 @@ def test_own_robot_recipe_from_a_urdf_to_a_verdict(tmp_path):
     params = (tmp_path / "arm3_parameters.txt").read_text()
     # the URDF's rpy="1.5708" is pi/2: Ia2 regroups into ZZ2R (taken literally it did not: 26)
     assert "25 base parameters" in params and "ZZ2R = ZZ2 + Ia2" in params
-    assert "taken as that multiple: joint 'j2'" in params
+    assert "taken as the multiple: joint 'j2'" in params
     doc = json.loads((tmp_path / "arm3.json").read_text())
     verdict = doc["verdict"]
     assert verdict["status"] == "identified", verdict["findings"]

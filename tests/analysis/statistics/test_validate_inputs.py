@@ -124,6 +124,9 @@ def test_swapped_arguments_and_an_upper_case_method_are_understood(split, fitted
     with pytest.raises(InputError, match=r"the order is validate\(result, held_out\)"):
         dynid.validate(held, fitted)
     assert dynid.identify(train, robot, method="IDIM").params.equals(fitted.params)
+    assert dynid.identify(train, robot, method="PM").method == "PM"       # the JSON's spelling of projection
+    with pytest.raises(InputError, match="got 'Fourier'"):
+        dynid.identify(train, robot, method="Fourier")
 
 
 def test_a_run_has_the_parameter_interface_of_its_identification(split, fitted):
