@@ -235,8 +235,9 @@ class PhysicalResult(ParameterResults):
 
     def conf_int(self, alpha: float = 0.05) -> pd.DataFrame:
         """(1 - alpha) intervals: hull of the bootstrap percentiles and `chi +- z sigma_wls`,
-        cut at the physical lower bound (module doc); without a bootstrap (or with fewer
-        than 20 refits) the WLS half-width alone, cut the same way.
+        cut at the physical lower bound (module doc); without a bootstrap the WLS half-width
+        alone, with fewer than 20 refits `z` times the larger of it and the refits' spread (as
+        `bse`), cut the same way.
 
         Returns
         -------
@@ -244,7 +245,10 @@ class PhysicalResult(ParameterResults):
             One row per parameter, columns `lower` and `upper`.
         """
         _check_alpha(alpha)
-        half = self._interval_quantile(alpha) * np.sqrt(np.maximum(np.diag(self.wls_cov), 0.0))
+        sd = np.sqrt(np.maximum(np.diag(self.wls_cov), 0.0))
+        if self.boot is not None and 2 <= len(self.boot) < 20:     # as `bse` (interval_covariance)
+            sd = np.maximum(sd, np.std(self.boot, axis=0, ddof=1))
+        half = self._interval_quantile(alpha) * sd
         lb = np.full(len(self.chi), -np.inf) if self.lower_bound is None else self.lower_bound
         lo, hi = np.maximum(self.chi - half, lb), self.chi + half
         if self.boot is not None and len(self.boot) >= 20:

@@ -492,3 +492,18 @@ def test_identify_physical_draws_from_the_robust_covariance(kuka_23):
     assert boot.uncertainty == "hac" and classic.uncertainty == "classic"
     with pytest.raises(InputError, match="uncertainty must be one of"):
         identify_physical(res, robot, n_boot=0, uncertainty="robust")
+
+
+def test_few_refits_conf_int_and_bse_agree_at_every_level():
+    """With 2-19 refits `bse` is the larger of the WLS σ and the refits' spread; conf_int uses the
+    same σ, at every alpha (it used the WLS σ alone)."""
+    pytest.importorskip("cvxpy")
+    import dynid
+    robot = dynid.load_robot("planar2")
+    r = dynid.identify(dynid.simulate(robot, 6.0, seed=1).experiment, robot, physical=True, bootstrap=5)
+    assert r.boot is not None and len(r.boot) == 5
+    from scipy.stats import norm
+    for alpha in (0.05, 0.32):
+        ci = r.conf_int(alpha)
+        upper = (ci["upper"] - r.chi) / r.bse
+        assert np.allclose(upper, norm.ppf(1 - alpha / 2), rtol=1e-9)
