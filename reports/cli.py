@@ -89,7 +89,8 @@ def cmd_simulate(args, say):
         say(f"notice: {notice}")
     with say.progress(f"closed-loop simulation ({args.duration:g} s)") as bar:
         sim = simulate(robot, args.duration, seed=args.seed, f0=args.f0, harmonics=args.harmonics,
-                       noise_q=args.noise_q, noise_tau=args.noise_tau, progress=bar.update)
+                       noise_q=args.noise_q, noise_tau=args.noise_tau, payload=args.carried_payload,
+                       progress=bar.update)
     outputs = [(args.out, sim.to_csv())]
     if args.json:
         doc = sim.to_dict()

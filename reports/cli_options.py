@@ -25,6 +25,7 @@ EPILOG_IDENTIFY = """examples:
 """
 EPILOG_SIMULATE = """examples:
   dynid simulate --robot tx40 --out run.csv                    20 s of a random Fourier reference
+  dynid simulate --robot tx40 --seed 2 --payload 2,0,0,0.05 --out loaded.csv   carrying 2 kg
   dynid simulate --robot planar2 --f0 0.2 --harmonics 5 --duration 30 --seed 4 --out run.csv
   dynid simulate --robot tx40 --noise-q 0 --noise-tau 0 --out clean.csv
 """
@@ -123,6 +124,19 @@ def harmonics_type(text):
         raise argparse.ArgumentTypeError(f"{value} harmonics is more than {MAX_HARMONICS}, the most dynid "
                                          f"designs (a trajectory needs a few, typically 3 to 20)")
     return value
+
+
+def payload_type(text):
+    """argparse type of simulate's --payload: KG or KG,X,Y,Z (the centre of mass in m); the ranges are
+    the simulation's (dynid.analysis.data.synthetic.add_payload)."""
+    try:
+        vals = [float(x) for x in str(text).split(",")]
+    except ValueError:
+        vals = []
+    if len(vals) not in (1, 4):
+        raise argparse.ArgumentTypeError(f"expected KG or KG,X,Y,Z (mass in kg, centre of mass in m in the last "
+                                         f"link's frame), got {text!r}; e.g. --payload 2,0,0,0.05")
+    return vals[0] if len(vals) == 1 else (vals[0], tuple(vals[1:]))
 
 
 def qd_threshold_type(text):
@@ -297,6 +311,8 @@ def build_parser(full=False):
     m.add_argument("--noise-q", type=non_negative_float, default=4e-5, metavar="RAD", help="position noise std")
     m.add_argument("--noise-tau", type=non_negative_float, default=0.5, metavar="NM", help="torque noise std")
     m.add_argument("--seed", type=seed_type, default=1, metavar="N", help="random seed")
+    m.add_argument("--payload", type=payload_type, metavar="KG[,X,Y,Z]", dest="carried_payload",
+                   help="the last link carries a payload: mass (kg) and centre of mass in its frame (m)")
 
     p = _sub(sub, common, "excite", "design an optimal Fourier excitation trajectory (CSV for a controller)",
              "Optimise the coefficients of a finite Fourier series per joint (fundamental f0, N harmonics) "

@@ -229,6 +229,8 @@ class SimulatedRecording(Result):
     noise_tau: float
     #: what the simulation leaves out (friction, rotor inertia), in words
     notices: list = field(default_factory=list)
+    #: the payload carried by the last link (`add_payload`), or None
+    payload: dict | None = None
 
     def summary(self) -> str:
         e, tr = self.experiment, self.trajectory
@@ -237,6 +239,11 @@ class SimulatedRecording(Result):
                  f"  reference: random Fourier series, f0 = {tr.f0:g} Hz, {tr.harmonics} harmonics",
                  f"  noise: q {self.noise_q:g} rad, tau {self.noise_tau:g} N m (white, standard deviations)",
                  "  true parameters: the robot file's a-priori values (to_dict()['true_parameters'])"]
+        if self.payload is not None:
+            pl = self.payload
+            lines.append(f"  payload on link {pl['link']}: {pl['mass']:g} kg, centre of mass "
+                         f"({', '.join(f'{c:g}' for c in pl['com'])}) m in the link frame, a sphere of radius "
+                         f"{pl['radius']:g} m (its parameters: to_dict()['payload'])")
         lines += [f"  notice: {n}" for n in self.notices]
         return "\n".join(lines)
 
@@ -279,19 +286,23 @@ class SimulatedRecording(Result):
             "robot": self.robot.name, "seed": self.seed, "duration": self.duration, "fs": self.experiment.fs,
             "noise": {"q_std": self.noise_q, "tau_std": self.noise_tau}, "notices": list(self.notices),
             "reference": {"f0": tr.f0, "harmonics": tr.harmonics, "a": tr.a, "b": tr.b, "q0": tr.q0},
-            "true_parameters": {"source": "the robot file's a-priori values" + extra,
+            "payload": self.payload,
+            "true_parameters": {"source": "the robot file's a-priori values" + extra
+                                + (", with the payload" if self.payload is not None else ""),
                                 "base": dict(zip(bp.names, bp.from_standard(self.chi))),
                                 "standard": dict(zip(self.robot.standard_names, self.chi))}})
 
 
 def simulate(robot, duration: float = 20.0, *, seed: int = 1, f0: float = 0.1, harmonics: int = 10,
-             noise_q: float = 4e-5, noise_tau: float = 0.5, progress=None) -> SimulatedRecording:
+             noise_q: float = 4e-5, noise_tau: float = 0.5, payload=None, progress=None) -> SimulatedRecording:
     """Simulate `robot` (its a-priori parameters) tracking a random Fourier reference.
 
     The reference is a random feasible finite Fourier series (fundamental `f0` Hz,
     `harmonics` harmonics, Bona & Curatella eqs. (17)-(19)); the robot runs
     under the controller of its robot file; q and tau get white Gaussian noise of
-    standard deviation `noise_q` (rad) and `noise_tau` (N m).
+    standard deviation `noise_q` (rad) and `noise_tau` (N m). `payload`: a mass (kg), or
+    (mass, (x, y, z)) with its centre of mass in the last link's frame (m), carried by the
+    last link (`add_payload`): a recording to try `dynid payload` on.
 
     Returns
     -------
@@ -325,6 +336,9 @@ def simulate(robot, duration: float = 20.0, *, seed: int = 1, f0: float = 0.1, h
                          f"highest harmonic; lower --f0 or --harmonics (at most {rate / 10:g} Hz together)")
     sample_count(duration, rate, what=f"the controller rate of robot '{robot.name}'")
     chi = apriori_parameters(robot, base_parameters(robot))
+    payload_doc = None
+    if payload is not None:
+        chi, payload_doc = add_payload(robot, chi, payload)
     rng = np.random.default_rng(seed)
     traj = random_fourier_trajectory(robot, f0, harmonics, rng)
     exp = simulate_experiment(robot, chi, traj, duration, rng=rng, q_noise=noise_q, tau_noise=noise_tau,
@@ -332,4 +346,58 @@ def simulate(robot, duration: float = 20.0, *, seed: int = 1, f0: float = 0.1, h
     notices = missing_effects(robot)
     exp.notices = list(exp.notices or []) + notices
     return SimulatedRecording(experiment=exp, robot=robot, trajectory=traj, chi=chi, seed=seed,
-                              duration=duration, noise_q=noise_q, noise_tau=noise_tau, notices=notices)
+                              duration=duration, noise_q=noise_q, noise_tau=noise_tau, notices=notices,
+                              payload=payload_doc)
+
+
+#: the simulated payload is a uniform sphere of this radius (m) about its centre of mass
+PAYLOAD_RADIUS = 0.05
+#: the heaviest simulated payload (kg) and its farthest centre of mass (m) from the link frame
+MAX_PAYLOAD_KG = 1000.0
+MAX_PAYLOAD_COM = 2.0
+
+
+def add_payload(robot, chi_st, payload):
+    """`chi_st` with a payload on the last link: a uniform sphere (radius `PAYLOAD_RADIUS`) of mass m
+    centred at c in that link's frame. Its ten inertial parameters about the link frame's origin are
+    added to the link's (the dynamics are linear in them): first moments m c, inertia matrix
+    I_c + m (|c|² 1 - c cᵀ) (XY = -m cx cy, as the robot's inertia matrix).
+
+    Returns
+    -------
+    (ndarray, dict)
+        The standard parameters with the payload, and the payload's description (`link`, `mass`,
+        `com`, `radius`, `parameters`: name -> value added, `XXL ... ML` about the link frame).
+    """
+    if isinstance(payload, (int, float, np.number)) and not isinstance(payload, bool):
+        mass, com = float(payload), (0.0, 0.0, 0.0)
+    else:
+        try:
+            mass, com = payload
+            mass = float(mass)
+            com = tuple(float(c) for c in com)
+        except (TypeError, ValueError):
+            raise InputError(f"payload must be a mass in kg or (mass, (x, y, z)) with the centre of mass in "
+                             f"the last link's frame (m), got {payload!r} (--payload MASS or MASS,X,Y,Z)") from None
+    if len(com) != 3 or not all(np.isfinite(com)) or not np.isfinite(mass):
+        raise InputError(f"payload: give a finite mass and three finite coordinates, got {payload!r} (--payload)")
+    if not 0 < mass <= MAX_PAYLOAD_KG:
+        raise InputError(f"payload mass {mass:g} kg: give a mass above 0 and at most {MAX_PAYLOAD_KG:g} kg "
+                         f"(--payload)")
+    c = np.asarray(com)
+    if np.linalg.norm(c) > MAX_PAYLOAD_COM:
+        raise InputError(f"payload centre of mass {np.linalg.norm(c):.3g} m from the link frame: more than "
+                         f"{MAX_PAYLOAD_COM:g} m; check the coordinates and their unit (m) (--payload)")
+    n = robot.n_joints
+    I_c = 0.4 * mass * PAYLOAD_RADIUS ** 2 * np.eye(3)
+    I_o = I_c + mass * (c @ c * np.eye(3) - np.outer(c, c))
+    added = {f"XX{n}": I_o[0, 0], f"XY{n}": I_o[0, 1], f"XZ{n}": I_o[0, 2], f"YY{n}": I_o[1, 1],
+             f"YZ{n}": I_o[1, 2], f"ZZ{n}": I_o[2, 2], f"MX{n}": mass * c[0], f"MY{n}": mass * c[1],
+             f"MZ{n}": mass * c[2], f"M{n}": mass}
+    chi = np.array(chi_st, dtype=float, copy=True)
+    index = {name: k for k, name in enumerate(robot.standard_names)}
+    for name, value in added.items():
+        chi[index[name]] += value
+    doc = {"link": n, "mass": mass, "com": list(c), "radius": PAYLOAD_RADIUS,
+           "parameters": {name.rstrip("0123456789") + "L": float(v) for name, v in added.items()}}
+    return chi, doc

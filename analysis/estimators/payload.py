@@ -583,7 +583,7 @@ class PayloadResult(ParameterResults):
         c, sc = self.com, self.com_std
         lines.append("centre of mass (m): " + ", ".join(f"{x:.5g} +- {s:.2g}" for x, s in zip(c, sc)))
         Ic = self.inertia_com
-        lines.append("inertia about the centre of mass (kg m^2): principal moments "
+        lines.append("inertia about the centre of mass (kg m²): principal moments "
                      + ", ".join(f"{x:.4g}" for x in np.linalg.eigvalsh(0.5 * (Ic + Ic.T))))
         if self.physical is not None:
             lines += ["-" * 78, f"{'constrained vs free':<20}{'constrained':>16}{'free':>16}"]
