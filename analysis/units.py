@@ -7,7 +7,8 @@ same way); the inertial parameters' units do not depend on the joint. Beside the
 other results: the payload's (`XXL` ... `ML`), the asymmetric friction's (`Fv+1`, `Fc-1`),
 the per-joint gravity of Bona & Curatella (`k1` N m, `qoff1` rad), the gravity tilt
 (`tilt_x`, `tilt_y` rad), a posterior's torque noise (`sigma1` N m) and the drive
-gains (`g1`, N m per unit of the logged signal) and the controller gains (`Kp1`, `Kd1`, `Ki1`).
+gains (`g1`, N m per unit of the logged signal), the controller gains (`Kp1`, `Kd1`, `Ki1`)
+and the residual diagnosis' effects (`Fs2` N m, `Ks4` N m/rad, `Rc4k31` N m, ...).
 """
 from __future__ import annotations
 
@@ -75,6 +76,9 @@ def parameter_unit(name: str, prismatic=frozenset()) -> str:
     for k, u in _UNITS:
         if kind == k:
             return u
+    e = _EFFECT_RE.match(str(name))
+    if e is not None:
+        return _EFFECT_UNITS[e.group(1)]
     m = _OTHER_RE.match(str(name))
     if m is None:
         return ""
@@ -82,3 +86,13 @@ def parameter_unit(name: str, prismatic=frozenset()) -> str:
     if kind in _OTHER_UNITS:
         return _OTHER_UNITS[kind]
     return dict(_UNITS).get(kind, "")
+
+
+# the residual diagnosis' effect parameters (dynid.analysis.diagnosis.effects): asymmetric friction
+# (dFc, dFv), Stribeck level (Fs), position ripple (Rc, Rs), spring (Ks), coupling from another
+# joint's speed or acceleration (Cv, Ca), drift (Dv, Dc, Dr), load-dependent friction (Fl, a ratio)
+# and the payload's change of the last link (dM, dMX..)
+_EFFECT_UNITS = {"dFc": "N m", "dFv": "N m s/rad", "Fs": "N m", "Rc": "N m", "Rs": "N m", "Ks": "N m/rad",
+                 "Cv": "N m s/rad", "Ca": "N m s\u00b2/rad", "Dv": "N m s/rad", "Dc": "N m", "Dr": "N m",
+                 "Fl": "1", "dMX": "kg m", "dMY": "kg m", "dMZ": "kg m", "dM": "kg"}
+_EFFECT_RE = re.compile(r"^(dFc|dFv|Fs|Rc|Rs|Ks|Cv|Ca|Dv|Dc|Dr|Fl|dMX|dMY|dMZ|dM)(\d+)(?:k[\d.]+|_\w+)?$")

@@ -31,6 +31,7 @@ import pandas as pd
 from markupsafe import Markup
 
 from dynid.analysis.diagnosis.selection import nonlinear_text
+from dynid.analysis.units import parameter_unit
 from dynid.reports import figures as F
 from dynid.reports import tables as T
 from dynid.reports.html import Section, bullets, join, kv_list, para
@@ -120,7 +121,8 @@ def _step_texts(res):
         if w is None:
             steps.append(f"Step {st.step}: no candidate outside the model's span.")
             continue
-        text = (f"Step {st.step}: best {w.label}, held-out error \u2212{100 * w.cv_gain:.2f} % "
+        text = (f"Step {st.step}: best {w.label}, CV gain {100 * w.cv_gain:.2f} % (cross-validated squared "
+                f"error lower by that share) "
                 f"({w.folds_better}/{w.n_folds} blocks better), LR {w.statistic:.1f} with "
                 f"n_eff = {w.n_eff:.0f}, Bonferroni p = {F.format_p(w.p_value)}: "
                 + ("selected." if st.accepted else f"not selected ({st.reason})."))
@@ -143,7 +145,7 @@ def _overview_section(res):
                        "grid of each nonlinear parameter)"),
         ("Selection rule", f"blocked cross-validation in {s['folds']} contiguous blocks "
                            f"(guard {s['gap']} decimated samples on each side of the held-out "
-                           f"block): held-out error lower in at least {s['folds'] - 1} blocks; and "
+                           f"block): cross-validated error lower in at least {s['folds'] - 1} blocks; and "
                            f"likelihood-ratio test with the effective sample size, Bonferroni over "
                            f"the candidates, \u03b1 = {s['alpha']:g}"),
         ("Effects selected", ", ".join(e.label for e in res.selected) or "none"),
@@ -214,14 +216,15 @@ def _effects_section(res):
             rows.append({"parameter": p, "effect": e.name,
                          "joint": "all" if e.joint is None else str(e.joint),
                          "nonlinear": _nl_text(e.nonlinear), "value": float(v), "std": float(sd),
-                         "rel_std_percent": float(r), "step": e.step})
+                         "unit": parameter_unit(p), "rel_std_percent": float(r), "step": e.step})
         if e.note:
             notes.append(f"{e.label}: {e.note}")
     df = pd.DataFrame(rows).set_index("parameter")
     tab = T.make_table(df, "diag-effect-parameters",
                        "Parameters of the selected effects (WLS with the essential parameters; "
                        "\u03c3 of eq. (14))",
-                       formats={"effect": "text", "joint": "text", "nonlinear": "text", "step": "int"},
+                       formats={"effect": "text", "joint": "text", "nonlinear": "text", "step": "int",
+                                "unit": "text"},
                        labels={"std": "\u03c3", "rel_std_percent": "%\u03c3"})
     body = para("Parameter names: Off offset; dFc, dFv half the difference of the Coulomb / "
                 "viscous friction between positive and negative velocity; Fs Stribeck excess; "
@@ -250,13 +253,13 @@ def _errors_section(res, names):
         if e is None:
             continue
         b, a = e["before"], e["after"]
-        pairs.append((f"Relative error, {label}", f"{_pct(b.rel_error)} \u2192 {_pct(a.rel_error)}"))
+        pairs.append((f"Relative error, {label} (moving samples)", f"{_pct(b.rel_error)} \u2192 {_pct(a.rel_error)}"))
         df = pd.DataFrame({"joint": names, "rms_before": b.rms, "rms_after": a.rms,
                            "rel_before_pct": 100 * np.asarray(b.joint_rel_error),
                            "rel_after_pct": 100 * np.asarray(a.joint_rel_error)},
                           index=pd.Index(np.arange(1, len(names) + 1), name="j"))
         tables.append(T.make_table(
-            df, f"diag-errors-{key}", f"Per-joint residual before and after the effects ({label})",
+            df, f"diag-errors-{key}", f"Per-joint residual before and after the effects ({label}, moving samples)",
             formats={"joint": "text", "rel_before_pct": "num", "rel_after_pct": "num"},
             labels={"rms_before": "RMS before [N m]", "rms_after": "RMS after [N m]",
                     "rel_before_pct": "rel. error before [%]", "rel_after_pct": "rel. error after [%]"}))

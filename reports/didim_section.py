@@ -199,16 +199,17 @@ def convergence_section(res):
         "step_length": col("step_length"), "rho_norm": col("rho_norm"),
         "rel_change": col("rel_change"), "output_error": col("output_error"),
         "rel_error_percent": col("rel_error", 100.0),
-        "max_rel_param_change": col("max_rel_param_change"),
+        "max_rel_param_change": col("max_rel_param_change", 100.0),
         "max_change_sigma": col("max_change_sigma"),
     }, index=steps)
-    labels = {"v_s": "v_s [rad/s]", "step_length": "step length", "rho_norm": "\u2016\u03c1\u2016",
-              "rel_change": "relative change", "output_error": "output error",
+    labels = {"v_s": "v_s [rad/s]", "step_length": "step length", "rho_norm": "\u2016\u03c1\u2016 [N m]",
+              "rel_change": "relative change of \u2016\u03c1\u2016", "output_error": "output error [N m]",
               "rel_error_percent": "relative error [%]",
-              "max_rel_param_change": "max relative parameter change",
+              "max_rel_param_change": "max relative parameter change [%]",
               "max_change_sigma": "max change [\u03c3]"}
     tab = T.make_table(shown, "tab-didim-history", "Gauss-Newton steps", labels=labels,
-                       formats={"rel_error_percent": "num"}, csv_frame=h.set_index("iteration"))
+                       formats={"rel_error_percent": "num", "max_rel_param_change": "num"},
+                       csv_frame=h.set_index("iteration"))
     track = pd.DataFrame({f"track_rms_{j + 1}": col(f"track_rms_{j + 1}", 1e3) for j in range(n)},
                          index=steps)
     kd = pd.DataFrame({f"kd_scale_{j + 1}": col(f"kd_scale_{j + 1}") for j in range(n)}, index=steps)

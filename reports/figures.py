@@ -112,6 +112,19 @@ def _plain(text) -> str:
     return str(text).replace("$", r"\$")
 
 
+def _break_at_gaps(t, *series):
+    """`t` and each (N, n) series with a NaN row inserted after every step longer than ten median
+    steps (the joint between two stacked recordings), so that no line is drawn across it."""
+    if t.size < 3:
+        return (t, *series)
+    d = np.diff(t)
+    gaps = np.flatnonzero(d > 10 * np.median(d)) + 1
+    if not gaps.size:
+        return (t, *series)
+    t = np.insert(t, gaps, np.nan)
+    return (t, *(np.insert(np.asarray(x, dtype=float), gaps, np.nan, axis=0) for x in series))
+
+
 def decimate_for_plot(n: int, max_points: int = MAX_POINTS):
     """`(index, step)`: every `step`-th of `n` samples, at most `max_points` of them."""
     step = max(1, math.ceil(n / max_points)) if max_points else 1
@@ -292,6 +305,12 @@ def torque_figure(t, measured, estimated, joint_names, *, key="fig-torque", capt
     estimated = masked(estimated, mask)
     n = measured.shape[1]
     idx, step = decimate_for_plot(t.size)
+    # clock time (ROS or UNIX stamps, ~1.5e9 s) is drawn from the first sample; stacked recordings
+    # are drawn apart: no line across the gap between them
+    t0 = float(t[0]) if t.size and abs(float(t[0])) > 1e5 else 0.0
+    xlabel = "time since the first sample [s]" if t0 else "time [s]"
+    tp, mp, ep = _break_at_gaps(t[idx] - t0, measured[idx], estimated[idx])
+    t = t - t0
     any_excluded = False
     with matplotlib.rc_context(STYLE):
         rows, cols = grid_shape(n)
@@ -309,13 +328,13 @@ def torque_figure(t, measured, estimated, joint_names, *, key="fig-torque", capt
             if excl.any():
                 any_excluded = True
                 _shade(ax, _excluded_spans(t, excl), "excluded (not measured here)")
-            ax.plot(t[idx], measured[idx, j], color=RED, lw=0.9, label=labels[0])
-            ax.plot(t[idx], estimated[idx, j], color=BLUE, lw=0.8, label=labels[1])
+            ax.plot(tp, mp[:, j], color=RED, lw=0.9, label=labels[0])
+            ax.plot(tp, ep[:, j], color=BLUE, lw=0.8, label=labels[1])
             ax.set_title(_plain(joint_label(j, joint_names[j])), loc="left")
             if j % cols == 0:
                 ax.set_ylabel(ylabel)
             if j >= n - cols:
-                ax.set_xlabel("time [s]")
+                ax.set_xlabel(xlabel)
                 ax.tick_params(labelbottom=True)
         handles, texts = [], []
         for ax in axes.flat[:n]:

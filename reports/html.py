@@ -191,6 +191,7 @@ class VerdictBlock:
     flagged_joints: list
     figure: object = None           # FigureMarkup
     table: object = None            # Table
+    why: str = ""                   # the reasons of the status, in one line
 
 
 def verdict_block(v) -> VerdictBlock:
@@ -217,9 +218,12 @@ def verdict_block(v) -> VerdictBlock:
                        formats={"unit": "text", "identified": "bool", "rel_std_percent": "pct"},
                        labels={"value": "\u03c7\u0302", "rel_std_percent": "%\u03c3",
                                "apriori": "a-priori", "n_sigma": f"|\u03c7\u0302 \u2212 a-priori| / \u03c3 (flag > {k:g})"})
+    reasons = list(getattr(v, "reasons", []) or [])
+    why = ("; ".join(reasons) + ".") if reasons else "every check below passed."
     return VerdictBlock(status=v.status, level=LEVELS[level][0], icon=LEVELS[level][1],
                         findings=findings, flagged_parameters=list(v.not_identified),
-                        flagged_joints=list(v.flagged_joints), figure=fig, table=tab)
+                        flagged_joints=list(v.flagged_joints), figure=fig, table=tab,
+                        why=f"{'Why' if reasons else 'Identified'}: {why}")
 
 
 # ------------------------------------------------------------------ IDIM sections
@@ -423,7 +427,9 @@ def _path_section(res):
         para(f"Backward elimination (Pham & Gautier 1991) from the {len(ess.essential) + len(ess.removed)} "
              f"WLS base parameters: the parameter with the largest %\u03c3 is removed and the model "
              f"re-estimated, while the relative error norm stays within the criterion. "
-             f"{len(ess.removed)} removed, {len(ess.essential)} essential."),
+             f"{len(ess.removed)} removed, {len(ess.essential)} essential. The elimination ranks by the "
+             f"%\u03c3 of each refit (eq. (15), the papers' \u03c3); the parameter tables show the "
+             f"{getattr(res, 'uncertainty', 'classic')} \u03c3, which may differ."),
         kv_list([("Criteria", crit), ("Stop rule", ess.stop_rule), ("Stop reason", ess.stop_reason)]),
     )
     g = ess.criteria.get("max_error_growth")
@@ -437,8 +443,8 @@ def _path_section(res):
                        formats={"removed": "text", "rel_std_removed": "pct",
                                 "max_rel_std_remaining": "pct", "rel_error": "num",
                                 "n_remaining": "int"},
-                       labels={"rel_std_removed": "%\u03c3 of the removed", "max_rel_std_remaining":
-                               "max %\u03c3 remaining", "rel_error": "relative error [%]",
+                       labels={"rel_std_removed": "%\u03c3 (eq. 15) of the removed", "max_rel_std_remaining":
+                               "max %\u03c3 (eq. 15) remaining", "rel_error": "relative error [%]",
                                "n_remaining": "remaining"}, csv_frame=path)
     return Section("essential-path", "Elimination path", body, figures=[fig], tables=[tab])
 
@@ -482,7 +488,12 @@ def _validation_section(res, robot, validation):
     n = validation.tau.shape[1]
     names = _joint_names(robot, n)
     excl = float(getattr(validation, "excluded_fraction", 0.0))
+    t = np.asarray(validation.t, dtype=float)
+    same = str(getattr(res, "source", "")) == str(validation.source)
+    span = (f"t = {t[0]:.4g} \u2026 {t[-1]:.4g} s" if t.size else T.MISSING) + (
+        ": held out from the identification recording (never fitted)" if same else "")
     pairs = [("Validation data", code(validation.source)),
+             ("Time span", span),
              ("Samples", f"{len(validation.t)} decimated samples, all of them predicted"),
              ("Relative error \u2016\u03c4 \u2212 \u03c4\u0302\u2016/\u2016\u03c4\u2016, all samples",
               _pct(validation.rel_error)),
@@ -523,7 +534,7 @@ def _validation_section(res, robot, validation):
                                formats={"joint": "text", "rel_error_percent": "num",
                                         "excluded_percent": "num"},
                                labels={"rel_error_percent": "relative error [%]",
-                                       "excluded_percent": "excluded [%]"})
+                                       "excluded_percent": "excluded, decimated rows [%]"})
     tabs = [tab_e] + ([tab_e_m] if tab_e_m is not None else [])
     for key, caption, frame in (("tab-normality", "Residual noise-PDF checks per joint (all samples)",
                                  validation.noise),

@@ -6,7 +6,7 @@ groups, and the *unformatted* data as a `data:text/csv` URI so that every
 table of a report can be downloaded with full precision from the page itself.
 
 Formatting rules (`format_value`): numbers with 4 significant digits,
-%σ with 1 decimal (2 significant digits below 0.1), `inf` → "∞", NaN / missing → "—". All texts stay plain
+%σ with 2 decimals below 100 (2 significant digits below 0.1), `inf` → "∞", NaN / missing → "—". All texts stay plain
 strings: the template escapes them.
 """
 from __future__ import annotations
@@ -96,8 +96,9 @@ def format_number(x, digits: int = 4) -> str:
 
 
 def format_pct(x) -> str:
-    """A relative standard deviation in %: 1 decimal, 2 significant digits below 0.1 (a %σ of
-    0.04 is not "0.0"), scientific beyond 10⁵."""
+    """A relative standard deviation in %: 2 decimals below 100 (9.97 and 10.02 read apart at the
+    10 % threshold), 1 decimal above, 2 significant digits below 0.1 (a %σ of 0.04 is not "0.0"),
+    scientific beyond 10⁵."""
     if _is_missing(x):
         return MISSING
     x = float(x)
@@ -107,7 +108,7 @@ def format_pct(x) -> str:
         return format_number(x, 2)
     if 0 < abs(x) < 0.095:
         return _signed(f"{x:.2g}")
-    return _signed(f"{x:.1f}")
+    return _signed(f"{x:.2f}" if abs(x) < 99.995 else f"{x:.1f}")
 
 
 def format_angle(x) -> str:

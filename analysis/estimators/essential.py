@@ -367,7 +367,7 @@ def _search(base, names, step_fit, final, crit, fixed_kwargs, estimator_kwargs):
         if not err_t <= limit:
             stop_rule = "error_growth"
             stop_reason = (
-                f"removing {names[cols[k]]!r} (%sigma {rel_sigma[k]:.4g}) would raise the relative "
+                f"removing {names[cols[k]]!r} (%sigma {rel_sigma[k]:.4g}, eq. (15)) would raise the relative "
                 f"error norm from {err0:.6g} to {err_t:.6g} (+{100 * (err_t / err0 - 1):.3g} % > "
                 f"{100 * crit['max_error_growth']:g} %)"
             )

@@ -182,7 +182,7 @@ def dead_zone_notice(s, dead) -> str:
     """The notice of the velocity dead zone `dead` (N, n) with the thresholds of settings `s`."""
     return ("velocity dead zone (Coulomb friction's sign is unreliable there): rows with "
             + ", ".join(f"|qd{j + 1}| < {v:.3g}" for j, v in enumerate(s["qd_threshold"]))
-            + " rad/s are zeroed in W and Y before decimation; excluded per joint: "
+            + " rad/s are zeroed in W and Y before decimation; excluded per joint (full-rate rows): "
             + ", ".join(f"{100 * f:.1f} %" for f in dead.mean(axis=0)))
 
 
@@ -289,7 +289,8 @@ def concatenate(observations):
         return obs[0]
     first = obs[0]
     cat = lambda attr: np.concatenate([getattr(o, attr) for o in obs], axis=0)
-    notices = [f"recording {k + 1}: {n}" for k, o in enumerate(obs) for n in o.notices]
+    notices = [f"identification recording {k + 1} of {len(obs)} (in the order given): {n}"
+               for k, o in enumerate(obs) for n in o.notices]
     return Observation(W=cat("W"), tau=cat("tau"), t=cat("t"), q=cat("q"), qd=cat("qd"),
                        qdd=cat("qdd"), row_mask=cat("row_mask"), names=first.names,
                        settings=first.settings, notices=notices, n_raw=sum(o.n_raw for o in obs))

@@ -458,6 +458,10 @@ def check_diagnosis(x: VerdictInputs) -> CheckOutcome:
                         fields=fields)
 
 
+#: the normal 97.5 % quantile
+_Z95 = 1.959963984540054
+
+
 def check_plausibility(x: VerdictInputs) -> CheckOutcome:
     """A parameter that must not be negative and is (see `must_be_nonnegative`) fails."""
     bp = x.base
@@ -471,15 +475,24 @@ def check_plausibility(x: VerdictInputs) -> CheckOutcome:
                 implausible.append({"name": p["name"], "value": p["value"], "unit": p["unit"],
                                     "n_sigma": abs(p["value"]) / p["std"] if p["std"] > 0 else np.inf,
                                     "relation": bp.relations[k]})
-    out = CheckOutcome(fields={"implausible": implausible})
+    # a negative value within its 95 % interval of zero is zero as far as the data say, not impossible
+    noise = [q for q in implausible if q["n_sigma"] <= _Z95]
+    implausible = [q for q in implausible if q["n_sigma"] > _Z95]
+    out = CheckOutcome(fields={"implausible": implausible, "negative_within_uncertainty": noise})
+
+    def listed(qs):
+        return ", ".join(f"{q['name']} = {q['value']:.4g} {q['unit']} ({q['n_sigma']:.2g} σ)" for q in qs)
     if implausible:
         out.fail = True
         out.findings.append({"level": "bad", "key": "plausibility",
-                             "text": "Physically impossible (negative mass, inertia or friction): "
-                                     + ", ".join(f"{q['name']} = {q['value']:.4g} {q['unit']}".strip()
-                                                 for q in implausible) + "."})
+                             "text": "Physically impossible (negative mass, inertia or friction, more than 1.96 σ "
+                                     "below zero): " + listed(implausible) + "."})
         out.reasons.append("negative " + ", ".join(q["name"] for q in implausible))
-    else:
+    if noise:
+        out.findings.append({"level": "info", "key": "plausibility",
+                             "text": "Negative but within 1.96 σ of zero (zero as far as the data say, not "
+                                     "identified): " + listed(noise) + "."})
+    if not implausible and not noise:
         out.findings.append({"level": "ok", "key": "plausibility",
                              "text": "No identified mass, diagonal or rotor inertia, or friction "
                                      "coefficient is negative."})

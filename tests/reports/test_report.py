@@ -330,8 +330,9 @@ def test_number_formatting():
     assert T.format_number(math.inf) == "\u221e"
     assert T.format_number(-math.inf) == "\u2212\u221e"
     assert T.format_number(math.nan) == "\u2014" and T.format_number(None) == "\u2014"
-    assert T.format_pct(0.6512) == "0.7" and T.format_pct(34.219) == "34.2"
-    assert T.format_pct(0.0384) == "0.038" and T.format_pct(0.0) == "0.0"     # not "0.0" for 0.038
+    assert T.format_pct(0.6512) == "0.65" and T.format_pct(34.219) == "34.22" and T.format_pct(152.36) == "152.4"
+    assert T.format_pct(0.0384) == "0.038" and T.format_pct(0.0) == "0.00"     # not "0.0" for 0.038
+    assert (T.format_pct(9.97), T.format_pct(10.02)) == ("9.97", "10.02")     # apart at the 10 % threshold
     assert T.format_pct(math.inf) == "\u221e" and T.format_pct(math.nan) == "\u2014"
     assert T.format_angle(-math.pi / 2) == "\u2212\u03c0/2" and T.format_angle(0.3) == "0.3"
     assert T.format_value(True, "bool").text == "\u2713"

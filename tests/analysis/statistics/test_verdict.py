@@ -243,3 +243,23 @@ def test_a_check_is_one_function_in_the_list():
     # a failing check makes the model "not identified"
     v = verdict(res, checks=[*CHECKS, lambda x: CheckOutcome(fail=True)])
     assert v.status == "not identified" and not v.identified
+
+
+def test_a_negative_inertia_within_its_uncertainty_is_not_impossible():
+    """ZZ4R = -0.00066 ± 0.00043 (a zero within 1.53 σ) made DIDIM's verdict "not identified"; it is
+    now named as zero within its uncertainty, and a negative beyond 1.96 σ still fails."""
+    import types
+
+    from dynid.analysis.statistics.verdict import check_plausibility
+    from dynid.dynamics.base_parameters import base_parameters
+    from dynid.dynamics.robot_file import load_robot
+    robot = load_robot("tx40")
+    bp = base_parameters(robot)
+
+    def run(value, std):
+        p = {"name": "ZZ4R", "value": value, "std": std, "unit": "kg m\u00b2"}
+        return check_plausibility(types.SimpleNamespace(base=bp, robot=robot, params=[p]))
+    near = run(-0.00066, 0.00043)
+    assert not near.fail and near.findings[0]["level"] == "info" and "1.5 σ" in near.findings[0]["text"]
+    far = run(-0.0066, 0.00043)
+    assert far.fail and far.fields["implausible"][0]["name"] == "ZZ4R"
