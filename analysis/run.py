@@ -775,7 +775,13 @@ class Identification(Result):
         return self.result.cov
 
     def conf_int(self, alpha: float = 0.05):
-        """The (1 - alpha) intervals of the identification (`result.conf_int`)."""
+        """The (1 - alpha) intervals of the identification (`result.conf_int`).
+
+        Returns
+        -------
+        pandas.DataFrame
+            One row per parameter, columns `lower` and `upper`.
+        """
         return self.result.conf_int(alpha)
 
     def __repr__(self) -> str:
