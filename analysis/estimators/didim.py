@@ -1490,7 +1490,12 @@ def _continue_at(experiment, L0, first, v, step, start, final_run, progress):
         rows = [dict(row, iteration=n1 + 1)]
         timings = [dict(trow, iteration=n1 + 1)]
         k = n1 + 2
-    notices = [_loop_notice(Lf.s, Lf.n0, o["update_gains"])]
+    # the run continues the one above at the chosen width: with "initial" gain updates, that one
+    # simulated chi^0 with the updated gains, and this one goes on with the actual ones
+    notices = ["DIDIM, continued at the chosen v_s = " + f"{v:.3g} rad/s: "
+               + _loop_notice(Lf.s, Lf.n0, o["update_gains"]).removeprefix("DIDIM: ")
+               .replace("derivative gains NOT updated (kd_scale = 1)",
+                        "the actual derivative gains (kd_scale = 1)")]
     resume = dict(k=k, last=last, rho=float(row["rho_norm"]), out_err=float(row["output_error"]), beta_ls=start)
     history, tim, last, converged, stop_reason = _gauss_newton(Lf, start, o["tol"], o["physical"],
                                                                o["pc_options"], notices, resume=resume)

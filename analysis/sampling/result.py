@@ -167,6 +167,12 @@ class PosteriorResult(ParameterResults):
         return self.mean
 
     @property
+    def bse(self) -> pd.Series:
+        """The posterior standard deviation of each parameter (`std`, the draws' own: the JSON's and
+        the table's to the last digit; the diagonal of `cov` computes it in another order)."""
+        return pd.Series(np.asarray(self.std, dtype=float), index=self._index(), name="std")
+
+    @property
     def cov(self):
         if self.samples.shape[0] < 2:
             return np.full((len(self.names),) * 2, np.nan)

@@ -84,6 +84,8 @@ def test_sample_names_its_inputs(fitted):
         dynid.sample(r, seed=-1)
     post = dynid.sample(r, walkers=24, max_seconds=1)
     assert post.diagnostics.n_walkers == 24
+    # one σ everywhere, to the last digit: bse, the JSON's std and the table's
+    assert post.bse.tolist() == [p["std"] for p in post.to_dict()["parameters"]] == post.to_frame()["std"].tolist()
     # neither a posterior nor an essential model alone is an identification to judge
     for part in (post, r.essential):
         with pytest.raises(InputError, match=f"{type(part).__name__} is not an identification the verdict judges"):
