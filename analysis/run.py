@@ -253,6 +253,15 @@ def settings_from(settings=None, **options) -> Settings:
     if settings is not None and not isinstance(settings, dict):
         raise InputError(f"settings must be a dict of processing options or a Settings, not "
                          f"{type(settings).__name__}")
+    if settings is not None:
+        from_run = sorted(set(settings) & {f.name for f in dataclasses.fields(Settings)}
+                          - {"processing_overrides"} - set(SETTINGS_HELP))
+        if from_run:
+            # a dict holds the processing overrides (fc_position, nd, ...): a run option there was a DataError
+            raise InputError(f"settings= as a dict holds processing overrides (fc_position, nd, ...); "
+                             f"{', '.join(from_run)} {'is an option' if len(from_run) == 1 else 'are options'} "
+                             f"of the run: pass {', '.join(f'{k}=' for k in from_run)} as a keyword, or "
+                             f"settings=dynid.Settings({from_run[0]}=...)")
     return Settings(processing_overrides=dict(settings) if settings is not None else None, **options)
 
 

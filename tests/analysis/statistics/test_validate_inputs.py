@@ -136,3 +136,9 @@ def test_a_run_has_the_parameter_interface_of_its_identification(split, fitted):
     run = dynid.run(train, robot)
     assert run.params.equals(fitted.params) and run.bse.equals(fitted.bse)
     assert run.conf_int(0.1).equals(fitted.conf_int(0.1))
+
+
+def test_a_run_option_in_the_processing_dict_is_named(split):
+    robot, train, _ = split
+    with pytest.raises(InputError, match=r"method is an option of the run: pass method="):
+        dynid.identify(train, robot, settings={"method": "didim"})
