@@ -14,7 +14,7 @@ import numpy as np
 
 from dynid.analysis.estimators.sdp import J_MARGIN, require_cvxpy
 from dynid.analysis.estimators.sdp import whitening as _whitening
-from dynid.analysis.results import ParameterResults, parameter_table
+from dynid.analysis.results import ParameterResults, parameter_records, parameter_table
 from dynid.dynamics.robot import INERTIAL
 from dynid.dynamics.urdf_writer import pseudo_inertia_basis
 from dynid.errors import InputError
@@ -47,11 +47,15 @@ class PhysicalPayload(ParameterResults):
     def summary(self):
         lines = [f"physically consistent payload (SDP, Clarabel: {self.status}); chi^2 distance to the "
                  f"free estimate {self.delta:.3g}; active: {', '.join(self.active) or 'none'}"]
-        lines += parameter_table(self.names, [("value", self.chi, lambda x: f"{x:.6g}")])
+        lines += parameter_table(self.names, [("value", self.chi, lambda x: f"{x:.6g}"),
+                                              ("sigma", self.bse.to_numpy(), lambda x: f"{x:.3g}")])
+        lines.append("sigma: the free estimate's (no larger where no constraint is active)")
         return "\n".join(lines)
 
     def to_dict(self):
         return json_safe({"method": self.method, "names": self.names, "values": self.chi,
+                          "parameters": parameter_records(self.names, self.chi, self.bse.to_numpy(),
+                                                          self.rel_std.to_numpy()),
                           "delta_chi2": self.delta, "active": self.active,
                           "com_box": None if self.com_box is None else [list(b) for b in self.com_box],
                           "status": self.status})
