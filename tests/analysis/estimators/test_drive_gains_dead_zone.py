@@ -82,3 +82,23 @@ def test_gains_are_unbiased_where_idims_dead_zone_biased_them():
     shared = [0, 3, 4, 5]
     assert np.mean(np.array(errs["auto"])[:, shared]) < -0.6          # the bias the dead zone removes
     assert abs(np.mean(np.array(errs[None])[:, shared])) < 0.35
+
+
+def test_gauss_newton_reports_the_error_of_its_fit_on_the_logged_torque():
+    """tau_j = a_j (X_j theta + known_j) + noise: the rel_error is ||noise|| / ||tau|| (it was the last
+    Gauss-Newton step's fit of the residual, about 100 %)."""
+    import numpy as np
+
+    from dynid.analysis.estimators.drive_gains import _gauss_newton
+    rng = np.random.default_rng(4)
+    M, n, p = 600, 2, 3
+    X = rng.normal(size=(M, n, p))
+    known = rng.normal(size=(M, n))
+    theta, a = np.array([1.0, -2.0, 0.5]), np.array([1.0 / 1.05, 1.0])
+    clean = a * (X @ theta + known)
+    tau = clean + rng.normal(0, 0.05, size=(M, n))
+    mask = np.ones((M, n), dtype=bool)
+    est, cov, rel_error, lags = _gauss_newton(X, tau, known, [0], ["P1", "P2", "P3"], mask)
+    expected = np.linalg.norm(tau - clean) / np.linalg.norm(tau)
+    assert np.allclose(est[:p], theta, atol=0.02) and abs(1 / est[p] - 1.05) < 0.01
+    assert rel_error == pytest.approx(expected, rel=0.05) and rel_error < 0.05
