@@ -119,9 +119,14 @@ def random_effects(chis, sigmas) -> dict:
         with warnings.catch_warnings():   # its Knapp-Hartung extras (unused) warn for K = 2
             warnings.simplefilter("ignore", RuntimeWarning)
             r = combine_effects(chis[:, k], var[:, k], method_re="dl")
-        out["pooled"][k], out["std"][k] = r.mean_effect_re, r.sd_eff_w_re
         out["fixed"][k], out["fixed_std"][k] = r.mean_effect_fe, r.sd_eff_w_fe
-        out["tau"][k], out["i2"][k] = math.sqrt(max(r.tau2, 0.0)), r.i2
+        if r.tau2 > 0:
+            out["pooled"][k], out["std"][k] = r.mean_effect_re, r.sd_eff_w_re
+        else:
+            # DerSimonian-Laird truncates tau² at 0 (statsmodels keeps the negative moment estimate,
+            # whose weights 1/(v + tau²) gave a pooled σ below the fixed-effect one, or NaN)
+            out["pooled"][k], out["std"][k] = r.mean_effect_fe, r.sd_eff_w_fe
+        out["tau"][k], out["i2"][k] = math.sqrt(max(r.tau2, 0.0)), max(float(r.i2), 0.0)
     return out
 
 

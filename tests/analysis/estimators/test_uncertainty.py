@@ -151,6 +151,11 @@ def test_equality_test_and_random_effects():
     assert re["tau"][0] == pytest.approx(np.sqrt(t2))
     assert re["pooled"][0] == pytest.approx((ws * x).sum() / ws.sum())
     assert re["std"][0] == pytest.approx(np.sqrt(1 / ws.sum()))
+    # recordings that agree better than their σ say (Q < K - 1): tau² truncated at 0, the pooled σ is the
+    # fixed-effect one (statsmodels' negative tau² gave a smaller one, or NaN)
+    close = truth + np.array([[0.01], [-0.01], [0.005], [0.0]])
+    re0 = ag.random_effects(close, sig)
+    assert np.all(re0["tau"] == 0) and np.allclose(re0["std"], 0.1 / np.sqrt(K))
     a = ag.agreement(spread, sig, [np.diag(s**2) for s in sig], ["a", "b", "c"])
     line = ag.agreement_verdict(a)
     assert "do NOT agree" in line and "chi2" in line
