@@ -58,7 +58,10 @@ def identification_html(ident) -> str:
     if ident.method == "idim":
         return render_idim_report(ident.result, ident.robot, ident.experiments[0], ident.validation,
                                   extra_sections=idim_extra_sections(ident), verdict=ident.verdict)
-    return render_sections(_sections(ident), title=_title(ident), highlights=[("verdict", ident.verdict.status)],
+    data = ", ".join(str(getattr(e, "source", "") or "?") for e in ident.experiments)
+    robot = getattr(ident.robot, "name", "?")
+    return render_sections(_sections(ident), title=_title(ident), subtitle=data,
+                           highlights=[("verdict", ident.verdict.status), ("robot", robot), ("data", data)],
                            verdict=verdict_block(ident.verdict))
 
 
