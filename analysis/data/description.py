@@ -470,7 +470,8 @@ class _Description:
                 "or remove scale.",
             )
         values[s] = values[s] * sc
-        self.notices.append(f"[{s}] scaled by {sc if np.isscalar(sc) else list(sc)}")
+        self.notices.append(f"[{s}] scaled by "
+                            + (_fmt(sc) if np.isscalar(sc) else "[" + ", ".join(_fmt(x) for x in sc) + "]"))
 
     def _gains(self, s, table, values, n, meta) -> None:
         g = self.tk.numbers(s, table, "drive_gains", n)

@@ -178,4 +178,9 @@ def agreement_verdict(a: dict) -> str:
             f"{what} (use the pooled estimate and its between-{what[:-1]} spread)")
     return (f"The {a['k']} {what} {head}: {100 * a['within_95']:.0f} % of {a['pairs']} pairwise differences "
             f"within their 95 % interval (95 % expected), median |z| {a['median_abs_z']:.2f} (0.67 expected); "
-            f"chi2 test of equal parameters {a['chi2']:.4g} on {a['dof']} dof, p = {a['p_value']:.2g}{tail}.")
+            f"chi2 test of equal parameters {a['chi2']:.4g} on {a['dof']} dof, p {_p_text(a['p_value'])}{tail}.")
+
+
+def _p_text(p) -> str:
+    """`= 0.0085`, or `< 1e-300` for a p-value that underflows to 0 (not "= 0")."""
+    return "< 1e-300" if p == 0 else f"= {p:.2g}"
