@@ -426,7 +426,9 @@ def _structure_parts(res, body, figs, tables):
                  for u in st.unexplained]
         if srows:
             tables.append(T.make_table(
-                pd.DataFrame(srows), "diag-unexplained", "Joints with unexplained residual structure",
+                pd.DataFrame(srows), "diag-unexplained", "Joints with unexplained residual structure (a spectral "
+                "line's RMS is the full-rate residual's, where the decimation has not removed it: it can exceed "
+                "the decimated residual of the error tables)",
                 index=False, formats={"depends_on": "text", "test": "text", "also": "text",
                                       "joint": "int"},
                 labels={"rms": "structure RMS [N m]", "noise_rms": "rest / noise RMS [N m]",
