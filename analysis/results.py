@@ -390,6 +390,12 @@ class ParameterResults(Result):
     def _index(self) -> pd.Index:
         return pd.Index(list(self.names), name="parameter")
 
+    def _records(self, prismatic=None) -> list:
+        """`parameter_records` of this result's parameters (the JSON's `parameters`), with the units
+        of its robot's prismatic joints unless `prismatic` is given."""
+        return parameter_records(self.names, self._estimate(), self.bse.to_numpy(), self.rel_std.to_numpy(),
+                                 self._prismatic() if prismatic is None else prismatic)
+
     def _units(self) -> list:
         """The SI unit of each parameter ("" where dynid has none for the name)."""
         prismatic = self._prismatic()

@@ -767,21 +767,10 @@ class Identification(Result):
 
     # The parameter interface of the identification it holds (`result`), as `--csv` writes it; the
     # physically consistent fit is `physical`, with the same interface.
-    @property
-    def params(self):
-        return self.result.params
-
-    @property
-    def bse(self):
-        return self.result.bse
-
-    @property
-    def rel_std(self):
-        return self.result.rel_std
-
-    @property
-    def cov(self):
-        return self.result.cov
+    params = property(lambda self: self.result.params, doc="The identification's estimates (`result.params`).")
+    bse = property(lambda self: self.result.bse, doc="Their standard errors (`result.bse`).")
+    rel_std = property(lambda self: self.result.rel_std, doc="Their %σ (`result.rel_std`).")
+    cov = property(lambda self: self.result.cov, doc="Their covariance (`result.cov`).")
 
     def conf_int(self, alpha: float = 0.05):
         """The (1 - alpha) intervals of the identification (`result.conf_int`).

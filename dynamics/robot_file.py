@@ -51,7 +51,6 @@ The fields, their units and ranges are the tables `JOINT_FIELDS` and
 """
 from __future__ import annotations
 
-import contextvars
 import math
 import re
 import tomllib
@@ -94,10 +93,7 @@ from .robot_checks import (  # noqa: F401  (MAX_*, check_name, read_limited, sho
     short,
     shown,
 )
-from .urdf import read_urdf, snap_right_angle
-
-#: The DH angles of the robot file being read that were taken as right angles (`snap_right_angle`).
-_SNAPPED: contextvars.ContextVar = contextvars.ContextVar("dynid_snapped_angles", default=None)
+from .urdf import read_urdf, snap_notice, snap_right_angle
 
 # ----------------------------------------------------------------- the fields
 # Every numeric field of a robot file with its unit and finite physical range
@@ -339,22 +335,17 @@ def _joints_from_tables(doc, chain, path):
         raise RobotFileError(f"{path}: {len(tables)} [[joints]] tables, more than the {MAX_JOINTS} "
                              f"joints dynid models (the regressor grows as n^2); check the file")
     joints = []
-    token = _SNAPPED.set([])
-    try:
-        for k, tab in enumerate(tables):
-            if not isinstance(tab, dict):
-                raise RobotFileError(f"{path}: joints[{k + 1}] must be a table")
-            joint = Joint(name=f"j{k + 1}")
-            _apply_joint_options(joint, tab, k, path, kinematics=True)
-            joints.append(joint)
-        snapped = _SNAPPED.get()
-    finally:
-        _SNAPPED.reset(token)
-    notices = [] if not snapped else [
-        f"{Path(path).name}: multiples of pi/2 rounded to the decimals written taken as the multiple: "
-        f"{'; '.join(snapped)}. Taken literally, a rounded right angle describes a slightly skewed arm, whose "
-        f"base parameters differ (a regrouped parameter kept apart, barely identifiable)"]
-    return joints, {}, {}, notices
+    snapped = []
+    for k, tab in enumerate(tables):
+        if not isinstance(tab, dict):
+            raise RobotFileError(f"{path}: joints[{k + 1}] must be a table")
+        joint = Joint(name=f"j{k + 1}")
+        _apply_joint_options(joint, tab, k, path, kinematics=True)
+        joints.append(joint)
+        # the angles `_set_kinematics` took as right angles: those that differ from the file's
+        snapped += [f"joints[{k + 1}].{key} = {float(tab[key])!r} as {joint.mdh[i]!r}"
+                    for i, key in ((0, "alpha"), (2, "theta")) if key in tab and float(tab[key]) != joint.mdh[i]]
+    return joints, {}, {}, snap_notice(Path(path).name, snapped)
 
 
 def _check_unique_names(joints, path):
@@ -516,11 +507,7 @@ def _set_kinematics(joint, tab, where, path, who):
                              f"got {short(sigma)}")
     vals = [JOINT_FIELDS[key](tab.get(key, 0.0), f"{where}.{key}", path, who) for key in _KINEMATICS]
     for i in (0, 2):                      # alpha, theta: a rounded right angle is the right angle
-        taken = snap_right_angle(vals[i])
-        if taken != vals[i]:
-            if _SNAPPED.get() is not None:
-                _SNAPPED.get().append(f"{where}.{_KINEMATICS[i]} = {vals[i]!r} as {taken!r}")
-            vals[i] = taken
+        vals[i] = snap_right_angle(vals[i])
     joint.sigma = int(sigma)
     joint.mdh = tuple(vals)
     joint.R, joint.p = mdh_placement(*vals)

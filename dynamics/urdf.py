@@ -189,7 +189,21 @@ def _spatial_inertia(link, where, path):
                              f"triangle inequality (the largest must be at most the sum of the other "
                              f"two), which no body has; fix the inertia there")
     Ic = R @ Ic @ R.T
-    return m, c, Ic + m * (c @ c * np.eye(3) - np.outer(c, c))
+    return m, c, inertia_about_origin(m, c, Ic)
+
+
+def inertia_about_origin(m, c, I_c):
+    """The inertia matrix about the frame's origin of a body of mass `m`, centre of mass `c` and
+    inertia `I_c` about it (parallel axes): I_c + m (|c|² 1 - c cᵀ)."""
+    return I_c + m * (c @ c * np.eye(3) - np.outer(c, c))
+
+
+def inertial_parameters(k, m, c, I_o) -> dict:
+    """The standard inertial parameters XXk .. Mk of a body (mass `m`, centre of mass `c`, inertia
+    `I_o` about the frame origin; the matrix entries, XY = -∫xy dm) carried by link k."""
+    return {f"XX{k}": I_o[0, 0], f"XY{k}": I_o[0, 1], f"XZ{k}": I_o[0, 2],
+            f"YY{k}": I_o[1, 1], f"YZ{k}": I_o[1, 2], f"ZZ{k}": I_o[2, 2],
+            f"MX{k}": m * c[0], f"MY{k}": m * c[1], f"MZ{k}": m * c[2], f"M{k}": m}
 
 
 def _transform_inertia(inertia, R, p):
@@ -199,7 +213,7 @@ def _transform_inertia(inertia, R, p):
     # back to the centre of mass, rotate, then to the new origin
     I_c = I_o - m * (c @ c * np.eye(3) - np.outer(c, c))
     I_c = R @ I_c @ R.T
-    return m, c_new, I_c + m * (c_new @ c_new * np.eye(3) - np.outer(c_new, c_new))
+    return m, c_new, inertia_about_origin(m, c_new, I_c)
 
 
 def _add(a, b):
@@ -464,16 +478,22 @@ def read_urdf(path, base=None, tip=None):
 
 
 def _snap_notices(path, snapped):
-    """One notice naming the joint origins whose rpy was taken as a right angle."""
-    if not snapped:
+    """The notice naming the joint origins whose rpy was taken as a right angle."""
+    return snap_notice(f"URDF {Path(path).name}",
+                       [f"{where} rpy=\"{text}\" as ({', '.join(_angle_text(a) for a in taken)})"
+                        for where, text, taken in snapped],
+                       keep="; a value written with digits beyond its rounding (1.570800) is kept as written")
+
+
+def snap_notice(source, parts, keep=""):
+    """[one notice] naming the angles of `source` (a URDF, a robot file) taken as right angles
+    (`snap_right_angle`), or [] when there are none. `keep`: how to keep a value as written."""
+    if not parts:
         return []
-    parts = [f"{where} rpy=\"{text}\" as ({', '.join(_angle_text(a) for a in taken)})"
-             for where, text, taken in snapped]
     more = f" and {len(parts) - 6} more" if len(parts) > 6 else ""
-    return [f"URDF {Path(path).name}: multiples of pi/2 rounded to the decimals written taken as the multiple: "
+    return [f"{source}: multiples of pi/2 rounded to the decimals written taken as the multiple: "
             f"{'; '.join(parts[:6])}{more}. Taken literally, a rounded right angle describes a slightly skewed "
-            f"arm, whose base parameters differ (a regrouped parameter kept apart, barely identifiable); a value "
-            f"written with digits beyond its rounding (1.570800) is kept as written"]
+            f"arm, whose base parameters differ (a regrouped parameter kept apart, barely identifiable){keep}"]
 
 
 def _angle_text(a):
@@ -626,10 +646,7 @@ def _inertial_apriori(inertias):
     for k, inertia in enumerate(inertias, start=1):
         if inertia is None:
             continue
-        m, c, I = inertia
-        apriori.update({f"XX{k}": I[0, 0], f"XY{k}": I[0, 1], f"XZ{k}": I[0, 2],
-                        f"YY{k}": I[1, 1], f"YZ{k}": I[1, 2], f"ZZ{k}": I[2, 2],
-                        f"MX{k}": m * c[0], f"MY{k}": m * c[1], f"MZ{k}": m * c[2], f"M{k}": m})
+        apriori.update(inertial_parameters(k, *inertia))
     return apriori
 
 

@@ -17,6 +17,7 @@ from dynid.dynamics.base_parameters import base_parameters
 from dynid.dynamics.robot_file import load_robot
 from dynid.dynamics.simulation import STIFFNESS_WARNING, friction_stiffness, simulate_closed_loop
 from dynid.dynamics.trajectories import random_fourier_trajectory
+from dynid.dynamics.urdf import inertia_about_origin, inertial_parameters
 from dynid.errors import InputError
 from dynid.outputs import atomic_write_text
 from dynid.provenance import json_safe
@@ -389,11 +390,8 @@ def add_payload(robot, chi_st, payload):
         raise InputError(f"payload centre of mass {np.linalg.norm(c):.3g} m from the link frame: more than "
                          f"{MAX_PAYLOAD_COM:g} m; check the coordinates and their unit (m) (--payload)")
     n = robot.n_joints
-    I_c = 0.4 * mass * PAYLOAD_RADIUS ** 2 * np.eye(3)
-    I_o = I_c + mass * (c @ c * np.eye(3) - np.outer(c, c))
-    added = {f"XX{n}": I_o[0, 0], f"XY{n}": I_o[0, 1], f"XZ{n}": I_o[0, 2], f"YY{n}": I_o[1, 1],
-             f"YZ{n}": I_o[1, 2], f"ZZ{n}": I_o[2, 2], f"MX{n}": mass * c[0], f"MY{n}": mass * c[1],
-             f"MZ{n}": mass * c[2], f"M{n}": mass}
+    I_o = inertia_about_origin(mass, c, 0.4 * mass * PAYLOAD_RADIUS ** 2 * np.eye(3))
+    added = inertial_parameters(n, mass, c, I_o)
     chi = np.array(chi_st, dtype=float, copy=True)
     index = {name: k for k, name in enumerate(robot.standard_names)}
     for name, value in added.items():

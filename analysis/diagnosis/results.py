@@ -11,7 +11,7 @@ import numpy as np
 
 from dynid.analysis.diagnosis.effects import Candidate
 from dynid.analysis.diagnosis.summary_text import diagnosis_summary, fmt_p, nonlinear_text
-from dynid.analysis.results import Result, parameter_records
+from dynid.analysis.results import Result
 from dynid.provenance import json_safe, versions
 
 __all__ = ["RankedEffect", "DiagnosisStep", "SelectedEffect", "Errors", "errors_of", "DiagnosisResult",
@@ -281,4 +281,4 @@ class DiagnosisResult(Result):
 
 
 def params_records(res):
-    return parameter_records(res.names, res.chi, res.bse.to_numpy(), res.rel_std.to_numpy(), res._prismatic())
+    return res._records()

@@ -161,7 +161,7 @@ from dynid.analysis.estimators.essential import essential_parameters, with_base_
 from dynid.analysis.estimators.physical import pc_wls, require_cvxpy
 from dynid.analysis.processing.decimation import ParallelDecimator
 from dynid.analysis.processing.signals import dead_zone_thresholds, default_settings, velocity_dead_zone
-from dynid.analysis.results import ModelResults, notices_block, parameter_records, percent
+from dynid.analysis.results import ModelResults, notices_block, percent
 from dynid.dynamics.base_parameters import base_parameters, base_regressor
 from dynid.dynamics.dynamic_model import inverse_dynamics, mass_matrix
 from dynid.dynamics.simulation import friction_stiffness, simulate_closed_loop
@@ -363,8 +363,7 @@ class DIDIMResult(ModelResults):
             JSON-safe; the same for the same data and settings.
         """
         def params(res):
-            return parameter_records(res.names, res.chi, res.bse.to_numpy(), res.rel_std.to_numpy(),
-                                     self._prismatic())
+            return res._records(self._prismatic())
         r = self.result
         m = self.model
         return json_safe({

@@ -79,7 +79,7 @@ from dynid.analysis.estimators.payload import (
 )
 from dynid.analysis.processing.observation import full_rate
 from dynid.analysis.processing.signals import dead_zone_thresholds
-from dynid.analysis.results import ParameterResults, notices_block, parameter_records, parameter_table, percent
+from dynid.analysis.results import ParameterResults, notices_block, parameter_table, percent
 from dynid.dynamics.base_parameters import base_parameters
 from dynid.errors import IdentificationError, InputError
 from dynid.provenance import json_safe, versions
@@ -151,7 +151,7 @@ class DriveGainResult(ParameterResults):
             "method": self.method, "robot": self.robot_name, "sources": self.sources,
             "known_payload": self.known,
             # the interface's records (as every result's); `gains` below adds the file's values
-            "parameters": parameter_records(self.names, self.chi, self.bse.to_numpy(), self.rel_std.to_numpy()),
+            "parameters": self._records(),
             "gains": [{"joint": j, "name": nm, "file": gf, "value": v, "std": s, "factor": f,
                        "factor_std": fs, "moved_percent": mp, "lower_95": lo, "upper_95": hi}
                       for j, nm, gf, v, s, f, fs, mp, (lo, hi) in

@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 
 from dynid.analysis.estimators import least_squares as ls
-from dynid.analysis.results import IdentificationResult, ParameterResults, parameter_records
+from dynid.analysis.results import IdentificationResult, ParameterResults
 from dynid.errors import InputError
 from dynid.provenance import json_safe
 
@@ -107,8 +107,7 @@ class EssentialResult(ParameterResults):
             {
                 "method": "essential",
                 # the interface's records (as every result's), the essential model's
-                "parameters": parameter_records(self.result.names, self.result.chi, self.result.bse.to_numpy(),
-                                                self.result.rel_std.to_numpy(), self.result._prismatic()),
+                "parameters": self.result._records(),
                 "criteria": self.criteria,
                 "stop_rule": self.stop_rule,
                 "stop_reason": self.stop_reason,

@@ -37,7 +37,7 @@ from scipy.spatial.transform import Rotation
 
 from dynid.analysis.estimators import least_squares as ls
 from dynid.analysis.processing.observation import concatenate, observe
-from dynid.analysis.results import ParameterResults, deprecated_alias, parameter_records, parameter_table
+from dynid.analysis.results import ParameterResults, deprecated_alias, parameter_table
 from dynid.dynamics.base_parameters import base_parameters
 from dynid.errors import IdentificationError, InputError
 from dynid.provenance import json_safe
@@ -146,8 +146,7 @@ class GravityTiltResult(ParameterResults):
         return json_safe({
             "method": self.method, "robot": self.robot_name,
             # the interface's records (as every result's), beside the named fields below
-            "parameters": parameter_records(self.names, self.chi, self.bse.to_numpy(), self.rel_std.to_numpy(),
-                                            self._prismatic()),
+            "parameters": self._records(),
             "model": "g = R(theta) g0, R the rotation vector (theta_x, theta_y, 0) about the base axes",
             "theta_rad": list(self.chi), "std_rad": list(self.bse.to_numpy()), "cov": self.cov,
             "angle_rad": self.angle,

@@ -18,7 +18,7 @@ from dynid.analysis.estimators import least_squares as ls
 from dynid.analysis.estimators.agreement import agreement, agreement_verdict, segments
 from dynid.analysis.estimators.essential import essential_parameters
 from dynid.analysis.processing.observation import Observation, concatenate, observe
-from dynid.analysis.results import ModelResults, notices_block, parameter_records, percent
+from dynid.analysis.results import ModelResults, notices_block, percent
 from dynid.dynamics.base_parameters import base_parameters
 from dynid.errors import IdentificationError, InputError
 from dynid.provenance import data_hash, json_safe, versions
@@ -124,8 +124,7 @@ class IDIMResult(ModelResults):
 
     def to_dict(self):
         def params(res):
-            return parameter_records(res.names, res.chi, res.bse.to_numpy(), res.rel_std.to_numpy(),
-                                     self._prismatic())
+            return res._records(self._prismatic())
         return json_safe({
             "method": "IDIM",
             "uncertainty": self.uncertainty,

@@ -75,7 +75,6 @@ from dynid.analysis.results import (
     _fmt,
     deprecated_alias,
     notices_block,
-    parameter_records,
     parameter_table,
 )
 from dynid.dynamics.base_parameters import base_parameters, base_regressor
@@ -302,8 +301,7 @@ class MLResult(ParameterResults):
             "method": "ML-EIV",
             "model": self.model,
             "settings": self.settings,
-            "parameters": parameter_records(self.names, self.chi, self.bse.to_numpy(), self.rel_std.to_numpy(),
-                                            self._prismatic()),
+            "parameters": self._records(),
             "ls_start": [{"name": n, "value": v} for n, v in zip(self.names, self.theta_ls)],
             "sigma_q": self.sigma_q, "sigma_tau": self.sigma_tau,
             "sigma_tau_given": self.sigma_tau_given,

@@ -14,7 +14,7 @@ import numpy as np
 
 from dynid.analysis.estimators.sdp import J_MARGIN, require_cvxpy
 from dynid.analysis.estimators.sdp import whitening as _whitening
-from dynid.analysis.results import ParameterResults, parameter_records, parameter_table
+from dynid.analysis.results import ParameterResults, parameter_table
 from dynid.dynamics.robot import INERTIAL
 from dynid.dynamics.urdf_writer import pseudo_inertia_basis
 from dynid.errors import InputError
@@ -54,8 +54,7 @@ class PhysicalPayload(ParameterResults):
 
     def to_dict(self):
         return json_safe({"method": self.method, "names": self.names, "values": self.chi,
-                          "parameters": parameter_records(self.names, self.chi, self.bse.to_numpy(),
-                                                          self.rel_std.to_numpy()),
+                          "parameters": self._records(),
                           "delta_chi2": self.delta, "active": self.active,
                           "com_box": None if self.com_box is None else [list(b) for b in self.com_box],
                           "status": self.status})

@@ -129,7 +129,6 @@ from dynid.analysis.results import (
     _check_alpha,
     deprecated_alias,
     notices_block,
-    parameter_records,
     parameter_table,
     percent,
 )
@@ -364,8 +363,7 @@ class PhysicalResult(ParameterResults):
 
     def to_dict(self) -> dict:
         return json_safe({"method": self.method, "robot": self.robot_name,
-                          "parameters": parameter_records(self.names, self.chi, self.bse.to_numpy(),
-                                                          self.rel_std.to_numpy(), self._prismatic()),
+                          "parameters": self._records(),
                           "physical": self.physical_block(), "data_hash": self.data_hash,
                           "versions": versions()})
 

@@ -79,7 +79,6 @@ from dynid.analysis.results import (
     ParameterResults,
     deprecated_alias,
     notices_block,
-    parameter_records,
     parameter_table,
     percent,
 )
@@ -405,8 +404,7 @@ class ProjectionResult(ParameterResults):
         return "\n".join(lines)
 
     def to_dict(self):
-        params = parameter_records(self.names, self.chi, self.bse.to_numpy(), self.rel_std.to_numpy(),
-                                   self._prismatic())
+        params = self._records()
         out = {
             "method": "PM",
             "settings": self.settings,
