@@ -809,3 +809,13 @@ def test_an_angle_that_is_not_a_rounded_right_angle_is_kept(tmp_path, written):
     rng = np.random.default_rng(6)
     q, qd, qdd = (rng.normal(size=(20, 3)) for _ in range(3))
     assert not np.array_equal(regressor(robot, q, qd, qdd), regressor(exact, q, qd, qdd))
+
+
+@needs_pin
+def test_a_rounded_right_angle_gives_pinocchios_dynamics_of_the_exact_angle(tmp_path):
+    """Checked outside dynid: the arm written with 1.5708 has the inverse dynamics Pinocchio computes
+    for the same arm written with pi/2 to full precision (and not those of 1.5708 taken literally)."""
+    rounded = read_urdf(write(tmp_path, _right_angle_arm("1.5708 0 0"), "rounded.urdf"))
+    assert_same_dynamics_as_pinocchio(rounded, write(tmp_path, _right_angle_arm(f"{np.pi / 2!r} 0 0"), "exact.urdf"))
+    with pytest.raises(AssertionError):
+        assert_same_dynamics_as_pinocchio(rounded, write(tmp_path, _right_angle_arm("1.5708 0 0"), "literal.urdf"))
