@@ -9,8 +9,10 @@
    with Arrow's CSV reader first when pyarrow is installed, and its time through pandas'
    reader (what it does without pyarrow) is given beside (the same route on pandas >= 3).
    Beside them, the time of dynid's scan of the file for cells pandas would read
-   differently (`_scan_csv`), alone; in `load_experiment` it runs on a thread beside the
-   checks, after pandas' parse.
+   differently (`_scan_csv`), alone: it runs before the parse on pandas 2 and for a file
+   with text columns; pandas 3 refuses those cells in a float column by itself, so a
+   numeric file is not scanned there (a column pandas read as 0 and 1 alone is read again
+   as text, for boolean words).
 2. A CSV of about 200 MB in the same format is loaded by dynid in a fresh subprocess
    whose peak resident memory (ru_maxrss of the child) is its own; it is given as a
    multiple of the file size, also net of the memory the child had before loading
@@ -86,7 +88,7 @@ def time_loading(path: Path, repeats: int = 3):
     exp = exp_pd = None
     for _ in range(repeats):
         t0 = time.perf_counter()
-        readers._scan_csv(path)      # cells pandas would misread; in a load, beside the checks
+        readers._scan_csv(path)      # cells pandas would misread (pandas 2, text columns)
         scan_s.append(time.perf_counter() - t0)
         t0, c0 = time.perf_counter(), time.process_time()
         exp = dynid.load_experiment(path, n_joints=N_JOINTS)
@@ -159,7 +161,7 @@ def main():
         dynid_s, pandas_s, exp, paired, pandas_route_s, scan_s, dynid_cpu, pandas_cpu = time_loading(
             csv_path, repeats=REPEATS)
         ratio = dynid_s / pandas_s
-        # pandas' parse and the scan one after the other (a load runs the scan beside the checks)
+        # pandas' parse and the scan one after the other (a load on pandas 2, or with text columns)
         ratio_parse_scan = (pandas_s + scan_s) / pandas_s
         ratio_pandas_route = pandas_route_s / pandas_s
         try:
@@ -172,10 +174,10 @@ def main():
               f"ratio {ratio:.2f} (target 1.3; median of {REPEATS}; load by load {paired:.2f})")
         print(f"  dynid through pandas' reader (as without pyarrow) {pandas_route_s:.3f} s, "
               f"ratio {ratio_pandas_route:.2f}")
-        print(f"  dynid's time beyond pandas' {dynid_s - pandas_s:.3f} s: the checks and the arrays, with "
-              f"the scan for cells pandas would misread (booleans, quotes, NUL, stray CR; {scan_s:.3f} s "
-              f"alone, {ratio_parse_scan:.2f} x pandas after the parse) on a thread beside them")
-        # pandas >= 3 parses on every core; dynid's scan and checks run on one
+        print(f"  dynid's time beyond pandas' {dynid_s - pandas_s:.3f} s: the checks and the arrays (the "
+              f"scan for cells pandas would misread, {scan_s:.3f} s alone, {ratio_parse_scan:.2f} x pandas "
+              "after the parse, runs only on pandas 2 and for files with text columns)")
+        # pandas >= 3 parses on every core; dynid's checks run on one (tau's spikes on a second)
         print(f"  CPU time: dynid {dynid_cpu:.3f} s, pandas {pandas_cpu:.3f} s (ratio "
               f"{dynid_cpu / pandas_cpu:.2f}); pandas kept {pandas_cpu / pandas_s:.1f} cores busy "
               "(when a core is taken by other work, pandas' parse slows and the ratio falls)")

@@ -23,7 +23,7 @@ from pathlib import Path, PurePath
 
 from dynid.analysis.data.columns import _from_columns
 from dynid.analysis.data.description import _load_toml
-from dynid.analysis.data.readers import _READERS, _build_checked, _read_data_file
+from dynid.analysis.data.readers import _READERS, _build_beside, _read_data_file
 from dynid.analysis.data.record import SIGNALS, Experiment
 from dynid.analysis.data.saturation import SATURATION_FRACTION, SATURATION_MIN_RUN, SATURATION_REL_TOL
 from dynid.analysis.data.timebase import GAP_FACTOR, TIME_STEP_TOLERANCE, _Options, estimate_shift
@@ -93,6 +93,6 @@ def load_experiment(path, robot=None, *, n_joints: int | None = None) -> Experim
             ".mat, .toml. If it is a comma-separated table, rename it to .csv."
         )
     opts = _Options(name=p.stem, where=label)
-    # a CSV's scan for cells pandas misreads runs beside the checks (benchmarks/io.py)
-    raw = _read_data_file(p, label, defer_scan=True)
-    return _build_checked(raw, lambda r: _from_columns(r, robot, n_joints, opts, label, [], {}))
+    # a CSV read by pandas gets a thread for the checks to share (benchmarks/io.py)
+    raw = _read_data_file(p, label, beside=True)
+    return _build_beside(raw, lambda r: _from_columns(r, robot, n_joints, opts, label, [], {}))

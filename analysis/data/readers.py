@@ -14,7 +14,7 @@ import os
 import re
 import stat
 import warnings
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -47,10 +47,8 @@ class _RawFile:
         #: CSV read by the fast path: data row k (0-based) is on file line first_line + k.
         self.first_line: int | None = None
         self.notices: list[str] = []
-        #: CSV read by the fast path while its scan runs beside (`_read_csv_fast(defer_scan=
-        #: True)`): the scan's verdict, pending; `_build_checked` waits for it.
-        self.scan: Future | None = None
-        #: ... and the thread it runs on, which then takes work from the checks.
+        #: CSV read by the fast path with a thread beside (`_read_csv_fast(beside=True)`),
+        #: which takes work from the checks; `_build_beside` closes it.
         self.beside: ThreadPoolExecutor | None = None
         #: Every array is float64 and finite: the fast CSV path checked each as it took it,
         #: so the loader need not pass over them again (`columns._column_values`).
@@ -142,68 +140,35 @@ def _read_bytes(path: Path, label: str) -> bytes:
     return data
 
 
-def _read_csv(path: Path, label: str, defer_scan: bool = False) -> _RawFile:
+def _read_csv(path: Path, label: str, beside: bool = False) -> _RawFile:
     """A CSV file: the fast pandas path when the file is regular, else the precise one.
 
-    `defer_scan`: the fast path's scan of the file runs beside what follows the read, and
-    the caller builds its result with `_build_checked`."""
+    `beside`: a file read by the fast path gets a thread for the checks to share, and the
+    caller builds its result with `_build_beside`."""
     _refuse_special(path, label)
-    raw = _read_csv_fast(path, label, defer_scan=defer_scan)
+    raw = _read_csv_fast(path, label, beside=beside)
     if raw is not None:
         return raw
     return _read_csv_precise(path, label)
 
 
-def _scan_or_none(path: Path) -> str | None:
-    """`_scan_csv`, with a read that fails on the way (an I/O error) taken as a refusal: the
-    precise reader then reads the file again and says what is wrong with it."""
+def _build_beside(raw: _RawFile, build):
+    """`build(raw)`, after which the thread beside it (`_read_csv_fast(beside=True)`) takes
+    no more work: it ends with its tasks, also when the build fails."""
     try:
-        return _scan_csv(path)
-    except (OSError, MemoryError):
-        return None
-
-
-def _start_beside(raw: _RawFile) -> None:
-    """Start the scan of `raw`'s file (`_scan_or_none`) on a thread of its own, `raw.beside`,
-    after pandas' parse (which keeps every core busy: beside it, the scan only slowed it), so
-    that it runs beside dynid's checks, which use one core; `raw.scan` is its pending verdict.
-    The checks queue work behind the scan (`plausibility.spike_notices`)."""
-    raw.beside = ThreadPoolExecutor(max_workers=1, thread_name_prefix="dynid-csv-beside")
-    raw.scan = raw.beside.submit(_scan_or_none, raw.path)
-
-
-def _stop_beside(raw: _RawFile) -> None:
-    """No more work for `raw.beside`: its thread ends with what it was given."""
-    if raw.beside is not None:
-        raw.beside.shutdown(wait=False)
-
-
-def _build_checked(raw: _RawFile, build):
-    """`build(raw)`; for a CSV whose scan ran beside the build (`defer_scan`), the scan's
-    verdict is then awaited, and when the scan found cells pandas reads differently from
-    the precise path, the build is done again from `_read_csv_precise` (and its errors,
-    which name the cell, are the ones raised). A failed build waits for the verdict too."""
-    if raw.scan is None:
         return build(raw)
-    try:
-        out = build(raw)
-    except Exception:
-        if raw.scan.result() is not None:
-            raise
-        return build(_read_csv_precise(raw.path, raw.label))
     finally:
-        _stop_beside(raw)
-    if raw.scan.result() is None:
-        return build(_read_csv_precise(raw.path, raw.label))
-    return out
+        if raw.beside is not None:
+            raw.beside.shutdown(wait=False)
 
 
 #: Bytes read at a time by the fast CSV path's scan of the file: one buffer, refilled, small
 #: enough for its seven searches to stay in the cache (a fresh 4 MB object per read cost
 #: a third of the scan in page faults: benchmarks/io.py).
 _SCAN_CHUNK = 1 << 18
-#: Spellings pandas' float parser reads as booleans (1.0 / 0.0); Python's float() does not.
-_BOOL_WORDS = (b"rue", b"RUE", b"alse", b"ALSE")
+#: Spellings pandas' float parser reads as booleans (1.0 / 0.0), in any case (TrUe too);
+#: Python's float() does not.
+_BOOL_WORDS = (b"rue", b"alse")
 
 
 def _header_line(f) -> str | None:
@@ -256,7 +221,7 @@ def _scan_csv(path: Path) -> str | None:
             else:
                 cr_open = False
             if any(c in chunk or c in last for c in (b"u", b"U", b"l", b"L")):
-                joined = last + chunk
+                joined = (last + chunk).lower()
                 if any(w in joined for w in _BOOL_WORDS):
                     return None
             last = bytes(chunk[-4:])
@@ -265,21 +230,32 @@ def _scan_csv(path: Path) -> str | None:
     return header
 
 
-def _read_csv_fast(path: Path, label: str, defer_scan: bool = False) -> _RawFile | None:
+def _scan_or_none(path: Path) -> str | None:
+    """`_scan_csv`, with a read that fails on the way (an I/O error) taken as a refusal: the
+    precise reader then reads the file again and says what is wrong with it."""
+    try:
+        return _scan_csv(path)
+    except (OSError, MemoryError):
+        return None
+
+
+def _read_csv_fast(path: Path, label: str, beside: bool = False) -> _RawFile | None:
     """The whole CSV parsed by pandas' C reader into float64 columns (text for columns
     outside the dynid convention, exactly as the precise path keeps them), or None
     when anything is unusual and `_read_csv_precise` must read (and judge) it.
 
     The values are bit-identical to Python's `float()` of each cell (pandas ≥ 3 parses
     floats exactly; pandas 2 does with `float_precision="round_trip"`). Cells the
-    precise path would reject or read differently (text, empty cells, NaN, booleans,
-    '_' digit separators, Unicode digits) make pandas fail, and the precise path
-    then names the file, column, data row and file line.
+    precise path would reject or read differently (text, empty cells, NaN, quotes, NUL
+    bytes, '_' digit separators, Unicode digits) make pandas fail, and the precise path
+    then names the file, column, data row and file line. pandas 3 refuses all of them in
+    a float column by itself, save a column of boolean words alone (read as 1.0 and 0.0:
+    `_boolean_words`); pandas 2 and text columns need the scan of the file (`_scan_csv`)
+    first. A CR alone ends a line for pandas as for the precise path.
 
-    `defer_scan` (pandas >= 3): the scan for what pandas would misread runs on a thread
-    while pandas parses and after, and the returned file's `scan` holds its pending verdict
-    (`_build_checked`). pandas' parse keeps every core busy, so the scan costs nothing
-    only beside dynid's checks, which run on one (benchmarks/io.py)."""
+    `beside`: the returned file has a thread (`raw.beside`) for the checks to share (they
+    run on one core once pandas' parse, which keeps every core busy, is done;
+    benchmarks/io.py); build the result with `_build_beside`."""
     try:
         import pandas as pd
     except ImportError:
@@ -290,15 +266,14 @@ def _read_csv_fast(path: Path, label: str, defer_scan: bool = False) -> _RawFile
     except OSError:
         return None
     pandas3 = int(pd.__version__.split(".")[0]) >= 3
-    defer_scan = defer_scan and pandas3
-    if defer_scan:
+    if pandas3:
         try:
             with open(path, "rb") as f:
                 header_text = _header_line(f)
         except OSError:
             return None
     else:
-        header_text = _scan_csv(path)
+        header_text = _scan_or_none(path)
     if header_text is None:
         return None
     names = next(csv.reader([header_text]))
@@ -314,7 +289,7 @@ def _read_csv_fast(path: Path, label: str, defer_scan: bool = False) -> _RawFile
         return raw
     kw = {} if pandas3 else {"float_precision": "round_trip"}
 
-    def parse(dtypes):
+    def parse(dtypes, **more):
         with warnings.catch_warnings():
             # "Length of header or names does not match length of data": a long first row
             warnings.simplefilter("error")
@@ -322,20 +297,19 @@ def _read_csv_fast(path: Path, label: str, defer_scan: bool = False) -> _RawFile
             # which fails; so data row k is on file line k + 2.
             return pd.read_csv(path, sep=",", header=0, dtype=dtypes, na_filter=False,
                                engine="c", encoding="utf-8", quoting=csv.QUOTE_NONE,
-                               skip_blank_lines=False, index_col=False, **kw)
+                               skip_blank_lines=False, index_col=False, **kw, **more)
 
     # Every column as numbers first (a TOML may name any column); if that fails, the
     # columns outside the convention as text, as the precise path keeps them.
     dtypes = dict.fromkeys(names, float)
-    scanned = not defer_scan
     try:
         df = parse(dtypes)
     except Exception:  # noqa: BLE001 - any parse failure: the precise path explains it
         dtypes = {raw: (float if _COLUMN_RE.match(name) else object)
                   for raw, name in zip(names, stripped, strict=True)}
-        if object not in dtypes.values() or (not scanned and _scan_csv(path) is None):
+        # quotes in a text column: pandas keeps them, the precise path reads them as CSV
+        if object not in dtypes.values() or (pandas3 and _scan_or_none(path) is None):
             return None
-        scanned = True
         try:
             df = parse(dtypes)
         except Exception:  # noqa: BLE001
@@ -346,22 +320,46 @@ def _read_csv_fast(path: Path, label: str, defer_scan: bool = False) -> _RawFile
     if list(df.columns) != names or len(df) < 1:
         return None
     raw = _RawFile(path, label, "csv")
-    if not scanned:
-        _start_beside(raw)
     raw.first_line = 2
+    zero_one = []
     for c, name in enumerate(stripped):
         col = df.iloc[:, c]
         if dtypes[names[c]] is float:
             a = col.to_numpy(dtype=float)
             # NaN and inf: the precise path names the cell (as the loader would, one pass later)
             if a.dtype != np.float64 or not np.isfinite(a).all():
-                _stop_beside(raw)
                 return None
+            if a[0] in (0.0, 1.0) and np.all((a == 0.0) | (a == 1.0)):
+                zero_one.append(names[c])
         else:
             a = col.to_numpy(dtype=object)
         raw.arrays[name] = a
+    del df
+    if zero_one and _boolean_words(parse, zero_one):
+        return None
     raw.finite = object not in dtypes.values()
+    if beside:
+        raw.beside = ThreadPoolExecutor(max_workers=1, thread_name_prefix="dynid-csv-beside")
     return raw
+
+
+def _boolean_words(parse, columns: list[str]) -> bool:
+    """Whether a column that pandas read as 0.0 and 1.0 alone holds a cell Python's
+    `float()` does not read: pandas takes a column of only boolean words ("True",
+    "FALSE", "tRuE") for booleans and casts them, the precise path refuses them.
+    `parse(dtypes, usecols=)`: the fast path's pandas reader; the columns are read
+    again as text (rare: a column of only 0 and 1)."""
+    try:
+        text = parse(dict.fromkeys(columns, object), usecols=columns)
+    except Exception:  # noqa: BLE001 - the precise path judges the file
+        return True
+    for name in columns:
+        for cell in text[name].unique():
+            try:
+                float(cell)
+            except (TypeError, ValueError):
+                return True
+    return False
 
 
 #: With pandas < 3, try Arrow's CSV reader before pandas' (benchmarks/io.py turns it off to time
@@ -817,9 +815,9 @@ def _safe_reason(e: Exception) -> str:
 _READERS = {".csv": _read_csv, ".parquet": _read_parquet, ".npz": _read_npz, ".mat": _read_mat}
 
 
-def _read_data_file(path: Path, label: str, defer_scan: bool = False) -> _RawFile:
-    """The raw columns of one data file. `defer_scan` (CSV): see `_read_csv`; build the
-    result with `_build_checked`."""
+def _read_data_file(path: Path, label: str, beside: bool = False) -> _RawFile:
+    """The raw columns of one data file. `beside` (CSV): see `_read_csv`; build the
+    result with `_build_beside`."""
     ext = path.suffix.lower()
     if ext not in _READERS:
         raise DataError(
@@ -828,6 +826,6 @@ def _read_data_file(path: Path, label: str, defer_scan: bool = False) -> _RawFil
             "comma-separated table, rename it to .csv."
         )
     if ext == ".csv":
-        return _read_csv(path, label, defer_scan=defer_scan)
+        return _read_csv(path, label, beside=beside)
     return _READERS[ext](path, label)
 

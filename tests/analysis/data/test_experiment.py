@@ -807,7 +807,8 @@ CELLS = st.one_of(
     st.floats(allow_nan=True, allow_infinity=True).map(repr),
     st.integers(-3, 3).map(str),
     st.sampled_from(["", " ", "nan", "NaN", "inf", "-inf", "abc", "1e400", " 3 ", '"4"',
-                     "'", '"', "1_0", "0x10", "1,5", "١", "\t", "True", "false", "TRUE"]),
+                     "'", '"', "1_0", "0x10", "1,5", "١", "\t", "True", "false", "TRUE",
+                     "tRuE", "\0", "\r"]),
     st.text(alphabet=st.characters(blacklist_categories=("Cs",)), max_size=4),
 )
 
@@ -1244,7 +1245,10 @@ def _noticed_body(n=80):
     "t,q1,tau1\n" + _BODY.replace("\n", "\r\n"),                    # CR LF
     "t,q1,tau1\n" + _BODY.replace("\n", "\r"),                       # CR line ends
     "t,q1,tau1\n" + _BODY[:200] + "\r" + _BODY[200:],                # one lone CR
+    "t,q1,tau1\n" + _BODY[:200] + "1\r,2,3\n" + _BODY[200:],         # a CR inside a row
+    "t,q1,tau1\n" + _BODY.rstrip("\n") + "\r",                      # a CR at the very end
     "t,q1,tau1\n" + "".join(f"{k},{k % 3},{'True' if k % 2 else 'False'}\n" for k in range(20)),
+    "t,q1,tau1\n" + "".join(f"{k},{k % 3},TrUe\n" for k in range(20)),  # pandas' booleans, any case
     "t,q1,tau1\n" + _BODY + '1,"2",3\n',                            # a quote
     "t,q1,tau1\n" + _BODY + "1,2\0,3\n",                           # a NUL
     "t,q1,tau1\n" + _BODY + "0.1,2,3\n",                            # time goes back: an error
@@ -1252,10 +1256,10 @@ def _noticed_body(n=80):
     "t,q1,q2,tau1,tau2\n" + _noticed_body(),        # spike and saturation notices, in order
     "t,q1,q2,tau1,tau2\n" + _noticed_body() + "0.1,0,0,0,0\n",   # ... and then an error
 ])
-def test_load_with_its_scan_beside_is_the_precise_load(tmp_path, monkeypatch, text):
-    """load_experiment reads a CSV with pandas while the scan for cells pandas misreads runs
-    beside the checks, and then tau's spike check: whatever the scan finds, the Experiment
-    (or the error, notices in their order) is the one of the precise reader."""
+def test_load_with_a_thread_beside_is_the_precise_load(tmp_path, monkeypatch, text):
+    """load_experiment reads a CSV with pandas, and tau's spike check runs on a thread beside
+    the other checks: whatever pandas refuses or reads differently, the Experiment (or the
+    error, notices in their order) is the one of the precise reader."""
     from dynid.analysis.data import plausibility
 
     threads = []
@@ -1271,20 +1275,24 @@ def test_load_with_its_scan_beside_is_the_precise_load(tmp_path, monkeypatch, te
     fast = list(threads)
     assert got == _precise_outcome(p)
     if "tau2" in text:                            # the case is what it claims to be
-        assert fast[0] == threading.current_thread().name
+        main = threading.current_thread().name
+        # q's check on this thread, tau's beside it (in either order), or cancelled by an error
+        assert fast.count(main) == 1
+        assert all(name == main or name.startswith("dynid-csv-beside") for name in fast)
         if got[0] == "ok":
-            assert len(fast) == 2 and fast[1].startswith("dynid-csv-beside")
+            assert len(fast) == 2
             assert [("spike in q1" in m, "spike in tau1" in m, "tau2" in m) for m in got[1]] == [
                 (True, False, False), (False, True, False), (False, False, True)]
-        else:                                     # tau's check was cancelled, or ran beside
-            assert all(name.startswith("dynid-csv-beside") for name in fast[1:])
 
 
 def test_a_scan_that_fails_to_read_sends_the_file_to_the_precise_reader(tmp_path, monkeypatch):
+    """A file with a text column is scanned for quotes before pandas reads it (pandas keeps
+    them, the precise path reads them as CSV); a read that fails on the way hands the file to
+    the precise reader, which says what is wrong with it."""
     from dynid.analysis.data import readers
 
     p = tmp_path / "io_error.csv"
-    p.write_bytes(("t,q1,tau1\n" + _BODY).encode())
+    p.write_bytes(("t,q1,tau1,note\n" + "".join(f"{k / 100!r},1,2,a{k}\n" for k in range(20))).encode())
     expected = _precise_outcome(p)
     calls = []
 
@@ -1292,13 +1300,34 @@ def test_a_scan_that_fails_to_read_sends_the_file_to_the_precise_reader(tmp_path
         calls.append(path)
         raise OSError(5, "Input/output error")
     monkeypatch.setattr(readers, "_scan_csv", failing)
+    assert readers._read_csv_fast(p, str(p)) is None
+    assert calls
     assert _outcome(lambda: load_experiment(p)) == expected
-    assert calls        # the scan ran beside the checks, and its failure was caught
+
+
+@pytest.mark.parametrize("words", [("True", "False"), ("TrUe", "tRUE"), ("FALSE", "false"), ("true",)])
+def test_a_column_of_boolean_words_is_not_read_as_ones_and_zeros(tmp_path, words):
+    """pandas reads a column of boolean words alone, in any case, as 1.0 and 0.0; the fast
+    path declines it, and the load names the cell, as the precise path does."""
+    from dynid.analysis.data import readers
+
+    p = tmp_path / "words.csv"
+    p.write_bytes(("t,q1,tau1\n" + "".join(f"{k / 100!r},{k % 3},{words[k % len(words)]}\n"
+                                           for k in range(20))).encode())
+    assert readers._read_csv_fast(p, str(p)) is None
+    got = _outcome(lambda: load_experiment(p))
+    assert got == _precise_outcome(p) and got[0] == "error" and "tau1" in got[1]
+    # a column of the numbers 0 and 1 is read by pandas, and read again only to be checked
+    p.write_bytes(("t,q1,tau1,flag\n" + "".join(f"{k / 100!r},{k % 3},{k % 2},{(k // 3) % 2}.0\n"
+                                                for k in range(20))).encode())
+    fast = readers._read_csv_fast(p, str(p))
+    assert fast is not None and fast.arrays["flag"].dtype == np.float64
+    _same_raw(fast, readers._read_csv_precise(p, str(p)))
 
 
 @pytest.mark.parametrize("tail", ["", "0.1,0,0,0,0\n"])
 def test_a_build_closes_the_thread_beside_it(tmp_path, tail):
-    """`_build_checked` takes no more work for the load's thread once the build is done or
+    """`_build_beside` takes no more work for the load's thread once the build is done or
     has failed: the thread ends with its tasks, not when the file's objects are collected."""
     from dynid.analysis.data import readers
     from dynid.analysis.data.columns import _from_columns
@@ -1306,11 +1335,11 @@ def test_a_build_closes_the_thread_beside_it(tmp_path, tail):
 
     p = tmp_path / "closed.csv"
     p.write_bytes(("t,q1,q2,tau1,tau2\n" + _noticed_body() + tail).encode())
-    raw = readers._read_data_file(p, str(p), defer_scan=True)
+    raw = readers._read_data_file(p, str(p), beside=True)
     assert raw.beside is not None
     build = lambda r: _from_columns(r, None, None, _Options(name="c", where=str(p)), str(p), [], {})  # noqa: E731
     try:
-        readers._build_checked(raw, build)
+        readers._build_beside(raw, build)
     except DataError:
         assert tail
     with pytest.raises(RuntimeError, match="shutdown"):
@@ -1320,7 +1349,7 @@ def test_a_build_closes_the_thread_beside_it(tmp_path, tail):
 @settings(max_examples=100, deadline=None,
           suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 @given(text=csv_texts())
-def test_load_with_its_scan_beside_agrees_with_the_precise_load(tmp_path, text):
+def test_load_with_a_thread_beside_agrees_with_the_precise_load(tmp_path, text):
     p = tmp_path / "beside_any.csv"
     p.write_text(text, encoding="utf-8", newline="")
     assert _outcome(lambda: load_experiment(p)) == _precise_outcome(p)
