@@ -85,13 +85,24 @@ def percent(fraction, digits: int = 2) -> str:
     return f"{100.0 * x:.{digits}f} %"
 
 
+def p_value_text(p, missing: str = "n/a") -> str:
+    """A p-value as text: 3 significant digits, `1.2e-05` below 1e-4, `< 1e-300` where it
+    underflows to 0 (not "0"); `missing` for NaN (a test that could not be computed)."""
+    p = float(p)
+    if not math.isfinite(p):
+        return missing
+    if p == 0.0:
+        return "< 1e-300"
+    return f"{p:.1e}" if p < 1e-4 else f"{p:.3g}"
+
+
 def _cell(value, kind) -> str:
     if kind == "num":
         return _fmt(value)
     if kind == "pct":
         return _fmt_pct(value)
     if kind == "p":
-        return "nan" if not math.isfinite(float(value)) else f"{float(value):.3g}"
+        return p_value_text(value, "nan")
     if callable(kind):
         return kind(value)
     return str(value)

@@ -514,9 +514,9 @@ def evaluate(dataset, panda_dir=None):
             cand_sig[cand].append(sig)
         a = fits["hac"][-1].agreement
         if a is not None:   # what this recording alone says about its own model error
-            within.append(f"  {dataset} {label}: its {a['k']} segments (hac sigma) {100 * a['within_95']:.0f} % of "
-                          f"{a['pairs']} pairs within, median |z| {a['median_abs_z']:.2f}, chi2 p = "
-                          f"{a['p_value']:.2g}")
+            within.append(f"  {dataset} {label}: its {a.k} segments (hac sigma) {100 * a.within_95:.0f} % of "
+                          f"{a.pairs} pairs within, median |z| {a.median_abs_z:.2f}, chi2 p = "
+                          f"{a.p_value:.2g}")
         for opt in OPTIONS[1:]:
             assert np.array_equal(fits[opt][-1].wls.chi, ref.wls.chi), "the option changed the estimate"
         try:
@@ -698,17 +698,17 @@ def main(argv=None):
             out["lwr4_any_sigma_max_within"] = ANY_SIGMA.get("lwr4")
             out["lwr4_classic_pairs_holdable"] = HOLDABLE.get("lwr4")
         print(f"  verdict (classic): {verdict}")
-        pooled = [(n, p, s, t) for n, p, s, t in zip(agr["names"], agr["pooled"], agr["pooled_std"],
-                                                    agr["between_std"]) if t > 0]
+        pooled = [(n, p, s, t) for n, p, s, t in zip(agr.names, agr.pooled, agr.pooled_std,
+                                                    agr.between_std) if t > 0]
         print(f"  random effects (DerSimonian-Laird): between-run spread > 0 for {len(pooled)} of "
-              f"{len(agr['names'])} parameters; chi2 {agr['chi2']:.4g} on {agr['dof']} dof, p = {agr['p_value']:.2g}")
+              f"{len(agr.names)} parameters; chi2 {agr.chi2:.4g} on {agr.dof} dof, p = {agr.p_value:.2g}")
         d = rows[DEFAULT_UNCERTAINTY]
         out[f"{ds}_pairs"] = d["pairs"]
         out[f"{ds}_pairs_within_95"] = d["within_95"]
         out[f"{ds}_median_abs_z"] = d["median_abs_z"]
         for opt, r in rows.items():
             out[f"{ds}_{opt}"] = [r["pairs"], round(r["within_95"], 3), round(r["median_abs_z"], 3)]
-        out[f"{ds}_chi2_p_value"] = agr["p_value"]
+        out[f"{ds}_chi2_p_value"] = agr.p_value
     out["seconds"] = round(time.time() - t0, 1)
     print(json.dumps(out))
 

@@ -1,7 +1,7 @@
 """Report figure of the cross-recording (or cross-segment) agreement (issue 26).
 
-`agreement_figure(a)` draws the pairwise z-scores of dynid.analysis.estimators.agreement
-(`agreement(...)` or `IDIMResult.agreement`) against N(0, 1): left, their normal Q-Q
+`agreement_figure(a)` draws the pairwise z-scores of an `Agreement`
+(dynid.analysis.estimators.agreement: `agreement(...)` or `IDIMResult.agreement`) against N(0, 1): left, their normal Q-Q
 plot with the ±1.96 band; right, the histogram of z with the N(0, 1) density. The
 title carries the fraction within ±1.96, the count of pairs and the χ² test of equal
 parameters; the caption says which covariance produced the σ. `agreement_section(a)`
@@ -14,7 +14,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from dynid.analysis.statistics.verdict import parameter_unit
+from dynid.analysis.estimators.agreement import Agreement, p_text
 from dynid.reports import figures as F
 from dynid.reports import tables as T
 from dynid.reports.html import Section, para
@@ -22,14 +22,14 @@ from dynid.reports.html import Section, para
 __all__ = ["agreement_figure", "agreement_section"]
 
 
-def agreement_figure(a: dict, *, key: str = "fig-agreement", caption: str | None = None, fmt: str = "auto"):
-    """FigureMarkup of the z-scores of `a` (dict of `agreement`) against N(0, 1).
+def agreement_figure(a: Agreement, *, key: str = "fig-agreement", caption: str | None = None,
+                     fmt: str = "auto"):
+    """FigureMarkup of the pairwise z-scores of `a` against N(0, 1).
 
     Parameters
     ----------
-    a : dict
-        `z` (list of {a, b, name, z}), `within_95`, `pairs`, `median_abs_z`,
-        `chi2`, `dof`, `p_value`, `kind`, optionally `uncertainty`.
+    a : Agreement
+        Its `z` (list of {a, b, name, z}), `within_95`, `pairs`, the χ² test and `uncertainty`.
     key, caption, fmt
         As for dynid.reports.figures.render_figure.
 
@@ -41,10 +41,10 @@ def agreement_figure(a: dict, *, key: str = "fig-agreement", caption: str | None
     --------
     >>> fig = agreement_figure(result.agreement)   # doctest: +SKIP
     """
-    z = np.array([r["z"] for r in a.get("z", [])], dtype=float)
+    z = np.array([r["z"] for r in a.z], dtype=float)
     fig = F._new_figure(7.5, 3.0)
     ax1, ax2 = fig.subplots(1, 2)
-    what = a.get("kind", "recordings")
+    what = a.kind
     if z.size:
         zs = np.sort(z)
         p = (np.arange(1, z.size + 1) - 0.5) / z.size
@@ -65,26 +65,23 @@ def agreement_figure(a: dict, *, key: str = "fig-agreement", caption: str | None
     ax1.set_ylabel("z = (chi_a - chi_b) / sqrt(sa^2 + sb^2)")
     ax2.set_xlabel("z (clipped at +-8)")
     ax2.set_ylabel("density")
-    within = a.get("within_95", float("nan"))
     fig.suptitle(F._plain(
-        f"{a.get('k', '?')} {what}: {100 * within:.0f} % of {a.get('pairs', 0)} pairs within +-1.96 "
-        f"(95 % expected); chi2 {a.get('chi2', float('nan')):.4g} on {a.get('dof', 0)} dof, "
-        f"p = {a.get('p_value', float('nan')):.2g}"), fontsize=9)
+        f"{a.k} {what}: {100 * a.within_95:.0f} % of {a.pairs} pairs within +-1.96 "
+        f"(95 % expected); chi2 {a.chi2:.4g} on {a.dof} dof, p {p_text(a.p_value)}"), fontsize=9)
     if caption is None:
         caption = (f"Pairwise differences of the parameters two {what} both identify (%sigma <= "
-                   f"{a.get('rel_max', 10):g} %), in units of their combined sigma "
-                   f"({a.get('uncertainty', 'classic')} covariance), against N(0, 1).")
+                   f"{a.rel_max:g} %), in units of their combined sigma "
+                   f"({a.uncertainty} covariance), against N(0, 1).")
     return F.render_figure(fig, key, caption, fmt=fmt)
 
 
-def agreement_section(a: dict, line: str) -> Section:
+def agreement_section(a: Agreement, line: str) -> Section:
     """The report section of the cross-recording (cross-segment) agreement.
 
     Parameters
     ----------
-    a : dict
-        `IDIMResult.agreement` (dynid.analysis.estimators.agreement.agreement plus
-        `uncertainty` and `left_out`).
+    a : Agreement
+        `IDIMResult.agreement`.
     line : str
         The verdict's agreement line (`IDIMResult.agreement_line`), shown first.
 
@@ -94,24 +91,22 @@ def agreement_section(a: dict, line: str) -> Section:
         Id `agreement`: the line, a paragraph on how to read it, `agreement_figure`
         and the per-parameter table `tab-agreement`.
     """
-    what = a.get("kind", "recordings")
+    what = a.kind
     one = what[:-1]
     body = para(line, " ", (
         f"Each {one} was identified alone (per-joint WLS with the weights of the whole); for every "
-        f"parameter that two {what} both identify (%sigma <= {a.get('rel_max', 10):g} %) the "
+        f"parameter that two {what} both identify (%sigma <= {a.rel_max:g} %) the "
         f"difference is divided by its combined sigma. If the intervals held what another {one} "
         "finds, these z would follow N(0, 1): 95 % within +-1.96, median |z| 0.67. More spread "
         "means model error that differs between trajectories (friction shape, elasticity, an "
         f"unmodelled torque): the sigma of one {one} does not include it, and the pooled value "
         f"with its between-{one} spread below is the more honest figure."
-        + (f" Left out (not identified by every {one}): {', '.join(a['left_out'])}."
-           if a.get("left_out") else "")))
-    names = list(a.get("names", []))
-    df = pd.DataFrame({
-        "pooled": a.get("pooled", []), "pooled_std": a.get("pooled_std", []),
-        "between_std": a.get("between_std", []), "p_value": a.get("per_parameter_p_value", []),
-        "unit": [parameter_unit(n) for n in names]}, index=pd.Index(names, name="parameter"))
-    tab = T.make_table(df, "tab-agreement", f"Per parameter over the {a.get('k', '?')} {what}: "
+        + (f" Left out (not identified by every {one}): {', '.join(a.left_out)}."
+           if a.left_out else "")))
+    frame = a.to_frame()
+    df = pd.DataFrame({"pooled": frame["value"], "pooled_std": frame["std"],
+                       "between_std": frame["between_std"], "p_value": frame["p_value"], "unit": frame["unit"]})
+    tab = T.make_table(df, "tab-agreement", f"Per parameter over the {a.k} {what}: "
                        "random-effects (DerSimonian-Laird) pooled value and its sigma including the "
                        f"between-{one} spread, that spread, and the p-value of Cochran's Q test of "
                        "equal values", formats={"unit": "text"},

@@ -38,6 +38,7 @@ from matplotlib.figure import Figure
 from matplotlib.layout_engine import ConstrainedLayoutEngine
 from matplotlib.ticker import LogLocator, NullFormatter
 
+from dynid.analysis.results import p_value_text
 from dynid.reports.figure_layout import GridLayoutEngine, thin_crowded_ticks
 
 __all__ = [
@@ -403,12 +404,8 @@ def residual_pdf_figure(residual, joint_names, jarque_bera_p=None, *, key="fig-r
 
 
 def format_p(p) -> str:
-    p = float(p)
-    if not math.isfinite(p):
-        return "\u2014"
-    if p < 1e-4:
-        return f"{p:.1e}"
-    return f"{p:.3g}"
+    """`dynid.analysis.results.p_value_text`, with a dash for a test not computed."""
+    return p_value_text(p, "\u2014")
 
 
 def essential_path_figure(path, *, base_rel_error, base_max_rel_std=None, error_limit=None,

@@ -16,21 +16,29 @@ it is to identify the same model on different data and compare.
   statsmodels' combine_effects).
 * `segments`: contiguous time segments of one recording (≥ 3, each
   identifying every parameter), for the same checks when there is one recording.
+* `agreement`: all of these at once, as an `Agreement` result (the pooled
+  estimate with `params`, `bse`, `conf_int()`, `summary()` and the JSON/CSV
+  exports of every result).
 * `agreement_verdict`: the verdict line.
 
-Plain functions on numpy arrays.
+Plain functions on numpy arrays, and the one result class.
 """
 from __future__ import annotations
 
 import itertools
 import math
 import warnings
+from dataclasses import dataclass, field
 
 import numpy as np
+import pandas as pd
 from scipy import stats
 
+from dynid.analysis.results import ParameterResults, p_value_text, parameter_table
+from dynid.provenance import json_safe
+
 __all__ = ["pairwise_agreement", "equality_test", "random_effects", "segments", "agreement_verdict",
-           "agreement"]
+           "agreement", "Agreement"]
 
 
 def pairwise_agreement(chis, sigmas, *, rel_max: float = 10.0, names=None) -> dict:
@@ -141,31 +149,149 @@ def segments(n_samples: int, mask, k: int = 3) -> list[np.ndarray]:
     return out
 
 
-def agreement(chis, sigmas, covs, names, *, kind: str = "recordings", rel_max: float = 10.0) -> dict:
-    """Pairwise figures, χ² tests and random-effects pooling of K estimates (JSON-safe arrays as lists)."""
+@dataclass(repr=False)
+class Agreement(ParameterResults):
+    """K estimates of the same parameters (recordings, or segments of one) compared.
+
+    The estimate (`params`, `bse`, `conf_int`) is the random-effects pooled value of each
+    parameter, whose σ includes the between-recording spread τ (`between_std`): the figure
+    to use when the recordings do not agree (`verdict`). Its covariance is diagonal (each
+    parameter pooled alone). `to_dict()` is the `agreement` block of `dynid identify --json`.
+
+    Attributes
+    ----------
+    kind : str
+        "recordings" or "segments".
+    k : int
+        The number of parts compared.
+    names : list of str
+        The parameters every part identifies (`left_out`: the others).
+    pairs, within_95, median_abs_z, beyond_5, z, rel_max
+        `pairwise_agreement`.
+    chi2, dof, p_value, per_parameter_p_value
+        `equality_test` (overall, and Cochran's Q per parameter).
+    pooled, pooled_std, between_std : ndarray (p,)
+        `random_effects` (DerSimonian-Laird).
+    uncertainty : str
+        The covariance of each part (`classic`, `hac` or `bootstrap`).
+    """
+
+    kind: str
+    k: int
+    names: list
+    pairs: int
+    within_95: float
+    median_abs_z: float
+    beyond_5: float
+    z: list
+    rel_max: float
+    chi2: float
+    dof: int
+    p_value: float
+    per_parameter_p_value: np.ndarray
+    pooled: np.ndarray
+    pooled_std: np.ndarray
+    between_std: np.ndarray
+    uncertainty: str = "classic"
+    left_out: list = field(default_factory=list)
+    prismatic: frozenset = frozenset()
+
+    def __post_init__(self) -> None:
+        for name in ("per_parameter_p_value", "pooled", "pooled_std", "between_std"):
+            setattr(self, name, np.asarray(getattr(self, name), dtype=float))
+        self.names = list(self.names)
+
+    @property
+    def method(self) -> str:
+        return f"pooled over {self.k} {self.kind} (random effects)"
+
+    def _estimate(self) -> np.ndarray:
+        return self.pooled
+
+    @property
+    def cov(self) -> np.ndarray:
+        """Diagonal: the pooled σ² of each parameter (pooled alone)."""
+        return np.diag(self.pooled_std ** 2)
+
+    @property
+    def verdict(self) -> str:
+        """The verdict's line (`agreement_verdict`)."""
+        return agreement_verdict(self)
+
+    def to_frame(self) -> pd.DataFrame:
+        """One row per parameter: the pooled `value`, `std` (with τ), `rel_std_percent`,
+        `between_std` (τ), `p_value` (Cochran's Q test of equal values), `unit`."""
+        df = super().to_frame()
+        df.insert(3, "between_std", self.between_std)
+        df.insert(4, "p_value", self.per_parameter_p_value)
+        return df
+
+    def summary(self) -> str:
+        table = parameter_table(self.names, [
+            ("pooled", self.pooled, "num"), ("std", self.pooled_std, "num"),
+            ("between std", self.between_std, "num"), ("Q p-value", self.per_parameter_p_value, "p")],
+            prismatic=self._prismatic())
+        lines = [f"Agreement of {self.k} {self.kind} ({self.uncertainty} covariance of each)",
+                 self.verdict, ""] + table
+        if self.left_out:
+            lines += ["", f"Left out (not identified by every part): {', '.join(self.left_out)}"]
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict:
+        return json_safe({
+            "kind": self.kind, "k": self.k, "names": self.names, "pairs": self.pairs,
+            "within_95": self.within_95, "median_abs_z": self.median_abs_z, "beyond_5": self.beyond_5,
+            "z": self.z, "rel_max": self.rel_max, "chi2": self.chi2, "dof": self.dof,
+            "p_value": self.p_value, "per_parameter_p_value": self.per_parameter_p_value,
+            "pooled": self.pooled, "pooled_std": self.pooled_std, "between_std": self.between_std,
+            "uncertainty": self.uncertainty, "left_out": self.left_out, "verdict": self.verdict})
+
+
+def agreement(chis, sigmas, covs, names, *, kind: str = "recordings", rel_max: float = 10.0,
+              uncertainty: str = "classic", left_out=(), prismatic=frozenset()) -> Agreement:
+    """Pairwise figures, χ² tests and random-effects pooling of K estimates.
+
+    Parameters
+    ----------
+    chis, sigmas : sequences of K arrays (p,)
+        The estimates and their σ, one per part, in the order of `names`.
+    covs : sequence of K arrays (p, p)
+        Their covariances (the χ² test).
+    names : list of p str
+    kind : str
+        "recordings" or "segments" (the texts).
+    rel_max : float
+        %σ at or below which a parameter enters a pair (`pairwise_agreement`).
+    uncertainty, left_out, prismatic
+        Carried by the result: the parts' covariance, the parameters not compared, the
+        robot's prismatic joints (units).
+
+    Returns
+    -------
+    Agreement
+    """
     pw = pairwise_agreement(chis, sigmas, rel_max=rel_max, names=names)
     eq = equality_test(chis, covs)
     re = random_effects(chis, sigmas)
-    return {"kind": kind, "k": len(chis), "names": list(names),
-            "pairs": pw["pairs"], "within_95": pw["within_95"], "median_abs_z": pw["median_abs_z"],
-            "beyond_5": pw["beyond_5"], "z": pw["z"], "rel_max": rel_max,
-            "chi2": eq["chi2"], "dof": eq["dof"], "p_value": eq["p_value"],
-            "per_parameter_p_value": [float(x) for x in eq["per_parameter"]["p_value"]],
-            "pooled": [float(x) for x in re["pooled"]], "pooled_std": [float(x) for x in re["std"]],
-            "between_std": [float(x) for x in re["tau"]]}
+    return Agreement(kind=kind, k=len(chis), names=list(names), pairs=pw["pairs"],
+                     within_95=pw["within_95"], median_abs_z=pw["median_abs_z"], beyond_5=pw["beyond_5"],
+                     z=pw["z"], rel_max=rel_max, chi2=eq["chi2"], dof=eq["dof"], p_value=eq["p_value"],
+                     per_parameter_p_value=eq["per_parameter"]["p_value"], pooled=re["pooled"],
+                     pooled_std=re["std"], between_std=re["tau"], uncertainty=uncertainty,
+                     left_out=list(left_out), prismatic=frozenset(prismatic))
 
 
 def agreement_verdict(a: dict) -> str:
     """One verdict line: do the recordings (segments) agree within their intervals?
 
-    `a` is the dict of `agreement`.
+    `a` is an `Agreement`.
     """
-    what = a["kind"]
-    if not a["pairs"]:
-        return (f"Agreement across {a['k']} {what}: no parameter has %sigma <= {a['rel_max']:g} % in two "
+    what = a.kind
+    if not a.pairs:
+        return (f"Agreement across {a.k} {what}: no parameter has %sigma <= {a.rel_max:g} % in two "
                 f"{what}; nothing to compare.")
     # a chi2 test that could not be computed (NaN) rejects nothing
-    pairs_ok, joint_ok = a["within_95"] >= 0.9, not a["p_value"] < 0.01
+    pairs_ok, joint_ok = a.within_95 >= 0.9, not a.p_value < 0.01
     ok = pairs_ok and joint_ok
     # say which test decided: the pairs one at a time, or all the parameters together (the chi2
     # test sees small shifts the pairwise intervals hold one by one)
@@ -176,11 +302,12 @@ def agreement_verdict(a: dict) -> str:
             "test rejects equal parameters)")
     tail = ("" if ok else "; the intervals of one recording are optimistic: model error differs between "
             f"{what} (use the pooled estimate and its between-{what[:-1]} spread)")
-    return (f"The {a['k']} {what} {head}: {100 * a['within_95']:.0f} % of {a['pairs']} pairwise differences "
-            f"within their 95 % interval (95 % expected), median |z| {a['median_abs_z']:.2f} (0.67 expected); "
-            f"chi2 test of equal parameters {a['chi2']:.4g} on {a['dof']} dof, p {_p_text(a['p_value'])}{tail}.")
+    return (f"The {a.k} {what} {head}: {100 * a.within_95:.0f} % of {a.pairs} pairwise differences "
+            f"within their 95 % interval (95 % expected), median |z| {a.median_abs_z:.2f} (0.67 expected); "
+            f"chi2 test of equal parameters {a.chi2:.4g} on {a.dof} dof, p {p_text(a.p_value)}{tail}.")
 
 
-def _p_text(p) -> str:
+def p_text(p) -> str:
     """`= 0.0085`, or `< 1e-300` for a p-value that underflows to 0 (not "= 0")."""
-    return "< 1e-300" if p == 0 else f"= {p:.2g}"
+    text = p_value_text(p)
+    return text if text.startswith("<") else f"= {text}"

@@ -15,7 +15,7 @@ import pandas as pd
 
 from dynid.analysis.data.rates import check_same_rate
 from dynid.analysis.estimators import least_squares as ls
-from dynid.analysis.estimators.agreement import agreement, agreement_verdict, segments
+from dynid.analysis.estimators.agreement import Agreement, agreement, segments
 from dynid.analysis.estimators.essential import essential_parameters
 from dynid.analysis.processing.observation import Observation, concatenate, observe
 from dynid.analysis.results import ModelResults, notices_block, percent
@@ -69,13 +69,13 @@ class IDIMResult(ModelResults):
     truth: dict = None           # true base-parameter values, for simulated data
     robot: object = None         # the Robot identified (for validate() and predictions)
     uncertainty: str = "classic"  # the covariance reported (least_squares.UNCERTAINTY)
-    agreement: dict = None        # cross-recording (or cross-segment) check, see recording_agreement
+    agreement: Agreement = None   # cross-recording (or cross-segment) check, see recording_agreement
     groups: np.ndarray = None     # recording of each decimated sample (the robust covariances' blocks)
 
     @property
     def agreement_line(self) -> str | None:
         """The verdict's line on the agreement of the recordings (segments), or None."""
-        return None if self.agreement is None else agreement_verdict(self.agreement)
+        return None if self.agreement is None else self.agreement.verdict
 
     @property
     def model(self):
@@ -116,7 +116,7 @@ class IDIMResult(ModelResults):
                  ""]
         lines.append(self.essential.result.summary(notices=False, prismatic=self._prismatic()))
         if self.agreement is not None:
-            lines += ["", agreement_verdict(self.agreement)]
+            lines += ["", self.agreement.verdict]
         block = notices_block(self.notices, self.model.notices)
         if block:
             lines += [""] + block
@@ -147,8 +147,7 @@ class IDIMResult(ModelResults):
             "data_hash": self.data_hash,
             "notices": self.notices,
             "true_values": self.truth,
-            "agreement": None if self.agreement is None else {
-                **self.agreement, "verdict": agreement_verdict(self.agreement)},
+            "agreement": None if self.agreement is None else self.agreement.to_dict(),
         })
 
 
@@ -202,7 +201,8 @@ def identify_idim(experiment, robot, *, settings=None, bp=None, max_error_growth
         notices.append(f"joint(s) {', '.join(map(str, prismatic))} prismatic: their torques, residuals and RMS "
                        "are forces in N and their positions in m where the tables say N m and rad; their "
                        "parameters carry their own units (Ia kg, Fv N s/m, Fc and Off N)")
-    agr, why = recording_agreement(obs, names, groups, r_wls.joint_sigma, uncertainty)
+    agr, why = recording_agreement(obs, names, groups, r_wls.joint_sigma, uncertainty,
+                                   prismatic=frozenset(prismatic))
     if why:
         notices.append(why)
     return IDIMResult(robot_name=robot.name, base=bp, ols=r_ols, wls=r_wls, essential=ess,
@@ -211,7 +211,8 @@ def identify_idim(experiment, robot, *, settings=None, bp=None, max_error_growth
                       uncertainty=uncertainty, agreement=agr, groups=groups)
 
 
-def recording_agreement(obs, names, groups, joint_sigma, uncertainty="classic", n_segments=3):
+def recording_agreement(obs, names, groups, joint_sigma, uncertainty="classic", n_segments=3,
+                        prismatic=frozenset()):
     """Identify each recording alone (or each of `n_segments` contiguous segments of one) and compare.
 
     Every part is a WLS of the base parameters with the weights 1/σ_j of the whole
@@ -221,7 +222,7 @@ def recording_agreement(obs, names, groups, joint_sigma, uncertainty="classic", 
 
     Returns
     -------
-    (dict or None, str)
+    (Agreement or None, str)
         The agreement and "" , or None and the notice saying why there is none.
     """
     parts = np.unique(groups)
@@ -247,8 +248,7 @@ def recording_agreement(obs, names, groups, joint_sigma, uncertainty="classic", 
                                joint_sigma=joint_sigma, uncertainty=uncertainty))
     except IdentificationError as exc:
         return None, f"cross-{kind[:-1]} agreement skipped: {str(exc).splitlines()[0]}"
-    out = agreement([f.chi for f in fits], [f.bse.to_numpy() for f in fits], [f.cov for f in fits],
-                    [names[c] for c in cols], kind=kind)
-    out["uncertainty"] = uncertainty
-    out["left_out"] = [n for k, n in enumerate(names) if k not in set(cols.tolist())]
-    return out, ""
+    kept = set(cols.tolist())
+    return agreement([f.chi for f in fits], [f.bse.to_numpy() for f in fits], [f.cov for f in fits],
+                     [names[c] for c in cols], kind=kind, uncertainty=uncertainty,
+                     left_out=[n for k, n in enumerate(names) if k not in kept], prismatic=prismatic), ""

@@ -52,6 +52,7 @@ from functools import cached_property
 
 import numpy as np
 
+from dynid.analysis.results import p_value_text
 from dynid.analysis.statistics.residuals import analyze_residuals, residual_analysis
 from dynid.analysis.units import parameter_kind, parameter_unit, prismatic_joints
 from dynid.dynamics.base_parameters import base_parameters
@@ -122,13 +123,6 @@ class Verdict:
 
 def _pct(x):
     return f"{100 * float(x):.1f} %"
-
-
-def _fmt_p(p):
-    p = float(p)
-    if not np.isfinite(p):
-        return "n/a"
-    return f"{p:.1e}" if p < 1e-4 else f"{p:.3g}"
 
 
 def _joint_names(robot, n):
@@ -368,7 +362,7 @@ def _whiteness(x: VerdictInputs) -> dict:
                      "does not model.")
     if corr:
         white["text"] = ("The identification residual (fitted rows) is correlated in time (Ljung-Box at lag "
-                         f"{white['lag']}: " + ", ".join(f"{names[j]} p = {_fmt_p(lb_p[j])}"
+                         f"{white['lag']}: " + ", ".join(f"{names[j]} p = {p_value_text(lb_p[j])}"
                                                          for j in range(n) if names[j] in corr)
                          + ("): %\u03c3 counts the samples as independent and is optimistic; "
                             if option == "classic" else
@@ -396,7 +390,7 @@ def _normality(x: VerdictInputs) -> dict:
               "non_gaussian_joints": nongauss, "alpha": alpha,
               "residual": "identification, fitted (moving) rows"}
     normal["text"] = ("Identification residual (fitted rows) not Gaussian (Jarque-Bera p < " + f"{alpha:g}) on "
-                      + ", ".join(f"{names[j]} (p = {_fmt_p(jb[j])})" for j in range(n)
+                      + ", ".join(f"{names[j]} (p = {p_value_text(jb[j])})" for j in range(n)
                                   if names[j] in nongauss) + "."
                       if nongauss else "Identification residual (fitted rows) Gaussian on every joint "
                                        f"(Jarque-Bera p \u2265 {alpha:g})"
@@ -595,9 +589,9 @@ def check_agreement(x: VerdictInputs) -> CheckOutcome:
     intervals of one recording are optimistic (model error differs between trajectories).
     """
     a = getattr(x.result, "agreement", None)
-    if not a:
+    if a is None:
         return CheckOutcome()
-    level = "ok" if a["pairs"] and a["within_95"] >= 0.9 and a["p_value"] >= 0.01 else "info"
+    level = "ok" if a.pairs and a.within_95 >= 0.9 and a.p_value >= 0.01 else "info"
     return CheckOutcome(findings=[{"level": level, "key": "agreement", "text": x.result.agreement_line}])
 
 

@@ -1,4 +1,6 @@
 """The covariance options of IDIM (classic / HAC / block bootstrap) and the cross-recording agreement."""
+import dataclasses
+
 import numpy as np
 import pytest
 import statsmodels.api as sm
@@ -160,13 +162,13 @@ def test_equality_test_and_random_effects():
     line = ag.agreement_verdict(a)
     assert "do NOT agree" in line and "chi2" in line
     b = ag.agreement(same, sig, [np.diag(s**2) for s in sig], ["a", "b", "c"])
-    assert "agree within" in ag.agreement_verdict(b) or b["within_95"] < 0.9
+    assert "agree within" in ag.agreement_verdict(b) or b.within_95 < 0.9
     # the line says which test decided when only one of them fails
-    both = dict(a, within_95=0.95, p_value=1e-6)
+    both = dataclasses.replace(a, within_95=0.95, p_value=1e-6)
     assert "pair by pair but NOT all together" in ag.agreement_verdict(both)
-    untested = dict(a, within_95=0.95, p_value=float("nan"))    # a chi2 test that could not run rejects nothing
+    untested = dataclasses.replace(a, within_95=0.95, p_value=float("nan"))    # a chi2 test that could not run rejects nothing
     assert "agree within their intervals" in ag.agreement_verdict(untested)
-    pairs = dict(a, within_95=0.5, p_value=0.5)
+    pairs = dataclasses.replace(a, within_95=0.5, p_value=0.5)
     assert "too few pairwise differences" in ag.agreement_verdict(pairs) and "rejects" not in \
         ag.agreement_verdict(pairs).split(":")[0]
 
@@ -180,17 +182,41 @@ def test_recording_agreement_segments_and_recordings():
     obs = SimpleNamespace(W=W3, tau=tau, row_mask=np.ones(tau.shape, bool), n_samples=600)
     names = ["a", "b", "c"]
     a, why = recording_agreement(obs, names, np.zeros(600, int), None)
-    assert why == "" and a["kind"] == "segments" and a["k"] == 3 and a["dof"] == 6
+    assert why == "" and a.kind == "segments" and a.k == 3 and a.dof == 6
     # white noise, the right model: the segments agree
-    assert a["p_value"] > 1e-3
+    assert a.p_value > 1e-3
     b, _ = recording_agreement(obs, names, np.repeat([0, 1], 300), None, "hac")
-    assert b["kind"] == "recordings" and b["k"] == 2 and b["uncertainty"] == "hac"
+    assert b.kind == "recordings" and b.k == 2 and b.uncertainty == "hac"
     # a recording whose segments excite nothing in common: skipped with a notice
     W = W3.copy()
     W[:200, :, 2] = 0.0
     obs2 = SimpleNamespace(W=W, tau=tau, row_mask=np.ones(tau.shape, bool), n_samples=600)
     c, why = recording_agreement(obs2, ["a", "b", "c"], np.zeros(600, int), None)
-    assert c is not None and c["left_out"] == ["c"]
+    assert c is not None and c.left_out == ["c"]
+
+
+def test_agreement_is_a_result_with_the_pooled_estimate():
+    """`Agreement` has the interface of every result: the pooled (random-effects) estimate as
+    params/bse/conf_int with units, summary(), to_frame(), and the JSON block of the identify JSON."""
+    import json
+
+    from statsmodels.stats.meta_analysis import combine_effects
+    chis = np.array([[0.5, 2.0, 1.0], [0.7, 2.1, 1.2], [0.4, 1.9, 0.8]])
+    sig = np.array([[0.05, 0.1, 0.1], [0.05, 0.1, 0.1], [0.05, 0.1, 0.1]])
+    a = ag.agreement(chis, sig, [np.diag(s**2) for s in sig], ["ZZ1R", "Fv1", "Fc1"], uncertainty="hac")
+    # DerSimonian-Laird by statsmodels, independently of dynid's wrapping
+    r = combine_effects(chis[:, 0], sig[:, 0] ** 2, method_re="dl")
+    assert a.params["ZZ1R"] == pytest.approx(r.mean_effect_re) and a.bse["ZZ1R"] == pytest.approx(r.sd_eff_w_re)
+    ci = a.conf_int()
+    assert ci.loc["ZZ1R", "upper"] - ci.loc["ZZ1R", "lower"] == pytest.approx(2 * 1.959964 * r.sd_eff_w_re, rel=1e-6)
+    assert a["Fv1"].unit == "N m s/rad" and a.to_frame().loc["ZZ1R", "unit"] == "kg m²"
+    assert list(a.to_frame().columns) == ["value", "std", "rel_std_percent", "between_std", "p_value", "unit"]
+    text = a.summary()
+    assert a.verdict in text and "ZZ1R" in text and "hac covariance" in text
+    block = json.loads(a.to_json())
+    assert block["verdict"] == a.verdict and block["uncertainty"] == "hac"
+    assert block["pooled"] == pytest.approx(list(a.params)) and block["names"] == ["ZZ1R", "Fv1", "Fc1"]
+    assert a.to_csv().splitlines()[0].startswith("parameter,value,std")
 
 
 def test_agreement_figure_renders_the_figures():
@@ -200,7 +226,7 @@ def test_agreement_figure_renders_the_figures():
     sig = np.full((3, 10), 0.2)
     a = ag.agreement(chis, sig, [np.diag(s**2) for s in sig], [f"p{k}" for k in range(10)])
     f = agreement_figure(a)
-    assert f.kind == "svg" and f"{a['pairs']} pairs" in str(f.markup)
+    assert f.kind == "svg" and f"{a.pairs} pairs" in str(f.markup)
 
 
 def test_bootstrap_without_the_per_sample_matrices_is_the_same(monkeypatch):
@@ -253,8 +279,8 @@ def test_identification_report_shows_the_agreement():
     rng = np.random.default_rng(13)
     chis = 5 + rng.normal(size=(3, 4))
     sig = np.full((3, 4), 0.2)
-    a = ag.agreement(chis, sig, [np.diag(s**2) for s in sig], ["ZZ1R", "Fv1", "Fc1", "Off1"], kind="segments")
-    a.update(uncertainty="hac", left_out=["Ia6"])
+    a = ag.agreement(chis, sig, [np.diag(s**2) for s in sig], ["ZZ1R", "Fv1", "Fc1", "Off1"], kind="segments",
+                     uncertainty="hac", left_out=["Ia6"])
     result = SimpleNamespace(agreement=a, agreement_line=ag.agreement_verdict(a))
     ident = SimpleNamespace(tilt=None, asymmetric_friction=None, physical=None, effects=None, export=None,
                             result=result)
