@@ -48,6 +48,7 @@ import xml.etree.ElementTree as ET
 
 import numpy as np
 
+from dynid.dynamics.urdf import inertia_about_com
 from dynid.dynamics.urdf_writer import _f, _vec, inertial_slice, link_inertial, payload_argument
 from dynid.errors import InputError
 
@@ -164,7 +165,7 @@ def _springs_note(springs):
 def _inertial_attrs(m, h, I_o):
     """`<inertial>` attributes of a body of mass `m`, first moments `h`, inertia `I_o` about its frame."""
     c = h / m
-    I_c = I_o - m * (c @ c * np.eye(3) - np.outer(c, c))
+    I_c = inertia_about_com(m, c, I_o)
     return {"pos": _vec(c), "mass": _f(m),
             "fullinertia": _vec([I_c[0, 0], I_c[1, 1], I_c[2, 2], I_c[0, 1], I_c[0, 2], I_c[1, 2]])}
 

@@ -198,6 +198,12 @@ def inertia_about_origin(m, c, I_c):
     return I_c + m * (c @ c * np.eye(3) - np.outer(c, c))
 
 
+def inertia_about_com(m, c, I_o):
+    """The inertia about the centre of mass `c` of a body of mass `m` whose inertia about the
+    frame's origin is `I_o` (`inertia_about_origin` undone): I_o - m (|c|² 1 - c cᵀ)."""
+    return I_o - m * (c @ c * np.eye(3) - np.outer(c, c))
+
+
 def inertial_parameters(k, m, c, I_o) -> dict:
     """The standard inertial parameters XXk .. Mk of a body (mass `m`, centre of mass `c`, inertia
     `I_o` about the frame origin; the matrix entries, XY = -∫xy dm) carried by link k."""
@@ -211,8 +217,7 @@ def _transform_inertia(inertia, R, p):
     m, c, I_o = inertia
     c_new = R @ c + p
     # back to the centre of mass, rotate, then to the new origin
-    I_c = I_o - m * (c @ c * np.eye(3) - np.outer(c, c))
-    I_c = R @ I_c @ R.T
+    I_c = R @ inertia_about_com(m, c, I_o) @ R.T
     return m, c_new, inertia_about_origin(m, c_new, I_c)
 
 

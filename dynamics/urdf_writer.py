@@ -30,7 +30,7 @@ import numpy as np
 
 from dynid.errors import InputError
 
-from .urdf import align_z
+from .urdf import align_z, inertia_about_com
 
 DYNID_NS = "https://github.com/dynid/dynid/urdf-extension"
 
@@ -69,7 +69,7 @@ def link_consistency(values, *, tol=0.0) -> dict:
     out = {"mass": m, "mass_positive": bool(m > tol)}
     if m > 0:
         c = h / m
-        I_c = I_o - m * (c @ c * np.eye(3) - np.outer(c, c))
+        I_c = inertia_about_com(m, c, I_o)
         moments = np.sort(np.linalg.eigvalsh(0.5 * (I_c + I_c.T)))
         out["com"] = c.tolist()
         out["principal_moments"] = moments.tolist()
@@ -166,7 +166,7 @@ def payload_argument(robot, payload, where):
 
 def _inertial_element(parent, m, h, I_o):
     c = h / m if m != 0.0 else np.zeros(3)
-    I_c = I_o - m * (c @ c * np.eye(3) - np.outer(c, c))
+    I_c = inertia_about_com(m, c, I_o)
     inertial = ET.SubElement(parent, "inertial")
     ET.SubElement(inertial, "origin", {"xyz": _vec(c), "rpy": "0 0 0"})
     ET.SubElement(inertial, "mass", {"value": _f(m)})

@@ -76,6 +76,7 @@ from dynid.dynamics.base_parameters import base_parameters
 from dynid.dynamics.regressor import regressor
 from dynid.dynamics.robot import Robot
 from dynid.dynamics.robot_file import load_robot
+from dynid.dynamics.urdf import inertia_about_com
 from dynid.dynamics.urdf_writer import inertial_slice, link_consistency
 from dynid.errors import IdentificationError, InputError
 from dynid.provenance import json_safe, versions
@@ -480,7 +481,7 @@ def _inertia_at_com(chi):
     m, h = chi[9], chi[6:9]
     I_o = np.array([[chi[0], chi[1], chi[2]], [chi[1], chi[3], chi[4]], [chi[2], chi[4], chi[5]]])
     c = h / m
-    return I_o - m * (c @ c * np.eye(3) - np.outer(c, c))
+    return inertia_about_com(m, c, I_o)
 
 
 @dataclass(eq=False, repr=False)
