@@ -96,6 +96,13 @@ def p_value_text(p, missing: str = "n/a") -> str:
     return f"{p:.1e}" if p < 1e-4 else f"{p:.3g}"
 
 
+def p_phrase(p, name: str = "p", missing: str = "n/a") -> str:
+    """`p = 0.012`, or `p < 1e-300` where it underflows (`p_value_text`); `name` for another
+    label ("Bonferroni p")."""
+    text = p_value_text(p, missing)
+    return f"{name} {text}" if text.startswith("<") else f"{name} = {text}"
+
+
 def _cell(value, kind) -> str:
     if kind == "num":
         return _fmt(value)

@@ -14,7 +14,8 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from dynid.analysis.estimators.agreement import Agreement, p_text
+from dynid.analysis.estimators.agreement import Agreement
+from dynid.analysis.results import p_phrase
 from dynid.reports import figures as F
 from dynid.reports import tables as T
 from dynid.reports.html import Section, para
@@ -67,7 +68,7 @@ def agreement_figure(a: Agreement, *, key: str = "fig-agreement", caption: str |
     ax2.set_ylabel("density")
     fig.suptitle(F._plain(
         f"{a.k} {what}: {100 * a.within_95:.0f} % of {a.pairs} pairs within +-1.96 "
-        f"(95 % expected); chi2 {a.chi2:.4g} on {a.dof} dof, p {p_text(a.p_value)}"), fontsize=9)
+        f"(95 % expected); chi2 {a.chi2:.4g} on {a.dof} dof, {p_phrase(a.p_value)}"), fontsize=9)
     if caption is None:
         caption = (f"Pairwise differences of the parameters two {what} both identify (%sigma <= "
                    f"{a.rel_max:g} %), in units of their combined sigma "

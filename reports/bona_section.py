@@ -241,8 +241,8 @@ def noise_pdf_figure(tau_tests, q_tests=None, *, joint_names=None, key="fig-nois
                     _pdf_axes(ax, pdf[j], F.BLUE, tests.unit)
                     p = tests.table[f"{prim}_p"].iloc[j]
                     verdict = "Gaussian" if tests.table["gaussian"].iloc[j] else "not Gaussian"
-                    ax.set_title(F._plain(f"{F.joint_label(j, names[j])}, {what}: p = "
-                                          f"{F.format_p(p)} ({verdict})"), loc="left")
+                    ax.set_title(F._plain(f"{F.joint_label(j, names[j])}, {what}: "
+                                          f"{F.p_equals(p)} ({verdict})"), loc="left")
         else:
             rows, cols = F.grid_shape(n)
             fig = F._new_figure(3.3 * cols, 1.9 * rows + 0.4)
@@ -254,7 +254,7 @@ def noise_pdf_figure(tau_tests, q_tests=None, *, joint_names=None, key="fig-nois
                     continue
                 _pdf_axes(ax, pdf_t[j], F.BLUE, tau_tests.unit)
                 p = tau_tests.table[f"{prim}_p"].iloc[j]
-                ax.set_title(F._plain(f"{F.joint_label(j, names[j])}: p = {F.format_p(p)}"), loc="left")
+                ax.set_title(F._plain(f"{F.joint_label(j, names[j])}: {F.p_equals(p)}"), loc="left")
         handles, texts = fig.axes[0].get_legend_handles_labels()
         fig.legend(handles, texts, loc="outside upper right", ncols=3, frameon=False)
     if caption is None:

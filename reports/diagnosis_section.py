@@ -124,7 +124,7 @@ def _step_texts(res):
         text = (f"Step {st.step}: best {w.label}, CV gain {100 * w.cv_gain:.2f} % (cross-validated squared "
                 f"error lower by that share) "
                 f"({w.folds_better}/{w.n_folds} blocks better), LR {w.statistic:.1f} with "
-                f"n_eff = {w.n_eff:.0f}, Bonferroni p = {F.format_p(w.p_value)}: "
+                f"n_eff = {w.n_eff:.0f}, {F.p_equals(w.p_value, 'Bonferroni p')}: "
                 + ("selected." if st.accepted else f"not selected ({st.reason})."))
         if w.aliases:
             text += (f" Same columns on these data as {', '.join(w.aliases)}: the data of a moving "
@@ -154,7 +154,7 @@ def _overview_section(res):
         un = res.unexplained
         pairs.append(("Unexplained structure",
                       "; ".join(f"joint {u.joint}: {u.hypothesis or u.depends_on} ({u.rms:.3g} N m, "
-                                f"p = {F.format_p(u.p_value)})" for u in un) if un else
+                                f"{F.p_equals(u.p_value)})" for u in un) if un else
                       "none (no joint's final residual has significant structure large against "
                       "its noise)"))
     steps = _step_texts(res)
@@ -395,7 +395,7 @@ def _residual_section(res, names):
     lb = b.ljung_box
     found = ("the diagnosis added " + ", ".join(f"{s_.name} (joint {s_.joint})" for s_ in res.selected)
              if res.selected else "the diagnosis found no missing effect among the candidates it tested")
-    corr = [f"{names[j]} p = {F.format_p(lb['p_value'].iloc[j])}" for j in range(len(names))
+    corr = [f"{names[j]} {F.p_equals(lb['p_value'].iloc[j])}" for j in range(len(names))
             if float(lb["p_value"].iloc[j]) < 0.05]
     state = (f"Before the effects the residual is correlated in time (Ljung-Box at lag "
              f"{int(lb['lag'].iloc[0])}: {', '.join(corr)}); {found}." if corr else

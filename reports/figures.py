@@ -38,7 +38,7 @@ from matplotlib.figure import Figure
 from matplotlib.layout_engine import ConstrainedLayoutEngine
 from matplotlib.ticker import LogLocator, NullFormatter
 
-from dynid.analysis.results import p_value_text
+from dynid.analysis.results import p_phrase, p_value_text
 from dynid.reports.figure_layout import GridLayoutEngine, thin_crowded_ticks
 
 __all__ = [
@@ -373,7 +373,7 @@ def residual_pdf_figure(residual, joint_names, jarque_bera_p=None, *, key="fig-r
             e = e[np.isfinite(e)]
             title = joint_label(j, joint_names[j])
             if jarque_bera_p is not None:
-                title += f": JB p = {format_p(jarque_bera_p[j])}"
+                title += f": {p_equals(jarque_bera_p[j], 'JB p')}"
             ax.set_title(_plain(title), loc="left")
             if e.size < 3:
                 ax.text(0.5, 0.5, "too few samples", ha="center", va="center", transform=ax.transAxes)
@@ -401,6 +401,11 @@ def residual_pdf_figure(residual, joint_names, jarque_bera_p=None, *, key="fig-r
         caption = ("Residual PDF per joint: histogram, fitted normal density (red), kernel "
                    "density estimate (blue, dashed); Jarque-Bera p-value in the title")
     return render_figure(fig, key, caption, fmt=fmt)
+
+
+def p_equals(p, name: str = "p") -> str:
+    """`p = 0.012`, `p < 1e-300`, or `p = —` for a test not computed (`p_phrase`)."""
+    return p_phrase(p, name, "\u2014")
 
 
 def format_p(p) -> str:

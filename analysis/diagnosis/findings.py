@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dynid.analysis.diagnosis.problem import fit_wls
+from dynid.analysis.results import p_phrase
 
 __all__ = ["Finding", "findings_not_added", "cut_effects", "TIME_VARYING"]
 
@@ -97,7 +98,7 @@ def findings_not_added(problem, state, ranking, cut, structure=None):
             u = drift_flags.get(r.joint)
             if u is None:
                 continue
-            why += (f"; found by the structure tests (residual against {u.variable}, p = {u.p_value:.2g}), the drift "
+            why += (f"; found by the structure tests (residual against {u.variable}, {p_phrase(u.p_value)}), the drift "
                     f"candidate being better in {r.folds_better} of {r.n_folds} contiguous blocks only "
                     f"(its shape is not linear in time)")
         change, rel, size = _drift_size(problem, state, r.candidate)

@@ -60,6 +60,7 @@ import numpy as np
 from scipy import stats
 
 from dynid.analysis.estimators.physical import pc_wls
+from dynid.analysis.results import p_phrase
 from dynid.analysis.statistics.residuals import effective_sample_size
 from dynid.dynamics.excitation import apriori_parameters
 
@@ -111,13 +112,13 @@ class HiddenEffect:
                     f"{self.phase:+.3g}) N m (+- {self.sigma:.2g}) shaped like gravity was absorbed "
                     f"by the base parameters, which no rigid body has; with it, the physically "
                     f"consistent fit costs chi2 {self.deviation_before:.3g} -> "
-                    f"{self.deviation_after:.3g} (p = {self.p_value:.2g}){err}")
+                    f"{self.deviation_after:.3g} ({p_phrase(self.p_value)}){err}")
         names = ", ".join(a for a, *_ in self.contradicted[:3])
         return (f"joint {self.joint}: a torque {self.amplitude:.3g} sin(q{self.joint} "
                 f"{self.phase:+.3g}) N m (+- {self.sigma:.2g}) shaped like gravity was absorbed by "
                 f"the base parameters ({names} contradict the a-priori values); with it, the "
                 f"parameters agree with the a-priori again (deviation {self.deviation_before:.3g} "
-                f"-> {self.deviation_after:.3g}, p = {self.p_value:.2g}){err}")
+                f"-> {self.deviation_after:.3g}, {p_phrase(self.p_value)}){err}")
 
 
 def _rows(X, Y, mask, scale):

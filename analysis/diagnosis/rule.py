@@ -8,8 +8,9 @@ import numpy as np
 from scipy import stats
 
 from dynid.analysis.diagnosis.effects import EFFECT_NAMES, Candidate
-from dynid.analysis.diagnosis.results import RankedEffect, fmt_p
+from dynid.analysis.diagnosis.results import RankedEffect
 from dynid.analysis.diagnosis.scoring import chi2_logsf, chi2_logsf_many, lr_statistics
+from dynid.analysis.results import p_phrase
 
 __all__ = ["RULE", "group_key", "passes_rule", "rank_candidates", "cand_needs_guard", "by_base_evidence",
            "set_runner_up"]
@@ -35,7 +36,7 @@ def passes_rule(r, alpha, folds):
     if r.folds_better < need:
         return False, f"better in only {r.folds_better} of {r.n_folds} held-out blocks (need {need})"
     if not r.p_value < alpha:
-        return False, f"LR test with n_eff not significant (Bonferroni p = {fmt_p(r.p_value)} >= {alpha:g})"
+        return False, f"LR test with n_eff not significant ({p_phrase(r.p_value, 'Bonferroni p')} >= {alpha:g})"
     return True, "passes: CV gain > 0 in enough blocks and Bonferroni p < alpha"
 
 

@@ -139,7 +139,6 @@ from dynid.analysis.diagnosis.results import (
     RankedEffect,
     SelectedEffect,
     errors_of,
-    fmt_p,
     nonlinear_text,
 )
 from dynid.analysis.diagnosis.rule import (
@@ -159,6 +158,7 @@ from dynid.analysis.estimators.essential import essential_parameters
 from dynid.analysis.estimators.idim import identify_idim
 from dynid.analysis.estimators.physical import require_cvxpy
 from dynid.analysis.processing.decimation import DecimationFilter
+from dynid.analysis.results import p_phrase
 from dynid.dynamics.base_parameters import base_parameters
 from dynid.errors import DataError, DynidError, InputError
 from dynid.threads import single_blas_thread
@@ -544,8 +544,8 @@ def _decide_step(setup, opts, sel, st, scorer, weights, m):
         set_runner_up(st, ranking)
         if reduced and cand_needs_guard(w) and not w.base_p < alpha:
             st.tried.append((w.candidate.label,
-                             f"not significant against the full base model (Bonferroni p = "
-                             f"{fmt_p(w.base_p)}): it restores base parameters the essential "
+                             f"not significant against the full base model ({p_phrase(w.base_p, 'Bonferroni p')}): "
+                             f"it restores base parameters the essential "
                              f"reduction dropped"))
             continue
         trial = _trial(setup, opts, sel, scorer, weights, w)

@@ -127,6 +127,7 @@ from scipy import stats
 
 from dynid.analysis.diagnosis.permuted_bins import permuted_bins
 from dynid.analysis.processing.observation import observed_residual
+from dynid.analysis.results import p_phrase
 from dynid.analysis.statistics.residuals import effective_sample_size
 from dynid.threads import with_single_blas_thread
 
@@ -207,7 +208,7 @@ class Unexplained:
         size = ("excess" if self.test == "noise_floor" else "structure") + f" RMS {self.rms:.3g} N m"
         rest = "floor" if self.test == "noise_floor" else "rest"
         return (f"joint {self.joint}: {what} ({size} vs {rest} {self.noise_rms:.3g} N m, "
-                f"p = {self.p_value:.2g}); no candidate explains it"
+                f"{p_phrase(self.p_value)}); no candidate explains it"
                 + (f". Hypothesis: {self.hypothesis}" if self.hypothesis else ""))
 
 

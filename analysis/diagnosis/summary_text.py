@@ -2,22 +2,17 @@
 section, and the small formatters it shares with the report."""
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from dynid.analysis.diagnosis.effects import order_text
-from dynid.analysis.results import notices_block
+from dynid.analysis.results import notices_block, p_phrase, p_value_text
 
 __all__ = ["diagnosis_summary", "overview_lines", "fmt_p", "nonlinear_text"]
 
 
 def fmt_p(p):
-    """A p-value as text (two significant digits, exponent below 1e-3, "-" if not finite)."""
-    p = float(p)
-    if not math.isfinite(p):
-        return "-"
-    return f"{p:.2g}" if p >= 1e-3 else f"{p:.1e}"
+    """A p-value as text (`dynid.analysis.results.p_value_text`; "-" if not finite)."""
+    return p_value_text(p, "-")
 
 
 def nonlinear_text(nl, *, prose=False):
@@ -191,5 +186,5 @@ def _hidden(res):
     lines.append(f"    none: the parameters contradict the a-priori values "
                  f"({', '.join(a for a, *_ in best.contradicted[:3])}), but no "
                  f"gravity-shaped spring explains it (best joint {best.joint}, "
-                 f"p = {best.p_value:.2g})")
+                 f"{p_phrase(best.p_value)})")
     return lines

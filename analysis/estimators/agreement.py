@@ -34,7 +34,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from dynid.analysis.results import ParameterResults, p_value_text, parameter_table
+from dynid.analysis.results import ParameterResults, p_phrase, parameter_table
 from dynid.provenance import json_safe
 
 __all__ = ["pairwise_agreement", "equality_test", "random_effects", "segments", "agreement_verdict",
@@ -170,8 +170,8 @@ class Agreement(ParameterResults):
         `pairwise_agreement`.
     chi2, dof, p_value, per_parameter_p_value
         `equality_test` (overall, and Cochran's Q per parameter).
-    pooled, pooled_std, between_std : ndarray (p,)
-        `random_effects` (DerSimonian-Laird).
+    pooled, pooled_std, between_std : pandas.Series
+        `random_effects` (DerSimonian-Laird), by parameter name (`per_parameter_p_value` too).
     uncertainty : str
         The covariance of each part (`classic`, `hac` or `bootstrap`).
     """
@@ -197,21 +197,23 @@ class Agreement(ParameterResults):
     prismatic: frozenset = frozenset()
 
     def __post_init__(self) -> None:
-        for name in ("per_parameter_p_value", "pooled", "pooled_std", "between_std"):
-            setattr(self, name, np.asarray(getattr(self, name), dtype=float))
         self.names = list(self.names)
+        # by parameter name, as `params` and `bse`
+        for name in ("per_parameter_p_value", "pooled", "pooled_std", "between_std"):
+            setattr(self, name, pd.Series(np.asarray(getattr(self, name), dtype=float), name=name,
+                                          index=pd.Index(self.names, name="parameter")))
 
     @property
     def method(self) -> str:
         return f"pooled over {self.k} {self.kind} (random effects)"
 
     def _estimate(self) -> np.ndarray:
-        return self.pooled
+        return self.pooled.to_numpy()
 
     @property
     def cov(self) -> np.ndarray:
         """Diagonal: the pooled σ² of each parameter (pooled alone)."""
-        return np.diag(self.pooled_std ** 2)
+        return np.diag(self.pooled_std.to_numpy() ** 2)
 
     @property
     def verdict(self) -> str:
@@ -222,14 +224,15 @@ class Agreement(ParameterResults):
         """One row per parameter: the pooled `value`, `std` (with τ), `rel_std_percent`,
         `between_std` (τ), `p_value` (Cochran's Q test of equal values), `unit`."""
         df = super().to_frame()
-        df.insert(3, "between_std", self.between_std)
-        df.insert(4, "p_value", self.per_parameter_p_value)
+        df.insert(3, "between_std", self.between_std.to_numpy())
+        df.insert(4, "p_value", self.per_parameter_p_value.to_numpy())
         return df
 
     def summary(self) -> str:
         table = parameter_table(self.names, [
-            ("pooled", self.pooled, "num"), ("std", self.pooled_std, "num"),
-            ("between std", self.between_std, "num"), ("Q p-value", self.per_parameter_p_value, "p")],
+            ("pooled", self.pooled.to_numpy(), "num"), ("std", self.pooled_std.to_numpy(), "num"),
+            ("between std", self.between_std.to_numpy(), "num"),
+            ("Q p-value", self.per_parameter_p_value.to_numpy(), "p")],
             prismatic=self._prismatic())
         lines = [f"Agreement of {self.k} {self.kind} ({self.uncertainty} covariance of each)",
                  self.verdict, ""] + table
@@ -242,8 +245,9 @@ class Agreement(ParameterResults):
             "kind": self.kind, "k": self.k, "names": self.names, "pairs": self.pairs,
             "within_95": self.within_95, "median_abs_z": self.median_abs_z, "beyond_5": self.beyond_5,
             "z": self.z, "rel_max": self.rel_max, "chi2": self.chi2, "dof": self.dof,
-            "p_value": self.p_value, "per_parameter_p_value": self.per_parameter_p_value,
-            "pooled": self.pooled, "pooled_std": self.pooled_std, "between_std": self.between_std,
+            "p_value": self.p_value, "per_parameter_p_value": self.per_parameter_p_value.to_numpy(),
+            "pooled": self.pooled.to_numpy(), "pooled_std": self.pooled_std.to_numpy(),
+            "between_std": self.between_std.to_numpy(),
             "uncertainty": self.uncertainty, "left_out": self.left_out, "verdict": self.verdict})
 
 
@@ -304,10 +308,7 @@ def agreement_verdict(a: dict) -> str:
             f"{what} (use the pooled estimate and its between-{what[:-1]} spread)")
     return (f"The {a.k} {what} {head}: {100 * a.within_95:.0f} % of {a.pairs} pairwise differences "
             f"within their 95 % interval (95 % expected), median |z| {a.median_abs_z:.2f} (0.67 expected); "
-            f"chi2 test of equal parameters {a.chi2:.4g} on {a.dof} dof, p {p_text(a.p_value)}{tail}.")
+            f"chi2 test of equal parameters {a.chi2:.4g} on {a.dof} dof, {p_phrase(a.p_value)}{tail}.")
 
 
-def p_text(p) -> str:
-    """`= 0.0085`, or `< 1e-300` for a p-value that underflows to 0 (not "= 0")."""
-    text = p_value_text(p)
-    return text if text.startswith("<") else f"= {text}"
+

@@ -37,7 +37,7 @@ from scipy.spatial.transform import Rotation
 
 from dynid.analysis.estimators import least_squares as ls
 from dynid.analysis.processing.observation import concatenate, observe
-from dynid.analysis.results import ParameterResults, deprecated_alias, parameter_table
+from dynid.analysis.results import ParameterResults, deprecated_alias, p_phrase, parameter_table
 from dynid.dynamics.base_parameters import base_parameters
 from dynid.errors import IdentificationError, InputError
 from dynid.provenance import json_safe
@@ -117,7 +117,7 @@ class GravityTiltResult(ParameterResults):
                  f"  WLS relative error {100 * self.rel_error_before:.3f} % -> {100 * self.rel_error_after:.3f} %; "
                  f"weighted residual {self.weighted_rss_before:.1f} -> {self.weighted_rss_after:.1f}",
                  f"  likelihood ratio of 'no tilt': chi2 = {self.lr_statistic:.1f}, {self.lr_dof} dof, "
-                 f"p = {self.p_value:.3g} ({verdict} at 1 %)"]
+                 f"{p_phrase(self.p_value)} ({verdict} at 1 %)"]
         lines += ["  " + x for x in parameter_table(self.names, [("value", self.chi, "num"),
                                                                  ("sigma", self.bse.to_numpy(), "num")],
                                                           prismatic=self._prismatic())]
@@ -140,7 +140,7 @@ class GravityTiltResult(ParameterResults):
                 f"{s[1]:.2f} mrad about the base y axis; gravity (" + ", ".join(f"{v:+.4f}" for v in self.gravity)
                 + f") m/s\u00b2; WLS relative error {100 * self.rel_error_before:.3f} % level, "
                 f"{100 * self.rel_error_after:.3f} % tilted; likelihood ratio of no tilt \u03c7\u00b2 = "
-                f"{self.lr_statistic:.1f} on {self.lr_dof} dof (p = {self.p_value:.2g}).")
+                f"{self.lr_statistic:.1f} on {self.lr_dof} dof ({p_phrase(self.p_value)}).")
 
     def to_dict(self) -> dict:
         return json_safe({

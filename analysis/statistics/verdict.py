@@ -52,7 +52,7 @@ from functools import cached_property
 
 import numpy as np
 
-from dynid.analysis.results import p_value_text
+from dynid.analysis.results import p_phrase
 from dynid.analysis.statistics.residuals import analyze_residuals, residual_analysis
 from dynid.analysis.units import parameter_kind, parameter_unit, prismatic_joints
 from dynid.dynamics.base_parameters import base_parameters
@@ -362,7 +362,7 @@ def _whiteness(x: VerdictInputs) -> dict:
                      "does not model.")
     if corr:
         white["text"] = ("The identification residual (fitted rows) is correlated in time (Ljung-Box at lag "
-                         f"{white['lag']}: " + ", ".join(f"{names[j]} p = {p_value_text(lb_p[j])}"
+                         f"{white['lag']}: " + ", ".join(f"{names[j]} {p_phrase(lb_p[j])}"
                                                          for j in range(n) if names[j] in corr)
                          + ("): %\u03c3 counts the samples as independent and is optimistic; "
                             if option == "classic" else
@@ -390,7 +390,7 @@ def _normality(x: VerdictInputs) -> dict:
               "non_gaussian_joints": nongauss, "alpha": alpha,
               "residual": "identification, fitted (moving) rows"}
     normal["text"] = ("Identification residual (fitted rows) not Gaussian (Jarque-Bera p < " + f"{alpha:g}) on "
-                      + ", ".join(f"{names[j]} (p = {p_value_text(jb[j])})" for j in range(n)
+                      + ", ".join(f"{names[j]} ({p_phrase(jb[j])})" for j in range(n)
                                   if names[j] in nongauss) + "."
                       if nongauss else "Identification residual (fitted rows) Gaussian on every joint "
                                        f"(Jarque-Bera p \u2265 {alpha:g})"

@@ -316,3 +316,18 @@ def test_a_summary_of_several_results_has_one_notices_block_at_the_end():
     assert first == second == []
     assert notices_block(remarks) == ["Notices:", "  - a remark", "  - a shared remark", "  - late"]
     assert notices_block(["outside again"]) == ["Notices:", "  - outside again"]
+
+
+def test_one_p_value_text_everywhere():
+    """p-values read alike in summaries, verdicts and figures: 3 significant digits, an exponent
+    below 1e-4, "< 1e-300" (never "p = 0" or "p = < ...") where the test's p underflows."""
+    from dynid.analysis.diagnosis.summary_text import fmt_p
+    from dynid.analysis.results import p_phrase, p_value_text
+    from dynid.reports.figures import format_p, p_equals
+
+    assert p_value_text(0.012345) == "0.0123" and p_value_text(3.2e-7) == "3.2e-07"
+    assert p_value_text(0.0) == "< 1e-300" and p_value_text(float("nan")) == "n/a"
+    assert p_phrase(0.5) == "p = 0.5" and p_phrase(0.0) == "p < 1e-300"
+    assert p_phrase(0.0, "Bonferroni p") == "Bonferroni p < 1e-300"
+    assert p_equals(float("nan")) == "p = \u2014" and format_p(0.0) == "< 1e-300"
+    assert fmt_p(float("nan")) == "-" and fmt_p(0.25) == "0.25"

@@ -209,6 +209,7 @@ def test_agreement_is_a_result_with_the_pooled_estimate():
     assert a.params["ZZ1R"] == pytest.approx(r.mean_effect_re) and a.bse["ZZ1R"] == pytest.approx(r.sd_eff_w_re)
     ci = a.conf_int()
     assert ci.loc["ZZ1R", "upper"] - ci.loc["ZZ1R", "lower"] == pytest.approx(2 * 1.959964 * r.sd_eff_w_re, rel=1e-6)
+    assert a.between_std.index.equals(a.params.index) and a.between_std["ZZ1R"] >= 0
     assert a["Fv1"].unit == "N m s/rad" and a.to_frame().loc["ZZ1R", "unit"] == "kg m²"
     assert list(a.to_frame().columns) == ["value", "std", "rel_std_percent", "between_std", "p_value", "unit"]
     text = a.summary()
