@@ -89,6 +89,8 @@ class HiddenEffect:
     errors: dict = field(default_factory=dict)         # {"validation": {"before", "after"}} rel. errors
     reported: bool = False
     route: str = "apriori"         # "apriori" (prior fit, eq. (1)) or "physical" (PC fit, eq. (2))
+    alpha: float = 0.01            # the rule it was judged by (`shortfall`)
+    min_amplitude_sigma: float = MIN_AMPLITUDE_SIGMA
 
     @property
     def label(self):
@@ -102,6 +104,26 @@ class HiddenEffect:
                 "contradicted": [{"name": a, "identified": b, "apriori": c, "z": d}
                                  for a, b, c, d in self.contradicted],
                 "errors": self.errors, "route": self.route}
+
+    def shortfall(self) -> str:
+        """Why a candidate that was not reported falls short of the rule, in words (its p-value
+        alone can be tiny while its amplitude is lost in its own σ)."""
+        v = self.errors.get("validation") or {}
+        alpha, min_amplitude_sigma = self.alpha, self.min_amplitude_sigma
+        if not self.p_value < alpha:
+            return f"{p_phrase(self.p_value)}, not below {alpha:g}"
+        ratio = self.amplitude / self.sigma if self.sigma > 0 else math.inf
+        if not self.amplitude >= min_amplitude_sigma * self.sigma:
+            return (f"{p_phrase(self.p_value)}, but its amplitude {self.amplitude:.3g} +- {self.sigma:.2g} N m "
+                    f"is {ratio:.2g} sigma, below {min_amplitude_sigma:g}")
+        if not self.deviation_after <= 0.5 * self.deviation_before:
+            share = 1.0 - self.deviation_after / self.deviation_before if self.deviation_before > 0 else 0.0
+            return (f"{p_phrase(self.p_value)}, but it explains {100 * share:.0f} % of the contradiction "
+                    "(half needed)")
+        if v:
+            return (f"{p_phrase(self.p_value)}, but it predicts the held-out data worse "
+                    f"({100 * v['before']:.3g} % -> {100 * v['after']:.3g} %)")
+        return p_phrase(self.p_value)
 
     def sentence(self):
         v = self.errors.get("validation") or {}
@@ -190,7 +212,7 @@ def hidden_effects(eobs, X, Y, mask, names, chi, sigma, robot, *, weights, alpha
         h = HiddenEffect(joint=j + 1, name="gravity_spring", amplitude=amp,
                          phase=float(math.atan2(c[0], c[1])), sigma=sd, statistic=float(delta),
                          p_value=float(min(1.0, n * p_raw)), deviation_before=jp0,
-                         deviation_after=jp, contradicted=contradicted)
+                         deviation_after=jp, contradicted=contradicted, alpha=alpha)
         ok = h.p_value < alpha and amp >= MIN_AMPLITUDE_SIGMA * sd and jp <= 0.5 * jp0
         if ok and validation is not None:
             Xv, Yv, mv, ev = validation
@@ -318,7 +340,8 @@ def physical_effects(eobs, X, Y, mask, n_base, chi, robot, *, weights, alpha=0.0
         h = HiddenEffect(joint=j + 1, name="gravity_spring", amplitude=amp,
                          phase=float(math.atan2(c[0], c[1])), sigma=sd, statistic=float(delta),
                          p_value=float(min(1.0, n * p_raw)), deviation_before=c0, deviation_after=c1,
-                         contradicted=[(a_, 0.0, 0.0, 0.0) for a_ in pc0.active[:3]], route="physical")
+                         contradicted=[(a_, 0.0, 0.0, 0.0) for a_ in pc0.active[:3]], route="physical",
+                         alpha=alpha, min_amplitude_sigma=min_amplitude_sigma)
         ok = h.p_value < alpha and amp >= min_amplitude_sigma * sd and c1 <= 0.5 * c0
         if ok and validation is not None:
             Xv, Yv, mv, ev = validation

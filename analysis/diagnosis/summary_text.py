@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from dynid.analysis.diagnosis.effects import order_text
-from dynid.analysis.results import notices_block, p_phrase, p_value_text
+from dynid.analysis.results import notices_block, p_value_text
 
 __all__ = ["diagnosis_summary", "overview_lines", "fmt_p", "nonlinear_text"]
 
@@ -185,6 +185,5 @@ def _hidden(res):
     best = res.hidden_tests[0]
     lines.append(f"    none: the parameters contradict the a-priori values "
                  f"({', '.join(a for a, *_ in best.contradicted[:3])}), but no "
-                 f"gravity-shaped spring explains it (best joint {best.joint}, "
-                 f"{p_phrase(best.p_value)})")
+                 f"gravity-shaped spring explains it (best joint {best.joint}: {best.shortfall()})")
     return lines

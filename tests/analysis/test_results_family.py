@@ -331,3 +331,19 @@ def test_one_p_value_text_everywhere():
     assert p_phrase(0.0, "Bonferroni p") == "Bonferroni p < 1e-300"
     assert p_equals(float("nan")) == "p = \u2014" and format_p(0.0) == "< 1e-300"
     assert fmt_p(float("nan")) == "-" and fmt_p(0.25) == "0.25"
+
+
+def test_a_hidden_spring_not_reported_says_which_rule_it_missed():
+    """A tiny p-value beside an amplitude lost in its own σ read as a contradiction ("no spring
+    explains it (best joint 2, p = 0)"): the summary now names the rule the best candidate missed."""
+    from dynid.analysis.diagnosis.hidden import HiddenEffect
+
+    h = HiddenEffect(joint=2, name="gravity_spring", amplitude=1.10, phase=0.0, sigma=2.38, statistic=900.0,
+                     p_value=0.0, deviation_before=10.0, deviation_after=1.0)
+    assert h.shortfall() == "p < 1e-300, but its amplitude 1.1 +- 2.4 N m is 0.46 sigma, below 5"
+    h.amplitude = 30.0
+    assert "explains 90 %" not in h.shortfall() and h.shortfall() == "p < 1e-300"
+    h.deviation_after = 8.0
+    assert "explains 20 % of the contradiction" in h.shortfall()
+    h.p_value = 0.2
+    assert h.shortfall() == "p = 0.2, not below 0.01"
