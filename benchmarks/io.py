@@ -11,8 +11,8 @@
    Beside them, the time of dynid's scan of the file for cells pandas would read
    differently (`_scan_csv`), alone: it runs before the parse on pandas 2 and for a file
    with text columns; pandas 3 refuses those cells in a float column by itself, so a
-   numeric file is not scanned there (a column pandas read as 0 and 1 alone is read again
-   as text, for boolean words).
+   numeric file is not scanned there (a block of rows that pandas read as 0 and 1 alone
+   sends the file to the scan, for boolean words).
 2. A CSV of about 200 MB in the same format is loaded by dynid in a fresh subprocess
    whose peak resident memory (ru_maxrss of the child) is its own; it is given as a
    multiple of the file size, also net of the memory the child had before loading

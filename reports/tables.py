@@ -20,6 +20,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
+from dynid.analysis.results import p_value_text
+
 __all__ = [
     "Cell", "Table", "MISSING", "format_value", "format_number", "format_pct",
     "format_angle", "infer_kind", "frame_rows", "csv_text", "csv_data_uri", "make_table",
@@ -129,7 +131,7 @@ def format_angle(x) -> str:
 
 
 def infer_kind(series: pd.Series, name: str = "") -> str:
-    """Formatting kind of a column: bool, int, pct, num or text."""
+    """Formatting kind of a column: bool, int, pct, p (a p-value), num or text."""
     low = str(name).lower()
     if series.dtype == bool:
         return "bool"
@@ -138,6 +140,8 @@ def infer_kind(series: pd.Series, name: str = "") -> str:
     if pd.api.types.is_float_dtype(series.dtype):
         if "rel_std" in low or "%" in low or low.endswith("_pct") or "percent" in low:
             return "pct"
+        if low in ("p", "p_value", "p-value") or low.endswith(("_p", "_p_value", " p-value")):
+            return "p"
         return "num"
     return "text"
 
@@ -145,7 +149,8 @@ def infer_kind(series: pd.Series, name: str = "") -> str:
 def format_value(x, kind: str = "auto") -> Cell:
     """A `Cell` for value `x` of formatting `kind`.
 
-    Kinds: `num` (4 significant digits), `pct` (1 decimal), `int`,
+    Kinds: `num` (4 significant digits), `pct` (1 decimal), `p` (a p-value,
+    `dynid.analysis.results.p_value_text`), `int`,
     `bool` ("✓" or empty), `angle` (multiples of π), `text`, `code`
     (monospace text), `auto` (from the Python type).
     """
@@ -158,10 +163,12 @@ def format_value(x, kind: str = "auto") -> Cell:
             kind = "num"
         else:
             kind = "text"
-    if kind in ("num", "pct", "angle", "int") and _is_missing(x):
+    if kind in ("num", "pct", "angle", "int", "p") and _is_missing(x):
         return Cell(MISSING, "num missing")
     if kind == "num":
         return Cell(format_number(x), "num")
+    if kind == "p":
+        return Cell(p_value_text(x, MISSING), "num")
     if kind == "pct":
         return Cell(format_pct(x), "num")
     if kind == "angle":
@@ -198,7 +205,7 @@ def frame_rows(df: pd.DataFrame, formats: dict | None = None, *, index: bool = T
     rows = []
     for values in frame.itertuples(index=False, name=None):
         rows.append([format_value(v, k) for v, k in zip(values, kinds)])
-    classes = ["num" if k in ("num", "pct", "int", "angle") else
+    classes = ["num" if k in ("num", "pct", "int", "angle", "p") else
                "flag" if k == "bool" else "text" for k in kinds]
     return columns, rows, classes
 

@@ -158,8 +158,13 @@ def _build_beside(raw: _RawFile, build):
     try:
         return build(raw)
     finally:
-        if raw.beside is not None:
-            raw.beside.shutdown(wait=False)
+        _stop_beside(raw)
+
+
+def _stop_beside(raw: _RawFile) -> None:
+    """No more work for `raw.beside`: its thread ends with what it was given."""
+    if raw.beside is not None:
+        raw.beside.shutdown(wait=False)
 
 
 #: Bytes read at a time by the fast CSV path's scan of the file: one buffer, refilled, small
@@ -188,12 +193,13 @@ def _header_line(f) -> str | None:
         return None
 
 
-def _scan_csv(path: Path) -> str | None:
+def _scan_csv(path: Path, words_only: bool = False) -> str | None:
     """Check a CSV (in chunks, at memchr speed) for what pandas would read differently
     from `_read_csv_precise`; the header line, or None.
 
     Refused: a first line that is blank or quoted, quotes, NUL bytes, a CR that does not
-    end a line, and boolean words (pandas reads "True" as 1.0)."""
+    end a line, and boolean words (pandas reads "True" as 1.0). `words_only`: the boolean
+    words alone (pandas 3 refuses the rest in a float column by itself)."""
     try:
         f = open(path, "rb")  # noqa: SIM115 - closed by the with below
     except OSError:
@@ -210,16 +216,17 @@ def _scan_csv(path: Path) -> str | None:
             if not n:
                 break
             chunk = buf if n == _SCAN_CHUNK else bytes(memoryview(buf)[:n])
-            if b'"' in chunk or b"\0" in chunk:
-                return None
-            if cr_open and not chunk.startswith(b"\n"):
-                return None
-            if b"\r" in chunk:
-                cr_open = chunk.endswith(b"\r")
-                if chunk.count(b"\r") != chunk.count(b"\r\n") + cr_open:
+            if not words_only:
+                if b'"' in chunk or b"\0" in chunk:
                     return None
-            else:
-                cr_open = False
+                if cr_open and not chunk.startswith(b"\n"):
+                    return None
+                if b"\r" in chunk:
+                    cr_open = chunk.endswith(b"\r")
+                    if chunk.count(b"\r") != chunk.count(b"\r\n") + cr_open:
+                        return None
+                else:
+                    cr_open = False
             if any(c in chunk or c in last for c in (b"u", b"U", b"l", b"L")):
                 joined = (last + chunk).lower()
                 if any(w in joined for w in _BOOL_WORDS):
@@ -230,11 +237,11 @@ def _scan_csv(path: Path) -> str | None:
     return header
 
 
-def _scan_or_none(path: Path) -> str | None:
+def _scan_or_none(path: Path, words_only: bool = False) -> str | None:
     """`_scan_csv`, with a read that fails on the way (an I/O error) taken as a refusal: the
     precise reader then reads the file again and says what is wrong with it."""
     try:
-        return _scan_csv(path)
+        return _scan_csv(path, words_only)
     except (OSError, MemoryError):
         return None
 
@@ -249,8 +256,10 @@ def _read_csv_fast(path: Path, label: str, beside: bool = False) -> _RawFile | N
     precise path would reject or read differently (text, empty cells, NaN, quotes, NUL
     bytes, '_' digit separators, Unicode digits) make pandas fail, and the precise path
     then names the file, column, data row and file line. pandas 3 refuses all of them in
-    a float column by itself, save a column of boolean words alone (read as 1.0 and 0.0:
-    `_boolean_words`); pandas 2 and text columns need the scan of the file (`_scan_csv`)
+    a float column by itself, save boolean words: it converts a column in blocks of rows
+    (`_pandas_block_rows`) and casts a block of boolean words alone ("True", "fAlSe") to
+    1.0 and 0.0, so a block holding only 0 and 1 sends the file to the scan for those words
+    (`_scan_csv(words_only=True)`, rare); pandas 2 and text columns need the whole scan
     first. A CR alone ends a line for pandas as for the precise path.
 
     `beside`: the returned file has a thread (`raw.beside`) for the checks to share (they
@@ -289,7 +298,7 @@ def _read_csv_fast(path: Path, label: str, beside: bool = False) -> _RawFile | N
         return raw
     kw = {} if pandas3 else {"float_precision": "round_trip"}
 
-    def parse(dtypes, **more):
+    def parse(dtypes):
         with warnings.catch_warnings():
             # "Length of header or names does not match length of data": a long first row
             warnings.simplefilter("error")
@@ -297,19 +306,21 @@ def _read_csv_fast(path: Path, label: str, beside: bool = False) -> _RawFile | N
             # which fails; so data row k is on file line k + 2.
             return pd.read_csv(path, sep=",", header=0, dtype=dtypes, na_filter=False,
                                engine="c", encoding="utf-8", quoting=csv.QUOTE_NONE,
-                               skip_blank_lines=False, index_col=False, **kw, **more)
+                               skip_blank_lines=False, index_col=False, **kw)
 
     # Every column as numbers first (a TOML may name any column); if that fails, the
     # columns outside the convention as text, as the precise path keeps them.
     dtypes = dict.fromkeys(names, float)
+    scanned = not pandas3
     try:
         df = parse(dtypes)
     except Exception:  # noqa: BLE001 - any parse failure: the precise path explains it
         dtypes = {raw: (float if _COLUMN_RE.match(name) else object)
                   for raw, name in zip(names, stripped, strict=True)}
         # quotes in a text column: pandas keeps them, the precise path reads them as CSV
-        if object not in dtypes.values() or (pandas3 and _scan_or_none(path) is None):
+        if object not in dtypes.values() or (not scanned and _scan_or_none(path) is None):
             return None
+        scanned = True
         try:
             df = parse(dtypes)
         except Exception:  # noqa: BLE001
@@ -321,7 +332,8 @@ def _read_csv_fast(path: Path, label: str, beside: bool = False) -> _RawFile | N
         return None
     raw = _RawFile(path, label, "csv")
     raw.first_line = 2
-    zero_one = []
+    block = _pandas_block_rows(len(names))
+    ones_and_zeros = False
     for c, name in enumerate(stripped):
         col = df.iloc[:, c]
         if dtypes[names[c]] is float:
@@ -329,13 +341,11 @@ def _read_csv_fast(path: Path, label: str, beside: bool = False) -> _RawFile | N
             # NaN and inf: the precise path names the cell (as the loader would, one pass later)
             if a.dtype != np.float64 or not np.isfinite(a).all():
                 return None
-            if a[0] in (0.0, 1.0) and np.all((a == 0.0) | (a == 1.0)):
-                zero_one.append(names[c])
+            ones_and_zeros = ones_and_zeros or _a_block_of_ones_and_zeros(a, block)
         else:
             a = col.to_numpy(dtype=object)
         raw.arrays[name] = a
-    del df
-    if zero_one and _boolean_words(parse, zero_one):
+    if ones_and_zeros and not scanned and _scan_or_none(path, words_only=True) is None:
         return None
     raw.finite = object not in dtypes.values()
     if beside:
@@ -343,22 +353,26 @@ def _read_csv_fast(path: Path, label: str, beside: bool = False) -> _RawFile | N
     return raw
 
 
-def _boolean_words(parse, columns: list[str]) -> bool:
-    """Whether a column that pandas read as 0.0 and 1.0 alone holds a cell Python's
-    `float()` does not read: pandas takes a column of only boolean words ("True",
-    "FALSE", "tRuE") for booleans and casts them, the precise path refuses them.
-    `parse(dtypes, usecols=)`: the fast path's pandas reader; the columns are read
-    again as text (rare: a column of only 0 and 1)."""
-    try:
-        text = parse(dict.fromkeys(columns, object), usecols=columns)
-    except Exception:  # noqa: BLE001 - the precise path judges the file
-        return True
-    for name in columns:
-        for cell in text[name].unique():
-            try:
-                float(cell)
-            except (TypeError, ValueError):
-                return True
+def _pandas_block_rows(width: int) -> int:
+    """The rows pandas' C reader converts at a time for a file of `width` columns (its
+    low-memory blocks: the largest power of two below 2**20 / width, pandas/_libs/parsers.pyx;
+    tests/analysis/data/test_experiment.py checks it on the installed pandas)."""
+    heuristic = (1 << 20) // max(int(width), 1)
+    rows = 1
+    while rows * 2 < heuristic:
+        rows *= 2
+    return rows
+
+
+def _a_block_of_ones_and_zeros(a: np.ndarray, block: int) -> bool:
+    """Whether a block of `block` rows of `a` (the last one shorter) holds only 0.0 and 1.0:
+    what pandas makes of a block of boolean words. The first value of each block decides
+    which blocks to look at."""
+    firsts = a[::block]
+    for k in np.flatnonzero((firsts == 0.0) | (firsts == 1.0)):
+        part = a[k * block:(k + 1) * block]
+        if np.all((part == 0.0) | (part == 1.0)):
+            return True
     return False
 
 

@@ -95,14 +95,20 @@ def equality_test(chis, covs) -> dict:
     K, p = chis.shape
     # pseudo-inverses: a robust covariance may be singular to rounding
     P = np.array([np.linalg.pinv(0.5 * (C + C.T)) for C in covs])
-    mean = np.linalg.solve(P.sum(axis=0), np.einsum("kij,kj->i", P, chis))
+    S, r = P.sum(axis=0), np.einsum("kij,kj->i", P, chis)
+    try:
+        mean = np.linalg.solve(S, r)
+    except np.linalg.LinAlgError:
+        # a parameter that no part gives a variance to (σ = 0) leaves the sum singular
+        mean = np.linalg.lstsq(S, r, rcond=None)[0]
     d = chis - mean
     q_all = float(np.einsum("ki,kij,kj->", d, P, d))
     dof = (K - 1) * p
     v = np.array([np.diag(C) for C in covs])
-    w = 1.0 / v
-    mu = (w * chis).sum(axis=0) / w.sum(axis=0)
-    q = (w * (chis - mu) ** 2).sum(axis=0)
+    with np.errstate(divide="ignore", invalid="ignore"):    # σ = 0: that parameter's Q is NaN
+        w = np.where(v > 0, 1.0 / np.where(v > 0, v, 1.0), np.nan)
+        mu = (w * chis).sum(axis=0) / w.sum(axis=0)
+        q = (w * (chis - mu) ** 2).sum(axis=0)
     return {"chi2": q_all, "dof": dof, "p_value": float(stats.chi2.sf(q_all, dof)),
             "per_parameter": {"q": q, "p_value": stats.chi2.sf(q, K - 1)}}
 
@@ -149,7 +155,7 @@ def segments(n_samples: int, mask, k: int = 3) -> list[np.ndarray]:
     return out
 
 
-@dataclass(repr=False)
+@dataclass(repr=False, eq=False)
 class Agreement(ParameterResults):
     """K estimates of the same parameters (recordings, or segments of one) compared.
 

@@ -34,9 +34,14 @@ table:
   `cond_threshold` = 1000 for the unit-column scaling), the fraction of the
   equations in the velocity dead zone (identification and validation).
 
-Status: `"not identified"` when the held-out error on all samples exceeds
-`fail_rel_error` (default 30 %) or more than half the essential parameters
-are not identified or a parameter is physically impossible; `"identified
+* **convergence** (DIDIM, maximum likelihood): an iterative method that stopped
+  before its criterion was met (`converged` False) gives the estimate of its last
+  step, not the method's answer; shown first.
+
+Status: `"not identified"` when an iterative method did not converge, or the
+held-out error on all samples exceeds `fail_rel_error` (default 30 %) or more
+than half the essential parameters are not identified or a parameter is
+physically impossible; `"identified
 with reservations"` when anything else is flagged; `"identified"`
 otherwise.
 
@@ -257,6 +262,19 @@ def _parameter_table(m, rel_std_threshold, prismatic=frozenset()):
         params.append({"name": name, "value": float(v), "std": float(s), "unit": parameter_unit(name, prismatic),
                        "rel_std_percent": float(r), "flagged": bool(bad)})
     return params
+
+
+def check_convergence(x: VerdictInputs) -> CheckOutcome:
+    """An iterative method (DIDIM, ML) that did not converge: its estimate is its last step's."""
+    if getattr(x.result, "converged", True) is not False:
+        return CheckOutcome()
+    method = str(getattr(x.result, "method", "") or type(x.result).__name__)
+    why = str(getattr(x.result, "stop_reason", "") or "").strip().rstrip(".")
+    text = (f"{method} did NOT converge" + (f" ({why})" if why else "") + ": its estimate is that of its "
+            "last step, not the method's answer, and every figure below is that step's. Raise the step "
+            "limit (--max-iter), start nearer (the IDIM estimate), or use IDIM's model.")
+    return CheckOutcome(findings=[{"level": "bad", "key": "convergence", "text": text}],
+                        reasons=[f"{method} did not converge"], fail=True)
 
 
 def check_validation(x: VerdictInputs) -> CheckOutcome:
@@ -591,11 +609,12 @@ def check_agreement(x: VerdictInputs) -> CheckOutcome:
     a = getattr(x.result, "agreement", None)
     if a is None:
         return CheckOutcome()
-    level = "ok" if a.pairs and a.within_95 >= 0.9 and a.p_value >= 0.01 else "info"
+    # as the line says: a chi2 test that could not be computed (NaN) rejects nothing
+    level = "ok" if a.pairs and a.within_95 >= 0.9 and not a.p_value < 0.01 else "info"
     return CheckOutcome(findings=[{"level": level, "key": "agreement", "text": x.result.agreement_line}])
 
 
-CHECKS = [check_validation, check_parameters, check_residual, check_diagnosis, check_plausibility, check_apriori,
+CHECKS = [check_convergence, check_validation, check_parameters, check_residual, check_diagnosis, check_plausibility, check_apriori,
           check_data_quality, check_agreement]
 
 

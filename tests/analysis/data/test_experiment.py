@@ -1296,7 +1296,7 @@ def test_a_scan_that_fails_to_read_sends_the_file_to_the_precise_reader(tmp_path
     expected = _precise_outcome(p)
     calls = []
 
-    def failing(path):
+    def failing(path, words_only=False):
         calls.append(path)
         raise OSError(5, "Input/output error")
     monkeypatch.setattr(readers, "_scan_csv", failing)
@@ -1323,6 +1323,60 @@ def test_a_column_of_boolean_words_is_not_read_as_ones_and_zeros(tmp_path, words
     fast = readers._read_csv_fast(p, str(p))
     assert fast is not None and fast.arrays["flag"].dtype == np.float64
     _same_raw(fast, readers._read_csv_precise(p, str(p)))
+
+
+def test_boolean_words_in_one_block_of_a_long_file_are_refused(tmp_path):
+    """pandas converts a long file's columns block by block (65536 rows for 15 columns) and casts a
+    block of boolean words alone to 1.0 and 0.0, even beside numbers in the other blocks: the load
+    names the cell, as the precise reader does (the review's case: 4 'True' at the end of tau1)."""
+    n = 65536
+    rows = [",".join([f"{k / 1000:.3f}"] + [f"{(k % 97) / 97:.3f}"] * 14) for k in range(n + 4)]
+    for k in range(n, n + 4):
+        cells = rows[k].split(",")
+        cells[8] = "True"
+        rows[k] = ",".join(cells)
+    header = ",".join(["t"] + [f"q{j}" for j in range(1, 8)] + [f"tau{j}" for j in range(1, 8)])
+    p = tmp_path / "blocks.csv"
+    p.write_text(header + "\n" + "\n".join(rows) + "\n")
+    with pytest.raises(DataError, match=r"tau1.*data row 65537 \(file line 65538\)"):
+        load_experiment(p)
+
+
+@pytest.mark.parametrize("width", [15, 40])
+def test_pandas_casts_booleans_in_the_blocks_the_fast_path_checks(tmp_path, width):
+    """The fast path looks for blocks of 0 and 1 where pandas converts (`_pandas_block_rows`): on
+    the installed pandas, a whole block of boolean words is cast to 1.0, one straddling two blocks
+    is refused; and the load refuses both, naming the cell."""
+    import csv as csv_module
+
+    from dynid.analysis.data import readers
+    pd_ = pytest.importorskip("pandas")
+    if int(pd_.__version__.split(".")[0]) < 3:
+        pytest.skip("pandas 2: the whole scan runs before the parse")
+    block = readers._pandas_block_rows(width)
+    names = ["t", "q1", "tau1"] + [f"x{k}" for k in range(width - 3)]
+
+    def write(start, stop):
+        rest = ",2" * (width - 3)
+        lines = [",".join(names)] + [f"{k},{k % 5},{'True' if start <= k < stop else '3'}{rest}"
+                                     for k in range(2 * block + 3)]
+        p = tmp_path / f"b{start}.csv"
+        p.write_text("\n".join(lines) + "\n")
+        return p
+
+    def pandas_reads(p):
+        try:
+            pd_.read_csv(p, sep=",", header=0, dtype=dict.fromkeys(names, float), na_filter=False, engine="c",
+                         encoding="utf-8", quoting=csv_module.QUOTE_NONE, skip_blank_lines=False, index_col=False)
+        except ValueError:
+            return False
+        return True
+    whole, straddling = write(block, 2 * block), write(block - 1, 2 * block - 1)
+    assert pandas_reads(whole) and not pandas_reads(straddling)
+    for p in (whole, straddling):
+        assert readers._read_csv_fast(p, str(p)) is None
+        with pytest.raises(DataError, match="tau1"):
+            load_experiment(p)
 
 
 @pytest.mark.parametrize("tail", ["", "0.1,0,0,0,0\n"])

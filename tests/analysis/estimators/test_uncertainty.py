@@ -390,3 +390,16 @@ def test_bootstrap_percentile_sigma_is_robust_to_a_few_wild_replicates():
         n += 3
     assert hits["percentile"] / n >= 0.9
     assert np.median(width["percentile"]) < np.median(width["cov"])
+
+
+def test_agreement_with_a_parameter_of_zero_variance():
+    """A part that gives a parameter σ = 0 made the χ² test raise LinAlgError; its per-parameter Q
+    is now NaN and the rest is computed. Agreement compares by identity, as every result."""
+    import copy
+    chis = np.array([[1.0, 2.0], [1.1, 2.0], [0.9, 2.0]])
+    sig = np.array([[0.1, 0.0], [0.1, 0.0], [0.1, 0.0]])
+    a = ag.agreement(chis, sig, [np.diag(s**2) for s in sig], ["M1", "XX2"])
+    assert np.isfinite(a.chi2) and np.isnan(a.per_parameter_p_value["XX2"])
+    assert np.isfinite(a.per_parameter_p_value["M1"]) and a.summary()
+    b = copy.deepcopy(a)
+    assert a != b and a == a and hash(a)

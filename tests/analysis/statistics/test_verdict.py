@@ -263,3 +263,20 @@ def test_a_negative_inertia_within_its_uncertainty_is_not_impossible():
     assert not near.fail and near.findings[0]["level"] == "info" and "1.5 σ" in near.findings[0]["text"]
     far = run(-0.0066, 0.00043)
     assert far.fail and far.fields["implausible"][0]["name"] == "ZZ4R"
+
+
+def test_a_method_that_did_not_converge_is_not_identified():
+    """A DIDIM run that stopped before its criterion printed "[ok]" lines and "identified" above
+    its own "DID NOT CONVERGE": the verdict now says so first, and fails."""
+    import types
+
+    from dynid.analysis.statistics.verdict import CHECKS, check_convergence
+    assert CHECKS[0] is check_convergence
+    stopped = types.SimpleNamespace(result=types.SimpleNamespace(
+        converged=False, method="DIDIM", stop_reason="max_iter = 2 steps without meeting the criterion."))
+    out = check_convergence(stopped)
+    assert out.fail and out.findings[0]["level"] == "bad"
+    assert "DIDIM did NOT converge (max_iter = 2 steps without meeting the criterion)" in out.findings[0]["text"]
+    for ok in (types.SimpleNamespace(converged=True, method="DIDIM"), types.SimpleNamespace(method="IDIM")):
+        out = check_convergence(types.SimpleNamespace(result=ok))
+        assert not out.fail and not out.findings and not out.reasons
