@@ -476,13 +476,15 @@ def _adaptive_threshold(robot, chi, q0, T, v_s, substeps, notes):
 def _status(status, index, t, robot, where):
     if status == OK:
         return
-    tk = t[min(max(index, 0), t.size - 1)]
+    k = min(max(index, 0), t.size - 1)
+    # from the first sample: a logger's clock (seconds since 1970) says nothing to the reader
+    at = f"{t[k] - t[0]:.6g} s after the first sample (sample {k + 1})"
     if status == NOT_POSITIVE_DEFINITE:
         raise InputError(f"{where}: the mass matrix M(q) of these parameters is not positive "
-                         f"definite at t = {tk:.6g} s; chi_st is not physically consistent for "
+                         f"definite {at}; chi_st is not physically consistent for "
                          f"'{robot.name}' (check masses, inertias and Ia)")
     raise SimulationError(f"{where}: the simulation of '{robot.name}' diverged (non-finite state) "
-                          f"at t = {tk:.6g} s; check the parameters, the controller gains, "
+                          f"{at}; check the parameters, the controller gains, "
                           "or reduce the step (substeps) ")
 
 

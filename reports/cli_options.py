@@ -11,9 +11,9 @@ import math
 import textwrap
 
 EPILOG_ROBOT = """examples:
-  dynid robot tx40                     DH table, standard and base parameters
-  dynid robot arm.urdf --json arm.json the same for a URDF, also as JSON
-  dynid robot --list                   the bundled robots
+  dynid robot tx40                       DH table, standard and base parameters
+  dynid robot arm.urdf --json arm.json   the same for a URDF, also as JSON
+  dynid robot --list                     the bundled robots
 """
 EPILOG_IDENTIFY = """examples:
   dynid identify run.csv --robot tx40 --report out.html --json out.json
@@ -48,8 +48,8 @@ EPILOG_DIAGNOSE = """examples:
 """
 EPILOG_REPORT = """examples:
   dynid report run.csv --robot tx40 --holdout 3 --report full.html --json full.json
-  dynid report examples/staubli_tx40/experiment.toml --robot tx40 --holdout 3 --skip didim
-  dynid report run.csv --robot tx40 --validation run2.csv --max-seconds 30 --seed 2
+  dynid report examples/staubli_tx40/experiment.toml --robot tx40 --holdout 3 --skip didim --report tx40.html
+  dynid report run.csv --robot tx40 --validation run2.csv --max-seconds 30 --seed 2 --report full.html
 """
 EPILOG_DEMO = """examples:
   dynid demo                             simulated TX40 -> identification -> dynid-demo.html
@@ -381,7 +381,8 @@ def _add_payload_parser(sub, common, full):
                         "centre them on the position samples (every recording; with --model, identify the "
                         "model from centred torques too)")
     m.add_argument("--com-box", metavar="X0,Y0,Z0,X1,Y1,Z1",
-                   help="--physical: box holding the centre of mass (m)")
+                   help="--physical: box holding the centre of mass (m); with a negative first value "
+                        "write --com-box=-0.1,...")
     o = g["outputs"]
     o.add_argument("--json", metavar="PATH", help=JSON_HELP)
     o.add_argument("--report", metavar="PATH", help="write the result as an HTML section")

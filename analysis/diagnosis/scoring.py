@@ -16,7 +16,7 @@ from dynid.threads import with_single_blas_thread
 
 __all__ = ["ALIAS_RTOL", "Scorer", "lr_statistics", "weighted_sse", "shift_scores", "chi2_logsf",
            "chi2_logsf_many",
-           "new_columns", "independent_columns"]
+           "new_columns", "independent_columns", "separability"]
 
 #: Column tolerance of the rank check: a candidate column whose part outside the
 #: model's span is below this fraction of its norm adds nothing (alias of the model).
@@ -231,6 +231,40 @@ def new_columns(X, C, mask, weights):
     d = np.abs(np.diag(R))
     Q = Q[:, :int(np.count_nonzero(d > 1e-10 * d[0]))]
     return independent_columns(B - Q @ (Q.T @ B), np.linalg.norm(B, axis=0))
+
+
+def separability(X, C, mask, weights):
+    """How much of a candidate's torque lies outside what the model's parameters already give.
+
+    For each column of C (M, n, k), the norm of its part outside the span of X (M, n, p), over
+    its norm (weighted used rows, as `new_columns`): 1 for a column orthogonal to the model,
+    0 for an alias. Below a few per cent, the effect's size and the parameters it is nearly
+    equal to are told apart only by noise (their σ grow as 1 / fraction), and both take
+    absurd values that cancel.
+
+    Returns
+    -------
+    (float, int, float)
+        The smallest fraction over the columns, and for that column the index of the model's
+        column most nearly parallel to it and their |cosine|.
+    """
+    ri, rj = np.nonzero(mask)
+    w = np.asarray(weights, dtype=float)[rj][:, None]
+    A = X[ri, rj, :] * w
+    B = C[ri, rj, :] * w
+    norms = np.linalg.norm(B, axis=0)
+    if not np.any(norms > 0):
+        return 0.0, 0, 1.0
+    Q, R, _ = sla.qr(A, mode="economic", pivoting=True, check_finite=False)
+    d = np.abs(np.diag(R))
+    Q = Q[:, :int(np.count_nonzero(d > 1e-10 * d[0]))]
+    frac = np.linalg.norm(B - Q @ (Q.T @ B), axis=0) / np.where(norms > 0, norms, 1.0)
+    frac = np.where(norms > 0, frac, np.inf)
+    k = int(np.argmin(frac))
+    a_norms = np.linalg.norm(A, axis=0)
+    cos = np.abs(A.T @ B[:, k]) / np.where(a_norms > 0, a_norms * norms[k], np.inf)
+    i = int(np.argmax(cos))
+    return float(frac[k]), i, float(cos[i])
 
 
 def independent_columns(Bperp, norms):

@@ -155,10 +155,12 @@ def _structure(res):
     st = res.structure
     if st is None:
         return []
+    floor = np.asarray(st.noise_floor, dtype=float)
+    floor_text = ("noise floor RMS unknown on every joint" if not np.isfinite(floor).any() else
+                  "noise floor RMS " + ", ".join(f"j{j + 1} {x:.3g}" if np.isfinite(x) else f"j{j + 1} unknown"
+                                                 for j, x in enumerate(floor)) + " N m")
     lines = ["", f"  Structure left in the final residual ({st.n_tests} catalogue-free tests, "
-                 f"Bonferroni alpha = {st.alpha:g}; noise floor RMS "
-                 + " ".join(f"{x:.3g}" if np.isfinite(x) else "unknown" for x in st.noise_floor)
-                 + " N m):"]
+                 f"Bonferroni alpha = {st.alpha:g}; {floor_text}):"]
     unknown = [j + 1 for j, k in enumerate(st.floor_known) if not k]
     if unknown:
         lines.append(f"    noise floor unknown on joint(s) {', '.join(map(str, unknown))}: the "

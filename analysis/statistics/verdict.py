@@ -131,8 +131,15 @@ def _pct(x):
 
 
 def _joint_names(robot, n):
+    """`j1` .. `jn`, each with the robot file's name of the joint beside it when it has another:
+    a URDF's names may count from 0 (`lwr_5_joint` is joint 6), the tables count from 1."""
     names = list(getattr(robot, "joint_names", []) or []) if robot is not None else []
-    return names + [f"j{k + 1}" for k in range(len(names), n)]
+    out = []
+    for k in range(n):
+        label, name = f"j{k + 1}", str(names[k]) if k < len(names) else ""
+        plain = name.lower().replace("_", "").replace(" ", "") in ("", label, f"joint{k + 1}")
+        out.append(label if plain else f"{label} ({name})")
+    return out
 
 
 def identification_residual(idim_result):

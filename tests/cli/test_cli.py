@@ -438,3 +438,57 @@ def test_off_a_terminal_long_steps_log_their_progress(tmp_path):
     assert "progress: closed-loop simulation (8 s):" in run.stderr and "done after" in run.stderr
     quiet = subprocess.run(args + ["2", "--quiet"], capture_output=True, text=True, timeout=300)
     assert quiet.returncode == 0 and "progress" not in quiet.stderr
+
+
+def test_every_help_example_parses():
+    """Each `dynid ...` line in the commands' --help examples is a command line the parser takes
+    (`dynid report ... --skip didim` without the required --report exited 2)."""
+    import shlex
+
+    from dynid.reports import cli_options
+    parser = cli_options.build_parser(full=True)
+    lines = [line.strip() for name in dir(cli_options) if name.startswith("EPILOG_")
+             for line in getattr(cli_options, name).splitlines() if line.strip().startswith("dynid ")]
+    assert len(lines) > 10
+    for line in lines:
+        command = line.split("  ")[0]              # the demo's examples carry a comment after two spaces
+        try:
+            parser.parse_args(shlex.split(command)[1:])
+        except SystemExit as e:
+            raise AssertionError(f"the help example does not parse: {command}") from e
+
+
+def _doc_commands():
+    """Every `dynid ...` command line in the README, docs/*.md and the examples' READMEs (fenced
+    blocks; continued lines joined; redirections and pipes cut off)."""
+    import re
+    from pathlib import Path
+    root = Path(__file__).resolve().parents[2]
+    files = [root / "README.md", *sorted((root / "docs").glob("*.md")), *sorted((root / "examples").glob("*/README.md"))]
+    out = []
+    for f in files:
+        for block in re.findall(r"```[^\n]*\n(.*?)```", f.read_text(encoding="utf-8"), re.S):
+            text = re.sub(r"\\\n\s*", " ", block)
+            for line in text.splitlines():
+                line = line.strip().removeprefix("$ ")
+                if line.startswith("dynid "):
+                    out.append((f.relative_to(root).as_posix(), re.split(r"\s+(?:#|>|2>|\||&&|;)", line)[0].strip()))
+    return out
+
+
+def test_every_documented_command_parses():
+    """The commands the docs show are command lines the parser takes (`--com-box -0.1,...` in
+    docs/payload.md failed: argparse reads the leading '-' as an option)."""
+    import shlex
+
+    from dynid.reports import cli_options
+    parser = cli_options.build_parser(full=True)
+    commands = _doc_commands()
+    assert len(commands) > 15
+    bad = []
+    for where, command in commands:
+        try:
+            parser.parse_args(shlex.split(command)[1:])
+        except SystemExit:
+            bad.append(f"{where}: {command}")
+    assert not bad, "documented commands that do not parse:\n" + "\n".join(bad)

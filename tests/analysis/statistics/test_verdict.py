@@ -280,3 +280,15 @@ def test_a_method_that_did_not_converge_is_not_identified():
     for ok in (types.SimpleNamespace(converged=True, method="DIDIM"), types.SimpleNamespace(method="IDIM")):
         out = check_convergence(types.SimpleNamespace(result=ok))
         assert not out.fail and not out.findings and not out.reasons
+
+
+def test_joint_labels_count_from_one_beside_the_robot_files_names():
+    """The LWR4+ URDF names its joints from 0: the verdict said "lwr_5_joint 30.2 %" for the
+    validation table's joint 6. Labels are j1..jn, with the file's name beside when it differs."""
+    import types
+
+    from dynid.analysis.statistics.verdict import _joint_names
+    lwr = types.SimpleNamespace(joint_names=[f"lwr_{k}_joint" for k in range(7)])
+    assert _joint_names(lwr, 7)[5] == "j6 (lwr_5_joint)"
+    assert _joint_names(types.SimpleNamespace(joint_names=["j1", "Joint_2"]), 3) == ["j1", "j2", "j3"]
+    assert _joint_names(None, 2) == ["j1", "j2"]
