@@ -71,7 +71,7 @@ def analyse(toml_path, data_dir, settings=None):
     from gaz_model import GazModel
 
     from dynid.analysis.data.experiment import Experiment, load_experiment
-    from dynid.analysis.estimators.idim import identify_idim
+    from dynid.analysis.estimators.idim import DEFAULT_UNCERTAINTY, identify_idim
     from dynid.analysis.processing.observation import observe
     from dynid.analysis.processing.signals import derivatives
     from dynid.analysis.statistics.validation import validate
@@ -83,7 +83,8 @@ def analyse(toml_path, data_dir, settings=None):
     exp = load_experiment(toml_path, robot)
     t_split = exp.t[-1] - HOLDOUT
     train, held = exp.segment(None, t_split), exp.segment(t_split, None)
-    res = identify_idim(train, robot, settings=settings)
+    # the covariance `dynid identify` reports by default (the %σ below are its)
+    res = identify_idim(train, robot, settings=settings, uncertainty=DEFAULT_UNCERTAINTY)
     val = validate(res, held, robot)            # dynid's figure (dead zone zeroed)
 
     # ALL held-out samples: the same processing without the velocity dead zone
@@ -155,6 +156,7 @@ def analyse(toml_path, data_dir, settings=None):
         "rel_error_identification": float(res.model.rel_error),
         "rel_error_identification_ols": float(res.ols.rel_error),
         "validate_rel_error": float(val.rel_error), "validate_n": int(len(val.t)),
+        "validate_moving_rel_error": float(val.moving_rel_error), "uncertainty": res.uncertainty,
         "dead_zone": dead,
         "held_out": _errors(tau_d, tau_hat),
         "held_out_raw": _errors(tau_raw, tau_hat),
@@ -194,7 +196,8 @@ def report(r):
     L.append(f"  relative error ||tau - tau_hat|| / ||tau||: identification {100 * r['rel_error_identification']:.2f} % "
              f"(OLS, all base parameters: {100 * r['rel_error_identification_ols']:.2f} %)")
     L.append(f"  held-out, ALL {r['n_held']} decimated samples: {100 * r['held_out']['rel_error']:.2f} %   "
-             f"(dynid validate(), dead zone zeroed: {100 * r['validate_rel_error']:.2f} %)")
+             f"(dynid validate(): all samples {100 * r['validate_rel_error']:.2f} %, moving samples only "
+             f"{100 * r['validate_moving_rel_error']:.2f} %)")
     L.append(f"  Gaz et al. gravity + friction only, same samples: {100 * r['gaz_gf']['rel_error']:.1f} %; "
              f"completed with dynid's inertial + Coriolis part: "
              f"{100 * r['gaz_gf_plus_dynid_inertial']['rel_error']:.2f} %")
@@ -212,9 +215,10 @@ def report(r):
     L.append(_row("gravity: dynid - Gaz, RMS [N m]", r["gravity_diff_rms"]))
     L.append("")
     L.append(f"  dead zone: {r['dead_zone']}")
-    L.append("  (validate() zeroes those rows in W and tau before decimating; the ALL figure above does not)")
+    L.append("  (validate()'s moving-samples figure leaves those rows out; the ALL figures keep every sample)")
     L.append("")
     L.append("  rotor inertia and friction (link-side sensors: rotor and motor friction are not in tau):")
+    L.append(f"    %sigma from the {r['uncertainty']} covariance (dynid identify's default)")
     L.append("    name        WLS value    WLS %sigma   essential value   %sigma")
     for a in r["actuator_parameters"]:
         ev = (f"{a['essential_value']:14.4g}  {a['essential_rel_std']:7.1f}" if a["essential"]
