@@ -102,7 +102,7 @@ def payload_section(result) -> str:
 def _title(result) -> str:
     if result.method == "drive-gains":
         return f"Drive gains of {result.robot_name} (known payload)"
-    route = "robot fixed" if result.method == "payload-fixed" else "global"
+    route = "robot fixed" if result.method == "payload-robot-fixed" else "global"
     return f"Payload on link {result.link + 1} ({route})"
 
 

@@ -491,7 +491,7 @@ class PayloadResult(ParameterResults):
     Attributes
     ----------
     method : str
-        `"payload-fixed"` (robot fixed) or `"payload-global"`.
+        `"payload-robot-fixed"` (robot fixed) or `"payload-global"`.
     names : list[str]
         XXL XYL XZL YYL YZL ZZL (kg m^2, about the payload frame's origin), MXL MYL MZL
         (kg m), ML (kg).
@@ -706,7 +706,7 @@ def identify_payload(loaded, robot, *, model=None, unloaded=None, frame="flange"
     if model is not None:
         chi, cov, fit, lags, model_source = _fit_with_robot_fixed(model, robot, bp, Wp, Wb, tau, mask_l,
                                                                    names, notices)
-        robot_params, method = None, "payload-fixed"
+        robot_params, method = None, "payload-robot-fixed"
         notices.append(f"robot fixed: {model_source}; its parameters' uncertainty is propagated")
     else:
         un_list = _recordings(unloaded, robot, zoh)

@@ -87,7 +87,7 @@ def load(path):
 
 def test_every_command_with_json_has_a_schema():
     names = {p.stem for p in SCHEMAS.glob("*.json")}
-    assert names == {"robot", "simulate", "excite", "identify", "sample", "diagnose", "report", "fleet"}
+    assert names == {"robot", "simulate", "excite", "identify", "sample", "diagnose", "report", "fleet", "payload"}
     for name in names:
         doc = schema(name)
         assert doc["required"] and doc.get("additionalProperties", True) is True, name
@@ -125,6 +125,19 @@ def test_identify_json_of_the_other_methods(folder, method, extra):
             "--harmonics", "3", "--out", data)
     run(folder, "identify", data, "--robot", "planar2", "--method", method, *extra, "--json", f"{method}.json")
     check("identify", load(folder / f"{method}.json"))
+
+
+def test_payload_json(tmp_path):
+    """The TX40 (a 2-joint arm cannot turn a payload about three axes): a simulated payload found by
+    the robot-fixed route, as docs/payload.md's "Try it" does, shorter."""
+    run(tmp_path, "simulate", "--robot", "tx40", "--duration", "8", "--seed", "1", "--out", "empty.csv")
+    run(tmp_path, "simulate", "--robot", "tx40", "--duration", "8", "--seed", "2", "--payload", "2,0,0,0.05",
+        "--out", "loaded.csv")
+    run(tmp_path, "identify", "empty.csv", "--robot", "tx40", "--json", "id.json")
+    run(tmp_path, "payload", "--robot", "tx40", "--loaded", "loaded.csv", "--model", "id.json", "--json", "payload.json")
+    doc = load(tmp_path / "payload.json")
+    check("payload", doc)
+    assert doc["method"] == "payload-robot-fixed" and abs(doc["mass_kg"] - 2.0) < 0.1
 
 
 def test_sample_json(folder):

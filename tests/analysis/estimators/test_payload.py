@@ -116,7 +116,7 @@ def test_robot_fixed_route_finds_the_payload(plant_data):
     assert list(ci.columns) == ["lower", "upper"] and np.all(ci["lower"] < ci["upper"])
     assert "Verdict" in r.summary() and "constrained vs free" in r.summary()
     out = json.loads(dumps_json(r.to_dict()))
-    assert out["method"] == "payload-fixed" and len(out["parameters"]) == 10
+    assert out["method"] == "payload-robot-fixed" and len(out["parameters"]) == 10
     # the link-frame values of the flange frame are the values themselves
     assert np.allclose(payload_link_values(r), r.chi)
 
@@ -316,7 +316,7 @@ def test_full_report_has_a_payload_section_with_a_verdict(plant_data):
     html = out.html
     assert 'id="payload"' in html and "Verdict: identified" in html
     doc = out.to_dict()
-    assert doc["payload"]["method"] == "payload-fixed" and "Payload identification" in out.summary()
+    assert doc["payload"]["method"] == "payload-robot-fixed" and "Payload identification" in out.summary()
     # a recording without a payload: a section saying what is not identified and why, not a crash
     out.sections = [s for s in out.sections if s.id != "payload"]
     none = _payload_part(out, d["eu"], d["robot"], None, Reporter(quiet=True))
