@@ -337,8 +337,17 @@ class DIDIMResult(ModelResults):
                  "", "Gauss-Newton steps:"]
         cols = [c for c in ("iteration", "v_s", "rho_norm", "rel_change", "output_error", "rel_error",
                             "max_rel_param_change", "max_change_sigma") if c in h]
-        # a step with no previous one to compare has no relative change: a dash, as in the report
-        lines.append(h[cols].to_string(index=False, na_rep="—", float_format=lambda x: f"{x:.5g}"))
+        # the report's units: relative error and parameter change in %, ||rho|| and the output
+        # error in N m; a step with no previous one to compare has no relative change: a dash
+        shown = h[cols].copy()
+        for c in ("rel_error", "max_rel_param_change"):
+            if c in shown:
+                shown[c] = 100.0 * shown[c]
+        shown = shown.rename(columns={"v_s": "v_s [rad/s]", "rho_norm": "||rho|| [N m]",
+                                      "output_error": "output_error [N m]", "rel_error": "rel_error [%]",
+                                      "max_rel_param_change": "max_rel_param_change [%]",
+                                      "max_change_sigma": "max_change [sigma]"})
+        lines.append(shown.to_string(index=False, na_rep="—", float_format=lambda x: f"{x:.5g}"))
         lines.append("")
         lines.append(self.model.summary(notices=False, prismatic=self._prismatic()))
         if self.physical is not None:
