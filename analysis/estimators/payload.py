@@ -279,17 +279,19 @@ def _identifiability(Wp, mask, names, rtol):
     X = np.where(mask[:, :, None], Wp, 0.0).reshape(-1, Wp.shape[2])
     norms = np.linalg.norm(X, axis=0)
     dead = norms <= 1e-12 * max(norms.max(), 1e-300)
-    Xs = X / np.where(dead, 1.0, norms)
-    _, s, Vt = np.linalg.svd(Xs, full_matrices=False)
-    ratio = s / s[0] if s[0] > 0 else np.zeros_like(s)
+    live = np.flatnonzero(~dead)
+    # the columns the data never see are named once each, outside the SVD (whose null vectors
+    # would name them again, mixed)
+    _, s, Vt = np.linalg.svd(X[:, live] / norms[live], full_matrices=False)
+    ratio = s / s[0] if s.size and s[0] > 0 else np.zeros_like(s)
     out = []
     for r, v in zip(ratio, Vt):
         if r < rtol:
             big = np.abs(v) >= 0.2 * np.abs(v).max()
-            out.append((float(r), {names[k]: float(v[k]) for k in np.flatnonzero(big)}))
+            out.append((float(r), {names[live[k]]: float(v[k]) for k in np.flatnonzero(big)}))
     for k in np.flatnonzero(dead):
         out.append((0.0, {names[k]: 1.0}))
-    return out, ratio
+    return out, np.r_[ratio, np.zeros(int(dead.sum()))]
 
 
 def _wrist_motion(robot, obs_list, link):
@@ -327,13 +329,19 @@ def _refuse(directions, robot, obs_list, link, rtol):
         terms = " + ".join(f"{v:+.2f} {k}" for k, v in comb.items())
         bad.append(f"{terms} (relative singular value {r:.1e})")
     names = sorted({k for _, comb in directions for k in comb}, key=PAYLOAD_NAMES.index)
+    if all(r == 0.0 and len(comb) == 1 for r, comb in directions):
+        # zero columns: no motion of this robot can show them
+        raise IdentificationError(
+            f"the joints of robot '{robot.name}' never feel the payload parameters {', '.join(names)}: "
+            f"their regressor columns are zero whatever the motion (the joints that carry the payload "
+            f"turn it about fewer than three axes). dynid identifies the ten parameters of a payload "
+            f"together, so not on this robot.")
     raise IdentificationError(
         f"the recording does not identify the payload parameters {', '.join(names)}: their columns "
         f"are (nearly) dependent on it, along {'; '.join(bad)} (threshold {rtol:g}). Why: the "
         f"payload's inertia is seen only through the rotation of its link; the joints that turn it "
         f"moved over {_wrist_motion(robot, obs_list, link)}. Record with the wrist rotating about "
-        f"three axes (wide, fast motion of the last three joints; docs/payload.md), or identify "
-        f"fewer parameters (a known inertia).")
+        f"three axes (wide, fast motion of the last three joints; docs/payload.md).")
 
 
 # ------------------------------------------------------------------------------- robot model

@@ -342,3 +342,21 @@ def test_full_report_refuses_zoh_on_its_logged_torque_model():
         _payload_part(None, "l.csv", _robot(), {"zoh": True}, Reporter(quiet=True))
     with pytest.raises(InputError, match="unknown option"):
         _payload_part(None, "l.csv", _robot(), {"mass": 2.0}, Reporter(quiet=True))
+
+
+def test_a_robot_that_cannot_turn_a_payload_about_three_axes_is_told_so(tmp_path, capsys):
+    """A planar arm: the payload's out-of-plane parameters have zero columns whatever the motion.
+    The error named each of them twice (null vectors of the SVD beside the zero columns) and
+    advised rotating a wrist the robot does not have."""
+    from dynid.reports.cli import main
+    for seed, extra in ((4, []), (5, ["--payload", "1,0,0,0.05"])):
+        assert main(["simulate", "--robot", "planar2", "--duration", "6", "--seed", str(seed), *extra,
+                     "--out", str(tmp_path / f"r{seed}.csv"), "--quiet"]) == 0
+    assert main(["identify", str(tmp_path / "r4.csv"), "--robot", "planar2", "--json", str(tmp_path / "id.json"),
+                 "--quiet"]) == 0
+    capsys.readouterr()
+    code = main(["payload", "--robot", "planar2", "--loaded", str(tmp_path / "r5.csv"), "--model",
+                 str(tmp_path / "id.json"), "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and "never feel the payload parameters XXL, XYL, XZL, YYL, YZL, MZL" in err
+    assert err.count("XXL") == 1 and "wrist" not in err
