@@ -69,6 +69,33 @@ class SufficientStats:
         return self.ref + sla.cho_solve(cf, rhs), cov
 
 
+    def about(self, chi) -> SufficientStats:
+        """The same statistics about another reference χ_ref = `chi` (exact: g_j − G_j δ, S_j(chi))."""
+        chi = np.asarray(chi, dtype=float).reshape(self.n_params)
+        d = chi - self.ref
+        return SufficientStats(names=self.names, G=self.G, g=self.g - self.G @ d, s=self.rss(chi)[0],
+                               rows=self.rows, ref=chi, WtY=self.WtY, YtY=self.YtY,
+                               n_samples=self.n_samples, data_hash=self.data_hash)
+
+    def joint_optimum(self, joint_sigma, max_iter: int = 200, rtol: float = 1e-10):
+        """(χ*, σ*): the maximum of the Gaussian likelihood with one σ_j per joint (the
+        posterior mode in log σ_j under the Jeffreys prior), by the fixed point σ_j² =
+        S_j(χ)/r_j, χ = the WLS of those σ_j, from `joint_sigma` (eq. (16)'s, each joint fitted
+        alone). Where the model misses torque the two differ (a joint's own fit absorbs more of
+        it), and so do their optima."""
+        act = self.active
+        sigma = np.asarray(joint_sigma, dtype=float).reshape(self.n_joints).copy()
+        chi = self.ls(sigma)[0]
+        for _ in range(max_iter):
+            new = sigma.copy()
+            new[act] = np.sqrt(np.maximum(self.rss(chi)[0][act], 1e-300) / self.rows[act])
+            done = np.max(np.abs(new[act] / sigma[act] - 1.0)) < rtol
+            sigma, chi = new, self.ls(new)[0]
+            if done:
+                break
+        return chi, sigma
+
+
 def cholesky(A, names, what):
     """Cholesky factor of A (scipy cho_factor), or an IdentificationError naming the parameters."""
     try:
