@@ -312,10 +312,22 @@ def _poorly_identified(chi, cov, limit):
     return [(PAYLOAD_NAMES[k], half[k], half[k] / scale[k]) for k in np.flatnonzero(half > limit * scale)]
 
 
-def _refuse_poor(poor, robot, obs_list, link, limit):
+def _refuse_poor(poor, robot, obs_list, link, limit, chi=None, cov=None):
     names = ", ".join(f"{nm} (95 % half-width {h:.2g}, {100 * r:.0f} % of its scale)" for nm, h, r in poor)
+    mass = ""
+    if chi is not None and cov is not None:
+        m, sm = float(chi[9]), float(np.sqrt(max(cov[9, 9], 0.0)))
+        mass = f" (its estimated mass: {m:.3g} +- {sm:.2g} kg)"
+        if abs(m) <= _Z95 * sm:
+            # the scale the intervals are judged against is the payload's own size: none here
+            raise IdentificationError(
+                f"no payload found on link {link + 1}: its mass is {m:.3g} +- {sm:.2g} kg, zero within its 95 % "
+                f"interval, so its centre of mass and inertia mean nothing. If the recording carried a "
+                f"payload, it is lighter than the data can tell (the model's error on this recording is "
+                f"of that size): a heavier payload, or a model identified on recordings of the same "
+                f"motion, would show it.")
     raise IdentificationError(
-        f"the recording does not identify the payload parameters {names}: their 95 % intervals are wider "
+        f"the recording does not identify the payload{mass}: parameters {names}: their 95 % intervals are wider "
         f"than {100 * limit:.0f} % of the payload's own size (inertia: half the trace of its inertia; first "
         f"moments: |m c|; mass: m). Why: the payload's inertia is seen only through the rotation of its "
         f"link; the joints that turn it moved over {_wrist_motion(robot, obs_list, link)}. Record with the "
@@ -725,7 +737,7 @@ def identify_payload(loaded, robot, *, model=None, unloaded=None, frame="flange"
     cov = 0.5 * (cov + cov.T)
     poor = _poorly_identified(chi, cov, max_rel_halfwidth)
     if poor:
-        _refuse_poor(poor, robot, obs_l, link, max_rel_halfwidth)
+        _refuse_poor(poor, robot, obs_l, link, max_rel_halfwidth, chi, cov)
     res = PayloadResult(method=method, names=names, chi=chi, cov=cov, robot_name=robot.name, link=link,
                         frame=str(frame if frame is not None else "flange"), R=R, p=p, T=T,
                         joint_sigma=fit.joint_sigma, rel_error=fit.rel_error, n_rows=fit.n_rows,

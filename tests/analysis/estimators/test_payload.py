@@ -154,7 +154,7 @@ def test_a_still_wrist_is_refused_naming_what_is_not_identified(plant_data):
     with pytest.raises(IdentificationError) as e:
         identify_payload(still, d["robot"], model=d["model"])
     msg = str(e.value)
-    assert "does not identify the payload parameters" in msg
+    assert "does not identify the payload" in msg and "estimated mass" in msg
     assert any(nm in msg for nm in PAYLOAD_NAMES[:6])          # an inertia names itself
     assert "q4" in msg and "q6" in msg and "wrist" in msg
 
@@ -360,3 +360,18 @@ def test_a_robot_that_cannot_turn_a_payload_about_three_axes_is_told_so(tmp_path
     err = capsys.readouterr().err
     assert code == 2 and "never feel the payload parameters XXL, XYL, XZL, YYL, YZL, MZL" in err
     assert err.count("XXL") == 1 and "wrist" not in err
+
+
+def test_a_recording_without_a_payload_says_none_was_found(plant_data):
+    """The unloaded plant on another trajectory, with the model of the first: the refusal said the
+    parameters were poorly identified and advised rotating the wrist, without a word on the mass;
+    it now says no payload is there when the mass is zero within its interval, and states the
+    estimated mass in any case."""
+    d = plant_data
+    empty = _experiment(d["base"], 8.0, 2004)
+    with pytest.raises(IdentificationError) as e:
+        identify_payload(empty, d["robot"], model=d["model"])
+    msg = str(e.value)
+    assert "kg" in msg and ("no payload found on link 6" in msg or "estimated mass" in msg)
+    if "no payload found" in msg:
+        assert "wrist" not in msg
