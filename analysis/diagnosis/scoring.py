@@ -236,17 +236,20 @@ def new_columns(X, C, mask, weights):
 def separability(X, C, mask, weights):
     """How much of a candidate's torque lies outside what the model's parameters already give.
 
-    For each column of C (M, n, k), the norm of its part outside the span of X (M, n, p), over
-    its norm (weighted used rows, as `new_columns`): 1 for a column orthogonal to the model,
-    0 for an alias. Below a few per cent, the effect's size and the parameters it is nearly
-    equal to are told apart only by noise (their σ grow as 1 / fraction), and both take
-    absurd values that cancel.
+    Over every combination of the columns of C (M, n, k), the smallest norm of its part outside
+    the span of X (M, n, p), over its norm (weighted used rows, as `new_columns`): the sine of
+    the largest principal angle between the candidate's columns and the model's. 1 for a
+    candidate orthogonal to the model, 0 for an alias. Below a few per cent, the effect's size
+    and the parameters it nearly equals are told apart only by noise (their σ grow as
+    1 / fraction), and both take absurd values that cancel. A combination matters: a position
+    ripple of order 1 on a joint that moves little has cos q and sin q each well outside the
+    model, and the one combination cos(q - q_mean) nearly equal to the joint's offset.
 
     Returns
     -------
-    (float, int, float)
-        The smallest fraction over the columns, and for that column the index of the model's
-        column most nearly parallel to it and their |cosine|.
+    (float, list of (int, float))
+        The fraction, and the model's columns that combination nearly equals: (column index,
+        share of the combination's part inside the span), largest first, those above 10 %.
     """
     ri, rj = np.nonzero(mask)
     w = np.asarray(weights, dtype=float)[rj][:, None]
@@ -254,17 +257,20 @@ def separability(X, C, mask, weights):
     B = C[ri, rj, :] * w
     norms = np.linalg.norm(B, axis=0)
     if not np.any(norms > 0):
-        return 0.0, 0, 1.0
+        return 0.0, []
+    # an orthonormal basis of the candidate's columns (its own dependent columns dropped)
+    U, s, _ = np.linalg.svd(B[:, norms > 0] / norms[norms > 0], full_matrices=False)
+    U = U[:, s > 1e-8 * s[0]]
     Q, R, _ = sla.qr(A, mode="economic", pivoting=True, check_finite=False)
     d = np.abs(np.diag(R))
     Q = Q[:, :int(np.count_nonzero(d > 1e-10 * d[0]))]
-    frac = np.linalg.norm(B - Q @ (Q.T @ B), axis=0) / np.where(norms > 0, norms, 1.0)
-    frac = np.where(norms > 0, frac, np.inf)
-    k = int(np.argmin(frac))
-    a_norms = np.linalg.norm(A, axis=0)
-    cos = np.abs(A.T @ B[:, k]) / np.where(a_norms > 0, a_norms * norms[k], np.inf)
-    i = int(np.argmax(cos))
-    return float(frac[k]), i, float(cos[i])
+    _, sv, Vt = np.linalg.svd(U - Q @ (Q.T @ U), full_matrices=False)
+    u = U @ Vt[-1]                                  # the combination most inside the span
+    coef = np.linalg.lstsq(A, Q @ (Q.T @ u), rcond=None)[0]
+    size = np.abs(coef) * np.linalg.norm(A, axis=0)
+    share = size / size.sum() if size.sum() > 0 else size
+    terms = [(int(i), float(share[i])) for i in np.argsort(-share) if share[i] >= 0.1]
+    return float(sv[-1]), terms[:3]
 
 
 def independent_columns(Bperp, norms):

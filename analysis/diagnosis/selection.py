@@ -621,14 +621,15 @@ def _not_separable(problem, state, cand, weights):
     """Why candidate `cand` cannot be told apart from the model's parameters in this data
     (`scoring.separability` below `SEPARABLE_MIN`), or "" when it can."""
     X = problem.design(state["delay"], state["effects"], cols=state["cols"])
-    frac, i, cos = separability(X, problem.decimated([cand])[0], problem.mask, weights)
+    frac, terms = separability(X, problem.decimated([cand])[0], problem.mask, weights)
     if frac >= SEPARABLE_MIN:
         return ""
-    name = problem.names_for(state["effects"], state["names"])[i]
-    return (f"nearly the same signal as {name} in this recording (|cos| = {cos:.6f}; "
-            f"{100 * frac:.2g} % of its torque lies outside what the model already gives): their "
-            f"sizes cannot be told apart, and both would take values that cancel; not added. "
-            f"Record motion that separates them")
+    names = problem.names_for(state["effects"], state["names"])
+    what = (names[terms[0][0]] if len(terms) == 1 else
+            "a mix of " + ", ".join(f"{names[i]} ({100 * sh:.0f} %)" for i, sh in terms)) if terms else "the model"
+    return (f"nearly the same signal as {what} in this recording ({100 * frac:.2g} % of its torque lies "
+            f"outside what the model already gives): their sizes cannot be told apart, and both would "
+            f"take values that cancel; not added. Record motion that separates them")
 
 
 # ======================================================================= stage 3: essential set

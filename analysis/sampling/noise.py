@@ -182,16 +182,17 @@ def noise_model(kind: str, W3, tau, mask, chi) -> NoiseModel:
 
 
 def sandwich_model(stats: SufficientStats, robust_cov, joint_sigma, source: str = "") -> NoiseModel:
-    """The sandwich noise model of `stats` (about χ_ref = the LS estimate): C with Cᵀ H C = Σ_R⁻¹.
+    """The sandwich noise model of `stats` (about their χ_ref): C with Cᵀ H C = Σ_R⁻¹.
 
     Parameters
     ----------
     stats : SufficientStats
-        About the LS estimate (ref = χ̂).
+        About the estimate the curvature is matched at: the LS estimate χ̂, or the likelihood's
+        joint optimum χ* when the sampler samples σ_j (`SufficientStats.joint_optimum`).
     robust_cov : (b, b)
         Σ_R, the robust covariance of that estimate.
     joint_sigma : (n,)
-        The σ_j at which the curvature H = Σ_j G_j / σ_j² is matched (the LS σ_j of eq. (16)).
+        The σ_j at which the curvature H = Σ_j G_j / σ_j² is matched (eq. (16)'s, or σ* with χ*).
     source : str
         Where Σ_R came from (for the settings and the summary).
 

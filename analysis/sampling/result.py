@@ -219,6 +219,15 @@ class PosteriorResult(ParameterResults):
             df["truth"] = [self.truth.get(n, np.nan) for n in self.names]
         return df
 
+    def _optimum_lines(self) -> list:
+        """Where the sandwich was matched, when not at the LS estimate (noise_model.joint_optimum)."""
+        opt = (self.settings.get("noise_model") or {}).get("joint_optimum")
+        if not opt:
+            return []
+        fmt = ", ".join
+        return [f"  matched at the likelihood's joint optimum, where the sampled sigma_j settle: sigma* "
+                f"{fmt(f'{v:.4g}' for v in opt['sigma'])} (eq. (16): {fmt(f'{v:.4g}' for v in opt['sigma_eq16'])})"]
+
     def summary(self) -> str:
         dg = self.diagnostics
         rule, thin = "=" * _WIDTH, "-" * _WIDTH
@@ -226,6 +235,7 @@ class PosteriorResult(ParameterResults):
         lines = [f"Posterior ({self.method}): {self.model}".center(_WIDTH), rule,
                  f"Status: {flag}", f"  {dg.reason}",
                  f"Noise model: {(self.settings.get('noise_model') or {}).get('description', 'white')}",
+                 *self._optimum_lines(),
                  f"Walkers {dg.n_walkers}   steps {dg.n_steps}   burn-in {dg.burn_in}   thin {dg.thin}   "
                  f"draws {self.n_samples}",
                  f"max tau {dg.tau_max:.4g} steps   chain/tau {dg.chain_over_tau:.1f} "

@@ -98,6 +98,7 @@ def sample_linear(W3, tau, names, *, row_mask=None, ls=None, sigma=None, prior=N
                                     None if row_mask is None else np.asarray(row_mask))
     noise = check_noise(noise)
     chi_start, js_start = ls.chi, _joint_sigma_or_residual(st, getattr(ls, "joint_sigma", None), st.active)
+    matched = False
     if noise == "sandwich":
         js = _joint_sigma_or_residual(st, sigma if sigma is not None else getattr(ls, "joint_sigma", None),
                                       st.active)
@@ -107,8 +108,9 @@ def sample_linear(W3, tau, names, *, row_mask=None, ls=None, sigma=None, prior=N
             # Ribatet's adjustment is matched at the optimum of the likelihood it adjusts: with
             # σ_j sampled, at the joint (χ*, σ*), not at eq. (16)'s σ_j, which the chains leave
             # (on the LWR4+ for σ_j 1.3-2 times larger: the posterior was 1.56 times too wide)
+            js_eq16 = js
             chi_start, js_start = st.joint_optimum(js)
-            st, js = st.about(chi_start), js_start
+            st, js, matched = st.about(chi_start), js_start, True
         nm = sandwich_model(st, robust_cov, js, source)
     else:
         nm = noise_model(noise, W3, tau, row_mask, st.ref)
@@ -148,21 +150,33 @@ def sample_linear(W3, tau, names, *, row_mask=None, ls=None, sigma=None, prior=N
     ls_cov[:b, :b] = ls.cov
     noise = ("known σ_j = " + ", ".join(f"{v:.4g}" for v in model.sigma[model.active])) if sigma is not None \
         else "one σ_j per joint, Jeffreys prior p(σ_j) ∝ 1/σ_j, sampled as log σ_j"
+    if matched:
+        # where the sandwich is matched and the chains start (sample.py: `joint_optimum`)
+        nm_dict = dict(nm.to_dict(), joint_optimum={
+            "chi": dict(zip(st.names, map(float, st.ref))),
+            "sigma": [float(v) for v in js_start],
+            "sigma_eq16": [float(v) for v in js_eq16],
+            "why": "the sampled sigma_j settle at sigma_j^2 = S_j(chi*)/r_j, chi* the WLS of those sigma_j; "
+                   "eq. (16)'s sigma_j fit each joint alone"})
+    else:
+        nm_dict = nm.to_dict()
     settings = {
         "model": method_label,
         "likelihood": _LIKELIHOOD[nm.kind],
         "noise": noise,
-        "noise_model": nm.to_dict(),
+        "noise_model": nm_dict,
         "prior_chi": "flat" if prior is None else {"gaussian": prior.to_dict()},
         "linear_parameters": "sampled jointly with the noise parameters (not marginalised)",
         "sampler": "emcee.EnsembleSampler(vectorize=True)",
         "moves": describe_moves(moves),
         "n_walkers": nw,
-        "init": f"LS estimate + {init_scale:g} x N(0, cov_LS); log sigma_j variance 1/(2 r_j)",
+        "init": (f"{'the joint optimum (chi*, sigma*)' if matched else 'LS estimate'} + {init_scale:g} x "
+                 f"N(0, cov_LS); log sigma_j variance 1/(2 r_j)"),
         "seed": seed if isinstance(seed, (int, np.integer)) else "numpy Generator",
         "rows_per_joint": st.rows,
         "n_samples": st.n_samples,
-        "sufficient_statistics": "per joint W'W, W'(Y - W chi_ref), |Y - W chi_ref|^2, r_j; chi_ref = LS",
+        "sufficient_statistics": ("per joint W'W, W'(Y - W chi_ref), |Y - W chi_ref|^2, r_j; chi_ref = "
+                                  + ("chi*, the joint optimum" if matched else "LS")),
         "support": "all of R^b" if support is None else getattr(support, "description", "restricted"),
     }
     return PosteriorResult(
@@ -177,9 +191,10 @@ _LIKELIHOOD = {
     "white": "Gaussian, independent rows, per-joint σ_j (eqs. (9), (10), (16))",
     "neff": "Gaussian, per-joint σ_j (eqs. (9), (10), (16)), each joint's likelihood tempered by its "
             "effective sample size n_eff,j / r_j",
-    "sandwich": "Gaussian, per-joint σ_j (eqs. (9), (10), (16)), evaluated at chi_LS + C (chi - chi_LS) "
-                "with C' H C the inverse of the fit's robust covariance (curvature adjustment, Ribatet, "
-                "Cooley & Davison 2012)",
+    "sandwich": "Gaussian, per-joint σ_j (eqs. (9), (10), (16)), evaluated at chi_ref + C (chi - chi_ref) "
+                "with C' H C the inverse of the fit's robust covariance at sigma_ref (curvature adjustment, "
+                "Ribatet, Cooley & Davison 2012); (chi_ref, sigma_ref) the likelihood's joint optimum when "
+                "sigma_j are sampled (noise_model.joint_optimum), else the LS estimate and the given sigma_j",
 }
 
 

@@ -85,6 +85,9 @@ class SufficientStats:
         it), and so do their optima."""
         act = self.active
         sigma = np.asarray(joint_sigma, dtype=float).reshape(self.n_joints).copy()
+        sigma[self.rows == 0] = 1.0          # no rows: no weight, whatever it is (ls masks them)
+        bad = act[~(np.isfinite(sigma[act]) & (sigma[act] > 0))]
+        sigma[bad] = np.sqrt(np.maximum(self.s[bad], 1e-300) / self.rows[bad])
         chi = self.ls(sigma)[0]
         for _ in range(max_iter):
             new = sigma.copy()

@@ -277,9 +277,16 @@ def check_convergence(x: VerdictInputs) -> CheckOutcome:
         return CheckOutcome()
     method = str(getattr(x.result, "method", "") or type(x.result).__name__)
     why = str(getattr(x.result, "stop_reason", "") or "").strip().rstrip(".")
+    if not why:      # maximum likelihood: its optimiser's message is among the notices
+        why = next((str(n).split(": ", 1)[-1].rstrip(".") for n in getattr(x.result, "notices", []) or []
+                    if "without convergence" in str(n)), "")
+    advice = ("Raise the step limit (--max-iter), start nearer (the IDIM estimate), or use IDIM's model."
+              if method.upper().startswith("DIDIM") else
+              "Check the excitation's fundamental frequency and harmonics (--f0, --ml-harmonics), average "
+              "more periods, or use IDIM's model." if method.upper().startswith("ML") else
+              "Use IDIM's model.")
     text = (f"{method} did NOT converge" + (f" ({why})" if why else "") + ": its estimate is that of its "
-            "last step, not the method's answer, and every figure below is that step's. Raise the step "
-            "limit (--max-iter), start nearer (the IDIM estimate), or use IDIM's model.")
+            f"last step, not the method's answer, and every figure below is that step's. {advice}")
     return CheckOutcome(findings=[{"level": "bad", "key": "convergence", "text": text}],
                         reasons=[f"{method} did not converge"], fail=True)
 

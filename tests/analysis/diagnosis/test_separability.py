@@ -17,16 +17,26 @@ ROOT = Path(__file__).resolve().parents[3]
 def test_separability_is_the_share_outside_the_models_span():
     rng = np.random.default_rng(0)
     M = 400
-    x, z = rng.standard_normal(M), rng.standard_normal(M)
-    z -= x * (x @ z) / (x @ x)                            # z orthogonal to x
+    x, y, z = rng.standard_normal((3, M))
+    y -= x * (x @ y) / (x @ x)
+    z -= x * (x @ z) / (x @ x) + y * (y @ z) / (y @ y)      # x, y, z orthogonal
+    unit = [v / np.linalg.norm(v) for v in (x, y, z)]
+    X = np.stack([x, y], axis=1)[:, None, :]
+    one = np.ones((M, 1), bool)
     eps = 0.02
-    X = np.stack([x, rng.standard_normal(M)], axis=1)[:, None, :]
-    c = x + eps * z * np.linalg.norm(x) / np.linalg.norm(z)
-    X[:, 0, 1] -= x * (x @ X[:, 0, 1]) / (x @ x)          # the second column orthogonal to x ...
-    X[:, 0, 1] -= z * (z @ X[:, 0, 1]) / (z @ z)          # ... and to z: the span's part of c is x
-    frac, i, cos = separability(X, c[:, None, None], np.ones((M, 1), bool), [1.0])
+    c = unit[0] + eps * unit[2]
+    frac, terms = separability(X, c[:, None, None], one, [1.0])
     assert frac == pytest.approx(eps / np.hypot(1.0, eps), rel=1e-9)
-    assert i == 0 and cos == pytest.approx(1.0 / np.hypot(1.0, eps), rel=1e-9)
+    assert terms[0][0] == 0 and terms[0][1] == pytest.approx(1.0)
+    # two columns each far outside the model, whose difference is nearly x: the block is judged,
+    # not each column (the review's case: 71 % per column, 0.3 % for the combination)
+    C = np.stack([unit[0] + unit[2], 1.003 * unit[2]], axis=1)[:, None, :]
+    frac, terms = separability(X, C, one, [1.0])
+    assert frac < 0.005 and terms[0][0] == 0
+    # a mix of the model's columns is named as a mix
+    mix = (unit[0] + unit[1]) / np.sqrt(2) + 0.005 * unit[2]
+    frac, terms = separability(X, mix[:, None, None], one, [1.0])
+    assert frac < 0.01 and sorted(i for i, _ in terms) == [0, 1]
 
 
 @pytest.mark.skipif(not (ROOT / "examples" / "kuka_lwr4" / "recording_1.toml").exists(),

@@ -45,3 +45,17 @@ def test_lwr4_posterior_has_the_robust_width():
     assert [p["ls_std"] for p in rows] == pytest.approx(list(r.model.bse))    # the robust σ of identify
     ratio = np.array([p["std"] / p["ls_std"] for p in rows])
     assert 0.9 < np.median(ratio) < 1.15 and ratio.max() < 1.35
+
+
+def test_joint_optimum_with_a_joint_without_rows_warns_nothing():
+    import warnings
+    rng = np.random.default_rng(5)
+    W3 = rng.standard_normal((300, 3, 4))
+    tau = W3 @ np.ones(4) + 0.1 * rng.standard_normal((300, 3))
+    mask = np.ones((300, 3), bool)
+    mask[:, 2] = False
+    st = sufficient_statistics(W3, tau, row_mask=mask)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        chi, sigma = st.joint_optimum(np.array([0.1, 0.0, 0.0]))       # an OLS fallback's zeros
+    assert np.all(np.isfinite(chi)) and np.all(sigma[:2] > 0)

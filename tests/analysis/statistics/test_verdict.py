@@ -292,3 +292,17 @@ def test_joint_labels_count_from_one_beside_the_robot_files_names():
     assert _joint_names(lwr, 7)[5] == "j6 (lwr_5_joint)"
     assert _joint_names(types.SimpleNamespace(joint_names=["j1", "Joint_2"]), 3) == ["j1", "j2", "j3"]
     assert _joint_names(None, 2) == ["j1", "j2"]
+
+
+def test_a_maximum_likelihood_that_did_not_converge_gets_its_own_advice():
+    """ML has no step limit the user can raise (`--max-iter` is DIDIM's): the advice is its own, and
+    the optimiser's message (a notice) is the reason."""
+    import types
+
+    from dynid.analysis.statistics.verdict import check_convergence
+    ml = types.SimpleNamespace(converged=False, method="ML-EIV",
+                               notices=["least_squares stopped without convergence: The maximum number of "
+                                        "function evaluations is exceeded."])
+    text = check_convergence(types.SimpleNamespace(result=ml)).findings[0]["text"]
+    assert "(The maximum number of function evaluations is exceeded)" in text
+    assert "--max-iter" not in text and "--f0" in text
