@@ -11,7 +11,6 @@ is the report section: the verdict's line, the figure and the per-parameter tabl
 from __future__ import annotations
 
 import numpy as np
-import pandas as pd
 from scipy import stats
 
 from dynid.analysis.estimators.agreement import Agreement
@@ -104,9 +103,7 @@ def agreement_section(a: Agreement, line: str) -> Section:
         f"with its between-{one} spread below is the more honest figure."
         + (f" Left out (not identified by every {one}): {', '.join(a.left_out)}."
            if a.left_out else "")))
-    frame = a.to_frame()
-    df = pd.DataFrame({"pooled": frame["value"], "pooled_std": frame["std"],
-                       "between_std": frame["between_std"], "p_value": frame["p_value"], "unit": frame["unit"]})
+    df = a.to_frame().drop(columns="rel_std_percent").rename(columns={"value": "pooled", "std": "pooled_std"})
     tab = T.make_table(df, "tab-agreement", f"Per parameter over the {a.k} {what}: "
                        "random-effects (DerSimonian-Laird) pooled value and its sigma including the "
                        f"between-{one} spread, that spread, and the p-value of Cochran's Q test of "

@@ -341,7 +341,7 @@ def _read_csv_fast(path: Path, label: str, beside: bool = False) -> _RawFile | N
             # NaN and inf: the precise path names the cell (as the loader would, one pass later)
             if a.dtype != np.float64 or not np.isfinite(a).all():
                 return None
-            ones_and_zeros = ones_and_zeros or _a_block_of_ones_and_zeros(a, block)
+            ones_and_zeros = ones_and_zeros or (not scanned and _a_block_of_ones_and_zeros(a, block))
         else:
             a = col.to_numpy(dtype=object)
         raw.arrays[name] = a

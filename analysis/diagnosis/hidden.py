@@ -105,18 +105,29 @@ class HiddenEffect:
                                  for a, b, c, d in self.contradicted],
                 "errors": self.errors, "route": self.route}
 
+    def missed_rule(self) -> str | None:
+        """The first of the fit rules (module doc) the candidate misses: "p", "amplitude" or
+        "share" (of the contradiction explained), or None (the held-out check is the caller's)."""
+        if not self.p_value < self.alpha:
+            return "p"
+        if not self.amplitude >= self.min_amplitude_sigma * self.sigma:
+            return "amplitude"
+        if not self.deviation_after <= 0.5 * self.deviation_before:
+            return "share"
+        return None
+
     def shortfall(self) -> str:
         """Why a candidate that was not reported falls short of the rule, in words (its p-value
         alone can be tiny while its amplitude is lost in its own σ)."""
         v = self.errors.get("validation") or {}
-        alpha, min_amplitude_sigma = self.alpha, self.min_amplitude_sigma
-        if not self.p_value < alpha:
-            return f"{p_phrase(self.p_value)}, not below {alpha:g}"
+        missed = self.missed_rule()
+        if missed == "p":
+            return f"{p_phrase(self.p_value)}, not below {self.alpha:g}"
         ratio = self.amplitude / self.sigma if self.sigma > 0 else math.inf
-        if not self.amplitude >= min_amplitude_sigma * self.sigma:
+        if missed == "amplitude":
             return (f"{p_phrase(self.p_value)}, but its amplitude {self.amplitude:.3g} +- {self.sigma:.2g} N m "
-                    f"is {ratio:.2g} sigma, below {min_amplitude_sigma:g}")
-        if not self.deviation_after <= 0.5 * self.deviation_before:
+                    f"is {ratio:.2g} sigma, below {self.min_amplitude_sigma:g}")
+        if missed == "share":
             share = 1.0 - self.deviation_after / self.deviation_before if self.deviation_before > 0 else 0.0
             return (f"{p_phrase(self.p_value)}, but it explains {100 * share:.0f} % of the contradiction "
                     "(half needed)")
@@ -213,7 +224,7 @@ def hidden_effects(eobs, X, Y, mask, names, chi, sigma, robot, *, weights, alpha
                          phase=float(math.atan2(c[0], c[1])), sigma=sd, statistic=float(delta),
                          p_value=float(min(1.0, n * p_raw)), deviation_before=jp0,
                          deviation_after=jp, contradicted=contradicted, alpha=alpha)
-        ok = h.p_value < alpha and amp >= MIN_AMPLITUDE_SIGMA * sd and jp <= 0.5 * jp0
+        ok = h.missed_rule() is None
         if ok and validation is not None:
             Xv, Yv, mv, ev = validation
             Dv = _spring_columns(ev, j)
@@ -342,7 +353,7 @@ def physical_effects(eobs, X, Y, mask, n_base, chi, robot, *, weights, alpha=0.0
                          p_value=float(min(1.0, n * p_raw)), deviation_before=c0, deviation_after=c1,
                          contradicted=[(a_, 0.0, 0.0, 0.0) for a_ in pc0.active[:3]], route="physical",
                          alpha=alpha, min_amplitude_sigma=min_amplitude_sigma)
-        ok = h.p_value < alpha and amp >= min_amplitude_sigma * sd and c1 <= 0.5 * c0
+        ok = h.missed_rule() is None
         if ok and validation is not None:
             Xv, Yv, mv, ev = validation
             Dv = _spring_columns(ev, j)

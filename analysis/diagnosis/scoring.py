@@ -221,15 +221,20 @@ def chi2_logsf_many(x, k):
     return v
 
 
-def new_columns(X, C, mask, weights):
-    """Indices of the columns of C (M, n, k) that add to the span of X (weighted used rows)."""
+def _weighted_span(X, C, mask, weights):
+    """(A, B, Q): the used rows of X and C (M, n, ·) weighted by their joint's w_j, and an
+    orthonormal basis Q of the span of A (pivoted QR, rank cut at 1e-10, as `Scorer`)."""
     ri, rj = np.nonzero(mask)
     w = np.asarray(weights, dtype=float)[rj][:, None]
     A = X[ri, rj, :] * w
-    B = C[ri, rj, :] * w
     Q, R, _ = sla.qr(A, mode="economic", pivoting=True, check_finite=False)
     d = np.abs(np.diag(R))
-    Q = Q[:, :int(np.count_nonzero(d > 1e-10 * d[0]))]
+    return A, C[ri, rj, :] * w, Q[:, :int(np.count_nonzero(d > 1e-10 * d[0]))]
+
+
+def new_columns(X, C, mask, weights):
+    """Indices of the columns of C (M, n, k) that add to the span of X (weighted used rows)."""
+    _, B, Q = _weighted_span(X, C, mask, weights)
     return independent_columns(B - Q @ (Q.T @ B), np.linalg.norm(B, axis=0))
 
 
@@ -251,19 +256,13 @@ def separability(X, C, mask, weights):
         The fraction, and the model's columns that combination nearly equals: (column index,
         share of the combination's part inside the span), largest first, those above 10 %.
     """
-    ri, rj = np.nonzero(mask)
-    w = np.asarray(weights, dtype=float)[rj][:, None]
-    A = X[ri, rj, :] * w
-    B = C[ri, rj, :] * w
+    A, B, Q = _weighted_span(X, C, mask, weights)
     norms = np.linalg.norm(B, axis=0)
     if not np.any(norms > 0):
         return 0.0, []
     # an orthonormal basis of the candidate's columns (its own dependent columns dropped)
     U, s, _ = np.linalg.svd(B[:, norms > 0] / norms[norms > 0], full_matrices=False)
     U = U[:, s > 1e-8 * s[0]]
-    Q, R, _ = sla.qr(A, mode="economic", pivoting=True, check_finite=False)
-    d = np.abs(np.diag(R))
-    Q = Q[:, :int(np.count_nonzero(d > 1e-10 * d[0]))]
     _, sv, Vt = np.linalg.svd(U - Q @ (Q.T @ U), full_matrices=False)
     u = U @ Vt[-1]                                  # the combination most inside the span
     coef = np.linalg.lstsq(A, Q @ (Q.T @ u), rcond=None)[0]

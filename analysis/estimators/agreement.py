@@ -291,7 +291,7 @@ def agreement(chis, sigmas, covs, names, *, kind: str = "recordings", rel_max: f
                      left_out=list(left_out), prismatic=frozenset(prismatic))
 
 
-def agreement_verdict(a: dict) -> str:
+def agreement_verdict(a: Agreement) -> str:
     """One verdict line: do the recordings (segments) agree within their intervals?
 
     `a` is an `Agreement`.

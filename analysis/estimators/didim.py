@@ -787,15 +787,21 @@ def _prepare_loop(robot, bp, ctrl, s, t, qr, tau, update_gains, workers, max_ite
     return loop, _loop_notice(s, n0, update_gains)
 
 
-def _loop_notice(s, n0, update_gains):
-    """The notice describing the simulation of a `_Loop`."""
-    return (f"DIDIM: closed-loop simulation at {s['rate']:g} Hz from (qr(0), qdr(0)); first "
+def _loop_notice(s, n0, update_gains, continued_at=None):
+    """The notice describing the simulation of a `_Loop`; `continued_at`: the width v_s of a run
+    that continues another (without a gain update: the actual gains, kept from that one)."""
+    head = "DIDIM: " if continued_at is None else f"DIDIM, continued at the chosen v_s = {continued_at:.3g} rad/s: "
+    gains = ("; the actual derivative gains (kd_scale = 1)" if continued_at is not None and update_gains is False
+             else _GAIN_TEXT[update_gains])
+    return (f"{head}closed-loop simulation at {s['rate']:g} Hz from (qr(0), qdr(0)); first "
             f"{n0} samples ({s['transient']:.3g} s) dropped as the closed-loop transient; "
-            f"parallel decimation by nd = {s['nd']} (low-pass {s['f_decimation_cutoff']:.3g} Hz)"
-            + {True: "; derivative gains updated with J_j / J_ap_j (eq. (27)) at every step",
-               "initial": "; derivative gains updated with J_j / J_ap_j (eq. (27)) for the "
-                          "simulation of chi^0 only, the actual gains (kd_scale = 1) after",
-               False: "; derivative gains NOT updated (kd_scale = 1)"}[update_gains])
+            f"parallel decimation by nd = {s['nd']} (low-pass {s['f_decimation_cutoff']:.3g} Hz){gains}")
+
+
+_GAIN_TEXT = {True: "; derivative gains updated with J_j / J_ap_j (eq. (27)) at every step",
+              "initial": "; derivative gains updated with J_j / J_ap_j (eq. (27)) for the "
+                         "simulation of chi^0 only, the actual gains (kd_scale = 1) after",
+              False: "; derivative gains NOT updated (kd_scale = 1)"}
 
 
 def _loop_at(L, v_s, update_gains, max_iter, progress=None, uncertainty="classic"):
@@ -1500,10 +1506,7 @@ def _continue_at(experiment, L0, first, v, step, start, final_run, progress):
         k = n1 + 2
     # the run continues the one above at the chosen width: with "initial" gain updates, that one
     # simulated chi^0 with the updated gains, and this one goes on with the actual ones
-    notices = ["DIDIM, continued at the chosen v_s = " + f"{v:.3g} rad/s: "
-               + _loop_notice(Lf.s, Lf.n0, o["update_gains"]).removeprefix("DIDIM: ")
-               .replace("derivative gains NOT updated (kd_scale = 1)",
-                        "the actual derivative gains (kd_scale = 1)")]
+    notices = [_loop_notice(Lf.s, Lf.n0, o["update_gains"], continued_at=v)]
     resume = dict(k=k, last=last, rho=float(row["rho_norm"]), out_err=float(row["output_error"]), beta_ls=start)
     history, tim, last, converged, stop_reason = _gauss_newton(Lf, start, o["tol"], o["physical"],
                                                                o["pc_options"], notices, resume=resume)

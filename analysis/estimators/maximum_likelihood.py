@@ -248,6 +248,7 @@ class MLResult(ParameterResults):
     settings: dict = field(default_factory=dict)
     notices: list = field(default_factory=list)
     data_hash: str = ""
+    stop_reason: str = ""         # the optimiser's message (the verdict's reason when not converged)
 
     method = "ML-EIV"
     theta = deprecated_alias("params (a pandas Series) or chi (the array)", lambda r: r.chi)
@@ -538,7 +539,7 @@ def maximum_likelihood(t, q, tau, model, *, f0, n_harmonics=None, sigma_q=None, 
                     rms_q=np.sqrt(np.mean(rq ** 2, axis=0)), rms_tau=np.sqrt(np.sum(rt ** 2, axis=0) / n_tau),
                     elapsed=time.perf_counter() - t0, model=model.description,
                     rel_error=float(np.linalg.norm(rt) / np.linalg.norm(keep * tau)), settings=cfg,
-                    notices=notices, data_hash=data_hash(t, q, tau))
+                    notices=notices, data_hash=data_hash(t, q, tau), stop_reason=str(sol.message))
 
 
 def _check_f0(f0, t):

@@ -277,7 +277,7 @@ def check_convergence(x: VerdictInputs) -> CheckOutcome:
         return CheckOutcome()
     method = str(getattr(x.result, "method", "") or type(x.result).__name__)
     why = str(getattr(x.result, "stop_reason", "") or "").strip().rstrip(".")
-    if not why:      # maximum likelihood: its optimiser's message is among the notices
+    if not why:      # a result without stop_reason: the optimiser's message among its notices
         why = next((str(n).split(": ", 1)[-1].rstrip(".") for n in getattr(x.result, "notices", []) or []
                     if "without convergence" in str(n)), "")
     advice = ("Raise the step limit (--max-iter), start nearer (the IDIM estimate), or use IDIM's model."
