@@ -24,7 +24,7 @@ from dynid.analysis.processing.signals import (
 )
 from dynid.dynamics.base_parameters import base_regressor
 from dynid.dynamics.regressor import regressor
-from dynid.errors import DataError
+from dynid.errors import DataError, InputError
 
 CHUNK = 20_000
 #: A decimated row made mostly of zeroed (dead-zone) samples carries little information and a
@@ -77,8 +77,11 @@ def resolve_settings(experiment, overrides=None):
                         + ", ".join(f"{k} ({v})" for k, v in SETTINGS_HELP.items()))
     qd_threshold = overrides.pop("qd_threshold", "auto")
     order = int(overrides.pop("order", 4))
-    proposed = default_settings(experiment.fs, experiment.q, order=order,
-                                **{k: v for k, v in overrides.items() if v is not None})
+    try:
+        proposed = default_settings(experiment.fs, experiment.q, order=order,
+                                    **{k: v for k, v in overrides.items() if v is not None})
+    except InputError as e:      # the signal functions know arrays, not the recording
+        raise DataError(f"{experiment.source}: {e}") from None
     proposed["order"] = order
     proposed["qd_threshold"] = qd_threshold
     proposed["fs"] = float(experiment.fs)
@@ -240,13 +243,14 @@ def full_rate(experiment, robot, q_meas, settings=None) -> FullRate:
                         f"but the data have {q_meas.shape[1]}")
     s = settings if (settings and "fs" in settings) else resolve_settings(experiment, settings)
     fs = experiment.fs
-    der = derivatives(q_meas, fs, s["fc_position"], s["order"])
     N = q_meas.shape[0]
     edge = int(s["edge"])
+    # before the filter, whose own check of the length does not know the file
     if N - 2 * edge < 10:
         raise DataError(f"{experiment.source}: {N} samples are too few for the position filter at "
                         f"{s['fc_position']} Hz (it needs {edge} samples at each end); record longer "
                         f"or raise fc_position")
+    der = derivatives(q_meas, fs, s["fc_position"], s["order"])
     keep = slice(edge, N - edge)
     qd = der.qd[keep]
     s, dead = _dead_zone(s, qd, robot, guard=int(np.ceil(fs / s["fc_position"])))
