@@ -10,7 +10,8 @@ it is to identify the same model on different data and compare.
   both call identified (%σ ≤ `rel_max`), z = (χa − χb)/√(σa² + σb²); the
   fraction with |z| ≤ 1.96 (95 % expected) and the median |z| (0.67 expected).
 * `equality_test`: χ² test that all recordings share one parameter vector,
-  overall (full covariances) and per parameter (Cochran's Q).
+  overall (Cochran's Q summed over the parameters, referred to the χ² its
+  correlations give) and per parameter (Cochran's Q).
 * `random_effects`: the pooled estimate of each parameter whose standard
   error includes the between-recording variance τ² (DerSimonian & Laird 1986,
   statsmodels' combine_effects).
@@ -32,6 +33,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
+import scipy.linalg
 from scipy import stats
 
 from dynid.analysis.results import ParameterResults, p_phrase, parameter_table
@@ -80,37 +82,55 @@ def pairwise_agreement(chis, sigmas, *, rel_max: float = 10.0, names=None) -> di
 def equality_test(chis, covs) -> dict:
     """χ² test of H0: every recording has the same parameter vector.
 
-    Overall: χ̄ = (Σ V_k⁻¹)⁻¹ Σ V_k⁻¹ χ_k and Q = Σ_k (χ_k − χ̄)ᵀ V_k⁻¹ (χ_k − χ̄),
-    χ² with (K − 1) p degrees of freedom under H0. Per parameter: Cochran's Q
-    with the variances alone, K − 1 degrees of freedom.
+    Overall: Q = Σ_k Σ_i (χ_ki − χ̄_i)² / v_ki, with v_ki the variance of parameter i in
+    part k and χ̄_i the inverse-variance mean (Cochran's Q summed over the parameters).
+    Under H0 the parts' errors e_k have covariances V_k and Q = eᵀ B e, a weighted sum of
+    χ²₁ variables whose mean and variance are tr(BV) and 2 tr((BV)²); Q/g is referred to
+    χ² with h degrees of freedom, g = tr((BV)²)/tr(BV), h = tr(BV)²/tr((BV)²)
+    (Satterthwaite 1946; Box 1954). With diagonal V_k this is exact: g = 1, h = (K − 1) p.
+
+    The full covariances enter through those two traces only, never inverted. The Wald form
+    Σ_k (χ_k − χ̄)ᵀ V_k⁻¹ (χ_k − χ̄) inverts them, and a robust covariance (HAC, block
+    bootstrap) of a short segment is estimated from fewer effective samples than it has
+    parameters: its small eigenvalues are noise, and their inverses made the statistic 1.5
+    (bootstrap) to 180 (HAC) times the classic one on an LWR4+ recording, whose σ are
+    smaller. Per parameter: Cochran's Q with the variances alone, K − 1 degrees of freedom.
+
+    A parameter without a positive, finite variance in every part is left out of the
+    overall test (its Q is NaN).
 
     Returns
     -------
     dict
-        `chi2`, `dof`, `p_value` (overall) and `per_parameter`: arrays
-        `q` and `p_value` (p,).
+        `chi2` (Q/g), `dof` (h, not necessarily whole), `p_value`, `scale` (g), and
+        `per_parameter`: arrays `q` and `p_value` (p,).
     """
     chis = np.asarray(chis, dtype=float)
     covs = np.asarray(covs, dtype=float)
     K, p = chis.shape
-    # pseudo-inverses: a robust covariance may be singular to rounding
-    P = np.array([np.linalg.pinv(0.5 * (C + C.T)) for C in covs])
-    S, r = P.sum(axis=0), np.einsum("kij,kj->i", P, chis)
-    try:
-        mean = np.linalg.solve(S, r)
-    except np.linalg.LinAlgError:
-        # a parameter that no part gives a variance to (σ = 0) leaves the sum singular
-        mean = np.linalg.lstsq(S, r, rcond=None)[0]
-    d = chis - mean
-    q_all = float(np.einsum("ki,kij,kj->", d, P, d))
-    dof = (K - 1) * p
     v = np.array([np.diag(C) for C in covs])
+    usable = np.all(np.isfinite(v) & (v > 0), axis=0) & np.all(np.isfinite(chis), axis=0)
     with np.errstate(divide="ignore", invalid="ignore"):    # σ = 0: that parameter's Q is NaN
         w = np.where(v > 0, 1.0 / np.where(v > 0, v, 1.0), np.nan)
         mu = (w * chis).sum(axis=0) / w.sum(axis=0)
         q = (w * (chis - mu) ** 2).sum(axis=0)
-    return {"chi2": q_all, "dof": dof, "p_value": float(stats.chi2.sf(q_all, dof)),
-            "per_parameter": {"q": q, "p_value": stats.chi2.sf(q, K - 1)}}
+    per_parameter = {"q": q, "p_value": stats.chi2.sf(q, K - 1)}
+    m = int(usable.sum())
+    if K < 2 or m == 0:
+        return {"chi2": math.nan, "dof": math.nan, "p_value": math.nan, "scale": math.nan,
+                "per_parameter": per_parameter}
+    wu = w[:, usable]                                        # (K, m)
+    Vu = covs[:, usable][:, :, usable]                       # (K, m, m)
+    # d = L e with L = I − [S⁻¹W_1 ... S⁻¹W_K] stacked K times, S = Σ_k W_k (all diagonal)
+    share = (wu / wu.sum(axis=0)).reshape(-1)               # (K m,): block j's diagonal of S⁻¹W_j
+    L = np.eye(K * m) - np.tile(np.diag(share).reshape(K, m, K * m).sum(axis=0), (K, 1))
+    B = L.T @ (wu.reshape(-1, 1) * L)
+    BE = B @ scipy.linalg.block_diag(*(0.5 * (C + C.T) for C in Vu))
+    t1, t2 = float(np.trace(BE)), float(np.einsum("ij,ji->", BE, BE))
+    scale, dof = t2 / t1, t1 * t1 / t2
+    stat = float(q[usable].sum()) / scale
+    return {"chi2": stat, "dof": dof, "p_value": float(stats.chi2.sf(stat, dof)), "scale": scale,
+            "per_parameter": per_parameter}
 
 
 def random_effects(chis, sigmas) -> dict:
@@ -174,8 +194,9 @@ class Agreement(ParameterResults):
         The parameters every part identifies (`left_out`: the others).
     pairs, within_95, median_abs_z, beyond_5, z, rel_max
         `pairwise_agreement`.
-    chi2, dof, p_value, per_parameter_p_value
-        `equality_test` (overall, and Cochran's Q per parameter).
+    chi2, dof, p_value, chi2_scale, per_parameter_p_value
+        `equality_test`: overall Q/g on h effective degrees of freedom (g = `chi2_scale`),
+        and Cochran's Q per parameter.
     pooled, pooled_std, between_std : pandas.Series
         `random_effects` (DerSimonian-Laird), by parameter name (`per_parameter_p_value` too).
     uncertainty : str
@@ -192,13 +213,14 @@ class Agreement(ParameterResults):
     z: list
     rel_max: float
     chi2: float
-    dof: int
+    dof: float
     p_value: float
     per_parameter_p_value: np.ndarray
     pooled: np.ndarray
     pooled_std: np.ndarray
     between_std: np.ndarray
     uncertainty: str = "classic"
+    chi2_scale: float = 1.0
     left_out: list = field(default_factory=list)
     prismatic: frozenset = frozenset()
 
@@ -251,7 +273,8 @@ class Agreement(ParameterResults):
             "kind": self.kind, "k": self.k, "names": self.names, "pairs": self.pairs,
             "within_95": self.within_95, "median_abs_z": self.median_abs_z, "beyond_5": self.beyond_5,
             "z": self.z, "rel_max": self.rel_max, "chi2": self.chi2, "dof": self.dof,
-            "p_value": self.p_value, "per_parameter_p_value": self.per_parameter_p_value.to_numpy(),
+            "chi2_scale": self.chi2_scale, "p_value": self.p_value,
+            "per_parameter_p_value": self.per_parameter_p_value.to_numpy(),
             "pooled": self.pooled.to_numpy(), "pooled_std": self.pooled_std.to_numpy(),
             "between_std": self.between_std.to_numpy(),
             "uncertainty": self.uncertainty, "left_out": self.left_out, "verdict": self.verdict})
@@ -286,7 +309,7 @@ def agreement(chis, sigmas, covs, names, *, kind: str = "recordings", rel_max: f
     return Agreement(kind=kind, k=len(chis), names=list(names), pairs=pw["pairs"],
                      within_95=pw["within_95"], median_abs_z=pw["median_abs_z"], beyond_5=pw["beyond_5"],
                      z=pw["z"], rel_max=rel_max, chi2=eq["chi2"], dof=eq["dof"], p_value=eq["p_value"],
-                     per_parameter_p_value=eq["per_parameter"]["p_value"], pooled=re["pooled"],
+                     chi2_scale=eq["scale"], per_parameter_p_value=eq["per_parameter"]["p_value"], pooled=re["pooled"],
                      pooled_std=re["std"], between_std=re["tau"], uncertainty=uncertainty,
                      left_out=list(left_out), prismatic=frozenset(prismatic))
 
@@ -314,7 +337,7 @@ def agreement_verdict(a: Agreement) -> str:
             f"{what} (use the pooled estimate and its between-{what[:-1]} spread)")
     return (f"The {a.k} {what} {head}: {100 * a.within_95:.0f} % of {a.pairs} pairwise differences "
             f"within their 95 % interval (95 % expected), median |z| {a.median_abs_z:.2f} (0.67 expected); "
-            f"chi2 test of equal parameters {a.chi2:.4g} on {a.dof} dof, {p_phrase(a.p_value)}{tail}.")
+            f"chi2 test of equal parameters {a.chi2:.4g} on {a.dof:.3g} dof, {p_phrase(a.p_value)}{tail}.")
 
 
 

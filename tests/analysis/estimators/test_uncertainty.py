@@ -4,6 +4,7 @@ import dataclasses
 import numpy as np
 import pytest
 import statsmodels.api as sm
+from scipy import stats
 
 from dynid.analysis.estimators import agreement as ag
 from dynid.analysis.estimators import hac
@@ -138,7 +139,9 @@ def test_equality_test_and_random_effects():
     sig = np.full((K, p), 0.1)
     same = truth + 0.1 * rng.standard_normal((K, p))
     eq = ag.equality_test(same, [np.diag(s**2) for s in sig])
-    assert eq["dof"] == 9 and eq["p_value"] > 0.001
+    # diagonal covariances: Cochran's Q summed over the parameters, exactly chi2 on (K - 1) p dof
+    assert eq["dof"] == pytest.approx(9) and eq["scale"] == pytest.approx(1) and eq["p_value"] > 0.001
+    assert eq["chi2"] == pytest.approx(eq["per_parameter"]["q"].sum())
     spread = same + np.array([[0.0], [1.0], [-1.0], [0.5]])
     eq2 = ag.equality_test(spread, [np.diag(s**2) for s in sig])
     assert eq2["p_value"] < 1e-6
@@ -182,7 +185,8 @@ def test_recording_agreement_segments_and_recordings():
     obs = SimpleNamespace(W=W3, tau=tau, row_mask=np.ones(tau.shape, bool), n_samples=600)
     names = ["a", "b", "c"]
     a, why = recording_agreement(obs, names, np.zeros(600, int), None)
-    assert why == "" and a.kind == "segments" and a.k == 3 and a.dof == 6
+    # dof: (K - 1) p, less what the correlations between the parameters take
+    assert why == "" and a.kind == "segments" and a.k == 3 and 5 < a.dof <= 6
     # white noise, the right model: the segments agree
     assert a.p_value > 1e-3
     b, _ = recording_agreement(obs, names, np.repeat([0, 1], 300), None, "hac")
@@ -390,6 +394,48 @@ def test_bootstrap_percentile_sigma_is_robust_to_a_few_wild_replicates():
         n += 3
     assert hits["percentile"] / n >= 0.9
     assert np.median(width["percentile"]) < np.median(width["cov"])
+
+
+def _wald_pinv(chis, covs):
+    """The overall test as it was: sum_k d_k' V_k^+ d_k about the GLS mean, chi2 on (K - 1) p dof."""
+    P = np.array([np.linalg.pinv(C) for C in covs])
+    mu = np.linalg.lstsq(P.sum(axis=0), np.einsum("kij,kj->i", P, chis), rcond=None)[0]
+    d = chis - mu
+    return float(stats.chi2.sf(np.einsum("ki,kij,kj->", d, P, d), (len(chis) - 1) * chis.shape[1]))
+
+
+def test_equality_test_size_with_correlated_and_estimated_covariances():
+    """Under H0 the overall test rejects at its level, with correlated covariances and with
+    covariances estimated from few effective samples (a HAC or bootstrap covariance of a short
+    segment): the Wald form, which inverts them, rejected a true H0 most of the time (Monte Carlo
+    against the chi2 distribution, not against dynid's own simulator)."""
+    rng = np.random.default_rng(11)
+    K, p, n, nu = 3, 20, 600, 30
+    covs = []
+    for _ in range(K):
+        A = rng.standard_normal((p, p)) * np.linspace(0.1, 3.0, p)
+        covs.append(A @ A.T / p + 0.01 * np.eye(p))
+    chol = [np.linalg.cholesky(C) for C in covs]
+    reject = {"exact": 0, "estimated": 0, "wald_estimated": 0}
+    for _ in range(n):
+        chis = np.array([c @ rng.standard_normal(p) for c in chol])
+        est = [np.cov((c @ rng.standard_normal((p, nu))).T, rowvar=False) for c in chol]
+        reject["exact"] += ag.equality_test(chis, covs)["p_value"] < 0.05
+        reject["estimated"] += ag.equality_test(chis, est)["p_value"] < 0.05
+        reject["wald_estimated"] += _wald_pinv(chis, est) < 0.05
+    assert 0.025 <= reject["exact"] / n <= 0.08
+    assert reject["estimated"] / n <= 0.10
+    assert reject["wald_estimated"] / n >= 0.5
+    # and it still sees one part shifted on one parameter: the per-parameter Q at 5 sigma of the
+    # difference, the overall test (40 dof, of which correlations leave about 20) at 10
+    chis = np.array([c @ rng.standard_normal(p) for c in chol])
+    for shift, per_parameter, overall in ((5, True, None), (10, True, True)):
+        moved = chis.copy()
+        moved[0, 3] += shift * np.sqrt(covs[0][3, 3] + covs[1][3, 3])
+        eq = ag.equality_test(moved, covs)
+        assert eq["dof"] < (K - 1) * p
+        assert (eq["per_parameter"]["p_value"][3] < 0.01) == per_parameter
+        assert overall is None or (eq["p_value"] < 0.01) == overall
 
 
 def test_agreement_with_a_parameter_of_zero_variance():
