@@ -40,6 +40,22 @@ def mdh_placement(alpha, d, theta, r):
     return R, p
 
 
+def joint_label(k: int, name="", prefix: str = "j") -> str:
+    """Joint `k` (0-based) as the tables count it, from 1, with its own name beside it when that
+    says something more: `j6 (lwr_5_joint)` (a URDF's names may count from 0), but `j3` for
+    `j3`, `joint3`, `Joint_3`, `3` or no name. `prefix="joint "` gives `joint 6 (lwr_5_joint)`."""
+    name = "" if name is None else str(name)
+    plain = name.lower().replace("_", "").replace(" ", "") in ("", f"j{k + 1}", f"joint{k + 1}", f"{k + 1}")
+    label = f"{prefix}{k + 1}"
+    return label if plain else f"{label} ({name})"
+
+
+def joint_names_of(obj, n: int) -> list:
+    """The `joint_names` of a robot or result (None: none), padded to `n` with `j1`, `j2`, ..."""
+    names = list(getattr(obj, "joint_names", None) or []) if obj is not None else []
+    return names[:n] + [f"j{k + 1}" for k in range(len(names), n)]
+
+
 @dataclass
 class Joint:
     """One joint and the link it moves."""

@@ -30,6 +30,7 @@ from markupsafe import Markup
 from matplotlib.figure import Figure
 from matplotlib.ticker import NullFormatter
 
+from dynid.dynamics.robot import joint_names_of
 from dynid.reports import figures as F
 from dynid.reports import tables as T
 from dynid.reports.html import Section, bullets, code, join, kv_list, para
@@ -45,11 +46,6 @@ SECTION_IDS = ("didim-convergence", "didim-table2", "didim-torques", "didim-traj
 def _pct(x, digits=2) -> str:
     x = float(x)
     return T.MISSING if not math.isfinite(x) else f"{100 * x:.{digits}f}\u00a0%"
-
-
-def _joint_names(res, n):
-    names = list(getattr(res, "joint_names", None) or [])
-    return names + [f"j{k + 1}" for k in range(len(names), n)]
 
 
 def _figure(width, height):
@@ -253,7 +249,7 @@ def _table2_section(res, reference):
 
 def _torque_section(res, reference):
     n = res.tau_dec.shape[1]
-    names = _joint_names(res, n)
+    names = joint_names_of(res, n)
     fig = F.torque_figure(res.t_dec, res.tau_dec, res.tau_est_dec, names, key="fig-didim-torque",
                           caption="Actual torque Y(\u03c4) (red) and the torque of the identified model "
                                   "on the simulated motion, W\u03b4(q_ddm, q\u0307_ddm, q\u0308_ddm, "
@@ -281,7 +277,7 @@ def _torque_section(res, reference):
 
 def _trajectory_section(res):
     n = res.q_sim.shape[1]
-    names = _joint_names(res, n)
+    names = joint_names_of(res, n)
     fig_q = trajectory_figure(res.t, res.qr, res.q_sim, names, key="fig-didim-trajectories")
     fig_e = trajectory_figure(res.t, res.qr, res.q_sim, names, key="fig-didim-tracking", error=True)
     rms = res.tracking_rms

@@ -39,6 +39,7 @@ from matplotlib.layout_engine import ConstrainedLayoutEngine
 from matplotlib.ticker import LogLocator, NullFormatter
 
 from dynid.analysis.results import p_phrase, p_value_text
+from dynid.dynamics.robot import joint_label as robot_joint_label
 from dynid.reports.figure_layout import GridLayoutEngine, thin_crowded_ticks
 
 __all__ = [
@@ -102,10 +103,7 @@ class FigureMarkup:
 # ------------------------------------------------------------------ helpers
 def joint_label(j: int, name: str) -> str:
     """`joint 3` for default names (`j3`, `joint3`, `3`), else `joint 3 (name)`."""
-    name = str(name)
-    if name.lower().replace("_", "").replace(" ", "") in (f"j{j + 1}", f"joint{j + 1}", f"{j + 1}", ""):
-        return f"joint {j + 1}"
-    return f"joint {j + 1} ({name})"
+    return robot_joint_label(j, name, prefix="joint ")
 
 
 def _plain(text) -> str:

@@ -34,6 +34,7 @@ from dynid.analysis.processing.observation import SETTINGS_HELP
 from dynid.analysis.statistics.validation import DEAD_ZONE_REASON
 from dynid.analysis.statistics.verdict import parameter_unit
 from dynid.analysis.statistics.verdict import verdict as _verdict
+from dynid.dynamics.robot import joint_names_of
 from dynid.outputs import atomic_write_text
 from dynid.provenance import versions
 from dynid.reports import figures as F
@@ -232,11 +233,6 @@ def _pct(x, digits=2) -> str:
     return T.MISSING if not math.isfinite(x) else f"{100 * x:.{digits}f}\u00a0%"
 
 
-def _joint_names(robot, n):
-    names = list(getattr(robot, "joint_names", []) or [])
-    return names + [f"j{k + 1}" for k in range(len(names), n)]
-
-
 def _max_finite(a):
     a = np.asarray(a, dtype=float)
     if a.size == 0:
@@ -264,7 +260,7 @@ def _setting_value(key, value, joint_names):
 def _run_section(res, robot, experiment, reference):
 
     obs = res.observation
-    names = _joint_names(robot, obs.tau.shape[1])
+    names = joint_names_of(robot, obs.tau.shape[1])
     pairs = [("Robot", f"{robot.name}" + (f" \u2014 {robot.description}" if getattr(robot, "description", "") else ""))]
     if getattr(robot, "source", ""):
         pairs.append(("Robot file", code(robot.source)))
@@ -309,7 +305,7 @@ def _run_section(res, robot, experiment, reference):
 
 def _model_section(robot, res):
     n = robot.n_joints
-    names = _joint_names(robot, n)
+    names = joint_names_of(robot, n)
     desc = []
     if getattr(robot, "description", ""):
         desc.append(para(robot.description))
@@ -463,7 +459,7 @@ def _joint_error_table(key, caption, names, rms, rel, sigma=None):
 
 def _torque_section(res, robot, reference):
     obs = res.observation
-    names = _joint_names(robot, obs.tau.shape[1])
+    names = joint_names_of(robot, obs.tau.shape[1])
     est = res.predict(obs.W)
     mask = np.broadcast_to(np.asarray(obs.row_mask, dtype=bool), obs.tau.shape)
     frac = float(mask.mean())
@@ -486,7 +482,7 @@ def _torque_section(res, robot, reference):
 
 def _validation_section(res, robot, validation):
     n = validation.tau.shape[1]
-    names = _joint_names(robot, n)
+    names = joint_names_of(robot, n)
     excl = float(getattr(validation, "excluded_fraction", 0.0))
     t = np.asarray(validation.t, dtype=float)
     same = str(getattr(res, "source", "")) == str(validation.source)

@@ -62,6 +62,7 @@ from dynid.analysis.statistics.residuals import analyze_residuals, residual_anal
 from dynid.analysis.units import parameter_kind, parameter_unit, prismatic_joints
 from dynid.dynamics.base_parameters import base_parameters
 from dynid.dynamics.excitation import apriori_parameters
+from dynid.dynamics.robot import joint_label, joint_names_of
 from dynid.errors import InputError
 from dynid.provenance import json_safe
 
@@ -133,13 +134,7 @@ def _pct(x):
 def _joint_names(robot, n):
     """`j1` .. `jn`, each with the robot file's name of the joint beside it when it has another:
     a URDF's names may count from 0 (`lwr_5_joint` is joint 6), the tables count from 1."""
-    names = list(getattr(robot, "joint_names", []) or []) if robot is not None else []
-    out = []
-    for k in range(n):
-        label, name = f"j{k + 1}", str(names[k]) if k < len(names) else ""
-        plain = name.lower().replace("_", "").replace(" ", "") in ("", label, f"joint{k + 1}")
-        out.append(label if plain else f"{label} ({name})")
-    return out
+    return [joint_label(k, name) for k, name in enumerate(joint_names_of(robot, n))]
 
 
 def identification_residual(idim_result):

@@ -530,3 +530,16 @@ def test_rounded_dh_right_angles_are_right_angles(tmp_path):
     assert base_parameters(a).names == base_parameters(b).names
     assert any("joints[2].alpha = -1.5708 as -1.5707963267948966" in n for n in a.notices), a.notices
     assert not any("pi/2" in n for n in b.notices)
+
+
+def test_joint_labels_count_from_one_and_keep_a_name_that_says_more():
+    """One rule for the verdict (`j6 (lwr_5_joint)`) and the figures (`joint 6 (lwr_5_joint)`)."""
+    from dynid.dynamics.robot import joint_label, joint_names_of
+    from dynid.reports.figures import joint_label as figure_label
+    for plain in ("", None, "j3", "joint3", "Joint_3", "joint 3", "3"):
+        assert joint_label(2, plain) == "j3" and figure_label(2, plain or "") == "joint 3"
+    assert joint_label(5, "lwr_5_joint") == "j6 (lwr_5_joint)"
+    assert figure_label(5, "lwr_5_joint") == "joint 6 (lwr_5_joint)"
+    assert joint_label(1, "j1") == "j2 (j1)"       # a name that counts from 0 is shown
+    assert joint_names_of(None, 2) == ["j1", "j2"]
+    assert joint_names_of(load_robot("tx40"), 8)[-2:] == ["j7", "j8"]
