@@ -67,30 +67,35 @@ def wald_pinv_p(chis, covs):
     return float(stats.chi2.sf(np.einsum("ki,kij,kj->", d, P, d), (len(chis) - 1) * chis.shape[1]))
 
 
-def run_seed(seed, ripple):
-    from dynid.analysis.estimators import agreement as ag
-    from dynid.analysis.estimators.idim import recording_agreement
+def run_sample(seeds, ripple):
+    """One sample: the seeds' records identified together as `dynid identify` does (one seed: its
+    three segments compared; several: each recording alone), with each covariance option."""
+    import dynid.analysis.estimators.idim as idim
     from dynid.analysis.processing.observation import observe
     ci.RIPPLE = dict(ci.RIPPLE, A=ripple)
-    exp, robot, bp, _, _ = ci.simulate(seed)
-    obs = observe(exp, robot, bp)
-    row = {"seed": seed, "ripple": ripple}
+    sims = [ci.simulate(seed) for seed in seeds]
+    exps, robot, bp = [s[0] for s in sims], sims[0][1], sims[0][2]
+    first = observe(exps[0], robot, bp) if len(exps) == 1 else None
+    row = {"seeds": list(seeds), "ripple": ripple}
     captured = {}
-    real_agreement = ag.agreement
+    real_agreement = idim.agreement
 
     def spy(chis, sigmas, covs, names, **kw):
         captured["chis"], captured["covs"] = np.asarray(chis), np.asarray(covs)
         return real_agreement(chis, sigmas, covs, names, **kw)
 
-    import dynid.analysis.estimators.idim as idim
     idim.agreement = spy
     try:
         for opt in OPTIONS:
-            a, why = recording_agreement(obs, bp.names, np.zeros(obs.n_samples, int), None, opt)
+            captured.clear()
+            r = idim.identify_idim(exps if len(exps) > 1 else exps[0], robot, bp=bp, uncertainty=opt,
+                                   observation=first)
+            a = r.agreement
             if a is None:
-                row[opt] = {"skipped": why}
+                row[opt] = {"skipped": True}
                 continue
-            row[opt] = {"p": a.p_value, "dof": a.dof, "p_wald": wald_pinv_p(captured["chis"], captured["covs"])}
+            row[opt] = {"p": a.p_value, "dof": a.dof, "within_95": a.within_95, "pairs": a.pairs,
+                        "p_wald": wald_pinv_p(captured["chis"], captured["covs"])}
     finally:
         idim.agreement = real_agreement
     return row
@@ -98,23 +103,28 @@ def run_seed(seed, ripple):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--seeds", type=int, default=10)
+    ap.add_argument("--seeds", type=int, default=10, help="samples (each of --recordings seeds)")
     ap.add_argument("--start", type=int, default=12000)
     ap.add_argument("--ripple", type=float, default=ci.RIPPLE["A"], help="ripple amplitude, N m (0: none)")
-    ap.add_argument("--out", default=None, help="JSON lines, one per seed")
+    ap.add_argument("--recordings", type=int, default=1,
+                    help="seeds per sample: 1 compares a recording's three segments, 2 or more the recordings")
+    ap.add_argument("--out", default=None, help="JSON lines, one per sample")
     a = ap.parse_args(argv)
     t0 = time.time()
     rows = []
-    for seed in range(a.start, a.start + a.seeds):
-        row = run_seed(seed, a.ripple)
+    for first in range(a.start, a.start + a.seeds * a.recordings, a.recordings):
+        row = run_sample(range(first, first + a.recordings), a.ripple)
         rows.append(row)
         print(json.dumps(row), flush=True)
         if a.out:
             with open(a.out, "a") as f:
                 f.write(json.dumps(row) + "\n")
-    out = {"seeds": a.seeds, "first_seed": a.start, "ripple": a.ripple}
+    out = {"samples": a.seeds, "recordings": a.recordings, "first_seed": a.start, "ripple": a.ripple}
     for opt in OPTIONS:
         ok = [r[opt] for r in rows if "p" in r[opt]]
+        out[f"{opt}_pairs_within_95"] = (round(float(np.average([r["within_95"] for r in ok],
+                                                                   weights=[r["pairs"] for r in ok])), 3)
+                                         if sum(r["pairs"] for r in ok) else None)
         for key, name in (("p", "dynid"), ("p_wald", "wald")):
             for level in (0.01, 0.05):
                 out[f"{opt}_{name}_reject_{level:g}"] = (round(float(np.mean([r[key] < level for r in ok])), 3)

@@ -701,7 +701,7 @@ def main(argv=None):
         pooled = [(n, p, s, t) for n, p, s, t in zip(agr.names, agr.pooled, agr.pooled_std,
                                                     agr.between_std) if t > 0]
         print(f"  random effects (DerSimonian-Laird): between-run spread > 0 for {len(pooled)} of "
-              f"{len(agr.names)} parameters; chi2 {agr.chi2:.4g} on {agr.dof:.3g} dof, p = {agr.p_value:.2g}")
+              f"{len(agr.names)} parameters; chi2 {agr.chi2:.4g} on {agr.dof:.1f} dof, p = {agr.p_value:.2g}")
         d = rows[DEFAULT_UNCERTAINTY]
         out[f"{ds}_pairs"] = d["pairs"]
         out[f"{ds}_pairs_within_95"] = d["within_95"]

@@ -67,7 +67,7 @@ def agreement_figure(a: Agreement, *, key: str = "fig-agreement", caption: str |
     ax2.set_ylabel("density")
     fig.suptitle(F._plain(
         f"{a.k} {what}: {100 * a.within_95:.0f} % of {a.pairs} pairs within +-1.96 "
-        f"(95 % expected); chi2 {a.chi2:.4g} on {a.dof:.3g} dof, {p_phrase(a.p_value)}"), fontsize=9)
+        f"(95 % expected); chi2 {a.chi2:.4g} on {a.dof:.1f} dof, {p_phrase(a.p_value)}"), fontsize=9)
     if caption is None:
         caption = (f"Pairwise differences of the parameters two {what} both identify (%sigma <= "
                    f"{a.rel_max:g} %), in units of their combined sigma "
