@@ -1,38 +1,41 @@
 """Does the agreement's χ² test reject equal parameters only as often as its level says? (issue 26)
 
-The verdict's agreement line rejects "the segments find the same parameters" when the χ²
-test of equal parameters gives p < 0.01. On a plant that dynid's model describes, that
-should happen on 1 % of the recordings. Plant: the independent closed-loop TX40 of
-``benchmarks/coverage_independent.py`` (Pinocchio, its own integrator and PID loop; torque
-noise AR(1), coefficient 0.9, at the logging rate), once without any unmodelled effect
-(``--ripple 0``: the model is right, every rejection is a false alarm) and once with the
-campaign's position ripple on joint 1. Each seed's record is observed with dynid's default
-processing, cut into three segments and each identified alone (`recording_agreement`),
-with each covariance option. Beside dynid's test, the Wald form it replaced
+The verdict's agreement line rejects "the recordings (segments) find the same parameters" when
+the χ² test of equal parameters gives p < 0.01, or when fewer than 90 % of the pairwise
+differences lie within their 95 % intervals. On a plant that dynid's model describes, the test
+should reject 1 % of the samples and the pairs should hold 95 %. Plant: the independent
+closed-loop TX40 of ``benchmarks/coverage_independent.py`` (Pinocchio, its own integrator and
+PID loop; torque noise AR(1), coefficient 0.9, at the logging rate; 4 s per seed), without any
+unmodelled effect (``--ripple 0``: every rejection is a false alarm) and with the campaign's
+position ripple on joint 1. A sample is one seed (``--recordings 1``: its three segments
+compared) or several seeds, different trajectories, identified together as `dynid identify
+a b c` does (each recording alone compared). Each sample is identified by `identify_idim` with
+each covariance option. Beside dynid's test, the Wald form it replaced
 (Σ_k (χ_k − χ̄)ᵀ V_k⁺ (χ_k − χ̄) about the GLS mean, χ² on (K − 1) p dof).
 
     python benchmarks/agreement_size.py --seeds 40 --start 12000 --ripple 0
-    python benchmarks/agreement_size.py --seeds 40 --start 12000
+    python benchmarks/agreement_size.py --seeds 30 --start 12100 --recordings 3 --ripple 0
 
-The last line is a JSON object: per option, the fraction of seeds rejected at 1 % and 5 % by
+(and the same without ``--ripple 0``). The last line is a JSON object: per option, the pairs'
+fraction within their 95 % intervals and the fraction of samples rejected at 1 % and 5 % by
 each test.
 
-Seeds 12000-12039 (2026-12-05, never used before; results/agreement_size_12000_ripple0.txt and
-_ripple0.5.txt), the fraction rejected at 1 %, dynid's test / the Wald form:
+2026-12-05, seeds never used before (results/agreement_size_*.txt): pairs within 95 % / rejected
+at 1 % by dynid's test / by the Wald form, and dynid's median p:
 
-| covariance | no unmodelled effect | ripple 0.5 N m on joint 1 |
-|---|---|---|
-| classic   | 0.60 / 0.975 | 0.95 / 1.0 |
-| hac       | 0.65 / 1.0   | 0.925 / 1.0 |
-| bootstrap | 0.0 / 0.625  | 0.0 / 0.95 |
+| covariance | 3 segments, right model | with ripple | 3 recordings, right model | with ripple |
+|---|---|---|---|---|
+| classic   | 87 % / 0.53 / 0.98, p 0.007 | 84 % / 0.85 / 1.0 | 87 % / 0.63 / 0.93, p 0.005 | 84 % / 0.87 / 1.0 |
+| hac       | 85 % / 0.58 / 1.0, p 0.007  | 82 % / 0.88 / 1.0 | 89 % / 0.33 / 1.0, p 0.027  | 88 % / 0.40 / 1.0 |
+| bootstrap (default) | 98.5 % / 0.0 / 0.70, p 0.96 | 97 % / 0.0 / 0.95 | 94.5 % / 0.067 / 0.97, p 0.42 | 93 % / 0.033 / 1.0 |
 
-The Wald form rejected a right model on 62 % of the seeds with the bootstrap covariance, whose
-σ are the widest: it measured the noise of the inverted covariances. dynid's test measures the
-σ themselves, and shows what they are worth on 1.3 s segments: the classic and HAC σ too narrow
-(median p 0.004, as expected of the classic σ under AR(1) noise and of a HAC estimate on a
-short series, though the processing's own model error may add to it), the bootstrap's too wide (median p 0.95 without the ripple, 0.69 with it), so with
-the default covariance the test almost never rejects on this plant, and the verdict's
-agreement line rests on the pairwise figure.
+With the default covariance and several recordings, the claim holds: 94.5 % of the pairwise
+differences within their intervals, and the test rejects 6.7 % of right models at 1 % where the
+Wald form rejected 97 % (it measured the noise of the inverted covariances). The classic and
+HAC σ are too narrow for the spread the recordings really have (pairs 84-89 %), and the test
+says so on most samples. On the three 1.3 s segments of one recording the bootstrap σ are too
+wide (98.5 % within, median p 0.96), so the test almost never rejects there, even with the
+ripple: with one short recording the agreement line is weak evidence.
 """
 from __future__ import annotations
 
