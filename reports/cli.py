@@ -201,8 +201,18 @@ def cmd_fleet(args, say):
     from dynid.reports.fleet_report import fleet_json
     if args.workers is not None:
         check_range("workers", args.workers)         # before Dask is imported
+    cores = os.cpu_count() or 1
+    if args.workers is not None and args.scheduler is None and args.workers > 4 * cores:
+        raise InputError(f"--workers {args.workers}: a local cluster of more than {4 * cores} worker processes "
+                         f"on {cores} cores only competes for memory and time; give at most {4 * cores}, "
+                         f"or --scheduler ADDRESS for a larger cluster")
     if os.path.exists(args.store) and not os.path.isdir(args.store):
         raise InputError(f"--out {args.store} is a file; the results store is a folder")
+    outputs = [(opt, value) for opt, value in (("--json", args.json), ("--report", args.report))
+               if value not in (None, "-")]
+    for opt, value in outputs:      # the general output checks take the store for a file
+        if os.path.realpath(value) == os.path.realpath(args.store):
+            raise InputError(f"{opt} {value} is the --out store folder; give the {opt[2:]} file another path")
     params = [p.strip() for p in args.parameters.split(",") if p.strip()]
     if not params:
         raise InputError("--parameters: name at least one base parameter (Fv, Fc, Fv2 ...)")

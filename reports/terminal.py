@@ -8,6 +8,7 @@ import os
 import sys
 import tomllib
 
+from dynid.dynamics.robot_file import bundled_path, bundled_robots
 from dynid.errors import InputError
 from dynid.outputs import check_outputs, same_file, write_all
 from dynid.reports.progress import clean_text
@@ -67,7 +68,11 @@ def _input_files(args):
             out.append((f"the --{opt} file", p))
     robot = getattr(args, "robot", None)
     if robot:
-        out.append(("the robot file" if args.command == "robot" else "the --robot file", robot))
+        what = "the robot file" if args.command == "robot" else "the --robot file"
+        if isinstance(robot, str) and robot in bundled_robots() and not os.path.splitext(robot)[1]:
+            # a bundled name stands for the package's own file, which no output may replace
+            what, robot = f"the bundled robot {robot}'s file", str(bundled_path(robot))
+        out.append((what, robot))
     for _what, p in list(out):
         for key, ref in _referenced_files(p):
             out.append((f"the file {p} reads ({key} = {os.path.basename(ref)!r})", ref))

@@ -1,19 +1,23 @@
 """The fleet catalogue: one row per recording (docs/formats.md, "Fleet catalogue").
 
 Columns: `robot_id` (text), `timestamp` (ISO 8601, UTC when no zone is given),
-`path` (the recording, relative paths are relative to the catalogue's folder),
-`robot` (bundled name such as `tx40` or a robot file) and optionally the
+`path` (the recording), `robot` (bundled name such as `tx40` or a robot file;
+relative paths of both are relative to the catalogue's folder) and optionally the
 temperatures logged with the recording: `temperature` (one value for every
-joint) or `temperature1` .. `temperatureN` (degrees Celsius, per joint).
+joint) or `temperature1` .. `temperatureN` (degrees Celsius, per joint). Other
+columns are kept and not read, except near-misses of these names (`Temperature`,
+`temperature0`, a name given twice), which are refused.
 """
 from __future__ import annotations
 
+import csv
 import os
 import re
 
 import numpy as np
 import pandas as pd
 
+from dynid.dynamics.robot_file import bundled_robots
 from dynid.errors import InputError
 
 REQUIRED = ("robot_id", "timestamp", "path", "robot")
@@ -39,6 +43,47 @@ def joint_temperature(row, joint: int):
     return float("nan")
 
 
+def _check_fields(path: str) -> None:
+    """Every line of a CSV catalogue has the header's number of fields: pandas reads a row
+    with one field more as an index and shifts the row's values one column to the left."""
+    with open(path, newline="", encoding="utf-8", errors="replace") as fh:
+        rows = csv.reader(fh)
+        header = next(rows, None)
+        if header is None:
+            return
+        for line, rec in enumerate(rows, start=2):
+            if rec and any(c.strip() for c in rec) and len(rec) != len(header):
+                raise InputError(f"{path}: line {line} has {len(rec)} fields and the header {len(header)} "
+                                 f"({', '.join(header)}); give every row one value per column (an empty "
+                                 f"value is written as nothing between two commas)")
+
+
+def _check_columns(frame, label: str) -> None:
+    """Near-misses of the catalogue's column names are refused: read as other columns, they
+    would be silently ignored (a temperature compensation that does not happen)."""
+    cols = [str(c) for c in frame.columns]
+    known = set(REQUIRED)
+    for c in cols:
+        twice = re.match(r"^(.*)\.(\d+)$", c)
+        if twice and twice.group(1) in cols and (twice.group(1) in known or _TEMP.match(twice.group(1))):
+            raise InputError(f"{label}: column {twice.group(1)} is given twice; keep one")
+        if c in known or (_TEMP.match(c) and c != "temperature0"):
+            continue
+        plain = c.strip().lower().replace(" ", "_").replace("-", "_")
+        if c == "temperature0" or plain == "temperature0":
+            raise InputError(f"{label}: column {c}: joints count from 1 (temperature1 is joint 1's)")
+        if plain in known or _TEMP.match(plain):
+            raise InputError(f"{label}: column {c!r} is not read; write it {plain!r} (column names are "
+                             f"lower case: {', '.join(REQUIRED)}, temperature or temperature1..N)")
+
+
+def _robot_path(robot: str, folder: str) -> str:
+    """A bundled robot's name as it is; a robot file's path relative to the catalogue's folder."""
+    if robot in bundled_robots() and not os.path.splitext(robot)[1]:
+        return robot
+    return robot if os.path.isabs(robot) else os.path.normpath(os.path.join(folder, robot))
+
+
 def read_catalogue(catalogue) -> pd.DataFrame:
     """The validated catalogue (a DataFrame) from a `.csv` / `.parquet` path or a DataFrame.
 
@@ -57,6 +102,7 @@ def read_catalogue(catalogue) -> pd.DataFrame:
                              + ", ".join(REQUIRED))
         try:
             if ext == ".csv":
+                _check_fields(path)
                 frame = pd.read_csv(path, dtype={"robot_id": str, "path": str, "robot": str})
             elif ext == ".parquet":
                 frame = pd.read_parquet(path)
@@ -70,6 +116,7 @@ def read_catalogue(catalogue) -> pd.DataFrame:
         except Exception as exc:  # pandas/pyarrow parse errors: say which file
             raise InputError(f"{path}: cannot read the fleet catalogue ({type(exc).__name__}: {exc}); it must be "
                              f"a CSV (or Parquet) table with the columns {', '.join(REQUIRED)}") from None
+    _check_columns(frame, label)
     missing = [c for c in REQUIRED if c not in frame.columns]
     if missing:
         raise InputError(f"{label}: missing column(s) {', '.join(missing)}; a fleet catalogue needs "
@@ -109,6 +156,12 @@ def read_catalogue(catalogue) -> pd.DataFrame:
         frame[col] = values.astype(float)
     frame["path"] = [p if os.path.isabs(p) else os.path.normpath(os.path.join(folder, p))
                      for p in frame["path"]]
+    frame["robot"] = [_robot_path(r, folder) for r in frame["robot"]]
+    for k, robot in enumerate(frame["robot"]):
+        if robot not in bundled_robots() and not os.path.isfile(robot):
+            raise InputError(f"{label}: column robot, row {k + 1}: the robot file {robot} does not exist "
+                             f"(a relative path is relative to the catalogue's folder); give a robot file "
+                             f"or one of the bundled robots: {', '.join(bundled_robots())}")
     real = frame["path"].map(os.path.realpath)
     dup = real.duplicated()
     if dup.any():
@@ -125,7 +178,7 @@ def read_catalogue(catalogue) -> pd.DataFrame:
 _TOML_PEEK_BYTES = 1 << 20
 
 
-def _referenced(path: str) -> list:
+def referenced(path: str) -> list:
     """Files an experiment TOML names (`file`, `urdf`), relative to its folder."""
     if not path.lower().endswith(".toml"):
         return []
@@ -148,16 +201,12 @@ def input_files(catalogue, frame=None) -> list:
     out = []
     if not isinstance(catalogue, pd.DataFrame):
         out.append(("the catalogue", os.fspath(catalogue)))
-        folder = os.path.dirname(os.path.abspath(os.fspath(catalogue)))
-    else:
-        folder = os.getcwd()
     frame = read_catalogue(catalogue) if frame is None else frame
     for path in dict.fromkeys(frame["path"]):
         out.append(("the recording", path))
-        out += [(f"the data file of {path}", ref) for ref in _referenced(path)]
+        out += [(f"the data file of {path}", ref) for ref in referenced(path)]
     for robot in dict.fromkeys(frame["robot"]):
-        for cand in dict.fromkeys([robot, os.path.join(folder, robot)]):
-            if os.path.isfile(cand):
-                out.append(("the robot file", cand))
-                out += [(f"the file named by {cand}", ref) for ref in _referenced(cand)]
+        if os.path.isfile(robot):
+            out.append(("the robot file", robot))
+            out += [(f"the file named by {robot}", ref) for ref in referenced(robot)]
     return out

@@ -16,11 +16,14 @@ small machine it would steal a core from the workers.
 """
 from __future__ import annotations
 
+import hashlib
 import os
 import time
 from dataclasses import dataclass, field
 
-from dynid.analysis.fleet.catalogue import joint_temperature, read_catalogue
+import numpy as np
+
+from dynid.analysis.fleet.catalogue import joint_temperature, read_catalogue, referenced, temperature_columns
 from dynid.analysis.fleet.store import ResultStore
 from dynid.analysis.fleet.task import MAX_SAMPLES, file_hash, identify_recording, task_key
 from dynid.errors import InputError
@@ -87,14 +90,19 @@ def plan(catalogue, store: ResultStore, *, settings=None, diagnose=False, max_sa
     have = store.keys()
     specs = []
     hashes = _data_hashes(frame, catalogue)
+    robots = _robot_hashes(frame, catalogue)
     for row, h in zip(frame.to_dict("records"), hashes):
-        n_temps = max([int(c[11:]) for c in row if c.startswith("temperature") and c[11:].isdigit()] or [0])
+        n_temps = max([int(c[11:]) for c in row if c.startswith("temperature") and c[11:].isdigit()
+                       and np.isfinite(row[c])] or [0])
         temps = [joint_temperature(row, j) for j in range(1, n_temps + 1)]
         if not temps and "temperature" in row:
             temps = [joint_temperature(row, 1)]     # one value: every joint (repeated by the store)
         ts = row["timestamp"].isoformat()
+        # a robot file's content is part of the key (a bundled robot's is the dynid version's)
+        robot_hash = {"robot_hash": robots[row["robot"]]} if robots[row["robot"]] else {}
         key = task_key(row["robot_id"], row["path"], h, version,
-                       {**options, "robot": row["robot"], "timestamp": ts, "temperatures": repr(temps)})
+                       {**options, "robot": row["robot"], "timestamp": ts, "temperatures": repr(temps),
+                        **robot_hash})
         specs.append({"key": key, "robot_id": row["robot_id"], "path": row["path"], "robot": row["robot"],
                       "timestamp": ts, "day": row["day"], "data_hash": h, "version": version,
                       "temperatures": temps, "settings": settings, "diagnose": bool(diagnose),
@@ -104,6 +112,45 @@ def plan(catalogue, store: ResultStore, *, settings=None, diagnose=False, max_sa
 
 def _label(catalogue):
     return "the catalogue" if not isinstance(catalogue, (str, os.PathLike)) else os.fspath(catalogue)
+
+
+def _content_hash(path) -> str:
+    """A file's hash, with those of the files it names (an experiment TOML's data file, a robot
+    file's URDF) when there are any: the data behind a recording or robot, not its description."""
+    h = file_hash(path)
+    refs = referenced(path)
+    if not refs:
+        return h
+    parts = [h]
+    for ref in refs:
+        try:
+            parts.append(file_hash(ref))
+        except OSError as exc:          # the task will say the file is missing
+            parts.append(f"unreadable:{exc.strerror}")
+    return hashlib.sha256("\0".join(parts).encode()).hexdigest()
+
+
+def _robot_hashes(frame, catalogue) -> dict:
+    """Each robot of the catalogue loaded once, before any task (a bad robot file is one error,
+    not one per recording on a started cluster), and its content hash ("" for a bundled robot)."""
+    from dynid.dynamics.robot_file import load_robot
+    from dynid.errors import DynidError
+    label = _label(catalogue)
+    out = {}
+    for robot in dict.fromkeys(frame["robot"]):
+        rows = frame.index[frame["robot"] == robot]
+        try:
+            n = load_robot(robot).n_joints
+        except DynidError as exc:
+            raise InputError(f"{label}: row {rows[0] + 1}, robot {robot}: {exc}") from None
+        for col in temperature_columns(frame):
+            j = int(col[11:] or 0)
+            if j > n and frame.loc[rows, col].notna().any():
+                k = int(frame.loc[rows, col].notna().idxmax())
+                raise InputError(f"{label}: column {col}, row {k + 1}: the robot {robot} has {n} joints; "
+                                 f"give temperature1..temperature{n}")
+        out[robot] = _content_hash(robot) if os.path.isfile(robot) else ""
+    return out
 
 
 def _data_hashes(frame, catalogue) -> list:
@@ -122,7 +169,7 @@ def _data_hashes(frame, catalogue) -> list:
             raise InputError(f"{label}: row {k + 1}: the recording {path} is not a regular file (a FIFO, a "
                              f"device or a folder); give the file the data was saved to")
         try:
-            h = file_hash(path)
+            h = _content_hash(path)
         except OSError as exc:
             hashes.append(f"unreadable:{exc.strerror}")
             continue

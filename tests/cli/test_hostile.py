@@ -1880,3 +1880,32 @@ def test_g4_equal_descriptions_of_two_recordings_are_accepted(tmp_path, data, fr
     run = run_dynid("identify", "a/exp.toml", "--validation", "b/exp.toml", "--robot", "planar2",
                     "--json", "o.json", cwd=tmp_path)
     assert run.rc == 0, str(run)
+
+
+def test_g1_a_bundled_robot_name_guards_the_package_files():
+    """`--robot planar2 --out <the package's planar2.toml>` wrote the recording over the bundled
+    robot file (the guard compared the name, not the file it stands for). Checked on the guard's
+    list, not by trying: a failing guard would destroy the file."""
+    from types import SimpleNamespace
+
+    from dynid.dynamics.robot_file import bundled_path
+    from dynid.reports.terminal import _input_files
+    files = dict((p, what) for what, p in _input_files(SimpleNamespace(command="simulate", robot="planar2")))
+    assert str(bundled_path("planar2")) in files
+    files = [p for _, p in _input_files(SimpleNamespace(command="identify", robot="kuka_lwr4", data=[]))]
+    assert any(os.path.samefile(p, bundled_path("kuka_lwr4").with_suffix(".urdf")) for p in files)
+
+
+def test_g1_fleet_outputs_onto_the_store_and_too_many_local_workers(tmp_path):
+    """Refused before the catalogue is read or a cluster started (the first was found only after
+    every recording was identified; the second hung on a 2-core machine)."""
+    cat = tmp_path / "cat.csv"
+    cat.write_text("robot_id,timestamp,path,robot\nR1,2026-01-01T00:00:00Z,a.csv,planar2\n")
+    run = run_dynid("fleet", "cat.csv", "--out", "st", "--json", "st", cwd=tmp_path)
+    assert_input_error(run, "--json st is the --out store folder")
+    run = run_dynid("fleet", "cat.csv", "--out", "st", "--json", "r.out", "--report", "r.out", cwd=tmp_path)
+    assert_input_error(run, "--json r.out and --report r.out are the same file")
+    many = 4 * (os.cpu_count() or 1) + 1
+    run = run_dynid("fleet", "cat.csv", "--out", "st", "--workers", str(many), cwd=tmp_path)
+    assert_input_error(run, f"--workers {many}", "--scheduler")
+    assert not (tmp_path / "st").exists()

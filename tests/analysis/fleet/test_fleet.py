@@ -1,6 +1,7 @@
 """The fleet: catalogue, store, Dask engine (a worker killed mid-run), rerun, CUSUM, report, CLI."""
 import json
 import os
+from pathlib import Path
 import signal
 import sys
 
@@ -79,6 +80,63 @@ def test_catalogue_paths_relative_to_catalogue_and_days_utc(tmp_path):
     frame = read_catalogue(p)
     assert frame["path"][0] == str(tmp_path / "sub" / "a.npz")
     assert frame["day"][0] == "2026-01-02"        # 23:30 at UTC-2 is 01:30 UTC the next day
+
+
+def test_catalogue_near_miss_columns_ragged_rows_and_robot_files_are_refused(tmp_path):
+    """Columns that would be silently ignored, a row shifted by an extra field, a robot file
+    that is not there: each refused with the column or line (found by a bad-input hunt)."""
+    p = tmp_path / "cat.csv"
+    head = "robot_id,timestamp,path,robot"
+    row = "R1,2026-01-01T00:00:00Z,a.npz,planar2"
+    cases = [(f"{head},Temperature\n{row},20\n", r"column 'Temperature' is not read; write it 'temperature'"),
+             (f"{head},temperature0\n{row},20\n", "temperature0: joints count from 1"),
+             (f"{head},robot_id\n{row},R2\n", "column robot_id is given twice"),
+             (f"{head}\n{row},extra\n", "line 2 has 5 fields and the header 4"),
+             (f"{head}\nR1,2026-01-01T00:00:00Z,a.npz,arm.toml\n",
+              r"column robot, row 1: the robot file .*arm.toml does not exist \(a relative path is relative "
+              r"to the catalogue's folder\)")]
+    for text, message in cases:
+        p.write_text(text)
+        with pytest.raises(InputError, match=message):
+            read_catalogue(p)
+    # other columns are kept and not read
+    p.write_text(f"{head},operator\n{row},ann\n")
+    assert read_catalogue(p)["operator"][0] == "ann"
+
+
+def test_plan_keys_follow_the_robot_file_and_the_data_a_toml_names(tmp_path):
+    """A rerun recomputes a recording whose robot file or TOML-named data changed (the key
+    held the paths and the TOML's own bytes only, so the store served the old results), and
+    a relative robot path is the catalogue folder's, not the working directory's."""
+    from dynid.dynamics.robots import __file__ as robots_init
+    folder = tmp_path / "fleet"
+    folder.mkdir()
+    robot_text = (Path(robots_init).parent / "planar2.toml").read_text()
+    (folder / "arm.toml").write_text(robot_text)
+    (folder / "d1.csv").write_text("t,q1,q2,tau1,tau2\n0,0,0,0,0\n")
+    (folder / "e1.toml").write_text('[experiment]\nfile = "d1.csv"\n')
+    cat = folder / "cat.csv"
+    cat.write_text("robot_id,timestamp,path,robot,temperature2,temperature3\n"
+                   "R1,2026-01-01T00:00:00Z,e1.toml,arm.toml,20,\n")
+    store = ResultStore(tmp_path / "store")
+    cwd = os.getcwd()
+    try:
+        os.chdir(tmp_path)            # not the catalogue's folder
+        specs, _ = plan(cat, store)
+    finally:
+        os.chdir(cwd)
+    assert specs[0]["robot"] == str(folder / "arm.toml")
+    key = specs[0]["key"]
+    (folder / "arm.toml").write_text(robot_text.replace("d = 1.0", "d = 1.3", 1))
+    assert plan(cat, store)[0][0]["key"] != key
+    (folder / "arm.toml").write_text(robot_text)
+    assert plan(cat, store)[0][0]["key"] == key
+    (folder / "d1.csv").write_text("t,q1,q2,tau1,tau2\n0,0,0,1,0\n")
+    assert plan(cat, store)[0][0]["key"] != key
+    # a temperature of a joint the robot does not have
+    cat.write_text("robot_id,timestamp,path,robot,temperature3\nR1,2026-01-01T00:00:00Z,e1.toml,arm.toml,20\n")
+    with pytest.raises(InputError, match="column temperature3, row 1: the robot .*arm.toml has 2 joints"):
+        plan(cat, store)
 
 
 def test_missing_dask_says_how_to_install(monkeypatch):
