@@ -194,7 +194,8 @@ def one_seed(seed, args):
                     "com_error_mm": 1e3 * float(np.linalg.norm(r.com - parts["com"])),
                     "inertia_rel_error": float(np.abs(r.inertia_com - parts["inertia_com"]).max() / Imax),
                     "z": z.tolist(), "covered": int(np.sum(np.abs(z) <= 1.959963984540054)),
-                    "hac_lags": r.hac_lags}
+                    "hac_lags": r.hac_lags, "loaded_error": r.loaded_error, "model_error": r.model_error,
+                    "model_misfit": r.model_misfit}
     if not args.no_gains:
         kt = np.random.default_rng(seed + 7).uniform(0.9, 1.1, 6)
         for key, loaded_list in (("gains", gains_loaded),

@@ -375,3 +375,21 @@ def test_a_recording_without_a_payload_says_none_was_found(plant_data):
     assert "kg" in msg and ("no payload found on link 6" in msg or "estimated mass" in msg)
     if "no payload found" in msg:
         assert "wrist" not in msg
+
+
+def test_a_model_that_does_not_describe_the_loaded_recording_is_not_identified(plant_data, tmp_path):
+    """The independent plant's payload (Pinocchio), the robot fixed: with the matching model the
+    payload fit leaves about the model's own error and the verdict is the payload's; with a robot
+    file whose joint 3 is 0.1 m off, or a joint's torque lost, the verdict said "identified"
+    while the payload took up the model's error (found by a bad-input hunt)."""
+    d = plant_data
+    good = identify_payload(d["el"], d["robot"], model=d["model"])
+    assert not good.model_misfit and good.loaded_error < 2 * good.model_error
+    assert good.verdict().startswith("payload on link 6")
+    lost = Experiment(t=d["el"].t, q=d["el"].q, qr=d["el"].qr, tau=d["el"].tau * [1, 1, 1, 1, 1, 0],
+                      fs=d["el"].fs, source="joint 6 torque lost")
+    bad = identify_payload(lost, d["robot"], model=d["model"])
+    assert bad.model_misfit and bad.verdict().startswith("NOT identified: the robot model does not describe")
+    assert "held-out error" in bad.verdict() and "--unloaded" in bad.verdict()
+    out = json.loads(dumps_json(bad.to_dict()))
+    assert out["loaded_error"] > 3 * out["model_error"] and out["verdict"].startswith("NOT identified")
