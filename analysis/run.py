@@ -82,6 +82,9 @@ REPORT_PARTS = ("didim", "sample", "diagnose")
 #: max_q M_jj, so the update keeps the simulated loop's gains away from the recorded loop's.
 #: `--gain-update every` is the paper's.
 DEFAULT_GAIN_UPDATE = "initial"
+#: the fewest bootstrap refits of the physical fit that give a 95 % percentile interval
+#: (at 20 the 2.5 % and 97.5 % percentiles are the extreme refits)
+MIN_BOOTSTRAP = 20
 REPORT_GAIN_UPDATE = DEFAULT_GAIN_UPDATE
 
 #: maximum likelihood keeps every sample: beyond this many values (samples x joints) it is refused
@@ -593,8 +596,30 @@ def check_run(settings: Settings, robot=None):
     if settings.v_s is not None and settings.method != "didim":
         raise InputError(f"--v-s is the simulated Coulomb friction's sign width of DIDIM; it does not "
                          f"apply to --method {settings.method}")
-    if settings.bootstrap < 0:
-        raise InputError(f"--bootstrap must be 0 or more refits, got {settings.bootstrap}")
+    # an option of another method or of the physical fit would be ignored without a word
+    method_options = {"didim": (("max-iter", settings.max_iter is not None),
+                                ("gains", settings.gains != "assumed"),
+                                ("didim-start", settings.didim_start != "idim"),
+                                ("gain-update", settings.gain_update != DEFAULT_GAIN_UPDATE),
+                                ("reference", settings.reference is not None)),
+                      "ml": (("f0", settings.f0 is not None), ("ml-harmonics", settings.ml_harmonics is not None))}
+    for method, options in method_options.items():
+        given = [f"--{o}" for o, set_ in options if set_]
+        if given and settings.method != method:
+            raise InputError(f"{', '.join(given)} {'is an option' if len(given) == 1 else 'are options'} of "
+                             f"--method {method}, not of --method {settings.method}: leave "
+                             f"{'it' if len(given) == 1 else 'them'} out or add --method {method}")
+    if not settings.physical:
+        given = [f"--{o}" for o, set_ in (("bootstrap", settings.bootstrap != Settings.bootstrap),
+                                          ("prior-weight", settings.prior_weight != Settings.prior_weight))
+                 if set_]
+        if given:
+            raise InputError(f"{', '.join(given)} {'is an option' if len(given) == 1 else 'are options'} of the "
+                             f"physically consistent fit: add --physical, or leave "
+                             f"{'it' if len(given) == 1 else 'them'} out")
+    if settings.bootstrap < 0 or 0 < settings.bootstrap < MIN_BOOTSTRAP:
+        raise InputError(f"--bootstrap {settings.bootstrap}: give 0 (no bootstrap σ) or at least {MIN_BOOTSTRAP} "
+                         f"refits (fewer cannot give a 95 % interval)")
     if robot is not None:
         check_robot_options(settings, robot)
         return _effect_candidates(settings, robot)

@@ -409,8 +409,8 @@ def _add_identify_parser(sub, common, full):
     a = g["advanced"]
     a.add_argument("--ml-harmonics", type=harmonics_type, metavar="K",
                    help=adv("ML: harmonics of the latent trajectory (default: chosen by BIC on q)"))
-    a.add_argument("--max-iter", type=int, default=10, metavar="N",
-                   help=adv("DIDIM: largest number of Gauss-Newton steps"))
+    a.add_argument("--max-iter", type=int, default=None, metavar="N",
+                   help=adv("DIDIM: largest number of Gauss-Newton steps (default: 10)"))
     a.add_argument("--gain-update", choices=list(GAIN_UPDATE_CHOICES), default="initial",
                    help=adv("DIDIM: scale the simulated derivative gains by J_j/J_ap_j (eq. 27) only for "
                             "the first simulation (initial, the default), at every step (every, as the "
