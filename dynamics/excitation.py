@@ -286,6 +286,11 @@ class ExcitationResult:
 
 
 # ----------------------------------------------------------------------------- design
+#: a design whose (scaled) condition number is above this is rank-deficient, not poor: the
+#: optimised designs of the module docstring reach 8-9 and random ones 31-170
+MAX_COND = 1e8
+
+
 def design_excitation(robot, f0, n_harmonics, *, n_starts=4, criterion="cond", chi=None, rng=None,
                       max_iter=150, margin=0.95, scaling="envelope",
                       samples_per_harmonic=DEFAULT_SAMPLES_PER_HARMONIC, n_constraint=None,
@@ -382,6 +387,12 @@ def _design(robot, f0, n_harmonics, *, n_starts, criterion, chi, rng, max_iter, 
                        "start is returned")
         traj, c_res = best_start[1], best_start[2]
         marg = limit_margins(robot, traj, chi_st, n_check=n_check)
+    if not c_res[cond_key] <= MAX_COND:
+        raise InputError(f"robot {robot.name}: the best excitation of {N} harmonic(s) at f0 = {f0:g} Hz leaves "
+                         f"the regressor rank-deficient (cond {c_res[cond_key]:.2g}): its {N} harmonic(s) per "
+                         f"joint cannot move the {bp.n_base} base parameters' columns independently, and "
+                         f"no recording along it could identify them; raise the harmonics (--harmonics, "
+                         f"n_harmonics=)")
     return ExcitationResult(
         trajectory=traj, robot_name=robot.name, joint_names=list(robot.joint_names),
         criterion=criterion, scaling=scaling, margin=margin, cond_name=cond_name,

@@ -219,3 +219,15 @@ def test_torque_limits_bind_and_hold(tx40):
     free = design_excitation(tight, F0, N_HARM, n_starts=2, rng=1, max_iter=80, bp=bp, chi=False)
     tau_free = inverse_dynamics(robot, chi, *_dense(free.trajectory))
     assert np.any(np.abs(tau_free) > tau_max)
+
+
+def test_a_design_that_cannot_identify_the_robot_is_refused():
+    """One harmonic per joint leaves the planar arm's regressor rank-deficient (cond ~1e16): the
+    design was written with "feasible: true" and no word (found by a bad-input hunt)."""
+    from dynid.dynamics.excitation import design_excitation
+    from dynid.dynamics.robot_file import load_robot
+    from dynid.errors import InputError
+    robot = load_robot("planar2")
+    with pytest.raises(InputError, match=r"rank-deficient \(cond .*e\+1.\).*raise the harmonics"):
+        design_excitation(robot, 0.2, 1, n_starts=1, rng=0)
+    assert design_excitation(robot, 0.2, 2, n_starts=1, rng=0).cond_result < 1e3
