@@ -64,13 +64,21 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
+from scipy import stats
 
 from dynid.analysis.data.experiment import Experiment, load_experiment
 from dynid.analysis.estimators import least_squares as ls
 from dynid.analysis.estimators.payload_physical import PAYLOAD_NAMES, PhysicalPayload, physical_payload
 from dynid.analysis.processing.decimation import ParallelDecimator
 from dynid.analysis.processing.observation import CHUNK, full_rate
-from dynid.analysis.results import IdentificationResult, ParameterResults, notices_block, parameter_table, percent
+from dynid.analysis.results import (
+    IdentificationResult,
+    ParameterResults,
+    notices_block,
+    p_phrase,
+    parameter_table,
+    percent,
+)
 from dynid.analysis.units import parameter_unit
 from dynid.dynamics.base_parameters import base_parameters
 from dynid.dynamics.regressor import regressor
@@ -626,6 +634,12 @@ class PayloadResult(ParameterResults):
                  "NOT physically consistent as identified (see the constrained fit)")
         if self.physical is not None:
             text += f"; constrained fit chi^2 distance {self.physical.delta:.3g}"
+            p_box = float(stats.chi2.sf(self.physical.delta, len(self.names)))
+            if cons["consistent"] and self.physical.com_box is not None and p_box < 0.01:
+                # the free estimate is a body: only the box can have moved the constrained one
+                text += (f" ({p_phrase(p_box)}): the data do NOT fit the --com-box: their centre of mass is "
+                         f"outside it, and the constrained payload (mass {self.physical.chi[9]:.4g} kg) is not a "
+                         f"payload to use; check the box's frame and units (m)")
         return text
 
     def summary(self) -> str:

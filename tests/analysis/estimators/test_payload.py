@@ -393,3 +393,16 @@ def test_a_model_that_does_not_describe_the_loaded_recording_is_not_identified(p
     assert "held-out error" in bad.verdict() and "--unloaded" in bad.verdict()
     out = json.loads(dumps_json(bad.to_dict()))
     assert out["loaded_error"] > 3 * out["model_error"] and out["verdict"].startswith("NOT identified")
+
+
+def test_a_com_box_the_data_do_not_fit_is_said_in_the_verdict(plant_data):
+    """A box that excludes the centre of mass moved the constrained payload to ~0 kg while the
+    verdict read "physically consistent as identified" (found by a bad-input hunt)."""
+    d = plant_data
+    c = d["parts"]["com"]
+    inside = identify_payload(d["el"], d["robot"], model=d["model"], physical=True,
+                              com_box=(c - 0.02, c + 0.02))
+    assert "do NOT fit the --com-box" not in inside.verdict()
+    outside = identify_payload(d["el"], d["robot"], model=d["model"], physical=True,
+                               com_box=(c + 1.0, c + 2.0))
+    assert "the data do NOT fit the --com-box" in outside.verdict()
