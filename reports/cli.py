@@ -172,7 +172,8 @@ def _write_full_report(args, say, out):
         outputs.append((args.csv, out.result.model.to_frame().to_csv()))
     commit_outputs(outputs, say)
     if out.problems:
-        print(f"dynid {args.command}: " + "; ".join(out.problems) + "; the outputs say so", file=sys.stderr)
+        print(f"dynid {args.command}: " + "; ".join(p.rstrip(". ") for p in out.problems) + "; the outputs say so",
+              file=sys.stderr)
         return EXIT_NOT_CONVERGED
     return EXIT_OK
 
