@@ -257,6 +257,18 @@ def _floats(text, k, option):
     return vals
 
 
+def _joint_numbers(text, n):
+    """--gains JOINTS: 1-based joint numbers, comma-separated."""
+    try:
+        joints = [int(v) for v in text.split(",")]
+    except ValueError:
+        joints = []
+    if not joints or any(not 1 <= j <= n for j in joints):
+        raise InputError(f"--gains {text}: give joint numbers 1 to {n}, comma-separated (e.g. 1,2,3), "
+                         f"or all; alone, --gains takes the joints the recordings' [currents] mark")
+    return joints
+
+
 def cmd_payload(args, say):
     """dynid payload: parse, call identify_payload / identify_drive_gains, print and write."""
     from dynid.analysis import run as steps
@@ -269,7 +281,7 @@ def cmd_payload(args, say):
         if args.mass is None or args.unloaded is None:
             raise InputError("--gains needs --mass KG (the payload's known mass) and --unloaded FILE")
         joints = (None if args.gains == "marked" else list(range(1, robot.n_joints + 1)) if args.gains == "all"
-                  else [int(v) for v in _floats(args.gains, len(args.gains.split(",")), "--gains")])
+                  else _joint_numbers(args.gains, robot.n_joints))
         com = None if args.com is None else _floats(args.com, 3, "--com")
         result = identify_drive_gains(args.unloaded, args.data, robot, mass=args.mass, com=com, joints=joints,
                                       frame=args.frame, zoh=args.zoh)

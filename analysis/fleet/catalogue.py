@@ -131,8 +131,9 @@ def read_catalogue(catalogue) -> pd.DataFrame:
     bad_id = ~frame["robot_id"].map(lambda s: bool(_ID_OK.match(s)))
     if bad_id.any():
         k = int(np.argmax(bad_id.to_numpy()))
-        raise InputError(f"{label}: column robot_id, row {k + 1}: {frame['robot_id'].iloc[k]!r} must be letters, "
-                         f"digits, '_', '.' or '-' (it names a folder of the results store)")
+        raise InputError(f"{label}: column robot_id, row {k + 1}: {frame['robot_id'].iloc[k]!r} must start with a "
+                         f"letter or digit and hold only letters, digits, '_', '.' or '-' (it names a folder "
+                         f"of the results store)")
     ts = pd.to_datetime(frame["timestamp"], errors="coerce", utc=True)
     if ts.isna().any():
         k = int(np.argmax(ts.isna().to_numpy()))
