@@ -90,8 +90,8 @@ def check_input_paths(args):
             raise InputError(f"{what} {p!r}: the name contains a NUL byte, which no file name can; "
                              f"check how the command line was built")
     for what, p in inputs:
-        # a later input (report's --payload) was found missing only after every method had run
-        if what in ("the --payload file", "the --model file", "the --unloaded file") and not os.path.exists(p):
+        # report reads its --payload recordings after every method has run (payload reads them first)
+        if args.command == "report" and what == "the --payload file" and not os.path.exists(p):
             raise InputError(f"{p}: file not found ({what}); check the path")
     data = [p for what, p in inputs if what == "the data file"]
     for i, p in enumerate(data):
