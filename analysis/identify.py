@@ -28,6 +28,7 @@ from dynid.analysis.run import (  # noqa: F401 - as_robot, as_experiments, METHO
     Settings,
     as_experiments,
     as_robot,
+    check_physical_options,
     identify_step,
     method_name,
     settings_from,
@@ -159,6 +160,7 @@ def identify(data, robot, method: str | None = None, *, settings=None, max_error
     given = {k: v for k, v in given.items() if v is not None and not (
         isinstance(settings, Settings) and v == _DEFAULTS.get(k))}
     s = settings_from(settings, **given, **options)
+    check_physical_options(s)
     if progress is not None and not callable(progress):
         raise InputError(f"progress must be a function of the fraction done (0..1), or None; not "
                          f"{type(progress).__name__}")

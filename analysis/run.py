@@ -82,9 +82,9 @@ REPORT_PARTS = ("didim", "sample", "diagnose")
 #: max_q M_jj, so the update keeps the simulated loop's gains away from the recorded loop's.
 #: `--gain-update every` is the paper's.
 DEFAULT_GAIN_UPDATE = "initial"
-#: the fewest bootstrap refits of the physical fit that give a 95 % percentile interval
-#: (at 20 the 2.5 % and 97.5 % percentiles are the extreme refits)
-MIN_BOOTSTRAP = 20
+#: the fewest bootstrap refits of the physical fit that have a spread (with fewer than 20 its σ
+#: is the larger of the WLS σ and the refits' spread: PhysicalResult.bse)
+MIN_BOOTSTRAP = 2
 REPORT_GAIN_UPDATE = DEFAULT_GAIN_UPDATE
 
 #: maximum likelihood keeps every sample: beyond this many values (samples x joints) it is refused
@@ -576,6 +576,21 @@ def didim_gains_notice(exp, robot, identified) -> str:
 
 # ---------------------------------------------------------------- steps 5-6: friction, physical
 
+def check_physical_options(settings: Settings) -> None:
+    """The physical fit's options without it would be ignored; one refit has no spread. Names as on the command line (`--bootstrap`, bootstrap= in Python)."""
+    if not settings.physical:
+        given = [f"--{o}" for o, set_ in (("bootstrap", settings.bootstrap != Settings.bootstrap),
+                                          ("prior-weight", settings.prior_weight != Settings.prior_weight))
+                 if set_]
+        if given:
+            raise InputError(f"{', '.join(given)} {'is an option' if len(given) == 1 else 'are options'} of the "
+                             f"physically consistent fit: add --physical (physical=True), or leave "
+                             f"{'it' if len(given) == 1 else 'them'} out")
+    if settings.bootstrap < 0 or 0 < settings.bootstrap < MIN_BOOTSTRAP:
+        raise InputError(f"--bootstrap {settings.bootstrap}: give 0 (no bootstrap σ) or at least {MIN_BOOTSTRAP} "
+                         f"refits (one has no spread)")
+
+
 def check_run(settings: Settings, robot=None):
     """The options of a whole run (`dynid identify`), refused before any data is loaded;
     returns the effect candidates of `effects` (None without)."""
@@ -609,17 +624,7 @@ def check_run(settings: Settings, robot=None):
             raise InputError(f"{', '.join(given)} {'is an option' if len(given) == 1 else 'are options'} of "
                              f"--method {method}, not of --method {settings.method}: leave "
                              f"{'it' if len(given) == 1 else 'them'} out or add --method {method}")
-    if not settings.physical:
-        given = [f"--{o}" for o, set_ in (("bootstrap", settings.bootstrap != Settings.bootstrap),
-                                          ("prior-weight", settings.prior_weight != Settings.prior_weight))
-                 if set_]
-        if given:
-            raise InputError(f"{', '.join(given)} {'is an option' if len(given) == 1 else 'are options'} of the "
-                             f"physically consistent fit: add --physical, or leave "
-                             f"{'it' if len(given) == 1 else 'them'} out")
-    if settings.bootstrap < 0 or 0 < settings.bootstrap < MIN_BOOTSTRAP:
-        raise InputError(f"--bootstrap {settings.bootstrap}: give 0 (no bootstrap σ) or at least {MIN_BOOTSTRAP} "
-                         f"refits (fewer cannot give a 95 % interval)")
+    check_physical_options(settings)
     if robot is not None:
         check_robot_options(settings, robot)
         return _effect_candidates(settings, robot)

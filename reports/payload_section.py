@@ -40,7 +40,8 @@ def _table(head, rows):
 def payload_status(result) -> tuple[str, list]:
     """(verdict, reasons) of a PayloadResult or DriveGainResult.
 
-    A payload is `identified` when every parameter passed the identifiability checks and its
+    A payload is `not identified` when the robot model does not describe the loaded recording
+    (`PayloadResult.model_misfit`); `identified` when every parameter passed the identifiability checks and its
     estimate is physically consistent; `identified with reservations` when the free estimate
     is not physically consistent (the constrained one is the one to use) or a 95 % interval of
     the mass or centre of mass reaches past 10 % of the value. Drive gains are `identified` when
@@ -53,6 +54,9 @@ def payload_status(result) -> tuple[str, list]:
             if not h < 0.02:
                 reasons.append(f"gain of joint {j}: 95 % half-width {100 * h:.2g} % of its value")
         return (RESERVATIONS if reasons else IDENTIFIED), reasons
+    if getattr(result, "model_misfit", False):
+        return NOT_IDENTIFIED, [f"the robot model leaves {100 * result.loaded_error:.3g} % of the loaded "
+                                f"recording unexplained against {100 * result.model_error:.3g} % of its own data"]
     if not link_consistency(result.chi)["consistent"]:
         reasons.append("the free estimate is not physically consistent (pseudo-inertia not positive "
                        "semidefinite): use the constrained fit" + ("" if result.physical is not None

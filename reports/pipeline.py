@@ -321,6 +321,8 @@ def _payload_part(out, payload, robot, options, say):
             out.sections.append(payload_refusal_section(str(e), [getattr(x, "source", x) for x in loaded]))
             return out
     out.payload = res
+    if res.model_misfit:
+        out.problems.append("payload not identified: the report's model does not describe the loaded recording")
     out.sections.append(payload_report_section(res))
     return out
 

@@ -6,11 +6,10 @@ from __future__ import annotations
 import filecmp
 import os
 import sys
-import tomllib
 
 from dynid.dynamics.robot_file import bundled_path, bundled_robots
 from dynid.errors import InputError
-from dynid.outputs import check_outputs, same_file, write_all
+from dynid.outputs import check_outputs, referenced_files, same_file, write_all
 from dynid.reports.progress import clean_text
 
 EXIT_OK, EXIT_INPUT = 0, 2
@@ -21,39 +20,6 @@ def commit_outputs(outputs, say):
 
 
 OUTPUT_OPTIONS = ("json", "report", "csv", "out", "urdf", "mjcf")
-#: the largest robot / experiment TOML read for the file names it refers to
-_TOML_PEEK_BYTES = 1 << 20
-
-
-def _file_keys(table):
-    """`(key, value)` of every `urdf` and `file` string in a TOML document, its tables at any depth
-    (an experiment's `[time]`, `[positions]`, `[torques]` ... name their own files)."""
-    if isinstance(table, list):
-        return [kv for item in table for kv in _file_keys(item)]
-    if not isinstance(table, dict):
-        return []
-    found = [(k, v) for k, v in table.items() if k in ("urdf", "file") and isinstance(v, str) and v]
-    return found + [kv for v in table.values() if isinstance(v, (dict, list)) for kv in _file_keys(v)]
-
-
-def _referenced_files(path):
-    """Files a robot or experiment TOML refers to (`urdf`, `file`, in any table), relative to its folder."""
-    try:
-        if not path.lower().endswith(".toml") or not os.path.isfile(path) \
-                or os.path.getsize(path) > _TOML_PEEK_BYTES:
-            return []
-        with open(path, "rb") as fh:
-            doc = tomllib.load(fh)
-    except Exception:           # noqa: BLE001 - the loader reports a bad file properly later
-        return []
-    found = []
-    for key, v in _file_keys(doc):
-        ref = os.path.join(os.path.dirname(path), v)
-        if (key, ref) not in found:
-            found.append((key, ref))
-    return found
-
-
 def _input_files(args):
     """`(what, path)` of every input file the options name (data, validation, robot file)."""
     out = []
@@ -74,7 +40,7 @@ def _input_files(args):
             what, robot = f"the bundled robot {robot}'s file", str(bundled_path(robot))
         out.append((what, robot))
     for _what, p in list(out):
-        for key, ref in _referenced_files(p):
+        for key, ref in referenced_files(p):
             out.append((f"the file {p} reads ({key} = {os.path.basename(ref)!r})", ref))
             if "\0" in ref:
                 raise InputError(f"{p}: {key} = {os.path.basename(ref)!r} contains a NUL byte, which no "

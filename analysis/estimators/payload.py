@@ -638,8 +638,8 @@ class PayloadResult(ParameterResults):
             if cons["consistent"] and self.physical.com_box is not None and p_box < 0.01:
                 # the free estimate is a body: only the box can have moved the constrained one
                 text += (f" ({p_phrase(p_box)}): the data do NOT fit the --com-box: their centre of mass is "
-                         f"outside it, and the constrained payload (mass {self.physical.chi[9]:.4g} kg) is not a "
-                         f"payload to use; check the box's frame and units (m)")
+                         f"outside it, and the box pulls the constrained payload (mass {self.physical.chi[9]:.4g} "
+                         f"kg) away from it; check the box's frame and units (m)")
         return text
 
     def summary(self) -> str:
@@ -780,6 +780,9 @@ def identify_payload(loaded, robot, *, model=None, unloaded=None, frame="flange"
     if model is not None:
         chi, cov, fit, lags, model_source, model_fit = _fit_with_robot_fixed(model, robot, bp, Wp, Wb, tau,
                                                                               mask_l, names, notices)
+        if not math.isfinite(model_fit[1]):
+            notices.append(f"{model_source} does not give its relative error on its own data: whether it "
+                           "describes the loaded recording was not checked (pass dynid identify's result or JSON)")
         robot_params, method = None, "payload-robot-fixed"
         notices.append(f"robot fixed: {model_source}; its parameters' uncertainty is propagated")
     else:

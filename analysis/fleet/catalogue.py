@@ -19,8 +19,11 @@ import pandas as pd
 
 from dynid.dynamics.robot_file import bundled_robots
 from dynid.errors import InputError
+from dynid.outputs import referenced_files
 
 REQUIRED = ("robot_id", "timestamp", "path", "robot")
+#: the column `read_catalogue` adds: each row's 1-based number in the catalogue as given
+ROW = "_catalogue_row"
 _TEMP = re.compile(r"^temperature(\d*)$")
 #: accepted joint temperatures, degrees Celsius: a gearbox's lubricant works from -40 to ~150 degC;
 #: the margin takes sensors in the cold and a motor winding's hot spot
@@ -44,18 +47,18 @@ def joint_temperature(row, joint: int):
 
 
 def _check_fields(path: str) -> None:
-    """Every line of a CSV catalogue has the header's number of fields: pandas reads a row
-    with one field more as an index and shifts the row's values one column to the left."""
+    """No record of a CSV catalogue has more fields than its header: pandas reads a row with
+    one field more as an index and shifts the row's values one column to the left."""
     with open(path, newline="", encoding="utf-8", errors="replace") as fh:
         rows = csv.reader(fh)
         header = next(rows, None)
         if header is None:
             return
         for line, rec in enumerate(rows, start=2):
-            if rec and any(c.strip() for c in rec) and len(rec) != len(header):
-                raise InputError(f"{path}: line {line} has {len(rec)} fields and the header {len(header)} "
-                                 f"({', '.join(header)}); give every row one value per column (an empty "
-                                 f"value is written as nothing between two commas)")
+            if len(rec) > len(header):      # fewer fields: pandas leaves the missing ones empty
+                raise InputError(f"{path}: record {line - 1} (line {line} without quoted line breaks) has "
+                                 f"{len(rec)} fields and the header {len(header)} ({', '.join(header)}); give "
+                                 f"every row at most one value per column")
 
 
 def _check_columns(frame, label: str) -> None:
@@ -69,17 +72,17 @@ def _check_columns(frame, label: str) -> None:
             raise InputError(f"{label}: column {twice.group(1)} is given twice; keep one")
         if c in known or (_TEMP.match(c) and c != "temperature0"):
             continue
-        plain = c.strip().lower().replace(" ", "_").replace("-", "_")
+        plain = re.sub(r"^temperature_(\d+)$", r"temperature\1", c.strip().lower().replace(" ", "_").replace("-", "_"))
         if c == "temperature0" or plain == "temperature0":
             raise InputError(f"{label}: column {c}: joints count from 1 (temperature1 is joint 1's)")
-        if plain in known or _TEMP.match(plain):
+        if (plain in known or _TEMP.match(plain)) and plain not in cols:    # a near-miss, not a second column
             raise InputError(f"{label}: column {c!r} is not read; write it {plain!r} (column names are "
                              f"lower case: {', '.join(REQUIRED)}, temperature or temperature1..N)")
 
 
 def _robot_path(robot: str, folder: str) -> str:
     """A bundled robot's name as it is; a robot file's path relative to the catalogue's folder."""
-    if robot in bundled_robots() and not os.path.splitext(robot)[1]:
+    if is_bundled(robot):
         return robot
     return robot if os.path.isabs(robot) else os.path.normpath(os.path.join(folder, robot))
 
@@ -159,7 +162,7 @@ def read_catalogue(catalogue) -> pd.DataFrame:
                      for p in frame["path"]]
     frame["robot"] = [_robot_path(r, folder) for r in frame["robot"]]
     for k, robot in enumerate(frame["robot"]):
-        if robot not in bundled_robots() and not os.path.isfile(robot):
+        if not is_bundled(robot) and not os.path.isfile(robot):
             raise InputError(f"{label}: column robot, row {k + 1}: the robot file {robot} does not exist "
                              f"(a relative path is relative to the catalogue's folder); give a robot file "
                              f"or one of the bundled robots: {', '.join(bundled_robots())}")
@@ -172,28 +175,18 @@ def read_catalogue(catalogue) -> pd.DataFrame:
             f" (as {frame['path'].iloc[first]!r} in row {first + 1}, through a link)"
         raise InputError(f"{label}: row {k + 1} repeats the recording {frame['path'].iloc[k]!r}{how}; each "
                          f"recording is listed once (stored twice, it would count twice in the wear monitor)")
+    frame[ROW] = np.arange(1, len(frame) + 1)       # the errors after sorting name the file's row
     return frame.sort_values(["robot_id", "timestamp"], kind="stable").reset_index(drop=True)
 
 
-#: the largest recording TOML read for the data file it refers to
-_TOML_PEEK_BYTES = 1 << 20
-
-
 def referenced(path: str) -> list:
-    """Files an experiment TOML names (`file`, `urdf`), relative to its folder."""
-    if not path.lower().endswith(".toml"):
-        return []
-    try:
-        if not os.path.isfile(path) or os.path.getsize(path) > _TOML_PEEK_BYTES:
-            return []
-        import tomllib
-        with open(path, "rb") as fh:
-            doc = tomllib.load(fh)
-    except Exception:           # noqa: BLE001 - the task reports a bad file properly later
-        return []
-    tables = [doc] + [v for k, v in doc.items() if k == "experiment" and isinstance(v, dict)]
-    return [os.path.join(os.path.dirname(path), t[key]) for t in tables for key in ("file", "urdf")
-            if isinstance(t.get(key), str) and t[key] and "\0" not in t[key]]
+    """Files an experiment or robot TOML names (`file`, `urdf`, in any table), relative to its folder."""
+    return [ref for _, ref in referenced_files(path) if "\0" not in ref]
+
+
+def is_bundled(robot: str) -> bool:
+    """A catalogue's `robot` that names a bundled robot (kept as the name by `read_catalogue`)."""
+    return robot in bundled_robots() and not os.path.splitext(robot)[1]
 
 
 def input_files(catalogue, frame=None) -> list:
@@ -207,7 +200,7 @@ def input_files(catalogue, frame=None) -> list:
         out.append(("the recording", path))
         out += [(f"the data file of {path}", ref) for ref in referenced(path)]
     for robot in dict.fromkeys(frame["robot"]):
-        if os.path.isfile(robot):
+        if not is_bundled(robot) and os.path.isfile(robot):
             out.append(("the robot file", robot))
             out += [(f"the file named by {robot}", ref) for ref in referenced(robot)]
     return out

@@ -21,9 +21,14 @@ import os
 import time
 from dataclasses import dataclass, field
 
-import numpy as np
-
-from dynid.analysis.fleet.catalogue import joint_temperature, read_catalogue, referenced, temperature_columns
+from dynid.analysis.fleet.catalogue import (
+    ROW,
+    is_bundled,
+    joint_temperature,
+    read_catalogue,
+    referenced,
+    temperature_columns,
+)
 from dynid.analysis.fleet.store import ResultStore
 from dynid.analysis.fleet.task import MAX_SAMPLES, file_hash, identify_recording, task_key
 from dynid.errors import InputError
@@ -92,8 +97,7 @@ def plan(catalogue, store: ResultStore, *, settings=None, diagnose=False, max_sa
     hashes = _data_hashes(frame, catalogue)
     robots = _robot_hashes(frame, catalogue)
     for row, h in zip(frame.to_dict("records"), hashes):
-        n_temps = max([int(c[11:]) for c in row if c.startswith("temperature") and c[11:].isdigit()
-                       and np.isfinite(row[c])] or [0])
+        n_temps = max([int(c[11:]) for c in row if c.startswith("temperature") and c[11:].isdigit()] or [0])
         temps = [joint_temperature(row, j) for j in range(1, n_temps + 1)]
         if not temps and "temperature" in row:
             temps = [joint_temperature(row, 1)]     # one value: every joint (repeated by the store)
@@ -142,14 +146,14 @@ def _robot_hashes(frame, catalogue) -> dict:
         try:
             n = load_robot(robot).n_joints
         except DynidError as exc:
-            raise InputError(f"{label}: row {rows[0] + 1}, robot {robot}: {exc}") from None
+            raise InputError(f"{label}: row {frame[ROW][rows[0]]}, robot {robot}: {exc}") from None
         for col in temperature_columns(frame):
             j = int(col[11:] or 0)
             if j > n and frame.loc[rows, col].notna().any():
                 k = int(frame.loc[rows, col].notna().idxmax())
-                raise InputError(f"{label}: column {col}, row {k + 1}: the robot {robot} has {n} joints; "
+                raise InputError(f"{label}: column {col}, row {frame[ROW][k]}: the robot {robot} has {n} joints; "
                                  f"give temperature1..temperature{n}")
-        out[robot] = _content_hash(robot) if os.path.isfile(robot) else ""
+        out[robot] = "" if is_bundled(robot) else _content_hash(robot)
     return out
 
 
@@ -166,7 +170,7 @@ def _data_hashes(frame, catalogue) -> list:
             hashes.append(f"unreadable:{exc.strerror}")
             continue
         if not stat.S_ISREG(mode):
-            raise InputError(f"{label}: row {k + 1}: the recording {path} is not a regular file (a FIFO, a "
+            raise InputError(f"{label}: row {frame[ROW][k]}: the recording {path} is not a regular file (a FIFO, a "
                              f"device or a folder); give the file the data was saved to")
         try:
             h = _content_hash(path)
@@ -175,7 +179,8 @@ def _data_hashes(frame, catalogue) -> list:
             continue
         if h in first:
             j = first[h]
-            raise InputError(f"{label}: row {k + 1}: the recording {path} has the same bytes as row {j + 1}'s "
+            raise InputError(f"{label}: row {frame[ROW][k]}: the recording {path} has the same bytes as row "
+                             f"{frame[ROW][j]}'s "
                              f"{frame['path'].iloc[j]}: a copy of one recording would be stored and counted "
                              f"twice by the wear monitor; list each recording once")
         first[h] = k

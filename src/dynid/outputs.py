@@ -129,6 +129,43 @@ def _abandoned(lock_path: str) -> bool:
     return True
 
 
+#: the largest robot / experiment TOML read for the file names it refers to
+_TOML_PEEK_BYTES = 1 << 20
+
+
+def _file_keys(table):
+    """`(key, value)` of every `urdf` and `file` string in a TOML document, its tables at any depth
+    (an experiment's `[time]`, `[positions]`, `[torques]` ... name their own files)."""
+    if isinstance(table, list):
+        return [kv for item in table for kv in _file_keys(item)]
+    if not isinstance(table, dict):
+        return []
+    found = [(k, v) for k, v in table.items() if k in ("urdf", "file") and isinstance(v, str) and v]
+    return found + [kv for v in table.values() if isinstance(v, (dict, list)) for kv in _file_keys(v)]
+
+
+def referenced_files(path) -> list:
+    """`(key, path)` of the files a robot or experiment TOML refers to (`urdf`, `file`, in any
+    table), relative to its folder; [] for another file or one that cannot be read (its loader
+    reports that properly)."""
+    import tomllib
+    path = os.fspath(path)
+    try:
+        if not path.lower().endswith(".toml") or not os.path.isfile(path) \
+                or os.path.getsize(path) > _TOML_PEEK_BYTES:
+            return []
+        with open(path, "rb") as fh:
+            doc = tomllib.load(fh)
+    except Exception:           # noqa: BLE001 - the loader reports a bad file properly later
+        return []
+    found = []
+    for key, v in _file_keys(doc):
+        ref = os.path.join(os.path.dirname(path), v)
+        if (key, ref) not in found:
+            found.append((key, ref))
+    return found
+
+
 def resolve_target(path) -> str:
     """The file a write to `path` lands in: symlinks followed, made absolute."""
     return os.path.realpath(os.fspath(path))

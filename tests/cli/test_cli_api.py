@@ -125,7 +125,7 @@ def test_identify_physical_and_urdf(recording, tmp_path):
     csv, _ = recording
     js, urdf = tmp_path / "p.json", tmp_path / "p.urdf"
     assert main(["identify", str(csv), "--robot", "planar2", "--validation", str(csv), "--physical",
-                 "--bootstrap", "20", "--prior", "apriori", "--prior-weight", "0.5", "--urdf", str(urdf),
+                 "--bootstrap", "5", "--prior", "apriori", "--prior-weight", "0.5", "--urdf", str(urdf),
                  "--json", str(js), "--quiet"]) == 2            # the same file twice: refused
     train, held_out = tmp_path / "train.csv", tmp_path / "held.csv"
     robot = dynid.load_robot("planar2")
@@ -133,9 +133,9 @@ def test_identify_physical_and_urdf(recording, tmp_path):
     a.to_frame().to_csv(train, index=False, float_format="%.17g")
     b.to_frame().to_csv(held_out, index=False, float_format="%.17g")
     assert main(["identify", str(train), "--robot", "planar2", "--validation", str(held_out), "--physical",
-                 "--bootstrap", "20", "--prior", "apriori", "--prior-weight", "0.5", "--urdf", str(urdf),
+                 "--bootstrap", "5", "--prior", "apriori", "--prior-weight", "0.5", "--urdf", str(urdf),
                  "--json", str(js), "--quiet"]) == 0
-    run = dynid.run(str(train), "planar2", validation=str(held_out), physical=True, bootstrap=20,
+    run = dynid.run(str(train), "planar2", validation=str(held_out), physical=True, bootstrap=5,
                     prior="apriori", prior_weight=0.5, urdf=str(tmp_path / "api.urdf"), write=False)
     assert run.physical.idim is run.result and run.physical.validation is not None
     assert run.export.text == urdf.read_text()

@@ -393,6 +393,9 @@ def test_a_model_that_does_not_describe_the_loaded_recording_is_not_identified(p
     assert "held-out error" in bad.verdict() and "--unloaded" in bad.verdict()
     out = json.loads(dumps_json(bad.to_dict()))
     assert out["loaded_error"] > 3 * out["model_error"] and out["verdict"].startswith("NOT identified")
+    # the report's verdict says the same (it said "identified" beside the NOT of the text)
+    from dynid.reports.payload_section import NOT_IDENTIFIED, payload_status
+    assert payload_status(bad)[0] == NOT_IDENTIFIED and payload_status(good)[0] != NOT_IDENTIFIED
 
 
 def test_a_com_box_the_data_do_not_fit_is_said_in_the_verdict(plant_data):

@@ -91,7 +91,8 @@ def test_catalogue_near_miss_columns_ragged_rows_and_robot_files_are_refused(tmp
     cases = [(f"{head},Temperature\n{row},20\n", r"column 'Temperature' is not read; write it 'temperature'"),
              (f"{head},temperature0\n{row},20\n", "temperature0: joints count from 1"),
              (f"{head},robot_id\n{row},R2\n", "column robot_id is given twice"),
-             (f"{head}\n{row},extra\n", "line 2 has 5 fields and the header 4"),
+             (f"{head},temperature_1\n{row},20\n", r"column 'temperature_1' is not read; write it 'temperature1'"),
+             (f"{head}\n{row},extra\n", r"record 1 \(line 2 .*\) has 5 fields and the header 4"),
              (f"{head}\nR1,2026-01-01T00:00:00Z,a.npz,arm.toml\n",
               r"column robot, row 1: the robot file .*arm.toml does not exist \(a relative path is relative "
               r"to the catalogue's folder\)")]
@@ -99,9 +100,10 @@ def test_catalogue_near_miss_columns_ragged_rows_and_robot_files_are_refused(tmp
         p.write_text(text)
         with pytest.raises(InputError, match=message):
             read_catalogue(p)
-    # other columns are kept and not read
-    p.write_text(f"{head},operator\n{row},ann\n")
-    assert read_catalogue(p)["operator"][0] == "ann"
+    # other columns are kept and not read; a row with fewer fields has empty ones, as pandas reads it
+    p.write_text(f"{head},operator\n{row},ann\n{row.replace('a.npz', 'b.npz')}\n")
+    frame = read_catalogue(p)
+    assert frame["operator"][0] == "ann" and frame["operator"].isna()[1]
 
 
 def test_plan_keys_follow_the_robot_file_and_the_data_a_toml_names(tmp_path):
@@ -133,10 +135,30 @@ def test_plan_keys_follow_the_robot_file_and_the_data_a_toml_names(tmp_path):
     assert plan(cat, store)[0][0]["key"] == key
     (folder / "d1.csv").write_text("t,q1,q2,tau1,tau2\n0,0,0,1,0\n")
     assert plan(cat, store)[0][0]["key"] != key
-    # a temperature of a joint the robot does not have
-    cat.write_text("robot_id,timestamp,path,robot,temperature3\nR1,2026-01-01T00:00:00Z,e1.toml,arm.toml,20\n")
-    with pytest.raises(InputError, match="column temperature3, row 1: the robot .*arm.toml has 2 joints"):
+    # a data file named in a table of its own ([torques] file = ...), as the TX40 example's
+    (folder / "tau.csv").write_text("0,0\n")
+    (folder / "e2.toml").write_text('[torques]\nfile = "tau.csv"\n')
+    cat.write_text("robot_id,timestamp,path,robot\nR1,2026-01-01T00:00:00Z,e2.toml,planar2\n")
+    key = plan(cat, store)[0][0]["key"]
+    (folder / "tau.csv").write_text("0,1\n")
+    assert plan(cat, store)[0][0]["key"] != key
+    # a bundled name is the bundled robot, whatever file of that name the working folder holds
+    (folder / "planar2").write_text("not a robot")
+    key = plan(cat, store)[0][0]["key"]
+    try:
+        os.chdir(folder)
+        assert plan(cat, store)[0][0]["key"] == key
+    finally:
+        os.chdir(cwd)
+    # a temperature of a joint the robot does not have, named by the catalogue's own row number
+    cat.write_text("robot_id,timestamp,path,robot,temperature3\nR2,2026-01-01T00:00:00Z,d1.csv,planar2,\n"
+                   "R1,2026-01-01T00:00:00Z,e1.toml,arm.toml,20\n")
+    with pytest.raises(InputError, match="column temperature3, row 2: the robot .*arm.toml has 2 joints"):
         plan(cat, store)
+    # an empty joint temperature beside a shared one: each joint keeps its own, or the shared one
+    cat.write_text("robot_id,timestamp,path,robot,temperature,temperature1,temperature2\n"
+                   "R1,2026-01-01T00:00:00Z,e1.toml,arm.toml,30,20,\n")
+    assert plan(cat, store)[0][0]["temperatures"] == [20.0, 30.0]
 
 
 def test_missing_dask_says_how_to_install(monkeypatch):
