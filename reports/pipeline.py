@@ -21,7 +21,7 @@ from dynid.analysis import further
 from dynid.analysis import run as steps
 from dynid.analysis.data.synthetic import sample_count
 from dynid.analysis.demo import run_demo
-from dynid.analysis.estimators.payload import identify_payload
+from dynid.analysis.estimators.payload import identify_payload, unfelt_message, unfelt_parameters
 from dynid.analysis.further import DiagnosisRun
 from dynid.analysis.results import Result
 from dynid.analysis.run import (  # noqa: F401 - REPORT_PARTS: public here since 0.1
@@ -359,6 +359,12 @@ def report(data, robot, path=None, *, settings=None, say=None, payload=None, pay
     say = say or Reporter()
     s = _report_settings(settings, options)
     robot = steps.as_robot(robot)
+    if payload is not None:
+        # before every method runs: a robot that cannot feel a payload is bad input, not a late failure
+        frame = (payload_options or {}).get("frame", "flange")
+        unfelt = unfelt_parameters(robot, frame, (payload_options or {}).get("offset"))
+        if unfelt:
+            raise InputError(f"--payload: {unfelt_message(robot, unfelt)}; leave --payload out")
     experiments, held_out = steps.load_data(data, robot, s, say)
     with say.progress("IDIM: regressor and decimation") as bar:
         result = steps.identify_step(experiments, robot, s.replace(method="idim"), progress=bar.update)

@@ -302,6 +302,29 @@ def _identifiability(Wp, mask, names, rtol):
     return out, np.r_[ratio, np.zeros(int(dead.sum()))]
 
 
+def unfelt_parameters(robot, frame="flange", offset=None) -> list:
+    """The payload parameters no motion of `robot` can show (their regressor columns are zero at
+    random configurations, velocities and accelerations): a planar arm never feels XXL, XYL ...
+    Checked before any recording is read (`dynid report --payload` runs every method first)."""
+    robot = _as_robot(robot)
+    link, R, p = payload_frame(robot, frame, offset)
+    sl = inertial_slice(robot, link)
+    rng = np.random.default_rng(0)
+    n = robot.n_joints
+    q, qd, qdd = rng.uniform(-np.pi, np.pi, (64, n)), rng.normal(0, 1, (64, n)), rng.normal(0, 3, (64, n))
+    Wp = regressor(robot, q, qd, qdd, columns=np.arange(sl.start, sl.stop)) @ transform_matrix(R, p)
+    scale = np.abs(Wp).max()
+    return [PAYLOAD_NAMES[k] for k in np.flatnonzero(np.abs(Wp).max(axis=(0, 1)) <= 1e-12 * max(scale, 1.0))]
+
+
+def unfelt_message(robot, names) -> str:
+    """Why a payload cannot be identified on a robot that never feels `names`."""
+    return (f"the joints of robot '{robot.name}' never feel the payload parameters {', '.join(names)}: "
+            f"their regressor columns are zero whatever the motion (the joints that carry the payload "
+            f"turn it about fewer than three axes). dynid identifies the ten parameters of a payload "
+            f"together, so not on this robot")
+
+
 def _wrist_motion(robot, obs_list, link):
     """Range (deg) of each joint up to the payload's link, over the recordings, for messages."""
     q = np.concatenate([o.q for o in obs_list], axis=0)
@@ -351,11 +374,7 @@ def _refuse(directions, robot, obs_list, link, rtol):
     names = sorted({k for _, comb in directions for k in comb}, key=PAYLOAD_NAMES.index)
     if all(r == 0.0 and len(comb) == 1 for r, comb in directions):
         # zero columns: no motion of this robot can show them
-        raise IdentificationError(
-            f"the joints of robot '{robot.name}' never feel the payload parameters {', '.join(names)}: "
-            f"their regressor columns are zero whatever the motion (the joints that carry the payload "
-            f"turn it about fewer than three axes). dynid identifies the ten parameters of a payload "
-            f"together, so not on this robot.")
+        raise IdentificationError(unfelt_message(robot, names) + ".")
     raise IdentificationError(
         f"the recording does not identify the payload parameters {', '.join(names)}: their columns "
         f"are (nearly) dependent on it, along {'; '.join(bad)} (threshold {rtol:g}). Why: the "

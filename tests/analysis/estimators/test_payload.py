@@ -409,3 +409,14 @@ def test_a_com_box_the_data_do_not_fit_is_said_in_the_verdict(plant_data):
     outside = identify_payload(d["el"], d["robot"], model=d["model"], physical=True,
                                com_box=(c + 1.0, c + 2.0))
     assert "the data do NOT fit the --com-box" in outside.verdict()
+
+
+def test_report_refuses_a_payload_the_robot_cannot_feel_before_any_work():
+    """`dynid report --payload` on a planar arm ran every method, then failed with exit 3; the
+    structural check needs no data (found by a bad-input hunt)."""
+    from dynid.analysis.estimators.payload import unfelt_parameters
+    from dynid.reports import pipeline
+    assert unfelt_parameters("planar2") == ["XXL", "XYL", "XZL", "YYL", "YZL", "MZL"]
+    assert unfelt_parameters("tx40") == []
+    with pytest.raises(InputError, match="--payload: the joints of robot 'planar2' never feel"):
+        pipeline.report("no-such-recording.csv", "planar2", payload="no-such-payload.csv")
