@@ -106,7 +106,10 @@ def read_catalogue(catalogue) -> pd.DataFrame:
         try:
             if ext == ".csv":
                 _check_fields(path)
-                frame = pd.read_csv(path, dtype={"robot_id": str, "path": str, "robot": str})
+                # only an empty cell is missing: pandas' default also reads "NA", "nan", "None" ... as
+                # missing, which made a robot called NA an empty robot_id and a "nan" temperature "not logged"
+                frame = pd.read_csv(path, dtype={"robot_id": str, "path": str, "robot": str},
+                                    keep_default_na=False, na_values=[""])
             elif ext == ".parquet":
                 frame = pd.read_parquet(path)
             else:

@@ -100,6 +100,12 @@ def test_catalogue_near_miss_columns_ragged_rows_and_robot_files_are_refused(tmp
         p.write_text(text)
         with pytest.raises(InputError, match=message):
             read_catalogue(p)
+    # "nan" is not an empty cell; a robot may be called NA
+    p.write_text(f"{head},temperature\n{row},nan\n")
+    with pytest.raises(InputError, match="column temperature, row 1: 'nan' is not a temperature"):
+        read_catalogue(p)
+    p.write_text(f"{head}\n{row.replace('R1', 'NA')}\n")
+    assert read_catalogue(p)["robot_id"][0] == "NA"
     # other columns are kept and not read; a row with fewer fields has empty ones, as pandas reads it
     p.write_text(f"{head},operator\n{row},ann\n{row.replace('a.npz', 'b.npz')}\n")
     frame = read_catalogue(p)
