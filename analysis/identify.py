@@ -23,6 +23,7 @@ Every method returns a result with the interface of
 from __future__ import annotations
 
 from dynid.analysis.run import (  # noqa: F401 - as_robot, as_experiments, METHODS: public here since 0.1
+    METHOD_OPTIONS,
     METHODS,
     ML_MAX_VALUES,
     Settings,
@@ -169,9 +170,7 @@ def identify(data, robot, method: str | None = None, *, settings=None, max_error
 
 
 #: the options only some methods read (an option given to another method is an error, not ignored)
-_METHOD_OF = {"f0": ("ml",), "ml_harmonics": ("ml",), "max_iter": ("didim",), "gain_update": ("didim",),
-              "update_gains": ("didim",), "gains": ("didim",), "didim_start": ("didim",),
-              "reference": ("didim",)}
+_METHOD_OF = {**METHOD_OPTIONS, "update_gains": METHOD_OPTIONS["gain_update"]}
 
 _DEFAULTS = {"max_error_growth": 0.02, "gains": "assumed", "physical": False,
              "prior_weight": 1.0, "physical_set": "base"}

@@ -82,6 +82,9 @@ REPORT_PARTS = ("didim", "sample", "diagnose")
 #: max_q M_jj, so the update keeps the simulated loop's gains away from the recorded loop's.
 #: `--gain-update every` is the paper's.
 DEFAULT_GAIN_UPDATE = "initial"
+#: the options of one method alone (Settings fields), refused with another
+METHOD_OPTIONS = {"f0": ("ml",), "ml_harmonics": ("ml",), "max_iter": ("didim",), "gain_update": ("didim",),
+                  "gains": ("didim",), "didim_start": ("didim",), "reference": ("didim",)}
 #: the fewest bootstrap refits of the physical fit that have a spread (with fewer than 20 its σ
 #: is the larger of the WLS σ and the refits' spread: PhysicalResult.bse)
 MIN_BOOTSTRAP = 2
@@ -611,15 +614,10 @@ def check_run(settings: Settings, robot=None):
     if settings.v_s is not None and settings.method != "didim":
         raise InputError(f"--v-s is the simulated Coulomb friction's sign width of DIDIM; it does not "
                          f"apply to --method {settings.method}")
-    # an option of another method or of the physical fit would be ignored without a word
-    method_options = {"didim": (("max-iter", settings.max_iter is not None),
-                                ("gains", settings.gains != "assumed"),
-                                ("didim-start", settings.didim_start != "idim"),
-                                ("gain-update", settings.gain_update != DEFAULT_GAIN_UPDATE),
-                                ("reference", settings.reference is not None)),
-                      "ml": (("f0", settings.f0 is not None), ("ml-harmonics", settings.ml_harmonics is not None))}
-    for method, options in method_options.items():
-        given = [f"--{o}" for o, set_ in options if set_]
+    # an option of another method would be ignored without a word (given: not the Settings default)
+    for method in ("didim", "ml"):
+        given = [f"--{name.replace('_', '-')}" for name, methods in METHOD_OPTIONS.items()
+                 if methods == (method,) and getattr(settings, name) != getattr(Settings, name)]
         if given and settings.method != method:
             raise InputError(f"{', '.join(given)} {'is an option' if len(given) == 1 else 'are options'} of "
                              f"--method {method}, not of --method {settings.method}: leave "

@@ -129,10 +129,19 @@ _TOP_KEYS = {"name", "description", "gravity", "urdf", "base", "tip", "joints", 
              "controller", "apriori", "provenance"}
 
 
+_ROBOT_SUFFIXES = (".toml", ".urdf", ".xml")
+
+
 def bundled_robots():
     """Names of the robots shipped with dynid."""
     folder = resources.files("dynid.dynamics.robots")
     return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
+
+
+def is_bundled_name(spec) -> bool:
+    """`spec` names a bundled robot (`"tx40"`), not a robot file: `load_robot`'s rule."""
+    spec = str(spec)
+    return Path(spec).suffix.lower() not in _ROBOT_SUFFIXES and spec in bundled_robots()
 
 
 def bundled_path(name):
@@ -158,9 +167,9 @@ def load_robot(spec, base=None, tip=None):
         return spec
     spec = str(spec)
     path = Path(spec)
-    known = path.suffix.lower() in (".toml", ".urdf", ".xml")
+    known = path.suffix.lower() in _ROBOT_SUFFIXES
     # A folder or file called "panda" in the working directory must not hide the bundled robot.
-    if not known and spec in bundled_robots():
+    if is_bundled_name(spec):
         return read_toml(bundled_path(spec), base=base, tip=tip)
     if known or path.exists():
         if not path.exists():

@@ -7,7 +7,7 @@ import filecmp
 import os
 import sys
 
-from dynid.dynamics.robot_file import bundled_path, bundled_robots
+from dynid.dynamics.robot_file import bundled_path, is_bundled_name
 from dynid.errors import InputError
 from dynid.outputs import check_outputs, referenced_files, same_file, write_all
 from dynid.reports.progress import clean_text
@@ -35,7 +35,7 @@ def _input_files(args):
     robot = getattr(args, "robot", None)
     if robot:
         what = "the robot file" if args.command == "robot" else "the --robot file"
-        if isinstance(robot, str) and robot in bundled_robots() and not os.path.splitext(robot)[1]:
+        if isinstance(robot, str) and is_bundled_name(robot):
             # a bundled name stands for the package's own file, which no output may replace
             what, robot = f"the bundled robot {robot}'s file", str(bundled_path(robot))
         out.append((what, robot))

@@ -80,7 +80,7 @@ from dynid.analysis.results import (
     percent,
 )
 from dynid.analysis.units import parameter_unit
-from dynid.dynamics.base_parameters import base_parameters
+from dynid.dynamics.base_parameters import base_parameters, random_samples
 from dynid.dynamics.regressor import regressor
 from dynid.dynamics.robot import Robot
 from dynid.dynamics.robot_file import load_robot
@@ -309,9 +309,7 @@ def unfelt_parameters(robot, frame="flange", offset=None) -> list:
     robot = _as_robot(robot)
     link, R, p = payload_frame(robot, frame, offset)
     sl = inertial_slice(robot, link)
-    rng = np.random.default_rng(0)
-    n = robot.n_joints
-    q, qd, qdd = rng.uniform(-np.pi, np.pi, (64, n)), rng.normal(0, 1, (64, n)), rng.normal(0, 3, (64, n))
+    q, qd, qdd = random_samples(robot, 64, np.random.default_rng(0))
     Wp = regressor(robot, q, qd, qdd, columns=np.arange(sl.start, sl.stop)) @ transform_matrix(R, p)
     scale = np.abs(Wp).max()
     return [PAYLOAD_NAMES[k] for k in np.flatnonzero(np.abs(Wp).max(axis=(0, 1)) <= 1e-12 * max(scale, 1.0))]

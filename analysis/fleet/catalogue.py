@@ -17,7 +17,7 @@ import re
 import numpy as np
 import pandas as pd
 
-from dynid.dynamics.robot_file import bundled_robots
+from dynid.dynamics.robot_file import bundled_robots, is_bundled_name
 from dynid.errors import InputError
 from dynid.outputs import referenced_files
 
@@ -82,7 +82,7 @@ def _check_columns(frame, label: str) -> None:
 
 def _robot_path(robot: str, folder: str) -> str:
     """A bundled robot's name as it is; a robot file's path relative to the catalogue's folder."""
-    if is_bundled(robot):
+    if is_bundled_name(robot):
         return robot
     return robot if os.path.isabs(robot) else os.path.normpath(os.path.join(folder, robot))
 
@@ -165,7 +165,7 @@ def read_catalogue(catalogue) -> pd.DataFrame:
                      for p in frame["path"]]
     frame["robot"] = [_robot_path(r, folder) for r in frame["robot"]]
     for k, robot in enumerate(frame["robot"]):
-        if not is_bundled(robot) and not os.path.isfile(robot):
+        if not is_bundled_name(robot) and not os.path.isfile(robot):
             raise InputError(f"{label}: column robot, row {k + 1}: the robot file {robot} does not exist "
                              f"(a relative path is relative to the catalogue's folder); give a robot file "
                              f"or one of the bundled robots: {', '.join(bundled_robots())}")
@@ -187,11 +187,6 @@ def referenced(path: str) -> list:
     return [ref for _, ref in referenced_files(path) if "\0" not in ref]
 
 
-def is_bundled(robot: str) -> bool:
-    """A catalogue's `robot` that names a bundled robot (kept as the name by `read_catalogue`)."""
-    return robot in bundled_robots() and not os.path.splitext(robot)[1]
-
-
 def input_files(catalogue, frame=None) -> list:
     """`(what, path)` of every file a fleet run reads: the catalogue, each recording (and the
     data file a recording TOML names) and each robot file; for the output guard."""
@@ -203,7 +198,7 @@ def input_files(catalogue, frame=None) -> list:
         out.append(("the recording", path))
         out += [(f"the data file of {path}", ref) for ref in referenced(path)]
     for robot in dict.fromkeys(frame["robot"]):
-        if not is_bundled(robot) and os.path.isfile(robot):
+        if not is_bundled_name(robot) and os.path.isfile(robot):
             out.append(("the robot file", robot))
             out += [(f"the file named by {robot}", ref) for ref in referenced(robot)]
     return out

@@ -23,7 +23,6 @@ from dataclasses import dataclass, field
 
 from dynid.analysis.fleet.catalogue import (
     ROW,
-    is_bundled,
     joint_temperature,
     read_catalogue,
     referenced,
@@ -31,6 +30,7 @@ from dynid.analysis.fleet.catalogue import (
 )
 from dynid.analysis.fleet.store import ResultStore
 from dynid.analysis.fleet.task import MAX_SAMPLES, file_hash, identify_recording, task_key
+from dynid.dynamics.robot_file import is_bundled_name
 from dynid.errors import InputError
 from dynid.provenance import json_safe, versions
 from dynid.ranges import check_range
@@ -153,7 +153,7 @@ def _robot_hashes(frame, catalogue) -> dict:
                 k = int(frame.loc[rows, col].notna().idxmax())
                 raise InputError(f"{label}: column {col}, row {frame[ROW][k]}: the robot {robot} has {n} joints; "
                                  f"give temperature1..temperature{n}")
-        out[robot] = "" if is_bundled(robot) else _content_hash(robot)
+        out[robot] = "" if is_bundled_name(robot) else _content_hash(robot)
     return out
 
 
