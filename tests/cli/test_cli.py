@@ -1,5 +1,6 @@
 """The dynid command line: every subcommand's help, the robot command, exit codes."""
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -492,3 +493,21 @@ def test_every_documented_command_parses():
         except SystemExit:
             bad.append(f"{where}: {command}")
     assert not bad, "documented commands that do not parse:\n" + "\n".join(bad)
+
+
+def test_options_of_another_method_or_of_the_physical_fit_are_refused(capsys):
+    """They were ignored without a word (found by a bad-input hunt); refused before any data is read."""
+    import dynid
+    from dynid.errors import InputError
+    from dynid.reports.cli import main
+    cases = [(["--f0", "0.1"], "--f0 is an option of --method ml, not of --method idim"),
+             (["--max-iter", "3", "--gains", "identify"], "--max-iter, --gains are options of --method didim"),
+             (["--method", "didim", "--ml-harmonics", "3"], "--ml-harmonics is an option of --method ml"),
+             (["--bootstrap", "50"], "--bootstrap is an option of the physically consistent fit"),
+             (["--physical", "--bootstrap", "1"], "--bootstrap 1: give 0 .* or at least 2 refits")]
+    for extra, message in cases:
+        assert main(["identify", "no-such-data.csv", "--robot", "planar2", *extra]) == 2
+        err = capsys.readouterr().err
+        assert re.search(message, err) and "Traceback" not in err, err
+    with pytest.raises(InputError, match="--prior-weight is an option of the physically consistent fit"):
+        dynid.identify("no-such-data.csv", "planar2", prior_weight=2.0)
