@@ -23,7 +23,6 @@ import sys
 from dynid.errors import DynidError, InputError
 from dynid.pages import small_pages
 from dynid.progress import LOGGER
-from dynid.ranges import check_range
 from dynid.reports.cli_options import build_parser, parse_command_line
 from dynid.reports.progress import Reporter, clean_text
 from dynid.reports.terminal import check_output_paths, commit_outputs, show, show_clean, stdout_failed
@@ -197,16 +196,11 @@ _FAILED_SHOWN = 20
 
 def cmd_fleet(args, say):
     """dynid fleet CATALOGUE --out STORE: identify on Dask, store, monitor, report (dynid.fleet.run)."""
+    from dynid.analysis.fleet.engine import check_local_workers
     from dynid.analysis.fleet.health import DEFAULT_BASELINE, DEFAULT_FALSE_ALARM_RATE
     from dynid.reports import fleet_run  # Dask (dynid[fleet]) on first use
     from dynid.reports.fleet_report import fleet_json
-    if args.workers is not None:
-        check_range("workers", args.workers)         # before Dask is imported
-    cores = os.cpu_count() or 1
-    if args.workers is not None and args.scheduler is None and args.workers > 4 * cores:
-        raise InputError(f"--workers {args.workers}: a local cluster of more than {4 * cores} worker processes "
-                         f"on {cores} cores only competes for memory and time; give at most {4 * cores}, "
-                         f"or --scheduler ADDRESS for a larger cluster")
+    check_local_workers(args.workers, args.scheduler)      # before Dask is imported
     if os.path.exists(args.store) and not os.path.isdir(args.store):
         raise InputError(f"--out {args.store} is a file; the results store is a folder")
     outputs = [(opt, value) for opt, value in (("--json", args.json), ("--report", args.report))
@@ -310,6 +304,11 @@ COMMANDS = {"robot": cmd_robot, "simulate": cmd_simulate, "excite": cmd_excite, 
             "fleet": cmd_fleet, "payload": cmd_payload}
 
 
+#: what an interruption leaves, where it is more than nothing
+_INTERRUPTED = {"fleet": "the recordings finished so far are in the store, and the next run goes on from "
+                         "them; no report was written"}
+
+
 def _terminate(signum, frame):
     raise KeyboardInterrupt
 
@@ -374,7 +373,8 @@ def main(argv=None):
     except BrokenPipeError:           # output piped into head & co. (an error for --json -)
         return stdout_failed(args)
     except KeyboardInterrupt:
-        print("dynid: interrupted; no partial output was written", file=sys.stderr)
+        print(f"dynid: interrupted; {_INTERRUPTED.get(args.command, 'no partial output was written')}",
+              file=sys.stderr)
         if argv is None:              # the program itself, not a caller's main([...]): stop now
             _leave(EXIT_INTERRUPTED)
         return EXIT_INTERRUPTED

@@ -208,12 +208,27 @@ def start_client(scheduler=None, workers=None):
         except (ValueError, TypeError) as exc:      # not an address at all
             raise InputError(f"--scheduler (scheduler=) {scheduler!r} is not a Dask scheduler address ({exc}); "
                              f"give one such as tcp://host:8786, or leave it out for a local cluster") from None
-    n = int(workers or os.cpu_count() or 1)
-    if n < 1:
-        raise InputError(f"--workers must be at least 1, got {workers}")
+    n = check_local_workers(workers, scheduler) or os.cpu_count() or 1
     cluster = distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
                                        dashboard_address=":0", silence_logs=40)
     return distributed.Client(cluster), cluster
+
+
+def check_local_workers(workers, scheduler=None):
+    """`workers` (None for this machine's cores), refused when a local cluster of them is absurd.
+
+    More than 4 worker processes per core only compete for memory and time; a larger
+    cluster is a scheduler's (`scheduler=`), to which `workers` does not apply.
+    """
+    if workers is None:
+        return None
+    workers = check_range("workers", workers)
+    cores = os.cpu_count() or 1
+    if scheduler is None and workers > 4 * cores:
+        raise InputError(f"--workers (workers=) {workers}: a local cluster of more than {4 * cores} worker "
+                         f"processes on {cores} cores only competes for memory and time; give at most "
+                         f"{4 * cores}, or a scheduler (--scheduler ADDRESS, scheduler=) for a larger cluster")
+    return workers
 
 
 def identify_and_store(spec: dict, store_root: str) -> dict:
@@ -259,8 +274,8 @@ def identify_fleet(catalogue, store, *, scheduler=None, workers=None, client=Non
                    diagnose=False, max_samples=MAX_SAMPLES, progress=None) -> FleetRun:
     """Identify every recording of `catalogue` not yet in `store` (the store is updated)."""
     t0 = time.perf_counter()
-    if workers is not None:
-        workers = check_range("workers", workers)      # before the catalogue is read
+    if client is None:
+        workers = check_local_workers(workers, scheduler)      # before the catalogue is read
     store = store if isinstance(store, ResultStore) else ResultStore(store)
     specs, todo = plan(catalogue, store, settings=settings, diagnose=diagnose, max_samples=max_samples)
     own = None

@@ -511,3 +511,21 @@ def test_options_of_another_method_or_of_the_physical_fit_are_refused(capsys):
         assert re.search(message, err) and "Traceback" not in err, err
     with pytest.raises(InputError, match="--prior-weight is an option of the physically consistent fit"):
         dynid.identify("no-such-data.csv", "planar2", prior_weight=2.0)
+
+
+@pytest.mark.parametrize("command,says", [
+    ("fleet", "the recordings finished so far are in the store"),
+    ("identify", "no partial output was written"),
+])
+def test_an_interruption_says_what_it_left(tmp_path, monkeypatch, capsys, command, says):
+    """A fleet's store keeps every recording finished before Ctrl-C (its results are written as they
+    come); any other command leaves nothing."""
+    def interrupted(args, say):
+        raise KeyboardInterrupt
+    monkeypatch.setitem(COMMANDS, command, interrupted)
+    (tmp_path / "cat.csv").write_text("robot_id,timestamp,path,robot\n")
+    argv = {"fleet": ["fleet", str(tmp_path / "cat.csv"), "--out", str(tmp_path / "store")],
+            "identify": ["identify", str(tmp_path / "cat.csv"), "--robot", "planar2"]}[command]
+    assert main(argv) == 130
+    err = capsys.readouterr().err
+    assert f"dynid: interrupted; {says}" in err, err

@@ -1907,5 +1907,10 @@ def test_g1_fleet_outputs_onto_the_store_and_too_many_local_workers(tmp_path):
     assert_input_error(run, "--json r.out and --report r.out are the same file")
     many = 4 * (os.cpu_count() or 1) + 1
     run = run_dynid("fleet", "cat.csv", "--out", "st", "--workers", str(many), cwd=tmp_path)
-    assert_input_error(run, f"--workers {many}", "--scheduler")
+    assert_input_error(run, rf"--workers \(workers=\) {many}", "--scheduler")
+    assert not (tmp_path / "st").exists()
+    from dynid.errors import InputError
+    from dynid.fleet import run as run_fleet
+    with pytest.raises(InputError, match=rf"workers=\) {many}: a local cluster"):     # the API as the CLI
+        run_fleet(str(cat), str(tmp_path / "st"), workers=many)
     assert not (tmp_path / "st").exists()
