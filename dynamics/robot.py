@@ -17,6 +17,7 @@ TX40 wrist).
 """
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -215,3 +216,35 @@ class Robot:
         if any(j.mdh is None for j in self.joints):
             return None
         return [(k + 1, j.sigma) + tuple(j.mdh) for k, j in enumerate(self.joints)]
+
+
+def model_signature(robot) -> str:
+    """A short hash of what an identified model's parameters mean on `robot`.
+
+    The joints' placements, types, friction models and drive gains, gravity and the
+    couplings: what the regressor and the torques depend on. Not the name, the limits,
+    the controller or the a-priori values, which a model may keep across. Two robot
+    files with the same signature take the same identified parameters (`dynid payload
+    --model` checks it).
+
+    Returns
+    -------
+    str
+        16 hexadecimal digits.
+    """
+    h = hashlib.sha256()
+
+    def add(*values):
+        for v in values:
+            if isinstance(v, str):
+                h.update(v.encode() + b"\0")
+            else:       # rounded: the same file read on another machine gives the same hash
+                h.update((np.round(np.asarray(v, dtype=float), 9) + 0.0).tobytes() + b"\0")   # + 0.0: no -0
+
+    add(len(robot.joints), robot.gravity)
+    for j in robot.joints:
+        add(j.sigma, j.R, j.p, j.friction, j.drive_gain)
+    for c in robot.couplings:
+        add(c.motor, c.joints, c.coefficients, float(c.friction))
+    return h.hexdigest()[:16]
+

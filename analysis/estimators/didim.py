@@ -164,6 +164,7 @@ from dynid.analysis.processing.signals import dead_zone_thresholds, default_sett
 from dynid.analysis.results import ModelResults, notices_block, percent
 from dynid.dynamics.base_parameters import base_parameters, base_regressor
 from dynid.dynamics.dynamic_model import inverse_dynamics, mass_matrix
+from dynid.dynamics.robot import model_signature
 from dynid.dynamics.simulation import friction_stiffness, simulate_closed_loop
 from dynid.errors import DataError, DynidError, IdentificationError, InputError
 from dynid.provenance import json_safe, versions
@@ -260,6 +261,7 @@ class DIDIMResult(ModelResults):
     timings: list = field(default_factory=list)   # seconds per step (not in to_dict)
     gains: object = None              # GainsResult when the controller gains were identified
     physical: object = None           # PhysicalResult of the last step (physical=True: PC-DIDIM)
+    robot_signature: str = ""     # dynamics.robot.model_signature of the robot identified
     _state: object = field(default=None, repr=False)   # (_Loop, last step) for didim_covariance
 
     method = "DIDIM"
@@ -378,6 +380,7 @@ class DIDIMResult(ModelResults):
         return json_safe({
             "method": "DIDIM",
             "robot": self.robot_name,
+            "robot_signature": self.robot_signature or None,
             "source": self.source,
             "converged": bool(self.converged),
             "iterations": self.iterations,
@@ -1241,7 +1244,7 @@ def _didim_result(L, experiment, beta0, tau, history, timings, last, converged, 
         tau_est_dec=last["Wd"] @ res.chi, W_dec=last["Wd"], row_mask=last["mask"],
         transient_samples=n0, notices=notices, data_hash=h, source=str(experiment.source),
         joint_names=list(robot.joint_names), timings=timings, physical=last.get("physical"),
-        gains=gains_cov, _state=(L, last))
+        gains=gains_cov, robot_signature=model_signature(robot), _state=(L, last))
 
 
 # ----------------------------------------------------------------------------- v_s from the data

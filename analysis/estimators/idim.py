@@ -20,6 +20,7 @@ from dynid.analysis.estimators.essential import essential_parameters
 from dynid.analysis.processing.observation import Observation, concatenate, observe
 from dynid.analysis.results import ModelResults, notices_block, percent
 from dynid.dynamics.base_parameters import base_parameters
+from dynid.dynamics.robot import model_signature
 from dynid.errors import IdentificationError, InputError
 from dynid.provenance import data_hash, json_safe, versions
 
@@ -71,6 +72,7 @@ class IDIMResult(ModelResults):
     uncertainty: str = "classic"  # the covariance reported (least_squares.UNCERTAINTY)
     agreement: Agreement = None   # cross-recording (or cross-segment) check, see recording_agreement
     groups: np.ndarray = None     # recording of each decimated sample (the robust covariances' blocks)
+    robot_signature: str = ""     # dynamics.robot.model_signature of the robot identified
 
     @property
     def agreement_line(self) -> str | None:
@@ -129,6 +131,7 @@ class IDIMResult(ModelResults):
             "method": "IDIM",
             "uncertainty": self.uncertainty,
             "robot": self.robot_name,
+            "robot_signature": self.robot_signature or None,
             "source": self.source,
             "settings": self.settings,
             "base_parameters": self.base.table(),
@@ -208,7 +211,8 @@ def identify_idim(experiment, robot, *, settings=None, bp=None, max_error_growth
     return IDIMResult(robot_name=robot.name, base=bp, ols=r_ols, wls=r_wls, essential=ess,
                       observation=obs, settings=obs.settings, notices=notices, data_hash=h,
                       source=" + ".join(str(e.source) for e in experiments), robot=robot,
-                      uncertainty=uncertainty, agreement=agr, groups=groups)
+                      uncertainty=uncertainty, agreement=agr, groups=groups,
+                      robot_signature=model_signature(robot))
 
 
 def recording_agreement(obs, names, groups, joint_sigma, uncertainty="classic", n_segments=3,

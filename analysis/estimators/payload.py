@@ -82,7 +82,7 @@ from dynid.analysis.results import (
 from dynid.analysis.units import parameter_unit
 from dynid.dynamics.base_parameters import base_parameters, random_samples
 from dynid.dynamics.regressor import regressor
-from dynid.dynamics.robot import Robot
+from dynid.dynamics.robot import Robot, model_signature
 from dynid.dynamics.robot_file import load_robot
 from dynid.dynamics.urdf import inertia_about_com
 from dynid.dynamics.urdf_writer import inertial_slice, link_consistency
@@ -475,6 +475,7 @@ def _model_vector(model, robot, bp, notices):
                              "written by dynid identify --json")
         if model.get("robot") not in (None, robot.name):
             raise InputError(f"{src} identifies robot '{model.get('robot')}', not '{robot.name}'")
+        _check_signature(model.get("robot_signature"), robot, src)
         names = [r["name"] for r in rows]
         values = np.array([np.nan if r.get("value") is None else r["value"] for r in rows], dtype=float)
         std = np.array([0.0 if r.get("std") is None else r["std"] for r in rows], dtype=float)
@@ -492,6 +493,8 @@ def _model_vector(model, robot, bp, notices):
                            "overstates the payload's σ; identify the robot with IDIM or DIDIM "
                            "(dynid identify --json) and pass that JSON")
     else:
+        inner = getattr(model, "result", model) if hasattr(model, "experiments") else model   # a run()
+        _check_signature(getattr(inner, "robot_signature", None), robot, src)
         model = _base_fit(model)
         try:
             names = list(model.names)
@@ -511,6 +514,19 @@ def _model_vector(model, robot, bp, notices):
     P = np.zeros((bp.n_base, len(names)))
     P[[index[nm] for nm in names], np.arange(len(names))] = 1.0
     return P @ values, P @ cov @ P.T, src, own_error
+
+
+def _check_signature(signature, robot, src):
+    """Refuse a model identified on a robot file of other kinematics, gravity, couplings or
+    drive gains than `robot`'s (the same name does not make the same robot); a model written
+    without a signature (an earlier dynid) is taken as it is."""
+    if not isinstance(signature, str) or not signature or signature == model_signature(robot):
+        return
+    where = f" ({robot.source})" if robot.source else ""
+    raise InputError(f"{src} was identified on a robot '{robot.name}' whose kinematics, gravity, couplings or "
+                     f"drive gains differ from those of the robot given{where}: its parameters do not apply "
+                     "to this recording. Give the robot file the model was identified with, or identify the "
+                     "robot again with this one (dynid identify --json)")
 
 
 def _own_error(model) -> float:

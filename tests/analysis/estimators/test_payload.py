@@ -25,6 +25,7 @@ from dynid.analysis.estimators.payload import (
 )
 from dynid.dynamics.regressor import regressor
 from dynid.dynamics.urdf_writer import inertial_slice
+from dynid.dynamics.robot import model_signature
 from dynid.errors import IdentificationError, InputError
 from dynid.provenance import dumps_json
 
@@ -420,3 +421,27 @@ def test_report_refuses_a_payload_the_robot_cannot_feel_before_any_work():
     assert unfelt_parameters("tx40") == []
     with pytest.raises(InputError, match="--payload: the joints of robot 'planar2' never feel"):
         pipeline.report("no-such-recording.csv", "planar2", payload="no-such-payload.csv")
+
+
+def test_a_model_identified_on_other_kinematics_is_refused(plant_data, tmp_path):
+    """A model carries the signature of the robot it was identified on: the same name with joint 4's
+    r 2 cm off, or with other drive gains, is refused (object, dict and JSON alike), other limits
+    are not, and a model written without a signature (an earlier dynid) is taken as before."""
+    d = plant_data
+    assert d["model"].to_dict()["robot_signature"] == model_signature(d["robot"])
+    joints = [dataclasses.replace(j) for j in d["robot"].joints]
+    joints[3] = dataclasses.replace(joints[3], p=joints[3].p + [0.0, 0.0, 0.02])
+    moved = dataclasses.replace(d["robot"], joints=joints, source="moved.toml")
+    path = tmp_path / "identified.json"
+    d["model"].to_json(path)
+    geared = dataclasses.replace(d["robot"], joints=[dataclasses.replace(j, drive_gain=2.0 * j.drive_gain)
+                                                     for j in d["robot"].joints], source="geared.toml")
+    for model in (d["model"], d["model"].to_dict(), str(path)):
+        for other in (moved, geared):        # other base parameters; the same ones (it was taken)
+            with pytest.raises(InputError, match=rf"differ from those of the robot given \({other.source}\)"):
+                identify_payload(d["el"], other, model=model)
+    slow = dataclasses.replace(d["robot"], joints=[dataclasses.replace(j, qd_max=1.0) for j in d["robot"].joints])
+    assert model_signature(slow) == model_signature(d["robot"])
+    old = d["model"].to_dict()
+    del old["robot_signature"]
+    assert identify_payload(d["el"], d["robot"], model=old).mass[0] > 0
