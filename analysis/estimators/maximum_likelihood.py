@@ -590,7 +590,7 @@ def _check_periodic(q, q_fit, f0, K, notices, harmonics_given=False):
     j = int(np.argmax(share))
     text = (f"{K} harmonics of f0 = {f0:g} Hz leave {100 * share[j]:.3g} % of joint {j + 1}'s motion "
             "unexplained (RMS about its mean)")
-    fix = ("give more harmonics (--ml-harmonics; n_harmonics= in Python), or the fundamental frequency of "
+    fix = ("give more harmonics (--ml-harmonics; ml_harmonics= in Python), or the fundamental frequency of "
            "the excitation (--f0: 1 / the period of the reference)" if harmonics_given else
            "give the fundamental frequency of the excitation (--f0: 1 / the period of the reference)")
     if share[j] > NOT_PERIODIC_ERROR:
@@ -609,7 +609,7 @@ def _fourier_start(t, q, f0, K):
     if rank < m:
         raise InputError(f"the recording cannot separate {K} harmonics of f0 = {f0:g} Hz (rank {rank} < {m}); "
                          "record at least one full period, or fit fewer harmonics (--ml-harmonics on the "
-                         "command line, n_harmonics= in Python)")
+                         "command line, ml_harmonics= in Python)")
     return B, Bd, Bdd, C0
 
 

@@ -107,7 +107,7 @@ def python_blocks():
 def test_python_api_blocks_run_in_order(tmp_path):
     blocks = python_blocks()
     assert len(blocks) == 4 and "dynid.identify(" in blocks[1] and "dynid.report(" in blocks[2]
-    assert "dynid.verdict(dynid.identify(train, robot), held_out)" in blocks[2] and "dynid.run(" in blocks[3]
+    assert "dynid.verdict(r, v)" in blocks[2] and "dynid.run(" in blocks[3]
     assert all(len(b.strip().splitlines()) <= 8 for b in blocks)       # a handful of lines each
     (tmp_path / "examples").symlink_to(ROOT / "examples")
     script = "\n\n".join(blocks)
