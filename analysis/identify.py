@@ -34,7 +34,8 @@ from dynid.analysis.run import (  # noqa: F401 - as_robot, as_experiments, METHO
     method_name,
     settings_from,
 )
-from dynid.errors import InputError
+from dynid.errors import InputError, did_you_mean
+from dynid.progress import task
 
 
 def identify(data, robot, method: str | None = None, *, settings=None, max_error_growth: float = 0.02,
@@ -56,9 +57,10 @@ def identify(data, robot, method: str | None = None, *, settings=None, max_error
         `"idim"` (default: that of `settings`, else IDIM), `"didim"`, `"projection"` or `"ml"`: IDIM (Gautier et al.
         2010, eqs. (9)-(16)), DIDIM (eqs. (25)-(30)), the Projection Method or maximum
         likelihood (Bona & Curatella 2005).
-    settings : dict, optional
-        Processing overrides (`fc_position`, `nd`, `decimation_cutoff`,
-        `qd_threshold`); the defaults come from the data.
+    settings : dict or Settings, optional
+        A dict of processing overrides (`fc_position` Hz, `nd`, `f_decimation_cutoff` Hz,
+        `qd_threshold` rad/s ...: `dynid.analysis.processing.observation.SETTINGS_HELP`),
+        or a `dynid.Settings`; the defaults come from the data.
     max_error_growth : float
         Essential-parameter rule (IDIM, DIDIM): stop removing parameters before the
         relative error grows by more than this fraction.
@@ -82,7 +84,9 @@ def identify(data, robot, method: str | None = None, *, settings=None, max_error
         update); the result's `gains` holds them with their %σ. Needs a logged
         reference.
     progress : callable, optional
-        Called with the fraction done (0 to 1) during long steps.
+        Called with the fraction done (0 to 1) during long steps; without one, long work
+        reports through `dynid.progress` (a bar on a terminal, else a line on stderr every
+        10 s; `dynid.progress.silence()` turns it off).
     physical : bool
         IDIM: return the physically consistent WLS (PC-WLS; every link's
         pseudo-inertia positive semidefinite, Ia, Fv, Fc >= 0; Wensing, Kim &
@@ -138,7 +142,11 @@ def identify(data, robot, method: str | None = None, *, settings=None, max_error
                "update_gains", "n_boot"}
     unknown = sorted(set(options) - allowed)
     if unknown:
-        raise TypeError(f"identify() got an unexpected keyword argument {unknown[0]!r}")
+        hint = did_you_mean(unknown[0], allowed | set(_KEYWORDS) | {"holdout"})
+        if unknown[0] == "holdout" or "holdout" in hint:
+            hint = (": identify fits all the data it is given; hold data out with dynid.holdout_split and "
+                    "dynid.validate, or use dynid.run(..., holdout=...)")
+        raise TypeError(f"identify() got an unexpected keyword argument {unknown[0]!r}{hint}")
     if method is None:          # not given: the Settings' method, else IDIM
         method = settings.method if isinstance(settings, Settings) else (
             settings.get("method", "idim") if isinstance(settings, dict) else "idim")
@@ -166,11 +174,19 @@ def identify(data, robot, method: str | None = None, *, settings=None, max_error
         raise InputError(f"progress must be a function of the fraction done (0..1), or None; not "
                          f"{type(progress).__name__}")
     robot = as_robot(robot)
-    return identify_step(as_experiments(data, robot), robot, s, progress=progress)
+    experiments = as_experiments(data, robot)
+    if progress is not None:
+        return identify_step(experiments, robot, s, progress=progress)
+    with task(f"identify ({s.method})") as bar:     # shows only for work longer than a few seconds
+        return identify_step(experiments, robot, s, progress=bar)
 
 
 #: the options only some methods read (an option given to another method is an error, not ignored)
 _METHOD_OF = {**METHOD_OPTIONS, "update_gains": METHOD_OPTIONS["gain_update"]}
+
+#: identify's own keywords, for the near misses of a misspelt one
+_KEYWORDS = ("method", "settings", "max_error_growth", "f0", "ml_harmonics", "reference", "max_iter", "gain_update",
+             "gains", "progress", "physical", "prior", "prior_weight", "mass_tolerance", "bootstrap", "physical_set")
 
 _DEFAULTS = {"max_error_growth": 0.02, "gains": "assumed", "physical": False,
              "prior_weight": 1.0, "physical_set": "base"}

@@ -54,7 +54,7 @@ from dynid.analysis.statistics.validation import ValidationResult, validate
 from dynid.analysis.statistics.verdict import verdict
 from dynid.dynamics.robot import Robot
 from dynid.dynamics.robot_file import load_robot
-from dynid.errors import DataError, InputError
+from dynid.errors import DataError, InputError, did_you_mean
 from dynid.ranges import check_range
 
 METHODS = ("idim", "didim", "projection", "ml")
@@ -252,8 +252,9 @@ def settings_from(settings=None, **options) -> Settings:
             options[new] = value
     unknown = sorted(set(options) - {f.name for f in dataclasses.fields(Settings)})
     if unknown:
-        raise InputError(f"unknown option(s) {', '.join(unknown)}; the options are those of Settings "
-                         f"(the command line's, with _ for -)")
+        raise InputError(f"unknown option(s) {', '.join(unknown)}"
+                         f"{did_you_mean(unknown[0], [f.name for f in dataclasses.fields(Settings)])}; the "
+                         f"options are the fields of dynid.Settings (the command line's, with _ for -)")
     if isinstance(settings, Settings):
         return settings.replace(**options)
     if settings is not None and not isinstance(settings, dict):

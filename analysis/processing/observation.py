@@ -24,7 +24,7 @@ from dynid.analysis.processing.signals import (
 )
 from dynid.dynamics.base_parameters import base_regressor
 from dynid.dynamics.regressor import regressor
-from dynid.errors import DataError, InputError
+from dynid.errors import DataError, InputError, did_you_mean
 
 CHUNK = 20_000
 #: A decimated row made mostly of zeroed (dead-zone) samples carries little information and a
@@ -73,8 +73,9 @@ def resolve_settings(experiment, overrides=None):
     overrides = dict(overrides or {})
     unknown = sorted(set(overrides) - set(SETTINGS_HELP))
     if unknown:
-        raise DataError(f"unknown processing setting(s) {', '.join(unknown)}; known: "
-                        + ", ".join(f"{k} ({v})" for k, v in SETTINGS_HELP.items()))
+        raise InputError(f"unknown processing setting(s) {', '.join(unknown)}"
+                         f"{did_you_mean(unknown[0], SETTINGS_HELP)}; known: "
+                         + ", ".join(f"{k} ({v})" for k, v in SETTINGS_HELP.items()))
     qd_threshold = overrides.pop("qd_threshold", "auto")
     order = int(overrides.pop("order", 4))
     try:

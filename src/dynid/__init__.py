@@ -4,7 +4,7 @@ The public API (everything a user needs; the subpackages hold the rest)::
 
     import dynid
     robot = dynid.load_robot("tx40")                      # bundled name, .toml or .urdf
-    exp = dynid.load_experiment("experiment.toml", robot)
+    exp = dynid.load_experiment("examples/staubli_tx40/experiment.toml", robot)
     train, held_out = dynid.holdout_split(exp, 3.0)       # the last 3 s held out
     r = dynid.identify(train, robot)                      # IDIM; or method="didim" | "projection" | "ml"
     print(r.summary()); r.params["ZZ1R"]; r.conf_int()
@@ -116,17 +116,45 @@ __all__ = [
 def sample(result: IDIMResult, *, which: str = "essential", seed: int = 1, **kwargs: Any) -> PosteriorResult:
     """Posterior of the essential (default) or base parameters of an IDIM result, by emcee.
 
-    See `dynid.analysis.sampling.posterior.sample_idim` for the options
-    (walkers, steps, time limit, priors); convergence is judged from the chains.
+    Parameters
+    ----------
+    result : IDIMResult
+        What `dynid.identify(..., method="idim")` returned.
+    which : str
+        `"essential"` or `"base"` (all base parameters).
+    seed : int
+        The walkers' random seed: the same seed gives the same chains.
+    **kwargs
+        The options of `dynid.analysis.sampling.sample.sample_linear`, among them
+        `n_walkers` (or `walkers`, the command line's name), `max_steps`, `max_seconds` (s),
+        `noise` (the likelihood's noise model), `physical` (base parameters only: the
+        physically consistent support) and `progress` (a callable; without one the
+        sampling reports through `dynid.progress`).
 
     Returns
     -------
     PosteriorResult
         Draws, posterior means, standard deviations and credible intervals of the
-        parameters, with the chains' convergence diagnostics (ESS, R-hat).
+        parameters, with the chains' convergence diagnostics (ESS, R-hat). Chains that did
+        not converge are returned too: `converged` is False and `reason` says why (the
+        command line exits 3 then, unless `--allow-unconverged`).
     """
-    from dynid.analysis.sampling.posterior import sample_idim
-    return sample_idim(result, which=which, seed=seed, **kwargs)
+    import inspect
+
+    from dynid.analysis.sampling.sample import sample_idim, sample_linear
+    from dynid.errors import did_you_mean
+    from dynid.progress import task
+    known = {"walkers", "physical", "robot"} | {
+        n for n in inspect.signature(sample_linear).parameters
+        if not n.startswith("_") and n not in ("W3", "tau", "names", "row_mask", "ls", "truth", "suff_stats")}
+    unknown = sorted(set(kwargs) - known)
+    if unknown:
+        raise TypeError(f"sample() got an unexpected keyword argument {unknown[0]!r}"
+                        f"{did_you_mean(unknown[0], known)}; its options: {', '.join(sorted(known))}")
+    if kwargs.get("progress") is not None:
+        return sample_idim(result, which=which, seed=seed, **kwargs)
+    with task("sampling the posterior") as progress:
+        return sample_idim(result, which=which, seed=seed, **{**kwargs, "progress": progress})
 
 
 @with_single_blas_thread
@@ -153,7 +181,12 @@ def diagnose(data: str | os.PathLike[str] | Experiment | Sequence[str | os.PathL
     if idim_result is not None and getattr(idim_result, "observation", None) is None:
         raise InputError(f"diagnose: idim_result must be the IDIM result of the same data "
                          f"(dynid.identify(..., method='idim')), not {type(idim_result).__name__}")
-    return _diagnose(experiment, robot, validation=valid, idim_result=idim_result, **kwargs)
+    if kwargs.get("progress") is not None:
+        return _diagnose(experiment, robot, validation=valid, idim_result=idim_result, **kwargs)
+    from dynid.progress import task
+    with task("diagnosis") as progress:      # long work is not silent in Python either
+        return _diagnose(experiment, robot, validation=valid, idim_result=idim_result,
+                         **{**kwargs, "progress": progress})
 
 
 @with_single_blas_thread
@@ -183,7 +216,9 @@ def verdict(result: Any, held_out: str | os.PathLike[str] | Experiment | None = 
         `dynid.run` or `dynid.report` returned (their own verdict is returned as is)
     held_out : Experiment or path, optional
         Held-out data: the result is validated on it (`dynid.validate`) and the verdict
-        judges the held-out errors too. A ValidationResult is used as it is.
+        judges the held-out errors too. A ValidationResult is used as it is. IDIM results
+        and their PC-WLS fit only: the held-out system is built with IDIM's processing
+        (for DIDIM, validate the IDIM result of the same data).
     robot : Robot, optional (default: the result's)
 
     Returns

@@ -45,3 +45,21 @@ class ConvergenceError(DynidError):
     """An iterative method did not converge."""
 
     exit_code = 3
+
+
+def did_you_mean(name: str, known) -> str:
+    """` (did you mean 'x'?)` when `name` is a near miss of one of `known`, else ``''``.
+
+    Returns
+    -------
+    str
+        The phrase to append to an error message naming `name`.
+
+    Examples
+    --------
+    >>> did_you_mean("holdot", ["holdout", "seed"])
+    " (did you mean 'holdout'?)"
+    """
+    import difflib
+    close = difflib.get_close_matches(str(name), [str(k) for k in known], n=1, cutoff=0.7)
+    return f" (did you mean {close[0]!r}?)" if close else ""

@@ -246,3 +246,47 @@ def test_renamed_keywords_still_work_with_a_warning(recording):
     assert [w.category for w in caught] == [DeprecationWarning, DeprecationWarning]
     with pytest.raises(dynid.InputError, match="not both"), pytest.warns(DeprecationWarning):
         steps.settings_from(None, update_gains=True, gain_update="none")
+
+
+def test_a_misspelt_keyword_is_named_with_its_near_miss():
+    """identify, sample and the run's options say which keyword was meant; a settings key that is no
+    processing setting is bad input (it was a DataError, the class of unreadable data files)."""
+    import dynid
+    from dynid.errors import DataError, InputError
+    with pytest.raises(TypeError, match=r"'max_iters' \(did you mean 'max_iter'\?\)"):
+        dynid.identify("x.csv", "planar2", max_iters=3)
+    with pytest.raises(TypeError, match=r"'holdot'.*dynid.holdout_split"):
+        dynid.identify("x.csv", "planar2", holdot=3)
+    with pytest.raises(TypeError, match=r"sample\(\) got an unexpected keyword argument 'max_step' "
+                                        r"\(did you mean 'max_steps'\?\)"):
+        dynid.sample(object(), max_step=3)
+    with pytest.raises(InputError, match=r"holdot \(did you mean 'holdout'\?\)"):
+        dynid.run("x.csv", "planar2", holdot=3)
+    exp = dynid.simulate("planar2", duration=2.0, seed=1).experiment
+    with pytest.raises(InputError, match=r"fc_positon \(did you mean 'fc_position'\?\)") as info:
+        dynid.identify(exp, "planar2", settings={"fc_positon": 50})
+    assert not isinstance(info.value, DataError)
+
+
+def test_identify_and_sample_report_progress_without_a_callable(monkeypatch):
+    """Long work is not silent in Python: without progress=, identify and sample hand the estimator
+    one of dynid.progress's reporters (a bar, or a line on stderr every 10 s); a given one is kept."""
+    from dynid.analysis import identify as ident
+    from dynid.analysis.sampling import sample as sampling
+    seen = []
+    monkeypatch.setattr(ident, "identify_step", lambda *a, progress=None, **k: seen.append(progress))
+    exp = dynid.simulate("planar2", duration=2.0, seed=1).experiment
+    dynid.identify(exp, "planar2")
+    mine = lambda f: None   # noqa: E731
+    dynid.identify(exp, "planar2", progress=mine)
+    monkeypatch.setattr(sampling, "sample_idim", lambda r, **k: seen.append(k["progress"]))
+    dynid.sample(object())
+    assert callable(seen[0]) and seen[1] is mine and callable(seen[2])
+
+
+def test_diagnose_reports_progress_without_a_callable(monkeypatch):
+    from dynid.analysis.diagnosis import selection
+    seen = []
+    monkeypatch.setattr(selection, "diagnose", lambda *a, progress=None, **k: seen.append(progress))
+    dynid.diagnose(dynid.simulate("planar2", duration=2.0, seed=1).experiment, "planar2")
+    assert callable(seen[0])
