@@ -248,6 +248,13 @@ class Agreement(ParameterResults):
         return np.diag(self.pooled_std.to_numpy() ** 2)
 
     @property
+    def agrees(self) -> bool:
+        """Whether the parts agree on enough evidence: at least `MIN_PAIRS` pairwise differences,
+        90 % of them within their 95 % intervals, and the chi2 test not rejecting at 1 % (a test
+        that could not be computed rejects nothing)."""
+        return bool(self.pairs >= MIN_PAIRS and self.within_95 >= 0.9 and not self.p_value < 0.01)
+
+    @property
     def verdict(self) -> str:
         """The verdict's line (`agreement_verdict`)."""
         return agreement_verdict(self)
@@ -318,6 +325,10 @@ def agreement(chis, sigmas, covs, names, *, kind: str = "recordings", rel_max: f
                      left_out=list(left_out), prismatic=frozenset(prismatic))
 
 
+#: fewer pairwise differences than this say little whichever way they fall
+MIN_PAIRS = 10
+
+
 def agreement_verdict(a: Agreement) -> str:
     """One verdict line: do the recordings (segments) agree within their intervals?
 
@@ -332,7 +343,8 @@ def agreement_verdict(a: Agreement) -> str:
     ok = pairs_ok and joint_ok
     # say which test decided: the pairs one at a time, or all the parameters together (the chi2
     # test sees small shifts the pairwise intervals hold one by one)
-    head = ("agree within their intervals" if ok else
+    head = ("agree within their intervals" + (f", on weak evidence (only {a.pairs} pairwise differences)"
+                                              if a.pairs < MIN_PAIRS else "") if ok else
             "agree pair by pair but NOT all together (the chi2 test rejects equal parameters)" if pairs_ok else
             "do NOT agree within their intervals (too few pairwise differences inside them)" if joint_ok else
             "do NOT agree within their intervals (too few pairwise differences inside them, and the chi2 "

@@ -333,8 +333,8 @@ def _no_validation(x: VerdictInputs) -> CheckOutcome:
                if fitted else "fitted to; ")
             + ("hold data out: --holdout or --validation of dynid identify, diagnose or report "
                "(Python: dynid.verdict(result, held_out))." if hasattr(x.result, "observation") else
-               "the held-out check is IDIM's: dynid identify --holdout, or dynid "
-               "report --holdout for every method at once."))
+               "the held-out check is IDIM's: validate the IDIM result of the same data (dynid identify "
+               "--holdout; Python: dynid.verdict(idim_result, held_out))."))
     return CheckOutcome(findings=[{"level": "warn", "key": "validation", "text": text}],
                         reasons=["no validation data"])
 
@@ -350,6 +350,11 @@ def check_parameters(x: VerdictInputs) -> CheckOutcome:
                                      f"(%\u03c3 > {thr:g} %): {', '.join(flagged)}."})
         out.reasons.append(f"%\u03c3 > {thr:g} %: {', '.join(flagged)}")
         out.fail = len(flagged) > len(m.names) / 2
+        if out.fail and x.kind == "base" and str(getattr(x.result, "method", "")).startswith("PC-"):
+            # the same data can be "with reservations" under IDIM, which judges its essential set
+            out.findings[-1]["text"] += (" This physically consistent fit is of every base parameter, the "
+                                         "poorly excited ones too; IDIM's verdict judges its essential "
+                                         "parameters (--physical-set essential constrains those).")
     else:
         out.findings.append({"level": "ok", "key": "parameters",
                              "text": f"All {len(m.names)} {x.kind} parameters have %\u03c3 \u2264 {thr:g} %."})
@@ -619,7 +624,7 @@ def check_agreement(x: VerdictInputs) -> CheckOutcome:
     if a is None:
         return CheckOutcome()
     # as the line says: a chi2 test that could not be computed (NaN) rejects nothing
-    level = "ok" if a.pairs and a.within_95 >= 0.9 and not a.p_value < 0.01 else "info"
+    level = "ok" if a.agrees else "info"
     return CheckOutcome(findings=[{"level": level, "key": "agreement", "text": x.result.agreement_line}])
 
 

@@ -24,8 +24,8 @@ from dynid.analysis.estimators.payload import (
     transform_matrix,
 )
 from dynid.dynamics.regressor import regressor
-from dynid.dynamics.urdf_writer import inertial_slice
 from dynid.dynamics.robot import model_signature
+from dynid.dynamics.urdf_writer import inertial_slice
 from dynid.errors import IdentificationError, InputError
 from dynid.provenance import dumps_json
 

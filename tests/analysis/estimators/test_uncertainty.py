@@ -171,6 +171,9 @@ def test_equality_test_and_random_effects():
     assert "pair by pair but NOT all together" in ag.agreement_verdict(both)
     untested = dataclasses.replace(a, within_95=0.95, p_value=float("nan"))    # a chi2 test that could not run rejects nothing
     assert "agree within their intervals" in ag.agreement_verdict(untested)
+    few = dataclasses.replace(a, pairs=3, within_95=1.0, p_value=0.014)     # the LWR4+ recording 1 alone
+    assert "on weak evidence (only 3 pairwise differences)" in ag.agreement_verdict(few)
+    assert "weak" not in ag.agreement_verdict(dataclasses.replace(few, pairs=ag.MIN_PAIRS))
     pairs = dataclasses.replace(a, within_95=0.5, p_value=0.5)
     assert "too few pairwise differences" in ag.agreement_verdict(pairs) and "rejects" not in \
         ag.agreement_verdict(pairs).split(":")[0]

@@ -1,9 +1,9 @@
 """The fleet: catalogue, store, Dask engine (a worker killed mid-run), rerun, CUSUM, report, CLI."""
 import json
 import os
-from pathlib import Path
 import signal
 import sys
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
