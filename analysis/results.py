@@ -298,7 +298,13 @@ def _describe(obj) -> str:
 class Result:
     """The base of every result: `str()` is `summary()`, `to_json()`/`to_csv()` come from the
     one serializer (`serialize`), `repr()` is one line. A class defines `summary()`,
-    `to_dict()` and, for `to_csv`, `to_frame()`."""
+    `to_dict()` and, for `to_csv`, `to_frame()`.
+
+    `summary()` returns the printable report (str): parameters with their units, relative
+    errors in %. `to_dict()` returns the result as a JSON-safe dict (NaN and infinities
+    become None): what `to_json()` writes, and what a command's `--json` writes for the
+    result it returns (`dynid identify --json`: the `to_dict()` of `dynid.run`'s result).
+    """
 
     def to_json(self, path: str | os.PathLike | None = None) -> str:
         """`to_dict` as JSON, written atomically to `path` when given (all or nothing).
@@ -482,6 +488,12 @@ class ParameterResults(Result):
 
     def conf_int(self, alpha: float = 0.05) -> pd.DataFrame:
         """Two-sided (1 − alpha) interval per parameter: columns `lower` and `upper`.
+
+        Parameters
+        ----------
+        alpha : float
+            Level, between 0 and 1: 0.05 gives the 95 % interval (normal quantiles
+            here; a class may use others, e.g. a posterior's sample quantiles).
 
         Returns
         -------
@@ -734,7 +746,14 @@ class IdentificationResult(ParameterResults):
         return "\n".join(lines)
 
     def to_dict(self) -> dict:
-        """JSON-safe dict (NaN and infinities become `None`), deterministic."""
+        """JSON-safe dict (NaN and infinities become `None`), deterministic.
+
+        Returns
+        -------
+        dict
+            Method, settings, parameter records, residual statistics, versions and data hash:
+            what `to_json()` writes.
+        """
         out = {
             "method": self.method,
             "settings": self.settings,

@@ -154,6 +154,18 @@ def load_robot(spec, base=None, tip=None):
     `base`, `tip`: link names selecting one chain of a URDF (the `.urdf`
     given, or the `urdf` of a TOML file); see `dynid.dynamics.urdf.read_urdf`.
 
+    Parameters
+    ----------
+    spec : str, path or Robot
+        A bundled robot's name (`dynid.dynamics.robot_file.bundled_robots`), or the path
+        of a `.toml` or `.urdf` (`.xml`) robot file. A Robot is returned as it is.
+    base : str, optional
+        The link the chain starts from. Default None: the TOML file's `base`, else the
+        URDF's root link.
+    tip : str, optional
+        The link the chain ends at. Default None: the TOML file's `tip`, else the end of
+        the URDF's only moving chain.
+
     Returns
     -------
     Robot

@@ -71,10 +71,18 @@ def run(data, robot, settings=None, *, say=None, write=True, **options) -> Ident
     Parameters
     ----------
     data : path, Experiment, or a list of them
-    robot : Robot, bundled name or robot file
-    settings : dynid.analysis.run.Settings or a dict of processing overrides, optional
-    say : dynid.reports.progress.Reporter, optional (quiet by default)
-    write : write the outputs named by `json`, `report`, `csv`, `urdf`, `mjcf` (all or none)
+        The identification recording(s).
+    robot : Robot, str or path
+        A Robot, a bundled name (`"tx40"`) or the path of a `.toml` / `.urdf` file.
+    settings : Settings or dict, optional
+        A `dynid.Settings`, or a dict of processing overrides (`fc_position` ...).
+        Default None: the defaults, from the data.
+    say : Reporter or callable, optional
+        A `dynid.reports.progress.Reporter`, or a function of a message (`print`: the
+        messages, no progress bars). Default None: `Reporter()`, no messages, progress
+        through `dynid.progress`.
+    write : bool
+        Write the outputs named by `json`, `report`, `csv`, `urdf`, `mjcf` (all or none).
     **options
         The options of `dynid identify`, by their names (`holdout=3`, `method="didim"`,
         `gravity_tilt=True`, `physical=True`, `effects="spring:all"`, `urdf="arm.urdf"` ...).
@@ -333,11 +341,19 @@ def report(data, robot, path=None, *, settings=None, say=None, payload=None, pay
 
     Parameters
     ----------
-    data : path, Experiment or a list of them (identification recordings)
-    robot : Robot, bundled name or robot file
-    path : where to write the HTML report (optional; FullReport.html has it)
-    settings : Settings or a dict of processing overrides, optional
-    say : dynid.reports.progress.Reporter, optional (quiet by default)
+    data : path, Experiment or a list of them
+        The identification recording(s).
+    robot : Robot, str or path
+        A Robot, a bundled name (`"tx40"`) or the path of a `.toml` / `.urdf` file.
+    path : str or path, optional
+        Where to write the HTML report. Default None: not written (`FullReport.html`
+        has it).
+    settings : Settings or dict, optional
+        A `dynid.Settings`, or a dict of processing overrides (`fc_position` ...).
+        Default None: the report's defaults, from the data.
+    say : Reporter, optional
+        A `dynid.reports.progress.Reporter`. Default None: `Reporter()`, no messages,
+        progress through `dynid.progress`.
     payload : path, Experiment or a list of them, optional
         Recording(s) with a payload on the robot: the payload is identified with the
         robot fixed to this report's IDIM result (dynid.identify_payload) and gets its
@@ -355,6 +371,7 @@ def report(data, robot, path=None, *, settings=None, say=None, payload=None, pay
     Returns
     -------
     FullReport
+        The results, the verdict and the HTML report (written to `path` when given).
     """
     say = say or Reporter()
     s = _report_settings(settings, options)
@@ -379,6 +396,24 @@ def report(data, robot, path=None, *, settings=None, say=None, payload=None, pay
 
 def demo(*, seed=1, duration=20.0, skip=(), max_seconds=None, path=None, say=None) -> FullReport:
     """The demo: a simulated TX40 (Table 2 of the DIDIM paper) through the whole pipeline.
+
+    Parameters
+    ----------
+    seed : int
+        Seed of the simulated references and noise, and of the posterior's sampler.
+    duration : float
+        Length of the simulated identification recording, s (2 s or more); the
+        validation recording is another 10 s.
+    skip : sequence of str
+        Parts of `REPORT_PARTS` (`"didim"`, `"sample"`, `"diagnose"`) not to run.
+    max_seconds : float, optional
+        Wall-clock limit of the posterior's sampler, s. Default None: no limit, the
+        sampler stops on its step budget.
+    path : str or path, optional
+        Where to write the HTML report. Default None: not written.
+    say : Reporter or callable, optional
+        A `dynid.reports.progress.Reporter`, or a function of a message (`print`).
+        Default None: `Reporter()`, no messages, progress through `dynid.progress`.
 
     Returns
     -------

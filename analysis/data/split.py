@@ -24,6 +24,14 @@ def holdout_split(experiment, seconds: float):
     and the held-out part `t >= t_split` (`Experiment.segment`), so no
     sample is in both.
 
+    Parameters
+    ----------
+    experiment : Experiment
+        The recording to split (`dynid.load_experiment` reads one from a file).
+    seconds : float
+        Length held out at the end of the recording, s: positive, and leaving 64
+        samples (`MIN_PART_SAMPLES`) or more in each part.
+
     Returns
     -------
     identification : Experiment

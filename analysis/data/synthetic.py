@@ -305,6 +305,30 @@ def simulate(robot, duration: float = 20.0, *, seed: int = 1, f0: float = 0.1, h
     (mass, (x, y, z)) with its centre of mass in the last link's frame (m), carried by the
     last link (`add_payload`): a recording to try `dynid payload` on.
 
+    Parameters
+    ----------
+    robot : Robot, str or path
+        A Robot, a bundled name (`"tx40"`) or a robot file path; it needs a
+        `[controller]` and a-priori parameter values.
+    duration : float
+        Length of the recording, s, sampled at the controller's rate.
+    seed : int
+        Seed of the reference and of the noise: the same seed gives the same recording.
+    f0 : float
+        Fundamental frequency of the reference, Hz.
+    harmonics : int
+        Number of harmonics of the reference (`f0 * harmonics` at most a tenth of the
+        controller's rate).
+    noise_q : float
+        Standard deviation of the position noise, rad (0 for none).
+    noise_tau : float
+        Standard deviation of the torque noise, N m (0 for none).
+    payload : float or (float, (float, float, float)), optional
+        The payload's mass, kg, or its mass and centre of mass in the last link's frame,
+        m. Default None: no payload.
+    progress : callable, optional
+        Called with the fraction of the simulation done (0 to 1). Default None: silent.
+
     Returns
     -------
     SimulatedRecording

@@ -188,6 +188,17 @@ def validate(idim_result, experiment, robot=None):
     with the dead zone off (all samples: the headline numbers) and with it
     on (moving samples, the rows an estimator would use).
 
+    Parameters
+    ----------
+    idim_result : IDIMResult
+        An IDIM result or its PC-WLS fit (`dynid.identify(..., method="idim")`); the
+        IDIM result of what `dynid.run` or `dynid.report` returned is taken from it.
+    experiment : Experiment or path
+        The held-out recording, not the identification data; a path is read with
+        `dynid.load_experiment` for `robot`.
+    robot : Robot, optional
+        Default None: the robot of `idim_result` (a robot of another name is refused).
+
     Returns
     -------
     ValidationResult

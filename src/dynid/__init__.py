@@ -167,6 +167,25 @@ def diagnose(data: str | os.PathLike[str] | Experiment | Sequence[str | os.PathL
     `data` and `validation` may be paths or Experiments; the other options are
     those of `dynid.analysis.diagnosis.selection.diagnose`.
 
+    Parameters
+    ----------
+    data : path, Experiment, or a list of them
+        The recording to diagnose (of a list, the first).
+    robot : Robot, str or path
+        A Robot, a bundled name (`"tx40"`) or the path of a `.toml` / `.urdf` file.
+    validation : path or Experiment, optional
+        Data the model was not fitted to: the errors before and after the effects are
+        reported on it too. Default None: none.
+    idim_result : IDIMResult, optional
+        The IDIM result of the same data (`dynid.identify(..., method="idim")`) to start
+        from. Default None: identified here.
+    **kwargs
+        The options of `dynid.analysis.diagnosis.selection.diagnose`, among them
+        `settings` (processing overrides), `effects` (the candidate effects' names),
+        `max_effects` (3), `alpha` (0.01, the level of the test at each step), `joints`
+        (1-based) and `progress` (a callable; without one the diagnosis reports through
+        `dynid.progress`).
+
     Returns
     -------
     DiagnosisResult
@@ -195,6 +214,22 @@ def excite(robot: Robot | str | os.PathLike[str], f0: float, harmonics: int, **k
 
     See `dynid.dynamics.excitation.design_excitation` for the options.
 
+    Parameters
+    ----------
+    robot : Robot, str or path
+        A Robot, a bundled name (`"tx40"`) or the path of a `.toml` / `.urdf` file.
+    f0 : float
+        Fundamental frequency of the Fourier series, Hz (the period is `1 / f0`).
+    harmonics : int
+        Number of harmonics N (the bandwidth is `N f0`).
+    **kwargs
+        The options of `dynid.dynamics.excitation.design_excitation`, among them
+        `n_starts` (4 random starts), `criterion` (`"cond"` or `"logdet"`), `margin`
+        (0.95: the fraction of every limit used), `rng` (Generator or seed of the starts),
+        `max_iter` (150 SLSQP iterations per start), `chi` (standard parameters for the
+        torque limits; default the robot's a-priori values, False ignores those limits)
+        and `progress` (a callable of the fraction done).
+
     Returns
     -------
     ExcitationResult
@@ -212,14 +247,18 @@ def verdict(result: Any, held_out: str | os.PathLike[str] | Experiment | None = 
 
     Parameters
     ----------
-    result : any identification result (IDIM, DIDIM, Projection Method, ML, PC-WLS), or what
-        `dynid.run` or `dynid.report` returned (their own verdict is returned as is)
-    held_out : Experiment or path, optional
+    result : ParameterResults, Identification or FullReport
+        Any identification result (IDIM, DIDIM, Projection Method, ML, PC-WLS), or what
+        `dynid.run` or `dynid.report` returned (without `held_out`, their own verdict is
+        returned as is).
+    held_out : Experiment, path or ValidationResult, optional
         Held-out data: the result is validated on it (`dynid.validate`) and the verdict
         judges the held-out errors too. A ValidationResult is used as it is. IDIM results
         and their PC-WLS fit only: the held-out system is built with IDIM's processing
-        (for DIDIM, validate the IDIM result of the same data).
-    robot : Robot, optional (default: the result's)
+        (for DIDIM, validate the IDIM result of the same data). Default None: no
+        held-out check.
+    robot : Robot, optional
+        Default None: the result's robot.
 
     Returns
     -------
