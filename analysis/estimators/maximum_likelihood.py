@@ -69,6 +69,7 @@ import pandas as pd
 import scipy.linalg as sla
 from scipy import optimize
 
+from dynid.analysis.estimators.least_squares import identifiable_columns, ols
 from dynid.analysis.processing.signals import velocity_dead_zone
 from dynid.analysis.results import (
     ParameterResults,
@@ -78,7 +79,7 @@ from dynid.analysis.results import (
     parameter_table,
 )
 from dynid.dynamics.base_parameters import base_parameters, base_regressor
-from dynid.errors import ConvergenceError, InputError
+from dynid.errors import ConvergenceError, IdentificationError, InputError
 from dynid.provenance import data_hash, json_safe, versions
 
 __all__ = ["EIVModel", "linear_model", "robot_model", "joint_model", "fourier_basis",
@@ -115,6 +116,12 @@ class EIVModel:
         if self.regressor is None:
             raise InputError("a nonlinear model needs theta0= or a start function")
         W = self.regressor(q, qd, qdd)
+        if len(identifiable_columns(W)) < W.shape[2]:
+            # a joint that never moves leaves columns at zero: lstsq would start from (and the
+            # likelihood keep) huge values with tiny sigmas; IDIM's rank check names them
+            ols(W, tau, self.names)
+            raise IdentificationError(f"the data do not identify every parameter of {self.description}: "
+                                      "excite every joint with a richer trajectory")
         A = W.transpose(1, 0, 2).reshape(-1, W.shape[2])
         return np.linalg.lstsq(A, tau.T.reshape(-1), rcond=None)[0]
 

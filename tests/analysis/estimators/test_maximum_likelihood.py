@@ -185,3 +185,19 @@ def test_bad_input():
         maximum_likelihood(t, q, tau, model, f0=bs.F0, theta0=[1.0, 2.0])
     with pytest.raises(InputError, match="qd_threshold"):
         maximum_likelihood(t, q, tau, model, f0=bs.F0, qd_threshold="never")
+
+
+def test_a_joint_that_never_moves_is_refused_as_by_idim():
+    """ML on a recording whose joint 2 stands still returned Ia2 = -3e13 with sigma 1e-32 and an [ok]
+    %sigma line (found by a bad-input hunt); IDIM refuses the same data, and so does ML now."""
+    import dataclasses
+
+    import dynid
+    from dynid.errors import IdentificationError
+    exp = dynid.simulate("planar2", duration=4.0, seed=1, f0=0.5, harmonics=3).experiment
+    q = exp.q.copy()
+    q[:, 1] = 0.2
+    still = dataclasses.replace(exp, q=q, qr=None if exp.qr is None else q.copy())
+    with pytest.raises(IdentificationError, match="rank-deficient"):
+        dynid.identify(still, "planar2", method="ml", f0=0.5)
+    assert np.isfinite(dynid.identify(exp, "planar2", method="ml", f0=0.5).params).all()
