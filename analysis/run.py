@@ -85,6 +85,13 @@ DEFAULT_GAIN_UPDATE = "initial"
 #: the options of one method alone (Settings fields), refused with another
 METHOD_OPTIONS = {"f0": ("ml",), "ml_harmonics": ("ml",), "max_iter": ("didim",), "gain_update": ("didim",),
                   "gains": ("didim",), "didim_start": ("didim",), "reference": ("didim",)}
+#: the identification options a method does not read (given to it, they are refused, not ignored)
+UNUSED_BY = {"ml": ("fc", "nd", "decimation_cutoff", "qd_threshold", "max_error_growth"),
+             "projection": ("nd", "decimation_cutoff", "max_error_growth")}
+UNUSED_WHY = {"ml": "maximum likelihood fits a Fourier series to the raw q, has its own velocity dead zone, "
+                    "and reports every base parameter",
+              "projection": "the Projection Method filters the recorded samples without decimation, and reports "
+                            "every base parameter"}
 #: the fewest bootstrap refits of the physical fit that have a spread (with fewer than 20 its σ
 #: is the larger of the WLS σ and the refits' spread: PhysicalResult.bse)
 MIN_BOOTSTRAP = 2
@@ -459,6 +466,15 @@ def check_identify(settings: Settings) -> None:
         # it was ignored: the Projection Method and ML have a covariance of their own
         raise InputError(f"uncertainty={settings.uncertainty!r} (--uncertainty) chooses the covariance of IDIM "
                          f"and DIDIM; method {method!r} reports its own (its summary names it): leave it out")
+    unused = UNUSED_BY.get(method, ())
+    given = [f"--{name.replace('_', '-')} ({name}=)" for name in unused
+             if getattr(settings, name) != getattr(Settings, name)]
+    if settings.processing_overrides and method == "ml":
+        given.append(f"settings {sorted(settings.processing_overrides)}")
+    if given:       # they were ignored without a word
+        raise InputError(f"{', '.join(given)}: method {method!r} does not use "
+                         f"{'it' if len(given) == 1 else 'them'} ({UNUSED_WHY[method]}); leave "
+                         f"{'it' if len(given) == 1 else 'them'} out")
     if not settings.physical and (settings.prior is not None or settings.mass_tolerance is not None):
         raise InputError("prior and mass_tolerance are options of the physically consistent fit: "
                          "pass physical=True (--physical)")
