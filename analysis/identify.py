@@ -111,8 +111,11 @@ def identify(data, robot, method: str | None = None, *, settings=None, max_error
     **options
         The fields of `dynid.Settings` that identification reads, named as on the command
         line: `fc`, `nd`, `decimation_cutoff`, `qd_threshold`, `v_s`, `uncertainty`
-        (`"classic"`, `"hac"` or `"bootstrap"`: the covariance of the estimates) and
-        `didim_start` (`"idim"` or `"apriori"`: DIDIM's starting estimate).
+        (`"classic"`, `"hac"` or `"bootstrap"`: the covariance of the estimates),
+        `didim_start` (`"idim"` or `"apriori"`: DIDIM's starting estimate) and
+        `torque_timing` (DIDIM: `"held"`, the default, when the logged torque is the
+        command held over each period; `"centred"` when it is centred on the samples, as
+        an integrating sensor and `dynid simulate` log it).
 
     Returns
     -------
@@ -139,7 +142,7 @@ def identify(data, robot, method: str | None = None, *, settings=None, max_error
     >>> r.params["ZZ1R"], r.rel_std["ZZ1R"]                                  # doctest: +SKIP
     """
     allowed = {"fc", "nd", "decimation_cutoff", "qd_threshold", "v_s", "uncertainty", "didim_start",
-               "update_gains", "n_boot"}
+               "update_gains", "n_boot", "torque_timing"}
     unknown = sorted(set(options) - allowed)
     if unknown:
         hint = did_you_mean(unknown[0], allowed | set(_KEYWORDS) | {"holdout"})
@@ -155,7 +158,8 @@ def identify(data, robot, method: str | None = None, *, settings=None, max_error
         raise InputError(f"method must be one of {', '.join(METHODS)}, got {given_method!r}")
     chosen = {"f0": f0, "ml_harmonics": ml_harmonics, "max_iter": max_iter, "gain_update": gain_update,
               "reference": reference, "gains": None if gains == "assumed" else gains,
-              "didim_start": options.get("didim_start"), "update_gains": options.get("update_gains")}
+              "didim_start": options.get("didim_start"), "update_gains": options.get("update_gains"),
+              "torque_timing": options.get("torque_timing")}
     for name, value in chosen.items():
         if value is not None and method not in _METHOD_OF[name]:
             raise InputError(f"{name}= is an option of {' and '.join(_METHOD_OF[name])}, not of method "

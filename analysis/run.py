@@ -84,7 +84,8 @@ REPORT_PARTS = ("didim", "sample", "diagnose")
 DEFAULT_GAIN_UPDATE = "initial"
 #: the options of one method alone (Settings fields), refused with another
 METHOD_OPTIONS = {"f0": ("ml",), "ml_harmonics": ("ml",), "max_iter": ("didim",), "gain_update": ("didim",),
-                  "gains": ("didim",), "didim_start": ("didim",), "reference": ("didim",)}
+                  "gains": ("didim",), "didim_start": ("didim",), "reference": ("didim",),
+                  "torque_timing": ("didim",)}
 #: the identification options a method does not read (given to it, they are refused, not ignored)
 UNUSED_BY = {"ml": ("fc", "nd", "decimation_cutoff", "qd_threshold", "max_error_growth"),
              "projection": ("nd", "decimation_cutoff", "max_error_growth")}
@@ -145,6 +146,7 @@ class Settings:
     gains: str = "assumed"
     didim_start: str = "idim"
     v_s: object = None
+    torque_timing: str | None = None       # DIDIM: 'held' (its default) or 'centred'
     reference: str | None = None
     gravity_tilt: bool = False
     asymmetric_friction: bool = False
@@ -194,6 +196,8 @@ class Settings:
             s["qd_threshold"] = qd_threshold_value(self.qd_threshold)
         if self.v_s is not None and self.method == "didim":
             s["v_s"] = self.v_s
+        if self.torque_timing is not None and self.method == "didim":
+            s["torque_timing"] = self.torque_timing
         return s or (None if self.processing_overrides is None else s)
 
     @property

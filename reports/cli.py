@@ -90,6 +90,7 @@ def cmd_simulate(args, say):
         sim = simulate(robot, args.duration, seed=args.seed, f0=args.f0, harmonics=args.harmonics,
                        noise_q=args.noise_q, noise_tau=args.noise_tau, payload=args.carried_payload,
                        progress=bar.update)
+    say(f"notice: {sim.notices[-1]}")      # the torque timing, which DIDIM must be told
     outputs = [(args.out, sim.to_csv())]
     if args.json:
         doc = sim.to_dict()

@@ -423,6 +423,10 @@ def _add_identify_parser(sub, common, full):
                    help=adv("DIDIM: the start: idim (IDIM's estimate with --gains identify, the paper's "
                             "eq. (31) with the assumed gains) or apriori (the robot file's a-priori "
                             "values, projected onto the physically consistent set if needed)"))
+    a.add_argument("--torque-timing", choices=["held", "centred"], default=None,
+                   help=adv("DIDIM: the logged torque is the command held over each period (held, the "
+                            "default, as the paper) or centred on the samples (an integrating sensor; "
+                            "what dynid simulate logs)"))
     a.add_argument("--v-s", type=_v_s_arg, metavar="RAD_PER_S|auto", dest="v_s",
                    help=adv("DIDIM: velocity over which the simulated Coulomb friction changes sign "
                             "(default auto: the smallest DIDIM residual on a factor-2 walk from 0.05 "
@@ -548,6 +552,9 @@ def _add_report_parsers(sub, common, full):
     a.add_argument("--gain-update", choices=list(GAIN_UPDATE_CHOICES), default="initial",
                    help=adv("DIDIM's derivative-gain update (see identify --help-all); initial: the "
                             "paper's every-step update oscillated on the demo data"))
+    a.add_argument("--torque-timing", choices=["held", "centred"], default=None,
+                   help=adv("DIDIM: the logged torque is held over each period (the default) or centred "
+                            "on the samples (see identify --help-all)"))
     o = g["outputs"]
     o.add_argument("--report", metavar="PATH", required=True, help=REPORT_HELP)
     o.add_argument("--json", metavar="PATH", help=JSON_HELP)

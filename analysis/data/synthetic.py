@@ -186,7 +186,7 @@ def simulate_experiment(robot, chi_st, trajectory, duration, *, rng, tau_noise, 
                f"q [{', '.join(f'{v:.3g}' for v in q_noise)}] rad, "
                f"tau [{', '.join(f'{v:.3g}' for v in tau_noise)}] N m"]
     return Experiment(t=t, q=q, qr=qr, tau=tau, fs=fs, source=name, name=name, notices=notices,
-                      meta={"true_q": sim.q, "true_tau": tau_sensor})
+                      meta={"true_q": sim.q, "true_tau": tau_sensor, "torque_timing": "centred"})
 
 
 def missing_effects(robot) -> list:
@@ -368,7 +368,10 @@ def simulate(robot, duration: float = 20.0, *, seed: int = 1, f0: float = 0.1, h
     traj = random_fourier_trajectory(robot, f0, harmonics, rng)
     exp = simulate_experiment(robot, chi, traj, duration, rng=rng, q_noise=noise_q, tau_noise=noise_tau,
                               progress=progress, name=f"simulated {robot.name} (seed {seed})")
-    notices = missing_effects(robot)
+    notices = missing_effects(robot) + [
+        "the torques are an integrating sensor's, centred on the samples ((tau_k-1 + tau_k) / 2); DIDIM on "
+        "this file needs --torque-timing centred (torque_timing='centred'), which this recording in memory "
+        "says by itself"]
     exp.notices = list(exp.notices or []) + notices
     return SimulatedRecording(experiment=exp, robot=robot, trajectory=traj, chi=chi, seed=seed,
                               duration=duration, noise_q=noise_q, noise_tau=noise_tau, notices=notices,

@@ -166,7 +166,7 @@ from dynid.dynamics.base_parameters import base_parameters, base_regressor
 from dynid.dynamics.dynamic_model import inverse_dynamics, mass_matrix
 from dynid.dynamics.robot import model_signature
 from dynid.dynamics.simulation import friction_stiffness, simulate_closed_loop
-from dynid.errors import DataError, DynidError, IdentificationError, InputError
+from dynid.errors import DataError, DynidError, IdentificationError, InputError, did_you_mean
 from dynid.provenance import json_safe, versions
 from dynid.ranges import check_range
 
@@ -194,7 +194,13 @@ DIDIM_SETTINGS_HELP = {
                           "by halving its step at most this many times (0 = stop at once)"),
     "descent_test": ("also halve a step whose simulated estimate raises the output error "
                      "||tau - W(q_s) chi|| (always on for PC-DIDIM); default false (today's iteration)"),
+    "torque_timing": ("'held' (default: the logged torque is the command held over [t_k, t_k+1), as the "
+                      "paper's g v_tau) or 'centred' (it is centred on t_k, (tau_k-1 + tau_k) / 2, as an "
+                      "integrating sensor gives and dynid simulate logs): the simulated rows are "
+                      "averaged to match"),
 }
+#: the torque timings DIDIM models (`torque_timing`)
+TORQUE_TIMINGS = ("held", "centred")
 #: IDIM's position-filter settings: accepted, ignored (the simulated derivatives are exact).
 IGNORED_SETTINGS = ("fc_position", "order", "edge")
 
@@ -460,8 +466,9 @@ def resolve_didim_settings(experiment, robot, controller, qr, overrides=None):
     overrides.pop("fs", None)
     unknown = sorted(set(overrides) - set(DIDIM_SETTINGS_HELP))
     if unknown:
-        raise DataError(f"unknown DIDIM setting(s) {', '.join(unknown)}; known: "
-                        + ", ".join(f"{k} ({v})" for k, v in DIDIM_SETTINGS_HELP.items()))
+        raise InputError(f"unknown DIDIM setting(s) {', '.join(unknown)}"
+                         f"{did_you_mean(unknown[0], DIDIM_SETTINGS_HELP)}; known: "
+                         + ", ".join(f"{k} ({v})" for k, v in DIDIM_SETTINGS_HELP.items()))
     fs = float(experiment.fs)
     wn = np.broadcast_to(np.asarray(controller.wn, dtype=float), (robot.n_joints,))
     transient = overrides.pop("transient", None)
@@ -501,8 +508,19 @@ def resolve_didim_settings(experiment, robot, controller, qr, overrides=None):
         "max_step_halvings": _count(overrides.pop("max_step_halvings", DEFAULT_HALVINGS),
                                     "max_step_halvings"),
         "descent_test": _bool(overrides.pop("descent_test", False), "descent_test"),
+        # default: what the recording says of itself (a simulated one, 'centred'), else the paper's
+        "torque_timing": _torque_timing(overrides.pop("torque_timing", None)
+                                        or (getattr(experiment, "meta", None) or {}).get("torque_timing")
+                                        or "held"),
     }
     return s, notices
+
+
+def _torque_timing(value):
+    if value not in TORQUE_TIMINGS:
+        raise InputError(f"DIDIM setting torque_timing (--torque-timing) must be one of "
+                         f"{', '.join(TORQUE_TIMINGS)}, got {value!r}")
+    return value
 
 
 # ----------------------------------------------------------------------------- initialisation
@@ -620,8 +638,12 @@ def _simulate_checked(robot, bp, beta, ctrl, t, qr, qdr, s, configs, J_ap, updat
     return out + (kd,)
 
 
-def _build_chunk(robot, bp, q, qd, qdd, tau, dead):
+def _build_chunk(robot, bp, q, qd, qdd, tau, dead, lead=0):
     W = base_regressor(robot, bp, q, qd, qdd)
+    if lead:
+        # a centred torque is the mean of the commands held over the two periods around t_k:
+        # W is linear in chi, so the mean of the two rows models it exactly
+        W = 0.5 * (W[1:] + W[:-1])
     if dead is None:
         return W, tau, np.ones(tau.shape)
     # as dynid.analysis.processing.observation.push_chunk: zero both sides of the rows in the dead zone
@@ -630,19 +652,21 @@ def _build_chunk(robot, bp, q, qd, qdd, tau, dead):
     return W, tau * keep, keep.astype(float)
 
 
-def _decimated_system(robot, bp, q, qd, qdd, tau, dead, s, workers, progress=None):
+def _decimated_system(robot, bp, q, qd, qdd, tau, dead, s, workers, progress=None, lead=0):
     """Base regressor of the simulated states, decimated in parallel with tau (eq. (24)).
 
     The regressor chunks are built by `workers` threads (the compiled kernel
-    releases the GIL) and pushed through the decimator in order.
+    releases the GIL) and pushed through the decimator in order. `lead = 1`: the states
+    start one sample before tau, and each row is the mean of two (a centred torque).
     """
-    n_kept = q.shape[0]
+    n_kept = tau.shape[0]
     nd = s["nd"]
     slices = [slice(a, min(n_kept, a + CHUNK)) for a in range(0, n_kept, CHUNK)]
 
     def build(sl):
-        return _build_chunk(robot, bp, q[sl], qd[sl], qdd[sl], tau[sl],
-                            None if dead is None else dead[sl])
+        states = slice(sl.start, sl.stop + lead)
+        return _build_chunk(robot, bp, q[states], qd[states], qdd[states], tau[sl],
+                            None if dead is None else dead[sl], lead)
 
     if nd <= 1:
         W, y, kept = build(slice(0, n_kept))
@@ -770,8 +794,13 @@ class _Loop:
             if progress is not None and k is not None:
                 progress(min(1.0, (k - 1 + f) / max_iter))
 
-        return _decimated_system(self.robot, self.bp, q_s[sl], qd_s[sl], qdd_s[sl], self.tau_k, dead,
-                                 self.s, self.workers, inner)
+        if self.s.get("torque_timing") != "centred":
+            return _decimated_system(self.robot, self.bp, q_s[sl], qd_s[sl], qdd_s[sl], self.tau_k, dead,
+                                     self.s, self.workers, inner)
+        # one state before the first torque kept (the first state again when none was dropped)
+        before = slice(self.n0 - 1, None) if self.n0 > 0 else np.r_[0, 0:len(q_s)]
+        return _decimated_system(self.robot, self.bp, q_s[before], qd_s[before], qdd_s[before], self.tau_k,
+                                 dead, self.s, self.workers, inner, lead=1)
 
 
 def _prepare_loop(robot, bp, ctrl, s, t, qr, tau, update_gains, workers, max_iter, progress):
