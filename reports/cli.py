@@ -82,6 +82,7 @@ def cmd_identify(args, say):
 def cmd_simulate(args, say):
     from dynid.analysis.data.synthetic import missing_effects, simulate
     from dynid.provenance import dumps_json
+    _csv_out(args.out)
     robot = _robot(args)
     say(f"robot '{robot.name}' ({robot.n_joints} joints): simulating {args.duration:g} s")
     for notice in missing_effects(robot):
@@ -98,6 +99,13 @@ def cmd_simulate(args, say):
         outputs.append((args.json, dumps_json(doc)))
     commit_outputs(outputs, say)
     return EXIT_OK
+
+
+def _csv_out(path):
+    """--out of simulate and excite is written as CSV: another extension would hold CSV text under
+    a name the loaders read as another format (x.parquet read back failed)."""
+    if path and os.path.splitext(str(path))[1].lower() != ".csv":
+        raise InputError(f"--out {path}: the file is written as CSV; give a path ending in .csv")
 
 
 def cmd_sample(args, say):
@@ -131,6 +139,7 @@ def cmd_sample(args, say):
 def cmd_excite(args, say):
     from dynid.dynamics.excitation import design_excitation
     from dynid.reports.pipeline import excitation_outputs, excitation_rate
+    _csv_out(args.out)
     robot = _robot(args)
     fs = excitation_rate(robot, args.f0, args.harmonics, args.fs, args.periods)
     if not args.out and not args.json and not args.report:

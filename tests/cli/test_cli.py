@@ -529,3 +529,12 @@ def test_an_interruption_says_what_it_left(tmp_path, monkeypatch, capsys, comman
     assert main(argv) == 130
     err = capsys.readouterr().err
     assert f"dynid: interrupted; {says}" in err, err
+
+
+@pytest.mark.parametrize("argv", [["simulate", "--robot", "planar2", "--duration", "1"],
+                                  ["excite", "--robot", "planar2", "--f0", "0.2", "--harmonics", "3"]])
+def test_out_of_simulate_and_excite_must_be_a_csv_path(tmp_path, capsys, argv):
+    """`--out x.parquet` wrote CSV text that no loader could read back (found by a bad-input hunt)."""
+    out = tmp_path / "x.parquet"
+    assert main(argv + ["--out", str(out)]) == 2
+    assert "give a path ending in .csv" in capsys.readouterr().err and not out.exists()
