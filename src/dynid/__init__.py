@@ -18,7 +18,6 @@ Methods follow Gautier, Janot & Vandanjon (2010) and Bona & Curatella (2005).
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
 from importlib.metadata import PackageNotFoundError
 from importlib.metadata import version as _version
 from typing import TYPE_CHECKING, Any
@@ -158,7 +157,7 @@ def sample(result: IDIMResult, *, which: str = "essential", seed: int = 1, **kwa
 
 
 @with_single_blas_thread
-def diagnose(data: str | os.PathLike[str] | Experiment | Sequence[str | os.PathLike[str] | Experiment],
+def diagnose(data: str | os.PathLike[str] | Experiment,
              robot: Robot | str | os.PathLike[str], *,
              validation: str | os.PathLike[str] | Experiment | None = None,
              idim_result: IDIMResult | None = None, **kwargs: Any) -> DiagnosisResult:
@@ -169,8 +168,8 @@ def diagnose(data: str | os.PathLike[str] | Experiment | Sequence[str | os.PathL
 
     Parameters
     ----------
-    data : path, Experiment, or a list of them
-        The recording to diagnose (of a list, the first).
+    data : path or Experiment
+        The recording to diagnose (one; a list of several is refused).
     robot : Robot, str or path
         A Robot, a bundled name (`"tx40"`) or the path of a `.toml` / `.urdf` file.
     validation : path or Experiment, optional
@@ -195,7 +194,11 @@ def diagnose(data: str | os.PathLike[str] | Experiment | Sequence[str | os.PathL
     from dynid.analysis.diagnosis.selection import diagnose as _diagnose
     from dynid.analysis.identify import as_experiments, as_robot
     robot = as_robot(robot)
-    experiment = as_experiments(data, robot)[0]
+    experiments = as_experiments(data, robot)
+    if len(experiments) > 1:       # the rest would be dropped without a word
+        raise InputError(f"diagnose: one recording at a time, {len(experiments)} were given; diagnose each, "
+                         "or pass one as validation=")
+    experiment = experiments[0]
     valid = as_experiments(validation, robot)[0] if validation is not None else None
     if idim_result is not None and getattr(idim_result, "observation", None) is None:
         raise InputError(f"diagnose: idim_result must be the IDIM result of the same data "

@@ -290,3 +290,10 @@ def test_diagnose_reports_progress_without_a_callable(monkeypatch):
     monkeypatch.setattr(selection, "diagnose", lambda *a, progress=None, **k: seen.append(progress))
     dynid.diagnose(dynid.simulate("planar2", duration=2.0, seed=1).experiment, "planar2")
     assert callable(seen[0])
+
+
+def test_diagnose_refuses_several_recordings():
+    """It diagnosed the first and dropped the others without a word."""
+    exp = dynid.simulate("planar2", duration=2.0, seed=1).experiment
+    with pytest.raises(dynid.InputError, match="one recording at a time, 2 were given"):
+        dynid.diagnose([exp, exp], "planar2")
