@@ -94,6 +94,7 @@ from .robot_checks import (  # noqa: F401  (MAX_*, check_name, read_limited, sho
     shown,
 )
 from .urdf import read_urdf, snap_notice, snap_right_angle
+from .urdf_writer import pseudo_inertia
 
 # ----------------------------------------------------------------- the fields
 # Every numeric field of a robot file with its unit and finite physical range
@@ -432,6 +433,10 @@ def _apply_apriori(robot, doc, apriori, path):
         _apriori_bounds(key, v, key in standard, path)
     apriori.update(given)
     _centres_of_mass(apriori, robot, path)
+    if set(apriori) <= standard:
+        # standard values are a mass distribution per link; beside base names (R) they are not used as
+        # one (dynamics.excitation_measures.apriori_parameters reads the base names as they are)
+        _links_realizable(apriori, robot, path)
     robot.apriori = apriori
 
 
@@ -470,6 +475,46 @@ def _centres_of_mass(apriori, robot, path):
                              f"M{j} = {m:g} kg), beyond the {bound:.3g} m this robot can hold (twice its reach "
                              f"plus 1 m, at least {MIN_COM_BOUND:g} m); the first moments are mass times the centre's position: check the "
                              f"numbers and their units")
+
+
+def _links_realizable(apriori, robot, path):
+    """What no mass distribution gives is refused at load time (it failed mid-simulation, naming
+    no file): a first moment without a positive mass, an inertia beside a mass given as zero or
+    less; XX, YY, ZZ about the link frame that break
+    the triangle inequality (when all three are given: a planar arm's file gives ZZ alone); with
+    all ten inertial values given, a pseudo-inertia that is not positive semidefinite."""
+    for j in range(1, robot.n_joints + 1):
+        ms = {k: apriori[f"{k}{j}"] for k in ("MX", "MY", "MZ") if apriori.get(f"{k}{j}", 0.0) != 0.0}
+        m = apriori.get(f"M{j}", 0.0)
+        if ms and not m > 0:
+            raise RobotFileError(f"{path}: apriori.values give link {j} a first moment "
+                                 f"({', '.join(f'{k}{j} = {v:g} kg m' for k, v in ms.items())}) but "
+                                 f"{'no mass' if f'M{j}' not in apriori else f'M{j} = {m:g} kg'}: a first moment "
+                                 f"is mass times the centre of mass's position; give M{j} > 0")
+        inertia = {k: apriori[f"{k}{j}"] for k in ("XX", "XY", "XZ", "YY", "YZ", "ZZ")
+                   if apriori.get(f"{k}{j}", 0.0) != 0.0}
+        if inertia and f"M{j}" in apriori and not m > 0:
+            raise RobotFileError(f"{path}: apriori.values give link {j} an inertia "
+                                 f"({', '.join(f'{k}{j} = {v:g} kg m^2' for k, v in inertia.items())}) but "
+                                 f"M{j} = {m:g} kg: a link without mass has no inertia; give M{j} > 0")
+        diag = [apriori.get(f"{k}{j}") for k in ("XX", "YY", "ZZ")]
+        if all(v is not None for v in diag):
+            scale = max(max(diag), 1e-300)
+            for a, b, c, name in ((0, 1, 2, "ZZ"), (0, 2, 1, "YY"), (1, 2, 0, "XX")):
+                if diag[c] > diag[a] + diag[b] + 1e-9 * scale:
+                    raise RobotFileError(
+                        f"{path}: apriori.values give link {j} XX{j}, YY{j}, ZZ{j} = "
+                        f"{', '.join(f'{v:g}' for v in diag)} kg m^2: {name}{j} is more than the sum of the "
+                        "other two, which no mass distribution gives (the triangle inequality); check the "
+                        "numbers, and that they are about the link frame, not the centre of mass")
+        keys = [f"{k}{j}" for k in ("XX", "XY", "XZ", "YY", "YZ", "ZZ", "MX", "MY", "MZ", "M")]
+        if all(k in apriori for k in keys):
+            values = np.array([apriori[k] for k in keys])
+            ev = np.linalg.eigvalsh(pseudo_inertia(values))
+            if ev[0] < -1e-9 * max(abs(ev[-1]), 1e-300):
+                raise RobotFileError(f"{path}: apriori.values of link {j} ({', '.join(keys)}) are not those of "
+                                     f"any mass distribution (its pseudo-inertia has a negative eigenvalue, "
+                                     f"{ev[0]:.3g}): check the numbers, their units and the frame they are about")
 
 
 def _apriori_bounds(key, v, is_standard, path):

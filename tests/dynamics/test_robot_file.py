@@ -543,3 +543,26 @@ def test_joint_labels_count_from_one_and_keep_a_name_that_says_more():
     assert joint_label(1, "j1") == "j2 (j1)"       # a name that counts from 0 is shown
     assert joint_names_of(None, 2) == ["j1", "j2"]
     assert joint_names_of(load_robot("tx40"), 8)[-2:] == ["j7", "j8"]
+
+
+PLANAR2_TEXT = bundled_path("planar2").read_text(encoding="utf-8")
+
+
+@pytest.mark.parametrize("edit,fields", [
+    (("MX2 = 1.0, M2 = 2.0", "MX2 = 1.0, M2 = 0.0"), ["link 2", "MX2 = 1", "M2 = 0", "M2 > 0"]),
+    (("MX2 = 1.0, M2 = 2.0", "MX2 = 0.0, M2 = 0.0"), ["link 2", "ZZ2", "M2 = 0"]),
+    (("ZZ2 = 0.6667,", "ZZ2 = 0.6667, XX2 = 0.01, YY2 = 0.01,"), ["link 2", "ZZ2", "triangle inequality"]),
+    (("ZZ2 = 0.6667,", "ZZ2 = 0.6667, XX2 = 0.01, YY2 = 0.6667, XY2 = 5.0, XZ2 = 0.0, YZ2 = 0.0, MY2 = 0.0, "
+                       "MZ2 = 0.0,"), ["link 2", "pseudo-inertia"]),
+])
+def test_a_priori_values_no_mass_distribution_gives_are_refused(tmp_path, edit, fields):
+    """A massless link with a first moment or an inertia, a broken triangle inequality or a pseudo-inertia
+    that is not PSD were accepted and failed mid-simulation without naming the file (a bad-input hunt);
+    the bundled planar arm, which gives ZZ alone of the inertia, still loads."""
+    old, new = edit
+    assert old in PLANAR2_TEXT, old
+    path = tmp_path / "arm.toml"
+    path.write_text(PLANAR2_TEXT.replace(old, new, 1), encoding="utf-8")
+    with pytest.raises(RobotFileError) as exc:
+        load_robot(path)
+    assert_helpful(exc, "arm.toml", *fields)
