@@ -577,6 +577,8 @@ def _harmonics(t, q, f0, n_harmonics, notices):
 #: share of a joint's motion (RMS about its mean) the Fourier series of f0 may leave
 #: unexplained: above NOT_PERIODIC_NOTICE a notice, above NOT_PERIODIC_ERROR an error
 NOT_PERIODIC_NOTICE, NOT_PERIODIC_ERROR = 0.05, 0.25
+#: the latent trajectory's misfit of q, in units of q's noise, above which the fit is said biased
+NOT_PERIODIC_NOISE = 10.0
 #: a joint whose motion (RMS about its mean, rad or m) is below this is not judged: near the
 #: noise level, no Fourier series explains it, and it says nothing about f0
 STILL_JOINT_RMS = 1e-3
@@ -606,6 +608,20 @@ def _check_periodic(q, q_fit, f0, K, notices, harmonics_given=False):
                          "IDIM or DIDIM")
     if share[j] > NOT_PERIODIC_NOTICE:
         notices.append(f"{text}: {fix}")
+        return
+    # a small share can still be far above the noise (a start-up transient, a drift): the likelihood
+    # then reads the misfit as position noise, and the estimates are biased (Fv1 7 sigma off)
+    noise = np.std(np.diff(q, n=2, axis=0), axis=0) / math.sqrt(6.0)     # white noise: var(d2 q) = 6 s^2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.sqrt(np.mean((q - q_fit) ** 2, axis=0)) / noise
+    ratio = np.where(moving & np.isfinite(ratio), ratio, 0.0)
+    j = int(np.argmax(ratio))
+    if ratio[j] > NOT_PERIODIC_NOISE:
+        notices.append(f"the latent trajectory ({K} harmonics of f0 = {f0:g} Hz) leaves {ratio[j]:.3g} times the "
+                       f"noise of joint {j + 1}'s q (from its second differences): the motion is not periodic "
+                       "at the noise level (a start-up transient, a drift), and maximum likelihood reads the "
+                       "misfit as position noise, which biases its estimates; cut the recording to whole "
+                       "periods of the steady motion (a TOML experiment file), or use IDIM or DIDIM")
 
 
 def _fourier_start(t, q, f0, K):

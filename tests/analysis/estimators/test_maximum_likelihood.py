@@ -201,3 +201,15 @@ def test_a_joint_that_never_moves_is_refused_as_by_idim():
     with pytest.raises(IdentificationError, match="rank-deficient"):
         dynid.identify(still, "planar2", method="ml", f0=0.5)
     assert np.isfinite(dynid.identify(exp, "planar2", method="ml", f0=0.5).params).all()
+
+
+def test_a_motion_that_is_not_periodic_at_the_noise_level_is_said():
+    """Two periods with the closed loop's start-up transient: the latent trajectory left 100 times q's
+    noise, ML read it as position noise, and Fv1 came out 7 sigma off without a word (bad-input hunt)."""
+    import dynid
+    exp = dynid.simulate("planar2", duration=4.0, seed=1, f0=0.5, harmonics=3).experiment
+    r = dynid.identify(exp, "planar2", method="ml", f0=0.5)
+    assert any("times the noise of joint" in n for n in r.notices), r.notices
+    steady = exp.segment(2.0, exp.t[-1] + 1.0)          # the second period alone
+    r2 = dynid.identify(steady, "planar2", method="ml", f0=0.5)
+    assert not any("times the noise" in n for n in r2.notices), r2.notices
