@@ -137,9 +137,12 @@ def further_analyses(experiments, robot, result, held_out, settings: Settings, s
 def diagnosis_candidates(settings: Settings):
     """The candidate effects of the diagnosis (`effects`: a list or comma-separated names), checked."""
     value = settings.effects
-    if not value:
+    if value is None:
         return None
     names = [x.strip() for x in value.split(",") if x.strip()] if isinstance(value, str) else list(value)
+    if not names:       # an empty list read as "every effect"
+        raise InputError("--effects (effects=) names no effect; give some (stribeck,offset,spring ...), "
+                         "or leave it out to consider every effect")
     check_effect_names(names)
     return names
 

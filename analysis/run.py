@@ -653,8 +653,11 @@ def check_run(settings: Settings, robot=None):
 def _effect_candidates(settings: Settings, robot):
     """The candidates of `effects` (None without it), refused early with the options they
     do not combine with."""
-    if not settings.effects:
+    if settings.effects is None:
         return None
+    if isinstance(settings.effects, str) and not settings.effects.strip():
+        raise InputError("--effects (effects=) names no effect; give some (name:joint[:order], e.g. "
+                         "spring:all), or leave it out")
     spec = settings.effects
     if settings.physical_set != "base":
         raise InputError("--effects fits the effects beside all base parameters: drop --physical-set "

@@ -649,6 +649,9 @@ def _controller(tab, n, path, names=None):
     values = {}
     for key, (field, default) in CONTROLLER_FIELDS.items():
         if key == "ki" and kind != "pid":
+            if "ki" in tab:     # it would be ignored without a word
+                raise RobotFileError(f"{path}: controller.ki is the integral gain of kind = 'pid'; this "
+                                     f"controller is kind = '{kind}': remove ki, or set kind = 'pid'")
             continue
         if default is None and key not in tab:
             raise RobotFileError(f"{path}: controller.{key} is required (one value per joint)")

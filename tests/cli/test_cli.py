@@ -538,3 +538,11 @@ def test_out_of_simulate_and_excite_must_be_a_csv_path(tmp_path, capsys, argv):
     out = tmp_path / "x.parquet"
     assert main(argv + ["--out", str(out)]) == 2
     assert "give a path ending in .csv" in capsys.readouterr().err and not out.exists()
+
+
+@pytest.mark.parametrize("command", ["identify", "diagnose"])
+def test_an_empty_effects_list_is_refused(tmp_path, capsys, command):
+    """diagnose --effects "" considered every effect, identify none, both without a word."""
+    (tmp_path / "r.csv").write_text("t,q1,tau1\n")
+    assert main([command, str(tmp_path / "r.csv"), "--robot", "planar2", "--effects", ""]) == 2
+    assert "names no effect" in capsys.readouterr().err

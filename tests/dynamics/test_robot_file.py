@@ -566,3 +566,12 @@ def test_a_priori_values_no_mass_distribution_gives_are_refused(tmp_path, edit, 
     with pytest.raises(RobotFileError) as exc:
         load_robot(path)
     assert_helpful(exc, "arm.toml", *fields)
+
+
+def test_an_integral_gain_of_a_pd_controller_is_refused(tmp_path):
+    """ki under kind = "pd" was ignored without a word (a bad-input hunt)."""
+    path = tmp_path / "arm.toml"
+    path.write_text(PLANAR2_TEXT.replace('kind = "pd"', 'kind = "pd"\nki = [1.0, 1.0]', 1), encoding="utf-8")
+    with pytest.raises(RobotFileError) as exc:
+        load_robot(path)
+    assert_helpful(exc, "arm.toml", "controller.ki", "kind = 'pid'")
