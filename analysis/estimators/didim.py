@@ -199,6 +199,10 @@ DIDIM_SETTINGS_HELP = {
                       "integrating sensor gives and dynid simulate logs): the simulated rows are "
                       "averaged to match"),
 }
+#: rad: a simulation tracking the reference worse than this has diverged
+DIVERGED_RMS = 10.0
+#: rad: a joint reference spanning less than this does not move
+STILL_REFERENCE = 1e-3
 #: the torque timings DIDIM models (`torque_timing`)
 TORQUE_TIMINGS = ("held", "centred")
 #: IDIM's position-filter settings: accepted, ignored (the simulated derivatives are exact).
@@ -702,6 +706,23 @@ def _decimated_system(robot, bp, q, qd, qdd, tau, dead, s, workers, progress=Non
     return Wd, taud, kept >= 0.5, dec.indices
 
 
+def _data_do_not_excite(L, q_s, why):
+    """An IdentificationError naming the cause when it is the recording or the controller, not the
+    start: a joint whose reference does not move, or a simulation that diverged."""
+    track = np.sqrt(np.mean((L.qr - q_s) ** 2, axis=0))
+    if not np.all(np.isfinite(track)) or np.max(track) > DIVERGED_RMS:
+        raise IdentificationError(
+            "DIDIM: the closed-loop simulation diverged (tracking RMS "
+            + ", ".join(f"{v:.3g}" for v in track) + " rad): the robot file's controller (its rate, wn, "
+            "zeta, J_ap) cannot track this reference in simulation; check its [controller] table")
+    still = [j + 1 for j in range(L.qr.shape[1]) if np.ptp(L.qr[L.n0:, j]) < STILL_REFERENCE]
+    if still:
+        raise IdentificationError(
+            f"DIDIM: the reference of joint(s) {', '.join(map(str, still))} does not move (it spans less than "
+            f"{STILL_REFERENCE:g} rad after the transient), so the recording cannot identify every parameter "
+            f"({why}); record a trajectory that moves every joint")
+
+
 def _masked_norm(r, mask):
     return float(np.sqrt(np.sum(np.where(mask, r, 0.0) ** 2)))
 
@@ -1001,6 +1022,7 @@ def _gauss_newton(L, beta0, tol, physical, pc_options, notices, resume=None):
             # under the actual, stiffer gains); IDIM's advice to excite more does not apply
             why = str(exc).splitlines()[0]
             if k == 1 or last is None:
+                _data_do_not_excite(L, q_s, why)
                 raise IdentificationError(
                     f"DIDIM: the closed-loop simulation of the initial estimate ({L.s.get('initialisation')}) "
                     f"does not excite every parameter ({why}); tracking RMS of that simulation "

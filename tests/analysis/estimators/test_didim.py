@@ -514,3 +514,21 @@ def test_a_centred_torque_is_modelled_by_averaging_the_simulated_rows():
     assert default.settings["torque_timing"] == "held" and np.allclose(default.params, held.params)
     with pytest.raises(InputError, match="torque_timing"):
         dynid.identify(plain, "planar2", method="didim", torque_timing="middle")
+
+
+def test_didim_names_a_still_reference_and_a_diverged_simulation(tmp_path):
+    """Both were blamed on the start values ("Start from closer values"), which could not help."""
+    import dynid
+    from dynid.errors import IdentificationError
+    exp = dynid.simulate("planar2", 3.0, seed=1).experiment
+    q, qr = exp.q.copy(), exp.qr.copy()
+    q[:, 1] = qr[:, 1] = 0.2
+    still = dataclasses.replace(exp, q=q, qr=qr)
+    with pytest.raises(IdentificationError, match=r"reference of joint\(s\) 2 does not move"):
+        dynid.identify(still, "planar2", method="didim", progress=lambda *a: None)
+    from dynid.dynamics.robot_file import bundled_path
+    text = bundled_path("planar2").read_text(encoding="utf-8")
+    slow = tmp_path / "slow.toml"
+    slow.write_text(text.replace("rate = 1000.0", "rate = 5.0"))
+    with pytest.raises(IdentificationError, match="simulation diverged"):
+        dynid.identify(exp, str(slow), method="didim", progress=lambda *a: None)
