@@ -99,8 +99,9 @@ def observe(experiment, robot, bp, settings=None, *, progress=None, reference=Fa
     q_meas = experiment.qr if reference else experiment.q
     if q_meas is None:
         col = "qr" if reference else "q"
-        raise DataError(f"{experiment.source}: IDIM needs measured joint positions ({col}1..{col}n); "
-                        f"the file has none. Use DIDIM (needs qr and tau) or add the position columns.")
+        raise DataError(f"{experiment.source}: the regressor is built from measured joint positions "
+                        f"({col}1..{col}n) and the file has none (IDIM, the diagnosis and the Projection "
+                        f"Method need them). Use DIDIM (needs qr and tau) or add the position columns.")
     fr = full_rate(experiment, robot, q_meas, settings)
     s, fs, N, dead = fr.settings, fr.fs, fr.n_raw, fr.dead
     qf, qd, qdd, tau, t = fr.q, fr.qd, fr.qdd, fr.tau, fr.t
