@@ -192,6 +192,9 @@ def load_robot(spec, base=None, tip=None):
             return read_toml(path, base=base, tip=tip)
         if path.suffix.lower() in (".urdf", ".xml"):
             return read_urdf(path, base=base, tip=tip)
+        if path.is_dir():
+            raise RobotFileError(f"robot file '{spec}' is a folder; give a .toml or .urdf file in it, or one of "
+                                 f"the bundled robots: {', '.join(bundled_robots())}")
         raise RobotFileError(f"robot file '{spec}': unknown extension '{path.suffix}'; use .toml or .urdf")
     if spec in bundled_robots():
         return read_toml(bundled_path(spec), base=base, tip=tip)

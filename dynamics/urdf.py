@@ -333,6 +333,9 @@ class _Tree:
         """The one root link, every link reachable from it (sets `order`, breadth first)."""
         path = self.path
         roots = [l for l in self.links if l not in self.parent_joint]
+        if not roots and self.links:     # every link is some joint's child: the joints close a loop
+            raise RobotFileError(f"{path}: every link is the child of a joint, so the joints form a loop and "
+                                 f"there is no root link; a URDF is a tree: remove the joint that closes it")
         if len(roots) != 1:
             raise RobotFileError(f"{path}: expected one root link, found {len(roots)} ({', '.join(roots)}); "
                                  f"connect every link to the chain with a joint, or remove the stray ones")

@@ -575,3 +575,17 @@ def test_an_integral_gain_of_a_pd_controller_is_refused(tmp_path):
     with pytest.raises(RobotFileError) as exc:
         load_robot(path)
     assert_helpful(exc, "arm.toml", "controller.ki", "kind = 'pid'")
+
+
+def test_a_folder_and_a_urdf_loop_are_named_as_such(tmp_path):
+    """'unknown extension ''' for a folder; 'expected one root link, found 0 ()' for a loop (bad-input hunt)."""
+    (tmp_path / "arm").mkdir()
+    with pytest.raises(RobotFileError, match="is a folder"):
+        load_robot(tmp_path / "arm")
+    loop = tmp_path / "loop.urdf"
+    joint = '<joint name="{0}" type="revolute"><parent link="{1}"/><child link="{2}"/><axis xyz="0 0 1"/>' \
+            '<limit lower="-1" upper="1" effort="1" velocity="1"/></joint>'
+    loop.write_text('<robot name="r"><link name="a"/><link name="b"/>' + joint.format("j1", "a", "b")
+                    + joint.format("j2", "b", "a") + "</robot>")
+    with pytest.raises(RobotFileError, match="form a loop"):
+        load_robot(loop)
