@@ -75,6 +75,7 @@ from statsmodels.stats.sandwich_covariance import S_hac_simple, weights_bartlett
 
 from dynid.analysis.estimators import least_squares as ls
 from dynid.analysis.processing.observation import observe
+from dynid.analysis.processing.signals import default_position_cutoff, estimate_bandwidth
 from dynid.analysis.results import (
     ParameterResults,
     deprecated_alias,
@@ -591,6 +592,13 @@ def identify_projection(experiment, robot, *, bp=None, settings=None, **kwargs) 
     bp = base_parameters(robot) if bp is None else bp
     over = dict(settings or {})
     over["nd"] = 1
+    if over.get("fc_position") is None and experiment.q is not None:
+        # without decimation default_settings raises the q filter to 10 x a 0.4 fs "decimation cut-off"
+        # (0.2 fs): W then carries the acceleration noise up to there, which the instruments (the lagged
+        # reference, inside the motion's band) do not see, but the HAC sandwich does (sigma 15-27 x the
+        # real scatter, rel_error ~100 %); keep the filter at 10 x the motion's bandwidth
+        bandwidth = over.get("bandwidth") or estimate_bandwidth(experiment.q, experiment.fs)
+        over["fc_position"] = default_position_cutoff(bandwidth, experiment.fs)
     obs = observe(experiment, robot, bp, over)
     idx = np.searchsorted(experiment.t, obs.t)
     r = experiment.qr[idx]

@@ -163,6 +163,13 @@ def derivatives(q, fs, fc=None, order=4) -> Derivatives:
     return Derivatives(q_f, qd, qdd)
 
 
+def default_position_cutoff(bandwidth, fs) -> float:
+    """The position filter's default cut-off, Hz: 10 B rounded up to a multiple of 5 Hz, within
+    [FC_MIN_HZ, FC_MAX_PER_FS fs] (`default_settings`' rule before any decimation raises it)."""
+    fc = 5.0 * math.ceil(FC_PER_BANDWIDTH * bandwidth / 5.0)
+    return float(min(max(fc, FC_MIN_HZ), FC_MAX_PER_FS * fs))
+
+
 def estimate_bandwidth(q, fs, energy=0.99) -> float:
     """Frequency (Hz) below which `energy` of the motion's velocity power lies.
 
@@ -308,8 +315,7 @@ def default_settings(
 
     fc_auto, edge_auto = fc_position is None, edge is None
     if fc_position is None:
-        fc_position = 5.0 * math.ceil(FC_PER_BANDWIDTH * bandwidth / 5.0)
-        fc_position = min(max(fc_position, FC_MIN_HZ), FC_MAX_PER_FS * fs)
+        fc_position = default_position_cutoff(bandwidth, fs)
     fc_position = float(fc_position)
     _butter_sos(fs, fc_position, order)  # validates fc_position < fs/2
 
