@@ -93,7 +93,7 @@ from .robot_checks import (  # noqa: F401  (MAX_*, check_name, read_limited, sho
     short,
     shown,
 )
-from .urdf import read_urdf, snap_notice, snap_right_angle
+from .urdf import INERTIA_RTOL, read_urdf, snap_notice, snap_right_angle
 from .urdf_writer import pseudo_inertia
 
 # ----------------------------------------------------------------- the fields
@@ -439,7 +439,9 @@ def _apply_apriori(robot, doc, apriori, path):
     if set(apriori) <= standard:
         # standard values are a mass distribution per link; beside base names (R) they are not used as
         # one (dynamics.excitation_measures.apriori_parameters reads the base names as they are)
-        _links_realizable(apriori, robot, path)
+        # the links [apriori] gives values of (a URDF's inertials were checked by its reader)
+        _links_realizable(apriori, robot, path, {int(m.group(1)) for k in given
+                                                 if (m := re.fullmatch(r"(?:XX|XY|XZ|YY|YZ|ZZ|MX|MY|MZ|M)(\d+)", k))})
     robot.apriori = apriori
 
 
@@ -480,13 +482,13 @@ def _centres_of_mass(apriori, robot, path):
                              f"numbers and their units")
 
 
-def _links_realizable(apriori, robot, path):
+def _links_realizable(apriori, robot, path, links):
     """What no mass distribution gives is refused at load time (it failed mid-simulation, naming
     no file): a first moment without a positive mass, an inertia beside a mass given as zero or
     less; XX, YY, ZZ about the link frame that break
     the triangle inequality (when all three are given: a planar arm's file gives ZZ alone); with
     all ten inertial values given, a pseudo-inertia that is not positive semidefinite."""
-    for j in range(1, robot.n_joints + 1):
+    for j in sorted(links):
         ms = {k: apriori[f"{k}{j}"] for k in ("MX", "MY", "MZ") if apriori.get(f"{k}{j}", 0.0) != 0.0}
         m = apriori.get(f"M{j}", 0.0)
         if ms and not m > 0:
@@ -504,7 +506,7 @@ def _links_realizable(apriori, robot, path):
         if all(v is not None for v in diag):
             scale = max(max(diag), 1e-300)
             for a, b, c, name in ((0, 1, 2, "ZZ"), (0, 2, 1, "YY"), (1, 2, 0, "XX")):
-                if diag[c] > diag[a] + diag[b] + 1e-9 * scale:
+                if diag[c] > diag[a] + diag[b] + INERTIA_RTOL * scale:
                     raise RobotFileError(
                         f"{path}: apriori.values give link {j} XX{j}, YY{j}, ZZ{j} = "
                         f"{', '.join(f'{v:g}' for v in diag)} kg m^2: {name}{j} is more than the sum of the "
@@ -514,7 +516,7 @@ def _links_realizable(apriori, robot, path):
         if all(k in apriori for k in keys):
             values = np.array([apriori[k] for k in keys])
             ev = np.linalg.eigvalsh(pseudo_inertia(values))
-            if ev[0] < -1e-9 * max(abs(ev[-1]), 1e-300):
+            if ev[0] < -INERTIA_RTOL * max(abs(ev[-1]), 1e-300):
                 raise RobotFileError(f"{path}: apriori.values of link {j} ({', '.join(keys)}) are not those of "
                                      f"any mass distribution (its pseudo-inertia has a negative eigenvalue, "
                                      f"{ev[0]:.3g}): check the numbers, their units and the frame they are about")

@@ -59,7 +59,7 @@ from .robot_checks import MAX_INERTIA, MAX_JOINTS, MAX_LENGTH, MAX_MASS, MAX_URD
 _MOVING = {"revolute": 0, "continuous": 0, "prismatic": 1}
 _UNSUPPORTED = {"floating", "planar"}          # valid URDF, but not a joint dynid can model
 _TYPES = set(_MOVING) | _UNSUPPORTED | {"fixed"}
-_INERTIA_RTOL = 1e-4        # rounding slack of PSD / triangle checks, relative to trace(I_c):
+INERTIA_RTOL = 1e-4        # rounding slack of PSD / triangle checks, relative to trace(I_c):
                             # inertias printed to 4-5 digits (a disk: 0.0033333 + 0.0033333 < 0.0066667)
 
 
@@ -178,7 +178,7 @@ def _spatial_inertia(link, where, path):
                                  f"has; give its mass, or set the inertia to 0 for a massless frame")
         return None                                  # a massless frame: nothing to add
     moments = np.sort(np.linalg.eigvalsh(Ic))
-    tol = _INERTIA_RTOL * max(float(np.trace(Ic)), 0.0)
+    tol = INERTIA_RTOL * max(float(np.trace(Ic)), 0.0)
     if moments[0] < -tol:
         raise RobotFileError(f"{path}: {where} has an inertia that is not positive definite "
                              f"(principal moments {', '.join(f'{v:.6g}' for v in moments)} kg m^2); "

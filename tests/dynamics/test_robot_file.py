@@ -589,3 +589,16 @@ def test_a_folder_and_a_urdf_loop_are_named_as_such(tmp_path):
                     + joint.format("j2", "b", "a") + "</robot>")
     with pytest.raises(RobotFileError, match="form a loop"):
         load_robot(loop)
+
+
+def test_a_toml_wrapping_a_rounded_urdf_loads_as_the_urdf_does(tmp_path):
+    """A disk's inertias printed to 5 digits (0.0033333 + 0.0033333 < 0.0066667) pass the URDF reader's
+    rounding slack; the TOML wrapping that URDF was refused by the a-priori check (a review)."""
+    link = ('<link name="{0}"><inertial><origin xyz="0 0 0.05"/><mass value="1"/><inertia ixx="0.0033333" '
+            'iyy="0.0033333" izz="0.0066667" ixy="0" ixz="0" iyz="0"/></inertial></link>')
+    (tmp_path / "disk.urdf").write_text(
+        '<robot name="disk">' + link.format("base") + link.format("disk")
+        + '<joint name="j1" type="revolute"><parent link="base"/><child link="disk"/><axis xyz="0 0 1"/>'
+        '<limit lower="-3" upper="3" effort="10" velocity="3"/></joint></robot>')
+    (tmp_path / "disk.toml").write_text('name = "disk"\nurdf = "disk.urdf"\n')
+    assert load_robot(tmp_path / "disk.urdf").n_joints == load_robot(tmp_path / "disk.toml").n_joints == 1
