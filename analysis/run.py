@@ -475,6 +475,9 @@ def check_identify(settings: Settings) -> None:
              if getattr(settings, name) != getattr(Settings, name)]
     if settings.processing_overrides and method == "ml":
         given.append(f"settings {sorted(settings.processing_overrides)}")
+    elif settings.processing_overrides and method == "projection":      # its own names for nd, decimation
+        given += [f"settings {k!r}" for k in ("nd", "f_decimation_cutoff")
+                  if settings.processing_overrides.get(k) is not None]
     if given:       # they were ignored without a word
         raise InputError(f"{', '.join(given)}: method {method!r} does not use "
                          f"{'it' if len(given) == 1 else 'them'} ({UNUSED_WHY[method]}); leave "

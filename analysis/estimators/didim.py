@@ -236,7 +236,8 @@ class DIDIMResult(ModelResults):
     `identify_didim`). Full-rate arrays of the last simulation (for
     Fig. 7): `t`, `q_sim`, `qr`, `tau` (measured), `tau_sim` (=
     IDM(q_sim, qd_sim, qdd_sim) chi_hat, the final model on the simulated
-    motion) and `tau_ddm` (the torque the simulated controller applied). The
+    motion, at each sample: with `torque_timing = "centred"` the fitted rows are the mean
+    of two consecutive samples of it) and `tau_ddm` (the torque the simulated controller applied). The
     decimated system of the last step (for Fig. 6): `t_dec`, `tau_dec` (Y),
     `tau_est_dec` (W_delta chi_hat), `W_dec`, `row_mask`.
     """

@@ -57,6 +57,7 @@ the distance to the free estimate in the metric of its covariance.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -475,7 +476,8 @@ def _model_vector(model, robot, bp, notices):
                              "written by dynid identify --json")
         if model.get("robot") not in (None, robot.name):
             raise InputError(f"{src} identifies robot '{model.get('robot')}', not '{robot.name}'")
-        _check_signature(model.get("robot_signature"), robot, src)
+        _check_signature(model.get("robot_signature"), robot, src,
+                         (model.get("gravity_tilt") or {}).get("gravity"))
         names = [r["name"] for r in rows]
         values = np.array([np.nan if r.get("value") is None else r["value"] for r in rows], dtype=float)
         std = np.array([0.0 if r.get("std") is None else r["std"] for r in rows], dtype=float)
@@ -494,7 +496,8 @@ def _model_vector(model, robot, bp, notices):
                            "(dynid identify --json) and pass that JSON")
     else:
         inner = getattr(model, "result", model) if hasattr(model, "experiments") else model   # a run()
-        _check_signature(getattr(inner, "robot_signature", None), robot, src)
+        _check_signature(getattr(inner, "robot_signature", None), robot, src,
+                         getattr(getattr(inner, "robot", None), "gravity", None))
         model = _base_fit(model)
         try:
             names = list(model.names)
@@ -516,13 +519,22 @@ def _model_vector(model, robot, bp, notices):
     return P @ values, P @ cov @ P.T, src, own_error
 
 
-def _check_signature(signature, robot, src):
+def _check_signature(signature, robot, src, gravity=None):
     """Refuse a model identified on a robot file of other kinematics, gravity, couplings or
     drive gains than `robot`'s (the same name does not make the same robot); a model written
-    without a signature (an earlier dynid) is taken as it is."""
+    without a signature (an earlier dynid) is taken as it is. `gravity`: the model's own (an
+    estimated base tilt), to say so when it is the only difference."""
     if not isinstance(signature, str) or not signature or signature == model_signature(robot):
         return
     where = f" ({robot.source})" if robot.source else ""
+    try:
+        g = np.asarray(gravity, dtype=float).reshape(3)
+    except (TypeError, ValueError):
+        g = None
+    if g is not None and np.all(np.isfinite(g)) and signature == model_signature(dataclasses.replace(robot, gravity=g)):
+        raise InputError(f"{src} was identified with an estimated base tilt (--gravity-tilt: gravity "
+                         f"[{', '.join(f'{v:.6g}' for v in g)}] m/s^2), not the gravity of the robot given{where}: "
+                         "put that vector in the robot file's gravity and give that file")
     raise InputError(f"{src} was identified on a robot '{robot.name}' whose kinematics, gravity, couplings or "
                      f"drive gains differ from those of the robot given{where}: its parameters do not apply "
                      "to this recording. Give the robot file the model was identified with, or identify the "

@@ -597,7 +597,13 @@ def identify_projection(experiment, robot, *, bp=None, settings=None, **kwargs) 
         # (0.2 fs): W then carries the acceleration noise up to there, which the instruments (the lagged
         # reference, inside the motion's band) do not see, but the HAC sandwich does (sigma 15-27 x the
         # real scatter, rel_error ~100 %); keep the filter at 10 x the motion's bandwidth
-        bandwidth = over.get("bandwidth") or estimate_bandwidth(experiment.q, experiment.fs)
+        given = over.get("bandwidth")
+        try:
+            bandwidth = estimate_bandwidth(experiment.q, experiment.fs) if given is None else float(given)
+        except (TypeError, ValueError):
+            raise InputError(f"settings bandwidth must be a number of Hz, got {given!r}") from None
+        if not bandwidth > 0:
+            raise InputError(f"settings bandwidth must be a positive number of Hz, got {given!r}")
         over["fc_position"] = default_position_cutoff(bandwidth, experiment.fs)
     obs = observe(experiment, robot, bp, over)
     idx = np.searchsorted(experiment.t, obs.t)

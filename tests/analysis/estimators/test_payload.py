@@ -445,3 +445,17 @@ def test_a_model_identified_on_other_kinematics_is_refused(plant_data, tmp_path)
     old = d["model"].to_dict()
     del old["robot_signature"]
     assert identify_payload(d["el"], d["robot"], model=old).mass[0] > 0
+
+
+def test_a_model_identified_with_a_base_tilt_is_named_as_such():
+    """With --gravity-tilt the model's robot has the estimated gravity: the refusal says so and gives the
+    vector to put in the robot file (it said to give the file the model was identified with: a review)."""
+    from dynid.analysis.estimators.payload import _check_signature
+    robot = _robot()
+    g = np.array([-0.0047, 0.0063, -9.81])
+    tilted = model_signature(dataclasses.replace(robot, gravity=g))
+    with pytest.raises(InputError, match=r"estimated base tilt .*-0.0047, 0.0063, -9.81"):
+        _check_signature(tilted, robot, "id.json", list(g))
+    with pytest.raises(InputError, match="differ from those of the robot given"):
+        _check_signature(tilted, robot, "id.json", [0.0, 0.0, -9.81])
+    _check_signature(model_signature(robot), robot, "id.json", list(g))      # the same robot: taken
