@@ -255,14 +255,18 @@ def full_rate(experiment, robot, q_meas, settings=None) -> FullRate:
     der = derivatives(q_meas, fs, s["fc_position"], s["order"])
     keep = slice(edge, N - edge)
     qd = der.qd[keep]
-    s, dead = _dead_zone(s, qd, robot, guard=int(np.ceil(fs / s["fc_position"])))
+    s, dead = _dead_zone(s, qd, robot, guard=int(np.ceil(fs / s["fc_position"])), source=experiment.source)
     return FullRate(settings=s, fs=fs, n_raw=N, keep=keep, t=experiment.t[keep], q=der.q[keep], qd=qd,
                     qdd=der.qdd[keep], tau=np.asarray(experiment.tau, dtype=float)[keep], dead=dead,
                     edge_notice=f"dropped {edge} samples ({edge / fs:.3g} s) at each end: transients "
                                 f"of the {s['fc_position']:g} Hz position filter")
 
 
-def _dead_zone(s, qd, robot, guard=0, whole=True):
+#: rad/s: a recording whose every joint stays below this peak speed does not move
+STILL_SPEED = 1e-6
+
+
+def _dead_zone(s, qd, robot, guard=0, whole=True, source=""):
     """Full-rate samples (N, n) inside the velocity dead zone, or None; settings with numbers.
 
     The settings' `qd_threshold` resolved by
@@ -279,8 +283,13 @@ def _dead_zone(s, qd, robot, guard=0, whole=True):
     # recording may well be all at rest
     if whole and dead.size and dead.all():
         peak = np.abs(np.asarray(qd, dtype=float)).max(axis=0)
+        where = f"{source}: " if source else ""
+        if np.all(peak < STILL_SPEED):
+            raise DataError(f"{where}no joint moves (peak |qd| " + ", ".join(f"{v:.3g}" for v in peak)
+                            + " rad/s): the recording holds no motion to identify or validate on; record "
+                            "the excitation trajectory")
         raise DataError(
-            "the velocity dead zone (--qd-threshold, qd_threshold: "
+            f"{where}the velocity dead zone (--qd-threshold, qd_threshold: "
             + ", ".join(f"{v:.3g}" for v in thr) + " rad/s) is above every joint speed (peak "
             + ", ".join(f"|qd{j + 1}| = {v:.3g}" for j, v in enumerate(peak))
             + " rad/s), so every sample is dropped and no equation is left. Lower "

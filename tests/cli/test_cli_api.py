@@ -297,3 +297,14 @@ def test_diagnose_refuses_several_recordings():
     exp = dynid.simulate("planar2", duration=2.0, seed=1).experiment
     with pytest.raises(dynid.InputError, match="one recording at a time, 2 were given"):
         dynid.diagnose([exp, exp], "planar2")
+
+
+def test_a_recording_that_does_not_move_is_named():
+    """A still validation recording got the dead-zone message without its file name (a bad-input hunt)."""
+    import dataclasses
+
+    import numpy as np
+    exp = dynid.simulate("planar2", duration=3.0, seed=1).experiment
+    still = dataclasses.replace(exp, q=np.broadcast_to(exp.q[:1], exp.q.shape).copy(), source="still.csv")
+    with pytest.raises(dynid.DataError, match="still.csv: no joint moves"):
+        dynid.identify(still, "planar2")
