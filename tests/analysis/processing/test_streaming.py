@@ -1,7 +1,7 @@
 """The streamed observation equals the in-memory one (up to the filter-transient tolerance)."""
 import numpy as np
 import pytest
-from test_idim import TX40_EXPERIMENT
+from conftest import TX40_EXAMPLE
 
 from dynid.analysis.data.experiment import load_experiment
 from dynid.analysis.processing.observation import observe
@@ -9,6 +9,8 @@ from dynid.analysis.processing.streaming import observe_stream
 from dynid.dynamics.base_parameters import base_parameters
 from dynid.dynamics.robot_file import load_robot
 from dynid.errors import DataError
+
+TX40_EXPERIMENT = TX40_EXAMPLE / "experiment.toml"
 
 
 @pytest.fixture(scope="module")
