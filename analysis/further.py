@@ -21,6 +21,7 @@ from dynid.analysis.run import (
     as_robot,
     check_identify,
     check_robot_options,
+    holdout_hint,
     identify_step,
     load_data,
     messages,
@@ -218,7 +219,7 @@ def _diagnosis_run(data, robot, settings=None, *, say=None, **options) -> Diagno
     if not s.no_offsets:
         ident = s.replace(method="idim", physical=False)
         check_identify(ident)
-        with say.progress("regressor and decimation") as bar:
+        with holdout_hint(s, experiments), say.progress("regressor and decimation") as bar:
             # the diagnosis' observation first: its decimated system is observe's, so IDIM
             # identifies from it and the full-rate regressor is built once, not twice
             eobs = observe_effects(experiment, robot, base_parameters(robot), ident.processing(),

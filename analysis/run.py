@@ -54,7 +54,7 @@ from dynid.analysis.statistics.validation import ValidationResult, validate
 from dynid.analysis.statistics.verdict import verdict
 from dynid.dynamics.robot import Robot
 from dynid.dynamics.robot_file import load_robot
-from dynid.errors import DataError, InputError, did_you_mean
+from dynid.errors import DataError, IdentificationError, InputError, did_you_mean
 from dynid.ranges import check_range
 
 METHODS = ("idim", "didim", "projection", "ml")
@@ -443,6 +443,21 @@ def load_data(data, robot, settings: Settings, say=None):
         train, held_out = holdout_split(experiments[0], settings.holdout)
         experiments = [train]
     return experiments, held_out
+
+
+@contextlib.contextmanager
+def holdout_hint(settings: Settings, experiments):
+    """Within it, an identification that fails for want of data says what --holdout left of it
+    (it advised a richer trajectory when the holdout had taken most of the recording)."""
+    try:
+        yield
+    except IdentificationError as exc:
+        if settings.holdout is None or not experiments:
+            raise
+        t = experiments[0].t
+        raise IdentificationError(f"--holdout {settings.holdout:g} s leaves the first {t[-1] - t[0]:.3g} s of the "
+                                  f"recording to identify on, and they do not identify the model (hold out less): "
+                                  f"{exc}") from None
 
 
 # ---------------------------------------------------------------- step 2: gravity tilt
@@ -869,7 +884,7 @@ def run(data, robot, settings=None, *, say=None, **options) -> Identification:
     experiments, held_out = load_data(data, robot, settings, say)
     tilt, robot = tilt_step(experiments, robot, settings, say)
     label = "DIDIM iterations" if settings.method == "didim" else "regressor and decimation"
-    with say.progress(label) as bar:
+    with holdout_hint(settings, experiments), say.progress(label) as bar:
         # IDIM: the unconstrained fit; its PC-WLS (physical) is step 6, beside it
         result = identify_step(experiments, robot, settings.replace(physical=False, prior=None, mass_tolerance=None)
                                if settings.method == "idim" else settings, progress=bar.update)

@@ -383,7 +383,7 @@ def report(data, robot, path=None, *, settings=None, say=None, payload=None, pay
         if unfelt:
             raise InputError(f"--payload: {unfelt_message(robot, unfelt)}; leave --payload out")
     experiments, held_out = steps.load_data(data, robot, s, say)
-    with say.progress("IDIM: regressor and decimation") as bar:
+    with steps.holdout_hint(s, experiments), say.progress("IDIM: regressor and decimation") as bar:
         result = steps.identify_step(experiments, robot, s.replace(method="idim"), progress=bar.update)
     validation = validate(result, held_out, robot) if held_out is not None else None
     out = _full_report(result, robot, experiments, validation, held_out, s, say)

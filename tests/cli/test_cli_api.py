@@ -308,3 +308,10 @@ def test_a_recording_that_does_not_move_is_named():
     still = dataclasses.replace(exp, q=np.broadcast_to(exp.q[:1], exp.q.shape).copy(), source="still.csv")
     with pytest.raises(dynid.DataError, match="still.csv: no joint moves"):
         dynid.identify(still, "planar2")
+
+
+def test_a_holdout_that_leaves_too_little_says_so():
+    """A --holdout that took most of the recording got "excite a richer trajectory" (a bad-input hunt)."""
+    exp = dynid.simulate("planar2", duration=4.0, seed=1).experiment
+    with pytest.raises(dynid.IdentificationError, match=r"--holdout 3.9 s leaves the first 0.0\d+ s"):
+        dynid.run(exp, "planar2", holdout=3.9)
