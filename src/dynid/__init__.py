@@ -177,7 +177,9 @@ def diagnose(data: str | os.PathLike[str] | Experiment,
         reported on it too. Default None: none.
     idim_result : IDIMResult, optional
         The IDIM result of the same data (`dynid.identify(..., method="idim")`) to start
-        from. Default None: identified here.
+        from; the final model's σ take its covariance (`uncertainty`, bootstrap by
+        default). Default None: identified here, and the σ are the classic ones of
+        eq. (14) (`dynid diagnose` passes its own identification, so its σ are the run's).
     **kwargs
         The options of `dynid.analysis.diagnosis.selection.diagnose`, among them
         `settings` (processing overrides), `effects` (the candidate effects' names),
