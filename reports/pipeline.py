@@ -237,7 +237,12 @@ class FullReport(Result):
                                             extra_sections=self.sections, verdict=self.verdict, kind="full")
 
     def to_dict(self) -> dict:
-        """The full report's JSON (`dynid report --json`): the identification's, with the parts that ran."""
+        """The full report's JSON (`dynid report --json`): the identification's, with the parts that ran.
+
+        Returns
+        -------
+        dict
+        """
         doc = self.result.to_dict()
         doc["verdict"] = self.verdict.to_dict()
         doc["validation"] = self.validation.to_dict() if self.validation is not None else None
@@ -250,7 +255,12 @@ class FullReport(Result):
         return doc
 
     def summary(self) -> str:
-        """The verdict, then each part's summary, as text."""
+        """The verdict, then each part's summary, as text.
+
+        Returns
+        -------
+        str
+        """
         parts = [self.verdict.summary(), self.result.summary(),
                  self.validation.summary() if self.validation is not None else ""]
         parts += [p.summary() for p in (self.didim, self.posterior, self.diagnosis) if p is not None]

@@ -234,7 +234,12 @@ class SimulatedRecording(Result):
     payload: dict | None = None
 
     def summary(self) -> str:
-        """What was simulated: robot, duration, rate, noise and the reference, as text."""
+        """What was simulated: robot, duration, rate, noise and the reference, as text.
+
+        Returns
+        -------
+        str
+        """
         e, tr = self.experiment, self.trajectory
         lines = [f"Simulated {self.robot.name} ({self.robot.n_joints} joints): {self.duration:g} s at "
                  f"{e.fs:g} Hz ({e.n_samples} samples), seed {self.seed}",

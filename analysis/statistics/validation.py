@@ -119,7 +119,12 @@ class ValidationResult(Result):
                             index=pd.Index(range(1, self.tau.shape[1] + 1), name="joint"))
 
     def summary(self):
-        """The held-out errors as text: overall, per joint, and on the moving samples alone."""
+        """The held-out errors as text: overall, per joint, and on the moving samples alone.
+
+        Returns
+        -------
+        str
+        """
         lines = [f"Validation on {self.source}: {len(self.t)} decimated samples",
                  f"  all samples: relative error ||tau - tau_hat|| / ||tau|| = {percent(self.rel_error)}",
                  f"  moving samples only: {percent(self.moving_rel_error)} ({100 * self.excluded_fraction:.1f} % "
@@ -134,7 +139,12 @@ class ValidationResult(Result):
         return "\n".join(lines)
 
     def to_dict(self):
-        """The held-out errors, JSON-safe: the `validation` block of `dynid identify --json`."""
+        """The held-out errors, JSON-safe: the `validation` block of `dynid identify --json`.
+
+        Returns
+        -------
+        dict
+        """
         mj = self.moving_joint_rel_error
         return json_safe({
             "source": self.source, "n_samples": int(len(self.t)),
