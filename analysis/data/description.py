@@ -154,6 +154,7 @@ _EXPERIMENT_FIELDS = {
                   f"{TIME_STEP_TOLERANCE:g}); for irregular time stamps set resample = true instead."),
     "resample": _Field("bool", False),
     "file": _Field("string"),
+    "torque_timing": _Field("string", ""),
 }
 #: keys of [experiment] that are lists, read once the number of joints is known
 _EXPERIMENT_LISTS = {"gear_ratios"}
@@ -317,6 +318,13 @@ class _Description:
         exp, tables = _split_tables(_parse_toml(self.path, label), tk)
         opts, self.default_file = _experiment_options(exp, tk, self.path, label)
         meta: dict = {"description": label}
+        timing = tk.field("experiment", exp, "torque_timing", _EXPERIMENT_FIELDS["torque_timing"])
+        if timing not in ("", "held", "centred"):
+            raise tk.err("experiment", f"torque_timing = {timing!r}: give 'held' (the command held over each "
+                                       "period, a controller's log) or 'centred' (centred on the samples, an "
+                                       "integrating sensor); DIDIM models it")
+        if timing:
+            meta["torque_timing"] = timing
         sections = {s: tables[s] for s in _SECTIONS if s in tables}
         if not sections and "time" not in tables:
             experiment = self._column_format(tables, opts, meta)

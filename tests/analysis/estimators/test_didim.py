@@ -532,3 +532,19 @@ def test_didim_names_a_still_reference_and_a_diverged_simulation(tmp_path):
     slow.write_text(text.replace("rate = 1000.0", "rate = 5.0"))
     with pytest.raises(IdentificationError, match="simulation diverged"):
         dynid.identify(exp, str(slow), method="didim", progress=lambda *a: None)
+
+
+def test_an_experiment_file_says_its_torque_timing(tmp_path):
+    """`[experiment] torque_timing` reaches DIDIM through the recording's meta; a wrong value is refused."""
+    import dynid
+    from dynid.errors import DataError
+    sim = dynid.simulate("planar2", 4.0, seed=2, noise_q=0.0, noise_tau=0.0)
+    sim.experiment.to_frame().to_csv(tmp_path / "run.csv", index=False)
+    (tmp_path / "run.toml").write_text('[experiment]\nfile = "run.csv"\ntorque_timing = "centred"\n')
+    exp = dynid.load_experiment(tmp_path / "run.toml", "planar2")
+    assert exp.meta["torque_timing"] == "centred"
+    r = dynid.identify(exp, "planar2", method="didim", progress=lambda *a: None)
+    assert r.settings["torque_timing"] == "centred"
+    (tmp_path / "bad.toml").write_text('[experiment]\nfile = "run.csv"\ntorque_timing = "middle"\n')
+    with pytest.raises(DataError, match=r"bad.toml, \[experiment\]: torque_timing = 'middle'"):
+        dynid.load_experiment(tmp_path / "bad.toml", "planar2")
