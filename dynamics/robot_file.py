@@ -436,6 +436,11 @@ def _apply_apriori(robot, doc, apriori, path):
         _apriori_bounds(key, v, key in standard, path)
     apriori.update(given)
     _centres_of_mass(apriori, robot, path)
+    both = sorted(k[:-1] for k in given if k.endswith("R") and k[:-1] in given)
+    if both:        # legal, but one of each pair is not what the a-priori base vector takes
+        robot.notices.append(f"{path}: apriori.values give {', '.join(f'{k} and {k}R' for k in both)}: with base "
+                             "names (R) the a-priori base vector takes the base value, and standard values that "
+                             "are not base parameters themselves are not used")
     if set(apriori) <= standard:
         # standard values are a mass distribution per link; beside base names (R) they are not used as
         # one (dynamics.excitation_measures.apriori_parameters reads the base names as they are)

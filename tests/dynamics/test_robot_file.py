@@ -339,6 +339,8 @@ def test_legal_apriori_values_still_load():
     robot = robot_from_dict(_tx40_doc(lambda d: d["apriori"]["values"].update(
         {"M2": 0.0, "XY3": -0.2, "MX2": -1.5, "Off1": -3.0, "Fcm6": 1.0, "MX2R": -2.0})), "ok.toml")
     assert robot.apriori["XX2R"] == -0.53 and robot.apriori["MX2R"] == -2.0
+    # legal, but said: beside base names a standard value that is no base parameter is not used
+    assert any("MX2 and MX2R" in n for n in robot.notices), robot.notices
 
 
 BOUND_CASES = {
