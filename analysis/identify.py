@@ -22,6 +22,8 @@ Every method returns a result with the interface of
 """
 from __future__ import annotations
 
+import inspect
+
 from dynid.analysis.run import (  # noqa: F401 - as_robot, as_experiments, METHODS: public here since 0.1
     METHOD_OPTIONS,
     METHODS,
@@ -145,7 +147,8 @@ def identify(data, robot, method: str | None = None, *, settings=None, max_error
                "update_gains", "n_boot", "torque_timing"}
     unknown = sorted(set(options) - allowed)
     if unknown:
-        hint = did_you_mean(unknown[0], allowed | set(_KEYWORDS) | {"holdout"})
+        keywords = set(inspect.signature(identify).parameters) - {"data", "robot", "options"}
+        hint = did_you_mean(unknown[0], allowed | keywords | {"holdout"})
         if unknown[0] == "holdout" or "holdout" in hint:
             hint = (": identify fits all the data it is given; hold data out with dynid.holdout_split and "
                     "dynid.validate, or use dynid.run(..., holdout=...)")
@@ -187,10 +190,6 @@ def identify(data, robot, method: str | None = None, *, settings=None, max_error
 
 #: the options only some methods read (an option given to another method is an error, not ignored)
 _METHOD_OF = {**METHOD_OPTIONS, "update_gains": METHOD_OPTIONS["gain_update"]}
-
-#: identify's own keywords, for the near misses of a misspelt one
-_KEYWORDS = ("method", "settings", "max_error_growth", "f0", "ml_harmonics", "reference", "max_iter", "gain_update",
-             "gains", "progress", "physical", "prior", "prior_weight", "mass_tolerance", "bootstrap", "physical_set")
 
 _DEFAULTS = {"max_error_growth": 0.02, "gains": "assumed", "physical": False,
              "prior_weight": 1.0, "physical_set": "base"}

@@ -816,13 +816,11 @@ class _Loop:
             if progress is not None and k is not None:
                 progress(min(1.0, (k - 1 + f) / max_iter))
 
-        if self.s.get("torque_timing") != "centred":
-            return _decimated_system(self.robot, self.bp, q_s[sl], qd_s[sl], qdd_s[sl], self.tau_k, dead,
-                                     self.s, self.workers, inner)
-        # one state before the first torque kept (the first state again when none was dropped)
-        before = slice(self.n0 - 1, None) if self.n0 > 0 else np.r_[0, 0:len(q_s)]
-        return _decimated_system(self.robot, self.bp, q_s[before], qd_s[before], qdd_s[before], self.tau_k,
-                                 dead, self.s, self.workers, inner, lead=1)
+        # a centred torque: one state before the first torque kept (the first again when none was dropped)
+        lead = int(self.s.get("torque_timing") == "centred")
+        rows = slice(self.n0 - lead, None) if self.n0 >= lead else np.r_[0, 0:len(q_s)]
+        return _decimated_system(self.robot, self.bp, q_s[rows], qd_s[rows], qdd_s[rows], self.tau_k, dead,
+                                 self.s, self.workers, inner, lead=lead)
 
 
 def _prepare_loop(robot, bp, ctrl, s, t, qr, tau, update_gains, workers, max_iter, progress):

@@ -74,8 +74,8 @@ import scipy.linalg as sla
 from statsmodels.stats.sandwich_covariance import S_hac_simple, weights_bartlett
 
 from dynid.analysis.estimators import least_squares as ls
-from dynid.analysis.processing.observation import observe
-from dynid.analysis.processing.signals import default_position_cutoff, estimate_bandwidth
+from dynid.analysis.processing.observation import observe, resolve_settings
+from dynid.analysis.processing.signals import default_position_cutoff
 from dynid.analysis.results import (
     ParameterResults,
     deprecated_alias,
@@ -597,13 +597,7 @@ def identify_projection(experiment, robot, *, bp=None, settings=None, **kwargs) 
         # (0.2 fs): W then carries the acceleration noise up to there, which the instruments (the lagged
         # reference, inside the motion's band) do not see, but the HAC sandwich does (sigma 15-27 x the
         # real scatter, rel_error ~100 %); keep the filter at 10 x the motion's bandwidth
-        given = over.get("bandwidth")
-        try:
-            bandwidth = estimate_bandwidth(experiment.q, experiment.fs) if given is None else float(given)
-        except (TypeError, ValueError):
-            raise InputError(f"settings bandwidth must be a number of Hz, got {given!r}") from None
-        if not bandwidth > 0:
-            raise InputError(f"settings bandwidth must be a positive number of Hz, got {given!r}")
+        bandwidth = resolve_settings(experiment, over)["bandwidth"]       # estimated or given, checked
         over["fc_position"] = default_position_cutoff(bandwidth, experiment.fs)
     obs = observe(experiment, robot, bp, over)
     idx = np.searchsorted(experiment.t, obs.t)
