@@ -454,3 +454,51 @@ def test_monitor_unknown_parameter_or_nothing_identified_is_an_input_error_not_a
     assert h.alarms == [] and h.n_monitored == 0 and "no recording was identified" in h.status_line()
     h = health.monitor(frame, n_baseline=12)          # every robot's history is its baseline
     assert h.n_monitored == 0 and "not monitored" in h.status_line() and "--baseline" in h.status_line()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("marker", ["on a local cluster", "progress: identifying"])
+def test_ctrl_c_stops_a_local_fleet_without_a_traceback(small_fleet, tmp_path, marker):
+    """Ctrl-C, which the terminal sends to every process of the group (the workers too), while the
+    workers start and mid-run: one message, exit 130, no worker's traceback, no process left behind.
+    Before, a worker still importing printed its KeyboardInterrupt traceback under dynid's message."""
+    import subprocess
+    import threading
+    import time
+    pytest.importorskip("distributed")
+    code = "import sys; from dynid.reports.cli import main; sys.exit(main())"
+    proc = subprocess.Popen([sys.executable, "-c", code, "fleet", str(small_fleet.catalogue), "--out",
+                             str(tmp_path / "store"), "--workers", "2"], cwd=tmp_path, stdin=subprocess.DEVNULL,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
+    lines, seen = [], threading.Event()
+
+    def read():
+        for raw in proc.stderr:
+            lines.append(raw.decode("utf-8", "replace"))
+            if marker in lines[-1]:
+                seen.set()
+        seen.set()
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    assert seen.wait(120), "the run never got under way"
+    os.killpg(proc.pid, signal.SIGINT)
+    try:
+        proc.wait(timeout=60)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+    reader.join(timeout=10)
+    err = "".join(lines)
+    assert proc.returncode == 130, f"exit {proc.returncode} (the run ended before the signal?)\n{err}"
+    assert "dynid: interrupted; the recordings finished so far are in the store" in err, err
+    assert "Traceback" not in err and "ERROR" not in err, err
+    deadline = time.monotonic() + 20       # exited workers wait for init to reap them
+    while time.monotonic() < deadline:
+        try:
+            os.killpg(proc.pid, 0)
+        except ProcessLookupError:
+            break
+        time.sleep(0.2)
+    else:
+        pytest.fail("worker processes outlived the interrupted run by 20 s")
