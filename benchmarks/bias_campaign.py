@@ -81,7 +81,7 @@ def closed_loop(seeds):
             a = time.perf_counter()
             ref = _reference_2sls(run, res)
             t_ref += time.perf_counter() - a
-            d_ref.append(np.max(np.abs(ref - res.chi) / np.maximum(np.abs(res.sigma), 1e-12)))
+            d_ref.append(np.max(np.abs(ref - res.chi) / np.maximum(np.abs(res.bse.to_numpy()), 1e-12)))
     names = run["names"]
     b_ls, se_ls = _stats(np.array(e_ls))
     b_pm, se_pm = _stats(np.array(e_pm))
@@ -120,7 +120,7 @@ def eiv(seeds):
         a = time.perf_counter()
         r = maximum_likelihood(t, q, tau, model, f0=bs.F0, n_harmonics=20)
         t_ml += time.perf_counter() - a
-        e_m.append(r.theta - beta)
+        e_m.append(r.chi - beta)
         e_s.append(r.theta_ls - beta)
     b_o, se_o = _stats(np.array(e_o))
     b_m, se_m = _stats(np.array(e_m))

@@ -81,7 +81,7 @@ def main():
         (w_chk, _, _), peak_chk, wall_chk = measure(task._identify, exp, robot, bp, None,
                                                     4 * args.block)
         fr = [k for k, nm in enumerate(w_mem.names) if nm.startswith(("Fv", "Fc"))]
-        dz = float(np.max(np.abs(w_chk.chi[fr] - w_mem.chi[fr]) / w_mem.sigma[fr]))
+        dz = float(np.max(np.abs(w_chk.chi[fr] - w_mem.chi[fr]) / w_mem.bse.to_numpy()[fr]))
         rows.append({"samples": n, "peak_mb_in_memory": round(peak_mem, 1), "peak_mb_chunked": round(peak_chk, 1),
                      "seconds_in_memory": round(wall_mem, 1), "seconds_chunked": round(wall_chk, 1),
                      "recording_mb": round((exp.q.nbytes + exp.tau.nbytes + exp.t.nbytes) / 1e6, 1),

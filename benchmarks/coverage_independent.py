@@ -269,8 +269,8 @@ def _didim_rows(row, exp, robot, bp, beta):
     for opt in OPTIONS:
         r = ls.wls(d.W_dec, d.tau_dec, names, row_mask=d.row_mask, uncertainty=opt)
         assert np.allclose(r.chi, d.result.chi, rtol=1e-9, atol=1e-12), "the last step's WLS is not reproduced"
-        row[f"didim_{opt}_z"] = [float(v) for v in (r.chi - beta[idx]) / r.sigma]
-        row[f"didim_{opt}_sigma"] = [float(v) for v in r.sigma]
+        row[f"didim_{opt}_z"] = [float(v) for v in (r.chi - beta[idx]) / r.bse.to_numpy()]
+        row[f"didim_{opt}_sigma"] = [float(v) for v in r.bse.to_numpy()]
     row["didim_seconds"] = time.time() - t
 
 

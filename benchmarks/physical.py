@@ -537,8 +537,8 @@ def tilt_only():
         ident = [dynid.load_experiment(here / f"recording_{i}.toml", kuka) for i in train]
         tilt = gravity_tilt(ident, kuka)
         print(f"LWR4+ {key}: " + tilt.summary(), flush=True)
-        row = {"tilt_mrad": [round(1e3 * float(v), 3) for v in tilt.theta],
-               "std_mrad": [round(1e3 * float(v), 3) for v in tilt.sigma],
+        row = {"tilt_mrad": [round(1e3 * float(v), 3) for v in tilt.chi],
+               "std_mrad": [round(1e3 * float(v), 3) for v in tilt.bse.to_numpy()],
                "lr_chi2": round(tilt.lr_statistic, 1), "lr_dof": tilt.lr_dof,
                "rel_error_identification": [round(tilt.rel_error_before, 5), round(tilt.rel_error_after, 5)]}
         for name, robot in (("level", kuka), ("tilted", tilt.robot)):

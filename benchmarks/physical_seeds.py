@@ -85,7 +85,7 @@ def main():
             q_lo, q_hi = np.quantile(pc.boot, [0.025, 0.975], axis=0)
             row_cov = {"pc_wls_hits": hit.tolist(), "wls_hits": (np.abs(res.wls.chi - beta) <= hw).tolist(),
                        # the reported sigma read as PC +- 1.96 sigma, and the refits' spread in its place
-                       "pc_sigma_hits": (np.abs(pc.chi - beta) <= 1.96 * pc.sigma + 1e-12).tolist(),
+                       "pc_sigma_hits": (np.abs(pc.chi - beta) <= 1.96 * pc.bse.to_numpy() + 1e-12).tolist(),
                        "pc_spread_hits": (np.abs(pc.chi - beta) <= 1.96 * pc.boot_std + 1e-12).tolist(),
                        # the former intervals (percentiles alone), for comparison
                        "pct_hits": ((q_lo <= beta + 1e-12) & (beta - 1e-12 <= q_hi)).tolist(),
@@ -139,8 +139,8 @@ def main():
                 row["pc_didim_hits"] = ((ci["lower"].to_numpy() <= beta + 1e-12)
                                         & (beta - 1e-12 <= ci["upper"].to_numpy())).tolist()
                 row["pc_didim_sigma_hits"] = (np.abs(phys.physical.chi - beta)
-                                              <= 1.96 * phys.physical.sigma + 1e-12).tolist()
-                row["didim_hits"] = (np.abs(plain.result.chi - beta) <= 1.96 * plain.result.sigma).tolist()
+                                              <= 1.96 * phys.physical.bse.to_numpy() + 1e-12).tolist()
+                row["didim_hits"] = (np.abs(plain.result.chi - beta) <= 1.96 * plain.result.bse.to_numpy()).tolist()
             print(f"  DIDIM metric {row['didim_metric']:.3f} PC-DIDIM {row['pc_didim_metric']:.3f}; relative "
                   f"{row['didim_rel']:.4f} / {row['pc_didim_rel']:.4f}", flush=True)
         rows.append(row)
