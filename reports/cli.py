@@ -64,6 +64,19 @@ def cmd_robot(args, say):
     return EXIT_OK
 
 
+def _unconverged_outputs(args, csv_holds):
+    """Which outputs of a run that did not converge say so (a CSV has no field for it)."""
+    said = [name for name, given in (("the JSON", getattr(args, "json", None)),
+                                     ("the report", getattr(args, "report", None))) if given]
+    if said:
+        text = " and ".join(said) + (" says so" if len(said) == 1 else " say so")
+    else:
+        text = "its summary says so" if not getattr(args, "quiet", False) else "no output file says so (--json would)"
+    if getattr(args, "csv", None):
+        text += f"; the CSV holds {csv_holds}, with no mark of it"
+    return text
+
+
 def cmd_identify(args, say):
     from dynid.reports import pipeline
     settings = settings_of(args)
@@ -73,8 +86,8 @@ def cmd_identify(args, say):
     show_clean(args, *ident.summaries())
     commit_outputs(pipeline.outputs(ident), say)
     if ident.method == "didim" and not ident.result.converged:
-        print(f"dynid identify: DIDIM did not converge ({ident.result.stop_reason}); the outputs say so",
-              file=sys.stderr)
+        where = _unconverged_outputs(args, "the last step's values")
+        print(f"dynid identify: DIDIM did not converge ({ident.result.stop_reason}); {where}", file=sys.stderr)
         return EXIT_NOT_CONVERGED
     return EXIT_OK
 
@@ -130,8 +143,8 @@ def cmd_sample(args, say):
     show_clean(args, post.summary())
     commit_outputs(pipeline.sample_outputs(post, result, robot, experiments[0], verdict, settings), say)
     if not post.converged and not args.allow_unconverged:
-        print(f"dynid sample: the chains did not converge ({post.reason}); the outputs say so",
-              file=sys.stderr)
+        where = _unconverged_outputs(args, "the draws so far")
+        print(f"dynid sample: the chains did not converge ({post.reason}); {where}", file=sys.stderr)
         return EXIT_NOT_CONVERGED
     return EXIT_OK
 

@@ -315,3 +315,21 @@ def test_a_holdout_that_leaves_too_little_says_so():
     exp = dynid.simulate("planar2", duration=4.0, seed=1).experiment
     with pytest.raises(dynid.IdentificationError, match=r"--holdout 3.9 s leaves the first 0.0\d+ s"):
         dynid.run(exp, "planar2", holdout=3.9)
+
+
+def test_a_run_that_did_not_converge_names_the_outputs_that_say_so(recording, tmp_path, capsys):
+    """Exit 3 says which outputs carry it: the JSON does, a CSV has no field for it (it holds the
+    last step's values); "the outputs say so" was wrong for a CSV alone."""
+    csv, _ = recording
+    args = ["identify", str(csv), "--robot", "planar2", "--method", "didim", "--max-iter", "1", "--quiet"]
+    assert main(args + ["--csv", str(tmp_path / "d.csv"), "--json", str(tmp_path / "d.json")]) == 3
+    err = capsys.readouterr().err
+    assert "DIDIM did not converge" in err and "the JSON says so" in err, err
+    assert "the CSV holds the last step's values, with no mark of it" in err, err
+    assert json.loads((tmp_path / "d.json").read_text())["converged"] is False
+    assert main(args + ["--csv", str(tmp_path / "e.csv")]) == 3          # --quiet: no summary either
+    err = capsys.readouterr().err
+    assert "no output file says so (--json would); the CSV holds" in err, err
+    assert main([a for a in args if a != "--quiet"] + ["--csv", str(tmp_path / "f.csv")]) == 3
+    captured = capsys.readouterr()
+    assert "its summary says so; the CSV holds" in captured.err and "DID NOT CONVERGE" in captured.out
