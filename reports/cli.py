@@ -243,7 +243,8 @@ def cmd_fleet(args, say):
                             else args.false_alarm_rate,
                             n_baseline=DEFAULT_BASELINE if args.baseline is None else args.baseline,
                             report=args.report, json=None if args.json in (None, "-") else args.json,
-                            progress=lambda done, total: bar.update(done / total))
+                            progress=lambda done, total: bar.update(done / total),
+                            quiet_interrupt=getattr(args, "program", False))
     say(run.summary_line())
     for a in run.health.alarms:
         say(f"  ALARM {a.robot_id} joint {a.joint} {a.parameter}: {a.direction} of {100 * a.rel_size:+.1f} % "
@@ -377,6 +378,7 @@ def main(argv=None):
         if exc.code in (0, None):
             raise
         return EXIT_INPUT if exc.code == 2 else exc.code
+    args.program = argv is None        # the program itself, which ends with the command
     if args.version:
         from dynid.provenance import versions
         print(f"dynid {versions().get('dynid', '?')}")

@@ -36,7 +36,7 @@ def run(catalogue, store, *, scheduler: str | None = None, workers: int | None =
         settings: dict | None = None, diagnose: bool = False, parameters=("Fv", "Fc"),
         false_alarm_rate: float = DEFAULT_FALSE_ALARM_RATE, n_baseline: int = DEFAULT_BASELINE,
         report: str | os.PathLike | None = None, json: str | os.PathLike | None = None,
-        progress=None) -> FleetRun:
+        progress=None, quiet_interrupt: bool = False) -> FleetRun:
     """Identify every new or changed recording of `catalogue` into `store`, then monitor the fleet.
 
     `scheduler`: address of a running Dask scheduler (`tcp://host:8786`); without one a
@@ -45,6 +45,8 @@ def run(catalogue, store, *, scheduler: str | None = None, workers: int | None =
     monitor, by family (`Fv` = every joint's) or by name (`Fv2`). `report`/`json`:
     write the fleet report. `progress`: a callable `progress(done, total)`; without one,
     the run reports through `dynid.progress` (silenced by `dynid.progress.silence()`).
+    `quiet_interrupt`: local workers that ignore Ctrl-C, for a program that ends with the
+    run (the command line; it changes process-wide state, see `analysis.fleet.interrupt`).
     Returns the `FleetRun`, its `health` the alarms.
 
     Before any work: the monitoring options are range-checked, and no output may be
@@ -62,7 +64,8 @@ def run(catalogue, store, *, scheduler: str | None = None, workers: int | None =
     # records elsewhere, dynid.progress.silence() to turn it off), as the other long steps do
     with contextlib.nullcontext(progress) if progress is not None else task("fleet: identifying") as bar:
         result = identify_fleet(catalogue, store, scheduler=scheduler, workers=workers, client=client,
-                                settings=settings, diagnose=diagnose, progress=bar)
+                                settings=settings, diagnose=diagnose, progress=bar,
+                                quiet_interrupt=quiet_interrupt)
     frame = ResultStore(store).read()
     result.health = monitor(frame, parameters, false_alarm_rate=false_alarm_rate, n_baseline=n_baseline)
     if report is not None or json is not None:

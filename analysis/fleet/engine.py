@@ -16,16 +16,12 @@ small machine it would steal a core from the workers.
 """
 from __future__ import annotations
 
-import contextlib
 import hashlib
-import logging
-import multiprocessing
 import os
-import signal
-import threading
 import time
 from dataclasses import dataclass, field
 
+from dynid.analysis.fleet import interrupt
 from dynid.analysis.fleet.catalogue import (
     ROW,
     joint_temperature,
@@ -201,8 +197,13 @@ def _expand_shared(spec, result):
     return result
 
 
-def start_client(scheduler=None, workers=None):
-    """(client, cluster or None): a Client of `scheduler`, or of a new LocalCluster of `workers`."""
+def start_client(scheduler=None, workers=None, *, quiet_interrupt=False):
+    """(client, cluster or None): a Client of `scheduler`, or of a new LocalCluster of `workers`.
+
+    `quiet_interrupt`: the local workers ignore Ctrl-C, which this process handles alone
+    (`analysis.fleet.interrupt`; it changes process-wide state: for a program that ends with
+    the run, such as the command line).
+    """
     distributed = import_distributed()
     if scheduler:
         try:
@@ -214,125 +215,12 @@ def start_client(scheduler=None, workers=None):
             raise InputError(f"--scheduler (scheduler=) {scheduler!r} is not a Dask scheduler address ({exc}); "
                              f"give one such as tcp://host:8786, or leave it out for a local cluster") from None
     n = check_local_workers(workers, scheduler) or os.cpu_count() or 1
-    before = set(getattr(distributed.SpecCluster, "_instances", ()))
-    deferred = []
-    try:
-        with _ctrl_c_deferred(deferred), _workers_deaf_to_ctrl_c():
-            cluster = distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                                               dashboard_address=":0", silence_logs=40)
-    except KeyboardInterrupt:
-        # a second Ctrl-C: Dask cannot close a cluster interrupted while it starts (an assertion
-        # on a worker still in "init", then its exit handler waited 10 s and printed that
-        # traceback); its workers are stopped here, the rest goes with this process
-        for half in set(getattr(distributed.SpecCluster, "_instances", ())) - before:
-            former = _quiet_teardown(half)
-            with contextlib.suppress(Exception):
-                half.close(timeout=2)
-            half.shutdown_on_close = False
-            _restore_logs(former)
-        raise
-    if deferred:
-        former = _quiet_teardown(cluster)
-        with contextlib.suppress(Exception):
-            cluster.close()
-        _restore_logs(former)
-        raise KeyboardInterrupt
+    options = dict(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0", silence_logs=40)
+    if quiet_interrupt and interrupt.available():
+        cluster = interrupt.start_local_cluster(distributed, **options)
+    else:
+        cluster = distributed.LocalCluster(**options)
     return distributed.Client(cluster), cluster
-
-
-@contextlib.contextmanager
-def _ctrl_c_deferred(seen: list):
-    """Hold a Ctrl-C until the local cluster has started (it is then closed in order): Dask
-    cannot close one interrupted while it starts. A second Ctrl-C interrupts at once."""
-    if threading.current_thread() is not threading.main_thread() or signal.getsignal(signal.SIGINT) is None:
-        yield
-        return
-
-    def hold(signum, frame):
-        if seen:
-            raise KeyboardInterrupt
-        seen.append(signum)
-
-    previous = signal.signal(signal.SIGINT, hold)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
-
-
-#: Dask's loggers, quietened while an interrupted run takes its cluster down
-_DASK_LOGGERS = ("distributed", "tornado", "asyncio")
-
-
-def _quiet_logs():
-    """Raise Dask's loggers to CRITICAL; returns their former levels.
-
-    Their children too: Dask's logging configuration gives some of them a level of their own
-    (tornado.application: error)."""
-    names = [name for name in list(logging.root.manager.loggerDict)
-             if name.split(".")[0] in _DASK_LOGGERS] + list(_DASK_LOGGERS)
-    former = {name: logging.getLogger(name).level for name in names}
-    for name in names:
-        logging.getLogger(name).setLevel(logging.CRITICAL)
-    return former
-
-
-def _restore_logs(former):
-    for name, level in (former or {}).items():
-        logging.getLogger(name).setLevel(level)
-
-
-def _stop_workers(cluster):
-    """SIGTERM to the worker processes of our own local cluster: they ignore Ctrl-C, and a
-    graceful close waits seconds for the task each one is running."""
-    for nanny in list(getattr(cluster, "workers", {}).values()):
-        pid = getattr(nanny, "pid", None)
-        if pid:
-            with contextlib.suppress(OSError):
-                os.kill(pid, signal.SIGTERM)
-
-
-def _quiet_teardown(cluster):
-    """Before an interrupted run closes its cluster: stop its workers, and quieten Dask's
-    loggers here, where the connections to them break (each was logged under dynid's
-    one-line message). Returns the former log levels."""
-    former = _quiet_logs()
-    _stop_workers(cluster)
-    return former
-
-
-@contextlib.contextmanager
-def _workers_deaf_to_ctrl_c():
-    """Start local workers that ignore SIGINT, so that Ctrl-C reaches this process alone.
-
-    The terminal sends Ctrl-C to every process of its foreground group, the
-    workers too: one still importing printed its KeyboardInterrupt traceback
-    under dynid's own one-line message. This process closes the cluster on
-    Ctrl-C, so the workers need not hear it. Only an ignored signal survives
-    exec (a handler or a blocked mask does not), so the workers are forked
-    from a forkserver started while SIGINT is ignored here for the few
-    milliseconds its exec takes; its children inherit that. It also preloads
-    Dask and NumPy once, not in every worker. Without a forkserver (Windows),
-    or off the main thread (where signals cannot be set), the workers are
-    spawned as Dask does by default.
-    """
-    if ("forkserver" not in multiprocessing.get_all_start_methods()
-            or threading.current_thread() is not threading.main_thread()
-            or signal.getsignal(signal.SIGINT) is None):      # a handler Python could not restore
-        yield
-        return
-    from multiprocessing import forkserver
-
-    import dask
-    from distributed.utils import get_mp_context
-    with dask.config.set({"distributed.worker.multiprocessing-method": "forkserver"}):
-        get_mp_context()              # Dask's preload list is set before the server starts
-        previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
-        try:
-            forkserver.ensure_running()
-        finally:
-            signal.signal(signal.SIGINT, previous)
-        yield
 
 
 def check_local_workers(workers, scheduler=None):
@@ -371,19 +259,11 @@ def execute(specs, store: ResultStore, client, *, progress=None):
                          key=[f"dynid-fleet-{s['key']}" for s in specs], pure=False)
     by_key = {f.key: s for f, s in zip(futures, specs)}
     results, errors = [], []
-    # with_results: the results are fetched on Dask's event loop, so that this thread only waits on
-    # a condition; a Ctrl-C inside a fetch of its own (fut.result()) met a race in Dask's sync(),
-    # which then logged a NameError and "Couldn't gather keys" under dynid's one-line message
-    completed = distributed.as_completed(futures, with_results=True, raise_errors=False)
-    for done, (fut, outcome) in enumerate(completed, 1):
+    for done, fut in enumerate(distributed.as_completed(futures), 1):
         spec = by_key[fut.key]
-        if fut.status == "finished":
-            result = outcome
-        elif fut.status != "error":           # cancelled: the CancelledError fut.result() raised
-            raise outcome
-        elif not isinstance(outcome[1], distributed.KilledWorker):
-            raise outcome[1].with_traceback(outcome[2])
-        else:
+        try:
+            result = fut.result()
+        except distributed.KilledWorker:
             result = {**{k: spec[k] for k in ("key", "robot_id", "path", "robot", "timestamp", "day",
                                              "data_hash", "version")}, "temperatures": spec["temperatures"],
                       "status": "error", "task_seconds": float("nan"), "task_cpu_seconds": float("nan"),
@@ -400,8 +280,12 @@ def execute(specs, store: ResultStore, client, *, progress=None):
 
 
 def identify_fleet(catalogue, store, *, scheduler=None, workers=None, client=None, settings=None,
-                   diagnose=False, max_samples=MAX_SAMPLES, progress=None) -> FleetRun:
-    """Identify every recording of `catalogue` not yet in `store` (the store is updated)."""
+                   diagnose=False, max_samples=MAX_SAMPLES, progress=None, quiet_interrupt=False) -> FleetRun:
+    """Identify every recording of `catalogue` not yet in `store` (the store is updated).
+
+    `quiet_interrupt`: as in `start_client`; an interrupted run also stops its local workers
+    and closes the cluster with Dask's loggers quiet.
+    """
     t0 = time.perf_counter()
     if client is None:
         workers = check_local_workers(workers, scheduler)      # before the catalogue is read
@@ -413,21 +297,23 @@ def identify_fleet(catalogue, store, *, scheduler=None, workers=None, client=Non
         store.check_writable()          # before the cluster starts: the workers write into it
         created = client is None
         if created:
-            client, own = start_client(scheduler, workers)
+            client, own = start_client(scheduler, workers, quiet_interrupt=quiet_interrupt)
         former = None
         try:
             n_workers = len(client.scheduler_info().get("workers", {}))
             results, errors = execute(todo, store, client, progress=progress)
         except KeyboardInterrupt:
-            if own is not None:
-                former = _quiet_teardown(own)
+            if own is not None and quiet_interrupt:
+                former = interrupt.stop_after_interrupt(own)
             raise
         finally:
-            if created:         # our client of someone's scheduler is closed too, not left connected
-                client.close()
-            if own is not None:
-                own.close()
-            _restore_logs(former)
+            try:
+                if created:     # our client of someone's scheduler is closed too, not left connected
+                    client.close()
+                if own is not None:
+                    own.close()
+            finally:
+                interrupt.restore_logs(former)
     else:
         results, errors = [], []
     return FleetRun(store=store.root, n_recordings=len(specs), n_computed=len(results),
