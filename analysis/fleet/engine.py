@@ -298,13 +298,13 @@ def identify_fleet(catalogue, store, *, scheduler=None, workers=None, client=Non
         created = client is None
         if created:
             client, own = start_client(scheduler, workers, quiet_interrupt=quiet_interrupt)
-        former = None
+        former = {}
         try:
             n_workers = len(client.scheduler_info().get("workers", {}))
             results, errors = execute(todo, store, client, progress=progress)
         except KeyboardInterrupt:
             if own is not None and quiet_interrupt:
-                former = interrupt.stop_after_interrupt(own)
+                interrupt.stop_after_interrupt(own, former)
             raise
         finally:
             try:

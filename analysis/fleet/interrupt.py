@@ -56,8 +56,9 @@ def start_local_cluster(distributed, **options):
             cluster = distributed.LocalCluster(**options)
     except KeyboardInterrupt:          # the second Ctrl-C, while the cluster starts
         for half in set(getattr(distributed.SpecCluster, "_instances", ())) - before:
-            former = stop_after_interrupt(half)
+            former = {}
             try:
+                stop_after_interrupt(half, former)
                 with contextlib.suppress(Exception):
                     half.close(timeout=2)
                 half.shutdown_on_close = False      # Dask's exit handler would wait 10 s, then fail
@@ -65,8 +66,9 @@ def start_local_cluster(distributed, **options):
                 restore_logs(former)
         raise
     if held:
-        former = stop_after_interrupt(cluster)
+        former = {}
         try:
+            stop_after_interrupt(cluster, former)
             with contextlib.suppress(Exception):
                 cluster.close()
         finally:
@@ -115,12 +117,14 @@ def _ctrl_c_held(seen: list):
         signal.signal(signal.SIGINT, previous)
 
 
-def stop_after_interrupt(cluster):
+def stop_after_interrupt(cluster, former: dict | None = None):
     """Quieten Dask's loggers, keep the nannies from restarting, stop the workers; returns the
-    former log levels (for `restore_logs`)."""
+    former log levels (for `restore_logs`). `former`: a dict the levels are recorded in before
+    any is changed (so that a caller's `finally` can restore them after a second Ctrl-C)."""
     names = [n for n in list(logging.root.manager.loggerDict) if n.split(".")[0] in DASK_LOGGERS]
     names += list(DASK_LOGGERS)      # Dask's configuration gives some children a level of their own
-    former = {n: logging.getLogger(n).level for n in names}
+    former = {} if former is None else former
+    former.update({n: logging.getLogger(n).level for n in names})
     for n in names:
         logging.getLogger(n).setLevel(logging.CRITICAL)
     for nanny in list(getattr(cluster, "workers", {}).values()):
