@@ -90,7 +90,7 @@ def _median_time(fn, repeats, name=None):
     return statistics.median(times), times
 
 
-def speed(n_samples, repeats=3):
+def speed(n_samples, repeats=3, pairs=7):
     robot = load_robot("tx40")
     q, qd, qdd = _samples(n_samples, robot.n_joints, seed=1)
 
@@ -138,7 +138,19 @@ def speed(n_samples, repeats=3):
 
     pin_out_s, _ = _median_time(pin_loop_reuse, repeats)
     floor_out_s, _ = _median_time(lambda: np.copyto(W_buf, W_ref), repeats)
-    return {"dynid_s": dynid_s, "dynid_runs": dynid_runs, "pinocchio_s": pin_s, "floor_s": floor_s,
+
+    # Paired: each dynid call timed beside a Pinocchio loop (CPU time), alternating which goes
+    # first; the median of the pairs' ratios follows the machine's load less than the ratio
+    # of two medians taken one block after the other.
+    paired = []
+    for r in range(pairs):
+        cpu = {}
+        for name, fn in (("dynid", lambda: regressor(robot, q, qd, qdd)), ("pinocchio", pin_loop))[::1 - 2 * (r % 2)]:
+            c0 = time.process_time()
+            fn()
+            cpu[name] = time.process_time() - c0
+        paired.append(cpu["dynid"] / cpu["pinocchio"])
+    return {"ratio_paired": statistics.median(paired), "paired_ratios": paired,"dynid_s": dynid_s, "dynid_runs": dynid_runs, "pinocchio_s": pin_s, "floor_s": floor_s,
             "pinocchio_runs": pin_runs, "max_rel_diff": agree, "pin_version": pin.__version__,
             "out_s": out_s, "out_runs": out_runs, "pinocchio_out_s": pin_out_s,
             "floor_out_s": floor_out_s}
@@ -200,6 +212,8 @@ def main(argv=None):
     print(f"   Pinocchio {s['pin_version']} computeJointTorqueRegressor loop  {s['pinocchio_s']:8.3f} s   "
           f"runs {', '.join(f'{t:.3f}' for t in s['pinocchio_runs'])}")
     ratio = s["dynid_s"] / s["pinocchio_s"]
+    print(f"   paired CPU ratios (dynid beside Pinocchio, {len(s['paired_ratios'])} pairs)  "
+          f"median {s['ratio_paired']:.3f}  ({', '.join(f'{x:.3f}' for x in s['paired_ratios'])})")
     ratio_cpu = _CPU["dynid"] / _CPU["pinocchio"]
     print(f"   ratio dynid / pinocchio                        {ratio:8.3f}  "
           f"({1 / ratio:.1f}x faster)" if ratio < 1 else f"   ratio dynid / pinocchio {ratio:8.3f}")
@@ -231,7 +245,8 @@ def main(argv=None):
     print(f"   the full {m['rows']:,} x {m['n_base']} regressor would take {m['full_regressor_mb']:,.0f} MB")
     print(f"\ntotal wall time {time.perf_counter() - t_all:.1f} s")
     print(json.dumps({"dynid_s": round(s["dynid_s"], 4), "pinocchio_s": round(s["pinocchio_s"], 4),
-                      "ratio": round(ratio, 4), "ratio_cpu": round(ratio_cpu, 4), "floor_s": round(s["floor_s"], 4),
+                      "ratio": round(ratio, 4), "ratio_cpu": round(ratio_cpu, 4),
+                      "ratio_paired": round(s["ratio_paired"], 4), "floor_s": round(s["floor_s"], 4),
                       "ratio_to_memory_floor": round(floor, 3), "peak_rss_mb_1M": round(m["peak_rss_mb"], 1),
                       "ratio_out_reused": round(ratio_out, 4), "ratio_out_to_memory_floor": round(floor_out, 3),
                       "n_samples": n_speed, "n_samples_memory": n_mem}))
