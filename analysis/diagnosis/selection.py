@@ -186,7 +186,7 @@ def diagnose(experiment, robot, *, validation=None, idim_result=None, settings=N
              joints=None, residual_analysis=True, confirm_on_validation=True, max_error_growth=0.02,
              progress=None, structure_tests=True, start_model="essential", base_guard=True,
              max_tries=5, hidden_tests=True, physical_tests=True, reselect_essential=True,
-             gear_ratios=None, rest_phases=True, observation=None):
+             gear_ratios=None, rest_phases=True, observation=None, uncertainty="classic"):
     """Find what the identified model of `robot` lacks in `experiment`.
 
     Parameters
@@ -261,6 +261,10 @@ def diagnose(experiment, robot, *, validation=None, idim_result=None, settings=N
         `observe_effects` of `experiment` with `idim_result`'s base parameters and settings,
         already built (e.g. the one `idim_result` was identified from: `dynid diagnose`
         builds the full-rate regressor once); default: built here.
+    uncertainty : {"classic", "hac", "bootstrap"}
+        Covariance of the identification made here when `idim_result` is None (as
+        `identify_idim`); the final model's σ take it. The decisions are taken on the
+        classic one either way. `dynid.diagnose` gives the run's default (bootstrap).
 
     Returns
     -------
@@ -274,7 +278,7 @@ def diagnose(experiment, robot, *, validation=None, idim_result=None, settings=N
         structure_tests=structure_tests, start_model=start_model, base_guard=base_guard,
         max_tries=max_tries, hidden_tests=hidden_tests, physical_tests=physical_tests,
         reselect_essential=reselect_essential, processing=settings, gear_ratios=gear_ratios,
-        rest_phases=rest_phases)
+        rest_phases=rest_phases, uncertainty=uncertainty)
     return run_diagnosis(experiment, robot, opts, validation=validation, idim_result=idim_result,
                          progress=progress, observation=observation)
 
@@ -410,7 +414,7 @@ def _identification(experiment, robot, opts, idim_result, notices, observation=N
             notices.append("model identified without the base parameters "
                            + ", ".join(opts.exclude_parameters))
         idim_result = identify_idim(experiment, robot, settings=opts.processing, bp=bp,
-                                    max_error_growth=opts.max_error_growth)
+                                    max_error_growth=opts.max_error_growth, uncertainty=opts.uncertainty)
     if observation is not None:
         if observation.bp is None or list(observation.bp.names) != list(idim_result.base.names):
             raise DataError("observation has other base parameters than idim_result; pass the "

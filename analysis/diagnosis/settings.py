@@ -6,6 +6,7 @@ import dataclasses
 from dataclasses import dataclass
 
 from dynid.analysis.diagnosis.effects import check_effect_names
+from dynid.analysis.estimators.least_squares import check_uncertainty
 from dynid.errors import InputError
 
 __all__ = ["DiagnosisSettings"]
@@ -37,6 +38,8 @@ class DiagnosisSettings:
     gear_ratios : (n,) gear ratios of the joints' motors, to name a line at a harmonic of the
         motor turn (None: from the data description's [transmission], when there is one).
     rest_phases : with validation data, score the friction-at-rest candidates (rest.py).
+    uncertainty : covariance of the identification made here ("classic", "hac", "bootstrap");
+        the final model's σ take it, the decisions are taken on the classic one.
     """
 
     effects: tuple | None = None
@@ -59,6 +62,7 @@ class DiagnosisSettings:
     processing: dict | None = None
     gear_ratios: tuple | None = None
     rest_phases: bool = True
+    uncertainty: str = "classic"
 
     def checked(self) -> DiagnosisSettings:
         """These settings with the effect names checked and expanded.
@@ -69,6 +73,7 @@ class DiagnosisSettings:
             An unknown effect name, `max_effects < 0`, `alpha` outside (0, 1) or
             fewer than 3 folds.
         """
+        check_uncertainty(self.uncertainty)
         effects = check_effect_names(self.effects)
         if self.max_effects < 0:
             raise InputError(f"max_effects must be >= 0, got {self.max_effects}")

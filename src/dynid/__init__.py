@@ -178,8 +178,8 @@ def diagnose(data: str | os.PathLike[str] | Experiment,
     idim_result : IDIMResult, optional
         The IDIM result of the same data (`dynid.identify(..., method="idim")`) to start
         from; the final model's σ take its covariance (`uncertainty`, bootstrap by
-        default). Default None: identified here, and the σ are the classic ones of
-        eq. (14) (`dynid diagnose` passes its own identification, so its σ are the run's).
+        default). Default None: identified here, with `uncertainty=` (default the run's,
+        bootstrap, as `dynid.identify` and `dynid diagnose`).
     **kwargs
         The options of `dynid.analysis.diagnosis.selection.diagnose`, among them
         `settings` (processing overrides), `effects` (the candidate effects' names),
@@ -205,6 +205,9 @@ def diagnose(data: str | os.PathLike[str] | Experiment,
     if idim_result is not None and getattr(idim_result, "observation", None) is None:
         raise InputError(f"diagnose: idim_result must be the IDIM result of the same data "
                          f"(dynid.identify(..., method='idim')), not {type(idim_result).__name__}")
+    if idim_result is None and "uncertainty" not in kwargs:     # the σ dynid.identify reports
+        from dynid.analysis.estimators.idim import DEFAULT_UNCERTAINTY
+        kwargs["uncertainty"] = DEFAULT_UNCERTAINTY
     if kwargs.get("progress") is not None:
         return _diagnose(experiment, robot, validation=valid, idim_result=idim_result, **kwargs)
     from dynid.progress import task

@@ -6,6 +6,7 @@ import json
 import warnings
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import dynid
@@ -333,3 +334,20 @@ def test_a_run_that_did_not_converge_names_the_outputs_that_say_so(recording, tm
     assert main([a for a in args if a != "--quiet"] + ["--csv", str(tmp_path / "f.csv")]) == 3
     captured = capsys.readouterr()
     assert "its summary says so; the CSV holds" in captured.err and "DID NOT CONVERGE" in captured.out
+
+
+def test_diagnose_without_an_identification_reports_the_runs_sigma():
+    """dynid.diagnose identified with the classic σ when given no identification, where
+    dynid.identify and `dynid diagnose` report the bootstrap's; the decisions do not change."""
+    sim = dynid.simulate("planar2", duration=6.0, seed=3)
+    train, held_out = dynid.holdout_split(sim.experiment, 2.0)
+    default = dynid.diagnose(train, "planar2", validation=held_out, effects=["offset", "stribeck"], max_effects=1)
+    classic = dynid.diagnose(train, "planar2", validation=held_out, effects=["offset", "stribeck"], max_effects=1,
+                             uncertainty="classic")
+    assert default.settings["parameters_uncertainty"] == "bootstrap"
+    assert classic.settings["parameters_uncertainty"] == "classic"
+    assert [s.name for s in default.selected] == [s.name for s in classic.selected]
+    assert np.array_equal(default.model_after.chi, classic.model_after.chi)
+    assert not np.allclose(default.model_after.bse, classic.model_after.bse)
+    with pytest.raises(dynid.InputError, match="uncertainty must be one of"):
+        dynid.diagnose(train, "planar2", uncertainty="robust")
