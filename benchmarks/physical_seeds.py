@@ -53,6 +53,9 @@ def main():
     ap.add_argument("--coverage", type=int, default=0, metavar="N",
                     help="also the coverage of the 95 %% intervals of PC-WLS (N bootstrap refits) and "
                          "of PC-DIDIM (its reported sigma, 1.96 sigma) over the seeds")
+    ap.add_argument("--didim-uncertainty", default="classic", choices=("classic", "hac", "bootstrap"),
+                    help="--didim: DIDIM's covariance (default classic, identify_didim's own; the run's "
+                         "default is bootstrap)")
     args = ap.parse_args()
     if args.didim_iter is None:
         from dynid.analysis.estimators.didim import DEFAULT_MAX_ITER
@@ -107,7 +110,8 @@ def main():
             # the simulation ran the robot file's controller: no gain update is needed
             from dynid.errors import InputError
             try:
-                plain = identify_didim(exp, robot, chi0=start, max_iter=args.didim_iter, essential=False, update_gains=False)
+                plain = identify_didim(exp, robot, chi0=start, max_iter=args.didim_iter, essential=False,
+                                       update_gains=False, uncertainty=args.didim_uncertainty)
             except InputError as e:
                 # a non-physical WLS start can have M(q) indefinite: DIDIM cannot simulate it, PC-DIDIM
                 # then starts from the PC-WLS estimate (physical, so M(q) is positive definite)
@@ -185,6 +189,7 @@ def main():
             "coverage_95_pc_didim_sigma": float(np.mean([r["pc_didim_sigma_hits"] for r in rows
                                                          if "pc_didim_sigma_hits" in r])),
             "coverage_95_didim": float(np.mean([r["didim_hits"] for r in rows if "didim_hits" in r])),
+            "didim_uncertainty": args.didim_uncertainty,
             "pc_didim_rows": int(sum("pc_didim_hits" in r for r in rows))}
            if args.coverage and args.didim and any("pc_didim_hits" in r for r in rows) else {}),
         "seconds": round(time.perf_counter() - t0, 1)}))
