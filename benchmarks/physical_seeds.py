@@ -145,6 +145,7 @@ def main():
                 row["pc_didim_sigma_hits"] = (np.abs(phys.physical.chi - beta)
                                               <= 1.96 * phys.physical.bse.to_numpy() + 1e-12).tolist()
                 row["didim_hits"] = (np.abs(plain.result.chi - beta) <= 1.96 * plain.result.bse.to_numpy()).tolist()
+                row["didim_converged"] = bool(plain.converged)
             print(f"  DIDIM metric {row['didim_metric']:.3f} PC-DIDIM {row['pc_didim_metric']:.3f}; relative "
                   f"{row['didim_rel']:.4f} / {row['pc_didim_rel']:.4f}", flush=True)
         rows.append(row)
@@ -189,6 +190,11 @@ def main():
             "coverage_95_pc_didim_sigma": float(np.mean([r["pc_didim_sigma_hits"] for r in rows
                                                          if "pc_didim_sigma_hits" in r])),
             "coverage_95_didim": float(np.mean([r["didim_hits"] for r in rows if "didim_hits" in r])),
+            # a run that did not converge makes no claim (exit 3, "NOT converged" in its verdict)
+            "coverage_95_didim_converged": float(np.mean([r["didim_hits"] for r in rows
+                                                          if r.get("didim_converged")] or [np.nan])),
+            "didim_converged_fraction": float(np.mean([r["didim_converged"] for r in rows
+                                                       if "didim_converged" in r] or [np.nan])),
             "didim_uncertainty": args.didim_uncertainty,
             "pc_didim_rows": int(sum("pc_didim_hits" in r for r in rows))}
            if args.coverage and args.didim and any("pc_didim_hits" in r for r in rows) else {}),
