@@ -82,6 +82,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from signalled import signal_when
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -1654,29 +1655,9 @@ def test_g14_unknown_option_after_the_data_is_still_refused(tmp_path, data):
 
 
 def _signal_when(proc, marker, sig, timeout=120.0):
-    """Send `sig` to proc once a stderr line holds `marker`; returns (stderr text, seconds to exit)."""
-    lines, seen = [], threading.Event()
-
-    def read():
-        for raw in proc.stderr:
-            lines.append(raw.decode("utf-8", "replace"))
-            if marker in lines[-1]:
-                seen.set()
-        seen.set()
-
-    reader = threading.Thread(target=read, daemon=True)
-    reader.start()
-    assert seen.wait(timeout), "the run never got under way"
-    time.sleep(1.0)                       # inside the compiled loop by now
-    t0 = time.monotonic()
-    proc.send_signal(sig)
-    try:
-        proc.wait(timeout=60)
-    except subprocess.TimeoutExpired:
-        os.killpg(proc.pid, signal.SIGKILL)
-        proc.wait()
-    reader.join(timeout=10)
-    return "".join(lines), time.monotonic() - t0
+    """Send `sig` to proc 1 s after a stderr line holds `marker` (inside the compiled loop by
+    then); returns (stderr text, seconds to exit)."""
+    return signal_when(proc, marker, lambda: proc.send_signal(sig), settle=1.0, timeout=timeout)
 
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, pytest.param(signal.SIGINT, marks=pytest.mark.slow)])

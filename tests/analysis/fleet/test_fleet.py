@@ -463,33 +463,15 @@ def test_ctrl_c_stops_a_local_fleet_without_a_traceback(small_fleet, tmp_path, m
     workers start and mid-run: one message, exit 130, no worker's traceback, no process left behind.
     Before, a worker still importing printed its KeyboardInterrupt traceback under dynid's message."""
     import subprocess
-    import threading
     import time
+
+    from signalled import signal_when
     pytest.importorskip("distributed")
     code = "import sys; from dynid.reports.cli import main; sys.exit(main())"
     proc = subprocess.Popen([sys.executable, "-c", code, "fleet", str(small_fleet.catalogue), "--out",
                              str(tmp_path / "store"), "--workers", "2"], cwd=tmp_path, stdin=subprocess.DEVNULL,
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
-    lines, seen = [], threading.Event()
-
-    def read():
-        for raw in proc.stderr:
-            lines.append(raw.decode("utf-8", "replace"))
-            if marker in lines[-1]:
-                seen.set()
-        seen.set()
-
-    reader = threading.Thread(target=read, daemon=True)
-    reader.start()
-    assert seen.wait(120), "the run never got under way"
-    os.killpg(proc.pid, signal.SIGINT)
-    try:
-        proc.wait(timeout=60)
-    except subprocess.TimeoutExpired:
-        os.killpg(proc.pid, signal.SIGKILL)
-        proc.wait()
-    reader.join(timeout=10)
-    err = "".join(lines)
+    err, _ = signal_when(proc, marker, lambda: os.killpg(proc.pid, signal.SIGINT))
     assert proc.returncode == 130, f"exit {proc.returncode} (the run ended before the signal?)\n{err}"
     assert "dynid: interrupted; the recordings finished so far are in the store" in err, err
     assert "Traceback" not in err and "ERROR" not in err, err
