@@ -109,7 +109,8 @@ Documented choices (all in `DIDIMResult.settings`, all overridable through
   +6 % on the independent plant at 0.05). `settings["v_s"]` is the value used,
   `settings["v_s_choice"]` how it was chosen (`"given"` for a number), and
   `settings["v_s_scan"]` the candidates with their ||rho||; `history["v_s"]` the
-  width each step simulated. If DIDIM does not converge at 0.05, v_s is not searched.
+  width each step simulated. If DIDIM does not converge at 0.05 it starts again at 0.0125
+  (`V_S_RETRY`); if not there either, v_s is not searched.
 * **Decimation and dead zone**: `nd` and the low-pass cut-off as IDIM
   derives them from the data (`dynid.analysis.processing.signals.default_settings` on
   `qr`; the paper's 100 and 20 Hz at 5 kHz); the velocity dead zone of
@@ -214,6 +215,8 @@ DEFAULT_V_S = "auto"
 V_S_START = 0.05            # rad/s, where the automatic choice of v_s starts (the former default)
 V_S_MIN = V_S_START / 32    # rad/s, smallest v_s tried: ~20 RK4 substeps on the TX40 at 5 kHz
 V_S_MAX = V_S_START * 8     # rad/s, largest v_s tried
+#: rad/s, where the choice starts again when DIDIM does not converge at V_S_START (mid-grid in log v_s)
+V_S_RETRY = V_S_START / 4
 DEFAULT_GUARD = 0.005
 DEFAULT_J_RATE = 1000.0
 DEFAULT_HALVINGS = 6
@@ -1327,7 +1330,11 @@ def _identify_auto_v_s(experiment, robot, *, settings, chi0, tol, max_iter, upda
     candidate, one Gauss-Newton step warm-started from the best estimate so far, and its
     least-squares residual `||rho||` (eq. (30)) as the candidate's score. The steps:
 
-    1. DIDIM to convergence at `V_S_START` (0.05 rad/s, the former default);
+    1. DIDIM to convergence at `V_S_START` (0.05 rad/s, the former default), or, when it does
+       not converge there, at `V_S_RETRY` (0.0125 rad/s) from the same start: a Coulomb
+       friction far sharper than the smoothing can keep the iteration from settling (on
+       simulated Pandas under a soft PD loop, 3 of the 9 runs that did not converge at 0.05
+       converged at 0.0125); the walk then starts from there;
     2. a walk on the factor-2 grid from there, downwards first (halving `v_s`), upwards
        if the first halving does not help, for as long as `||rho||` falls by more than
        `tol` (tol_I: a smaller change is inside the noise, as for the stopping rule),
@@ -1368,14 +1375,21 @@ def _identify_auto_v_s(experiment, robot, *, settings, chi0, tol, max_iter, upda
     first = run(V_S_START, chi0, max_iter, False, update_gains, part(0.0, 0.5))
     pc_options = dict(prior=kw.get("prior"), prior_weight=kw.get("prior_weight", 1.0),
                       mass_tolerance=kw.get("mass_tolerance"))
+    start = V_S_START
     if not first.converged:
-        return _keep_start_width(first, robot, final_cov, n_boot, pc_options, essential,
-                                 kw["max_error_growth"], bool(kw.get("physical")))
+        retry = run(V_S_RETRY, chi0, max_iter, False, update_gains)
+        if not retry.converged:
+            return _keep_start_width(first, robot, final_cov, n_boot, pc_options, essential,
+                                     kw["max_error_growth"], bool(kw.get("physical")), retry)
+        retry.notices.insert(0, f"DIDIM did not converge at the starting v_s = {V_S_START:g} rad/s "
+                                f"({first.stop_reason}); it started again at {V_S_RETRY:g} rad/s")
+        retry.settings["v_s_start_not_converged"] = first.stop_reason
+        first, start = retry, V_S_RETRY
     # the later runs continue the first one: "initial" updated the gains for chi^0 only
     cont = False if update_gains == "initial" else update_gains
     L0 = first._state[0]
     physical = bool(kw.get("physical"))
-    search = _WidthSearch(L0, first, cont, tol, physical, pc_options, progress)
+    search = _WidthSearch(L0, first, cont, tol, physical, pc_options, progress, start)
     search.walk()
     refined = search.refine()
     chosen = search.best()
@@ -1389,11 +1403,12 @@ def _identify_auto_v_s(experiment, robot, *, settings, chi0, tol, max_iter, upda
     return _with_width_choice(final, first, h2, t2, search, chosen, refined, update_gains)
 
 
-def _keep_start_width(first, robot, final_cov, n_boot, pc_options, essential, max_error_growth, physical):
-    """The first run, unconverged at `V_S_START`, finished as the result: the walk compares
-    converged residuals, and from an unconverged estimate it would compare the iteration's
-    progress, not the friction model. The robust covariance, the PC fit and the essential set
-    the final run would have made are made here."""
+def _keep_start_width(first, robot, final_cov, n_boot, pc_options, essential, max_error_growth, physical,
+                      retry=None):
+    """The first run, unconverged at `V_S_START` (and `retry`, at `V_S_RETRY`, too), finished as
+    the result: the walk compares converged residuals, and from an unconverged estimate it
+    would compare the iteration's progress, not the friction model. The robust covariance, the
+    PC fit and the essential set the final run would have made are made here."""
     if final_cov["uncertainty"] != "classic" or final_cov["gains"] is not None:
         L, last = first._state
         last["res_classic"] = last["res"]
@@ -1412,10 +1427,12 @@ def _keep_start_width(first, robot, final_cov, n_boot, pc_options, essential, ma
             first.essential = with_base_covariance(first.essential, first.result)
         for r in (first.essential.result, first.essential.base):
             r.data_hash, r.prismatic = first.data_hash, tuple(getattr(first.base, "prismatic", ()))
+    again = "" if retry is None else f" nor at {V_S_RETRY:g} rad/s ({retry.stop_reason})"
     first.settings["v_s_choice"] = (f"auto, not searched: DIDIM did not converge at the "
-                                    f"starting {V_S_START:g} rad/s")
+                                    f"starting {V_S_START:g} rad/s{again}")
     first.notices.append(f"v_s was not chosen from the data: DIDIM did not converge at the "
-                         f"starting v_s = {V_S_START:g} rad/s, which it kept")
+                         f"starting v_s = {V_S_START:g} rad/s{again}; the result is the run at "
+                         f"{V_S_START:g}")
     return first
 
 
@@ -1433,13 +1450,13 @@ class _WidthSearch:
     the final run continues it (one simulation less than a fresh start); `failed`: the
     widths whose step failed, with the reason."""
 
-    def __init__(self, L0, first, cont, tol, physical, pc_options, progress):
-        self.L0, self.cont, self.tol = L0, cont, tol
+    def __init__(self, L0, first, cont, tol, physical, pc_options, progress, start=V_S_START):
+        self.L0, self.cont, self.tol, self.start = L0, cont, tol, start
         self.physical, self.pc_options, self.progress = physical, pc_options, progress
         h1 = first.history
-        self.scan = {V_S_START: (float(h1["rho_norm"].iloc[-1]), _next_estimate(first._state[1]),
-                                 int(h1["substeps"].iloc[-1]))}
-        self.steps = {V_S_START: None}
+        self.scan = {start: (float(h1["rho_norm"].iloc[-1]), _next_estimate(first._state[1]),
+                             int(h1["substeps"].iloc[-1]))}
+        self.steps = {start: None}
         self.failed = []
 
     def best(self):
@@ -1465,10 +1482,10 @@ class _WidthSearch:
         return scan[v][0]
 
     def walk(self):
-        """Halve v_s from `V_S_START` while ||rho|| falls by more than tol_I (within V_S_MIN),
-        else double it (within V_S_MAX) while it does."""
+        """Halve v_s from the start width while ||rho|| falls by more than tol_I (within
+        V_S_MIN), else double it (within V_S_MAX) while it does."""
         for factor, bound in ((0.5, V_S_MIN), (2.0, V_S_MAX)):
-            v = V_S_START
+            v = self.start
             while True:
                 nxt = v * factor
                 if (factor < 1 and nxt < bound * (1 - 1e-9)) or (factor > 1 and nxt > bound * (1 + 1e-9)):
@@ -1476,7 +1493,7 @@ class _WidthSearch:
                 if self.evaluate(nxt) >= self.scan[v][0] * (1.0 - self.tol):
                     break
                 v = nxt
-            if v != V_S_START:
+            if v != self.start:
                 break           # the downward walk helped: no need to look upwards
 
     def refine(self) -> str:
@@ -1511,10 +1528,10 @@ def _with_width_choice(final, first, h2, t2, search, chosen, refined, update_gai
     rows = [{"v_s": float(v), "rho_norm": scan[v][0], "substeps": scan[v][2]} for v in sorted(scan)]
     at_edge = chosen <= V_S_MIN * (1 + 1e-9) or chosen >= V_S_MAX * (1 - 1e-9)
     how = (f"auto: smallest DIDIM residual ||rho|| over {len(rows)} candidate(s) "
-           f"({V_S_MIN:.3g}-{V_S_MAX:.3g} rad/s, factor-2 walk from {V_S_START:g}{refined})")
+           f"({V_S_MIN:.3g}-{V_S_MAX:.3g} rad/s, factor-2 walk from {search.start:g}{refined})")
     note = (f"v_s (the simulated Coulomb friction's smooth-sign width) chosen from the data: "
-            f"{chosen:.3g} rad/s, ||rho|| {scan[chosen][0]:.4g} against {scan[V_S_START][0]:.4g} at "
-            f"{V_S_START:g} (" + ", ".join(f"{r['v_s']:.3g}: {r['rho_norm']:.4g}" for r in rows) + ")"
+            f"{chosen:.3g} rad/s, ||rho|| {scan[chosen][0]:.4g} against {scan[search.start][0]:.4g} at "
+            f"{search.start:g} (" + ", ".join(f"{r['v_s']:.3g}: {r['rho_norm']:.4g}" for r in rows) + ")"
             + ("; at the end of the range searched: the friction may be sharper (or smoother) still"
                if at_edge else ""))
     s = dict(final.settings)
@@ -1540,7 +1557,7 @@ def _continue_at(experiment, L0, first, v, step, start, final_run, progress):
     started from the best estimate at another width; its estimate `start` is the one the next
     step simulates, so the iteration goes on from there (step `n1 + 1` of the whole history) and
     its criterion compares the next step's ||rho|| with the candidate's, as any DIDIM step does
-    with the previous one. At `V_S_START` the first run's last step is continued (`step` None).
+    with the previous one. At the start width the first run's last step is continued (`step` None).
     `final_run`: the run's options (update_gains, tol, max_iter, essential, physical, pc_options,
     n_boot, max_error_growth, uncertainty, gains). Returns (DIDIMResult of the final steps, their
     history rows, their timings), the steps numbered as steps of the whole history.

@@ -548,3 +548,31 @@ def test_an_experiment_file_says_its_torque_timing(tmp_path):
     (tmp_path / "bad.toml").write_text('[experiment]\nfile = "run.csv"\ntorque_timing = "middle"\n')
     with pytest.raises(DataError, match=r"bad.toml, \[experiment\]: torque_timing = 'middle'"):
         dynid.load_experiment(tmp_path / "bad.toml", "planar2")
+
+
+@pytest.mark.slow
+def test_v_s_starts_again_narrower_when_didim_does_not_converge_at_the_start_width():
+    """A simulated Panda under its soft PD loop (benchmarks/physical_seeds.py's seed 103): at
+    0.05 rad/s the iteration wanders at the 1 % level of ||rho|| for 10 steps; started again at
+    0.0125 rad/s it converges, and the width is then searched from there."""
+    import sys
+    from pathlib import Path
+
+    from dynid.analysis.data.synthetic import simulate_experiment
+    from dynid.analysis.estimators.didim import V_S_RETRY, V_S_START
+    sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "benchmarks"))
+    import physical_seeds
+    robot = load_robot("panda")
+    chi = physical_seeds.truth(robot, np.random.default_rng(15))
+    r = np.random.default_rng(1000 + 103)
+    exp = simulate_experiment(robot, chi, random_fourier_trajectory(robot, 0.1, 6, r), 6.0, rng=r,
+                              tau_noise=0.5, q_noise=1e-5)
+    start = identify_idim(exp, robot)
+    chi0 = dict(zip(start.base.names, start.wls.chi))
+    fixed = identify_didim(exp, robot, chi0=chi0, essential=False, update_gains=False, settings={"v_s": V_S_START})
+    assert not fixed.converged
+    auto = identify_didim(exp, robot, chi0=chi0, essential=False, update_gains=False)
+    assert auto.converged, auto.stop_reason
+    assert auto.settings["v_s_start_not_converged"] == fixed.stop_reason
+    assert f"walk from {V_S_RETRY:g}" in auto.settings["v_s_choice"]
+    assert any(f"it started again at {V_S_RETRY:g} rad/s" in n for n in auto.notices)

@@ -105,8 +105,9 @@ def _agreement(idim, didim):
 @pytest.mark.slow
 def test_didim_with_identified_gains_agrees_with_idim(plant_run):
     rec, robot, exp = plant_run
-    idim = dynid.identify(exp, robot)
-    didim = dynid.identify(exp, robot, "didim", gains="identify")
+    # the classic σ, as when these bounds were measured (the bootstrap's, the default, are wider)
+    idim = dynid.identify(exp, robot, uncertainty="classic")
+    didim = dynid.identify(exp, robot, "didim", gains="identify", uncertainty="classic")
     assert didim.converged and didim.gains is not None
     assert any("identified from the logged reference" in n for n in didim.notices)
     off, total = _agreement(idim, didim)
@@ -122,14 +123,13 @@ def test_didim_with_identified_gains_agrees_with_idim(plant_run):
     # doing: the plant's own gains give the same Ia3, and 40 integrator substeps too. Near the
     # reversals the simulated robot with the wider sign is another one. (The IDIM start of the
     # identified-gains path takes only IDIM's settings, so v_s reaches DIDIM alone.)
-    wide = dynid.identify(exp, robot, "didim", gains="identify", settings={"v_s": 0.05})
+    wide = dynid.identify(exp, robot, "didim", gains="identify", v_s=0.05, uncertainty="classic")
     off_wide, total = _agreement(idim, wide)
     print(f"with v_s 0.05: {total - len(off_wide)} of {total}; relative error {wide.model.rel_error:.4f}")
     assert 1 <= len(off_wide) <= 2 and wide.settings["v_s_choice"] == "given"
     assert didim.model.rel_error < wide.model.rel_error / 2
     # with the gains assumed in tx40.toml (wn = 60, PD) the simulated loop is another robot's
-    assumed = dynid.identify(exp, robot, "didim", gains="assumed", gain_update="initial",
-                             settings={"v_s": 0.05})
+    assumed = dynid.identify(exp, robot, "didim", gains="assumed", gain_update="initial", v_s=0.05)
     assert assumed.model.rel_error > 3 * wide.model.rel_error
     assert any("depend on those gains" in n for n in assumed.notices)
 
