@@ -1847,7 +1847,9 @@ def test_g11_simulate_says_what_it_leaves_out(tmp_path):
     full = run_dynid("simulate", "--robot", "planar2", "--duration", "1", "--out", "p.csv", "--json", "p.json",
                      cwd=tmp_path)
     assert full.rc == 0 and "without" not in full.err, str(full)
-    assert json.loads((tmp_path / "p.json").read_text())["notices"] == []
+    notices = json.loads((tmp_path / "p.json").read_text())["notices"]
+    assert not any("friction" in n or "rotor inertia" in n for n in notices), notices   # left nothing out
+    assert any("--torque-timing centred" in n for n in notices), notices               # how to read its torque
 
 
 def test_g4_equal_descriptions_of_two_recordings_are_accepted(tmp_path, data, frame):
