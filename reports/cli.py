@@ -93,7 +93,7 @@ def cmd_identify(args, say):
 
 
 def cmd_simulate(args, say):
-    from dynid.analysis.data.synthetic import missing_effects, simulate
+    from dynid.analysis.data.synthetic import TORQUE_TIMING_NOTICE, missing_effects, simulate
     from dynid.provenance import dumps_json
     _csv_out(args.out)
     robot = _robot(args)
@@ -104,7 +104,7 @@ def cmd_simulate(args, say):
         sim = simulate(robot, args.duration, seed=args.seed, f0=args.f0, harmonics=args.harmonics,
                        noise_q=args.noise_q, noise_tau=args.noise_tau, payload=args.carried_payload,
                        progress=bar.update)
-    say(f"notice: {sim.notices[-1]}")      # the torque timing, which DIDIM must be told
+    say(f"notice: {TORQUE_TIMING_NOTICE}")
     outputs = [(args.out, sim.to_csv())]
     if args.json:
         doc = sim.to_dict()

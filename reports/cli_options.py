@@ -236,6 +236,8 @@ GAIN_UPDATE_CHOICES = ("every", "initial", "none")
 #: dynid.analysis.estimators.idim.DEFAULT_UNCERTAINTY (not imported, as above; tested to agree)
 UNCERTAINTY_CHOICES = ("classic", "hac", "bootstrap")
 UNCERTAINTY_DEFAULT = "bootstrap"
+#: --torque-timing: dynid.analysis.data.record.TORQUE_TIMINGS (not imported, as above; tested to agree)
+TORQUE_TIMING_CHOICES = ("held", "centred")
 JSON_HELP = "write the results as JSON here ('-': to stdout)"
 REPORT_HELP = "write the HTML report here"
 
@@ -423,7 +425,7 @@ def _add_identify_parser(sub, common, full):
                    help=adv("DIDIM: the start: idim (IDIM's estimate with --gains identify, the paper's "
                             "eq. (31) with the assumed gains) or apriori (the robot file's a-priori "
                             "values, projected onto the physically consistent set if needed)"))
-    a.add_argument("--torque-timing", choices=["held", "centred"], default=None,
+    a.add_argument("--torque-timing", choices=list(TORQUE_TIMING_CHOICES), default=None,
                    help=adv("DIDIM: the logged torque is the command held over each period (held, the "
                             "default, as the paper) or centred on the samples (an integrating sensor; "
                             "what dynid simulate logs)"))
@@ -552,7 +554,7 @@ def _add_report_parsers(sub, common, full):
     a.add_argument("--gain-update", choices=list(GAIN_UPDATE_CHOICES), default="initial",
                    help=adv("DIDIM's derivative-gain update (see identify --help-all); initial: the "
                             "paper's every-step update oscillated on the demo data"))
-    a.add_argument("--torque-timing", choices=["held", "centred"], default=None,
+    a.add_argument("--torque-timing", choices=list(TORQUE_TIMING_CHOICES), default=None,
                    help=adv("DIDIM: the logged torque is held over each period (the default) or centred "
                             "on the samples (see identify --help-all)"))
     o = g["outputs"]

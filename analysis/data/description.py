@@ -100,6 +100,7 @@ from dynid.analysis.data.columns import (
     _to_float,
 )
 from dynid.analysis.data.readers import _RawFile, _read_bytes, _read_data_file
+from dynid.analysis.data.record import TORQUE_TIMINGS
 from dynid.analysis.data.timebase import TIME_STEP_TOLERANCE, _Options
 from dynid.errors import DataError
 
@@ -319,7 +320,7 @@ class _Description:
         opts, self.default_file = _experiment_options(exp, tk, self.path, label)
         meta: dict = {"description": label}
         timing = tk.field("experiment", exp, "torque_timing", _EXPERIMENT_FIELDS["torque_timing"])
-        if timing not in ("", "held", "centred"):
+        if timing and timing not in TORQUE_TIMINGS:
             raise tk.err("experiment", f"torque_timing = {timing!r}: give 'held' (the command held over each "
                                        "period, a controller's log) or 'centred' (centred on the samples, an "
                                        "integrating sensor); DIDIM models it")

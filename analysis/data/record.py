@@ -23,6 +23,9 @@ __all__ = ["Experiment", "SIGNALS", "checked_experiment"]
 
 #: Signal names of the column convention, in the order they are stored.
 SIGNALS = ("q", "qr", "qd", "qdd", "tau")
+#: when a recording's torque was sampled (`meta["torque_timing"]`): the command held over each
+#: period (a controller's log), or centred on the samples (an integrating sensor)
+TORQUE_TIMINGS = ("held", "centred")
 
 
 @dataclass(eq=False)
@@ -41,7 +44,8 @@ class Experiment:
     notices : what the loader ignored, converted, dropped or noticed.
     name : a name for reports (from a TOML `[experiment] name`, else the file stem).
     meta : loader facts, e.g. `reference_shift` (samples), `reference_shift_rms`
-        (rad), `start_offset`, `resampled`, `time_from`.
+        (rad), `start_offset`, `resampled`, `time_from`, `torque_timing` (one of
+        `TORQUE_TIMINGS`, when the recording says it).
     """
 
     t: np.ndarray

@@ -189,6 +189,12 @@ def simulate_experiment(robot, chi_st, trajectory, duration, *, rng, tau_noise, 
                       meta={"true_q": sim.q, "true_tau": tau_sensor, "torque_timing": "centred"})
 
 
+#: what `simulate` says of its torque, which DIDIM must be told when it reads the file back
+TORQUE_TIMING_NOTICE = ("the torques are an integrating sensor's, centred on the samples ((tau_k-1 + tau_k) / 2); "
+                        "DIDIM on this file needs --torque-timing centred (torque_timing='centred'), which this "
+                        "recording in memory says by itself")
+
+
 def missing_effects(robot) -> list:
     """What a simulation of `robot`'s a-priori values leaves out, in words (empty when nothing):
     the joints without friction (no nonzero Fv/Fc value) and a robot without rotor inertia (no
@@ -374,10 +380,7 @@ def simulate(robot, duration: float = 20.0, *, seed: int = 1, f0: float = 0.1, h
     traj = random_fourier_trajectory(robot, f0, harmonics, rng)
     exp = simulate_experiment(robot, chi, traj, duration, rng=rng, q_noise=noise_q, tau_noise=noise_tau,
                               progress=progress, name=f"simulated {robot.name} (seed {seed})")
-    notices = missing_effects(robot) + [
-        "the torques are an integrating sensor's, centred on the samples ((tau_k-1 + tau_k) / 2); DIDIM on "
-        "this file needs --torque-timing centred (torque_timing='centred'), which this recording in memory "
-        "says by itself"]
+    notices = missing_effects(robot) + [TORQUE_TIMING_NOTICE]
     exp.notices = list(exp.notices or []) + notices
     return SimulatedRecording(experiment=exp, robot=robot, trajectory=traj, chi=chi, seed=seed,
                               duration=duration, noise_q=noise_q, noise_tau=noise_tau, notices=notices,

@@ -157,6 +157,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
+from dynid.analysis.data.record import TORQUE_TIMINGS
 from dynid.analysis.estimators import least_squares as ls
 from dynid.analysis.estimators.essential import essential_parameters, with_base_covariance
 from dynid.analysis.estimators.physical import pc_wls, require_cvxpy
@@ -204,8 +205,6 @@ DIDIM_SETTINGS_HELP = {
 DIVERGED_RMS = 10.0
 #: rad: a joint reference spanning less than this does not move
 STILL_REFERENCE = 1e-3
-#: the torque timings DIDIM models (`torque_timing`)
-TORQUE_TIMINGS = ("held", "centred")
 #: IDIM's position-filter settings: accepted, ignored (the simulated derivatives are exact).
 IGNORED_SETTINGS = ("fc_position", "order", "edge")
 

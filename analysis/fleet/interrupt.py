@@ -56,25 +56,25 @@ def start_local_cluster(distributed, **options):
             cluster = distributed.LocalCluster(**options)
     except KeyboardInterrupt:          # the second Ctrl-C, while the cluster starts
         for half in set(getattr(distributed.SpecCluster, "_instances", ())) - before:
-            former = {}
-            try:
-                stop_after_interrupt(half, former)
-                with contextlib.suppress(Exception):
-                    half.close(timeout=2)
-                half.shutdown_on_close = False      # Dask's exit handler would wait 10 s, then fail
-            finally:
-                restore_logs(former)
+            _close_quietly(half, timeout=2)
+            half.shutdown_on_close = False      # Dask's exit handler would wait 10 s, then fail
         raise
     if held:
-        former = {}
-        try:
-            stop_after_interrupt(cluster, former)
-            with contextlib.suppress(Exception):
-                cluster.close()
-        finally:
-            restore_logs(former)
+        _close_quietly(cluster)
         raise KeyboardInterrupt
     return cluster
+
+
+def _close_quietly(cluster, timeout=None):
+    """Stop the workers and close `cluster` with Dask's loggers quiet; errors of the close are
+    not the user's (the run is being interrupted)."""
+    former = {}
+    try:
+        stop_after_interrupt(cluster, former)
+        with contextlib.suppress(Exception):
+            cluster.close(timeout=timeout)
+    finally:
+        restore_logs(former)
 
 
 def _start_deaf_forkserver():

@@ -58,6 +58,11 @@ def test_gain_update_names_are_the_orchestrators():
     assert tuple(cli_options.GAIN_UPDATE_CHOICES) == tuple(steps.GAIN_UPDATES)
 
 
+def test_torque_timing_names_are_the_recordings():
+    from dynid.analysis.data.record import TORQUE_TIMINGS
+    assert tuple(cli_options.TORQUE_TIMING_CHOICES) == TORQUE_TIMINGS
+
+
 def test_robot(tmp_path):
     js = tmp_path / "r.json"
     assert main(["robot", "planar2", "--json", str(js), "--quiet"]) == 0
