@@ -49,8 +49,8 @@ from statsmodels.stats.sandwich_covariance import S_hac_simple
 #: Largest memory (bytes) the bootstrap spends on the per-sample information matrices.
 MAX_BOOT_BYTES = 256 * 2**20
 
-__all__ = ["sample_scores", "andrews_bandwidth", "block_length", "politis_white_block", "hac_covariance",
-           "bootstrap_covariance", "score_ar1", "BOOT_SPREAD"]
+__all__ = ["sample_scores", "andrews_bandwidth", "block_length", "politis_white_block", "parameter_blocks",
+           "hac_covariance", "bootstrap_covariance", "score_ar1", "BOOT_SPREAD"]
 
 #: How the bootstrap turns its replicates into standard deviations.
 BOOT_SPREAD = ("percentile", "cov")
@@ -238,6 +238,55 @@ def hac_covariance(W3, tau, mask, chi, weights, bread_inv, *, groups=None, bandw
                                  "score_ar1": float(np.median(score_ar1(g))) if g.size else 0.0}
 
 
+def _on_grid(b: float) -> int:
+    """b rounded, in log scale, to a power of two.
+
+    The bootstrap variance changes slowly with the block near the optimum, so
+    blocks within a factor √2 share one set of replicates.
+    """
+    return int(2 ** round(math.log2(max(b, 1.0))))
+
+
+def parameter_blocks(g: np.ndarray, B: np.ndarray, groups=None) -> np.ndarray:
+    """Politis & White block of each parameter, from its own influence series.
+
+    The estimate's error is, to first order, Σ_t u_t with u_t = B⁻¹ g_t (B the
+    information W̃ᵀW̃, g_t the scores), so parameter i is the sum of the series
+    u_·i and Politis & White's rule, derived for the mean of one series, applies
+    to it as it stands. The median over the score columns (`politis_white_block`)
+    fits most parameters of a trajectory, but not those whose regressor is slow:
+    a joint offset (a constant column) or a Coulomb term whose sign changes a few
+    times; their influence series carry the low-frequency part of the residual
+    (drift, a position ripple the model lacks) that short blocks cut.
+
+    Parameters
+    ----------
+    g : array (T, s)
+        Scores, in time order.
+    B : array (s, s)
+        Information of the fit (positive definite).
+    groups : array (T,), optional
+        Independent series (recordings).
+
+    Returns
+    -------
+    array (s,) of int
+        Each parameter's block: the median of its groups' rule, at least 1 and
+        at most a third of the shortest group.
+    """
+    d = np.sqrt(np.diag(B))
+    L = np.linalg.cholesky(B / np.outer(d, d))
+    u = np.linalg.solve(L.T, np.linalg.solve(L, (g / d).T)).T / d
+    parts = [idx for idx in _groups(g.shape[0], groups) if idx.size >= 8]
+    cap = max(1, min((idx.size for idx in _groups(g.shape[0], groups)), default=1) // 3)
+    out = np.ones(g.shape[1], dtype=int)
+    for i in range(g.shape[1]):
+        bs = [_pw_one(u[idx, i]) for idx in parts if np.ptp(u[idx, i]) > 0]
+        if bs:
+            out[i] = min(max(1, math.ceil(np.median(bs))), cap)
+    return out
+
+
 def bootstrap_covariance(W3, tau, mask, chi, weights, *, groups=None, n_boot: int = 300,
                          block: int | str | None = None, spread: str = "percentile",
                          seed: int = 0) -> tuple[np.ndarray, dict]:
@@ -251,6 +300,12 @@ def bootstrap_covariance(W3, tau, mask, chi, weights, *, groups=None, n_boot: in
     Replicates whose information is singular are skipped (counted in
     `info["failed"]`).
 
+    With the default rule each parameter's spread comes from replicates drawn
+    with its own block (`parameter_blocks`, on a grid of blocks a factor
+    √2 apart); the correlations, and the spread of every parameter whose block
+    is on the grid point of the scores' block (`politis_white_block`), come
+    from the replicates drawn with the scores' block.
+
     Parameters
     ----------
     W3, tau, mask, chi, weights
@@ -258,10 +313,12 @@ def bootstrap_covariance(W3, tau, mask, chi, weights, *, groups=None, n_boot: in
     groups : array (N,), optional
         Recording of each sample: no block crosses from one recording to the next.
     n_boot : int
-        Replicates.
-    block : int or {"politis-white", "ar1"}, optional
-        Block length in samples, or the rule that chooses it from the scores:
-        `politis_white_block` (default) or the AR(1) plug-in `block_length`.
+        Replicates (per block).
+    block : int or {"politis-white", "politis-white-scores", "ar1"}, optional
+        Block length in samples, or the rule that chooses it: "politis-white"
+        (default) per parameter as above; "politis-white-scores" one block for
+        all, `politis_white_block` of the scores; "ar1" the AR(1) plug-in
+        `block_length`.
     spread : {"percentile", "cov"}
         "percentile": σ_i = (q97.5 − q2.5)/(2 · 1.96) of the replicates, with
         their correlations (module doc); "cov": the replicates' covariance.
@@ -272,28 +329,33 @@ def bootstrap_covariance(W3, tau, mask, chi, weights, *, groups=None, n_boot: in
     -------
     cov : array (s, s)
     info : dict
-        `block`, `block_rule`, `spread`, `n_boot`, `failed`, `seed`, `samples`
-        (the samples with equations).
+        `block` (the scores' block, behind the correlations), `block_rule`,
+        `parameter_blocks` (each parameter's block), `spread`, `n_boot`,
+        `failed` (of the scores' block's replicates), `failed_longer` (of the
+        longer blocks' replicates), `seed`, `samples` (the samples with
+        equations).
 
     Raises
     ------
     ValueError
-        Fewer than max(20, n_boot/2) replicates could be refitted.
+        Fewer than max(20, n_boot/2) replicates of one block could be refitted.
     """
     if spread not in BOOT_SPREAD:
         raise ValueError(f"spread must be one of {BOOT_SPREAD}, got {spread!r}")
-    rng = np.random.default_rng(seed)
     g, Wt = sample_scores(W3, tau, mask, chi, weights)
     live = np.asarray(mask, dtype=bool).any(axis=1)
     grp = np.zeros(g.shape[0], dtype=int) if groups is None else np.asarray(groups).reshape(-1)
     parts = [idx for idx in (np.flatnonzero(live & (grp == k)) for k in np.unique(grp)) if idx.size]
+    used = np.concatenate(parts)
     rule = block if isinstance(block, str) or block is None else "given"
-    if rule in (None, "politis-white"):
-        block, rule = politis_white_block(g[np.concatenate(parts)], grp[np.concatenate(parts)]), "politis-white"
+    if rule in (None, "politis-white", "politis-white-scores"):
+        block = politis_white_block(g[used], grp[used])
+        rule = "politis-white" if rule is None else rule
     elif rule == "ar1":
-        block = block_length(g[np.concatenate(parts)])
+        block = block_length(g[used])
     elif rule != "given":
-        raise ValueError(f"block must be a number of samples, 'politis-white' or 'ar1', got {block!r}")
+        raise ValueError(f"block must be a number of samples, 'politis-white', 'politis-white-scores' or "
+                         f"'ar1', got {block!r}")
     block = int(block)
     w = np.where(mask, np.asarray(weights, dtype=float)[None, :], 0.0)
     yt = np.where(mask, tau, 0.0) * w
@@ -301,7 +363,48 @@ def bootstrap_covariance(W3, tau, mask, chi, weights, *, groups=None, n_boot: in
     N, s = g.shape
     A = np.einsum("tjs,tjk->tsk", Wt, Wt) if N * s * s * 8 <= MAX_BOOT_BYTES else None
     c = np.einsum("tjs,tj->ts", Wt, yt)
-    draws, failed = [], 0
+    D, failed = _replicates(Wt, A, c, parts, block, n_boot, np.random.default_rng(seed))
+    cov = np.cov(D, rowvar=False).reshape(s, s)
+    spread_of = {block: _spread(D, cov, spread)}
+    blocks, failed_longer = np.full(s, block), 0
+    if rule == "politis-white":
+        B = A.sum(axis=0) if A is not None else np.einsum("tjs,tjk->sk", Wt, Wt)
+        cap = max(1, min(idx.size for idx in parts) // 3)
+        own = parameter_blocks(g[used], B, grp[used])
+        # never shorter than the scores' block: a short block biases the spread down, a long one only adds noise
+        blocks = np.array([min(_on_grid(b), cap) if _on_grid(b) > _on_grid(block) else block for b in own])
+        for b in np.unique(blocks[blocks != block]):
+            try:
+                Db, fb = _replicates(Wt, A, c, parts, int(b), n_boot, np.random.default_rng([seed, int(b)]))
+            except ValueError:   # too few samples for blocks that long: the scores' block stands in
+                blocks[blocks == b], failed_longer = block, failed_longer + n_boot
+                continue
+            spread_of[int(b)] = _spread(Db, np.cov(Db, rowvar=False).reshape(s, s), spread)
+            failed_longer += fb
+    # a longer block's spread below the scores' block's is the replicates' noise, not information
+    sd = np.maximum([spread_of[int(b)][i] for i, b in enumerate(blocks)], spread_of[block])
+    sd0 = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        C = np.where(np.outer(sd0, sd0) > 0, cov / np.outer(sd0, sd0), 0.0)
+    np.fill_diagonal(C, 1.0)
+    cov = C * np.outer(sd, sd)
+    return cov, {"block": block, "block_rule": rule, "parameter_blocks": [int(b) for b in blocks],
+                 "spread": spread, "n_boot": int(n_boot), "failed": int(failed),
+                 "failed_longer": int(failed_longer), "seed": int(seed),
+                 "samples": int(sum(p.size for p in parts))}
+
+
+def _spread(D: np.ndarray, cov: np.ndarray, spread: str) -> np.ndarray:
+    """Each parameter's σ from its replicates D: 95 % percentile half-width / 1.96, or their std."""
+    if spread == "percentile":
+        lo, hi = np.percentile(D, [2.5, 97.5], axis=0)
+        return (hi - lo) / (2 * 1.959963984540054)
+    return np.sqrt(np.maximum(np.diag(cov), 0.0))
+
+
+def _replicates(Wt, A, c, parts, block, n_boot, rng) -> tuple[np.ndarray, int]:
+    """The refitted estimates of `n_boot` circular-block draws of length `block`, and how many failed."""
+    N, s = c.shape
     counts_all = np.zeros((n_boot, N))
     for r in range(n_boot):
         counts = counts_all[r]
@@ -314,9 +417,9 @@ def bootstrap_covariance(W3, tau, mask, chi, weights, *, groups=None, n_boot: in
     # every replicate's information in one matrix product: A is read once, not once per replicate
     A_all = (counts_all @ A.reshape(N, s * s)).reshape(n_boot, s, s) if A is not None else None
     c_all = counts_all @ c
+    draws, failed = [], 0
     for r in range(n_boot):
-        counts = counts_all[r]
-        As = A_all[r] if A_all is not None else np.einsum("tjs,t,tjk->sk", Wt, counts, Wt)
+        As = A_all[r] if A_all is not None else np.einsum("tjs,t,tjk->sk", Wt, counts_all[r], Wt)
         cs = c_all[r]
         d = np.sqrt(np.diag(As))
         if not np.all(d > 0):
@@ -330,15 +433,4 @@ def bootstrap_covariance(W3, tau, mask, chi, weights, *, groups=None, n_boot: in
         draws.append(np.linalg.solve(L.T, np.linalg.solve(L, cs / d)) / d)
     if len(draws) < max(20, n_boot // 2):
         raise ValueError(f"only {len(draws)} of {n_boot} bootstrap replicates could be refitted")
-    D = np.asarray(draws)
-    cov = np.cov(D, rowvar=False).reshape(s, s)
-    if spread == "percentile":
-        lo, hi = np.percentile(D, [2.5, 97.5], axis=0)
-        sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            C = np.where(np.outer(sd, sd) > 0, cov / np.outer(sd, sd), 0.0)
-        np.fill_diagonal(C, 1.0)
-        half = (hi - lo) / (2 * 1.959963984540054)
-        cov = C * np.outer(half, half)
-    return cov, {"block": block, "block_rule": rule, "spread": spread, "n_boot": int(n_boot),
-                 "failed": int(failed), "seed": int(seed), "samples": int(sum(p.size for p in parts))}
+    return np.asarray(draws), failed

@@ -482,7 +482,8 @@ _UNCERTAINTY_LABEL = {
     "classic": "classic: sigma_rho^2 (W'W)^-1 of eqs. (13)-(14), samples counted as independent",
     "hac": "hac: Newey-West sandwich, Bartlett kernel, Andrews (1991) bandwidth, scores summed over joints per sample",
     "bootstrap": ("bootstrap: circular block bootstrap of the decimated samples with equations (Politis & "
-                  "Romano 1992), block length of Politis & White (2004), sigma = 95 % percentile half-width / 1.96"),
+                  "Romano 1992), block length of Politis & White (2004) from the scores, longer for a parameter "
+                  "whose own influence series needs it, sigma = 95 % percentile half-width / 1.96"),
 }
 
 
@@ -694,13 +695,22 @@ def _unc_notice(unc: dict) -> list[str]:
     if unc["uncertainty"] == "classic":
         return []
     extra = (f"bandwidth {unc['bandwidth']:.3g} samples" if unc["uncertainty"] == "hac"
-             else f"blocks of {unc['block']} samples ({unc.get('block_rule', 'given')} rule), "
+             else f"blocks of {unc['block']} samples ({unc.get('block_rule', 'given')} rule"
+                  f"{_longer_blocks(unc)}), "
                   f"{unc['n_boot'] - unc['failed']} replicates, sigma from "
                   f"{'their 95 % percentile interval' if unc.get('spread') == 'percentile' else 'their covariance'}")
     note = f"sigma is the {unc['uncertainty']} covariance ({extra}), not the classic eq. (14)."
     if "fallback" in unc:
         note += f" The {unc['requested']} covariance was asked for: {unc['fallback']}."
     return [note]
+
+
+def _longer_blocks(unc: dict) -> str:
+    longer = sorted({b for b in unc.get("parameter_blocks", []) if b != unc["block"]})
+    if not longer:
+        return ""
+    n = sum(b != unc["block"] for b in unc["parameter_blocks"])
+    return f"; {n} parameter{'s' if n > 1 else ''} with longer blocks of {', '.join(map(str, longer))}"
 
 
 def _joint_sigma(system: _System, rank_rtol: float) -> np.ndarray:
