@@ -356,6 +356,36 @@ def test_politis_white_block_agrees_with_arch():
     np.testing.assert_allclose(ours, theirs, rtol=0.15)
 
 
+def test_a_slow_parameter_gets_its_own_longer_block():
+    # an offset (a constant column) beside fast regressors, AR(1) 0.8 noise: the offset's error is
+    # the mean of the noise, correlated over tens of samples, while the fast columns' scores are
+    # nearly white, so the scores' median block is 1-2 samples and cuts the offset's correlation.
+    # Its own block (Politis & White on its influence series) restores the coverage; truth known
+    # (Monte Carlo, no dynid simulator)
+    rng = np.random.default_rng(24)
+    T, s, reps = 400, 6, 60
+    chi = np.arange(1.0, s + 1)
+    hits = {"politis-white": 0, "politis-white-scores": 0}
+    ratio = []
+    for rep in range(reps):
+        W3 = np.ones((T, 1, s))
+        W3[:, 0, 1:] = rng.standard_normal((T, s - 1))
+        tau = W3 @ chi + _ar1(rng, (T, 1), 0.8) * 0.2
+        r = ls.ols(W3, tau, [f"p{k}" for k in range(s)])
+        sig, info = {}, {}
+        for rule in hits:
+            cov, info[rule] = hac.bootstrap_covariance(W3, tau, np.ones(tau.shape, bool), r.chi, np.ones(1),
+                                                       n_boot=150, seed=rep, block=rule)
+            sig[rule] = np.sqrt(np.diag(cov))
+            hits[rule] += int(abs(r.chi[0] - chi[0]) <= 1.96 * sig[rule][0])
+        assert info["politis-white"]["parameter_blocks"][0] > info["politis-white"]["block"]
+        ratio.append(sig["politis-white"][1:] / sig["politis-white-scores"][1:])
+    assert hits["politis-white-scores"] / reps <= 0.8
+    assert hits["politis-white"] / reps >= 0.87
+    # the fast parameters keep (about) the scores' block's spread, never a smaller one
+    assert np.min(ratio) >= 1.0 and np.median(ratio) < 1.05
+
+
 def test_bootstrap_of_a_segment_is_that_of_the_segment_alone():
     # the samples a row mask leaves without equations are not drawn: a segment of a system
     # (agreement.segments) gets the bootstrap of that segment cut out, draw for draw
