@@ -55,9 +55,14 @@ for _p in (ROOT, ROOT / "benchmarks", ROOT / "tests" / "support"):
 OPTIONS = ("classic", "hac", "bootstrap", "bootstrap+gains")
 
 
-def run_seed(seed, duration=4.0, gains="identify", options=OPTIONS, essential=False):
+def run_seed(seed, duration=4.0, gains="identify", options=OPTIONS, essential=False, block_rule=None):
     import coverage_independent as ci
     import didim_gains as dg
+    if block_rule is not None:   # the bootstrap's block rule, for a paired comparison on the same seeds
+        import functools
+
+        from dynid.analysis.estimators import hac
+        hac.bootstrap_covariance = functools.partial(hac.bootstrap_covariance, block=block_rule)
 
     from dynid.analysis.estimators.controller_gains import identify_gains
     from dynid.analysis.estimators.didim import didim_covariance, identify_didim
@@ -176,6 +181,9 @@ def main(argv=None):
     ap.add_argument("--options", default=",".join(OPTIONS))
     ap.add_argument("--essential", action="store_true",
                     help="DIDIM with its essential set and the default covariance (and the gains' share)")
+    ap.add_argument("--block-rule", default=None, choices=("politis-white", "politis-white-scores"),
+                    help="the bootstrap's block rule (default dynid's); politis-white-scores: one block for "
+                         "every parameter, the rule before 47dcc42")
     ap.add_argument("--out", default=None, help="JSON lines, one per seed (appended; seeds done are skipped)")
     ap.add_argument("--summarize", nargs="+", default=None, metavar="JSONL",
                     help="only print the headline of the rows in these files (no new runs)")
@@ -204,13 +212,14 @@ def main(argv=None):
         n = len(seeds)
         with ProcessPoolExecutor(a.workers) as ex:
             for row in ex.map(run_seed, seeds, [a.duration] * n, [a.gains] * n, [options] * n,
-                              [a.essential] * n):
+                              [a.essential] * n, [a.block_rule] * n):
                 record(row)
     else:
         for s in seeds:
-            record(run_seed(s, a.duration, a.gains, options, a.essential))
+            record(run_seed(s, a.duration, a.gains, options, a.essential, a.block_rule))
     out = headline(rows)
     out.update({"first_seed": a.start, "duration_s": a.duration, "gains": a.gains, "essential": a.essential,
+                "block_rule": a.block_rule or "politis-white",
                 "campaign_seconds": time.time() - t0})
     print(json.dumps(out))
 
