@@ -18,8 +18,9 @@ stacked, per-joint weighted system of eq. (16):
   is the automatic rule of Politis & White (2004) with the correction of
   Patton, Politis & White (2009) (flat-top lag window, no parametric model of
   the scores), the median over the score columns; a parameter whose own
-  influence series (B⁻¹g_t) asks for a longer block by that rule gets its
-  spread from replicates drawn with that block; the standard deviation of
+  influence series (B⁻¹g_t) asks for a longer block by that rule (rounded to
+  a power of two) gets its spread from replicates drawn with that block as
+  well, and the larger of the two spreads; the standard deviation of
   each parameter is the half-width of its 2.5-97.5 % percentile interval over
   1.96, the correlations those of the replicates of the common block.
 
@@ -29,8 +30,10 @@ part of the residual (drift, an effect of the position the model lacks). On
 the independent plant (coloured noise, a position ripple on joint 1) the offset
 of joint 1 got blocks of 4 samples where its own series asks for 16-32, and its
 intervals covered 79 % (held-out seeds 14000-14099); with its own block 94 %, and
-the median σ over all parameters unchanged. Why never a shorter block: a short block
-biases the spread down, a long one only makes it noisier.
+the median σ over all parameters unchanged. Why never a shorter block than the common
+one, and σ the larger of the two spreads: a short block biases the spread down (it cuts
+the correlation beyond it); a long one is noisier, and biased down too when it is a
+large part of the record (about b/T of the variance).
 
 Why the percentile half-width and not the replicates' variance: with ~200
 decimated samples and 60-70 parameters, a replicate that misses a short
@@ -311,11 +314,14 @@ def bootstrap_covariance(W3, tau, mask, chi, weights, *, groups=None, n_boot: in
     Replicates whose information is singular are skipped (counted in
     `info["failed"]`).
 
-    With the default rule each parameter's spread comes from replicates drawn
-    with its own block (`parameter_blocks`, on a grid of blocks a factor
-    √2 apart); the correlations, and the spread of every parameter whose block
-    is on the grid point of the scores' block (`politis_white_block`), come
-    from the replicates drawn with the scores' block.
+    With the default rule the common block is that of the scores
+    (`politis_white_block`), and a parameter whose own block (`parameter_blocks`,
+    rounded to a power of two and at most a third of the shortest recording) is
+    longer gets its spread from replicates drawn with that block too: its σ is
+    the larger of the two spreads. The correlations are those of the common
+    block's replicates. When a longer block's replicates cannot be refitted
+    (too few, singular), its parameters take the longest shorter block that
+    could, and `info["longer_blocks_failed"]` names it.
 
     Parameters
     ----------
@@ -340,16 +346,17 @@ def bootstrap_covariance(W3, tau, mask, chi, weights, *, groups=None, n_boot: in
     -------
     cov : array (s, s)
     info : dict
-        `block` (the scores' block, behind the correlations), `block_rule`,
-        `parameter_blocks` (each parameter's block), `spread`, `n_boot`,
-        `failed` (of the scores' block's replicates), `failed_longer` (of the
-        longer blocks' replicates), `seed`, `samples` (the samples with
-        equations).
+        `block` (the common block, behind the correlations), `block_rule`,
+        `parameter_blocks` (each parameter's block), `spread`, `n_boot` (per
+        block), `failed` (of the common block's replicates), `failed_longer`
+        (of the longer blocks' replicates), `longer_blocks_failed` (the longer
+        blocks given up), `seed`, `samples` (the samples with equations).
 
     Raises
     ------
     ValueError
-        Fewer than max(20, n_boot/2) replicates of one block could be refitted.
+        Fewer than max(20, n_boot/2) replicates of the common block could be
+        refitted.
     """
     if spread not in BOOT_SPREAD:
         raise ValueError(f"spread must be one of {BOOT_SPREAD}, got {spread!r}")
@@ -375,24 +382,29 @@ def bootstrap_covariance(W3, tau, mask, chi, weights, *, groups=None, n_boot: in
     A = np.einsum("tjs,tjk->tsk", Wt, Wt) if N * s * s * 8 <= MAX_BOOT_BYTES else None
     c = np.einsum("tjs,tj->ts", Wt, yt)
     D, failed = _replicates(Wt, A, c, parts, block, n_boot, np.random.default_rng(seed))
+    if len(D) < max(20, n_boot // 2):
+        raise ValueError(f"only {len(D)} of {n_boot} bootstrap replicates could be refitted")
     cov = np.cov(D, rowvar=False).reshape(s, s)
     spread_of = {block: _spread(D, cov, spread)}
-    blocks, failed_longer = np.full(s, block), 0
+    blocks, failed_longer, given_up = np.full(s, block), 0, []
     if rule == "politis-white":
         B = A.sum(axis=0) if A is not None else np.einsum("tjs,tjk->sk", Wt, Wt)
         cap = max(1, min(idx.size for idx in parts) // 3)
         own = parameter_blocks(g[used], B, grp[used])
-        # never shorter than the scores' block: a short block biases the spread down, a long one only adds noise
+        # never shorter than the common block: a short block biases the spread down (it cuts the
+        # correlation beyond it); a longer one is noisier, and biased down too when it is a large
+        # part of the record (about b/T of the variance), which the larger of the two spreads offsets
         blocks = np.array([min(_on_grid(b), cap) if _on_grid(b) > _on_grid(block) else block for b in own])
-        for b in np.unique(blocks[blocks != block]):
-            try:
-                Db, fb = _replicates(Wt, A, c, parts, int(b), n_boot, np.random.default_rng([seed, int(b)]))
-            except ValueError:   # too few samples for blocks that long: the scores' block stands in
-                blocks[blocks == b], failed_longer = block, failed_longer + n_boot
-                continue
-            spread_of[int(b)] = _spread(Db, np.cov(Db, rowvar=False).reshape(s, s), spread)
+        done = block
+        for b in np.unique(blocks[blocks != block]):   # shortest first
+            Db, fb = _replicates(Wt, A, c, parts, int(b), n_boot, np.random.default_rng([seed, int(b)]))
             failed_longer += fb
-    # a longer block's spread below the scores' block's is the replicates' noise, not information
+            if len(Db) < max(20, n_boot // 2):   # too few samples for blocks that long
+                blocks[blocks == b] = done
+                given_up.append(int(b))
+                continue
+            spread_of[int(b)], done = _spread(Db, np.cov(Db, rowvar=False).reshape(s, s), spread), int(b)
+    # a longer block's spread below the common block's is the replicates' noise, not information
     sd = np.maximum([spread_of[int(b)][i] for i, b in enumerate(blocks)], spread_of[block])
     sd0 = np.sqrt(np.maximum(np.diag(cov), 0.0))
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -401,7 +413,7 @@ def bootstrap_covariance(W3, tau, mask, chi, weights, *, groups=None, n_boot: in
     cov = C * np.outer(sd, sd)
     return cov, {"block": block, "block_rule": rule, "parameter_blocks": [int(b) for b in blocks],
                  "spread": spread, "n_boot": int(n_boot), "failed": int(failed),
-                 "failed_longer": int(failed_longer), "seed": int(seed),
+                 "failed_longer": int(failed_longer), "longer_blocks_failed": given_up, "seed": int(seed),
                  "samples": int(sum(p.size for p in parts))}
 
 
@@ -414,7 +426,8 @@ def _spread(D: np.ndarray, cov: np.ndarray, spread: str) -> np.ndarray:
 
 
 def _replicates(Wt, A, c, parts, block, n_boot, rng) -> tuple[np.ndarray, int]:
-    """The refitted estimates of `n_boot` circular-block draws of length `block`, and how many failed."""
+    """The refitted estimates of `n_boot` circular-block draws of length `block` (the singular ones
+    left out), and how many were left out."""
     N, s = c.shape
     counts_all = np.zeros((n_boot, N))
     for r in range(n_boot):
@@ -442,6 +455,4 @@ def _replicates(Wt, A, c, parts, block, n_boot, rng) -> tuple[np.ndarray, int]:
             failed += 1
             continue
         draws.append(np.linalg.solve(L.T, np.linalg.solve(L, cs / d)) / d)
-    if len(draws) < max(20, n_boot // 2):
-        raise ValueError(f"only {len(draws)} of {n_boot} bootstrap replicates could be refitted")
-    return np.asarray(draws), failed
+    return np.asarray(draws).reshape(-1, s), failed

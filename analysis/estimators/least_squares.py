@@ -522,6 +522,8 @@ def _robust(system, fit, weights, uncertainty, groups, n_boot, seed):
         try:
             cov, info = hac.bootstrap_covariance(sub, system.tau, system.mask, fit.chi, w, groups=groups,
                                                  n_boot=n_boot, seed=seed)
+            # by name: an essential fit carries its full model's covariance settings
+            info["parameter_blocks"] = dict(zip((system.names[c] for c in fit.cols), info["parameter_blocks"]))
         except ValueError as exc:
             # too few samples for blocks that keep every parameter identified: the sandwich
             # needs no refit, so it stands in (and the result says so)
@@ -706,11 +708,15 @@ def _unc_notice(unc: dict) -> list[str]:
 
 
 def _longer_blocks(unc: dict) -> str:
-    longer = sorted({b for b in unc.get("parameter_blocks", []) if b != unc["block"]})
-    if not longer:
-        return ""
-    n = sum(b != unc["block"] for b in unc["parameter_blocks"])
-    return f"; {n} parameter{'s' if n > 1 else ''} with longer blocks of {', '.join(map(str, longer))}"
+    """The notice's words on the parameters whose σ also comes from a longer block."""
+    blocks = list(dict(unc.get("parameter_blocks", {})).values())
+    longer = sorted({b for b in blocks if b != unc["block"]})
+    n = sum(b != unc["block"] for b in blocks)
+    out = f"; {n} parameter{'s' if n > 1 else ''} with longer blocks of {', '.join(map(str, longer))}" if n else ""
+    if unc.get("longer_blocks_failed"):
+        out += (f"; blocks of {', '.join(map(str, unc['longer_blocks_failed']))} given up (too few replicates "
+                "could be refitted): their parameters' sigma may be optimistic")
+    return out
 
 
 def _joint_sigma(system: _System, rank_rtol: float) -> np.ndarray:

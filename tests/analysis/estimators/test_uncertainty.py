@@ -356,20 +356,28 @@ def test_politis_white_block_agrees_with_arch():
     np.testing.assert_allclose(ours, theirs, rtol=0.15)
 
 
+def _offset_beside_fast_columns(rng, T=400, s=6):
+    """An offset (constant column), a fast column correlated with it (mean 0.9) and fast ones."""
+    W3 = np.ones((T, 1, s))
+    W3[:, 0, 1:] = rng.standard_normal((T, s - 1))
+    W3[:, 0, 1] += 0.9
+    return W3
+
+
 def test_a_slow_parameter_gets_its_own_longer_block():
-    # an offset (a constant column) beside fast regressors, AR(1) 0.8 noise: the offset's error is
-    # the mean of the noise, correlated over tens of samples, while the fast columns' scores are
-    # nearly white, so the scores' median block is 1-2 samples and cuts the offset's correlation.
-    # Its own block (Politis & White on its influence series) restores the coverage; truth known
-    # (Monte Carlo, no dynid simulator)
+    # AR(1) 0.8 noise: the offset's error is the mean of the noise, correlated over tens of
+    # samples, while most score columns are nearly white, so the scores' median block (a few
+    # samples) cuts the offset's correlation. Its own block (Politis & White on its influence
+    # series) widens its interval; truth known (Monte Carlo, no dynid simulator). Column 1's
+    # score carries the offset's slow part (its mean is 0.9) but its influence series, B^-1 g,
+    # does not: it keeps the common block, which the scores alone would not give it.
     rng = np.random.default_rng(24)
-    T, s, reps = 400, 6, 60
+    T, s, reps = 400, 6, 200
     chi = np.arange(1.0, s + 1)
     hits = {"politis-white": 0, "politis-white-scores": 0}
-    ratio = []
+    offset_long = column1_common = 0
     for rep in range(reps):
-        W3 = np.ones((T, 1, s))
-        W3[:, 0, 1:] = rng.standard_normal((T, s - 1))
+        W3 = _offset_beside_fast_columns(rng, T, s)
         tau = W3 @ chi + _ar1(rng, (T, 1), 0.8) * 0.2
         r = ls.ols(W3, tau, [f"p{k}" for k in range(s)])
         sig, info = {}, {}
@@ -378,12 +386,44 @@ def test_a_slow_parameter_gets_its_own_longer_block():
                                                        n_boot=150, seed=rep, block=rule)
             sig[rule] = np.sqrt(np.diag(cov))
             hits[rule] += int(abs(r.chi[0] - chi[0]) <= 1.96 * sig[rule][0])
-        assert info["politis-white"]["parameter_blocks"][0] > info["politis-white"]["block"]
-        ratio.append(sig["politis-white"][1:] / sig["politis-white-scores"][1:])
-    assert hits["politis-white-scores"] / reps <= 0.8
-    assert hits["politis-white"] / reps >= 0.87
-    # the fast parameters keep (about) the scores' block's spread, never a smaller one
-    assert np.min(ratio) >= 1.0 and np.median(ratio) < 1.05
+        own, common = info["politis-white"]["parameter_blocks"], info["politis-white"]["block"]
+        offset_long += own[0] > common
+        column1_common += own[1] == common
+        # the parameters on the common block keep its spread exactly
+        on_common = np.array(own) == common
+        np.testing.assert_array_equal(sig["politis-white"][on_common], sig["politis-white-scores"][on_common])
+    assert offset_long >= 0.9 * reps and column1_common >= 0.75 * reps
+    # 64-78 % with the common block, 85-90 % with the offset's own (over data seeds; a block
+    # bootstrap of 400 samples stays a little short of 95 %)
+    assert hits["politis-white-scores"] / reps <= 0.78
+    assert hits["politis-white"] / reps >= 0.82
+    assert (hits["politis-white"] - hits["politis-white-scores"]) / reps >= 0.1
+
+
+def test_a_longer_block_that_cannot_be_refitted_is_given_up_and_said(monkeypatch):
+    # when a longer block's replicates cannot be refitted, its parameters fall back to the
+    # longest shorter block that could be, and the notice says their sigma may be optimistic
+    rng = np.random.default_rng(25)
+    W3 = _offset_beside_fast_columns(rng)
+    tau = W3 @ np.arange(1.0, 7.0) + _ar1(rng, (400, 1), 0.8) * 0.2
+    names = [f"p{k}" for k in range(6)]
+    free = ls.wls(W3, tau, names, uncertainty="bootstrap", n_boot=100)
+    info = free.settings["least_squares"]["uncertainty"]
+    common, longest = info["block"], max(info["parameter_blocks"].values())
+    assert longest > common and info["longer_blocks_failed"] == []
+    real = hac._replicates
+
+    def refuse_long(Wt, A, c, parts, block, n_boot, rng):
+        D, failed = real(Wt, A, c, parts, block, n_boot, rng)
+        return (D[:0], n_boot) if block == longest else (D, failed)
+
+    monkeypatch.setattr(hac, "_replicates", refuse_long)
+    r = ls.wls(W3, tau, names, uncertainty="bootstrap", n_boot=100)
+    info = r.settings["least_squares"]["uncertainty"]
+    assert info["longer_blocks_failed"] == [longest] and longest not in info["parameter_blocks"].values()
+    assert info["failed_longer"] >= 100
+    assert any(f"blocks of {longest} given up" in n for n in r.notices)
+    np.testing.assert_array_equal(r.chi, free.chi)
 
 
 def test_bootstrap_of_a_segment_is_that_of_the_segment_alone():
