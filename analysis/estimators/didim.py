@@ -1179,30 +1179,47 @@ def _gains_covariance(L, last, res, gains):
     differences: each gain g_i moved by its standard deviation s_i, the last simulated estimate
     simulated again and the step's WLS solved on the rows of the step that produced `res` (its
     dead zone), `J_i = (chi_i - chi) / s_i`; covariance `J C_g J'` with `C_g` the gains'
-    covariance (correlated within a joint). One closed-loop simulation per gain.
+    covariance (correlated within a joint). One closed-loop simulation per gain. The estimate
+    need not be a rigid body off the simulated motion: when the moved loop reaches a pose where
+    its M(q) is not positive definite, the gain is moved the other way (-s_i), and when that
+    fails too its share is left out (returned in `missing`).
+
+    Returns
+    -------
+    cov : array (b, b)
+    cols : list of str
+        The gains propagated.
+    missing : list of str
+        The gains whose moved loops could not be simulated.
     """
     names_g = list(gains.names)
     sd = np.sqrt(np.maximum(np.diag(gains.cov), 0.0))
     J = np.zeros((res.chi.size, len(names_g)))
     s = dict(L.s)
-    cols = []
+    cols, missing = [], []
     for i in range(len(names_g)):
         if not sd[i] > 0:
             continue
-        chi_g = np.array(gains.chi, dtype=float)
-        chi_g[i] += sd[i]
-        moved = dataclasses.replace(gains, chi=chi_g, cov=gains.cov)
-        ctrl = moved.controller(L.robot)
-        q_s, qd_s, qdd_s = _simulate(L.robot, L.bp, last["beta_sim"], ctrl, L.t, L.qr, L.qdr, s,
-                                     last["kd"])[:3]
-        # the rows of the last step (its velocity dead zone): a dead zone moving with the simulated
-        # zero crossings makes the estimate jump between row sets, and the differences noise
-        Wd, taud, mask, _ = L.system(q_s, qd_s, qdd_s, qd_dead=last["qd"])
-        r = ls.wls(Wd, taud, L.names, row_mask=mask)
-        J[:, i] = (r.chi - res.chi) / sd[i]
-        cols.append(names_g[i])
+        for step in (sd[i], -sd[i]):
+            chi_g = np.array(gains.chi, dtype=float)
+            chi_g[i] += step
+            moved = dataclasses.replace(gains, chi=chi_g, cov=gains.cov)
+            try:
+                q_s, qd_s, qdd_s = _simulate(L.robot, L.bp, last["beta_sim"], moved.controller(L.robot),
+                                             L.t, L.qr, L.qdr, s, last["kd"])[:3]
+            except InputError:   # M(q) of the estimate not positive definite where this loop goes
+                continue
+            # the rows of the last step (its velocity dead zone): a dead zone moving with the simulated
+            # zero crossings makes the estimate jump between row sets, and the differences noise
+            Wd, taud, mask, _ = L.system(q_s, qd_s, qdd_s, qd_dead=last["qd"])
+            r = ls.wls(Wd, taud, L.names, row_mask=mask)
+            J[:, i] = (r.chi - res.chi) / step
+            cols.append(names_g[i])
+            break
+        else:
+            missing.append(names_g[i])
     cov = J @ gains.cov @ J.T
-    return 0.5 * (cov + cov.T), cols
+    return 0.5 * (cov + cov.T), cols, missing
 
 
 def _robust(L, last, uncertainty, gains, n_boot_cov, seed):
@@ -1213,18 +1230,25 @@ def _robust(L, last, uncertainty, gains, n_boot_cov, seed):
                      uncertainty=uncertainty, n_boot=n_boot_cov, seed=seed)
     if gains is None:
         return res
-    extra, cols = _gains_covariance(L, last, res, gains)
+    extra, cols, missing = _gains_covariance(L, last, res, gains)
     base = res.bse.to_numpy()
     res = dataclasses.replace(res, cov=res.cov + extra)
     grow = np.nanmedian(res.bse.to_numpy() / np.where(base > 0, base, np.nan))
     unc = dict(res.settings.get("least_squares", {}).get("uncertainty", {}))
     unc["controller_gains"] = (f"covariance of the {len(cols)} identified gains propagated through the "
                                "simulated loop (one simulation per gain)")
+    if missing:
+        unc["controller_gains_missing"] = missing
     res.settings = {**res.settings, "least_squares": {**res.settings.get("least_squares", {}),
                                                       "uncertainty": unc}}
     res.notices = list(res.notices) + [
         f"sigma includes the error of the identified controller gains ({len(cols)} gains propagated "
         f"through the simulated loop; median sigma x{grow:.3g})"]
+    if missing:
+        res.notices.append(
+            f"the error of {len(missing)} identified gain(s) ({', '.join(missing)}) is not in sigma: the loop "
+            "simulated with the gain moved either way reaches poses where the estimate's M(q) is not positive "
+            "definite (the estimate is not a rigid body there); sigma may be optimistic by their share")
     return res
 
 

@@ -85,6 +85,48 @@ def test_gains_covariance_is_propagated(run):
     assert any("controller gains" in n for n in one.notices)
 
 
+def _robot_file_gains(robot, n_rows, rel_sd):
+    """The robot file's PD gains as identified gains with relative standard deviations `rel_sd` (12,)."""
+    c = robot.controller
+    g = np.array([jt.drive_gain for jt in robot.joints])
+    kv = 2 * np.asarray(c.zeta) * np.asarray(c.wn)
+    Kd = kv * g * np.asarray(c.J_ap) / np.asarray(c.g_ap)
+    Kp = Kd * np.asarray(c.wn) / (2 * np.asarray(c.zeta))
+    names = [f"{k}{j + 1}" for j in range(6) for k in ("Kp", "Kd")]
+    chi = np.ravel(np.column_stack([Kp, Kd]))
+    return GainsResult(names=names, chi=chi, cov=np.diag((np.asarray(rel_sd) * chi) ** 2), n_joints=6,
+                       feedforward=True, integral=False, rel_error=np.zeros(6), n_rows=n_rows, source="test")
+
+
+def test_a_gain_whose_moved_loop_cannot_be_simulated_is_moved_the_other_way_or_said(run, monkeypatch):
+    """A converged estimate need not be a rigid body off its own simulated motion: a loop moved by a
+    gain's sigma can reach a pose where M(q) is not positive definite. The covariance step then moves
+    that gain the other way, and when neither way simulates, leaves its share out and says so (it
+    raised, after a converged run, on held-out plant seed 14384)."""
+    from dynid.analysis.estimators import didim as didim_module
+    robot, bp, exp, res = run
+    gains = _robot_file_gains(robot, exp.t.size, [0.02, 0.02] + [0.0] * 10)   # Kp1 and Kd1 only
+    real, calls = didim_module._simulate, []
+
+    def refuse(*args, **kwargs):
+        calls.append(len(calls))
+        if len(calls) in (1, 3, 4):   # Kp1 +sigma; Kd1 +sigma and -sigma
+            raise InputError("simulate_closed_loop: the mass matrix M(q) of these parameters is not positive "
+                             "definite")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(didim_module, "_simulate", refuse)
+    r = didim_covariance(res, "classic", gains=gains)
+    assert len(calls) == 4
+    unc = r.settings["least_squares"]["uncertainty"]
+    assert unc["controller_gains_missing"] == ["Kd1"]
+    assert "covariance of the 1 identified gains" in unc["controller_gains"]
+    assert any("Kd1" in n and "optimistic" in n for n in r.notices)
+    add = np.diag(r.cov - res.result.cov)
+    assert np.all(add >= -1e-12 * np.abs(np.diag(res.result.cov))) and add.max() > 0   # Kp1's share is in
+    np.testing.assert_allclose(r.chi, res.chi)
+
+
 def test_reported_essential_parameters_carry_the_chosen_covariance(run):
     """The essential set DIDIM reports (`params`, `bse`) gets the option's covariance, by the rule of
     IDIM's essential set: the full model's robust sigma of the same parameters with the removal bias
