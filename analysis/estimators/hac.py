@@ -58,6 +58,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy.linalg import solve_triangular
 from statsmodels.stats.sandwich_covariance import S_hac_simple
 
 #: Largest memory (bytes) the bootstrap spends on the per-sample information matrices.
@@ -381,6 +382,10 @@ def bootstrap_covariance(W3, tau, mask, chi, weights, *, groups=None, n_boot: in
     N, s = g.shape
     A = np.einsum("tjs,tjk->tsk", Wt, Wt) if N * s * s * 8 <= MAX_BOOT_BYTES else None
     c = np.einsum("tjs,tj->ts", Wt, yt)
+    B = A.sum(axis=0) if A is not None else np.einsum("tjs,tjk->sk", Wt, Wt)
+    if A is not None:
+        iu = np.triu_indices(s)
+        A = np.ascontiguousarray(A[:, iu[0], iu[1]])
     D, failed = _replicates(Wt, A, c, parts, block, n_boot, np.random.default_rng(seed))
     if len(D) < max(20, n_boot // 2):
         raise ValueError(f"only {len(D)} of {n_boot} bootstrap replicates could be refitted")
@@ -388,7 +393,6 @@ def bootstrap_covariance(W3, tau, mask, chi, weights, *, groups=None, n_boot: in
     spread_of = {block: _spread(D, cov, spread)}
     blocks, failed_longer, given_up = np.full(s, block), 0, []
     if rule == "politis-white":
-        B = A.sum(axis=0) if A is not None else np.einsum("tjs,tjk->sk", Wt, Wt)
         cap = max(1, min(idx.size for idx in parts) // 3)
         own = parameter_blocks(g[used], B, grp[used])
         # never shorter than the common block: a short block biases the spread down (it cuts the
@@ -427,7 +431,11 @@ def _spread(D: np.ndarray, cov: np.ndarray, spread: str) -> np.ndarray:
 
 def _replicates(Wt, A, c, parts, block, n_boot, rng) -> tuple[np.ndarray, int]:
     """The refitted estimates of `n_boot` circular-block draws of length `block` (the singular ones
-    left out), and how many were left out."""
+    left out), and how many were left out.
+
+    `A` holds the upper triangles of the per-sample information matrices (N, s(s+1)/2), or is
+    None (then each replicate's information is summed from `Wt`).
+    """
     N, s = c.shape
     counts_all = np.zeros((n_boot, N))
     for r in range(n_boot):
@@ -438,12 +446,20 @@ def _replicates(Wt, A, c, parts, block, n_boot, rng) -> tuple[np.ndarray, int]:
             starts = rng.integers(0, T, size=math.ceil(T / b))
             pos = (starts[:, None] + np.arange(b)[None, :]).reshape(-1)[:T] % T
             np.add.at(counts, idx[pos], 1.0)
-    # every replicate's information in one matrix product: A is read once, not once per replicate
-    A_all = (counts_all @ A.reshape(N, s * s)).reshape(n_boot, s, s) if A is not None else None
     c_all = counts_all @ c
+    if A is not None:
+        # every replicate's information in one matrix product over the upper triangles: A is read
+        # once, not once per replicate, and half of it
+        iu = np.triu_indices(s)
+        A_all = np.empty((n_boot, s, s))
+        A_all[:, iu[0], iu[1]] = counts_all @ A
+        A_all[:, iu[1], iu[0]] = A_all[:, iu[0], iu[1]]
+        batch = _solve_all(A_all, c_all)
+        if batch is not None:
+            return batch
     draws, failed = [], 0
     for r in range(n_boot):
-        As = A_all[r] if A_all is not None else np.einsum("tjs,t,tjk->sk", Wt, counts_all[r], Wt)
+        As = A_all[r] if A is not None else np.einsum("tjs,t,tjk->sk", Wt, counts_all[r], Wt)
         cs = c_all[r]
         d = np.sqrt(np.diag(As))
         if not np.all(d > 0):
@@ -456,3 +472,20 @@ def _replicates(Wt, A, c, parts, block, n_boot, rng) -> tuple[np.ndarray, int]:
             continue
         draws.append(np.linalg.solve(L.T, np.linalg.solve(L, cs / d)) / d)
     return np.asarray(draws).reshape(-1, s), failed
+
+
+def _solve_all(A_all, c_all):
+    """Every replicate's refit by batched Cholesky factors and triangular solves, with the
+    replicates whose information has a zero diagonal left out; None when one of the others is
+    not positive definite (the replicate-by-replicate loop then tells which)."""
+    with np.errstate(invalid="ignore"):
+        d = np.sqrt(np.einsum("rii->ri", A_all))
+    good = np.all(d > 0, axis=1)
+    d = d[good]
+    try:  # unit-diagonal scaling: parameters' units differ by orders of magnitude
+        L = np.linalg.cholesky(A_all[good] / (d[:, :, None] * d[:, None, :]))
+    except np.linalg.LinAlgError:
+        return None
+    y = solve_triangular(L, (c_all[good] / d)[..., None], lower=True)
+    x = solve_triangular(np.swapaxes(L, 1, 2), y, lower=False)[..., 0] / d
+    return x, int(np.count_nonzero(~good))

@@ -247,6 +247,24 @@ def test_bootstrap_without_the_per_sample_matrices_is_the_same(monkeypatch):
     np.testing.assert_allclose(summed.cov, held.cov, rtol=1e-8)
 
 
+def test_batched_refits_are_the_loop_s_and_leave_the_singular_ones_to_it():
+    # the replicates' refits in batched LAPACK calls: the same solutions as one at a time; a zero
+    # diagonal (a parameter no drawn sample excites) is left out and counted; a matrix that is not
+    # positive definite sends the whole set back to the loop, which tells which replicate failed
+    rng = np.random.default_rng(26)
+    X = rng.standard_normal((5, 40, 4))
+    A_all = np.einsum("rts,rtk->rsk", X, X)
+    c_all = rng.standard_normal((5, 4))
+    x, failed = hac._solve_all(A_all, c_all)
+    np.testing.assert_allclose(x, np.linalg.solve(A_all, c_all[..., None])[..., 0], rtol=1e-10)
+    assert failed == 0
+    A_all[2, 1, :] = A_all[2, :, 1] = 0.0
+    x, failed = hac._solve_all(A_all, c_all)
+    assert failed == 1 and x.shape == (4, 4)
+    A_all[3, 0, 1] = A_all[3, 1, 0] = 2 * np.sqrt(A_all[3, 0, 0] * A_all[3, 1, 1])
+    assert hac._solve_all(A_all, c_all) is None
+
+
 def test_bootstrap_falls_back_to_hac_when_blocks_cannot_identify(monkeypatch):
     # too few replicates refitted (a parameter excited by a handful of samples): the sandwich
     # stands in, and the result says so
