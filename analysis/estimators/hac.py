@@ -394,7 +394,10 @@ def bootstrap_covariance(W3, tau, mask, chi, weights, *, groups=None, n_boot: in
     blocks, failed_longer, given_up = np.full(s, block), 0, []
     if rule == "politis-white":
         cap = max(1, min(idx.size for idx in parts) // 3)
-        own = parameter_blocks(g[used], B, grp[used])
+        try:
+            own = parameter_blocks(g[used], B, grp[used])
+        except np.linalg.LinAlgError:   # information not positive definite to rounding: one block for all
+            own = np.full(s, block)
         # never shorter than the common block: a short block biases the spread down (it cuts the
         # correlation beyond it); a longer one is noisier, and biased down too when it is a large
         # part of the record (about b/T of the variance), which the larger of the two spreads offsets
