@@ -58,10 +58,8 @@ def test_robust_sigma_of_the_last_step(run):
         identify_didim(exp, robot, bp=bp, uncertainty="white")
 
 
-@pytest.mark.slow
-def test_gains_covariance_is_propagated(run):
-    """The gains' covariance enters through the loop: nothing without it, more with more of it."""
-    robot, bp, exp, res = run
+def _robot_file_gains(robot, n_rows, rel_sd):
+    """The robot file's PD gains as identified gains with relative standard deviations `rel_sd` (12,)."""
     c = robot.controller
     g = np.array([jt.drive_gain for jt in robot.joints])
     kv = 2 * np.asarray(c.zeta) * np.asarray(c.wn)
@@ -69,8 +67,16 @@ def test_gains_covariance_is_propagated(run):
     Kp = Kd * np.asarray(c.wn) / (2 * np.asarray(c.zeta))
     names = [f"{k}{j + 1}" for j in range(6) for k in ("Kp", "Kd")]
     chi = np.ravel(np.column_stack([Kp, Kd]))
-    gains = GainsResult(names=names, chi=chi, cov=np.diag((0.02 * chi) ** 2), n_joints=6, feedforward=True,
-                        integral=False, rel_error=np.zeros(6), n_rows=exp.t.size, source="test")
+    return GainsResult(names=names, chi=chi, cov=np.diag((np.asarray(rel_sd) * chi) ** 2), n_joints=6,
+                       feedforward=True, integral=False, rel_error=np.zeros(6), n_rows=n_rows, source="test")
+
+
+@pytest.mark.slow
+def test_gains_covariance_is_propagated(run):
+    """The gains' covariance enters through the loop: nothing without it, more with more of it."""
+    robot, bp, exp, res = run
+    c = robot.controller
+    gains = _robot_file_gains(robot, exp.t.size, [0.02] * 12)
     assert np.allclose(gains.controller(robot).wn, c.wn) and np.allclose(gains.controller(robot).zeta, c.zeta)
     none = didim_covariance(res, "classic", gains=dataclasses.replace(gains, cov=0 * gains.cov))
     np.testing.assert_array_equal(none.cov, res.result.cov)
@@ -83,19 +89,6 @@ def test_gains_covariance_is_propagated(run):
     # over 2-8 % of a gain; the estimate's response to the gains is of the size of its noise)
     assert add4.sum() > 2 * add1.sum(), (add4.sum(), add1.sum())
     assert any("controller gains" in n for n in one.notices)
-
-
-def _robot_file_gains(robot, n_rows, rel_sd):
-    """The robot file's PD gains as identified gains with relative standard deviations `rel_sd` (12,)."""
-    c = robot.controller
-    g = np.array([jt.drive_gain for jt in robot.joints])
-    kv = 2 * np.asarray(c.zeta) * np.asarray(c.wn)
-    Kd = kv * g * np.asarray(c.J_ap) / np.asarray(c.g_ap)
-    Kp = Kd * np.asarray(c.wn) / (2 * np.asarray(c.zeta))
-    names = [f"{k}{j + 1}" for j in range(6) for k in ("Kp", "Kd")]
-    chi = np.ravel(np.column_stack([Kp, Kd]))
-    return GainsResult(names=names, chi=chi, cov=np.diag((np.asarray(rel_sd) * chi) ** 2), n_joints=6,
-                       feedforward=True, integral=False, rel_error=np.zeros(6), n_rows=n_rows, source="test")
 
 
 def test_a_gain_whose_moved_loop_cannot_be_simulated_is_moved_the_other_way_or_said(run, monkeypatch):
