@@ -1207,7 +1207,7 @@ def _gains_covariance(L, last, res, gains):
             try:
                 q_s, qd_s, qdd_s = _simulate(L.robot, L.bp, last["beta_sim"], moved.controller(L.robot),
                                              L.t, L.qr, L.qdr, s, last["kd"])[:3]
-            except InputError:   # M(q) of the estimate not positive definite where this loop goes
+            except InputError:   # M(q) not positive definite where this loop goes, or a gain moved to <= 0
                 continue
             # the rows of the last step (its velocity dead zone): a dead zone moving with the simulated
             # zero crossings makes the estimate jump between row sets, and the differences noise
@@ -1236,7 +1236,7 @@ def _robust(L, last, uncertainty, gains, n_boot_cov, seed):
     grow = np.nanmedian(res.bse.to_numpy() / np.where(base > 0, base, np.nan))
     unc = dict(res.settings.get("least_squares", {}).get("uncertainty", {}))
     unc["controller_gains"] = (f"covariance of the {len(cols)} identified gains propagated through the "
-                               "simulated loop (one simulation per gain)")
+                               "simulated loop (one simulation per gain, two when the first fails)")
     if missing:
         unc["controller_gains_missing"] = missing
     res.settings = {**res.settings, "least_squares": {**res.settings.get("least_squares", {}),
@@ -1247,8 +1247,9 @@ def _robust(L, last, uncertainty, gains, n_boot_cov, seed):
     if missing:
         res.notices.append(
             f"the error of {len(missing)} identified gain(s) ({', '.join(missing)}) is not in sigma: the loop "
-            "simulated with the gain moved either way reaches poses where the estimate's M(q) is not positive "
-            "definite (the estimate is not a rigid body there); sigma may be optimistic by their share")
+            "could not be simulated with the gain moved by its sigma either way (it reaches poses where the "
+            "estimate's M(q) is not positive definite, or the moved gain is not positive); sigma may be "
+            "optimistic by their share")
     return res
 
 

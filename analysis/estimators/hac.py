@@ -378,14 +378,12 @@ def bootstrap_covariance(W3, tau, mask, chi, weights, *, groups=None, n_boot: in
     block = int(block)
     w = np.where(mask, np.asarray(weights, dtype=float)[None, :], 0.0)
     yt = np.where(mask, tau, 0.0) * w
-    # per-sample information A_t, held when it fits in MAX_BOOT_BYTES (else summed per replicate)
+    # upper triangles of the per-sample information A_t, held when they fit in MAX_BOOT_BYTES
+    # (else each replicate's is summed from Wt)
     N, s = g.shape
-    A = np.einsum("tjs,tjk->tsk", Wt, Wt) if N * s * s * 8 <= MAX_BOOT_BYTES else None
+    A = _packed_information(Wt) if N * (s * (s + 1) // 2) * 8 <= MAX_BOOT_BYTES else None
     c = np.einsum("tjs,tj->ts", Wt, yt)
-    B = A.sum(axis=0) if A is not None else np.einsum("tjs,tjk->sk", Wt, Wt)
-    if A is not None:
-        iu = np.triu_indices(s)
-        A = np.ascontiguousarray(A[:, iu[0], iu[1]])
+    B = np.einsum("tjs,tjk->sk", Wt, Wt)
     D, failed = _replicates(Wt, A, c, parts, block, n_boot, np.random.default_rng(seed))
     if len(D) < max(20, n_boot // 2):
         raise ValueError(f"only {len(D)} of {n_boot} bootstrap replicates could be refitted")
@@ -477,6 +475,18 @@ def _replicates(Wt, A, c, parts, block, n_boot, rng) -> tuple[np.ndarray, int]:
     return np.asarray(draws).reshape(-1, s), failed
 
 
+def _packed_information(Wt, chunk: int = 1024) -> np.ndarray:
+    """Upper triangles (N, s(s+1)/2) of the per-sample information W̃_tᵀW̃_t, built in chunks of
+    samples so that the full (N, s, s) array never exists."""
+    N, _, s = Wt.shape
+    iu = np.triu_indices(s)
+    out = np.empty((N, iu[0].size))
+    for t0 in range(0, N, chunk):
+        full = np.einsum("tjs,tjk->tsk", Wt[t0:t0 + chunk], Wt[t0:t0 + chunk])
+        out[t0:t0 + chunk] = full[:, iu[0], iu[1]]
+    return out
+
+
 def _solve_all(A_all, c_all):
     """Every replicate's refit by batched Cholesky factors and triangular solves, with the
     replicates whose information has a zero diagonal left out; None when one of the others is
@@ -484,6 +494,8 @@ def _solve_all(A_all, c_all):
     with np.errstate(invalid="ignore"):
         d = np.sqrt(np.einsum("rii->ri", A_all))
     good = np.all(d > 0, axis=1)
+    if not good.any():
+        return np.empty((0, c_all.shape[1])), int(good.size)
     d = d[good]
     try:  # unit-diagonal scaling: parameters' units differ by orders of magnitude
         L = np.linalg.cholesky(A_all[good] / (d[:, :, None] * d[:, None, :]))
