@@ -1237,19 +1237,17 @@ def _robust(L, last, uncertainty, gains, n_boot_cov, seed):
     unc = dict(res.settings.get("least_squares", {}).get("uncertainty", {}))
     unc["controller_gains"] = (f"covariance of the {len(cols)} identified gains propagated through the "
                                "simulated loop (one simulation per gain, two when the first fails)")
+    notes = [f"sigma includes the error of the identified controller gains ({len(cols)} gains propagated "
+             f"through the simulated loop; median sigma x{grow:.3g})"]
     if missing:
         unc["controller_gains_missing"] = missing
+        notes.append(f"the error of {len(missing)} identified gain(s) ({', '.join(missing)}) is not in sigma: the "
+                     "loop could not be simulated with the gain moved by its sigma either way (it reaches poses "
+                     "where the estimate's M(q) is not positive definite, or the moved gain is not positive); "
+                     "sigma may be optimistic by their share")
     res.settings = {**res.settings, "least_squares": {**res.settings.get("least_squares", {}),
                                                       "uncertainty": unc}}
-    res.notices = list(res.notices) + [
-        f"sigma includes the error of the identified controller gains ({len(cols)} gains propagated "
-        f"through the simulated loop; median sigma x{grow:.3g})"]
-    if missing:
-        res.notices.append(
-            f"the error of {len(missing)} identified gain(s) ({', '.join(missing)}) is not in sigma: the loop "
-            "could not be simulated with the gain moved by its sigma either way (it reaches poses where the "
-            "estimate's M(q) is not positive definite, or the moved gain is not positive); sigma may be "
-            "optimistic by their share")
+    res.notices = list(res.notices) + notes
     return res
 
 

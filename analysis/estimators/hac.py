@@ -383,7 +383,6 @@ def bootstrap_covariance(W3, tau, mask, chi, weights, *, groups=None, n_boot: in
     N, s = g.shape
     A = _packed_information(Wt) if N * (s * (s + 1) // 2) * 8 <= MAX_BOOT_BYTES else None
     c = np.einsum("tjs,tj->ts", Wt, yt)
-    B = np.einsum("tjs,tjk->sk", Wt, Wt)
     D, failed = _replicates(Wt, A, c, parts, block, n_boot, np.random.default_rng(seed))
     if len(D) < max(20, n_boot // 2):
         raise ValueError(f"only {len(D)} of {n_boot} bootstrap replicates could be refitted")
@@ -393,7 +392,7 @@ def bootstrap_covariance(W3, tau, mask, chi, weights, *, groups=None, n_boot: in
     if rule == "politis-white":
         cap = max(1, min(idx.size for idx in parts) // 3)
         try:
-            own = parameter_blocks(g[used], B, grp[used])
+            own = parameter_blocks(g[used], np.einsum("tjs,tjk->sk", Wt, Wt), grp[used])
         except np.linalg.LinAlgError:   # information not positive definite to rounding: one block for all
             own = np.full(s, block)
         # never shorter than the common block: a short block biases the spread down (it cuts the
@@ -459,19 +458,13 @@ def _replicates(Wt, A, c, parts, block, n_boot, rng) -> tuple[np.ndarray, int]:
         if batch is not None:
             return batch
     draws, failed = [], 0
-    for r in range(n_boot):
+    for r in range(n_boot):   # one at a time: the memory path, or a batch with a singular replicate
         As = A_all[r] if A is not None else np.einsum("tjs,t,tjk->sk", Wt, counts_all[r], Wt)
-        cs = c_all[r]
-        d = np.sqrt(np.diag(As))
-        if not np.all(d > 0):
+        one = _solve_all(As[None], c_all[r][None])
+        if one is None or one[1]:
             failed += 1
             continue
-        try:  # unit-diagonal scaling: parameters' units differ by orders of magnitude
-            L = np.linalg.cholesky(As / np.outer(d, d))
-        except np.linalg.LinAlgError:
-            failed += 1
-            continue
-        draws.append(np.linalg.solve(L.T, np.linalg.solve(L, cs / d)) / d)
+        draws.append(one[0][0])
     return np.asarray(draws).reshape(-1, s), failed
 
 
