@@ -34,8 +34,9 @@ import pandas as pd
 from dynid.analysis.diagnosis.effects import make_candidate
 from dynid.analysis.diagnosis.selection import fit_effects
 from dynid.analysis.results import Result, notices_block, parameter_table
-from dynid.errors import InputError
+from dynid.analysis.units import parameter_unit, prismatic_joints
 from dynid.provenance import json_safe
+from dynid.ranges import check_joints
 
 __all__ = ["AsymmetricFrictionResult", "asymmetric_friction"]
 
@@ -53,16 +54,18 @@ class AsymmetricFrictionResult(Result):
     fit: object                  # IdentificationResult of the essential model + |qd| columns
     rel_error_before: float
     notices: list = field(default_factory=list)
+    prismatic: tuple = ()        # the robot's prismatic joints (1-based), for the units
 
     def to_frame(self) -> pd.DataFrame:
-        rows = {}
+        """One row per coefficient, indexed `Fv+1`, `Fv-1`, `Fc+1` ...: joint, value, std, %σ, unit."""
+        rows = []
         for k, j in enumerate(self.joints):
-            row = {}
             for c, name in enumerate(COLUMNS):
-                row[name] = self.values[k, c]
-                row[f"sigma {name}"] = self.sigma[k, c]
-            rows[f"joint {j}"] = row
-        return pd.DataFrame.from_dict(rows, orient="index")
+                v, sd = float(self.values[k, c]), float(self.sigma[k, c])
+                rows.append({"name": f"{name}{j}", "joint": j, "value": v, "std": sd,
+                             "rel_std_percent": 100.0 * sd / abs(v) if v != 0 else float("inf"),
+                             "unit": parameter_unit(f"{name[:2]}{j}", frozenset(self.prismatic))})
+        return pd.DataFrame(rows).set_index("name")
 
     @property
     def rel_error(self) -> float:
@@ -99,10 +102,7 @@ def asymmetric_friction(experiment, robot, idim_result, *, joints=None) -> Asymm
     recording); `joints`: 1-based joints (default all).
     """
     n = robot.n_joints
-    joints = list(range(1, n + 1)) if joints is None else [int(j) for j in joints]
-    bad = [j for j in joints if not 1 <= j <= n]
-    if bad:
-        raise InputError(f"joints must be between 1 and {n} for robot '{robot.name}', got {bad}")
+    joints = check_joints(joints, n, robot=robot.name)
     essential = list(idim_result.model.names)
     notices = []
     for c in robot.couplings:
@@ -136,4 +136,4 @@ def asymmetric_friction(experiment, robot, idim_result, *, joints=None) -> Asymm
             sigma[k, c] = float(np.sqrt(max(a @ fit.cov @ a, 0.0)))
     return AsymmetricFrictionResult(robot_name=robot.name, joints=joints, values=values, sigma=sigma,
                                     fit=fit, rel_error_before=float(idim_result.model.rel_error),
-                                    notices=notices)
+                                    notices=notices, prismatic=tuple(sorted(prismatic_joints(robot))))

@@ -108,6 +108,7 @@ step and the confirmation on validation data share one private selection state.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
@@ -168,6 +169,7 @@ from dynid.analysis.processing.decimation import DecimationFilter
 from dynid.analysis.results import p_phrase
 from dynid.dynamics.base_parameters import base_parameters
 from dynid.errors import DataError, DynidError, InputError
+from dynid.ranges import check_joints
 from dynid.threads import single_blas_thread
 
 __all__ = ["diagnose", "run_diagnosis", "DiagnosisSettings", "DiagnosisResult", "RankedEffect",
@@ -300,6 +302,8 @@ def run_diagnosis(experiment, robot, opts=None, *, validation=None, idim_result=
         raise InputError("diagnose takes one recording (and one validation recording): the "
                          "drift and time-delay effects are defined per recording")
     opts = (opts or DiagnosisSettings()).checked()
+    if opts.joints is not None:
+        opts = dataclasses.replace(opts, joints=tuple(check_joints(opts.joints, robot.n_joints, robot=robot.name)))
     # one BLAS thread for the whole diagnosis, not only its scoring: its dense problems are
     # tall and thin (hundreds of QRs and fits of a few thousand rows), where a second
     # OpenBLAS thread spins on a busy machine without speeding anything up (dynid.threads)

@@ -83,6 +83,7 @@ from dynid.analysis.results import ParameterResults, notices_block, parameter_ta
 from dynid.dynamics.base_parameters import base_parameters
 from dynid.errors import IdentificationError, InputError
 from dynid.provenance import json_safe, versions
+from dynid.ranges import check_joints
 
 __all__ = ["DEAD_ZONE_FRACTION", "WEAK_GAIN_HALFWIDTH", "DriveGainResult", "identify_drive_gains"]
 
@@ -224,11 +225,7 @@ def _checked_mass(mass):
 
 def _checked_joints(joints, n):
     """The 1-based joints whose gain is identified (default all `n`): distinct, in 1..n."""
-    joints = list(range(1, n + 1)) if joints is None else [int(j) for j in joints]
-    if not joints or any(not 1 <= j <= n for j in joints) or len(set(joints)) != len(joints):
-        raise InputError(f"joints must list distinct 1-based joints 1..{n} whose gain is identified, "
-                         f"got {joints!r}")
-    return joints
+    return check_joints(joints, n, option="joints (whose drive gain is identified)")
 
 
 def _known_payload(mass, com):

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 from dynid.errors import InputError
 
-__all__ = ["RANGES", "check_range", "OptionRange"]
+__all__ = ["RANGES", "check_range", "check_joints", "OptionRange"]
 
 
 @dataclass(frozen=True)
@@ -69,6 +69,9 @@ RANGES = {
                            why="each local worker is a process of its own"),
     "max_steps": OptionRange("--max-steps", "max_steps", 1, 100_000_000, integer=True,
                              why="the chains are kept in memory"),
+    # Python only (dynid.identify_payload): no flag, so the message names the function
+    "rank_rtol": OptionRange("identify_payload", "rank_rtol", 0.0, 1.0, open_low=True, open_high=True),
+    "max_rel_halfwidth": OptionRange("identify_payload", "max_rel_halfwidth", 0.0, 1e6, open_low=True),
 }
 
 
@@ -103,3 +106,26 @@ def check_range(name: str, value, *, cli: str | None = None, python: str | None 
     if r.integer:
         return value if isinstance(value, int) else int(number)
     return value if isinstance(value, float) else number
+
+
+def check_joints(joints, n: int, *, option: str = "joints", robot: str = "") -> list:
+    """`joints` as a list of distinct 1-based joint numbers in 1..n (None or "all": all `n`), else an
+    InputError naming the option: a joint 0 would silently index the last joint from the end.
+
+    Examples
+    --------
+    >>> check_joints([3, 1], 6)
+    [3, 1]
+    """
+    if joints is None or (isinstance(joints, str) and joints.strip().lower() == "all"):
+        return list(range(1, n + 1))
+    of = f" of robot '{robot}'" if robot else ""
+    items = [joints] if isinstance(joints, (int, float, str)) else joints
+    try:
+        out = [int(j) for j in items if not isinstance(j, bool) and float(j) == int(j)]
+        ok = len(out) == len(items)
+    except (TypeError, ValueError):
+        out, ok = [], False
+    if not ok or not out or any(not 1 <= j <= n for j in out) or len(set(out)) != len(out):
+        raise InputError(f"{option} must list distinct joint numbers 1..{n}{of} (1-based), got {joints!r}")
+    return out

@@ -46,7 +46,11 @@ def test_asymmetric_coefficients_are_recovered_with_honest_sigma(asymmetric_run)
     assert a.fit.rel_error < 0.9 * a.rel_error_before
     doc = a.to_dict()
     assert doc["joints"][0]["Fv+"]["value"] == pytest.approx(a.values[0, 0])
-    assert list(a.to_frame().columns[:2]) == ["Fv+", "sigma Fv+"]
+    frame = a.to_frame()
+    assert list(frame.index[:4]) == ["Fv+1", "Fv-1", "Fc+1", "Fc-1"]
+    assert frame.loc["Fv+1", "value"] == pytest.approx(a.values[0, 0])
+    assert frame.loc["Fv+1", "std"] == pytest.approx(a.sigma[0, 0])
+    assert list(frame["unit"][:4]) == ["N m s/rad", "N m s/rad", "N m", "N m"]
 
 
 def test_symmetric_friction_gives_equal_coefficients(asymmetric_run):
@@ -65,5 +69,5 @@ def test_symmetric_friction_gives_equal_coefficients(asymmetric_run):
 
 def test_bad_joint_numbers_are_refused(asymmetric_run):
     robot, exp, res, _ = asymmetric_run
-    with pytest.raises(InputError, match="between 1 and 2"):
+    with pytest.raises(InputError, match=r"joint numbers 1\.\.2"):
         asymmetric_friction(exp, robot, res, joints=[3])
