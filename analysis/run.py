@@ -36,7 +36,7 @@ from pathlib import Path
 
 from dynid.analysis.data.experiment import Experiment, load_experiment
 from dynid.analysis.data.rates import check_rate_matches, check_same_rate
-from dynid.analysis.data.record import checked_experiment
+from dynid.analysis.data.record import SHARED_FRACTION, SHARED_MIN, checked_experiment, recording_of, shared_samples
 from dynid.analysis.data.split import holdout_split
 from dynid.analysis.diagnosis.asymmetric_friction import asymmetric_friction
 from dynid.analysis.diagnosis.physical_fit import effect_candidates, identify_physical_effects
@@ -266,6 +266,10 @@ def settings_from(settings=None, **options) -> Settings:
         raise InputError(f"unknown option(s) {', '.join(unknown)}"
                          f"{did_you_mean(unknown[0], [f.name for f in dataclasses.fields(Settings)])}; the "
                          f"options are the fields of dynid.Settings (the command line's, with _ for -)")
+    for f in dataclasses.fields(Settings):
+        # a switch given as text ("yes", "false") would be taken for True
+        if f.type in ("bool", bool) and f.name in options and type(options[f.name]).__name__ not in ("bool", "bool_"):
+            raise InputError(f"{f.name}= is a switch: give True or False, not {options[f.name]!r}")
     if isinstance(settings, Settings):
         return settings.replace(**options)
     if settings is not None and not isinstance(settings, dict):
@@ -348,6 +352,7 @@ def as_experiments(data, robot, *, resample=False) -> list:
         raise InputError("no recording given: pass a data file or an Experiment")
     out = []
     for k, item in enumerate(items):
+        item = recording_of(item)
         if isinstance(item, Experiment):
             out.append(checked_experiment(item, k, robot))
         elif isinstance(item, (str, os.PathLike)):
@@ -425,18 +430,25 @@ def load_data(data, robot, settings: Settings, say=None):
         raise InputError(f"--holdout must be a positive number of seconds, got {settings.holdout:g}")
     experiments = as_experiments(data, robot, resample=settings.resample)
     for item, exp in zip(data if isinstance(data, (list, tuple)) else [data], experiments):
-        if not isinstance(item, Experiment):
+        if isinstance(item, (str, os.PathLike)):
             say(f"loaded {item}: {exp.n_samples} samples at {exp.fs:g} Hz")
     check_same_rate(experiments, "a data file")
     check_cutoffs(settings, experiments)
     held_out = None
     if settings.validation is not None:
         held_out = as_experiments(settings.validation, robot, resample=settings.resample)[0]
-        if not isinstance(settings.validation, Experiment):
+        if isinstance(settings.validation, (str, os.PathLike)):
             say(f"validation {settings.validation}: {held_out.n_samples} samples")
         check_rate_matches(held_out, experiments[0].fs, "the --validation recording",
                            experiments[0].source or experiments[0].name)
         check_cutoffs(settings, [held_out])
+        for exp in experiments:
+            shared, of = shared_samples(held_out, exp)
+            if shared >= SHARED_MIN and shared > SHARED_FRACTION * of:
+                raise InputError(f"--validation {held_out.source or held_out.name} shares {shared} of {of} samples, "
+                                 f"bit for bit, with the identification recording {exp.source or exp.name}: "
+                                 "validating on the identification data says nothing about the model; give "
+                                 "another recording, or --holdout SECONDS to hold out the end of this one")
     elif settings.holdout is not None:
         if len(experiments) > 1:
             raise InputError("--holdout splits one recording; with several, use --validation")
@@ -448,16 +460,22 @@ def load_data(data, robot, settings: Settings, say=None):
 @contextlib.contextmanager
 def holdout_hint(settings: Settings, experiments):
     """Within it, an identification that fails for want of data says what --holdout left of it
-    (it advised a richer trajectory when the holdout had taken most of the recording)."""
+    (it advised a richer trajectory when the holdout had taken most of the recording), and
+    which glitches the loader found in the data (a one-sample jump of a position zeroes a
+    joint's rows through the velocity dead zone: the error alone would blame the trajectory)."""
     try:
         yield
     except IdentificationError as exc:
+        glitches = [n for e in experiments for n in getattr(e, "notices", []) if "a glitch?" in n]
+        tail = (" The data hold glitches, which can cause this: " + "; ".join(glitches)) if glitches else ""
         if settings.holdout is None or not experiments:
-            raise
+            if not tail:
+                raise
+            raise IdentificationError(f"{exc}{tail}") from None
         t = experiments[0].t
         raise IdentificationError(f"--holdout {settings.holdout:g} s leaves the first {t[-1] - t[0]:.3g} s of the "
                                   f"recording to identify on, and they do not identify the model (hold out less): "
-                                  f"{exc}") from None
+                                  f"{exc}{tail}") from None
 
 
 # ---------------------------------------------------------------- step 2: gravity tilt
@@ -628,6 +646,9 @@ def check_physical_options(settings: Settings) -> None:
             raise InputError(f"{', '.join(given)} {'is an option' if len(given) == 1 else 'are options'} of the "
                              f"physically consistent fit: add --physical (physical=True), or leave "
                              f"{'it' if len(given) == 1 else 'them'} out")
+    if settings.physical_set not in ("base", "essential"):
+        raise InputError(f"--physical-set (physical_set=) must be 'base' or 'essential', got "
+                         f"{settings.physical_set!r}")
     if settings.bootstrap < 0 or 0 < settings.bootstrap < MIN_BOOTSTRAP:
         raise InputError(f"--bootstrap {settings.bootstrap}: give 0 (no bootstrap σ) or at least {MIN_BOOTSTRAP} "
                          f"refits (one has no spread)")
@@ -851,6 +872,20 @@ class Identification(Result):
             One row per parameter, columns `lower` and `upper`.
         """
         return self.result.conf_int(alpha)
+
+    def cov_params(self):
+        """The covariance of the identification's estimates (`result.cov_params()`).
+
+        Returns
+        -------
+        pandas.DataFrame
+            Indexed by parameter name on both axes.
+        """
+        return self.result.cov_params()
+
+    def __getitem__(self, name: str):
+        """`run["ZZ1R"]`: the record of one parameter of the identification (`result[name]`)."""
+        return self.result[name]
 
     def __repr__(self) -> str:
         return f"{super().__repr__()[:-1]}; verdict {getattr(self.verdict, 'status', '?')}>"

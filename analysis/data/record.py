@@ -19,7 +19,7 @@ from dynid.analysis.data._format import _fmt_t
 from dynid.analysis.data.timebase import TIME_STEP_TOLERANCE
 from dynid.errors import DataError
 
-__all__ = ["Experiment", "SIGNALS", "checked_experiment"]
+__all__ = ["Experiment", "SIGNALS", "checked_experiment", "recording_of", "same_samples", "shared_samples"]
 
 #: Signal names of the column convention, in the order they are stored.
 SIGNALS = ("q", "qr", "qd", "qdd", "tau")
@@ -319,3 +319,48 @@ def checked_experiment(experiment: Experiment, k: int = 0, robot=None) -> Experi
     if not experiment.source:
         experiment = dataclasses.replace(experiment, source=label)
     return experiment
+
+
+def recording_of(item):
+    """The Experiment inside a simulated recording (`dynid.simulate`'s result, which carries what
+    produced it beside its `experiment`), else `item` itself: every function taking a recording
+    takes either."""
+    inner = getattr(item, "experiment", None)
+    return inner if isinstance(inner, Experiment) and not isinstance(item, Experiment) else item
+
+
+#: odd multipliers of the row fingerprint (any fixed odd numbers: a row's key is the sum of its
+#: columns' bit patterns times these, modulo 2**64)
+_ROW_MIX = np.array([0x9E3779B97F4A7C15, 0xBF58476D1CE4E5B9, 0x94D049BB133111EB, 0xD6E8FEB86659FD93,
+                     0xA0761D6478BD642F, 0xE7037ED1A0B428DB, 0x8EBC6AF09C88C6E3, 0x589965CC75374CC3],
+                    dtype=np.uint64)
+#: a recording sharing more than this fraction of its distinct (q, tau) samples with another is the
+#: same data (shifted, trimmed or re-exported): independent recordings share none, bit for bit
+SHARED_FRACTION = 0.5
+#: ... and at least this many: a robot at rest, logged by quantised sensors, repeats a few samples
+SHARED_MIN = 100
+
+
+def _sample_keys(e):
+    """One 64-bit fingerprint per distinct (q, tau) sample of `e`."""
+    X = np.ascontiguousarray(np.column_stack([e.q, e.tau]), dtype=np.float64) + 0.0   # -0.0 -> 0.0
+    bits = X.view(np.uint64)
+    mix = np.resize(_ROW_MIX, bits.shape[1]) + np.arange(bits.shape[1], dtype=np.uint64) * np.uint64(2)
+    keys = (bits * mix).sum(axis=1, dtype=np.uint64)
+    return np.unique(keys)
+
+
+def shared_samples(a, b):
+    """(shared, of): how many of the distinct (q, tau) samples of the recording with fewer of them
+    are also, bit for bit, samples of the other. Two recordings that share more than
+    `SHARED_FRACTION` of them, and at least `SHARED_MIN`, are one recording given twice (one of
+    them shifted by a sample, trimmed or re-exported), which the whole-recording hash misses."""
+    ka, kb = _sample_keys(a), _sample_keys(b)
+    small, large = (ka, kb) if len(ka) <= len(kb) else (kb, ka)
+    return int(np.isin(small, large, assume_unique=True).sum()), int(len(small))
+
+
+def same_samples(a, b) -> bool:
+    """True when `a` and `b` share most of their samples (`shared_samples`)."""
+    shared, of = shared_samples(a, b)
+    return shared >= SHARED_MIN and shared > SHARED_FRACTION * of

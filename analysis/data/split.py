@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dynid.analysis.data.record import recording_of
 from dynid.errors import InputError
 
 #: fewest samples either side of a hold-out split keeps (the filters and the decimation need
@@ -26,7 +27,7 @@ def holdout_split(experiment, seconds: float):
 
     Parameters
     ----------
-    experiment : Experiment
+    experiment : Experiment or the result of `dynid.simulate`
         The recording to split (`dynid.load_experiment` reads one from a file).
     seconds : float
         Length held out at the end of the recording, s: positive, and leaving 64
@@ -39,6 +40,7 @@ def holdout_split(experiment, seconds: float):
     held_out : Experiment
         The last `seconds`.
     """
+    experiment = recording_of(experiment)
     if not hasattr(experiment, "segment") or not hasattr(experiment, "t"):
         raise InputError(f"holdout_split: the recording must be an Experiment (dynid.load_experiment(path) "
                          f"reads a file), not {type(experiment).__name__}")

@@ -68,6 +68,7 @@ import pandas as pd
 from scipy import stats
 
 from dynid.analysis.data.experiment import Experiment, load_experiment
+from dynid.analysis.data.record import recording_of
 from dynid.analysis.estimators import least_squares as ls
 from dynid.analysis.estimators.payload_physical import PAYLOAD_NAMES, PhysicalPayload, physical_payload
 from dynid.analysis.processing.decimation import ParallelDecimator
@@ -89,6 +90,7 @@ from dynid.dynamics.urdf import inertia_about_com
 from dynid.dynamics.urdf_writer import inertial_slice, link_consistency
 from dynid.errors import IdentificationError, InputError
 from dynid.provenance import json_safe, versions
+from dynid.ranges import check_range
 
 __all__ = ["PAYLOAD_NAMES", "PayloadResult", "PhysicalPayload", "identify_payload", "physical_payload",
            "transform_matrix", "payload_frame", "payload_link_values", "centre_held_torque", "RANK_RTOL"]
@@ -177,6 +179,10 @@ def payload_frame(robot, frame="flange", offset=None):
                          f"number 1..{robot.n_joints} (--frame)")
     R, p = np.eye(3), np.zeros(3)
     if offset:
+        unknown = sorted(set(offset) - {"xyz", "rpy"}) if isinstance(offset, dict) else []
+        if unknown:
+            raise InputError(f"payload frame offset: unknown key(s) {', '.join(map(repr, unknown))}; give "
+                             "{'xyz': [x, y, z], 'rpy': [roll, pitch, yaw]} (m, rad)")
         try:
             p = np.asarray(offset.get("xyz", (0, 0, 0)), dtype=float).reshape(3)
             r, pi, y = np.asarray(offset.get("rpy", (0, 0, 0)), dtype=float).reshape(3)
@@ -419,6 +425,7 @@ def _recordings(x, robot, zoh):
 
 
 def _as_experiment(x, robot):
+    x = recording_of(x)
     if isinstance(x, Experiment):
         return x
     if isinstance(x, (str, os.PathLike)):
@@ -471,7 +478,7 @@ def _model_vector(model, robot, bp, notices):
         # the WLS of every base parameter when the JSON has it (dynid identify --json), as above
         wls = model.get("wls") or {}
         rows = wls.get("parameters") or model.get("parameters")
-        if not isinstance(rows, list) or not all(isinstance(r, dict) and "name" in r for r in rows):
+        if not isinstance(rows, list) or not rows or not all(isinstance(r, dict) and "name" in r for r in rows):
             raise InputError(f"{src}: no 'parameters' list of {{name, value, std}}: pass the JSON "
                              "written by dynid identify --json")
         if model.get("robot") not in (None, robot.name):
@@ -483,6 +490,13 @@ def _model_vector(model, robot, bp, notices):
         std = np.array([0.0 if r.get("std") is None else r["std"] for r in rows], dtype=float)
         given = wls.get("covariance") if rows is wls.get("parameters") else None
         cov = _json_covariance(given, len(names))
+        if cov is not None:
+            ev = np.linalg.eigvalsh(cov)
+            if np.any(np.diag(cov) < 0) or ev[0] < -1e-9 * max(abs(ev[-1]), 1e-300):
+                # a negative variance would give the payload sigma 0 and intervals of zero width
+                raise InputError(f"{src}: wls.covariance is not a covariance (smallest eigenvalue "
+                                 f"{ev[0]:.3g}: not positive semi-definite); pass the JSON written by "
+                                 "dynid identify --json, unedited")
         if cov is None:
             # σ alone: the correlations of the base parameters are lost, and with them the cancellation
             # of their errors in the payload's columns (its σ is then far too wide)
@@ -491,9 +505,14 @@ def _model_vector(model, robot, bp, notices):
                    if not wls.get("parameters") else
                    "has no covariance of its WLS parameters (written by an earlier dynid)" if given is None else
                    f"has a wls.covariance that is not a finite {len(names)} x {len(names)} matrix")
-            notices.append(f"{src} {why}: the robot's σ were propagated without their correlations, which "
-                           "overstates the payload's σ; identify the robot with IDIM or DIDIM "
-                           "(dynid identify --json) and pass that JSON")
+            # without the correlations the payload's σ is usually too wide; with the model's parameters
+            # alone (an essential set) the base parameters it left out count as exactly 0, which can
+            # make it too narrow instead: either way it is not the payload's σ
+            notices.append(f"{src} {why}: the robot's σ were propagated without their correlations"
+                           + ("" if rows is wls.get("parameters") else
+                              f", and the base parameters it does not list ({bp.n_base - len(names)}) as exactly 0")
+                           + ", so the payload's σ may be too wide or too narrow; identify the robot with "
+                           "IDIM or DIDIM (dynid identify --json) and pass that JSON")
     else:
         inner = getattr(model, "result", model) if hasattr(model, "experiments") else model   # a run()
         _check_signature(getattr(inner, "robot_signature", None), robot, src,
@@ -800,6 +819,9 @@ def identify_payload(loaded, robot, *, model=None, unloaded=None, frame="flange"
     >>> r.mass, r.com, r.conf_int()                                           # doctest: +SKIP
     """
     robot = _as_robot(robot)
+    rank_rtol = check_range("rank_rtol", rank_rtol)
+    if not (isinstance(max_rel_halfwidth, float) and max_rel_halfwidth == math.inf):
+        max_rel_halfwidth = check_range("max_rel_halfwidth", max_rel_halfwidth)
     if (model is None) == (unloaded is None):
         raise InputError("give either model= (an identified robot: the robot-fixed route, --model) or "
                          "unloaded= (recordings without the payload: the global route, --unloaded), "

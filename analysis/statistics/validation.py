@@ -28,11 +28,13 @@ import pandas as pd
 
 from dynid.analysis.data.experiment import load_experiment
 from dynid.analysis.data.rates import check_rate_matches
-from dynid.analysis.data.record import checked_experiment
+from dynid.analysis.data.record import checked_experiment, recording_of
 from dynid.analysis.processing.observation import observe
 from dynid.analysis.processing.prediction import prediction_errors
 from dynid.analysis.results import Result, percent
 from dynid.analysis.statistics.noise import normality as _normality
+from dynid.dynamics.robot import Robot
+from dynid.dynamics.robot_file import load_robot
 from dynid.errors import DataError, InputError
 from dynid.provenance import json_safe
 
@@ -208,7 +210,7 @@ def validate(idim_result, experiment, robot=None):
     experiment : Experiment or path
         The held-out recording, not the identification data; a path is read with
         `dynid.load_experiment` for `robot`.
-    robot : Robot, optional
+    robot : Robot, bundled name or robot file path, optional
         Default None: the robot of `idim_result` (a robot of another name is refused).
 
     Returns
@@ -219,6 +221,9 @@ def validate(idim_result, experiment, robot=None):
         moving ones, and the normality tests of the residual.
     """
     idim_result = _validatable(idim_result)
+    if robot is not None and not isinstance(robot, Robot):
+        robot = load_robot(robot)       # a bundled name or a robot file, as everywhere else
+    experiment = recording_of(experiment)
     identified = getattr(idim_result.base, "robot_name", None)
     if robot is not None and identified and getattr(robot, "name", identified) != identified:
         raise InputError(f"validate: the result identifies robot '{identified}', but robot= is "
