@@ -357,10 +357,13 @@ def _assemble(
     _plaus.check_limits(signals, rows, robot, cols_of, source, notices)
     with _plaus.spike_notices(signals, rows, cols_of, source, beside) as spikes:
         at = len(notices)          # the spike notices go here, before the time checks' ones
+        raw = dict(signals)        # the jumps are named on the rows as read, before any resampling
         t, signals, step = _time_and_rate(t, time_col, rows, signals, opts, robot, notices, meta)
         tau = signals["tau"]
         saturation_notices(tau, notices, source)
-        notices[at:at] = spikes.result()
+        found = spikes.result()
+        _plaus.position_jumps(raw, rows, cols_of, source, found, skip=spikes.flagged())
+        notices[at:at] = found
     # the rate Experiment would take from the same median step of t
     fs = float(opts.sampling_rate) if time_col is None else 1.0 / step
     exp = Experiment(

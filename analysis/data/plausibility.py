@@ -24,7 +24,7 @@ import math
 
 import numpy as np
 
-from dynid.analysis.data.spikes import SPIKE_FACTOR, spikes_of_columns
+from dynid.analysis.data.spikes import SPIKE_FACTOR, jumps_of_columns, spikes_of_columns
 from dynid.errors import DataError
 
 #: |value| above which a signal cell is refused.
@@ -42,6 +42,12 @@ LOW_RATE = 10.0
 SLOW_FRACTION = 0.01
 #: 99th-percentile |dq/dt| above this × qd_max: a notice.
 FAST_FACTOR = 10.0
+#: A position sample that steps away and back by more than this × the column's mean |step|, and by
+#: more than JUMP_MIN (rad, or m), is a glitch: a notice. On the real TX40, LWR4+ and Panda logs the
+#: largest such step is 0.1 × the mean step, on dynid's simulated TX40 (4e-5 rad noise) 0.8 ×.
+JUMP_FACTOR = 20.0
+#: ... the floor: an encoder count flickering on a joint at rest is no glitch
+JUMP_MIN = 1e-3
 
 _UNIT = {"q": "rad", "qr": "rad", "qd": "rad/s", "qdd": "rad/s²", "tau": "N·m"}
 
@@ -205,6 +211,31 @@ def check_limits(signals: dict, rows, robot, cols_of, source: str, notices: list
             notices.append(f"{what}: {fix}")
 
 
+def position_jumps(signals: dict, rows, cols_of, source: str, notices: list, skip=frozenset()) -> None:
+    """A notice per position column (q, qr) with a one-sample jump out and back: both steps
+    larger than `JUMP_FACTOR` times the column's mean |step| (and than `JUMP_MIN`) and of
+    opposite signs (an encoder glitch or wrap-around). The spike test misses a jump of a few
+    rad, which is small beside the spread of the positions; in the regressor it is a burst of
+    thousands of rad/s, which can zero a whole joint through the velocity dead zone (1 % of
+    the peak |qd|) or bias every parameter. `skip`: the (signal, column) pairs whose spike is
+    already named (`SpikeNotices.flagged`)."""
+    w = _Where(cols_of, rows, source)
+    for s in ("q", "qr"):
+        x = signals.get(s)
+        if x is None or x.shape[0] < 3:
+            continue
+        first, count, mean, step = jumps_of_columns(x, JUMP_FACTOR, JUMP_MIN)
+        for j in np.flatnonzero(count > 0):
+            if (s, int(j)) in skip:
+                continue
+            k = int(first[j])
+            notices.append(
+                f"{w.name(s, j)}, {w.row(s, j, k)}: {s}{j + 1} jumps by {_g(float(step[j]))} rad in one "
+                f"sample and back (more than {_g(JUMP_FACTOR)}x its mean step of {_g(float(mean[j]))} rad)"
+                f"{f'; {int(count[j])} such samples in all' if count[j] > 1 else ''}: a glitch? Fix or remove "
+                "that row (it is a burst of speed and acceleration in the regressor)")
+
+
 def _first_spikes(x: np.ndarray) -> list[tuple[int, int, int, float, float]]:
     """(column, row of its first spike, its number of spikes, its robust scale, the first
     spike's value) for each column of x (n, k) with isolated spikes."""
@@ -230,6 +261,7 @@ class SpikeNotices:
         found = list(self._found)
         if self._pending is not None:
             found.append((self._pending[0], self._pending[1].result()))
+            self._found, self._pending = found, None
         w = self._where
         return [
             f"{w.name(s, j)}, {w.row(s, j, k)}: isolated spike in {s}{j + 1}: "
@@ -239,6 +271,10 @@ class SpikeNotices:
             "Fix or remove that row (outliers bias the fit)"
             for s, columns in found for j, k, count, scale, value in columns
         ]
+
+    def flagged(self) -> set:
+        """The (signal, column) pairs with a spike notice (after `result()`)."""
+        return {(s, j) for s, columns in self._found for j, *_ in columns}
 
     def __enter__(self):
         return self

@@ -23,7 +23,7 @@ from dynid.numba_cache import install as _cache_outside_the_package
 
 _cache_outside_the_package()   # before the first @njit(cache=True): dynid.numba_cache
 
-__all__ = ["SPIKE_FACTOR", "spikes_of_columns", "isolated_spikes"]
+__all__ = ["SPIKE_FACTOR", "spikes_of_columns", "isolated_spikes", "jumps_of_columns"]
 
 #: A sample farther than this × the column's robust scale (1.4826 × MAD) from the median
 #: of its 4 neighbours, which agree among themselves, is an isolated spike.
@@ -204,3 +204,42 @@ def spikes_of_columns(X: np.ndarray) -> list:
 def isolated_spikes(x: np.ndarray):
     """(row indices of the isolated spikes, robust scale) of one column `x`."""
     return spikes_of_columns(np.asarray(x, dtype=float).reshape(-1, 1))[0]
+
+
+@njit(cache=True, nogil=True)
+def _jumps(x, factor, floor, first, count, mean, step):  # pragma: no cover - compiled
+    """Per column of the row-major (n, k) `x`: the mean |step| and the samples that step away
+    and back by more than max(factor * mean, floor) (first row, count, its step). Two passes
+    over contiguous rows, no temporaries."""
+    n, k = x.shape
+    for j in range(k):
+        mean[j] = 0.0
+        first[j] = -1
+        count[j] = 0
+    for i in range(1, n):
+        for j in range(k):
+            mean[j] += abs(x[i, j] - x[i - 1, j])
+    for j in range(k):
+        mean[j] /= n - 1
+    for i in range(1, n - 1):
+        for j in range(k):
+            lim = max(factor * mean[j], floor)
+            d0 = x[i, j] - x[i - 1, j]
+            d1 = x[i + 1, j] - x[i, j]
+            if abs(d0) > lim and abs(d1) > lim and d0 * d1 < 0.0:
+                if count[j] == 0:
+                    first[j] = i
+                    step[j] = d0
+                count[j] += 1
+
+
+def jumps_of_columns(X: np.ndarray, factor: float, floor: float):
+    """(first row or -1, count, mean |step|, the first jump's step) per column of X (n, k), n >= 3:
+    the samples that step away from both neighbours, out and back, by more than
+    max(factor x the column's mean |step|, floor)."""
+    X = np.ascontiguousarray(X, dtype=float)
+    k = X.shape[1]
+    first, count = np.empty(k, dtype=np.int64), np.empty(k, dtype=np.int64)
+    mean, step = np.empty(k), np.zeros(k)
+    _jumps(X, float(factor), float(floor), first, count, mean, step)
+    return first, count, mean, step

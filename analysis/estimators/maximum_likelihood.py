@@ -607,7 +607,8 @@ def _check_periodic(q, q_fit, f0, K, notices, harmonics_given=False):
                          f"the recording. {fix[0].upper() + fix[1:]}; for data that are not periodic use "
                          "IDIM or DIDIM")
     if share[j] > NOT_PERIODIC_NOTICE:
-        notices.append(f"{text}: {fix}")
+        notices.append(f"{text}: the latent trajectory (eq. (17)) misses part of the motion, which biases the "
+                       f"estimates; {fix}")
         return
     # a small share can still be far above the noise (a start-up transient, a drift): the likelihood
     # then reads the misfit as position noise, and the estimates are biased (Fv1 7 sigma off)

@@ -56,8 +56,9 @@ from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
+import pandas as pd
 
-from dynid.analysis.results import p_phrase
+from dynid.analysis.results import Result, p_phrase
 from dynid.analysis.statistics.residuals import analyze_residuals, residual_analysis
 from dynid.analysis.units import parameter_kind, parameter_unit, prismatic_joints
 from dynid.dynamics.base_parameters import base_parameters
@@ -81,9 +82,10 @@ def must_be_nonnegative(bp, standard_names, k) -> bool:
     return all(row[i] > 0 and parameter_kind(standard_names[i]) in NONNEGATIVE_KINDS for i in nz)
 
 
-@dataclass
-class Verdict:
-    """What `verdict` concluded; `to_dict()` is the JSON `"verdict"`."""
+@dataclass(repr=False)
+class Verdict(Result):
+    """What `verdict` concluded; `to_dict()` is the JSON `"verdict"`, `to_csv()` the table of
+    the judged parameters (name, value, std, unit, %σ, flagged), `summary()` the findings."""
 
     status: str                                   # identified / identified with reservations / not identified
     identified: bool
@@ -123,8 +125,15 @@ class Verdict:
         lines += [f"  [{f['level']}] {f['text']}" for f in self.findings]
         return "\n".join(lines)
 
-    def __str__(self):
-        return self.summary()
+    def to_frame(self):
+        """The judged parameters: name, value, std, unit, rel_std_percent, flagged."""
+        cols = ["name", "value", "std", "unit", "rel_std_percent", "flagged"]
+        return pd.DataFrame(self.parameters, columns=cols).set_index("name")
+
+    def __repr__(self):
+        flagged = len(self.not_identified)
+        return (f"<Verdict {self.status!r}: {len(self.findings)} finding(s), {len(self.parameters)} "
+                f"parameters judged, {flagged} above {self.rel_std_threshold:g} % sigma>")
 
 
 def _pct(x):
@@ -597,11 +606,16 @@ def _dead_zone(mask, validation):
 
 
 def check_data_quality(x: VerdictInputs) -> CheckOutcome:
-    """Saturation notices, cond(W) and the fraction of equations in the velocity dead zone."""
+    """Saturation and glitch notices, maximum likelihood's motion that is not periodic at its f0,
+    cond(W) and the fraction of equations in the velocity dead zone."""
     notices = (list(getattr(x.result, "notices", []) or [])
                + list(getattr(x.validation, "notices", []) or []))
     sat = [s for s in notices if "saturat" in s.lower()]
-    dq = [{"level": "warn", "text": s} for s in dict.fromkeys(sat)]
+    # maximum likelihood's trajectory model (eq. (17)) that misses the motion: its estimates are biased
+    latent = [s for s in notices if "latent trajectory" in s]
+    # one-sample spikes and jumps the loader found (dynid.analysis.data.plausibility)
+    glitch = [s for s in notices if "a glitch?" in s]
+    dq = [{"level": "warn", "text": s} for s in dict.fromkeys(sat + latent + glitch)]
     ls_fit = _least_squares(x.result)
     if ls_fit is not None:
         dq.append(_conditioning(ls_fit, x.cond_threshold))
@@ -609,7 +623,10 @@ def check_data_quality(x: VerdictInputs) -> CheckOutcome:
     if mask is not None or x.validation is not None:
         dq.append(_dead_zone(mask, x.validation))
     return CheckOutcome(findings=[dict(d, key="data") for d in dq],
-                        reasons=["saturation"] if sat else [], fields={"data_quality": dq})
+                        reasons=(["saturation"] if sat else []) + (
+                            ["the motion is not periodic at maximum likelihood's f0"] if latent else []) + (
+                            ["glitches in the data"] if glitch else []),
+                        fields={"data_quality": dq})
 
 
 #: the checks, in the order their findings are shown; a new check is one
