@@ -188,6 +188,11 @@ class ExcitationResult:
     def feasible(self):
         return within_limits(self.margins)
 
+    def __repr__(self):
+        return (f"<ExcitationResult robot {self.robot_name!r}: f0 {self.f0:g} Hz, {self.harmonics} harmonics, "
+                f"cond {self.cond_result:.4g} (best start {self.cond_start:.4g})"
+                f"{'' if self.feasible else ', NOT within the limits'}>")
+
     def to_frame(self, fs, n_periods=1):
         """Reference `t, qr1..n, qdr1..n, qddr1..n` at the controller rate `fs` (Hz).
 

@@ -272,6 +272,9 @@ def _check_document(doc, path):
         raise RobotFileError(f"{path}: tables or arrays are nested more than {MAX_NESTING} deep; a "
                              f"robot file needs 4 levels: fix the file")
     unknown = sorted(map(str, set(doc) - _TOP_KEYS))
+    if unknown and "experiment" in doc:
+        raise RobotFileError(f"{path} is an experiment description (a recording), not a robot file: give it "
+                             "as the data, and the robot with --robot (a bundled name, a robot TOML or a URDF)")
     if unknown:
         raise RobotFileError(f"{path}: unknown top-level key(s) {', '.join(map(shown, unknown))}; "
                              f"allowed: {', '.join(sorted(_TOP_KEYS))}")

@@ -209,7 +209,8 @@ def cmd_report(args, say):
 
 def cmd_demo(args, say):
     from dynid.reports.pipeline import demo
-    out = demo(seed=args.seed, duration=args.duration, skip=args.skip, max_seconds=args.max_seconds, say=say)
+    out = demo(seed=args.seed, duration=args.duration, skip=args.skip, max_seconds=args.max_seconds,
+               max_iter=args.max_iter, gain_update=args.gain_update, say=say)
     return _write_full_report(args, say, out)
 
 

@@ -24,6 +24,11 @@ __all__ = ["run", "read_store"]
 def read_store(store):
     """Every row of a results store, as a DataFrame (one row per recording and parameter).
 
+    Parameters
+    ----------
+    store : str or path
+        The results store a fleet run wrote (a folder; docs/formats.md, "Fleet").
+
     Returns
     -------
     pandas.DataFrame
@@ -39,18 +44,38 @@ def run(catalogue, store, *, scheduler: str | None = None, workers: int | None =
         progress=None, quiet_interrupt: bool = False) -> FleetRun:
     """Identify every new or changed recording of `catalogue` into `store`, then monitor the fleet.
 
-    `scheduler`: address of a running Dask scheduler (`tcp://host:8786`); without one a
-    LocalCluster of `workers` processes (default: this machine's cores) is started, or
-    `client` (a `distributed.Client`) is used. `parameters`: the base parameters to
-    monitor, by family (`Fv` = every joint's) or by name (`Fv2`). `report`/`json`:
-    write the fleet report. `progress`: a callable `progress(done, total)`; without one,
-    the run reports through `dynid.progress` (silenced by `dynid.progress.silence()`).
-    `quiet_interrupt`: local workers that ignore Ctrl-C, for a program that ends with the
-    run (the command line; it changes process-wide state, see `analysis.fleet.interrupt`).
-    Returns the `FleetRun`, its `health` the alarms.
-
     Before any work: the monitoring options are range-checked, and no output may be
     an input (the catalogue, a recording, a robot file; through links or `..` too).
+
+    Parameters
+    ----------
+    catalogue : str or path
+        The fleet's catalogue (CSV: one row per recording; docs/formats.md, "Fleet").
+    store : str or path
+        The results store: recordings already in it, unchanged, are not identified again.
+    scheduler : str, optional
+        Address of a running Dask scheduler (`tcp://host:8786`).
+    workers : int, optional
+        Without a scheduler or client: the processes of a LocalCluster (default: this
+        machine's cores).
+    client : distributed.Client, optional
+        A Dask client to use instead.
+    settings : dict, optional
+        IDIM's processing overrides (fc_position, nd, ...), for every recording.
+    diagnose : bool
+        Also run the residual diagnosis on every recording.
+    parameters : sequence of str
+        The base parameters to monitor, by family (`Fv`: every joint's) or by name (`Fv2`).
+    false_alarm_rate, n_baseline
+        The wear monitor's options (`monitor`).
+    report, json : str or path, optional
+        Write the fleet report (HTML) and its JSON there.
+    progress : callable, optional
+        `progress(done, total)` as recordings finish; without one the run reports through
+        `dynid.progress` (silenced by `dynid.progress.silence()`).
+    quiet_interrupt : bool
+        Local workers that ignore Ctrl-C, for a program that ends with the run (the command
+        line; it changes process-wide state, see `analysis.fleet.interrupt`).
 
     Returns
     -------
@@ -59,7 +84,7 @@ def run(catalogue, store, *, scheduler: str | None = None, workers: int | None =
     """
     check_monitor_options(parameters, false_alarm_rate, n_baseline)
     if report is not None or json is not None:
-        check_outputs([("report", report), ("json", json)], input_files(catalogue))
+        check_outputs([("--report (report=)", report), ("--json (json=)", json)], input_files(catalogue))
     # without a caller's callable, progress goes through dynid.progress (a bar on a terminal, log
     # records elsewhere, dynid.progress.silence() to turn it off), as the other long steps do
     with contextlib.nullcontext(progress) if progress is not None else task("fleet: identifying") as bar:

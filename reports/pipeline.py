@@ -315,10 +315,8 @@ def _report_settings(settings, options) -> Settings:
     return s
 
 
-def _payload_part(out, payload, robot, options, say):
-    """The payload of `report(..., payload=...)`: the robot-fixed route on the report's IDIM
-    result, its section appended; a recording that does not identify it becomes a section
-    saying what is not identifiable and why (bad input still fails the report)."""
+def _payload_options(options):
+    """`report`'s payload_options, checked before any work: the robot-fixed route's options."""
     options = dict(options or {})
     if options.get("zoh"):
         # the robot is fixed to this report's IDIM model, identified from the torque as logged: centring
@@ -331,6 +329,14 @@ def _payload_part(out, payload, robot, options, say):
     if unknown:
         raise InputError(f"payload_options: unknown option(s) {', '.join(unknown)}; known: frame, offset, "
                          "physical, com_box")
+    return options
+
+
+def _payload_part(out, payload, robot, options, say):
+    """The payload of `report(..., payload=...)`: the robot-fixed route on the report's IDIM
+    result, its section appended; a recording that does not identify it becomes a section
+    saying what is not identifiable and why (bad input still fails the report)."""
+    options = _payload_options(options)
     loaded = payload if isinstance(payload, (list, tuple)) else [payload]
     with say.progress("payload (robot fixed)"):
         try:
@@ -388,12 +394,18 @@ def report(data, robot, path=None, *, settings=None, say=None, payload=None, pay
     say = say or Reporter()
     s = _report_settings(settings, options)
     robot = steps.as_robot(robot)
+    if payload_options and payload is None:
+        raise InputError("payload_options given without payload=: give the loaded recording(s) as "
+                         "payload=, or leave payload_options out")
     if payload is not None:
+        _payload_options(payload_options)
         # before every method runs: a robot that cannot feel a payload is bad input, not a late failure
         frame = (payload_options or {}).get("frame", "flange")
         unfelt = unfelt_parameters(robot, frame, (payload_options or {}).get("offset"))
         if unfelt:
             raise InputError(f"--payload: {unfelt_message(robot, unfelt)}; leave --payload out")
+        # read (and checked) now: a bad payload file is refused before minutes of other work
+        payload = steps.as_experiments(payload, robot, resample=s.resample)
     experiments, held_out = steps.load_data(data, robot, s, say)
     with steps.holdout_hint(s, experiments), say.progress("IDIM: regressor and decimation") as bar:
         result = steps.identify_step(experiments, robot, s.replace(method="idim"), progress=bar.update)
@@ -406,7 +418,8 @@ def report(data, robot, path=None, *, settings=None, say=None, payload=None, pay
     return out
 
 
-def demo(*, seed=1, duration=20.0, skip=(), max_seconds=None, path=None, say=None) -> FullReport:
+def demo(*, seed=1, duration=20.0, skip=(), max_seconds=None, max_iter=None, gain_update=None, path=None,
+         say=None) -> FullReport:
     """The demo: a simulated TX40 (Table 2 of the DIDIM paper) through the whole pipeline.
 
     Parameters
@@ -421,6 +434,11 @@ def demo(*, seed=1, duration=20.0, skip=(), max_seconds=None, path=None, say=Non
     max_seconds : float, optional
         Wall-clock limit of the posterior's sampler, s. Default None: no limit, the
         sampler stops on its step budget.
+    max_iter : int, optional
+        DIDIM's largest number of Gauss-Newton steps (default 15, as `report`).
+    gain_update : str, optional
+        DIDIM's derivative-gain update (default `"initial"`, as `report`; `identify`'s
+        `gain_update`).
     path : str or path, optional
         Where to write the HTML report. Default None: not written.
     say : Reporter or callable, optional
@@ -434,7 +452,8 @@ def demo(*, seed=1, duration=20.0, skip=(), max_seconds=None, path=None, say=Non
         `path` when given).
     """
     say = say or Reporter()
-    s = _report_settings(None, dict(seed=seed, skip=skip, max_seconds=max_seconds, duration=duration))
+    didim = {k: v for k, v in (("max_iter", max_iter), ("gain_update", gain_update)) if v is not None}
+    s = _report_settings(None, dict(seed=seed, skip=skip, max_seconds=max_seconds, duration=duration, **didim))
     if not (isinstance(duration, (int, float)) and duration == duration and abs(duration) != float("inf")
             and duration >= 2.0):
         raise InputError(f"duration must be a finite number of seconds, at least 2 s, got {duration!r} "

@@ -119,6 +119,22 @@ def simulate_campaign(n_repetitions=25, seed=0, *, torque_noise=None, position_n
                       rate=C.RATE, substeps=2) -> DecoupledCampaign:
     """Simulate the campaign on the COMAU of `dynid.dynamics.comau_decoupled` (module doc).
 
+    Parameters
+    ----------
+    n_repetitions : int
+        Repetitions of every experiment (the paper's tables average over them).
+    seed : int
+        Seed of the noise: the same seed gives the same campaign.
+    torque_noise : float or (6,) array, optional
+        Standard deviation of the measured torque noise per joint, N m (default
+        `TORQUE_NOISE` of `dynid.dynamics.comau_decoupled`).
+    position_noise : float, optional
+        Standard deviation of the encoder noise, rad (default `POSITION_NOISE`, 2e-6).
+    rate : float
+        Controller and sampling rate, Hz (default 1000, section 3.3).
+    substeps : int
+        RK4 substeps per controller period of the simulation.
+
     Returns
     -------
     DecoupledCampaign
@@ -151,7 +167,18 @@ def simulate_campaign(n_repetitions=25, seed=0, *, torque_noise=None, position_n
 def identify_campaign(c: DecoupledCampaign, *, confidence=DEFAULT_CONFIDENCE, validate=True,
                       use_truth=True) -> DecoupledIdentification:
     """Tables 1, 2, 3 (in the paper's order, each compensating with the previous means) and the
-    validation of section 3.5. `use_truth`: attach the true values (coverage check).
+    validation of section 3.5.
+
+    Parameters
+    ----------
+    c : DecoupledCampaign
+        What `simulate_campaign` returned.
+    confidence : float
+        Level of the intervals over the repetitions (default 0.999, as the paper's tables).
+    validate : bool
+        Also simulate the identified model against the validation recordings (section 3.5).
+    use_truth : bool
+        Attach the true values, for the coverage check of the intervals.
 
     Returns
     -------

@@ -33,13 +33,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import pandas as pd
 
 from dynid.analysis.diagnosis.effect_observation import observe_effects
 from dynid.analysis.diagnosis.effects import make_candidate, signals_from_observation
 from dynid.analysis.estimators import least_squares as ls
 from dynid.analysis.estimators.physical import pc_wls
-from dynid.analysis.results import percent
+from dynid.analysis.results import Result, percent
 from dynid.analysis.statistics.validation import prediction_errors
+from dynid.analysis.units import parameter_unit
 from dynid.errors import IdentificationError, InputError
 from dynid.provenance import json_safe
 
@@ -112,9 +114,11 @@ def effect_design(experiment, robot, bp, settings, candidates):
     return np.concatenate(blocks, axis=2), eo.obs.tau, mask, names
 
 
-@dataclass
-class EffectsFit:
+@dataclass(repr=False)
+class EffectsFit(Result):
     """The WLS of `[W, C]` and, when asked, its physically consistent counterpart.
+
+    `to_csv()` writes the effect parameters (`effects()`), `to_json()` the JSON block.
 
     `cov_effects_pc`: sampling covariance of the PC effect parameters, eq. (3) (the reported
     sigma is floored at the unconstrained one, `effects`); `rel_error_*`:
@@ -166,6 +170,16 @@ class EffectsFit:
                 row.update(pc=float(self.theta_pc[k]), pc_std=float(sd_pc[k]))
             out.append(row)
         return out
+
+    def to_frame(self):
+        """The effect parameters, one row each: effect, joint, unit, WLS value and sigma (PC too)."""
+        frame = pd.DataFrame(self.effects()).set_index("name")
+        frame.insert(2, "unit", [parameter_unit(n) for n in frame.index])
+        return frame
+
+    def __repr__(self):
+        return (f"<EffectsFit {self.spec}: {len(self.effect_names)} effect parameter(s), rel. error "
+                f"{percent(self.rel_error_wls, 3)}>")
 
     def to_dict(self) -> dict:
         """The JSON block of the effects: `spec`, per-parameter values and sigma (unconstrained

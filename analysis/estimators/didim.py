@@ -1321,7 +1321,9 @@ def _didim_result(L, experiment, beta0, tau, history, timings, last, converged, 
         tau_est_dec=last["Wd"] @ res.chi, W_dec=last["Wd"], row_mask=last["mask"],
         transient_samples=n0, notices=notices, data_hash=h, source=str(experiment.source),
         joint_names=list(robot.joint_names), timings=timings, physical=last.get("physical"),
-        gains=gains_cov, robot_signature=model_signature(robot), _state=(L, last))
+        gains=gains_cov, robot_signature=model_signature(robot),
+        # without the run's progress callback (a closure): the result stays picklable
+        _state=(dataclasses.replace(L, progress=None), last))
 
 
 # ----------------------------------------------------------------------------- v_s from the data

@@ -274,12 +274,23 @@ def monitor(frame: pd.DataFrame, parameters=DEFAULT_PARAMETERS, *, false_alarm_r
             compensate: bool = True) -> FleetHealth:
     """Histories, temperature compensation and CUSUM alarms of the store's rows `frame`.
 
-    `false_alarm_rate`: accepted probability of a false alarm per monitored series
-    (robot x parameter) and recording, split over the two sides of the CUSUM.
-    `allowance`: the CUSUM's k in units of the scatter (tuned to shifts of 2 k).
-    `n_baseline`: the first recordings of each robot, taken as healthy, that fix
-    its reference value and (pooled over the fleet) the scatter and the temperature
-    coefficient. Series with fewer recordings are reported without alarms.
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        The store's rows (`read_store`).
+    parameters : sequence of str
+        The base parameters to monitor, by family (`Fv`: every joint's) or by name (`Fv2`).
+    false_alarm_rate : float
+        Accepted probability of a false alarm per monitored series (robot x parameter)
+        and recording, split over the two sides of the CUSUM.
+    allowance : float
+        The CUSUM's k in units of the scatter (tuned to shifts of 2 k).
+    n_baseline : int
+        The first recordings of each robot, taken as healthy, that fix its reference value
+        and (pooled over the fleet) the scatter and the temperature coefficient. Series with
+        fewer recordings are reported without alarms.
+    compensate : bool
+        Remove the fitted temperature dependence before the CUSUM.
 
     Returns
     -------

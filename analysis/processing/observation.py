@@ -250,8 +250,7 @@ def full_rate(experiment, robot, q_meas, settings=None) -> FullRate:
     # before the filter, whose own check of the length does not know the file
     if N - 2 * edge < 10:
         raise DataError(f"{experiment.source}: {N} samples are too few for the position filter at "
-                        f"{s['fc_position']} Hz (it needs {edge} samples at each end); record longer "
-                        f"or raise fc_position")
+                        f"{s['fc_position']:.4g} Hz (it needs {edge} samples at each end): record longer")
     der = derivatives(q_meas, fs, s["fc_position"], s["order"])
     keep = slice(edge, N - edge)
     qd = der.qd[keep]

@@ -274,8 +274,10 @@ def sample_idim(idim_result, *, which: str = "essential", physical: bool = False
         if "n_walkers" in kwargs:
             raise InputError("sample: give walkers or n_walkers, not both")
         kwargs["n_walkers"] = kwargs.pop("walkers")
-    if isinstance(kwargs.get("seed"), (int, float)) and not isinstance(kwargs.get("seed"), bool):
-        kwargs["seed"] = check_range("seed", kwargs["seed"])
+    if not isinstance(kwargs.get("seed"), np.random.Generator):
+        kwargs["seed"] = check_range("seed", kwargs.get("seed", 0))
+    if kwargs.get("n_walkers") is not None:
+        kwargs["n_walkers"] = check_range("walkers", kwargs["n_walkers"])
     obs = idim_result.observation
     if which == "essential":
         ls = idim_result.essential.result

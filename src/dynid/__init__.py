@@ -127,8 +127,8 @@ def sample(result: IDIMResult, *, which: str = "essential", seed: int = 1, **kwa
         The options of `dynid.analysis.sampling.sample.sample_linear`, among them
         `n_walkers` (or `walkers`, the command line's name), `max_steps`, `max_seconds` (s),
         `noise` (the likelihood's noise model), `physical` (base parameters only: the
-        physically consistent support) and `progress` (a callable; without one the
-        sampling reports through `dynid.progress`).
+        physically consistent support) and `progress` (called with the fraction done, 0 to 1,
+        as `identify`'s; without one the sampling reports through `dynid.progress`).
 
     Returns
     -------
@@ -150,8 +150,22 @@ def sample(result: IDIMResult, *, which: str = "essential", seed: int = 1, **kwa
     if unknown:
         raise TypeError(f"sample() got an unexpected keyword argument {unknown[0]!r}"
                         f"{did_you_mean(unknown[0], known)}; its options: {', '.join(sorted(known))}")
-    if kwargs.get("progress") is not None:
-        return sample_idim(result, which=which, seed=seed, **kwargs)
+    user = kwargs.get("progress")
+    if user is not None:
+        if not callable(user):
+            raise InputError(f"progress must be a function of the fraction done (0..1), or None; not "
+                             f"{type(user).__name__}")
+        # the sampler counts steps against the steps its convergence needs, which grow as it learns
+        # the chains' integrated time: the fraction never goes back
+        done = [0.0]
+
+        def fraction(n, required):
+            done[0] = max(done[0], min(1.0, n / required) if required else 0.0)
+            user(done[0])
+
+        out = sample_idim(result, which=which, seed=seed, **{**kwargs, "progress": fraction})
+        user(1.0)
+        return out
     with task("sampling the posterior") as progress:
         return sample_idim(result, which=which, seed=seed, **{**kwargs, "progress": progress})
 
