@@ -342,6 +342,21 @@ def test_demo_refuses_a_negative_duration(capsys):
     assert "--duration" in capsys.readouterr().err
 
 
+def test_demo_takes_its_didim_options(capsys, monkeypatch):
+    """`demo --max-iter` and `--gain-update` were parsed and dropped (DIDIM ran 15 steps)."""
+    assert main(["demo", "--max-iter", "0", "--report", "x.html"]) == 2
+    assert "--max-iter" in capsys.readouterr().err
+    from dynid.reports import pipeline
+    seen = {}
+    monkeypatch.setattr(pipeline, "run_demo", lambda **kw: (_ for _ in ()).throw(SystemExit(seen.update(kw))))
+    monkeypatch.setattr(pipeline, "_report_settings",
+                        lambda settings, options, _f=pipeline._report_settings: seen.update(s=_f(settings, options))
+                        or seen["s"])
+    with pytest.raises(SystemExit):
+        pipeline.demo(max_iter=3, gain_update="every")
+    assert seen["s"].max_iter == 3 and seen["s"].gain_update == "every"
+
+
 def test_identify_maximum_likelihood_recovers_the_robot_file_values(tmp_path):
     csv, js, html = tmp_path / "run.csv", tmp_path / "ml.json", tmp_path / "ml.html"
     assert main(["simulate", "--robot", "planar2", "--duration", "8", "--out", str(csv), "--quiet"]) == 0

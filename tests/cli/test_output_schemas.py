@@ -87,7 +87,8 @@ def load(path):
 
 def test_every_command_with_json_has_a_schema():
     names = {p.stem for p in SCHEMAS.glob("*.json")}
-    assert names == {"robot", "simulate", "excite", "identify", "sample", "diagnose", "report", "fleet", "payload"}
+    assert names == {"robot", "simulate", "excite", "identify", "sample", "diagnose", "report", "fleet", "payload",
+                     "drive_gains"}
     for name in names:
         doc = schema(name)
         assert doc["required"] and doc.get("additionalProperties", True) is True, name
@@ -138,6 +139,14 @@ def test_payload_json(tmp_path):
     doc = load(tmp_path / "payload.json")
     check("payload", doc)
     assert doc["method"] == "payload-robot-fixed" and abs(doc["mass_kg"] - 2.0) < 0.1
+    # the drive gains with that payload known: `payload --gains` writes a document of its own
+    run(tmp_path, "payload", "--robot", "tx40", "--loaded", "loaded.csv", "--unloaded", "empty.csv", "--mass", "2",
+        "--com", "0,0,0.05", "--gains", "--json", "gains.json")
+    doc = load(tmp_path / "gains.json")
+    check("drive_gains", doc)
+    assert doc["method"] == "drive-gains" and [g["joint"] for g in doc["gains"]] == [1, 2, 3, 4, 5, 6]
+    # the robot file's gains are the simulation's: every 95 % interval holds 1 but at most one
+    assert sum(g["lower_95"] <= 1.0 <= g["upper_95"] for g in doc["gains"]) >= 5
 
 
 def test_sample_json(folder):

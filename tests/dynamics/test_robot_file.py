@@ -604,3 +604,10 @@ def test_a_toml_wrapping_a_rounded_urdf_loads_as_the_urdf_does(tmp_path):
         '<limit lower="-3" upper="3" effort="10" velocity="3"/></joint></robot>')
     (tmp_path / "disk.toml").write_text('name = "disk"\nurdf = "disk.urdf"\n')
     assert load_robot(tmp_path / "disk.urdf").n_joints == load_robot(tmp_path / "disk.toml").n_joints == 1
+
+
+def test_an_experiment_description_given_as_the_robot_says_so():
+    """`--robot recording.toml` listed the experiment's sections as unknown robot keys."""
+    msg = _bad_doc({"experiment": {"file": "run.csv"}, "positions": {}, "torques": {}},
+                   "is an experiment description", "not a robot file", "--robot", name="run.toml")
+    assert "unknown top-level" not in msg

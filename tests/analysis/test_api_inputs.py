@@ -1,0 +1,155 @@
+"""What the Python API does with what a user passes it: simulated recordings where a recording
+is expected, joint numbers, switches, progress callables, payload options, and one recording
+given twice (shifted by a sample), plus the parts of the results interface every result has
+(`to_csv`, a one-line `repr`) on the results that lacked them."""
+import dataclasses
+import pickle
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import dynid
+from dynid.analysis.data.plausibility import position_jumps
+from dynid.analysis.data.record import Experiment, same_samples, shared_samples
+from dynid.errors import IdentificationError, InputError
+from dynid.ranges import check_joints
+
+
+@pytest.fixture(scope="module")
+def planar2():
+    robot = dynid.load_robot("planar2")
+    rec = dynid.simulate(robot, 8.0, seed=3)
+    return robot, rec, dynid.identify(rec, robot)
+
+
+def _shifted(exp, k=1):
+    """The same recording without its first k samples (what a re-export or a trim gives)."""
+    return Experiment(t=exp.t[k:] - exp.t[k], q=exp.q[k:], qr=None if exp.qr is None else exp.qr[k:],
+                      qd=None, qdd=None, tau=exp.tau[k:], name="shifted", source="shifted.csv")
+
+
+def test_a_simulated_recording_is_taken_wherever_a_recording_is(planar2):
+    robot, rec, r = planar2
+    train, held = dynid.holdout_split(rec, 2.0)
+    assert train.n_samples + held.n_samples == rec.experiment.n_samples
+    assert dynid.validate(r, dynid.simulate(robot, 4.0, seed=4), "planar2").rel_error < 0.1
+
+
+def test_joint_numbers_are_checked_before_any_work(planar2):
+    robot, rec, r = planar2
+    assert check_joints(None, 3) == [1, 2, 3] and check_joints("all", 2) == [1, 2] and check_joints(2, 2) == [2]
+    for bad in ([0], [3], [1, 1], [True], [1.5], "x", []):
+        with pytest.raises(InputError, match="distinct joint numbers 1..2"):
+            check_joints(bad, 2)
+    # joint 0 used to test joint 2 under the name "joint 0" (numpy's index -1)
+    with pytest.raises(InputError, match="joint numbers 1..2"):
+        dynid.diagnose(rec.experiment, robot, idim_result=r, joints=[0], effects=["offset"])
+
+
+def test_a_switch_given_as_text_is_refused(planar2):
+    robot, rec, _ = planar2
+    with pytest.raises(InputError, match="gravity_tilt= is a switch"):
+        dynid.run(rec, robot, gravity_tilt="yes")
+
+
+def test_sample_calls_progress_with_the_fraction_done(planar2):
+    _, _, r = planar2
+    with pytest.raises(InputError, match="progress must be a function"):
+        dynid.sample(r, progress=5)
+    for bad in (dict(seed="a"), dict(walkers="x")):
+        with pytest.raises(InputError, match="out of range"):
+            dynid.sample(r, max_steps=10, **bad)
+    seen = []
+    dynid.sample(r, max_steps=400, progress=seen.append)
+    assert seen and all(0.0 <= f <= 1.0 for f in seen) and seen[-1] == 1.0
+    assert all(b >= a for a, b in zip(seen, seen[1:]))
+
+
+def test_payload_options_are_checked(planar2):
+    robot, rec, r = planar2
+    tx40 = dynid.load_robot("tx40")
+    loaded = dynid.simulate(tx40, 3.0, seed=2, payload=(2.0, (0, 0, 0.05)))
+    with pytest.raises(InputError, match="unknown key.*'xzy'"):
+        dynid.identify_payload(loaded, tx40, unloaded=loaded, offset={"xzy": [0, 0, 0.01]})
+    with pytest.raises(InputError, match="no 'parameters' list"):
+        dynid.identify_payload(loaded, tx40, model={"parameters": []})
+    with pytest.raises(InputError, match="max_rel_halfwidth"):
+        dynid.identify_payload(loaded, tx40, model={"parameters": []}, max_rel_halfwidth="x")
+    with pytest.raises(InputError, match="payload_options given without payload"):
+        dynid.report(rec, robot, payload_options={"frame": "flange"})
+
+
+def test_a_model_json_whose_covariance_is_not_one_is_refused(planar2, tmp_path):
+    tx40 = dynid.load_robot("tx40")
+    empty = dynid.simulate(tx40, 4.0, seed=1)
+    loaded = dynid.simulate(tx40, 4.0, seed=2, payload=(2.0, (0, 0, 0.05)))
+    doc = dynid.run(empty, tx40).to_dict()
+    doc["wls"]["covariance"] = (-np.asarray(doc["wls"]["covariance"], dtype=float)).tolist()
+    # a negated covariance gave the payload sigma 0 and intervals of zero width, exit 0
+    with pytest.raises(InputError, match="not a covariance"):
+        dynid.identify_payload(loaded, tx40, model=doc)
+
+
+def test_one_recording_shifted_by_a_sample_is_not_a_second_recording(planar2):
+    robot, rec, _ = planar2
+    exp = rec.experiment
+    other = dynid.simulate(robot, 8.0, seed=5).experiment
+    assert shared_samples(exp, other) == (0, exp.n_samples)
+    assert same_samples(exp, _shifted(exp)) and not same_samples(exp, other)
+    with pytest.raises(InputError, match=r"share \d+ of \d+ samples, bit for bit"):
+        dynid.identify([exp, _shifted(exp)], robot)
+    with pytest.raises(InputError, match="--validation shifted.csv shares"):
+        dynid.run(exp, robot, validation=_shifted(exp, 5))
+    # a robot at rest logs the same sample over and over: a few shared samples are no duplicate
+    still = Experiment(t=exp.t[:500], q=np.zeros((500, 2)), qr=None, qd=None, qdd=None, tau=np.ones((500, 2)))
+    assert not same_samples(still, still)
+
+
+def test_a_one_sample_position_jump_is_named_and_blamed(planar2):
+    robot, rec, _ = planar2
+    exp = rec.experiment
+    q = exp.q.copy()
+    q[300, 1] += 2 * np.pi                    # an encoder wrap-around glitch
+    notices = []
+    position_jumps({"q": q}, None, None, "glitch.csv", notices)
+    assert len(notices) == 1 and "sample 301" in notices[0] and "q2 jumps by 6.2" in notices[0]
+    notices = []
+    position_jumps({"q": exp.q, "qr": exp.qr}, None, None, "clean.csv", notices)
+    assert notices == []
+    # on a slower motion the glitch zeroes joint 2's rows through the velocity dead zone (1 % of
+    # the peak |qd|): the rank-deficiency error says what the loader found
+    slow = dynid.simulate(robot, 4.0, f0=0.5, harmonics=4).experiment
+    q = slow.q.copy()
+    q[300, 1] += 2 * np.pi
+    notices = []
+    position_jumps({"q": q}, None, None, "glitch.csv", notices)
+    glitched = dataclasses.replace(slow, q=q, notices=notices)
+    with pytest.raises(IdentificationError, match="all zero.*The data hold glitches.*q2 jumps by"):
+        dynid.run(glitched, robot)
+
+
+def test_the_verdict_says_when_ml_reads_a_motion_that_is_not_periodic():
+    rec = dynid.simulate("planar2", 10.0, seed=3, f0=0.5, harmonics=5)   # its start-up transient
+    run = dynid.run(rec, "planar2", method="ml", f0=0.5, ml_harmonics=5)
+    assert "the motion is not periodic at maximum likelihood's f0" in run.verdict.reasons
+    assert any("latent trajectory" in f["text"] and f["level"] == "warn" for f in run.verdict.findings)
+
+
+def test_results_that_lacked_parts_of_the_interface(planar2, tmp_path):
+    robot, rec, r = planar2
+    train, held = dynid.holdout_split(rec, 2.0)
+    v = dynid.verdict(r, held)
+    frame = pd.read_csv(pd.io.common.StringIO(v.to_csv()), index_col=0)
+    assert list(frame.index) == list(r.model.names) and "unit" in frame.columns
+    assert repr(v).startswith("<Verdict ") and "\n" not in repr(v)
+    run = dynid.run(train, robot, effects="spring:all")
+    assert run["ZZ1R"].value == run.result["ZZ1R"].value
+    assert run.cov_params().shape == (len(run.result.names),) * 2
+    eff = pd.read_csv(pd.io.common.StringIO(run.effects.to_csv()), index_col=0)
+    assert list(eff.index) == ["Ks1", "Ks2"] and set(eff["unit"]) == {"N m/rad"}
+    assert "\n" not in repr(run.effects)
+    ex = dynid.excite(robot, 0.5, 2, n_starts=1)
+    assert repr(ex).startswith("<ExcitationResult robot 'planar2'") and "\n" not in repr(ex)
+    didim = dynid.identify(rec, robot, "didim", max_iter=2, progress=lambda f: None)
+    assert pickle.loads(pickle.dumps(didim)).params.equals(didim.params)
