@@ -34,9 +34,11 @@ import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from dynid.analysis.data.experiment import Experiment, load_experiment
 from dynid.analysis.data.rates import check_rate_matches, check_same_rate
-from dynid.analysis.data.record import SHARED_FRACTION, SHARED_MIN, checked_experiment, recording_of, shared_samples
+from dynid.analysis.data.record import SHARED_RUN, checked_experiment, recording_of, shared_run
 from dynid.analysis.data.split import holdout_split
 from dynid.analysis.diagnosis.asymmetric_friction import asymmetric_friction
 from dynid.analysis.diagnosis.physical_fit import effect_candidates, identify_physical_effects
@@ -443,9 +445,9 @@ def load_data(data, robot, settings: Settings, say=None):
                            experiments[0].source or experiments[0].name)
         check_cutoffs(settings, [held_out])
         for exp in experiments:
-            shared, of = shared_samples(held_out, exp)
-            if shared >= SHARED_MIN and shared > SHARED_FRACTION * of:
-                raise InputError(f"--validation {held_out.source or held_out.name} shares {shared} of {of} samples, "
+            run = shared_run(held_out, exp)
+            if run >= SHARED_RUN:
+                raise InputError(f"--validation {held_out.source or held_out.name} shares {run} consecutive samples, "
                                  f"bit for bit, with the identification recording {exp.source or exp.name}: "
                                  "validating on the identification data says nothing about the model; give "
                                  "another recording, or --holdout SECONDS to hold out the end of this one")
@@ -468,6 +470,10 @@ def holdout_hint(settings: Settings, experiments):
     except IdentificationError as exc:
         glitches = [n for e in experiments for n in getattr(e, "notices", []) if "a glitch?" in n]
         tail = (" The data hold glitches, which can cause this: " + "; ".join(glitches)) if glitches else ""
+        still = _still_joints(experiments)
+        if still:
+            text = "; ".join(still)
+            tail += f" {text[0].upper()}{text[1:]}: a joint that does not move cannot identify its parameters; record it moving"
         if settings.holdout is None or not experiments:
             if not tail:
                 raise
@@ -476,6 +482,26 @@ def holdout_hint(settings: Settings, experiments):
         raise IdentificationError(f"--holdout {settings.holdout:g} s leaves the first {t[-1] - t[0]:.3g} s of the "
                                   f"recording to identify on, and they do not identify the model (hold out less): "
                                   f"{exc}{tail}") from None
+
+
+#: a joint whose position spans less than this (rad, or m) in a recording is still
+STILL_SPAN = 1e-3
+
+
+def _still_joints(experiments) -> list:
+    """'joint j does not move in <recording> (qj spans x rad)' for each still joint of a recording
+    in which another joint moves (a wholly still recording is refused before, with its own message)."""
+    out = []
+    for e in experiments:
+        q = getattr(e, "q", None)
+        if q is None or q.shape[0] < 2:
+            continue
+        span = np.ptp(q, axis=0)
+        if np.all(span < STILL_SPAN):
+            continue
+        out += [f"joint {j + 1} does not move in {e.source or e.name} (q{j + 1} spans {span[j]:.3g} rad)"
+                for j in np.flatnonzero(span < STILL_SPAN)]
+    return out
 
 
 # ---------------------------------------------------------------- step 2: gravity tilt

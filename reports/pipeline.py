@@ -405,7 +405,7 @@ def report(data, robot, path=None, *, settings=None, say=None, payload=None, pay
         if unfelt:
             raise InputError(f"--payload: {unfelt_message(robot, unfelt)}; leave --payload out")
         # read (and checked) now: a bad payload file is refused before minutes of other work
-        payload = steps.as_experiments(payload, robot, resample=s.resample)
+        payload = steps.as_experiments(payload, robot)      # as identify_payload reads it: --resample is the data's
     experiments, held_out = steps.load_data(data, robot, s, say)
     with steps.holdout_hint(s, experiments), say.progress("IDIM: regressor and decimation") as bar:
         result = steps.identify_step(experiments, robot, s.replace(method="idim"), progress=bar.update)

@@ -362,7 +362,7 @@ def _assemble(
         tau = signals["tau"]
         saturation_notices(tau, notices, source)
         found = spikes.result()
-        _plaus.position_jumps(raw, rows, cols_of, source, found, skip=spikes.flagged())
+        _plaus.position_jumps(raw, rows, cols_of, source, found, skip=spikes.flagged(), robot=robot)
         notices[at:at] = found
     # the rate Experiment would take from the same median step of t
     fs = float(opts.sampling_rate) if time_col is None else 1.0 / step

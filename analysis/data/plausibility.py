@@ -211,15 +211,17 @@ def check_limits(signals: dict, rows, robot, cols_of, source: str, notices: list
             notices.append(f"{what}: {fix}")
 
 
-def position_jumps(signals: dict, rows, cols_of, source: str, notices: list, skip=frozenset()) -> None:
+def position_jumps(signals: dict, rows, cols_of, source: str, notices: list, skip=frozenset(),
+                   robot=None) -> None:
     """A notice per position column (q, qr) with a one-sample jump out and back: both steps
     larger than `JUMP_FACTOR` times the column's mean |step| (and than `JUMP_MIN`) and of
     opposite signs (an encoder glitch or wrap-around). The spike test misses a jump of a few
     rad, which is small beside the spread of the positions; in the regressor it is a burst of
     thousands of rad/s, which can zero a whole joint through the velocity dead zone (1 % of
     the peak |qd|) or bias every parameter. `skip`: the (signal, column) pairs whose spike is
-    already named (`SpikeNotices.flagged`)."""
+    already named (`SpikeNotices.flagged`); `robot` (optional) tells the prismatic joints, in m."""
     w = _Where(cols_of, rows, source)
+    prismatic = [bool(getattr(jt, "prismatic", False)) for jt in getattr(robot, "joints", None) or []]
     for s in ("q", "qr"):
         x = signals.get(s)
         if x is None or x.shape[0] < 3:
@@ -229,9 +231,10 @@ def position_jumps(signals: dict, rows, cols_of, source: str, notices: list, ski
             if (s, int(j)) in skip:
                 continue
             k = int(first[j])
+            unit = "m" if j < len(prismatic) and prismatic[j] else "rad"
             notices.append(
-                f"{w.name(s, j)}, {w.row(s, j, k)}: {s}{j + 1} jumps by {_g(float(step[j]))} rad in one "
-                f"sample and back (more than {_g(JUMP_FACTOR)}x its mean step of {_g(float(mean[j]))} rad)"
+                f"{w.name(s, j)}, {w.row(s, j, k)}: {s}{j + 1} jumps by {_g(float(step[j]))} {unit} in one "
+                f"sample and back (more than {_g(JUMP_FACTOR)}x its mean step of {_g(float(mean[j]))} {unit})"
                 f"{f'; {int(count[j])} such samples in all' if count[j] > 1 else ''}: a glitch? Fix or remove "
                 "that row (it is a burst of speed and acceleration in the regressor)")
 

@@ -19,7 +19,7 @@ from dynid.analysis.data._format import _fmt_t
 from dynid.analysis.data.timebase import TIME_STEP_TOLERANCE
 from dynid.errors import DataError
 
-__all__ = ["Experiment", "SIGNALS", "checked_experiment", "recording_of", "same_samples", "shared_samples"]
+__all__ = ["Experiment", "SIGNALS", "checked_experiment", "recording_of", "repeated_recordings", "same_samples", "shared_run"]
 
 #: Signal names of the column convention, in the order they are stored.
 SIGNALS = ("q", "qr", "qd", "qdd", "tau")
@@ -334,33 +334,67 @@ def recording_of(item):
 _ROW_MIX = np.array([0x9E3779B97F4A7C15, 0xBF58476D1CE4E5B9, 0x94D049BB133111EB, 0xD6E8FEB86659FD93,
                      0xA0761D6478BD642F, 0xE7037ED1A0B428DB, 0x8EBC6AF09C88C6E3, 0x589965CC75374CC3],
                     dtype=np.uint64)
-#: a recording sharing more than this fraction of its distinct (q, tau) samples with another is the
-#: same data (shifted, trimmed or re-exported): independent recordings share none, bit for bit
-SHARED_FRACTION = 0.5
-#: ... and at least this many: a robot at rest, logged by quantised sensors, repeats a few samples
-SHARED_MIN = 100
+#: two recordings whose (q, tau) samples agree bit for bit over this many consecutive samples,
+#: at one shift, are one recording given twice (shifted, trimmed or exported again). Independent
+#: runs of one excitation share isolated samples when the sensors are coarse (a 12-bit encoder,
+#: 0.1 N m torque steps on a 2-joint arm: runs of at most 12), never a run of hundreds.
+SHARED_RUN = 100
 
 
 def _sample_keys(e):
-    """One 64-bit fingerprint per distinct (q, tau) sample of `e`."""
+    """One 64-bit fingerprint per (q, tau) sample of `e`, in time order."""
     X = np.ascontiguousarray(np.column_stack([e.q, e.tau]), dtype=np.float64) + 0.0   # -0.0 -> 0.0
     bits = X.view(np.uint64)
     mix = np.resize(_ROW_MIX, bits.shape[1]) + np.arange(bits.shape[1], dtype=np.uint64) * np.uint64(2)
-    keys = (bits * mix).sum(axis=1, dtype=np.uint64)
-    return np.unique(keys)
+    return (bits * mix).sum(axis=1, dtype=np.uint64)
 
 
-def shared_samples(a, b):
-    """(shared, of): how many of the distinct (q, tau) samples of the recording with fewer of them
-    are also, bit for bit, samples of the other. Two recordings that share more than
-    `SHARED_FRACTION` of them, and at least `SHARED_MIN`, are one recording given twice (one of
-    them shifted by a sample, trimmed or re-exported), which the whole-recording hash misses."""
-    ka, kb = _sample_keys(a), _sample_keys(b)
-    small, large = (ka, kb) if len(ka) <= len(kb) else (kb, ka)
-    return int(np.isin(small, large, assume_unique=True).sum()), int(len(small))
+def shared_run(a, b) -> int:
+    """The longest run of consecutive samples of `a` that are, bit for bit, consecutive samples
+    of `b` at one shift (samples equal to the one before them are left out: a robot holding
+    still repeats its samples in any recording). The shifts tried are the three at which most samples of `a` find
+    their fingerprint in `b`. `a`, `b`: Experiments or their `_sample_keys`."""
+    ka = a if isinstance(a, np.ndarray) else _sample_keys(a)
+    kb = b if isinstance(b, np.ndarray) else _sample_keys(b)
+    if ka.size == 0 or kb.size == 0:
+        return 0
+    order = np.argsort(kb, kind="stable")
+    pos = np.minimum(np.searchsorted(kb[order], ka), kb.size - 1)
+    where = order[pos]                                   # a sample of b with a's key, if any
+    found = kb[where] == ka
+    if not found.any():
+        return 0
+    shifts, counts = np.unique(where[found].astype(np.int64) - np.flatnonzero(found), return_counts=True)
+    best = 0
+    for d in shifts[np.argsort(-counts, kind="stable")[:3]]:
+        lo, hi = max(0, -d), min(ka.size, kb.size - d)   # a[i] beside b[i + d]
+        if hi - lo <= best:
+            continue
+        x, y = ka[lo:hi], kb[lo + d:hi + d]
+        # a sample repeating the one before (a robot holding still, a coarse sensor) counts for
+        # nothing: only the samples that moved make a run, and a repeat does not break one
+        moved = np.r_[True, x[1:] != x[:-1]]
+        same = (x == y)[moved]
+        edges = np.flatnonzero(np.diff(np.r_[0, same.astype(np.int8), 0]))
+        if edges.size:
+            best = max(best, int((edges[1::2] - edges[::2]).max()))
+    return best
 
 
 def same_samples(a, b) -> bool:
-    """True when `a` and `b` share most of their samples (`shared_samples`)."""
-    shared, of = shared_samples(a, b)
-    return shared >= SHARED_MIN and shared > SHARED_FRACTION * of
+    """True when `a` and `b` are one recording given twice (`shared_run` >= `SHARED_RUN`)."""
+    return shared_run(a, b) >= SHARED_RUN
+
+
+def repeated_recordings(experiments) -> list:
+    """The pairs (i, k, run), i < k, of `experiments` that are one recording given twice
+    (`same_samples`: `run` consecutive samples in common), each recording's fingerprints computed
+    once."""
+    keys = [_sample_keys(e) for e in experiments]
+    out = []
+    for k in range(1, len(keys)):
+        for i in range(k):
+            run = shared_run(keys[i], keys[k])
+            if run >= SHARED_RUN:
+                out.append((i, k, run))
+    return out

@@ -14,7 +14,7 @@ import numpy as np
 import pandas as pd
 
 from dynid.analysis.data.rates import check_same_rate
-from dynid.analysis.data.record import SHARED_FRACTION, SHARED_MIN, shared_samples
+from dynid.analysis.data.record import repeated_recordings
 from dynid.analysis.estimators import least_squares as ls
 from dynid.analysis.estimators.agreement import Agreement, agreement, segments
 from dynid.analysis.estimators.essential import essential_parameters
@@ -186,15 +186,12 @@ def identify_idim(experiment, robot, *, settings=None, bp=None, max_error_growth
             raise InputError(f"identify: recording {k + 1} ({experiments[k].source or experiments[k].name}) holds "
                              f"the same data as recording {i + 1}: counted twice it would shrink the sigma and "
                              "prove nothing; give each recording once")
-    for k in range(1, len(experiments)):
-        for i in range(k):
-            shared, of = shared_samples(experiments[i], experiments[k])
-            if shared >= SHARED_MIN and shared > SHARED_FRACTION * of:
-                raise InputError(
-                    f"identify: recordings {i + 1} ({experiments[i].source or experiments[i].name}) and {k + 1} "
-                    f"({experiments[k].source or experiments[k].name}) share {shared} of {of} samples, bit for "
-                    "bit: they are one recording (shifted, trimmed or exported twice). Counted twice it would "
-                    "shrink the sigma and prove nothing; give each recording once")
+    for i, k, run in (repeated_recordings(experiments) if len(experiments) > 1 else [])[:1]:
+        raise InputError(
+            f"identify: recordings {i + 1} ({experiments[i].source or experiments[i].name}) and {k + 1} "
+            f"({experiments[k].source or experiments[k].name}) share {run} consecutive samples, bit for "
+            "bit: they are one recording (shifted, trimmed or exported twice). Counted twice it would "
+            "shrink the sigma and prove nothing; give each recording once")
     first = observation if observation is not None else observe(experiments[0], robot, bp, settings,
                                                                 progress=progress)
     parts = [first] + [observe(e, robot, bp, first.settings) for e in experiments[1:]]

@@ -10,7 +10,10 @@ unusual choices.
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass
+
+import numpy as np
 
 from dynid.errors import InputError
 
@@ -103,8 +106,8 @@ def check_range(name: str, value, *, cli: str | None = None, python: str | None 
         raise InputError(f"{where} {value!r} is out of range: give {kind} {span}"
                          + (f" ({r.why})" if r.why and math.isfinite(number) and number > r.high else ""))
     # a whole number given as 3.0 stays an int; a float option keeps its value (a numpy float stays one)
-    if r.integer:
-        return value if isinstance(value, int) else int(number)
+    if r.integer:   # an integer keeps every digit (a seed above 2**53 would move through float)
+        return int(value) if isinstance(value, numbers.Integral) else int(number)
     return value if isinstance(value, float) else number
 
 
@@ -120,11 +123,13 @@ def check_joints(joints, n: int, *, option: str = "joints", robot: str = "") -> 
     if joints is None or (isinstance(joints, str) and joints.strip().lower() == "all"):
         return list(range(1, n + 1))
     of = f" of robot '{robot}'" if robot else ""
-    items = [joints] if isinstance(joints, (int, float, str)) else joints
+    items = [joints] if isinstance(joints, (numbers.Number, str)) else joints
     try:
-        out = [int(j) for j in items if not isinstance(j, bool) and float(j) == int(j)]
+        items = list(items)
+        # a boolean is no joint number (True would be joint 1), numpy's neither
+        out = [int(j) for j in items if not isinstance(j, (bool, np.bool_)) and float(j) == int(j)]
         ok = len(out) == len(items)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         out, ok = [], False
     if not ok or not out or any(not 1 <= j <= n for j in out) or len(set(out)) != len(out):
         raise InputError(f"{option} must list distinct joint numbers 1..{n}{of} (1-based), got {joints!r}")

@@ -11,7 +11,7 @@ import pytest
 
 import dynid
 from dynid.analysis.data.plausibility import position_jumps
-from dynid.analysis.data.record import Experiment, same_samples, shared_samples
+from dynid.analysis.data.record import Experiment, same_samples, shared_run
 from dynid.errors import IdentificationError, InputError
 from dynid.ranges import check_joints
 
@@ -39,7 +39,9 @@ def test_a_simulated_recording_is_taken_wherever_a_recording_is(planar2):
 def test_joint_numbers_are_checked_before_any_work(planar2):
     robot, rec, r = planar2
     assert check_joints(None, 3) == [1, 2, 3] and check_joints("all", 2) == [1, 2] and check_joints(2, 2) == [2]
-    for bad in ([0], [3], [1, 1], [True], [1.5], "x", []):
+    assert check_joints(np.int64(2), 2) == [2] and check_joints(np.array([2, 1]), 2) == [2, 1]
+    assert check_joints((j for j in (1, 2)), 2) == [1, 2]
+    for bad in ([0], [3], [1, 1], [True], [np.True_], [1.5], [float("inf")], [float("nan")], "x", []):
         with pytest.raises(InputError, match="distinct joint numbers 1..2"):
             check_joints(bad, 2)
     # joint 0 used to test joint 2 under the name "joint 0" (numpy's index -1)
@@ -95,9 +97,9 @@ def test_one_recording_shifted_by_a_sample_is_not_a_second_recording(planar2):
     robot, rec, _ = planar2
     exp = rec.experiment
     other = dynid.simulate(robot, 8.0, seed=5).experiment
-    assert shared_samples(exp, other) == (0, exp.n_samples)
+    assert shared_run(exp, other) == 0 and shared_run(exp, _shifted(exp)) == exp.n_samples - 1
     assert same_samples(exp, _shifted(exp)) and not same_samples(exp, other)
-    with pytest.raises(InputError, match=r"share \d+ of \d+ samples, bit for bit"):
+    with pytest.raises(InputError, match=r"share \d+ consecutive samples, bit for bit"):
         dynid.identify([exp, _shifted(exp)], robot)
     with pytest.raises(InputError, match="--validation shifted.csv shares"):
         dynid.run(exp, robot, validation=_shifted(exp, 5))
@@ -153,3 +155,38 @@ def test_results_that_lacked_parts_of_the_interface(planar2, tmp_path):
     assert repr(ex).startswith("<ExcitationResult robot 'planar2'") and "\n" not in repr(ex)
     didim = dynid.identify(rec, robot, "didim", max_iter=2, progress=lambda f: None)
     assert pickle.loads(pickle.dumps(didim)).params.equals(didim.params)
+
+
+def test_a_still_joint_is_named_when_the_identification_fails(planar2):
+    robot, rec, _ = planar2
+    exp = rec.experiment
+    q = exp.q.copy()
+    q[:, 1] = q[0, 1]                          # joint 2 held (its torque still recorded)
+    still = dataclasses.replace(exp, q=q, qr=None if exp.qr is None else exp.qr.copy())
+    with pytest.raises(IdentificationError, match=r"Joint 2 does not move in .* \(q2 spans 0 rad\)"):
+        dynid.run(still, robot)
+
+
+def test_independent_runs_of_one_excitation_on_coarse_sensors_are_two_recordings():
+    """Two runs of the same reference on a 2-joint arm with a 12-bit encoder and 0.1 N m torque
+    steps share half their samples bit for bit, scattered; a copy shares one unbroken run."""
+    from dynid.analysis.data.synthetic import apriori_parameters, random_fourier_trajectory, simulate_experiment
+    from dynid.dynamics.base_parameters import base_parameters
+    robot = dynid.load_robot("planar2")
+    rng = np.random.default_rng(3)
+    e = simulate_experiment(robot, apriori_parameters(robot, base_parameters(robot)),
+                            random_fourier_trajectory(robot, 0.1, 5, rng), 20.0, rng=rng, q_noise=0.0, tau_noise=0.0)
+    runs = []
+    for seed in (10, 11):
+        r = np.random.default_rng(seed)
+        q = np.round((e.q + 1e-5 * r.standard_normal(e.q.shape)) / (2 * np.pi / 2 ** 12)) * (2 * np.pi / 2 ** 12)
+        tau = np.round((e.tau + 0.03 * r.standard_normal(e.tau.shape)) / 0.1) * 0.1
+        runs.append(dataclasses.replace(e, q=q, tau=tau, source=f"run{seed}.csv"))
+    assert shared_run(*runs) < 20 and not same_samples(*runs)
+    assert same_samples(runs[0], _shifted(runs[0], 3))
+
+
+def test_a_seed_keeps_every_digit():
+    from dynid.ranges import check_range
+    assert check_range("seed", np.int64(10 ** 17 + 1)) == 10 ** 17 + 1
+    assert check_range("seed", 7.0) == 7 and isinstance(check_range("seed", 7.0), int)
