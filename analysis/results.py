@@ -689,7 +689,7 @@ class IdentificationResult(ParameterResults):
         return W3 @ self.chi
 
     # ------------------------------------------------------------ presentation
-    def summary(self, notices: bool = True, prismatic=None) -> str:
+    def summary(self, notices: bool = True, prismatic=None, title: str | None = None) -> str:
         """Printable report: header block, per-joint residuals, parameter table, notices.
 
         Parameters
@@ -700,6 +700,9 @@ class IdentificationResult(ParameterResults):
         prismatic : collection of int, optional
             The robot's prismatic joints, for the units (default: `prismatic`); a result
             that holds this one and knows the robot passes them.
+        title : str, optional
+            The heading (default: "Dynamic identification results (method)"); a result that
+            holds this fit says what it is (DIDIM's last step).
 
         Returns
         -------
@@ -707,7 +710,8 @@ class IdentificationResult(ParameterResults):
             Relative errors in %, every parameter with its unit.
         """
         rule, thin = "=" * _WIDTH, "-" * _WIDTH
-        title = f"Dynamic identification results ({self.method})"
+        title = title or f"Dynamic identification results ({self.method})"
+        prismatic = self._prismatic() if prismatic is None else frozenset(prismatic)
         left = [
             ("Method:", self.method),
             ("Samples N:", str(self.n_samples)),
@@ -727,19 +731,19 @@ class IdentificationResult(ParameterResults):
         for (lk, lv), (rk, rv) in zip(left, right):
             lines.append(f"{lk:<16}{lv:>14}     {rk:<30}{rv:>13}")
         lines.append(thin)
-        head = f"{'Joint':<8}{'RMS residual':>16}{'Rel. error':>14}"
+        head = f"{'Joint':<8}{'RMS residual':>18}{'Rel. error':>14}"
         if self.joint_sigma is not None:
-            head += f"{'sigma_j (WLS)':>16}"
+            head += f"{'sigma_j (WLS)':>18}"
         lines.append(head)
         for j in range(self.n_joints):
-            row = f"{j + 1:<8}{_fmt(self.rms[j]):>16}{percent(self.joint_rel_error[j]):>14}"
+            unit = "N" if j + 1 in prismatic else "N m"
+            row = f"{j + 1:<8}{_fmt(self.rms[j]) + ' ' + unit:>18}{percent(self.joint_rel_error[j]):>14}"
             if self.joint_sigma is not None:
-                row += f"{_fmt(self.joint_sigma[j]):>16}"
+                row += f"{_fmt(self.joint_sigma[j]) + ' ' + unit:>18}"
             lines.append(row)
         lines.append(thin)
         lines += parameter_table(self.names, [("value", self.chi, "num"), ("sigma", self._sigma, "num"),
-                                              ("%sigma", self._rel_sigma, "pct")],
-                                 prismatic=self._prismatic() if prismatic is None else prismatic)
+                                              ("%sigma", self._rel_sigma, "pct")], prismatic=prismatic)
         lines.append(rule)
         if notices:
             lines += notices_block(self.notices)

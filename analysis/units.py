@@ -69,6 +69,9 @@ def parameter_unit(name: str, prismatic=frozenset()) -> str:
     ('kg m²', 'N m s/rad', 'kg')
     """
     if prismatic:
+        e = _EFFECT_RE.match(str(name))
+        if e is not None and int(e.group(2)) in prismatic and e.group(1) in _PRISMATIC_EFFECT_UNITS:
+            return _PRISMATIC_EFFECT_UNITS[e.group(1)]
         m = _KIND_RE.match(str(name)) or _OTHER_RE.match(str(name))
         if m is not None and m.group(2) and int(m.group(2)) in prismatic and m.group(1) in _PRISMATIC_UNITS:
             return _PRISMATIC_UNITS[m.group(1)]
@@ -95,4 +98,7 @@ def parameter_unit(name: str, prismatic=frozenset()) -> str:
 _EFFECT_UNITS = {"dFc": "N m", "dFv": "N m s/rad", "Fs": "N m", "Rc": "N m", "Rs": "N m", "Ks": "N m/rad",
                  "Cv": "N m s/rad", "Ca": "N m s\u00b2/rad", "Dv": "N m s/rad", "Dc": "N m", "Dr": "N m",
                  "Fl": "1", "dMX": "kg m", "dMY": "kg m", "dMZ": "kg m", "dM": "kg"}
+#: ... on a prismatic joint (a force; the couplings Cv, Ca depend on the other joint too: left out)
+_PRISMATIC_EFFECT_UNITS = {"dFc": "N", "dFv": "N s/m", "Fs": "N", "Rc": "N", "Rs": "N", "Ks": "N/m",
+                           "Dv": "N s/m", "Dc": "N", "Dr": "N"}
 _EFFECT_RE = re.compile(r"^(dFc|dFv|Fs|Rc|Rs|Ks|Cv|Ca|Dv|Dc|Dr|Fl|dMX|dMY|dMZ|dM)(\d+)(?:k[\d.]+|_\w+)?$")

@@ -14,7 +14,7 @@ from dynid.analysis.fleet.catalogue import input_files
 from dynid.analysis.fleet.engine import FleetRun, identify_fleet
 from dynid.analysis.fleet.health import DEFAULT_BASELINE, DEFAULT_FALSE_ALARM_RATE, check_monitor_options, monitor
 from dynid.analysis.fleet.store import ResultStore
-from dynid.outputs import check_outputs
+from dynid.outputs import check_output_formats, check_outputs
 from dynid.progress import task
 from dynid.reports.fleet_report import write_fleet_outputs
 
@@ -84,7 +84,9 @@ def run(catalogue, store, *, scheduler: str | None = None, workers: int | None =
     """
     check_monitor_options(parameters, false_alarm_rate, n_baseline)
     if report is not None or json is not None:
-        check_outputs([("--report (report=)", report), ("--json (json=)", json)], input_files(catalogue))
+        outputs = [("--report (report=)", report), ("--json (json=)", json)]
+        check_outputs(outputs, input_files(catalogue))
+        check_output_formats(outputs)
     # without a caller's callable, progress goes through dynid.progress (a bar on a terminal, log
     # records elsewhere, dynid.progress.silence() to turn it off), as the other long steps do
     with contextlib.nullcontext(progress) if progress is not None else task("fleet: identifying") as bar:

@@ -220,7 +220,10 @@ def verdict_block(v) -> VerdictBlock:
                        labels={"value": "\u03c7\u0302", "rel_std_percent": "%\u03c3",
                                "apriori": "a-priori", "n_sigma": f"|\u03c7\u0302 \u2212 a-priori| / \u03c3 (flag > {k:g})"})
     reasons = list(getattr(v, "reasons", []) or [])
-    why = ("; ".join(reasons) + ".") if reasons else "every check below passed."
+    warned = any(f.get("level") in ("warn", "bad") for f in (getattr(v, "findings", None) or []))
+    why = (("; ".join(reasons) + ".") if reasons else
+           "no check below failed; the warnings among them are worth a look." if warned else
+           "every check below passed.")
     return VerdictBlock(status=v.status, level=LEVELS[level][0], icon=LEVELS[level][1],
                         findings=findings, flagged_parameters=list(v.not_identified),
                         flagged_joints=list(v.flagged_joints), figure=fig, table=tab,

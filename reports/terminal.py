@@ -9,7 +9,7 @@ import sys
 
 from dynid.dynamics.robot_file import bundled_path, is_bundled_name
 from dynid.errors import InputError
-from dynid.outputs import check_outputs, referenced_files, same_file, write_all
+from dynid.outputs import check_output_formats, check_outputs, referenced_files, same_file, write_all
 from dynid.reports.progress import clean_text
 
 EXIT_OK, EXIT_INPUT = 0, 2
@@ -103,9 +103,14 @@ def _one_recording(a, b):
 
 def check_output_paths(args):
     """Before any computation: every output's folder exists and is writable; '-' only for --json;
-    no output is an input or another output; names are valid file names (dynid.outputs.check_outputs)."""
+    no output is an input or another output; names are valid file names (dynid.outputs.check_outputs);
+    no output is named as another output's format (`--mjcf arm.urdf`)."""
     check_input_paths(args)
-    check_outputs([(f"--{opt}", getattr(args, opt, None)) for opt in OUTPUT_OPTIONS], _input_files(args))
+    # an output that would destroy an input says so first: that is the graver mistake
+    outputs = [(f"--{opt}", getattr(args, opt, None)) for opt in OUTPUT_OPTIONS]
+    check_outputs(outputs, _input_files(args))
+    if getattr(args, "command", None) != "fleet":    # the fleet's inputs are its catalogue's: dynid.fleet.run
+        check_output_formats(outputs)
     _check_stdout(args)
 
 

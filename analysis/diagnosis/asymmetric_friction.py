@@ -67,6 +67,18 @@ class AsymmetricFrictionResult(Result):
                              "unit": parameter_unit(f"{name[:2]}{j}", frozenset(self.prismatic))})
         return pd.DataFrame(rows).set_index("name")
 
+    def table2_frame(self) -> pd.DataFrame:
+        """The layout of Table 2 of Bona & Curatella: one row per joint, `Fv+`, `sigma Fv+`, ...
+        (Fv in N m s/rad, Fc in N m; N s/m and N on a prismatic joint)."""
+        rows = {}
+        for k, j in enumerate(self.joints):
+            row = {}
+            for c, name in enumerate(COLUMNS):
+                row[name] = self.values[k, c]
+                row[f"sigma {name}"] = self.sigma[k, c]
+            rows[f"joint {j}"] = row
+        return pd.DataFrame.from_dict(rows, orient="index")
+
     @property
     def rel_error(self) -> float:
         """Relative error of the model with the asymmetric friction (that of `fit`)."""
@@ -80,7 +92,7 @@ class AsymmetricFrictionResult(Result):
             rel = 100.0 * self.sigma.ravel() / np.abs(self.values.ravel())
         lines += parameter_table(names, [("value", self.values.ravel(), lambda x: f"{x:.5g}"),
                                          ("sigma", self.sigma.ravel(), lambda x: f"{x:.2g}"),
-                                         ("%sigma", rel, "pct")])
+                                         ("%sigma", rel, "pct")], prismatic=frozenset(self.prismatic))
         lines += notices_block(self.notices)
         return "\n".join(lines)
 

@@ -41,7 +41,7 @@ from dynid.analysis.estimators import least_squares as ls
 from dynid.analysis.estimators.physical import pc_wls
 from dynid.analysis.results import Result, percent
 from dynid.analysis.statistics.validation import prediction_errors
-from dynid.analysis.units import parameter_unit
+from dynid.analysis.units import parameter_unit, prismatic_joints
 from dynid.errors import IdentificationError, InputError
 from dynid.provenance import json_safe
 
@@ -138,6 +138,7 @@ class EffectsFit(Result):
     rel_error_wls: float = float("nan")
     rel_error_pc: float = float("nan")
     validation: dict | None = None
+    prismatic: tuple = ()  # the robot's prismatic joints (1-based), for the units
 
     @property
     def x_wls(self):
@@ -165,6 +166,7 @@ class EffectsFit(Result):
         out = []
         for k, n in enumerate(self.effect_names):
             row = {"name": n, "effect": owner[k][0], "joint": owner[k][1],
+                   "unit": parameter_unit(n, frozenset(self.prismatic)),
                    "wls": float(self.x_wls[b + k]), "wls_std": float(sd[k])}
             if self.physical is not None:
                 row.update(pc=float(self.theta_pc[k]), pc_std=float(sd_pc[k]))
@@ -173,9 +175,7 @@ class EffectsFit(Result):
 
     def to_frame(self):
         """The effect parameters, one row each: effect, joint, unit, WLS value and sigma (PC too)."""
-        frame = pd.DataFrame(self.effects()).set_index("name")
-        frame.insert(2, "unit", [parameter_unit(n) for n in frame.index])
-        return frame
+        return pd.DataFrame(self.effects()).set_index("name")
 
     def __repr__(self):
         return (f"<EffectsFit {self.spec}: {len(self.effect_names)} effect parameter(s), rel. error "
@@ -207,10 +207,11 @@ class EffectsFit(Result):
             lines.append(f"  held-out relative error (all samples): WLS {percent(v['rel_error_wls'], 3)}"
                          + (f", PC {percent(v['rel_error_pc'], 3)} (PC - WLS {v['gap_points']:+.3f} points)"
                             if pc else ""))
-        hdr = f"{'Parameter':<12}{'effect':>20}{'WLS':>13}{'sigma':>11}"
+        hdr = f"{'Parameter':<12}{'effect':>20}  {'unit':<12}{'WLS':>13}{'sigma':>11}"
         lines.append(hdr + (f"{'PC':>13}{'sigma':>11}" if pc else ""))
         for r in self.effects():
-            line = f"{r['name']:<12}{r['effect'] + ' j' + str(r['joint']):>20}{r['wls']:>13.5g}{r['wls_std']:>11.3g}"
+            line = (f"{r['name']:<12}{r['effect'] + ' j' + str(r['joint']):>20}  {r['unit']:<12}{r['wls']:>13.5g}"
+                    f"{r['wls_std']:>11.3g}")
             if pc:
                 line += f"{r['pc']:>13.5g}{r['pc_std']:>11.3g}"
             lines.append(line)
@@ -279,7 +280,8 @@ def identify_physical_effects(experiments, robot, result, candidates, *, physica
         pc, theta, cov_t = profile_physical(robot, bp, wls.chi, wls.cov, bp.n_base, **pc_options)
     fit = EffectsFit(names=names, n_base=bp.n_base, wls=wls, physical=pc, theta_pc=theta,
                      settings=dict(s), candidates=list(candidates), spec=str(spec), cov_effects_pc=cov_t,
-                     rel_error_wls=_rel_error(tau, W, wls.chi, mask))
+                     rel_error_wls=_rel_error(tau, W, wls.chi, mask),
+                     prismatic=tuple(sorted(prismatic_joints(robot))))
     if physical:
         fit.rel_error_pc = _rel_error(tau, W, fit.x_pc, mask)
     if validation is not None:

@@ -347,8 +347,9 @@ class DIDIMResult(ModelResults):
                  f"  relative error ||Y - W chi|| / ||Y||: {percent(self.result.rel_error)}"
                  + (f" (essential model {percent(self.essential.result.rel_error)})"
                     if self.essential else ""),
-                 "  tracking RMS of the last simulation (qr - q_sim), rad: "
-                 + ", ".join(f"{v:.3g}" for v in self.tracking_rms),
+                 "  tracking RMS of the last simulation (qr - q_sim): "
+                 + ", ".join(f"{v:.3g} {'m' if j + 1 in self._prismatic() else 'rad'}"
+                             for j, v in enumerate(self.tracking_rms)),
                  f"  simulated Coulomb friction: smooth sign over v_s = {self.settings['v_s']:.3g} rad/s "
                  f"({self.settings.get('v_s_choice', 'given')})",
                  "", "Gauss-Newton steps:"]
@@ -366,7 +367,8 @@ class DIDIMResult(ModelResults):
                                       "max_change_sigma": "max_change [sigma]"})
         lines.append(shown.to_string(index=False, na_rep="—", float_format=lambda x: f"{x:.5g}"))
         lines.append("")
-        lines.append(self.model.summary(notices=False, prismatic=self._prismatic()))
+        lines.append(self.model.summary(notices=False, prismatic=self._prismatic(),
+                                        title=f"DIDIM: the {self.model.method} of its last step (eq. (24))"))
         if self.physical is not None:
             lines += ["", "PC-DIDIM: the last step's WLS refitted under physical consistency (the "
                       "estimate the loop simulated)", self.physical.summary()]

@@ -509,7 +509,7 @@ def _model_vector(model, robot, bp, notices):
             # alone (an essential set) the base parameters it left out count as exactly 0, which can
             # make it too narrow instead: either way it is not the payload's σ
             notices.append(f"{src} {why}: the robot's σ were propagated without their correlations"
-                           + ("" if rows is wls.get("parameters") else
+                           + ("" if rows is wls.get("parameters") or len(names) >= bp.n_base else
                               f", and the base parameters it does not list ({bp.n_base - len(names)}) as exactly 0")
                            + ", so the payload's σ may be too wide or too narrow; identify the robot with "
                            "IDIM or DIDIM (dynid identify --json) and pass that JSON")

@@ -52,6 +52,7 @@ Adding a check is appending one function to `CHECKS`.
 """
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -614,7 +615,8 @@ def check_data_quality(x: VerdictInputs) -> CheckOutcome:
     # maximum likelihood's trajectory model (eq. (17)) that misses the motion: its estimates are biased
     latent = [s for s in notices if "latent trajectory" in s]
     # one-sample spikes and jumps the loader found (dynid.analysis.data.plausibility)
-    glitch = [s for s in notices if "a glitch?" in s]
+    # (in the measured q and tau: IDIM does not use the reference qr)
+    glitch = [s for s in notices if re.search(r"isolated spike in (q|tau)\d|\bq\d+ jumps by", s)]
     dq = [{"level": "warn", "text": s} for s in dict.fromkeys(sat + latent + glitch)]
     ls_fit = _least_squares(x.result)
     if ls_fit is not None:

@@ -48,7 +48,7 @@ except ImportError:             # not POSIX: no advisory locks, so nothing is ev
     fcntl = None
 
 __all__ = ["write_all", "atomic_open", "atomic_write_text", "atomic_write_bytes", "resolve_target",
-           "check_outputs", "same_file"]
+           "check_outputs", "check_output_formats", "same_file"]
 
 #: a lease's lock file, and its temporary / backup files (the lease's base name, then -<n>)
 _LOCK_RE = re.compile(r"^(\.dynid-(?P<host>[A-Za-z0-9.-]*)-(?P<pid>\d+)-[0-9a-f]{16})\.lock$")
@@ -212,6 +212,35 @@ def _check_one_output(label: str, path: str) -> None:
         raise InputError(f"{label} {path}: the folder {folder} is not writable")
     if os.path.isdir(path):
         raise InputError(f"{label} {path} is a folder; give a file name")
+
+
+#: what each output option writes, and the names of its format; a name of another format is
+#: refused (`--mjcf arm.urdf` wrote MJCF that `dynid robot arm.urdf` then could not read), any
+#: other name is taken (`--json result.txt`)
+OUTPUT_FORMATS = {"json": ("JSON", (".json",)), "report": ("HTML report", (".html", ".htm")),
+                  "csv": ("CSV table", (".csv",)), "urdf": ("URDF", (".urdf",)),
+                  "mjcf": ("MJCF (MuJoCo XML)", (".xml", ".mjcf"))}
+
+
+def check_output_formats(outputs) -> None:
+    """Refuse an output named as another output's format (`--mjcf arm.urdf`, `--json run.csv`).
+
+    Parameters
+    ----------
+    outputs : iterable of (label, path)
+        `label` the option (`--json`, or `--json (json=)`): its first word without the dashes
+        is the key of `OUTPUT_FORMATS`; other options and a path None or `-` are skipped.
+    """
+    known = {ext: opt for opt, (_, exts) in OUTPUT_FORMATS.items() for ext in exts}
+    for label, path in outputs:
+        opt = label.split()[0].lstrip("-").rstrip("=")
+        if opt not in OUTPUT_FORMATS or path is None or os.fspath(path) == "-":
+            continue
+        what, exts = OUTPUT_FORMATS[opt]
+        ext = os.path.splitext(os.fspath(path))[1].lower()
+        if ext in known and ext not in exts:
+            raise InputError(f"{label} {os.fspath(path)}: the {what} under a {ext} name (the name of "
+                             f"--{known[ext]}'s format); give it a {exts[0]} name")
 
 
 def check_outputs(outputs, inputs=()) -> None:

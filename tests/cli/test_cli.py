@@ -561,3 +561,13 @@ def test_an_empty_effects_list_is_refused(tmp_path, capsys, command):
     (tmp_path / "r.csv").write_text("t,q1,tau1\n")
     assert main([command, str(tmp_path / "r.csv"), "--robot", "planar2", "--effects", ""]) == 2
     assert "names no effect" in capsys.readouterr().err
+
+
+def test_an_output_named_as_another_outputs_format_is_refused(tmp_path, capsys):
+    """`--mjcf arm.urdf` wrote MJCF that `dynid robot arm.urdf` could not read; a name of no known
+    format (`--json result.txt`) is the user's choice."""
+    csv = tmp_path / "run.csv"
+    assert main(["simulate", "--robot", "planar2", "--duration", "2", "--out", str(csv), "--quiet"]) == 0
+    for opt, name in (("--mjcf", "arm.urdf"), ("--json", "r.html"), ("--csv", "p.json"), ("--report", "r.csv")):
+        assert main(["identify", str(csv), "--robot", "planar2", opt, str(tmp_path / name)]) == 2
+        assert f"{opt} " in capsys.readouterr().err and not (tmp_path / name).exists()
