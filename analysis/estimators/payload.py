@@ -692,8 +692,10 @@ class PayloadResult(ParameterResults):
                     f"fitted to (its held-out error); or use --unloaded recordings of the same motion")
         text = (f"payload on link {self.link + 1} ({self.frame}): mass {m:.4g} +- {sm:.2g} kg, centre of "
                 f"mass ({', '.join(f'{1e3 * x:.1f}' for x in c)}) +- ({', '.join(f'{1e3 * x:.1f}' for x in sc)}) mm; "
-                f"all ten parameters identified (smallest relative singular value "
-                f"{self.singular_ratio.min():.2g}); ")
+                f"all ten parameters identified: each 95 % half-width within "
+                f"{100 * self.settings.get('max_rel_halfwidth', MAX_REL_HALFWIDTH):.0f} % of "
+                f"its scale (the inertia's half trace, |m c|, m: a %\u03c3 of a near-zero entry is large), smallest "
+                f"relative singular value {self.singular_ratio.min():.2g}; ")
         text += ("physically consistent as identified" if cons["consistent"] else
                  "NOT physically consistent as identified (see the constrained fit)")
         if self.physical is not None:
@@ -866,7 +868,8 @@ def identify_payload(loaded, robot, *, model=None, unloaded=None, frame="flange"
                         frame=str(frame if frame is not None else "flange"), R=R, p=p, T=T,
                         joint_sigma=fit.joint_sigma, rel_error=fit.rel_error, n_rows=fit.n_rows,
                         hac_lags=lags, singular_ratio=ratio, sources=sources,
-                        settings=dict(first.settings, zoh=bool(zoh)), robot_params=robot_params,
+                        settings=dict(first.settings, zoh=bool(zoh), max_rel_halfwidth=max_rel_halfwidth),
+                        robot_params=robot_params,
                         model_source=model_source, notices=notices + first.notices,
                         loaded_error=model_fit[0], model_error=model_fit[1])
     if not chi[9] > 0:
