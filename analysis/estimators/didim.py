@@ -368,7 +368,9 @@ class DIDIMResult(ModelResults):
         lines.append(shown.to_string(index=False, na_rep="—", float_format=lambda x: f"{x:.5g}"))
         lines.append("")
         lines.append(self.model.summary(notices=False, prismatic=self._prismatic(),
-                                        title=f"DIDIM: the {self.model.method} of its last step (eq. (24))"))
+                                        title=("DIDIM: the essential model, refitted on its last step's system"
+                                               if self.essential is not None else
+                                               f"DIDIM: the {self.model.method} of its last step (eq. (24))")))
         if self.physical is not None:
             lines += ["", "PC-DIDIM: the last step's WLS refitted under physical consistency (the "
                       "estimate the loop simulated)", self.physical.summary()]
