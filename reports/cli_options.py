@@ -458,9 +458,7 @@ def _add_identify_parser(sub, common, full):
     o = g["outputs"]
     o.add_argument("--report", metavar="PATH", help=REPORT_HELP)
     o.add_argument("--json", metavar="PATH", help=JSON_HELP)
-    o.add_argument("--csv", metavar="PATH",
-                   help="write the essential parameters as CSV here (the identification's: the physical fit, "
-                        "tilt and effects are in --json and --report)")
+    o.add_argument("--csv", metavar="PATH", help="write the essential parameters as CSV here (the other parts: --json)")
     o.add_argument("--urdf", metavar="PATH",
                    help="write a URDF of the closest physically consistent set (the summary says "
                         "if it reproduces the identified one)")

@@ -497,6 +497,7 @@ def maximum_likelihood(t, q, tau, model, *, f0, n_harmonics=None, sigma_q=None, 
     p = model.n_params
     if N <= m + p:
         raise InputError(f"{N} samples are too few for {p} parameters and {m} Fourier coefficients per joint")
+    _check_size(N, n, p, K, n_harmonics is None)
     B, Bd, Bdd, C0 = _fourier_start(t, q, f0, K)
     _check_periodic(q, B @ C0, f0, K, notices, harmonics_given=n_harmonics is not None)
     sq = _sigma_q(q, B, C0, sigma_q, m)
@@ -559,6 +560,27 @@ def _check_f0(f0, t):
     if t.size < 8:
         raise InputError(f"{t.size} samples are too few for the likelihood of eq. (13)")
     return f0
+
+
+#: the largest Jacobian (2 n N rows x p + n (2K + 1) columns, dense) the optimiser is given: its
+#: SVD at every step costs rows x columns^2. 5e7 entries (400 MB): a 5 kHz, 4 s TX40 log with 10
+#: harmonics (4.5e7) took a minute and a half; with 60 (BIC's cap, 1.9e8) it had not ended after
+#: 15 minutes and 10 GB.
+ML_MAX_JACOBIAN = 5e7
+
+
+def _check_size(N, n, p, K, chosen):
+    """Refuse, before any work, a likelihood whose Jacobian would not fit `ML_MAX_JACOBIAN`."""
+    rows, cols = 2 * n * N, p + n * (2 * K + 1)
+    if rows * cols <= ML_MAX_JACOBIAN:
+        return
+    fit = max(1, int((ML_MAX_JACOBIAN / rows - p) / n - 1) // 2)
+    raise InputError(
+        f"maximum likelihood with {K} harmonics{' (chosen by BIC on q)' if chosen else ''} on {N} samples x {n} "
+        f"joints needs a {rows:,} x {cols:,} Jacobian ({rows * cols * 8 / 1e9:.1f} GB, refactored at every step): "
+        f"too large. Fit fewer harmonics (--ml-harmonics, ml_harmonics= in Python; {fit} fit these samples), "
+        "or resample the recording to a lower rate or cut it to whole periods (a TOML experiment file), or "
+        "use IDIM")
 
 
 def _harmonics(t, q, f0, n_harmonics, notices):

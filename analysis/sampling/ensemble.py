@@ -302,8 +302,11 @@ def initial_ball(log_prob, centre, cov, n_walkers, init_scale, rng):
         if not bad.any():
             return p0
         p0[bad] = centre + init_scale * rng.standard_normal((int(bad.sum()), d)) @ L.T
-    raise IdentificationError("could not place the initial walkers where the posterior is positive; "
-                              "check the LS starting point and the prior bounds")
+    raise IdentificationError("could not place the initial walkers where the posterior is positive: around "
+                              "the least-squares estimate, within its covariance, the density cannot be "
+                              "evaluated (a recording too short or too poorly excited for its parameters, "
+                              "which the identification's %σ shows; or a prior that excludes the estimate). "
+                              "Record longer or richer motion, or check the prior bounds")
 
 
 def make_sampler(log_prob, n_walkers, d, moves, rng):

@@ -103,6 +103,11 @@ class LinearPosterior:
         self._g2 = 2.0 * self._g                    # exact: a power of two
         self._s = stats.s[self.active]
         self._r = stats.rows[self.active].astype(float)
+        # S_j cannot fall by nine orders of magnitude below its value at the least-squares estimate
+        # (noise keeps every fit's residual near it). Far out along a direction G hardly sees (an
+        # ill-conditioned recording) the expanded form s - 2 d'g + d'G d cancels terms of 1e20 and
+        # can come out at 1e-296, where the density is unbounded (sigma -> 0): outside the support.
+        self._floor = 1e-9 * self._s
         sig_names = [f"sigma{j + 1}" for j in self.active]
         clash = set(sig_names) & set(stats.names)
         if clash and self.sigma is None:
@@ -144,6 +149,7 @@ class LinearPosterior:
             if self.prior is not None:
                 lp = lp + self._log_prior(chi)
         lp[np.isnan(lp)] = -np.inf
+        lp[np.any(S < self._floor, axis=1)] = -np.inf
         return lp
 
     __call__ = log_prob

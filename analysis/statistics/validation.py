@@ -21,6 +21,7 @@ Per joint the residual's normality (`normality`, the one computation of
 """
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -244,7 +245,21 @@ def validate(idim_result, experiment, robot=None):
                          "dynid.holdout_split")
     settings = dict(idim_result.settings)
     check_rate_matches(experiment, settings.get("fs"), "the held-out recording", "the identification data")
-    full = observe(experiment, robot, idim_result.base, dict(settings, qd_threshold=0.0))
+    try:
+        full = observe(experiment, robot, idim_result.base, dict(settings, qd_threshold=0.0))
+    except InputError as exc:
+        if "samples but decimating" not in str(exc):
+            raise
+        # built with the identification's processing (its nd), the held-out part must be as long as
+        # the decimation filter: say so in terms of the held-out data, not of "a longer record"
+        m = re.search(r"has (\d+) samples but decimating by nd=(\d+).*needs at least (\d+)", str(exc))
+        fs = float(experiment.fs)
+        need = ("" if m is None else
+                f": decimating by nd = {m.group(2)} as the identification did needs about "
+                f"{(int(m.group(3)) + experiment.n_samples - int(m.group(1))) / fs:.3g} s")
+        raise InputError(f"the held-out data ({experiment.n_samples} samples, {experiment.n_samples / fs:.3g} s) "
+                         f"are too short for the identification's processing{need}. Hold out more "
+                         "(--holdout SECONDS, holdout= in Python) or give a longer --validation recording") from None
     tau_hat = idim_result.predict(full.W)
     rel, rms, jrel = prediction_errors(full.tau, tau_hat)
     n = full.tau.shape[1]

@@ -190,3 +190,34 @@ def test_a_seed_keeps_every_digit():
     from dynid.ranges import check_range
     assert check_range("seed", np.int64(10 ** 17 + 1)) == 10 ** 17 + 1
     assert check_range("seed", 7.0) == 7 and isinstance(check_range("seed", 7.0), int)
+
+
+def test_maximum_likelihood_refuses_a_jacobian_it_cannot_afford():
+    """BIC chose 60 harmonics on a 4 s, 5 kHz TX40 log: a 240,000 x 786 dense Jacobian, still
+    running after 15 minutes and 10 GB. Refused before any work, with the K that fits."""
+    rec = dynid.simulate("tx40", 4.0, seed=1, f0=0.5, harmonics=3)
+    with pytest.raises(InputError, match=r"60 harmonics \(chosen by BIC on q\).*too large.*11 fit"):
+        dynid.identify(rec, "tx40", "ml", f0=0.5)
+
+
+def test_a_holdout_too_short_for_the_decimation_says_how_long_it_must_be(planar2):
+    robot, rec, _ = planar2
+    with pytest.raises(InputError, match=r"held-out data \(\d+ samples.*needs about [\d.]+ s\. Hold out more"):
+        dynid.run(rec, robot, holdout=0.3)
+
+
+def test_the_posterior_does_not_run_off_where_its_expansion_cancels(tmp_path):
+    """On a 0.1 s recording the sampler reached sigma1 = 1.2e-148 (exit 0): the expanded residual
+    s - 2 d'g + d'G d cancels terms of 1e20 far out along the directions the data hardly see, and
+    came out near 0. Such points are outside the support now: the chains do not converge (the
+    posterior is flat along those directions, and the result says so), but sigma stays the noise's."""
+    # as `dynid simulate --duration 0.1 --f0 1 --harmonics 5 --out short.csv` wrote it
+    dynid.simulate("planar2", 0.1, seed=1, f0=1.0, harmonics=5).to_csv(tmp_path / "short.csv")
+    r = dynid.identify(dynid.load_experiment(tmp_path / "short.csv", "planar2"), "planar2")
+    try:
+        post = dynid.sample(r, max_seconds=5)
+    except IdentificationError as exc:            # no start where the density can be evaluated
+        assert "could not place the initial walkers" in str(exc)
+        return
+    assert not post.converged
+    assert post.params[["sigma1", "sigma2"]].min() > 0.05      # simulated with 0.5 N m torque noise
