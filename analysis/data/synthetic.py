@@ -380,11 +380,35 @@ def simulate(robot, duration: float = 20.0, *, seed: int = 1, f0: float = 0.1, h
     traj = random_fourier_trajectory(robot, f0, harmonics, rng)
     exp = simulate_experiment(robot, chi, traj, duration, rng=rng, q_noise=noise_q, tau_noise=noise_tau,
                               progress=progress, name=f"simulated {robot.name} (seed {seed})")
-    notices = missing_effects(robot) + [TORQUE_TIMING_NOTICE]
+    notices = missing_effects(robot) + [TORQUE_TIMING_NOTICE] + _tracking_notice(exp, robot)
     exp.notices = list(exp.notices or []) + notices
     return SimulatedRecording(experiment=exp, robot=robot, trajectory=traj, chi=chi, seed=seed,
                               duration=duration, noise_q=noise_q, noise_tau=noise_tau, notices=notices,
                               payload=payload_doc)
+
+
+#: a simulated joint whose tracking error (RMS of qr - q) exceeds this fraction of its reference's
+#: span tracks poorly: the recording describes the robot file's loop more than the reference
+POOR_TRACKING = 0.10
+
+
+def _tracking_notice(exp, robot) -> list:
+    """A notice when the simulated loop follows its reference poorly (the robot file's gains)."""
+    if exp.qr is None:
+        return []
+    span = np.ptp(exp.qr, axis=0)
+    rms = np.sqrt(np.mean((exp.qr - exp.q) ** 2, axis=0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        share = np.where(span > 0, rms / span, 0.0)
+    poor = np.flatnonzero(share > POOR_TRACKING)
+    if poor.size == 0:
+        return []
+    return [("the simulated loop tracks its reference poorly: RMS of qr - q "
+             + ", ".join(f"j{j + 1} {rms[j]:.3g} {'m' if getattr(robot.joints[j], 'prismatic', False) else 'rad'} "
+                         f"({100 * share[j]:.0f} % of its span)" for j in poor)
+             + f", above {100 * POOR_TRACKING:.0f} %: the robot file's [controller] gains (and no model of "
+             "gravity in the loop) are too soft for this reference; the recording is still a valid one to "
+             "identify from, but not what a well-tuned robot would log")]
 
 
 #: the simulated payload is a uniform sphere of this radius (m) about its centre of mass
