@@ -677,7 +677,8 @@ def _sigma_q(q, B, C0, sigma_q, m):
 def _kept_equations(t, qdf, qd_threshold, reversal_guard, K, f0, p):
     """Torque equations outside the velocity dead zone and away from velocity reversals."""
     keep = ~velocity_dead_zone(qdf, qd_threshold, fraction=ML_DEAD_ZONE_FRACTION)
-    if reversal_guard == "auto":
+    auto = reversal_guard == "auto"
+    if auto:
         reversal_guard = 1.0 / (4.0 * K * f0)
     keep &= _reversal_guard(t, qdf, float(reversal_guard))
     if np.any(keep.sum(axis=0) < 2 * p):
@@ -688,6 +689,16 @@ def _kept_equations(t, qdf, qd_threshold, reversal_guard, K, f0, p):
                          f"of joint {j + 1} (the velocity dead zone leaves {in_dead}, the guard around velocity "
                          f"reversals takes the rest) but needs at least {2 * p}: give a longer recording "
                          f"(more periods of the excitation), or use IDIM (--method idim, method='idim')")
+    both = int(keep.all(axis=1).sum())
+    if both < 2 * p:
+        # the start (and the sample set) needs samples where every joint's equation is kept
+        raise InputError(f"maximum likelihood keeps {both} of {keep.shape[0]} samples with every joint's torque "
+                         f"equation (no joint within {float(reversal_guard):.3g} s of a velocity reversal"
+                         + (f", 1 / (4 K f0) with K = {K} harmonics" if auto else "")
+                         + f", nor in its dead zone) but needs at least {2 * p}: "
+                         + ("fit more harmonics (--ml-harmonics, ml_harmonics=: the guard shrinks as 1/K), "
+                            if auto else "a shorter reversal_guard, ")
+                         + "a longer recording, or IDIM (--method idim, method='idim')")
     return keep
 
 

@@ -231,3 +231,16 @@ def test_simulate_says_when_its_loop_tracks_the_reference_poorly():
                for n in dynid.simulate("kuka_lwr4", 6.0, seed=1).notices)
     for robot in ("tx40", "planar2"):
         assert not any("tracks its reference poorly" in n for n in dynid.simulate(robot, 6.0, seed=1).notices)
+
+
+def test_ml_says_when_no_sample_is_clear_of_every_joints_reversal():
+    """Each joint kept enough equations, but no sample had every joint away from a reversal (the
+    guard 1 / (4 K f0) with 2 harmonics at 0.2 Hz is 0.625 s): the error was "only 0 equations
+    are used for 13 parameters ... decimate less"."""
+    from dynid.analysis.estimators.maximum_likelihood import _kept_equations
+    t = np.arange(0.0, 10.0, 1e-3)
+    w = 2 * np.pi * 0.2
+    # four joints reversing in turn, an eighth of a period apart: each keeps half its equations
+    qdf = np.column_stack([np.sin(w * t), np.cos(w * t), np.sin(w * t + np.pi / 4), np.cos(w * t + np.pi / 4)])
+    with pytest.raises(InputError, match=r"keeps [01] of 10000 samples with every joint's.*K = 2 harmonics.*fit more"):
+        _kept_equations(t, qdf, "auto", "auto", 2, 0.2, 13)
