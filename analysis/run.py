@@ -37,8 +37,9 @@ from pathlib import Path
 import numpy as np
 
 from dynid.analysis.data.experiment import Experiment, load_experiment
+from dynid.analysis.data.plausibility import GLITCH
 from dynid.analysis.data.rates import check_rate_matches, check_same_rate
-from dynid.analysis.data.record import SHARED_RUN, checked_experiment, recording_of, shared_run
+from dynid.analysis.data.record import SHARED_RUN, checked_experiment, recording_of, sample_keys, shared_run
 from dynid.analysis.data.split import holdout_split
 from dynid.analysis.diagnosis.asymmetric_friction import asymmetric_friction
 from dynid.analysis.diagnosis.physical_fit import effect_candidates, identify_physical_effects
@@ -444,8 +445,9 @@ def load_data(data, robot, settings: Settings, say=None):
         check_rate_matches(held_out, experiments[0].fs, "the --validation recording",
                            experiments[0].source or experiments[0].name)
         check_cutoffs(settings, [held_out])
+        keys = sample_keys(held_out)
         for exp in experiments:
-            run = shared_run(held_out, exp)
+            run = shared_run(keys, exp)
             if run >= SHARED_RUN:
                 raise InputError(f"--validation {held_out.source or held_out.name} shares {run} consecutive samples, "
                                  f"bit for bit, with the identification recording {exp.source or exp.name}: "
@@ -468,7 +470,7 @@ def holdout_hint(settings: Settings, experiments):
     try:
         yield
     except IdentificationError as exc:
-        glitches = [n for e in experiments for n in getattr(e, "notices", []) if "a glitch?" in n]
+        glitches = [n for e in experiments for n in getattr(e, "notices", []) if GLITCH in n]
         tail = (" The data hold glitches, which can cause this: " + "; ".join(glitches)) if glitches else ""
         still = _still_joints(experiments)
         if still:

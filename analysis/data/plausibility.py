@@ -48,6 +48,8 @@ FAST_FACTOR = 10.0
 JUMP_FACTOR = 20.0
 #: ... the floor: an encoder count flickering on a joint at rest is no glitch
 JUMP_MIN = 1e-3
+#: the words every glitch notice (spike, jump) carries, by which later steps find them
+GLITCH = "a glitch?"
 
 _UNIT = {"q": "rad", "qr": "rad", "qd": "rad/s", "qdd": "rad/s²", "tau": "N·m"}
 
@@ -235,7 +237,7 @@ def position_jumps(signals: dict, rows, cols_of, source: str, notices: list, ski
             notices.append(
                 f"{w.name(s, j)}, {w.row(s, j, k)}: {s}{j + 1} jumps by {_g(float(step[j]))} {unit} in one "
                 f"sample and back (more than {_g(JUMP_FACTOR)}x its mean step of {_g(float(mean[j]))} {unit})"
-                f"{f'; {int(count[j])} such samples in all' if count[j] > 1 else ''}: a glitch? Fix or remove "
+                f"{f'; {int(count[j])} such samples in all' if count[j] > 1 else ''}: {GLITCH} Fix or remove "
                 "that row (it is a burst of speed and acceleration in the regressor)")
 
 
@@ -270,7 +272,7 @@ class SpikeNotices:
             f"{w.name(s, j)}, {w.row(s, j, k)}: isolated spike in {s}{j + 1}: "
             f"{value:.6g} {_UNIT[s]}, more than {SPIKE_FACTOR:g}× the column's robust "
             f"scale ({_g(scale)}, from its median absolute deviation) away from its "
-            f"neighbours{f' ({count} such samples in all)' if count > 1 else ''}: a glitch? "
+            f"neighbours{f' ({count} such samples in all)' if count > 1 else ''}: {GLITCH} "
             "Fix or remove that row (outliers bias the fit)"
             for s, columns in found for j, k, count, scale, value in columns
         ]

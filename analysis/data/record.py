@@ -19,7 +19,7 @@ from dynid.analysis.data._format import _fmt_t
 from dynid.analysis.data.timebase import TIME_STEP_TOLERANCE
 from dynid.errors import DataError
 
-__all__ = ["Experiment", "SIGNALS", "checked_experiment", "recording_of", "repeated_recordings", "same_samples", "shared_run"]
+__all__ = ["Experiment", "SIGNALS", "checked_experiment", "recording_of", "repeated_recordings", "same_samples", "sample_keys", "shared_run"]
 
 #: Signal names of the column convention, in the order they are stored.
 SIGNALS = ("q", "qr", "qd", "qdd", "tau")
@@ -341,7 +341,7 @@ _ROW_MIX = np.array([0x9E3779B97F4A7C15, 0xBF58476D1CE4E5B9, 0x94D049BB133111EB,
 SHARED_RUN = 100
 
 
-def _sample_keys(e):
+def sample_keys(e):
     """One 64-bit fingerprint per (q, tau) sample of `e`, in time order."""
     X = np.ascontiguousarray(np.column_stack([e.q, e.tau]), dtype=np.float64) + 0.0   # -0.0 -> 0.0
     bits = X.view(np.uint64)
@@ -353,9 +353,9 @@ def shared_run(a, b) -> int:
     """The longest run of consecutive samples of `a` that are, bit for bit, consecutive samples
     of `b` at one shift (samples equal to the one before them are left out: a robot holding
     still repeats its samples in any recording). The shifts tried are the three at which most samples of `a` find
-    their fingerprint in `b`. `a`, `b`: Experiments or their `_sample_keys`."""
-    ka = a if isinstance(a, np.ndarray) else _sample_keys(a)
-    kb = b if isinstance(b, np.ndarray) else _sample_keys(b)
+    their fingerprint in `b`. `a`, `b`: Experiments or their `sample_keys`."""
+    ka = a if isinstance(a, np.ndarray) else sample_keys(a)
+    kb = b if isinstance(b, np.ndarray) else sample_keys(b)
     if ka.size == 0 or kb.size == 0:
         return 0
     order = np.argsort(kb, kind="stable")
@@ -390,7 +390,7 @@ def repeated_recordings(experiments) -> list:
     """The pairs (i, k, run), i < k, of `experiments` that are one recording given twice
     (`same_samples`: `run` consecutive samples in common), each recording's fingerprints computed
     once."""
-    keys = [_sample_keys(e) for e in experiments]
+    keys = [sample_keys(e) for e in experiments]
     out = []
     for k in range(1, len(keys)):
         for i in range(k):

@@ -186,7 +186,9 @@ def identify_idim(experiment, robot, *, settings=None, bp=None, max_error_growth
             raise InputError(f"identify: recording {k + 1} ({experiments[k].source or experiments[k].name}) holds "
                              f"the same data as recording {i + 1}: counted twice it would shrink the sigma and "
                              "prove nothing; give each recording once")
-    for i, k, run in (repeated_recordings(experiments) if len(experiments) > 1 else [])[:1]:
+    repeated = repeated_recordings(experiments) if len(experiments) > 1 else []
+    if repeated:
+        i, k, run = repeated[0]
         raise InputError(
             f"identify: recordings {i + 1} ({experiments[i].source or experiments[i].name}) and {k + 1} "
             f"({experiments[k].source or experiments[k].name}) share {run} consecutive samples, bit for "

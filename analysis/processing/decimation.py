@@ -179,12 +179,16 @@ class DecimationFilter:
         return max(0, (last - self.first_index) // self.nd + 1)
 
     def too_short(self, n_samples: int) -> InputError:
-        return InputError(
+        """The error of a signal shorter than the filter; it carries `n_samples`, `min_samples`
+        and `nd`, for a caller that can say what the shortfall means (a held-out part)."""
+        exc = InputError(
             f"the signal has {n_samples} samples but decimating by nd={self.nd} "
             f"(cut-off {self.cutoff:g} Hz at fs={self.fs:g} Hz) needs at least "
             f"{self.min_samples} (FIR of {self.n_taps} taps); use a longer record, "
             "a smaller nd or no decimation."
         )
+        exc.n_samples, exc.min_samples, exc.nd = int(n_samples), int(self.min_samples), int(self.nd)
+        return exc
 
 
 class _Stage:

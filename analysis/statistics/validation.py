@@ -21,7 +21,6 @@ Per joint the residual's normality (`normality`, the one computation of
 """
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -248,17 +247,15 @@ def validate(idim_result, experiment, robot=None):
     try:
         full = observe(experiment, robot, idim_result.base, dict(settings, qd_threshold=0.0))
     except InputError as exc:
-        if "samples but decimating" not in str(exc):
+        if getattr(exc, "min_samples", None) is None:
             raise
         # built with the identification's processing (its nd), the held-out part must be as long as
         # the decimation filter: say so in terms of the held-out data, not of "a longer record"
-        m = re.search(r"has (\d+) samples but decimating by nd=(\d+).*needs at least (\d+)", str(exc))
         fs = float(experiment.fs)
-        need = ("" if m is None else
-                f": decimating by nd = {m.group(2)} as the identification did needs about "
-                f"{(int(m.group(3)) + experiment.n_samples - int(m.group(1))) / fs:.3g} s")
+        need = (exc.min_samples + experiment.n_samples - exc.n_samples) / fs   # the filter's edges too
         raise InputError(f"the held-out data ({experiment.n_samples} samples, {experiment.n_samples / fs:.3g} s) "
-                         f"are too short for the identification's processing{need}. Hold out more "
+                         f"are too short for the identification's processing: decimating by nd = {exc.nd} as "
+                         f"the identification did needs about {need:.3g} s. Hold out more "
                          "(--holdout SECONDS, holdout= in Python) or give a longer --validation recording") from None
     tau_hat = idim_result.predict(full.W)
     rel, rms, jrel = prediction_errors(full.tau, tau_hat)
