@@ -93,18 +93,21 @@ def cmd_identify(args, say):
 
 
 def cmd_simulate(args, say):
-    from dynid.analysis.data.synthetic import TORQUE_TIMING_NOTICE, missing_effects, simulate
+    from dynid.analysis.data.synthetic import missing_effects, simulate
     from dynid.provenance import dumps_json
     _csv_out(args.out)
     robot = _robot(args)
     say(f"robot '{robot.name}' ({robot.n_joints} joints): simulating {args.duration:g} s")
-    for notice in missing_effects(robot):
+    said = missing_effects(robot)       # before the minutes of simulation, the rest after
+    for notice in said:
         say(f"notice: {notice}")
     with say.progress(f"closed-loop simulation ({args.duration:g} s)") as bar:
         sim = simulate(robot, args.duration, seed=args.seed, f0=args.f0, harmonics=args.harmonics,
                        noise_q=args.noise_q, noise_tau=args.noise_tau, payload=args.carried_payload,
                        progress=bar.update)
-    say(f"notice: {TORQUE_TIMING_NOTICE}")
+    for notice in sim.notices:
+        if notice not in said:
+            say(f"notice: {notice}")
     outputs = [(args.out, sim.to_csv())]
     if args.json:
         doc = sim.to_dict()

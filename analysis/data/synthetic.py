@@ -14,6 +14,7 @@ import numpy as np
 from dynid.analysis.data.experiment import Experiment
 from dynid.analysis.results import Result
 from dynid.dynamics.base_parameters import base_parameters
+from dynid.dynamics.loop_stability import sampled_loop_radius
 from dynid.dynamics.robot_file import load_robot
 from dynid.dynamics.simulation import STIFFNESS_WARNING, friction_stiffness, simulate_closed_loop
 from dynid.dynamics.trajectories import random_fourier_trajectory
@@ -151,7 +152,7 @@ def simulate_experiment(robot, chi_st, trajectory, duration, *, rng, tau_noise, 
     states differ from the uniform steps' at the RK4 error level (1.5e-10 rad, against
     the demo's position noise of 4e-5 rad). The noise draws do not depend on it.
     `substeps` None: `SUBSTEPS`, or more where the smoothed friction makes the plant stiff
-    for that RK4 step (h*lambda above the simulator's warning, e.g. the LWR4+ at 200 Hz):
+    for that RK4 step (h*lambda above the simulator's warning, e.g. the LWR4+ with its controller at 200 Hz):
     as many as bring it to 1.5.
     """
     fs = float(robot.controller.rate if fs is None else fs)
@@ -380,7 +381,8 @@ def simulate(robot, duration: float = 20.0, *, seed: int = 1, f0: float = 0.1, h
     traj = random_fourier_trajectory(robot, f0, harmonics, rng)
     exp = simulate_experiment(robot, chi, traj, duration, rng=rng, q_noise=noise_q, tau_noise=noise_tau,
                               progress=progress, name=f"simulated {robot.name} (seed {seed})")
-    notices = missing_effects(robot) + [TORQUE_TIMING_NOTICE] + _tracking_notice(exp, robot)
+    notices = (missing_effects(robot) + [TORQUE_TIMING_NOTICE] + _stability_notice(robot, chi, exp.qr)
+               + _tracking_notice(exp, robot))
     exp.notices = list(exp.notices or []) + notices
     return SimulatedRecording(experiment=exp, robot=robot, trajectory=traj, chi=chi, seed=seed,
                               duration=duration, noise_q=noise_q, noise_tau=noise_tau, notices=notices,
@@ -390,6 +392,28 @@ def simulate(robot, duration: float = 20.0, *, seed: int = 1, f0: float = 0.1, h
 #: a simulated joint whose tracking error (RMS of qr - q) exceeds this fraction of its reference's
 #: span tracks poorly: the recording describes the robot file's loop more than the reference
 POOR_TRACKING = 0.10
+
+
+#: configurations of the reference at which the sampled loop is checked (`_stability_notice`)
+STABILITY_CHECKS = 200
+
+
+def _stability_notice(robot, chi, qr) -> list:
+    """A notice when the robot file's sampled controller is unstable somewhere along the
+    reference (`dynid.dynamics.loop_stability`): the recording then holds a limit cycle at up
+    to half the rate, which no rigid-body model describes."""
+    rows = np.unique(np.linspace(0, len(qr) - 1, STABILITY_CHECKS).astype(int))
+    radius = sampled_loop_radius(robot, chi, np.asarray(qr, dtype=float)[rows])
+    worst = int(np.argmax(radius))
+    if radius[worst] <= 1.0:
+        return []
+    share = float(np.mean(radius > 1.0))
+    return [(f"the robot file's [controller] is unstable at {robot.controller.rate:g} Hz on this robot along "
+             f"{100 * share:.0f} % of the reference (sampled loop linearised at its configurations: spectral "
+             f"radius up to {radius[worst]:.3g}, at t = {rows[worst] / robot.controller.rate:.3g} s, above 1): "
+             "the simulated motion oscillates at up to half the rate, torque that no rigid-body model "
+             "describes and the identification will leave in its residual; raise [controller].rate or "
+             "lower wn or J_ap of the joints whose inertia the a-priori model makes small")]
 
 
 def _tracking_notice(exp, robot) -> list:
