@@ -211,7 +211,7 @@ def convergence_section(res):
     kd = pd.DataFrame({f"kd_scale_{j + 1}": col(f"kd_scale_{j + 1}") for j in range(n)}, index=steps)
     tab_track = T.make_table(track, "tab-didim-tracking",
                              "RMS tracking error of each step's simulation, q\u1d63 \u2212 q_sim [mrad]",
-                             labels={f"track_rms_{j + 1}": f"j{j + 1}" for j in range(n)})
+                             labels={f"track_rms_{j + 1}": f"j{j + 1} [mrad]" for j in range(n)})
     tab_kd = T.make_table(kd, "tab-didim-kd-scale",
                           "Derivative-gain factors kd_scale = J\u0302\u2c7c / J_ap\u2c7c of each step's "
                           "simulation", labels={f"kd_scale_{j + 1}": f"j{j + 1}" for j in range(n)})
@@ -231,7 +231,7 @@ def _table2_section(res, reference):
                           key="tab-didim-table2",
                           caption=(f"DIDIM {which} parameters in the layout of Table 2" if published else
                                    f"DIDIM {which} parameters: value and %\u03c3"),
-                          ours_label="dynid DIDIM")
+                          ours_label="dynid DIDIM", prismatic=res._prismatic())
     ref_map = reference.rel_std_map() if reference is not None else None
     fig = F.rel_std_bar_figure(m.names, m.rel_std.to_numpy(), ref_map, key="fig-didim-rel-std",
                                ours_label="dynid DIDIM")

@@ -333,7 +333,8 @@ def _model_section(robot, res):
                                    "(Khalil-Kleinfinger; angles in rad, lengths in m)",
                                    formats={"alpha": "angle", "theta": "angle", "d": "num", "r": "num",
                                             "joint": "text"},
-                                   labels={"alpha": "\u03b1", "theta": "\u03b8", "sigma": "\u03c3"}))
+                                   labels={"alpha": "\u03b1 [rad]", "theta": "\u03b8 [rad]", "sigma": "\u03c3",
+                                           "d": "d [m]", "r": "r [m]"}))
     else:
         desc.append(para("No DH table: the joints' placements come from a URDF."))
     jrows = []
@@ -372,11 +373,12 @@ def _base_section(res):
     labels = {"name": "Parameter", "relation": "Relation (= regrouped standard parameters)",
               "ols": "OLS \u03c7\u0302", "ols_rel_std": "OLS %\u03c3",
               "wls": "WLS \u03c7\u0302", "wls_rel_std": "WLS %\u03c3", "essential": "essential"}
-    csv_frame = table
+    csv_frame = table.copy()
+    csv_frame.insert(1 if "relation" in table.columns else 0, "unit", shown["unit"])
     if getattr(res, "truth", None):
         shown.insert(0, "true", [res.truth.get(n, np.nan) for n in table.index])
         labels["true"] = "true value"
-        csv_frame = table.assign(true=[res.truth.get(n, np.nan) for n in table.index])
+        csv_frame = csv_frame.assign(true=[res.truth.get(n, np.nan) for n in table.index])
     tab = T.make_table(shown, "tab-base", "Base parameters: OLS and per-joint WLS estimates",
                        formats={"relation": "code", "essential": "bool", "unit": "text"}, labels=labels,
                        csv_frame=csv_frame, cls="base")
@@ -400,7 +402,7 @@ def _table2_section(res, reference):
     tab = T.table2_layout(m.names, m.chi, m.rel_std.to_numpy(), reference, res.base.names, key="tab-table2",
                           caption=("Essential parameters (WLS) in the layout of Table 2" if published else
                                    "Essential parameters (WLS): value and %\u03c3"),
-                          ours_label="dynid WLS")
+                          ours_label="dynid WLS", prismatic=res._prismatic())
     ref_map = reference.rel_std_map() if published else None
     fig = F.rel_std_bar_figure(m.names, m.rel_std.to_numpy(), ref_map, key="fig-rel-std",
                                ours_label="dynid WLS")
@@ -455,7 +457,7 @@ def _joint_error_table(key, caption, names, rms, rel, sigma=None):
     labels = {"rms": "RMS residual [N m]", "rel_error_percent": "relative error [%]"}
     if sigma is not None:
         df["wls_sigma"] = np.asarray(sigma, dtype=float)
-        labels["wls_sigma"] = "\u03c3\u2c7c (WLS weight 1/\u03c3\u2c7c)"
+        labels["wls_sigma"] = "\u03c3\u2c7c (WLS weight 1/\u03c3\u2c7c) [N m]"
     return T.make_table(df, key, caption, formats={"joint": "text", "rel_error_percent": "num"},
                         labels=labels)
 
@@ -547,7 +549,8 @@ def _validation_section(res, robot, validation):
         noise.index.name = "j"
         tabs.append(T.make_table(noise, key, caption, formats={"name": "text", "n": "int",
                                                                "shapiro_n": "int"},
-                                 labels={"name": "joint", "excess_kurtosis": "excess kurtosis",
+                                 labels={"name": "joint", "mean": "mean [N m]", "std": "std [N m]",
+                                         "excess_kurtosis": "excess kurtosis",
                                          "jarque_bera": "Jarque-Bera", "jarque_bera_p": "JB p",
                                          "shapiro": "Shapiro-Wilk W", "shapiro_p": "SW p",
                                          "shapiro_n": "SW samples (evenly spaced)"}))

@@ -21,10 +21,11 @@ import numpy as np
 import pandas as pd
 
 from dynid.analysis.results import p_value_text
+from dynid.analysis.units import parameter_unit
 
 __all__ = [
     "Cell", "Table", "MISSING", "format_value", "format_number", "format_pct",
-    "format_angle", "infer_kind", "frame_rows", "csv_text", "csv_data_uri", "make_table",
+    "format_angle", "infer_kind", "frame_rows", "csv_text", "csv_data_uri", "make_table", "with_label_units",
     "table2_frame", "table2_layout", "NOT_ESSENTIAL", "NOT_IN_PAPER",
 ]
 
@@ -233,6 +234,22 @@ def slug(text: str) -> str:
     return s or "table"
 
 
+_LABEL_UNIT = re.compile(r"\[([^\]]+)\]\s*$")
+
+
+def with_label_units(frame: pd.DataFrame, labels: dict | None) -> pd.DataFrame:
+    """`frame` with the unit its displayed label ends with (`"RMS residual [N m]"`) appended to
+    the column's CSV name (`rms [N m]`), so that a downloaded table keeps the units the page
+    shows. Not "%": a percent column says so in its name (`rel_error_percent`), and some show
+    a fraction as a percentage (`rel_error` 0.002 is "0.2 %")."""
+    rename = {}
+    for col, label in (labels or {}).items():
+        m = _LABEL_UNIT.search(str(label))
+        if m and col in frame.columns and m.group(1) != "%":
+            rename[col] = f"{col} [{m.group(1)}]"
+    return frame.rename(columns=rename) if rename else frame
+
+
 def make_table(df: pd.DataFrame, key: str, caption: str, *, formats: dict | None = None,
                labels: dict | None = None, index: bool = True, note: str = "",
                csv_frame: pd.DataFrame | None = None, csv_index: bool | None = None,
@@ -242,7 +259,7 @@ def make_table(df: pd.DataFrame, key: str, caption: str, *, formats: dict | None
     The CSV holds `csv_frame` (default `df`) unformatted.
     """
     columns, rows, classes = frame_rows(df, formats, index=index, labels=labels)
-    data = df if csv_frame is None else csv_frame
+    data = with_label_units(df if csv_frame is None else csv_frame, labels)
     ci = index if csv_index is None else csv_index
     return Table(key=key, caption=caption, columns=columns, rows=rows,
                  csv_uri=csv_data_uri(data, index=ci),
@@ -293,8 +310,11 @@ def table2_frame(names, chi, rel_sigma, reference=None, base_order=None) -> pd.D
 
 def table2_layout(names, chi, rel_sigma, reference=None, base_order=None, *,
                   key="table2", caption="Essential parameters in the layout of Table 2",
-                  ours_label="dynid") -> Table:
+                  ours_label="dynid", prismatic=frozenset()) -> Table:
     """Two side-by-side blocks of Parameter | χ̂ | %σ (| paper χ̂ | paper %σ), like Table 2.
+
+    The CSV download has one row per parameter with its SI `unit` (`prismatic`: the 1-based
+    numbers of the prismatic joints, whose parameters are in N and m).
 
     With a `reference` (`dynid.reports.paper.ReferenceTable`) the paper's
     value and %σ stand beside dynid's; a parameter of the paper missing from
@@ -353,6 +373,8 @@ def table2_layout(names, chi, rel_sigma, reference=None, base_order=None, *,
         note = (f"{NOT_ESSENTIAL} in Table 2 but not in dynid's essential set ({n_missing}); "
                 f"{NOT_IN_PAPER} in dynid's essential set but not in Table 2 ({n_extra}). "
                 f"Paper: {reference.citation}, {reference.title}.")
+    csv = frame.copy()
+    csv.insert(1, "unit", [parameter_unit(str(n), prismatic) for n in frame.index])
     return Table(key=key, caption=caption, columns=columns, rows=rows,
-                 csv_uri=csv_data_uri(frame), csv_name=f"{slug(key)}.csv", groups=groups,
+                 csv_uri=csv_data_uri(csv), csv_name=f"{slug(key)}.csv", groups=groups,
                  column_classes=column_classes, note=note, cls="table2")

@@ -170,7 +170,13 @@ def test_csv_downloads_decode_to_the_tables(planar, planar_html):
     noise = pd.read_csv(io.StringIO(csvs["tab-normality"]), index_col=0)
     np.testing.assert_allclose(noise["jarque_bera_p"], val.noise["jarque_bera_p"], rtol=1e-15)
     errs = pd.read_csv(io.StringIO(csvs["tab-validation-errors"]), index_col=0)
-    np.testing.assert_allclose(errs["rms"], val.rms, rtol=1e-15)
+    np.testing.assert_allclose(errs["rms [N m]"], val.rms, rtol=1e-15)
+    # every downloaded value keeps its unit: a unit column beside parameters, else in the header
+    assert base.loc["ZZ1R", "unit"] == t2.loc["ZZ1R", "unit"] == "kg m\u00b2"
+    assert t2.loc["Fv1", "unit"] == "N m s/rad"
+    dh = pd.read_csv(io.StringIO(csvs["tab-dh"]), index_col=0)
+    assert {"alpha [rad]", "d [m]", "theta [rad]", "r [m]"} <= set(dh.columns)
+    assert {"mean [N m]", "std [N m]"} <= set(noise.columns)
 
 
 def test_user_strings_are_escaped(evil):
