@@ -139,6 +139,10 @@ N_PERM = 200
 MIN_RATIO = 0.5
 FLOOR_RATIO = 2.0
 WHITE_MIN = 2.0
+#: a floor this many times the residual's own RMS is not the residual's noise: the full-rate
+#: torque's high-frequency content is not white (a limit cycle, noise shaped by the loop), and
+#: the second differences overstate what the decimation passes (`_noise_floors`)
+FLOOR_ABOVE_RESIDUAL = 2.0
 WHITE_Q_MIN = 2.0      # var(d4 q) / var(d3 q): 70/20 = 3.5 for white position noise
 EDGE_FACTOR = 3.0
 GRID = 4096            # position grid of the spectral test (before zero padding x2)
@@ -222,6 +226,7 @@ class StructureResult:
     block_length: int
     rule: str
     whiteness: np.ndarray | None = None    # var(d3 tau) / var(d2 tau) per joint (white: 3.33)
+    floor_over_residual: np.ndarray | None = None   # per joint: the floor refused, over the residual RMS
     dropped: list = field(default_factory=list)      # Unexplained not raised (alias, too small)
     hypotheses: list = field(default_factory=list)   # Hypothesis per flagged joint (hypotheses.py)
 
@@ -234,6 +239,9 @@ class StructureResult:
         return {"alpha": self.alpha, "n_tests": self.n_tests, "block_length": self.block_length,
                 "noise_floor_rms": [float(x) if np.isfinite(x) else None for x in self.noise_floor],
                 "whiteness_d3_d2": None if self.whiteness is None else list(map(float, self.whiteness)),
+                "noise_floor_over_residual": (None if self.floor_over_residual is None else
+                                              [float(x) if np.isfinite(x) else None
+                                               for x in self.floor_over_residual]),
                 "rule": self.rule,
                 "not_raised": [u.to_dict() for u in self.dropped],
                 "hypotheses": [h.to_dict() for h in self.hypotheses],
@@ -541,6 +549,7 @@ def residual_structure(eobs, residual, mask, *, names=None, alpha=0.01, n_perm=N
                                             < EDGE_FACTOR * thr)   # the dead-zone edge (module docstring)
     rng = np.random.default_rng(seed)
     floor, tau_noise, white = _noise_floors(eobs, R, mask, seed, position_delta)
+    floor, over = _floors_below_residual(floor, R, mask)
     L = int(max(8, 2 * gap, math.ceil(3 * np.max(tau_noise))))
     tests, data = [], {}
     for j in range(n):
@@ -567,7 +576,25 @@ def residual_structure(eobs, residual, mask, *, names=None, alpha=0.01, n_perm=N
         tt.large = tt.ratio >= (floor_ratio if tt.test == "noise_floor" else min_ratio)
         tt.flagged = bool(tt.p_value < alpha and tt.large)
     return StructureResult(tests=tests, unexplained=_unexplained(tests, data, n), alpha=alpha, n_tests=m,
-                           noise_floor=floor, block_length=L, rule=RULE, whiteness=white)
+                           noise_floor=floor, block_length=L, rule=RULE, whiteness=white,
+                           floor_over_residual=over)
+
+
+def _floors_below_residual(floor, R, mask):
+    """(floor, over): the floors with those above `FLOOR_ABOVE_RESIDUAL` times the joint's
+    residual RMS set to NaN (unknown), and per joint that ratio where it was refused (NaN
+    elsewhere). A residual holds its noise: a floor twice its RMS measures something else."""
+    floor = np.array(floor, dtype=float)
+    over = np.full(floor.shape, np.nan)
+    for j in range(floor.size):
+        u = mask[:, j]
+        if not np.isfinite(floor[j]) or u.sum() <= 10:
+            continue
+        rms = float(np.sqrt(np.mean((R[u, j] - R[u, j].mean()) ** 2)))
+        if floor[j] > FLOOR_ABOVE_RESIDUAL * rms:
+            over[j] = floor[j] / rms if rms > 0 else np.inf
+            floor[j] = np.nan
+    return floor, over
 
 
 def _noise_floors(eobs, R, mask, seed, position_delta):

@@ -161,13 +161,23 @@ def _structure(res):
                                                  for j, x in enumerate(floor)) + " N m")
     lines = ["", f"  Structure left in the final residual ({st.n_tests} catalogue-free tests, "
                  f"Bonferroni alpha = {st.alpha:g}; {floor_text}):"]
-    unknown = [j + 1 for j, k in enumerate(st.floor_known) if not k]
+    over = (np.full(floor.shape, np.nan) if getattr(st, "floor_over_residual", None) is None
+            else np.asarray(st.floor_over_residual, dtype=float))
+    above = [j + 1 for j in range(floor.size) if not np.isnan(over[j])]
+    unknown = [j + 1 for j, k in enumerate(st.floor_known) if not k and j + 1 not in above]
     if unknown:
         lines.append(f"    noise floor unknown on joint(s) {', '.join(map(str, unknown))}: the "
                      f"torque's full-rate increments are not white (var(d3)/var(d2) "
                      + ", ".join(f"{st.whiteness[j - 1]:.2g}" for j in unknown)
                      + ", white noise 3.33): it was low-pass filtered before it was "
                      "recorded, so the excess-over-floor test is not run")
+    if above:
+        lines.append(f"    noise floor unknown on joint(s) {', '.join(map(str, above))}: estimated from the "
+                     "full-rate torque's increments it would be "
+                     + ", ".join(f"{over[j - 1]:.3g}" for j in above)
+                     + " x the residual's own RMS, so those increments are not white noise (fast "
+                     "torque the decimation removes: a limit cycle, or noise shaped by the loop); the "
+                     "excess-over-floor test is not run")
     if not st.unexplained:
         lines.append("    none: no joint's residual has significant structure large against "
                      "its noise")
