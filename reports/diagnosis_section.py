@@ -262,7 +262,8 @@ def _errors_section(res, names):
             df, f"diag-errors-{key}", f"Per-joint residual before and after the effects ({label}, moving samples)",
             formats={"joint": "text", "rel_before_pct": "num", "rel_after_pct": "num"},
             labels={"rms_before": "RMS before [N m]", "rms_after": "RMS after [N m]",
-                    "rel_before_pct": "rel. error before [%]", "rel_after_pct": "rel. error after [%]"}))
+                    "rel_before_pct": "rel. error before [%]", "rel_after_pct": "rel. error after [%]"},
+            prismatic=_has_prismatic(res)))
     body = join(kv_list(pairs),
                 para("Rows used by the estimator (outside the velocity dead zone). The validation "
                      "data were processed with the identification's settings; the effects' columns "
@@ -391,7 +392,7 @@ def _residual_section(res, names):
                        formats={"residual": "text", "joint": "text", "n": "int"},
                        labels={"rms": "RMS [N m]", "ljung_box_p": "Ljung-Box p",
                                "tau_int": "\u03c4_int = 1 + 2\u03a3\u03c1_k", "n_eff": "n_eff",
-                               "jarque_bera_p": "Jarque-Bera p"})
+                               "jarque_bera_p": "Jarque-Bera p"}, prismatic=_has_prismatic(res))
     lb = b.ljung_box
     found = ("the diagnosis added " + ", ".join(f"{s_.name} (joint {s_.joint})" for s_ in res.selected)
              if res.selected else "the diagnosis found no missing effect among the candidates it tested")
@@ -432,8 +433,16 @@ def _structure_parts(res, body, figs, tables):
                 index=False, formats={"depends_on": "text", "test": "text", "also": "text",
                                       "joint": "int"},
                 labels={"rms": "structure RMS [N m]", "noise_rms": "rest / noise RMS [N m]",
-                        "p_value": "p (Bonferroni)", "depends_on": "depends on"}))
+                        "p_value": "p (Bonferroni)", "depends_on": "depends on"}, prismatic=_has_prismatic(res)))
     return body, figs, tables
+
+
+def _has_prismatic(res) -> bool:
+    """Does the diagnosed robot have a prismatic joint (joint rows in m, m/s and N)?"""
+    for owner in (res, getattr(res, "idim", None)):
+        if hasattr(owner, "_prismatic"):
+            return bool(owner._prismatic())
+    return False
 
 
 def _structure_text(st):
@@ -446,8 +455,7 @@ def _structure_text(st):
         "the other joints' q and qd; spectral lines against q_j at any order (full-rate residual "
         "resampled on position); a step in time; the residual RMS against the torque-noise floor "
         "(torque noise from the full-rate second differences, through the same decimation: "
-        + ", ".join(f"{x:.3g}" if np.isfinite(x) else "unknown (torque filtered upstream)"
-                    for x in st.noise_floor) + " N m). Nulls by block permutation "
+        + ", ".join(_floor_text(st, j) for j in range(len(st.noise_floor))) + " N m). Nulls by block permutation "
         f"(blocks of {st.block_length} decimated samples), Bonferroni over tests and joints, "
         f"α = {st.alpha:g}. Flagged when significant and the structure RMS is at least half "
         "the RMS of the rest of the residual (noise-floor test: residual RMS at least twice the "
@@ -515,3 +523,14 @@ def diagnosis_sections(result, robot=None):
     return [_first_screen_section(result), _overview_section(result), _effects_section(result),
             _errors_section(result, names),
             _residual_section(result, names)]
+
+
+def _floor_text(st, j):
+    """Joint j's noise floor in the tests' description, or why it is unknown."""
+    x = st.noise_floor[j]
+    if np.isfinite(x):
+        return f"{x:.3g}"
+    over = getattr(st, "floor_over_residual", None)
+    if over is not None and not np.isnan(over[j]):
+        return f"unknown (the torque's increments would put it at {over[j]:.3g} x the residual: not white noise)"
+    return "unknown (torque filtered upstream)"

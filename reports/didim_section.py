@@ -211,7 +211,8 @@ def convergence_section(res):
     kd = pd.DataFrame({f"kd_scale_{j + 1}": col(f"kd_scale_{j + 1}") for j in range(n)}, index=steps)
     tab_track = T.make_table(track, "tab-didim-tracking",
                              "RMS tracking error of each step's simulation, q\u1d63 \u2212 q_sim [mrad]",
-                             labels={f"track_rms_{j + 1}": f"j{j + 1} [mrad]" for j in range(n)})
+                             labels={f"track_rms_{j + 1}": f"j{j + 1} [mrad]" for j in range(n)},
+                             prismatic=bool(res._prismatic()))
     tab_kd = T.make_table(kd, "tab-didim-kd-scale",
                           "Derivative-gain factors kd_scale = J\u0302\u2c7c / J_ap\u2c7c of each step's "
                           "simulation", labels={f"kd_scale_{j + 1}": f"j{j + 1}" for j in range(n)})
@@ -263,6 +264,7 @@ def _torque_section(res, reference):
     tab = T.make_table(df, "tab-didim-torque-errors", "Per-joint residual of the DIDIM estimate "
                        "(last step, equations used)",
                        labels={"rms": "RMS residual [N m]", "rel_error_percent": "relative error [%]"},
+                       prismatic=bool(res._prismatic()),
                        formats={"rel_error_percent": "num"})
     text = (f"Relative error norm \u2016Y \u2212 W\u03b4\u03c7\u0302\u2016/\u2016Y\u2016 of the last step: "
             f"{_pct(r.rel_error)}"

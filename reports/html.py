@@ -352,7 +352,7 @@ def _model_section(robot, res):
                                        "drive_gain": "drive gain [N m per unit of the logged signal]"},
                                note=("A prismatic joint's limits are in m, m/s and N, and so are its "
                                      "positions, velocities and torques (forces) wherever this report "
-                                     "says rad, rad/s and N m." if prismatic else "")))
+                                     "says rad, rad/s and N m." if prismatic else ""), prismatic=prismatic))
     prov = dict(getattr(robot, "provenance", {}) or {})
     if prov:
         pdf = pd.DataFrame({"what": list(prov), "source": [str(v) for v in prov.values()]}).set_index("what")
@@ -450,7 +450,7 @@ def _path_section(res):
     return Section("essential-path", "Elimination path", body, figures=[fig], tables=[tab])
 
 
-def _joint_error_table(key, caption, names, rms, rel, sigma=None):
+def _joint_error_table(key, caption, names, rms, rel, sigma=None, prismatic=False):
     df = pd.DataFrame({"joint": names, "rms": np.asarray(rms, dtype=float),
                        "rel_error_percent": 100 * np.asarray(rel, dtype=float)},
                       index=pd.Index(np.arange(1, len(names) + 1), name="j"))
@@ -459,7 +459,7 @@ def _joint_error_table(key, caption, names, rms, rel, sigma=None):
         df["wls_sigma"] = np.asarray(sigma, dtype=float)
         labels["wls_sigma"] = "\u03c3\u2c7c (WLS weight 1/\u03c3\u2c7c) [N m]"
     return T.make_table(df, key, caption, formats={"joint": "text", "rel_error_percent": "num"},
-                        labels=labels)
+                        labels=labels, prismatic=prismatic)
 
 
 def _torque_section(res, robot, reference):
@@ -476,7 +476,7 @@ def _torque_section(res, robot, reference):
     m = res.model
     tab = _joint_error_table("tab-torque-errors", "Per-joint residual of the essential model "
                              f"(identification data, {fitted})", names, m.rms,
-                             m.joint_rel_error, m.joint_sigma)
+                             m.joint_rel_error, m.joint_sigma, prismatic=_has_prismatic(robot))
     text = (f"Relative error norm \u2016Y \u2212 W\u03c7\u0302\u2016/\u2016Y\u2016 of the essential model on "
             f"the identification data ({fitted}; the rest is the velocity dead zone, where "
             f"Coulomb friction's sign is undetermined at rest): {_pct(m.rel_error)}.")
@@ -523,7 +523,8 @@ def _validation_section(res, robot, validation):
                                           "histogram, fitted normal density (red), kernel density "
                                           "estimate (blue, dashed); Jarque-Bera p-value in the title")
     tab_e = _joint_error_table("tab-validation-errors", "Per-joint prediction error (validation data, "
-                               "all samples)", names, validation.rms, validation.joint_rel_error)
+                               "all samples)", names, validation.rms, validation.joint_rel_error,
+                               prismatic=_has_prismatic(robot))
     mj = getattr(validation, "moving_joint_rel_error", None)
     tab_e_m = None
     if mj is not None:
@@ -553,8 +554,14 @@ def _validation_section(res, robot, validation):
                                          "excess_kurtosis": "excess kurtosis",
                                          "jarque_bera": "Jarque-Bera", "jarque_bera_p": "JB p",
                                          "shapiro": "Shapiro-Wilk W", "shapiro_p": "SW p",
-                                         "shapiro_n": "SW samples (evenly spaced)"}))
+                                         "shapiro_n": "SW samples (evenly spaced)"},
+                                 prismatic=_has_prismatic(robot)))
     return Section("validation", "Validation", body, figures=[fig_t, fig_p], tables=tabs)
+
+
+def _has_prismatic(robot) -> bool:
+    """Does `robot` have a prismatic joint (its rows of a joint table are in m, m/s and N)?"""
+    return any(getattr(j, "prismatic", False) for j in getattr(robot, "joints", None) or ())
 
 
 def idim_sections(idim_result, robot, experiment=None, validation=None, *, reference="auto"):

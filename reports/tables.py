@@ -237,29 +237,37 @@ def slug(text: str) -> str:
 _LABEL_UNIT = re.compile(r"\[([^\]]+)\]\s*$")
 
 
-def with_label_units(frame: pd.DataFrame, labels: dict | None) -> pd.DataFrame:
+#: a joint quantity's unit, and what it reads on a robot with prismatic joints (their
+#: positions, velocities and forces are in m, m/s and N)
+_PRISMATIC_UNIT = {"rad": "rad or m", "rad/s": "rad/s or m/s", "N m": "N m or N", "mrad": "mrad or mm"}
+
+
+def with_label_units(frame: pd.DataFrame, labels: dict | None, prismatic: bool = False) -> pd.DataFrame:
     """`frame` with the unit its displayed label ends with (`"RMS residual [N m]"`) appended to
     the column's CSV name (`rms [N m]`), so that a downloaded table keeps the units the page
     shows. Not "%": a percent column says so in its name (`rel_error_percent`), and some show
-    a fraction as a percentage (`rel_error` 0.002 is "0.2 %")."""
+    a fraction as a percentage (`rel_error` 0.002 is "0.2 %"). `prismatic`: the table's rows
+    include prismatic joints, whose joint units are m, m/s and N (`rms [N m or N]`)."""
     rename = {}
     for col, label in (labels or {}).items():
         m = _LABEL_UNIT.search(str(label))
         if m and col in frame.columns and m.group(1) != "%":
-            rename[col] = f"{col} [{m.group(1)}]"
+            unit = _PRISMATIC_UNIT.get(m.group(1), m.group(1)) if prismatic else m.group(1)
+            rename[col] = f"{col} [{unit}]"
     return frame.rename(columns=rename) if rename else frame
 
 
 def make_table(df: pd.DataFrame, key: str, caption: str, *, formats: dict | None = None,
                labels: dict | None = None, index: bool = True, note: str = "",
                csv_frame: pd.DataFrame | None = None, csv_index: bool | None = None,
-               csv_name: str | None = None, cls: str = "") -> Table:
+               csv_name: str | None = None, cls: str = "", prismatic: bool = False) -> Table:
     """A `Table` of `df` with its CSV download.
 
-    The CSV holds `csv_frame` (default `df`) unformatted.
+    The CSV holds `csv_frame` (default `df`) unformatted, each column named with the unit its
+    label shows (`with_label_units`; `prismatic`: the rows include prismatic joints).
     """
     columns, rows, classes = frame_rows(df, formats, index=index, labels=labels)
-    data = with_label_units(df if csv_frame is None else csv_frame, labels)
+    data = with_label_units(df if csv_frame is None else csv_frame, labels, prismatic)
     ci = index if csv_index is None else csv_index
     return Table(key=key, caption=caption, columns=columns, rows=rows,
                  csv_uri=csv_data_uri(data, index=ci),

@@ -19,7 +19,7 @@ from dynid.dynamics.robot_file import load_robot
 from dynid.dynamics.simulation import STIFFNESS_WARNING, friction_stiffness, simulate_closed_loop
 from dynid.dynamics.trajectories import random_fourier_trajectory
 from dynid.dynamics.urdf import inertia_about_origin, inertial_parameters
-from dynid.errors import InputError
+from dynid.errors import DynidError, InputError
 from dynid.outputs import atomic_write_text
 from dynid.provenance import json_safe
 from dynid.ranges import check_range
@@ -379,10 +379,18 @@ def simulate(robot, duration: float = 20.0, *, seed: int = 1, f0: float = 0.1, h
         chi, payload_doc = add_payload(robot, chi, payload)
     rng = np.random.default_rng(seed)
     traj = random_fourier_trajectory(robot, f0, harmonics, rng)
-    exp = simulate_experiment(robot, chi, traj, duration, rng=rng, q_noise=noise_q, tau_noise=noise_tau,
-                              progress=progress, name=f"simulated {robot.name} (seed {seed})")
-    notices = (missing_effects(robot) + [TORQUE_TIMING_NOTICE] + _stability_notice(robot, chi, exp.qr)
-               + _tracking_notice(exp, robot))
+    # before the simulation: an unstable loop may make it fail, and then the reason is this
+    unstable = _stability_notice(robot, chi, traj.evaluate(np.arange(sample_count(duration, rate)) / rate)[0])
+    try:
+        exp = simulate_experiment(robot, chi, traj, duration, rng=rng, q_noise=noise_q, tau_noise=noise_tau,
+                                  progress=progress, name=f"simulated {robot.name} (seed {seed})")
+    except DynidError as err:
+        if unstable:
+            raise InputError(f"the closed-loop simulation diverged: {unstable[0]} (it stopped with: {err})") from err
+        raise
+    # an unstable loop tracks poorly too, and for that reason rather than soft gains
+    notices = (missing_effects(robot) + [TORQUE_TIMING_NOTICE] + unstable
+               + ([] if unstable else _tracking_notice(exp, robot)))
     exp.notices = list(exp.notices or []) + notices
     return SimulatedRecording(experiment=exp, robot=robot, trajectory=traj, chi=chi, seed=seed,
                               duration=duration, noise_q=noise_q, noise_tau=noise_tau, notices=notices,

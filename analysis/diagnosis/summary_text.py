@@ -172,8 +172,8 @@ def _structure(res):
                      + ", white noise 3.33): it was low-pass filtered before it was "
                      "recorded, so the excess-over-floor test is not run")
     if above:
-        lines.append(f"    noise floor unknown on joint(s) {', '.join(map(str, above))}: estimated from the "
-                     "full-rate torque's increments it would be "
+        lines.append(f"    noise floor unknown on joint(s) {', '.join(map(str, above))}: its torque-noise part, "
+                     "estimated from the full-rate torque's increments, would be "
                      + ", ".join(f"{over[j - 1]:.3g}" for j in above)
                      + " x the residual's own RMS, so those increments are not white noise (fast "
                      "torque the decimation removes: a limit cycle, or noise shaped by the loop); the "

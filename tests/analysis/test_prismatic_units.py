@@ -61,3 +61,27 @@ def test_the_physical_fit_json_carries_the_joint_units(identified):
                         physical=True)
     units = {p["name"]: p["unit"] for p in pc.to_dict()["parameters"]}
     assert units["Fv2"] == "N s/m" and pc.to_frame().loc["Fv2", "unit"] == "N s/m"
+
+
+def test_report_csv_downloads_say_the_joint_units(identified):
+    """The HTML report's CSV downloads name their units; on a robot with a prismatic joint the
+    joint columns read "N m or N" (the page's note says which rows), and the parameter tables
+    give each parameter its own unit."""
+    import io
+    import re
+    import urllib.parse
+
+    import pandas as pd
+
+    from dynid.reports.html import render_idim_report
+    robot, r, held = identified
+    html = render_idim_report(r, robot, None, dynid.validate(r, held))
+    csvs = {m.group(1): urllib.parse.unquote(m.group(2).split(",", 1)[1])
+            for m in re.finditer(r'<div class="table-block" id="([^"]+)">.*?<a class="csv" href="([^"]+)"',
+                                 html, re.S)}
+    errors = pd.read_csv(io.StringIO(csvs["tab-torque-errors"]), index_col=0)
+    assert "rms [N m or N]" in errors.columns
+    joints = pd.read_csv(io.StringIO(csvs["tab-joints"]), index_col=0)
+    assert {"q_min [rad or m]", "tau_max [N m or N]"} <= set(joints.columns)
+    table2 = pd.read_csv(io.StringIO(csvs["tab-table2"]), index_col=0)
+    assert table2.loc["Fv2", "unit"] == "N s/m" and table2.loc["Fv1", "unit"] == "N m s/rad"

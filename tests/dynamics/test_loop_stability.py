@@ -93,3 +93,13 @@ def test_simulated_lwr4_is_identified_and_says_nothing_of_its_loop():
     robot, _ = _robot("kuka_lwr4", rate=200.0)
     notices = dynid.simulate(robot, 6.0, seed=1).notices
     assert any("[controller] is unstable at 200 Hz" in n for n in notices)
+
+
+def test_a_simulation_that_diverges_says_its_loop_is_unstable():
+    """planar2's PD at 25 Hz without torque limits diverges within a second: the error names the
+    unstable loop (it used to blame the parameters' physical consistency, M(q) not positive
+    definite)."""
+    robot, _ = _robot("planar2", rate=25.0)
+    robot = dataclasses.replace(robot, joints=[dataclasses.replace(j, tau_max=float("inf")) for j in robot.joints])
+    with pytest.raises(dynid.InputError, match=r"diverged: the robot file's \[controller\] is unstable at 25 Hz"):
+        dynid.simulate(robot, 5.0, seed=1, f0=0.2, harmonics=1)
