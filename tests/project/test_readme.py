@@ -114,13 +114,13 @@ def test_readme_real_data_table_is_what_the_benchmark_computes(tmp_path):
 @pytest.mark.slow
 def test_readme_didim_command_converges_on_the_readme_recording(tmp_path):
     """The Commands block's `dynid simulate --robot tx40 --out run.csv` then `dynid identify run.csv
-    --robot tx40 --method didim`, as written: DIDIM converges (exit 0) on dynid's own recording."""
+    --robot tx40 --method didim --torque-timing centred`, as written: DIDIM converges (exit 0) on dynid's own recording."""
     import json
     import sys
     text = (ROOT / "README.md").read_text()
     lines = {ln.split("#")[0].strip() for ln in text.splitlines() if ln.startswith("dynid ")}
     sim = "dynid simulate --robot tx40 --out run.csv"
-    didim = "dynid identify run.csv --robot tx40 --method didim"
+    didim = "dynid identify run.csv --robot tx40 --method didim --torque-timing centred"
     assert sim in lines and didim in lines
     exe = str(Path(sys.executable).parent / "dynid")
     for cmd in (sim, didim + " --json d.json"):
