@@ -270,12 +270,17 @@ class ExcitationResult:
             f"(period {tr.period:g} s, bandwidth {tr.bandwidth:g} Hz), criterion {self.criterion}, "
             f"scaling {self.scaling}, margin {self.margin:g}",
             f"  {self.cond_name}: {self.cond_result:.4g} (best of {len(self.cond_starts)} random "
-            f"starts {self.cond_start:.4g}; x{self.improvement:.2f} lower)",
+            f"starts {self.cond_start:.4g}; "
+            + (f"x{self.improvement:.2f} lower)" if self.improvement >= 1 else
+               f"x{1 / self.improvement:.2f} higher)")
+            + ("" if self.criterion == "cond" else
+               f"; the design optimised {self.criterion}, not cond, which a random start can beat"),
             f"  cond envelope-scaled {c['cond']:.4g} (start {cs['cond']:.4g}), raw SI {c['cond_raw']:.4g} "
             f"(start {cs['cond_raw']:.4g}), unit columns {c['cond_unit']:.4g} (start {cs['cond_unit']:.4g}); "
             f"computed on {self.n_samples} samples per period (the CSV holds the controller rate)",
             f"  limits on {self.n_check} points per period: {'all respected' if self.feasible else 'VIOLATED'}"
-            f" (torque with {self.torque_parameters})",
+            + (f" ({self.torque_parameters})" if self.torque_parameters.startswith("no ") else
+               f" (torque with {self.torque_parameters})"),
             "  joint   q_low  q_high     qd    qdd    tau   (relative margin to each limit)",
         ]
         for name, row in self.margins.iterrows():
@@ -336,7 +341,12 @@ def _design(robot, f0, n_harmonics, *, n_starts, criterion, chi, rng, max_iter, 
     if chi is None:
         chi_st, _, missing = apriori_parameters(robot, bp)
         torque_src = "the robot's a-priori values"
-        if missing:
+        if len(missing) >= bp.n_base:
+            # a torque of zero everywhere would pass any limit: the check would say nothing
+            chi_st, torque_src = None, "no torque check: the robot file has no a-priori values"
+            notices.append(f"torque limits not checked: robot '{robot.name}' has no a-priori parameter values "
+                           "(add an [apriori] table to its robot file, or pass chi= the parameters to check with)")
+        elif missing:
             torque_src += f" ({len(missing)} of {bp.n_base} base parameters without one, taken as 0)"
     elif chi is False:
         chi_st, torque_src = None, "no torque limits"

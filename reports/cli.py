@@ -98,7 +98,8 @@ def cmd_simulate(args, say):
     _csv_out(args.out)
     robot = _robot(args)
     say(f"robot '{robot.name}' ({robot.n_joints} joints): simulating {args.duration:g} s")
-    said = missing_effects(robot)       # before the minutes of simulation, the rest after
+    # before the minutes of simulation, the rest after (none for a robot that cannot be simulated)
+    said = missing_effects(robot) if getattr(robot, "apriori", None) and robot.controller is not None else []
     for notice in said:
         say(f"notice: {notice}")
     with say.progress(f"closed-loop simulation ({args.duration:g} s)") as bar:

@@ -62,7 +62,7 @@ def cut_effects(steps, max_effects):
     return [r for r in steps[-1].ranking if r.passes and not r.selected and r.name not in TIME_VARYING]
 
 
-def findings_not_added(problem, state, ranking, cut, structure=None):
+def findings_not_added(problem, state, ranking, cut, structure=None, alpha=None):
     """`Finding` per time-varying effect that passes the rule, or that the structure tests
     found on a joint, and is not in the model.
 
@@ -81,6 +81,9 @@ def findings_not_added(problem, state, ranking, cut, structure=None):
     ranking : the final ranking (RankedEffect).
     cut : the effects cut by max_effects (time-varying effects are never among them).
     structure : StructureResult of the final residual with hypotheses (hypotheses.py), or None.
+    alpha : the selection's level: an effect that passes the rule in a reduced (essential) model
+        but whose Bonferroni p against the full base model (`base_p`, set by the selection) is
+        not below it is no finding, as it would not be added. None: not checked.
 
     Returns
     -------
@@ -94,6 +97,8 @@ def findings_not_added(problem, state, ranking, cut, structure=None):
         if r.name not in TIME_VARYING or r.selected:
             continue
         why = "a change during this recording cannot predict another recording"
+        if r.passes and alpha is not None and np.isfinite(r.base_p) and not r.base_p < alpha:
+            continue
         if not r.passes:
             u = drift_flags.get(r.joint)
             if u is None:

@@ -544,20 +544,28 @@ def _decide_step(setup, opts, sel, st, scorer, weights, m):
     # confirm it (issue 27 item 2; findings.py)
     changing = [r for r in passing if r.name in TIME_VARYING]
     passing = [r for r in passing if r.name not in TIME_VARYING]
+    problem, state = setup.problem, sel.state
+    reduced = opts.base_guard and len(state["cols"]) < len(problem.all_cols)
+    guard = (Scorer(problem.design(state["delay"], state["effects"], cols=problem.all_cols),
+                    problem.Y, problem.mask, weights, folds, setup.gap)
+             if reduced and (passing or changing) else None)
+    if guard is not None and changing:
+        # a finding is named only if the full base model confirms it too, as an added effect
+        # must be (`base_p`, read by findings_not_added): a friction drift that only restores
+        # what the essential reduction dropped is no finding (simulated LWR4+, seed 4, joint 7)
+        by_base_evidence(problem, guard, changing, m)
     if not passing:
+        named = [r for r in changing if not (np.isfinite(r.base_p) and not r.base_p < alpha)]
         st.reason = (f"only time-varying effects pass the rule ({', '.join(r.label for r in changing[:3])}): "
-                     f"named as findings, not added")
+                     + ("named as findings, not added" if named else
+                        "none is significant against the full base model, so none is named"))
         return None
     if st.step > opts.max_effects:
         st.chosen = passing[0]
         set_runner_up(st, ranking)
         st.reason = f"passes the rule, but max_effects = {opts.max_effects} effects were added already"
         return None
-    problem, state = setup.problem, sel.state
-    reduced = opts.base_guard and len(state["cols"]) < len(problem.all_cols)
     if reduced:
-        guard = Scorer(problem.design(state["delay"], state["effects"], cols=problem.all_cols),
-                       problem.Y, problem.mask, weights, folds, setup.gap)
         passing = by_base_evidence(problem, guard, passing, m)
     for w in passing[:opts.max_tries]:
         st.chosen = w
@@ -710,7 +718,7 @@ def assemble(experiment, robot, setup, opts, sel, stage=None):
     hidden = _hidden(robot, setup, opts, state, test_state, test_fit)
     ranking = _final_ranking(sel)
     cut = cut_effects(sel.steps, opts.max_effects)
-    findings = findings_not_added(setup.problem, state, ranking, cut, structure)
+    findings = findings_not_added(setup.problem, state, ranking, cut, structure, alpha=opts.alpha)
     attach_findings(structure, findings)
     stage("rest", 0.0)
     rest = _rest(experiment, robot, setup, opts)

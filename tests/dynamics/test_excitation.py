@@ -231,3 +231,22 @@ def test_a_design_that_cannot_identify_the_robot_is_refused():
     with pytest.raises(InputError, match=r"rank-deficient \(cond .*e\+1.\).*raise the harmonics"):
         design_excitation(robot, 0.2, 1, n_starts=1, rng=0)
     assert design_excitation(robot, 0.2, 2, n_starts=1, rng=0).cond_result < 1e3
+
+
+def test_a_robot_without_apriori_values_gets_no_torque_check():
+    """The Panda's robot file has no a-priori values: a torque of zero everywhere passed every
+    limit, and the summary said "all respected" with a margin of 1.000 on each joint."""
+    res = design_excitation(load_robot("panda"), 0.1, 3, n_starts=1, rng=np.random.default_rng(0), max_iter=5)
+    assert "tau" not in res.margins or res.margins["tau"].isna().all()
+    assert "no torque check" in res.summary() and any("not checked" in n for n in res.notices)
+
+
+def test_summary_says_when_cond_went_up():
+    """With logdet the design maximises the determinant; its cond can be above a random start's,
+    and the summary said "x0.77 lower" for a rise."""
+    res = design_excitation(load_robot("planar2"), 0.2, 4, n_starts=8, criterion="logdet",
+                            rng=np.random.default_rng(0))
+    line = res.summary().splitlines()[1]
+    word = "lower" if res.improvement >= 1 else "higher"
+    assert f"x{max(res.improvement, 1 / res.improvement):.2f} {word})" in line
+    assert "optimised logdet, not cond" in line
