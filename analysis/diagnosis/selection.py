@@ -162,7 +162,7 @@ from dynid.analysis.diagnosis.scoring import ALIAS_RTOL, Scorer, chi2_logsf, sep
 from dynid.analysis.diagnosis.settings import DiagnosisSettings
 from dynid.analysis.diagnosis.structure import position_noise_residual, residual_structure
 from dynid.analysis.estimators import least_squares as ls
-from dynid.analysis.estimators.essential import essential_parameters
+from dynid.analysis.estimators.essential import EXACT_FIT, essential_parameters
 from dynid.analysis.estimators.idim import identify_idim
 from dynid.analysis.estimators.physical import require_cvxpy
 from dynid.analysis.processing.decimation import DecimationFilter
@@ -538,6 +538,14 @@ def _decide_step(setup, opts, sel, st, scorer, weights, m):
     if not passing:
         st.accepted, st.reason = passes_rule(ranking[0], alpha, folds)
         return None
+    fit_error = float(getattr(sel.state["fit"], "rel_error", np.nan))
+    if fit_error < EXACT_FIT:
+        # the tests compare the candidates with the residual's own spread: without noise, that
+        # is rounding and integration error, and rounding-sized structure passes them all
+        st.reason = (f"the model fits the recording to {100 * fit_error:.2g} % (an exact fit, below "
+                     f"{100 * EXACT_FIT:g} %: a recording without noise); nothing the data show is missing, "
+                     f"and what passes the rule is the size of rounding")
+        return None
     # a change during this recording (drift, warm-up) is a finding, never part of a model
     # that predicts another recording: a validation recording that happens to drift the
     # same way from its own start (a plant warming up in every run) would otherwise
@@ -704,7 +712,13 @@ def assemble(experiment, robot, setup, opts, sel, stage=None):
     test_state, test_fit = _test_model(setup.problem, state)
     structure = None
     stage("structure", 0.0)
-    if opts.structure_tests:
+    fit_error = float(getattr(state["fit"], "rel_error", np.nan))
+    exact = fit_error < EXACT_FIT
+    if opts.structure_tests and exact:
+        setup.notices.append(f"structure tests of the final residual not run: the model fits the recording to "
+                             f"{100 * fit_error:.2g} % (an exact fit, below {100 * EXACT_FIT:g} %: a recording "
+                             "without noise), and the residual's structure is that of rounding")
+    if opts.structure_tests and not exact:
         structure = _structure(experiment, robot, setup, opts, sel, test_state, test_fit)
         cfg["structure_rule"] = structure.rule
         cfg["structure_model"] = ("full base model" if test_state is not state else "final model") + (

@@ -12,3 +12,15 @@ def test_no_drift_finding_that_the_full_base_model_does_not_confirm():
     d = dynid.diagnose(train, rec.robot, validation=held)
     assert not [f for f in d.findings if f.name == "drift"], [f.sentence() for f in d.findings]
     assert not d.selected
+
+
+def test_a_recording_without_noise_gets_no_effect_and_no_flag():
+    """Without noise the residual is rounding and integration error (0.0004 % of the torque on
+    planar2): its structure passed every test, and the diagnosis added effects and flagged
+    joints ("UNEXPLAINED joint 1 ... 0.000238 N m"). An exact fit now says so instead."""
+    rec = dynid.simulate("planar2", 20.0, seed=1, noise_q=0.0, noise_tau=0.0)
+    train, held = dynid.holdout_split(rec.experiment, 5.0)
+    d = dynid.diagnose(train, rec.robot, validation=held)
+    assert not d.selected and not d.unexplained
+    assert "an exact fit" in d.steps[-1].reason or not any(r.passes for r in d.steps[-1].ranking)
+    assert any("structure tests of the final residual not run" in n for n in d.notices)

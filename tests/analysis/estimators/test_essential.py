@@ -134,3 +134,18 @@ def test_tx40_sized_problem_finds_the_useful_parameters():
     for estimator in (ols, wls):
         ess = essential_parameters(W3, tau, names, estimator)
         assert len(ess.removed) == 35 and ess.essential == names[:25]
+
+
+def test_an_exact_fit_drops_the_parameters_that_are_zero():
+    """A noise-free simulated LWR4+: the relative error is 3e-6, and removing MY3R (truly 0) raised
+    it by 2.3 %, past the 2 % rule, so the essential set kept MY3R and Ia4 (%σ 42 and 36) and the
+    verdict called Ia4 = -2.6e-6 kg m² physically impossible. Below EXACT_FIT the growth rule
+    does not stop the search."""
+    import dynid
+    from dynid.analysis.estimators.essential import EXACT_FIT
+    rec = dynid.simulate("kuka_lwr4", 20.0, seed=1, noise_q=0.0, noise_tau=0.0)
+    r = dynid.identify(rec.experiment, rec.robot)
+    assert r.model.rel_error < EXACT_FIT
+    assert not {"MY3R", "Ia4"} & set(r.model.names)
+    v = dynid.verdict(r)
+    assert not any(f["level"] == "bad" for f in v.to_dict()["findings"]), v.summary()
