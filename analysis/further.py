@@ -80,8 +80,7 @@ def didim_beside(experiments, robot, settings: Settings, say=None):
     if len(experiments) > 1:
         say("DIDIM skipped: it identifies one recording at a time")
         return None
-    s = settings.replace(method="didim", gains="assumed", physical=False, prior=None, mass_tolerance=None,
-                         max_iter=15 if settings.max_iter is None else settings.max_iter)
+    s = settings.replace(method="didim", gains="assumed", physical=False, prior=None, mass_tolerance=None)
     with say.progress("DIDIM iterations") as bar:
         return identify_step(experiments, robot, s, progress=bar.update)
 

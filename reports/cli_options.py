@@ -412,7 +412,7 @@ def _add_identify_parser(sub, common, full):
     a.add_argument("--ml-harmonics", type=harmonics_type, metavar="K",
                    help=adv("ML: harmonics of the latent trajectory (default: chosen by BIC on q)"))
     a.add_argument("--max-iter", type=int, default=None, metavar="N",
-                   help=adv("DIDIM: largest number of Gauss-Newton steps (default: 10)"))
+                   help=adv("DIDIM: largest number of Gauss-Newton steps (default: 20)"))
     a.add_argument("--gain-update", choices=list(GAIN_UPDATE_CHOICES), default="initial",
                    help=adv("DIDIM: scale the simulated derivative gains by J_j/J_ap_j (eq. 27) only for "
                             "the first simulation (initial, the default), at every step (every, as the "
@@ -549,8 +549,8 @@ def _add_report_parsers(sub, common, full):
                    help="recording(s) with a payload: identify it with the robot fixed to this report's "
                         "model and add its section (docs/payload.md)")
     a = g["advanced"]
-    a.add_argument("--max-iter", type=int, default=15, metavar="N",
-                   help=adv("DIDIM: largest number of Gauss-Newton steps"))
+    a.add_argument("--max-iter", type=int, default=20, metavar="N",
+                   help=adv("DIDIM: largest number of Gauss-Newton steps (default: 20)"))
     a.add_argument("--gain-update", choices=list(GAIN_UPDATE_CHOICES), default="initial",
                    help=adv("DIDIM's derivative-gain update (see identify --help-all); initial: the "
                             "paper's every-step update oscillated on the demo data"))
@@ -579,8 +579,8 @@ def _add_report_parsers(sub, common, full):
                    help="wall-clock safety limit of the sampler (default: none; the sampler stops on "
                         "its step budget, so the output depends only on the seed)")
     a = g["advanced"]
-    a.add_argument("--max-iter", type=int, default=15, metavar="N",
-                   help=adv("DIDIM: largest number of Gauss-Newton steps"))
+    a.add_argument("--max-iter", type=int, default=20, metavar="N",
+                   help=adv("DIDIM: largest number of Gauss-Newton steps (default: 20)"))
     a.add_argument("--gain-update", choices=list(GAIN_UPDATE_CHOICES), default="initial",
                    help=adv("DIDIM's derivative-gain update (see identify --help-all)"))
     o = g["outputs"]

@@ -21,6 +21,7 @@ from dynid.analysis import further
 from dynid.analysis import run as steps
 from dynid.analysis.data.synthetic import sample_count
 from dynid.analysis.demo import run_demo
+from dynid.analysis.estimators.didim import DEFAULT_MAX_ITER
 from dynid.analysis.estimators.payload import identify_payload, unfelt_message, unfelt_parameters
 from dynid.analysis.further import DiagnosisRun
 from dynid.analysis.results import Result
@@ -291,7 +292,7 @@ def _full_report(result, robot, experiments, validation, held_out, settings: Set
 
 
 def _report_settings(settings, options) -> Settings:
-    """`dynid report`'s settings: its defaults (DIDIM gain update 'initial', 15 steps), the
+    """`dynid report`'s settings: its defaults (DIDIM gain update 'initial', 20 steps), the
     old keyword `diagnosis_options` (a dict of effects, max_effects, alpha, no_offsets) accepted."""
     for name in ("json", "csv", "urdf", "mjcf"):
         if options.get(name) is not None:
@@ -309,7 +310,7 @@ def _report_settings(settings, options) -> Settings:
         options.update({k: v for k, v in old.items() if v is not None})
     if not isinstance(settings, Settings):       # a Settings (the command line's) carries its own
         options.setdefault("gain_update", REPORT_GAIN_UPDATE)
-        options.setdefault("max_iter", 15)
+        options.setdefault("max_iter", DEFAULT_MAX_ITER)
     s = steps.settings_from(settings, **options)
     further.check_report(s)
     return s
@@ -384,7 +385,7 @@ def report(data, robot, path=None, *, settings=None, say=None, payload=None, pay
         recording held out), validation (a held-out recording, path or Experiment),
         skip (parts of REPORT_PARTS not to run), seed, max_seconds (default None: no wall-clock
         limit, the sampler stops on its step budget),
-        max_error_growth, gain_update (default 'initial'), max_iter (default 15), fc, nd ...
+        max_error_growth, gain_update (default 'initial'), max_iter (default 20, DIDIM's), fc, nd ...
 
     Returns
     -------
@@ -435,7 +436,7 @@ def demo(*, seed=1, duration=20.0, skip=(), max_seconds=None, max_iter=None, gai
         Wall-clock limit of the posterior's sampler, s. Default None: no limit, the
         sampler stops on its step budget.
     max_iter : int, optional
-        DIDIM's largest number of Gauss-Newton steps (default 15, as `report`).
+        DIDIM's largest number of Gauss-Newton steps (default 20, DIDIM's, as `report`).
     gain_update : str, optional
         DIDIM's derivative-gain update (default `"initial"`, as `report`; `identify`'s
         `gain_update`).

@@ -343,7 +343,7 @@ def test_demo_refuses_a_negative_duration(capsys):
 
 
 def test_demo_takes_its_didim_options(capsys, monkeypatch):
-    """`demo --max-iter` and `--gain-update` were parsed and dropped (DIDIM ran 15 steps)."""
+    """`demo --max-iter` and `--gain-update` were parsed and dropped (DIDIM ran its default number of steps)."""
     assert main(["demo", "--max-iter", "0", "--report", "x.html"]) == 2
     assert "--max-iter" in capsys.readouterr().err
     from dynid.reports import pipeline
@@ -417,7 +417,8 @@ def test_help_fits_a_screen_and_help_all_lists_every_option(command, capsys):
     # plain help texts: no benchmark figures ("biased Ia3 by 3-6 %"), metavars in words, defaults shown
     assert "independent plant" not in full and "MAX_ITER" not in full
     if command == "identify":
-        assert "--max-iter N" in full and "(default: 10)" in " ".join(full.split())
+        from dynid.analysis.estimators.didim import DEFAULT_MAX_ITER
+        assert "--max-iter N" in full and f"(default: {DEFAULT_MAX_ITER})" in " ".join(full.split())
 
 
 def test_resample_identifies_a_log_with_irregular_time_steps(tmp_path, capsys):
