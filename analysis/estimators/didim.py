@@ -168,6 +168,7 @@ from dynid.analysis.processing.signals import dead_zone_thresholds, default_sett
 from dynid.analysis.results import ModelResults, notices_block, percent
 from dynid.dynamics.base_parameters import base_parameters, base_regressor
 from dynid.dynamics.dynamic_model import inverse_dynamics, mass_matrix
+from dynid.dynamics.loop_stability import sampled_loop_radius
 from dynid.dynamics.robot import model_signature
 from dynid.dynamics.simulation import friction_stiffness, simulate_closed_loop
 from dynid.errors import DataError, DynidError, IdentificationError, InputError, did_you_mean
@@ -226,6 +227,8 @@ DEFAULT_J_RATE = 1000.0
 DEFAULT_HALVINGS = 6
 MOVING_SIGMA = 3.0          # a last step larger than this many sigma is reported
 PD_MARGIN = 1e-9            # smallest accepted eigenvalue of M(q), relative to the largest
+#: configurations of the last simulation at which a failed estimate's loop is judged (`_loop_note`)
+LOOP_CHECKS = 200
 STIFFNESS_TARGET = 1.5      # h * lambda of the friction, per RK4 substep
 WELL_IDENTIFIED = 10.0      # %sigma below which a parameter's relative change is tracked
 CHUNK = 10_000
@@ -878,6 +881,31 @@ def _loop_at(L, v_s, update_gains, max_iter, progress=None, uncertainty="classic
                                progress=progress)
 
 
+def _loop_note(L, beta, configs, *, update):
+    """Why an estimate could not be simulated, when its sampled loop is unstable: the
+    controller, sampled at its rate, sees too little inertia somewhere along the motion
+    (`dynid.dynamics.loop_stability`; simulated Pandas with thin wrist links: spectral radii of
+    53-422 at the estimates DIDIM stopped on). "" when the loop is stable or cannot be judged."""
+    try:
+        chi = L.bp.to_standard(np.asarray(beta, dtype=float), "zero")
+        rows = np.unique(np.linspace(0, len(configs) - 1, min(LOOP_CHECKS, len(configs))).astype(int))
+        q = np.asarray(configs)[rows]
+        kd = None
+        if update:
+            M = mass_matrix(L.robot, chi, q)
+            kd = np.max(np.diagonal(M, axis1=1, axis2=2), axis=0) / L.J_ap
+        radius = sampled_loop_radius(L.robot, chi, q, controller=L.ctrl, rate=L.s["rate"], kd_scale=kd)
+    except (DynidError, np.linalg.LinAlgError, ValueError):
+        return ""
+    bad = radius > 1.0
+    if not np.any(bad) or not np.all(np.isfinite(radius)):
+        return ""
+    return (f"; its controller loop, sampled at {L.s['rate']:g} Hz, is unstable at {int(bad.sum())} of {rows.size} "
+            f"configurations of the motion (spectral radius up to {float(radius.max()):.3g}): the estimate "
+            f"leaves the controller too little inertia (a light wrist): try a heavier start (--didim-start apriori, "
+            f"or the paper's eq. (31) with the robot file's gains), or use IDIM's model")
+
+
 def _simulate_step(L, k, beta0, beta_sim, beta_ls, configs, physical, out_prev):
     """Simulate step k's estimate, halving the step from the last simulated one when needed.
 
@@ -1005,10 +1033,11 @@ def _gauss_newton(L, beta0, tol, physical, pc_options, notices, resume=None):
                 L, k, beta0, beta_sim, beta_ls, configs, physical, out_prev)
         if failure is not None:
             if k == 1:
-                raise InputError(f"DIDIM cannot simulate the initial estimate chi0: {failure}") from None
+                raise InputError(f"DIDIM cannot simulate the initial estimate chi0: {failure}"
+                                 f"{_loop_note(L, beta0, configs, update=L.update_gains in (True, 'initial'))}") from None
             stop_reason = (f"step {k}: the estimate of step {k - 1} cannot be simulated, even moved "
                            f"back to 1/{2 ** max_halvings} of its step from the last simulated one: "
-                           f"{failure}")
+                           f"{failure}{_loop_note(L, beta_ls, configs, update=L.update_gains is True)}")
             break
         q_s, qd_s, qdd_s, tau_ddm, substeps, sim, kd = sim_out
         if lam < 1.0:

@@ -576,3 +576,22 @@ def test_v_s_starts_again_narrower_when_didim_does_not_converge_at_the_start_wid
     assert auto.settings["v_s_start_not_converged"] == fixed.stop_reason
     assert f"walk from {V_S_RETRY:g}" in auto.settings["v_s_choice"]
     assert any(f"it started again at {V_S_RETRY:g} rad/s" in n for n in auto.notices)
+
+
+def test_a_step_that_cannot_be_simulated_says_when_its_loop_is_unstable():
+    """A simulated Panda with thin wrist links (benchmarks/physical_seeds.py, seed 112): DIDIM
+    walks to an estimate it cannot simulate. The stop reason blamed the parameters' physical
+    consistency alone; it now says the controller, sampled at 1 kHz, sees too little inertia
+    there (the sampled loop unstable at most configurations of the motion)."""
+    from physical_truth import truth
+    robot = load_robot("panda")
+    chi = truth(robot, np.random.default_rng(15))
+    r = np.random.default_rng(1000 + 112)
+    from dynid.analysis.data.synthetic import simulate_experiment
+    exp = simulate_experiment(robot, chi, random_fourier_trajectory(robot, 0.1, 6, r), 6.0, rng=r,
+                              tau_noise=0.5, q_noise=1e-5)
+    start = identify_idim(exp, robot)
+    res = identify_didim(exp, robot, chi0=dict(zip(start.base.names, start.wls.chi)), essential=False,
+                         update_gains=False)
+    assert not res.converged
+    assert "controller loop, sampled at 1000 Hz, is unstable" in res.stop_reason, res.stop_reason
