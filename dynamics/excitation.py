@@ -184,6 +184,20 @@ class ExcitationResult:
         """cond_start / cond_result (> 1 when the optimisation helped)."""
         return self.cond_start / self.cond_result
 
+    def improvement_text(self) -> str:
+        """`"x2.76 lower"` or `"x1.29 higher"` (the design's cond against the best random start's),
+        and, for another criterion, that cond is not what the design optimised."""
+        text = (f"x{self.improvement:.2f} lower" if self.improvement >= 1 else
+                f"x{1 / self.improvement:.2f} higher")
+        if self.criterion != "cond":
+            text += f"; the design optimised {self.criterion}, not cond, which a random start can beat"
+        return text
+
+    def torque_text(self) -> str:
+        """What the torque limits were checked with, or why they were not."""
+        return (self.torque_parameters if self.torque_parameters.startswith("no ") else
+                f"torque with {self.torque_parameters}")
+
     @property
     def feasible(self):
         return within_limits(self.margins)
@@ -270,17 +284,12 @@ class ExcitationResult:
             f"(period {tr.period:g} s, bandwidth {tr.bandwidth:g} Hz), criterion {self.criterion}, "
             f"scaling {self.scaling}, margin {self.margin:g}",
             f"  {self.cond_name}: {self.cond_result:.4g} (best of {len(self.cond_starts)} random "
-            f"starts {self.cond_start:.4g}; "
-            + (f"x{self.improvement:.2f} lower)" if self.improvement >= 1 else
-               f"x{1 / self.improvement:.2f} higher)")
-            + ("" if self.criterion == "cond" else
-               f"; the design optimised {self.criterion}, not cond, which a random start can beat"),
+            f"starts {self.cond_start:.4g}; {self.improvement_text()})",
             f"  cond envelope-scaled {c['cond']:.4g} (start {cs['cond']:.4g}), raw SI {c['cond_raw']:.4g} "
             f"(start {cs['cond_raw']:.4g}), unit columns {c['cond_unit']:.4g} (start {cs['cond_unit']:.4g}); "
             f"computed on {self.n_samples} samples per period (the CSV holds the controller rate)",
             f"  limits on {self.n_check} points per period: {'all respected' if self.feasible else 'VIOLATED'}"
-            + (f" ({self.torque_parameters})" if self.torque_parameters.startswith("no ") else
-               f" (torque with {self.torque_parameters})"),
+            + f" ({self.torque_text()})",
             "  joint   q_low  q_high     qd    qdd    tau   (relative margin to each limit)",
         ]
         for name, row in self.margins.iterrows():

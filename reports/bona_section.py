@@ -159,9 +159,9 @@ def excitation_section(res, robot, *, id="excitation", title="Optimal excitation
                        f"{_fmt(tr.bandwidth)} Hz"),
         ("Criterion", f"{res.criterion} of the base regressor (eq. (20)); reported: {res.cond_name}"),
         ("Result", f"{_fmt(res.cond_result)} vs {_fmt(res.cond_start)} for the best of "
-                   f"{len(res.cond_starts)} random feasible starts (\u00d7{res.improvement:.2f} lower)"),
+                   f"{len(res.cond_starts)} random feasible starts ({res.improvement_text()})"),
         ("Limits", f"{'all respected' if res.feasible else 'VIOLATED'} on {res.n_check} points per "
-                   f"period (design margin {res.margin:g}); torques with {res.torque_parameters}"),
+                   f"period (design margin {res.margin:g}); {res.torque_text()}"),
         ("Spectrum", f"lines only at k f0, k \u2264 {tr.harmonics}" if res.spectrum["ok"]
          else "components outside k f0, k \u2264 N"),
         ("Time", f"{res.elapsed:.1f} s"),

@@ -62,7 +62,7 @@ def cut_effects(steps, max_effects):
     return [r for r in steps[-1].ranking if r.passes and not r.selected and r.name not in TIME_VARYING]
 
 
-def findings_not_added(problem, state, ranking, cut, structure=None, alpha=None):
+def findings_not_added(problem, state, ranking, cut, structure=None, alpha=None, exact=False):
     """`Finding` per time-varying effect that passes the rule, or that the structure tests
     found on a joint, and is not in the model.
 
@@ -84,6 +84,8 @@ def findings_not_added(problem, state, ranking, cut, structure=None, alpha=None)
     alpha : the selection's level: an effect that passes the rule in a reduced (essential) model
         but whose Bonferroni p against the full base model (`base_p`, set by the selection) is
         not below it is no finding, as it would not be added. None: not checked.
+    exact : the model fits to rounding (`EXACT_FIT`): what passes the rule is rounding-sized,
+        and only the structure tests' drifts (not run then) could be named.
 
     Returns
     -------
@@ -97,10 +99,11 @@ def findings_not_added(problem, state, ranking, cut, structure=None, alpha=None)
         if r.name not in TIME_VARYING or r.selected:
             continue
         why = "a change during this recording cannot predict another recording"
-        if r.passes and alpha is not None and np.isfinite(r.base_p) and not r.base_p < alpha:
+        u = drift_flags.get(r.joint)
+        if r.passes and u is None and (exact or (alpha is not None and np.isfinite(r.base_p)
+                                                 and not r.base_p < alpha)):
             continue
         if not r.passes:
-            u = drift_flags.get(r.joint)
             if u is None:
                 continue
             why += (f"; found by the structure tests (residual against {u.variable}, {p_phrase(u.p_value)}), the drift "

@@ -542,9 +542,9 @@ def _decide_step(setup, opts, sel, st, scorer, weights, m):
     if fit_error < EXACT_FIT:
         # the tests compare the candidates with the residual's own spread: without noise, that
         # is rounding and integration error, and rounding-sized structure passes them all
-        st.reason = (f"the model fits the recording to {100 * fit_error:.2g} % (an exact fit, below "
-                     f"{100 * EXACT_FIT:g} %: a recording without noise); nothing the data show is missing, "
-                     f"and what passes the rule is the size of rounding")
+        st.reason = (f"the model fits the recording to {100 * fit_error:.2g} % of the torque (an exact fit, "
+                     f"below {100 * EXACT_FIT:g} %: little or no noise); what passes the rule is the size "
+                     f"of rounding, and nothing is added")
         return None
     # a change during this recording (drift, warm-up) is a finding, never part of a model
     # that predicts another recording: a validation recording that happens to drift the
@@ -716,8 +716,8 @@ def assemble(experiment, robot, setup, opts, sel, stage=None):
     exact = fit_error < EXACT_FIT
     if opts.structure_tests and exact:
         setup.notices.append(f"structure tests of the final residual not run: the model fits the recording to "
-                             f"{100 * fit_error:.2g} % (an exact fit, below {100 * EXACT_FIT:g} %: a recording "
-                             "without noise), and the residual's structure is that of rounding")
+                             f"{100 * fit_error:.2g} % of the torque (an exact fit, below {100 * EXACT_FIT:g} %: "
+                             "little or no noise), and the residual's structure is that of rounding")
     if opts.structure_tests and not exact:
         structure = _structure(experiment, robot, setup, opts, sel, test_state, test_fit)
         cfg["structure_rule"] = structure.rule
@@ -732,7 +732,7 @@ def assemble(experiment, robot, setup, opts, sel, stage=None):
     hidden = _hidden(robot, setup, opts, state, test_state, test_fit)
     ranking = _final_ranking(sel)
     cut = cut_effects(sel.steps, opts.max_effects)
-    findings = findings_not_added(setup.problem, state, ranking, cut, structure, alpha=opts.alpha)
+    findings = findings_not_added(setup.problem, state, ranking, cut, structure, alpha=opts.alpha, exact=exact)
     attach_findings(structure, findings)
     stage("rest", 0.0)
     rest = _rest(experiment, robot, setup, opts)

@@ -891,8 +891,8 @@ def _loop_note(L, beta, configs, *, update):
         rows = np.unique(np.linspace(0, len(configs) - 1, min(LOOP_CHECKS, len(configs))).astype(int))
         q = np.asarray(configs)[rows]
         kd = None
-        if update:
-            M = mass_matrix(L.robot, chi, q)
+        if update:      # as _simulate_checked: J_j = max M_jj over every configuration
+            M = mass_matrix(L.robot, chi, np.asarray(configs))
             kd = np.max(np.diagonal(M, axis1=1, axis2=2), axis=0) / L.J_ap
         radius = sampled_loop_radius(L.robot, chi, q, controller=L.ctrl, rate=L.s["rate"], kd_scale=kd)
     except (DynidError, np.linalg.LinAlgError, ValueError):
@@ -902,8 +902,9 @@ def _loop_note(L, beta, configs, *, update):
         return ""
     return (f"; its controller loop, sampled at {L.s['rate']:g} Hz, is unstable at {int(bad.sum())} of {rows.size} "
             f"configurations of the motion (spectral radius up to {float(radius.max()):.3g}): the estimate "
-            f"leaves the controller too little inertia (a light wrist): try a heavier start (--didim-start apriori, "
-            f"or the paper's eq. (31) with the robot file's gains), or use IDIM's model")
+            f"leaves the controller too little inertia (a light wrist): try a heavier start (the paper's eq. (31), "
+            f"DIDIM's start with the robot file's gains, or a-priori values with --didim-start apriori), or use "
+            f"IDIM's model")
 
 
 def _simulate_step(L, k, beta0, beta_sim, beta_ls, configs, physical, out_prev):

@@ -24,3 +24,20 @@ def test_a_recording_without_noise_gets_no_effect_and_no_flag():
     assert not d.selected and not d.unexplained
     assert "an exact fit" in d.steps[-1].reason or not any(r.passes for r in d.steps[-1].ranking)
     assert any("structure tests of the final residual not run" in n for n in d.notices)
+
+
+def test_an_exact_fit_names_no_rounding_sized_drift():
+    """A noise-free LWR4+ with a friction drift of 1.5 mN m on joint 1 (the fit is exact to
+    0.001 % of the torque): the drift passed the rule and was named while the step said what
+    passes is the size of rounding."""
+    import dataclasses
+
+    import numpy as np
+    rec = dynid.simulate("kuka_lwr4", 20.0, seed=1, noise_q=0.0, noise_tau=0.0)
+    e = rec.experiment
+    t, tau = np.asarray(e.t), np.array(e.tau)
+    tau[:, 0] += 0.0015 * (t / t[-1]) * np.sign(np.gradient(np.asarray(e.q)[:, 0], t))
+    train, held = dynid.holdout_split(dataclasses.replace(e, tau=tau), 5.0)
+    d = dynid.diagnose(train, rec.robot, validation=held)
+    assert "an exact fit" in d.steps[-1].reason
+    assert not d.findings, [f.sentence() for f in d.findings]
