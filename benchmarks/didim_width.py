@@ -17,7 +17,7 @@ seed 5 by default (the held-out seeds 6100-6198 are not used).
 
 `--case demo`: the DIDIM of `dynid demo --seed S` instead (the simulated TX40 of
 `dynid.analysis.demo`, 20 s at 5 kHz, the robot file's gains, eq. (31)'s start, the gain update
-for the first simulation only, up to 15 steps, essential parameters): a start far from the
+for the first simulation only, DIDIM's default step limit, essential parameters): a start far from the
 answer, which the fixed width must walk to at its own (more expensive) substeps.
 
     python benchmarks/didim_width.py [--case pid|demo] [--seed 5] [--repeat 3] [--profile] [--save out.json]
@@ -73,7 +73,8 @@ def case_demo(seed):
     """(experiment, robot, keyword arguments of identify_didim) of `dynid demo --seed S`'s DIDIM."""
     from dynid.analysis.demo import demo_data
     robot, bp, _, exp, _ = demo_data(seed, 20.0)
-    return exp, robot, dict(bp=bp, max_iter=15, update_gains="initial")
+    from dynid.analysis.estimators.didim import DEFAULT_MAX_ITER
+    return exp, robot, dict(bp=bp, max_iter=DEFAULT_MAX_ITER, update_gains="initial")
 
 
 def timed(fn):
