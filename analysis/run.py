@@ -659,7 +659,7 @@ def didim_gains_notice(exp, robot, identified) -> str:
             "the measured position used as the reference (no reference logged)")
     return (f"DIDIM simulated the loop with the controller gains assumed in the robot "
             f"file ({robot.source}) tracking {what}: its parameters depend on those gains"
-            + ("" if exp.qr is None else "; --gains identify estimates them from the data"))
+            + ("" if exp.qr is None else "; dynid identify --method didim --gains identify estimates them from the data"))
 
 
 # ---------------------------------------------------------------- steps 5-6: friction, physical

@@ -147,7 +147,10 @@ def _overview_section(res):
                            f"(guard {s['gap']} decimated samples on each side of the held-out "
                            f"block): cross-validated error lower in at least {s['folds'] - 1} blocks; and "
                            f"likelihood-ratio test with the effective sample size, Bonferroni over "
-                           f"the candidates, \u03b1 = {s['alpha']:g}"),
+                           f"the candidates, \u03b1 = {s['alpha']:g}"
+                           + ("; an effect that passes is kept only if the held-out error falls too "
+                              "(the held-out figures then helped choose the effects: they are not an "
+                              "independent test)" if s.get("confirm_on_validation") else "")),
         ("Effects selected", ", ".join(e.label for e in res.selected) or "none"),
     ]
     if getattr(res, "structure", None) is not None:

@@ -95,7 +95,7 @@ EFFECT_DESCRIPTIONS = {
 
 #: Stribeck velocities searched, as fractions of the joint's peak |qd| (log grid).
 STRIBECK_GRID = tuple(np.round(np.geomspace(0.015, 0.3, 7), 5))
-#: Ripple orders (periods per radian of joint motion) searched.
+#: Ripple orders (periods per turn of the joint: cos(k q_j), q_j in rad) searched.
 RIPPLE_ORDERS = (1, 2, 3, 4, 5, 6, 8)
 #: Time delays searched, s (both signs).
 #: A factor 2 apart: the candidate at the nearest grid point must already beat the model
@@ -409,7 +409,7 @@ def candidate_set(s: EffectSignals, effects=None, *, joints=None, qd_peak=None,
     `effects`: names (default all); `joints`: 1-based joints (default
     all); `qd_peak` (n,): peak |qd_j| the Stribeck grid scales with (default
     from `s`). Position ripple is skipped on prismatic joints (an order in
-    periods per radian means nothing there); `time_delay` and
+    periods per turn means nothing there); `time_delay` and
     `load_friction` need the model torque in `s`. `friction_drift`: also the
     friction-level drift (`drift` with `shape="friction"`) on every joint.
     """

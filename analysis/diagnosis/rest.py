@@ -75,9 +75,10 @@ class RestPhases:
 
     def lines(self):
         js = range(len(self.model))
-        return [f"held-out error on all samples: {100 * self.rel_error_before:.2f} % -> "
-                f"{100 * self.rel_error_after:.2f} % with the friction at rest chosen per joint "
-                f"({', '.join(f'j{j + 1} {self.model[j]}' for j in js)})",
+        return [f"held-out error on all samples, the identified model without the added effects: "
+                f"{100 * self.rel_error_before:.2f} % -> {100 * self.rel_error_after:.2f} % with the friction "
+                f"at rest chosen per joint ({', '.join(f'j{j + 1} {self.model[j]}' for j in js)}); the "
+                f"effects are scored on the moving samples, above",
                 "  per joint, all samples before -> after (share of the squared error from rest "
                 "phases; fraction of rows at rest): "
                 + "; ".join(f"j{j + 1} {100 * self.joint_rel_error_before[j]:.1f} -> "

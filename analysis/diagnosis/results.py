@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dynid.analysis.diagnosis.effects import Candidate
-from dynid.analysis.diagnosis.summary_text import diagnosis_summary, fmt_p, nonlinear_text
+from dynid.analysis.diagnosis.summary_text import diagnosis_summary, effect_unit, fmt_p, nonlinear_text
 from dynid.analysis.results import Result
 from dynid.provenance import json_safe, versions
 
@@ -121,9 +121,10 @@ class SelectedEffect:
         with np.errstate(divide="ignore", invalid="ignore"):
             return 100.0 * self.sigma / np.abs(self.values)
 
-    def to_dict(self):
+    def to_dict(self, prismatic=frozenset()):
         return {"name": self.name, "joint": self.joint, "nonlinear": self.nonlinear, "step": self.step,
-                "parameters": [{"name": p, "value": v, "std": s, "rel_std_percent": r}
+                "parameters": [{"name": p, "value": v, "std": s, "rel_std_percent": r,
+                                "unit": effect_unit(p, prismatic)}
                                for p, v, s, r in zip(self.params, self.values, self.sigma,
                                                      self.rel_sigma)],
                 "note": self.note or None, "kind": self.kind, "title": self.title or self.name,
@@ -252,7 +253,7 @@ class DiagnosisResult(Result):
             "validation_source": self.validation_source or None,
             "settings": self.settings,
             "effects": [r.to_dict() for r in self.ranking],
-            "selected": [s.to_dict() for s in self.selected],
+            "selected": [s.to_dict(_prismatic_of(self)) for s in self.selected],
             "steps": [s.to_dict() for s in self.steps],
             "errors": errs,
             "path": [{"step": p["step"], "added": p["added"],
@@ -282,3 +283,9 @@ class DiagnosisResult(Result):
 
 def params_records(res):
     return res._records()
+
+
+def _prismatic_of(res) -> frozenset:
+    """The 1-based prismatic joints of the diagnosed robot (from the IDIM result it started from)."""
+    idim = getattr(res, "idim", None)
+    return frozenset(idim._prismatic()) if hasattr(idim, "_prismatic") else frozenset()

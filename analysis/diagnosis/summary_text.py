@@ -6,6 +6,7 @@ import numpy as np
 
 from dynid.analysis.diagnosis.effects import order_text
 from dynid.analysis.results import notices_block, p_value_text
+from dynid.analysis.units import parameter_unit
 
 __all__ = ["diagnosis_summary", "overview_lines", "fmt_p", "nonlinear_text"]
 
@@ -79,7 +80,10 @@ def _header(res):
             f"  model: {len(res.model_before.names)} parameters ({s.get('model', 'essential WLS')}); "
             f"{s['n_candidates']} candidates ({len(s['effects'])} effects x joints x grid)",
             f"  rule: blocked CV in {s['folds']} contiguous blocks (guard {s['gap']} samples) "
-            f"and Bonferroni LR test with n_eff, alpha = {s['alpha']:g}", ""]
+            f"and Bonferroni LR test with n_eff, alpha = {s['alpha']:g}"
+            + ("; an effect that passes is kept only if the held-out error falls too (the held-out "
+               "figures below then helped choose the effects: they are not an independent test)"
+               if s.get("confirm_on_validation") else ""), ""]
 
 
 def _steps(res):
@@ -118,14 +122,24 @@ def _ranking(res):
     return lines
 
 
+def effect_unit(name, prismatic=frozenset()) -> str:
+    """SI unit of an effect's parameter (`Fs2` N m, `Ks4` N m/rad, `Rc6k4.03` N m, `d` s), "" if unknown."""
+    if name == "d":
+        return "s"
+    return parameter_unit(name, prismatic)
+
+
 def _selected(res):
     if not res.selected:
         return ["", "  No effect selected: nothing the candidates describe is missing from the model."]
+    idim = getattr(res, "idim", None)
+    prismatic = frozenset(idim._prismatic()) if hasattr(idim, "_prismatic") else frozenset()
     lines = ["", "  Selected effects:"]
     for e in res.selected:
         lines.append(f"    {e.label}:")
         for p, v, sd, r in zip(e.params, e.values, e.sigma, e.rel_sigma):
-            lines.append(f"      {p:<10} = {v: .5g} +- {sd:.3g} ({r:.1f} %)")
+            unit = effect_unit(p, prismatic)
+            lines.append(f"      {p:<10} = {v: .5g} +- {sd:.3g}{' ' + unit if unit else ''} ({r:.1f} %)")
         if e.note:
             lines.append(f"      note: {e.note}")
     return lines

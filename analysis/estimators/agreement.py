@@ -343,13 +343,23 @@ def agreement_verdict(a: Agreement) -> str:
     ok = pairs_ok and joint_ok
     # say which test decided: the pairs one at a time, or all the parameters together (the chi2
     # test sees small shifts the pairwise intervals hold one by one)
-    head = ("agree within their intervals" + (f", on weak evidence (only {a.pairs} pairwise differences)"
+    few = a.pairs < MIN_PAIRS and joint_ok and not pairs_ok
+    if few:
+        # one difference outside its 95 % interval among a few pairs is what chance gives
+        # (6 pairs: 26 % of the time), and the chi2 test of all the parameters does not reject
+        outside = int(round(a.pairs * (1.0 - a.within_95)))
+        chance = 1.0 - 0.95 ** a.pairs
+        head = (f"cannot be told apart from agreeing: {outside} of only {a.pairs} pairwise differences outside "
+                f"its 95 % interval (at least one outside by chance {100 * chance:.0f} % of the time), and the "
+                f"chi2 test does not reject equal parameters")
+    head = (head if few else
+            "agree within their intervals" + (f", on weak evidence (only {a.pairs} pairwise differences)"
                                               if a.pairs < MIN_PAIRS else "") if ok else
             "agree pair by pair but NOT all together (the chi2 test rejects equal parameters)" if pairs_ok else
             "do NOT agree within their intervals (too few pairwise differences inside them)" if joint_ok else
             "do NOT agree within their intervals (too few pairwise differences inside them, and the chi2 "
             "test rejects equal parameters)")
-    tail = ("" if ok else "; the intervals of one recording are optimistic: model error differs between "
+    tail = ("" if ok or few else "; the intervals of one recording are optimistic: model error differs between "
             f"{what} (use the pooled estimate and its between-{what[:-1]} spread)")
     return (f"The {a.k} {what} {head}: {100 * a.within_95:.0f} % of {a.pairs} pairwise differences "
             f"within their 95 % interval (95 % expected), median |z| {a.median_abs_z:.2f} (0.67 expected); "

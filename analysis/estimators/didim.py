@@ -903,7 +903,8 @@ def _loop_note(L, beta, configs, *, update):
     return (f"; its controller loop, sampled at {L.s['rate']:g} Hz, is unstable at {int(bad.sum())} of {rows.size} "
             f"configurations of the motion (spectral radius up to {float(radius.max()):.3g}): the estimate "
             f"leaves the controller too little inertia (a light wrist): try a heavier start (the paper's eq. (31), "
-            f"DIDIM's start with the robot file's gains, or a-priori values with --didim-start apriori), or use "
+            f"DIDIM's start with the robot file's gains, or a-priori values: dynid identify --method didim "
+            f"--didim-start apriori), or use "
             f"IDIM's model")
 
 

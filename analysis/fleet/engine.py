@@ -300,8 +300,14 @@ def identify_fleet(catalogue, store, *, scheduler=None, workers=None, client=Non
             client, own = start_client(scheduler, workers, quiet_interrupt=quiet_interrupt)
         former = {}
         try:
-            n_workers = len(client.scheduler_info().get("workers", {}))
-            results, errors = execute(todo, store, client, progress=progress)
+            with interrupt.noted_ctrl_c() as pressed:
+                try:
+                    n_workers = len(client.scheduler_info().get("workers", {}))
+                    results, errors = execute(todo, store, client, progress=progress)
+                except RuntimeError:
+                    if not pressed:
+                        raise
+                    raise KeyboardInterrupt from None   # Ctrl-C inside a lock of Dask's client
         except KeyboardInterrupt:
             if own is not None and quiet_interrupt:
                 interrupt.stop_after_interrupt(own, former)

@@ -104,6 +104,32 @@ def _start_deaf_forkserver():
 
 
 @contextlib.contextmanager
+def noted_ctrl_c():
+    """Yield a list that gets an entry when Ctrl-C is pressed inside the block; the Ctrl-C
+    still raises KeyboardInterrupt as Python's own handler does.
+
+    A KeyboardInterrupt that lands inside a lock's acquire/release in Dask's client code can
+    surface as another exception (`RuntimeError: cannot release un-acquired lock`), which
+    read as an internal error of dynid; the caller tells the two apart with the list. Only
+    where Python's own handler is in place (main thread), else the list stays empty."""
+    seen = []
+    if threading.current_thread() is not threading.main_thread() or \
+            signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+        yield seen
+        return
+
+    def note(signum, frame):
+        seen.append(signum)
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGINT, note)
+    try:
+        yield seen
+    finally:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+@contextlib.contextmanager
 def _ctrl_c_held(seen: list):
     def hold(signum, frame):
         if seen:

@@ -285,9 +285,9 @@ def check_convergence(x: VerdictInputs) -> CheckOutcome:
     if not why:      # a result without stop_reason: the optimiser's message among its notices
         why = next((str(n).split(": ", 1)[-1].rstrip(".") for n in getattr(x.result, "notices", []) or []
                     if "without convergence" in str(n)), "")
-    advice = ("Raise the step limit (--max-iter), start from IDIM's estimate (--gains identify, which "
-              "identifies the loop's gains too; with the robot file's gains DIDIM starts from the paper's "
-              "eq. (31)), or use IDIM's model."
+    advice = ("Raise the step limit (--max-iter), start from IDIM's estimate (dynid identify --method didim "
+              "--gains identify, which identifies the loop's gains too; with the robot file's gains DIDIM "
+              "starts from the paper's eq. (31)), or use IDIM's model."
               if method.upper().startswith("DIDIM") else
               "Check the excitation's fundamental frequency and harmonics (--f0, --ml-harmonics), average "
               "more periods, or use IDIM's model." if method.upper().startswith("ML") else

@@ -174,9 +174,15 @@ def test_equality_test_and_random_effects():
     few = dataclasses.replace(a, pairs=3, within_95=1.0, p_value=0.014)     # the LWR4+ recording 1 alone
     assert "on weak evidence (only 3 pairwise differences)" in ag.agreement_verdict(few)
     assert "weak" not in ag.agreement_verdict(dataclasses.replace(few, pairs=ag.MIN_PAIRS))
-    pairs = dataclasses.replace(a, within_95=0.5, p_value=0.5)
+    pairs = dataclasses.replace(a, pairs=ag.MIN_PAIRS, within_95=0.5, p_value=0.5)
     assert "too few pairwise differences" in ag.agreement_verdict(pairs) and "rejects" not in \
         ag.agreement_verdict(pairs).split(":")[0]
+    # 5 of 6 inside and the chi2 test not rejecting (LWR4+ recording 2's segments): chance, not a
+    # disagreement; it said "do NOT agree ... the intervals of one recording are optimistic"
+    chance = dataclasses.replace(a, pairs=6, within_95=5 / 6, p_value=0.533)
+    line = ag.agreement_verdict(chance)
+    assert "cannot be told apart from agreeing: 1 of only 6" in line and "26 %" in line
+    assert "NOT" not in line and "optimistic" not in line
 
 
 def test_recording_agreement_segments_and_recordings():

@@ -484,3 +484,38 @@ def test_ctrl_c_stops_a_local_fleet_without_a_traceback(small_fleet, tmp_path, m
         time.sleep(0.2)
     else:
         pytest.fail("worker processes outlived the interrupted run by 20 s")
+
+
+def test_ctrl_c_inside_a_lock_of_dasks_client_is_an_interruption(small_fleet, tmp_path, monkeypatch):
+    """A Ctrl-C landing inside a lock's release in Dask's client code surfaces as
+    `RuntimeError: cannot release un-acquired lock` (seen once in the slow Ctrl-C test):
+    dynid fleet called it an internal error. With a Ctrl-C pressed it is an interruption."""
+    import os
+    import signal
+
+    from dynid.analysis.fleet import engine
+
+    def interrupted_execute(todo, store, client, progress=None):
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+        except KeyboardInterrupt:
+            pass
+        raise RuntimeError("cannot release un-acquired lock")
+
+    class Client:
+        def scheduler_info(self):
+            return {"workers": {}}
+
+        def close(self):
+            pass
+
+    monkeypatch.setattr(engine, "execute", interrupted_execute)
+    with pytest.raises(KeyboardInterrupt):
+        engine.identify_fleet(small_fleet.catalogue, tmp_path / "store", client=Client())
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+    def failing_execute(todo, store, client, progress=None):
+        raise RuntimeError("a real bug")
+    monkeypatch.setattr(engine, "execute", failing_execute)
+    with pytest.raises(RuntimeError, match="a real bug"):
+        engine.identify_fleet(small_fleet.catalogue, tmp_path / "store2", client=Client())
