@@ -400,7 +400,13 @@ def _whiteness(x: VerdictInputs) -> dict:
         sel = [f"{s.name} (joint {s.joint})" if getattr(s, "joint", None) else str(s.name)
                for s in diagnosis.selected]
         white["diagnosis_selected"] = sel
-        diag_text = (f" The diagnosis added {', '.join(sel)}." if sel else
+        flagged = sorted({int(u.joint) for u in (getattr(diagnosis, "unexplained", None) or [])})
+        white["diagnosis_flagged_joints"] = flagged
+        said = (f" its structure tests flag joint{'s' if len(flagged) > 1 else ''} "
+                f"{', '.join(map(str, flagged))}: torque the model lacks that no candidate describes "
+                "(the diagnosis names what it depends on)." if flagged else "")
+        diag_text = (f" The diagnosis added {', '.join(sel)}" + (";" + said if said else ".") if sel else
+                     " The diagnosis added no effect from its candidates, but" + said if said else
                      " The diagnosis found no missing effect among the candidates it tested: the "
                      "correlation comes from the filtering and decimation, or from an effect it "
                      "does not model.")

@@ -306,3 +306,24 @@ def test_a_maximum_likelihood_that_did_not_converge_gets_its_own_advice():
     text = check_convergence(types.SimpleNamespace(result=ml)).findings[0]["text"]
     assert "(The maximum number of function evaluations is exceeded)" in text
     assert "--max-iter" not in text and "--f0" in text
+
+
+def test_whiteness_line_names_the_joints_the_diagnosis_flags(monkeypatch):
+    """The verdict said "the diagnosis found no missing effect" while the same diagnosis flagged
+    joints 6 and 7 as holding torque the model lacks (LWR4+ recording 2 against 3)."""
+    from types import SimpleNamespace as NS
+
+    import pandas as pd
+
+    from dynid.analysis.statistics import verdict as V
+    monkeypatch.setattr(V, "_sigma_option", lambda x: "bootstrap")
+    lb = pd.DataFrame({"lag": [10, 10], "statistic": [50.0, 60.0], "p_value": [1e-6, 1e-7]})
+
+    def text(selected, unexplained):
+        x = NS(names=["j1", "j2"], n=2, alpha=0.05, residuals=NS(ljung_box=lb),
+               diagnosis=NS(selected=selected, unexplained=unexplained))
+        return V._whiteness(x)
+    flagged = text([], [NS(joint=6), NS(joint=7)])
+    assert "found no missing effect" not in flagged["text"] and "flag joints 6, 7" in flagged["text"]
+    assert flagged["diagnosis_flagged_joints"] == [6, 7]
+    assert "found no missing effect" in text([], [])["text"]
