@@ -51,7 +51,7 @@ from dynid.analysis.estimators.maximum_likelihood import maximum_likelihood, rob
 from dynid.analysis.estimators.physical import identify_physical, require_cvxpy
 from dynid.analysis.estimators.projection import identify_projection
 from dynid.analysis.processing.observation import SETTINGS_HELP
-from dynid.analysis.results import Result, gathered_notices, notices_block
+from dynid.analysis.results import Result, gathered_notices, notices_block, p_phrase
 from dynid.analysis.sampling.noise import DEFAULT_NOISE
 from dynid.analysis.statistics.validation import ValidationResult, validate
 from dynid.analysis.statistics.verdict import verdict
@@ -507,6 +507,9 @@ def _still_joints(experiments) -> list:
 
 
 # ---------------------------------------------------------------- step 2: gravity tilt
+#: the likelihood-ratio level below which the data tell a tilt from a level base (as the tilt's summary)
+TILT_LEVEL = 0.01
+
 
 def tilt_step(experiments, robot, settings: Settings, say=None):
     """Step 2: `(tilt, robot)`: the base tilt and the robot with the tilted gravity (None, robot
@@ -515,6 +518,13 @@ def tilt_step(experiments, robot, settings: Settings, say=None):
         return None, robot
     messages(say)("estimating the direction of gravity (base tilt) on the identification data")
     tilt = gravity_tilt(experiments, robot, settings=settings.processing())
+    if not tilt.p_value < TILT_LEVEL:
+        # asked for, so applied; but the data do not tell it from a level base
+        tilt.notices.append(f"the tilt is not significant ({p_phrase(tilt.p_value)}, level {TILT_LEVEL:g}): the "
+                            "identification uses the tilted gravity as --gravity-tilt asks"
+                            + (f", with {len(tilt.added_parameters)} more base parameters "
+                               f"({', '.join(tilt.added_parameters)})" if tilt.added_parameters else "")
+                            + "; without the option the level gravity would serve as well")
     return tilt, tilt.robot
 
 
