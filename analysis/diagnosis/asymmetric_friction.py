@@ -41,6 +41,8 @@ from dynid.ranges import check_joints
 __all__ = ["AsymmetricFrictionResult", "asymmetric_friction"]
 
 COLUMNS = ("Fv+", "Fv-", "Fc+", "Fc-")
+#: two-sided 95 % normal quantile: a coefficient this many σ below zero is negative for the data
+Z95 = 1.959963984540054
 
 
 @dataclass(repr=False)
@@ -146,6 +148,19 @@ def asymmetric_friction(experiment, robot, idim_result, *, joints=None) -> Asymm
         for c, a in enumerate(combos):
             values[k, c] = a @ fit.chi
             sigma[k, c] = float(np.sqrt(max(a @ fit.cov @ a, 0.0)))
+    prismatic = prismatic_joints(robot)
+    negative = [f"{c}{j} = {values[k, i]:.4g} {parameter_unit(f'{c[:2]}{j}', prismatic)} "
+                f"({abs(values[k, i]) / sigma[k, i]:.2g} σ)"
+                for k, j in enumerate(joints) for i, c in enumerate(COLUMNS)
+                if values[k, i] < 0 and sigma[k, i] > 0 and abs(values[k, i]) > Z95 * sigma[k, i]]
+    if negative:
+        # a friction that pushes the joint along its motion is no friction: on one side the
+        # constant torque offset Off_j (or the rest of the model) is read as friction
+        notices.append("physically impossible (negative friction, more than 1.96 σ below zero): "
+                       + ", ".join(negative) + "; the Coulomb split takes the torque offset Off_j as "
+                       "asymmetry where Off_j is in the model, and a dropped Fv_j leaves Fv+ = -Fv- = dFv_j: "
+                       "read these coefficients as a shape of the residual, not as friction")
+    notices.append("σ: the classic one of eq. (14) (white residual), not the identification's covariance")
     return AsymmetricFrictionResult(robot_name=robot.name, joints=joints, values=values, sigma=sigma,
                                     fit=fit, rel_error_before=float(idim_result.model.rel_error),
-                                    notices=notices, prismatic=tuple(sorted(prismatic_joints(robot))))
+                                    notices=notices, prismatic=tuple(sorted(prismatic)))

@@ -71,3 +71,18 @@ def test_bad_joint_numbers_are_refused(asymmetric_run):
     robot, exp, res, _ = asymmetric_run
     with pytest.raises(InputError, match=r"joint numbers 1\.\.2"):
         asymmetric_friction(exp, robot, res, joints=[3])
+
+
+def test_negative_friction_on_a_real_arm_is_flagged():
+    """LWR4+ recording 1: Fc+7 = -0.26 N m (27 σ) and Fv+2 = -4.06 N m s/rad were printed as they
+    were, without a word and with σ of an unnamed kind."""
+    from pathlib import Path
+
+    from dynid.analysis.data.experiment import load_experiment
+    data = Path(__file__).resolve().parents[3] / "examples" / "kuka_lwr4" / "recording_1.toml"
+    robot = load_robot("kuka_lwr4")
+    exp = load_experiment(data, robot)
+    res = asymmetric_friction(exp, robot, identify_idim(exp, robot))
+    impossible = [n for n in res.notices if n.startswith("physically impossible")]
+    assert impossible and "Fc+7 = -0.2598 N m" in impossible[0]
+    assert any(n.startswith("σ: the classic one of eq. (14)") for n in res.notices)
