@@ -185,8 +185,14 @@ class ExcitationResult:
         return self.cond_start / self.cond_result
 
     def improvement_text(self) -> str:
-        """`"x2.76 lower"` or `"x1.29 higher"` (the design's cond against the best random start's),
-        and, for another criterion, that cond is not what the design optimised."""
+        """The design's cond against the best random start's, in words.
+
+        Returns
+        -------
+        str
+            `"x2.76 lower"` or `"x1.29 higher"`, and, for another criterion than cond, that cond
+            is not what the design optimised.
+        """
         text = (f"x{self.improvement:.2f} lower" if self.improvement >= 1 else
                 f"x{1 / self.improvement:.2f} higher")
         if self.criterion != "cond":
@@ -194,7 +200,13 @@ class ExcitationResult:
         return text
 
     def torque_text(self) -> str:
-        """What the torque limits were checked with, or why they were not."""
+        """What the torque limits were checked with, or why they were not.
+
+        Returns
+        -------
+        str
+            `"torque with the robot's a-priori values"`, or the reason there was no check.
+        """
         return (self.torque_parameters if self.torque_parameters.startswith("no ") else
                 f"torque with {self.torque_parameters}")
 
