@@ -101,8 +101,11 @@ class HiddenEffect:
                 "phase_rad": self.phase, "sigma_nm": self.sigma, "statistic": self.statistic,
                 "p_value": self.p_value, "apriori_deviation_before": self.deviation_before,
                 "apriori_deviation_after": self.deviation_after, "reported": self.reported,
-                "contradicted": [{"name": a, "identified": b, "apriori": c, "z": d}
-                                 for a, b, c, d in self.contradicted],
+                # the physical route holds the consistent fit's active bounds, with no values to give
+                "contradicted": ([] if self.route == "physical" else
+                                 [{"name": a, "identified": b, "apriori": c, "z": d}
+                                  for a, b, c, d in self.contradicted]),
+                "active_bounds": [a for a, *_ in self.contradicted] if self.route == "physical" else [],
                 "errors": self.errors, "route": self.route}
 
     def missed_rule(self) -> str | None:

@@ -205,11 +205,18 @@ def _structure(res):
 def _hidden(res):
     if not res.hidden_tests:
         return []
-    lines = ["", "  Effects hidden in the parameters (prior fit toward the a-priori values):"]
+    physical = getattr(res.hidden_tests[0], "route", "") == "physical"
+    lines = ["", "  Effects hidden in the parameters ("
+             + ("physically consistent fit" if physical else "prior fit toward the a-priori values") + "):"]
     if res.hidden:
         return lines + [f"    HIDDEN {h.sentence()}" for h in res.hidden]
     best = res.hidden_tests[0]
-    lines.append(f"    none: the parameters contradict the a-priori values "
-                 f"({', '.join(a for a, *_ in best.contradicted[:3])}), but no "
-                 f"gravity-shaped spring explains it (best joint {best.joint}: {best.shortfall()})")
+    what = ", ".join(a for a, *_ in best.contradicted[:3])
+    if getattr(best, "route", "") == "physical":
+        # the physical route's "contradiction" is the consistent fit held at its bounds
+        said = f"the physically consistent fit is held at its bounds ({what})"
+    else:
+        said = f"the parameters contradict the a-priori values ({what})"
+    lines.append(f"    none: {said}, but no gravity-shaped spring explains it (best joint {best.joint}: "
+                 f"{best.shortfall()})")
     return lines

@@ -330,3 +330,22 @@ def test_a_floor_above_the_residual_is_not_stated():
     assert np.isnan(st.noise_floor[0]) and st.floor_over_residual[0] > 2
     assert np.isfinite(st.noise_floor[1]) and np.isnan(st.floor_over_residual[1])
     assert st.to_dict()["noise_floor_over_residual"][1] is None
+
+
+def test_the_physical_route_says_its_bounds_not_a_contradiction_with_apriori_values():
+    """A robot without a-priori values (the Panda) goes the physical route: its summary said "the
+    parameters contradict the a-priori values (pseudo-inertia of link 1 singular ...)" and its
+    JSON gave each bound as a contradiction with identified 0, a-priori 0, z 0."""
+    from types import SimpleNamespace
+
+    from dynid.analysis.diagnosis.hidden import HiddenEffect
+    from dynid.analysis.diagnosis.summary_text import _hidden
+    h = HiddenEffect(joint=2, name="gravity_spring", amplitude=0.1, phase=0.0, sigma=0.2, statistic=3.0,
+                     p_value=0.5, deviation_before=10.0, deviation_after=9.0,
+                     contradicted=[("pseudo-inertia of link 1 singular (nullity 2)", 0.0, 0.0, 0.0)],
+                     route="physical")
+    text = "\n".join(_hidden(SimpleNamespace(hidden_tests=[h], hidden=[])))
+    assert "physically consistent fit is held at its bounds (pseudo-inertia of link 1" in text
+    assert "a-priori" not in text
+    d = h.to_dict()
+    assert d["contradicted"] == [] and d["active_bounds"] == ["pseudo-inertia of link 1 singular (nullity 2)"]
