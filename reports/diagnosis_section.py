@@ -536,4 +536,4 @@ def _floor_text(st, j):
     over = getattr(st, "floor_over_residual", None)
     if over is not None and not np.isnan(over[j]):
         return f"unknown (the torque's increments would put it at {over[j]:.3g} x the residual: not white noise)"
-    return "unknown (torque filtered upstream)"
+    return "unknown (no noise shows in the full-rate torque: filtered upstream or below its resolution)"

@@ -183,8 +183,9 @@ def _structure(res):
         lines.append(f"    noise floor unknown on joint(s) {', '.join(map(str, unknown))}: the "
                      f"torque's full-rate increments are not white (var(d3)/var(d2) "
                      + ", ".join(f"{st.whiteness[j - 1]:.2g}" for j in unknown)
-                     + ", white noise 3.33): it was low-pass filtered before it was "
-                     "recorded, so the excess-over-floor test is not run")
+                     + ", white noise 3.33): its noise does not show at the full rate (a low-pass "
+                     "filter before logging, or noise below the logged resolution), so the "
+                     "excess-over-floor test is not run")
     if above:
         lines.append(f"    noise floor unknown on joint(s) {', '.join(map(str, above))}: its torque-noise part, "
                      "estimated from the full-rate torque's increments, would be "
