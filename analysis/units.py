@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import re
 
-__all__ = ["parameter_kind", "parameter_unit", "prismatic_joints"]
+__all__ = ["parameter_kind", "parameter_unit", "prismatic_joints", "prismatic_of"]
 
 _UNITS = (("XX", "kg m\u00b2"), ("XY", "kg m\u00b2"), ("XZ", "kg m\u00b2"), ("YY", "kg m\u00b2"),
           ("YZ", "kg m\u00b2"), ("ZZ", "kg m\u00b2"), ("MX", "kg m"), ("MY", "kg m"), ("MZ", "kg m"),
@@ -45,6 +45,16 @@ def prismatic_joints(model) -> frozenset:
     if joints is not None:
         return frozenset(i + 1 for i, jt in enumerate(joints) if getattr(jt, "prismatic", False))
     return frozenset(getattr(model, "prismatic", None) or ())
+
+
+def prismatic_of(owner) -> frozenset:
+    """The 1-based prismatic joints of whatever `owner` is: a result that knows them
+    (`_prismatic()`), one that holds the IDIM result it started from (`idim`: the diagnosis),
+    or a robot or its base parameters (`prismatic_joints`)."""
+    for o in (owner, getattr(owner, "idim", None)):
+        if hasattr(o, "_prismatic"):
+            return frozenset(o._prismatic())
+    return prismatic_joints(owner)
 
 
 def parameter_unit(name: str, prismatic=frozenset()) -> str:

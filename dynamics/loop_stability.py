@@ -30,7 +30,10 @@ from dynid.errors import InputError
 
 from .dynamic_model import mass_matrix
 
-__all__ = ["sampled_loop_radius"]
+__all__ = ["sampled_loop_radius", "radius_along", "CHECKS"]
+
+#: configurations of a motion at which `radius_along` checks the loop
+CHECKS = 200
 
 
 def _gains(robot, c, kd_scale):
@@ -93,3 +96,11 @@ def sampled_loop_radius(robot, chi_st, q, *, controller=None, rate=None, kd_scal
     A = np.concatenate([np.concatenate(r, axis=2) for r in rows], axis=1)
     radius = np.abs(np.linalg.eigvals(A)).max(axis=1)
     return float(radius[0]) if single else radius
+
+
+def radius_along(robot, chi_st, q, *, checks=CHECKS, **kw):
+    """(rows, radius): `sampled_loop_radius` at up to `checks` configurations of the motion `q`
+    (N, n), evenly spaced, and their row numbers in `q`. `kw`: `controller`, `rate`, `kd_scale`."""
+    q = np.asarray(q, dtype=float)
+    rows = np.unique(np.linspace(0, len(q) - 1, min(checks, len(q))).astype(int))
+    return rows, sampled_loop_radius(robot, chi_st, q[rows], **kw)

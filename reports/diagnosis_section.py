@@ -31,7 +31,7 @@ import pandas as pd
 from markupsafe import Markup
 
 from dynid.analysis.diagnosis.selection import nonlinear_text
-from dynid.analysis.units import parameter_unit
+from dynid.analysis.units import parameter_unit, prismatic_of
 from dynid.reports import figures as F
 from dynid.reports import tables as T
 from dynid.reports.html import Section, bullets, join, kv_list, para
@@ -266,7 +266,7 @@ def _errors_section(res, names):
             formats={"joint": "text", "rel_before_pct": "num", "rel_after_pct": "num"},
             labels={"rms_before": "RMS before [N m]", "rms_after": "RMS after [N m]",
                     "rel_before_pct": "rel. error before [%]", "rel_after_pct": "rel. error after [%]"},
-            prismatic=_has_prismatic(res)))
+            prismatic=bool(prismatic_of(res))))
     body = join(kv_list(pairs),
                 para("Rows used by the estimator (outside the velocity dead zone). The validation "
                      "data were processed with the identification's settings; the effects' columns "
@@ -395,7 +395,7 @@ def _residual_section(res, names):
                        formats={"residual": "text", "joint": "text", "n": "int"},
                        labels={"rms": "RMS [N m]", "ljung_box_p": "Ljung-Box p",
                                "tau_int": "\u03c4_int = 1 + 2\u03a3\u03c1_k", "n_eff": "n_eff",
-                               "jarque_bera_p": "Jarque-Bera p"}, prismatic=_has_prismatic(res))
+                               "jarque_bera_p": "Jarque-Bera p"}, prismatic=bool(prismatic_of(res)))
     lb = b.ljung_box
     found = ("the diagnosis added " + ", ".join(f"{s_.name} (joint {s_.joint})" for s_ in res.selected)
              if res.selected else "the diagnosis found no missing effect among the candidates it tested")
@@ -436,16 +436,9 @@ def _structure_parts(res, body, figs, tables):
                 index=False, formats={"depends_on": "text", "test": "text", "also": "text",
                                       "joint": "int"},
                 labels={"rms": "structure RMS [N m]", "noise_rms": "rest / noise RMS [N m]",
-                        "p_value": "p (Bonferroni)", "depends_on": "depends on"}, prismatic=_has_prismatic(res)))
+                        "p_value": "p (Bonferroni)", "depends_on": "depends on"}, prismatic=bool(prismatic_of(res))))
     return body, figs, tables
 
-
-def _has_prismatic(res) -> bool:
-    """Does the diagnosed robot have a prismatic joint (joint rows in m, m/s and N)?"""
-    for owner in (res, getattr(res, "idim", None)):
-        if hasattr(owner, "_prismatic"):
-            return bool(owner._prismatic())
-    return False
 
 
 def _structure_text(st):

@@ -30,6 +30,7 @@ from markupsafe import Markup
 from matplotlib.figure import Figure
 from matplotlib.ticker import NullFormatter
 
+from dynid.analysis.units import prismatic_of
 from dynid.dynamics.robot import joint_names_of
 from dynid.reports import figures as F
 from dynid.reports import tables as T
@@ -212,7 +213,7 @@ def convergence_section(res):
     tab_track = T.make_table(track, "tab-didim-tracking",
                              "RMS tracking error of each step's simulation, q\u1d63 \u2212 q_sim [mrad]",
                              labels={f"track_rms_{j + 1}": f"j{j + 1} [mrad]" for j in range(n)},
-                             prismatic=_has_prismatic(res))
+                             prismatic=bool(prismatic_of(res)))
     tab_kd = T.make_table(kd, "tab-didim-kd-scale",
                           "Derivative-gain factors kd_scale = J\u0302\u2c7c / J_ap\u2c7c of each step's "
                           "simulation", labels={f"kd_scale_{j + 1}": f"j{j + 1}" for j in range(n)})
@@ -232,7 +233,7 @@ def _table2_section(res, reference):
                           key="tab-didim-table2",
                           caption=(f"DIDIM {which} parameters in the layout of Table 2" if published else
                                    f"DIDIM {which} parameters: value and %\u03c3"),
-                          ours_label="dynid DIDIM", prismatic=_has_prismatic(res))
+                          ours_label="dynid DIDIM", prismatic=bool(prismatic_of(res)))
     ref_map = reference.rel_std_map() if reference is not None else None
     fig = F.rel_std_bar_figure(m.names, m.rel_std.to_numpy(), ref_map, key="fig-didim-rel-std",
                                ours_label="dynid DIDIM")
@@ -264,7 +265,7 @@ def _torque_section(res, reference):
     tab = T.make_table(df, "tab-didim-torque-errors", "Per-joint residual of the DIDIM estimate "
                        "(last step, equations used)",
                        labels={"rms": "RMS residual [N m]", "rel_error_percent": "relative error [%]"},
-                       prismatic=_has_prismatic(res),
+                       prismatic=bool(prismatic_of(res)),
                        formats={"rel_error_percent": "num"})
     text = (f"Relative error norm \u2016Y \u2212 W\u03b4\u03c7\u0302\u2016/\u2016Y\u2016 of the last step: "
             f"{_pct(r.rel_error)}"
@@ -358,8 +359,3 @@ def _uncertainty_label(res):
     if "controller_gains" in unc:
         label += "; with the identified controller gains' covariance propagated through the loop"
     return label
-
-
-def _has_prismatic(res) -> bool:
-    """Does the identified robot have a prismatic joint (joint rows in m, m/s and N)?"""
-    return bool(res._prismatic()) if hasattr(res, "_prismatic") else False

@@ -34,6 +34,7 @@ from dynid.analysis.processing.observation import SETTINGS_HELP
 from dynid.analysis.statistics.validation import DEAD_ZONE_REASON
 from dynid.analysis.statistics.verdict import parameter_unit
 from dynid.analysis.statistics.verdict import verdict as _verdict
+from dynid.analysis.units import prismatic_of
 from dynid.dynamics.robot import joint_names_of
 from dynid.outputs import atomic_write_text
 from dynid.provenance import versions
@@ -476,7 +477,7 @@ def _torque_section(res, robot, reference):
     m = res.model
     tab = _joint_error_table("tab-torque-errors", "Per-joint residual of the essential model "
                              f"(identification data, {fitted})", names, m.rms,
-                             m.joint_rel_error, m.joint_sigma, prismatic=_has_prismatic(robot))
+                             m.joint_rel_error, m.joint_sigma, prismatic=bool(prismatic_of(robot)))
     text = (f"Relative error norm \u2016Y \u2212 W\u03c7\u0302\u2016/\u2016Y\u2016 of the essential model on "
             f"the identification data ({fitted}; the rest is the velocity dead zone, where "
             f"Coulomb friction's sign is undetermined at rest): {_pct(m.rel_error)}.")
@@ -524,7 +525,7 @@ def _validation_section(res, robot, validation):
                                           "estimate (blue, dashed); Jarque-Bera p-value in the title")
     tab_e = _joint_error_table("tab-validation-errors", "Per-joint prediction error (validation data, "
                                "all samples)", names, validation.rms, validation.joint_rel_error,
-                               prismatic=_has_prismatic(robot))
+                               prismatic=bool(prismatic_of(robot)))
     mj = getattr(validation, "moving_joint_rel_error", None)
     tab_e_m = None
     if mj is not None:
@@ -555,13 +556,9 @@ def _validation_section(res, robot, validation):
                                          "jarque_bera": "Jarque-Bera", "jarque_bera_p": "JB p",
                                          "shapiro": "Shapiro-Wilk W", "shapiro_p": "SW p",
                                          "shapiro_n": "SW samples (evenly spaced)"},
-                                 prismatic=_has_prismatic(robot)))
+                                 prismatic=bool(prismatic_of(robot))))
     return Section("validation", "Validation", body, figures=[fig_t, fig_p], tables=tabs)
 
-
-def _has_prismatic(robot) -> bool:
-    """Does `robot` have a prismatic joint (its rows of a joint table are in m, m/s and N)?"""
-    return any(getattr(j, "prismatic", False) for j in getattr(robot, "joints", None) or ())
 
 
 def idim_sections(idim_result, robot, experiment=None, validation=None, *, reference="auto"):

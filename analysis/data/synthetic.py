@@ -14,7 +14,7 @@ import numpy as np
 from dynid.analysis.data.experiment import Experiment
 from dynid.analysis.results import Result
 from dynid.dynamics.base_parameters import base_parameters
-from dynid.dynamics.loop_stability import sampled_loop_radius
+from dynid.dynamics.loop_stability import radius_along
 from dynid.dynamics.robot_file import load_robot
 from dynid.dynamics.simulation import STIFFNESS_WARNING, friction_stiffness, simulate_closed_loop
 from dynid.dynamics.trajectories import random_fourier_trajectory
@@ -402,16 +402,11 @@ def simulate(robot, duration: float = 20.0, *, seed: int = 1, f0: float = 0.1, h
 POOR_TRACKING = 0.10
 
 
-#: configurations of the reference at which the sampled loop is checked (`_stability_notice`)
-STABILITY_CHECKS = 200
-
-
 def _stability_notice(robot, chi, qr) -> list:
     """A notice when the robot file's sampled controller is unstable somewhere along the
     reference (`dynid.dynamics.loop_stability`): the recording then holds a limit cycle at up
     to half the rate, which no rigid-body model describes."""
-    rows = np.unique(np.linspace(0, len(qr) - 1, STABILITY_CHECKS).astype(int))
-    radius = sampled_loop_radius(robot, chi, np.asarray(qr, dtype=float)[rows])
+    rows, radius = radius_along(robot, chi, qr)
     worst = int(np.argmax(radius))
     if radius[worst] <= 1.0:
         return []

@@ -12,6 +12,7 @@ import numpy as np
 from dynid.analysis.diagnosis.effects import Candidate
 from dynid.analysis.diagnosis.summary_text import diagnosis_summary, effect_unit, fmt_p, nonlinear_text
 from dynid.analysis.results import Result
+from dynid.analysis.units import prismatic_of
 from dynid.provenance import json_safe, versions
 
 __all__ = ["RankedEffect", "DiagnosisStep", "SelectedEffect", "Errors", "errors_of", "DiagnosisResult",
@@ -253,7 +254,7 @@ class DiagnosisResult(Result):
             "validation_source": self.validation_source or None,
             "settings": self.settings,
             "effects": [r.to_dict() for r in self.ranking],
-            "selected": [s.to_dict(_prismatic_of(self)) for s in self.selected],
+            "selected": [s.to_dict(prismatic_of(self)) for s in self.selected],
             "steps": [s.to_dict() for s in self.steps],
             "errors": errs,
             "path": [{"step": p["step"], "added": p["added"],
@@ -283,9 +284,3 @@ class DiagnosisResult(Result):
 
 def params_records(res):
     return res._records()
-
-
-def _prismatic_of(res) -> frozenset:
-    """The 1-based prismatic joints of the diagnosed robot (from the IDIM result it started from)."""
-    idim = getattr(res, "idim", None)
-    return frozenset(idim._prismatic()) if hasattr(idim, "_prismatic") else frozenset()

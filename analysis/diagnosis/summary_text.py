@@ -6,7 +6,7 @@ import numpy as np
 
 from dynid.analysis.diagnosis.effects import order_text
 from dynid.analysis.results import notices_block, p_value_text
-from dynid.analysis.units import parameter_unit
+from dynid.analysis.units import parameter_unit, prismatic_of
 
 __all__ = ["diagnosis_summary", "overview_lines", "fmt_p", "nonlinear_text"]
 
@@ -132,8 +132,7 @@ def effect_unit(name, prismatic=frozenset()) -> str:
 def _selected(res):
     if not res.selected:
         return ["", "  No effect selected: nothing the candidates describe is missing from the model."]
-    idim = getattr(res, "idim", None)
-    prismatic = frozenset(idim._prismatic()) if hasattr(idim, "_prismatic") else frozenset()
+    prismatic = prismatic_of(res)
     lines = ["", "  Selected effects:"]
     for e in res.selected:
         lines.append(f"    {e.label}:")

@@ -168,7 +168,7 @@ from dynid.analysis.processing.signals import dead_zone_thresholds, default_sett
 from dynid.analysis.results import ModelResults, notices_block, percent
 from dynid.dynamics.base_parameters import base_parameters, base_regressor
 from dynid.dynamics.dynamic_model import inverse_dynamics, mass_matrix
-from dynid.dynamics.loop_stability import sampled_loop_radius
+from dynid.dynamics.loop_stability import radius_along
 from dynid.dynamics.robot import model_signature
 from dynid.dynamics.simulation import friction_stiffness, simulate_closed_loop
 from dynid.errors import DataError, DynidError, IdentificationError, InputError, did_you_mean
@@ -227,8 +227,6 @@ DEFAULT_J_RATE = 1000.0
 DEFAULT_HALVINGS = 6
 MOVING_SIGMA = 3.0          # a last step larger than this many sigma is reported
 PD_MARGIN = 1e-9            # smallest accepted eigenvalue of M(q), relative to the largest
-#: configurations of the last simulation at which a failed estimate's loop is judged (`_loop_note`)
-LOOP_CHECKS = 200
 STIFFNESS_TARGET = 1.5      # h * lambda of the friction, per RK4 substep
 WELL_IDENTIFIED = 10.0      # %sigma below which a parameter's relative change is tracked
 CHUNK = 10_000
@@ -649,8 +647,7 @@ def _simulate_checked(robot, bp, beta, ctrl, t, qr, qdr, s, configs, J_ap, updat
                              f"configurations (smallest eigenvalue {ev[i, 0]:.3g} at q = "
                              f"{np.array2string(configs[i], precision=3)})")
     if update_gains:
-        J = np.max(np.diagonal(M, axis1=1, axis2=2), axis=0)
-        kd = J / J_ap
+        kd = _gain_scale(M, J_ap)
     else:
         kd = np.ones(robot.n_joints)
     out = _simulate(robot, bp, beta, ctrl, t, qr, qdr, s, kd)
@@ -881,6 +878,11 @@ def _loop_at(L, v_s, update_gains, max_iter, progress=None, uncertainty="classic
                                progress=progress)
 
 
+def _gain_scale(M, J_ap):
+    """The gain update's factor `J_j / J_ap_j`, `J_j = max M_jj` over the configurations (eq. (27))."""
+    return np.max(np.diagonal(M, axis1=1, axis2=2), axis=0) / J_ap
+
+
 def _loop_note(L, beta, configs, *, update):
     """Why an estimate could not be simulated, when its sampled loop is unstable: the
     controller, sampled at its rate, sees too little inertia somewhere along the motion
@@ -888,13 +890,8 @@ def _loop_note(L, beta, configs, *, update):
     53-422 at the estimates DIDIM stopped on). "" when the loop is stable or cannot be judged."""
     try:
         chi = L.bp.to_standard(np.asarray(beta, dtype=float), "zero")
-        rows = np.unique(np.linspace(0, len(configs) - 1, min(LOOP_CHECKS, len(configs))).astype(int))
-        q = np.asarray(configs)[rows]
-        kd = None
-        if update:      # as _simulate_checked: J_j = max M_jj over every configuration
-            M = mass_matrix(L.robot, chi, np.asarray(configs))
-            kd = np.max(np.diagonal(M, axis1=1, axis2=2), axis=0) / L.J_ap
-        radius = sampled_loop_radius(L.robot, chi, q, controller=L.ctrl, rate=L.s["rate"], kd_scale=kd)
+        kd = _gain_scale(mass_matrix(L.robot, chi, np.asarray(configs)), L.J_ap) if update else None
+        rows, radius = radius_along(L.robot, chi, configs, controller=L.ctrl, rate=L.s["rate"], kd_scale=kd)
     except (DynidError, np.linalg.LinAlgError, ValueError):
         return ""
     bad = radius > 1.0

@@ -405,11 +405,14 @@ def _whiteness(x: VerdictInputs) -> dict:
         said = (f" its structure tests flag joint{'s' if len(flagged) > 1 else ''} "
                 f"{', '.join(map(str, flagged))}: torque the model lacks that no candidate describes "
                 "(the diagnosis names what it depends on)." if flagged else "")
-        diag_text = (f" The diagnosis added {', '.join(sel)}" + (";" + said if said else ".") if sel else
-                     " The diagnosis added no effect from its candidates, but" + said if said else
-                     " The diagnosis found no missing effect among the candidates it tested: the "
-                     "correlation comes from the filtering and decimation, or from an effect it "
-                     "does not model.")
+        if sel:
+            diag_text = f" The diagnosis added {', '.join(sel)}" + (";" + said if said else ".")
+        elif said:
+            diag_text = " The diagnosis added no effect from its candidates, but" + said
+        else:
+            diag_text = (" The diagnosis found no missing effect among the candidates it tested: the "
+                         "correlation comes from the filtering and decimation, or from an effect it "
+                         "does not model.")
     if corr:
         white["text"] = ("The identification residual (fitted rows) is correlated in time (Ljung-Box at lag "
                          f"{white['lag']}: " + ", ".join(f"{names[j]} {p_phrase(lb_p[j])}"

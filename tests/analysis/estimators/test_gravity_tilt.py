@@ -198,8 +198,9 @@ def test_same_optimum_and_sigma_as_scipy_on_the_profiled_residual():
 def test_a_tilt_that_is_not_significant_says_it_is_used_anyway():
     """The TX40 log (its last 3 s held out): -20 +- 11 mrad, p = 0.395. --gravity-tilt applied it and
     added MX1 and MY1R to the base parameters without a word."""
-    import dynid
     from conftest import TX40_EXAMPLE
+
+    import dynid
     run = dynid.run(str(TX40_EXAMPLE / "experiment.toml"), "tx40", holdout=3.0, gravity_tilt=True, write=False)
     assert not run.tilt.p_value < 0.01
     assert any("the tilt is not significant" in n and "MX1" in n for n in run.tilt.notices)
