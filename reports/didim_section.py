@@ -233,7 +233,7 @@ def _table2_section(res, reference):
                           key="tab-didim-table2",
                           caption=(f"DIDIM {which} parameters in the layout of Table 2" if published else
                                    f"DIDIM {which} parameters: value and %\u03c3"),
-                          ours_label="dynid DIDIM", prismatic=bool(prismatic_of(res)))
+                          ours_label="dynid DIDIM", prismatic=prismatic_of(res))
     ref_map = reference.rel_std_map() if reference is not None else None
     fig = F.rel_std_bar_figure(m.names, m.rel_std.to_numpy(), ref_map, key="fig-didim-rel-std",
                                ours_label="dynid DIDIM")

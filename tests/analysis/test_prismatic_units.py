@@ -85,3 +85,22 @@ def test_report_csv_downloads_say_the_joint_units(identified):
     assert {"q_min [rad or m]", "tau_max [N m or N]"} <= set(joints.columns)
     table2 = pd.read_csv(io.StringIO(csvs["tab-table2"]), index_col=0)
     assert table2.loc["Fv2", "unit"] == "N s/m" and table2.loc["Fv1", "unit"] == "N m s/rad"
+
+
+def test_didim_report_tables_of_a_robot_with_a_prismatic_joint(identified):
+    """The DIDIM section's Table 2 passed `True` where the prismatic joints' numbers go, and
+    rendering it on a robot with a prismatic joint raised TypeError."""
+    import io
+    import re
+    import urllib.parse
+
+    import pandas as pd
+
+    from dynid.reports.didim_section import didim_sections
+    from dynid.reports.html import render_sections
+    robot, r, held = identified
+    train = dynid.holdout_split(dynid.simulate(robot, 6.0, seed=2).experiment, 2.0)[0]
+    html = render_sections(didim_sections(dynid.identify(train, robot, method="didim")), title="t")
+    uri = re.search(r'<div class="table-block" id="tab-didim-table2">.*?<a class="csv" href="([^"]+)"', html, re.S)
+    table2 = pd.read_csv(io.StringIO(urllib.parse.unquote(uri.group(1).split(",", 1)[1])), index_col=0)
+    assert table2.loc["Fv2", "unit"] == "N s/m" and table2.loc["Fv1", "unit"] == "N m s/rad"
