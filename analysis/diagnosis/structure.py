@@ -548,8 +548,7 @@ def residual_structure(eobs, residual, mask, *, names=None, alpha=0.01, n_perm=N
     mask = np.asarray(mask, dtype=bool) & ~(np.abs(np.asarray(eobs.obs.qd, dtype=float))
                                             < EDGE_FACTOR * thr)   # the dead-zone edge (module docstring)
     rng = np.random.default_rng(seed)
-    floor, tau_noise, white, torque_part = _noise_floors(eobs, R, mask, seed, position_delta)
-    floor, over = _floors_below_residual(floor, torque_part, R, mask)
+    floor, tau_noise, white, over = _noise_floors(eobs, R, mask, seed, position_delta)
     L = int(max(8, 2 * gap, math.ceil(3 * np.max(tau_noise))))
     tests, data = [], {}
     for j in range(n):
@@ -580,35 +579,23 @@ def residual_structure(eobs, residual, mask, *, names=None, alpha=0.01, n_perm=N
                            floor_over_residual=over)
 
 
-def _floors_below_residual(floor, torque_part, R, mask):
-    """(floor, over): the floors whose torque-noise part is above `FLOOR_ABOVE_RESIDUAL` times the
-    joint's residual RMS set to NaN (unknown), and per joint that ratio where it was refused (NaN
-    elsewhere). A residual holds its torque noise: a torque-noise floor twice its RMS measures
-    something else. The position noise's part is left out of the comparison: it is what the
-    residual of the true model would carry, and a fitted model absorbs much of it (up to 2 x on
-    planar2 with 4e-5 rad position noise and 0.02 N m torque noise)."""
-    floor = np.array(floor, dtype=float)
-    over = np.full(floor.shape, np.nan)
-    for j in range(floor.size):
-        u = mask[:, j]
-        if not np.isfinite(floor[j]) or u.sum() <= 10:
-            continue
-        rms = float(np.sqrt(np.mean((R[u, j] - R[u, j].mean()) ** 2)))
-        if torque_part[j] > FLOOR_ABOVE_RESIDUAL * rms:
-            over[j] = torque_part[j] / rms if rms > 0 else np.inf
-            floor[j] = np.nan
-    return floor, over
-
 
 def _noise_floors(eobs, R, mask, seed, position_delta):
-    """(floor (n,), tau_noise (n,), whiteness (n,), torque part (n,)): the decimated noise floor of
-    each joint, the integrated autocorrelation time of that noise, var(d3 tau)/var(d2 tau), and
-    the floor's torque-noise part alone (without the position noise's)."""
+    """(floor (n,), tau_noise (n,), whiteness (n,), over (n,)): the decimated noise floor of each
+    joint, the integrated autocorrelation time of that noise, var(d3 tau)/var(d2 tau), and, where
+    the floor was refused as above the residual, its torque part over the residual's RMS (NaN
+    elsewhere).
+
+    A residual holds its torque noise: a torque-noise floor above `FLOOR_ABOVE_RESIDUAL` times the
+    joint's residual RMS measures something else, and the floor is unknown (NaN). The position
+    noise's part is left out of that comparison: it is what the residual of the true model would
+    carry, and a fitted model absorbs much of it (up to 2 x on planar2 with 4e-5 rad position
+    noise and 0.02 N m torque noise)."""
     n = R.shape[1]
     sigma_full, Dn = noise_floor(eobs, seed=seed)
     white = whiteness(eobs.tau)
     floor = np.zeros(n)
-    torque_part = np.zeros(n)
+    over = np.full(n, np.nan)
     tau_noise = np.ones(n)
     for j in range(n):
         u = mask[:, j]
@@ -622,13 +609,18 @@ def _noise_floors(eobs, R, mask, seed, position_delta):
             pdl = np.asarray(position_delta, dtype=float).reshape((-1,) + R.shape)
             var_q = float(np.mean([np.var(d_[u, j]) for d_ in pdl]))
             nz = nz + pdl[0][u, j]
-        torque_part[j] = math.sqrt(float(np.var(sigma_full[j] * Dn[u, j])))
-        floor[j] = math.sqrt(torque_part[j] ** 2 + var_q)
+        torque_part = math.sqrt(float(np.var(sigma_full[j] * Dn[u, j])))
+        floor[j] = math.sqrt(torque_part ** 2 + var_q)
         tau_noise[j] = float(effective_sample_size(nz)[1])
         if white[j] < WHITE_MIN:       # filtered upstream: floor unknown (module docstring)
             floor[j] = np.nan
             tau_noise[j] = max(tau_noise[j], float(effective_sample_size(R[u, j])[1]))
-    return floor, tau_noise, white, torque_part
+            continue
+        rms = float(np.std(R[u, j]))
+        if torque_part > FLOOR_ABOVE_RESIDUAL * rms:
+            over[j] = torque_part / rms if rms > 0 else np.inf
+            floor[j] = np.nan
+    return floor, tau_noise, white, over
 
 
 def _variables(obs, u, j, e):
