@@ -114,6 +114,9 @@ def effect_design(experiment, robot, bp, settings, candidates):
     return np.concatenate(blocks, axis=2), eo.obs.tau, mask, names
 
 
+_SIGMA_OF = {"classic": "eq. (14)", "hac": "HAC sandwich", "bootstrap": "circular block bootstrap"}
+
+
 @dataclass(repr=False)
 class EffectsFit(Result):
     """The WLS of `[W, C]` and, when asked, its physically consistent counterpart.
@@ -139,6 +142,7 @@ class EffectsFit(Result):
     rel_error_pc: float = float("nan")
     validation: dict | None = None
     prismatic: tuple = ()  # the robot's prismatic joints (1-based), for the units
+    uncertainty: str = "classic"   # the covariance option of the sigma (least_squares.UNCERTAINTY)
 
     @property
     def x_wls(self):
@@ -188,10 +192,11 @@ class EffectsFit(Result):
             "spec": self.spec, "candidates": [{"effect": c.name, "joint": c.joint, **c.nonlinear}
                                               for c in self.candidates],
             "parameters": self.effects(),
-            "sigma": ("wls_std: the stacked WLS covariance (eq. (14)); pc_std: eq. (3) of "
-                      "dynid.analysis.diagnosis.physical_fit (the base parameters' bootstrap covariance "
-                      "carried through the profile), floored at wls_std: a constraint is not counted "
-                      "as information (the rule of the base parameters' sigma)"),
+            "uncertainty": self.uncertainty,
+            "sigma": (f"wls_std: the stacked WLS covariance ({_SIGMA_OF.get(self.uncertainty, self.uncertainty)}); "
+                      "pc_std: eq. (3) of dynid.analysis.diagnosis.physical_fit (the PC fit's refits, drawn "
+                      "from that covariance, carried through the profile), floored at wls_std: a constraint "
+                      "is not counted as information (the rule of the base parameters' sigma)"),
             "rel_error_wls": self.rel_error_wls, "rel_error_pc": self.rel_error_pc,
             "validation": self.validation,
         })
@@ -199,7 +204,8 @@ class EffectsFit(Result):
     def summary(self) -> str:
         pc = self.physical is not None
         lines = [f"Effects fitted with the rigid body ({self.spec}): "
-                 + ("unconstrained WLS and PC-WLS of the same model" if pc else "unconstrained WLS"),
+                 + ("unconstrained WLS and PC-WLS of the same model" if pc else "unconstrained WLS")
+                 + f"; sigma: {_SIGMA_OF.get(self.uncertainty, self.uncertainty)}",
                  f"  relative error on the identification data: WLS {percent(self.rel_error_wls, 3)}"
                  + (f", PC {percent(self.rel_error_pc, 3)}" if pc else "")]
         if self.validation is not None:
@@ -218,10 +224,14 @@ class EffectsFit(Result):
         return "\n".join(lines)
 
 
-def profile_physical(robot, bp, x_hat, cov, n_base, **pc_options):
+def profile_physical(robot, bp, x_hat, cov, n_base, *, interval_cov=None, uncertainty="classic", **pc_options):
     """PC-WLS of the base parameters with the effect parameters profiled out: eqs. (1)-(3).
 
-    `x_hat` (b + k,), `cov` (b + k, b + k): the WLS of the stacked design. Returns
+    `x_hat` (b + k,), `cov` (b + k, b + k): the WLS of the stacked design, eq. (14)'s covariance
+    (the fit's metric: the estimate does not depend on the covariance option).
+    `interval_cov` (b + k, b + k): the covariance of the option `uncertainty` (HAC or block
+    bootstrap of the same fit, default `cov`), which the PC fit's refits draw from and which
+    takes the place of `cov` in eq. (3). Returns
     `(PhysicalResult, theta_pc, cov_theta_pc)`. With `K = cov_tb cov_bb^-1`, eq. (2) reads
     `theta_pc = u + K beta_pc` where `u = theta_hat - K beta_hat` is uncorrelated with
     `beta_hat` (so independent, Gaussian errors) and `beta_pc` depends on `beta_hat`
@@ -237,12 +247,16 @@ def profile_physical(robot, bp, x_hat, cov, n_base, **pc_options):
     """
     b = int(n_base)
     x_hat, cov = np.asarray(x_hat, float), np.asarray(cov, float)
+    S = cov if interval_cov is None else np.asarray(interval_cov, float)
     cov_bb = 0.5 * (cov[:b, :b] + cov[:b, :b].T)
-    pc = pc_wls(robot, bp, x_hat[:b], cov_bb, **pc_options)
+    S_bb = 0.5 * (S[:b, :b] + S[:b, :b].T)
+    pc = pc_wls(robot, bp, x_hat[:b], cov_bb, interval_cov=S_bb, uncertainty=uncertainty, **pc_options)
     K = np.linalg.solve(cov_bb, cov[:b, b:]).T
     theta = x_hat[b:] + K @ (np.asarray(pc.chi, float) - x_hat[:b])
-    cov_pc = cov_bb if pc.boot_cov is None else np.asarray(pc.boot_cov, float)
-    cov_t = cov[b:, b:] - K @ cov[:b, b:] + K @ cov_pc @ K.T
+    cov_pc = S_bb if pc.boot_cov is None else np.asarray(pc.boot_cov, float)
+    # cov(u), u = theta_hat - K beta_hat, under S: S_tt - K S_bt when S is eq. (14)'s covariance
+    cov_u = S[b:, b:] - K @ S[:b, b:] - S[b:, :b] @ K.T + K @ S_bb @ K.T
+    cov_t = cov_u + K @ cov_pc @ K.T
     return pc, theta, 0.5 * (cov_t + cov_t.T)
 
 
@@ -269,19 +283,26 @@ def identify_physical_effects(experiments, robot, result, candidates, *, physica
     if clash:
         raise InputError(f"effects {spec or ''}: {', '.join(clash)} already in the base model of "
                          f"'{robot.name}'; leave that effect out")
+    uncertainty = getattr(result, "uncertainty", "classic")
+    groups = np.repeat(np.arange(len(parts)), [p[1].shape[0] for p in parts])
     try:
         wls = ls.wls(W, tau, names, row_mask=mask)
+        # the covariance option of `result` (its estimate is the same): the effects' sigma as the
+        # rigid body's; eq. (14)'s stays the PC fit's metric
+        robust = wls if uncertainty == "classic" else ls.wls(W, tau, names, row_mask=mask, uncertainty=uncertainty,
+                                                              groups=groups)
     except IdentificationError as e:
         raise InputError(f"effects {spec or ''}: the model with these effects cannot be identified "
                          f"from these data ({str(e).splitlines()[0].rstrip('.')}; {_culprit(str(e))}); leave "
                          "out the effect named") from None
     pc = theta = cov_t = None
     if physical:
-        pc, theta, cov_t = profile_physical(robot, bp, wls.chi, wls.cov, bp.n_base, **pc_options)
-    fit = EffectsFit(names=names, n_base=bp.n_base, wls=wls, physical=pc, theta_pc=theta,
+        pc, theta, cov_t = profile_physical(robot, bp, wls.chi, wls.cov, bp.n_base, interval_cov=robust.cov,
+                                            uncertainty=uncertainty, **pc_options)
+    fit = EffectsFit(names=names, n_base=bp.n_base, wls=robust, physical=pc, theta_pc=theta,
                      settings=dict(s), candidates=list(candidates), spec=str(spec), cov_effects_pc=cov_t,
                      rel_error_wls=_rel_error(tau, W, wls.chi, mask),
-                     prismatic=tuple(sorted(prismatic_joints(robot))))
+                     prismatic=tuple(sorted(prismatic_joints(robot))), uncertainty=uncertainty)
     if physical:
         fit.rel_error_pc = _rel_error(tau, W, fit.x_pc, mask)
     if validation is not None:

@@ -1,4 +1,5 @@
 """PC-WLS with effect columns (analysis/diagnosis/physical_fit.py) on the real KUKA LWR4+."""
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +14,7 @@ from dynid.analysis.diagnosis.physical_fit import (
     held_out_errors,
     identify_physical_effects,
 )
+from dynid.analysis.estimators import least_squares as ls
 from dynid.errors import InputError
 
 HERE = Path(__file__).resolve().parents[3] / "examples" / "kuka_lwr4"
@@ -66,6 +68,25 @@ def test_springs_close_the_lwr4_gap_on_flobaroids_split(lwr):
     assert e0["pc"] - e0["wls"] > 0.003          # the gap the springs remove
     assert e["pc"] < e0["pc"]
 
+
+def test_effects_sigma_follows_the_rigid_fits_covariance_option(lwr):
+    """The effect parameters' sigma is that of the IDIM result's covariance option (the default
+    block bootstrap, as the rigid body's), the estimate eq. (14)'s fit: a classic run's."""
+    robot, rec, res = lwr
+    assert res.uncertainty == "bootstrap"
+    c = effect_candidates("spring:all", 7)
+    fit = identify_physical_effects(rec[1], robot, res, c, n_boot=0)
+    classic = identify_physical_effects(rec[1], robot, dataclasses.replace(res, uncertainty="classic"), c, n_boot=0)
+    np.testing.assert_array_equal(fit.x_wls, classic.x_wls)
+    np.testing.assert_array_equal(fit.x_pc, classic.x_pc)
+    W, tau, mask, names = effect_design(rec[1], robot, res.base, fit.settings, fit.candidates)
+    ref = ls.wls(W, tau, names, row_mask=mask, uncertainty="bootstrap", groups=np.zeros(tau.shape[0], int))
+    sd = np.array([r["wls_std"] for r in fit.effects()])
+    np.testing.assert_allclose(sd, ref.bse.to_numpy()[fit.n_base:], rtol=1e-12)
+    sd_classic = np.array([r["wls_std"] for r in classic.effects()])
+    assert np.all(sd != sd_classic)
+    assert fit.to_dict()["uncertainty"] == "bootstrap" and "block bootstrap" in fit.summary().splitlines()[0]
+    assert classic.to_dict()["uncertainty"] == "classic" and "eq. (14)" in classic.to_dict()["sigma"]
 
 
 def _clamped_case():
