@@ -91,7 +91,8 @@ def effects_section(fit, *, id="effects"):
             "parameters plus the effects' columns" + (" and its physically consistent fit, the rigid "
             "body constrained and the effects free (profiled out: one SDP)" if pc else "") + ". "
             f"Relative error on the identification data: WLS {100 * fit.rel_error_wls:.3f} %"
-            + (f", PC {100 * fit.rel_error_pc:.3f} %" if pc else "") + ".")
+            + (f", PC {100 * fit.rel_error_pc:.3f} %" if pc else "") + f". \u03c3: {fit.sigma_label}"
+            + (" (the PC \u03c3 never below the unconstrained one)" if pc else "") + ".")
     parts = [para(text)]
     v = fit.validation
     if v is not None:

@@ -155,6 +155,11 @@ class EffectsFit(Result):
         return np.concatenate([np.asarray(self.physical.chi, float), self.theta_pc])
 
     @property
+    def sigma_label(self) -> str:
+        """What the sigma are: the covariance option's name, as the summary and the report say it."""
+        return _SIGMA_OF.get(self.uncertainty, self.uncertainty)
+
+    @property
     def effect_names(self):
         return list(self.names[self.n_base:])
 
@@ -193,7 +198,7 @@ class EffectsFit(Result):
                                               for c in self.candidates],
             "parameters": self.effects(),
             "uncertainty": self.uncertainty,
-            "sigma": (f"wls_std: the stacked WLS covariance ({_SIGMA_OF.get(self.uncertainty, self.uncertainty)}); "
+            "sigma": (f"wls_std: the stacked WLS covariance ({self.sigma_label}); "
                       "pc_std: eq. (3) of dynid.analysis.diagnosis.physical_fit (the PC fit's refits, drawn "
                       "from that covariance, carried through the profile), floored at wls_std: a constraint "
                       "is not counted as information (the rule of the base parameters' sigma)"),
@@ -205,7 +210,7 @@ class EffectsFit(Result):
         pc = self.physical is not None
         lines = [f"Effects fitted with the rigid body ({self.spec}): "
                  + ("unconstrained WLS and PC-WLS of the same model" if pc else "unconstrained WLS")
-                 + f"; sigma: {_SIGMA_OF.get(self.uncertainty, self.uncertainty)}",
+                 + f"; sigma: {self.sigma_label}",
                  f"  relative error on the identification data: WLS {percent(self.rel_error_wls, 3)}"
                  + (f", PC {percent(self.rel_error_pc, 3)}" if pc else "")]
         if self.validation is not None:
