@@ -968,6 +968,7 @@ def run(data, robot, settings=None, *, say=None, **options) -> Identification:
     asym = asymmetric_step(experiments, robot, result, settings)
     physical, effects = physical_step(experiments, robot, result, held_out, settings, candidates, say)
     return Identification(settings=settings, robot=robot, experiments=experiments, result=result,
-                          verdict=verdict(result, validation, robot=robot), held_out=held_out,
+                          verdict=verdict(result, validation, robot=robot, physical=physical, effects=effects),
+                          held_out=held_out,
                           validation=validation, tilt=tilt, asymmetric_friction=asym, physical=physical,
                           effects=effects)

@@ -34,6 +34,10 @@ table:
   `cond_threshold` = 1000 for the unit-column scaling), the fraction of the
   equations in the velocity dead zone (identification and validation).
 
+* **the other fits of the run** (`--physical`, `--effects`): one line saying that the
+  verdict judges the unconstrained rigid-body model and quoting their relative errors,
+  information only;
+
 * **convergence** (DIDIM, maximum likelihood): an iterative method that stopped
   before its criterion was met (`converged` False) gives the estimate of its last
   step, not the method's answer; shown first.
@@ -242,6 +246,8 @@ class VerdictInputs:
     apriori_k: float
     alpha: float
     cond_threshold: float
+    physical: object = None  # the physically consistent fit of the same run (--physical), quoted only
+    effects: object = None   # the fit with effects beside the rigid body (--effects), quoted only
 
     @cached_property
     def base(self):
@@ -658,11 +664,55 @@ def check_agreement(x: VerdictInputs) -> CheckOutcome:
     return CheckOutcome(findings=[{"level": level, "key": "agreement", "text": x.result.agreement_line}])
 
 
+def check_other_fits(x: VerdictInputs) -> CheckOutcome:
+    """The other fits of the same run (`--physical`, `--effects`), one line: the verdict judges
+    the unconstrained rigid-body model, and the line says so and quotes theirs (the relative
+    errors on the identification data and, held out, on all samples), so that a reader who
+    asked for them does not take the verdict for theirs. Information only."""
+    pc, fx = x.physical, x.effects
+    if pc is None and fx is None:
+        return CheckOutcome()
+
+    def pct(v):
+        return f"{100 * float(v):.2f} %"
+
+    model = "its essential parameters" if x.kind == "essential" else "all its base parameters"
+    judged = (f"The verdict judges the unconstrained rigid-body model ({model}): relative error "
+              f"{pct(getattr(x.estimate, 'rel_error', np.nan))} on the identification data"
+              + (f", {pct(x.validation.rel_error)} held out (all samples)" if x.validation is not None else ""))
+    parts, block = [], {"judged": f"rigid body, unconstrained ({x.kind} parameters)"}
+    if fx is not None:
+        v, both = fx.validation or {}, fx.physical is not None
+        parts.append(f"with the effects {fx.spec} (--effects): {pct(fx.rel_error_wls)}"
+                     + (f" (physically consistent: {pct(fx.rel_error_pc)})" if both else "")
+                     + (f", {pct(v['rel_error_wls'])}" + (f" ({pct(v['rel_error_pc'])})" if both else "")
+                        + " held out" if v else ""))
+        block["effects"] = {"spec": fx.spec, "rel_error_wls": fx.rel_error_wls,
+                            "rel_error_pc": fx.rel_error_pc if both else None,
+                            "held_out_rel_error_wls": v.get("rel_error_wls"),
+                            "held_out_rel_error_pc": v.get("rel_error_pc")}
+    if pc is not None:
+        v = pc.validation or {}
+        if fx is not None:
+            parts.append(f"its physically consistent fit (--physical): {pc.verdict_line()}")
+        else:
+            parts.append(f"the physically consistent fit (--physical): {pc.verdict_line()}; {pct(pc.rel_error)}"
+                         + (f", {pct(v['rel_error_pc'])} held out" if v else "")
+                         + f" (unconstrained, all base parameters: {pct(pc.wls_rel_error)}"
+                         + (f", {pct(v['rel_error_wls'])}" if v else "") + ")")
+        block["physical"] = {"chi2": pc.chi2, "dof": pc.dof, "p_value": pc.p_value, "consistent": pc.consistent,
+                             "rel_error": pc.rel_error, "held_out_rel_error": v.get("rel_error_pc")}
+    text = judged + ". Beside it, " + "; ".join(parts) + "."
+    return CheckOutcome(findings=[{"level": "info", "key": "other_fits", "text": text}],
+                        fields={"other_fits": block})
+
+
 CHECKS = [check_convergence, check_validation, check_parameters, check_residual, check_diagnosis, check_plausibility, check_apriori,
-          check_data_quality, check_agreement]
+          check_data_quality, check_agreement, check_other_fits]
 
 
-def _inputs(result, validation, robot, diagnosis, residuals, **thresholds) -> VerdictInputs:
+def _inputs(result, validation, robot, diagnosis, residuals, physical=None, effects=None,
+            **thresholds) -> VerdictInputs:
     robot = robot if robot is not None else getattr(result, "robot", None)
     m = _estimate(result)
     if not all(hasattr(m, a) for a in ("names", "chi", "bse", "rel_std")):
@@ -681,11 +731,12 @@ def _inputs(result, validation, robot, diagnosis, residuals, **thresholds) -> Ve
         result=result, validation=validation, robot=robot, diagnosis=diagnosis, residuals=residuals,
         estimate=m, names=_joint_names(robot, n), n=n,
         kind="essential" if getattr(result, "essential", None) is not None else "base",
-        params=_parameter_table(m, thresholds["rel_std_threshold"], prismatic_joints(robot)), **thresholds)
+        params=_parameter_table(m, thresholds["rel_std_threshold"], prismatic_joints(robot)), physical=physical,
+        effects=effects, **thresholds)
 
 
-def verdict(idim_result, validation=None, *, robot=None, diagnosis=None, residuals=None,
-            rel_std_threshold=10.0, joint_error_threshold=0.20, warn_rel_error=0.10,
+def verdict(idim_result, validation=None, *, robot=None, diagnosis=None, residuals=None, physical=None,
+            effects=None, rel_std_threshold=10.0, joint_error_threshold=0.20, warn_rel_error=0.10,
             fail_rel_error=0.30, apriori_k=3.0, alpha=0.05, cond_threshold=1000.0,
             checks=None) -> Verdict:
     """The verdict of an identification (see the module docstring for every rule).
@@ -704,6 +755,9 @@ def verdict(idim_result, validation=None, *, robot=None, diagnosis=None, residua
         Only its conclusion is quoted.
     residuals : ResidualAnalysis, optional
         A precomputed analysis of the identification residual (computed here otherwise).
+    physical, effects : PhysicalResult, EffectsFit, optional
+        The physically consistent fit and the fit with effects of the same run: quoted in one
+        line (`check_other_fits`), not judged.
     rel_std_threshold : float
         In percent; the error thresholds are fractions.
     checks : list of callables, optional
@@ -714,7 +768,7 @@ def verdict(idim_result, validation=None, *, robot=None, diagnosis=None, residua
     Verdict
         Status, reasons and findings in the order of the checks.
     """
-    x = _inputs(idim_result, validation, robot, diagnosis, residuals,
+    x = _inputs(idim_result, validation, robot, diagnosis, residuals, physical, effects,
                 rel_std_threshold=rel_std_threshold, joint_error_threshold=joint_error_threshold,
                 warn_rel_error=warn_rel_error, fail_rel_error=fail_rel_error, apriori_k=apriori_k,
                 alpha=alpha, cond_threshold=cond_threshold)

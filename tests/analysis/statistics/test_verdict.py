@@ -327,3 +327,27 @@ def test_whiteness_line_names_the_joints_the_diagnosis_flags(monkeypatch):
     assert "found no missing effect" not in flagged["text"] and "flag joints 6, 7" in flagged["text"]
     assert flagged["diagnosis_flagged_joints"] == [6, 7]
     assert "found no missing effect" in text([], [])["text"]
+
+
+def test_the_verdict_says_which_model_it_judges_beside_the_physical_and_effects_fits():
+    """With --physical and --effects the verdict still judges the unconstrained rigid body, and one
+    line says so and quotes the other fits' own errors (real TX40, last 3 s held out)."""
+    pytest.importorskip("cvxpy")
+    import dynid
+    from dynid.analysis.statistics.verdict import verdict
+
+    r = dynid.run(TX40, "tx40", holdout=3, effects="spring:all", physical=True)
+    lines = [f for f in r.verdict.findings if f["key"] == "other_fits"]
+    assert len(lines) == 1 and lines[0]["level"] == "info"
+    text = lines[0]["text"]
+    assert text.startswith("The verdict judges the unconstrained rigid-body model (its essential parameters)")
+    assert f"{100 * r.validation.rel_error:.2f} % held out" in text
+    assert f"{100 * r.effects.validation['rel_error_wls']:.2f} %" in text
+    assert f"{100 * r.effects.validation['rel_error_pc']:.2f} %" in text
+    assert r.physical.verdict_line() in text
+    block = r.verdict.to_dict()["other_fits"]
+    assert block["effects"]["held_out_rel_error_wls"] == r.effects.validation["rel_error_wls"]
+    assert block["physical"]["p_value"] == r.physical.p_value
+    plain = verdict(r.result, r.validation, robot=r.robot)
+    assert all(f["key"] != "other_fits" for f in plain.findings) and "other_fits" not in plain.to_dict()
+    assert plain.status == r.verdict.status
