@@ -411,7 +411,9 @@ def _stability_notice(robot, chi, qr) -> list:
     if radius[worst] <= 1.0:
         return []
     share = float(np.mean(radius > 1.0))
-    return [(f"the robot file's [controller] is unstable at {robot.controller.rate:g} Hz on this robot along "
+    source = getattr(robot, "source", "") or ""
+    return [(f"the robot file's [controller]{f' ({source})' if source else ''} is unstable at "
+             f"{robot.controller.rate:g} Hz on this robot along "
              f"{100 * share:.0f} % of the reference (sampled loop linearised at its configurations: spectral "
              f"radius up to {radius[worst]:.3g}, at t = {rows[worst] / robot.controller.rate:.3g} s, above 1): "
              "the simulated motion oscillates at up to half the rate, torque that no rigid-body model "
