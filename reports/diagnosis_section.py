@@ -31,6 +31,7 @@ import pandas as pd
 from markupsafe import Markup
 
 from dynid.analysis.diagnosis.selection import nonlinear_text
+from dynid.analysis.diagnosis.summary_text import sigma_text
 from dynid.analysis.units import parameter_unit, prismatic_of
 from dynid.reports import figures as F
 from dynid.reports import tables as T
@@ -225,7 +226,7 @@ def _effects_section(res):
     df = pd.DataFrame(rows).set_index("parameter")
     tab = T.make_table(df, "diag-effect-parameters",
                        "Parameters of the selected effects (WLS with the essential parameters; "
-                       "\u03c3 of eq. (14))",
+                       f"\u03c3: {sigma_text(res)})",
                        formats={"effect": "text", "joint": "text", "nonlinear": "text", "step": "int",
                                 "unit": "text"},
                        labels={"std": "\u03c3", "rel_std_percent": "%\u03c3"})

@@ -162,13 +162,13 @@ from dynid.analysis.diagnosis.scoring import ALIAS_RTOL, Scorer, chi2_logsf, sep
 from dynid.analysis.diagnosis.settings import DiagnosisSettings
 from dynid.analysis.diagnosis.structure import position_noise_residual, residual_structure
 from dynid.analysis.estimators import least_squares as ls
-from dynid.analysis.estimators.essential import EXACT_FIT, essential_parameters
+from dynid.analysis.estimators.essential import EXACT_FIT, essential_parameters, with_selection_bias
 from dynid.analysis.estimators.idim import identify_idim
 from dynid.analysis.estimators.physical import require_cvxpy
 from dynid.analysis.processing.decimation import DecimationFilter
 from dynid.analysis.results import p_phrase
 from dynid.dynamics.base_parameters import base_parameters
-from dynid.errors import DataError, DynidError, InputError
+from dynid.errors import DataError, DynidError, IdentificationError, InputError
 from dynid.ranges import check_joints
 from dynid.threads import single_blas_thread
 
@@ -751,7 +751,11 @@ def assemble(experiment, robot, setup, opts, sel, stage=None):
 def _reported_fit(setup, state):
     """The final model's fit as reported: the selection's own WLS, with the covariance of the
     identification it started from (`uncertainty`: the same estimate, the decisions taken on
-    the classic one are unchanged)."""
+    the classic one are unchanged). For a robust option, by the rule of the identification's
+    essential parameters (`essential.with_selection_bias`): the covariance of the same
+    parameters in the full base model with the same effects, plus the bias of the base
+    parameters left out; without it, the essential model's own sigma would read as better
+    identified after the diagnosis than before for that reason alone."""
     fit = state["fit"]
     uncertainty = getattr(setup.idim_result, "uncertainty", "classic")
     if uncertainty == "classic":
@@ -762,6 +766,17 @@ def _reported_fit(setup, state):
                     uncertainty=uncertainty)
     if not np.allclose(robust.chi, fit.chi, rtol=1e-8, atol=1e-12 * max(1.0, float(np.abs(fit.chi).max()))):
         return fit      # not the same weighted problem: keep the fit the decisions were taken on
+    names_full = problem.names_for(state["effects"], problem.all_names)
+    if list(fit.names) != names_full:
+        try:
+            full = ls.wls(problem.design(state["delay"], state["effects"], cols=problem.all_cols), problem.Y,
+                          names_full, row_mask=problem.mask, joint_sigma=fit.joint_sigma, uncertainty=uncertainty)
+        except IdentificationError:
+            setup.notices.append("the final model's sigma is its own robust one: the full base model with the "
+                                 "selected effects cannot be identified, so the bias of the parameters left out "
+                                 "is not added")
+        else:
+            robust = with_selection_bias(robust, full, [names_full.index(n) for n in fit.names])
     robust.data_hash = getattr(fit, "data_hash", "")
     return robust
 

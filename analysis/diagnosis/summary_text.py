@@ -8,7 +8,7 @@ from dynid.analysis.diagnosis.effects import order_text
 from dynid.analysis.results import notices_block, p_value_text
 from dynid.analysis.units import parameter_unit, prismatic_of
 
-__all__ = ["diagnosis_summary", "overview_lines", "fmt_p", "nonlinear_text"]
+__all__ = ["diagnosis_summary", "overview_lines", "fmt_p", "nonlinear_text", "sigma_text"]
 
 
 def fmt_p(p):
@@ -129,11 +129,20 @@ def effect_unit(name, prismatic=frozenset()) -> str:
     return parameter_unit(name, prismatic)
 
 
+def sigma_text(res) -> str:
+    """What the diagnosis' sigma are: the covariance of the identification it started from
+    (`settings["parameters_uncertainty"]`), in words."""
+    unc = (getattr(res, "settings", None) or {}).get("parameters_uncertainty", "classic")
+    return {"classic": "eq. (14)",
+            "hac": "HAC sandwich, with the bias of the base parameters left out",
+            "bootstrap": "circular block bootstrap, with the bias of the base parameters left out"}.get(unc, unc)
+
+
 def _selected(res):
     if not res.selected:
         return ["", "  No effect selected: nothing the candidates describe is missing from the model."]
     prismatic = prismatic_of(res)
-    lines = ["", "  Selected effects:"]
+    lines = ["", f"  Selected effects (sigma: {sigma_text(res)}):"]
     for e in res.selected:
         lines.append(f"    {e.label}:")
         for p, v, sd, r in zip(e.params, e.values, e.sigma, e.rel_sigma):

@@ -21,7 +21,7 @@ from dynid.analysis.results import IdentificationResult, ParameterResults
 from dynid.errors import InputError
 from dynid.provenance import json_safe
 
-__all__ = ["essential_parameters", "EssentialResult", "with_base_covariance", "EXACT_FIT"]
+__all__ = ["essential_parameters", "EssentialResult", "with_base_covariance", "with_selection_bias", "EXACT_FIT"]
 
 #: a relative error norm below this (0.01 % of the torque) is an exact fit: a recording without
 #: noise, whose residual is rounding and the simulation's integration error. Removing a
@@ -248,12 +248,12 @@ def essential_parameters(
     out.base = estimator(W3, tau, out.base.names, **kw)
     kw["settings"] = out.result.settings
     kw["settings"] = {k: v for k, v in kw["settings"].items() if k != "least_squares"}
-    out.result = _with_selection_bias(estimator(np.asarray(W3)[:, :, cols], tau, out.essential, **kw),
+    out.result = with_selection_bias(estimator(np.asarray(W3)[:, :, cols], tau, out.essential, **kw),
                                       out.base, cols)
     return out
 
 
-def _with_selection_bias(res, base, cols):
+def with_selection_bias(res, base, cols):
     """The essential estimate's robust covariance: the full model's for the same parameters plus d dᵀ.
 
     For nested least squares with the same weights, χ̂_e = χ̂_base,e + d, with
@@ -294,7 +294,7 @@ def with_base_covariance(ess: EssentialResult, base: IdentificationResult) -> Es
 
     The essential set and estimate do not change: `ess.base` becomes `base`, and the
     essential estimate's covariance is `base`'s for the same parameters plus the bias of
-    removing the others (`_with_selection_bias`), the rule `essential_parameters` applies
+    removing the others (`with_selection_bias`), the rule `essential_parameters` applies
     for the robust options. DIDIM uses it, whose full model's covariance comes from its
     last Gauss-Newton step.
     """
@@ -303,7 +303,7 @@ def with_base_covariance(ess: EssentialResult, base: IdentificationResult) -> Es
                      "uncertainty": dict(base.settings.get("least_squares", {}).get("uncertainty", {}))}
     own = replace(ess.result, settings={**ess.result.settings, "least_squares": least_squares},
                   notices=list(ess.result.notices) + [n for n in base.notices if n not in ess.result.notices])
-    return replace(ess, base=base, result=_with_selection_bias(own, base, cols))
+    return replace(ess, base=base, result=with_selection_bias(own, base, cols))
 
 
 def _essential_samples(W3, tau, names, estimator, crit, estimator_kwargs):

@@ -112,7 +112,7 @@ import pandas as pd
 from scipy import stats
 
 from dynid.analysis.estimators import least_squares as ls
-from dynid.analysis.estimators.essential import _with_selection_bias
+from dynid.analysis.estimators.essential import with_selection_bias
 from dynid.analysis.estimators.sdp import (
     NONNEG_KINDS,
     active_constraints,
@@ -661,7 +661,7 @@ def _covariances(result, which, uncertainty, wls):
             r = ls.wls(obs.W[:, :, cols], obs.tau, list(wls.names), uncertainty=opt, **kw)
             if opt != "classic":
                 full = ls.wls(obs.W, obs.tau, names, uncertainty=opt, **kw)
-                r = _with_selection_bias(r, full, cols)
+                r = with_selection_bias(r, full, cols)
         if not np.allclose(r.chi, wls.chi, rtol=1e-9, atol=1e-12):
             raise InputError("PC-WLS: the IDIM result's WLS estimate is not reproduced by its own system "
                              "(was it edited?); identify again")

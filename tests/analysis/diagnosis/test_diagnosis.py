@@ -370,3 +370,9 @@ def test_reported_parameters_carry_the_identifications_covariance(short_sim):
     assert not np.allclose(h.model_after.bse.to_numpy(), c.model_after.bse.to_numpy())
     k = [list(h.model_after.names).index(p) for p in h.selected[0].params]
     np.testing.assert_allclose(h.selected[0].sigma, h.model_after.bse.to_numpy()[k])
+    # before and after by one rule, the identification's essential one: the full base model's
+    # robust sigma (after: with the same effects) plus the bias of the base parameters left out
+    assert len(h.model_after.names) < len(bp.names) + len(h.selected[0].params)
+    for m in (h.model_before, h.model_after):
+        assert "selection_bias" in m.settings["least_squares"]["uncertainty"]
+    assert "selection_bias" not in c.model_after.settings["least_squares"].get("uncertainty", {})
