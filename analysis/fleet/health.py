@@ -301,7 +301,10 @@ def monitor(frame: pd.DataFrame, parameters=DEFAULT_PARAMETERS, *, false_alarm_r
     n_baseline = int(n_baseline)
     h = cusum_threshold(false_alarm_rate / 2, allowance, n_baseline)
     settings = {"parameters": list(parameters), "false_alarm_rate": false_alarm_rate, "allowance": allowance,
-                "n_baseline": n_baseline, "compensate": compensate, "T_ref": T_REF}
+                "n_baseline": n_baseline, "compensate": compensate, "T_ref": T_REF,
+                # the store's sigma (dynid.analysis.fleet.task): a long recording is reduced block by
+                # block and keeps no samples to resample, and the scatter ratio rescales it to the fleet's
+                "uncertainty": "classic"}
     hist = parameter_history(frame, parameters)
     names = sorted(set(frame.loc[frame["status"] == "ok", "parameter"]) - {""})
     unknown = [p for p in parameters if names and not any(_matcher([p])(n) for n in names)]

@@ -354,6 +354,7 @@ def test_cli_fleet_rerun_writes_report_and_json(small_fleet, small_store, tmp_pa
     doc = json.loads((tmp_path / "f.json").read_text())
     assert doc["n_recordings"] == N_REC and len(doc["robots"]) == 3
     assert "alarms" in doc["health"]
+    assert doc["health"]["settings"]["uncertainty"] == "classic"     # the store's sigma, named
 
 
 def _sub_catalogue(fleet, folder, n_good, n_bad=1):
