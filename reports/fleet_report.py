@@ -104,10 +104,11 @@ def fleet_sections(run, frame, health):
     if onset:
         df = pd.DataFrame([a.to_dict() for a in alarms]).set_index("robot_id")
         df["rel_size"] = 100 * df["rel_size"]
-        tables.append(T.make_table(df[["joint", "parameter", "direction", "onset_day", "alarm_day", "size", "rel_size",
-                                       "baseline", "statistic"]],
-                                   "tab-alarms", "Alarms (one per robot, joint and parameter)",
-                                   labels={"rel_size": "size, %"}, cls="sortable"))
+        tables.append(T.make_table(df[["joint", "parameter", "direction", "onset_day", "alarm_day", "size", "unit",
+                                       "rel_size", "baseline", "statistic"]],
+                                   "tab-alarms", "Alarms (one per robot, joint and parameter; size and baseline "
+                                   "in the unit given, statistic in units of the scatter)",
+                                   labels={"rel_size": "size, %"}, formats={"unit": "text"}, cls="sortable"))
     if len(errors):
         e = errors[["robot_id", "day", "recording", "error"]].set_index("robot_id")
         tables.append(T.make_table(e, "tab-errors", "Recordings that failed (the rest of the fleet went on)",

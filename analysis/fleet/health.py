@@ -34,7 +34,9 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import pandas as pd
 
-from dynid.errors import InputError
+from dynid.analysis.units import parameter_unit, prismatic_joints
+from dynid.dynamics.robot_file import load_robot
+from dynid.errors import DynidError, InputError
 from dynid.provenance import json_safe
 
 DEFAULT_PARAMETERS = ("Fv", "Fc")
@@ -96,6 +98,7 @@ class Alarm:
     rel_size: float              # size / baseline value
     baseline: float              # baseline value (temperature-compensated)
     statistic: float             # CUSUM value at the alarm, in units of the scatter
+    unit: str = ""               # SI unit of size and baseline ("" when the robot file cannot be read again)
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -222,6 +225,17 @@ def _matcher(parameters):
             raise InputError(f"parameter {p!r}: give a base-parameter name (Fv2) or its family (Fv)")
         pats.append(re.compile(rf"^{re.escape(p)}\d+$") if not re.search(r"\d$", p) else re.compile(rf"^{p}$"))
     return lambda name: any(pt.match(name) for pt in pats)
+
+
+def _unit(robot_file, name, cache) -> str:
+    """The SI unit of parameter `name` of the robot file the task identified with ("" when it
+    cannot be read again: a unit guessed for the wrong joint type would be a wrong unit)."""
+    if robot_file not in cache:
+        try:
+            cache[robot_file] = prismatic_joints(load_robot(robot_file))
+        except (DynidError, OSError, TypeError):
+            cache[robot_file] = None
+    return "" if cache[robot_file] is None else parameter_unit(name, cache[robot_file])
 
 
 def parameter_history(frame: pd.DataFrame, parameters=DEFAULT_PARAMETERS) -> pd.DataFrame:
@@ -361,6 +375,8 @@ def monitor(frame: pd.DataFrame, parameters=DEFAULT_PARAMETERS, *, false_alarm_r
     hist["cusum_down"] = np.nan
     alarms = []
     n_monitored = 0
+    robot_files = frame.groupby("robot_id")["robot"].first().to_dict() if "robot" in frame else {}
+    prismatic = {}
     for (rid, name), idx in hist.groupby(["robot_id", "parameter"]).groups.items():
         sub = hist.loc[idx]
         if int(sub["count"].iloc[0]) < n_baseline or len(sub) <= n_baseline:
@@ -379,7 +395,8 @@ def monitor(frame: pd.DataFrame, parameters=DEFAULT_PARAMETERS, *, false_alarm_r
                             direction="increase" if side > 0 else "decrease",
                             onset_day=str(sub["day"].iloc[onset]), alarm_day=str(sub["day"].iloc[t]),
                             size=size, rel_size=size / mean0 if mean0 else float("nan"), baseline=mean0,
-                            statistic=float(up[t] if side > 0 else down[t])))
+                            statistic=float(up[t] if side > 0 else down[t]),
+                            unit=_unit(robot_files.get(rid), str(name), prismatic)))
     hist = hist.rename(columns={"mean": "baseline_value", "count": "baseline_count"}).drop(columns="sigma_ref")
     alarms.sort(key=lambda a: (a.robot_id, a.joint, a.parameter))
     settings["n_monitored"] = n_monitored

@@ -33,6 +33,7 @@ from dynid.analysis.processing.observation import observe
 from dynid.analysis.processing.prediction import prediction_errors
 from dynid.analysis.results import Result, percent
 from dynid.analysis.statistics.noise import normality as _normality
+from dynid.analysis.units import prismatic_joints
 from dynid.dynamics.robot import Robot
 from dynid.dynamics.robot_file import load_robot
 from dynid.errors import DataError, InputError
@@ -74,6 +75,7 @@ class ValidationResult(Result):
     noise_moving: pd.DataFrame = None
     tau_moving: np.ndarray = None    # dead-zone system: zeroed tau (NaN outside mask)
     tau_hat_moving: np.ndarray = None
+    prismatic: tuple = ()            # the robot's prismatic joints (1-based): their RMS is in N
 
     @property
     def residual(self):
@@ -106,15 +108,17 @@ class ValidationResult(Result):
                 else np.full(self.tau.shape[1], np.nan))
 
     def to_frame(self) -> pd.DataFrame:
-        """One row per joint: RMS [N m], relative errors (all samples, moving ones), excluded
-        fraction, Jarque-Bera p on all samples.
+        """One row per joint: RMS and its unit (N m, N for a prismatic joint), relative errors
+        (all samples, moving ones; fractions), excluded fraction, Jarque-Bera p on all samples.
 
         Returns
         -------
         pandas.DataFrame
             Index `joint` = 1..n.
         """
-        return pd.DataFrame({"rms": self.rms, "rel_error": self.joint_rel_error,
+        n = self.tau.shape[1]
+        unit = ["N" if j in set(self.prismatic) else "N m" for j in range(1, n + 1)]
+        return pd.DataFrame({"rms": self.rms, "unit": unit, "rel_error": self.joint_rel_error,
                              "moving_rel_error": self._moving_joint_rel_error(),
                              "excluded_fraction": self.excluded_per_joint,
                              "jarque_bera_p": self.noise["jarque_bera_p"].to_numpy()},
@@ -281,6 +285,7 @@ def validate(idim_result, experiment, robot=None):
                            rel_error=rel, rms=rms, joint_rel_error=jrel,
                            noise=normality(full.tau - tau_hat), notices=notices, mask=mask,
                            moving_rel_error=mrel, moving_rms=mrms, moving_joint_rel_error=mjrel,
-                           tau_moving=tau_m, tau_hat_moving=that_m)
+                           tau_moving=tau_m, tau_hat_moving=that_m,
+                           prismatic=tuple(sorted(prismatic_joints(robot))))
     out.noise_moving = normality(tau_m - that_m)
     return out

@@ -35,6 +35,7 @@ def test_identified_parameters_carry_the_joint_units(identified):
     assert any("prismatic" in n for n in r.notices)
     units = {p["name"]: p["unit"] for p in dynid.verdict(r, dynid.validate(r, held)).to_dict()["parameters"]}
     assert units["Fc2"] == "N" and units["Fc1"] == "N m"
+    assert dynid.validate(r, held).to_frame()["unit"].tolist() == ["N m", "N", "N m"]   # the held-out RMS
 
 
 def test_revolute_robot_unchanged():

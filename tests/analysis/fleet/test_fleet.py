@@ -326,6 +326,9 @@ def test_monitor_finds_the_step_with_its_onset_size_and_the_temperature_coeffici
     a = h.alarms[0]
     assert a.onset_day == "2026-01-16" and a.alarm_day in ("2026-01-16", "2026-01-17")
     assert abs(a.rel_size - 0.25) < 0.05 and a.joint == 2
+    assert a.unit == ""               # no robot file to read the joint type from: no unit guessed
+    frame["robot"] = "planar2"
+    assert health.monitor(frame, false_alarm_rate=1e-4).alarms[0].to_dict()["unit"] == "N m s/rad"
 
 
 def test_temperature_compensation_is_what_makes_a_small_change_visible():
