@@ -49,9 +49,10 @@ class EssentialResult(ParameterResults):
         Removed parameters, in removal order.
     path : pandas.DataFrame
         One row per removal: `step` (1, 2, ...), `removed`,
-        `rel_std_removed` (its %σ just before removal), `max_rel_std_remaining`
-        (max %σ of the re-estimated remaining set), `rel_error` (relative error
-        norm after removal), `n_remaining`.
+        `rel_std_removed` (its %σ just before removal, in percent), `max_rel_std_remaining`
+        (max %σ of the re-estimated remaining set, in percent), `rel_error` (relative error
+        norm after removal, a fraction), `n_remaining`. The %σ are the classic ones the
+        search ranks by (eq. (15)), whatever covariance the result reports.
     stop_rule : str
         `"error_growth"`, `"target_rel_std"`, `"rel_std_ratio"` or `"last_parameter"`.
     stop_reason : str
