@@ -90,7 +90,7 @@ def must_be_nonnegative(bp, standard_names, k) -> bool:
 @dataclass(repr=False)
 class Verdict(Result):
     """What `verdict` concluded; `to_dict()` is the JSON `"verdict"`, `to_csv()` the table of
-    the judged parameters (name, value, std, unit, %σ, flagged), `summary()` the findings."""
+    the judged parameters (parameter, value, std, rel_std_percent, unit, flagged), `summary()` the findings."""
 
     status: str                                   # identified / identified with reservations / not identified
     identified: bool
@@ -131,9 +131,11 @@ class Verdict(Result):
         return "\n".join(lines)
 
     def to_frame(self):
-        """The judged parameters: name, value, std, unit, rel_std_percent, flagged."""
-        cols = ["name", "value", "std", "unit", "rel_std_percent", "flagged"]
-        return pd.DataFrame(self.parameters, columns=cols).set_index("name")
+        """The judged parameters, indexed by `parameter` as every other result's table: value,
+        std, rel_std_percent, unit, flagged."""
+        cols = ["name", "value", "std", "rel_std_percent", "unit", "flagged"]
+        return (pd.DataFrame(self.parameters, columns=cols).set_index("name")
+                .rename_axis("parameter"))
 
     def __repr__(self):
         flagged = len(self.not_identified)

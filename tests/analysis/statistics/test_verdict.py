@@ -351,3 +351,5 @@ def test_the_verdict_says_which_model_it_judges_beside_the_physical_and_effects_
     plain = verdict(r.result, r.validation, robot=r.robot)
     assert all(f["key"] != "other_fits" for f in plain.findings) and "other_fits" not in plain.to_dict()
     assert plain.status == r.verdict.status
+    frame = r.verdict.to_frame()        # the CSV's columns, as every result's parameter table
+    assert frame.index.name == "parameter" and list(frame.columns[:4]) == ["value", "std", "rel_std_percent", "unit"]
