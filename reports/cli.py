@@ -250,12 +250,12 @@ def cmd_fleet(args, say):
                             report=args.report, json=None if args.json in (None, "-") else args.json,
                             progress=lambda done, total: bar.update(done / total),
                             quiet_interrupt=getattr(args, "program", False))
-    say(run.summary_line())
-    for a in run.health.alarms:
-        say(f"  ALARM {a.robot_id} joint {a.joint} {a.parameter}: {a.direction} of {100 * a.rel_size:+.1f} % "
-            f"since {a.onset_day} (alarm {a.alarm_day})")
-    if not run.health.alarms:
-        say("  " + run.health.status_line())
+    # the result, as every command's summary: on stdout (stderr when stdout carries the JSON)
+    show(args, "\n".join([run.summary_line()]
+                          + [f"  ALARM {a.robot_id} joint {a.joint} {a.parameter}: {a.direction} of "
+                             f"{100 * a.rel_size:+.1f} % since {a.onset_day} (alarm {a.alarm_day})"
+                             for a in run.health.alarms]
+                          + ([] if run.health.alarms else ["  " + run.health.status_line()])))
     if args.json == "-":
         print(json.dumps(fleet_json(run, fleet_run.read_store(args.store), run.health), indent=1))
     if run.errors:              # the rest is stored and reported, but the run is not a success

@@ -348,9 +348,9 @@ def test_cli_fleet_rerun_writes_report_and_json(small_fleet, small_store, tmp_pa
     copied(small_store, tmp_path / "store")
     rc = main(["fleet", small_fleet.catalogue, "--out", str(tmp_path / "store"), "--scheduler", "tcp://127.0.0.1:9",
                "--baseline", "4", "--report", str(tmp_path / "f.html"), "--json", str(tmp_path / "f.json")])
-    err = capsys.readouterr().err
+    out, err = capsys.readouterr()
     assert rc == 0, err
-    assert f"{N_REC} recordings: 0 identified, {N_REC} already in the store, 0 failed" in err
+    assert f"{N_REC} recordings: 0 identified, {N_REC} already in the store, 0 failed" in out   # the result: stdout
     html = (tmp_path / "f.html").read_text()
     assert "Fleet overview" in html and "table class=\"data sortable\"" in html and "<script>" in html
     assert "src=\"http" not in html and "href=\"http" not in html          # self-contained
@@ -393,10 +393,10 @@ def test_scheduler_address_cli_and_api_give_the_serial_results(small_fleet, smal
     assert address.startswith("tcp://")
     clients = len(tcp_cluster.scheduler.clients)
     rc = main(["fleet", catalogue, "--out", str(tmp_path / "cli"), "--scheduler", address, "--baseline", "3"])
-    err = capsys.readouterr().err
+    out, err = capsys.readouterr()
     # issue 31: a failed recording is counted as failed, not identified, and the run exits 2 (the rest is stored)
     assert rc == 2, err
-    assert f"on {address}" in err and "3 recordings: 2 identified, 0 already in the store, 1 failed" in err
+    assert f"on {address}" in err and "3 recordings: 2 identified, 0 already in the store, 1 failed" in out
     assert "1 of 3 recordings could not be identified" in err
     api = run(catalogue, tmp_path / "api", scheduler=address, n_baseline=3)
     assert (api.n_computed, api.workers, len(api.errors)) == (3, 1, 1)
@@ -424,7 +424,7 @@ def test_diagnose_stores_the_effect_a_recording_has(small_fleet, tmp_path, tcp_c
     store = tmp_path / "store"
     assert main(["fleet", catalogue, "--out", str(store), "--scheduler", tcp_cluster.scheduler_address,
                  "--baseline", "3", "--diagnose"]) == 0
-    assert "1 recordings: 1 identified, 0 already in the store, 0 failed" in capsys.readouterr().err
+    assert "1 recordings: 1 identified, 0 already in the store, 0 failed" in capsys.readouterr().out
     stored = ResultStore(store).read().drop_duplicates("key")
     assert list(stored["effects"]) == ["spring (joint 1)"]
     # the option is part of the key: without it, the recording is still to compute (and with it, not)
