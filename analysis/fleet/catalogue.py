@@ -140,11 +140,23 @@ def read_catalogue(catalogue) -> pd.DataFrame:
         raise InputError(f"{label}: column robot_id, row {k + 1}: {frame['robot_id'].iloc[k]!r} must start with a "
                          f"letter or digit and hold only letters, digits, '_', '.' or '-' (it names a folder "
                          f"of the results store)")
-    ts = pd.to_datetime(frame["timestamp"], errors="coerce", utc=True)
+    raw = frame["timestamp"]
+    if pd.api.types.is_datetime64_any_dtype(raw):       # a Parquet catalogue's timestamps
+        ts = pd.to_datetime(raw, utc=True)
+    else:
+        # ISO 8601 only: a number (Unix seconds? milliseconds?) or 02/03/2026 (day or month first?)
+        # is read by a guess, and a wrong guess puts the recording on another day, silently
+        ts = pd.to_datetime(raw.map(lambda v: None if pd.isna(v) else str(v).strip()), format="ISO8601",
+                            errors="coerce", utc=True)
     if ts.isna().any():
         k = int(np.argmax(ts.isna().to_numpy()))
-        raise InputError(f"{label}: column timestamp, row {k + 1}: {frame['timestamp'].iloc[k]!r} is not a "
-                         f"date and time; write ISO 8601 such as 2026-03-01T08:30:00Z")
+        value = raw.iloc[k]
+        hint = ("; a number is not read as a time (seconds or milliseconds since 1970?): convert it, e.g. "
+                "pandas.to_datetime(t, unit='s', utc=True).isoformat()"
+                if isinstance(value, (int, float, np.number)) and not pd.isna(value) else "")
+        shown = repr(value) if isinstance(value, str) else str(value)
+        raise InputError(f"{label}: column timestamp, row {k + 1}: {shown} is not an ISO 8601 date and time; "
+                         f"write e.g. 2026-03-01T08:30:00Z (UTC when no offset is given){hint}")
     frame["timestamp"] = ts
     frame["day"] = ts.dt.strftime("%Y-%m-%d")
     for col in temperature_columns(frame):

@@ -66,6 +66,12 @@ def test_catalogue_errors_name_column_and_row(tmp_path):
                  "R1,yesterday,b.npz,planar2\n")
     with pytest.raises(InputError, match=r"column timestamp, row 2: 'yesterday'"):
         read_catalogue(p)
+    # read by a guess, these put a recording on another day without a word (1970-01-01, 3 February)
+    for value, shown in (("1700000000", "1700000000 is not an ISO 8601.*seconds or milliseconds since 1970"),
+                         ("1.7e9", "1700000000.0 is not an ISO 8601"), ("02/03/2026", "'02/03/2026' is not an ISO")):
+        p.write_text(f"robot_id,timestamp,path,robot\nR1,{value},a.npz,planar2\n")
+        with pytest.raises(InputError, match=f"column timestamp, row 1: {shown}"):
+            read_catalogue(p)
     p.write_text("robot_id,timestamp,path,robot,temperature2\nR1,2026-01-01T00:00:00Z,a.npz,planar2,warm\n")
     with pytest.raises(InputError, match="column temperature2, row 1"):
         read_catalogue(p)
