@@ -72,7 +72,8 @@ def parameter_records(names, value, std, rel_std, prismatic=frozenset()) -> list
 
 
 def percent(fraction, digits: int = 2) -> str:
-    """A relative error (a fraction) as a percentage: `0.0433888` -> `"4.34 %"`.
+    """A relative error (a fraction) as a percentage: `0.0433888` -> `"4.34 %"`; beyond
+    10^6 % in 3 significant digits (`"2.52e+31 %"`: a model off by that much is read by its order).
 
     Returns
     -------
@@ -82,6 +83,8 @@ def percent(fraction, digits: int = 2) -> str:
     x = float(fraction)
     if not math.isfinite(x):
         return "nan" if math.isnan(x) else "inf"
+    if abs(x) >= 1e4:
+        return f"{100.0 * x:.3g} %"
     return f"{100.0 * x:.{digits}f} %"
 
 

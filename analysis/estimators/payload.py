@@ -457,6 +457,35 @@ def _json_covariance(matrix, n):
     return 0.5 * (cov + cov.T)
 
 
+def _json_rows(rows, src, key):
+    """(names, values, std) of a result JSON's parameter records, each checked: a name that is
+    not text, a repeated name or a value that is not a number is refused, naming the record."""
+    names, values, std, seen = [], [], [], set()
+    for k, r in enumerate(rows):
+        name = r.get("name")
+        if not isinstance(name, str) or not name:
+            raise InputError(f"{src}: {key}[{k}].name is {name!r}, not a parameter name; pass the JSON written "
+                             "by dynid identify --json, unedited")
+        if name in seen:
+            raise InputError(f"{src}: {key} lists {name} twice; pass the JSON written by dynid identify "
+                             "--json, unedited")
+        seen.add(name)
+        row = []
+        for field_, absent in (("value", np.nan), ("std", 0.0)):
+            v = r.get(field_)
+            if v is None:
+                row.append(absent)
+            elif isinstance(v, bool) or not isinstance(v, (int, float)):
+                raise InputError(f"{src}: {key}[{k}] ({name}): {field_} is {v!r}, not a number; pass the JSON "
+                                 "written by dynid identify --json, unedited")
+            else:
+                row.append(float(v))
+        names.append(name)
+        values.append(row[0])
+        std.append(row[1])
+    return names, np.array(values, dtype=float), np.array(std, dtype=float)
+
+
 def _model_vector(model, robot, bp, notices):
     """(beta (b,), cov (b, b), source, the model's relative error on its own data or NaN) of an
     identified robot: a dynid result, its dict or JSON file. The covariance is the one the result
@@ -485,9 +514,17 @@ def _model_vector(model, robot, bp, notices):
             raise InputError(f"{src} identifies robot '{model.get('robot')}', not '{robot.name}'")
         _check_signature(model.get("robot_signature"), robot, src,
                          (model.get("gravity_tilt") or {}).get("gravity"))
-        names = [r["name"] for r in rows]
-        values = np.array([np.nan if r.get("value") is None else r["value"] for r in rows], dtype=float)
-        std = np.array([0.0 if r.get("std") is None else r["std"] for r in rows], dtype=float)
+        names, values, std = _json_rows(rows, src, "wls.parameters" if rows is wls.get("parameters") else "parameters")
+        if rows is wls.get("parameters"):
+            # the WLS lists every base parameter: one missing is an edited or foreign file, not a 0
+            missing = [nm for nm in bp.names if nm not in set(names)]
+            if missing:
+                raise InputError(f"{src}: wls.parameters lacks the base parameter(s) {', '.join(missing[:5])}"
+                                 f"{' ...' if len(missing) > 5 else ''} of robot '{robot.name}' (an edited file, or "
+                                 "one of another robot); pass the JSON written by dynid identify --json, unedited")
+        if model.get("robot_signature") is None:
+            notices.append(f"{src} has no robot_signature (written by an earlier dynid, or edited): whether it "
+                           f"identified this robot file's kinematics and gravity is not checked")
         given = wls.get("covariance") if rows is wls.get("parameters") else None
         cov = _json_covariance(given, len(names))
         if cov is not None:

@@ -93,6 +93,30 @@ def test_a_model_json_whose_covariance_is_not_one_is_refused(planar2, tmp_path):
         dynid.identify_payload(loaded, tx40, model=doc)
 
 
+def test_an_edited_model_json_is_refused_naming_the_record(tmp_path):
+    """A value that is not a number or a name that is not text crashed (exit 1); a repeated name was
+    summed into one parameter and a missing one taken as 0, without a word."""
+    import copy
+    tx40 = dynid.load_robot("tx40")
+    loaded = dynid.simulate(tx40, 4.0, seed=2, payload=(2.0, (0, 0, 0.05)))
+    doc = dynid.run(dynid.simulate(tx40, 4.0, seed=1), tx40).to_dict()
+    first = doc["wls"]["parameters"][0]["name"]
+    cases = [(lambda d: d["wls"]["parameters"][0].update(value="abc"), rf"wls.parameters\[0\] \({first}\): value is 'abc'"),
+             (lambda d: d["wls"]["parameters"][0].update(value=True), "value is True, not a number"),
+             (lambda d: d["wls"]["parameters"][0].update(name=5), r"wls.parameters\[0\].name is 5"),
+             (lambda d: d["wls"]["parameters"].append(dict(d["wls"]["parameters"][0])), f"lists {first} twice"),
+             (lambda d: d["wls"]["parameters"].pop(0), f"lacks the base parameter\\(s\\) {first} of robot 'tx40'")]
+    for edit, message in cases:
+        bad = copy.deepcopy(doc)
+        edit(bad)
+        with pytest.raises(InputError, match=message):
+            dynid.identify_payload(loaded, tx40, model=bad)
+    unsigned = copy.deepcopy(doc)
+    unsigned["robot_signature"] = None
+    res = dynid.identify_payload(loaded, tx40, model=unsigned, max_rel_halfwidth=10.0)   # 4 s: a wide payload
+    assert any("no robot_signature" in n for n in res.notices)
+
+
 def test_one_recording_shifted_by_a_sample_is_not_a_second_recording(planar2):
     robot, rec, _ = planar2
     exp = rec.experiment
