@@ -163,8 +163,13 @@ def _spatial_inertia(link, where, path):
     if I_el is None:
         raise RobotFileError(f"{path}: {where} has <inertial> without <inertia>; add <inertia ixx=... />")
     vals = {}
+    missing = [key for key in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz") if I_el.get(key) is None]
+    if missing:
+        # as urdfdom: a missing moment read as 0 would be a wrong a-priori value, not a default
+        raise RobotFileError(f"{path}: {where} <inertia> has no {', '.join(missing)}; URDF needs all six "
+                             f"(ixx ixy ixz iyy iyz izz, kg m^2): add the missing one(s), 0 where a product of inertia is 0")
     for key in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz"):
-        vals[key] = _floats(I_el.get(key, "0"), 1, f"{where} inertia {key}", path)[0]
+        vals[key] = _floats(I_el.get(key), 1, f"{where} inertia {key}", path)[0]
         if abs(vals[key]) > MAX_INERTIA:
             raise RobotFileError(f"{path}: {where} inertia {key} = {vals[key]:g} kg m^2 is beyond the "
                                  f"{MAX_INERTIA:g} kg m^2 dynid accepts; check the number and its "

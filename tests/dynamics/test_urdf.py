@@ -819,3 +819,12 @@ def test_a_rounded_right_angle_gives_pinocchios_dynamics_of_the_exact_angle(tmp_
     assert_same_dynamics_as_pinocchio(rounded, write(tmp_path, _right_angle_arm(f"{np.pi / 2!r} 0 0"), "exact.urdf"))
     with pytest.raises(AssertionError):
         assert_same_dynamics_as_pinocchio(rounded, write(tmp_path, _right_angle_arm("1.5708 0 0"), "literal.urdf"))
+
+
+def test_a_missing_inertia_moment_is_refused_not_read_as_zero(tmp_path):
+    """As urdfdom: an <inertia> without ixx gave the a-priori XX of that link 0 (exit 0)."""
+    text = SMALL.replace('<inertia ixx="0.002" ', '<inertia ', 1)
+    assert text != SMALL
+    with pytest.raises(RobotFileError) as exc:
+        read_urdf(write(tmp_path, text, "noixx.urdf"))
+    assert_helpful(exc, "noixx.urdf", "'l2'", "has no ixx", "all six")
