@@ -42,6 +42,9 @@ LOW_RATE = 10.0
 SLOW_FRACTION = 0.01
 #: 99th-percentile |dq/dt| above this × qd_max: a notice.
 FAST_FACTOR = 10.0
+#: ... and above this × qd_max: an error (no arm moves 100 times faster than its limit: the time
+#: column's unit or scale, or the robot file's qd_max, is wrong).
+FAST_REFUSE = 100.0
 #: A position sample that steps away and back by more than this × the column's mean |step|, and by
 #: more than JUMP_MIN (rad, or m), is a glitch: a notice. On the real TX40, LWR4+ and Panda logs the
 #: largest such step is 0.1 × the mean step, on dynid's simulated TX40 (4e-5 rad noise) 0.8 ×.
@@ -341,6 +344,14 @@ def check_rate(t: np.ndarray, signals: dict, robot, time_where: str, notices: li
                 f"experiment TOML: [time] scale = {scale:g})."
             )
         notices.append(f"{head}, low for dynamic identification: is t in s (not ms)?")
+    worst = max(known, key=lambda i: speed[i] / qd_max[i], default=None)
+    if worst is not None and speed[worst] > FAST_REFUSE * qd_max[worst]:
+        raise DataError(
+            f"{time_where}: with this time column joint {worst + 1} moves at {_g(speed[worst])} rad/s "
+            f"(99th percentile), {speed[worst] / qd_max[worst]:.0f}× its qd_max {_g(qd_max[worst])} rad/s, "
+            f"which no arm does: check the time column's unit and scale (s; in an experiment TOML "
+            f"[time] scale or sampling_rate), the positions' unit (rad), and the robot file's qd_max"
+        )
     for j in known:
         if speed[j] > FAST_FACTOR * qd_max[j]:
             notices.append(

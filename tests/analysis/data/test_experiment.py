@@ -1459,6 +1459,19 @@ def test_time_in_ms_is_refused(tmp_path):
     assert "column 't'" in msg and "ms" in msg and "qd_max" in msg
 
 
+def test_time_a_thousand_times_too_fast_is_refused(tmp_path):
+    """The converse of ms: a time column scaled by 1e-3 gave joints 1000x their qd_max and only a
+    notice; no arm moves 100x faster than its limit."""
+    df = smooth()
+    df["t"] *= 1e-3
+    msg = err(csv_of(df, tmp_path), robot=limited_robot())
+    assert "column 't'" in msg and "× its qd_max" in msg and "[time] scale" in msg
+    df = smooth()
+    df["t"] *= 0.02             # 20x qd_max: a notice still (a robot file's qd_max may be conservative)
+    e = load_experiment(csv_of(df, tmp_path), limited_robot())
+    assert any("× its qd_max" in m for m in e.notices)
+
+
 def test_impossible_single_torque_sample_names_the_row(tmp_path):
     df = smooth()
     df.loc[777, "tau1"] = 1e6
