@@ -426,6 +426,7 @@ class _Description:
             if side not in ("joint", "motor"):
                 raise self.tk.err(s, f"side must be \"joint\" or \"motor\", got {side!r}.")
             sides[s] = side
+        _check_distinct_columns(section_cols, self.tk)
         return values, sides, section_cols
 
     def _joint_count(self, values, section_cols) -> int:
@@ -611,6 +612,28 @@ class _Description:
 
 def _available(raw: _RawFile) -> str:
     return _short_list([f"'{x}'" for x in raw.arrays], 15)
+
+
+def _check_distinct_columns(section_cols: dict, tk: _Toml) -> None:
+    """One column feeds one signal of one joint: a column named twice (in two sections, or
+    twice in one) is a slip of the description, which the fit would take for data."""
+    seen = {}
+
+    def keys(s):
+        return [(c.raw.label, c.name, c.j) for c in section_cols.get(s, [])]
+
+    # the measured positions as the reference, joint by joint: what DIDIM does without [reference]
+    same_reference = "reference" in section_cols and keys("reference") == keys("positions")
+    for s, cols in section_cols.items():
+        if s == "reference" and same_reference:
+            continue
+        for j, c in enumerate(cols):
+            key = (c.raw.label, c.name, c.j)
+            if key in seen:
+                s0, j0 = seen[key]
+                raise tk.err(s, f"joint {j + 1} reads {c.label} of {c.raw.label}, which [{s0}] already reads for "
+                                f"joint {j0 + 1}: give each signal and joint its own column.")
+            seen[key] = (s, j)
 
 
 def _check_required(sections: dict, tk: _Toml) -> None:

@@ -597,6 +597,9 @@ def test_toml_motor_side_conversion(tmp_path):
         (lambda s: s.replace("[experiment]", "[experimnt]"), ["unknown section", "[experimnt]"]),
         (lambda s: s + "oops = \n", ["not valid TOML"]),
         (lambda s: s.replace('"pos.csv"', '"missing.csv"'), ["missing.csv", "not found"]),
+        # one column fed to two signals: the fit took positions for torques without a word
+        (lambda s: s.replace('file = "cur.csv"', 'file = "pos.csv"'),
+         ["[torques]", "joint 1 reads column 'A'", "[positions] already reads for joint 1", "its own column"]),
     ],
 )
 def test_toml_errors(tmp_path, edit, words):
