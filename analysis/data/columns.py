@@ -364,6 +364,7 @@ def _assemble(
         found = spikes.result()
         _plaus.position_jumps(raw, rows, cols_of, source, found, skip=spikes.flagged(), robot=robot)
         notices[at:at] = found
+    notices += _plaus.logged_derivative_notices(t, signals, cols_of, source)
     # the rate Experiment would take from the same median step of t
     fs = float(opts.sampling_rate) if time_col is None else 1.0 / step
     exp = Experiment(

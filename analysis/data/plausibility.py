@@ -307,6 +307,54 @@ def spike_notices(signals: dict, rows, cols_of, source: str, beside=None) -> Spi
     return SpikeNotices(w, [(s, _first_spikes(signals[s])) for s in present], pending)
 
 
+#: a logged velocity whose least-squares slope against dq/dt lies outside these bounds, or whose
+#: correlation with it is below LOGGED_QD_CORR, is named (unit, sign or joint order of the logger)
+LOGGED_QD_SLOPE = (0.8, 1.25)
+LOGGED_QD_CORR = 0.9
+
+
+def logged_derivative_notices(t, signals: dict, cols_of, source: str) -> list[str]:
+    """What the logged velocities and accelerations are for: nothing in the fit (dynid derives
+    them from the positions), so a notice says so, and names a logged velocity that is not
+    dq/dt (another unit, the opposite sign, another joint's), which would otherwise go unseen.
+
+    Compared on ~100 Hz block means (the positions' quantisation and noise average out), by
+    the least-squares slope of qd on dq/dt and their correlation."""
+    q, qd, qdd = signals.get("q"), signals.get("qd"), signals.get("qdd")
+    if qd is None and qdd is None:
+        return []
+    logged = " and ".join(n for n, a in (("velocities qd", qd), ("accelerations qdd", qdd)) if a is not None)
+    out = [f"{source}: the logged {logged} are checked but not used: dynid derives them from the "
+           "low-pass-filtered positions"]
+    if qd is None or q is None or t.size < 40:
+        return out
+    fs = (t.size - 1) / float(t[-1] - t[0]) if t[-1] > t[0] else 0.0
+    k = max(1, int(round(fs / 100.0)))
+    m = (t.size // k) * k
+    if m // k < 20:
+        return out
+    n = q.shape[1]
+    tb = t[:m].reshape(-1, k).mean(axis=1)
+    qb = q[:m].reshape(-1, k, n).mean(axis=1)
+    vb = qd[:m].reshape(-1, k, n).mean(axis=1)
+    g = np.gradient(qb, tb, axis=0)
+    w = _Where(cols_of, None, source)
+    bad = []
+    for j in range(n):
+        gg = float(np.dot(g[:, j], g[:, j]))
+        if not gg > 0:
+            continue                       # a joint that does not move: nothing to compare
+        slope = float(np.dot(vb[:, j], g[:, j]) / gg)
+        with np.errstate(all="ignore"):
+            corr = float(np.corrcoef(vb[:, j], g[:, j])[0, 1])
+        if not (LOGGED_QD_SLOPE[0] <= slope <= LOGGED_QD_SLOPE[1]) or not corr >= LOGGED_QD_CORR:
+            bad.append(f"{w.name('qd', j)} is {slope:.3g} × dq{j + 1}/dt (correlation {corr:.2f})")
+    if bad:
+        out.append(f"{source}: the logged velocities are not the positions' derivative: " + "; ".join(bad)
+                   + ": check their unit (rad/s), sign and joint order; dynid does not use them")
+    return out
+
+
 def check_rate(t: np.ndarray, signals: dict, robot, time_where: str, notices: list[str],
                step: float | None = None) -> None:
     """A time column in ms (rate below LOW_RATE, joints far slower than qd_max) and

@@ -1475,6 +1475,23 @@ def test_time_a_thousand_times_too_fast_is_refused(tmp_path):
     assert any("× its qd_max" in m for m in e.notices)
 
 
+def test_logged_velocities_are_said_unused_and_named_when_not_dq_dt(tmp_path):
+    """dynid derives qd from q: a logged qd in deg/s, of the opposite sign or of another joint
+    changed nothing and said nothing; now a notice says it is unused, and names the one that
+    is not dq/dt."""
+    df = smooth()
+    df["qd1"], df["qd2"] = 2 * np.cos(2 * df["t"]), -1.5 * np.sin(3 * df["t"])      # exact derivatives
+    e = load_experiment(csv_of(df, tmp_path, "ok.csv"), limited_robot())
+    assert [m for m in e.notices if "logged" in m] == [
+        f"{tmp_path / 'ok.csv'}: the logged velocities qd are checked but not used: dynid derives them "
+        "from the low-pass-filtered positions"]
+    df["qd1"] = np.degrees(df["qd1"])
+    df["qd2"] = -df["qd2"]
+    e = load_experiment(csv_of(df, tmp_path, "bad.csv"), limited_robot())
+    named = [m for m in e.notices if "not the positions' derivative" in m]
+    assert len(named) == 1 and "column 'qd1' is 57.3 × dq1/dt" in named[0] and "column 'qd2' is -1 ×" in named[0]
+
+
 def test_impossible_single_torque_sample_names_the_row(tmp_path):
     df = smooth()
     df.loc[777, "tau1"] = 1e6
