@@ -392,8 +392,9 @@ class _Description:
             if opts.sampling_rate is None:
                 raise self.tk.err(
                     None,
-                    "no time: give [experiment] sampling_rate = ... (Hz) or a [time] section naming "
-                    "the time column.",
+                    "no time: with signal sections the time column is not found by its name; give a "
+                    "[time] section naming it (e.g. [time] column = \"t\") or [experiment] sampling_rate = "
+                    "... (Hz).",
                 )
             return None, None
         tt = tables["time"]
@@ -725,6 +726,10 @@ def _reference_shift(sections: dict, tk: _Toml):
     min_shift = tk.integer("reference", rt, "min_shift", None)
     if min_shift is not None and max_shift is not None and min_shift > max_shift:
         raise tk.err("reference", f"min_shift = {min_shift} exceeds max_shift = {max_shift}.")
+    if shift != "estimate" and (min_shift is not None or max_shift is not None):
+        given = " and ".join(k for k, v in (("min_shift", min_shift), ("max_shift", max_shift)) if v is not None)
+        raise tk.err("reference", f"{given} bound(s) the search of shift = \"estimate\", and shift = {shift} is "
+                                  f"given: remove {given}, or set shift = \"estimate\".")
     return (None if shift == 0 else shift), min_shift, max_shift
 
 

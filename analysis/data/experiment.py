@@ -82,6 +82,9 @@ def load_experiment(path, robot=None, *, n_joints: int | None = None) -> Experim
     ext = p.suffix.lower()
     if ext == ".toml":
         return _load_toml(p, label, robot, n_joints)
+    if p.is_dir():
+        raise DataError(f"{label} is a folder, not a recording: give a data file (.csv, .parquet, .npz, .mat) "
+                        "or an experiment description (.toml) in it")
     if ext not in _READERS:
         if not p.exists():
             raise DataError(

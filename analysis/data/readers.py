@@ -136,7 +136,9 @@ def _read_bytes(path: Path, label: str) -> bytes:
     except OSError as e:
         raise DataError(f"{label} cannot be read: {e.strerror or e}.") from None
     if not data.strip():
-        raise DataError(f"{label} is empty. Export the recording again.")
+        what = ("Write the experiment description (docs/formats.md, \"Experiment description (TOML)\")"
+                if str(label).lower().endswith(".toml") else "Export the recording again")
+        raise DataError(f"{label} is empty. {what}.")
     return data
 
 

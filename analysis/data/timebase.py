@@ -136,9 +136,11 @@ def _check_time(t: np.ndarray, col: _Col, rows: np.ndarray, opts: _Options,
         f"{col.where}: irregular time steps: the median step is {_fmt(med * 1e3)} ms but "
         f"the step to {col.raw.row(rows[k + 1])} from the row before is {_fmt(dt[k] * 1e3)} ms "
         f"({dev[k]:.1%} off; the tolerance is {tol:.2%}). {n_off} of {dt.size} "
-        f"steps are off by more than the tolerance.{gap_text} Resample the data onto a "
-        "uniform time grid, or load it through an experiment TOML with `resample = true` "
-        "in [experiment] (linear interpolation at the median step)."
+        f"steps are off by more than the tolerance.{gap_text} "
+        + (f"Set `resample = true` in {opts.where} (linear interpolation at the median step)."
+           if opts.where.endswith("[experiment]") else
+           "Resample the data onto a uniform time grid, or load it through an experiment TOML with "
+           "`resample = true` in [experiment] (linear interpolation at the median step).")
     )
 
 

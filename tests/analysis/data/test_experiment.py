@@ -686,6 +686,15 @@ def test_toml_shift_estimate_and_fixed(tmp_path):
     msg = err(write(tmp_path, "s3.toml", base.replace('[positions]\nkey = "pos"\n', "")
                     + 'shift = "estimate"\n'))
     assert "s3.toml" in msg and "[reference]" in msg and "[positions]" in msg
+    # bounds of a search that does not run were ignored without a word
+    msg = err(write(tmp_path, "s4.toml", base + f"shift = {L}\nmax_shift = 5\n"))
+    assert "s4.toml" in msg and "max_shift" in msg and 'shift = \"estimate\"' in msg
+
+
+def test_a_folder_or_an_empty_description_is_named_for_what_it_is(tmp_path):
+    assert "is a folder, not a recording" in err(tmp_path)
+    msg = err(write(tmp_path, "e.toml", "\n"))
+    assert "e.toml is empty" in msg and "experiment description" in msg and "Export" not in msg
 
 
 def test_estimate_shift_both_signs():
