@@ -44,6 +44,9 @@ MAX_NESTING = 32                  # depth of TOML tables/arrays (tx40.toml uses 
 MAX_ANGLE = 2 * math.pi           # rad: |alpha|, |theta| of an MDH row (one turn; 90 or 180 is degrees)
 MAX_TRAVEL = 1e4                  # rad or m: |joint limit| when finite (infinite: no limit)
 MAX_SPEED = 1e4                   # rad/s or m/s: qd_max when finite (a fast arm joint: ~10 rad/s)
+# rad/s or m/s: the smallest qd_max (0.06 deg/s; a slow heavy joint turns at ~0.5 rad/s): below it
+# the loader's speed checks would blame the recording's time column for the robot file's limit
+MIN_SPEED = 1e-3
 MAX_ACCEL = 1e6                   # rad/s^2 or m/s^2: qdd_max when finite
 MAX_EFFORT = 1e7                  # N m or N: tau_max when finite (the largest arms: ~1e5 N m)
 

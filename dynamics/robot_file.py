@@ -82,6 +82,7 @@ from .robot_checks import (  # noqa: F401  (MAX_*, check_name, read_limited, sho
     MIN_J_AP,
     MIN_RATE,
     MIN_RATIO,
+    MIN_SPEED,
     Number,
     check_name,
     check_text,
@@ -106,7 +107,7 @@ _RATIO = Number(positive=True, bounds=(MIN_RATIO, MAX_RATIO))
 #: [[joints]]: modified DH row (Khalil-Kleinfinger), limits and drive gain
 JOINT_FIELDS = {
     "alpha": _ANGLE, "d": _LENGTH, "theta": _ANGLE, "r": _LENGTH,
-    "qd_max": Number(positive=True, allow_inf=True, bounds=(0, MAX_SPEED)),
+    "qd_max": Number(unit=" rad/s (m/s)", positive=True, allow_inf=True, bounds=(MIN_SPEED, MAX_SPEED)),
     "qdd_max": Number(positive=True, allow_inf=True, bounds=(0, MAX_ACCEL)),
     "tau_max": Number(positive=True, allow_inf=True, bounds=(0, MAX_EFFORT)),
     "drive_gain": Number(bounds=(MIN_RATIO, MAX_RATIO)),

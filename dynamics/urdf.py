@@ -54,7 +54,17 @@ import numpy as np
 from dynid.errors import RobotFileError
 
 from .robot import Joint, Robot
-from .robot_checks import MAX_INERTIA, MAX_JOINTS, MAX_LENGTH, MAX_MASS, MAX_URDF_LINKS, check_name, read_limited, shown
+from .robot_checks import (
+    MAX_INERTIA,
+    MAX_JOINTS,
+    MAX_LENGTH,
+    MAX_MASS,
+    MAX_URDF_LINKS,
+    MIN_SPEED,
+    check_name,
+    read_limited,
+    shown,
+)
 
 _MOVING = {"revolute": 0, "continuous": 0, "prismatic": 1}
 _UNSUPPORTED = {"floating", "planar"}          # valid URDF, but not a joint dynid can model
@@ -686,6 +696,10 @@ def _limits(joint, j, path):
             if v < 0:
                 raise RobotFileError(f"{path}: joint '{name}' limit {key} = {v:g} is negative; a "
                                      f"{key} limit must be positive (0 for none): fix it")
+            if key == "velocity" and 0 < v < MIN_SPEED:
+                raise RobotFileError(f"{path}: joint '{name}' limit velocity = {v:g} is too small for a joint "
+                                     f"(at least {MIN_SPEED:g} rad/s or m/s; 0 for none): check the number and "
+                                     "its unit")
             if v > 0:
                 setattr(joint, attr, v)
 
