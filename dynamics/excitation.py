@@ -320,6 +320,9 @@ class ExcitationResult:
 #: a design whose (scaled) condition number is above this is rank-deficient, not poor: the
 #: optimised designs of the module docstring reach 8-9 and random ones 31-170
 MAX_COND = 1e8
+#: rad (or m): an excitation whose every joint moves less than this within one period is pinned by
+#: the limits (a high f0), not short of harmonics
+SMALL_SPAN = 0.05
 
 
 def design_excitation(robot, f0, n_harmonics, *, n_starts=4, criterion="cond", chi=None, rng=None,
@@ -424,11 +427,17 @@ def _design(robot, f0, n_harmonics, *, n_starts, criterion, chi, rng, max_iter, 
         traj, c_res = best_start[1], best_start[2]
         marg = limit_margins(robot, traj, chi_st, n_check=n_check)
     if not c_res[cond_key] <= MAX_COND:
+        span = np.ptp(traj.evaluate(np.linspace(0.0, 1.0 / f0, 400))[0], axis=0)
+        why = (f"its {N} harmonic(s) per joint cannot move the {bp.n_base} base parameters' columns "
+               f"independently, and no recording along it could identify them; raise the harmonics "
+               f"(--harmonics, n_harmonics=)")
+        if float(np.max(span)) < SMALL_SPAN:
+            # at a high f0 the speed and acceleration limits leave no room: more harmonics would not help
+            why = (f"within the robot file's speed and acceleration limits (qd_max, qdd_max) the joints move "
+                   f"over {float(np.max(span)):.2g} rad at most at this f0, too little to separate the "
+                   f"{bp.n_base} base parameters; lower f0 (--f0, f0=), or check those limits")
         raise InputError(f"robot {robot.name}: the best excitation of {N} harmonic(s) at f0 = {f0:g} Hz leaves "
-                         f"the regressor rank-deficient (cond {c_res[cond_key]:.2g}): its {N} harmonic(s) per "
-                         f"joint cannot move the {bp.n_base} base parameters' columns independently, and "
-                         f"no recording along it could identify them; raise the harmonics (--harmonics, "
-                         f"n_harmonics=)")
+                         f"the regressor rank-deficient (cond {c_res[cond_key]:.2g}): {why}")
     return ExcitationResult(
         trajectory=traj, robot_name=robot.name, joint_names=list(robot.joint_names),
         criterion=criterion, scaling=scaling, margin=margin, cond_name=cond_name,

@@ -231,6 +231,9 @@ def test_a_design_that_cannot_identify_the_robot_is_refused():
     with pytest.raises(InputError, match=r"rank-deficient \(cond .*e\+1.\).*raise the harmonics"):
         design_excitation(robot, 0.2, 1, n_starts=1, rng=0)
     assert design_excitation(robot, 0.2, 2, n_starts=1, rng=0).cond_result < 1e3
+    # at 50 Hz the speed and acceleration limits pin the joints (0.2 mrad): more harmonics would not help
+    with pytest.raises(InputError, match=r"rank-deficient.*move over .* rad at most at this f0.*lower f0"):
+        design_excitation(robot, 50.0, 2, n_starts=1, rng=0)
 
 
 def test_a_robot_without_apriori_values_gets_no_torque_check():
