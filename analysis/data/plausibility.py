@@ -25,6 +25,7 @@ import math
 import numpy as np
 
 from dynid.analysis.data.spikes import SPIKE_FACTOR, jumps_of_columns, spikes_of_columns
+from dynid.analysis.units import prismatic_joints
 from dynid.errors import DataError
 
 #: |value| above which a signal cell is refused.
@@ -311,48 +312,77 @@ def spike_notices(signals: dict, rows, cols_of, source: str, beside=None) -> Spi
 #: correlation with it is below LOGGED_QD_CORR, is named (unit, sign or joint order of the logger)
 LOGGED_QD_SLOPE = (0.8, 1.25)
 LOGGED_QD_CORR = 0.9
+#: rad/s (or m/s): RMS of a joint's dq/dt below which it stands still (0.6 deg/s)
+STILL_SPEED = 0.01
 
 
 def logged_derivative_notices(t, signals: dict, cols_of, source: str) -> list[str]:
     """What the logged velocities and accelerations are for: nothing in the fit (dynid derives
     them from the positions), so a notice says so, and names a logged velocity that is not
-    dq/dt (another unit, the opposite sign, another joint's), which would otherwise go unseen.
-
-    Compared on ~100 Hz block means (the positions' quantisation and noise average out), by
-    the least-squares slope of qd on dq/dt and their correlation."""
+    dq/dt (another unit, the opposite sign, another joint's), which would otherwise go unseen
+    (`velocity_mismatches`)."""
     q, qd, qdd = signals.get("q"), signals.get("qd"), signals.get("qdd")
     if qd is None and qdd is None:
         return []
     logged = " and ".join(n for n, a in (("velocities qd", qd), ("accelerations qdd", qdd)) if a is not None)
-    out = [f"{source}: the logged {logged} are checked but not used: dynid derives them from the "
-           "low-pass-filtered positions"]
-    if qd is None or q is None or t.size < 40:
-        return out
-    fs = (t.size - 1) / float(t[-1] - t[0]) if t[-1] > t[0] else 0.0
-    k = max(1, int(round(fs / 100.0)))
-    m = (t.size // k) * k
-    if m // k < 20:
-        return out
-    n = q.shape[1]
-    tb = t[:m].reshape(-1, k).mean(axis=1)
-    qb = q[:m].reshape(-1, k, n).mean(axis=1)
-    vb = qd[:m].reshape(-1, k, n).mean(axis=1)
-    g = np.gradient(qb, tb, axis=0)
-    w = _Where(cols_of, None, source)
-    bad = []
-    for j in range(n):
-        gg = float(np.dot(g[:, j], g[:, j]))
-        if not gg > 0:
-            continue                       # a joint that does not move: nothing to compare
-        slope = float(np.dot(vb[:, j], g[:, j]) / gg)
-        with np.errstate(all="ignore"):
-            corr = float(np.corrcoef(vb[:, j], g[:, j])[0, 1])
-        if not (LOGGED_QD_SLOPE[0] <= slope <= LOGGED_QD_SLOPE[1]) or not corr >= LOGGED_QD_CORR:
-            bad.append(f"{w.name('qd', j)} is {slope:.3g} × dq{j + 1}/dt (correlation {corr:.2f})")
+    out = [f"{source}: the logged {logged} are not used: dynid derives them from the low-pass-filtered "
+           "positions"]
+    bad = [] if qd is None or q is None else velocity_mismatches(t, q, qd)
     if bad:
-        out.append(f"{source}: the logged velocities are not the positions' derivative: " + "; ".join(bad)
+        w = _Where(cols_of, None, source)
+        out.append(f"{source}: the logged velocities are not the positions' derivative: "
+                   + "; ".join(f"{w.name('qd', j)} is {slope:.3g} × dq{j + 1}/dt (correlation {corr:.2f})"
+                               for j, slope, corr in bad)
                    + ": check their unit (rad/s), sign and joint order; dynid does not use them")
     return out
+
+
+def velocity_mismatches(t, q, qd) -> list:
+    """(joint, slope, correlation) of each moving joint whose logged velocity is not dq/dt: the
+    least-squares slope of qd on dq/dt outside `LOGGED_QD_SLOPE`, or their correlation below
+    `LOGGED_QD_CORR`. Compared on ~100 Hz block means (quantisation and noise average out); a
+    joint whose dq/dt has an RMS below `STILL_SPEED` stands still and is not compared (its
+    encoder noise is no velocity to compare with)."""
+    if t.size < 40 or not t[-1] > t[0]:
+        return []
+    k = max(1, int(round((t.size - 1) / float(t[-1] - t[0]) / 100.0)))
+    m = (t.size // k) * k
+    if m // k < 20:
+        return []
+    n = q.shape[1]
+    g = np.gradient(q[:m].reshape(-1, k, n).mean(axis=1), t[:m].reshape(-1, k).mean(axis=1), axis=0)
+    v = qd[:m].reshape(-1, k, n).mean(axis=1)
+    out = []
+    for j in range(n):
+        gj, vj = g[:, j], v[:, j]
+        if not (np.all(np.isfinite(vj)) and np.sqrt(np.mean(gj ** 2)) >= STILL_SPEED):
+            continue
+        slope = float(np.dot(vj, gj) / np.dot(gj, gj))
+        corr = float(np.corrcoef(vj, gj)[0, 1]) if np.std(vj) > 0 else 0.0
+        if not (LOGGED_QD_SLOPE[0] <= slope <= LOGGED_QD_SLOPE[1]) or not corr >= LOGGED_QD_CORR:
+            out.append((j, slope, corr))
+    return out
+
+
+def _refuse_too_fast(robot, known, speed, qd_max, time_where) -> None:
+    """A DataError when most joints with a qd_max move more than FAST_REFUSE times it: a time
+    column's unit or scale slip speeds up every joint alike, where one fast joint is a glitch,
+    a motor-side encoder or a placeholder limit (the notice of `check_rate`)."""
+    fast = [j for j in known if speed[j] > FAST_REFUSE * qd_max[j]]
+    if 2 * len(fast) <= len(known):
+        return
+    prismatic = prismatic_joints(robot)
+
+    def unit(j):
+        return "m/s" if j + 1 in prismatic else "rad/s"
+
+    raise DataError(
+        f"{time_where}: with this time column " + ", ".join(
+            f"joint {j + 1} moves at {_g(speed[j])} {unit(j)} ({speed[j] / qd_max[j]:.0f}× its qd_max "
+            f"{_g(qd_max[j])} {unit(j)})" for j in fast)
+        + " (99th percentiles), which no arm does: check the time column's unit and scale (s; in an "
+          "experiment TOML [time] scale or sampling_rate), the positions' unit (rad, or m; motor-side "
+          "encoders: side = \"motor\" and gear_ratios in the TOML), and the robot file's qd_max")
 
 
 def check_rate(t: np.ndarray, signals: dict, robot, time_where: str, notices: list[str],
@@ -392,14 +422,7 @@ def check_rate(t: np.ndarray, signals: dict, robot, time_where: str, notices: li
                 f"experiment TOML: [time] scale = {scale:g})."
             )
         notices.append(f"{head}, low for dynamic identification: is t in s (not ms)?")
-    worst = max(known, key=lambda i: speed[i] / qd_max[i], default=None)
-    if worst is not None and speed[worst] > FAST_REFUSE * qd_max[worst]:
-        raise DataError(
-            f"{time_where}: with this time column joint {worst + 1} moves at {_g(speed[worst])} rad/s "
-            f"(99th percentile), {speed[worst] / qd_max[worst]:.0f}× its qd_max {_g(qd_max[worst])} rad/s, "
-            f"which no arm does: check the time column's unit and scale (s; in an experiment TOML "
-            f"[time] scale or sampling_rate), the positions' unit (rad), and the robot file's qd_max"
-        )
+    _refuse_too_fast(robot, known, speed, qd_max, time_where)
     for j in known:
         if speed[j] > FAST_FACTOR * qd_max[j]:
             notices.append(

@@ -1479,6 +1479,10 @@ def test_time_a_thousand_times_too_fast_is_refused(tmp_path):
     msg = err(csv_of(df, tmp_path), robot=limited_robot())
     assert "column 't'" in msg and "× its qd_max" in msg and "[time] scale" in msg
     df = smooth()
+    df.loc[::50, "q2"] = 0.0     # dropped frames on one joint: its 99th-percentile speed, not the time, is off
+    e = load_experiment(csv_of(df, tmp_path, "glitch.csv"), limited_robot())
+    assert any("joint 2" in m and "× its qd_max" in m for m in e.notices)
+    df = smooth()
     df["t"] *= 0.02             # 20x qd_max: a notice still (a robot file's qd_max may be conservative)
     e = load_experiment(csv_of(df, tmp_path), limited_robot())
     assert any("× its qd_max" in m for m in e.notices)
@@ -1492,13 +1496,19 @@ def test_logged_velocities_are_said_unused_and_named_when_not_dq_dt(tmp_path):
     df["qd1"], df["qd2"] = 2 * np.cos(2 * df["t"]), -1.5 * np.sin(3 * df["t"])      # exact derivatives
     e = load_experiment(csv_of(df, tmp_path, "ok.csv"), limited_robot())
     assert [m for m in e.notices if "logged" in m] == [
-        f"{tmp_path / 'ok.csv'}: the logged velocities qd are checked but not used: dynid derives them "
+        f"{tmp_path / 'ok.csv'}: the logged velocities qd are not used: dynid derives them "
         "from the low-pass-filtered positions"]
     df["qd1"] = np.degrees(df["qd1"])
     df["qd2"] = -df["qd2"]
     e = load_experiment(csv_of(df, tmp_path, "bad.csv"), limited_robot())
     named = [m for m in e.notices if "not the positions' derivative" in m]
     assert len(named) == 1 and "column 'qd1' is 57.3 × dq1/dt" in named[0] and "column 'qd2' is -1 ×" in named[0]
+    # a joint that stands still (encoder noise only) is not compared: its noise is no velocity
+    df["q2"] = 0.3 + 1e-6 * np.random.default_rng(0).standard_normal(len(df))
+    df["qd2"] = 0.0
+    e = load_experiment(csv_of(df, tmp_path, "still.csv"), limited_robot())
+    named = [m for m in e.notices if "not the positions' derivative" in m]
+    assert len(named) == 1 and "qd2" not in named[0]
 
 
 def test_impossible_single_torque_sample_names_the_row(tmp_path):
