@@ -246,8 +246,11 @@ def profile_physical(robot, bp, x_hat, cov, n_base, *, interval_cov=None, uncert
 
     with `cov(beta_pc)` the covariance of the PC fit's bootstrap refits (`boot_cov`: the
     sampling covariance if the truth sat on the active constraints; `cov_bb` itself when
-    `n_boot = 0`, which gives back `cov_tt`). The sigma reported for theta
-    (`EffectsFit.effects`) is never below the unconstrained one, the rule of the base
+    `n_boot = 0`, which gives back `cov_tt`). That independence holds for eq. (14)'s covariance;
+    under a robust `interval_cov` S, u and `beta_hat` correlate (`S_bu = S_bt - S_bb K^T`), and
+    the cross term `C + C^T`, `C = K cov(beta_pc) S_bb^-1 S_bu`, is added (beta_pc regressed on
+    beta_hat: exact when no constraint is active, where the sum is S_tt). The sigma reported for
+    theta (`EffectsFit.effects`) is never below the unconstrained one, the rule of the base
     parameters' (`interval_covariance`).
     """
     b = int(n_base)
@@ -259,9 +262,14 @@ def profile_physical(robot, bp, x_hat, cov, n_base, *, interval_cov=None, uncert
     K = np.linalg.solve(cov_bb, cov[:b, b:]).T
     theta = x_hat[b:] + K @ (np.asarray(pc.chi, float) - x_hat[:b])
     cov_pc = S_bb if pc.boot_cov is None else np.asarray(pc.boot_cov, float)
-    # cov(u), u = theta_hat - K beta_hat, under S: S_tt - K S_bt when S is eq. (14)'s covariance
+    # u = theta_hat - K beta_hat under S. With S eq. (14)'s covariance, cov(beta_hat, u) = 0 and
+    # cov_u = S_tt - K S_bt; under a robust S they correlate, and cov(beta_pc, u) is taken as
+    # cov_pc S_bb^-1 cov(beta_hat, u) (beta_pc regressed on beta_hat), which gives S_tt back when
+    # no constraint is active (beta_pc = beta_hat) and 0 for S = cov
+    S_bu = S[:b, b:] - S_bb @ K.T
     cov_u = S[b:, b:] - K @ S[:b, b:] - S[b:, :b] @ K.T + K @ S_bb @ K.T
-    cov_t = cov_u + K @ cov_pc @ K.T
+    C = K @ cov_pc @ np.linalg.solve(S_bb, S_bu)
+    cov_t = cov_u + K @ cov_pc @ K.T + C + C.T
     return pc, theta, 0.5 * (cov_t + cov_t.T)
 
 

@@ -147,3 +147,23 @@ def test_pc_effect_covariance_matches_a_monte_carlo_of_the_profiled_fit():
     ratio = np.diag(cov3) / np.diag(mc)
     assert np.all(np.abs(ratio - 1) < 0.25), ratio            # sampling error ~ 7 % (800 draws, 2000 refits)
     assert np.all(np.diag(mc) < 0.75 * np.diag(cov[b:, b:]))  # the constraint does shrink theta
+
+
+def test_effects_pc_covariance_under_a_robust_covariance_keeps_the_cross_term():
+    """Eq. (3) under a robust covariance S (the bootstrap's): u = theta_hat - K beta_hat and
+    beta_hat correlate; without the refits (n_boot = 0, cov(beta_pc) = S_bb) the effects'
+    covariance must be S_tt itself, which the sum without the cross term is not."""
+    from dynid.analysis.diagnosis.physical_fit import profile_physical
+    from dynid.analysis.estimators.standard_set import apriori_standard
+    from dynid.dynamics.base_parameters import base_parameters
+    robot = dynid.load_robot("tx40")
+    bp = base_parameters(robot)
+    beta = bp.matrix @ apriori_standard(robot)
+    b, rng = len(beta), np.random.default_rng(0)
+    A, B = rng.normal(size=(2, b + 2, b + 2))
+    cov, S = A @ A.T * 1e-6 + 1e-6 * np.eye(b + 2), B @ B.T * 2e-6 + 1e-6 * np.eye(b + 2)
+    x = np.concatenate([beta, [0.1, -0.2]])
+    _, _, cov_t = profile_physical(robot, bp, x, cov, b, interval_cov=S, uncertainty="bootstrap", n_boot=0)
+    np.testing.assert_allclose(cov_t, S[b:, b:], rtol=1e-9, atol=1e-15)
+    _, _, cov_c = profile_physical(robot, bp, x, cov, b, n_boot=0)
+    np.testing.assert_allclose(cov_c, cov[b:, b:], rtol=1e-9, atol=1e-15)
