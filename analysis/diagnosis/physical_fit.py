@@ -114,9 +114,6 @@ def effect_design(experiment, robot, bp, settings, candidates):
     return np.concatenate(blocks, axis=2), eo.obs.tau, mask, names
 
 
-_SIGMA_OF = {"classic": "eq. (14)", "hac": "HAC sandwich", "bootstrap": "circular block bootstrap"}
-
-
 @dataclass(repr=False)
 class EffectsFit(Result):
     """The WLS of `[W, C]` and, when asked, its physically consistent counterpart.
@@ -157,7 +154,7 @@ class EffectsFit(Result):
     @property
     def sigma_label(self) -> str:
         """What the sigma are: the covariance option's name, as the summary and the report say it."""
-        return _SIGMA_OF.get(self.uncertainty, self.uncertainty)
+        return ls.UNCERTAINTY_WORDS.get(self.uncertainty, self.uncertainty)
 
     @property
     def effect_names(self):

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from dynid.analysis.diagnosis.effects import order_text
+from dynid.analysis.estimators import least_squares as ls
 from dynid.analysis.results import notices_block, p_value_text
 from dynid.analysis.units import parameter_unit, prismatic_of
 
@@ -131,11 +132,13 @@ def effect_unit(name, prismatic=frozenset()) -> str:
 
 def sigma_text(res) -> str:
     """What the diagnosis' sigma are: the covariance of the identification it started from
-    (`settings["parameters_uncertainty"]`), in words."""
+    (`settings["parameters_uncertainty"]`), in words, and whether the bias of the base
+    parameters the final model leaves out was added (`selection.py`, `_reported_fit`)."""
     unc = (getattr(res, "settings", None) or {}).get("parameters_uncertainty", "classic")
-    return {"classic": "eq. (14)",
-            "hac": "HAC sandwich, with the bias of the base parameters left out",
-            "bootstrap": "circular block bootstrap, with the bias of the base parameters left out"}.get(unc, unc)
+    model = getattr(res, "model_after", None)
+    biased = "selection_bias" in ((getattr(model, "settings", None) or {}).get("least_squares", {})
+                                  .get("uncertainty", {}))
+    return ls.UNCERTAINTY_WORDS.get(unc, unc) + (", with the bias of the base parameters left out" if biased else "")
 
 
 def _selected(res):

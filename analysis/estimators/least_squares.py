@@ -37,7 +37,7 @@ from dynid.analysis.results import IdentificationResult
 from dynid.errors import IdentificationError, InputError
 from dynid.provenance import data_hash, json_safe
 
-__all__ = ["stack", "ols", "wls", "RANK_RTOL", "UNCERTAINTY", "check_uncertainty", "identifiable_columns", "Reduction", "reduce_system", "ols_reduced", "wls_reduced"]
+__all__ = ["stack", "ols", "wls", "RANK_RTOL", "UNCERTAINTY", "UNCERTAINTY_WORDS", "check_uncertainty", "identifiable_columns", "Reduction", "reduce_system", "ols_reduced", "wls_reduced"]
 
 #: Default relative tolerance of the rank check: a column-normalised W whose
 #: pivoted-QR diagonal falls below RANK_RTOL * |R_11| is declared rank-deficient.
@@ -477,6 +477,9 @@ def _raw_norms(system: _System, cols) -> np.ndarray:
 # ------------------------------------------------------------------- results
 #: The covariances an estimate can carry (option ``uncertainty``).
 UNCERTAINTY = ("classic", "hac", "bootstrap")
+
+#: the covariance options in a few words, for captions and summaries
+UNCERTAINTY_WORDS = {"classic": "eq. (14)", "hac": "HAC sandwich", "bootstrap": "circular block bootstrap"}
 
 _UNCERTAINTY_LABEL = {
     "classic": "classic: sigma_rho^2 (W'W)^-1 of eqs. (13)-(14), samples counted as independent",
