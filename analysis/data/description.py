@@ -619,17 +619,13 @@ def _check_distinct_columns(section_cols: dict, tk: _Toml) -> None:
     """One column feeds one signal of one joint: a column named twice (in two sections, or
     twice in one) is a slip of the description, which the fit would take for data."""
     seen = {}
-
-    def keys(s):
-        return [(c.raw.label, c.name, c.j) for c in section_cols.get(s, [])]
-
+    keys = {s: [(c.raw.label, c.name, c.j) for c in cols] for s, cols in section_cols.items()}
     # the measured positions as the reference, joint by joint: what DIDIM does without [reference]
-    same_reference = "reference" in section_cols and keys("reference") == keys("positions")
+    same_reference = "reference" in keys and keys["reference"] == keys.get("positions")
     for s, cols in section_cols.items():
         if s == "reference" and same_reference:
             continue
-        for j, c in enumerate(cols):
-            key = (c.raw.label, c.name, c.j)
+        for j, (c, key) in enumerate(zip(cols, keys[s])):
             if key in seen:
                 s0, j0 = seen[key]
                 raise tk.err(s, f"joint {j + 1} reads {c.label} of {c.raw.label}, which [{s0}] already reads for "
@@ -728,7 +724,8 @@ def _reference_shift(sections: dict, tk: _Toml):
         raise tk.err("reference", f"min_shift = {min_shift} exceeds max_shift = {max_shift}.")
     if shift != "estimate" and (min_shift is not None or max_shift is not None):
         given = " and ".join(k for k, v in (("min_shift", min_shift), ("max_shift", max_shift)) if v is not None)
-        raise tk.err("reference", f"{given} bound(s) the search of shift = \"estimate\", and shift = {shift} is "
+        shown = f"shift = {shift}" if "shift" in rt else "no shift (0)"
+        raise tk.err("reference", f"{given} bound(s) the search of shift = \"estimate\", and {shown} is "
                                   f"given: remove {given}, or set shift = \"estimate\".")
     return (None if shift == 0 else shift), min_shift, max_shift
 

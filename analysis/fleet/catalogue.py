@@ -146,8 +146,9 @@ def read_catalogue(catalogue) -> pd.DataFrame:
     else:
         # ISO 8601 only: a number (Unix seconds? milliseconds?) or 02/03/2026 (day or month first?)
         # is read by a guess, and a wrong guess puts the recording on another day, silently
-        ts = pd.to_datetime(raw.map(lambda v: None if pd.isna(v) else str(v).strip()), format="ISO8601",
-                            errors="coerce", utc=True)
+        # ISO 8601 also allows a decimal comma and lower-case t and z, which pandas does not read
+        ts = pd.to_datetime(raw.map(lambda v: None if pd.isna(v) else str(v).strip().replace(",", ".").upper()),
+                            format="ISO8601", errors="coerce", utc=True)
     if ts.isna().any():
         k = int(np.argmax(ts.isna().to_numpy()))
         value = raw.iloc[k]

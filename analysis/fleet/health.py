@@ -34,6 +34,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import pandas as pd
 
+from dynid.analysis.fleet.task import UNCERTAINTY as STORED_UNCERTAINTY
 from dynid.analysis.units import parameter_unit, prismatic_joints
 from dynid.dynamics.robot_file import load_robot
 from dynid.errors import DynidError, InputError
@@ -316,9 +317,7 @@ def monitor(frame: pd.DataFrame, parameters=DEFAULT_PARAMETERS, *, false_alarm_r
     h = cusum_threshold(false_alarm_rate / 2, allowance, n_baseline)
     settings = {"parameters": list(parameters), "false_alarm_rate": false_alarm_rate, "allowance": allowance,
                 "n_baseline": n_baseline, "compensate": compensate, "T_ref": T_REF,
-                # the store's sigma (dynid.analysis.fleet.task): a long recording is reduced block by
-                # block and keeps no samples to resample, and the scatter ratio rescales it to the fleet's
-                "uncertainty": "classic"}
+                "uncertainty": STORED_UNCERTAINTY}     # the covariance of the store's sigma
     hist = parameter_history(frame, parameters)
     names = sorted(set(frame.loc[frame["status"] == "ok", "parameter"]) - {""})
     unknown = [p for p in parameters if names and not any(_matcher([p])(n) for n in names)]

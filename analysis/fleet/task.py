@@ -83,10 +83,15 @@ def _streamed_reduction(exp, robot, bp, settings, block):
                          order=s["order"], block=block)
 
 
+#: the covariance of the stored sigma: a long recording is reduced block by block (a Reduction
+#: keeps no samples to resample), and the health check rescales sigma by the fleet's own scatter
+UNCERTAINTY = "classic"
+
+
 def _identify(exp, robot, bp, settings, max_samples):
     """(wls result, essential result, samples of the recording) of one recording."""
     if exp.q is None or exp.q.shape[0] <= max_samples:
-        r = identify_idim(exp, robot, settings=settings, bp=bp)
+        r = identify_idim(exp, robot, settings=settings, bp=bp, uncertainty=UNCERTAINTY)
         return r.wls, r.essential, r.observation.n_raw
     streamed = _streamed_reduction(exp, robot, bp, settings, max(1000, max_samples // 4))
     cfg = dict(streamed.settings)

@@ -666,46 +666,57 @@ def check_agreement(x: VerdictInputs) -> CheckOutcome:
     return CheckOutcome(findings=[{"level": level, "key": "agreement", "text": x.result.agreement_line}])
 
 
+def _pct2(v):
+    return f"{100 * float(v):.2f} %"
+
+
+def _effects_part(fx):
+    """(text, JSON block) of the fit with effects beside the rigid body (`--effects`)."""
+    v, both = fx.validation or {}, fx.physical is not None
+    held = (f", {_pct2(v['rel_error_wls'])}" + (f" ({_pct2(v['rel_error_pc'])})" if both else "") + " held out"
+            if v else "")
+    text = (f"with the effects {fx.spec} (--effects): {_pct2(fx.rel_error_wls)}"
+            + (f" (physically consistent: {_pct2(fx.rel_error_pc)})" if both else "") + held)
+    return text, {"spec": fx.spec, "rel_error_wls": fx.rel_error_wls,
+                  "rel_error_pc": fx.rel_error_pc if both else None,
+                  "held_out_rel_error_wls": v.get("rel_error_wls"), "held_out_rel_error_pc": v.get("rel_error_pc")}
+
+
+def _physical_part(pc, with_effects):
+    """(text, JSON block) of the physically consistent fit (`--physical`); its errors are the
+    effects' line's when it was fitted with them."""
+    v = pc.validation or {}
+    if with_effects:
+        text = f"its physically consistent fit (--physical): {pc.verdict_line()}"
+    else:
+        text = (f"the physically consistent fit (--physical): {pc.verdict_line()}; {_pct2(pc.rel_error)}"
+                + (f", {_pct2(v['rel_error_pc'])} held out" if v else "")
+                + f" (unconstrained, all base parameters: {_pct2(pc.wls_rel_error)}"
+                + (f", {_pct2(v['rel_error_wls'])}" if v else "") + ")")
+    return text, {"chi2": pc.chi2, "dof": pc.dof, "p_value": pc.p_value, "consistent": pc.consistent,
+                  "rel_error": pc.rel_error, "held_out_rel_error": v.get("rel_error_pc")}
+
+
 def check_other_fits(x: VerdictInputs) -> CheckOutcome:
     """The other fits of the same run (`--physical`, `--effects`), one line: the verdict judges
     the unconstrained rigid-body model, and the line says so and quotes theirs (the relative
     errors on the identification data and, held out, on all samples), so that a reader who
     asked for them does not take the verdict for theirs. Information only."""
-    pc, fx = x.physical, x.effects
-    if pc is None and fx is None:
+    if x.physical is None and x.effects is None:
         return CheckOutcome()
-
-    def pct(v):
-        return f"{100 * float(v):.2f} %"
-
     model = "its essential parameters" if x.kind == "essential" else "all its base parameters"
     judged = (f"The verdict judges the unconstrained rigid-body model ({model}): relative error "
-              f"{pct(getattr(x.estimate, 'rel_error', np.nan))} on the identification data"
-              + (f", {pct(x.validation.rel_error)} held out (all samples)" if x.validation is not None else ""))
+              f"{_pct2(getattr(x.estimate, 'rel_error', np.nan))} on the identification data"
+              + (f", {_pct2(x.validation.rel_error)} held out (all samples)" if x.validation is not None else ""))
     parts, block = [], {"judged": f"rigid body, unconstrained ({x.kind} parameters)"}
-    if fx is not None:
-        v, both = fx.validation or {}, fx.physical is not None
-        parts.append(f"with the effects {fx.spec} (--effects): {pct(fx.rel_error_wls)}"
-                     + (f" (physically consistent: {pct(fx.rel_error_pc)})" if both else "")
-                     + (f", {pct(v['rel_error_wls'])}" + (f" ({pct(v['rel_error_pc'])})" if both else "")
-                        + " held out" if v else ""))
-        block["effects"] = {"spec": fx.spec, "rel_error_wls": fx.rel_error_wls,
-                            "rel_error_pc": fx.rel_error_pc if both else None,
-                            "held_out_rel_error_wls": v.get("rel_error_wls"),
-                            "held_out_rel_error_pc": v.get("rel_error_pc")}
-    if pc is not None:
-        v = pc.validation or {}
-        if fx is not None:
-            parts.append(f"its physically consistent fit (--physical): {pc.verdict_line()}")
-        else:
-            parts.append(f"the physically consistent fit (--physical): {pc.verdict_line()}; {pct(pc.rel_error)}"
-                         + (f", {pct(v['rel_error_pc'])} held out" if v else "")
-                         + f" (unconstrained, all base parameters: {pct(pc.wls_rel_error)}"
-                         + (f", {pct(v['rel_error_wls'])}" if v else "") + ")")
-        block["physical"] = {"chi2": pc.chi2, "dof": pc.dof, "p_value": pc.p_value, "consistent": pc.consistent,
-                             "rel_error": pc.rel_error, "held_out_rel_error": v.get("rel_error_pc")}
-    text = judged + ". Beside it, " + "; ".join(parts) + "."
-    return CheckOutcome(findings=[{"level": "info", "key": "other_fits", "text": text}],
+    if x.effects is not None:
+        text, block["effects"] = _effects_part(x.effects)
+        parts.append(text)
+    if x.physical is not None:
+        text, block["physical"] = _physical_part(x.physical, x.effects is not None)
+        parts.append(text)
+    return CheckOutcome(findings=[{"level": "info", "key": "other_fits",
+                                   "text": judged + ". Beside it, " + "; ".join(parts) + "."}],
                         fields={"other_fits": block})
 
 

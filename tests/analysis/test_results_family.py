@@ -307,6 +307,12 @@ def test_summaries_print_relative_errors_in_percent(system):
     assert math.isfinite(_idim(system).model.rel_error)
 
 
+def test_percent_reads_huge_errors_by_their_order():
+    from dynid.analysis.results import percent
+    assert percent(0.0433888) == "4.34 %" and percent(99.0) == "9900.00 %"
+    assert percent(2.5235669e29) == "2.52e+31 %" and percent(-1e5) == "-1e+07 %"
+
+
 def test_a_summary_of_several_results_has_one_notices_block_at_the_end():
     from dynid.analysis.results import gathered_notices, notices_block
     assert notices_block(["a remark"]) == ["Notices:", "  - a remark"]

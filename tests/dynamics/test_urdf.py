@@ -828,3 +828,12 @@ def test_a_missing_inertia_moment_is_refused_not_read_as_zero(tmp_path):
     with pytest.raises(RobotFileError) as exc:
         read_urdf(write(tmp_path, text, "noixx.urdf"))
     assert_helpful(exc, "noixx.urdf", "'l2'", "has no ixx", "all six")
+
+
+def test_a_velocity_limit_below_a_mrad_per_second_is_refused(tmp_path):
+    """A URDF velocity of 1e-6 (a unit slip) made the loader blame the recording's time column."""
+    text = SMALL.replace('velocity="3"', 'velocity="1e-6"', 1)
+    assert text != SMALL
+    with pytest.raises(RobotFileError) as exc:
+        read_urdf(write(tmp_path, text, "slow.urdf"))
+    assert_helpful(exc, "slow.urdf", "j1", "velocity", "too small")

@@ -506,6 +506,9 @@ def test_toml_top_level_keys_and_resample(tmp_path):
     csv_of(df, tmp_path, "irr.csv")
     with pytest.raises(DataError, match="resample = true"):
         load_experiment(tmp_path / "irr.csv")
+    # loaded through a TOML, the message points at that TOML's option
+    with pytest.raises(DataError, match=r"Set `resample = true` in .*r0\.toml, \[experiment\]"):
+        load_experiment(write(tmp_path, "r0.toml", 'file = "irr.csv"\n'))
     p = write(tmp_path, "r.toml", 'file = "irr.csv"\nresample = true\n')
     e = load_experiment(p)
     dt = np.diff(e.t)
@@ -587,7 +590,7 @@ def test_toml_motor_side_conversion(tmp_path):
          ["pos.csv", "no column 'X'", "Available", "'A'"]),
         (lambda s: s.replace("drive_gains", "drive_gain"),
          ["[torques]", "unknown key", "'drive_gain'"]),
-        (lambda s: s.replace("sampling_rate = 10.0", ""), ["no time", "sampling_rate"]),
+        (lambda s: s.replace("sampling_rate = 10.0", ""), ["no time", "sampling_rate", '[time] column = "t"']),
         (lambda s: s.split("[transmission]")[0], ["side = \"motor\"", "[transmission]"]),
         (lambda s: s.replace("[10, -20, 30]", "[10, 0, 30]"), ["[transmission]", "gear_ratios[1] = 0 (joint 2)"]),
         (lambda s: s.replace("[10, -20, 30]", "[10, 30]"),

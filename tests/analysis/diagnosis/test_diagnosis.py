@@ -376,6 +376,6 @@ def test_reported_parameters_carry_the_identifications_covariance(short_sim):
     for m in (h.model_before, h.model_after):
         assert "selection_bias" in m.settings["least_squares"]["uncertainty"]
     assert "selection_bias" not in c.model_after.settings["least_squares"].get("uncertainty", {})
-    from dynid.analysis.diagnosis.summary_text import sigma_text     # what the summary and the report say
+    from dynid.analysis.diagnosis.summary_text import sigma_text  # what the summary and the report say
     assert sigma_text(h) == "HAC sandwich, with the bias of the base parameters left out"
     assert sigma_text(c) == "eq. (14)"

@@ -9,6 +9,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
+import dynid
+
 pytest.importorskip("pyarrow")
 
 from simulated_fleet import simulate_fleet
@@ -72,6 +74,9 @@ def test_catalogue_errors_name_column_and_row(tmp_path):
         p.write_text(f"robot_id,timestamp,path,robot\nR1,{value},a.npz,planar2\n")
         with pytest.raises(InputError, match=f"column timestamp, row 1: {shown}"):
             read_catalogue(p)
+    for value, day in (("\"2026-03-01t23:30:00,5z\"", "2026-03-01"), ("2026-03-01 23:30:00.25-02:00", "2026-03-02")):
+        p.write_text(f"robot_id,timestamp,path,robot\nR1,{value},a.npz,planar2\n")
+        assert read_catalogue(p)["day"].tolist() == [day]        # ISO 8601 in its other spellings
     p.write_text("robot_id,timestamp,path,robot,temperature2\nR1,2026-01-01T00:00:00Z,a.npz,planar2,warm\n")
     with pytest.raises(InputError, match="column temperature2, row 1"):
         read_catalogue(p)
@@ -190,6 +195,11 @@ def test_task_reports_corrupted_logs_and_identifies_the_rest(small_fleet, small_
     assert all(rec in msg for rec, msg in zip(failed["recording"], failed["error"]))   # names the file
     ok = frame[(frame["status"] == "ok") & (frame["parameter"] == "Fv1")]
     assert np.all(ok["sigma"] > 0) and np.all(np.abs(ok["value"] - 0.5) < 0.25)   # planar2's Fv1 = 0.5 +-20 %
+    # the stored sigma is the classic one the health settings name (fleet.json), not identify's default
+    row = ok.iloc[0]
+    classic = dynid.identify(row["recording"], row["robot"], uncertainty="classic").wls
+    assert row["sigma"] == pytest.approx(float(classic.bse["Fv1"]), rel=1e-9)
+    assert row["value"] == pytest.approx(float(classic.params["Fv1"]), rel=1e-9)
     assert set(frame["effects"]) == {""}                 # no diagnosis unless asked for
     # partitioned by robot and day, one file per recording
     files = sorted(p.relative_to(store.root).parts[:2] for p in __import__("pathlib").Path(store.root).rglob("*.parquet"))
