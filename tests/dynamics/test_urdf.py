@@ -821,19 +821,15 @@ def test_a_rounded_right_angle_gives_pinocchios_dynamics_of_the_exact_angle(tmp_
         assert_same_dynamics_as_pinocchio(rounded, write(tmp_path, _right_angle_arm("1.5708 0 0"), "literal.urdf"))
 
 
-def test_a_missing_inertia_moment_is_refused_not_read_as_zero(tmp_path):
-    """As urdfdom: an <inertia> without ixx gave the a-priori XX of that link 0 (exit 0)."""
-    text = SMALL.replace('<inertia ixx="0.002" ', '<inertia ', 1)
+@pytest.mark.parametrize("old,new,words", [
+    # as urdfdom: an <inertia> without ixx gave the a-priori XX of that link 0 (exit 0)
+    ('<inertia ixx="0.002" ', '<inertia ', ["'l2'", "has no ixx", "all six"]),
+    # a velocity of 1e-6 (a unit slip) made the loader blame the recording's time column
+    ('velocity="3"', 'velocity="1e-6"', ["j1", "velocity", "too small"]),
+])
+def test_a_missing_moment_or_a_velocity_limit_below_a_mrad_per_second_is_refused(tmp_path, old, new, words):
+    text = SMALL.replace(old, new, 1)
     assert text != SMALL
     with pytest.raises(RobotFileError) as exc:
-        read_urdf(write(tmp_path, text, "noixx.urdf"))
-    assert_helpful(exc, "noixx.urdf", "'l2'", "has no ixx", "all six")
-
-
-def test_a_velocity_limit_below_a_mrad_per_second_is_refused(tmp_path):
-    """A URDF velocity of 1e-6 (a unit slip) made the loader blame the recording's time column."""
-    text = SMALL.replace('velocity="3"', 'velocity="1e-6"', 1)
-    assert text != SMALL
-    with pytest.raises(RobotFileError) as exc:
-        read_urdf(write(tmp_path, text, "slow.urdf"))
-    assert_helpful(exc, "slow.urdf", "j1", "velocity", "too small")
+        read_urdf(write(tmp_path, text, "bad.urdf"))
+    assert_helpful(exc, "bad.urdf", *words)
