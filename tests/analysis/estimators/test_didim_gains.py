@@ -74,6 +74,24 @@ def test_gains_are_recovered_from_the_control_law(short_run):
             identify_gains(exp, robot, noise_q=bad)
 
 
+def test_gains_a_recording_does_not_determine_are_refused_naming_the_joint(short_run):
+    """A joint whose control law explains none of its torque (saturated: held-out seed 15160,
+    1147 %, Kp2 %sigma 8.8e4) gave DIDIM a loop that diverged, blamed on a light start."""
+    rec, robot, exp = short_run
+    g = identify_gains(exp, robot)
+    assert g.unidentified() == []
+    rel = np.array(g.rel_error, dtype=float)
+    rel[1] = 11.47
+    cov = np.array(g.cov, dtype=float)
+    k = g.names.index("Kp2")
+    cov[k, k] = (880.0 * g.chi[k]) ** 2
+    bad = dataclasses.replace(g, rel_error=rel, cov=cov)
+    assert bad.unidentified() == ["joint 2 are not identified (the control law leaves 1147 % of its torque "
+                                  "unexplained; Kp2 %sigma 8.8e+04)"]
+    with pytest.raises(dynid.DataError, match=r"controller gains of joint 2 are not identified.*--gains identify"):
+        bad.controller(robot)
+
+
 @pytest.mark.slow
 def test_gains_on_the_benchmark_recording(plant_run):
     rec, robot, exp = plant_run
