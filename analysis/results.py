@@ -538,6 +538,10 @@ class ModelResults(ParameterResults):
     def cov(self):
         return self.model.cov
 
+    sigma = deprecated_alias("bse (a pandas Series; .to_numpy() for the array)", lambda r: r.bse.to_numpy())
+    rel_sigma = deprecated_alias("rel_std (a pandas Series; .to_numpy() for the array)",
+                                 lambda r: r.rel_std.to_numpy())
+
     def _estimate(self):
         return self.model.chi
 

@@ -192,8 +192,8 @@ def simulate_experiment(robot, chi_st, trajectory, duration, *, rng, tau_noise, 
 
 #: what `simulate` says of its torque, which DIDIM must be told when it reads the file back
 TORQUE_TIMING_NOTICE = ("the torques are an integrating sensor's, centred on the samples ((tau_k-1 + tau_k) / 2); "
-                        "DIDIM on this file needs --torque-timing centred (torque_timing='centred'), which this "
-                        "recording in memory says by itself")
+                        "DIDIM on the file written from it needs --torque-timing centred (torque_timing="
+                        "'centred'); the recording in Python (dynid.simulate(...).experiment) says so by itself")
 
 
 def missing_effects(robot) -> list:

@@ -275,7 +275,9 @@ def test_posterior_intervals_are_conf_int_and_interval_is_deprecated(system):
     ("idim-model", "sigma", "bse"), ("idim-model", "rel_sigma", "rel_std"), ("ml", "theta", "params"),
     ("ml", "sigma", "bse"), ("ml", "rel_sigma", "rel_std"), ("projection", "sigma", "bse"),
     ("projection", "rel_sigma", "rel_std"), ("physical", "sigma", "bse"), ("tilt", "theta", "params"),
-    ("tilt", "sigma", "bse")])
+    ("tilt", "sigma", "bse"),
+    # what dynid.identify returns: the accessors were gone without a word (AttributeError)
+    ("idim", "sigma", "bse"), ("idim", "rel_sigma", "rel_std"), ("didim", "sigma", "bse")])
 def test_raw_accessors_warn_and_give_the_same_numbers(key, attr, new, system):
     r = _idim(system).model if key == "idim-model" else PARAMETER_RESULTS[key](system)
     with pytest.warns(DeprecationWarning, match=new):
