@@ -345,7 +345,14 @@ def messages(say):
 
 def as_robot(robot, *, base=None, tip=None):
     """A Robot from a Robot, a bundled name or a robot file path."""
-    return robot if isinstance(robot, Robot) else load_robot(robot, base=base, tip=tip)
+    if isinstance(robot, Robot):
+        return robot
+    if not isinstance(robot, (str, os.PathLike)):
+        # a recording or a result where the robot goes: the arguments' order, not a robot file
+        raise InputError(f"robot must be a Robot, a bundled robot's name or a robot file's path, not "
+                         f"{type(robot).__name__}; the recording comes first and the robot second "
+                         "(dynid.diagnose(data, robot, validation=...))")
+    return load_robot(robot, base=base, tip=tip)
 
 
 def as_experiments(data, robot, *, resample=False) -> list:

@@ -250,16 +250,35 @@ def excite(robot: Robot | str | os.PathLike[str], f0: float, harmonics: int, **k
         (0.95: the fraction of every limit used), `rng` (Generator or seed of the starts),
         `max_iter` (150 SLSQP iterations per start), `chi` (standard parameters for the
         torque limits; default the robot's a-priori values, False ignores those limits)
-        and `progress` (a callable of the fraction done).
+        and `progress` (a callable of the fraction done; without one the design reports
+        through `dynid.progress`). The command line's `starts` and `seed` are accepted
+        for `n_starts` and `rng`.
 
     Returns
     -------
     ExcitationResult
         The optimised Fourier trajectory, its condition number and limit margins.
     """
+    import inspect
+
     from dynid.analysis.identify import as_robot
     from dynid.dynamics.excitation import design_excitation
-    return design_excitation(as_robot(robot), f0, harmonics, **kwargs)
+    for cli, name in (("starts", "n_starts"), ("seed", "rng")):     # the command line's names
+        if cli in kwargs:
+            if name in kwargs:
+                raise InputError(f"excite: give {name}= or {cli}=, not both")
+            kwargs[name] = kwargs.pop(cli)
+    known = set(inspect.signature(design_excitation).parameters) - {"robot", "f0", "n_harmonics"}
+    unknown = sorted(set(kwargs) - known)
+    if unknown:
+        raise InputError(f"excite: unknown option(s) {', '.join(unknown)}; the options are "
+                         f"{', '.join(sorted(known | {'starts', 'seed'}))}")
+    robot = as_robot(robot)
+    if kwargs.get("progress") is not None:
+        return design_excitation(robot, f0, harmonics, **kwargs)
+    from dynid.progress import task
+    with task("excitation design") as progress:      # long work is not silent in Python either
+        return design_excitation(robot, f0, harmonics, **{**kwargs, "progress": progress})
 
 
 @with_single_blas_thread

@@ -276,3 +276,21 @@ def test_ml_says_when_no_sample_is_clear_of_every_joints_reversal():
     qdf = np.column_stack([np.sin(w * t), np.cos(w * t), np.sin(w * t + np.pi / 4), np.cos(w * t + np.pi / 4)])
     with pytest.raises(InputError, match=r"keeps [01] of 10000 samples with every joint's.*K = 2 harmonics.*fit more"):
         _kept_equations(t, qdf, "auto", "auto", 2, 0.2, 13)
+
+
+def test_excite_takes_the_command_lines_names_and_refuses_unknown_ones():
+    """`starts=` gave a TypeError naming an internal function; the command line's names work."""
+    a = dynid.excite("planar2", 0.2, 2, starts=1, seed=0, max_iter=5)
+    b = dynid.excite("planar2", 0.2, 2, n_starts=1, rng=0, max_iter=5)
+    assert a.cond_result == b.cond_result
+    with pytest.raises(InputError, match=r"excite: unknown option\(s\) startz; the options are .*n_starts"):
+        dynid.excite("planar2", 0.2, 2, startz=1)
+    with pytest.raises(InputError, match="give n_starts= or starts=, not both"):
+        dynid.excite("planar2", 0.2, 2, starts=1, n_starts=2)
+
+
+def test_a_recording_where_the_robot_goes_is_named_for_the_arguments_order():
+    """dynid.diagnose(result, held_out) said "unknown robot 'Experiment(...)': not a file"."""
+    rec = dynid.simulate("planar2", 3.0, seed=1)
+    with pytest.raises(InputError, match="not Experiment; the recording comes first and the robot second"):
+        dynid.diagnose(rec.experiment, rec.experiment)
