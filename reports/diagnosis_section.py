@@ -104,9 +104,10 @@ def _first_screen_section(res):
                                                         f"{_pct(v['after'].rel_error)}"))
     rest = getattr(res, "rest", None)
     if rest is not None:
-        pairs.append(("Held-out error, all samples", f"{_pct(rest.rel_error_before)} \u2192 "
-                      f"{_pct(rest.rel_error_after)} (friction at rest chosen per joint: "
-                      + ", ".join(f"j{j + 1} {m}" for j, m in enumerate(rest.model)) + ")"))
+        pairs.append(("Held-out error, all samples (the identified model without the added effects)",
+                      f"{_pct(rest.rel_error_before)} \u2192 {_pct(rest.rel_error_after)} with the friction at "
+                      "rest chosen per joint (" + ", ".join(f"j{j + 1} {m}" for j, m in enumerate(rest.model))
+                      + "); the effects are scored on the moving samples, above"))
         pairs.append(("Share of the all-samples error from rest phases", ", ".join(
             f"j{j + 1} {100 * b:.0f} \u2192 {100 * a:.0f} % ({100 * f:.0f} % of the rows at rest)"
             for j, (b, a, f) in enumerate(zip(rest.rest_share_before, rest.rest_share_after,
@@ -502,8 +503,8 @@ def diagnosis_lead(result, robot=None):
     highlights = [("diagnosis", _verdict_words(result))]
     rest = getattr(result, "rest", None)
     if rest is not None:
-        highlights.append(("held-out error, all samples", f"{_pct(rest.rel_error_before)} → "
-                                                          f"{_pct(rest.rel_error_after)}"))
+        highlights.append(("held-out error, all samples, friction at rest (without the effects)",
+                           f"{_pct(rest.rel_error_before)} → {_pct(rest.rel_error_after)}"))
     v = result.errors.get("validation")
     if v is not None:
         highlights.append(("held-out error, moving samples", f"{_pct(v['before'].rel_error)} → "

@@ -197,6 +197,9 @@ def test_diagnose_finds_an_injected_viscous_asymmetry_and_reports(short_sim):
     page = render_sections(lead["sections"], title=lead["title"], lead=lead["lead"], verdict=vb,
                            highlights=lead["highlights"])
     assert page.index('id="diagnosis-summary"') < page.index('id="verdict"') < page.index('id="diagnosis"')
+    assert res.rest is not None     # the all-samples figure is not the effects' (they are scored moving)
+    assert "Held-out error, all samples (the identified model without the added effects)" in page
+    assert "friction at rest (without the effects)" in page
 
 
 # ------------------------------------------------------------------ reduced campaign
