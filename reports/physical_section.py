@@ -39,9 +39,16 @@ def principal_moments_figure(result, *, key="fig-physical-moments", fmt="auto"):
                          "the data make as thin as a rod or a point)", fmt=fmt)
 
 
-def physical_section(result, *, id="physical", fmt="auto"):
-    """The section: constraints, active set, cost, parameter table, principal-moment figure."""
+def physical_section(result, *, id="physical", fmt="auto", effects_spec=None):
+    """The section: constraints, active set, cost, parameter table, principal-moment figure.
+    `effects_spec`: the fit was made with these effects beside the rigid body (`--effects`), so
+    its unconstrained WLS is that model's, not the rigid body's of the identification."""
     r = result
+    wls_is = ("" if effects_spec is None else
+              f"The unconstrained WLS here is that of the rigid body with the effects {effects_spec} "
+              "(section \u201cEffects fitted beside the rigid body\u201d), not the rigid body alone of the "
+              "identification above: its base parameters differ from the identification's where the "
+              "effects take up torque. ")
     body = join(
         para("Physically consistent WLS (PC-WLS): the weighted residual of the WLS minimised over the "
              "standard parameters under every link's pseudo-inertia positive semidefinite (Wensing, "
@@ -50,7 +57,7 @@ def physical_section(result, *, id="physical", fmt="auto"):
              + (f", masses within \u00b1{100 * r.mass_tolerance:g} % of the a-priori values"
                 if r.mass_tolerance is not None else "")
              + "; solved as an SDP (cvxpy + Clarabel), a global optimum."),
-        para(f"Verdict: {r.verdict_line()}. \u03c7\u00b2 = {r.chi2:.4g} (growth of the weighted squared "
+        para(wls_is + f"Verdict: {r.verdict_line()}. \u03c7\u00b2 = {r.chi2:.4g} (growth of the weighted squared "
              f"residual in units of the WLS error variance) on {r.dof} active constraint directions, "
              f"p \u2264 {r.p_value:.3g} (a chi-bar-squared bound). Relative error on the identification "
              f"data: PC {100 * r.rel_error:.3f} %, unconstrained WLS {100 * r.wls_rel_error:.3f} %. "
@@ -68,7 +75,10 @@ def physical_section(result, *, id="physical", fmt="auto"):
     body = join(body, bullets(["Active constraints: " + (", ".join(r.active) or "none")] + list(r.notices),
                               cls="notices"))
     comp = r.comparison()
-    t_comp = T.make_table(comp, f"tab-{id}-parameters", "Base parameters: unconstrained WLS and PC-WLS",
+    comp.insert(0, "unit", r._units())
+    t_comp = T.make_table(comp, f"tab-{id}-parameters", "Base parameters: unconstrained WLS and PC-WLS"
+                          + ("" if effects_spec is None else f" (both with the effects {effects_spec})"),
+                          formats={"unit": "text"},
                           labels={"wls": "WLS", "wls_std": "\u03c3 WLS", "wls_rel_std_percent": "%\u03c3 WLS",
                                   "pc": "PC-WLS", "pc_std": "\u03c3 PC",
                                   "shift_sigma": "shift [\u03c3 WLS]"})
@@ -77,7 +87,7 @@ def physical_section(result, *, id="physical", fmt="auto"):
                            "consistent": lk["consistent"]} for lk in r.links]).set_index("link")
     t_links = T.make_table(links, f"tab-{id}-links", "Physical consistency of each link of the PC set",
                            formats={"consistent": "bool"},
-                           labels={"mass": "mass [kg]", "pseudo_inertia_min_eig": "smallest eigenvalue of J"})
+                           labels={"mass": "mass [kg]", "pseudo_inertia_min_eig": "smallest eigenvalue of J (SI; \u2265 0: consistent)"})
     return Section(id, "Physically consistent identification (PC-WLS, SDP)", body,
                    figures=[principal_moments_figure(r, key=f"fig-{id}-moments", fmt=fmt)],
                    tables=[t_links, t_comp])

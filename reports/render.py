@@ -43,7 +43,8 @@ def idim_extra_sections(ident) -> list:
     if ident.asymmetric_friction is not None:
         extra.append(asymmetric_friction_section(ident.asymmetric_friction))
     if ident.physical is not None:
-        extra.append(physical_section(ident.physical))
+        extra.append(physical_section(ident.physical,
+                                      effects_spec=None if ident.effects is None else ident.effects.spec))
     if ident.effects is not None:
         extra.append(effects_section(ident.effects))
     if ident.export is not None:

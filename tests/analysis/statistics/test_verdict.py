@@ -351,5 +351,12 @@ def test_the_verdict_says_which_model_it_judges_beside_the_physical_and_effects_
     plain = verdict(r.result, r.validation, robot=r.robot)
     assert all(f["key"] != "other_fits" for f in plain.findings) and "other_fits" not in plain.to_dict()
     assert plain.status == r.verdict.status
+    # the report's PC section says its WLS is the fit with the effects, and gives units
+    from dynid.reports.html import render_sections
+    from dynid.reports.render import idim_extra_sections
+    html = render_sections(idim_extra_sections(r), title="x")
+    assert "The unconstrained WLS here is that of the rigid body with the effects spring:all" in html
+    assert "Base parameters: unconstrained WLS and PC-WLS (both with the effects spring:all)" in html
+    assert "kg m\u00b2" in html.split('id="tab-physical-parameters"')[1].split("</table>")[0]
     frame = r.verdict.to_frame()        # the CSV's columns, as every result's parameter table
     assert frame.index.name == "parameter" and list(frame.columns[:4]) == ["value", "std", "rel_std_percent", "unit"]
