@@ -204,9 +204,15 @@ def convergence_section(res):
               "rel_error_percent": "relative error [%]",
               "max_rel_param_change": "max relative parameter change [%]",
               "max_change_sigma": "max change [\u03c3]"}
+    # the CSV keeps every column of the history, in SI units named in the header (fractions as
+    # fractions, docs/formats.md), where the tracking table shows mrad
+    length = "m or rad" if prismatic_of(res) else "rad"
+    history_csv = h.set_index("iteration").rename(columns={
+        **{f"track_rms_{j + 1}": f"track_rms_{j + 1} [{length}]" for j in range(n)},
+        "v_s": "v_s [rad/s]", "rho_norm": "rho_norm [N m]", "output_error": "output_error [N m]"})
     tab = T.make_table(shown, "tab-didim-history", "Gauss-Newton steps", labels=labels,
                        formats={"rel_error_percent": "num", "max_rel_param_change": "num"},
-                       csv_frame=h.set_index("iteration"))
+                       csv_frame=history_csv)
     track = pd.DataFrame({f"track_rms_{j + 1}": col(f"track_rms_{j + 1}", 1e3) for j in range(n)},
                          index=steps)
     kd = pd.DataFrame({f"kd_scale_{j + 1}": col(f"kd_scale_{j + 1}") for j in range(n)}, index=steps)

@@ -374,7 +374,7 @@ def _base_section(res):
     labels = {"name": "Parameter", "relation": "Relation (= regrouped standard parameters)",
               "ols": "OLS \u03c7\u0302", "ols_rel_std": "OLS %\u03c3",
               "wls": "WLS \u03c7\u0302", "wls_rel_std": "WLS %\u03c3", "essential": "essential"}
-    csv_frame = table.copy()
+    csv_frame = table.rename(columns={c: f"{c}_percent" for c in table.columns if c.endswith("_rel_std")})
     csv_frame.insert(1 if "relation" in table.columns else 0, "unit", shown["unit"])
     if getattr(res, "truth", None):
         shown.insert(0, "true", [res.truth.get(n, np.nan) for n in table.index])
