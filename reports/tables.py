@@ -319,7 +319,7 @@ def table2_frame(names, chi, rel_sigma, reference=None, base_order=None) -> pd.D
 def table2_layout(names, chi, rel_sigma, reference=None, base_order=None, *,
                   key="table2", caption="Essential parameters in the layout of Table 2",
                   ours_label="dynid", prismatic=frozenset()) -> Table:
-    """Two side-by-side blocks of Parameter | χ̂ | %σ (| paper χ̂ | paper %σ), like Table 2.
+    """Two side-by-side blocks of Parameter | unit | χ̂ | %σ (| paper χ̂ | paper %σ), like Table 2.
 
     The CSV download has one row per parameter with its SI `unit` (`prismatic`: the 1-based
     numbers of the prismatic joints, whose parameters are in N and m).
@@ -341,7 +341,7 @@ def table2_layout(names, chi, rel_sigma, reference=None, base_order=None, *,
             mark, title, cls = f" {NOT_ESSENTIAL}", "in Table 2, not in dynid's essential set", cls + " marked"
         elif with_paper and row["status"] == "not_in_paper":
             mark, title, cls = f" {NOT_IN_PAPER}", "in dynid's essential set, not in Table 2", cls + " marked"
-        out = [Cell(f"{name}{mark}", cls, title),
+        out = [Cell(f"{name}{mark}", cls, title), Cell(parameter_unit(str(name), prismatic), "text unit"),
                format_value(row["value"], "num"), format_value(row["rel_std_percent"], "pct")]
         if with_paper:
             pv = format_value(row["paper_value"], "num")
@@ -351,7 +351,7 @@ def table2_layout(names, chi, rel_sigma, reference=None, base_order=None, *,
             out += [pv, pr]
         return out
 
-    width = 5 if with_paper else 3
+    width = 6 if with_paper else 4
     rows = []
     for i in range(half):
         row = []
@@ -364,15 +364,15 @@ def table2_layout(names, chi, rel_sigma, reference=None, base_order=None, *,
                 c[0].cls += " block-start"
             row += c
         rows.append(row)
-    one = ["Parameter", "\u03c7\u0302", "%\u03c3"]
+    one = ["Parameter", "unit", "\u03c7\u0302", "%\u03c3"]
     if with_paper:
         one += ["\u03c7\u0302 paper", "%\u03c3 paper"]
-    classes = ["text", "num", "num"] + (["num paper", "num paper"] if with_paper else [])
+    classes = ["text", "text", "num", "num"] + (["num paper", "num paper"] if with_paper else [])
     columns = one + one
     column_classes = classes + ["text block-start"] + classes[1:]
     groups = []
     if with_paper:
-        g = [("", 1), (ours_label, 2), ("paper", 2)]
+        g = [("", 2), (ours_label, 2), ("paper", 2)]
         groups = g + g
     note = ""
     if with_paper:

@@ -361,7 +361,8 @@ def test_table2_layout_markers():
     names, chi, rs = ["ZZ1R", "Fv1", "MX3"], [1.25, 8.0, 0.04], [0.6, 0.7, 21.7]
     table = T.table2_layout(names, chi, rs, DIDIM_TX40_TABLE2,
                             base_order=["ZZ1R", "Fv1", "Fc1", "MX3"])
-    assert len(table.columns) == 10 and len(table.groups) == 6
+    assert len(table.columns) == 12 and len(table.groups) == 6     # Parameter | unit | ours | paper, twice
+    assert table.columns[:2] == ["Parameter", "unit"] and table.rows[0][1].text == "kg m\u00b2"   # ZZ1R
     texts = [c.text for row in table.rows for c in row]
     assert "MX3 +" in texts                       # dynid extra
     assert f"Fc1 {T.NOT_ESSENTIAL}" in texts       # in Table 2, not essential in dynid
