@@ -21,6 +21,7 @@ import numpy as np
 import pandas as pd
 from markupsafe import Markup
 
+from dynid.analysis.units import prismatic_joints
 from dynid.reports import figures as F
 from dynid.reports import tables as T
 from dynid.reports.html import Section, bullets, join, kv_list, para
@@ -174,14 +175,15 @@ def excitation_section(res, robot, *, id="excitation", title="Optimal excitation
     if res.notices:
         body += [Markup("<h3>Notices</h3>"), bullets(res.notices, cls="notices")]
     m = res.margins.copy()
+    prismatic = bool(prismatic_joints(robot))
     labels = {"q_low": "q min margin", "q_high": "q max margin", "qd": "qd margin",
-              "qdd": "qdd margin", "tau": "\u03c4 margin", "q_min_reached": "min q",
-              "q_max_reached": "max q", "qd_peak": "max |qd|", "qdd_peak": "max |qdd|",
-              "tau_peak": "max |\u03c4|"}
+              "qdd": "qdd margin", "tau": "\u03c4 margin", "q_min_reached": "min q [rad]",
+              "q_max_reached": "max q [rad]", "qd_peak": "max |qd| [rad/s]", "qdd_peak": "max |qdd| [rad/s\u00b2]",
+              "tau_peak": "max |\u03c4| [N m]"}
     t_marg = T.make_table(m, f"tab-{id}-margins",
-                          "Relative margin to each limit on the dense grid (1 \u2212 peak / limit; "
-                          "for q: distance to the bound over the half range; negative = violated)",
-                          labels=labels)
+                          "Relative margin to each limit on the dense grid (1 \u2212 peak / limit, "
+                          "dimensionless; for q: distance to the bound over the half range; negative = "
+                          "violated)", labels=labels, prismatic=prismatic)
     names = list(res.joint_names)
     coef = {"q0": tr.q0}
     for k in range(tr.harmonics):
@@ -191,15 +193,16 @@ def excitation_section(res, robot, *, id="excitation", title="Optimal excitation
     cdf = pd.DataFrame(coef, index=pd.Index(names, name="joint"))
     t_coef = T.make_table(cdf, f"tab-{id}-coefficients",
                           "Fourier coefficients (eq. (17): a_k, b_k velocity amplitudes in rad/s, "
-                          "q0 in rad)")
+                          "q0 in rad)",
+                          csv_frame=cdf.rename(columns=lambda c: f"{c} [rad]" if c == "q0" else f"{c} [rad/s]"))
     runs = pd.DataFrame(res.runs).set_index("start")
-    runs.index = runs.index + 1
+    runs.index = pd.Index(runs.index + 1, name="start (1-based; JSON 0-based)")
     t_runs = T.make_table(runs, f"tab-{id}-runs", "Optimisation runs (one per random start)",
                           formats={"message": "text", "feasible": "bool", "iterations": "int",
                                    "evaluations": "int"},
                           labels={"cond_start": "cond start", "cond_result": "cond result",
-                                  "criterion_value": "criterion", "start_shrink": "start shrink",
-                                  "seconds": "s"})
+                                  "criterion_value": "objective minimised", "start_shrink": "start shrink",
+                                  "seconds": "time [s]"})
     return Section(id, title, join(*body), figures=excitation_figures(res, robot, prefix=f"fig-{id}"),
                    tables=[t_marg, t_coef, t_runs])
 

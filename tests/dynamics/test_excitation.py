@@ -194,6 +194,7 @@ def test_excitation_report_section(tx40, design):
     assert sec.id == "excitation" and len(sec.figures) == 3 and len(sec.tables) == 3
     html = render_sections([sec], title="excitation")
     assert 'id="fig-excitation-spectrum"' in html and 'id="tab-excitation-margins"' in html
+    assert "max |qd| [rad/s]" in html and "max |\u03c4| [N m]" in html and "time [s]" in html   # units
 
 
 @pytest.mark.slow
