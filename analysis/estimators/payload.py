@@ -501,7 +501,8 @@ def _model_vector(model, robot, bp, notices):
         src = str(model)
         model = data
     else:
-        src = type(model).__name__
+        # what the reader knows the model by: its method (a class name means nothing to them)
+        src = f"the {getattr(model, 'method', None) or type(model).__name__} identification given as model"
     own_error = _own_error(model if isinstance(model, dict) else _base_fit(model))
     if isinstance(model, dict):
         # the WLS of every base parameter when the JSON has it (dynid identify --json), as above

@@ -115,6 +115,11 @@ def test_an_edited_model_json_is_refused_naming_the_record(tmp_path):
     unsigned["robot_signature"] = None
     res = dynid.identify_payload(loaded, tx40, model=unsigned, max_rel_halfwidth=10.0)   # 4 s: a wide payload
     assert any("no robot_signature" in n for n in res.notices)
+    # a result object is named by its method, not its class (the report printed "IDIMResult")
+    res = dynid.identify_payload(loaded, tx40, model=dynid.identify(dynid.simulate(tx40, 4.0, seed=1), tx40),
+                                 max_rel_halfwidth=10.0)
+    assert "robot fixed: the IDIM identification given as model; its parameters' uncertainty is propagated" \
+        in res.notices
 
 
 def test_one_recording_shifted_by_a_sample_is_not_a_second_recording(planar2):
