@@ -110,6 +110,17 @@ class IDIMResult(ModelResults):
             })
         return pd.DataFrame(rows).set_index("name")
 
+    @property
+    def uncertainty_text(self) -> str:
+        """What the σ are, in words: the covariance of the essential model's parameters (the
+        option, and for a robust one its block length or bandwidth rule) and, where it was
+        added, the bias of the base parameters left out (`essential.with_selection_bias`)."""
+        unc = self.model.settings.get("least_squares", {}).get("uncertainty", {})
+        text = unc.get("covariance") or self.uncertainty
+        if "selection_bias" in unc:
+            text += "; the essential parameters' sigma: " + unc["selection_bias"]
+        return text
+
     def summary(self):
         lines = [f"IDIM identification of robot '{self.robot_name}' from {self.source}",
                  f"  samples: {self.observation.n_raw} raw -> {self.observation.n_samples} decimated "
@@ -117,8 +128,7 @@ class IDIMResult(ModelResults):
                  f"  base parameters: {self.base.n_base}, essential: {len(self.model.names)}",
                  f"  relative error ||Y - W chi|| / ||Y||: OLS {percent(self.ols.rel_error)}, "
                  f"WLS {percent(self.wls.rel_error)}, essential {percent(self.model.rel_error)}",
-                 "  uncertainty: " + (self.model.settings.get("least_squares", {}).get("uncertainty", {})
-                                      .get("covariance") or self.uncertainty),
+                 "  uncertainty: " + self.uncertainty_text,
                  ""]
         lines.append(self.essential.result.summary(notices=False, prismatic=self._prismatic()))
         if self.agreement is not None:

@@ -6,6 +6,7 @@ import io
 import math
 import re
 import urllib.parse
+from html import unescape as html_unescape
 from pathlib import Path
 
 import jinja2
@@ -146,6 +147,13 @@ def test_every_section_has_id_heading_nav_and_figure(planar_html):
     assert len(ids) == len(set(ids))
     # every table can be downloaded
     assert html.count('class="table-block"') == html.count('class="csv"')
+
+
+def test_the_base_section_says_which_sigma_it_shows(planar, planar_html):
+    """The IDIM report named the covariance in the verdict only; the essential σ's bias rule nowhere."""
+    robot, ident, res, val = planar
+    assert f"Uncertainty (\u03c3): {res.uncertainty_text}" in html_unescape(planar_html)
+    assert res.uncertainty_text in res.summary()
 
 
 def test_csv_downloads_decode_to_the_tables(planar, planar_html):
