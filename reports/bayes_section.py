@@ -269,6 +269,8 @@ def posterior_table(result, *, key="tab-posterior", caption=None):
                         labels=labels, csv_frame=csv, formats={"unit": "text"},
                         note=("%\u03c3 (post.) = 100 std / |mean|; intervals are equal-tailed "
                               "credible intervals from the kept draws."
+                              + "".join(f" The LS value of \u03c3\u2c7c is eq. (16)'s; the posterior is "
+                                        f"{line.strip()}." for line in result._optimum_lines())
                               + ("" if result.converged else " NOT CONVERGED: these numbers are not "
                                  "reliable.")))
 

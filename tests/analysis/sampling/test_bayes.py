@@ -311,6 +311,10 @@ def test_tiny_step_limit_is_reported_not_converged():
     assert all("NOT CONVERGED" in s.title for s in secs)
     html = render_sections(secs, title="posterior")
     assert "NOT CONVERGED" in html and "step limit" in html
+    import html as html_module
+    assert res._optimum_lines()
+    for line in res._optimum_lines():     # where the sampled sigma_j settle, beside eq. (16)'s LS value
+        assert line.strip().split(":")[0] in html_module.unescape(html) and "The LS value of" in html
 
 
 def test_diagnose_rejects_short_and_accepts_long_iid_chain():
