@@ -185,7 +185,12 @@ def _overview_section(res):
         df = df.set_index("rank")
         note = "" if len(res.ranking) <= MAX_RANKED_ROWS else \
             f"{len(res.ranking) - MAX_RANKED_ROWS} more in the CSV and the JSON results"
-        csv = pd.DataFrame([{**r.to_dict(), "nonlinear": _nl_text(r.nonlinear)} for r in res.ranking])
+        # one value per cell: lists joined by "; ", the joint as text ("all" when none), cv_gain a
+        # fraction as in the JSON (docs/formats.md)
+        csv = pd.DataFrame([{k: ("; ".join(map(str, v)) if isinstance(v, (list, tuple)) else v)
+                             for k, v in {**r.to_dict(), "nonlinear": _nl_text(r.nonlinear),
+                                          "joint": "all" if r.joint is None else str(r.joint)}.items()}
+                            for r in res.ranking])
         tables.append(T.make_table(
             df, "diag-ranking", "Effects ranked from most to least likely",
             formats={"effect": "text", "joint": "text", "nonlinear": "text", "parameters": "code",

@@ -186,6 +186,11 @@ def test_diagnose_finds_an_injected_viscous_asymmetry_and_reports(short_sim):
     assert [s.id for s in secs] == list(SECTION_IDS)
     html = render_sections(secs, title="diagnosis")
     assert "asymmetric_viscous" in html and "diag-fig-velocity" in html
+    import re
+    import urllib.parse
+    uri = re.search(r'<div class="table-block" id="diag-ranking">.*?<a class="csv" href="([^"]+)"', html, re.S)
+    ranking_csv = urllib.parse.unquote(uri.group(1).split(",", 1)[1])
+    assert "[" not in ranking_csv and "'" not in ranking_csv      # one value per cell, no Python lists
     # a diagnosis report leads with the diagnosis: its title, then the summary above the verdict
     from dynid.reports.diagnosis_section import diagnosis_lead
     from dynid.reports.html import VerdictBlock
