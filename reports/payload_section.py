@@ -85,13 +85,23 @@ def payload_section(result) -> str:
         parts.append(_table(["joint", "file gain", "identified gain", "sigma", "moved (%)", "95 % lower",
                              "95 % upper"], rows))
     else:
-        rows = [(nm, _num(v), _num(s, 3), _num(lo), _num(hi), u)
-                for nm, v, s, (lo, hi), u in zip(result.names, result.chi, bse, ci, UNITS)]
-        parts.append(_table(["parameter", "value", "sigma", "95 % lower", "95 % upper", "unit"], rows))
+        rel = result.rel_std.to_numpy()
+        rows = [(nm, _num(v), _num(s, 3), _num(r, 3), _num(lo), _num(hi), u)
+                for nm, v, s, r, (lo, hi), u in zip(result.names, result.chi, bse, rel, ci, UNITS)]
+        parts.append(_table(["parameter", "value", "sigma", "%sigma", "95 % lower", "95 % upper", "unit"], rows))
         c, sc = result.com, result.com_std
+        Ic = result.inertia_com
         parts.append("<p>Centre of mass (m): " + ", ".join(
             f"{_num(x, 5)} &plusmn; {_num(s, 2)}" for x, s in zip(c, sc))
-            + f" in frame {html.escape(result.frame)} (link {result.link + 1}).</p>")
+            + f" in frame {html.escape(result.frame)} (link {result.link + 1}). Inertia about the centre "
+            "of mass, principal moments (kg m&sup2;): "
+            + ", ".join(_num(x, 4) for x in np.linalg.eigvalsh(0.5 * (Ic + Ic.T))) + ".</p>")
+        if np.isfinite(getattr(result, "loaded_error", np.nan)):
+            # the robot-fixed route's check (docs/payload.md): the robot model with the payload on the
+            # loaded recording against the model on its own data
+            parts.append(f"<p>Relative error of the robot model with the payload on the loaded recording "
+                         f"{_num(100 * result.loaded_error, 3)} %, of the model on its own data "
+                         f"{_num(100 * result.model_error, 3)} %.</p>")
         if result.physical is not None:
             rows = [(nm, _num(a), _num(b)) for nm, a, b in zip(result.names, result.physical.chi, result.chi)]
             parts.append("<h3>Physically consistent (SDP) vs free</h3>"

@@ -303,6 +303,10 @@ def test_payload_sections_carry_a_verdict(plant_data):
     assert status == "identified" and not reasons
     page = payload_html(r)
     assert "Verdict: identified" in page and "MXL" in page and "constrained" in page
+    # what the summary and docs/payload.md give: %sigma, the moments about the centre of mass, and
+    # the robot-fixed route's check of the model on the loaded recording
+    assert "<th>%sigma</th>" in page and "principal moments" in page
+    assert f"{100 * r.loaded_error:.3g} %, of the model on its own data" in page
     refused = payload_refusal_section("the recording does not identify XXL", ["l.csv"])
     assert refused.id == "payload" and "not identified" in str(refused.html_body) and "XXL" in str(refused.html_body)
 
