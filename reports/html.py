@@ -391,8 +391,7 @@ def _base_section(res):
              f"(unit columns: {T.format_number(res.wls.cond_scaled)})."),
         para("%\u03c3 = 100 \u03c3/|\u03c7\u0302| (eq. (15)); the WLS weights each joint's equations "
              "by 1/\u03c3\u2c7c of its OLS residual (eq. (16)).", cls="hint"),
-        para(f"Uncertainty (\u03c3): {res.uncertainty_text}."
-             if hasattr(res, "uncertainty_text") else ""),
+        para(f"Uncertainty (\u03c3): {res.uncertainty_text}."),
     )
     return Section("base-parameters", "Base parameters", body, tables=[tab])
 

@@ -6,6 +6,7 @@ import numpy as np
 
 from dynid.analysis.diagnosis.effects import order_text
 from dynid.analysis.estimators import least_squares as ls
+from dynid.analysis.estimators.essential import has_selection_bias
 from dynid.analysis.results import notices_block, p_value_text
 from dynid.analysis.units import parameter_unit, prismatic_of
 
@@ -135,9 +136,7 @@ def sigma_text(res) -> str:
     (`settings["parameters_uncertainty"]`), in words, and whether the bias of the base
     parameters the final model leaves out was added (`selection.py`, `_reported_fit`)."""
     unc = (getattr(res, "settings", None) or {}).get("parameters_uncertainty", "classic")
-    model = getattr(res, "model_after", None)
-    biased = "selection_bias" in ((getattr(model, "settings", None) or {}).get("least_squares", {})
-                                  .get("uncertainty", {}))
+    biased = has_selection_bias(getattr(res, "model_after", None))
     return ls.UNCERTAINTY_WORDS.get(unc, unc) + (", with the bias of the base parameters left out" if biased else "")
 
 

@@ -133,14 +133,14 @@ class GainsResult(ParameterResults):
         of benchmarks/coverage_didim.py: joint 2, saturated, 1147 % and Kp2 %sigma 8.8e4, gave a
         loop that diverged in 9 ms; on seeds 15200-15219 (DIDIM converged on all) every joint stays
         at or below 44 % and 7.5 %sigma."""
-        rel = self.rel_std.to_numpy()
+        rel = dict(zip(self.names, self.rel_std.to_numpy()))
         out = []
         for j in range(self.n_joints):
             why = []
             if not self.rel_error[j] <= MAX_LAW_ERROR:
                 why.append(f"the control law leaves {percent(self.rel_error[j], 0)} of its torque unexplained")
-            bad = [f"{k}{j + 1} %sigma {rel[self.names.index(f'{k}{j + 1}')]:.2g}" for k in ("Kp", "Kd")
-                   if f"{k}{j + 1}" in self.names and not rel[self.names.index(f"{k}{j + 1}")] <= MAX_GAIN_REL_STD]
+            gains = [f"{k}{j + 1}" for k in ("Kp", "Kd") if f"{k}{j + 1}" in rel]
+            bad = [f"{g} %sigma {rel[g]:.2g}" for g in gains if not rel[g] <= MAX_GAIN_REL_STD]
             if bad:
                 why.append(", ".join(bad))
             if why:

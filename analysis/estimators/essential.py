@@ -21,7 +21,7 @@ from dynid.analysis.results import IdentificationResult, ParameterResults
 from dynid.errors import InputError
 from dynid.provenance import json_safe
 
-__all__ = ["essential_parameters", "EssentialResult", "with_base_covariance", "with_selection_bias", "EXACT_FIT"]
+__all__ = ["essential_parameters", "EssentialResult", "with_base_covariance", "with_selection_bias", "has_selection_bias", "EXACT_FIT"]
 
 #: a relative error norm below this (0.01 % of the torque) is an exact fit: a recording without
 #: noise, whose residual is rounding and the simulation's integration error. Removing a
@@ -287,6 +287,12 @@ def with_selection_bias(res, base, cols):
     cov = base.cov[np.ix_(cols, cols)] + np.outer(d, d)
     return replace(res, cov=cov, settings=settings,
                                notices=list(res.notices) + [note])
+
+
+def has_selection_bias(res) -> bool:
+    """Whether `with_selection_bias` added the removal bias to the covariance of `res`."""
+    return "selection_bias" in ((getattr(res, "settings", None) or {}).get("least_squares", {})
+                                .get("uncertainty", {}))
 
 
 def with_base_covariance(ess: EssentialResult, base: IdentificationResult) -> EssentialResult:

@@ -17,7 +17,7 @@ from dynid.analysis.data.rates import check_same_rate
 from dynid.analysis.data.record import repeated_recordings
 from dynid.analysis.estimators import least_squares as ls
 from dynid.analysis.estimators.agreement import Agreement, agreement, segments
-from dynid.analysis.estimators.essential import essential_parameters
+from dynid.analysis.estimators.essential import essential_parameters, has_selection_bias
 from dynid.analysis.processing.observation import Observation, concatenate, observe
 from dynid.analysis.results import ModelResults, notices_block, percent
 from dynid.dynamics.base_parameters import base_parameters
@@ -117,7 +117,7 @@ class IDIMResult(ModelResults):
         added, the bias of the base parameters left out (`essential.with_selection_bias`)."""
         unc = self.model.settings.get("least_squares", {}).get("uncertainty", {})
         text = unc.get("covariance") or self.uncertainty
-        if "selection_bias" in unc:
+        if has_selection_bias(self.model):
             text += "; the essential parameters' sigma: " + unc["selection_bias"]
         return text
 

@@ -518,7 +518,8 @@ def _model_vector(model, robot, bp, notices):
         names, values, std = _json_rows(rows, src, "wls.parameters" if rows is wls.get("parameters") else "parameters")
         if rows is wls.get("parameters"):
             # the WLS lists every base parameter: one missing is an edited or foreign file, not a 0
-            missing = [nm for nm in bp.names if nm not in set(names)]
+            listed = set(names)
+            missing = [nm for nm in bp.names if nm not in listed]
             if missing:
                 raise InputError(f"{src}: wls.parameters lacks the base parameter(s) {', '.join(missing[:5])}"
                                  f"{' ...' if len(missing) > 5 else ''} of robot '{robot.name}' (an edited file, or "

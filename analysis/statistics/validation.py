@@ -116,8 +116,8 @@ class ValidationResult(Result):
         pandas.DataFrame
             Index `joint` = 1..n.
         """
-        n = self.tau.shape[1]
-        unit = ["N" if j in set(self.prismatic) else "N m" for j in range(1, n + 1)]
+        prismatic = set(self.prismatic)
+        unit = ["N" if j in prismatic else "N m" for j in range(1, self.tau.shape[1] + 1)]
         return pd.DataFrame({"rms": self.rms, "unit": unit, "rel_error": self.joint_rel_error,
                              "moving_rel_error": self._moving_joint_rel_error(),
                              "excluded_fraction": self.excluded_per_joint,

@@ -63,7 +63,7 @@ from functools import cached_property
 import numpy as np
 import pandas as pd
 
-from dynid.analysis.results import Result, p_phrase
+from dynid.analysis.results import Result, p_phrase, percent
 from dynid.analysis.statistics.residuals import analyze_residuals, residual_analysis
 from dynid.analysis.units import parameter_kind, parameter_unit, prismatic_joints
 from dynid.dynamics.base_parameters import base_parameters
@@ -666,17 +666,13 @@ def check_agreement(x: VerdictInputs) -> CheckOutcome:
     return CheckOutcome(findings=[{"level": level, "key": "agreement", "text": x.result.agreement_line}])
 
 
-def _pct2(v):
-    return f"{100 * float(v):.2f} %"
-
-
 def _effects_part(fx):
     """(text, JSON block) of the fit with effects beside the rigid body (`--effects`)."""
     v, both = fx.validation or {}, fx.physical is not None
-    held = (f", {_pct2(v['rel_error_wls'])}" + (f" ({_pct2(v['rel_error_pc'])})" if both else "") + " held out"
+    held = (f", {percent(v['rel_error_wls'])}" + (f" ({percent(v['rel_error_pc'])})" if both else "") + " held out"
             if v else "")
-    text = (f"with the effects {fx.spec} (--effects): {_pct2(fx.rel_error_wls)}"
-            + (f" (physically consistent: {_pct2(fx.rel_error_pc)})" if both else "") + held)
+    text = (f"with the effects {fx.spec} (--effects): {percent(fx.rel_error_wls)}"
+            + (f" (physically consistent: {percent(fx.rel_error_pc)})" if both else "") + held)
     return text, {"spec": fx.spec, "rel_error_wls": fx.rel_error_wls,
                   "rel_error_pc": fx.rel_error_pc if both else None,
                   "held_out_rel_error_wls": v.get("rel_error_wls"), "held_out_rel_error_pc": v.get("rel_error_pc")}
@@ -689,10 +685,10 @@ def _physical_part(pc, with_effects):
     if with_effects:
         text = f"its physically consistent fit (--physical): {pc.verdict_line()}"
     else:
-        text = (f"the physically consistent fit (--physical): {pc.verdict_line()}; {_pct2(pc.rel_error)}"
-                + (f", {_pct2(v['rel_error_pc'])} held out" if v else "")
-                + f" (unconstrained, all base parameters: {_pct2(pc.wls_rel_error)}"
-                + (f", {_pct2(v['rel_error_wls'])}" if v else "") + ")")
+        text = (f"the physically consistent fit (--physical): {pc.verdict_line()}; {percent(pc.rel_error)}"
+                + (f", {percent(v['rel_error_pc'])} held out" if v else "")
+                + f" (unconstrained, all base parameters: {percent(pc.wls_rel_error)}"
+                + (f", {percent(v['rel_error_wls'])}" if v else "") + ")")
     return text, {"chi2": pc.chi2, "dof": pc.dof, "p_value": pc.p_value, "consistent": pc.consistent,
                   "rel_error": pc.rel_error, "held_out_rel_error": v.get("rel_error_pc")}
 
@@ -706,8 +702,8 @@ def check_other_fits(x: VerdictInputs) -> CheckOutcome:
         return CheckOutcome()
     model = "its essential parameters" if x.kind == "essential" else "all its base parameters"
     judged = (f"The verdict judges the unconstrained rigid-body model ({model}): relative error "
-              f"{_pct2(getattr(x.estimate, 'rel_error', np.nan))} on the identification data"
-              + (f", {_pct2(x.validation.rel_error)} held out (all samples)" if x.validation is not None else ""))
+              f"{percent(getattr(x.estimate, 'rel_error', np.nan))} on the identification data"
+              + (f", {percent(x.validation.rel_error)} held out (all samples)" if x.validation is not None else ""))
     parts, block = [], {"judged": f"rigid body, unconstrained ({x.kind} parameters)"}
     if x.effects is not None:
         text, block["effects"] = _effects_part(x.effects)
