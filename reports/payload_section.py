@@ -13,13 +13,15 @@ from __future__ import annotations
 import html
 
 import numpy as np
+import pandas as pd
 from markupsafe import Markup
 
 from dynid.analysis.estimators.payload import UNITS
 from dynid.dynamics.urdf_writer import link_consistency
+from dynid.reports import tables as T
 from dynid.reports.html import Section, para, render_sections
 
-__all__ = ["payload_status", "payload_section", "payload_report_section", "payload_refusal_section",
+__all__ = ["payload_status", "payload_section", "payload_tables", "payload_report_section", "payload_refusal_section",
            "payload_html"]
 
 #: the three verdicts, as the identification's (dynid.reports.html.STATUS_LEVEL)
@@ -29,12 +31,6 @@ IDENTIFIED, RESERVATIONS, NOT_IDENTIFIED = "identified", "identified with reserv
 def _num(x, digits=6):
     x = float(x)
     return "n/a" if not np.isfinite(x) else f"{x:.{digits}g}"
-
-
-def _table(head, rows):
-    th = "".join(f"<th>{html.escape(h)}</th>" for h in head)
-    body = "".join("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in r) + "</tr>" for r in rows)
-    return f"<table><thead><tr>{th}</tr></thead><tbody>{body}</tbody></table>"
 
 
 def payload_status(result) -> tuple[str, list]:
@@ -71,24 +67,14 @@ def payload_status(result) -> tuple[str, list]:
 
 
 def payload_section(result) -> str:
-    """The body (an HTML fragment) of a payload or drive-gain result: verdict, tables, notices."""
+    """The text (an HTML fragment) of a payload or drive-gain result: the verdict and its
+    reasons, the centre of mass and principal moments, the check on the loaded recording, the
+    notices. The tables, with their CSV downloads, are `payload_tables`."""
     status, reasons = payload_status(result)
-    ci = result.conf_int().to_numpy()
-    bse = result.bse.to_numpy()
     parts = [f"<p><b>Verdict: {html.escape(status)}.</b> {html.escape(result.verdict())}</p>"]
     if reasons:
         parts.append("<ul>" + "".join(f"<li>{html.escape(r)}</li>" for r in reasons) + "</ul>")
-    if result.method == "drive-gains":
-        rows = [(j, _num(gf), _num(v), _num(s, 3), f"{m:+.3f}", _num(lo), _num(hi))
-                for j, gf, v, s, m, (lo, hi) in zip(result.joints, result.g_file, result.chi, bse,
-                                                    result.moved_percent, ci)]
-        parts.append(_table(["joint", "file gain", "identified gain", "sigma", "moved (%)", "95 % lower",
-                             "95 % upper"], rows))
-    else:
-        rel = result.rel_std.to_numpy()
-        rows = [(nm, _num(v), _num(s, 3), _num(r, 3), _num(lo), _num(hi), u)
-                for nm, v, s, r, (lo, hi), u in zip(result.names, result.chi, bse, rel, ci, UNITS)]
-        parts.append(_table(["parameter", "value", "sigma", "%sigma", "95 % lower", "95 % upper", "unit"], rows))
+    if result.method != "drive-gains":
         c, sc = result.com, result.com_std
         Ic = result.inertia_com
         parts.append("<p>Centre of mass (m): " + ", ".join(
@@ -102,15 +88,40 @@ def payload_section(result) -> str:
             parts.append(f"<p>Relative error of the robot model with the payload on the loaded recording "
                          f"{_num(100 * result.loaded_error, 3)} %, of the model on its own data "
                          f"{_num(100 * result.model_error, 3)} %.</p>")
-        if result.physical is not None:
-            rows = [(nm, _num(a), _num(b)) for nm, a, b in zip(result.names, result.physical.chi, result.chi)]
-            parts.append("<h3>Physically consistent (SDP) vs free</h3>"
-                         + _table(["parameter", "constrained", "free"], rows)
-                         + f"<p>chi^2 distance {_num(result.physical.delta, 3)}; active constraints: "
-                         + html.escape(", ".join(result.physical.active) or "none") + "</p>")
     if result.notices:
         parts.append("<ul>" + "".join(f"<li>{html.escape(n)}</li>" for n in result.notices) + "</ul>")
     return "\n".join(parts)
+
+
+def payload_tables(result) -> list:
+    """The `Table`s of a payload or drive-gain result, each with its CSV download: the
+    parameters (value, sigma, %sigma, 95 % interval, unit) and, for a payload fitted with
+    `physical=True`, the constrained fit beside the free one."""
+    ci = result.conf_int().to_numpy()
+    bse = result.bse.to_numpy()
+    if result.method == "drive-gains":
+        frame = pd.DataFrame({"file_gain": result.g_file, "gain": result.chi, "std": bse,
+                              "moved_percent": result.moved_percent, "ci_lower": ci[:, 0], "ci_upper": ci[:, 1]},
+                             index=pd.Index([f"g{j}" for j in result.joints], name="name"))
+        labels = {"name": "gain", "file_gain": "file gain", "gain": "identified gain", "std": "\u03c3",
+                  "moved_percent": "moved (%)", "ci_lower": "95 % lower", "ci_upper": "95 % upper"}
+        return [T.make_table(frame, "tab-drive-gains", "Drive gains (N m per unit of the logged signal)",
+                             labels=labels, formats={"moved_percent": "pct"})]
+    frame = pd.DataFrame({"unit": list(UNITS), "value": result.chi, "std": bse,
+                          "rel_std_percent": result.rel_std.to_numpy(), "ci_lower": ci[:, 0],
+                          "ci_upper": ci[:, 1]}, index=pd.Index(list(result.names), name="name"))
+    labels = {"name": "parameter", "value": "value", "std": "\u03c3", "rel_std_percent": "%\u03c3",
+              "ci_lower": "95 % lower", "ci_upper": "95 % upper"}
+    tables = [T.make_table(frame, "tab-payload", f"Payload parameters about frame {result.frame}",
+                           labels=labels, formats={"unit": "text", "rel_std_percent": "pct"})]
+    if result.physical is not None:
+        both = pd.DataFrame({"unit": list(UNITS), "constrained": result.physical.chi, "free": result.chi},
+                            index=pd.Index(list(result.names), name="name"))
+        note = (f"chi^2 distance {_num(result.physical.delta, 3)}; active constraints: "
+                + (", ".join(result.physical.active) or "none"))
+        tables.append(T.make_table(both, "tab-payload-physical", "Physically consistent (SDP) vs free",
+                                   labels={"name": "parameter"}, formats={"unit": "text"}, note=note))
+    return tables
 
 
 def _title(result) -> str:
@@ -123,7 +134,7 @@ def _title(result) -> str:
 def payload_report_section(result) -> Section:
     """The `Section` of a PayloadResult or DriveGainResult (id `payload` / `drive-gains`)."""
     sid = "drive-gains" if result.method == "drive-gains" else "payload"
-    return Section(sid, _title(result), Markup(payload_section(result)))
+    return Section(sid, _title(result), Markup(payload_section(result)), tables=payload_tables(result))
 
 
 def payload_refusal_section(message, sources=()) -> Section:

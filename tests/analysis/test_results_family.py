@@ -355,3 +355,22 @@ def test_a_hidden_spring_not_reported_says_which_rule_it_missed():
     assert "explains 20 % of the contradiction" in h.shortfall()
     h.p_value = 0.2
     assert h.shortfall() == "p = 0.2, not below 0.01"
+
+
+@pytest.mark.parametrize("make, key", [(_payload, "tab-payload"), (_drive_gains, "tab-drive-gains")])
+def test_payload_and_drive_gain_pages_download_their_tables(make, key, system):
+    """The page of `dynid payload --report` (and the full report's section) embeds each table's
+    CSV, as its footer says: the values in full precision, in the result's order."""
+    import io
+    import re
+    import urllib.parse
+
+    from dynid.reports.payload_section import payload_html
+    r = make(system)
+    page = payload_html(r)
+    uri = re.search(rf'href="data:text/csv;charset=utf-8,([^"]*)" download="{key}.csv"', page)
+    assert uri is not None, "no CSV download for the parameter table"
+    csv = pd.read_csv(io.StringIO(urllib.parse.unquote(uri.group(1))), index_col=0)
+    column = "gain" if key == "tab-drive-gains" else "value"
+    assert np.array_equal(csv[column].to_numpy(), np.asarray(r.chi, float))
+    assert np.array_equal(csv["std"].to_numpy(), r.bse.to_numpy())

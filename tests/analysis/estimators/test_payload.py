@@ -305,7 +305,20 @@ def test_payload_sections_carry_a_verdict(plant_data):
     assert "Verdict: identified" in page and "MXL" in page and "constrained" in page
     # what the summary and docs/payload.md give: %sigma, the moments about the centre of mass, and
     # the robot-fixed route's check of the model on the loaded recording
-    assert "<th>%sigma</th>" in page and "principal moments" in page
+    assert "%\u03c3</th>" in page and "principal moments" in page
+    # the parameter table and the SDP-vs-free table come with their CSV, every value in full and
+    # with its unit (the page's footer says downloads are embedded)
+    import io
+    import re
+    import urllib.parse
+
+    import pandas as pd
+    uri = re.search(r'href="data:text/csv;charset=utf-8,([^"]*)" download="tab-payload.csv"', page)
+    csv = pd.read_csv(io.StringIO(urllib.parse.unquote(uri.group(1))), index_col=0)
+    assert list(csv.index) == list(r.names) and list(csv["unit"])[-1] == "kg"
+    assert np.allclose(csv["value"], r.chi, rtol=1e-12) and np.allclose(csv["std"], r.bse, rtol=1e-12)
+    assert np.allclose(csv["rel_std_percent"], r.rel_std, rtol=1e-12)
+    assert 'download="tab-payload-physical.csv"' in page
     assert f"{100 * r.loaded_error:.3g} %, of the model on its own data" in page
     refused = payload_refusal_section("the recording does not identify XXL", ["l.csv"])
     assert refused.id == "payload" and "not identified" in str(refused.html_body) and "XXL" in str(refused.html_body)
