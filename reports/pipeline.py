@@ -38,6 +38,7 @@ from dynid.errors import IdentificationError, InputError
 from dynid.outputs import atomic_write_text, write_all
 from dynid.provenance import dumps_json
 from dynid.reports import render
+from dynid.reports.input_files import check_python_outputs
 from dynid.reports.payload_section import payload_refusal_section, payload_report_section
 from dynid.reports.progress import Reporter
 from dynid.reports.urdf_export import export_urdf, mjcf_of
@@ -94,6 +95,13 @@ def run(data, robot, settings=None, *, say=None, write=True, **options) -> Ident
         `to_dict()` is the JSON that `dynid identify --json` writes; `verdict` its verdict.
     """
     say = say or Reporter()
+    if write:
+        # before any work, as the command line: an output that would destroy an input (the
+        # recording itself, through any name) or cannot be written is refused now, not after minutes
+        given = settings if isinstance(settings, Settings) else Settings()
+        check_python_outputs([(f"{k}=", options.get(k, getattr(given, k, None)))
+                              for k in ("json", "csv", "report", "urdf", "mjcf")],
+                             data, robot, validation=options.get("validation"))
     ident = export_step(steps.run(data, robot, settings, say=say, **options), say)
     if write:
         write_all(outputs(ident), say)
@@ -394,6 +402,8 @@ def report(data, robot, path=None, *, settings=None, say=None, payload=None, pay
     """
     say = say or Reporter()
     s = _report_settings(settings, options)
+    check_python_outputs([("report (path=)", path)], data, robot, validation=options.get("validation"),
+                         payload=payload)
     robot = steps.as_robot(robot)
     if payload_options and payload is None:
         raise InputError("payload_options given without payload=: give the loaded recording(s) as "
@@ -463,6 +473,7 @@ def demo(*, seed=1, duration=20.0, skip=(), max_seconds=None, max_iter=None, gai
         raise InputError(f"seed must be a non-negative integer, got {seed!r} (--seed)")
     sample_count(duration, float(load_robot("tx40").controller.rate),
                  what="the demo's controller rate (the TX40's)")
+    check_python_outputs([("report (path=)", path)], robot="tx40")
     result, robot, experiment, validation, held_out = run_demo(seed=seed, duration=duration, say=say, uncertainty=s.uncertainty)
     out = _full_report(result, robot, [experiment], validation, held_out, s, say)
     if path is not None:

@@ -7,9 +7,9 @@ import filecmp
 import os
 import sys
 
-from dynid.dynamics.robot_file import bundled_path, is_bundled_name
 from dynid.errors import InputError
-from dynid.outputs import check_output_formats, check_outputs, referenced_files, same_file, write_all
+from dynid.outputs import check_output_formats, check_outputs, same_file, write_all
+from dynid.reports.input_files import input_files
 from dynid.reports.progress import clean_text
 
 EXIT_OK, EXIT_INPUT = 0, 2
@@ -22,30 +22,10 @@ def commit_outputs(outputs, say):
 OUTPUT_OPTIONS = ("json", "report", "csv", "out", "urdf", "mjcf")
 def _input_files(args):
     """`(what, path)` of every input file the options name (data, validation, robot file)."""
-    out = []
-    data = getattr(args, "data", None)
-    for p in [data] if isinstance(data, str) else (data or []):
-        out.append(("the data file", p))
-    if getattr(args, "validation", None):
-        out.append(("the --validation file", args.validation))
-    for opt in ("model", "unloaded", "payload"):        # payload's other inputs, report's payload
-        value = getattr(args, opt, None)
-        for p in [value] if isinstance(value, str) else (value or []):
-            out.append((f"the --{opt} file", p))
-    robot = getattr(args, "robot", None)
-    if robot:
-        what = "the robot file" if args.command == "robot" else "the --robot file"
-        if isinstance(robot, str) and is_bundled_name(robot):
-            # a bundled name stands for the package's own file, which no output may replace
-            what, robot = f"the bundled robot {robot}'s file", str(bundled_path(robot))
-        out.append((what, robot))
-    for _what, p in list(out):
-        for key, ref in referenced_files(p):
-            out.append((f"the file {p} reads ({key} = {os.path.basename(ref)!r})", ref))
-            if "\0" in ref:
-                raise InputError(f"{p}: {key} = {os.path.basename(ref)!r} contains a NUL byte, which no "
-                                 f"file name can; fix '{key}' in {p}")
-    return out
+    named = {opt: getattr(args, opt, None) for opt in ("validation", "model", "unloaded", "payload")}
+    return input_files(getattr(args, "data", None), robot=getattr(args, "robot", None) or None,
+                       robot_what="the robot file" if args.command == "robot" else "the --robot file",
+                       **{opt: v for opt, v in named.items() if v})
 
 
 def check_input_paths(args):

@@ -4,6 +4,7 @@ given twice (shifted by a sample), plus the parts of the results interface every
 (`to_csv`, a one-line `repr`) on the results that lacked them."""
 import dataclasses
 import pickle
+import re
 
 import numpy as np
 import pandas as pd
@@ -299,3 +300,37 @@ def test_a_recording_where_the_robot_goes_is_named_for_the_arguments_order():
     rec = dynid.simulate("planar2", 3.0, seed=1)
     with pytest.raises(InputError, match="not Experiment; the recording comes first and the robot second"):
         dynid.diagnose(rec.experiment, rec.experiment)
+
+
+def test_the_python_api_never_writes_over_its_inputs(tmp_path, monkeypatch):
+    """`dynid.run(..., csv=...)`, `dynid.report(..., path)` and `dynid.demo(path=...)` refuse, before
+    any work, what `dynid identify` refuses: an output that is the recording (under any name), a
+    file the TOML reads, or the robot file; an output in a folder that does not exist."""
+    monkeypatch.chdir(tmp_path)
+    rec = dynid.simulate("planar2", 4.0, seed=1)
+    pd.DataFrame({"t": rec.experiment.t, **{f"q{j + 1}": rec.experiment.q[:, j] for j in range(2)},
+                  **{f"tau{j + 1}": rec.experiment.tau[:, j] for j in range(2)}}).to_csv("run.csv", index=False)
+    (tmp_path / "run.toml").write_text('[experiment]\nname = "r"\n[positions]\nfile = "run.csv"\n'
+                                       'columns = ["q1", "q2"]\n[torques]\nfile = "run.csv"\n'
+                                       'columns = ["tau1", "tau2"]\n')
+    from dynid.dynamics.robot_file import bundled_path
+    robot_file = tmp_path / "arm.toml"
+    robot_file.write_bytes(bundled_path("planar2").read_bytes())
+    before = (tmp_path / "run.csv").read_bytes()
+    work = []
+    monkeypatch.setattr("dynid.analysis.run.run", lambda *a, **k: work.append(1))    # no work may start
+    for call, words in [
+            (lambda: dynid.run("run.csv", "planar2", csv="run.csv"), "csv= run.csv is the data file"),
+            (lambda: dynid.run(str(tmp_path / "run.csv"), "planar2", json="./run.csv"), "json= ./run.csv is the data"),
+            (lambda: dynid.run("run.toml", "planar2", csv="run.csv"), "the file run.toml reads"),
+            (lambda: dynid.run(rec, "planar2", json="a.json", csv="sub/../a.json"), "the same file"),
+            (lambda: dynid.run("run.csv", "planar2", report="nodir/r.html"), "does not exist"),
+            (lambda: dynid.report("run.csv", "planar2", "run.csv"), "report (path=) run.csv is the data file"),
+            (lambda: dynid.demo(path="nodir/demo.html"), "does not exist")]:
+        with pytest.raises(InputError, match=re.escape(words)):
+            call()
+    with pytest.raises(InputError, match="is the robot file"):
+        dynid.run("run.csv", str(robot_file), json=str(robot_file))
+    with pytest.raises(InputError, match="the bundled robot planar2's file"):
+        dynid.run("run.csv", "planar2", json=str(bundled_path("planar2")))
+    assert not work and (tmp_path / "run.csv").read_bytes() == before
