@@ -353,6 +353,13 @@ def _stage(target: str, data: bytes, label, lease: _Lease) -> str:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise _write_error(label, exc) from None
+    except BaseException:
+        # Ctrl-C or SIGTERM in the write: the file is not yet among the staged ones that the
+        # caller cleans up, and its lease is released on the way out, so no later run could
+        # prove it abandoned and remove it
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
     return tmp
 
 

@@ -690,6 +690,24 @@ def test_g3_sigterm_between_renames(tmp_path, data, monkeypatch, capsys):
     _assert_all_or_none(out, run)
 
 
+def test_g3_interrupt_while_staging_leaves_no_temporary_file(tmp_path, monkeypatch):
+    """Ctrl-C inside the write of a temporary file: the old output stays and the temporary file
+    goes (it was not yet staged, and its lease is released on the way out: no later run could
+    prove it abandoned)."""
+    from dynid.outputs import write_all
+    old = tmp_path / "e.json"
+    old.write_text("OLD")
+
+    def interrupted(fd):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(os, "fsync", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        write_all([(str(old), "NEW")])
+    assert old.read_text() == "OLD"
+    assert not [n for n in temp_files(tmp_path) if n.endswith(".tmp")], temp_files(tmp_path)
+
+
 _LEASE_HOLDER = """
 import os, sys, time
 from dynid.outputs import staged_path
