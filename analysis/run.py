@@ -45,9 +45,11 @@ from dynid.analysis.diagnosis.asymmetric_friction import asymmetric_friction
 from dynid.analysis.diagnosis.physical_fit import effect_candidates, identify_physical_effects
 from dynid.analysis.estimators.controller_gains import identify_gains
 from dynid.analysis.estimators.didim import DEFAULT_MAX_ITER, identify_didim
+from dynid.analysis.estimators.drive_gains import DriveGainResult
 from dynid.analysis.estimators.gravity_tilt import gravity_tilt
 from dynid.analysis.estimators.idim import DEFAULT_UNCERTAINTY, identify_idim
 from dynid.analysis.estimators.maximum_likelihood import maximum_likelihood, robot_model
+from dynid.analysis.estimators.payload import PayloadResult
 from dynid.analysis.estimators.physical import identify_physical, require_cvxpy
 from dynid.analysis.estimators.projection import identify_projection
 from dynid.analysis.processing.observation import SETTINGS_HELP
@@ -815,6 +817,13 @@ def verdict_of(result, held_out=None, *, robot=None, diagnosis=None, residuals=N
     if result is None or not any(hasattr(result, a) for a in ("names", "result", "verdict")):
         raise InputError(f"verdict: give an identification result (dynid.identify, dynid.run), not "
                          f"{type(result).__name__}")
+    if isinstance(result, (PayloadResult, DriveGainResult)):
+        # the robot model's rules (rotor inertias, friction, %sigma of base parameters) say
+        # nothing of a payload's ten parameters or of drive gains: those have their own rule
+        what = "drive-gain" if isinstance(result, DriveGainResult) else "payload"
+        raise InputError(f"verdict: a {what} result has its own verdict, result.verdict() (the rule of its "
+                         f"report section: identified, with reservations or not identified); dynid.verdict "
+                         f"judges an identified robot model")
     if held_out is not None and not isinstance(held_out, (Experiment, ValidationResult, str, os.PathLike)):
         raise InputError(f"verdict: the held-out data must be an Experiment, a file path or a ValidationResult, "
                          f"not {type(held_out).__name__}")

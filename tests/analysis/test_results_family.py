@@ -374,3 +374,12 @@ def test_payload_and_drive_gain_pages_download_their_tables(make, key, system):
     column = "gain" if key == "tab-drive-gains" else "value"
     assert np.array_equal(csv[column].to_numpy(), np.asarray(r.chi, float))
     assert np.array_equal(csv["std"].to_numpy(), r.bse.to_numpy())
+
+
+@pytest.mark.parametrize("make", [_payload, _drive_gains])
+def test_dynid_verdict_refuses_a_payload_or_drive_gain_result(make, system):
+    """A payload's ten parameters and drive gains have their own rule (`result.verdict()`); the
+    robot model's verdict called them "base parameters" and disagreed with it."""
+    import dynid
+    with pytest.raises(dynid.InputError, match=r"has its own verdict, result.verdict\(\)"):
+        dynid.verdict(make(system))
