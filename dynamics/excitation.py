@@ -219,8 +219,8 @@ class ExcitationResult:
                 f"cond {self.cond_result:.4g} (best start {self.cond_start:.4g})"
                 f"{'' if self.feasible else ', NOT within the limits'}>")
 
-    def to_frame(self, fs, n_periods=1):
-        """Reference `t, qr1..n, qdr1..n, qddr1..n` at the controller rate `fs` (Hz).
+    def to_frame(self, fs=None, n_periods=1):
+        """Reference `t, qr1..n, qdr1..n, qddr1..n` at the controller rate `fs` (Hz, required).
 
         `n_periods` whole periods, `round(n_periods fs / f0)` samples from t = 0
         (the end point, equal to the start, is not repeated).
@@ -230,6 +230,9 @@ class ExcitationResult:
         pandas.DataFrame
             One row per sample.
         """
+        if fs is None:
+            raise InputError("ExcitationResult.to_frame needs fs, the controller rate in Hz at which the "
+                             "reference is sampled (for example to_frame(fs=5000.0))")
         fs = float(fs)
         if not np.isfinite(fs) or fs <= 0:
             raise InputError(f"fs must be a positive sampling rate in Hz, got {fs!r}")

@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 
 from dynid.analysis.estimators import least_squares as ls
-from dynid.analysis.results import IdentificationResult, ParameterResults
+from dynid.analysis.results import IdentificationResult, ParameterResults, percent
 from dynid.errors import InputError
 from dynid.provenance import json_safe
 
@@ -94,12 +94,16 @@ class EssentialResult(ParameterResults):
             f"Base parameters: {len(self.essential) + len(self.removed)}    "
             f"essential: {len(self.essential)}    removed: {len(self.removed)}",
             "Criteria: " + ", ".join(f"{k}={v}" for k, v in self.criteria.items()),
-            f"Base relative error norm: {self.base.rel_error:.6g}",
+            f"Base relative error norm: {percent(self.base.rel_error, 4)}",
             f"Stopped ({self.stop_rule}): {self.stop_reason}",
             "-" * 78,
         ]
         if len(self.path):
-            lines.append(self.path.to_string(index=False, float_format=lambda x: f"{x:.6g}"))
+            # the path's %sigma columns are in percent already; its rel_error is a fraction (JSON)
+            shown = self.path.assign(rel_error=100.0 * self.path["rel_error"]).rename(
+                columns={"rel_error": "rel_error_%", "rel_std_removed": "rel_std_removed_%",
+                         "max_rel_std_remaining": "max_rel_std_remaining_%"})
+            lines.append(shown.to_string(index=False, float_format=lambda x: f"{x:.6g}"))
         else:
             lines.append("No parameter was removed.")
         lines.append(rule)
@@ -386,7 +390,7 @@ def _search(base, names, step_fit, final, crit, fixed_kwargs, estimator_kwargs):
             stop_rule = "error_growth"
             stop_reason = (
                 f"removing {names[cols[k]]!r} (%sigma {rel_sigma[k]:.4g}, eq. (15)) would raise the relative "
-                f"error norm from {err0:.6g} to {err_t:.6g} (+{100 * (err_t / err0 - 1):.3g} % > "
+                f"error norm from {percent(err0, 4)} to {percent(err_t, 4)} (+{100 * (err_t / err0 - 1):.3g} % > "
                 f"{100 * crit['max_error_growth']:g} %)"
             )
             break

@@ -286,16 +286,19 @@ class MLResult(ParameterResults):
 
     def summary(self):
         rule, thin = "=" * _WIDTH, "-" * _WIDTH
+        # a prismatic joint's position is in m and its force in N
+        uq, ut = ("[rad|m]", "[N m|N]") if self._prismatic() else ("[rad]", "[N m]")
         lines = ["Maximum likelihood, errors in variables (Bona & Curatella 2005, eqs. (13)-(16))".center(_WIDTH),
                  rule, f"Model: {self.model}",
                  f"Samples N: {self.n_samples}   joints: {self.n_joints}   parameters: {self.n_params}   "
                  f"latent trajectory: K = {self.n_harmonics} harmonics of f0 = {_fmt(self.f0)} Hz",
                  f"-log L (eq. 13): {_fmt(self.nll)}   converged: {self.converged}   "
                  f"evaluations: {self.n_evaluations}   time: {self.elapsed:.2f} s", thin,
-                 f"{'Joint':<8}{'sigma_q':>14}{'rms q res.':>14}{'sigma_tau':>14}{'rms tau res.':>14}"]
+                 f"{'Joint':<8}{'sigma_q ' + uq:>17}{'rms q res. ' + uq:>17}{'sigma_tau ' + ut:>17}"
+                 f"{'rms tau res. ' + ut:>19}"]
         for j in range(self.n_joints):
-            lines.append(f"{j + 1:<8}{_fmt(self.sigma_q[j]):>14}{_fmt(self.rms_q[j]):>14}"
-                         f"{_fmt(self.sigma_tau[j]):>14}{_fmt(self.rms_tau[j]):>14}")
+            lines.append(f"{j + 1:<8}{_fmt(self.sigma_q[j]):>17}{_fmt(self.rms_q[j]):>17}"
+                         f"{_fmt(self.sigma_tau[j]):>17}{_fmt(self.rms_tau[j]):>19}")
         lines.append(thin)
         lines += parameter_table(self.names, [("ML value", self.chi, "num"), ("sigma", self.bse.to_numpy(), "num"),
                                               ("%sigma", self.rel_std.to_numpy(), "pct"),

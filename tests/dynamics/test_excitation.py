@@ -120,6 +120,8 @@ def test_export_and_serialisation(tx40, design, tmp_path):
     assert np.allclose(df[[f"qdr{j}" for j in range(1, 7)]].to_numpy(), qd)
     path = tmp_path / "excitation.csv"
     design.to_csv(path, fs=1000.0, n_periods=2)
+    with pytest.raises(InputError, match="needs fs, the controller rate"):   # not a bare TypeError
+        design.to_frame()
     assert sum(1 for _ in open(path)) == 1 + 2 * 10_000
     d = json.loads(dumps_json(design.to_dict()))
     assert d["f0"] == F0 and d["harmonics"] == N_HARM
