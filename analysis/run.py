@@ -978,8 +978,9 @@ def run(data, robot, settings=None, *, say=None, **options) -> Identification:
         result = identify_step(experiments, robot, settings.replace(physical=False, prior=None, mass_tolerance=None)
                                if settings.method == "idim" else settings, progress=bar.update)
     if settings.method != "idim":
+        # PC-DIDIM's fit is the result's own (`result.physical`); `physical` names it, as for IDIM
         return Identification(settings=settings, robot=robot, experiments=experiments, result=result,
-                              verdict=verdict(result, robot=robot))
+                              verdict=verdict(result, robot=robot), physical=getattr(result, "physical", None))
     validation = validate(result, held_out, robot) if held_out is not None else None
     asym = asymmetric_step(experiments, robot, result, settings)
     physical, effects = physical_step(experiments, robot, result, held_out, settings, candidates, say)

@@ -74,7 +74,7 @@ Documented choices (all in `DIDIMResult.settings`, all overridable through
   iteration would stop there; a damped step is simulated instead, and
   convergence is only declared after a full step. PC-DIDIM (`physical=True`)
   also halves a step that raises the output error ||tau - tau_sim|| above the
-  last simulated estimate's (a projected Gauss-Newton step needs that descent
+  last simulated estimate's by more than tol_I (a projected Gauss-Newton step needs that descent
   test; the halved steps stay physical, the set being convex); the smallest
   step is taken untested. Plain DIDIM keeps it opt-in (`descent_test`): measured on the
   independent plant (benchmarks/results/didim_nonconvergence_seed3005.txt), the runs that did not
@@ -905,12 +905,15 @@ def _loop_note(L, beta, configs, *, update):
             f"IDIM's model")
 
 
-def _simulate_step(L, k, beta0, beta_sim, beta_ls, configs, physical, out_prev):
+def _simulate_step(L, k, beta0, beta_sim, beta_ls, configs, physical, out_prev, tol=0.0):
     """Simulate step k's estimate, halving the step from the last simulated one when needed.
 
     Candidates: beta0 at step 1, else beta_sim + 0.5^h (beta_ls - beta_sim), h = 0..
     max_step_halvings. A candidate fails when it cannot be simulated, or (PC-DIDIM) when
-    it raises the output error (the descent test). Returns (lam, cand, sim_out, system,
+    it raises the output error by more than `tol` (tol_I, relative: the descent test; a change
+    within it is inside the noise, as for the stopping rule, and at the iteration's fixed point
+    a full step raises the error by that little half of the time, which without the margin cut
+    every later step to 1/64 and kept the run from ever converging). Returns (lam, cand, sim_out, system,
     failure, first_failure) with `failure` the last candidate's error when none worked.
     """
     max_halvings = L.s["max_step_halvings"]
@@ -938,7 +941,7 @@ def _simulate_step(L, k, beta0, beta_sim, beta_ls, configs, physical, out_prev):
             q_s, qd_s, qdd_s = sim_out[:3]
             system = L.system(q_s, qd_s, qdd_s)
             oe = _masked_norm(system[1] - system[0] @ cand, system[2])
-            if oe > out_prev:
+            if oe > out_prev * (1.0 + tol):
                 first_failure = first_failure or (f"the output error grew ({oe:.4g} > "
                                                   f"{out_prev:.4g})")
                 system = None
@@ -1023,13 +1026,13 @@ def _gauss_newton(L, beta0, tol, physical, pc_options, notices, resume=None):
     for k in range(k0, k0 + max_iter):
         t_start = time.perf_counter()
         lam, cand, sim_out, system, failure, first_failure = _simulate_step(
-            L, k, beta0, beta_sim, beta_ls, configs, physical, out_prev)
+            L, k, beta0, beta_sim, beta_ls, configs, physical, out_prev, tol)
         if failure is not None and k == 1 and "not positive definite" in str(failure):
             beta0, note = _physical_start(L, beta0, failure)
             notices.append(note)
             beta_sim = beta0
             lam, cand, sim_out, system, failure, first_failure = _simulate_step(
-                L, k, beta0, beta_sim, beta_ls, configs, physical, out_prev)
+                L, k, beta0, beta_sim, beta_ls, configs, physical, out_prev, tol)
         if failure is not None:
             if k == 1:
                 raise InputError(f"DIDIM cannot simulate the initial estimate chi0: {failure}"
@@ -1092,11 +1095,24 @@ def _gauss_newton(L, beta0, tol, physical, pc_options, notices, resume=None):
             break
         rho_prev = rho
     else:
-        stop_reason = (f"max_iter = {max_iter} steps without meeting the criterion: last relative "
-                       f"change of ||rho|| {history[-1]['rel_change']:.3g} > tol_I = {tol:g}"
-                       if max_iter > 1 or resume is not None else
-                       "max_iter = 1: one step cannot test the criterion (it compares two steps)")
+        stop_reason = (_unmet_criterion(history[-1], max_iter, tol) if max_iter > 1 or resume is not None
+                       else "max_iter = 1: one step cannot test the criterion (it compares two steps)")
     return history, timings, last, converged, stop_reason
+
+
+def _unmet_criterion(row, max_iter, tol) -> str:
+    """Why `max_iter` steps did not converge, from the last step's history `row`: its change of
+    ||rho|| above tol_I, or a change within it on a damped step (convergence is declared after a
+    full step only: a step cut to a fraction changes ||rho|| little whether or not the iteration
+    has settled)."""
+    change = row["rel_change"]
+    if not change <= tol:
+        return (f"max_iter = {max_iter} steps without meeting the criterion: last relative change of "
+                f"||rho|| {change:.3g} > tol_I = {tol:g}")
+    return (f"max_iter = {max_iter} steps without meeting the criterion: the last relative change of ||rho|| "
+            f"{change:.3g} is within tol_I = {tol:g}, but on a damped step (step length {row['step_length']:.3g}, "
+            "halved by the descent test or the step safeguard), and convergence is only declared after a "
+            "full step")
 
 
 def _convergence_notices(history, converged, stop_reason):
@@ -1333,6 +1349,7 @@ def _didim_result(L, experiment, beta0, tau, history, timings, last, converged, 
     if physical and n_boot:
         last["physical"] = _pc_of(robot, bp, res, last.get("res_classic"), n_boot, pc_options,
                                   uncertainty + ("+gains" if gains_cov is not None else ""))
+    _pc_errors(last.get("physical"), res.chi, last["Wd"], last["taud"], last["mask"])
     h = experiment.data_hash() if hasattr(experiment, "data_hash") else ""
     res.data_hash, res.prismatic = h, tuple(getattr(bp, "prismatic", ()))
     ess = None
@@ -1480,6 +1497,7 @@ def _keep_start_width(first, robot, final_cov, n_boot, pc_options, essential, ma
     if physical and n_boot:
         first.physical = _pc_of(robot, first.base, first.result, (first._state[1] if first._state else {}).get("res_classic"), n_boot,
                                 pc_options, first.settings.get("uncertainty", "classic"))
+        _pc_errors(first.physical, first.result.chi, first.W_dec, first.tau_dec, first.row_mask)
     if essential:
         first.essential = essential_parameters(
             first.W_dec, first.tau_dec, list(first.base.names), ls.wls,
@@ -1650,6 +1668,17 @@ def _continue_at(experiment, L0, first, v, step, start, final_run, progress):
                         physical=o["physical"], n_boot=o["n_boot"], pc_options=o["pc_options"],
                         uncertainty=o["uncertainty"], gains_cov=o["gains"])
     return res, rows, timings
+
+
+def _pc_errors(pc, chi_wls, Wd, taud, mask) -> None:
+    """Set the PC fit `pc`'s relative errors ||Y - W beta|| / ||Y|| (its own and the last step's
+    WLS `chi_wls`'s) on the last step's system, as IDIM's PC fit reports them; None: nothing."""
+    if pc is None:
+        return
+    norm = float(np.linalg.norm(np.where(mask, taud, 0.0)))
+    for attr, chi in (("rel_error", pc.chi), ("wls_rel_error", chi_wls)):
+        err = float(np.linalg.norm(np.where(mask, taud - Wd @ np.asarray(chi, float), 0.0)))
+        setattr(pc, attr, err / norm if norm > 0 else math.nan)
 
 
 def _pc_of(robot, bp, res, res_classic, n_boot, pc_options, uncertainty):

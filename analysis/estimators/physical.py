@@ -132,6 +132,7 @@ from dynid.analysis.results import (
     parameter_table,
     percent,
 )
+from dynid.analysis.units import parameter_unit
 from dynid.dynamics.urdf_writer import consistency, inertial_slice, pseudo_inertia_basis
 from dynid.errors import InputError
 from dynid.provenance import json_safe, versions
@@ -353,10 +354,10 @@ class PhysicalResult(ParameterResults):
             "test": ("chi2 = growth of the weighted squared residual over the unconstrained WLS, in "
                      "units of its error variance; p_value = P(chi2_dof > chi2), an upper bound of the "
                      "chi-bar-squared p-value with dof = active scalar constraints"),
-            "parameters": [{"name": n, "value": v, "std": s, "wls": w}
-                           for n, v, s, w in zip(self.names, self.chi, self.bse.to_numpy(), self.wls_chi)],
-            "standard_parameters": [{"name": n, "value": v, "apriori": a} for n, v, a in
-                                    zip(self.standard_names, self.standard, self.apriori)],
+            # the records of every result (unit, %sigma), with the unconstrained value beside each
+            "parameters": [{**r, "wls": w} for r, w in zip(self._records(), self.wls_chi)],
+            "standard_parameters": [{"name": n, "value": v, "apriori": a, "unit": parameter_unit(n, self._prismatic())}
+                                    for n, v, a in zip(self.standard_names, self.standard, self.apriori)],
             "links": self.links,
             "notices": self.notices,
         })

@@ -101,6 +101,15 @@ def test_identify_didim_physical_is_pc_didim(planar2_csv, tmp_path):
         sd = next(q["std"] for q in doc["wls"]["parameters"] if q["name"] == p["name"])
         assert abs(p["value"] - p["wls"]) <= 3 * sd + 1e-12
     assert 'id="physical"' in html.read_text()
+    # every value with its unit and %sigma, as every result's records (they had neither)
+    assert all(p["unit"] and "rel_std_percent" in p for p in ph["parameters"])
+    assert all(p["unit"] for p in ph["standard_parameters"])
+    # its errors on the last step's system, as IDIM's PC fit gives them (they were NaN)
+    assert 0 < ph["rel_error"] < 0.5 and 0 < ph["wls_rel_error"] < 0.5
+    # in Python the fit is `run.physical` too, as docs/formats.md says (it was None for DIDIM)
+    import dynid
+    run = dynid.run(str(planar2_csv), "planar2", method="didim", physical=True, max_iter=2, write=False)
+    assert run.physical is run.result.physical and run.physical.to_frame().shape[0] == len(ph["parameters"])
 
 
 def test_didim_physical_takes_the_prior_and_the_bootstrap(planar2_csv, tmp_path):

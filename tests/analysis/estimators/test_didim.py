@@ -597,3 +597,14 @@ def test_a_step_that_cannot_be_simulated_says_when_its_loop_is_unstable():
                          update_gains=False)
     assert not res.converged
     assert "controller loop, sampled at 1000 Hz, is unstable" in res.stop_reason, res.stop_reason
+
+
+def test_an_unconverged_run_says_why_when_its_last_change_was_small():
+    """A run stopped at max_iter whose last change of ||rho|| is within tol_I was stopped by a
+    damped step (convergence needs a full one): the reason says so, not "6.9e-07 > tol_I"."""
+    from dynid.analysis.estimators.didim import _unmet_criterion
+    damped = _unmet_criterion({"rel_change": 6.9e-7, "step_length": 0.015625}, 20, 1e-3)
+    assert "within tol_I = 0.001" in damped and "damped step (step length 0.0156" in damped
+    assert ">" not in damped
+    moving = _unmet_criterion({"rel_change": 0.02, "step_length": 1.0}, 20, 1e-3)
+    assert "last relative change of ||rho|| 0.02 > tol_I = 0.001" in moving
