@@ -94,7 +94,7 @@ def fleet_sections(run, frame, health):
     overview = [para(f"{frame['robot_id'].nunique()} robots, {n_rec} recordings in the store "
                      f"({len(errors)} failed). This run computed {run.n_computed} and reused {run.n_skipped}."),
                 para(f"{len(onset)} robot(s) in alarm: " + (", ".join(f"{r} since {d}" for r, d in onset.items())
-                                                           or "none") + ".")]
+                                                           or "none") + ".")] + [para(n) for n in run.notices]
     overview.append(para(f"Monitored: {', '.join(health.settings['parameters'])}; two-sided CUSUM (Page 1954), "
                          f"threshold h = {health.threshold:.2f} for a false-alarm rate of "
                          f"{health.settings['false_alarm_rate']:.2g} per series and recording; baseline: the first "
@@ -132,6 +132,7 @@ def fleet_sections(run, frame, health):
 
 
 def fleet_json(run, frame, health) -> dict:
+    frame = run.current(frame)
     out = run.to_dict()
     out["robots"] = json_safe(robot_table(frame, health).reset_index().to_dict("records"))
     return out
@@ -140,6 +141,7 @@ def fleet_json(run, frame, health) -> dict:
 def write_fleet_outputs(run, frame, *, html=None, json_path=None) -> list:
     """Write the fleet report (`html`) and/or its JSON (`json_path`) atomically; returns the paths."""
     health = run.health
+    frame = run.current(frame)
     outputs = []
     if html is not None:
         page = render_sections(fleet_sections(run, frame, health), title="dynid fleet report",

@@ -30,9 +30,9 @@ from dynid.analysis.fleet.catalogue import (
     temperature_columns,
 )
 from dynid.analysis.fleet.store import ResultStore
-from dynid.analysis.fleet.task import MAX_SAMPLES, file_hash, identify_recording, task_key
+from dynid.analysis.fleet.task import MAX_SAMPLES, file_hash, identify_recording, retry_failure, task_key
 from dynid.dynamics.robot_file import is_bundled_name
-from dynid.errors import InputError
+from dynid.errors import InputError, OutputError
 from dynid.provenance import json_safe, versions
 from dynid.ranges import check_range
 
@@ -61,6 +61,8 @@ class FleetRun:
     task_seconds: list = field(default_factory=list)   # per computed task, as measured in the task
     workers: int = 0
     health: object = None        # FleetHealth, when monitored
+    keys: frozenset | None = None  # the store keys of the catalogue's rows: the results the run uses
+    n_unused: int = 0            # results stored for rows no longer in the catalogue (kept, not used)
 
     @property
     def n_failed(self) -> int:
@@ -72,15 +74,30 @@ class FleetRun:
         """Recordings of this run identified (computed and not failed)."""
         return self.n_computed - self.n_failed
 
+    @property
+    def notices(self) -> list:
+        """What the run left aside, in words."""
+        if not self.n_unused:
+            return []
+        return [f"{self.n_unused} result(s) in the store are of rows no longer in the catalogue (removed, or "
+                f"their robot_id or path changed): not used by the monitor or the report, and left in the store"]
+
+    def current(self, frame):
+        """The rows of the store's `frame` that belong to the catalogue's current rows (all of them
+        when the run does not know those)."""
+        return frame if self.keys is None else frame[frame["key"].isin(self.keys)]
+
     def summary_line(self) -> str:
-        return (f"{self.n_recordings} recordings: {self.n_identified} identified, {self.n_skipped} already in "
-                f"the store, {self.n_failed} failed ({self.wall_seconds:.1f} s)")
+        return "\n  ".join([f"{self.n_recordings} recordings: {self.n_identified} identified, {self.n_skipped} "
+                             f"already in the store, {self.n_failed} failed ({self.wall_seconds:.1f} s)"]
+                            + self.notices)
 
     def to_dict(self) -> dict:
         out = {"store": self.store, "n_recordings": self.n_recordings, "n_computed": self.n_computed,
                "n_identified": self.n_identified, "n_failed": self.n_failed,
                "n_skipped": self.n_skipped, "n_errors": len(self.errors),
                "errors": [{"robot_id": r, "recording": p, "error": m} for r, p, m in self.errors],
+               "n_unused": self.n_unused, "notices": self.notices,
                "wall_seconds": self.wall_seconds, "workers": self.workers}
         if self.health is not None:
             out["health"] = self.health.to_dict()
@@ -241,41 +258,61 @@ def check_local_workers(workers, scheduler=None):
 
 
 def identify_and_store(spec: dict, store_root: str) -> dict:
-    """The Dask task: identify one recording, write its result to the store, return a summary."""
+    """The Dask task: identify one recording, write its result to the store, return a summary.
+
+    A store that cannot be written (the disk is full) is the summary's `write_error`, not an
+    exception: Dask would log a raised one on the worker's console before the client says it.
+    """
     result = _expand_shared(spec, identify_recording(spec))
-    ResultStore(store_root).write(result)
-    return {k: result[k] for k in ("key", "status", "error", "task_seconds", "task_cpu_seconds") if k in result}
+    summary = {k: result[k] for k in ("key", "status", "error", "task_seconds", "task_cpu_seconds") if k in result}
+    try:
+        ResultStore(store_root).write(result)
+    except OutputError as exc:
+        summary["write_error"] = str(exc)
+    return summary
+
+
+def _killed(spec: dict) -> dict:
+    """The result of a task whose worker died on every try (stored as a failure to retry)."""
+    return {**{k: spec[k] for k in ("key", "robot_id", "path", "robot", "timestamp", "day", "data_hash",
+                                    "version")},
+            "temperatures": spec["temperatures"], "task_seconds": float("nan"), "task_cpu_seconds": float("nan"),
+            **retry_failure(spec, "the worker running it died on every try (out of memory? a crash in a "
+                                  "native library? killed?)")}
 
 
 def execute(specs, store: ResultStore, client, *, progress=None):
     """Run `specs` on `client`; each task writes its result to `store` as it completes.
 
     Returns (summaries, errors): per task its key, status, error and times. A task
-    that keeps killing its workers ends as an error of its recording (written by
-    the client); the rest goes on.
+    that keeps killing its workers ends as a failure to retry of its recording (written
+    by the client); the rest goes on. A store that cannot be written stops the run
+    (its tasks cancelled) with the OutputError.
     """
     distributed = import_distributed()
     futures = client.map(identify_and_store, specs, store_root=store.root,
                          key=[f"dynid-fleet-{s['key']}" for s in specs], pure=False)
     by_key = {f.key: s for f, s in zip(futures, specs)}
     results, errors = [], []
-    for done, fut in enumerate(distributed.as_completed(futures), 1):
-        spec = by_key[fut.key]
-        try:
-            result = fut.result()
-        except distributed.KilledWorker:
-            result = {**{k: spec[k] for k in ("key", "robot_id", "path", "robot", "timestamp", "day",
-                                             "data_hash", "version")}, "temperatures": spec["temperatures"],
-                      "status": "error", "task_seconds": float("nan"), "task_cpu_seconds": float("nan"),
-                      "error": f"{spec['path']}: the worker running this recording died on every retry "
-                               f"(out of memory? a crash in a native library?); it was not identified"}
-            store.write(result)
-        results.append(result)
-        if result["status"] != "ok":
-            errors.append((spec["robot_id"], spec["path"], result["error"]))
-        fut.release()
-        if progress is not None:
-            progress(done, len(specs))
+    try:
+        for done, fut in enumerate(distributed.as_completed(futures), 1):
+            spec = by_key[fut.key]
+            try:
+                result = fut.result()
+            except distributed.KilledWorker:
+                result = _killed(spec)
+                store.write(result)
+            if "write_error" in result:
+                raise OutputError(result["write_error"])
+            results.append(result)
+            if result["status"] != "ok":
+                errors.append((spec["robot_id"], spec["path"], result["error"]))
+            fut.release()
+            if progress is not None:
+                progress(done, len(specs))
+    except OutputError:
+        client.cancel(futures)      # a client of someone's cluster would run them on after the run
+        raise
     return results, errors
 
 
@@ -322,6 +359,8 @@ def identify_fleet(catalogue, store, *, scheduler=None, workers=None, client=Non
                 interrupt.restore_logs(former)
     else:
         results, errors = [], []
+    keys = frozenset(s["key"] for s in specs)
     return FleetRun(store=store.root, n_recordings=len(specs), n_computed=len(results),
                     n_skipped=len(specs) - len(todo), errors=errors, wall_seconds=time.perf_counter() - t0,
-                    task_seconds=[r["task_seconds"] for r in results], workers=n_workers)
+                    task_seconds=[r["task_seconds"] for r in results], workers=n_workers, keys=keys,
+                    n_unused=len(store.unused(keys)))

@@ -7,6 +7,12 @@ worker died writes the same file again instead of a second one. `<key>`
 hashes (robot, recording, data hash, dynid version, options): a rerun computes
 only the tasks whose key has no file. `<recording id>` hashes (robot,
 recording): when a recording's data changes, its new result replaces the old.
+
+A failure that is not a property of the recording (its worker died, an OSError,
+out of memory) is stored as `<recording id>__<key>.retry.parquet`: read with the
+rest, so the report lists it as failed, but not among `keys()`, so the next run
+computes the task again. Only files of these two names are the store's; anything
+else in the folder is neither read nor counted.
 """
 from __future__ import annotations
 
@@ -18,10 +24,10 @@ import re
 import numpy as np
 import pandas as pd
 
-from dynid.errors import InputError
-from dynid.outputs import staged_path
+from dynid.errors import InputError, OutputError
+from dynid.outputs import _write_error, staged_path
 
-_FILE = re.compile(r"^([0-9a-f]{16})__([0-9a-f]{24})\.parquet$")
+_FILE = re.compile(r"^([0-9a-f]{16})__([0-9a-f]{24})(\.retry)?\.parquet$")
 
 #: columns of the store, one row per (recording, parameter); an error is one row with no parameter
 COLUMNS = ["key", "robot_id", "recording", "robot", "timestamp", "day", "data_hash", "experiment_hash",
@@ -80,6 +86,9 @@ class ResultStore:
     """The Parquet results store at `root` (created on first write)."""
 
     def __init__(self, root):
+        if os.fspath(root) == "":      # abspath would make it the current folder
+            raise InputError("--out (store=) '': the folder name is empty; give --out (store=) the results "
+                             "store's folder")
         self.root = os.path.abspath(os.fspath(root))
         if os.path.exists(self.root) and not os.path.isdir(self.root):
             raise InputError(f"{self.root}: the fleet store must be a folder, and this is a file")
@@ -97,46 +106,108 @@ class ResultStore:
                              f"({exc.strerror or exc}); give a folder this user can write on a "
                              f"writable file system") from None
 
-    def _files(self):
-        return glob.glob(os.path.join(glob.escape(self.root), "robot_id=*", "day=*", "*.parquet"))
+    def _files(self) -> list:
+        """The store's own files (see the module's notes), found by their names."""
+        pattern = os.path.join(glob.escape(self.root), "robot_id=*", "day=*", "*.parquet")
+        return [f for f in glob.glob(pattern) if _FILE.match(os.path.basename(f))]
+
+    @staticmethod
+    def _key_of(path: str) -> tuple:
+        """(the task key, whether it is a failure to retry) of one of the store's files."""
+        m = _FILE.match(os.path.basename(path))
+        return m.group(2), m.group(3) is not None
 
     def keys(self) -> set:
-        """The keys of the tasks stored (one file each)."""
-        out = set()
-        for f in self._files():
-            m = _FILE.match(os.path.basename(f))
-            if m:
-                out.add(m.group(2))
-        return out
+        """The keys of the tasks stored for good (one file each; a failure to retry is not one)."""
+        return {key for key, retry in map(self._key_of, self._files()) if not retry}
+
+    def unused(self, keys) -> list:
+        """The store's files of tasks not among `keys`: catalogue rows removed or changed since."""
+        keys = set(keys)
+        return [f for f in self._files() if self._key_of(f)[0] not in keys]
 
     def path_for(self, result: dict) -> str:
+        name = f"{recording_id(result['robot_id'], result['path'])}__{result['key']}"
         return os.path.join(self.root, f"robot_id={result['robot_id']}", f"day={result['day']}",
-                            f"{recording_id(result['robot_id'], result['path'])}__{result['key']}.parquet")
+                            name + (".retry.parquet" if result.get("retry") else ".parquet"))
 
     def write(self, result: dict) -> str:
-        """Write one task's result atomically; drop the recording's results under other keys."""
+        """Write one task's result atomically; drop the recording's results under other keys.
+
+        Raises
+        ------
+        OutputError
+            The file cannot be written (the disk is full ...), worded as every output's.
+        """
         pa, pq = _pyarrow()
         target = self.path_for(result)
-        os.makedirs(os.path.dirname(target), exist_ok=True)
+        final = self.path_for({**result, "retry": False})
+        if target != final and os.path.exists(final):
+            return final        # a worker that died after storing its result: the result stands
         table = pa.Table.from_pandas(result_frame(result), preserve_index=False)
-        with staged_path(target) as tmp:
-            pq.write_table(table, tmp)
+        try:
+            os.makedirs(os.path.dirname(target), exist_ok=True)
+            with staged_path(target) as tmp:
+                pq.write_table(table, tmp)
+            self._drop_older(result, target)
+        except OutputError:
+            raise
+        except OSError as exc:
+            raise _write_error(target, exc) from None
+        return target
+
+    def _drop_older(self, result: dict, target: str) -> None:
+        # the same recording's result under an older key (data or version changed), or its failure to retry
         rid = recording_id(result["robot_id"], result["path"])
         pattern = os.path.join(glob.escape(os.path.join(self.root, f"robot_id={result['robot_id']}")), "day=*",
                                f"{rid}__*.parquet")
         for old in glob.glob(pattern):
-            if old != target:
-                os.unlink(old)       # the same recording's result under an older key (data or version changed)
-        return target
+            if old != target and _FILE.match(os.path.basename(old)):
+                os.unlink(old)
 
-    def read(self) -> pd.DataFrame:
-        """Every stored row (an empty frame with the store's columns when there is none)."""
+    def read(self, keys=None) -> pd.DataFrame:
+        """The stored rows, sorted by robot, time, recording and parameter.
+
+        Parameters
+        ----------
+        keys : iterable of str, optional
+            Read only the results of these tasks (a catalogue's current rows); default: all.
+
+        Returns
+        -------
+        pandas.DataFrame
+            One row per recording and parameter (the store's columns, empty when there is none).
+
+        Raises
+        ------
+        InputError
+            Naming a file of the store that cannot be read.
+        """
         files = sorted(self._files())
+        if keys is not None:
+            keys = set(keys)
+            files = [f for f in files if self._key_of(f)[0] in keys]
         if not files:
             return pd.DataFrame(columns=COLUMNS)
         pa, pq = _pyarrow()
-        import pyarrow.dataset as ds
-        table = ds.dataset(files, format="parquet").to_table()
+        table = pa.concat_tables([_read_file(pq, f) for f in files], promote_options="default")
         frame = table.to_pandas()
         return frame.sort_values(["robot_id", "timestamp", "recording", "parameter"],
                                  kind="stable").reset_index(drop=True)
+
+
+def _read_file(pq, path: str):
+    """One file of the store, as a pyarrow Table of the store's columns."""
+    try:
+        table = pq.ParquetFile(path).read(columns=COLUMNS)
+        problem = None
+    except Exception as exc:    # noqa: BLE001 - whatever pyarrow says of a damaged or foreign file
+        problem = f"{type(exc).__name__}: {exc}"
+    else:
+        missing = [c for c in COLUMNS if c not in table.column_names]   # pyarrow leaves them out silently
+        if not missing:
+            return table
+        problem = "it has no column " + ", ".join(missing)
+    raise InputError(f"{path}: this file of the fleet store cannot be read ({problem}); dynid writes its "
+                     f"files whole, so it was damaged or put there by something else: move it out of the "
+                     f"store, and the next run identifies its recording again")

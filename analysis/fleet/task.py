@@ -100,10 +100,19 @@ def _identify(exp, robot, bp, settings, max_samples):
     return wls, ess, streamed.n_raw
 
 
+def retry_failure(spec: dict, why: str) -> dict:
+    """The result fields of a failure that is not a property of the recording (an OSError, out
+    of memory, its worker died): `retry` marks it, so the store keeps it only until the next run."""
+    return {"status": "error", "retry": True,
+            "error": f"{spec['path']}: not identified: {why}; a failure of the machine, not of the recording, "
+                     f"so it is not kept as the recording's result: the next run tries it again"}
+
+
 def identify_recording(spec: dict) -> dict:
     """Run one task. `spec`: robot_id, path, robot, timestamp, day, key, data_hash,
     temperatures, settings, max_samples, diagnose. Returns the result dict (`status`
-    `"ok"` with the parameters, or `"error"` with the message)."""
+    `"ok"` with the parameters, or `"error"` with the message, and `retry` when the
+    failure is not a property of the recording)."""
     t0, c0 = time.perf_counter(), time.process_time()
     out = {k: spec[k] for k in ("key", "robot_id", "path", "robot", "timestamp", "day", "data_hash",
                                 "version")}
@@ -128,8 +137,10 @@ def identify_recording(spec: dict) -> dict:
             out["effects"] = [e.name if e.joint is None else f"{e.name} (joint {e.joint})" for e in d.selected]
     except DynidError as exc:           # a bad log: its message, and the fleet goes on
         out.update(status="error", error=str(exc))
-    except (OSError, ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
+    except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
         out.update(status="error", error=f"{spec['path']}: {type(exc).__name__}: {exc}")
+    except (OSError, MemoryError) as exc:   # the machine's, not the recording's: the next run retries
+        out.update(retry_failure(spec, f"{type(exc).__name__}: {exc}"))
     out["task_seconds"] = time.perf_counter() - t0
     out["task_cpu_seconds"] = time.process_time() - c0
     return out

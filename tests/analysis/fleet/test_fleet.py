@@ -539,3 +539,148 @@ def test_ctrl_c_inside_a_lock_of_dasks_client_is_an_interruption(small_fleet, tm
     monkeypatch.setattr(engine, "execute", failing_execute)
     with pytest.raises(RuntimeError, match="a real bug"):
         engine.identify_fleet(small_fleet.catalogue, tmp_path / "store2", client=Client())
+
+
+# ------------------------------------------------------------------ store hygiene and failures
+def test_results_of_rows_no_longer_in_the_catalogue_are_kept_but_not_used(small_fleet, tmp_path):
+    """A row removed and a row whose robot_id was corrected: their old results stayed in the store and
+    were counted by the monitor and the report (robot A with 3 recordings of 2 rows)."""
+    from dynid.fleet import run
+    from dynid.reports.fleet_report import fleet_json
+    catalogue, _ = _sub_catalogue(small_fleet, tmp_path / "cat", 4, n_bad=0)
+    store = serial_store(catalogue, tmp_path / "store")
+    rows = pd.read_csv(catalogue).iloc[1:].reset_index(drop=True)       # the first row removed
+    rows.loc[0, "robot_id"] = "R999"                                    # and a robot_id corrected
+    rows.to_csv(catalogue, index=False)
+    serial_store(catalogue, store.root)                 # the renamed row's result, without a cluster
+    result = run(catalogue, store.root, scheduler="tcp://127.0.0.1:9", n_baseline=3, json=tmp_path / "f.json")
+    assert (result.n_computed, result.n_unused) == (0, 2)
+    assert "2 result(s) in the store are of rows no longer in the catalogue" in result.summary_line()
+    assert len(store._files()) == 5                     # kept on disk, not used
+    for doc in (json.loads((tmp_path / "f.json").read_text()),
+                fleet_json(result, store.read(), result.health)):     # --json -: the whole store is read
+        assert {r["robot_id"]: r["recordings"] for r in doc["robots"]} == rows["robot_id"].value_counts().to_dict()
+        assert doc["health"]["settings"]["n_identified"] == 3 and doc["n_unused"] == 2
+
+
+@pytest.mark.parametrize("failure", [OSError(5, "Input/output error"), MemoryError()])
+def test_a_failure_of_the_machine_is_not_the_recordings_result(small_fleet, tmp_path, monkeypatch, failure):
+    """An OSError or MemoryError in the task was stored under its final key: never retried. Now it is
+    read as a failure (the report lists it) but the next run computes the recording again; a bad
+    recording (a DynidError) stays stored as before."""
+    from dynid.analysis.fleet import task
+    catalogue, paths = _sub_catalogue(small_fleet, tmp_path / "cat", 2, n_bad=1)
+    store = ResultStore(tmp_path / "store")
+    specs, _ = plan(catalogue, store)
+    real = task.load_experiment
+
+    def flaky(path, robot):
+        if path == paths[0]:
+            raise failure
+        return real(path, robot)
+    monkeypatch.setattr(task, "load_experiment", flaky)
+    for spec in specs:
+        store.write(identify_recording(spec))
+    frame = store.read().drop_duplicates("key").set_index("recording")
+    assert frame.loc[paths[0], "status"] == "error" and "the next run tries it again" in frame.loc[paths[0], "error"]
+    assert frame.loc[paths[2], "status"] == "error" and "tries it again" not in frame.loc[paths[2], "error"]
+    assert [s["path"] for s in plan(catalogue, store)[1]] == [paths[0]]
+    monkeypatch.undo()
+    store.write(identify_recording(next(s for s in specs if s["path"] == paths[0])))
+    assert plan(catalogue, store)[1] == [] and len(store._files()) == 3       # the retry replaced
+    assert store.read().set_index("recording").loc[paths[0], "status"].eq("ok").all()
+
+
+def test_a_worker_that_died_is_retried_by_the_next_run(small_fleet, tmp_path, tcp_cluster, monkeypatch):
+    """A KilledWorker was stored as the recording's error under its final key: the rerun said
+    "already in the store" and exited 0. Now it is a failure of this run, and the rerun computes it."""
+    import types
+
+    distributed = pytest.importorskip("distributed")
+    from dynid.analysis.fleet import engine
+    catalogue, paths = _sub_catalogue(small_fleet, tmp_path / "cat", 2, n_bad=0)
+    real = engine.identify_and_store
+
+    def dies_on_the_first(spec, store_root):
+        if spec["path"] == paths[0]:
+            gone = types.SimpleNamespace(address="tcp://127.0.0.1:9")
+            raise distributed.KilledWorker(f"dynid-fleet-{spec['key']}", gone, 0)
+        return real(spec, store_root)
+    monkeypatch.setattr(engine, "identify_and_store", dies_on_the_first)
+    address = tcp_cluster.scheduler_address
+    first = identify_fleet(catalogue, tmp_path / "store", scheduler=address)
+    assert first.n_failed == 1 and "died" in first.errors[0][2] and "tries it again" in first.errors[0][2]
+    monkeypatch.undo()
+    rerun = identify_fleet(catalogue, tmp_path / "store", scheduler=address)
+    assert (rerun.n_computed, rerun.n_skipped, rerun.n_failed) == (1, 1, 0)
+    frame = ResultStore(tmp_path / "store").read()
+    assert len(ResultStore(tmp_path / "store")._files()) == 2 and set(frame["status"]) == {"ok"}
+
+
+def test_store_reads_only_its_own_files_and_names_one_it_cannot_read(small_store, tmp_path):
+    """A stray .parquet in the store made every later run an "internal error (ArrowInvalid ...)"."""
+    store = copied(small_store, tmp_path / "store")
+    day = Path(store._files()[0]).parent
+    (day / "notes.parquet").write_text("not Parquet")                      # not a name of the store's
+    pd.DataFrame({"a": [1]}).to_parquet(Path(store.root) / "summary.parquet")
+    pd.testing.assert_frame_equal(store.read(), small_store.read())
+    assert store.keys() == small_store.keys()
+    own = sorted(store._files())
+    Path(own[0]).write_bytes(b"torn")
+    with pytest.raises(InputError, match=rf"{Path(own[0]).name}: this file of the fleet store cannot be read.*"
+                                         rf"move it out of the store"):
+        store.read()
+    os.unlink(own[0])
+    pd.DataFrame({"a": [1]}).to_parquet(own[1])            # a store's name, not the store's columns
+    with pytest.raises(InputError, match=rf"{Path(own[1]).name}: .*\(it has no column key"):
+        store.read()
+
+
+def test_outputs_inside_the_store_are_refused_before_work(small_fleet, tmp_path, capsys):
+    """`--json STORE/robot_id=A/day=.../res.parquet` was written into the store (and then read as one of its files)."""
+    from dynid.fleet import run
+    from dynid.reports.cli import main
+    store = tmp_path / "st"
+    (store / "robot_id=A").mkdir(parents=True)
+    # an unreachable scheduler: a run that starts any work fails with another message
+    offline = ["--scheduler", "tcp://127.0.0.1:9"]
+    for opt, path in (("--json", store / "robot_id=A" / "res.parquet"), ("--report", store / "r.html")):
+        rc = main(["fleet", small_fleet.catalogue, "--out", str(store), opt, str(path), *offline])
+        assert rc == 2 and f"{opt} (" in (err := capsys.readouterr().err) and "inside the results store" in err
+        assert not path.exists()
+    with pytest.raises(InputError, match="inside the results store"):
+        run(small_fleet.catalogue, store, json=store / ".." / "st" / "f.json", scheduler="tcp://127.0.0.1:9")
+    assert [p.name for p in store.rglob("*")] == ["robot_id=A"]
+
+
+def test_an_empty_store_name_is_refused_not_taken_for_the_current_folder(small_fleet, tmp_path, monkeypatch,
+                                                                          capsys):
+    from dynid.fleet import run
+    from dynid.reports.cli import main
+    monkeypatch.chdir(tmp_path)
+    rc = main(["fleet", small_fleet.catalogue, "--out", "", "--scheduler", "tcp://127.0.0.1:9"])
+    assert rc == 2 and "--out (store=) '': the folder name is empty" in capsys.readouterr().err
+    with pytest.raises(InputError, match="folder name is empty"):
+        run(small_fleet.catalogue, "", scheduler="tcp://127.0.0.1:9")
+    assert list(tmp_path.iterdir()) == []         # nothing written in the current folder
+
+
+def test_a_full_disk_while_storing_is_one_clear_error(small_fleet, tmp_path, tcp_cluster, monkeypatch, capsys,
+                                                      caplog):
+    """It printed Dask's "Compute Failed" block, then "internal error (OSError: [Errno 28] ...)"."""
+    import errno
+
+    import pyarrow.parquet as pq
+
+    from dynid.reports.cli import main
+    catalogue, _ = _sub_catalogue(small_fleet, tmp_path / "cat", 2, n_bad=0)
+
+    def full(table, where, **options):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+    monkeypatch.setattr(pq, "write_table", full)
+    rc = main(["fleet", catalogue, "--out", str(tmp_path / "store"), "--scheduler", tcp_cluster.scheduler_address])
+    err = capsys.readouterr().err
+    assert rc == 2, err
+    assert "dynid fleet: error: cannot write " in err and str(tmp_path / "store") in err and "the disk is full" in err
+    assert "internal error" not in err and "Compute Failed" not in err + caplog.text
+    assert ResultStore(tmp_path / "store")._files() == []
