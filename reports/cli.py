@@ -264,7 +264,9 @@ def cmd_fleet(args, say):
         more = (f"\n  ... and {len(run.errors) - _FAILED_SHOWN} more (all in the store)"
                 if len(run.errors) > _FAILED_SHOWN else "")
         print(f"dynid fleet: error: {run.n_failed} of {run.n_computed} recordings could not be identified; "
-              f"fix or remove them from the catalogue:{shown}{more}", file=sys.stderr)
+              f"a failure of the machine (its message says the next run tries it again) is retried by the "
+              f"next run; fix or remove from the catalogue the recordings refused for what they hold:{shown}{more}",
+              file=sys.stderr)
         return EXIT_INPUT
     return EXIT_OK
 
