@@ -352,6 +352,43 @@ class Result:
 Exportable = Result
 
 
+class HeldParameters:
+    """The parameter interface of a result that holds the parameters in another (`_held()`):
+    `params`, `bse`, `rel_std`, `cov`, `conf_int()`, `cov_params()` and `r["name"]`, those of the
+    held result, so that a run, a diagnosis or an effects fit answers as every result does."""
+
+    def _held(self):
+        raise NotImplementedError
+
+    params = property(lambda self: self._held().params, doc="The estimates, by parameter name.")
+    bse = property(lambda self: self._held().bse, doc="Their standard errors.")
+    rel_std = property(lambda self: self._held().rel_std, doc="Their %σ (eq. (15)).")
+    cov = property(lambda self: self._held().cov, doc="Their covariance.")
+
+    def conf_int(self, alpha: float = 0.05):
+        """The (1 - alpha) interval of each parameter.
+
+        Returns
+        -------
+        pandas.DataFrame
+            One row per parameter, columns `lower` and `upper`.
+        """
+        return self._held().conf_int(alpha)
+
+    def cov_params(self):
+        """The covariance as a table labelled by parameter name on both axes.
+
+        Returns
+        -------
+        pandas.DataFrame
+        """
+        return self._held().cov_params()
+
+    def __getitem__(self, name: str):
+        """`r["ZZ1R"]`: the record of one parameter (unpacks as `(value, std)`)."""
+        return self._held()[name]
+
+
 class Parameter(tuple):
     """One parameter of a result, `r[name]`: unpacks as `(value, std)`.
 

@@ -53,7 +53,7 @@ from dynid.analysis.estimators.payload import PayloadResult
 from dynid.analysis.estimators.physical import identify_physical, require_cvxpy
 from dynid.analysis.estimators.projection import identify_projection
 from dynid.analysis.processing.observation import SETTINGS_HELP
-from dynid.analysis.results import Result, gathered_notices, notices_block, p_phrase
+from dynid.analysis.results import HeldParameters, Result, gathered_notices, notices_block, p_phrase
 from dynid.analysis.sampling.noise import DEFAULT_NOISE
 from dynid.analysis.statistics.validation import ValidationResult, validate
 from dynid.analysis.statistics.verdict import verdict
@@ -844,7 +844,7 @@ def verdict_of(result, held_out=None, *, robot=None, diagnosis=None, residuals=N
 # ---------------------------------------------------------------- the run
 
 @dataclass(frozen=True, eq=False, repr=False)
-class Identification(Result):
+class Identification(HeldParameters, Result):
     """What one run of `dynid identify` gives: the identification, its validation and
     verdict, and the optional parts (tilt, asymmetric friction, PC fit, effects, export).
 
@@ -910,36 +910,10 @@ class Identification(Result):
     def summary(self) -> str:
         return "\n\n".join(self.summaries())
 
-    # The parameter interface of the identification it holds (`result`), as `--csv` writes it; the
-    # physically consistent fit is `physical`, with the same interface.
-    params = property(lambda self: self.result.params, doc="The identification's estimates (`result.params`).")
-    bse = property(lambda self: self.result.bse, doc="Their standard errors (`result.bse`).")
-    rel_std = property(lambda self: self.result.rel_std, doc="Their %σ (`result.rel_std`).")
-    cov = property(lambda self: self.result.cov, doc="Their covariance (`result.cov`).")
-
-    def conf_int(self, alpha: float = 0.05):
-        """The (1 - alpha) intervals of the identification (`result.conf_int`).
-
-        Returns
-        -------
-        pandas.DataFrame
-            One row per parameter, columns `lower` and `upper`.
-        """
-        return self.result.conf_int(alpha)
-
-    def cov_params(self):
-        """The covariance of the identification's estimates (`result.cov_params()`).
-
-        Returns
-        -------
-        pandas.DataFrame
-            Indexed by parameter name on both axes.
-        """
-        return self.result.cov_params()
-
-    def __getitem__(self, name: str):
-        """`run["ZZ1R"]`: the record of one parameter of the identification (`result[name]`)."""
-        return self.result[name]
+    def _held(self):
+        # the parameter interface (params, bse, conf_int, run["ZZ1R"]) is the identification's,
+        # as --csv writes it; the physically consistent fit is `physical`, with the same interface
+        return self.result
 
     def __repr__(self) -> str:
         return f"{super().__repr__()[:-1]}; verdict {getattr(self.verdict, 'status', '?')}>"

@@ -39,7 +39,7 @@ from dynid.analysis.diagnosis.effect_observation import observe_effects
 from dynid.analysis.diagnosis.effects import make_candidate, signals_from_observation
 from dynid.analysis.estimators import least_squares as ls
 from dynid.analysis.estimators.physical import pc_wls
-from dynid.analysis.results import Result, percent
+from dynid.analysis.results import HeldParameters, Result, percent
 from dynid.analysis.statistics.validation import prediction_errors
 from dynid.analysis.units import parameter_unit, prismatic_joints
 from dynid.errors import IdentificationError, InputError
@@ -115,10 +115,12 @@ def effect_design(experiment, robot, bp, settings, candidates):
 
 
 @dataclass(repr=False)
-class EffectsFit(Result):
+class EffectsFit(HeldParameters, Result):
     """The WLS of `[W, C]` and, when asked, its physically consistent counterpart.
 
-    `to_csv()` writes the effect parameters (`effects()`), `to_json()` the JSON block.
+    `to_csv()` writes the effect parameters (`effects()`), `to_json()` the JSON block;
+    `params`, `bse`, `conf_int()` and `fit["Ks1"]` are the unconstrained WLS of every base and
+    effect parameter, with the run's covariance.
 
     `cov_effects_pc`: sampling covariance of the PC effect parameters, eq. (3) (the reported
     sigma is floored at the unconstrained one, `effects`); `rel_error_*`:
@@ -140,6 +142,11 @@ class EffectsFit(Result):
     validation: dict | None = None
     prismatic: tuple = ()  # the robot's prismatic joints (1-based), for the units
     uncertainty: str = "classic"   # the covariance option of the sigma (least_squares.UNCERTAINTY)
+
+    def _held(self):
+        # params, bse, conf_int, fit["Ks1"]: the unconstrained WLS of the stacked design, every
+        # base and effect parameter, with the run's covariance (the PC values: `effects()`)
+        return self.wls
 
     @property
     def x_wls(self):

@@ -11,7 +11,7 @@ import numpy as np
 
 from dynid.analysis.diagnosis.effects import Candidate
 from dynid.analysis.diagnosis.summary_text import diagnosis_summary, effect_unit, fmt_p, nonlinear_text
-from dynid.analysis.results import Result
+from dynid.analysis.results import HeldParameters, Result
 from dynid.analysis.units import prismatic_of
 from dynid.provenance import json_safe, versions
 
@@ -157,7 +157,7 @@ def errors_of(tau, tau_hat, mask):
 
 
 @dataclass(repr=False)
-class DiagnosisResult(Result):
+class DiagnosisResult(HeldParameters, Result):
     """What `diagnose` found. `ranking` is from most to least likely."""
 
     robot_name: str
@@ -212,6 +212,10 @@ class DiagnosisResult(Result):
     @property
     def rel_error(self) -> float:
         return self.model_after.rel_error
+
+    def _held(self):
+        # params, bse, conf_int, d["Ks2"]: those of the model after the diagnosis, as to_frame
+        return self.model_after
 
     def to_frame(self):
         """The parameters of the model after the diagnosis (`model_after.to_frame()`).

@@ -383,3 +383,29 @@ def test_dynid_verdict_refuses_a_payload_or_drive_gain_result(make, system):
     import dynid
     with pytest.raises(dynid.InputError, match=r"has its own verdict, result.verdict\(\)"):
         dynid.verdict(make(system))
+
+
+@pytest.mark.parametrize("make", [_diagnosis, _run])
+def test_results_holding_their_parameters_answer_as_every_result(make, system):
+    """A diagnosis and a run hold their parameters in another result; `params`, `bse`,
+    `conf_int()`, `cov_params()` and `r[name]` are that result's (the diagnosis had a parameter
+    table but no interval)."""
+    r = make(system)
+    held = r._held()
+    name = list(held.names)[0]
+    assert r.params.equals(held.params) and r.bse.equals(held.bse)
+    assert r.conf_int().equals(held.conf_int()) and r.cov_params().equals(held.cov_params())
+    assert tuple(r[name]) == tuple(held[name])
+
+
+def test_the_effects_fit_gives_an_interval_for_each_effect_parameter():
+    """`run.effects["Ks1"]` and `run.effects.conf_int()`: the stacked WLS with the run's covariance
+    (the effects fit had only its own table, so no interval could be asked for)."""
+    import dynid
+    rec = dynid.simulate("planar2", 6.0, seed=2)
+    fit = dynid.run(rec, "planar2", effects="spring:1", write=False).effects
+    value, std = fit["Ks1"]
+    row = fit.to_frame().loc["Ks1"]
+    assert value == row["wls"] and std == row["wls_std"]
+    ci = fit.conf_int().loc["Ks1"]
+    assert ci["lower"] == pytest.approx(value - 1.959963984540054 * std)
