@@ -391,18 +391,22 @@ def segment_fits(obs, names, k, opt):
     """WLS of each of k contiguous segments of one observation system, with option ``opt``.
 
     A segment that cannot identify a parameter (e.g. the TX40's Fcm6 in its last 3 s)
-    leaves it out: NaN, never compared.
+    leaves it out: NaN, never compared; so are, in that segment, the parameters that take its
+    torque there (Off5 and Off6 for Fcm6: ``identifiable_and_aliased``, as ``dynid identify``'s
+    segment agreement).
     """
     from dynid.analysis.estimators import least_squares as ls
     from dynid.analysis.estimators.agreement import segments
     out = []
     for m in segments(obs.n_samples, obs.row_mask, k):
-        cols = ls.identifiable_columns(obs.W, m)
+        cols, aliased = ls.identifiable_and_aliased(obs.W, m)
         r = ls.wls(obs.W[:, :, cols], obs.tau, [names[c] for c in cols], row_mask=m, uncertainty=opt)
         chi, sig = np.full(len(names), np.nan), np.full(len(names), np.nan)
         chi[cols], sig[cols] = r.chi, r.bse.to_numpy()
+        chi[aliased], sig[aliased] = np.nan, np.nan
         cov = np.full((len(names), len(names)), np.nan)
         cov[np.ix_(cols, cols)] = r.cov
+        cov[aliased, :], cov[:, aliased] = np.nan, np.nan
         out.append((chi, sig, cov))
     return out
 

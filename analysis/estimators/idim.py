@@ -258,23 +258,30 @@ def recording_agreement(obs, names, groups, joint_sigma, uncertainty="classic", 
     else:
         masks = segments(obs.n_samples, obs.row_mask, n_segments)
         kind = "segments"
-    cols = None
-    for m in masks:
-        c = set(ls.identifiable_columns(obs.W, m).tolist())
-        cols = c if cols is None else cols & c
-    cols = np.array(sorted(cols), dtype=int)
+    # each part is fitted with every column it identifies; compared are the parameters every part
+    # identifies and none uses to absorb a column it cannot (fitting all parts without such a
+    # column, as before, put its torque into other parameters differently in each part: on
+    # dynid simulate's TX40, Coulomb friction of a joint that does not reverse in one segment
+    # turned up as disagreeing offsets and viscous friction)
+    parts_cols = [ls.identifiable_and_aliased(obs.W, m) for m in masks]
+    common = set.intersection(*(set(k.tolist()) for k, _ in parts_cols))
+    common -= set().union(*(set(a.tolist()) for _, a in parts_cols))
+    cols = np.array(sorted(common), dtype=int)
     if cols.size < max(1, len(names) // 2):
         return None, (f"cross-{kind[:-1]} agreement skipped: the {len(masks)} {kind} identify only "
                       f"{cols.size} of the {len(names)} base parameters together (too little excitation "
                       f"in each; record longer or richer {kind}).")
-    fits = []
+    chis, sigmas, covs = [], [], []
     try:
-        for m in masks:
-            fits.append(ls.wls(obs.W[:, :, cols], obs.tau, [names[c] for c in cols], row_mask=m,
-                               joint_sigma=joint_sigma, uncertainty=uncertainty))
+        for (own, _), m in zip(parts_cols, masks):
+            f = ls.wls(obs.W[:, :, own], obs.tau, [names[c] for c in own], row_mask=m,
+                       joint_sigma=joint_sigma, uncertainty=uncertainty)
+            idx = np.searchsorted(own, cols)
+            chis.append(np.asarray(f.chi)[idx])
+            sigmas.append(f.bse.to_numpy()[idx])
+            covs.append(np.asarray(f.cov)[np.ix_(idx, idx)])
     except IdentificationError as exc:
         return None, f"cross-{kind[:-1]} agreement skipped: {str(exc).splitlines()[0]}"
     kept = set(cols.tolist())
-    return agreement([f.chi for f in fits], [f.bse.to_numpy() for f in fits], [f.cov for f in fits],
-                     [names[c] for c in cols], kind=kind, uncertainty=uncertainty,
+    return agreement(chis, sigmas, covs, [names[c] for c in cols], kind=kind, uncertainty=uncertainty,
                      left_out=[n for k, n in enumerate(names) if k not in kept], prismatic=prismatic), ""

@@ -37,7 +37,7 @@ from dynid.analysis.results import IdentificationResult
 from dynid.errors import IdentificationError, InputError
 from dynid.provenance import data_hash, json_safe
 
-__all__ = ["stack", "ols", "wls", "RANK_RTOL", "UNCERTAINTY", "UNCERTAINTY_WORDS", "check_uncertainty", "identifiable_columns", "Reduction", "reduce_system", "ols_reduced", "wls_reduced"]
+__all__ = ["stack", "ols", "wls", "RANK_RTOL", "UNCERTAINTY", "UNCERTAINTY_WORDS", "check_uncertainty", "identifiable_columns", "identifiable_and_aliased", "Reduction", "reduce_system", "ols_reduced", "wls_reduced"]
 
 #: Default relative tolerance of the rank check: a column-normalised W whose
 #: pivoted-QR diagonal falls below RANK_RTOL * |R_11| is declared rank-deficient.
@@ -457,16 +457,41 @@ def identifiable_columns(W3, mask=None, rank_rtol: float = RANK_RTOL) -> np.ndar
     columns pivoted before the rank drop, in increasing order; zero columns and
     columns dependent on earlier pivots are left out.
     """
+    return identifiable_and_aliased(W3, mask, rank_rtol)[0]
+
+
+def identifiable_and_aliased(W3, mask=None, rank_rtol: float = RANK_RTOL, alias_rtol: float = 1e-3):
+    """The columns of W3 the rows `mask` (N, n) identify, and those of them that absorb a column
+    left out.
+
+    A column left out for being (numerically) a combination of others, say
+    `Fcm6 = 1.04 Off6 + 0.96 Off5` on a segment where motor 6 never reverses, does not vanish
+    from the fit without it: `Off5` and `Off6` take its torque there, so their estimates mean
+    something else than on data where all three are identified.
+
+    Returns
+    -------
+    identifiable, aliased : ndarray of int
+        Increasing column indices: those identified together (`identifiable_columns`), and
+        those among them whose coefficient in the combination giving a left-out column
+        (column-scaled) exceeds `alias_rtol` times the largest.
+    """
     W3 = np.asarray(W3, dtype=float)
     mask = np.ones(W3.shape[:2], bool) if mask is None else np.asarray(mask, bool)
     X = np.where(mask[:, :, None], W3, 0.0).transpose(1, 0, 2).reshape(-1, W3.shape[2])
     norms = np.linalg.norm(X, axis=0)
     nz = np.flatnonzero(norms > 0)
     if not nz.size:
-        return nz
+        return nz, nz
     _, R, piv = sla.qr(X[:, nz] / norms[nz], mode="economic", pivoting=True, check_finite=False)
     d = np.abs(np.diag(R))
-    return np.sort(nz[piv[: int(np.count_nonzero(d > rank_rtol * d[0]))]])
+    rank = int(np.count_nonzero(d > rank_rtol * d[0]))
+    kept = nz[piv[:rank]]
+    if rank == R.shape[1]:
+        return np.sort(kept), np.array([], dtype=int)
+    coef = np.abs(sla.solve_triangular(R[:rank, :rank], R[:rank, rank:], check_finite=False))
+    big = coef > alias_rtol * np.maximum(coef.max(axis=0, keepdims=True), 1e-300)
+    return np.sort(kept), np.sort(kept[big.any(axis=1)])
 
 
 def _raw_norms(system: _System, cols) -> np.ndarray:
