@@ -51,8 +51,18 @@ class DecoupledValidation(Result):
         return self.tau_meas - self.tau_sim
 
     @property
+    def max_q_error(self):
+        """Largest |q_meas - q_sim| per joint, rad (SI; `_deg`: the paper's unit)."""
+        return np.abs(self.q_error).max(axis=0)
+
+    @property
+    def rms_q_error(self):
+        """RMS of q_meas - q_sim per joint, rad."""
+        return np.sqrt(np.mean(self.q_error ** 2, axis=0))
+
+    @property
     def max_q_error_deg(self):
-        return np.degrees(np.abs(self.q_error).max(axis=0))
+        return np.degrees(self.max_q_error)
 
     @property
     def max_tau_error(self):
@@ -60,7 +70,7 @@ class DecoupledValidation(Result):
 
     @property
     def rms_q_error_deg(self):
-        return np.degrees(np.sqrt(np.mean(self.q_error ** 2, axis=0)))
+        return np.degrees(self.rms_q_error)
 
     @property
     def rms_tau_error(self):
@@ -72,15 +82,16 @@ class DecoupledValidation(Result):
         return np.linalg.norm(self.tau_error, axis=0) / np.linalg.norm(self.tau_meas, axis=0)
 
     def to_frame(self) -> pd.DataFrame:
-        """One row per joint: the errors of `summary` (degrees, N m, relative).
+        """One row per joint: the errors of `summary` (rad and the paper's degrees, N m, relative).
 
         Returns
         -------
         pandas.DataFrame
-            Index `joint` = 1..n.
+            Index `joint` = 1..n; the unit in each column's name.
         """
-        return pd.DataFrame({"max_q_error_deg": self.max_q_error_deg, "rms_q_error_deg": self.rms_q_error_deg,
-                             "max_tau_error": self.max_tau_error, "rms_tau_error": self.rms_tau_error,
+        return pd.DataFrame({"max_q_error [rad]": self.max_q_error, "rms_q_error [rad]": self.rms_q_error,
+                             "max_q_error [deg]": self.max_q_error_deg, "rms_q_error [deg]": self.rms_q_error_deg,
+                             "max_tau_error [N m]": self.max_tau_error, "rms_tau_error [N m]": self.rms_tau_error,
                              "rel_tau_error": self.rel_tau_error},
                             index=pd.Index(range(1, self.q_meas.shape[1] + 1), name="joint"))
 
@@ -99,6 +110,7 @@ class DecoupledValidation(Result):
     def to_dict(self) -> dict:
 
         return json_safe({"settings": self.settings,
+                          "max_q_error": self.max_q_error, "rms_q_error": self.rms_q_error,
                           "max_q_error_deg": self.max_q_error_deg, "rms_q_error_deg": self.rms_q_error_deg,
                           "max_tau_error": self.max_tau_error, "rms_tau_error": self.rms_tau_error,
                           "rel_tau_error": self.rel_tau_error,

@@ -89,6 +89,10 @@ def test_validation_by_simulation(ident):
     # section 3.5: position error below 0.1 deg; the torque error is the noise, a few % at most
     assert v.max_q_error_deg.max() < 0.1
     assert v.rel_tau_error.max() < 0.05
+    # SI in the exports (rad, N m), the paper's degrees beside them
+    doc, frame = v.to_dict(), v.to_frame()
+    assert np.allclose(np.degrees(doc["max_q_error"]), doc["max_q_error_deg"])
+    assert np.allclose(frame["rms_q_error [rad]"], v.rms_q_error) and "max_tau_error [N m]" in frame
     assert v.tau_tests.table.shape[0] == 6 and v.q_tests.table.shape[0] == 6
 
 
