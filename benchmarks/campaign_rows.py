@@ -1,6 +1,6 @@
 """The rows a seed campaign already wrote: resume an interrupted run where it stopped.
 
-Shared (`resume`, and `append` for each new row) by the coverage and convergence campaigns (`coverage_independent.py`,
+Shared (`resume`, `append` for each new row, `map_seeds` to run them) by the coverage and convergence campaigns (`coverage_independent.py`,
 `coverage_didim.py`, `coverage_posterior.py`, `didim_gains.py`), whose results file holds
 one JSON object per seed and line.
 """
@@ -48,3 +48,20 @@ def append(out, row):
     if out:
         with open(out, "a") as fh:
             fh.write(json.dumps(row) + "\n")
+
+
+def map_seeds(run_seed, seeds, workers=1, *args):
+    """`run_seed(seed, *args)` for each seed, in order, in `workers` processes (1: this one).
+
+    Yields
+    ------
+    dict
+        Each seed's row as it is done, for the caller to print and `append`.
+    """
+    if workers > 1:
+        from concurrent.futures import ProcessPoolExecutor
+        with ProcessPoolExecutor(workers) as ex:
+            yield from ex.map(run_seed, seeds, *([a] * len(seeds) for a in args))
+    else:
+        for s in seeds:
+            yield run_seed(s, *args)
