@@ -33,6 +33,7 @@ import pandas as pd
 
 from dynid.analysis.diagnosis.effects import make_candidate
 from dynid.analysis.diagnosis.selection import fit_effects
+from dynid.analysis.estimators.least_squares import UNCERTAINTY_WORDS
 from dynid.analysis.results import Result, notices_block, parameter_table
 from dynid.analysis.units import parameter_unit, prismatic_joints
 from dynid.provenance import json_safe
@@ -57,6 +58,7 @@ class AsymmetricFrictionResult(Result):
     rel_error_before: float
     notices: list = field(default_factory=list)
     prismatic: tuple = ()        # the robot's prismatic joints (1-based), for the units
+    uncertainty: str = "classic"  # the covariance option of sigma (the identification's)
 
     def to_frame(self) -> pd.DataFrame:
         """One row per coefficient, indexed `Fv+1`, `Fv-1`, `Fc+1` ...: joint, value, std, %σ, unit."""
@@ -101,9 +103,11 @@ class AsymmetricFrictionResult(Result):
     def to_dict(self) -> dict:
         return json_safe({
             "robot": self.robot_name, "model": "Bona & Curatella eq. (2)",
-            "joints": [{"joint": j, **{name: {"value": self.values[k, c], "std": self.sigma[k, c]}
+            "joints": [{"joint": j, **{name: {"value": self.values[k, c], "std": self.sigma[k, c],
+                                              "unit": parameter_unit(f"{name[:2]}{j}", frozenset(self.prismatic))}
                                        for c, name in enumerate(COLUMNS)}}
                        for k, j in enumerate(self.joints)],
+            "uncertainty": self.uncertainty,
             "rel_error_before": self.rel_error_before, "rel_error_after": self.fit.rel_error,
             "notices": self.notices,
         })
@@ -127,7 +131,10 @@ def asymmetric_friction(experiment, robot, idim_result, *, joints=None) -> Asymm
                            f"these per-joint coefficients")
     cands = [make_candidate("asymmetric_viscous", j) for j in joints]
     cands += [make_candidate("asymmetric_coulomb", j) for j in joints if f"Off{j}" not in essential]
-    fit, _ = fit_effects(experiment, robot, idim_result, cands)
+    # the identification's covariance option (bootstrap by default): the coefficients' sigma as
+    # the parameters' (the estimate is the same WLS whatever the option)
+    uncertainty = getattr(idim_result, "uncertainty", "classic")
+    fit, _ = fit_effects(experiment, robot, idim_result, cands, uncertainty=uncertainty)
     index = {name: i for i, name in enumerate(fit.names)}
     values = np.zeros((len(joints), 4))
     sigma = np.zeros((len(joints), 4))
@@ -160,7 +167,8 @@ def asymmetric_friction(experiment, robot, idim_result, *, joints=None) -> Asymm
                        + ", ".join(negative) + "; the Coulomb split takes the torque offset Off_j as "
                        "asymmetry where Off_j is in the model, and a dropped Fv_j leaves Fv+ = -Fv- = dFv_j: "
                        "read these coefficients as a shape of the residual, not as friction")
-    notices.append("σ: the classic one of eq. (14) (white residual), not the identification's covariance")
+    notices.append(f"σ: {UNCERTAINTY_WORDS.get(uncertainty, uncertainty)} of the essential model with these "
+                   "columns, as the identification's")
     return AsymmetricFrictionResult(robot_name=robot.name, joints=joints, values=values, sigma=sigma,
                                     fit=fit, rel_error_before=float(idim_result.model.rel_error),
-                                    notices=notices, prismatic=tuple(sorted(prismatic)))
+                                    notices=notices, prismatic=tuple(sorted(prismatic)), uncertainty=uncertainty)

@@ -145,8 +145,8 @@ class Problem:
         return (c.key, None if c.active is None else tuple(c.active))
 
 
-def fit_wls(X, Y, mask, names):
-    return ls.wls(X, Y, names, row_mask=mask)
+def fit_wls(X, Y, mask, names, uncertainty="classic"):
+    return ls.wls(X, Y, names, row_mask=mask, uncertainty=uncertainty)
 
 
 
@@ -275,8 +275,9 @@ def split_delay(candidates):
     return delay, effects
 
 
-def fit_effects(data, robot, idim_result, candidates):
-    """WLS of the essential model + the given effects on a recording: (IdentificationResult, ev).
+def fit_effects(data, robot, idim_result, candidates, uncertainty="classic"):
+    """WLS of the essential model + the given effects on a recording: (IdentificationResult, ev),
+    its covariance the option `uncertainty` (the estimate does not depend on it).
 
     For comparisons, e.g. the "true model" of a simulation (the injected
     effect with its true nonlinear parameter, linear parameters fitted).
@@ -299,7 +300,7 @@ def fit_effects(data, robot, idim_result, candidates):
             c.active = keep
             D = D[:, :, keep]
         X = np.concatenate([X, D], axis=2)
-    fit = fit_wls(X, prob.Y, prob.mask, prob.names_for(effects, names))
+    fit = fit_wls(X, prob.Y, prob.mask, prob.names_for(effects, names), uncertainty)
     ev = evaluate_effects(prob.eobs, robot, idim_result, candidates)
     return fit, ev
 

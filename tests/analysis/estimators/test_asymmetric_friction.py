@@ -85,4 +85,15 @@ def test_negative_friction_on_a_real_arm_is_flagged():
     res = asymmetric_friction(exp, robot, identify_idim(exp, robot))
     impossible = [n for n in res.notices if n.startswith("physically impossible")]
     assert impossible and "Fc+7 = -0.2598 N m" in impossible[0]
-    assert any(n.startswith("σ: the classic one of eq. (14)") for n in res.notices)
+    assert any(n.startswith("σ: eq. (14) of the essential model") for n in res.notices)
+
+
+def test_the_coefficients_take_the_identifications_covariance(asymmetric_run):
+    """With the identification's bootstrap (dynid identify's default) the coefficients' σ are the
+    bootstrap's too, and say so; the values are the same WLS (they were eq. (14)'s whatever the run's)."""
+    robot, exp, res, _ = asymmetric_run
+    classic = asymmetric_friction(exp, robot, identify_idim(exp, robot))
+    boot = asymmetric_friction(exp, robot, identify_idim(exp, robot, uncertainty="bootstrap"))
+    assert np.allclose(boot.values, classic.values, rtol=1e-10, atol=1e-12)
+    assert not np.allclose(boot.sigma, classic.sigma)
+    assert any(n.startswith("σ: circular block bootstrap") for n in boot.notices)
