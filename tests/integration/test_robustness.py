@@ -93,7 +93,8 @@ def test_fleet_run_reports_progress_through_dynid_progress(tmp_path, monkeypatch
 
     monkeypatch.setattr(fleet_run, "identify_fleet", fake_identify)
     monkeypatch.setattr(fleet_run, "monitor", lambda *a, **k: None)
-    monkeypatch.setattr(fleet_run, "ResultStore", lambda root: type("S", (), {"read": lambda self: None})())
+    monkeypatch.setattr(fleet_run, "ResultStore", lambda root: type("S", (), {"read": lambda self, keys=None: None,
+                                                                           "root": str(root)})())
     monkeypatch.setattr(fleet_run, "task", lambda label: P.task(label, delay=0.0, log_every=0.0,
                                                                  stream=__import__("io").StringIO()))
     caplog.set_level(logging.INFO, logger="dynid.progress")
