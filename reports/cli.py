@@ -257,7 +257,8 @@ def cmd_fleet(args, say):
                              for a in run.health.alarms]
                           + ([] if run.health.alarms else ["  " + run.health.status_line()])))
     if args.json == "-":
-        print(json.dumps(fleet_json(run, fleet_run.read_store(args.store), run.health), indent=1))
+        # the catalogue's current rows, as the monitor and --json FILE (an unused result is not read)
+        print(json.dumps(fleet_json(run, fleet_run.read_store(args.store, keys=run.keys), run.health), indent=1))
     if run.errors:              # the rest is stored and reported, but the run is not a success
         # on stderr even with --quiet: a scheduled run must say which file failed and why
         shown = "".join(f"\n  failed: {rid} {path}: {msg}" for rid, path, msg in run.errors[:_FAILED_SHOWN])

@@ -22,20 +22,23 @@ from dynid.reports.fleet_report import write_fleet_outputs
 __all__ = ["run", "read_store"]
 
 
-def read_store(store):
-    """Every row of a results store, as a DataFrame (one row per recording and parameter).
+def read_store(store, keys=None):
+    """The rows of a results store, as a DataFrame (one row per recording and parameter).
 
     Parameters
     ----------
     store : str or path
         The results store a fleet run wrote (a folder; docs/formats.md, "Fleet").
+    keys : iterable of str, optional
+        Only the results of these tasks (a run's `FleetRun.keys`: its catalogue's current
+        rows); default every result in the store.
 
     Returns
     -------
     pandas.DataFrame
         One row per recording and parameter.
     """
-    return ResultStore(store).read()
+    return ResultStore(store).read(keys=keys)
 
 
 def _check_outside_store(outputs, store: ResultStore) -> None:

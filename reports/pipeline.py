@@ -101,7 +101,7 @@ def run(data, robot, settings=None, *, say=None, write=True, **options) -> Ident
         given = settings if isinstance(settings, Settings) else Settings()
         check_python_outputs([(f"{k}=", options.get(k, getattr(given, k, None)))
                               for k in ("json", "csv", "report", "urdf", "mjcf")],
-                             data, robot, validation=options.get("validation"))
+                             data, robot, validation=options.get("validation", getattr(given, "validation", None)))
     ident = export_step(steps.run(data, robot, settings, say=say, **options), say)
     if write:
         write_all(outputs(ident), say)
@@ -402,7 +402,7 @@ def report(data, robot, path=None, *, settings=None, say=None, payload=None, pay
     """
     say = say or Reporter()
     s = _report_settings(settings, options)
-    check_python_outputs([("report (path=)", path)], data, robot, validation=options.get("validation"),
+    check_python_outputs([("report (path=)", path)], data, robot, validation=getattr(s, "validation", None),
                          payload=payload)
     robot = steps.as_robot(robot)
     if payload_options and payload is None:

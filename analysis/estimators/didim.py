@@ -198,7 +198,8 @@ DIDIM_SETTINGS_HELP = {
                           "diverging simulation), simulate it moved back towards the previous one "
                           "by halving its step at most this many times (0 = stop at once)"),
     "descent_test": ("also halve a step whose simulated estimate raises the output error "
-                     "||tau - W(q_s) chi|| (always on for PC-DIDIM); default false (today's iteration)"),
+                     "||tau - W(q_s) chi|| by more than tol_I (always on for PC-DIDIM); default false "
+                     "(today's iteration)"),
     "torque_timing": ("'held' (default: the logged torque is the command held over [t_k, t_k+1), as the "
                       "paper's g v_tau) or 'centred' (it is centred on t_k, (tau_k-1 + tau_k) / 2, as an "
                       "integrating sensor gives and dynid simulate logs): the simulated rows are "

@@ -241,10 +241,11 @@ def recording_agreement(obs, names, groups, joint_sigma, uncertainty="classic", 
                         prismatic=frozenset()):
     """Identify each recording alone (or each of `n_segments` contiguous segments of one) and compare.
 
-    Every part is a WLS of the base parameters with the weights 1/σ_j of the whole
-    (eq. (16)) and the covariance `uncertainty`; only the parameters every part
-    identifies are compared (dynid.analysis.estimators.agreement.agreement: pairwise
-    z, χ² test of equal parameters, DerSimonian-Laird pooling).
+    Every part is a WLS of the base parameters it identifies, with the weights 1/σ_j of the
+    whole (eq. (16)) and the covariance `uncertainty`; compared are the parameters every part
+    identifies and none uses to absorb a parameter it cannot identify
+    (`least_squares.identifiable_and_aliased`); `agreement` compares them (pairwise z, χ² test
+    of equal parameters, DerSimonian-Laird pooling).
 
     Returns
     -------
@@ -268,9 +269,11 @@ def recording_agreement(obs, names, groups, joint_sigma, uncertainty="classic", 
     common -= set().union(*(set(a.tolist()) for _, a in parts_cols))
     cols = np.array(sorted(common), dtype=int)
     if cols.size < max(1, len(names) // 2):
-        return None, (f"cross-{kind[:-1]} agreement skipped: the {len(masks)} {kind} identify only "
-                      f"{cols.size} of the {len(names)} base parameters together (too little excitation "
-                      f"in each; record longer or richer {kind}).")
+        every = set.intersection(*(set(k.tolist()) for k, _ in parts_cols))
+        return None, (f"cross-{kind[:-1]} agreement skipped: the {len(masks)} {kind} can compare only "
+                      f"{cols.size} of the {len(names)} base parameters ({len(every)} identified by every "
+                      f"part, {len(every) - cols.size} of them taking there the torque of a parameter a part "
+                      f"cannot identify): too little excitation in each; record longer or richer {kind}.")
     chis, sigmas, covs = [], [], []
     try:
         for (own, _), m in zip(parts_cols, masks):

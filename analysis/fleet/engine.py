@@ -281,6 +281,18 @@ def _killed(spec: dict) -> dict:
                                   "native library? killed?)")}
 
 
+def _stored_or_killed(store: ResultStore, spec: dict) -> dict:
+    """A task whose worker died: its failure to retry, written now; or, when the worker had
+    stored the task's result before dying, that result's status (the store keeps it)."""
+    result = _killed(spec)
+    if store.write(result).endswith(".retry.parquet"):
+        return result
+    stored = store.read(keys=[spec["key"]])
+    status = str(stored["status"].iloc[0]) if len(stored) else "ok"
+    error = stored["error"].iloc[0] if len(stored) and status != "ok" else None
+    return {**result, "status": status, "error": error, "retry": False}
+
+
 def execute(specs, store: ResultStore, client, *, progress=None):
     """Run `specs` on `client`; each task writes its result to `store` as it completes.
 
@@ -300,8 +312,7 @@ def execute(specs, store: ResultStore, client, *, progress=None):
             try:
                 result = fut.result()
             except distributed.KilledWorker:
-                result = _killed(spec)
-                store.write(result)
+                result = _stored_or_killed(store, spec)
             if "write_error" in result:
                 raise OutputError(result["write_error"])
             results.append(result)

@@ -317,6 +317,7 @@ def test_the_python_api_never_writes_over_its_inputs(tmp_path, monkeypatch):
     robot_file = tmp_path / "arm.toml"
     robot_file.write_bytes(bundled_path("planar2").read_bytes())
     before = (tmp_path / "run.csv").read_bytes()
+    (tmp_path / "held.csv").write_bytes(before)
     work = []
     monkeypatch.setattr("dynid.analysis.run.run", lambda *a, **k: work.append(1))    # no work may start
     for call, words in [
@@ -326,6 +327,10 @@ def test_the_python_api_never_writes_over_its_inputs(tmp_path, monkeypatch):
             (lambda: dynid.run(rec, "planar2", json="a.json", csv="sub/../a.json"), "the same file"),
             (lambda: dynid.run("run.csv", "planar2", report="nodir/r.html"), "does not exist"),
             (lambda: dynid.report("run.csv", "planar2", "run.csv"), "report (path=) run.csv is the data file"),
+            (lambda: dynid.run("run.csv", "planar2", settings=dynid.Settings(validation="held.csv", csv="held.csv")),
+             "csv= held.csv is the validation= file"),
+            (lambda: dynid.report("run.csv", "planar2", "held.csv", validation="held.csv"),
+             "is the validation= file"),
             (lambda: dynid.demo(path="nodir/demo.html"), "does not exist")]:
         with pytest.raises(InputError, match=re.escape(words)):
             call()

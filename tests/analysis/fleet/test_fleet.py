@@ -617,6 +617,29 @@ def test_a_worker_that_died_is_retried_by_the_next_run(small_fleet, tmp_path, tc
     assert len(ResultStore(tmp_path / "store")._files()) == 2 and set(frame["status"]) == {"ok"}
 
 
+def test_a_worker_that_died_after_storing_its_result_is_no_failure(small_fleet, tmp_path, tcp_cluster, monkeypatch):
+    """A worker that stored the task's result and then died: the result stands in the store, so
+    the run counts the task as done (it said "failed, the next run tries it again", and the next
+    run skipped it)."""
+    import types
+
+    distributed = pytest.importorskip("distributed")
+    from dynid.analysis.fleet import engine
+    catalogue, paths = _sub_catalogue(small_fleet, tmp_path / "cat", 2, n_bad=0)
+    real = engine.identify_and_store
+
+    def dies_after_storing(spec, store_root):
+        out = real(spec, store_root)
+        if spec["path"] == paths[0]:
+            gone = types.SimpleNamespace(address="tcp://127.0.0.1:9")
+            raise distributed.KilledWorker(f"dynid-fleet-{spec['key']}", gone, 0)
+        return out
+    monkeypatch.setattr(engine, "identify_and_store", dies_after_storing)
+    run = identify_fleet(catalogue, tmp_path / "store", scheduler=tcp_cluster.scheduler_address)
+    assert run.n_failed == 0 and not run.errors
+    assert not [f for f in ResultStore(tmp_path / "store")._files() if f.endswith(".retry.parquet")]
+
+
 def test_store_reads_only_its_own_files_and_names_one_it_cannot_read(small_store, tmp_path):
     """A stray .parquet in the store made every later run an "internal error (ArrowInvalid ...)"."""
     store = copied(small_store, tmp_path / "store")
