@@ -107,10 +107,9 @@ def payload_tables(result) -> list:
                   "moved_percent": "moved (%)", "ci_lower": "95 % lower", "ci_upper": "95 % upper"}
         return [T.make_table(frame, "tab-drive-gains", "Drive gains (N m per unit of the logged signal)",
                              labels=labels, formats={"moved_percent": "pct"})]
-    frame = pd.DataFrame({"unit": list(UNITS), "value": result.chi, "std": bse,
-                          "rel_std_percent": result.rel_std.to_numpy(), "ci_lower": ci[:, 0],
-                          "ci_upper": ci[:, 1]}, index=pd.Index(list(result.names), name="name"))
-    labels = {"name": "parameter", "value": "value", "std": "\u03c3", "rel_std_percent": "%\u03c3",
+    frame = result.to_frame().assign(ci_lower=ci[:, 0], ci_upper=ci[:, 1])[
+        ["value", "std", "rel_std_percent", "ci_lower", "ci_upper", "unit"]]
+    labels = {frame.index.name: "parameter", "value": "value", "std": "\u03c3", "rel_std_percent": "%\u03c3",
               "ci_lower": "95 % lower", "ci_upper": "95 % upper"}
     tables = [T.make_table(frame, "tab-payload", f"Payload parameters about frame {result.frame}",
                            labels=labels, formats={"unit": "text", "rel_std_percent": "pct"})]

@@ -906,15 +906,14 @@ def _loop_note(L, beta, configs, *, update):
             f"IDIM's model")
 
 
-def _simulate_step(L, k, beta0, beta_sim, beta_ls, configs, physical, out_prev, tol=0.0):
+def _simulate_step(L, k, beta0, beta_sim, beta_ls, configs, physical, out_prev, tol):
     """Simulate step k's estimate, halving the step from the last simulated one when needed.
 
     Candidates: beta0 at step 1, else beta_sim + 0.5^h (beta_ls - beta_sim), h = 0..
     max_step_halvings. A candidate fails when it cannot be simulated, or (PC-DIDIM) when
     it raises the output error by more than `tol` (tol_I, relative: the descent test; a change
-    within it is inside the noise, as for the stopping rule, and at the iteration's fixed point
-    a full step raises the error by that little half of the time, which without the margin cut
-    every later step to 1/64 and kept the run from ever converging). Returns (lam, cand, sim_out, system,
+    within it is inside the noise, as for the stopping rule: at the iteration's fixed point a
+    full step raises the error by that little about half of the time). Returns (lam, cand, sim_out, system,
     failure, first_failure) with `failure` the last candidate's error when none worked.
     """
     max_halvings = L.s["max_step_halvings"]
@@ -1676,9 +1675,9 @@ def _pc_errors(pc, chi_wls, Wd, taud, mask) -> None:
     WLS `chi_wls`'s) on the last step's system, as IDIM's PC fit reports them; None: nothing."""
     if pc is None:
         return
-    norm = float(np.linalg.norm(np.where(mask, taud, 0.0)))
+    norm = _masked_norm(taud, mask)
     for attr, chi in (("rel_error", pc.chi), ("wls_rel_error", chi_wls)):
-        err = float(np.linalg.norm(np.where(mask, taud - Wd @ np.asarray(chi, float), 0.0)))
+        err = _masked_norm(taud - Wd @ np.asarray(chi, float), mask)
         setattr(pc, attr, err / norm if norm > 0 else math.nan)
 
 

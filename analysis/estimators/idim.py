@@ -259,17 +259,14 @@ def recording_agreement(obs, names, groups, joint_sigma, uncertainty="classic", 
     else:
         masks = segments(obs.n_samples, obs.row_mask, n_segments)
         kind = "segments"
-    # each part is fitted with every column it identifies; compared are the parameters every part
-    # identifies and none uses to absorb a column it cannot (fitting all parts without such a
-    # column, as before, put its torque into other parameters differently in each part: on
-    # dynid simulate's TX40, Coulomb friction of a joint that does not reverse in one segment
-    # turned up as disagreeing offsets and viscous friction)
+    # a part fitted without a column it cannot identify puts that column's torque into the
+    # parameters it aliases (a joint that never reverses in a segment: its Coulomb friction into
+    # offsets), differently in each part; so each part keeps every column it identifies, and
+    # what any part aliases is not compared
     parts_cols = [ls.identifiable_and_aliased(obs.W, m) for m in masks]
-    common = set.intersection(*(set(k.tolist()) for k, _ in parts_cols))
-    common -= set().union(*(set(a.tolist()) for _, a in parts_cols))
-    cols = np.array(sorted(common), dtype=int)
+    every = set.intersection(*(set(k.tolist()) for k, _ in parts_cols))
+    cols = np.array(sorted(every - set().union(*(set(a.tolist()) for _, a in parts_cols))), dtype=int)
     if cols.size < max(1, len(names) // 2):
-        every = set.intersection(*(set(k.tolist()) for k, _ in parts_cols))
         return None, (f"cross-{kind[:-1]} agreement skipped: the {len(masks)} {kind} can compare only "
                       f"{cols.size} of the {len(names)} base parameters ({len(every)} identified by every "
                       f"part, {len(every) - cols.size} of them taking there the torque of a parameter a part "
