@@ -683,7 +683,7 @@ def test_g3_second_rename_fails(tmp_path, data, monkeypatch, capsys):
 
 def test_g3_sigterm_between_renames(tmp_path, data, monkeypatch, capsys):
     out, args = _three_outputs(tmp_path, data)
-    calls = _patch_replace(monkeypatch, out, lambda: os.kill(os.getpid(), signal.SIGTERM))
+    calls = _patch_replace(monkeypatch, out, lambda: signal.raise_signal(signal.SIGTERM))
     run = run_in_process(capsys, *args)
     assert len(calls) >= 2, f"expected at least two renames, saw {calls}\n{run}"
     assert run.rc in (0, 130), str(run)

@@ -510,14 +510,13 @@ def test_ctrl_c_inside_a_lock_of_dasks_client_is_an_interruption(small_fleet, tm
     """A Ctrl-C landing inside a lock's release in Dask's client code surfaces as
     `RuntimeError: cannot release un-acquired lock` (seen once in the slow Ctrl-C test):
     dynid fleet called it an internal error. With a Ctrl-C pressed it is an interruption."""
-    import os
     import signal
 
     from dynid.analysis.fleet import engine
 
     def interrupted_execute(todo, store, client, progress=None):
         try:
-            os.kill(os.getpid(), signal.SIGINT)
+            signal.raise_signal(signal.SIGINT)   # to this thread: another may take a kill()
         except KeyboardInterrupt:
             pass
         raise RuntimeError("cannot release un-acquired lock")
