@@ -58,8 +58,13 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.linalg import solve_triangular
+from scipy.linalg.lapack import dtrtrs as _trtrs
 from statsmodels.stats.sandwich_covariance import S_hac_simple
+
+try:    # numpy.linalg.cholesky's gufunc: one failing matrix gives NaN, not an error for all
+    from numpy.linalg._umath_linalg import cholesky_lo as _cholesky_lo
+except ImportError:     # pragma: no cover - numpy moved it; _cholesky_each loops instead
+    _cholesky_lo = None
 
 #: Largest memory (bytes) the bootstrap spends on the per-sample information matrices.
 MAX_BOOT_BYTES = 256 * 2**20
@@ -454,17 +459,13 @@ def _replicates(Wt, A, c, parts, block, n_boot, rng) -> tuple[np.ndarray, int]:
         A_all = np.empty((n_boot, s, s))
         A_all[:, iu[0], iu[1]] = counts_all @ A
         A_all[:, iu[1], iu[0]] = A_all[:, iu[0], iu[1]]
-        batch = _solve_all(A_all, c_all)
-        if batch is not None:
-            return batch
+        return _solve_all(A_all, c_all)
     draws, failed = [], 0
-    for r in range(n_boot):   # one at a time: the memory path, or a batch with a singular replicate
-        As = A_all[r] if A is not None else np.einsum("tjs,t,tjk->sk", Wt, counts_all[r], Wt)
-        one = _solve_all(As[None], c_all[r][None])
-        if one is None or one[1]:
-            failed += 1
-            continue
-        draws.append(one[0][0])
+    for r in range(n_boot):   # one at a time: the memory path
+        As = np.einsum("tjs,t,tjk->sk", Wt, counts_all[r], Wt)
+        x, bad = _solve_all(As[None], c_all[r][None])
+        failed += bad
+        draws.extend(x)
     return np.asarray(draws).reshape(-1, s), failed
 
 
@@ -480,20 +481,41 @@ def _packed_information(Wt, chunk: int = 1024) -> np.ndarray:
     return out
 
 
+def _cholesky_each(A: np.ndarray) -> np.ndarray:
+    """Lower Cholesky factors of a stack of matrices, NaN where one is not positive definite.
+
+    numpy.linalg.cholesky raises for the whole stack when one matrix fails; its gufunc (what
+    it calls) marks that matrix with NaN instead, with the same factors for the others."""
+    if _cholesky_lo is not None:
+        with np.errstate(invalid="ignore"):
+            return _cholesky_lo(A, signature="d->d")
+    L = np.full_like(A, np.nan)
+    for r in range(len(A)):
+        try:
+            L[r] = np.linalg.cholesky(A[r])
+        except np.linalg.LinAlgError:
+            pass
+    return L
+
+
 def _solve_all(A_all, c_all):
     """Every replicate's refit by batched Cholesky factors and triangular solves, with the
-    replicates whose information has a zero diagonal left out; None when one of the others is
-    not positive definite (the replicate-by-replicate loop then tells which)."""
+    replicates whose information is not positive definite (a zero diagonal included) left out:
+    the refits of the others, and how many were left out."""
     with np.errstate(invalid="ignore"):
         d = np.sqrt(np.einsum("rii->ri", A_all))
     good = np.all(d > 0, axis=1)
-    if not good.any():
-        return np.empty((0, c_all.shape[1])), int(good.size)
     d = d[good]
-    try:  # unit-diagonal scaling: parameters' units differ by orders of magnitude
-        L = np.linalg.cholesky(A_all[good] / (d[:, :, None] * d[:, None, :]))
-    except np.linalg.LinAlgError:
-        return None
-    y = solve_triangular(L, (c_all[good] / d)[..., None], lower=True)
-    x = solve_triangular(np.swapaxes(L, 1, 2), y, lower=False)[..., 0] / d
-    return x, int(np.count_nonzero(~good))
+    # unit-diagonal scaling: parameters' units differ by orders of magnitude
+    L = _cholesky_each(A_all[good] / (d[:, :, None] * d[:, None, :]))
+    factored = ~np.isnan(L).any(axis=(1, 2))
+    L, d, c = L[factored], d[factored], c_all[good][factored]
+    if not len(L):
+        return np.empty((0, c_all.shape[1])), len(A_all)
+    # LAPACK's triangular solve on each factor as scipy.linalg.solve_triangular calls it (the
+    # same numbers), without its per-matrix checks, which cost more than the solves here
+    x = np.empty_like(c)
+    for r, (Lr, cr) in enumerate(zip(L, c / d)):
+        y, _ = _trtrs(Lr.T, cr, lower=0, trans=1)
+        x[r], _ = _trtrs(Lr.T, y, lower=0, trans=0)
+    return x / d, len(A_all) - len(x)

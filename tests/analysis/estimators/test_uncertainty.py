@@ -287,10 +287,13 @@ def test_bootstrap_without_the_per_sample_matrices_is_the_same(monkeypatch):
     np.testing.assert_allclose(summed.cov, held.cov, rtol=1e-8)
 
 
-def test_batched_refits_are_the_loop_s_and_leave_the_singular_ones_to_it():
-    # the replicates' refits in batched LAPACK calls: the same solutions as one at a time; a zero
-    # diagonal (a parameter no drawn sample excites) is left out and counted; a matrix that is not
-    # positive definite sends the whole set back to the loop, which tells which replicate failed
+@pytest.mark.parametrize("gufunc", [True, False], ids=["gufunc", "loop"])
+def test_batched_refits_are_each_replicate_s_alone_and_leave_the_singular_ones_out(monkeypatch, gufunc):
+    # the replicates' refits in batched LAPACK calls: the same numbers as each alone; a zero
+    # diagonal (a parameter no drawn sample excites) or a matrix that is not positive definite
+    # is left out and counted, and the others keep their refits
+    if not gufunc:
+        monkeypatch.setattr(hac, "_cholesky_lo", None)
     rng = np.random.default_rng(26)
     X = rng.standard_normal((5, 40, 4))
     A_all = np.einsum("rts,rtk->rsk", X, X)
@@ -298,11 +301,18 @@ def test_batched_refits_are_the_loop_s_and_leave_the_singular_ones_to_it():
     x, failed = hac._solve_all(A_all, c_all)
     np.testing.assert_allclose(x, np.linalg.solve(A_all, c_all[..., None])[..., 0], rtol=1e-10)
     assert failed == 0
+    alone = np.array([hac._solve_all(A_all[r:r + 1], c_all[r:r + 1])[0][0] for r in range(5)])
+    assert np.array_equal(x, alone)
     A_all[2, 1, :] = A_all[2, :, 1] = 0.0
     x, failed = hac._solve_all(A_all, c_all)
-    assert failed == 1 and x.shape == (4, 4)
+    assert failed == 1 and np.array_equal(x, alone[[0, 1, 3, 4]])
     A_all[3, 0, 1] = A_all[3, 1, 0] = 2 * np.sqrt(A_all[3, 0, 0] * A_all[3, 1, 1])
-    assert hac._solve_all(A_all, c_all) is None
+    with pytest.raises(np.linalg.LinAlgError):
+        np.linalg.cholesky(A_all[3])
+    x, failed = hac._solve_all(A_all, c_all)
+    assert failed == 2 and np.array_equal(x, alone[[0, 1, 4]])
+    x, failed = hac._solve_all(A_all[2:4], c_all[2:4])
+    assert failed == 2 and x.shape == (0, 4)
 
 
 def test_bootstrap_falls_back_to_hac_when_blocks_cannot_identify(monkeypatch):
