@@ -21,6 +21,8 @@ import os
 import time
 from dataclasses import dataclass, field
 
+import pandas as pd
+
 from dynid.analysis.fleet import interrupt
 from dynid.analysis.fleet.catalogue import (
     ROW,
@@ -31,6 +33,7 @@ from dynid.analysis.fleet.catalogue import (
 )
 from dynid.analysis.fleet.store import ResultStore
 from dynid.analysis.fleet.task import MAX_SAMPLES, file_hash, identify_recording, retry_failure, task_key
+from dynid.analysis.results import Result
 from dynid.dynamics.robot_file import is_bundled_name
 from dynid.errors import InputError, OutputError
 from dynid.provenance import json_safe, versions
@@ -48,9 +51,14 @@ def import_distributed():
     return distributed
 
 
-@dataclass
-class FleetRun:
-    """What one run did."""
+@dataclass(repr=False)
+class FleetRun(Result):
+    """What one run did.
+
+    A result like the others: `summary()` (also `str()`), `to_dict()`/`to_json()` (what
+    `dynid fleet --json` writes, without its per-robot table, which the report layer builds
+    from the store) and `to_frame()`/`to_csv()` (the recordings that failed).
+    """
 
     store: str
     n_recordings: int
@@ -91,6 +99,21 @@ class FleetRun:
         return "\n  ".join([f"{self.n_recordings} recordings: {self.n_identified} identified, {self.n_skipped} "
                              f"already in the store, {self.n_failed} failed ({self.wall_seconds:.1f} s)"]
                             + self.notices)
+
+    def summary(self) -> str:
+        """The counts, each failed recording with its error, and the wear monitor's summary."""
+        lines = [f"dynid fleet, store {self.store}", "  " + self.summary_line()]
+        lines += [f"  failed: {robot} {path}: {message}" for robot, path, message in self.errors]
+        if self.health is not None:
+            lines += ["  " + line for line in self.health.summary().splitlines()]
+        return "\n".join(lines)
+
+    def __repr__(self) -> str:
+        return f"<FleetRun {self.summary_line().splitlines()[0]}>"
+
+    def to_frame(self) -> pd.DataFrame:
+        """The recordings of this run that could not be identified (`robot_id, recording, error`)."""
+        return pd.DataFrame(self.errors, columns=["robot_id", "recording", "error"])
 
     def to_dict(self) -> dict:
         out = {"store": self.store, "n_recordings": self.n_recordings, "n_computed": self.n_computed,

@@ -35,6 +35,7 @@ import numpy as np
 import pandas as pd
 
 from dynid.analysis.fleet.task import UNCERTAINTY as STORED_UNCERTAINTY
+from dynid.analysis.results import Result
 from dynid.analysis.units import parameter_unit, prismatic_joints
 from dynid.dynamics.robot_file import load_robot
 from dynid.errors import DynidError, InputError
@@ -105,9 +106,13 @@ class Alarm:
         return asdict(self)
 
 
-@dataclass
-class FleetHealth:
-    """What `monitor` found: the histories, the compensation and the alarms."""
+@dataclass(repr=False)
+class FleetHealth(Result):
+    """What `monitor` found: the histories, the compensation and the alarms.
+
+    A result like the others: `summary()` (also `str()`), `to_dict()`/`to_json()` (the
+    `health` block of `dynid fleet --json`) and `to_frame()`/`to_csv()` (the history).
+    """
 
     history: pd.DataFrame        # one row per (robot, parameter, recording)
     alarms: list                 # Alarm, sorted by robot, joint, parameter
@@ -138,6 +143,29 @@ class FleetHealth:
         for a in self.alarms:
             out[a.robot_id] = min(out.get(a.robot_id, a.onset_day), a.onset_day)
         return dict(sorted(out.items()))
+
+    def summary(self) -> str:
+        """The status line, the monitor's settings and one line per alarm, with units."""
+        st = self.settings
+        lines = [f"Fleet health: {self.status_line()}",
+                 f"  CUSUM threshold h = {self.threshold:.3g} (scatter units), false-alarm rate "
+                 f"{st.get('false_alarm_rate', float('nan')):g} per recording, baseline "
+                 f"{st.get('n_baseline')} recordings, temperature compensation "
+                 f"{'on' if st.get('compensate') else 'off'}"]
+        for a in self.alarms:
+            unit = f" {a.unit}" if a.unit else ""
+            lines.append(f"  {a.robot_id} joint {a.joint} {a.parameter}: {a.direction} of {a.size:.4g}{unit} "
+                         f"({100 * a.rel_size:+.1f} % of {a.baseline:.4g}{unit}) since {a.onset_day}, "
+                         f"alarm on {a.alarm_day} (statistic {a.statistic:.3g})")
+        return "\n".join(lines)
+
+    def __repr__(self) -> str:
+        return f"<FleetHealth {self.status_line()}>"
+
+    def to_frame(self) -> pd.DataFrame:
+        """The history: one row per (robot, parameter, recording), with the temperature-
+        compensated value, its baseline and the CUSUM statistics."""
+        return self.history.copy()
 
     def to_dict(self) -> dict:
         return json_safe({"settings": self.settings, "threshold": self.threshold,

@@ -347,6 +347,33 @@ def test_monitor_finds_the_step_with_its_onset_size_and_the_temperature_coeffici
     assert health.monitor(frame, false_alarm_rate=1e-4).alarms[0].to_dict()["unit"] == "N m s/rad"
 
 
+def test_fleet_health_and_run_are_results_with_summary_and_exports(tmp_path):
+    """The monitor's and the run's results have the interface of every result: str() is the
+    summary (with the alarm and its unit), to_json() is to_dict(), to_csv() writes a table."""
+    from dynid.analysis.fleet.engine import FleetRun
+    from dynid.analysis.results import Result
+    frame = _synthetic_store(np.random.default_rng(3))
+    frame["robot"] = "planar2"
+    h = health.monitor(frame, false_alarm_rate=1e-4)
+    assert isinstance(h, Result) and str(h) == h.summary()
+    text = h.summary()
+    assert text.startswith("Fleet health: 1 alarm(s) on 1 robot(s)")
+    assert "R03 joint 2 Fv2: increase of" in text and "N m s/rad" in text and "since 2026-01-16" in text
+    assert json.loads(h.to_json()) == json.loads(json.dumps(h.to_dict()))
+    h.to_csv(tmp_path / "history.csv")
+    back = pd.read_csv(tmp_path / "history.csv")
+    assert len(back) == len(h.history) and {"robot_id", "parameter", "compensated"} <= set(back)
+    assert repr(h) == "<FleetHealth 1 alarm(s) on 1 robot(s)>"
+    run = FleetRun(store="s", n_recordings=3, n_computed=2, n_skipped=1, wall_seconds=1.0, health=h,
+                   errors=[("R01", "R01_d02.npz", "DataError: column tau2 has NaN in row 7")])
+    assert str(run).splitlines()[1].strip().startswith("3 recordings: 1 identified, 1 already in the store, 1 failed")
+    assert "failed: R01 R01_d02.npz: DataError" in str(run) and "Fleet health: 1 alarm" in str(run)
+    assert run.to_frame().to_dict("records") == [{"robot_id": "R01", "recording": "R01_d02.npz",
+                                                 "error": "DataError: column tau2 has NaN in row 7"}]
+    assert json.loads(run.to_json())["n_failed"] == 1
+    assert repr(run) == "<FleetRun 3 recordings: 1 identified, 1 already in the store, 1 failed (1.0 s)>"
+
+
 def test_temperature_compensation_is_what_makes_a_small_change_visible():
     """The test of the compensation: uncompensated, the daily cycle (+-8 %) is scatter that hides an 8 % step."""
     frame = _synthetic_store(np.random.default_rng(3), step=0.08)
