@@ -166,6 +166,16 @@ class JointSimulation:
     def n_repetitions(self) -> int:
         return self.q.shape[0]
 
+    def describe(self) -> str:
+        """`R repetitions x N samples (D s at F Hz) of n joints`: what the recording holds."""
+        R, N, n = self.q.shape
+        span = float(self.t[-1] - self.t[0]) if N > 1 else 0.0
+        rate = f" at {(N - 1) / span:.0f} Hz" if span > 0 else ""
+        return f"{R} repetition(s) x {N} samples ({span:.2f} s{rate}) of {n} joint(s)"
+
+    def __repr__(self) -> str:
+        return f"<JointSimulation {self.describe()}>"
+
 
 def _step(model, q, v, u, h):
     """One trapezoidal step with implicit friction (see the module doc), in place of (q, v)."""

@@ -40,9 +40,10 @@ from dynid.provenance import json_safe, versions
 __all__ = ["DecoupledCampaign", "DecoupledIdentification", "simulate_campaign", "identify_campaign"]
 
 
-@dataclass(eq=False)
+@dataclass(eq=False, repr=False)
 class DecoupledCampaign:
-    """Recordings of the simulated campaign (each a `JointSimulation`)."""
+    """Recordings of the simulated campaign (each a `JointSimulation`); `summary()` (also
+    `str()`) says what each holds."""
 
     sweep: JointSimulation
     bang_bang: JointSimulation
@@ -51,6 +52,21 @@ class DecoupledCampaign:
     controller: JointPID
     truth: dict
     settings: dict = field(default_factory=dict)
+
+    def summary(self) -> str:
+        """One line per recording, and the campaign's settings."""
+        lines = ["Simulated decoupled campaign (Bona & Curatella 2005, section 3)"]
+        for name in ("sweep", "bang_bang", "excitation", "validation"):
+            lines.append(f"  {name:<11} {getattr(self, name).describe()}")
+        lines.append("  settings: " + ", ".join(f"{k} {v}" for k, v in self.settings.items()))
+        return "\n".join(lines)
+
+    def __str__(self) -> str:
+        return self.summary()
+
+    def __repr__(self) -> str:
+        return (f"<DecoupledCampaign {self.excitation.q.shape[2]} joints, "
+                f"{self.settings.get('n_repetitions', self.excitation.n_repetitions)} repetitions>")
 
 
 @dataclass(eq=False, repr=False)

@@ -180,3 +180,15 @@ def test_shape_and_joint_errors(campaign):
     q[0, 5, 0] = np.nan
     with pytest.raises(InputError, match="finite"):
         estimate_inertia(e.t, q, e.tau_meas)
+
+
+def test_the_campaign_says_what_it_holds_in_a_line_not_its_arrays(campaign):
+    """repr() of the simulated campaign is one line, not its arrays; str() summarises the recordings."""
+    r = repr(campaign)
+    assert r == f"<DecoupledCampaign 6 joints, {campaign.settings['n_repetitions']} repetitions>"
+    text = str(campaign)
+    assert text == campaign.summary() and len(text.splitlines()) == 6
+    n = campaign.sweep.t.size
+    assert f"sweep       {campaign.sweep.n_repetitions} repetition(s) x {n} samples" in text
+    assert "at 1000 Hz) of 6 joint(s)" in text and "seed" in text
+    assert repr(campaign.validation).startswith("<JointSimulation 1 repetition(s) x ")
