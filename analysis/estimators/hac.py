@@ -487,8 +487,11 @@ def _cholesky_each(A: np.ndarray) -> np.ndarray:
     numpy.linalg.cholesky raises for the whole stack when one matrix fails; its gufunc (what
     it calls) marks that matrix with NaN instead, with the same factors for the others."""
     if _cholesky_lo is not None:
-        with np.errstate(invalid="ignore"):
-            return _cholesky_lo(A, signature="d->d")
+        try:
+            with np.errstate(invalid="ignore"):
+                return _cholesky_lo(A, signature="d->d")
+        except TypeError:       # pragma: no cover - numpy changed its call; the loop below
+            pass
     L = np.full_like(A, np.nan)
     for r in range(len(A)):
         try:
@@ -499,9 +502,9 @@ def _cholesky_each(A: np.ndarray) -> np.ndarray:
 
 
 def _solve_all(A_all, c_all):
-    """Every replicate's refit by batched Cholesky factors and triangular solves, with the
-    replicates whose information is not positive definite (a zero diagonal included) left out:
-    the refits of the others, and how many were left out."""
+    """Every replicate's refit by Cholesky factors (one batched call) and triangular solves,
+    with the replicates whose information is not positive definite (a zero diagonal included)
+    left out: the refits of the others, and how many were left out."""
     with np.errstate(invalid="ignore"):
         d = np.sqrt(np.einsum("rii->ri", A_all))
     good = np.all(d > 0, axis=1)

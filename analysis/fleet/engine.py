@@ -103,7 +103,8 @@ class FleetRun(Result):
     def summary(self) -> str:
         """The counts, each failed recording with its error, and the wear monitor's summary."""
         lines = [f"dynid fleet, store {self.store}", "  " + self.summary_line()]
-        lines += [f"  failed: {robot} {path}: {message}" for robot, path, message in self.errors]
+        lines += [f"  failed: {robot} {path}: " + str(message).replace("\n", "\n    ")
+                  for robot, path, message in self.errors]
         if self.health is not None:
             lines += ["  " + line for line in self.health.summary().splitlines()]
         return "\n".join(lines)

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 import statsmodels.api as sm
 from scipy import stats
+from scipy.linalg import solve_triangular
 
 from dynid.analysis.estimators import agreement as ag
 from dynid.analysis.estimators import hac
@@ -303,6 +304,11 @@ def test_batched_refits_are_each_replicate_s_alone_and_leave_the_singular_ones_o
     assert failed == 0
     alone = np.array([hac._solve_all(A_all[r:r + 1], c_all[r:r + 1])[0][0] for r in range(5)])
     assert np.array_equal(x, alone)
+    # the numbers of scipy's Cholesky solve on the same scaled system, to the last bit
+    d = np.sqrt(np.einsum("rii->ri", A_all))
+    L = np.linalg.cholesky(A_all / (d[:, :, None] * d[:, None, :]))
+    y = solve_triangular(L, (c_all / d)[..., None], lower=True)
+    assert np.array_equal(x, solve_triangular(np.swapaxes(L, 1, 2), y, lower=False)[..., 0] / d)
     A_all[2, 1, :] = A_all[2, :, 1] = 0.0
     x, failed = hac._solve_all(A_all, c_all)
     assert failed == 1 and np.array_equal(x, alone[[0, 1, 3, 4]])
