@@ -157,6 +157,7 @@ from dynid.analysis.diagnosis.rule import (
     passes_rule,
     rank_candidates,
     set_runner_up,
+    spring_before_ripple,
 )
 from dynid.analysis.diagnosis.scoring import ALIAS_RTOL, Scorer, chi2_logsf, separability, shift_scores
 from dynid.analysis.diagnosis.settings import DiagnosisSettings
@@ -575,6 +576,8 @@ def _decide_step(setup, opts, sel, st, scorer, weights, m):
         return None
     if reduced:
         passing = by_base_evidence(problem, guard, passing, m)
+    passing, moved = spring_before_ripple(passing, np.ptp(np.asarray(problem.signals.q, float), axis=0))
+    st.tried.extend(moved)
     for w in passing[:opts.max_tries]:
         st.chosen = w
         set_runner_up(st, ranking)

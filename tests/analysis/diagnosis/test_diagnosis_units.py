@@ -349,3 +349,40 @@ def test_the_physical_route_says_its_bounds_not_a_contradiction_with_apriori_val
     assert "a-priori" not in text
     d = h.to_dict()
     assert d["contradicted"] == [] and d["active_bounds"] == ["pseudo-inertia of link 1 singular (nullity 2)"]
+
+
+def _ranked(name, joint, fold_errors, err0=10.0, order=1.0):
+    from types import SimpleNamespace
+    fe = np.asarray(fold_errors, float)
+    label = f"{name} (joint {joint})"
+    return SimpleNamespace(name=name, joint=joint, fold_errors=fe,
+                           nonlinear={"order": order} if name == "position_ripple" else {},
+                           cv_gain=float((err0 * fe.size - fe.sum()) / (err0 * fe.size)),
+                           candidate=SimpleNamespace(label=label))
+
+
+def test_a_spring_is_tried_before_a_ripple_that_does_not_pass_the_held_out_test_against_it():
+    from dynid.analysis.diagnosis.rule import spring_before_ripple
+    spring = _ranked("spring", 4, [5.0, 5.0, 5.0, 5.0, 5.0])
+    # a ripple with the lower total held-out error but better in only 3 of 5 blocks (need 4)
+    ripple = _ranked("position_ripple", 4, [4.0, 4.0, 4.0, 5.5, 5.5])
+    other = _ranked("position_ripple", 1, [1.0] * 5)
+    spans = np.full(6, 1.5)
+    order, moved = spring_before_ripple([other, ripple, spring], spans)
+    assert order == [other, spring, ripple]
+    assert [label for label, _ in moved] == ["position_ripple (joint 4)"]
+    assert "spring on joint 4" in moved[0][1] and "CV gain" in moved[0][1]
+    # better overall and in 4 of 5 blocks: the ripple keeps its place
+    ripple = _ranked("position_ripple", 4, [4.0, 4.0, 4.0, 4.9, 5.5])
+    assert spring_before_ripple([ripple, spring], spans) == ([ripple, spring], [])
+    # better in every block but worse overall: the spring first
+    ripple = _ranked("position_ripple", 4, [4.9, 4.9, 4.9, 4.9, 9.0])
+    assert spring_before_ripple([ripple, spring], spans)[0] == [spring, ripple]
+    # a spring on another joint, or one already ahead, is left where it is
+    spring1 = _ranked("spring", 1, [9.0] * 5)
+    assert spring_before_ripple([ripple, spring1], spans)[0] == [ripple, spring1]
+    assert spring_before_ripple([spring, ripple], spans) == ([spring, ripple], [])
+    # a ripple of more than half a period over the joint's range is not a spring's shape
+    ripple3 = _ranked("position_ripple", 4, [4.9, 4.9, 4.9, 4.9, 9.0], order=3.0)
+    assert spring_before_ripple([ripple3, spring], spans) == ([ripple3, spring], [])
+    assert spring_before_ripple([ripple3, spring], np.full(6, 1.0))[0] == [spring, ripple3]
