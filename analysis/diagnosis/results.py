@@ -74,6 +74,8 @@ class DiagnosisStep:
     confidence: float = float("nan")   # fraction of blocks where the winner beats the runner-up
     chosen: RankedEffect | None = None   # the candidate tried last (the one added if accepted)
     tried: list = field(default_factory=list)   # (label, outcome) of the candidates tried
+    # (label, why) of the ripples a spring of their joint was tried before (rule.spring_before_ripple)
+    reordered: list = field(default_factory=list)
 
     @property
     def winner(self):
@@ -89,6 +91,7 @@ class DiagnosisStep:
                 "runner_up": None if self.runner_up is None else self.runner_up.to_dict(),
                 "gap": self.gap, "confidence": self.confidence,
                 "tried": [{"candidate": a, "outcome": b} for a, b in self.tried],
+                "reordered": [{"candidate": a, "why": b} for a, b in self.reordered],
                 "skipped_in_model_span": list(self.skipped)}
 
 

@@ -569,18 +569,21 @@ def _decide_step(setup, opts, sel, st, scorer, weights, m):
                      + ("named as findings, not added" if named else
                         "none is significant against the full base model, so none is named"))
         return None
+    spans = np.ptp(np.asarray(problem.signals.q, float), axis=0)
     if st.step > opts.max_effects:
-        st.chosen = passing[0]
+        st.chosen = spring_before_ripple(passing, spans)[0][0]
         set_runner_up(st, ranking)
         st.reason = f"passes the rule, but max_effects = {opts.max_effects} effects were added already"
         return None
     if reduced:
         passing = by_base_evidence(problem, guard, passing, m)
-    passing, moved = spring_before_ripple(passing, np.ptp(np.asarray(problem.signals.q, float), axis=0))
-    st.tried.extend(moved)
+    passing, moved = spring_before_ripple(passing, spans)
+    before = {id(spring): (label, why) for spring, label, why in moved}
     for w in passing[:opts.max_tries]:
         st.chosen = w
         set_runner_up(st, ranking)
+        if id(w) in before:
+            st.reordered.append(before[id(w)])
         if reduced and cand_needs_guard(w) and not w.base_p < alpha:
             st.tried.append((w.candidate.label,
                              f"not significant against the full base model ({p_phrase(w.base_p, 'Bonferroni p')}): "
@@ -594,7 +597,8 @@ def _decide_step(setup, opts, sel, st, scorer, weights, m):
         st.reason = "passes: CV gain > 0 in enough blocks and Bonferroni p < alpha" + (
             "" if len(st.tried) == 1 else
             f" (after {len(st.tried) - 1} better-ranked candidate(s) were rejected: "
-            + "; ".join(f"{a}: {b}" for a, b in st.tried[:-1]) + ")")
+            + "; ".join(f"{a}: {b}" for a, b in st.tried[:-1]) + ")") + (
+            f"; tried before {before[id(w)][0]}: {before[id(w)][1]}" if id(w) in before else "")
         return trial
     st.accepted = False
     st.reason = ("passes the rule, but the validation error does not fall: not kept"

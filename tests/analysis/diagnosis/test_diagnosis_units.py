@@ -370,8 +370,8 @@ def test_a_spring_is_tried_before_a_ripple_that_does_not_pass_the_held_out_test_
     spans = np.full(6, 1.5)
     order, moved = spring_before_ripple([other, ripple, spring], spans)
     assert order == [other, spring, ripple]
-    assert [label for label, _ in moved] == ["position_ripple (joint 4)"]
-    assert "spring on joint 4" in moved[0][1] and "CV gain" in moved[0][1]
+    assert [(s, label) for s, label, _ in moved] == [(spring, "position_ripple (joint 4)")]
+    assert "spring on joint 4" in moved[0][2] and "3 of 5 blocks" in moved[0][2]
     # better overall and in 4 of 5 blocks: the ripple keeps its place
     ripple = _ranked("position_ripple", 4, [4.0, 4.0, 4.0, 4.9, 5.5])
     assert spring_before_ripple([ripple, spring], spans) == ([ripple, spring], [])
