@@ -177,12 +177,12 @@ def spring_before_ripple(passing, spans):
             continue
         spring = order.pop(k)
         order.insert(i, spring)
-        d = np.asarray(spring.fold_errors, float) - np.asarray(w.fold_errors, float)
+        wins, n = _blocks_better(w, spring)
         moved.append((spring, w.candidate.label,
                       f"a spring on joint {w.joint} is the ripple's low-order limit with one parameter "
                       f"fewer, and the ripple does not pass the held-out test against it (CV gain "
                       f"{100 * w.cv_gain:.3g} % against the spring's {100 * spring.cv_gain:.3g} %, a lower "
-                      f"error in {int((d > 0).sum())} of {d.size} blocks): the spring is tried first"))
+                      f"error in {wins} of {n} blocks): the spring is tried first"))
     return order, moved
 
 
@@ -190,8 +190,14 @@ def _predicts_better(flexible, simple):
     """Whether `flexible` passes the selection's held-out test against `simple` as an effect
     must against the model (`passes_rule`): a lower held-out error over all blocks, and in
     all blocks but one."""
+    wins, n = _blocks_better(flexible, simple)
+    return bool(flexible.cv_gain > simple.cv_gain and wins >= n - 1)
+
+
+def _blocks_better(flexible, simple):
+    """(blocks where `flexible`'s held-out error is the lower, blocks)."""
     d = np.asarray(simple.fold_errors, float) - np.asarray(flexible.fold_errors, float)
-    return bool(flexible.cv_gain > simple.cv_gain and (d > 0).sum() >= d.size - 1)
+    return int((d > 0).sum()), int(d.size)
 
 
 def set_runner_up(st, ranking):
