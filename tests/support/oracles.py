@@ -158,22 +158,62 @@ def _ssign(x, v_s):
 
 def friction_torques(robot, chi_st, qd, v_s):
     """Fv qd + Fc s(qd) + Off + coupling friction c_k (Fvm w + Fcm s(w)), w = sum c_k qd_k."""
-    n = robot.n_joints
-    tau = np.zeros(n)
-    for j in range(n):
-        Ia, Fv, Fc, Off = chi_st[14 * j + 10:14 * j + 14]
-        tau[j] = Fv * qd[j] + Fc * _ssign(qd[j], v_s) + Off
-    k = 14 * n
-    for c in robot.couplings:
-        if not c.friction:
-            continue
-        idx = [i - 1 for i in c.joints]
-        coef = np.asarray(c.coefficients, dtype=float)
-        w = float(coef @ qd[idx])
-        for a, ka in zip(idx, coef):
-            tau[a] += ka * (chi_st[k] * w + chi_st[k + 1] * _ssign(w, v_s))
-        k += 2
-    return tau
+    return _Friction(robot, chi_st, v_s)(np.asarray(qd, dtype=float))
+
+
+class _Friction:
+    """friction_torques with the coefficients gathered once: per joint Fv, Fc, Off as arrays
+    (chi_st[14 j + 11 : 14 j + 14]) and, per coupling with friction, its joint indices,
+    coefficients c_k and (Fvm, Fcm) = chi_st[k], chi_st[k + 1] in the order of the couplings."""
+
+    def __init__(self, robot, chi_st, v_s):
+        chi = np.asarray(chi_st, dtype=float)
+        n = robot.n_joints
+        j14 = 14 * np.arange(n)
+        self.Fv, self.Fc, self.Off = chi[j14 + 11], chi[j14 + 12], chi[j14 + 13]
+        self.v_s = v_s
+        self.v_s_n = np.full(n, float(v_s))       # qd / v_s elementwise (array / array is cheaper)
+        self.couplings = []
+        k = 14 * n
+        for c in robot.couplings:
+            if not c.friction:
+                continue
+            idx = [i - 1 for i in c.joints]
+            coef = np.asarray(c.coefficients, dtype=float)
+            # consecutive joints (the TX40 wrist) as a slice: cheaper than fancy indexing
+            sel = slice(idx[0], idx[-1] + 1) if idx == list(range(idx[0], idx[-1] + 1)) else np.array(idx)
+            pairs = list(zip(idx, coef.tolist()))
+            self.couplings.append((pairs, sel, coef, float(chi[k]), float(chi[k + 1])))
+            k += 2
+
+    def __call__(self, qd):
+        v_s = self.v_s
+        s = np.tanh(qd / self.v_s_n) if v_s > 0 else np.sign(qd)
+        tau = self.Fv * qd + self.Fc * s + self.Off
+        if self.couplings:
+            x = qd.tolist()
+            for pairs, sel, coef, Fvm, Fcm in self.couplings:
+                w = 0.0                               # sum c_k qd_k, in the order of coef @ qd[idx]
+                for a, ka in pairs:
+                    w += ka * x[a]
+                tau[sel] += coef * (Fvm * w + Fcm * _ssign(w, v_s))
+        return tau
+
+
+try:  # LAPACK's dgesv without np.linalg.solve's per-call overhead (same routine, same result)
+    from scipy.linalg.lapack import dgesv as _dgesv
+except ImportError:  # pragma: no cover
+    _dgesv = None
+
+
+def _solve(M, b):
+    """np.linalg.solve(M, b) for a symmetric M (passed transposed: Fortran order, no copy)."""
+    if _dgesv is None:  # pragma: no cover
+        return np.linalg.solve(M, b)
+    _, _, x, info = _dgesv(M.T, b, overwrite_a=1, overwrite_b=1)
+    if info != 0:
+        raise np.linalg.LinAlgError("Singular matrix")
+    return x
 
 
 class PinPlant:
@@ -187,18 +227,23 @@ class PinPlant:
         self.model = pin_model_from_robot(robot, self.chi)
         self.data = self.model.createData()
         self.A = armature_matrix(robot, self.chi)
+        self.friction = _Friction(robot, self.chi, v_s)
         self.use_aba = not robot.couplings
         if self.use_aba:
             self.model.armature = np.diag(self.A).copy()
+        # crba fills the upper triangle: M_sym = M.take(sym), sym[i, j] = flat index of M[min, max]
+        i, j = np.indices(self.A.shape)
+        n = self.A.shape[0]
+        self.sym = np.minimum(i, j) * n + np.maximum(i, j)
 
     def __call__(self, q, qd, tau):
-        f = friction_torques(self.robot, self.chi, qd, self.v_s)
+        f = self.friction(qd)
         if self.use_aba:
             return np.array(pin.aba(self.model, self.data, q, qd, tau - f))
-        M = np.array(pin.crba(self.model, self.data, q))
-        M = np.triu(M) + np.triu(M, 1).T + self.A
-        h = np.array(pin.nonLinearEffects(self.model, self.data, q, qd))
-        return np.linalg.solve(M, tau - h - f)
+        M = np.asarray(pin.crba(self.model, self.data, q)).take(self.sym)
+        M += self.A
+        h = pin.nonLinearEffects(self.model, self.data, q, qd)
+        return _solve(M, tau - h - f)
 
 
 def pin_closed_loop(robot, chi_st, t, qr, qdr, q0, qd0, *, kd_scale=None, substeps=1,
@@ -225,18 +270,26 @@ def pin_closed_loop(robot, chi_st, t, qr, qdr, q0, qd0, *, kd_scale=None, subste
     tmax = np.array([jt.tau_max for jt in robot.joints], float) if saturate else np.full(n, np.inf)
     with np.errstate(divide="ignore"):
         imax = np.where(np.abs(g * scale * ki) > 0, tmax / np.abs(g * scale * ki), np.inf)
+    skv, ski = scale * kv, scale * ki             # (scale kv) u, (scale ki) integral, as written below
+    pid = ctrl.kind == "pid"
+    clip_tau = bool(np.isfinite(tmax).any())      # clip to +-inf is the identity
     T = t[1] - t[0]
     N = len(t)
     Q, QD, QDD, TAU = (np.zeros((N, n)) for _ in range(4))
     q, qd, integ = np.array(q0, float), np.array(qd0, float), np.zeros(n)
     for k in range(N):
+        # tau = clip(g (scale kv (kp e - qd + qdr_ff) + scale ki integ), -tmax, tmax)
         e = qr[k] - q
-        u = kp * e - qd + (qdr[k] if feedforward else 0.0)
-        v = scale * kv * u
-        if ctrl.kind == "pid":
-            integ = np.clip(integ + T * e, -imax, imax)
-            v = v + scale * ki * integ
-        tau = np.clip(g * v, -tmax, tmax)
+        u = kp * e - qd
+        if feedforward:
+            u += qdr[k]
+        v = skv * u
+        if pid:
+            integ = np.minimum(np.maximum(integ + T * e, -imax), imax)
+            v += ski * integ
+        tau = g * v
+        if clip_tau:
+            tau = np.minimum(np.maximum(tau, -tmax), tmax)
         a1 = plant(q, qd, tau)
         Q[k], QD[k], QDD[k], TAU[k] = q, qd, a1, tau
         if k == N - 1:
@@ -251,13 +304,15 @@ def pin_closed_loop(robot, chi_st, t, qr, qdr, q0, qd0, *, kd_scale=None, subste
 
 def rk4_step(plant, q, qd, tau, h, a1):
     """One classical RK4 step of qdd = plant(q, qd, tau) with tau held; a1 = plant(q, qd, tau)."""
-    q2, v2 = q + h / 2 * qd, qd + h / 2 * a1
+    h2 = h / 2
+    q2, v2 = q + h2 * qd, qd + h2 * a1
     a2 = plant(q2, v2, tau)
-    q3, v3 = q + h / 2 * v2, qd + h / 2 * a2
+    q3, v3 = q + h2 * v2, qd + h2 * a2
     a3 = plant(q3, v3, tau)
     q4, v4 = q + h * v3, qd + h * a3
     a4 = plant(q4, v4, tau)
-    return q + h / 6 * (qd + 2 * v2 + 2 * v3 + v4), qd + h / 6 * (a1 + 2 * a2 + 2 * a3 + a4)
+    h6 = h / 6
+    return q + h6 * (qd + 2.0 * v2 + 2.0 * v3 + v4), qd + h6 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
 
 
 # ----------------------------------------------------------------------------- base-parameter data
