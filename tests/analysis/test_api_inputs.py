@@ -24,6 +24,16 @@ def planar2():
     return robot, rec, dynid.identify(rec, robot)
 
 
+@pytest.fixture(scope="module")
+def tx40_payload():
+    """The TX40, a 4 s recording with a 2 kg payload (seed 2) and the IDIM run of a 4 s recording
+    without it (seed 1): the model JSON the payload tests edit is that run's `to_dict()` (a new
+    dict at every call)."""
+    tx40 = dynid.load_robot("tx40")
+    loaded = dynid.simulate(tx40, 4.0, seed=2, payload=(2.0, (0, 0, 0.05)))
+    return tx40, loaded, dynid.run(dynid.simulate(tx40, 4.0, seed=1), tx40)
+
+
 def _shifted(exp, k=1):
     """The same recording without its first k samples (what a re-export or a trim gives)."""
     return Experiment(t=exp.t[k:] - exp.t[k], q=exp.q[k:], qr=None if exp.qr is None else exp.qr[k:],
@@ -83,24 +93,21 @@ def test_payload_options_are_checked(planar2):
         dynid.report(rec, robot, payload_options={"frame": "flange"})
 
 
-def test_a_model_json_whose_covariance_is_not_one_is_refused(planar2, tmp_path):
-    tx40 = dynid.load_robot("tx40")
-    empty = dynid.simulate(tx40, 4.0, seed=1)
-    loaded = dynid.simulate(tx40, 4.0, seed=2, payload=(2.0, (0, 0, 0.05)))
-    doc = dynid.run(empty, tx40).to_dict()
+def test_a_model_json_whose_covariance_is_not_one_is_refused(tx40_payload):
+    tx40, loaded, empty_run = tx40_payload
+    doc = empty_run.to_dict()
     doc["wls"]["covariance"] = (-np.asarray(doc["wls"]["covariance"], dtype=float)).tolist()
     # a negated covariance gave the payload sigma 0 and intervals of zero width, exit 0
     with pytest.raises(InputError, match="not a covariance"):
         dynid.identify_payload(loaded, tx40, model=doc)
 
 
-def test_an_edited_model_json_is_refused_naming_the_record(tmp_path):
+def test_an_edited_model_json_is_refused_naming_the_record(tx40_payload):
     """A value that is not a number or a name that is not text crashed (exit 1); a repeated name was
     summed into one parameter and a missing one taken as 0, without a word."""
     import copy
-    tx40 = dynid.load_robot("tx40")
-    loaded = dynid.simulate(tx40, 4.0, seed=2, payload=(2.0, (0, 0, 0.05)))
-    doc = dynid.run(dynid.simulate(tx40, 4.0, seed=1), tx40).to_dict()
+    tx40, loaded, empty_run = tx40_payload
+    doc = empty_run.to_dict()
     first = doc["wls"]["parameters"][0]["name"]
     cases = [(lambda d: d["wls"]["parameters"][0].update(value="abc"), rf"wls.parameters\[0\] \({first}\): value is 'abc'"),
              (lambda d: d["wls"]["parameters"][0].update(value=True), "value is True, not a number"),
@@ -116,9 +123,9 @@ def test_an_edited_model_json_is_refused_naming_the_record(tmp_path):
     unsigned["robot_signature"] = None
     res = dynid.identify_payload(loaded, tx40, model=unsigned, max_rel_halfwidth=10.0)   # 4 s: a wide payload
     assert any("no robot_signature" in n for n in res.notices)
-    # a result object is named by its method, not its class (the report printed "IDIMResult")
-    res = dynid.identify_payload(loaded, tx40, model=dynid.identify(dynid.simulate(tx40, 4.0, seed=1), tx40),
-                                 max_rel_halfwidth=10.0)
+    # a result object is named by its method, not its class (the report printed "IDIMResult"); the run's
+    # result is the IDIMResult dynid.identify gives of the same recording (same estimate and covariance)
+    res = dynid.identify_payload(loaded, tx40, model=empty_run.result, max_rel_halfwidth=10.0)
     assert "robot fixed: the IDIM identification given as model; its parameters' uncertainty is propagated" \
         in res.notices
 

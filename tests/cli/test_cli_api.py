@@ -218,12 +218,22 @@ def test_report(recording, tmp_path):
     _same(js, out.to_dict())
 
 
-def test_demo(tmp_path):
-    js = tmp_path / "demo.json"
-    assert main(["demo", "--skip", "didim,sample,diagnose", "--duration", "3", "--seed", "2",
-                 "--report", str(tmp_path / "demo.html"), "--json", str(js), "--quiet"]) == 0
-    out = dynid.demo(seed=2, duration=3, skip=("didim", "sample", "diagnose"))
-    _same(js, out.to_dict())
+def test_demo(tmp_path_factory):
+    """`dynid demo --skip didim,sample,diagnose --duration 5 --report demo.html --json demo.json`: the
+    console script's run that tests/cli/test_output_schemas.py and tests/reports/test_browser.py read
+    (made once per session), or `main` in this process where there is no console script."""
+    from shared_runs import DYNID, demo_idim_run
+    argv = ["demo", "--skip", "didim,sample,diagnose", "--duration", "5", "--report", "demo.html",
+            "--json", "demo.json", "--quiet"]
+    if DYNID.exists():
+        run = demo_idim_run(tmp_path_factory)
+        assert run.returncode == 0, run.stderr[-3000:]
+        folder = run.folder
+    else:
+        folder = tmp_path_factory.mktemp("demo")
+        assert main([a if not a.startswith("demo.") else str(folder / a) for a in argv]) == 0
+    out = dynid.demo(duration=5, skip=("didim", "sample", "diagnose"))      # seed 1: the command's default
+    _same(folder / "demo.json", out.to_dict())
 
 
 @pytest.mark.slow
