@@ -185,7 +185,7 @@ def test_report_json(tmp_path_factory):
 
 
 def test_demo_json(tmp_path_factory):
-    """`dynid demo --skip didim,sample,diagnose --duration 5 --report demo.html --json demo.json`, run
+    """`dynid demo --skip didim,sample,diagnose --duration 5 --seed 2 --report demo.html --json demo.json`, run
     once per session (tests/reports/test_browser.py reads the same run)."""
     from shared_runs import demo_idim_run
     demo = _shared_run(demo_idim_run, tmp_path_factory)

@@ -1,11 +1,9 @@
 """docs/guide.md's own-robot recipe ("Your own robot: a URDF, a log, a verdict"), followed as
 written: the branched URDF of examples/own_robot, the guide's robot TOML and its two command blocks.
 
-Slow (25 s on a 2-core machine, the second longest test of the default suite): its two command
-blocks are also run, with the rest of the guide's, by the slow
-tests/project/test_guide.py::test_every_command_block_runs; this test adds the checks of what the
-recipe promises (the chain picked, the regrouping, an identified verdict). The helpers are
-test_guide.py's.
+In a file of its own so that, under `pytest -n 2 --dist loadfile`, it and the guide's Python API
+blocks (tests/project/test_guide.py), the two longest tests near the end of the run, go to
+different workers; the helpers are test_guide.py's.
 """
 import json
 import os
@@ -16,7 +14,6 @@ import pytest
 from test_guide import BIN, ROOT, own_robot_section, sh_blocks, write_own_robot_files
 
 
-@pytest.mark.slow
 def test_own_robot_recipe_from_a_urdf_to_a_verdict(tmp_path):
     """The guide's own-robot recipe, as written: the URDF it ships (branched, so --base/--tip
     matter), the guide's robot TOML (controller, a-priori rotor inertia and friction), a log, a

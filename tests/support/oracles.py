@@ -200,14 +200,17 @@ class _Friction:
         return tau
 
 
-try:  # LAPACK's dgesv without np.linalg.solve's per-call overhead (same routine, same result)
+try:  # LAPACK's dgesv without np.linalg.solve's per-call overhead (the routine np.linalg.solve calls)
     from scipy.linalg.lapack import dgesv as _dgesv
 except ImportError:  # pragma: no cover
     _dgesv = None
 
 
 def _solve(M, b):
-    """np.linalg.solve(M, b) for a symmetric M (passed transposed: Fortran order, no copy)."""
+    """np.linalg.solve(M, b) for a symmetric M (passed transposed: Fortran order, no copy).
+
+    Overwrites M and b (the caller's temporaries) and returns b's storage as the solution.
+    """
     if _dgesv is None:  # pragma: no cover
         return np.linalg.solve(M, b)
     _, _, x, info = _dgesv(M.T, b, overwrite_a=1, overwrite_b=1)

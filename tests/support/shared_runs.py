@@ -73,11 +73,11 @@ def _once(tmp_path_factory, key: str, *commands: list[str]) -> Run:
 
 
 def demo_idim_run(tmp_path_factory) -> Run:
-    """`dynid demo --skip didim,sample,diagnose --duration 5 --report demo.html --json demo.json --quiet`
+    """`dynid demo --skip didim,sample,diagnose --duration 5 --seed 2 --report demo.html --json demo.json --quiet`
     with the console script of this venv (tests/cli/test_output_schemas.py skips when it is missing;
     tests/cli/test_cli_api.py then runs the command in its own process)."""
     return _once(tmp_path_factory, "demo-idim",
-                 [str(DYNID), "demo", "--skip", "didim,sample,diagnose", "--duration", "5",
+                 [str(DYNID), "demo", "--skip", "didim,sample,diagnose", "--duration", "5", "--seed", "2",
                   "--report", "demo.html", "--json", "demo.json", "--quiet"])
 
 
