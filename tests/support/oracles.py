@@ -284,8 +284,7 @@ def pin_closed_loop(robot, chi_st, t, qr, qdr, q0, qd0, *, kd_scale=None, subste
         # tau = clip(g (scale kv (kp e - qd + qdr_ff) + scale ki integ), -tmax, tmax)
         e = qr[k] - q
         u = kp * e - qd
-        if feedforward:
-            u += qdr[k]
+        u += qdr[k] if feedforward else 0.0     # + 0.0 as before: a -0.0 becomes +0.0
         v = skv * u
         if pid:
             integ = np.minimum(np.maximum(integ + T * e, -imax), imax)
