@@ -156,7 +156,7 @@ def spring_before_ripple(passing, spans):
     held-out seeds, 16400-16499; on the development seeds where it was, the spring's CV gain
     was the higher one, or within a few hundredths of a point of the ripple's). The simpler
     family is taken unless the ripple passes the selection's held-out test against it: a lower
-    held-out error over all blocks and in all blocks but one (`_predicts_better`).
+    held-out error over all blocks and in all blocks but one.
 
     Only where the two shapes nest: a ripple that covers at most half a period across the
     joint's range (order x span <= pi), one rise or one hump, as a spring with curvature
@@ -166,38 +166,29 @@ def spring_before_ripple(passing, spans):
     """
     order = list(passing)
     moved = []
-    for w in list(order):
+    # a moved ripple sits one place further on, with its spring ahead: the next index skips it
+    for i in range(len(order)):
+        w = order[i]
         if w.name != "position_ripple" or not (float(w.nonlinear.get("order", np.inf))
                                                  * float(spans[w.joint - 1]) <= np.pi):
             continue
-        i = next(k for k, x in enumerate(order) if x is w)
         k = next((k for k in range(i + 1, len(order))
                   if order[k].name == "spring" and order[k].joint == w.joint), None)
-        if k is None or _predicts_better(w, order[k]):
+        if k is None:
             continue
-        spring = order.pop(k)
-        order.insert(i, spring)
-        wins, n = _blocks_better(w, spring)
+        spring = order[k]
+        # the selection's held-out test (`passes_rule`), the ripple against the spring
+        lower = np.less(w.fold_errors, spring.fold_errors)
+        wins, n = int(lower.sum()), int(lower.size)
+        if w.cv_gain > spring.cv_gain and wins >= n - 1:
+            continue
+        order.insert(i, order.pop(k))
         moved.append((spring, w.candidate.label,
                       f"a spring on joint {w.joint} is the ripple's low-order limit with one parameter "
                       f"fewer, and the ripple does not pass the held-out test against it (CV gain "
                       f"{100 * w.cv_gain:.3g} % against the spring's {100 * spring.cv_gain:.3g} %, a lower "
                       f"error in {wins} of {n} blocks): the spring is tried first"))
     return order, moved
-
-
-def _predicts_better(flexible, simple):
-    """Whether `flexible` passes the selection's held-out test against `simple` as an effect
-    must against the model (`passes_rule`): a lower held-out error over all blocks, and in
-    all blocks but one."""
-    wins, n = _blocks_better(flexible, simple)
-    return bool(flexible.cv_gain > simple.cv_gain and wins >= n - 1)
-
-
-def _blocks_better(flexible, simple):
-    """(blocks where `flexible`'s held-out error is the lower, blocks)."""
-    d = np.asarray(simple.fold_errors, float) - np.asarray(flexible.fold_errors, float)
-    return int((d > 0).sum()), int(d.size)
 
 
 def set_runner_up(st, ranking):

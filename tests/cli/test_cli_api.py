@@ -223,16 +223,14 @@ def test_demo(tmp_path_factory):
     (a seed other than the default, so that the option is seen to reach the demo): the
     console script's run that tests/cli/test_output_schemas.py and tests/reports/test_browser.py read
     (made once per session), or `main` in this process where there is no console script."""
-    from shared_runs import DYNID, demo_idim_run
-    argv = ["demo", "--skip", "didim,sample,diagnose", "--duration", "5", "--seed", "2", "--report", "demo.html",
-            "--json", "demo.json", "--quiet"]
+    from shared_runs import DEMO_IDIM_ARGS, DYNID, demo_idim_run
     if DYNID.exists():
         run = demo_idim_run(tmp_path_factory)
         assert run.returncode == 0, run.stderr[-3000:]
         folder = run.folder
     else:
         folder = tmp_path_factory.mktemp("demo")
-        assert main([a if not a.startswith("demo.") else str(folder / a) for a in argv]) == 0
+        assert main([str(folder / a) if a.startswith("demo.") else a for a in DEMO_IDIM_ARGS]) == 0
     out = dynid.demo(seed=2, duration=5, skip=("didim", "sample", "diagnose"))
     _same(folder / "demo.json", out.to_dict())
 

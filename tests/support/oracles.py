@@ -4,6 +4,7 @@ Pinocchio models are built here from the robot's joint placements (DH rows or
 URDF origins) without using dynid's kinematics or regressor code.
 """
 import numpy as np
+from scipy.linalg.lapack import dgesv
 
 pin = None
 try:  # pragma: no cover - depends on the test environment
@@ -157,14 +158,33 @@ def _ssign(x, v_s):
 
 
 def friction_torques(robot, chi_st, qd, v_s):
-    """Fv qd + Fc s(qd) + Off + coupling friction c_k (Fvm w + Fcm s(w)), w = sum c_k qd_k."""
-    return _Friction(robot, chi_st, v_s)(np.asarray(qd, dtype=float))
+    """Fv qd + Fc s(qd) + Off + coupling friction c_k (Fvm w + Fcm s(w)), w = sum c_k qd_k.
+
+    One call, written out per joint (benchmarks/didim.py's plain-Python baseline calls it at
+    every step); `PinPlant` computes the same with the coefficients gathered once (`_Friction`).
+    """
+    n = robot.n_joints
+    tau = np.zeros(n)
+    for j in range(n):
+        Ia, Fv, Fc, Off = chi_st[14 * j + 10:14 * j + 14]
+        tau[j] = Fv * qd[j] + Fc * _ssign(qd[j], v_s) + Off
+    k = 14 * n
+    for c in robot.couplings:
+        if not c.friction:
+            continue
+        idx = [i - 1 for i in c.joints]
+        coef = np.asarray(c.coefficients, dtype=float)
+        w = float(coef @ qd[idx])
+        for a, ka in zip(idx, coef):
+            tau[a] += ka * (chi_st[k] * w + chi_st[k + 1] * _ssign(w, v_s))
+        k += 2
+    return tau
 
 
 class _Friction:
-    """friction_torques with the coefficients gathered once: per joint Fv, Fc, Off as arrays
-    (chi_st[14 j + 11 : 14 j + 14]) and, per coupling with friction, its joint indices,
-    coefficients c_k and (Fvm, Fcm) = chi_st[k], chi_st[k + 1] in the order of the couplings."""
+    """`friction_torques` with the coefficients gathered once, for a plant called at every
+    RK4 stage: Fv, Fc, Off per joint as arrays and, per coupling with friction, its joint
+    indices, coefficients c_k and (Fvm, Fcm), in the order of the couplings."""
 
     def __init__(self, robot, chi_st, v_s):
         chi = np.asarray(chi_st, dtype=float)
@@ -172,48 +192,29 @@ class _Friction:
         j14 = 14 * np.arange(n)
         self.Fv, self.Fc, self.Off = chi[j14 + 11], chi[j14 + 12], chi[j14 + 13]
         self.v_s = v_s
-        self.v_s_n = np.full(n, float(v_s))       # qd / v_s elementwise (array / array is cheaper)
         self.couplings = []
         k = 14 * n
         for c in robot.couplings:
-            if not c.friction:
-                continue
-            idx = [i - 1 for i in c.joints]
-            coef = np.asarray(c.coefficients, dtype=float)
-            # consecutive joints (the TX40 wrist) as a slice: cheaper than fancy indexing
-            sel = slice(idx[0], idx[-1] + 1) if idx == list(range(idx[0], idx[-1] + 1)) else np.array(idx)
-            pairs = list(zip(idx, coef.tolist()))
-            self.couplings.append((pairs, sel, coef, float(chi[k]), float(chi[k + 1])))
-            k += 2
+            if c.friction:
+                idx = np.array([i - 1 for i in c.joints])
+                self.couplings.append((idx, np.asarray(c.coefficients, dtype=float), float(chi[k]), float(chi[k + 1])))
+                k += 2
 
     def __call__(self, qd):
-        v_s = self.v_s
-        s = np.tanh(qd / self.v_s_n) if v_s > 0 else np.sign(qd)
-        tau = self.Fv * qd + self.Fc * s + self.Off
-        if self.couplings:
-            x = qd.tolist()
-            for pairs, sel, coef, Fvm, Fcm in self.couplings:
-                w = 0.0                               # sum c_k qd_k, in the order of coef @ qd[idx]
-                for a, ka in pairs:
-                    w += ka * x[a]
-                tau[sel] += coef * (Fvm * w + Fcm * _ssign(w, v_s))
+        tau = self.Fv * qd + self.Fc * _ssign(qd, self.v_s) + self.Off
+        for idx, coef, Fvm, Fcm in self.couplings:
+            w = float(coef @ qd[idx])
+            tau[idx] += coef * (Fvm * w + Fcm * _ssign(w, self.v_s))
         return tau
 
 
-try:  # LAPACK's dgesv without np.linalg.solve's per-call overhead (the routine np.linalg.solve calls)
-    from scipy.linalg.lapack import dgesv as _dgesv
-except ImportError:  # pragma: no cover
-    _dgesv = None
-
-
 def _solve(M, b):
-    """np.linalg.solve(M, b) for a symmetric M (passed transposed: Fortran order, no copy).
+    """np.linalg.solve(M, b) for a symmetric M (passed transposed: Fortran order, no copy), by
+    LAPACK's dgesv, the routine np.linalg.solve calls, without its per-call overhead.
 
     Overwrites M and b (the caller's temporaries) and returns b's storage as the solution.
     """
-    if _dgesv is None:  # pragma: no cover
-        return np.linalg.solve(M, b)
-    _, _, x, info = _dgesv(M.T, b, overwrite_a=1, overwrite_b=1)
+    _, _, x, info = dgesv(M.T, b, overwrite_a=1, overwrite_b=1)
     if info != 0:
         raise np.linalg.LinAlgError("Singular matrix")
     return x

@@ -72,13 +72,17 @@ def _once(tmp_path_factory, key: str, *commands: list[str]) -> Run:
     return once_in_folder(tmp_path_factory, key, lambda folder: _run_all(list(commands), folder))
 
 
+#: the arguments of `demo_idim_run` (tests/cli/test_cli_api.py runs them in its own process where
+#: there is no console script)
+DEMO_IDIM_ARGS = ["demo", "--skip", "didim,sample,diagnose", "--duration", "5", "--seed", "2",
+                  "--report", "demo.html", "--json", "demo.json", "--quiet"]
+
+
 def demo_idim_run(tmp_path_factory) -> Run:
     """`dynid demo --skip didim,sample,diagnose --duration 5 --seed 2 --report demo.html --json demo.json --quiet`
     with the console script of this venv (tests/cli/test_output_schemas.py skips when it is missing;
     tests/cli/test_cli_api.py then runs the command in its own process)."""
-    return _once(tmp_path_factory, "demo-idim",
-                 [str(DYNID), "demo", "--skip", "didim,sample,diagnose", "--duration", "5", "--seed", "2",
-                  "--report", "demo.html", "--json", "demo.json", "--quiet"])
+    return _once(tmp_path_factory, "demo-idim", [str(DYNID), *DEMO_IDIM_ARGS])
 
 
 def tx40_identify_run(tmp_path_factory) -> Run:
