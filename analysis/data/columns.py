@@ -108,6 +108,28 @@ class _Col:
 _RELEASED = np.empty(0)
 
 
+#: Rows copied at a time by `stack_columns`: the block of the (N, n) output and of its n
+#: columns stays in cache (a few hundred kB for n <= 12).
+STACK_BLOCK_ROWS = 8192
+
+
+def stack_columns(cols) -> np.ndarray:
+    """``np.column_stack`` of equal-length 1-D columns (the same array), copied in blocks of rows.
+
+    ``np.column_stack`` writes the (N, n) result one column at a time, a strided pass over
+    all of it per column; by blocks of `STACK_BLOCK_ROWS` rows each output row is written
+    while it is in cache (about 2.5x faster on a 200,000-row, 6-joint log; benchmarks/io.py)."""
+    cols = [np.asarray(c) for c in cols]
+    if not cols or any(c.ndim != 1 or c.shape != cols[0].shape for c in cols):
+        return np.column_stack(cols)
+    out = np.empty((cols[0].size, len(cols)), dtype=np.result_type(*cols))
+    for i in range(0, out.shape[0], STACK_BLOCK_ROWS):
+        block = out[i:i + STACK_BLOCK_ROWS]
+        for j, c in enumerate(cols):
+            block[:, j] = c[i:i + STACK_BLOCK_ROWS]
+    return out
+
+
 def _release(raws, cols) -> None:
     """Drop the raw arrays once the signals are stacked: messages after that need only the
     columns' names and row numbers, and the raw copy would be a third of the peak memory."""
@@ -576,7 +598,7 @@ def _from_columns(raw: _RawFile, robot, n_joints, opts: _Options, source: str,
     signals, cols_of = {}, {}
     for s, idx in present.items():
         stem_cols = [cols[by_stem[s][k]] for k in idx]
-        signals[s] = np.column_stack([values.pop((s, k)) for k in idx])
+        signals[s] = stack_columns([values.pop((s, k)) for k in idx])
         cols_of["tau" if s == "i" else s] = stem_cols
         _release_columns(raw, stem_cols)       # signal by signal: the peak holds one raw copy less
     _release([raw], cols.values())

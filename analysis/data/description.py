@@ -98,6 +98,7 @@ from dynid.analysis.data.columns import (
     _robot_joints,
     _time_values,
     _to_float,
+    stack_columns,
 )
 from dynid.analysis.data.readers import _RawFile, _read_bytes, _read_data_file
 from dynid.analysis.data.record import TORQUE_TIMINGS
@@ -421,7 +422,7 @@ class _Description:
             items = [(c, _to_float(c)) for c in cols]
             _check_finite(items)
             _plaus.check_magnitude(items, self.robot)
-            values[s] = np.column_stack([v for _, v in items])
+            values[s] = stack_columns([v for _, v in items])
             section_cols[s] = cols
             side = self.tk.string(s, table, "side", "joint")
             if side not in ("joint", "motor"):
