@@ -341,7 +341,7 @@ def _read_csv_fast(path: Path, label: str, beside: bool = False) -> _RawFile | N
         if dtypes[names[c]] is float:
             a = col.to_numpy(dtype=float)
             # NaN and inf: the precise path names the cell (as the loader would, one pass later)
-            if a.dtype != np.float64 or not np.isfinite(a).all():
+            if a.dtype != np.float64 or not _all_finite(a):
                 return None
             ones_and_zeros = ones_and_zeros or (not scanned and _a_block_of_ones_and_zeros(a, block))
         else:
@@ -353,6 +353,14 @@ def _read_csv_fast(path: Path, label: str, beside: bool = False) -> _RawFile | N
     if beside:
         raw.beside = ThreadPoolExecutor(max_workers=1, thread_name_prefix="dynid-csv-beside")
     return raw
+
+
+def _all_finite(a: np.ndarray) -> bool:
+    """Whether every value of the float array `a` is finite. Its sum is, when they all are and
+    it does not overflow: one pass without a temporary (the elementwise test runs only then)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        total = a.sum()
+    return bool(np.isfinite(total)) or bool(np.isfinite(a).all())
 
 
 def _pandas_block_rows(width: int) -> int:
