@@ -632,7 +632,8 @@ def check_data_quality(x: VerdictInputs) -> CheckOutcome:
                + list(getattr(x.validation, "notices", []) or []))
     sat = [s for s in notices if "saturat" in s.lower()]
     # maximum likelihood's trajectory model (eq. (17)) that misses the motion: its estimates are biased
-    latent = [s for s in notices if "latent trajectory" in s]
+    # (not the notice of how many harmonics BIC chose, "latent trajectory: K = ...")
+    latent = [s for s in notices if re.search(r"latent trajectory \(.*(misses part of the motion|not periodic)", s)]
     # one-sample spikes and jumps the loader found (dynid.analysis.data.plausibility)
     # (in the measured q and tau: IDIM does not use the reference qr)
     glitch = [s for s in notices if re.search(r"isolated spike in (q|tau)\d|\bq\d+ jumps by", s)]

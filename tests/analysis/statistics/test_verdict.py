@@ -362,3 +362,26 @@ def test_the_verdict_says_which_model_it_judges_beside_the_physical_and_effects_
     assert "kg m\u00b2" in html.split('id="tab-physical-parameters"')[1].split("</table>")[0]
     frame = r.verdict.to_frame()        # the CSV's columns, as every result's parameter table
     assert frame.index.name == "parameter" and list(frame.columns[:4]) == ["value", "std", "rel_std_percent", "unit"]
+
+
+def test_the_harmonics_bic_chose_are_no_warning_but_a_misfit_is():
+    """ML's notice of the harmonic count BIC chose ("latent trajectory: K = 48 harmonics ...") made
+    every ML verdict with automatic harmonics say "the motion is not periodic"; only the misfit
+    notices of maximum_likelihood._check_periodic do."""
+    import types
+
+    from dynid.analysis.statistics.verdict import check_data_quality
+    reason = "the motion is not periodic at maximum likelihood's f0"
+
+    def reasons(*notices):
+        x = types.SimpleNamespace(result=types.SimpleNamespace(notices=list(notices)), validation=None,
+                                  cond_threshold=1e3)
+        return check_data_quality(x).reasons
+    info = "latent trajectory: K = 48 harmonics (BIC on q; per joint [48, 44])"
+    assert reason not in reasons(info)
+    assert reason in reasons(info, "5 harmonics of f0 = 0.5 Hz leave 12 % of joint 2's motion unexplained (RMS "
+                             "about its mean): the latent trajectory (eq. (17)) misses part of the motion, which "
+                             "biases the estimates; give more harmonics")
+    assert reason in reasons("the latent trajectory (5 harmonics of f0 = 0.5 Hz) leaves 110 times the noise of "
+                             "joint 1's q (from its second differences): the motion is not periodic at the noise "
+                             "level (a start-up transient, a drift), and maximum likelihood reads ...")
