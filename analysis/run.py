@@ -622,7 +622,7 @@ def identify_step(experiments, robot, settings: Settings, progress=None, *, obse
                          f"likelihood keeps every sample and is limited to {ML_MAX_VALUES:,} values: "
                          "resample or cut the recording (a TOML experiment file), or use IDIM")
     return _carrying(maximum_likelihood(exp.t, exp.q, exp.tau, robot_model(robot), f0=settings.f0,
-                                        n_harmonics=settings.ml_harmonics), robot)
+                                        n_harmonics=settings.ml_harmonics, progress=progress), robot)
 
 
 def _didim(exp, robot, settings: Settings, progress):
@@ -946,7 +946,8 @@ def run(data, robot, settings=None, *, say=None, **options) -> Identification:
     candidates = check_run(settings, robot)
     experiments, held_out = load_data(data, robot, settings, say)
     tilt, robot = tilt_step(experiments, robot, settings, say)
-    label = "DIDIM iterations" if settings.method == "didim" else "regressor and decimation"
+    label = {"didim": "DIDIM iterations", "ml": "maximum likelihood",
+             "projection": "Projection Method"}.get(settings.method, "regressor and decimation")
     with holdout_hint(settings, experiments), say.progress(label) as bar:
         # IDIM: the unconstrained fit; its PC-WLS (physical) is step 6, beside it
         result = identify_step(experiments, robot, settings.replace(physical=False, prior=None, mass_tolerance=None)

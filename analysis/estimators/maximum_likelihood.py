@@ -59,6 +59,7 @@ q_off); `linear_model` wraps any regressor function.
 """
 from __future__ import annotations
 
+import itertools
 import math
 import time
 from collections.abc import Callable
@@ -462,7 +463,7 @@ def _fisher_cov(J, p):
 
 def maximum_likelihood(t, q, tau, model, *, f0, n_harmonics=None, sigma_q=None, sigma_tau=None,
                        theta0=None, qd_threshold="auto", reversal_guard="auto", max_nfev=200, refine_sigma_tau=True,
-                       settings=None) -> MLResult:
+                       settings=None, progress=None) -> MLResult:
     """Maximum-likelihood estimate of the model parameters with noise on q and tau (eqs. (13)-(16)).
 
     Parameters
@@ -486,6 +487,9 @@ def maximum_likelihood(t, q, tau, model, *, f0, n_harmonics=None, sigma_q=None, 
         over about 1/(2 K f0), so there the model predicts a torque step the
         data do not have (measured: Fc biased by -12 to -19 % without the
         guard). 'auto' = 1/(4 K f0); 0 disables it.
+    progress : callable, optional
+        Called with the fraction of the optimiser's evaluation budget spent (max_nfev per
+        pass; the optimiser usually stops before it, and the last call is 1.0).
 
     Returns `MLResult`. Raises InputError on bad input, ConvergenceError
     when the optimiser fails.
@@ -519,7 +523,8 @@ def maximum_likelihood(t, q, tau, model, *, f0, n_harmonics=None, sigma_q=None, 
         raise InputError("the torque residual is exactly zero: sigma_tau cannot be estimated; pass sigma_tau")
     x = np.concatenate([th0, C0.T.ravel()])
     passes = 1 if (given or not refine_sigma_tau) else 2
-    sol, prob, st, n_eval = _optimise(model, t, q, tau, f0, K, sq, st, keep, x, passes, max_nfev, dof_tau)
+    sol, prob, st, n_eval = _optimise(model, t, q, tau, f0, K, sq, st, keep, x, passes, max_nfev, dof_tau,
+                                      progress)
     if sol.status <= 0:
         notices.append(f"least_squares stopped without convergence: {sol.message}")
     x = sol.x
@@ -705,7 +710,17 @@ def _kept_equations(t, qdf, qd_threshold, reversal_guard, K, f0, p):
     return keep
 
 
-def _optimise(model, t, q, tau, f0, K, sq, st, keep, x, passes, max_nfev, dof_tau):
+def _reporting(residual, progress, it, passes, max_nfev):
+    """`residual`, reporting at each call the share of the passes' evaluation budget spent."""
+    calls = itertools.count(1)
+
+    def counted(x):
+        progress(min(1.0, (it + next(calls) / max_nfev) / passes))
+        return residual(x)
+    return counted
+
+
+def _optimise(model, t, q, tau, f0, K, sq, st, keep, x, passes, max_nfev, dof_tau, progress=None):
     """Minimise eq. (13); between passes sigma_tau is re-estimated from the torque residual.
 
     Returns the last solution, its problem, sigma_tau and the number of evaluations.
@@ -713,7 +728,8 @@ def _optimise(model, t, q, tau, f0, K, sq, st, keep, x, passes, max_nfev, dof_ta
     n_eval = 0
     for it in range(passes):
         prob = _Problem(model, t, q, tau, f0, K, sq, st, keep)
-        sol = optimize.least_squares(prob.residual, x, jac=prob.jacobian, method="trf",
+        residual = prob.residual if progress is None else _reporting(prob.residual, progress, it, passes, max_nfev)
+        sol = optimize.least_squares(residual, x, jac=prob.jacobian, method="trf",
                                      x_scale="jac", max_nfev=max_nfev, xtol=1e-10, ftol=1e-10)
         n_eval += sol.nfev
         if not np.all(np.isfinite(sol.x)):
@@ -724,4 +740,6 @@ def _optimise(model, t, q, tau, f0, K, sq, st, keep, x, passes, max_nfev, dof_ta
             ql, qdl, qddl = prob.kin(C)
             rt = keep * (tau - model.predict(th, ql, qdl, qddl))
             st = np.sqrt(np.sum(rt ** 2, axis=0) / dof_tau)
+    if progress is not None:
+        progress(1.0)
     return sol, prob, st, n_eval

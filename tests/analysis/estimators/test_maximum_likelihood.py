@@ -213,3 +213,16 @@ def test_a_motion_that_is_not_periodic_at_the_noise_level_is_said():
     steady = exp.segment(2.0, exp.t[-1] + 1.0)          # the second period alone
     r2 = dynid.identify(steady, "planar2", method="ml", f0=0.5)
     assert not any("times the noise" in n for n in r2.notices), r2.notices
+
+
+def test_progress_follows_the_optimiser_and_leaves_the_estimate_alone():
+    """ML ran for a minute without a progress line: it now reports the share of its evaluation
+    budget spent (rising, ending at 1), and the estimate is the one without progress."""
+    robot, bp, _, _ = bs.pendulum()
+    t, q, tau = noisy(101)
+    seen = []
+    a = maximum_likelihood(t, q, tau, robot_model(robot, bp), f0=bs.F0, n_harmonics=K, progress=seen.append)
+    b = maximum_likelihood(t, q, tau, robot_model(robot, bp), f0=bs.F0, n_harmonics=K)
+    assert len(seen) >= a.n_evaluations and seen[-1] == 1.0
+    assert all(0 < f <= 1 for f in seen) and seen == sorted(seen)
+    assert np.array_equal(a.chi, b.chi) and np.array_equal(a.cov, b.cov)
