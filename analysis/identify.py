@@ -94,7 +94,7 @@ def identify(data, robot, method: str | None = None, *, settings=None, max_error
         pseudo-inertia positive semidefinite, Ia, Fv, Fc >= 0; Wensing, Kim &
         Slotine 2017) instead. DIDIM: PC-DIDIM, each Gauss-Newton step's WLS refitted
         under physical consistency (`result.physical` is the last step's fit).
-        Needs `pip install "dynid[physical]"`.
+        Needs the `physical` extra (`pip install ".[physical]"` in the source folder).
     prior : str, optional
         Physical only: `"apriori"` adds `prior_weight` times the squared scaled
         distance to the robot file's a-priori values, `"geometric"` the entropic

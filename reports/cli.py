@@ -224,11 +224,12 @@ _FAILED_SHOWN = 20
 
 def cmd_fleet(args, say):
     """dynid fleet CATALOGUE --out STORE: identify on Dask, store, monitor, report (dynid.fleet.run)."""
-    from dynid.analysis.fleet.engine import check_local_workers
+    from dynid.analysis.fleet.engine import check_local_workers, import_distributed
     from dynid.analysis.fleet.health import DEFAULT_BASELINE, DEFAULT_FALSE_ALARM_RATE
     from dynid.reports import fleet_run  # Dask (dynid[fleet]) on first use
     from dynid.reports.fleet_report import fleet_json
     check_local_workers(args.workers, args.scheduler)      # before Dask is imported
+    import_distributed()            # without Dask, say so before announcing a cluster
     if os.path.exists(args.store) and not os.path.isdir(args.store):
         raise InputError(f"--out {args.store} is a file; the results store is a folder")
     outputs = [(opt, value) for opt, value in (("--json", args.json), ("--report", args.report))

@@ -595,7 +595,8 @@ def _add_fleet_parser(sub, common):
                                    "Dask task per recording) into a Parquet results store, then monitor "
                                    "each robot's friction (temperature-compensated, two-sided CUSUM) and "
                                    "raise alarms naming robot, joint, parameter, onset and size. Needs "
-                                   'pip install "dynid[fleet]". Formats: docs/formats.md.',
+                                   "the fleet extra (Dask distributed and pyarrow: pip install "
+                                   '".[fleet]" in the source folder). Formats: docs/formats.md.',
                        epilog=textwrap.dedent("""\
                            examples:
                              dynid fleet catalogue.csv --out store/ --report fleet.html --json fleet.json

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dynid.dynamics.urdf_writer import inertial_slice, pseudo_inertia_basis
-from dynid.errors import InputError
+from dynid.errors import InputError, install_hint
 
 __all__ = ["SDPProblem", "build_sdp", "whitening", "active_constraints", "apriori_pseudo_inertias",
            "require_cvxpy", "J_MARGIN", "ACTIVE_RTOL", "GEOMETRIC_RTOL", "NONNEG_KINDS"]
@@ -41,10 +41,9 @@ def require_cvxpy():
     except ImportError:
         raise InputError('the physically consistent fit (--physical) and the global search of --urdf / '
                          '--mjcf need the optional packages cvxpy and clarabel (without them --urdf uses '
-                         'a local search): pip install "dynid[physical]"') from None
+                         f'a local search): {install_hint("physical")}') from None
     if "CLARABEL" not in cp.installed_solvers():
-        raise InputError('cvxpy is installed without the Clarabel solver: pip install "dynid[physical]" '
-                         '(or pip install clarabel)')
+        raise InputError(f'cvxpy is installed without the Clarabel solver: {install_hint("physical")}')
     return cp
 
 

@@ -42,7 +42,7 @@ How (default): the problem is convex -- a quadratic objective, J_l in the
 positive-semidefinite cone, linear bounds -- and is solved as an SDP by cvxpy
 and Clarabel (`dynid.analysis.estimators.physical`), a global optimum;
 the KUKA figures below are those of the local search it replaced. Without the
-optional cvxpy (`pip install "dynid[physical]"`) or with
+optional cvxpy (the `physical` extra) or with
 `solver="log-cholesky"`: consistency is built into the parametrisation (log-Cholesky, Rucker &
 Wensing 2022: `J_l = U U^T` with U upper triangular and an exponentiated
 diagonal; `Ia_j = g_j^2`), so the problem is an unconstrained nonlinear

@@ -5,6 +5,6 @@ One concept per module: `.catalogue` (the table of recordings),
 results store), `.engine` (Dask distributed: plan, submit, collect),
 `.health` (parameter histories, temperature compensation, CUSUM alarms)
 and `.simulated` (a simulated production fleet for tests and benchmarks).
-Dask and pyarrow are optional (`pip install "dynid[fleet]"`) and imported
+Dask and pyarrow are optional (the `fleet` extra) and imported
 only when a fleet is run.
 """

@@ -35,11 +35,9 @@ from dynid.analysis.fleet.store import ResultStore
 from dynid.analysis.fleet.task import MAX_SAMPLES, file_hash, identify_recording, retry_failure, task_key
 from dynid.analysis.results import Result
 from dynid.dynamics.robot_file import is_bundled_name
-from dynid.errors import InputError, OutputError
+from dynid.errors import InputError, OutputError, install_hint
 from dynid.provenance import json_safe, versions
 from dynid.ranges import check_range
-
-INSTALL_HINT = 'pip install "dynid[fleet]"'
 
 
 def import_distributed():
@@ -47,7 +45,7 @@ def import_distributed():
     try:
         import distributed
     except ImportError:
-        raise InputError(f"the fleet runs on Dask distributed, which is not installed: {INSTALL_HINT}") from None
+        raise InputError(f"the fleet runs on Dask distributed, which is not installed: {install_hint('fleet')}") from None
     return distributed
 
 

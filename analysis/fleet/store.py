@@ -24,7 +24,7 @@ import re
 import numpy as np
 import pandas as pd
 
-from dynid.errors import InputError, OutputError
+from dynid.errors import InputError, OutputError, install_hint
 from dynid.outputs import _write_error, staged_path
 
 _FILE = re.compile(r"^([0-9a-f]{16})__([0-9a-f]{24})(\.retry)?\.parquet$")
@@ -42,7 +42,7 @@ def _pyarrow():
         import pyarrow as pa
         import pyarrow.parquet as pq
     except ImportError:
-        raise InputError('the fleet results store is Parquet, which needs pyarrow: pip install "dynid[fleet]"') from None
+        raise InputError(f"the fleet results store is Parquet, which needs pyarrow: {install_hint('fleet')}") from None
     return pa, pq
 
 

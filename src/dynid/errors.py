@@ -63,3 +63,30 @@ def did_you_mean(name: str, known) -> str:
     import difflib
     close = difflib.get_close_matches(str(name), [str(k) for k in known], n=1, cutoff=0.7)
     return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def install_hint(extra: str) -> str:
+    """The pip command that installs the optional packages of dynid's extra `extra`.
+
+    The packages as the installed metadata lists them (pyproject.toml's
+    ``[project.optional-dependencies]``): the command works however dynid was installed,
+    where ``pip install "dynid[extra]"`` needs dynid on a package index.
+
+    Returns
+    -------
+    str
+        For example ``pip install "cvxpy>=1.4" "clarabel>=0.6"``.
+    """
+    import re
+    from importlib import metadata
+    try:
+        requirements = metadata.requires("dynid") or []
+    except metadata.PackageNotFoundError:      # run from a source tree that is not installed
+        requirements = []
+    wanted = re.compile(r"""extra\s*==\s*["']""" + re.escape(extra) + """["']""")
+    packages = [spec.strip() for spec, _, marker in (r.partition(";") for r in requirements)
+                if wanted.search(marker)]
+    if not packages:
+        return f'pip install ".[{extra}]" in dynid\'s source folder'
+    return "pip install " + " ".join(f'"{p}"' for p in packages)
+

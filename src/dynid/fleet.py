@@ -6,7 +6,7 @@
     run = dynid.fleet.run("catalogue.csv", "store/", workers=2, report="fleet.html")
     run.health.alarms          # robot, joint, parameter, day of onset, size of the change
 
-Needs the `fleet` extra (`pip install "dynid[fleet]"`: Dask distributed and
+Needs the `fleet` extra (`pip install ".[fleet]"` in the source folder: Dask distributed and
 pyarrow). The catalogue and store formats are in docs/formats.md; the method
 (IDIM per recording, Page's CUSUM on the temperature-compensated friction) in
 docs/guide.md, "Fleets".

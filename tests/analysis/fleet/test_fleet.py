@@ -178,10 +178,16 @@ def test_plan_keys_follow_the_robot_file_and_the_data_a_toml_names(tmp_path):
     assert plan(cat, store)[0][0]["temperatures"] == [20.0, 30.0]
 
 
-def test_missing_dask_says_how_to_install(monkeypatch):
+def test_missing_dask_says_how_to_install(monkeypatch, tmp_path, capsys):
+    """The packages themselves (dynid is not on a package index), before the command line
+    announces a cluster."""
+    from dynid.reports.cli import main
     monkeypatch.setitem(sys.modules, "distributed", None)
-    with pytest.raises(InputError, match=r'pip install "dynid\[fleet\]"'):
+    with pytest.raises(InputError, match=r'pip install "dask\[distributed\]>=[0-9.]+" "pyarrow>=[0-9.]+"'):
         import_distributed()
+    assert main(["fleet", str(tmp_path / "catalogue.csv"), "--out", str(tmp_path / "store")]) == 2
+    err = capsys.readouterr().err
+    assert "Dask distributed, which is not installed" in err and "local cluster" not in err
 
 
 # ------------------------------------------------------------------ task and store
