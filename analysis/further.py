@@ -196,6 +196,13 @@ class DiagnosisRun:
         return self.summary()
 
 
+def several_recordings(n: int) -> InputError:
+    """The error of a diagnosis given `n` > 1 recordings (the rest would be dropped without a word)."""
+    return InputError(f"diagnose: one recording at a time, {n} were given (its drift and time-delay effects are "
+                      "defined per recording); diagnose each, or pass the second as the validation recording "
+                      "(--validation, validation=)")
+
+
 def diagnosis_run(data, robot, settings=None, *, say=None, **options) -> DiagnosisRun:
     """`dynid diagnose`: identify (IDIM; not with `no_offsets`), look for the effects the model
     lacks (step 10), validate on the held-out data and give the verdict with the diagnosis."""
@@ -210,9 +217,11 @@ def _diagnosis_run(data, robot, settings=None, *, say=None, **options) -> Diagno
     candidates = diagnosis_candidates(s)          # bad names fail before the long work
     robot = as_robot(robot)
     check_robot_options(s, robot)
+    if isinstance(data, (list, tuple)) and len(data) > 1:      # before they are loaded
+        raise several_recordings(len(data))
     experiments, held_out = load_data(data, robot, s, say)
     if len(experiments) > 1:
-        raise InputError("the diagnosis works on one recording at a time")
+        raise several_recordings(len(experiments))
     experiment = experiments[0]
     result = eobs = None
     if not s.no_offsets:

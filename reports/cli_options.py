@@ -512,7 +512,9 @@ def _add_diagnose_parser(sub, common, full):
              "friction, payload): rank them by blocked cross-validation and a likelihood-ratio test, "
              "add those that pass, and report the errors before and after.", EPILOG_DIAGNOSE)
     g, adv = _groups(p, full)
-    g["data"].add_argument("data", help="recording (.csv, .parquet, .npz, .mat, or .toml description)")
+    # nargs="+": a second recording gets the diagnosis' own message, not argparse's "unrecognized arguments"
+    g["data"].add_argument("data", nargs="+", metavar="data",
+                           help="one recording (.csv, .parquet, .npz, .mat, or .toml description)")
     _add_robot_options(g, adv)
     _add_data_options(g)
     m = g["method"]

@@ -208,12 +208,12 @@ def diagnose(data: str | os.PathLike[str] | Experiment,
         for it, and what of the residual is left unexplained.
     """
     from dynid.analysis.diagnosis.selection import diagnose as _diagnose
+    from dynid.analysis.further import several_recordings
     from dynid.analysis.identify import as_experiments, as_robot
     robot = as_robot(robot)
     experiments = as_experiments(data, robot)
-    if len(experiments) > 1:       # the rest would be dropped without a word
-        raise InputError(f"diagnose: one recording at a time, {len(experiments)} were given; diagnose each, "
-                         "or pass one as validation=")
+    if len(experiments) > 1:
+        raise several_recordings(len(experiments))
     experiment = experiments[0]
     valid = as_experiments(validation, robot)[0] if validation is not None else None
     if idim_result is not None and getattr(idim_result, "observation", None) is None:

@@ -236,6 +236,13 @@ def test_diagnose_rejects_unknown_effect_names_before_any_work(capsys):
     assert "gremlins" in capsys.readouterr().err
 
 
+def test_diagnose_says_it_takes_one_recording_before_loading_them(capsys):
+    """A second recording got argparse's "unrecognized arguments" (a first-hour review)."""
+    assert main(["diagnose", "nonexistent1.csv", "nonexistent2.csv", "--robot", "planar2"]) == 2
+    err = capsys.readouterr().err
+    assert "one recording at a time, 2 were given" in err and "--validation" in err and "not found" not in err
+
+
 def test_report_runs_every_part_on_one_recording(tmp_path_factory):
     """`dynid simulate` then `dynid report` with every part, run once per session
     (tests/cli/test_output_schemas.py validates the same run's JSON)."""
