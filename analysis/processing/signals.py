@@ -222,6 +222,14 @@ def estimate_bandwidth(q, fs, energy=0.99) -> float:
     n_segments = 1 + (v.shape[0] - nperseg) // max(1, nperseg // 2)
     uncertainty = noise.sum(axis=0) / math.sqrt(len(f) * n_segments)
     moving = (total > 10.0 * uncertainty) & (total > 0.0)
+    duration = q.shape[0] / fs
+    if not moving.any() and duration < WELCH_SEGMENT_SECONDS:
+        raise InputError(
+            f"the recording lasts {duration:.3g} s ({q.shape[0]} samples at {fs:g} Hz): too short to tell its "
+            f"motion from the measurement noise (the motion bandwidth is read from a spectrum of "
+            f"{WELCH_SEGMENT_SECONDS:g} s segments). Give a recording of several periods of the excitation, "
+            "at least a few seconds."
+        )
     if not moving.any():
         raise InputError(
             "no joint moves clearly above the measurement noise, so the motion "

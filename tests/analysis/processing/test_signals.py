@@ -229,3 +229,12 @@ def test_velocity_dead_zone_guard_widens_each_joint_alone():
     dead = velocity_dead_zone(qd, 0.1, guard=2)
     np.testing.assert_array_equal(np.flatnonzero(dead[:, 0]), [3, 4, 5, 6, 7])
     assert not dead[:, 1].any()
+
+
+def test_a_recording_too_short_to_see_its_motion_is_called_short():
+    """The first 200 samples (0.04 s) of a 5 kHz TX40 log, the robot still starting, were blamed on "no
+    joint moves above the noise" and the advice to check the position columns."""
+    rng = np.random.default_rng(3)
+    q = 0.3 + 1e-3 * (np.arange(200)[:, None] / 5000.0) ** 2 + 2e-5 * rng.standard_normal((200, 6))
+    with pytest.raises(InputError, match=r"lasts 0\.04 s \(200 samples at 5000 Hz\): too short"):
+        estimate_bandwidth(q, 5000.0)
