@@ -1018,6 +1018,7 @@ def _gauss_newton(L, beta0, tol, physical, pc_options, notices, resume=None):
     beta_ls = None              # the last least-squares solution
     max_halvings = L.s["max_step_halvings"]
     out_prev = None             # output error of the last simulated estimate (PC-DIDIM's descent test)
+    damped = []                 # (step, step length, why the full step was refused) of the damped steps
     max_iter = L.max_iter
     k0 = 1
     if resume is not None:
@@ -1043,11 +1044,7 @@ def _gauss_newton(L, beta0, tol, physical, pc_options, notices, resume=None):
             break
         q_s, qd_s, qdd_s, tau_ddm, substeps, sim, kd = sim_out
         if lam < 1.0:
-            what = ("did not lower the output error" if first_failure.startswith("the output error grew")
-                    else "could not be simulated")
-            notices.append(f"step {k}: the estimate of step {k - 1} {what} "
-                           f"({first_failure}); simulated {lam:g} of its step from the previous "
-                           "simulated estimate instead")
+            damped.append((k, lam, first_failure))
         beta_sim = cand
         for note in sim.notes:
             if note not in notices:
@@ -1097,7 +1094,25 @@ def _gauss_newton(L, beta0, tol, physical, pc_options, notices, resume=None):
     else:
         stop_reason = (_unmet_criterion(history[-1], max_iter, tol) if max_iter > 1 or resume is not None
                        else "max_iter = 1: one step cannot test the criterion (it compares two steps)")
+    if damped:
+        notices.append(_damped_notice(damped))
     return history, timings, last, converged, stop_reason
+
+
+def _damped_notice(damped) -> str:
+    """One notice for the damped Gauss-Newton steps `damped` [(step, length, why the full step was
+    refused)]: a step per line read as a failure in the demo's first screen, four times."""
+    steps = ", ".join(f"{k} ({lam:g})" for k, lam, _ in damped)
+    grew = [why for _, _, why in damped if why.startswith("the output error grew")]
+    failed = [(k, why) for k, _, why in damped if not why.startswith("the output error grew")]
+    reasons = []
+    if failed:
+        reasons.append(f"could not be simulated (step {failed[0][0]}: {failed[0][1]})")
+    if grew:
+        reasons.append(f"did not lower the output error ({grew[0]})")
+    return (f"damped Gauss-Newton steps {steps}: each simulated that fraction of its step from the previous "
+            f"simulated estimate, because the full step's estimate {' or '.join(reasons)}; usual while far from "
+            "the answer, and a damped step is never taken as convergence (history: step_length)")
 
 
 def _unmet_criterion(row, max_iter, tol) -> str:
