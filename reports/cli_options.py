@@ -54,7 +54,7 @@ EPILOG_REPORT = """examples:
 EPILOG_DEMO = """examples:
   dynid demo                             simulated TX40 -> identification -> dynid-demo.html
   dynid demo --report demo.html --json demo.json --seed 7
-  dynid demo --skip didim,sample,diagnose          IDIM only (a few seconds)
+  dynid demo --skip didim,sample,diagnose          IDIM only (10-20 s)
 """
 
 
