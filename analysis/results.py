@@ -840,3 +840,12 @@ def _fmt_pct(x: float) -> str:
     if not math.isfinite(x):
         return "inf" if x == math.inf else "nan"
     return f"{x:.2f}" if x < 1e4 else f"{x:.3g}"
+
+
+def identified_line(method, robot_name, source):
+    """IDIM's first summary line, `<method> identification of robot 'x' from <source>`, when the
+    result knows its robot or recording (none for a result built from arrays)."""
+    if not robot_name and not source:
+        return []
+    robot = f" of robot '{robot_name}'" if robot_name else ""
+    return [f"{method} identification{robot}" + (f" from {source}" if source else "")]

@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dynid.analysis.data.experiment import Experiment, load_experiment
+from dynid.analysis.data.experiment import DATA_EXTENSIONS, Experiment, load_experiment
 from dynid.analysis.data.plausibility import GLITCH
 from dynid.analysis.data.rates import check_rate_matches, check_same_rate
 from dynid.analysis.data.record import SHARED_RUN, checked_experiment, recording_of, sample_keys, shared_run
@@ -57,7 +57,7 @@ from dynid.analysis.results import HeldParameters, Result, gathered_notices, not
 from dynid.analysis.sampling.noise import DEFAULT_NOISE
 from dynid.analysis.statistics.validation import ValidationResult, validate
 from dynid.analysis.statistics.verdict import verdict
-from dynid.dynamics.robot import Robot
+from dynid.dynamics.robot import Robot, model_signature
 from dynid.dynamics.robot_file import load_robot
 from dynid.errors import DataError, IdentificationError, InputError, did_you_mean
 from dynid.ranges import check_range
@@ -302,7 +302,7 @@ def qd_threshold_value(v):
     try:
         vals = [float(x) for x in v.split(",")]
     except ValueError:
-        raise InputError(f"--qd-threshold must be a number, per-joint numbers separated by "
+        raise InputError(f"qd_threshold (--qd-threshold) must be a number, per-joint numbers separated by "
                          f"commas, or 'auto'; got {v!r}") from None
     return vals[0] if len(vals) == 1 else vals
 
@@ -354,6 +354,10 @@ def as_robot(robot, *, base=None, tip=None):
         raise InputError(f"robot must be a Robot, a bundled robot's name or a robot file's path, not "
                          f"{type(robot).__name__}; the recording comes first and the robot second "
                          "(dynid.diagnose(data, robot, validation=...))")
+    if os.path.splitext(str(robot))[1].lower() in DATA_EXTENSIONS:
+        raise InputError(f"robot {str(robot)!r} is a data file, not a robot file (.toml or .urdf) nor a bundled "
+                         "robot's name; the recording comes first and the robot second (dynid.run(data, robot); "
+                         "--robot on the command line)")
     return load_robot(robot, base=base, tip=tip)
 
 
@@ -573,14 +577,22 @@ def check_identify(settings: Settings) -> None:
         require_cvxpy()          # before the identification, not after it
 
 
-def _carrying(result, robot):
+def _carrying(result, robot, experiment=None):
     """`result` with its robot (DIDIM, PM and ML results are built without one): dynid.verdict and
-    dynid.validate of the result then judge it as the command line does (joint names, a-priori values)."""
+    dynid.validate of the result then judge it as the command line does (joint names, a-priori values).
+    A result with `robot_name`, `robot_signature` and `source` fields left empty (ML, built from
+    arrays) gets the robot's name and signature and the `experiment`'s source, as IDIM's has."""
     if getattr(result, "robot", None) is None:
         try:
             result.robot = robot
         except AttributeError:           # a read-only property: the result knows its robot otherwise
             pass
+    if getattr(result, "robot_name", None) == "":
+        result.robot_name = robot.name
+    if getattr(result, "robot_signature", None) == "":
+        result.robot_signature = model_signature(robot)
+    if experiment is not None and getattr(result, "source", None) == "":
+        result.source = str(experiment.source)
     return result
 
 
@@ -613,7 +625,7 @@ def identify_step(experiments, robot, settings: Settings, progress=None, *, obse
     if method == "didim":
         return _carrying(_didim(exp, robot, settings, progress), robot)
     if method == "projection":
-        return _carrying(identify_projection(exp, robot, settings=settings.processing()), robot)
+        return _carrying(identify_projection(exp, robot, settings=settings.processing()), robot, exp)
     if settings.f0 is None:
         raise InputError("method ml needs f0, the fundamental frequency (Hz) of the periodic excitation "
                          "(--f0 on the command line)")
@@ -622,7 +634,7 @@ def identify_step(experiments, robot, settings: Settings, progress=None, *, obse
                          f"likelihood keeps every sample and is limited to {ML_MAX_VALUES:,} values: "
                          "resample or cut the recording (a TOML experiment file), or use IDIM")
     return _carrying(maximum_likelihood(exp.t, exp.q, exp.tau, robot_model(robot), f0=settings.f0,
-                                        n_harmonics=settings.ml_harmonics, progress=progress), robot)
+                                        n_harmonics=settings.ml_harmonics, progress=progress), robot, exp)
 
 
 def _didim(exp, robot, settings: Settings, progress):

@@ -493,8 +493,12 @@ def rel_std_bar_figure(names, rel_sigma, reference=None, *, key="fig-rel-std",
 
 
 def verdict_rel_std_figure(names, rel_sigma, threshold, *, key="fig-verdict-rel-std", caption=None,
-                           fmt="auto"):
-    """%σ of the essential parameters with the identification threshold; flagged bars in amber."""
+                           fmt="auto", kind="essential"):
+    """%σ of the judged parameters with the identification threshold; flagged bars in amber.
+
+    `kind`: which parameters the verdict judged, "essential" (IDIM, DIDIM) or "base" (the
+    Projection Method, ML), named in the default caption.
+    """
     names = [str(n) for n in names]
     rs = np.asarray(rel_sigma, dtype=float)
     bad = ~(rs <= threshold)
@@ -521,7 +525,7 @@ def verdict_rel_std_figure(names, rel_sigma, threshold, *, key="fig-verdict-rel-
         ax.grid(axis="x", visible=False)
         fig.legend(*ax.get_legend_handles_labels(), loc="outside upper left", frameon=False, ncols=3)
     if caption is None:
-        caption = (f"%\u03c3 = 100 \u03c3/|\u03c7\u0302| of the essential parameters; bars above the "
+        caption = (f"%\u03c3 = 100 \u03c3/|\u03c7\u0302| of the {kind} parameters; bars above the "
                    f"{threshold:g} % line (amber, hatched) are flagged as not identified"
                    + (" (log scale)" if logy else ""))
     return render_figure(fig, key, caption, fmt=fmt)

@@ -196,14 +196,18 @@ class VerdictBlock:
     why: str = ""                   # the reasons of the status, in one line
 
 
-def verdict_block(v) -> VerdictBlock:
-    """The `VerdictBlock` of a `dynid.analysis.statistics.verdict.Verdict`."""
+def verdict_block(v, kind="essential") -> VerdictBlock:
+    """The `VerdictBlock` of a `dynid.analysis.statistics.verdict.Verdict`.
+
+    `kind`: the parameters the verdict judged, "essential" (IDIM, DIDIM: their essential model) or
+    "base" (the Projection Method and ML: every base parameter), named in the captions.
+    """
     level = STATUS_LEVEL.get(v.status, "warn")
     findings = [(LEVELS.get(f["level"], LEVELS["info"])[0], LEVELS.get(f["level"], LEVELS["info"])[1],
                  f["text"]) for f in v.findings]
     names = [p["name"] for p in v.parameters]
     fig = F.verdict_rel_std_figure(names, [p["rel_std_percent"] for p in v.parameters],
-                                   v.rel_std_threshold) if names else None
+                                   v.rel_std_threshold, kind=kind) if names else None
     ap = {c["name"]: c for c in (v.apriori or {}).get("compared", [])}
     df = pd.DataFrame({
         "value": [p["value"] for p in v.parameters],
@@ -215,7 +219,7 @@ def verdict_block(v) -> VerdictBlock:
     }, index=pd.Index(names, name="parameter"))
     k = (v.apriori or {}).get("k", 3.0)
     tab = T.make_table(df, "tab-verdict-parameters",
-                       f"Essential parameters: value, %\u03c3 (identified when \u2264 "
+                       f"{kind.capitalize()} parameters: value, %\u03c3 (identified when \u2264 "
                        f"{v.rel_std_threshold:g} %), a-priori value and distance to it",
                        formats={"unit": "text", "identified": "bool", "rel_std_percent": "pct"},
                        labels={"value": "\u03c7\u0302", "rel_std_percent": "%\u03c3",

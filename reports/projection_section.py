@@ -109,5 +109,10 @@ def ml_section(ml, *, id="maximum-likelihood",
                                                    for a, b in zip(ml.sigma_q, ml.sigma_tau)))])]
     if ml.notices:
         body.append(bullets(ml.notices, cls="notices"))
-    tab = T.make_table(ml.to_frame(), f"tab-{id}-estimates", "ML estimates beside their LS start")
+    # the IDIM report's headers: χ̂, σ, %σ; the unit column holds the unit of the value, σ and LS start
+    est = ml.to_frame()[["value", "std", "rel_std_percent", "ls_start", "unit"]]
+    tab = T.make_table(est, f"tab-{id}-estimates", "ML estimates beside their LS start",
+                       labels={"value": "ML \u03c7\u0302", "std": "\u03c3", "rel_std_percent": "%\u03c3",
+                               "ls_start": "LS start \u03c7\u0302", "unit": "unit"},
+                       formats={"rel_std_percent": "pct", "unit": "text"})
     return Section(id, title, join(*body), tables=[tab], tables_first=True)

@@ -63,7 +63,9 @@ def identification_html(ident) -> str:
     robot = getattr(ident.robot, "name", "?")
     return render_sections(_sections(ident), title=_title(ident), subtitle=data,
                            highlights=[("verdict", ident.verdict.status), ("robot", robot), ("data", data)],
-                           verdict=verdict_block(ident.verdict))
+                           # the verdict judges DIDIM's essential model, and every base parameter of PM and ML
+                           verdict=verdict_block(ident.verdict, kind="essential" if getattr(
+                               ident.result, "essential", None) is not None else "base"))
 
 
 

@@ -30,7 +30,11 @@ from dynid.analysis.data.timebase import GAP_FACTOR, TIME_STEP_TOLERANCE, _Optio
 from dynid.dynamics.robot_file import load_robot
 from dynid.errors import DataError
 
+#: the extensions of the data files `load_experiment` reads (besides a .toml description)
+DATA_EXTENSIONS = frozenset(_READERS)
+
 __all__ = [
+    "DATA_EXTENSIONS",
     "Experiment",
     "load_experiment",
     "estimate_shift",

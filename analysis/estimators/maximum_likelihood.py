@@ -76,6 +76,7 @@ from dynid.analysis.results import (
     ParameterResults,
     _fmt,
     deprecated_alias,
+    identified_line,
     notices_block,
     parameter_table,
 )
@@ -229,6 +230,9 @@ class MLResult(ParameterResults):
     """Maximum-likelihood estimate (eqs. (13)-(16)) with its covariance and the LS start.
 
     `chi` the estimate (`params` the Series; `theta`, its old name, is deprecated).
+    `robot_name`, `source` and `robot_signature` (`dynid.dynamics.robot.model_signature`) say
+    which robot and recording were identified: `maximum_likelihood` takes arrays and a model,
+    so they are "" unless the caller sets them (`dynid.identify` and the command line do).
     """
 
     names: list
@@ -257,6 +261,9 @@ class MLResult(ParameterResults):
     notices: list = field(default_factory=list)
     data_hash: str = ""
     stop_reason: str = ""         # the optimiser's message (the verdict's reason when not converged)
+    robot_name: str = ""          # the robot identified ("" when built from arrays alone)
+    source: str = ""              # the recording identified
+    robot_signature: str = ""     # dynamics.robot.model_signature of the robot identified
 
     method = "ML-EIV"
     theta = deprecated_alias("params (a pandas Series) or chi (the array)", lambda r: r.chi)
@@ -289,7 +296,8 @@ class MLResult(ParameterResults):
         rule, thin = "=" * _WIDTH, "-" * _WIDTH
         # a prismatic joint's position is in m and its force in N
         uq, ut = ("[rad|m]", "[N m|N]") if self._prismatic() else ("[rad]", "[N m]")
-        lines = ["Maximum likelihood, errors in variables (Bona & Curatella 2005, eqs. (13)-(16))".center(_WIDTH),
+        lines = identified_line("Maximum-likelihood", self.robot_name, self.source) + [
+                 "Maximum likelihood, errors in variables (Bona & Curatella 2005, eqs. (13)-(16))".center(_WIDTH),
                  rule, f"Model: {self.model}",
                  f"Samples N: {self.n_samples}   joints: {self.n_joints}   parameters: {self.n_params}   "
                  f"latent trajectory: K = {self.n_harmonics} harmonics of f0 = {_fmt(self.f0)} Hz",
@@ -311,6 +319,9 @@ class MLResult(ParameterResults):
     def to_dict(self):
         return json_safe({
             "method": "ML-EIV",
+            "robot": self.robot_name or None,
+            "robot_signature": self.robot_signature or None,
+            "source": self.source,
             "model": self.model,
             "settings": self.settings,
             "parameters": self._records(),

@@ -79,11 +79,13 @@ from dynid.analysis.processing.signals import default_position_cutoff
 from dynid.analysis.results import (
     ParameterResults,
     deprecated_alias,
+    identified_line,
     notices_block,
     parameter_table,
     percent,
 )
 from dynid.dynamics.base_parameters import base_parameters
+from dynid.dynamics.robot import model_signature
 from dynid.errors import InputError
 from dynid.provenance import data_hash, json_safe, versions
 
@@ -324,7 +326,9 @@ class ProjectionResult(ParameterResults):
     `corr` (lag-0 corr(û, ũ), eq. (11)) and `max_xcorr` per joint;
     `stage2` the OLS of û on the projected regressor (its own covariance is
     not the one to use); `ls` plain OLS of u on the unprojected W, for
-    comparison (None if not computed).
+    comparison (None if not computed). `robot_name`, `source` and
+    `robot_signature` (`dynid.dynamics.robot.model_signature`) say which robot and
+    recording `identify_projection` identified ("" when built from arrays).
     """
 
     names: list
@@ -350,6 +354,9 @@ class ProjectionResult(ParameterResults):
     settings: dict = field(default_factory=dict)
     notices: list = field(default_factory=list)
     data_hash: str = ""
+    robot_name: str = ""           # the robot identified ("" when built from arrays)
+    source: str = ""               # the recording identified
+    robot_signature: str = ""      # dynamics.robot.model_signature of the robot identified
 
     sigma = deprecated_alias("bse (a pandas Series; .to_numpy() for the array)", lambda r: r.bse.to_numpy())
     rel_sigma = deprecated_alias("rel_std (a pandas Series; .to_numpy() for the array)",
@@ -385,7 +392,8 @@ class ProjectionResult(ParameterResults):
 
     def summary(self):
         rule, thin = "=" * _WIDTH, "-" * _WIDTH
-        lines = ["Projection Method (Bona & Curatella 2005, eqs. (10)-(12))".center(_WIDTH), rule,
+        lines = identified_line("Projection Method", self.robot_name, self.source) + [
+                 "Projection Method (Bona & Curatella 2005, eqs. (10)-(12))".center(_WIDTH), rule,
                  f"Samples N: {self.n_samples}   rows used: {self.n_rows}   parameters: {self.n_params}",
                  f"Rel. error |u - W chi|/|u|: {percent(self.rel_error)}   "
                  f"projected |u^ - W^ chi|/|u^|: {percent(self.rel_error_projected)}",
@@ -408,6 +416,9 @@ class ProjectionResult(ParameterResults):
         params = self._records()
         out = {
             "method": "PM",
+            "robot": self.robot_name or None,
+            "robot_signature": self.robot_signature or None,
+            "source": self.source,
             "settings": self.settings,
             "parameters": params,
             "fir": [{"joint": j + 1, "m1": self.m1[j], "m2": self.m2[j], "rank": self.fir_rank[j],
@@ -425,7 +436,6 @@ class ProjectionResult(ParameterResults):
             "notices": self.notices,
         }
         return json_safe(out)
-
 
 
 # ------------------------------------------------------------------ covariance
@@ -605,4 +615,5 @@ def identify_projection(experiment, robot, *, bp=None, settings=None, **kwargs) 
     res = projection_method(obs.W, obs.tau, r, bp.names, row_mask=obs.row_mask,
                             settings={"processing": obs.settings}, **kwargs)
     res.notices = obs.notices + res.notices
+    res.robot_name, res.source, res.robot_signature = robot.name, str(experiment.source), model_signature(robot)
     return res

@@ -307,6 +307,12 @@ def test_a_recording_where_the_robot_goes_is_named_for_the_arguments_order():
     rec = dynid.simulate("planar2", 3.0, seed=1)
     with pytest.raises(InputError, match="not Experiment; the recording comes first and the robot second"):
         dynid.diagnose(rec.experiment, rec.experiment)
+    # paths swapped: "robot file 'p2.csv': unknown extension '.csv'" (a first-hour review)
+    for call in (dynid.run, dynid.identify):
+        with pytest.raises(InputError, match="'p2.csv' is a data file.*the recording comes first"):
+            call("planar2", "p2.csv")
+    with pytest.raises(InputError, match=r"qd_threshold \(--qd-threshold\) must be a number"):
+        dynid.identify(rec, "planar2", qd_threshold="abc")
 
 
 def test_the_python_api_never_writes_over_its_inputs(tmp_path, monkeypatch):
