@@ -394,7 +394,8 @@ class ProjectionResult(ParameterResults):
         rule, thin = "=" * _WIDTH, "-" * _WIDTH
         lines = identified_line("Projection Method", self.robot_name, self.source) + [
                  "Projection Method (Bona & Curatella 2005, eqs. (10)-(12))".center(_WIDTH), rule,
-                 f"Samples N: {self.n_samples}   rows used: {self.n_rows}   parameters: {self.n_params}",
+                 f"Samples N: {self.n_samples}   torque equations used (all joints): {self.n_rows}   "
+                 f"parameters: {self.n_params}",
                  f"Rel. error |u - W chi|/|u|: {percent(self.rel_error)}   "
                  f"projected |u^ - W^ chi|/|u^|: {percent(self.rel_error_projected)}",
                  f"Covariance: IV sandwich, Newey-West with {self.hac_lags} lags", thin,
