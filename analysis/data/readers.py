@@ -479,9 +479,15 @@ def _csv_text(data: bytes, label: str) -> str:
         ) from None
 
 
+#: a line of a CSV text with its end (CRLF, CR or LF), or the last line without one
+_LINES = re.compile(r"[^\r\n]*(?:\r\n|\r|\n)|[^\r\n]+$")
+
+
 def _csv_rows(text: str, label: str):
     """(header, its line, data rows, the line of each row, blank lines after the header)."""
-    reader = csv.reader(re.split(r"\r\n|\r|\n", text))
+    # lines with their ends (CRLF, CR or LF): a quoted field spanning lines keeps its line break
+    # (and is then no number), where lines without them glued "1<LF>2" into 12
+    reader = csv.reader(_LINES.findall(text))
     header: list[str] | None = None
     header_line = 0
     rows: list[list[str]] = []

@@ -1584,3 +1584,15 @@ def test_recordings_at_different_rates_are_named(tmp_path):
     r = dynid.identify(fast, robot)
     with pytest.raises(DataError, match=r"slow\.csv: the held-out recording is sampled at 500 Hz"):
         dynid.validate(r, slow)
+
+
+@pytest.mark.parametrize("newline", ["\n", "\r\n", "\r"])
+def test_a_line_break_inside_a_quoted_cell_is_no_number(tmp_path, newline):
+    """A quoted cell spanning two lines ("1<LF>2") was read as 12.0, without a word (bad-input
+    hunt): the lines reached the CSV reader without their ends."""
+    rows = [f"{k / 1000!r},{0.1 * k!r},{1.0 + k!r}" for k in range(40)]
+    rows[20] = f'0.02,2.0,"1{newline}2"'
+    p = tmp_path / "multiline.csv"
+    p.write_bytes(newline.join(["t,q1,tau1"] + rows + [""]).encode())
+    with pytest.raises(DataError, match=r"column 'tau1', data row 21 \(file line 22\): '1.+2' is not a number"):
+        load_experiment(p)
