@@ -4,7 +4,8 @@ A notice is given for joint j when |tau_j| is within a relative `SATURATION_REL_
 its maximum over the record for at least `SATURATION_FRACTION` of the samples, counting
 only runs of at least `SATURATION_MIN_RUN` consecutive samples (a drive at its current
 limit clips the torque for a while; single samples at the top are ordinary peaks), and
-when tau_j is constant throughout (the joint was not driven, or its torque not logged).
+when tau_j is constant throughout or barely varies beside another joint's torque
+(`STUCK_SPAN`: the joint was not driven, or its torque not logged).
 """
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ from dynid.numba_cache import install as _cache_outside_the_package
 
 _cache_outside_the_package()   # before the first @njit(cache=True): dynid.numba_cache
 
-__all__ = ["SATURATION_FRACTION", "SATURATION_MIN_RUN", "SATURATION_REL_TOL", "saturation_notices"]
+__all__ = ["SATURATION_FRACTION", "SATURATION_MIN_RUN", "SATURATION_REL_TOL", "STUCK_SPAN", "saturation_notices"]
 
 #: Fraction of samples at max |tau| (in long enough runs) that triggers a saturation notice.
 SATURATION_FRACTION = 0.005
@@ -24,6 +25,10 @@ SATURATION_FRACTION = 0.005
 SATURATION_MIN_RUN = 3
 #: Relative tolerance for "at its maximum".
 SATURATION_REL_TOL = 1e-6
+#: A joint torque whose peak-to-peak span is below this fraction of another joint's is named as
+#: stuck or not logged: a driven joint's torque carries at least its own inertia and friction (on
+#: the TX40, LWR4+ and Panda logs the smallest span is a few % of the largest).
+STUCK_SPAN = 1e-3
 
 
 #: Rows scanned at a time by `_extremes_and_tops`: a block of every column stays in cache while
@@ -77,12 +82,14 @@ def _extremes_and_tops(X, rel_tol):  # pragma: no cover - compiled
 
 
 def saturation_notices(tau: np.ndarray, notices: list[str], what: str) -> None:
-    """Append a notice for each joint of tau (n, k) that is constant or saturated."""
+    """Append a notice for each joint of tau (n, k) that is constant, barely varies beside the
+    other joints (`STUCK_SPAN`), or is saturated."""
     tau = np.ascontiguousarray(tau, dtype=float)
     n_samples = tau.shape[0]
     if n_samples == 0:
         return
     hi, lo, top, counts, nan = _extremes_and_tops(tau, SATURATION_REL_TOL)
+    span = np.where(nan, 0.0, hi - lo)
     for j in range(tau.shape[1]):
         if nan[j]:      # as NumPy's max and min: NaN extremes, nothing at the top
             continue
@@ -91,6 +98,16 @@ def saturation_notices(tau: np.ndarray, notices: list[str], what: str) -> None:
             notices.append(
                 f"joint {j + 1}: tau{j + 1} is constant ({_fmt(x[0])}) throughout {what}: "
                 "check that the joint was driven and its torque logged"
+            )
+            continue
+        others = np.delete(span, j)
+        if others.size and span[j] < STUCK_SPAN * others.max():
+            k = int(np.argmax(np.where(np.arange(span.size) == j, -np.inf, span)))
+            notices.append(
+                f"joint {j + 1}: tau{j + 1} barely varies throughout {what} (its peak-to-peak span is "
+                f"{100 * float(span[j] / span[k]):.2g} % of tau{k + 1}'s): a torque channel "
+                "that is stuck or not logged (its noise alone); check that the joint was driven and its "
+                "torque logged"
             )
             continue
         # runs of >= SATURATION_MIN_RUN samples at the top cannot reach the notice's share when

@@ -626,8 +626,8 @@ def _dead_zone(mask, validation):
 
 
 def check_data_quality(x: VerdictInputs) -> CheckOutcome:
-    """Saturation and glitch notices, maximum likelihood's motion that is not periodic at its f0,
-    cond(W) and the fraction of equations in the velocity dead zone."""
+    """Saturation and glitch notices, a constant or stuck torque channel, maximum likelihood's motion
+    that is not periodic at its f0, cond(W) and the fraction of equations in the velocity dead zone."""
     notices = (list(getattr(x.result, "notices", []) or [])
                + list(getattr(x.validation, "notices", []) or []))
     sat = [s for s in notices if "saturat" in s.lower()]
@@ -637,17 +637,23 @@ def check_data_quality(x: VerdictInputs) -> CheckOutcome:
     # one-sample spikes and jumps the loader found (dynid.analysis.data.plausibility)
     # (in the measured q and tau: IDIM does not use the reference qr)
     glitch = [s for s in notices if re.search(r"isolated spike in (q|tau)\d|\bq\d+ jumps by", s)]
-    dq = [{"level": "warn", "text": s} for s in dict.fromkeys(sat + latent + glitch)]
+    # a torque channel that is constant or barely varies (dynid.analysis.data.saturation): stuck or
+    # not logged, the fit reads it as a joint that needs no torque, and every parameter that
+    # joint's torque carries is wrong (ZZ1R 70 % off on planar2): not identified
+    stuck = [s for s in notices if re.search(r"\btau\d+ (is constant|barely varies)", s)]
+    dq = ([{"level": "warn", "text": s} for s in dict.fromkeys(sat + latent + glitch)]
+          + [{"level": "bad", "text": s} for s in dict.fromkeys(stuck)])
     ls_fit = _least_squares(x.result)
     if ls_fit is not None:
         dq.append(_conditioning(ls_fit, x.cond_threshold))
     mask = _fitted_mask(x.result)
     if mask is not None or x.validation is not None:
         dq.append(_dead_zone(mask, x.validation))
-    return CheckOutcome(findings=[dict(d, key="data") for d in dq],
+    return CheckOutcome(findings=[dict(d, key="data") for d in dq], fail=bool(stuck),
                         reasons=(["saturation"] if sat else []) + (
                             ["the motion is not periodic at maximum likelihood's f0"] if latent else []) + (
-                            ["glitches in the data"] if glitch else []),
+                            ["glitches in the data"] if glitch else []) + (
+                            ["a torque channel that is constant or barely varies"] if stuck else []),
                         fields={"data_quality": dq})
 
 
