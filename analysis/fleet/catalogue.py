@@ -125,8 +125,12 @@ def read_catalogue(catalogue) -> pd.DataFrame:
     _check_columns(frame, label)
     missing = [c for c in REQUIRED if c not in frame.columns]
     if missing:
+        # one column whose name holds another separator: the file is not comma-separated
+        sep = next((s for s in (";", "\t", "|") if len(frame.columns) == 1 and s in str(frame.columns[0])), None)
+        hint = (f"; the columns seem to be separated by {sep!r}: a fleet catalogue is comma-separated"
+                if sep else "")
         raise InputError(f"{label}: missing column(s) {', '.join(missing)}; a fleet catalogue needs "
-                         f"{', '.join(REQUIRED)} (optional: temperature or temperature1..N)")
+                         f"{', '.join(REQUIRED)} (optional: temperature or temperature1..N){hint}")
     if frame.empty:
         raise InputError(f"{label}: the catalogue has no recordings")
     for col in ("robot_id", "path", "robot"):

@@ -603,6 +603,9 @@ def test_toml_motor_side_conversion(tmp_path):
         # one column fed to two signals: the fit took positions for torques without a word
         (lambda s: s.replace('file = "cur.csv"', 'file = "pos.csv"'),
          ["[torques]", "joint 1 reads column 'A'", "[positions] already reads for joint 1", "its own column"]),
+        # a NUL reached the HTML report, an ESC the terminal (robot names are refused alike)
+        (lambda s: s.replace('name = "toy"', 'name = "to\\u0000y\\u001b"'),
+         ["[experiment]", "name 'to\\x00y\\x1b' holds a control character"]),
     ],
 )
 def test_toml_errors(tmp_path, edit, words):
