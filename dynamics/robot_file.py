@@ -335,6 +335,9 @@ def _joints_from_urdf(doc, chain, path):
         raise RobotFileError(f"{path}: 'urdf' must be the path of a URDF file (a string), "
                              f"got {short(doc['urdf'])}")
     urdf_path = Path(path).parent / doc["urdf"]
+    if urdf_path.is_dir():
+        raise RobotFileError(f"{path}: urdf = {doc['urdf']!r} is a folder ({urdf_path}); give the .urdf file "
+                             f"in it (the path is relative to the robot file's folder)")
     if not urdf_path.is_file():
         raise RobotFileError(f"{path}: urdf = {doc['urdf']!r}: no such file ({urdf_path}); the path is "
                              f"relative to the robot file's folder")

@@ -18,6 +18,11 @@ from dynid.errors import InputError
 
 DEFAULT_SAMPLES_PER_HARMONIC = 200
 MIN_CHECK_SAMPLES = 4000
+#: the most harmonics of a Fourier trajectory dynid designs: the command line's `--harmonics` cap,
+#: `dynid.reports.cli_options.MAX_HARMONICS` (not imported: the layers put dynamics below reports, and the
+#: parser starts without the numerical modules; a test checks they agree). Beyond it the design's grids
+#: (200 samples per harmonic) would take terabytes.
+MAX_HARMONICS = 1000
 
 
 def check_f0(f0) -> float:
@@ -32,13 +37,16 @@ def check_f0(f0) -> float:
 
 
 def check_harmonics(n_harmonics) -> int:
-    """The number of harmonics as an int, or InputError if it is not a positive integer."""
+    """The number of harmonics as an int, or InputError if it is not an integer from 1 to MAX_HARMONICS."""
     try:
         N = int(n_harmonics)
     except (TypeError, ValueError):
         raise InputError(f"n_harmonics must be a positive integer, got {n_harmonics!r}") from None
     if N < 1 or N != n_harmonics:
         raise InputError(f"n_harmonics must be a positive integer, got {n_harmonics!r}")
+    if N > MAX_HARMONICS:
+        raise InputError(f"n_harmonics (harmonics=, --harmonics) {N} is more than {MAX_HARMONICS}, the most "
+                         f"dynid designs (a trajectory needs a few, typically 3 to 20)")
     return N
 
 

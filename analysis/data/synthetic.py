@@ -17,7 +17,7 @@ from dynid.dynamics.base_parameters import base_parameters
 from dynid.dynamics.loop_stability import radius_along
 from dynid.dynamics.robot_file import load_robot
 from dynid.dynamics.simulation import STIFFNESS_WARNING, friction_stiffness, simulate_closed_loop
-from dynid.dynamics.trajectories import random_fourier_trajectory
+from dynid.dynamics.trajectories import MAX_HARMONICS, random_fourier_trajectory
 from dynid.dynamics.urdf import inertia_about_origin, inertial_parameters
 from dynid.errors import DynidError, InputError
 from dynid.outputs import atomic_write_text
@@ -34,8 +34,6 @@ TX40_EXTRA = {"Ia6": 0.0105}
 MAX_SAMPLES = 50_000_000
 #: fewest samples of a simulated recording
 MIN_SAMPLES = 10
-#: most harmonics of a random reference trajectory
-MAX_HARMONICS = 1000
 
 
 def sample_count(duration, fs, *, option="--duration", what="the controller rate") -> int:

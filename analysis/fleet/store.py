@@ -35,6 +35,11 @@ COLUMNS = ["key", "robot_id", "recording", "robot", "timestamp", "day", "data_ha
            "essential", "essential_value", "essential_sigma", "temperature", "effects", "task_seconds", "task_cpu_seconds"]
 #: columns that depend on the run (machine, load), not on the inputs
 RUN_COLUMNS = ("task_seconds", "task_cpu_seconds")
+#: the type of every column as `result_frame` writes it (pandas' strings are `string` or `large_string`,
+#: its times `[ns]` or `[us]`, by version: both are the store's); checked before the files are joined
+_INTEGER_COLUMNS = ("n_samples", "joint")
+_FLOAT_COLUMNS = ("rel_error", "value", "sigma", "essential_value", "essential_sigma", "temperature",
+                  "task_seconds", "task_cpu_seconds")
 
 
 def _pyarrow():
@@ -190,7 +195,9 @@ class ResultStore:
         if not files:
             return pd.DataFrame(columns=COLUMNS)
         pa, pq = _pyarrow()
-        table = pa.concat_tables([_read_file(pq, f) for f in files], promote_options="default")
+        # each file's types checked against the store's first (_read_file): "permissive" then only joins
+        # the widths of one kind (string and large_string, [ns] and [us] times, int32 and int64)
+        table = pa.concat_tables([_read_file(pq, f) for f in files], promote_options="permissive")
         frame = table.to_pandas()
         return frame.sort_values(["robot_id", "timestamp", "recording", "parameter"],
                                  kind="stable").reset_index(drop=True)
@@ -205,9 +212,40 @@ def _read_file(pq, path: str):
         problem = f"{type(exc).__name__}: {exc}"
     else:
         missing = [c for c in COLUMNS if c not in table.column_names]   # pyarrow leaves them out silently
-        if not missing:
+        wrong = _wrong_types(table.schema) if not missing else []
+        if not missing and not wrong:
             return table
-        problem = "it has no column " + ", ".join(missing)
+        problem = "it has no column " + ", ".join(missing) if missing else "; ".join(wrong)
     raise InputError(f"{path}: this file of the fleet store cannot be read ({problem}); dynid writes its "
                      f"files whole, so it was damaged or put there by something else: move it out of the "
                      f"store, and the next run identifies its recording again")
+
+
+def _expected_type(name: str) -> str:
+    """The type of the store's column `name`, as a message names it."""
+    if name in _INTEGER_COLUMNS:
+        return "int64"
+    if name in _FLOAT_COLUMNS:
+        return "double"
+    return {"essential": "bool", "timestamp": "timestamp[us, tz=UTC]"}.get(name, "string")
+
+
+def _wrong_types(schema) -> list:
+    """What is wrong with the types of the store's columns in `schema` (a file's), one text per column:
+    a column of another kind than the store's, or one given twice."""
+    pa, _ = _pyarrow()
+    t = pa.types
+    kinds = {"int64": t.is_integer, "double": t.is_floating, "bool": t.is_boolean,
+             "timestamp[us, tz=UTC]": lambda ty: t.is_timestamp(ty) and ty.tz == "UTC",
+             "string": lambda ty: t.is_string(ty) or t.is_large_string(ty)}     # a string_view joins neither
+    wrong = []
+    for name in COLUMNS:
+        found = schema.get_all_field_indices(name)
+        if len(found) != 1:
+            wrong.append(f"its column {name} appears {len(found)} times")
+            continue
+        got = schema.field(found[0]).type
+        want = _expected_type(name)
+        if not t.is_null(got) and not kinds[want](got):     # a column of nulls only joins any type
+            wrong.append(f"its column {name} is {got}, where the store's is {want}")
+    return wrong

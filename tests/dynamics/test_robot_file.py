@@ -613,3 +613,15 @@ def test_an_experiment_description_given_as_the_robot_says_so():
     msg = _bad_doc({"experiment": {"file": "run.csv"}, "positions": {}, "torques": {}},
                    "is an experiment description", "not a robot file", "--robot", name="run.toml")
     assert "unknown top-level" not in msg
+
+
+@pytest.mark.parametrize("urdf", [".", "meshes"])
+def test_a_toml_whose_urdf_is_a_folder_says_so(tmp_path, urdf):
+    """`urdf = "."` said "no such file (.)": it is a folder (bad-input hunt, C5)."""
+    (tmp_path / "meshes").mkdir()
+    (tmp_path / "arm.toml").write_text(f'name = "arm"\nurdf = "{urdf}"\n')
+    with pytest.raises(RobotFileError) as exc:
+        load_robot(tmp_path / "arm.toml")
+    msg = str(exc.value)
+    assert "is a folder" in msg and "give the .urdf file in it" in msg and "arm.toml" in msg
+    assert "no such file" not in msg

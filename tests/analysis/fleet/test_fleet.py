@@ -64,6 +64,9 @@ def test_catalogue_errors_name_column_and_row(tmp_path):
     p.write_text("robot_id,timestamp,path\nR1,2026-01-01T00:00:00Z,a.npz\n")
     with pytest.raises(InputError, match="missing column.*robot"):
         read_catalogue(p)
+    p.write_text("robot_id;timestamp;path;robot\nR1;2026-01-01T00:00:00Z;a.npz;planar2\n")
+    with pytest.raises(InputError, match="separated by ';': a fleet catalogue is comma-separated"):
+        read_catalogue(p)
     p.write_text("robot_id,timestamp,path,robot\nR1,2026-01-01T00:00:00Z,a.npz,planar2\n"
                  "R1,yesterday,b.npz,planar2\n")
     with pytest.raises(InputError, match=r"column timestamp, row 2: 'yesterday'"):
@@ -739,3 +742,50 @@ def test_a_full_disk_while_storing_is_one_clear_error(small_fleet, tmp_path, tcp
     assert "dynid fleet: error: cannot write " in err and str(tmp_path / "store") in err and "the disk is full" in err
     assert "internal error" not in err and "Compute Failed" not in err + caplog.text
     assert ResultStore(tmp_path / "store")._files() == []
+
+
+def test_a_store_file_whose_column_has_another_type_is_named_with_the_column(small_fleet, small_store, tmp_path,
+                                                                             capsys):
+    """`value` saved as text made `dynid fleet` and `read_store` an "internal error (ArrowTypeError: Unable to
+    merge: Field value has incompatible types ...)", naming no file (bad-input hunt, B1)."""
+    import dynid.fleet
+    from dynid.reports.cli import main
+    store = copied(small_store, tmp_path / "store")
+    bad = sorted(store._files())[0]
+    frame = pd.read_parquet(bad)
+    frame["value"] = frame["value"].astype(str)
+    frame.to_parquet(bad)
+    message = (rf"{Path(bad).name}: this file of the fleet store cannot be read \(its column value is "
+               rf"(large_)?string, where the store's is double\).*move it out of the store")
+    with pytest.raises(InputError, match=message):
+        store.read()
+    with pytest.raises(InputError, match=message):
+        dynid.fleet.read_store(store.root)
+    rc = main(["fleet", small_fleet.catalogue, "--out", store.root, "--scheduler", "tcp://127.0.0.1:9"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "internal error" not in err and Path(bad).name in err and "its column value is" in err
+    # a column given twice is named too (pyarrow's KeyError was another internal error)
+    import pyarrow.parquet as pq
+    table = pq.read_table(sorted(store._files())[1])
+    pq.write_table(table.append_column("sigma", table["sigma"]), sorted(store._files())[1])
+    os.unlink(bad)
+    with pytest.raises(InputError, match=r"\(its column sigma appears 2 times\)"):
+        store.read()
+
+
+def test_store_files_of_other_string_time_and_integer_widths_read_together(small_store, tmp_path):
+    """pandas writes `string` or `large_string`, times in [ns] or [us], by version: a store written by two
+    versions is one store (the type check of B1 must not refuse it, nor the join fail)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    store = copied(small_store, tmp_path / "store")
+    f = sorted(store._files())[0]
+    table = pq.read_table(f)
+    narrow = {pa.types.is_large_string: pa.string(), pa.types.is_timestamp: pa.timestamp("ns", tz="UTC"),
+              pa.types.is_int64: pa.int32()}
+    fields = []
+    for field in table.schema:
+        to = next((ty for test, ty in narrow.items() if test(field.type)), field.type)
+        fields.append(pa.field(field.name, to))
+    pq.write_table(table.cast(pa.schema(fields)), f)
+    pd.testing.assert_frame_equal(store.read(), small_store.read(), check_dtype=False)
