@@ -525,6 +525,12 @@ def _collect_columns(raw: _RawFile, notices: list[str]) -> dict[str, _Col]:
         for key, a in raw.arrays.items():
             if _BAD_INDEX_RE.match(key):
                 _bad_index(raw, key)
+            if (_COLUMN_RE.match(key) or key in _STEMS) and _not_an_array_of_numbers(a):
+                raise DataError(
+                    f"{raw.label}: '{key}' is not an array of numbers ({_kind_of(a)}); store each signal as a "
+                    "numeric array (in MATLAB a full double matrix: full(...), no struct, cell or sparse "
+                    "matrix), or export CSV."
+                )
             if _COLUMN_RE.match(key):
                 if a.ndim == 2 and 1 in a.shape:
                     a = a.reshape(-1)
@@ -558,6 +564,18 @@ def _collect_columns(raw: _RawFile, notices: list[str]) -> dict[str, _Col]:
             f"convention: {_short_list(ignored)} ({_CONVENTION})"
         )
     return cols
+
+
+def _not_an_array_of_numbers(a: np.ndarray) -> bool:
+    """A MATLAB struct, cell or sparse matrix (scipy gives a 0-d object array), or a NumPy
+    structured array: their shapes and joint counts would be read as the signal's."""
+    return a.dtype.names is not None or (a.dtype == object and a.ndim == 0)
+
+
+def _kind_of(a: np.ndarray) -> str:
+    if a.dtype.names is not None:
+        return f"a structured array with fields {', '.join(a.dtype.names)}"
+    return f"a {type(a.item()).__name__} object"
 
 
 def _reference_length(raw: _RawFile) -> int | None:

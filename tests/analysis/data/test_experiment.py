@@ -1599,3 +1599,19 @@ def test_a_line_break_inside_a_quoted_cell_is_no_number(tmp_path, newline):
     p.write_bytes(newline.join(["t,q1,tau1"] + rows + [""]).encode())
     with pytest.raises(DataError, match=r"column 'tau1', data row 21 \(file line 22\): '1.+2' is not a number"):
         load_experiment(p)
+
+
+def test_a_struct_or_structured_array_is_no_signal(tmp_path):
+    """A structured array under 'q' was read as a joint count ("has q1 but tau1, tau2"), a MATLAB
+    struct or sparse matrix as "shape ()" (bad-input hunt)."""
+    import scipy.io
+    import scipy.sparse
+    t = np.arange(100) / 100.0
+    tau = np.ones((100, 2))
+    rec = np.zeros(100, dtype=[("a", float), ("b", float)])
+    np.savez(tmp_path / "s.npz", t=t, q=rec, tau=tau)
+    with pytest.raises(DataError, match="'q' is not an array of numbers \\(a structured array with fields a, b\\)"):
+        load_experiment(tmp_path / "s.npz")
+    scipy.io.savemat(tmp_path / "s.mat", {"t": t, "q": np.ones((100, 2)), "tau": scipy.sparse.csc_matrix(tau)})
+    with pytest.raises(DataError, match="'tau' is not an array of numbers \\(a csc_matrix object\\).*full"):
+        load_experiment(tmp_path / "s.mat")
