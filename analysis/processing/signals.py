@@ -223,7 +223,7 @@ def estimate_bandwidth(q, fs, energy=0.99) -> float:
     uncertainty = noise.sum(axis=0) / math.sqrt(len(f) * n_segments)
     moving = (total > 10.0 * uncertainty) & (total > 0.0)
     duration = q.shape[0] / fs
-    if not moving.any() and duration < WELCH_SEGMENT_SECONDS:
+    if not moving.any() and duration < WELCH_SEGMENT_SECONDS and _drifts_beyond_noise(q):
         raise InputError(
             f"the recording lasts {duration:.3g} s ({q.shape[0]} samples at {fs:g} Hz): too short to tell its "
             f"motion from the measurement noise (the motion bandwidth is read from a spectrum of "
@@ -240,6 +240,17 @@ def estimate_bandwidth(q, fs, energy=0.99) -> float:
         )
     reached = cumulative[:, moving] >= energy * total[moving]
     return float(f[np.argmax(reached, axis=0)].max())
+
+
+def _drifts_beyond_noise(q) -> bool:
+    """Whether some joint's positions span more than 20 times their noise (the RMS of their second
+    differences / sqrt(6), white noise's): a motion too slow for a short record's spectrum, not a
+    robot standing still."""
+    q = q.reshape(q.shape[0], -1)
+    if q.shape[0] < 3:
+        return False
+    noise = np.std(np.diff(q, n=2, axis=0), axis=0) / math.sqrt(6.0)
+    return bool(np.any(np.ptp(q, axis=0) > 20.0 * noise))
 
 
 def _nice_floor(value: float) -> int:
