@@ -362,7 +362,9 @@ def as_robot(robot, *, base=None, tip=None):
 
 
 def as_experiments(data, robot, *, resample=False) -> list:
-    """A list of Experiments from one or several paths or Experiments."""
+    """A list of Experiments from one or several paths or Experiments: a path loaded, an Experiment
+    in memory checked as the loader checks a file (`checked_experiment`). `resample`: irregular
+    time steps of either put on a uniform grid at the median step."""
     items = list(data) if isinstance(data, (list, tuple)) else [data]
     if not items:
         raise InputError("no recording given: pass a data file or an Experiment")
@@ -370,7 +372,7 @@ def as_experiments(data, robot, *, resample=False) -> list:
     for k, item in enumerate(items):
         item = recording_of(item)
         if isinstance(item, Experiment):
-            out.append(checked_experiment(item, k, robot))
+            out.append(checked_experiment(item, k, robot, resample=resample))
         elif isinstance(item, (str, os.PathLike)):
             out.append(_load_resampled(item, robot) if resample else _load(item, robot))
         else:

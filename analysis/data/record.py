@@ -15,11 +15,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from dynid.analysis.data import plausibility as plaus
 from dynid.analysis.data._format import _fmt_t
-from dynid.analysis.data.timebase import TIME_STEP_TOLERANCE
+from dynid.analysis.data.saturation import saturation_notices
+from dynid.analysis.data.timebase import TIME_STEP_TOLERANCE, _check_time, _Options, _resample
 from dynid.errors import DataError
 
-__all__ = ["Experiment", "SIGNALS", "checked_experiment", "recording_of", "repeated_recordings", "same_samples", "sample_keys", "shared_run"]
+__all__ = ["Experiment", "SIGNALS", "checked_experiment", "loader_checks", "recording_of", "repeated_recordings", "same_samples", "sample_keys", "shared_run"]
 
 #: Signal names of the column convention, in the order they are stored.
 SIGNALS = ("q", "qr", "qd", "qdd", "tau")
@@ -46,6 +48,10 @@ class Experiment:
     meta : loader facts, e.g. `reference_shift` (samples), `reference_shift_rms`
         (rad), `start_offset`, `resampled`, `time_from`, `torque_timing` (one of
         `TORQUE_TIMINGS`, when the recording says it).
+
+    Building one checks only shapes, numbers (not complex) and joint counts: an Experiment
+    made in memory gets the loader's checks of the data (uniform time, the robot's limits,
+    spikes ...) where identify, run, diagnose and validate accept it (`checked_experiment`).
     """
 
     t: np.ndarray
@@ -64,6 +70,10 @@ class Experiment:
         for name in ("t",) + SIGNALS:
             value = getattr(self, name)
             if value is not None:
+                if np.iscomplexobj(value):      # np.asarray(dtype=float) would drop the imaginary part
+                    raise DataError(f"Experiment.{name}: complex values in {name}: dynid needs real numbers. "
+                                    f"Store the real values only (e.g. {name}.real, once its imaginary part "
+                                    "is known to be zero).")
                 try:
                     setattr(self, name, np.asarray(value, dtype=float))
                 except (TypeError, ValueError):
@@ -277,19 +287,29 @@ class Experiment:
         )
 
 
-def checked_experiment(experiment: Experiment, k: int = 0, robot=None) -> Experiment:
+def checked_experiment(experiment: Experiment, k: int = 0, robot=None, *, resample: bool = False) -> Experiment:
     """An Experiment built in memory (not loaded from a file), checked as a file would be.
 
     The loader checks what it reads; an Experiment made from the user's arrays has not been:
-    every present signal finite, `t` strictly increasing, `fs` the rate of `t` (within 1 %),
-    and the robot's joint count. Errors name the recording (its `source`, else its `name`,
-    else "recording k+1"), the signal, the joint and the 1-based sample. A recording without a
-    `source` gets that label, so later messages name it too.
+    every present signal finite, the robot's joint count, then the loader's own checks
+    (`loader_checks`: time uniform, without gaps, at a plausible rate; magnitudes, torques and
+    positions against the robot's limits; spikes, jumps and saturation as notices), `t` strictly
+    increasing and `fs` the rate of `t` (within 1 %). Errors name the recording (its `source`,
+    else its `name`, else "recording k+1"), the signal, the joint and the 1-based sample. A
+    recording without a `source` gets that label, so later messages name it too.
+
+    An experiment the loader made (`meta["time_from"]`, which only the loader and these checks
+    set) has had those checks, with its description's time tolerance and perhaps resampled:
+    it gets only the cheap ones (a few ms on 200,000 samples), and its notices stay as they are.
+    So do the copies made of a checked experiment (`segment`, `holdout_split`).
+    `resample`: irregular time steps are put on a uniform grid at the median step, as the
+    loader's `resample = true` does, instead of refused.
 
     Returns
     -------
     Experiment
-        `experiment`, or a copy of it with a `source` label.
+        `experiment`, or a copy of it with a `source` label, the loader's notices and
+        `meta["time_from"]` (resampled, when `resample` and its time steps were irregular).
     """
     label = experiment.source or experiment.name or f"recording {k + 1} (an Experiment in memory)"
     for name in ("t",) + SIGNALS:
@@ -302,23 +322,84 @@ def checked_experiment(experiment: Experiment, k: int = 0, robot=None) -> Experi
             where = f"{name}{col[0] + 1}" if col else name
             raise DataError(f"{label}: {where} is not finite (NaN or inf) at sample {row + 1} (1-based), and "
                             f"{int(bad.sum())} value(s) in all; remove or fill those samples before identifying")
-    dt = np.diff(experiment.t)
-    if np.any(dt <= 0):
-        row = int(np.flatnonzero(dt <= 0)[0])
-        raise DataError(f"{label}: t does not increase at sample {row + 2} (1-based): t = "
-                        f"{_fmt_t(experiment.t[row + 1])} after {_fmt_t(experiment.t[row])}; time must be "
-                        "strictly increasing")
-    fs_t = 1.0 / float(np.median(dt))
-    if abs(experiment.fs - fs_t) > TIME_STEP_TOLERANCE * fs_t:
-        raise DataError(f"{label}: fs = {experiment.fs:g} Hz, but its time stamps give {fs_t:g} Hz "
-                        "(1 / the median step); leave fs out (it is computed from t) or give the rate of t")
     n = getattr(robot, "n_joints", None)
     if n is not None and experiment.n_joints != n:
         raise DataError(f"{label}: {experiment.n_joints} joint column(s) in tau, but robot "
                         f"'{getattr(robot, 'name', '?')}' has {n} joints; give one column per joint")
+    changes = {}
+    if "time_from" not in experiment.meta:
+        changes = loader_checks(experiment, label, robot, resample=resample)
+    t = changes.get("t", experiment.t)
+    dt = np.diff(t)
+    if np.any(dt <= 0):
+        row = int(np.flatnonzero(dt <= 0)[0])
+        raise DataError(f"{label}: t does not increase at sample {row + 2} (1-based): t = "
+                        f"{_fmt_t(t[row + 1])} after {_fmt_t(t[row])}; time must be strictly increasing")
+    fs_t = 1.0 / float(np.median(dt))
+    if "t" not in changes and abs(experiment.fs - fs_t) > TIME_STEP_TOLERANCE * fs_t:
+        raise DataError(f"{label}: fs = {experiment.fs:g} Hz, but its time stamps give {fs_t:g} Hz "
+                        "(1 / the median step); leave fs out (it is computed from t) or give the rate of t")
     if not experiment.source:
-        experiment = dataclasses.replace(experiment, source=label)
-    return experiment
+        changes["source"] = label
+    return dataclasses.replace(experiment, **changes) if changes else experiment
+
+
+class _InMemory:
+    """A signal of an Experiment in memory as the loader's checks name a file's column: `where`
+    (the recording and the signal) and `raw.row(k)` (the 1-based sample)."""
+
+    def __init__(self, where: str):
+        self.where = where
+        self.raw = self
+
+    @staticmethod
+    def row(k) -> str:
+        return f"sample {int(k) + 1}"
+
+
+def loader_checks(experiment: Experiment, label: str, robot=None, *, resample: bool = False) -> dict:
+    """The checks `load_experiment` makes of a file's signals (`columns._assemble`), made of an
+    Experiment's arrays by the loader's own functions, in its order: magnitudes and the robot's
+    limits (`plausibility.check_magnitude`, `check_limits`), the time steps (`timebase._check_time`:
+    strictly increasing, uniform within `TIME_STEP_TOLERANCE`, no gap; resampled when `resample`)
+    and the sampling rate against the joints' speeds (`check_rate`), as `columns._time_and_rate`
+    does (not called: the loader's modules import this one), then spikes, one-sample jumps and
+    torque saturation, which are notices. Messages name `label`, the signal (`t`, `tau2`) and the
+    1-based sample.
+
+    Returns
+    -------
+    dict
+        The fields to replace in `experiment`: its `notices` with the loader's appended and its
+        `meta` with `time_from` (the mark of checked data); when resampled, also `t`, the
+        signals, `fs` and `meta["resampled"]`.
+    """
+    signals = {s: getattr(experiment, s) for s in SIGNALS if getattr(experiment, s) is not None}
+    plaus.check_magnitude([(_InMemory(f"{label}: {s}{j + 1}"), a[:, j])
+                           for s, a in signals.items() for j in range(a.shape[1])], robot)
+    time = _InMemory(f"{label}: t")
+    rows = np.arange(experiment.n_samples)
+    notices: list[str] = []
+    meta = dict(experiment.meta)
+    plaus.check_limits(signals, None, robot, None, label, notices)
+    with plaus.spike_notices(signals, None, None, label) as spikes:
+        at = len(notices)          # as the loader: the spike notices before the time checks' ones
+        t, checked = experiment.t, signals
+        irregular, step = _check_time(t, time, rows, _Options(resample=resample), notices)
+        if irregular:              # as `columns._time_and_rate`
+            t, checked = _resample(t, dict(signals), notices, time.where)
+            meta["resampled"] = True
+            step = float(np.median(np.diff(t)))
+        plaus.check_rate(t, checked, robot, time.where, notices, step=step)
+        saturation_notices(checked["tau"], notices, label)
+        found = spikes.result()
+        plaus.position_jumps(signals, None, None, label, found, skip=spikes.flagged(), robot=robot)
+        notices[at:at] = found
+    meta["time_from"] = f"{time.where} (an Experiment in memory)"
+    changes = {"notices": list(experiment.notices) + notices, "meta": meta}
+    if t is not experiment.t:           # resampled: fs is that of the new grid
+        changes.update(checked, t=t, fs=None)
+    return changes
 
 
 def recording_of(item):
