@@ -460,20 +460,27 @@ def load_data(data, robot, settings: Settings, say=None):
         check_rate_matches(held_out, experiments[0].fs, "the --validation recording",
                            experiments[0].source or experiments[0].name)
         check_cutoffs(settings, [held_out])
-        keys = sample_keys(held_out)
-        for exp in experiments:
-            run = shared_run(keys, exp)
-            if run >= SHARED_RUN:
-                raise InputError(f"--validation {held_out.source or held_out.name} shares {run} consecutive samples, "
-                                 f"bit for bit, with the identification recording {exp.source or exp.name}: "
-                                 "validating on the identification data says nothing about the model; give "
-                                 "another recording, or --holdout SECONDS to hold out the end of this one")
+        check_validation_is_other_data(held_out, experiments)
     elif settings.holdout is not None:
         if len(experiments) > 1:
             raise InputError("--holdout splits one recording; with several, use --validation")
         train, held_out = holdout_split(experiments[0], settings.holdout)
         experiments = [train]
     return experiments, held_out
+
+
+def check_validation_is_other_data(held_out, experiments) -> None:
+    """Refuse a validation recording that shares `SHARED_RUN` consecutive samples, bit for bit,
+    with an identification recording (the same file, a copy, or a cut of it)."""
+    keys = sample_keys(held_out)
+    for exp in experiments:
+        run = shared_run(keys, exp)
+        if run >= SHARED_RUN:
+            raise InputError(f"--validation (validation=) {held_out.source or held_out.name} shares {run} "
+                             f"consecutive samples, bit for bit, with the identification recording "
+                             f"{exp.source or exp.name}: validating on the identification data says nothing "
+                             "about the model; give another recording, or --holdout SECONDS to hold out the "
+                             "end of this one")
 
 
 @contextlib.contextmanager

@@ -210,12 +210,15 @@ def diagnose(data: str | os.PathLike[str] | Experiment,
     from dynid.analysis.diagnosis.selection import diagnose as _diagnose
     from dynid.analysis.further import several_recordings
     from dynid.analysis.identify import as_experiments, as_robot
+    from dynid.analysis.run import check_validation_is_other_data
     robot = as_robot(robot)
     experiments = as_experiments(data, robot)
     if len(experiments) > 1:
         raise several_recordings(len(experiments))
     experiment = experiments[0]
     valid = as_experiments(validation, robot)[0] if validation is not None else None
+    if valid is not None:
+        check_validation_is_other_data(valid, [experiment])
     if idim_result is not None and getattr(idim_result, "observation", None) is None:
         raise InputError(f"diagnose: idim_result must be the IDIM result of the same data "
                          f"(dynid.identify(..., method='idim')), not {type(idim_result).__name__}")

@@ -138,7 +138,7 @@ def test_one_recording_shifted_by_a_sample_is_not_a_second_recording(planar2):
     assert same_samples(exp, _shifted(exp)) and not same_samples(exp, other)
     with pytest.raises(InputError, match=r"share \d+ consecutive samples, bit for bit"):
         dynid.identify([exp, _shifted(exp)], robot)
-    with pytest.raises(InputError, match="--validation shifted.csv shares"):
+    with pytest.raises(InputError, match=r"--validation \(validation=\) shifted.csv shares"):
         dynid.run(exp, robot, validation=_shifted(exp, 5))
     # a robot at rest logs the same sample over and over: a few shared samples are no duplicate
     still = Experiment(t=exp.t[:500], q=np.zeros((500, 2)), qr=None, qd=None, qdd=None, tau=np.ones((500, 2)))
@@ -352,3 +352,13 @@ def test_the_python_api_never_writes_over_its_inputs(tmp_path, monkeypatch):
     with pytest.raises(InputError, match="the bundled robot planar2's file"):
         dynid.run("run.csv", "planar2", json=str(bundled_path("planar2")))
     assert not work and (tmp_path / "run.csv").read_bytes() == before
+
+
+def test_diagnose_refuses_its_identification_data_as_validation():
+    """dynid.diagnose(data, robot, validation=data) measured its "validation" errors on the training
+    data; the command line, dynid.run and dynid.verdict refused it (bad-input hunt)."""
+    rec = dynid.simulate("planar2", 3.0, seed=1).experiment
+    half = dynid.holdout_split(rec, 1.0)[0]
+    for same in (rec, half):
+        with pytest.raises(InputError, match=r"validation=\) .*consecutive samples, bit for bit"):
+            dynid.diagnose(rec, "planar2", validation=same)
