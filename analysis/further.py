@@ -220,8 +220,6 @@ def _diagnosis_run(data, robot, settings=None, *, say=None, **options) -> Diagno
     if isinstance(data, (list, tuple)) and len(data) > 1:      # before they are loaded
         raise several_recordings(len(data))
     experiments, held_out = load_data(data, robot, s, say)
-    if len(experiments) > 1:
-        raise several_recordings(len(experiments))
     experiment = experiments[0]
     result = eobs = None
     if not s.no_offsets:

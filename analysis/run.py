@@ -479,8 +479,8 @@ def check_validation_is_other_data(held_out, experiments) -> None:
             raise InputError(f"--validation (validation=) {held_out.source or held_out.name} shares {run} "
                              f"consecutive samples, bit for bit, with the identification recording "
                              f"{exp.source or exp.name}: validating on the identification data says nothing "
-                             "about the model; give another recording, or --holdout SECONDS to hold out the "
-                             "end of this one")
+                             "about the model; give another recording, or hold out the end of this one "
+                             "(--holdout SECONDS; dynid.holdout_split in Python)")
 
 
 @contextlib.contextmanager

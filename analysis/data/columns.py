@@ -567,15 +567,24 @@ def _collect_columns(raw: _RawFile, notices: list[str]) -> dict[str, _Col]:
 
 
 def _not_an_array_of_numbers(a: np.ndarray) -> bool:
-    """A MATLAB struct, cell or sparse matrix (scipy gives a 0-d object array), or a NumPy
-    structured array: their shapes and joint counts would be read as the signal's."""
-    return a.dtype.names is not None or (a.dtype == object and a.ndim == 0)
+    """A MATLAB struct or sparse matrix (scipy gives a 0-d object array), a cell (an object
+    array), or a NumPy structured array: their shapes and joint counts would be read as the
+    signal's."""
+    if a.dtype.names is not None:
+        return True
+    if a.dtype != object:
+        return False
+    # an object array of plain numbers (a cell of scalars) is read as numbers, as before
+    return a.ndim == 0 or not all(isinstance(v, (int, float, np.number)) and not isinstance(v, bool)
+                                  for v in a.flat)
 
 
 def _kind_of(a: np.ndarray) -> str:
     if a.dtype.names is not None:
         return f"a structured array with fields {', '.join(a.dtype.names)}"
-    return f"a {type(a.item()).__name__} object"
+    if a.ndim == 0:
+        return f"a {type(a.item()).__name__} object"
+    return f"an array of Python objects (a MATLAB cell?) of shape {a.shape}"
 
 
 def _reference_length(raw: _RawFile) -> int | None:

@@ -300,7 +300,8 @@ def checked_experiment(experiment: Experiment, k: int = 0, robot=None, *, resamp
 
     An experiment the loader made (`meta["time_from"]`, which only the loader and these checks
     set) has had those checks, with its description's time tolerance and perhaps resampled:
-    it gets only the cheap ones (a few ms on 200,000 samples), and its notices stay as they are.
+    it gets only the cheap ones (a few ms on 200,000 samples), and its notices stay as they are;
+    its values are checked against `robot`'s limits again (it may have been loaded without one).
     So do the copies made of a checked experiment (`segment`, `holdout_split`).
     `resample`: irregular time steps are put on a uniform grid at the median step, as the
     loader's `resample = true` does, instead of refused.
@@ -328,7 +329,19 @@ def checked_experiment(experiment: Experiment, k: int = 0, robot=None, *, resamp
                         f"'{getattr(robot, 'name', '?')}' has {n} joints; give one column per joint")
     changes = {}
     if "time_from" not in experiment.meta:
-        changes = loader_checks(experiment, label, robot, resample=resample)
+        try:
+            changes = loader_checks(experiment, label, robot, resample=resample)
+        except DataError as exc:
+            if "irregular" not in str(exc) or resample:
+                raise
+            raise DataError(f"{exc} In Python: dynid.run(..., resample=True) puts an Experiment on a "
+                            "uniform grid.") from None
+    elif robot is not None:
+        # loaded (or checked) perhaps without a robot: its values against this robot's limits, as a
+        # path would be (notices aside: the loader's are already in it)
+        signals = _signals_of(experiment)
+        plaus.check_magnitude(_columns_in_memory(signals, label), robot)
+        plaus.check_limits(signals, None, robot, None, label, [])
     t = changes.get("t", experiment.t)
     dt = np.diff(t)
     if np.any(dt <= 0):
@@ -357,6 +370,16 @@ class _InMemory:
         return f"sample {int(k) + 1}"
 
 
+def _signals_of(experiment: Experiment) -> dict:
+    return {s: getattr(experiment, s) for s in SIGNALS if getattr(experiment, s) is not None}
+
+
+def _columns_in_memory(signals: dict, label: str) -> list:
+    """(column, values) of every joint of `signals`, named as `plausibility.check_magnitude` names a
+    file's columns."""
+    return [(_InMemory(f"{label}: {s}{j + 1}"), a[:, j]) for s, a in signals.items() for j in range(a.shape[1])]
+
+
 def loader_checks(experiment: Experiment, label: str, robot=None, *, resample: bool = False) -> dict:
     """The checks `load_experiment` makes of a file's signals (`columns._assemble`), made of an
     Experiment's arrays by the loader's own functions, in its order: magnitudes and the robot's
@@ -374,9 +397,8 @@ def loader_checks(experiment: Experiment, label: str, robot=None, *, resample: b
         `meta` with `time_from` (the mark of checked data); when resampled, also `t`, the
         signals, `fs` and `meta["resampled"]`.
     """
-    signals = {s: getattr(experiment, s) for s in SIGNALS if getattr(experiment, s) is not None}
-    plaus.check_magnitude([(_InMemory(f"{label}: {s}{j + 1}"), a[:, j])
-                           for s, a in signals.items() for j in range(a.shape[1])], robot)
+    signals = _signals_of(experiment)
+    plaus.check_magnitude(_columns_in_memory(signals, label), robot)
     time = _InMemory(f"{label}: t")
     rows = np.arange(experiment.n_samples)
     notices: list[str] = []
@@ -395,7 +417,7 @@ def loader_checks(experiment: Experiment, label: str, robot=None, *, resample: b
         found = spikes.result()
         plaus.position_jumps(signals, None, None, label, found, skip=spikes.flagged(), robot=robot)
         notices[at:at] = found
-    meta["time_from"] = f"{time.where} (an Experiment in memory)"
+    meta["time_from"] = time.where if "in memory" in label else f"{time.where} (an Experiment in memory)"
     changes = {"notices": list(experiment.notices) + notices, "meta": meta}
     if t is not experiment.t:           # resampled: fs is that of the new grid
         changes.update(checked, t=t, fs=None)

@@ -638,18 +638,17 @@ def check_data_quality(x: VerdictInputs) -> CheckOutcome:
     # (in the measured q and tau: IDIM does not use the reference qr)
     glitch = [s for s in notices if re.search(r"isolated spike in (q|tau)\d|\bq\d+ jumps by", s)]
     # a torque channel that is constant or barely varies (dynid.analysis.data.saturation): stuck or
-    # not logged, the fit reads it as a joint that needs no torque, and every parameter that
-    # joint's torque carries is wrong (ZZ1R 70 % off on planar2): not identified
+    # not logged, and the fit reads it as a joint that needs no torque (ZZ1R 70 % off on planar2).
+    # A reason, not a failure: a joint held on its brake in a per-joint campaign looks the same.
     stuck = [s for s in notices if re.search(r"\btau\d+ (is constant|barely varies)", s)]
-    dq = ([{"level": "warn", "text": s} for s in dict.fromkeys(sat + latent + glitch)]
-          + [{"level": "bad", "text": s} for s in dict.fromkeys(stuck)])
+    dq = [{"level": "warn", "text": s} for s in dict.fromkeys(sat + latent + glitch + stuck)]
     ls_fit = _least_squares(x.result)
     if ls_fit is not None:
         dq.append(_conditioning(ls_fit, x.cond_threshold))
     mask = _fitted_mask(x.result)
     if mask is not None or x.validation is not None:
         dq.append(_dead_zone(mask, x.validation))
-    return CheckOutcome(findings=[dict(d, key="data") for d in dq], fail=bool(stuck),
+    return CheckOutcome(findings=[dict(d, key="data") for d in dq],
                         reasons=(["saturation"] if sat else []) + (
                             ["the motion is not periodic at maximum likelihood's f0"] if latent else []) + (
                             ["glitches in the data"] if glitch else []) + (

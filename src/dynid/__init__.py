@@ -212,9 +212,9 @@ def diagnose(data: str | os.PathLike[str] | Experiment,
     from dynid.analysis.identify import as_experiments, as_robot
     from dynid.analysis.run import check_validation_is_other_data
     robot = as_robot(robot)
+    if isinstance(data, (list, tuple)) and len(data) > 1:     # before they are loaded
+        raise several_recordings(len(data))
     experiments = as_experiments(data, robot)
-    if len(experiments) > 1:
-        raise several_recordings(len(experiments))
     experiment = experiments[0]
     valid = as_experiments(validation, robot)[0] if validation is not None else None
     if valid is not None:

@@ -1615,3 +1615,8 @@ def test_a_struct_or_structured_array_is_no_signal(tmp_path):
     scipy.io.savemat(tmp_path / "s.mat", {"t": t, "q": np.ones((100, 2)), "tau": scipy.sparse.csc_matrix(tau)})
     with pytest.raises(DataError, match="'tau' is not an array of numbers \\(a csc_matrix object\\).*full"):
         load_experiment(tmp_path / "s.mat")
+    cell = np.empty((1, 2), dtype=object)
+    cell[0, 0], cell[0, 1] = np.ones(100), np.ones(100)
+    scipy.io.savemat(tmp_path / "c.mat", {"t": t, "q": cell, "tau": tau})
+    with pytest.raises(DataError, match="'q' is not an array of numbers \\(an array of Python objects \\(a MATLAB cell"):
+        load_experiment(tmp_path / "c.mat")

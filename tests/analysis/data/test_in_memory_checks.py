@@ -189,3 +189,15 @@ def test_replace_and_slicing_still_build_experiments(planar2):
     assert part.n_samples == 2000 and train.n_samples + held_out.n_samples == e.n_samples
     (out,) = as_experiments(train, robot)
     assert out.source == "recording 1 (an Experiment in memory)"
+
+
+def test_a_recording_loaded_without_a_robot_is_checked_against_the_robot_it_is_identified_with(tmp_path):
+    """dynid.identify(dynid.load_experiment("deg.npz"), "planar2") took positions in degrees, which the
+    path itself, or the same arrays in memory, are refused for (a review of the in-memory checks)."""
+    rec = dynid.simulate("planar2", 4.0, seed=1).experiment
+    np.savez(tmp_path / "deg.npz", t=rec.t, q=np.degrees(rec.q), tau=rec.tau)
+    loaded = dynid.load_experiment(tmp_path / "deg.npz")
+    with pytest.raises(dynid.DataError, match="are the positions in degrees"):
+        dynid.identify(loaded, "planar2")
+    with pytest.raises(dynid.DataError, match="are the positions in degrees"):
+        dynid.diagnose(loaded, "planar2")

@@ -82,10 +82,11 @@ def test_nan_column_gives_no_notice_as_numpy_does():
     assert _parsed(notices) == [("constant", 1)]
 
 
-def test_a_torque_channel_at_its_noise_level_is_named_and_fails_the_verdict():
+def test_a_torque_channel_at_its_noise_level_is_named_and_is_a_reason_of_the_verdict():
     """tau2 = 1.234 N m plus 1 mN m of noise gave "identified with reservations" with ZZ1R 70 % off and
     no word (bad-input hunt). Real logs' smallest span is over 1 % of their largest (TX40, LWR4+,
-    Panda): 0.1 % names a stuck channel, and the verdict's data check fails on it."""
+    Panda): 0.1 % names a stuck channel, and the verdict's data check gives it as a reason (not a
+    failure: a joint held on its brake in a per-joint campaign looks the same)."""
     import types
 
     from dynid.analysis.statistics.verdict import check_data_quality
@@ -100,4 +101,4 @@ def test_a_torque_channel_at_its_noise_level_is_named_and_fails_the_verdict():
     assert ok == []
     out = check_data_quality(types.SimpleNamespace(result=types.SimpleNamespace(notices=notices), validation=None,
                                                    cond_threshold=1e3))
-    assert out.fail and out.reasons == ["a torque channel that is constant or barely varies"]
+    assert out.reasons == ["a torque channel that is constant or barely varies"] and not out.fail

@@ -377,6 +377,13 @@ def test_the_harmonics_bic_chose_are_no_warning_but_a_misfit_is():
         x = types.SimpleNamespace(result=types.SimpleNamespace(notices=list(notices)), validation=None,
                                   cond_threshold=1e3)
         return check_data_quality(x).reasons
+    import inspect
+
+    from dynid.analysis.estimators import maximum_likelihood as ml
+    # the phrases below are the module's own (a rewording there must show here)
+    misfit = inspect.getsource(ml._check_periodic)
+    assert "misses part of the motion" in misfit and "the motion is not periodic" in misfit
+    assert 'f"latent trajectory: K = {K} harmonics (BIC' in inspect.getsource(ml._harmonics)
     info = "latent trajectory: K = 48 harmonics (BIC on q; per joint [48, 44])"
     assert reason not in reasons(info)
     assert reason in reasons(info, "5 harmonics of f0 = 0.5 Hz leave 12 % of joint 2's motion unexplained (RMS "
