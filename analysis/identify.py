@@ -117,7 +117,8 @@ def identify(data, robot, method: str | None = None, *, settings=None, max_error
         `didim_start` (`"idim"` or `"apriori"`: DIDIM's starting estimate) and
         `torque_timing` (DIDIM: `"held"`, the default, when the logged torque is the
         command held over each period; `"centred"` when it is centred on the samples, as
-        an integrating sensor and `dynid simulate` log it).
+        an integrating sensor and `dynid simulate` log it), and `resample` (True: irregular
+        time steps are put on a uniform grid at the median step, as `--resample` does).
 
     Returns
     -------
@@ -144,7 +145,7 @@ def identify(data, robot, method: str | None = None, *, settings=None, max_error
     >>> r.params["ZZ1R"], r.rel_std["ZZ1R"]                                  # doctest: +SKIP
     """
     allowed = {"fc", "nd", "decimation_cutoff", "qd_threshold", "v_s", "uncertainty", "didim_start",
-               "update_gains", "n_boot", "torque_timing"}
+               "update_gains", "n_boot", "torque_timing", "resample"}
     unknown = sorted(set(options) - allowed)
     if unknown:
         keywords = set(inspect.signature(identify).parameters) - {"data", "robot", "options"}
@@ -181,7 +182,7 @@ def identify(data, robot, method: str | None = None, *, settings=None, max_error
         raise InputError(f"progress must be a function of the fraction done (0..1), or None; not "
                          f"{type(progress).__name__}")
     robot = as_robot(robot)
-    experiments = as_experiments(data, robot)
+    experiments = as_experiments(data, robot, resample=s.resample)
     if progress is not None:
         return identify_step(experiments, robot, s, progress=progress)
     with task(f"identify ({s.method})") as bar:     # shows only for work longer than a few seconds

@@ -334,8 +334,8 @@ def checked_experiment(experiment: Experiment, k: int = 0, robot=None, *, resamp
         except DataError as exc:
             if "irregular" not in str(exc) or resample:
                 raise
-            raise DataError(f"{exc} In Python: dynid.run(..., resample=True) puts an Experiment on a "
-                            "uniform grid.") from None
+            raise DataError(f"{exc} In Python: resample=True (dynid.identify, dynid.run) puts an Experiment "
+                            "on a uniform grid.") from None
     elif robot is not None:
         # loaded (or checked) perhaps without a robot: its values against this robot's limits, as a
         # path would be (notices aside: the loader's are already in it)

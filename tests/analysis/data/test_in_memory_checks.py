@@ -201,3 +201,16 @@ def test_a_recording_loaded_without_a_robot_is_checked_against_the_robot_it_is_i
         dynid.identify(loaded, "planar2")
     with pytest.raises(dynid.DataError, match="are the positions in degrees"):
         dynid.diagnose(loaded, "planar2")
+
+
+def test_identify_resamples_an_experiment_in_memory_when_asked():
+    """dynid.identify had no resample= (dynid.run had): its refusal of irregular steps now names it."""
+    rec = dynid.simulate("planar2", 4.0, seed=1).experiment
+    t = rec.t.copy()
+    half = t.size // 2
+    t[half:] = t[half] + 1.05 * (t[half:] - t[half])
+    bad = Experiment(t=t, q=rec.q, qr=None, qd=None, qdd=None, tau=rec.tau)
+    with pytest.raises(DataError, match=r"irregular.*resample=True \(dynid.identify, dynid.run\)"):
+        dynid.identify(bad, "planar2")
+    res = dynid.identify(bad, "planar2", resample=True)
+    assert any("resampled" in n or "interpolat" in n for n in res.notices), res.notices
