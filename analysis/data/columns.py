@@ -443,6 +443,14 @@ def _shift_reference(t, rows, signals, shift, min_shift, max_shift, shift_where,
             )
         lo = 0 if min_shift is None else min_shift
         hi = n // 4 if max_shift is None else max_shift
+        if max(abs(lo), abs(hi)) > n // 2:
+            # a few overlapping samples fit better than the true shift's many: the estimate would
+            # take one and leave nothing to identify
+            raise DataError(
+                f"{shift_where}: min_shift / max_shift = {lo} / {hi} samples reach beyond half of the "
+                f"{n} samples: an estimated shift needs most of the recording to overlap. Keep them "
+                f"within ±{n // 2} (the default max_shift is {n // 4}, a quarter of the recording)."
+            )
         L, _ = estimate_shift(signals["q"], signals["qr"], hi, lo)
         how = (f"estimated by least squares over shifts {max(lo, -(n - 2))}…"
                f"{min(hi, n - 2)} samples")

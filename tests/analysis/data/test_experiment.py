@@ -695,6 +695,10 @@ def test_toml_shift_estimate_and_fixed(tmp_path):
     # bounds of a search that does not run were ignored without a word
     msg = err(write(tmp_path, "s4.toml", base + f"shift = {L}\nmax_shift = 5\n"))
     assert "s4.toml" in msg and "max_shift" in msg and 'shift = \"estimate\"' in msg
+    # a search reaching past half the recording took a 2-sample overlap, then blamed the recording
+    n = e.t.size + L
+    msg = err(write(tmp_path, "s5.toml", base + f'shift = "estimate"\nmax_shift = {10 * n}\n'))
+    assert "s5.toml" in msg and f"beyond half of the {n} samples" in msg and "longer recording" not in msg
 
 
 def test_a_folder_or_an_empty_description_is_named_for_what_it_is(tmp_path):
