@@ -132,11 +132,18 @@ def _check_time(t: np.ndarray, col: _Col, rows: np.ndarray, opts: _Options,
         )
         return True, med
     k = int(np.argmax(dev))
+    steps = np.unique(dt)
+    # jitter takes many values; a handful is the rounding of the stamps (float32 at t ~ 1000 s
+    # steps by 61 us), which resampling would also follow, but the cause is the storage
+    rounded = (f" The steps take only {steps.size} values ({', '.join(_fmt(s * 1e3) for s in steps)} ms): "
+               "the time stamps are rounded, too few digits for their size (float32 values keep ~7 "
+               "digits); store time as float64, or in s relative to the start of the recording."
+               if steps.size <= 4 else "")
     raise DataError(
-        f"{col.where}: irregular time steps: the median step is {_fmt(med * 1e3)} ms but "
+        f"{col.where}: irregular time steps{rounded and ' (rounded time stamps)'}: the median step is {_fmt(med * 1e3)} ms but "
         f"the step to {col.raw.row(rows[k + 1])} from the row before is {_fmt(dt[k] * 1e3)} ms "
         f"({dev[k]:.1%} off; the tolerance is {tol:.2%}). {n_off} of {dt.size} "
-        f"steps are off by more than the tolerance.{gap_text} "
+        f"steps are off by more than the tolerance.{gap_text}{rounded} "
         + (f"Set `resample = true` in {opts.where} (linear interpolation at the median step)."
            if opts.where.endswith("[experiment]") else
            "Resample the data onto a uniform time grid, or load it through an experiment TOML with "

@@ -1624,3 +1624,12 @@ def test_a_struct_or_structured_array_is_no_signal(tmp_path):
     scipy.io.savemat(tmp_path / "c.mat", {"t": t, "q": cell, "tau": tau})
     with pytest.raises(DataError, match="'q' is not an array of numbers \\(an array of Python objects \\(a MATLAB cell"):
         load_experiment(tmp_path / "c.mat")
+
+
+def test_time_stamps_rounded_by_float32_are_named_as_such(tmp_path):
+    """float32 time stamps near 1000 s step by 61 us: the 1 ms steps read as "irregular" with only the
+    advice to resample (bad-input hunt); the message now names the rounding and float64."""
+    t = (1000.0 + np.arange(2000) / 1000.0).astype(np.float32)
+    np.savez(tmp_path / "f32.npz", t=t, q=np.sin(np.arange(2000) / 100.0)[:, None], tau=np.ones((2000, 1)))
+    with pytest.raises(DataError, match=r"rounded time stamps.*take only 2 values.*float32.*store time as float64"):
+        load_experiment(tmp_path / "f32.npz")
