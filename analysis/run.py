@@ -590,7 +590,8 @@ def _carrying(result, robot, experiment=None):
     """`result` with its robot (DIDIM, PM and ML results are built without one): dynid.verdict and
     dynid.validate of the result then judge it as the command line does (joint names, a-priori values).
     A result with `robot_name`, `robot_signature` and `source` fields left empty (ML, built from
-    arrays) gets the robot's name and signature and the `experiment`'s source, as IDIM's has."""
+    arrays; the Projection Method's `identify_projection` fills its own) gets the robot's name and
+    signature and the `experiment`'s source, as IDIM's has."""
     if getattr(result, "robot", None) is None:
         try:
             result.robot = robot
@@ -634,7 +635,7 @@ def identify_step(experiments, robot, settings: Settings, progress=None, *, obse
     if method == "didim":
         return _carrying(_didim(exp, robot, settings, progress), robot)
     if method == "projection":
-        return _carrying(identify_projection(exp, robot, settings=settings.processing()), robot, exp)
+        return _carrying(identify_projection(exp, robot, settings=settings.processing()), robot)
     if settings.f0 is None:
         raise InputError("method ml needs f0, the fundamental frequency (Hz) of the periodic excitation "
                          "(--f0 on the command line)")

@@ -1,6 +1,7 @@
 """The HTML of every command's report, from the orchestrator's results (dynid.reports.pipeline)."""
 from __future__ import annotations
 
+from dynid.analysis.statistics.verdict import judged_kind
 from dynid.reports.agreement_figure import agreement_section
 from dynid.reports.bayes_section import bayes_sections
 from dynid.reports.bona_section import excitation_section
@@ -63,9 +64,7 @@ def identification_html(ident) -> str:
     robot = getattr(ident.robot, "name", "?")
     return render_sections(_sections(ident), title=_title(ident), subtitle=data,
                            highlights=[("verdict", ident.verdict.status), ("robot", robot), ("data", data)],
-                           # the verdict judges DIDIM's essential model, and every base parameter of PM and ML
-                           verdict=verdict_block(ident.verdict, kind="essential" if getattr(
-                               ident.result, "essential", None) is not None else "base"))
+                           verdict=verdict_block(ident.verdict, kind=judged_kind(ident.result)))
 
 
 

@@ -195,8 +195,8 @@ class ResultStore:
         if not files:
             return pd.DataFrame(columns=COLUMNS)
         pa, pq = _pyarrow()
-        # each file's types checked against the store's first (_read_file): "permissive" then only joins
-        # the widths of one kind (string and large_string, [ns] and [us] times, int32 and int64)
+        # each file's types checked against the store's column kinds (_read_file, _wrong_types): "permissive"
+        # then only joins the widths of one kind (string and large_string, [ns] and [us] times, int32 and int64)
         table = pa.concat_tables([_read_file(pq, f) for f in files], promote_options="permissive")
         frame = table.to_pandas()
         return frame.sort_values(["robot_id", "timestamp", "recording", "parameter"],

@@ -745,9 +745,15 @@ def _inputs(result, validation, robot, diagnosis, residuals, physical=None, effe
     return VerdictInputs(
         result=result, validation=validation, robot=robot, diagnosis=diagnosis, residuals=residuals,
         estimate=m, names=_joint_names(robot, n), n=n,
-        kind="essential" if getattr(result, "essential", None) is not None else "base",
+        kind=judged_kind(result),
         params=_parameter_table(m, thresholds["rel_std_threshold"], prismatic_joints(robot)), physical=physical,
         effects=effects, **thresholds)
+
+
+def judged_kind(result) -> str:
+    """Which parameters the verdict of `result` judges: "essential" (IDIM, DIDIM: their essential
+    model) or "base" (the Projection Method, ML: every base parameter)."""
+    return "essential" if getattr(result, "essential", None) is not None else "base"
 
 
 def verdict(idim_result, validation=None, *, robot=None, diagnosis=None, residuals=None, physical=None,

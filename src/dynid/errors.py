@@ -3,6 +3,8 @@
 Every message names the file, column or row at fault and says what to do,
 so the command-line front end can print it as is, without a traceback.
 """
+import re
+from importlib import metadata
 
 
 class DynidError(Exception):
@@ -77,8 +79,6 @@ def install_hint(extra: str) -> str:
     str
         For example ``pip install "cvxpy>=1.4" "clarabel>=0.6"``.
     """
-    import re
-    from importlib import metadata
     try:
         requirements = metadata.requires("dynid") or []
     except metadata.PackageNotFoundError:      # run from a source tree that is not installed
