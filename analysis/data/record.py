@@ -18,7 +18,7 @@ import numpy as np
 from dynid.analysis.data import plausibility as plaus
 from dynid.analysis.data._format import _fmt_t
 from dynid.analysis.data.saturation import saturation_notices
-from dynid.analysis.data.timebase import TIME_STEP_TOLERANCE, _check_time, _Options, _resample
+from dynid.analysis.data.timebase import TIME_STEP_TOLERANCE, IrregularTimeSteps, _check_time, _Options, _resample
 from dynid.errors import DataError
 
 __all__ = ["Experiment", "SIGNALS", "checked_experiment", "loader_checks", "recording_of", "repeated_recordings", "same_samples", "sample_keys", "shared_run"]
@@ -331,9 +331,7 @@ def checked_experiment(experiment: Experiment, k: int = 0, robot=None, *, resamp
     if "time_from" not in experiment.meta:
         try:
             changes = loader_checks(experiment, label, robot, resample=resample)
-        except DataError as exc:
-            if "irregular" not in str(exc) or resample:
-                raise
+        except IrregularTimeSteps as exc:
             raise DataError(f"{exc} In Python: resample=True (dynid.identify, dynid.run) puts an Experiment "
                             "on a uniform grid.") from None
     elif robot is not None:

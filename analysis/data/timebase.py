@@ -41,6 +41,11 @@ MAX_RESAMPLE_STEP = 20.0
 MAX_RESAMPLE_GAP = 0.05
 
 
+class IrregularTimeSteps(DataError):
+    """Time steps that are not uniform (no gap): resampling onto the median step would make them so,
+    which callers that can resample name in their own terms."""
+
+
 @dataclass
 class _Options:
     """Loader options (an experiment TOML's [experiment] table, or the defaults)."""
@@ -139,7 +144,7 @@ def _check_time(t: np.ndarray, col: _Col, rows: np.ndarray, opts: _Options,
                "the time stamps are rounded, too few digits for their size (float32 values keep ~7 "
                "digits); store time as float64, or in s relative to the start of the recording."
                if steps.size <= 4 else "")
-    raise DataError(
+    raise IrregularTimeSteps(
         f"{col.where}: irregular time steps{rounded and ' (rounded time stamps)'}: the median step is {_fmt(med * 1e3)} ms but "
         f"the step to {col.raw.row(rows[k + 1])} from the row before is {_fmt(dt[k] * 1e3)} ms "
         f"({dev[k]:.1%} off; the tolerance is {tol:.2%}). {n_off} of {dt.size} "
