@@ -66,13 +66,21 @@ def short(value, limit=80):
     return text if len(text) <= limit else text[:limit] + "..."
 
 
-def check_name(name, where, path):
-    """Refuse a name with control characters (it would be printed on a terminal as is)."""
+def name_problem(name, where):
+    """What is wrong with a name that holds a control character (it would be printed on a
+    terminal as is), or None: the one wording of robot files and experiment descriptions."""
     m = _CONTROL.search(name)
-    if m:
-        raise RobotFileError(f"{path}: {where} '{shown(name)}' holds the control character "
-                             f"{shown(m.group())} (at position {m.start() + 1}); names are printed on "
-                             f"terminals: remove it")
+    if m is None:
+        return None
+    return (f"{where} '{shown(name)}' holds the control character {shown(m.group())} (at position "
+            f"{m.start() + 1}); names are printed on terminals and in reports: remove it")
+
+
+def check_name(name, where, path):
+    """Refuse a name with control characters."""
+    problem = name_problem(name, where)
+    if problem:
+        raise RobotFileError(f"{path}: {problem}")
 
 
 def check_text(text, where, path):

@@ -103,7 +103,7 @@ from dynid.analysis.data.columns import (
 from dynid.analysis.data.readers import _RawFile, _read_bytes, _read_data_file
 from dynid.analysis.data.record import TORQUE_TIMINGS
 from dynid.analysis.data.timebase import TIME_STEP_TOLERANCE, _Options
-from dynid.dynamics.robot_checks import shown
+from dynid.dynamics.robot_checks import name_problem
 from dynid.errors import DataError
 
 if TYPE_CHECKING:
@@ -293,9 +293,9 @@ def _split_tables(doc: dict, tk: _Toml) -> tuple[dict, dict]:
 def _experiment_options(exp: dict, tk: _Toml, path: Path, label: str) -> tuple[_Options, str | None]:
     """The [experiment] options (declarative: _EXPERIMENT_FIELDS) and the default data file."""
     v = {key: tk.field("experiment", exp, key, f) for key, f in _EXPERIMENT_FIELDS.items()}
-    if shown(v["name"]) != v["name"]:       # as a robot's name: it reaches terminals and reports
-        raise tk.err("experiment", f"name '{shown(v['name'])}' holds a control character; names are printed "
-                                   "on terminals and in reports: remove it.")
+    problem = name_problem(v["name"], "name")
+    if problem:
+        raise tk.err("experiment", problem + ".")
     opts = _Options(name=v["name"] or path.stem, sampling_rate=v["sampling_rate"],
                     start_time=v["start_time"], start_offset=v["start_offset"], resample=v["resample"],
                     time_tolerance=v["time_tolerance"], where=f"{label}, [experiment]")

@@ -605,7 +605,7 @@ def test_toml_motor_side_conversion(tmp_path):
          ["[torques]", "joint 1 reads column 'A'", "[positions] already reads for joint 1", "its own column"]),
         # a NUL reached the HTML report, an ESC the terminal (robot names are refused alike)
         (lambda s: s.replace('name = "toy"', 'name = "to\\u0000y\\u001b"'),
-         ["[experiment]", "name 'to\\x00y\\x1b' holds a control character"]),
+         ["[experiment]", "name 'to\\x00y\\x1b' holds the control character \\x00 (at position 3)"]),
     ],
 )
 def test_toml_errors(tmp_path, edit, words):
