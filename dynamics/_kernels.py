@@ -1,9 +1,18 @@
 """Compiled inner loops (numba) for the regressor.
 
 The same Newton-Euler-in-the-parameters algorithm as the NumPy code in
-`regressor.py`, written per sample with scalars so nothing is allocated in
-the loop. It is the default backend; `backend="numpy"` keeps the vectorised
-NumPy path (tests check both against Pinocchio).
+`regressor.py`, written with scalars so nothing is allocated in the loop. It is
+the default backend; `backend="numpy"` keeps the vectorised NumPy path (tests
+check both against Pinocchio).
+
+The kernel works on blocks of `LANES` samples held side by side, the sample index
+last in every scratch array, so that each step is a short loop over the block's
+samples that the compiler turns into SIMD instructions. Each lane carries out the
+scalar operations of one sample, in the order of a per-sample loop, and without
+`fastmath` the compiler neither reorders nor fuses them: the values are those of a
+per-sample loop, bit for bit. Only the sign of a NaN result is not fixed: when both
+operands of an addition are NaN, the x86 instruction returns the first, and which one
+comes first is the compiler's choice, scalar or vector.
 """
 from __future__ import annotations
 
@@ -11,6 +20,9 @@ import numpy as np
 
 try:
     import numba
+    from llvmlite import ir as _ir
+    from numba.core import types as _types
+    from numba.extending import intrinsic as _intrinsic
 
     from dynid.numba_cache import install as _cache_outside_the_package
     _cache_outside_the_package()   # before the first njit(cache=True): dynid.numba_cache
@@ -19,40 +31,22 @@ except ImportError:  # pragma: no cover - numba is a declared dependency
     HAVE_NUMBA = False
 
 
-def _whole_row_start_py(out, s, n, width, qd, qdd):
-    """Sample `s`'s rows: zeros where the Newton-Euler loop writes nothing (links j < i do
-    not load joint i, the other joints' actuator columns, the coupling columns), and Ia, Fv,
-    Fc, Off on the diagonal as in `regressor._actuator_columns`."""
-    for i in range(n):
-        for j in range(n):
-            c = 14 * j
-            if j < i:
-                for k in range(10):
-                    out[s, i, c + k] = 0.0
-            if j != i:
-                for k in range(10, 14):
-                    out[s, i, c + k] = 0.0
-        for k in range(14 * n, width):
-            out[s, i, k] = 0.0
-        d = qd[s, i]
-        c = 14 * i
-        out[s, i, c + 10] = qdd[s, i]
-        out[s, i, c + 11] = d
-        # np.sign: 0 at 0, nan at nan
-        out[s, i, c + 12] = 1.0 if d > 0.0 else (-1.0 if d < 0.0 else (0.0 if d == 0.0 else d))
-        out[s, i, c + 13] = 1.0
+def _sign_py(d):
+    """np.sign of one float: 0 at 0 (either sign), nan at nan."""
+    return 1.0 if d > 0.0 else (-1.0 if d < 0.0 else (0.0 if d == 0.0 else d))
 
 
 if HAVE_NUMBA:
-    _whole_row_start = numba.njit(cache=True, nogil=True, inline="always")(_whole_row_start_py)
+    _sign = numba.njit(cache=True, nogil=True, inline="always")(_sign_py)
 else:  # pragma: no cover
-    _whole_row_start = _whole_row_start_py
+    _sign = _sign_py
 
 
 def _joint_transforms_py(Rp, pp, sigma, q, R, P):
     """Frame j in frame j-1 for joint positions q (n,): `R[j] = Rp[j] Rot(z, q_j)` for a
-    revolute joint, `P[j] = pp[j] + q_j Rp[j] z` for a prismatic one. Shared by the regressor
-    kernel here and the dynamics of dynamic_model."""
+    revolute joint, `P[j] = pp[j] + q_j Rp[j] z` for a prismatic one. Used by the dynamics
+    of dynamic_model; `_regressor_rows` computes the same products, sample by sample in
+    its SIMD lanes."""
     n = q.shape[0]
     for j in range(n):
         if sigma[j] == 0:
@@ -117,114 +111,347 @@ else:  # pragma: no cover
     propagate_link = _propagate_link_py
 
 
-def _inertial_columns(Rp, pp, sigma, gravity, q, qd, qdd, out, whole_rows):
-    """Fill the 10 inertial columns of every link, for every sample, into `out`.
+#: Samples per block. The vectorised loops run over the block's samples, 4 doubles to a
+#: register, so 8 gives each of them two full iterations; more samples made the block's
+#: scratch (n x Ns x LANES doubles for its rows alone: 33 kB for a 6-joint arm) outgrow
+#: the level-1 cache, and the kernel slower.
+LANES = 8
 
-    out: (N, n, Ns) with link j's columns at 14*j ... 14*j+9. With `whole_rows`
-    False the other columns are untouched; with True every column of a sample is
-    written here (zeros, and Ia, Fv, Fc, Off on the diagonal as in
-    `regressor._actuator_columns`), while that sample's rows are still in cache:
-    a separate zeroing pass and a separate actuator pass over W cost two more
-    trips through memory than the kernel itself.
+#: Outputs from this size (bytes) on are written with non-temporal (streaming) stores.
+#: A normal store first reads the cache line it writes from memory, which doubles the
+#: memory traffic of writing W, and so large an array does not stay in the caches for
+#: its reader anyway. Smaller outputs are written normally: they are still in the cache
+#: when the caller reads them.
+STREAM_BYTES = 4 << 20
+
+
+def _vector_store(nontemporal):
+    """An intrinsic `store(flat, index, v0, v1, v2, v3)` that writes v0..v3 to
+    flat[index:index + 4] as one vector store, non-temporal or not; &flat[index] must be
+    32-byte aligned."""
+    @_intrinsic
+    def store(typingctx, flat, index, v0, v1, v2, v3):
+        def codegen(context, builder, signature, args):
+            ary = context.make_array(signature.args[0])(context, builder, args[0])
+            vty = _ir.VectorType(_ir.DoubleType(), 4)
+            vec = _ir.Constant(vty, _ir.Undefined)
+            for k, v in enumerate(args[2:]):
+                vec = builder.insert_element(vec, v, _ir.Constant(_ir.IntType(32), k))
+            ptr = builder.bitcast(builder.gep(ary.data, [args[1]]), vty.as_pointer())
+            inst = builder.store(vec, ptr, align=32)
+            if nontemporal:
+                inst.set_metadata("nontemporal", builder.module.add_metadata(
+                    [_ir.Constant(_ir.IntType(32), 1)]))
+            return context.get_dummy_value()
+
+        return _types.void(flat, index, v0, v1, v2, v3), codegen
+
+    return store
+
+
+def _row_entry_py(T1, b, p, rowlen, x):
+    """The regressor entry at flat index x: in row b (which starts at flat index p), or in
+    row b - 1 when x < p. Entry k of row b is T1[k * LANES + b]."""
+    return T1[(x - p + rowlen) * LANES + b - 1] if x < p else T1[(x - p) * LANES + b]
+
+
+def _store4_py(flat, index, v0, v1, v2, v3, stream):
+    """flat[index:index + 4] = v0..v3 in one vector store (&flat[index] 32-byte aligned),
+    non-temporal with `stream`."""
+    if stream:
+        _store4_streaming(flat, index, v0, v1, v2, v3)
+    else:
+        _store4_cached(flat, index, v0, v1, v2, v3)
+
+
+def _copy_out(T1, rowlen, flat, start, nb, stream):
+    """Write a block's `nb` rows into `flat` (the regressor, flattened) from `start` on;
+    entry k of row b is T1[k * LANES + b].
+
+    The entries go out in 32-byte aligned groups of four, one vector store each
+    (non-temporal with `stream`); a group that spans two rows takes the end of one and
+    the start of the next, and the entries at either end of the block that are in no
+    whole group are stored one by one. The indices of the main loop are unsigned: numba
+    checks every signed index for a negative value, which cost more than the copy itself.
     """
-    N, n = q.shape
-    width = out.shape[2]
-    R = np.empty((n, 3, 3))       # frame j in frame j-1
-    P = np.empty((n, 3))          # origin j in frame j-1
-    Rw = np.empty((n, 3, 3))      # frame j in base
-    Ow = np.empty((n, 3))         # origin j in base
-    # the entries of a link's wrench columns that are always zero (f of the inertia-tensor
-    # columns, m[0, 6], m[1, 7], m[2, 8], m of the mass column) are zeroed once, here, not
-    # per link and sample; the loop overwrites every other entry
-    f = np.zeros((3, 10))
-    m = np.zeros((3, 10))
-    for s in range(N):
-        if whole_rows:
-            _whole_row_start(out, s, n, width, qd, qdd)
-        # --- kinematics
-        joint_transforms(Rp, pp, sigma, q[s], R, P)
-        for j in range(n):
-            if j == 0:
-                for a in range(3):
-                    Ow[0, a] = P[0, a]
-                    for b in range(3):
-                        Rw[0, a, b] = R[0, a, b]
-            else:
-                for a in range(3):
-                    acc = Ow[j - 1, a]
-                    for b in range(3):
-                        acc += Rw[j - 1, a, b] * P[j, b]
-                    Ow[j, a] = acc
-                    for b in range(3):
-                        acc2 = 0.0
-                        for k in range(3):
-                            acc2 += Rw[j - 1, a, k] * R[j, k, b]
-                        Rw[j, a, b] = acc2
-        # --- Newton-Euler forward recursion, in link frames
-        wx = 0.0; wy = 0.0; wz = 0.0
-        ax = 0.0; ay = 0.0; az = 0.0           # angular acceleration
-        vx = -gravity[0]; vy = -gravity[1]; vz = -gravity[2]
-        for j in range(n):
-            wx, wy, wz, ax, ay, az, vx, vy, vz = propagate_link(
-                R, P, j, sigma[j], qd[s, j], qdd[s, j], wx, wy, wz, ax, ay, az, vx, vy, vz)
-            # --- wrench columns of link j (about its origin, frame j)
-            # XX: D w = (wx,0,0)
-            m[0, 0] = ax;  m[1, 0] = wz * wx;  m[2, 0] = -wy * wx
-            # XY: D w = (wy, wx, 0)
-            m[0, 1] = ay - wz * wx
-            m[1, 1] = ax + wz * wy
-            m[2, 1] = wx * wx - wy * wy
-            # XZ: D w = (wz, 0, wx)
-            m[0, 2] = az + wy * wx
-            m[1, 2] = wz * wz - wx * wx
-            m[2, 2] = ax - wy * wz
-            # YY: D w = (0, wy, 0)
-            m[0, 3] = -wz * wy;  m[1, 3] = ay;  m[2, 3] = wx * wy
-            # YZ: D w = (0, wz, wy)
-            m[0, 4] = wy * wy - wz * wz
-            m[1, 4] = az - wx * wy
-            m[2, 4] = ay + wx * wz
-            # ZZ: D w = (0, 0, wz)
-            m[0, 5] = wy * wz;  m[1, 5] = -wx * wz;  m[2, 5] = az
-            # MX, MY, MZ: f = dw x e + w x (w x e), n = e x dv
-            f[0, 6] = -(wy * wy + wz * wz); f[1, 6] = az + wx * wy;  f[2, 6] = -ay + wx * wz
-            f[0, 7] = -az + wx * wy;  f[1, 7] = -(wx * wx + wz * wz); f[2, 7] = ax + wy * wz
-            f[0, 8] = ay + wx * wz;  f[1, 8] = -ax + wy * wz;  f[2, 8] = -(wx * wx + wy * wy)
-            m[1, 6] = -vz; m[2, 6] = vy
-            m[0, 7] = vz;  m[2, 7] = -vx
-            m[0, 8] = -vy; m[1, 8] = vx
-            f[0, 9] = vx; f[1, 9] = vy; f[2, 9] = vz
-            # --- project on the axes of joints i <= j
-            c0 = 14 * j
-            for i in range(j + 1):
-                zx = Rw[i, 0, 2]; zy = Rw[i, 1, 2]; zz = Rw[i, 2, 2]
-                ux = Rw[j, 0, 0] * zx + Rw[j, 1, 0] * zy + Rw[j, 2, 0] * zz
-                uy = Rw[j, 0, 1] * zx + Rw[j, 1, 1] * zy + Rw[j, 2, 1] * zz
-                uz = Rw[j, 0, 2] * zx + Rw[j, 1, 2] * zy + Rw[j, 2, 2] * zz
-                if sigma[i] == 0:
-                    rx = Ow[j, 0] - Ow[i, 0]
-                    ry = Ow[j, 1] - Ow[i, 1]
-                    rz = Ow[j, 2] - Ow[i, 2]
-                    bx = zy * rz - zz * ry
-                    by = zz * rx - zx * rz
-                    bz = zx * ry - zy * rx
-                    gx = Rw[j, 0, 0] * bx + Rw[j, 1, 0] * by + Rw[j, 2, 0] * bz
-                    gy = Rw[j, 0, 1] * bx + Rw[j, 1, 1] * by + Rw[j, 2, 1] * bz
-                    gz = Rw[j, 0, 2] * bx + Rw[j, 1, 2] * by + Rw[j, 2, 2] * bz
-                    for k in range(6):
-                        out[s, i, c0 + k] = ux * m[0, k] + uy * m[1, k] + uz * m[2, k]
-                    for k in range(6, 9):
-                        out[s, i, c0 + k] = (ux * m[0, k] + uy * m[1, k] + uz * m[2, k]
-                                             + gx * f[0, k] + gy * f[1, k] + gz * f[2, k])
-                    out[s, i, c0 + 9] = gx * f[0, 9] + gy * f[1, 9] + gz * f[2, 9]
-                else:
-                    for k in range(6):
-                        out[s, i, c0 + k] = 0.0
-                    for k in range(6, 10):
-                        out[s, i, c0 + k] = ux * f[0, k] + uy * f[1, k] + uz * f[2, k]
+    L = LANES
+    if flat.ctypes.data % 8 != 0:        # a misaligned array: entry by entry
+        for b in range(nb):
+            for k in range(rowlen):
+                flat[start + b * rowlen + k] = T1[k * L + b]
+        return
+    a = flat.ctypes.data // 8
+    u1 = np.uint64(L)
+    u2 = np.uint64(2 * L)
+    u3 = np.uint64(3 * L)
+    u4 = np.uint64(4 * L)
+    four = np.uint64(4)
+    for b in range(nb):
+        p = start + b * rowlen
+        k0 = (-(a + p)) % 4            # row b's first entry that starts a group
+        if k0 and b == 0:
+            for k in range(k0):
+                flat[p + k] = T1[k * L + b]
+        elif k0:                       # the group from the end of row b - 1
+            g = p + k0 - 4
+            _store4(flat, g, _row_entry(T1, b, p, rowlen, g), _row_entry(T1, b, p, rowlen, g + 1),
+                    _row_entry(T1, b, p, rowlen, g + 2), _row_entry(T1, b, p, rowlen, g + 3), stream)
+        groups = (rowlen - k0) // 4
+        src = np.uint64(k0 * L + b)
+        dst = np.uint64(p + k0)
+        for _ in range(groups):
+            _store4(flat, dst, T1[src], T1[src + u1], T1[src + u2], T1[src + u3], stream)
+            src += u4
+            dst += four
+        if b == nb - 1:
+            for k in range(k0 + 4 * groups, rowlen):
+                flat[p + k] = T1[k * L + b]
 
 
 if HAVE_NUMBA:
-    inertial_columns = numba.njit(cache=True, nogil=True)(_inertial_columns)
+    _store4_streaming = _vector_store(True)
+    _store4_cached = _vector_store(False)
+    _store4 = numba.njit(cache=True, nogil=True, inline="always")(_store4_py)
+    _row_entry = numba.njit(cache=True, nogil=True, inline="always")(_row_entry_py)
+    _copy_out_nb = numba.njit(cache=True, nogil=True)(_copy_out)
+
+    @_intrinsic
+    def _store_fence(typingctx):
+        """Order the non-temporal stores before every later memory access (they are
+        weakly ordered: another thread could otherwise read stale output)."""
+        def codegen(context, builder, signature, args):
+            builder.fence("seq_cst")
+            return context.get_dummy_value()
+
+        return _types.void(), codegen
+
+
+def _regressor_rows(Rp, pp, sigma, gravity, q, qd, qdd, ia_terms, ia_coef, fr_terms, fr_coef,
+                    wm, out, stream):
+    """Write every column of IDM_st, for every sample, into `out` (N, n, Ns).
+
+    Parameters
+    ----------
+    Rp, pp, sigma : ndarray
+        Joint placements (n, 3, 3), (n, 3) and types (n,), as `regressor._robot_arrays`.
+    gravity : ndarray (3,)
+    q, qd, qdd : ndarray (N, n)
+    ia_terms, ia_coef, fr_terms, fr_coef, wm : ndarray
+        The coupling terms of `regressor._coupling_columns`, as tables
+        (`regressor._coupling_terms`): `ia_terms[t] = (row, column, joint)` adds
+        `ia_coef[t] * qdd[:, joint]`; `fr_terms[t] = (row, column, m)` adds `fr_coef[t]`
+        times the coupled velocity `wm[m]` (wm: (couplings with friction, N)) to
+        `column` and times its sign to `column + 1`. In table order, onto zeros or the
+        diagonal Ia entry, as the NumPy code adds them.
+    out : ndarray (N, n, Ns)
+        Every entry is written. Link j's inertial columns are 14*j ... 14*j+9, its Ia,
+        Fv, Fc, Off the next four (on row j only, as in `regressor._actuator_columns`),
+        the coupling columns last.
+    stream : bool
+        Write `out` with non-temporal stores (see `STREAM_BYTES`).
+
+    Notes
+    -----
+    A block's rows are built in the scratch `T` and copied out whole (`_copy_out`),
+    so each entry of `out` is written once, in memory order. The entries that are the
+    same for every sample (zero for links j < i, for a prismatic joint's inertia-tensor
+    columns and for the other joints' actuator columns; one for Off) are set in `T`
+    once, not per sample.
+    """
+    N, n = q.shape
+    width = out.shape[2]
+    L = LANES
+    cq = np.empty((n, L))
+    sq = np.empty((n, L))
+    qb = np.empty((n, L))
+    R = np.empty((n, 3, 3, L))    # frame j in frame j-1, per lane
+    P = np.empty((n, 3, L))       # origin j in frame j-1
+    # the entries that do not depend on q: a revolute joint's z column and origin, a
+    # prismatic joint's rotation
+    for j in range(n):
+        for a in range(3):
+            for b in range(L):
+                if sigma[j] == 0:
+                    R[j, a, 2, b] = Rp[j, a, 2]
+                    P[j, a, b] = pp[j, a]
+                else:
+                    for c in range(3):
+                        R[j, a, c, b] = Rp[j, a, c]
+    Rw = np.empty((n, 3, 3, L))   # frame j in base
+    Ow = np.empty((n, 3, L))      # origin j in base
+    qdb = np.empty((n, L))
+    qddb = np.empty((n, L))
+    K = np.empty((9, L))          # w, dw, dv of the current link
+    # a link's wrench columns; the entries that are always zero (f of the inertia-tensor
+    # columns, m[0, 6], m[1, 7], m[2, 8], m of the mass column) are never written
+    M = np.zeros((3, 10, L))
+    F = np.zeros((3, 10, L))
+    T = np.zeros((n, width, L))
+    for i in range(n):
+        for b in range(L):
+            T[i, 14 * i + 13, b] = 1.0
+    T1 = T.reshape(-1)
+    flat = out.reshape(-1)
+    for s0 in range(0, N, L):
+        nb = min(L, N - s0)
+        # --- the block's inputs, sample index last, and its joint transforms as
+        # `joint_transforms` computes them (sin and cos are library calls, one sample at a
+        # time; the compiler makes one sincos call of each pair)
+        for b in range(nb):
+            for j in range(n):
+                x = q[s0 + b, j]
+                qb[j, b] = x
+                if sigma[j] == 0:
+                    cq[j, b] = np.cos(x)
+                    sq[j, b] = np.sin(x)
+                qdb[j, b] = qd[s0 + b, j]
+                qddb[j, b] = qdd[s0 + b, j]
+        for j in range(n):
+            if sigma[j] == 0:
+                for a in range(3):
+                    r0 = Rp[j, a, 0]; r1 = Rp[j, a, 1]
+                    for b in range(nb):
+                        R[j, a, 0, b] = r0 * cq[j, b] + r1 * sq[j, b]
+                        R[j, a, 1, b] = -r0 * sq[j, b] + r1 * cq[j, b]
+            else:
+                for a in range(3):
+                    p0 = pp[j, a]; r2 = Rp[j, a, 2]
+                    for b in range(nb):
+                        P[j, a, b] = p0 + qb[j, b] * r2
+        # --- actuator and coupling columns; the coupling terms add onto zeros, or onto
+        # the diagonal Ia entries set in between
+        for t in range(ia_terms.shape[0]):
+            r = ia_terms[t, 0]; c = ia_terms[t, 1]
+            for b in range(nb):
+                T[r, c, b] = 0.0
+        for t in range(fr_terms.shape[0]):
+            r = fr_terms[t, 0]; c = fr_terms[t, 1]
+            for b in range(nb):
+                T[r, c, b] = 0.0
+                T[r, c + 1, b] = 0.0
+        for i in range(n):
+            c = 14 * i
+            for b in range(nb):
+                T[i, c + 10, b] = qddb[i, b]
+                T[i, c + 11, b] = qdb[i, b]
+                T[i, c + 12, b] = _sign(qdb[i, b])
+        for t in range(ia_terms.shape[0]):
+            r = ia_terms[t, 0]; c = ia_terms[t, 1]; jt = ia_terms[t, 2]; k = ia_coef[t]
+            for b in range(nb):
+                T[r, c, b] += k * qddb[jt, b]
+        for t in range(fr_terms.shape[0]):
+            r = fr_terms[t, 0]; c = fr_terms[t, 1]; m = fr_terms[t, 2]; k = fr_coef[t]
+            for b in range(nb):
+                x = wm[m, s0 + b]
+                T[r, c, b] += k * x
+                T[r, c + 1, b] += k * _sign(x)
+        # --- frames in the base
+        for b in range(nb):
+            for a in range(3):
+                Ow[0, a, b] = P[0, a, b]
+                for c in range(3):
+                    Rw[0, a, c, b] = R[0, a, c, b]
+        for j in range(1, n):
+            for b in range(nb):
+                for a in range(3):
+                    acc = Ow[j - 1, a, b]
+                    acc += Rw[j - 1, a, 0, b] * P[j, 0, b]
+                    acc += Rw[j - 1, a, 1, b] * P[j, 1, b]
+                    acc += Rw[j - 1, a, 2, b] * P[j, 2, b]
+                    Ow[j, a, b] = acc
+                    for c in range(3):
+                        acc = 0.0
+                        acc += Rw[j - 1, a, 0, b] * R[j, 0, c, b]
+                        acc += Rw[j - 1, a, 1, b] * R[j, 1, c, b]
+                        acc += Rw[j - 1, a, 2, b] * R[j, 2, c, b]
+                        Rw[j, a, c, b] = acc
+        # --- Newton-Euler forward recursion, in link frames
+        for b in range(nb):
+            K[0, b] = 0.0; K[1, b] = 0.0; K[2, b] = 0.0          # angular velocity
+            K[3, b] = 0.0; K[4, b] = 0.0; K[5, b] = 0.0          # angular acceleration
+            K[6, b] = -gravity[0]; K[7, b] = -gravity[1]; K[8, b] = -gravity[2]
+        for j in range(n):
+            sj = sigma[j]
+            for b in range(nb):
+                wx, wy, wz, ax, ay, az, vx, vy, vz = propagate_link(
+                    R[:, :, :, b], P[:, :, b], j, sj, qdb[j, b], qddb[j, b],
+                    K[0, b], K[1, b], K[2, b], K[3, b], K[4, b], K[5, b], K[6, b], K[7, b], K[8, b])
+                K[0, b] = wx; K[1, b] = wy; K[2, b] = wz
+                K[3, b] = ax; K[4, b] = ay; K[5, b] = az
+                K[6, b] = vx; K[7, b] = vy; K[8, b] = vz
+                # --- wrench columns of link j (about its origin, frame j)
+                # XX: D w = (wx,0,0)
+                M[0, 0, b] = ax;  M[1, 0, b] = wz * wx;  M[2, 0, b] = -wy * wx
+                # XY: D w = (wy, wx, 0)
+                M[0, 1, b] = ay - wz * wx
+                M[1, 1, b] = ax + wz * wy
+                M[2, 1, b] = wx * wx - wy * wy
+                # XZ: D w = (wz, 0, wx)
+                M[0, 2, b] = az + wy * wx
+                M[1, 2, b] = wz * wz - wx * wx
+                M[2, 2, b] = ax - wy * wz
+                # YY: D w = (0, wy, 0)
+                M[0, 3, b] = -wz * wy;  M[1, 3, b] = ay;  M[2, 3, b] = wx * wy
+                # YZ: D w = (0, wz, wy)
+                M[0, 4, b] = wy * wy - wz * wz
+                M[1, 4, b] = az - wx * wy
+                M[2, 4, b] = ay + wx * wz
+                # ZZ: D w = (0, 0, wz)
+                M[0, 5, b] = wy * wz;  M[1, 5, b] = -wx * wz;  M[2, 5, b] = az
+                # MX, MY, MZ: f = dw x e + w x (w x e), n = e x dv
+                F[0, 6, b] = -(wy * wy + wz * wz); F[1, 6, b] = az + wx * wy
+                F[2, 6, b] = -ay + wx * wz
+                F[0, 7, b] = -az + wx * wy; F[1, 7, b] = -(wx * wx + wz * wz)
+                F[2, 7, b] = ax + wy * wz
+                F[0, 8, b] = ay + wx * wz; F[1, 8, b] = -ax + wy * wz
+                F[2, 8, b] = -(wx * wx + wy * wy)
+                M[1, 6, b] = -vz; M[2, 6, b] = vy
+                M[0, 7, b] = vz;  M[2, 7, b] = -vx
+                M[0, 8, b] = -vy; M[1, 8, b] = vx
+                F[0, 9, b] = vx; F[1, 9, b] = vy; F[2, 9, b] = vz
+            # --- project on the axes of joints i <= j
+            c0 = 14 * j
+            for i in range(j + 1):
+                if sigma[i] == 0:
+                    for b in range(nb):
+                        zx = Rw[i, 0, 2, b]; zy = Rw[i, 1, 2, b]; zz = Rw[i, 2, 2, b]
+                        ux = Rw[j, 0, 0, b] * zx + Rw[j, 1, 0, b] * zy + Rw[j, 2, 0, b] * zz
+                        uy = Rw[j, 0, 1, b] * zx + Rw[j, 1, 1, b] * zy + Rw[j, 2, 1, b] * zz
+                        uz = Rw[j, 0, 2, b] * zx + Rw[j, 1, 2, b] * zy + Rw[j, 2, 2, b] * zz
+                        rx = Ow[j, 0, b] - Ow[i, 0, b]
+                        ry = Ow[j, 1, b] - Ow[i, 1, b]
+                        rz = Ow[j, 2, b] - Ow[i, 2, b]
+                        bx = zy * rz - zz * ry
+                        by = zz * rx - zx * rz
+                        bz = zx * ry - zy * rx
+                        gx = Rw[j, 0, 0, b] * bx + Rw[j, 1, 0, b] * by + Rw[j, 2, 0, b] * bz
+                        gy = Rw[j, 0, 1, b] * bx + Rw[j, 1, 1, b] * by + Rw[j, 2, 1, b] * bz
+                        gz = Rw[j, 0, 2, b] * bx + Rw[j, 1, 2, b] * by + Rw[j, 2, 2, b] * bz
+                        for k in range(6):
+                            T[i, c0 + k, b] = ux * M[0, k, b] + uy * M[1, k, b] + uz * M[2, k, b]
+                        for k in range(6, 9):
+                            T[i, c0 + k, b] = (ux * M[0, k, b] + uy * M[1, k, b] + uz * M[2, k, b]
+                                               + gx * F[0, k, b] + gy * F[1, k, b] + gz * F[2, k, b])
+                        T[i, c0 + 9, b] = gx * F[0, 9, b] + gy * F[1, 9, b] + gz * F[2, 9, b]
+                else:   # a prismatic joint takes the force along its axis only
+                    for b in range(nb):
+                        zx = Rw[i, 0, 2, b]; zy = Rw[i, 1, 2, b]; zz = Rw[i, 2, 2, b]
+                        ux = Rw[j, 0, 0, b] * zx + Rw[j, 1, 0, b] * zy + Rw[j, 2, 0, b] * zz
+                        uy = Rw[j, 0, 1, b] * zx + Rw[j, 1, 1, b] * zy + Rw[j, 2, 1, b] * zz
+                        uz = Rw[j, 0, 2, b] * zx + Rw[j, 1, 2, b] * zy + Rw[j, 2, 2, b] * zz
+                        for k in range(6, 10):
+                            T[i, c0 + k, b] = ux * F[0, k, b] + uy * F[1, k, b] + uz * F[2, k, b]
+        # two call sites keep the copy a function of its own: inlined here, it made the
+        # whole kernel slower
+        if stream:
+            _copy_out_nb(T1, n * width, flat, s0 * n * width, nb, True)
+        else:
+            _copy_out_nb(T1, n * width, flat, s0 * n * width, nb, False)
+    if stream:
+        _store_fence()
+
+
+if HAVE_NUMBA:
+    regressor_rows = numba.njit(cache=True, nogil=True)(_regressor_rows)
 else:  # pragma: no cover
-    inertial_columns = None
+    regressor_rows = None

@@ -89,14 +89,60 @@ def _fill_chunk(robot, q, qd, qdd, out, gravity=None, backend="numba"):
     if backend == "numba" and _kernels.HAVE_NUMBA:
         g = robot.gravity if gravity is None else np.asarray(gravity, dtype=float)
         Rp, pp, sigma = _robot_arrays(robot)
-        _kernels.inertial_columns(Rp, pp, sigma, np.asarray(g, dtype=float),
-                                  np.ascontiguousarray(q), np.ascontiguousarray(qd),
-                                  np.ascontiguousarray(qdd), out, True)
-        _coupling_columns(robot, qd, qdd, out)
+        ia_terms, ia_coef, fr_terms, fr_coef, fr_joints = _coupling_terms(robot)
+        # the coupled velocities by the same matrix product as `_coupling_columns`: BLAS
+        # rounds it its own way (fused multiply-adds), which the kernel cannot repeat
+        wm = np.empty((len(fr_joints), q.shape[0]))
+        for m, (idx, coef) in enumerate(fr_joints):
+            wm[m] = qd[:, idx] @ coef
+        _kernels.regressor_rows(Rp, pp, sigma, np.asarray(g, dtype=float),
+                                np.ascontiguousarray(q), np.ascontiguousarray(qd),
+                                np.ascontiguousarray(qdd), ia_terms, ia_coef, fr_terms, fr_coef,
+                                wm, out, out.nbytes >= _kernels.STREAM_BYTES)
     else:
         _inertial_columns_numpy(robot, q, qd, qdd, out, gravity)
         _actuator_columns(robot, qd, qdd, out)
     return out
+
+
+def _coupling_terms(robot):
+    """The terms of `_coupling_columns`, in its order, as tables for the compiled kernel.
+
+    Returns
+    -------
+    ia_terms : ndarray (K, 3) of int
+        `(row, column, joint)`: `ia_coef[t] * qdd[:, joint]` is added to `out[:, row, column]`.
+    ia_coef : ndarray (K,)
+    fr_terms : ndarray (L, 3) of int
+        `(row, column, m)`: `fr_coef[t]` times the coupled velocity `wm_m` is added to
+        `out[:, row, column]`, and times `sign(wm_m)` to column + 1.
+    fr_coef : ndarray (L,)
+    fr_joints : list of (ndarray, ndarray)
+        Per coupling with friction, its joints (0-based) and coefficients:
+        `wm_m = qd[:, joints] @ coefficients`.
+    """
+    n = robot.n_joints
+    col = N_PER_JOINT * n
+    ia_terms, ia_coef, fr_terms, fr_coef, fr_joints = [], [], [], [], []
+    for c in robot.couplings:
+        idx = np.asarray(c.joints) - 1
+        coef = np.asarray(c.coefficients, dtype=float)
+        cm = coef[list(c.joints).index(c.motor)] if c.motor in c.joints else 1.0
+        ia_col = N_PER_JOINT * (c.motor - 1) + 10
+        for a, ka in zip(idx, coef):
+            for b, kb in zip(idx, coef):
+                if a != b:
+                    ia_terms.append((a, ia_col, b))
+                    ia_coef.append(ka * kb / cm ** 2)
+        if c.friction:
+            for a, ka in zip(idx, coef):
+                fr_terms.append((a, col, len(fr_joints)))
+                fr_coef.append(ka)
+            fr_joints.append((idx, coef))
+            col += 2
+    return (np.array(ia_terms, dtype=np.int64).reshape(-1, 3), np.array(ia_coef, dtype=float),
+            np.array(fr_terms, dtype=np.int64).reshape(-1, 3), np.array(fr_coef, dtype=float),
+            fr_joints)
 
 
 def _inertial_columns_numpy(robot, q, qd, qdd, out, gravity=None):
