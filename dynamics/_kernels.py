@@ -16,6 +16,8 @@ comes first is the compiler's choice, scalar or vector.
 """
 from __future__ import annotations
 
+import platform
+
 import numpy as np
 
 try:
@@ -24,6 +26,7 @@ try:
     from numba.core import types as _types
     from numba.extending import intrinsic as _intrinsic
 
+    _X86 = platform.machine().lower() in ("x86_64", "amd64", "i386", "i686", "x86")
     from dynid.numba_cache import install as _cache_outside_the_package
     _cache_outside_the_package()   # before the first njit(cache=True): dynid.numba_cache
     HAVE_NUMBA = True
@@ -150,8 +153,9 @@ def _vector_store(nontemporal):
 
 
 def _row_entry_py(T1, b, p, rowlen, x):
-    """The regressor entry at flat index x: in row b (which starts at flat index p), or in
-    row b - 1 when x < p. Entry k of row b is T1[k * LANES + b]."""
+    """The regressor entry at flat index x: of the block's sample b (whose n x Ns entries
+    start at flat index p), or of sample b - 1 when x < p. Entry k of sample b is
+    T1[k * LANES + b]."""
     return T1[(x - p + rowlen) * LANES + b - 1] if x < p else T1[(x - p) * LANES + b]
 
 
@@ -164,12 +168,13 @@ def _store4_py(flat, index, v0, v1, v2, v3, stream):
         _store4_cached(flat, index, v0, v1, v2, v3)
 
 
-def _copy_out(T1, rowlen, flat, start, nb, stream):
-    """Write a block's `nb` rows into `flat` (the regressor, flattened) from `start` on;
-    entry k of row b is T1[k * LANES + b].
+def _copy_out_py(T1, rowlen, flat, start, nb, stream):
+    """Write a block's `nb` samples into `flat` (the regressor, flattened) from `start` on,
+    each sample's `rowlen` = n x Ns entries (its n rows of IDM_st) in a row of `T1`: entry k
+    of sample b is T1[k * LANES + b].
 
     The entries go out in 32-byte aligned groups of four, one vector store each
-    (non-temporal with `stream`); a group that spans two rows takes the end of one and
+    (non-temporal with `stream`); a group that spans two samples takes the end of one and
     the start of the next, and the entries at either end of the block that are in no
     whole group are stored one by one. The indices of the main loop are unsigned: numba
     checks every signed index for a negative value, which cost more than the copy itself.
@@ -213,14 +218,21 @@ if HAVE_NUMBA:
     _store4_cached = _vector_store(False)
     _store4 = numba.njit(cache=True, nogil=True, inline="always")(_store4_py)
     _row_entry = numba.njit(cache=True, nogil=True, inline="always")(_row_entry_py)
-    _copy_out_nb = numba.njit(cache=True, nogil=True)(_copy_out)
+    _copy_out = numba.njit(cache=True, nogil=True)(_copy_out_py)
 
     @_intrinsic
     def _store_fence(typingctx):
-        """Order the non-temporal stores before every later memory access (they are
-        weakly ordered: another thread could otherwise read stale output)."""
+        """Order the non-temporal stores before every later store (they are weakly ordered:
+        another thread told the output is ready could otherwise read stale values). On x86
+        the documented barrier is SFENCE; LLVM lowers its own `fence` there to a locked
+        instruction, whose effect on non-temporal stores is not documented."""
         def codegen(context, builder, signature, args):
-            builder.fence("seq_cst")
+            if _X86:
+                sfence = builder.module.declare_intrinsic("llvm.x86.sse.sfence", (),
+                                                          _ir.FunctionType(_ir.VoidType(), ()))
+                builder.call(sfence, ())
+            else:
+                builder.fence("seq_cst")
             return context.get_dummy_value()
 
         return _types.void(), codegen
@@ -252,7 +264,7 @@ def _regressor_rows(Rp, pp, sigma, gravity, q, qd, qdd, ia_terms, ia_coef, fr_te
 
     Notes
     -----
-    A block's rows are built in the scratch `T` and copied out whole (`_copy_out`),
+    A block's samples are built in the scratch `T` and copied out whole (`_copy_out`),
     so each entry of `out` is written once, in memory order. The entries that are the
     same for every sample (zero for links j < i, for a prismatic joint's inertia-tensor
     columns and for the other joints' actuator columns; one for Off) are set in `T`
@@ -441,12 +453,14 @@ def _regressor_rows(Rp, pp, sigma, gravity, q, qd, qdd, ia_terms, ia_coef, fr_te
                         uz = Rw[j, 0, 2, b] * zx + Rw[j, 1, 2, b] * zy + Rw[j, 2, 2, b] * zz
                         for k in range(6, 10):
                             T[i, c0 + k, b] = ux * F[0, k, b] + uy * F[1, k, b] + uz * F[2, k, b]
-        # two call sites keep the copy a function of its own: inlined here, it made the
-        # whole kernel slower
+        # `stream` passed as a constant: the copy is compiled once per value, and only
+        # there does every store keep its non-temporal mark (with a run-time flag LLVM
+        # merges the two stores of the group spanning two samples and drops it); the copy
+        # stays a function of its own, since inlined here it made the whole kernel slower
         if stream:
-            _copy_out_nb(T1, n * width, flat, s0 * n * width, nb, True)
+            _copy_out(T1, n * width, flat, s0 * n * width, nb, True)
         else:
-            _copy_out_nb(T1, n * width, flat, s0 * n * width, nb, False)
+            _copy_out(T1, n * width, flat, s0 * n * width, nb, False)
     if stream:
         _store_fence()
 

@@ -20,6 +20,8 @@ import threading
 
 import numpy as np
 
+from dynid.errors import InputError
+
 from . import _kernels
 
 # the one implementation of each, importable from here too (e.g. benchmarks/idim.py)
@@ -125,6 +127,13 @@ def _coupling_terms(robot):
     col = N_PER_JOINT * n
     ia_terms, ia_coef, fr_terms, fr_coef, fr_joints = [], [], [], [], []
     for c in robot.couplings:
+        # the kernel indexes with these unchecked: a robot built in Python is not validated
+        # as a robot file is (robot_file._coupling)
+        if not (1 <= c.motor <= n and all(1 <= j <= n for j in c.joints)
+                and len(c.joints) == len(c.coefficients)):
+            raise InputError(f"robot '{robot.name}': coupling of motor {c.motor} with joints {tuple(c.joints)} "
+                             f"and {len(c.coefficients)} coefficient(s): the motor and every joint must be "
+                             f"a joint number 1..{n}, with one coefficient per joint")
         idx = np.asarray(c.joints) - 1
         coef = np.asarray(c.coefficients, dtype=float)
         cm = coef[list(c.joints).index(c.motor)] if c.motor in c.joints else 1.0

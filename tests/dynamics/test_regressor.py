@@ -170,6 +170,20 @@ def test_random_serial_robot_matches_pinocchio(seed, backend):
     assert rel_err(tau, ref) <= TOL
 
 
+@pytest.mark.parametrize("coupling", [dict(motor=3, joints=(1, 2)), dict(motor=2, joints=(1, 2, 3))])
+def test_a_coupling_outside_the_robot_is_refused(coupling):
+    """The compiled kernel indexes with the coupling's joints unchecked: a hand-built robot's
+    coupling past its joints wrote another column's entries (or past the scratch) silently."""
+    from dynid.dynamics.robot import Coupling
+    from dynid.errors import InputError
+    robot = load_robot("planar2")
+    k = len(coupling["joints"])
+    robot.couplings = [Coupling(coefficients=(1.0,) * k, friction=False, **coupling)]
+    q = np.zeros((5, 2))
+    with pytest.raises(InputError, match=r"coupling of motor .* joint number 1\.\.2"):
+        regressor(robot, q, q, q)
+
+
 def test_backends_agree(tx40):
     rng = np.random.default_rng(4)
     q, qd, qdd = samples(6, 200, rng)
