@@ -108,7 +108,8 @@ def _fill_chunk(robot, q, qd, qdd, out, gravity=None, backend="numba"):
 
 
 def _coupling_terms(robot):
-    """The terms of `_coupling_columns`, in its order, as tables for the compiled kernel.
+    """The coupling terms (section 4 of the DIDIM paper, eq. (33)) as tables, in the order
+    both backends add them.
 
     Returns
     -------
@@ -191,24 +192,15 @@ def _actuator_columns(robot, qd, qdd, out):
 
 
 def _coupling_columns(robot, qd, qdd, out):
-    """Coupling terms (section 4 of the DIDIM paper, eq. (33)), added to zeroed columns."""
-    n = qd.shape[1]
-    col = N_PER_JOINT * n
-    for c in robot.couplings:
-        idx = np.asarray(c.joints) - 1
-        coef = np.asarray(c.coefficients, dtype=float)
-        cm = coef[list(c.joints).index(c.motor)] if c.motor in c.joints else 1.0
-        ia_col = N_PER_JOINT * (c.motor - 1) + 10
-        for a, ka in zip(idx, coef):
-            for b, kb in zip(idx, coef):
-                if a != b:
-                    out[:, a, ia_col] += ka * kb / cm ** 2 * qdd[:, b]
-        if c.friction:
-            wm = qd[:, idx] @ coef
-            for a, ka in zip(idx, coef):
-                out[:, a, col] += ka * wm
-                out[:, a, col + 1] += ka * np.sign(wm)
-            col += 2
+    """Coupling terms (section 4 of the DIDIM paper, eq. (33)), added to zeroed columns
+    (the NumPy backend; the compiled kernel applies the same tables, `_coupling_terms`)."""
+    ia_terms, ia_coef, fr_terms, fr_coef, fr_joints = _coupling_terms(robot)
+    for (r, c, j), k in zip(ia_terms, ia_coef):
+        out[:, r, c] += k * qdd[:, j]
+    wm = [qd[:, idx] @ coef for idx, coef in fr_joints]
+    for (r, c, m), k in zip(fr_terms, fr_coef):
+        out[:, r, c] += k * wm[m]
+        out[:, r, c + 1] += k * np.sign(wm[m])
 
 
 def regressor(robot, q, qd, qdd, *, columns=None, chunk=DEFAULT_CHUNK, gravity=None,
