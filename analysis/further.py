@@ -196,11 +196,13 @@ class DiagnosisRun:
         return self.summary()
 
 
-def several_recordings(n: int) -> InputError:
-    """The error of a diagnosis given `n` > 1 recordings (the rest would be dropped without a word)."""
-    return InputError(f"diagnose: one recording at a time, {n} were given (its drift and time-delay effects are "
-                      "defined per recording); diagnose each, or pass the second as the validation recording "
-                      "(--validation, validation=)")
+def check_one_recording(data) -> None:
+    """Refuse several recordings given to a diagnosis, before they are loaded (the rest would be
+    dropped without a word)."""
+    if isinstance(data, (list, tuple)) and len(data) > 1:
+        raise InputError(f"diagnose: one recording at a time, {len(data)} were given (its drift and time-delay "
+                         "effects are defined per recording); diagnose each, or pass the second as the "
+                         "validation recording (--validation, validation=)")
 
 
 def diagnosis_run(data, robot, settings=None, *, say=None, **options) -> DiagnosisRun:
@@ -217,8 +219,7 @@ def _diagnosis_run(data, robot, settings=None, *, say=None, **options) -> Diagno
     candidates = diagnosis_candidates(s)          # bad names fail before the long work
     robot = as_robot(robot)
     check_robot_options(s, robot)
-    if isinstance(data, (list, tuple)) and len(data) > 1:      # before they are loaded
-        raise several_recordings(len(data))
+    check_one_recording(data)
     experiments, held_out = load_data(data, robot, s, say)
     experiment = experiments[0]
     result = eobs = None

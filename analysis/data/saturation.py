@@ -100,9 +100,10 @@ def saturation_notices(tau: np.ndarray, notices: list[str], what: str) -> None:
                 "check that the joint was driven and its torque logged"
             )
             continue
-        others = np.delete(span, j)
-        if others.size and span[j] < STUCK_SPAN * others.max():
-            k = int(np.argmax(np.where(np.arange(span.size) == j, -np.inf, span)))
+        others = span.copy()
+        others[j] = -np.inf
+        k = int(np.argmax(others))              # the widest other joint (k = j: there is none)
+        if k != j and span[j] < STUCK_SPAN * span[k]:
             notices.append(
                 f"joint {j + 1}: tau{j + 1} barely varies throughout {what} (its peak-to-peak span is "
                 f"{100 * float(span[j] / span[k]):.2g} % of tau{k + 1}'s): a torque channel "

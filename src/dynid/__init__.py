@@ -208,12 +208,11 @@ def diagnose(data: str | os.PathLike[str] | Experiment,
         for it, and what of the residual is left unexplained.
     """
     from dynid.analysis.diagnosis.selection import diagnose as _diagnose
-    from dynid.analysis.further import several_recordings
+    from dynid.analysis.further import check_one_recording
     from dynid.analysis.identify import as_experiments, as_robot
     from dynid.analysis.run import check_validation_is_other_data
     robot = as_robot(robot)
-    if isinstance(data, (list, tuple)) and len(data) > 1:     # before they are loaded
-        raise several_recordings(len(data))
+    check_one_recording(data)
     experiments = as_experiments(data, robot)
     experiment = experiments[0]
     valid = as_experiments(validation, robot)[0] if validation is not None else None
