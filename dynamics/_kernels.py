@@ -238,9 +238,26 @@ if HAVE_NUMBA:
         return _types.void(), codegen
 
 
+def _copy_columns_py(T1, ns, cols, out, s0, nb):
+    """Write the columns `cols` of a block's `nb` samples into out[s0:s0 + nb] (.., n,
+    len(cols)): entry (i, c) of sample b is T1[(i * ns + c) * LANES + b]. Plain stores: the
+    selected columns are not the contiguous runs the vector stores of `_copy_out` need."""
+    L = LANES
+    n = out.shape[1]
+    for b in range(nb):
+        for i in range(n):
+            row = i * ns
+            for k in range(cols.shape[0]):
+                out[s0 + b, i, k] = T1[(row + cols[k]) * L + b]
+
+
+if HAVE_NUMBA:
+    _copy_columns = numba.njit(cache=True, nogil=True)(_copy_columns_py)
+
+
 def _regressor_rows(Rp, pp, sigma, gravity, q, qd, qdd, ia_terms, ia_coef, fr_terms, fr_coef,
-                    wm, out, stream):
-    """Write every column of IDM_st, for every sample, into `out` (N, n, Ns).
+                    wm, cols, out, stream):
+    """Write every column of IDM_st, or the columns `cols`, for every sample, into `out`.
 
     Parameters
     ----------
@@ -255,7 +272,10 @@ def _regressor_rows(Rp, pp, sigma, gravity, q, qd, qdd, ia_terms, ia_coef, fr_te
         times the coupled velocity `wm[m]` (wm: (couplings with friction, N)) to
         `column` and times its sign to `column + 1`. In table order, onto zeros or the
         diagonal Ia entry, as the NumPy code adds them.
-    out : ndarray (N, n, Ns)
+    cols : ndarray of int
+        The standard-parameter columns to write (each in 0 .. Ns - 1, unchecked), in this
+        order; empty for all of them.
+    out : ndarray (N, n, Ns), or (N, n, len(cols))
         Every entry is written. Link j's inertial columns are 14*j ... 14*j+9, its Ia,
         Fv, Fc, Off the next four (on row j only, as in `regressor._actuator_columns`),
         the coupling columns last.
@@ -271,7 +291,9 @@ def _regressor_rows(Rp, pp, sigma, gravity, q, qd, qdd, ia_terms, ia_coef, fr_te
     once, not per sample.
     """
     N, n = q.shape
-    width = out.shape[2]
+    # every column is built whatever `cols`: the columns of one link come from its shared
+    # recursion, so selecting only saves the copy of the others
+    width = 14 * n + 2 * wm.shape[0] if cols.shape[0] else out.shape[2]      # Ns
     L = LANES
     cq = np.empty((n, L))
     sq = np.empty((n, L))
@@ -457,11 +479,13 @@ def _regressor_rows(Rp, pp, sigma, gravity, q, qd, qdd, ia_terms, ia_coef, fr_te
         # there does every store keep its non-temporal mark (with a run-time flag LLVM
         # merges the two stores of the group spanning two samples and drops it); the copy
         # stays a function of its own, since inlined here it made the whole kernel slower
-        if stream:
+        if cols.shape[0]:
+            _copy_columns(T1, width, cols, out, s0, nb)
+        elif stream:
             _copy_out(T1, n * width, flat, s0 * n * width, nb, True)
         else:
             _copy_out(T1, n * width, flat, s0 * n * width, nb, False)
-    if stream:
+    if stream and not cols.shape[0]:
         _store_fence()
 
 

@@ -75,6 +75,10 @@ def _link_wrench_columns(w, dw, dv):
     return f, m
 
 
+#: `cols` of the compiled kernel that mean every column
+_ALL = np.empty(0, dtype=np.int64)
+
+
 def _robot_arrays(robot):
     """Placements as contiguous arrays for the compiled kernel."""
     Rp = np.ascontiguousarray([j.R for j in robot.joints], dtype=float)
@@ -82,8 +86,9 @@ def _robot_arrays(robot):
     return Rp, pp, np.ascontiguousarray(robot.sigma, dtype=np.int64)
 
 
-def _fill_chunk(robot, q, qd, qdd, out, gravity=None, backend="numba"):
-    """Write IDM_st for one chunk of samples into `out` (N, n, Ns).
+def _fill_chunk(robot, q, qd, qdd, out, gravity=None, backend="numba", cols=_ALL):
+    """Write IDM_st for one chunk of samples into `out` (N, n, Ns), or its columns `cols`
+    (N, n, len(cols); numba backend only, indices in 0 .. Ns - 1).
 
     The numba backend writes every column itself, so `out` may hold anything;
     the NumPy backend needs `out` zeroed.
@@ -100,7 +105,7 @@ def _fill_chunk(robot, q, qd, qdd, out, gravity=None, backend="numba"):
         _kernels.regressor_rows(Rp, pp, sigma, np.asarray(g, dtype=float),
                                 np.ascontiguousarray(q), np.ascontiguousarray(qd),
                                 np.ascontiguousarray(qdd), ia_terms, ia_coef, fr_terms, fr_coef,
-                                wm, out, out.nbytes >= _kernels.STREAM_BYTES)
+                                wm, cols, out, out.nbytes >= _kernels.STREAM_BYTES)
     else:
         _inertial_columns_numpy(robot, q, qd, qdd, out, gravity)
         _actuator_columns(robot, qd, qdd, out)
@@ -248,10 +253,16 @@ def regressor(robot, q, qd, qdd, *, columns=None, chunk=DEFAULT_CHUNK, gravity=N
         if not (compiled or columns is not None):
             W[...] = 0.0
     take = _take_mode(columns, ns)
+    # the compiled kernel copies valid columns out itself; others go through np.take,
+    # which raises for an index out of range as NumPy does
+    direct = compiled and take is not None and take[1] == "clip"
+    cols = np.ascontiguousarray(take[0], dtype=np.int64) if direct else None
     for start in range(0, N, chunk):
         sl = slice(start, min(N, start + chunk))
         if columns is None:
             _fill_chunk(robot, q[sl], qd[sl], qdd[sl], W[sl], gravity, backend)
+        elif direct:
+            _fill_chunk(robot, q[sl], qd[sl], qdd[sl], W[sl], gravity, backend, cols)
         else:
             block = _scratch_block((sl.stop - sl.start, n, ns))
             if not compiled:

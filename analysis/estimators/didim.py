@@ -164,6 +164,7 @@ from dynid.analysis.estimators import least_squares as ls
 from dynid.analysis.estimators.essential import essential_parameters, with_base_covariance
 from dynid.analysis.estimators.physical import pc_wls, require_cvxpy
 from dynid.analysis.processing.decimation import ParallelDecimator
+from dynid.analysis.processing.row_masks import centred_rows, zero_dead_rows
 from dynid.analysis.processing.signals import dead_zone_thresholds, default_settings, velocity_dead_zone
 from dynid.analysis.results import ModelResults, notices_block, percent
 from dynid.dynamics.base_parameters import base_parameters, base_regressor
@@ -657,16 +658,16 @@ def _simulate_checked(robot, bp, beta, ctrl, t, qr, qdr, s, configs, J_ap, updat
 
 def _build_chunk(robot, bp, q, qd, qdd, tau, dead, lead=0):
     W = base_regressor(robot, bp, q, qd, qdd)
-    if lead:
-        # a centred torque is the mean of the commands held over the two periods around t_k:
-        # W is linear in chi, so the mean of the two rows models it exactly
-        W = 0.5 * (W[1:] + W[:-1])
-    if dead is None:
-        return W, tau, np.ones(tau.shape)
     # as dynid.analysis.processing.observation.push_chunk: zero both sides of the rows in the dead zone
-    keep = ~dead
-    W *= keep[:, :, None]
-    return W, tau * keep, keep.astype(float)
+    keep = None if dead is None else (~dead).astype(float)
+    if lead:
+        # a centred torque is the mean of the commands held over the two periods around t_k
+        W = centred_rows(W, keep)
+    elif keep is not None:
+        zero_dead_rows(W, keep)
+    if keep is None:
+        return W, tau, np.ones(tau.shape)
+    return W, tau * keep, keep
 
 
 def _decimated_system(robot, bp, q, qd, qdd, tau, dead, s, workers, progress=None, lead=0):

@@ -14,6 +14,7 @@ from typing import NamedTuple
 import numpy as np
 
 from dynid.analysis.processing.decimation import ParallelDecimator
+from dynid.analysis.processing.row_masks import zero_dead_rows
 from dynid.analysis.processing.signals import (
     AUTO_DEAD_ZONE,
     dead_zone_thresholds,
@@ -209,7 +210,7 @@ def push_chunk(dec, robot, bp, qf, qd, qdd, tau, dead, out=None):
         # decimation stays consistent while the samples where the friction
         # model is wrong drop out entirely
         keep_rows = ~dead
-        W *= keep_rows[:, :, None]        # W is this chunk's own: in place, no second copy
+        zero_dead_rows(W, keep_rows)      # W is this chunk's own: in place, no second copy
         tau = tau * keep_rows
     kept = np.ones(tau.shape) if dead is None else (~dead).astype(float)
     return dec.push(W, tau, qf, qd, qdd, kept)
