@@ -96,7 +96,7 @@ def _spectrum_figure(res, robot, key):
             a = np.maximum(amp[j, :kmax], floor)
             ax.bar(freqs[:kmax] + (j - (n - 1) / 2) * width, a, width=width, color=colors(j % 10),
                    label=F._plain(F.joint_label(j, robot.joint_names[j])), bottom=0)
-        ax.set_yscale("log")
+        F.log_scale(ax)
         ax.set_ylim(floor, float(amp.max()) * 3 if amp.size else 1)
         ax.axvline(sp["bandwidth"], color=F.GREY, ls="--", lw=0.8)
         ax.annotate(f"bandwidth N f0 = {sp['bandwidth']:g} Hz", xy=(sp["bandwidth"], 1.0),
@@ -122,7 +122,7 @@ def _cond_figure(res, key):
         ax1.bar(x - 0.2, [cs[k] for k in keys], width=0.4, color=F.GREY, label="best random start")
         ax1.bar(x + 0.2, [c[k] for k in keys], width=0.4, color=F.BLUE, label="optimised")
         ax1.set_xticks(x, labels)
-        ax1.set_yscale("log")
+        F.log_scale(ax1)
         ax1.set_ylabel("condition number")
         ax1.legend(loc="upper left", frameon=False)
         ax1.grid(axis="x", visible=False)
@@ -133,7 +133,7 @@ def _cond_figure(res, key):
                 color=[F.BLUE if r["feasible"] else F.RED for r in runs], label="after SLSQP")
         ax2.set_xticks(xr, [str(r["start"] + 1) for r in runs])
         ax2.set_xlabel("random start")
-        ax2.set_yscale("log")
+        F.log_scale(ax2)
         ax2.set_title(F._plain(res.cond_name), loc="left")
         ax2.legend(loc="upper right", frameon=False)
         ax2.grid(axis="x", visible=False)

@@ -28,7 +28,6 @@ import numpy as np
 import pandas as pd
 from markupsafe import Markup
 from matplotlib.figure import Figure
-from matplotlib.ticker import NullFormatter
 
 from dynid.analysis.units import prismatic_of
 from dynid.dynamics.robot import joint_names_of
@@ -69,8 +68,7 @@ def convergence_figure(history, tol, *, key="fig-didim-convergence", caption=Non
         ax1.plot(it, out, color=F.GREY, marker="s", ms=2.5, lw=0.8, ls="--",
                  label="output error \u2016Y \u2212 W\u2096\u03c7\u0302\u2096\u208b\u2081\u2016")
         if np.all(np.isfinite(np.concatenate([rho, out]))) and np.nanmax(out) > 20 * np.nanmin(rho):
-            ax1.set_yscale("log")
-            ax1.yaxis.set_minor_formatter(NullFormatter())
+            F.log_scale(ax1, minor_labels=False)
         ax1.set_ylabel("norm [N m]")
         ax1.legend(loc="upper right", frameon=False)
         ok = np.isfinite(rel) & (rel > 0)
@@ -78,8 +76,7 @@ def convergence_figure(history, tol, *, key="fig-didim-convergence", caption=Non
             ax2.plot(it[ok], rel[ok], color=F.RED, marker="o", ms=3, lw=1.0,
                      label="|\u2016\u03c1\u2096\u2016 \u2212 \u2016\u03c1\u2096\u208b\u2081\u2016| / "
                            "\u2016\u03c1\u2096\u208b\u2081\u2016")
-            ax2.set_yscale("log")
-            ax2.yaxis.set_minor_formatter(NullFormatter())
+            F.log_scale(ax2, minor_labels=False)
         ax2.axhline(tol, color=F.GREEN, ls="--", lw=1.0, label=f"tol_I = {tol:g}")
         ax2.set_ylabel("relative change")
         ax2.set_xlabel("Gauss-Newton step k")

@@ -36,7 +36,7 @@ from matplotlib.backends.backend_svg import FigureCanvasSVG
 from matplotlib.collections import PolyCollection
 from matplotlib.figure import Figure
 from matplotlib.layout_engine import ConstrainedLayoutEngine
-from matplotlib.ticker import LogLocator, NullFormatter
+from matplotlib.ticker import LogFormatter, LogLocator, NullFormatter
 
 from dynid.analysis.results import p_phrase, p_value_text
 from dynid.dynamics.robot import joint_label as robot_joint_label
@@ -109,6 +109,27 @@ def joint_label(j: int, name: str) -> str:
 def _plain(text) -> str:
     """User text for matplotlib: no mathtext (`$` escaped)."""
     return str(text).replace("$", r"\$")
+
+
+class PlainLogFormatter(LogFormatter):
+    """matplotlib's choice of which log-scale ticks to label (`LogFormatter`), with each label a
+    plain number: "0.01", "100", "1e+06". matplotlib's default writes 10^k in mathtext, which it
+    parses as TeX for every label of every draw, a large share of a report figure's time."""
+
+    def __call__(self, x, pos=None):
+        if not super().__call__(x, pos):
+            return ""
+        text = f"{x:g}"
+        return text.replace("-", "\u2212") if matplotlib.rcParams["axes.unicode_minus"] else text
+
+
+def log_scale(ax, *, minor_labels: bool = True) -> None:
+    """A log y axis on `ax` with plain-number labels (`PlainLogFormatter`); `minor_labels`
+    False: the minor ticks unlabelled, else labelled where matplotlib would label them (an
+    axis spanning less than a decade or two)."""
+    ax.set_yscale("log")
+    ax.yaxis.set_major_formatter(PlainLogFormatter())
+    ax.yaxis.set_minor_formatter(PlainLogFormatter(labelOnlyBase=False) if minor_labels else NullFormatter())
 
 
 def _break_at_gaps(t, *series):
@@ -432,9 +453,8 @@ def essential_path_figure(path, *, base_rel_error, base_max_rel_std=None, error_
         ax1.set_ylabel("relative error [%]")
         ax2.plot(steps, mx, color=RED, marker="o", ms=2.5, lw=1.0, label="max %\u03c3 remaining")
         if np.any(np.isfinite(mx)):
-            ax2.set_yscale("log")
+            log_scale(ax2, minor_labels=False)
             ax2.yaxis.set_minor_locator(LogLocator(subs="auto"))
-            ax2.yaxis.set_minor_formatter(NullFormatter())
         ax2.set_ylabel("max %\u03c3 remaining")
         ax2.set_xlabel("elimination step (0 = all base parameters)")
         for ax in (ax1, ax2):
@@ -476,8 +496,7 @@ def rel_std_bar_figure(names, rel_sigma, reference=None, *, key="fig-rel-std",
         if has_ref:
             ax.bar(x + width / 2, pv, width=width, color=PAPER_COLOR, label="paper %\u03c3 (Table 2)")
         if logy:
-            ax.set_yscale("log")
-            ax.yaxis.set_minor_formatter(NullFormatter())
+            log_scale(ax, minor_labels=False)
         ax.set_xticks(x, [_plain(n) for n in names], rotation=90)
         ax.set_xlim(-0.6, len(names) - 0.4)
         ax.set_ylabel("%\u03c3")
@@ -517,8 +536,7 @@ def verdict_rel_std_figure(names, rel_sigma, threshold, *, key="fig-verdict-rel-
                    label=f"not identified (%\u03c3 > {threshold:g} %)")
         ax.axhline(threshold, color=RED, ls="--", lw=1.0, label=f"threshold {threshold:g} %")
         if logy:
-            ax.set_yscale("log")
-            ax.yaxis.set_minor_formatter(NullFormatter())
+            log_scale(ax, minor_labels=False)
         ax.set_xticks(x, [_plain(n) for n in names], rotation=90)
         ax.set_xlim(-0.6, len(names) - 0.4)
         ax.set_ylabel("%\u03c3")

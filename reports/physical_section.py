@@ -14,7 +14,7 @@ import numpy as np
 import pandas as pd
 
 from dynid.reports import tables as T
-from dynid.reports.figures import BLUE, STYLE, _new_figure, render_figure
+from dynid.reports.figures import BLUE, STYLE, _new_figure, log_scale, render_figure
 from dynid.reports.html import Section, bullets, join, para
 
 
@@ -29,7 +29,7 @@ def principal_moments_figure(result, *, key="fig-physical-moments", fmt="auto"):
             vals = [max(float(m[i]), 1e-12) if np.isfinite(m[i]) else np.nan for _, m, _ in rows]
             ax.bar(x + (i - 1) * 0.27, vals, width=0.25, color=BLUE, alpha=shade,
                    label=["smallest", "middle", "largest"][i])
-        ax.set_yscale("log")
+        log_scale(ax)
         ax.set_xticks(x, [f"link {k}\n{m:.3g} kg" for k, _, m in rows])
         ax.set_ylabel("principal moment [kg m\u00b2]")
         ax.grid(axis="x", visible=False)

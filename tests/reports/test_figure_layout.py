@@ -1,6 +1,8 @@
 """GridLayoutEngine (dynid.reports.figure_layout) against matplotlib's constrained layout."""
 from __future__ import annotations
 
+import re
+
 import matplotlib
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -104,3 +106,20 @@ def test_multiline_labels_are_measured_line_by_line_without_a_glyph_warning():
         FigureCanvasAgg(fig).draw()
     for a, b in zip(ref.axes, fig.axes):
         np.testing.assert_allclose(a.get_position().bounds, b.get_position().bounds, atol=0.5 / 72 / 3.3)
+
+
+def test_log_axes_are_labelled_with_plain_numbers_without_mathtext():
+    """`log_scale`: decades labelled "0.01" ... "1000" (not 10^k in TeX, which matplotlib parses
+    at every draw); an axis spanning less than a decade still gets labels on its minor ticks."""
+    svg = str(F.rel_std_bar_figure(["a", "b", "c", "d"], [0.05, 2.0, 40.0, 1500.0], fmt="svg").markup)
+    labels = set(re.findall(r">([^<>]+)</text>", svg))
+    assert {"0.1", "1", "10", "100", "1000"} <= labels
+    assert not any("10^" in t or "mathdefault" in t for t in labels)
+    with matplotlib.rc_context(F.STYLE):
+        fig = Figure(figsize=(3, 2))
+        ax = fig.subplots()
+        ax.bar([0, 1], [0.021, 0.052])
+        F.log_scale(ax)
+        FigureCanvasAgg(fig).draw()
+        shown = [t.get_text() for t in ax.get_yticklabels(minor=True) if t.get_text()]
+    assert shown and all(float(t.replace("\u2212", "-")) > 0 for t in shown)
