@@ -123,3 +123,23 @@ def test_log_axes_are_labelled_with_plain_numbers_without_mathtext():
         FigureCanvasAgg(fig).draw()
         shown = [t.get_text() for t in ax.get_yticklabels(minor=True) if t.get_text()]
     assert shown and all(float(t.replace("\u2212", "-")) > 0 for t in shown)
+
+
+def test_render_figure_draws_the_figure_once(monkeypatch):
+    """savefig with a layout engine set draws the figure twice (the first draw, with drawing
+    disabled, only runs the engine); render_figure runs the engine itself and draws once, and
+    the figure keeps its engine."""
+    draws = []
+    draw = Figure.draw
+
+    def spy(self, renderer):
+        draws.append(type(renderer).__name__)
+        return draw(self, renderer)
+
+    monkeypatch.setattr(Figure, "draw", spy)
+    for fmt in ("svg", "png"):
+        fig = _panels(2, 3)
+        draws.clear()
+        F.render_figure(fig, "fig-grid", "grid", fmt=fmt)
+        assert len(draws) == 1, (fmt, draws)
+        assert isinstance(fig.get_layout_engine(), GridLayoutEngine)
