@@ -280,12 +280,14 @@ def _regressor_rows(Rp, pp, sigma, gravity, q, qd, qdd, ia_terms, ia_coef, fr_te
         Fv, Fc, Off the next four (on row j only, as in `regressor._actuator_columns`),
         the coupling columns last.
     stream : bool
-        Write `out` with non-temporal stores (see `STREAM_BYTES`).
+        Write `out` with non-temporal stores (see `STREAM_BYTES`); all columns only (the
+        columns `cols` are copied out with plain stores).
 
     Notes
     -----
-    A block's samples are built in the scratch `T` and copied out whole (`_copy_out`),
-    so each entry of `out` is written once, in memory order. The entries that are the
+    A block's samples are built in the scratch `T` and copied out whole (`_copy_out`), or
+    their columns `cols` (`_copy_columns`), so each entry of `out` is written once, in
+    memory order. The entries that are the
     same for every sample (zero for links j < i, for a prismatic joint's inertia-tensor
     columns and for the other joints' actuator columns; one for Off) are set in `T`
     once, not per sample.

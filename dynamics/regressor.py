@@ -272,10 +272,10 @@ def regressor(robot, q, qd, qdd, *, columns=None, chunk=DEFAULT_CHUNK, gravity=N
     return W
 
 
-#: Per thread, the last all-columns buffer of the `columns` route. A chunk of the TX40
+#: Per thread, the last all-columns buffer of the `columns` route through np.take (the NumPy
+#: backend, or columns the compiled kernel cannot copy out itself). A chunk of the TX40
 #: (10,000 samples x 6 x 86) is 41 MB, above the size malloc hands back to the system at
-#: once, so a fresh buffer per call paid its page faults again at every chunk of every
-#: caller (regressor_chunks, the observation matrix, the diagnosis).
+#: once, so a fresh buffer per call paid its page faults again at every chunk.
 _SCRATCH = threading.local()
 
 
@@ -289,10 +289,10 @@ def _scratch_block(shape):
 
 
 def _take_mode(columns, ns):
-    """(indices, mode) for np.take of the kept columns: non-negative in-range indices with
-    mode "clip" when they all are, which writes straight into `out` (mode "raise" with `out`
-    goes through a buffer, 3x slower); else the columns as given with "raise", and NumPy
-    raises for an index out of range as before."""
+    """(indices, mode) of the kept columns: non-negative in-range indices with mode "clip"
+    when they all are (the compiled kernel copies them out itself; np.take with "clip" writes
+    straight into `out`, where "raise" goes through a buffer, 3x slower); else the columns as
+    given with "raise", and np.take raises for an index out of range as before."""
     if columns is None:
         return None
     cols = np.asarray(columns)

@@ -61,6 +61,8 @@ PAPER_COLOR = "#e0a030"
 
 STYLE = {
     "svg.hashsalt": "dynid-report",
+    "figure.autolayout": False,        # the report's figures choose their layout engine
+    "figure.constrained_layout.use": False,
     "svg.fonttype": "none",            # text as <text>: small files, selectable labels
     "font.family": "DejaVu Sans",
     "font.size": 8.0,
@@ -244,7 +246,9 @@ def _laid_out_for_saving(fig, dpi):
     With a layout engine set, `savefig` draws the whole figure twice: once with drawing
     disabled, only so that the engine runs at the start of the draw, and once for real.
     The first draw still computes every tick, text and title position, a third of a report
-    figure's cost; the engine alone is what the layout needs. The files are the same.
+    figure's cost; the engine alone is what the layout needs. The files are the same
+    (`STYLE` keeps a user's `figure.autolayout` or `figure.constrained_layout.use` from
+    putting an engine back when this one is taken off).
     """
     engine = fig.get_layout_engine()
     if engine is None:
@@ -253,7 +257,11 @@ def _laid_out_for_saving(fig, dpi):
     saved = fig.dpi
     try:
         fig.dpi = dpi
-        engine.execute(fig)
+        if fig.axes:                  # as Figure.draw runs the engine
+            try:
+                engine.execute(fig)
+            except ValueError:        # ignored by Figure.draw too
+                pass
     finally:
         fig.dpi = saved
     fig.set_layout_engine(None)

@@ -143,3 +143,15 @@ def test_render_figure_draws_the_figure_once(monkeypatch):
         F.render_figure(fig, "fig-grid", "grid", fmt=fmt)
         assert len(draws) == 1, (fmt, draws)
         assert isinstance(fig.get_layout_engine(), GridLayoutEngine)
+
+
+def test_a_users_automatic_layout_setting_does_not_change_the_figure():
+    """With the engine taken off for saving, a user's figure.autolayout or
+    figure.constrained_layout.use must not put another one on (STYLE turns both off)."""
+    def svg():
+        return str(F.rel_std_bar_figure(["a", "b", "c"], [0.5, 3.0, 80.0], fmt="svg").markup)
+
+    plain = svg()
+    for setting in ({"figure.autolayout": True}, {"figure.constrained_layout.use": True}):
+        with matplotlib.rc_context(setting):
+            assert svg() == plain, setting
