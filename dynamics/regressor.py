@@ -255,13 +255,11 @@ def regressor(robot, q, qd, qdd, *, columns=None, chunk=DEFAULT_CHUNK, gravity=N
     take = _take_mode(columns, ns)
     # the compiled kernel copies valid columns out itself; others go through np.take,
     # which raises for an index out of range as NumPy does
-    direct = compiled and take is not None and take[1] == "clip"
-    cols = np.ascontiguousarray(take[0], dtype=np.int64) if direct else None
+    direct = columns is None or (compiled and take[1] == "clip")
+    cols = _ALL if columns is None or not direct else np.ascontiguousarray(take[0], dtype=np.int64)
     for start in range(0, N, chunk):
         sl = slice(start, min(N, start + chunk))
-        if columns is None:
-            _fill_chunk(robot, q[sl], qd[sl], qdd[sl], W[sl], gravity, backend)
-        elif direct:
+        if direct:
             _fill_chunk(robot, q[sl], qd[sl], qdd[sl], W[sl], gravity, backend, cols)
         else:
             block = _scratch_block((sl.stop - sl.start, n, ns))
